@@ -1,0 +1,1 @@
+"""Whole-system tools: scenario runner, recorder, replay, report, launch file."""

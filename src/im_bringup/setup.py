@@ -1,0 +1,32 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'im_bringup'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.py')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='IM drive stack maintainers',
+    maintainer_email='drive-stack@example.org',
+    description='Whole-system tools: scenario runner, recorder, replay, report, launch file.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'scenario = im_bringup.scenario:main',
+            'record = im_bringup.record_node:main',
+            'replay = im_bringup.replay:main',
+            'report = im_bringup.report:main',
+            'recover = im_bringup.recover:main'
+        ],
+    },
+)

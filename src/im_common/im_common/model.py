@@ -1,0 +1,170 @@
+"""The induction-motor model: the one home of the plant's equations.
+
+Stationary αβ frame, power-invariant transformation (seed 000 eq. 1.111-1.112 / 1.126-1.127).
+The state is integrated in flux-linkage form so that time-varying inductances keep the energy
+books consistent:
+
+    x = [ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r]
+
+    [ψ_s]   [L_s  L_sr] [i_s]          dψ_s/dt = V_s − R_s i_s
+    [φ_r] = [L_sr L_r ] [i_r]          dφ_r/dt = −R_r i_r + v ω_r 𝒥₂ φ_r,   𝒥₂ = [[0, −1], [1, 0]]
+
+    τ_m = v (L_sr/L_r)(i_sβ φ_rα − i_sα φ_rβ)          (eq. 1.127)
+    J dω_r/dt = τ_m − b ω_r − τ_L(t, θ_r, ω_r),   dθ_r/dt = ω_r    (eq. 1.111)
+
+With constant inductances, substituting i_r = (φ_r − L_sr i_s)/L_r gives exactly eq. 1.112
+(γ, K, T_r of eq. 1.113); ``tests/test_model.py`` checks that equivalence numerically.
+
+Power balance (exact, including time-varying inductances; W = ½ iᵀ L i the magnetic energy):
+
+    V·i_s = R_s|i_s|² + R_r|i_r|² + τ_m ω_r + dW/dt + ½ iᵀ (dL/dt) i
+
+The last term, P_param, is the power the parameter variation itself absorbs; it is zero for a
+motor with constant inductances. The mechanical side: τ_m ω_r = b ω_r² + τ_L ω_r + d(½Jω_r²)/dt.
+
+Core loss (eq. 3.34-3.38) is an *accounting model*: it does not act on the state (the thesis's
+model has no core-loss branch), it is integrated beside it and reported with the losses, and it is
+not part of the balance above. The thesis prints P_c = (k_h + k_e f_e) f_e φ^m with coefficients in
+W·s/Wb²; the units call for φ^m squared, which is the default (``core_loss_exponent = 2``).
+f_e is the electrical frequency of the air-gap flux, here taken from the actual rotation rate of
+the rotor flux vector (the thesis uses v(ω_r + ω_sl) from the controller's slip, which is the same
+quantity in steady state), and φ^m ≈ (L_sr/L_r)|φ_r| (eq. 3.38).
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence, Tuple
+
+from .loads import Load, NoLoad
+from .params import MotorParams, ParameterSchedule, THESIS_MOTOR
+
+TWO_PI = 2.0 * math.pi
+
+# Indices of the augmented state integrated by the plant.
+PSI_SA, PSI_SB, PHI_RA, PHI_RB, THETA, OMEGA = range(6)
+E_IN, E_CU_S, E_CU_R, E_CORE, E_FRICTION, W_LOAD, E_PARAM = range(6, 13)
+N_STATE = 6
+N_AUG = 13
+ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param')
+
+
+def currents(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
+    """Stator and rotor currents (i_sα, i_sβ, i_rα, i_rβ) from the flux linkages."""
+    det = L_s * L_r - L_sr * L_sr
+    i_sa = (L_r * psi_sa - L_sr * phi_ra) / det
+    i_sb = (L_r * psi_sb - L_sr * phi_rb) / det
+    i_ra = (L_s * phi_ra - L_sr * psi_sa) / det
+    i_rb = (L_s * phi_rb - L_sr * psi_sb) / det
+    return i_sa, i_sb, i_ra, i_rb
+
+
+def stator_flux(i_sa, i_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
+    """ψ_s = σ L_s i_s + (L_sr/L_r) φ_r: the flux-linkage state from currents and rotor flux."""
+    sls = L_s - L_sr * L_sr / L_r
+    k = L_sr / L_r
+    return sls * i_sa + k * phi_ra, sls * i_sb + k * phi_rb
+
+
+def torque(i_sa, i_sb, phi_ra, phi_rb, L_r, L_sr, pole_pairs):
+    """Electromagnetic torque τ_m = v (L_sr/L_r)(i_sβ φ_rα − i_sα φ_rβ) [N·m] (eq. 1.127)."""
+    return pole_pairs * L_sr / L_r * (i_sb * phi_ra - i_sa * phi_rb)
+
+
+def magnetic_energy(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
+    """W = ½ (i_s·ψ_s + i_r·φ_r) [J]."""
+    i_sa, i_sb, i_ra, i_rb = currents(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr)
+    return 0.5 * (i_sa * psi_sa + i_sb * psi_sb + i_ra * phi_ra + i_rb * phi_rb)
+
+
+class MotorModel:
+    """Right-hand side of the plant: ``rhs(t, x, v_alpha, v_beta)`` on the augmented state.
+
+    Parameters
+    ----------
+    schedule : ParameterSchedule or MotorParams
+        Electrical parameters (possibly time-varying); J, b, v, k_e, k_h come from its base.
+    load : Load
+        Shaft load τ_L(t, θ, ω).
+    core_loss_exponent : float
+        Exponent of the air-gap flux in the core-loss model (2: the units of k_e, k_h).
+    """
+
+    def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
+                 load: Load | None = None, core_loss_exponent: float = 2.0):
+        if isinstance(schedule, MotorParams):
+            schedule = ParameterSchedule(schedule)
+        self.schedule = schedule
+        self.params = schedule.base
+        self.load = load if load is not None else NoLoad()
+        if core_loss_exponent not in (1.0, 2.0):
+            raise ValueError("core_loss_exponent must be 1 or 2")
+        self.core_loss_exponent = float(core_loss_exponent)
+
+    def rhs(self, t: float, x: Sequence[float], v_a: float, v_b: float) -> Tuple[float, ...]:
+        """Time derivative of the 13-element augmented state (6 states + 7 energy integrals)."""
+        R_s, R_r, L_s, L_r, L_sr = self.schedule.values(t)
+        p = self.params
+        vp = p.pole_pairs
+        psi_sa, psi_sb, phi_ra, phi_rb, theta, omega = x[0], x[1], x[2], x[3], x[4], x[5]
+        det = L_s * L_r - L_sr * L_sr
+        i_sa = (L_r * psi_sa - L_sr * phi_ra) / det
+        i_sb = (L_r * psi_sb - L_sr * phi_rb) / det
+        i_ra = (L_s * phi_ra - L_sr * psi_sa) / det
+        i_rb = (L_s * phi_rb - L_sr * psi_sb) / det
+        we = vp * omega
+        d_phi_ra = -R_r * i_ra - we * phi_rb
+        d_phi_rb = -R_r * i_rb + we * phi_ra
+        tau_m = vp * L_sr / L_r * (i_sb * phi_ra - i_sa * phi_rb)
+        tau_l = self.load.torque(t, theta, omega)
+        d_omega = (tau_m - p.b * omega - tau_l) / p.J
+        # Energy integrands.
+        p_in = v_a * i_sa + v_b * i_sb
+        p_cu_s = R_s * (i_sa * i_sa + i_sb * i_sb)
+        p_cu_r = R_r * (i_ra * i_ra + i_rb * i_rb)
+        flux2 = phi_ra * phi_ra + phi_rb * phi_rb
+        if flux2 > 1e-18:
+            f_e = abs(phi_ra * d_phi_rb - phi_rb * d_phi_ra) / (TWO_PI * flux2)
+            k = L_sr / L_r
+            phi_m = k * math.sqrt(flux2) if self.core_loss_exponent == 1.0 else k * k * flux2
+            p_core = (p.k_h + p.k_e * f_e) * f_e * phi_m
+        else:
+            p_core = 0.0
+        if self.schedule.inductances_constant:
+            p_param = 0.0
+        else:
+            dL_s, dL_r, dL_sr = self.schedule.inductance_rates(t)
+            p_param = 0.5 * (dL_s * (i_sa * i_sa + i_sb * i_sb)
+                             + 2.0 * dL_sr * (i_sa * i_ra + i_sb * i_rb)
+                             + dL_r * (i_ra * i_ra + i_rb * i_rb))
+        return (v_a - R_s * i_sa, v_b - R_s * i_sb, d_phi_ra, d_phi_rb, omega, d_omega,
+                p_in, p_cu_s, p_cu_r, p_core, p.b * omega * omega, tau_l * omega, p_param)
+
+    def outputs(self, t: float, x: Sequence[float]) -> dict:
+        """Currents, torque and stored energies at (t, x), for ground truth and tests."""
+        R_s, R_r, L_s, L_r, L_sr = self.schedule.values(t)
+        p = self.params
+        i_sa, i_sb, i_ra, i_rb = currents(x[0], x[1], x[2], x[3], L_s, L_r, L_sr)
+        tau_m = torque(i_sa, i_sb, x[2], x[3], L_r, L_sr, p.pole_pairs)
+        w_mag = 0.5 * (i_sa * x[0] + i_sb * x[1] + i_ra * x[2] + i_rb * x[3])
+        return {
+            'i_alpha': i_sa, 'i_beta': i_sb, 'i_r_alpha': i_ra, 'i_r_beta': i_rb,
+            'phi_r_alpha': x[2], 'phi_r_beta': x[3], 'theta_r': x[4], 'omega_r': x[5],
+            'tau_m': tau_m, 'tau_L': self.load.torque(t, x[4], x[5]),
+            'W_mag': w_mag, 'E_kin': 0.5 * p.J * x[5] * x[5],
+            'R_s': R_s, 'R_r': R_r, 'L_s': L_s, 'L_r': L_r, 'L_sr': L_sr,
+        }
+
+
+def rk4_step(f, t: float, x: Sequence[float], h: float, v_a: float, v_b: float) -> list:
+    """One classical Runge-Kutta step of ``f(t, x, v_a, v_b)`` with the input held (ZOH)."""
+    n = len(x)
+    k1 = f(t, x, v_a, v_b)
+    h2 = 0.5 * h
+    x2 = [x[i] + h2 * k1[i] for i in range(n)]
+    k2 = f(t + h2, x2, v_a, v_b)
+    x3 = [x[i] + h2 * k2[i] for i in range(n)]
+    k3 = f(t + h2, x3, v_a, v_b)
+    x4 = [x[i] + h * k3[i] for i in range(n)]
+    k4 = f(t + h, x4, v_a, v_b)
+    h6 = h / 6.0
+    return [x[i] + h6 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]) for i in range(n)]

@@ -1,0 +1,280 @@
+"""Motor parameters, their validation, and time-varying parameter schedules.
+
+One defaults table for the whole stack: :data:`THESIS_MOTOR` is the motor of seed 000 §3.4.1
+(eq. 3.33). Every package reads its nominal values from here.
+
+========  ==========  =======  =====================================================
+symbol    default     unit     meaning
+========  ==========  =======  =====================================================
+R_s       0.687       Ω        stator resistance
+R_r       0.842       Ω        rotor resistance (referred to the stator)
+L_s       0.08397     H        stator self inductance
+L_r       0.08528     H        rotor self inductance
+L_sr      0.08136     H        stator-rotor mutual inductance
+J         0.030       kg·m²    inertia of motor and load
+b         0.010       N·m·s    viscous friction
+pole_pairs 2          —        pole pairs ``v`` of the thesis (60 Hz, 1750 rpm)
+k_e       0.012       W·s/Wb²  eddy-current core-loss coefficient (eq. 3.34)
+k_h       0.012       W·s/Wb²  hysteresis core-loss coefficient (eq. 3.34)
+========  ==========  =======  =====================================================
+
+Derived quantities (seed 000 eq. 1.113, ch. 4): σ = 1 − L_sr²/(L_s L_r), θ = L_sr/L_r,
+L_M = L_sr²/L_r (the magnetizing inductance seen from the stator terminals) and
+R_R = R_r (L_sr/L_r)² (the rotor resistance seen from the terminals). With terminal
+measurements only, R_s, σL_s, L_M and R_R are identifiable; R_r and θ separately are not.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Callable, Dict, Mapping, Tuple
+
+ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
+INDUCTANCE_NAMES = ('L_s', 'L_r', 'L_sr')
+
+
+class InvalidParameter(ValueError):
+    """A parameter value is impossible; the message names the parameter."""
+
+    def __init__(self, name: str, value, reason: str):
+        self.name = name
+        self.value = value
+        super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
+
+
+def _check_finite_positive(name: str, value, allow_zero: bool = False) -> None:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameter(name, value, 'must be a real number') from None
+    if not math.isfinite(x):
+        raise InvalidParameter(name, value, 'must be finite')
+    if allow_zero and x < 0.0:
+        raise InvalidParameter(name, value, 'must be >= 0')
+    if not allow_zero and x <= 0.0:
+        raise InvalidParameter(name, value, 'must be > 0')
+
+
+def leakage_factor(L_s: float, L_r: float, L_sr: float) -> float:
+    """σ = 1 − L_sr²/(L_s L_r) (seed 000 eq. 1.113)."""
+    return 1.0 - L_sr * L_sr / (L_s * L_r)
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    """Parameters of the squirrel-cage induction motor and its shaft (SI units, see module table)."""
+
+    R_s: float = 0.687
+    R_r: float = 0.842
+    L_s: float = 0.08397
+    L_r: float = 0.08528
+    L_sr: float = 0.08136
+    J: float = 0.030
+    b: float = 0.010
+    pole_pairs: int = 2
+    k_e: float = 0.012
+    k_h: float = 0.012
+
+    def __post_init__(self):
+        for name in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'J'):
+            _check_finite_positive(name, getattr(self, name))
+        for name in ('b', 'k_e', 'k_h'):
+            _check_finite_positive(name, getattr(self, name), allow_zero=True)
+        v = self.pole_pairs
+        if isinstance(v, bool) or not isinstance(v, int) and not (isinstance(v, float) and v.is_integer()):
+            raise InvalidParameter('pole_pairs', v, 'must be a whole number')
+        if int(v) < 1:
+            raise InvalidParameter('pole_pairs', v, 'must be >= 1')
+        object.__setattr__(self, 'pole_pairs', int(v))
+        sigma = leakage_factor(self.L_s, self.L_r, self.L_sr)
+        if not sigma > 0.0:
+            raise InvalidParameter(
+                'L_sr', self.L_sr,
+                f'leakage factor sigma = 1 - L_sr^2/(L_s*L_r) = {sigma:.4g} must be > 0 '
+                f'(L_sr^2 must be below L_s*L_r = {self.L_s * self.L_r:.6g})')
+
+    # Derived quantities -------------------------------------------------------------------
+    @property
+    def sigma(self) -> float:
+        return leakage_factor(self.L_s, self.L_r, self.L_sr)
+
+    @property
+    def theta(self) -> float:
+        """θ = L_sr / L_r, the ratio adapted in seed 000 ch. 4."""
+        return self.L_sr / self.L_r
+
+    @property
+    def L_M(self) -> float:
+        return self.L_sr * self.L_sr / self.L_r
+
+    @property
+    def R_R(self) -> float:
+        return self.R_r * (self.L_sr / self.L_r) ** 2
+
+    @property
+    def T_r(self) -> float:
+        return self.L_r / self.R_r
+
+    @property
+    def v(self) -> int:
+        """Pole pairs, named as in the thesis."""
+        return self.pole_pairs
+
+    def with_values(self, **values) -> 'MotorParams':
+        """A copy with some values replaced (validated)."""
+        return replace(self, **values)
+
+    def as_dict(self) -> Dict[str, float]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+THESIS_MOTOR = MotorParams()
+
+
+# ---------------------------------------------------------------------------------------------
+# Time-varying parameters
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Variation:
+    """A scalar function of time with its derivative: ``value(t)``, ``rate(t)``.
+
+    kind: ``constant`` (offset), ``ramp`` (offset + slope·t) or ``sinusoid``
+    (offset + amplitude·sin(omega·t + phase)).
+    """
+
+    kind: str
+    offset: float
+    slope: float = 0.0
+    amplitude: float = 0.0
+    omega: float = 0.0
+    phase: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in ('constant', 'ramp', 'sinusoid'):
+            raise ValueError(f"unknown variation kind '{self.kind}' (constant, ramp, sinusoid)")
+        for name in ('offset', 'slope', 'amplitude', 'omega', 'phase'):
+            if not math.isfinite(float(getattr(self, name))):
+                raise ValueError(f"variation field '{name}' must be finite")
+
+    def value(self, t: float) -> float:
+        if self.kind == 'constant':
+            return self.offset
+        if self.kind == 'ramp':
+            return self.offset + self.slope * t
+        return self.offset + self.amplitude * math.sin(self.omega * t + self.phase)
+
+    def rate(self, t: float) -> float:
+        if self.kind == 'constant':
+            return 0.0
+        if self.kind == 'ramp':
+            return self.slope
+        return self.amplitude * self.omega * math.cos(self.omega * t + self.phase)
+
+
+def constant(value: float) -> Variation:
+    return Variation('constant', float(value))
+
+
+def ramp(start: float, slope: float) -> Variation:
+    return Variation('ramp', float(start), slope=float(slope))
+
+
+def sinusoid(offset: float, amplitude: float, omega: float, phase: float = 0.0) -> Variation:
+    return Variation('sinusoid', float(offset), amplitude=float(amplitude), omega=float(omega),
+                     phase=float(phase))
+
+
+class ParameterSchedule:
+    """Electrical parameters of the plant as functions of time.
+
+    ``values(t)`` returns ``(R_s, R_r, L_s, L_r, L_sr)``; ``inductance_rates(t)`` returns
+    ``(dL_s/dt, dL_r/dt, dL_sr/dt)``. Parameters without a variation keep the base value,
+    and a schedule without variations returns one cached tuple (the plant's fast path).
+    """
+
+    def __init__(self, base: MotorParams = THESIS_MOTOR,
+                 variations: Mapping[str, Variation] | None = None, name: str = 'none'):
+        self.base = base
+        self.name = name
+        self.variations: Dict[str, Variation] = dict(variations or {})
+        for key in self.variations:
+            if key not in ELECTRICAL_NAMES:
+                raise InvalidParameter(key, self.variations[key],
+                                       f'only {", ".join(ELECTRICAL_NAMES)} can vary in time')
+        self._constant = not self.variations
+        self._values = tuple(getattr(base, n) for n in ELECTRICAL_NAMES)
+        self._zero_rates = (0.0, 0.0, 0.0)
+        self._fns: Tuple[Callable[[float], float], ...] = tuple(
+            (self.variations[n].value if n in self.variations else (lambda t, c=getattr(base, n): c))
+            for n in ELECTRICAL_NAMES)
+        self._rate_fns = tuple(
+            (self.variations[n].rate if n in self.variations else (lambda t: 0.0))
+            for n in INDUCTANCE_NAMES)
+        self._inductances_constant = not any(n in self.variations for n in INDUCTANCE_NAMES)
+
+    @property
+    def is_constant(self) -> bool:
+        return self._constant
+
+    @property
+    def inductances_constant(self) -> bool:
+        return self._inductances_constant
+
+    def values(self, t: float) -> Tuple[float, float, float, float, float]:
+        if self._constant:
+            return self._values
+        return tuple(f(t) for f in self._fns)
+
+    def inductance_rates(self, t: float) -> Tuple[float, float, float]:
+        if self._inductances_constant:
+            return self._zero_rates
+        return tuple(f(t) for f in self._rate_fns)
+
+    def params_at(self, t: float) -> MotorParams:
+        """The full, validated parameter set at time t."""
+        return self.base.with_values(**dict(zip(ELECTRICAL_NAMES, self.values(t))))
+
+    def validate(self, t_end: float, samples: int = 2001) -> None:
+        """Check positivity and σ > 0 on a grid over [0, t_end]; raise naming the parameter and time."""
+        n = max(2, int(samples))
+        for k in range(n):
+            t = t_end * k / (n - 1)
+            try:
+                self.params_at(t)
+            except InvalidParameter as exc:
+                raise InvalidParameter(exc.name, exc.value,
+                                       f'{exc} at t = {t:.6g} s of schedule {self.name!r}') from None
+
+    def describe(self) -> Dict[str, object]:
+        return {'name': self.name,
+                'variations': {k: {'kind': v.kind, 'offset': v.offset, 'slope': v.slope,
+                                   'amplitude': v.amplitude, 'omega': v.omega, 'phase': v.phase}
+                               for k, v in self.variations.items()}}
+
+
+def chapter4_schedule(base: MotorParams = THESIS_MOTOR) -> ParameterSchedule:
+    """Seed 000 §4.3 variation profile.
+
+    R_r = 0.42 t + 0.42, L_s = L_r = 0.1 + 0.016 sin(πt), L_sr = 0.097 + 0.016 sin(πt).
+    """
+    return ParameterSchedule(base, {
+        'R_r': ramp(0.42, 0.42),
+        'L_s': sinusoid(0.1, 0.016, math.pi),
+        'L_r': sinusoid(0.1, 0.016, math.pi),
+        'L_sr': sinusoid(0.097, 0.016, math.pi),
+    }, name='chapter4')
+
+
+def single_variation_schedule(name: str, factor: float, base: MotorParams = THESIS_MOTOR
+                              ) -> ParameterSchedule:
+    """A constant scaling of one electrical parameter (seed 000 §4.2.1 sensitivity study)."""
+    if name not in ELECTRICAL_NAMES:
+        raise InvalidParameter(name, factor, f'only {", ".join(ELECTRICAL_NAMES)} can be varied')
+    return ParameterSchedule(base, {name: constant(getattr(base, name) * factor)},
+                             name=f'{name}x{factor:g}')
+
+
+SCHEDULES = {
+    'none': lambda base=THESIS_MOTOR: ParameterSchedule(base),
+    'chapter4': chapter4_schedule,
+}

@@ -1,0 +1,181 @@
+"""The simulated plant: motor model + load + inverter, stepped one control period at a time.
+
+The inverter is an ideal voltage source whose command is held over each period (zero-order hold),
+optionally limited in vector magnitude. The model is integrated with fixed-step RK4 sub-steps in
+each period (at most ``max_substep`` long), together with the energy integrals, so the energy books
+are part of the integration and not computed after the fact.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+from .loads import Load
+from .model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, N_AUG, MotorModel,
+                    W_LOAD, currents, rk4_step, torque)
+from .params import InvalidParameter, MotorParams, ParameterSchedule, THESIS_MOTOR
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the drive measures at t_k: stator currents and the shaft (with optional noise)."""
+
+    t: float
+    i_alpha: float
+    i_beta: float
+    theta_r: float
+    omega_r: float
+
+
+class PlantSimulator:
+    """Stateful plant stepped by ``step(v_alpha, v_beta)`` over [t_k, t_k + T_s].
+
+    Parameters
+    ----------
+    schedule : ParameterSchedule or MotorParams
+    load : Load
+    T_s : float
+        Control period [s].
+    max_substep : float
+        Longest RK4 sub-step [s]; the period is split into ceil(T_s / max_substep) equal sub-steps.
+    v_limit : float or None
+        Largest magnitude of the applied voltage vector [V] (None: no limit).
+    current_noise_std, speed_noise_std : float
+        Standard deviation of Gaussian measurement noise on i_αβ [A] and ω_r [rad/s].
+    noise_seed : int
+        Seed of the noise generator (runs are reproducible).
+    theta0, omega0 : float
+        Initial shaft position [rad] and speed [rad/s]; fluxes and currents start at zero unless
+        ``x0`` (the 6-element state ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r) is given.
+    """
+
+    def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
+                 load: Optional[Load] = None, T_s: float = 1e-4, max_substep: float = 1e-4,
+                 v_limit: Optional[float] = None, current_noise_std: float = 0.0,
+                 speed_noise_std: float = 0.0, noise_seed: int = 0, theta0: float = 0.0,
+                 omega0: float = 0.0, x0: Optional[Sequence[float]] = None,
+                 core_loss_exponent: float = 2.0):
+        if not (math.isfinite(T_s) and T_s > 0):
+            raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
+        if not (math.isfinite(max_substep) and max_substep > 0):
+            raise InvalidParameter('max_substep', max_substep, 'must be > 0')
+        if v_limit is not None and not (math.isfinite(v_limit) and v_limit > 0):
+            raise InvalidParameter('v_limit', v_limit, 'must be > 0 (or None for no limit)')
+        for name, val in (('current_noise_std', current_noise_std),
+                          ('speed_noise_std', speed_noise_std)):
+            if not (math.isfinite(val) and val >= 0):
+                raise InvalidParameter(name, val, 'must be >= 0')
+        self.model = MotorModel(schedule, load, core_loss_exponent)
+        self.schedule = self.model.schedule
+        self.params = self.model.params
+        self.load = self.model.load
+        self.T_s = float(T_s)
+        self.n_sub = max(1, int(math.ceil(self.T_s / max_substep - 1e-9)))
+        self.h = self.T_s / self.n_sub
+        self.v_limit = v_limit
+        self.current_noise_std = float(current_noise_std)
+        self.speed_noise_std = float(speed_noise_std)
+        self._rng = None
+        if self.current_noise_std > 0 or self.speed_noise_std > 0:
+            import numpy as np
+            self._rng = np.random.default_rng(noise_seed)
+        self.k = 0
+        x = [0.0] * N_AUG
+        if x0 is not None:
+            if len(x0) != 6 or not all(math.isfinite(v) for v in x0):
+                raise InvalidParameter('x0', x0, 'must be 6 finite numbers')
+            x[:6] = [float(v) for v in x0]
+        else:
+            x[4], x[5] = float(theta0), float(omega0)
+        self.x = x
+        self.v_applied = (0.0, 0.0)
+        out = self.model.outputs(0.0, x)
+        self.W_mag0 = out['W_mag']
+        self.E_kin0 = out['E_kin']
+
+    @property
+    def t(self) -> float:
+        """Current simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
+        return self.k * self.T_s
+
+    def limit(self, v_a: float, v_b: float):
+        """The voltage the inverter applies for a commanded (v_a, v_b)."""
+        if self.v_limit is not None:
+            mag = math.hypot(v_a, v_b)
+            if mag > self.v_limit:
+                s = self.v_limit / mag
+                return v_a * s, v_b * s
+        return v_a, v_b
+
+    def step(self, v_a: float, v_b: float) -> None:
+        """Integrate [t_k, t_k+1] with the command held; refuse non-finite commands."""
+        if not (math.isfinite(v_a) and math.isfinite(v_b)):
+            raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) at t = {self.t:.9f} s')
+        v_a, v_b = self.limit(v_a, v_b)
+        self.v_applied = (v_a, v_b)
+        f = self.model.rhs
+        x = self.x
+        t0 = self.t
+        h = self.h
+        for j in range(self.n_sub):
+            x = rk4_step(f, t0 + j * h, x, h, v_a, v_b)
+        if not all(math.isfinite(v) for v in x):
+            raise FloatingPointError(f'plant state became non-finite at t = {t0 + self.T_s:.9f} s')
+        self.x = x
+        self.k += 1
+
+    # Outputs -----------------------------------------------------------------------------
+    def state_currents(self):
+        R_s, R_r, L_s, L_r, L_sr = self.schedule.values(self.t)
+        return currents(self.x[0], self.x[1], self.x[2], self.x[3], L_s, L_r, L_sr)
+
+    def measure(self) -> Measurement:
+        """Measured stator currents and shaft position/speed at t_k (noise added if configured)."""
+        i_sa, i_sb, _, _ = self.state_currents()
+        theta, omega = self.x[4], self.x[5]
+        if self._rng is not None:
+            if self.current_noise_std > 0:
+                n = self._rng.normal(0.0, self.current_noise_std, 2)
+                i_sa += float(n[0])
+                i_sb += float(n[1])
+            if self.speed_noise_std > 0:
+                omega += float(self._rng.normal(0.0, self.speed_noise_std))
+        return Measurement(self.t, i_sa, i_sb, theta, omega)
+
+    def truth(self) -> dict:
+        """Ground truth at t_k: true state, torques, parameters, power and energy books."""
+        t = self.t
+        out = self.model.outputs(t, self.x)
+        x = self.x
+        d = self.model.rhs(t, x, self.v_applied[0], self.v_applied[1])
+        out.update({
+            'v_alpha': self.v_applied[0], 'v_beta': self.v_applied[1],
+            'P_in': d[E_IN], 'P_cu_s': d[E_CU_S], 'P_cu_r': d[E_CU_R], 'P_core': d[E_CORE],
+            'P_friction': d[E_FRICTION], 'P_load': d[W_LOAD], 'P_param': d[E_PARAM],
+            'E_in': x[E_IN], 'E_cu_s': x[E_CU_S], 'E_cu_r': x[E_CU_R], 'E_core': x[E_CORE],
+            'E_friction': x[E_FRICTION], 'W_load': x[W_LOAD], 'E_param': x[E_PARAM],
+        })
+        out['dW_mag'] = out['W_mag'] - self.W_mag0
+        out['dE_kin'] = out['E_kin'] - self.E_kin0
+        out['balance_residual'] = (out['E_in'] - out['E_cu_s'] - out['E_cu_r'] - out['E_friction']
+                                   - out['W_load'] - out['E_param'] - out['dW_mag']
+                                   - out['dE_kin'])
+        return out
+
+    def torque_now(self) -> float:
+        i_sa, i_sb, _, _ = self.state_currents()
+        _, _, L_s, L_r, L_sr = self.schedule.values(self.t)
+        return torque(i_sa, i_sb, self.x[2], self.x[3], L_r, L_sr, self.params.pole_pairs)
+
+
+def energy_summary(truth: dict) -> dict:
+    """The figures of merit of the energy books (J) from a ``truth()`` dict."""
+    e_cu = truth['E_cu_s'] + truth['E_cu_r']
+    return {
+        'E_in_J': truth['E_in'], 'E_copper_J': e_cu, 'E_core_J': truth['E_core'],
+        'E_loss_J': e_cu + truth['E_core'], 'W_load_J': truth['W_load'],
+        'E_friction_J': truth['E_friction'], 'dE_kinetic_J': truth['dE_kin'],
+        'dW_magnetic_J': truth['dW_mag'], 'E_param_J': truth['E_param'],
+        'balance_residual_J': truth['balance_residual'],
+    }

@@ -1,0 +1,88 @@
+"""Topic names, message types and field layouts of the stack: the one table every node uses.
+
+αβ pairs travel as ``geometry_msgs/Vector3Stamped`` (x = α, y = β, z as noted). Named vectors of
+scalars (shaft state, parameter sets, powers, energies) travel as ``sensor_msgs/JointState`` with
+the names below in ``name`` and the values in ``position`` (shaft topics use position/velocity/
+effort as ROS does). Every stamp is simulated time t_k = k·T_s, exact in integer nanoseconds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, Tuple
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    name: str
+    type: str           # ROS type name, e.g. 'geometry_msgs/msg/Vector3Stamped'
+    publisher: str      # node that publishes it
+    layout: str         # how the fields are used
+    critical: bool = False   # on the lock-step critical path
+
+
+CLOCK = '/clock'
+MEAS_CURRENT = '/im/measured/current'
+MEAS_SHAFT = '/im/measured/shaft'
+CMD_VOLTAGE = '/im/command/voltage'
+OBS_FLUX = '/im/observer/flux'
+OBS_CURRENT = '/im/observer/current'
+ADAPT_ESTIMATE = '/im/adapter/estimate'
+REF_SHAFT = '/im/reference/shaft'
+REF_CURRENT = '/im/reference/current'
+REF_FLUX = '/im/reference/flux'
+SETPOINT = '/im/setpoint'
+TRUTH_VOLTAGE = '/im/truth/voltage'
+TRUTH_FLUX = '/im/truth/flux'
+TRUTH_TORQUE = '/im/truth/torque'
+TRUTH_PARAMS = '/im/truth/parameters'
+TRUTH_POWER = '/im/truth/power'
+TRUTH_ENERGY = '/im/truth/energy'
+
+V3 = 'geometry_msgs/msg/Vector3Stamped'
+JS = 'sensor_msgs/msg/JointState'
+CLK = 'rosgraph_msgs/msg/Clock'
+
+SHAFT_JOINT = 'rotor'
+ESTIMATE_NAMES = ('R_r', 'theta', 'L_M', 'R_R')
+PARAM_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
+POWER_NAMES = ('P_in', 'P_cu_s', 'P_cu_r', 'P_core', 'P_friction', 'P_load', 'P_param')
+ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
+                'W_mag', 'E_kin')
+
+TOPICS: Tuple[TopicSpec, ...] = (
+    TopicSpec(CLOCK, CLK, 'plant', 'simulated time (every clock_period)'),
+    TopicSpec(MEAS_CURRENT, V3, 'plant', 'measured stator current i_alpha, i_beta [A]', True),
+    TopicSpec(MEAS_SHAFT, JS, 'plant',
+              "measured shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s]",
+              True),
+    TopicSpec(CMD_VOLTAGE, V3, 'controller', 'stator voltage command V_alpha, V_beta [V]', True),
+    TopicSpec(OBS_FLUX, V3, 'observer', 'rotor-flux estimate phi_r_alpha, phi_r_beta [Wb]', True),
+    TopicSpec(OBS_CURRENT, V3, 'observer', 'stator-current estimate i_alpha, i_beta [A]'),
+    TopicSpec(ADAPT_ESTIMATE, JS, 'adapter',
+              "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'] in position [SI]", True),
+    TopicSpec(REF_SHAFT, JS, 'controller',
+              "reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]"),
+    TopicSpec(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),
+    TopicSpec(REF_FLUX, V3, 'controller',
+              'rotor-flux reference phi*_alpha, phi*_beta [Wb]; z = flux magnitude phi_d* [Wb]'),
+    TopicSpec(SETPOINT, JS, 'user',
+              "setpoint: position [rad] or velocity [rad/s] or effort [N m] (one field set)"),
+    TopicSpec(TRUTH_VOLTAGE, V3, 'plant', 'voltage applied by the inverter (after its limit) [V]'),
+    TopicSpec(TRUTH_FLUX, V3, 'plant', 'true rotor flux phi_r_alpha, phi_r_beta [Wb]'),
+    TopicSpec(TRUTH_TORQUE, V3, 'plant',
+              'x = electromagnetic torque tau_m, y = load torque tau_L, z = friction b*omega [N m]'),
+    TopicSpec(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
+    TopicSpec(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
+    TopicSpec(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
+)
+
+TOPIC_TYPES: Dict[str, str] = {t.name: t.type for t in TOPICS}
+
+
+def markdown_table() -> str:
+    """The README's topic table, generated from this module so the two cannot drift."""
+    rows = ['| topic | type | publisher | content |', '| --- | --- | --- | --- |']
+    for t in TOPICS:
+        crit = ' (lock-step)' if t.critical else ''
+        rows.append(f'| `{t.name}` | `{t.type}` | {t.publisher}{crit} | {t.layout} |')
+    return '\n'.join(rows)

@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'im_controller'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.py')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='IM drive stack maintainers',
+    maintainer_email='drive-stack@example.org',
+    description='Torque-tracking controller with minimum magnetic energy (seed 000 ch. 3-4).',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'controller = im_controller.controller_node:main',
+            'design_gains = im_controller.design_gains:main'
+        ],
+    },
+)

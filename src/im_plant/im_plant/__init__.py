@@ -1,0 +1,1 @@
+"""Simulated induction motor, load and inverter; owns simulated time."""

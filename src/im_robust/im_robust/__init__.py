@@ -1,0 +1,1 @@
+"""Robust static output-feedback synthesis for polytopic linear systems (seed 001), ROS-free."""
