@@ -1,0 +1,43 @@
+"""Parameters several nodes declare the same way: the motor, the period, the run length."""
+from __future__ import annotations
+
+from .params import THESIS_MOTOR, MotorParams
+
+_MOTOR_DOC = {
+    'R_s': ('stator resistance [ohm]', 1e-6, 100.0),
+    'R_r': ('rotor resistance referred to the stator [ohm]', 1e-6, 100.0),
+    'L_s': ('stator self inductance [H]', 1e-6, 10.0),
+    'L_r': ('rotor self inductance [H]', 1e-6, 10.0),
+    'L_sr': ('stator-rotor mutual inductance [H]', 1e-6, 10.0),
+    'J': ('inertia of motor and load [kg m^2]', 1e-6, 1e9),
+    'b': ('viscous friction [N m s]', 0.0, 100.0),
+    'k_e': ('eddy-current core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
+    'k_h': ('hysteresis core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
+}
+
+
+def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -> MotorParams:
+    """Declare the motor parameters on ``node`` (defaults: the thesis motor) and validate them.
+
+    Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
+    """
+    values = {}
+    for name, (doc, lo, hi) in _MOTOR_DOC.items():
+        values[name] = node.param(name, float(getattr(base, name)), f'{what}: {doc}', lo, hi)
+    values['pole_pairs'] = node.param('pole_pairs', int(base.pole_pairs),
+                                      f'{what}: pole pairs v', 1, 64)
+    return MotorParams(**values)
+
+
+def declare_run(node):
+    """T_s (read-only), duration, timeouts. Returns (T_s, duration, input_timeout, startup_timeout)."""
+    T_s = node.param('T_s', 1e-4, 'control period T_s [s] (whole nanoseconds)', 1e-6, 0.1)
+    duration = node.param('duration', 0.0,
+                          'simulated run length [s]; the node stops cleanly after it (0: no end)',
+                          0.0, 1e6)
+    timeout = node.param('input_timeout', 5.0,
+                         'wall-clock seconds to wait for an input of the current step before '
+                         'reporting it and stopping', 0.01, 3600.0)
+    startup = node.param('startup_timeout', 30.0,
+                         'wall-clock seconds to wait for the first step (discovery)', 0.01, 3600.0)
+    return T_s, duration, timeout, startup

@@ -1,0 +1,185 @@
+"""``ros2 run im_plant plant``: the simulated motor, load and inverter; the time master.
+
+A thin shell around :class:`im_common.plant_sim.PlantSimulator`: parameters in, voltage commands
+in, measurements and ground truth out. In ``lockstep`` mode (default) it advances from t_k to
+t_k+1 only when the command stamped t_k has arrived; in ``free_run`` mode it advances on a
+wall-clock timer at T_s holding the last command and counts overruns (steps whose command was late).
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.clock import Clock, ClockType
+from rosgraph_msgs.msg import Clock as ClockMsg
+
+from im_common import topics as T
+from im_common.conversions import (JointStateOut, Vector3Out, clock_msg, period_ns, stamp_ns)
+from im_common.loads import LOAD_KINDS, make_load
+from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
+from im_common.node_params import declare_motor, declare_run
+from im_common.params import SCHEDULES, ParameterSchedule
+from im_common.plant_sim import PlantSimulator
+
+
+class PlantNode(LockstepNode):
+    """Simulated induction motor, load and inverter; owns simulated time."""
+
+    def __init__(self, **kwargs):
+        super().__init__('plant', **kwargs)
+        p = self.param
+        self.T_s, self.duration, timeout, startup = declare_run(self)
+        motor = declare_motor(self)
+        variation = p('variation', 'none', 'time variation of the true parameters',
+                      choices=tuple(SCHEDULES))
+        load = p('load', 'none', 'shaft load', choices=LOAD_KINDS)
+        mgl = p('load_mgl', 10.0, 'pendulum load: m g l [N m]', -1e4, 1e4)
+        c1 = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
+        c2 = p('load_c2', 0.001, 'linear load: c2 [N m s]', -1e3, 1e3)
+        tau = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
+        theta0 = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
+        omega0 = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
+        v_limit = p('v_limit', 0.0, 'inverter voltage-vector limit [V] (0: no limit)', 0.0, 1e5)
+        i_noise = p('current_noise_std', 0.0, 'std of current measurement noise [A]', 0.0, 1e3)
+        w_noise = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]', 0.0, 1e4)
+        seed = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
+        max_sub = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7, 0.1)
+        self.mode = p('mode', 'lockstep', 'stepping', choices=('lockstep', 'free_run'))
+        self.clock_every = p('clock_decimation', 10,
+                             'publish /clock every N steps (the lock-step protocol runs on stamps; '
+                             '/clock drives sim time for timers and tools)', 1, 1000000)
+        self.truth_every = p('truth_decimation', 10,
+                             'publish ground truth every N steps (0: never); the last step is '
+                             'always published', 0, 1000000)
+        schedule: ParameterSchedule = SCHEDULES[variation](motor)
+        if self.duration > 0:
+            schedule.validate(self.duration)
+        self.sim = PlantSimulator(schedule, make_load(load, mgl, c1, c2, tau), self.T_s,
+                                  max_substep=max_sub, v_limit=v_limit or None,
+                                  current_noise_std=i_noise, speed_noise_std=w_noise,
+                                  noise_seed=seed, theta0=theta0, omega0=omega0)
+        self.period = period_ns(self.T_s)
+        self.last_step = (round(self.duration / self.T_s) if self.duration > 0 else None)
+        self.rejected = 0
+        self.overruns = 0
+        self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
+
+        q = lockstep_qos()
+        self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
+        self.pub_shaft = self.create_publisher(*_js(), T.MEAS_SHAFT, q)
+        self.pub_clock = self.create_publisher(ClockMsg, T.CLOCK, 10)
+        dq = data_qos()
+        self.pub_truth = {
+            'voltage': self.create_publisher(Vector3Stamped, T.TRUTH_VOLTAGE, dq),
+            'flux': self.create_publisher(Vector3Stamped, T.TRUTH_FLUX, dq),
+            'torque': self.create_publisher(Vector3Stamped, T.TRUTH_TORQUE, dq),
+            'params': self.create_publisher(*_js(), T.TRUTH_PARAMS, dq),
+            'power': self.create_publisher(*_js(), T.TRUTH_POWER, dq),
+            'energy': self.create_publisher(*_js(), T.TRUTH_ENERGY, dq),
+        }
+        self.out_current = Vector3Out()
+        self.out_shaft = JointStateOut([T.SHAFT_JOINT])
+        self.out_tv, self.out_tf, self.out_tt = Vector3Out(), Vector3Out(), Vector3Out()
+        self.out_par = JointStateOut(T.PARAM_NAMES)
+        self.out_pow = JointStateOut(T.POWER_NAMES)
+        self.out_en = JointStateOut(T.ENERGY_NAMES)
+
+        self.gate = StepGate([T.CMD_VOLTAGE], self.period)
+        self.last_cmd = (0.0, 0.0)
+        self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE, self.on_command, q)
+        if self.mode == 'free_run':
+            self.create_timer(self.T_s, self.on_wall_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self.gate = None
+        else:
+            self.start_watchdog(timeout, startup)
+        self.publish_step()
+
+    # Lock-step ---------------------------------------------------------------------------
+    def on_command(self, msg: Vector3Stamped) -> None:
+        ns = stamp_ns(msg.header.stamp)
+        v = msg.vector
+        if not (math.isfinite(v.x) and math.isfinite(v.y)):
+            self.rejected += 1
+            self.get_logger().error(
+                f'rejected {T.CMD_VOLTAGE} stamped {ns / 1e9:.9f} s: non-finite voltage '
+                f'({v.x!r}, {v.y!r}); holding the previous command')
+            vx, vy = self.last_cmd
+        else:
+            vx, vy = v.x, v.y
+        if self.gate is None:           # free-running: just hold the latest command
+            if ns < self.sim.k * self.period:
+                self.overruns += 1
+            self.last_cmd = (vx, vy)
+            return
+        ready = self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy))
+        while ready is not None and not self.done:
+            self.mark_started()
+            self.advance(*ready[T.CMD_VOLTAGE])
+            ready = self.gate.advance()
+
+    def on_wall_tick(self) -> None:
+        if self.done:
+            return
+        self.advance(*self.last_cmd)
+
+    def advance(self, v_a: float, v_b: float) -> None:
+        self.last_cmd = (v_a, v_b)
+        try:
+            self.sim.step(v_a, v_b)
+        except (ValueError, FloatingPointError) as exc:
+            self.fail(f'plant step failed: {exc}')
+            return
+        self.publish_step()
+
+    def publish_step(self) -> None:
+        sim = self.sim
+        k = sim.k
+        ns = k * self.period
+        final = self.last_step is not None and k >= self.last_step
+        m = sim.measure()
+        self.pub_current.publish(self.out_current.fill(ns, m.i_alpha, m.i_beta))
+        self.pub_shaft.publish(self.out_shaft.fill(ns, (m.theta_r,), (m.omega_r,)))
+        if k % self.clock_every == 0 or final:
+            self.pub_clock.publish(clock_msg(ns))
+        if (self.truth_every and k % self.truth_every == 0) or final or self.truth_sink:
+            tr = sim.truth()
+            if self.truth_sink is not None:
+                self.truth_sink(ns, tr)
+            if (self.truth_every and k % self.truth_every == 0) or final:
+                self.publish_truth(ns, tr)
+        if final:
+            self.get_logger().info(
+                f'reached duration {self.duration} s at step {k}; rejected commands: '
+                f'{self.rejected}, overruns: {self.overruns}')
+            self.finish()
+
+    def publish_truth(self, ns: int, tr: dict) -> None:
+        pt = self.pub_truth
+        pt['voltage'].publish(self.out_tv.fill(ns, tr['v_alpha'], tr['v_beta']))
+        pt['flux'].publish(self.out_tf.fill(ns, tr['phi_r_alpha'], tr['phi_r_beta']))
+        pt['torque'].publish(self.out_tt.fill(ns, tr['tau_m'], tr['tau_L'],
+                                              self.sim.params.b * tr['omega_r']))
+        pt['params'].publish(self.out_par.fill(ns, truth_params(tr)))
+        pt['power'].publish(self.out_pow.fill(ns, [tr[n] for n in T.POWER_NAMES]))
+        pt['energy'].publish(self.out_en.fill(ns, [tr[n] for n in T.ENERGY_NAMES]))
+
+
+def truth_params(tr: dict) -> list:
+    """True parameter vector in the order of ``topics.PARAM_NAMES``."""
+    th = tr['L_sr'] / tr['L_r']
+    return [tr['R_s'], tr['R_r'], tr['L_s'], tr['L_r'], tr['L_sr'], th, tr['L_sr'] * th,
+            tr['R_r'] * th * th]
+
+
+def _js():
+    from sensor_msgs.msg import JointState
+    return (JointState,)
+
+
+def main(argv=None) -> None:
+    sys.exit(node_main(PlantNode, argv))
+
+
+if __name__ == '__main__':
+    main()
