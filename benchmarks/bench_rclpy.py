@@ -1,0 +1,162 @@
+"""Yardsticks for the lock-step loop: raw rclpy round trips and a bare four-node protocol loop.
+
+1. Ping-pong: two nodes in one process bounce a Vector3Stamped, SingleThreadedExecutor vs
+   ``rclpy.experimental.EventsExecutor`` (round trips/s).
+2. Bare protocol loop: four nodes exchanging exactly the messages the drive graph exchanges per
+   step (plant: current + shaft; controller: voltage; observer: flux; adapter: estimate), gated by
+   stamp like the real nodes, with no computation (steps/s). The drive graph is measured against
+   this loop in the same run (benchmarks/bench_graph.py).
+"""
+from __future__ import annotations
+
+import random
+import time
+
+import rclpy
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from im_common import topics as T
+from im_common.conversions import JointStateOut, Vector3Out, stamp_ns
+from im_common.lockstep import StepGate, lockstep_qos, make_executor
+
+
+def _context():
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    return ctx
+
+
+def _spin(executor, done, limit_s):
+    t0 = time.perf_counter()
+    while not done() and time.perf_counter() - t0 < limit_s:
+        executor.spin_once(timeout_sec=0.05)
+
+
+def ping_pong(executor_kind: str, n: int = 5000, limit_s: float = 60.0) -> float:
+    """Round trips per second between two nodes in one process."""
+    ctx = _context()
+    try:
+        a, b = Node('ping', context=ctx), Node('pong', context=ctx)
+        q = lockstep_qos()
+        pa = a.create_publisher(Vector3Stamped, '/bench/ping', q)
+        pb = b.create_publisher(Vector3Stamped, '/bench/pong', q)
+        count = [0]
+        msg = Vector3Stamped()
+
+        def on_pong(m):
+            count[0] += 1
+            if count[0] < n:
+                pa.publish(m)
+        b.create_subscription(Vector3Stamped, '/bench/ping', lambda m: pb.publish(m), q)
+        a.create_subscription(Vector3Stamped, '/bench/pong', on_pong, q)
+        ex = make_executor(ctx) if executor_kind == 'events' else SingleThreadedExecutor(context=ctx)
+        ex.add_node(a)
+        ex.add_node(b)
+        while pa.get_subscription_count() < 1 or pb.get_subscription_count() < 1:
+            ex.spin_once(timeout_sec=0.01)
+        t0 = time.perf_counter()
+        pa.publish(msg)
+        _spin(ex, lambda: count[0] >= n, limit_s)
+        dt = time.perf_counter() - t0
+        ex.shutdown()
+        a.destroy_node()
+        b.destroy_node()
+        return count[0] / dt
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+class _Bare(Node):
+    def __init__(self, name, ctx, required, outputs, period, on_step):
+        super().__init__(name, context=ctx)
+        q = lockstep_qos()
+        self.gate = StepGate(required, period)
+        self.pubs = {t: self.create_publisher(typ, t, q) for t, typ in outputs}
+        self.on_step = on_step
+        for t in required:
+            typ = JointState if t in (T.MEAS_SHAFT, T.ADAPT_ESTIMATE) else Vector3Stamped
+            self.create_subscription(typ, t, lambda m, t=t: self._put(t, m), q)
+
+    def _put(self, topic, m):
+        ready = self.gate.put(topic, stamp_ns(m.header.stamp), m)
+        while ready is not None:
+            self.on_step(self, self.gate.expected)
+            ready = self.gate.advance()
+
+
+def bare_loop(steps: int = 5000, with_adapter: bool = True, limit_s: float = 120.0) -> float:
+    """Steps per second of the drive's message pattern with no computation (EventsExecutor)."""
+    ctx = _context()
+    try:
+        period = 100_000
+        v3, js_shaft, js_est = Vector3Out(), JointStateOut([T.SHAFT_JOINT]), JointStateOut(T.ESTIMATE_NAMES)
+        v3b, v3c = Vector3Out(), Vector3Out()
+        state = {'k': 0}
+
+        def plant_step(node, ns):
+            state['k'] += 1
+            if state['k'] < steps:
+                nxt = ns + period
+                node.pubs[T.MEAS_CURRENT].publish(v3.fill(nxt, 1.0, 2.0))
+                node.pubs[T.MEAS_SHAFT].publish(js_shaft.fill(nxt, (0.0,), (0.0,)))
+
+        def ctl_step(node, ns):
+            node.pubs[T.CMD_VOLTAGE].publish(v3b.fill(ns, 1.0, 2.0))
+
+        def obs_step(node, ns):
+            node.pubs[T.OBS_FLUX].publish(v3c.fill(ns + period, 1.0, 2.0))
+
+        def ad_step(node, ns):
+            node.pubs[T.ADAPT_ESTIMATE].publish(js_est.fill(ns + period, (1.0, 1.0, 1.0, 1.0)))
+
+        ctl_req = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX] + ([T.ADAPT_ESTIMATE] if with_adapter else [])
+        nodes = [
+            _Bare('plant', ctx, [T.CMD_VOLTAGE],
+                  [(T.MEAS_CURRENT, Vector3Stamped), (T.MEAS_SHAFT, JointState)], period, plant_step),
+            _Bare('controller', ctx, ctl_req, [(T.CMD_VOLTAGE, Vector3Stamped)], period, ctl_step),
+            _Bare('observer', ctx, [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE],
+                  [(T.OBS_FLUX, Vector3Stamped)], period, obs_step),
+        ]
+        if with_adapter:
+            nodes.append(_Bare('adapter', ctx, [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
+                               [(T.ADAPT_ESTIMATE, JointState)], period, ad_step))
+        ex = make_executor(ctx)
+        for n in nodes:
+            ex.add_node(n)
+        t0 = time.perf_counter()
+        # Step 0: initial estimates and measurement (transient-local QoS delivers them late joiners).
+        nodes[2].pubs[T.OBS_FLUX].publish(v3c.fill(0, 1.0, 2.0))
+        if with_adapter:
+            nodes[3].pubs[T.ADAPT_ESTIMATE].publish(js_est.fill(0, (1.0, 1.0, 1.0, 1.0)))
+        nodes[0].pubs[T.MEAS_CURRENT].publish(v3.fill(0, 1.0, 2.0))
+        nodes[0].pubs[T.MEAS_SHAFT].publish(js_shaft.fill(0, (0.0,), (0.0,)))
+        _spin(ex, lambda: state['k'] >= steps, limit_s)
+        dt = time.perf_counter() - t0
+        ex.shutdown()
+        for n in nodes:
+            n.destroy_node()
+        return state['k'] / dt
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def run(quick: bool = False) -> dict:
+    n = 2000 if quick else 10000
+    return {
+        'ping_pong_single_threaded_rt_per_s': ping_pong('single', n),
+        'ping_pong_events_rt_per_s': ping_pong('events', n),
+        'bare_loop_4_nodes_steps_per_s': bare_loop(n, with_adapter=True),
+        'bare_loop_3_nodes_steps_per_s': bare_loop(n, with_adapter=False),
+    }
+
+
+if __name__ == '__main__':
+    import json
+    res = run()
+    for k, v in res.items():
+        print(f'{k:40s} {v:10.0f}')
+    print(json.dumps(res))
