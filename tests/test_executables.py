@@ -1,0 +1,43 @@
+"""Every executable resolves through the ament index exactly as ``ros2 run`` does, and starts.
+
+``ros2 run PKG EXE`` looks up ``get_package_prefix(PKG)/lib/PKG/EXE``; the workspace must have been
+built with ``colcon build`` (``make test`` does it) and sourced (``install/setup.bash``).
+"""
+import os
+import subprocess
+
+import pytest
+
+EXECUTABLES = [
+    ('im_plant', 'plant'),
+    ('im_observer', 'observer'),
+    ('im_controller', 'controller'),
+    ('im_controller', 'design_gains'),
+    ('im_adapt', 'adapter'),
+    ('im_robust', 'robust_examples'),
+    ('im_bringup', 'scenario'),
+    ('im_bringup', 'record'),
+    ('im_bringup', 'replay'),
+    ('im_bringup', 'report'),
+    ('im_bringup', 'recover'),
+]
+
+
+def ros2_run_path(package: str, executable: str) -> str:
+    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+    try:
+        prefix = get_package_prefix(package)
+    except PackageNotFoundError:
+        pytest.fail(f"package '{package}' is not in the ament index (AMENT_PREFIX_PATH="
+                    f"{os.environ.get('AMENT_PREFIX_PATH')!r}); run `make build` and source "
+                    f"install/setup.bash")
+    return os.path.join(prefix, 'lib', package, executable)
+
+
+@pytest.mark.parametrize('package,executable', EXECUTABLES)
+def test_executable_resolves_and_starts(package, executable):
+    path = ros2_run_path(package, executable)
+    assert os.access(path, os.X_OK), f'{path} is not an executable file'
+    proc = subprocess.run([path, '--help'], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert 'usage' in proc.stdout.lower(), proc.stdout[:500]

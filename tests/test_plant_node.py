@@ -1,0 +1,111 @@
+"""The plant node in lock-step: it advances only on a command stamped t_k, refuses bad input,
+reports a missing command by topic and stamp, and never lets its state become NaN."""
+import math
+import random
+
+import pytest
+import rclpy
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from im_common import topics as T
+from im_common.conversions import stamp_ns
+from im_common.lockstep import lockstep_qos, make_executor
+from im_common.params import InvalidParameter
+from im_plant.plant_node import PlantNode
+
+
+@pytest.fixture
+def ctx():
+    c = Context()
+    rclpy.init(context=c, domain_id=random.randint(150, 229))
+    yield c
+    rclpy.try_shutdown(context=c)
+
+
+def _commander(ctx, voltage):
+    """A stand-in controller: answers each measurement with voltage(ns) stamped like it."""
+    node = Node('fake_controller', context=ctx)
+    pub = node.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, lockstep_qos())
+    seen = []
+
+    def on_meas(m):
+        ns = stamp_ns(m.header.stamp)
+        seen.append(ns)
+        v = voltage(ns)
+        if v is None:
+            return
+        out = Vector3Stamped()
+        out.header.stamp = m.header.stamp
+        out.vector.x, out.vector.y = v
+        pub.publish(out)
+    node.create_subscription(Vector3Stamped, T.MEAS_CURRENT, on_meas, lockstep_qos())
+    return node, seen
+
+
+def _spin(ctx, nodes, until, cap=4000):
+    ex = make_executor(ctx)
+    for n in nodes:
+        ex.add_node(n)
+    for _ in range(cap):
+        if until():
+            break
+        ex.spin_once(timeout_sec=0.05)
+    ex.shutdown()
+
+
+def test_lockstep_advances_exactly_to_duration(ctx):
+    plant = PlantNode(context=ctx, parameter_overrides=[
+        Parameter('duration', value=0.05), Parameter('load', value='linear')])
+    w = 2 * math.pi * 60
+    cmd, seen = _commander(ctx, lambda ns: (200 * math.cos(w * ns * 1e-9),
+                                            200 * math.sin(w * ns * 1e-9)))
+    _spin(ctx, [plant, cmd], lambda: plant.done)
+    assert plant.exit_code == 0
+    assert plant.sim.k == 500                      # 0.05 s at the default T_s = 100 µs
+    # one measurement per step, in order (the last one may still be in flight when spinning stops)
+    assert seen[:500] == [k * 100_000 for k in range(500)] and len(seen) <= 501
+    assert plant.sim.x[5] > 0.0                    # the rotating field pulled the rotor along
+    plant.destroy_node()
+    cmd.destroy_node()
+
+
+def test_missing_command_is_reported_by_topic_and_stamp(ctx, caplog):
+    plant = PlantNode(context=ctx, parameter_overrides=[
+        Parameter('duration', value=1.0), Parameter('input_timeout', value=0.3),
+        Parameter('startup_timeout', value=0.3)])
+    # The stand-in controller stops answering after step 3.
+    cmd, _ = _commander(ctx, lambda ns: (1.0, 0.0) if ns < 4 * 100_000 else None)
+    _spin(ctx, [plant, cmd], lambda: plant.done)
+    assert plant.exit_code == 1
+    assert T.CMD_VOLTAGE in plant.failure
+    assert '0.000400000 s' in plant.failure and 'step 4' in plant.failure
+    assert plant.sim.k == 4
+    plant.destroy_node()
+    cmd.destroy_node()
+
+
+def test_non_finite_command_rejected_state_stays_finite(ctx):
+    plant = PlantNode(context=ctx, parameter_overrides=[Parameter('duration', value=0.002)])
+    cmd, _ = _commander(ctx, lambda ns: (float('nan'), 1.0) if ns == 500_000 else (10.0, 0.0))
+    _spin(ctx, [plant, cmd], lambda: plant.done)
+    assert plant.exit_code == 0
+    assert plant.rejected == 1
+    assert all(math.isfinite(v) for v in plant.sim.x)
+    plant.destroy_node()
+    cmd.destroy_node()
+
+
+@pytest.mark.parametrize('name,value,needle', [
+    ('R_s', -1.0, 'R_s'),
+    ('T_s', 0.0, 'T_s'),
+    ('L_sr', 0.09, 'L_sr'),          # σ = 1 − L_sr²/(L_s L_r) < 0
+    ('load', 'rocket', 'load'),
+])
+def test_invalid_parameter_is_refused_by_name(ctx, name, value, needle):
+    with pytest.raises((InvalidParameter, ValueError,
+                        rclpy.exceptions.InvalidParameterValueException)) as err:
+        PlantNode(context=ctx, parameter_overrides=[Parameter(name, value=value)])
+    assert needle in str(err.value)
