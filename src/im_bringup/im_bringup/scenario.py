@@ -1,0 +1,217 @@
+"""``ros2 run im_bringup scenario``: one drive run — the four nodes in one process, in lock-step.
+
+Spins plant, controller, observer and adapter on a context of their own with the chosen task,
+flux strategy, controller, variation and rate; shows progress; optionally records every topic to
+MCAP and writes the report; always writes a JSON summary of the figures of merit.
+
+Example::
+
+    ros2 run im_bringup scenario --task position --strategy min_loss \\
+        --record bags/demo.mcap --report bags/demo_report
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from typing import Optional
+
+from im_bringup.config import (CONTROLLERS, STRATEGIES, TASKS, VARIATIONS, node_parameters,
+                               to_yaml)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog='scenario', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--task', choices=TASKS, default='position')
+    ap.add_argument('--strategy', choices=STRATEGIES, default='min_energy')
+    ap.add_argument('--controller', choices=CONTROLLERS, default='nominal',
+                    help='nominal, or adaptive with the thesis law or the improved law')
+    ap.add_argument('--variation', choices=VARIATIONS, default='none',
+                    help='time variation of the true motor parameters (chapter4: seed 000 §4.3)')
+    ap.add_argument('--T-s', dest='T_s', type=float, default=1e-4, help='control period [s]')
+    ap.add_argument('--duration', type=float, default=None,
+                    help='simulated seconds (default: the task length, 2.0 / 1.5 s)')
+    ap.add_argument('--v-limit', type=float, default=0.0,
+                    help='inverter voltage limit [V] shared by plant and controller (0: none)')
+    ap.add_argument('--gains', metavar='YAML',
+                    help='parameters YAML from `design_gains` (controller current gain, observer '
+                         'injection gain); merged over the scenario parameters')
+    ap.add_argument('--params-file', metavar='YAML', help='extra node parameters to merge')
+    ap.add_argument('--record', metavar='MCAP', help='record every topic to this MCAP file')
+    ap.add_argument('--force', action='store_true', help='overwrite an existing recording')
+    ap.add_argument('--report', metavar='DIR', help='write the report of the recording here')
+    ap.add_argument('--summary', metavar='JSON',
+                    help='summary file (default: next to the recording, or bags/<task>_<strategy>.json)')
+    ap.add_argument('--write-params', metavar='YAML',
+                    help='only write the node parameters of this scenario (for the launch file) and exit')
+    ap.add_argument('--domain-id', type=int, default=None, help='DDS domain (default: random 150-229)')
+    ap.add_argument('--no-progress', action='store_true')
+    return ap
+
+
+def merge_yaml(parameters: dict, path: str) -> dict:
+    """Merge a ROS 2 parameters YAML (node: {ros__parameters: {...}}) over ``parameters``."""
+    import yaml
+    try:
+        with open(path) as f:
+            doc = yaml.safe_load(f) or {}
+    except OSError as exc:
+        raise SystemExit(f'error: cannot read parameters file {path}: {exc.strerror}')
+    for node, body in doc.items():
+        name = node.strip('/').split('/')[-1]
+        values = (body or {}).get('ros__parameters', {})
+        if name not in parameters:
+            raise SystemExit(f"error: {path}: unknown node '{node}' "
+                             f"(expected one of {', '.join(parameters)})")
+        parameters[name].update(values)
+    return parameters
+
+
+def git_revision() -> str:
+    try:
+        here = os.path.dirname(os.path.abspath(__file__))
+        return subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=here, capture_output=True,
+                              text=True, timeout=5).stdout.strip() or 'unknown'
+    except (OSError, subprocess.SubprocessError):
+        return 'unknown'
+
+
+def package_versions() -> dict:
+    from importlib import metadata
+    out = {}
+    for dist in ('ros-rclpy', 'ros-common-interfaces', 'ros-rmw-fastrtps-cpp', 'numpy', 'scipy',
+                 'mcap', 'mcap-ros2-support'):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = 'not installed'
+    return out
+
+
+def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
+                 variation: str = 'none', record: Optional[str] = None, force: bool = False,
+                 progress: bool = True, domain_id: Optional[int] = None,
+                 metadata: Optional[dict] = None) -> dict:
+    """Run one scenario through the lock-step graph; return its summary (figures of merit)."""
+    from im_bringup.graph import DriveGraph
+    from im_bringup.traces import Tap, TraceBuilder
+    builder = TraceBuilder()
+    writer = None
+    if record:
+        from im_bringup.bag import BagWriter
+        meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
+                             'variation': variation},
+                'versions': package_versions(), 'git': {'revision': git_revision()}}
+        for node, values in parameters.items():
+            meta[f'parameters/{node}'] = {k: repr(v) for k, v in values.items()}
+        meta.update(metadata or {})
+        writer = BagWriter(record, force=force,
+                           metadata={k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()})
+    sink = Tap(builder, writer)
+    graph = None
+    try:
+        graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
+        stats = graph.run(progress=progress)
+        plant = graph.plant
+        truth = plant.sim.truth()
+    finally:
+        if graph is not None:
+            graph.close()
+        if writer is not None:
+            writer.close()
+    summary = summarize(parameters, stats, truth, builder, task=task, strategy=strategy,
+                        controller=controller, variation=variation)
+    if record:
+        summary['bag'] = record
+    return summary
+
+
+def summarize(parameters: dict, stats: dict, truth: Optional[dict], builder, *, task: str,
+              strategy: str, controller: str, variation: str) -> dict:
+    """The figures of merit of a graph run (energy books from the plant, errors from traces)."""
+    from im_common.metrics import tracking_figures
+    from im_common.plant_sim import energy_summary
+    T_s = parameters['plant']['T_s']
+    summary = {'task': task, 'strategy': strategy, 'controller': controller,
+               'variation': variation, 'rate_hz': round(1.0 / T_s, 6)}
+    if truth is not None:
+        summary.update(energy_summary(truth))
+    summary.update(tracking_figures(builder.trace(), task))
+    summary.update({'steps': stats['steps'], 'wall_s': stats['wall_s'],
+                    'steps_per_s': stats['steps_per_s'], 'ok': stats['ok'],
+                    'failures': stats['failures']})
+    return summary
+
+
+def rclpy_errors():
+    from rclpy.exceptions import InvalidParameterValueException
+    return InvalidParameterValueException
+
+
+def print_summary(s: dict) -> None:
+    keys = ['E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'W_load_J', 'E_friction_J',
+            'dE_kinetic_J', 'dW_magnetic_J', 'balance_residual_J', 'pos_err_max_rad',
+            'pos_err_rms_rad', 'speed_err_max_rad_s', 'torque_err_max_Nm', 'V_max_V', 'i_max_A',
+            'steps', 'wall_s', 'steps_per_s']
+    print(f"{s['task']} task, {s['strategy']}, {s['controller']} controller, "
+          f"{s['rate_hz']:g} Hz, variation {s['variation']}")
+    for k in keys:
+        if k in s:
+            print(f'  {k:22s} {s[k]:14.6g}')
+
+
+def main(argv=None) -> int:
+    from rclpy.utilities import remove_ros_args
+    raw = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser().parse_args(remove_ros_args(args=['scenario'] + raw)[1:])
+    try:
+        parameters = node_parameters(args.task, args.strategy, args.controller, args.variation,
+                                     args.T_s, args.duration, args.v_limit)
+    except ValueError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    for extra in (args.gains, args.params_file):
+        if extra:
+            merge_yaml(parameters, extra)
+    if args.write_params:
+        with open(args.write_params, 'w') as f:
+            f.write(to_yaml(parameters))
+        print(f'parameters written to {args.write_params}')
+        return 0
+    if args.record and os.path.exists(args.record) and not args.force:
+        print(f'error: {args.record} exists; pass --force to overwrite it', file=sys.stderr)
+        return 2
+    try:
+        summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
+                               controller=args.controller, variation=args.variation,
+                               record=args.record, force=args.force,
+                               progress=not args.no_progress, domain_id=args.domain_id)
+    except KeyboardInterrupt:
+        print('\ninterrupted; the recording (if any) was closed and is readable', file=sys.stderr)
+        return 130
+    except (ValueError, FileExistsError, rclpy_errors()) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
+                           else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
+    os.makedirs(os.path.dirname(out) or '.', exist_ok=True)
+    with open(out, 'w') as f:
+        json.dump(summary, f, indent=2, default=float)
+    print_summary(summary)
+    print(f'summary: {out}')
+    if args.record:
+        print(f'recording: {args.record}')
+    if not summary['ok']:
+        print(f"error: the run stopped early: {summary['failures']}", file=sys.stderr)
+        return 1
+    if args.report and args.record:
+        from im_bringup.report import write_report
+        write_report([args.record], args.report)
+        print(f'report: {args.report}/')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""``ros2 run im_controller controller``: torque tracking with minimum magnetic energy (seed 000 ch. 3-4).
+
+A thin shell around :class:`im_controller.control_law.DriveController`. At step k it waits for the
+measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the adapter's
+estimates stamped t_k when ``use_adapter``), computes V_k and publishes it stamped t_k. References
+are published every ``reference_decimation`` steps for analysis. Setpoints on ``/im/setpoint``
+(profile ``setpoint``) take effect at the first step at or after their stamp.
+"""
+from __future__ import annotations
+
+import sys
+
+from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import JointState
+
+from im_common import topics as T
+from im_common.conversions import JointStateOut, Vector3Out, joint_values, period_ns, stamp_ns
+from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
+from im_common.node_params import declare_motor, declare_run
+from im_controller.control_law import DriveController
+from im_controller.parameters import config_from_parameters, declare_controller
+
+
+class ControllerNode(LockstepNode):
+    """Position / speed / torque tracking controller with selectable flux strategy."""
+
+    def __init__(self, **kwargs):
+        super().__init__('controller', **kwargs)
+        self.T_s, self.duration, timeout, startup = declare_run(self)
+        params = declare_motor(self, what='controller model (nominal estimates)')
+        values = declare_controller(self)
+        self.use_adapter = self.param('use_adapter', False,
+                                      'wait for and use the adapter estimates (eq. 4.10-4.12)')
+        self.ref_every = self.param('reference_decimation', 10,
+                                    'publish the references every N steps', 1, 1000000)
+        self.ctl = DriveController(config_from_parameters(params, values, self.T_s))
+        self.period = period_ns(self.T_s)
+        self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
+        q = lockstep_qos()
+        self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, q)
+        dq = data_qos()
+        self.pub_ref_shaft = self.create_publisher(JointState, T.REF_SHAFT, dq)
+        self.pub_ref_current = self.create_publisher(Vector3Stamped, T.REF_CURRENT, dq)
+        self.pub_ref_flux = self.create_publisher(Vector3Stamped, T.REF_FLUX, dq)
+        self.out_cmd, self.out_ri, self.out_rf = Vector3Out(), Vector3Out(), Vector3Out()
+        self.out_rs = JointStateOut([T.SHAFT_JOINT])
+        required = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX]
+        if self.use_adapter:
+            required.append(T.ADAPT_ESTIMATE)
+        self.gate = StepGate(required, self.period)
+        put = self.gate.put
+        self.create_subscription(Vector3Stamped, T.MEAS_CURRENT,
+                                 lambda m: self.ready(put(T.MEAS_CURRENT, stamp_ns(m.header.stamp),
+                                                          (m.vector.x, m.vector.y))), q)
+        self.create_subscription(JointState, T.MEAS_SHAFT,
+                                 lambda m: self.ready(put(T.MEAS_SHAFT, stamp_ns(m.header.stamp),
+                                                          (m.position[0], m.velocity[0]))), q)
+        self.create_subscription(Vector3Stamped, T.OBS_FLUX,
+                                 lambda m: self.ready(put(T.OBS_FLUX, stamp_ns(m.header.stamp),
+                                                          (m.vector.x, m.vector.y))), q)
+        if self.use_adapter:
+            self.create_subscription(
+                JointState, T.ADAPT_ESTIMATE,
+                lambda m: self.ready(put(T.ADAPT_ESTIMATE, stamp_ns(m.header.stamp),
+                                         joint_values(m, ('R_r', 'theta')))), q)
+        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos())
+        self.start_watchdog(timeout, startup)
+
+    def on_setpoint(self, msg: JointState) -> None:
+        ns = stamp_ns(msg.header.stamp)
+        for kind, field in (('position', msg.position), ('speed', msg.velocity),
+                            ('torque', msg.effort)):
+            if len(field):
+                try:
+                    self.ctl.set_setpoint(kind, float(field[0]), ns / 1e9)
+                except ValueError as exc:
+                    self.get_logger().error(f'rejected {T.SETPOINT} stamped {ns / 1e9:.9f} s: {exc}')
+                return
+        self.get_logger().error(f'rejected {T.SETPOINT}: no position, velocity or effort value')
+
+    def ready(self, inputs) -> None:
+        while inputs is not None and not self.done:
+            self.mark_started()
+            self.step(inputs)
+            if self.done:
+                return
+            inputs = self.gate.advance()
+
+    def step(self, inputs: dict) -> None:
+        ns = self.gate.expected
+        k = ns // self.period
+        i_a, i_b = inputs[T.MEAS_CURRENT]
+        theta, omega = inputs[T.MEAS_SHAFT]
+        f_a, f_b = inputs[T.OBS_FLUX]
+        est = inputs[T.ADAPT_ESTIMATE] if self.use_adapter else None
+        try:
+            v_a, v_b = self.ctl.compute(ns / 1e9, i_a, i_b, theta, omega, f_a, f_b, est)
+        except (ValueError, ArithmeticError) as exc:
+            self.fail(f'controller failed at step {k} (t = {ns / 1e9:.9f} s): {exc}')
+            return
+        self.pub_cmd.publish(self.out_cmd.fill(ns, v_a, v_b))
+        if k % self.ref_every == 0:
+            r = self.ctl.reference
+            self.pub_ref_shaft.publish(self.out_rs.fill(ns, (r['theta_ref'],), (r['omega_ref'],),
+                                                        (r['tau_ref'],)))
+            self.pub_ref_current.publish(self.out_ri.fill(ns, r['i_alpha_ref'], r['i_beta_ref']))
+            self.pub_ref_flux.publish(self.out_rf.fill(ns, r['phi_alpha_ref'], r['phi_beta_ref'],
+                                                       r['phi_d_ref']))
+        if self.last_step is not None and k + 1 >= self.last_step:
+            self.finish()
+
+
+def main(argv=None) -> None:
+    sys.exit(node_main(ControllerNode, argv))
+
+
+if __name__ == '__main__':
+    main()
