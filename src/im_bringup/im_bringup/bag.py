@@ -1,0 +1,672 @@
+"""Runs recorded to MCAP (ROS 2 profile) and read back.
+
+Writing
+-------
+:class:`BagWriter` writes an MCAP file that rosbag2's MCAP storage (``ros2 bag info/play``),
+Foxglove, PlotJuggler and ``rosbags`` open:
+
+* profile ``ros2``; one Schema per type, encoding ``ros2msg`` with the full dependency text
+  (:mod:`im_bringup.msgdefs`); one Channel per topic, message encoding ``cdr``, channel metadata
+  ``offered_qos_profiles`` (rosbag2 metadata version 9 YAML) and ``topic_type_hash``
+  (``RIHS01_...``);
+* messages in chunks (zstd, lz4 or none), each followed by its Message Index records; a summary
+  section with Schemas, Channels, Chunk Indexes, Metadata Indexes and Statistics, Summary Offsets,
+  CRCs; a ``rosbag2`` Metadata record with ``serialized_metadata`` as ``ros2 bag record`` writes it;
+* run metadata (scenario, parameters, versions, git revision) as named Metadata records.
+
+Every message's log time and publish time is its stamp in simulated time (integer ns).
+Schemas, Channels and Metadata are written to the file as soon as they are declared, and each
+chunk is flushed to the OS when full, so a hard kill loses at most the open chunk and
+``recover`` can salvage the rest.
+
+The per-message path is a dict lookup, one ``struct.pack`` and two ``bytearray`` appends;
+messages are encoded with :mod:`im_bringup.cdr` (exact-length CDR). Cost: see
+``benchmarks/bench_bag.py`` and ``docs/recording.md``.
+
+Reading
+-------
+:func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
+:func:`load_run` turns a recording into a :class:`Run` (trace arrays in the
+:mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
+truncated or missing file raises :class:`BagError` naming the file and what is wrong.
+"""
+from __future__ import annotations
+
+import atexit
+import os
+import struct
+import weakref
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
+
+from . import cdr
+from .msgdefs import full_definition, ros_distro, type_hash
+
+MAGIC = b'\x89MCAP0\r\n'
+PROFILE = 'ros2'
+LIBRARY = 'im_bringup.bag 0.1 (MCAP writer for the IM drive stack)'
+ROSBAG2_METADATA_VERSION = 9
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA = 7, 8, 11, 12
+OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
+
+_MSG_HDR = struct.Struct('<BQHIQQ')     # opcode, record length, channel, sequence, log, publish
+_MSG_FIXED = 2 + 4 + 8 + 8
+_REC = struct.Struct('<BQ')
+_U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
+_QQ = struct.Struct('<QQ')
+
+INFINITE = {'sec': 9223372036, 'nsec': 854775807}
+
+
+class BagError(Exception):
+    """A recording cannot be read or written; the message names the file and the problem."""
+
+    def __init__(self, path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f'{path}: {problem}')
+
+
+# ------------------------------------------------------------------------------------------
+# Encoding helpers
+# ------------------------------------------------------------------------------------------
+def _s(text: str) -> bytes:
+    b = text.encode('utf-8')
+    return _U32.pack(len(b)) + b
+
+
+def _b(data: bytes) -> bytes:
+    return _U32.pack(len(data)) + data
+
+
+def _map_str(d: Mapping[str, str]) -> bytes:
+    body = b''.join(_s(str(k)) + _s(str(v)) for k, v in sorted(d.items()))
+    return _U32.pack(len(body)) + body
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return _REC.pack(op, len(body)) + body
+
+
+def qos_yaml(reliability: str = 'reliable', durability: str = 'volatile', depth: int = 10,
+             history: str = 'keep_last') -> str:
+    """One offered QoS profile as rosbag2 (metadata version 9) serializes it."""
+    def t(d):
+        return f'{{sec: {d["sec"]}, nsec: {d["nsec"]}}}'
+    return ('- history: {h}\n  depth: {d}\n  reliability: {r}\n  durability: {u}\n'
+            '  deadline: {i}\n  lifespan: {i}\n  liveliness: automatic\n'
+            '  liveliness_lease_duration: {i}\n  avoid_ros_namespace_conventions: false\n'
+            ).format(h=history, d=int(depth), r=reliability, u=durability, i=t(INFINITE))
+
+
+DEFAULT_QOS = qos_yaml()
+
+
+def _compressor(name: str):
+    if name in ('', 'none', None):
+        return '', None
+    if name == 'zstd':
+        import zstandard
+        c = zstandard.ZstdCompressor(level=3)
+        return 'zstd', c.compress
+    if name == 'lz4':
+        import lz4.frame
+        return 'lz4', lz4.frame.compress
+    raise ValueError(f"compression must be 'zstd', 'lz4' or 'none', not {name!r}")
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    if compression == '':
+        return data
+    if compression == 'zstd':
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == 'lz4':
+        import lz4.frame
+        return lz4.frame.decompress(data)
+    raise ValueError(f'unsupported chunk compression {compression!r}')
+
+
+def _topic_type_default(topic: str) -> Optional[str]:
+    try:
+        from im_common.topics import TOPIC_TYPES
+    except ImportError:  # pragma: no cover
+        return None
+    return TOPIC_TYPES.get(topic)
+
+
+# ------------------------------------------------------------------------------------------
+# Writer
+# ------------------------------------------------------------------------------------------
+class BagWriter:
+    """MCAP writer for ROS 2 runs (context manager).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file; parent directories are created.
+    force : bool
+        Overwrite an existing file (otherwise :class:`FileExistsError` naming the path).
+    metadata : dict of name -> dict of str
+        Metadata records written at once (e.g. ``{'scenario': {...}}``).
+    compression : 'zstd', 'lz4' or 'none'
+        Chunk compression.
+    chunk_size : int
+        Uncompressed chunk size [bytes] at which a chunk is closed and flushed.
+    close_at_exit : bool
+        Also close from an ``atexit`` hook (the interpreter exiting without ``close``).
+    """
+
+    def __init__(self, path, force: bool = False,
+                 metadata: Optional[Dict[str, Dict[str, str]]] = None,
+                 compression: str = 'zstd', chunk_size: int = 1 << 20,
+                 close_at_exit: bool = True):
+        self.path = Path(path)
+        self._compression, self._compress = _compressor(compression)
+        if int(chunk_size) < 1024:
+            raise ValueError(f'chunk_size must be >= 1024 bytes, not {chunk_size!r}')
+        self._chunk_size = int(chunk_size)
+        self._closed = True
+        if self.path.exists() and not force:
+            raise FileExistsError(f'{self.path}: refusing to overwrite an existing recording '
+                                  '(pass force=True / --force)')
+        if self.path.exists() and self.path.is_dir():
+            raise IsADirectoryError(f'{self.path}: is a directory, not an MCAP file path')
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, 'wb')
+        self._crc = 0
+        self._pos = 0
+        self._schemas: Dict[str, int] = {}          # type -> schema id
+        self._schema_recs: List[bytes] = []
+        self._channel_recs: List[bytes] = []
+        self._topics: Dict[str, Tuple[int, str]] = {}   # topic -> (channel id, type)
+        self._chan: Dict[str, tuple] = {}           # hot path: topic -> (cid, cls, encoder)
+        self._qos: Dict[str, str] = {}
+        self._chunk_indexes: List[bytes] = []
+        self._metadata_index: List[bytes] = []
+        self._counts: Dict[int, int] = {}
+        self._t_min: Optional[int] = None
+        self._t_max: Optional[int] = None
+        self._buf = bytearray()
+        self._ix: list = []
+        self._flushing = False
+        self._close_pending = False
+        self._closed = False
+        self._write(MAGIC)
+        self._write(_record(OP_HEADER, _s(PROFILE) + _s(LIBRARY)))
+        for name, data in (metadata or {}).items():
+            self.add_metadata(name, data)
+        self._f.flush()
+        if close_at_exit:
+            ref = weakref.ref(self)
+            self._atexit = lambda: (ref() is not None) and ref().close()
+            atexit.register(self._atexit)
+        else:
+            self._atexit = None
+
+    # -- context manager ------------------------------------------------------------------
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # -- low level ------------------------------------------------------------------------
+    def _write(self, data: bytes) -> None:
+        self._f.write(data)
+        self._crc = zlib.crc32(data, self._crc)
+        self._pos += len(data)
+
+    # -- declarations ---------------------------------------------------------------------
+    def add_topic(self, topic: str, type_name: str, qos: Optional[str] = None) -> int:
+        """Declare a topic (idempotent for the same type); returns its channel id.
+
+        ``qos`` is the ``offered_qos_profiles`` YAML (default: reliable, volatile, keep_last 10).
+        """
+        if self._closed:
+            raise BagError(self.path, f'cannot add topic {topic!r}: the bag is closed')
+        if not topic.startswith('/'):
+            raise ValueError(f'topic names must be absolute (start with /): {topic!r}')
+        if topic in self._topics:
+            cid, t = self._topics[topic]
+            if t != type_name:
+                raise ValueError(f'topic {topic!r} is already recorded as {t}, not {type_name}')
+            return cid
+        cls = cdr.message_class(type_name)      # fails early on unknown types
+        sid = self._schemas.get(type_name)
+        if sid is None:
+            sid = len(self._schemas) + 1
+            rec = _record(OP_SCHEMA, _U16.pack(sid) + _s(type_name) + _s('ros2msg')
+                          + _b(full_definition(type_name).encode('utf-8')))
+            self._schemas[type_name] = sid
+            self._schema_recs.append(rec)
+            self._write(rec)
+        cid = len(self._topics) + 1
+        q = qos if qos is not None else DEFAULT_QOS
+        meta = {'offered_qos_profiles': q, 'topic_type_hash': type_hash(type_name)}
+        rec = _record(OP_CHANNEL, _U16.pack(cid) + _U16.pack(sid) + _s(topic) + _s('cdr')
+                      + _map_str(meta))
+        self._channel_recs.append(rec)
+        self._write(rec)
+        self._f.flush()
+        self._topics[topic] = (cid, type_name)
+        self._qos[topic] = q
+        self._counts[cid] = 0
+        self._chan[topic] = (cid, cls, cdr.encoder_for(cls))
+        return cid
+
+    def _lookup_slow(self, topic: str):
+        if self._closed:
+            raise BagError(self.path, f'write to {topic!r} after the bag was closed')
+        if topic not in self._topics:
+            t = _topic_type_default(topic)
+            if t is None:
+                raise KeyError(f'topic {topic!r} is not declared and not in im_common.topics; '
+                               'call add_topic(topic, type_name) first')
+            self.add_topic(topic, t)
+        return self._chan[topic]
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """A named Metadata record (string -> string), written to the file at once."""
+        if self._closed:
+            raise BagError(self.path, f'cannot add metadata {name!r}: the bag is closed')
+        rec = _record(OP_METADATA, _s(name) + _map_str({str(k): str(v) for k, v in data.items()}))
+        off = self._pos
+        self._write(rec)
+        self._f.flush()
+        self._metadata_index.append(_record(OP_METADATA_INDEX, _QQ.pack(off, len(rec)) + _s(name)))
+
+    # -- the hot path ---------------------------------------------------------------------
+    def write(self, topic: str, msg, stamp_ns: int) -> None:
+        """Record an rclpy message at log/publish time ``stamp_ns`` (simulated time, ns)."""
+        try:
+            cid, cls, enc = self._chan[topic]
+        except KeyError:
+            cid, cls, enc = self._lookup_slow(topic)
+        if msg.__class__ is not cls:
+            raise TypeError(f'{topic}: expected {cls.__module__}.{cls.__name__}, got '
+                            f'{type(msg).__module__}.{type(msg).__name__}')
+        data = enc(msg)
+        buf = self._buf
+        off = len(buf)
+        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns, stamp_ns)
+        buf += data
+        self._ix.append((cid, stamp_ns, off))
+        if off >= self._chunk_size:
+            self._flush_chunk()
+
+    def write_serialized(self, topic: str, data: bytes, stamp_ns: int) -> None:
+        """Record an already serialized (CDR) message."""
+        try:
+            cid = self._chan[topic][0]
+        except KeyError:
+            cid = self._lookup_slow(topic)[0]
+        buf = self._buf
+        off = len(buf)
+        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns, stamp_ns)
+        buf += data
+        self._ix.append((cid, stamp_ns, off))
+        if off >= self._chunk_size:
+            self._flush_chunk()
+
+    def write_vector3(self, topic: str, stamp_ns: int, x: float, y: float, z: float = 0.0) -> None:
+        """Fast path: a ``Vector3Stamped`` (frame_id '') stamped ``stamp_ns`` without a message
+        object. The topic must be (or default to) a Vector3Stamped topic."""
+        s, ns = divmod(stamp_ns, 1_000_000_000)
+        self.write_serialized(topic, cdr.pack_vector3_stamped(s, ns, x, y, z), stamp_ns)
+
+    def write_joint_state(self, topic: str, stamp_ns: int, names, position=(), velocity=(),
+                          effort=()) -> None:
+        """Fast path: a ``JointState`` stamped ``stamp_ns`` without a message object."""
+        s, ns = divmod(stamp_ns, 1_000_000_000)
+        self.write_serialized(topic, cdr.pack_joint_state(s, ns, names, position, velocity,
+                                                          effort), stamp_ns)
+
+    # -- chunks ---------------------------------------------------------------------------
+    def _flush_chunk(self) -> None:
+        if self._closed:
+            return
+        ix = self._ix
+        if not ix:
+            self._buf = bytearray()
+            return
+        self._flushing = True
+        try:
+            buf = self._buf
+            self._buf = bytearray()
+            self._ix = []
+            # A signal handler may have interrupted write() between its two appends; keep only
+            # complete messages.
+            last_off = ix[-1][2]
+            (length,) = _U64.unpack_from(buf, last_off + 1) if len(buf) >= last_off + 9 else (None,)
+            if length is None or last_off + 9 + length > len(buf):
+                ix.pop()
+                del buf[last_off:]
+            elif last_off + 9 + length < len(buf):
+                del buf[last_off + 9 + length:]
+            if not ix:
+                return
+            records = bytes(buf)
+            t0 = min(e[1] for e in ix)
+            t1 = max(e[1] for e in ix)
+            per_chan: Dict[int, list] = {}
+            for cid, t, off in ix:
+                per_chan.setdefault(cid, []).append((t, off))
+            crc = zlib.crc32(records)
+            data = self._compress(records) if self._compress else records
+            body = (struct.pack('<QQQI', t0, t1, len(records), crc) + _s(self._compression)
+                    + _U64.pack(len(data)))
+            chunk_start = self._pos
+            self._write(_REC.pack(OP_CHUNK, len(body) + len(data)))
+            self._write(body)
+            self._write(data)
+            chunk_len = self._pos - chunk_start
+            offsets = {}
+            ix_start = self._pos
+            for cid in sorted(per_chan):
+                entries = per_chan[cid]
+                entries.sort()
+                arr = b''.join(_QQ.pack(t, o) for t, o in entries)
+                offsets[cid] = self._pos
+                self._write(_record(OP_MESSAGE_INDEX, _U16.pack(cid) + _b(arr)))
+                self._counts[cid] = self._counts.get(cid, 0) + len(entries)
+            ix_len = self._pos - ix_start
+            self._f.flush()
+            omap = b''.join(_U16.pack(c) + _U64.pack(o) for c, o in sorted(offsets.items()))
+            self._chunk_indexes.append(_record(
+                OP_CHUNK_INDEX,
+                struct.pack('<QQQQ', t0, t1, chunk_start, chunk_len) + _b(omap)
+                + _U64.pack(ix_len) + _s(self._compression) + _QQ.pack(len(data), len(records))))
+            self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
+            self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
+        finally:
+            self._flushing = False
+        if self._close_pending:
+            self.close()
+
+    def flush(self) -> None:
+        """Close the open chunk and push it to the OS (the file stays open)."""
+        if not self._closed:
+            self._flush_chunk()
+            self._f.flush()
+
+    # -- closing --------------------------------------------------------------------------
+    @property
+    def message_count(self) -> int:
+        return sum(self._counts.values()) + len(self._ix)
+
+    def _rosbag2_metadata(self) -> str:
+        import yaml
+        start = self._t_min or 0
+        dur = (self._t_max - self._t_min) if self._t_min is not None else 0
+        topics = []
+        for topic, (cid, t) in self._topics.items():
+            topics.append({'topic_metadata': {
+                'name': topic, 'type': t, 'serialization_format': 'cdr',
+                'offered_qos_profiles': self._qos[topic], 'type_description_hash': type_hash(t)},
+                'message_count': self._counts.get(cid, 0)})
+        total = sum(self._counts.values())
+        md = {
+            'version': ROSBAG2_METADATA_VERSION, 'storage_identifier': 'mcap',
+            'duration': {'nanoseconds': dur},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': total, 'topics_with_message_count': topics,
+            'compression_format': '', 'compression_mode': '',
+            'relative_file_paths': [self.path.name],
+            'files': [{'path': self.path.name, 'starting_time': {'nanoseconds_since_epoch': start},
+                       'duration': {'nanoseconds': dur}, 'message_count': total}],
+            'custom_data': {}, 'ros_distro': ros_distro(),
+        }
+        return yaml.safe_dump({'rosbag2_bagfile_information': md}, sort_keys=False)
+
+    def close(self) -> None:
+        """Finish the file: last chunk, summary, footer. Idempotent; safe to call from a signal
+        handler that interrupted :meth:`write` (an incomplete last message is dropped) or from
+        ``atexit``."""
+        if self._closed:
+            return
+        if self._flushing:          # re-entered from a signal handler during a chunk flush
+            self._close_pending = True
+            return
+        self._chan = {}             # later writes take the slow path and raise BagError
+        try:
+            self._flush_chunk()
+            if self._closed:        # the flush's pending close already finished the file
+                return
+            self._closed = True
+            # rosbag2's own metadata record (ros2 bag info / play read it)
+            rb = self._rosbag2_metadata()
+            rec = _record(OP_METADATA, _s('rosbag2') + _map_str({'serialized_metadata': rb}))
+            off = self._pos
+            self._write(rec)
+            self._metadata_index.append(
+                _record(OP_METADATA_INDEX, _QQ.pack(off, len(rec)) + _s('rosbag2')))
+            self._write(_record(OP_DATA_END, _U32.pack(self._crc)))
+            # summary section
+            summary_start = self._pos
+            scrc = 0
+            groups = []
+
+            def put(op, recs):
+                nonlocal scrc
+                if not recs:
+                    return
+                start = self._pos
+                for r in recs:
+                    self._write(r)
+                    scrc = zlib.crc32(r, scrc)
+                groups.append((op, start, self._pos - start))
+            put(OP_SCHEMA, self._schema_recs)
+            put(OP_CHANNEL, self._channel_recs)
+            counts = b''.join(_U16.pack(c) + _U64.pack(n) for c, n in sorted(self._counts.items()))
+            stats = _record(OP_STATISTICS, struct.pack(
+                '<QHIIIIQQ', sum(self._counts.values()), len(self._schemas), len(self._topics), 0,
+                len(self._metadata_index), len(self._chunk_indexes), self._t_min or 0,
+                self._t_max or 0) + _b(counts))
+            put(OP_STATISTICS, [stats])
+            put(OP_CHUNK_INDEX, self._chunk_indexes)
+            put(OP_METADATA_INDEX, self._metadata_index)
+            summary_offset_start = self._pos
+            for op, start, length in groups:
+                r = _record(OP_SUMMARY_OFFSET, struct.pack('<BQQ', op, start, length))
+                self._write(r)
+                scrc = zlib.crc32(r, scrc)
+            head = _REC.pack(OP_FOOTER, 20) + _QQ.pack(summary_start, summary_offset_start)
+            scrc = zlib.crc32(head, scrc)
+            self._write(head + _U32.pack(scrc))
+            self._write(MAGIC)
+            self._f.flush()
+            try:
+                os.fsync(self._f.fileno())
+            except OSError:
+                pass
+        finally:
+            self._closed = True
+            self._f.close()
+            if self._atexit is not None:
+                atexit.unregister(self._atexit)
+                self._atexit = None
+
+
+# ------------------------------------------------------------------------------------------
+# Reader
+# ------------------------------------------------------------------------------------------
+@dataclass
+class BagInfo:
+    path: str
+    topics: Dict[str, str]                  # topic -> type
+    counts: Dict[str, int]                  # topic -> messages
+    start_ns: int
+    end_ns: int
+    message_count: int
+    metadata: Dict[str, Dict[str, str]]
+    channels: dict = field(default_factory=dict, repr=False)   # cid -> (topic, type, metadata)
+
+
+def _open_checked(path):
+    p = Path(path)
+    if not p.exists():
+        raise BagError(p, 'no such file')
+    if p.is_dir():
+        raise BagError(p, 'is a directory; expected an .mcap file')
+    size = p.stat().st_size
+    with open(p, 'rb') as f:
+        head = f.read(8)
+        if head != MAGIC:
+            raise BagError(p, 'not an MCAP file (bad magic bytes at the start)'
+                           if size >= 8 else f'not an MCAP file (only {size} bytes)')
+        f.seek(max(0, size - 8))
+        tail = f.read(8)
+    if size < 16 or tail != MAGIC:
+        raise BagError(p, 'truncated: no MCAP footer (the writer did not close the file - killed?)'
+                       f'; salvage it with `ros2 run im_bringup recover {p}`')
+    return p
+
+
+def _summary(path):
+    from mcap.reader import make_reader
+    p = _open_checked(path)
+    try:
+        with open(p, 'rb') as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:
+                raise BagError(p, 'no summary section (cannot index the recording)')
+            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    except BagError:
+        raise
+    except Exception as exc:   # mcap raises many kinds on corrupt input
+        raise BagError(p, f'corrupt MCAP summary: {type(exc).__name__}: {exc}') from None
+    return p, summary, metadata
+
+
+def info(path) -> BagInfo:
+    """Topics, types, counts, time range and metadata of a recording."""
+    p, summary, metadata = _summary(path)
+    topics, counts, channels = {}, {}, {}
+    st = summary.statistics
+    for cid, ch in summary.channels.items():
+        sch = summary.schemas.get(ch.schema_id)
+        tname = sch.name if sch else ''
+        topics[ch.topic] = tname
+        counts[ch.topic] = st.channel_message_counts.get(cid, 0) if st else 0
+        channels[cid] = (ch.topic, tname, dict(ch.metadata))
+    return BagInfo(str(p), topics, counts, st.message_start_time if st else 0,
+                   st.message_end_time if st else 0, st.message_count if st else 0,
+                   metadata, channels)
+
+
+def iter_raw(path, topics: Optional[Iterable[str]] = None
+             ) -> Iterator[Tuple[str, str, int, bytes]]:
+    """(topic, type, log_time_ns, cdr bytes) in log-time order (stable within equal times)."""
+    p, summary, _ = _summary(path)
+    want = None if topics is None else set(topics)
+    chans = {}
+    for cid, ch in summary.channels.items():
+        if want is None or ch.topic in want:
+            sch = summary.schemas.get(ch.schema_id)
+            chans[cid] = (ch.topic, sch.name if sch else '')
+    if want is not None:
+        missing = want - {c[0] for c in chans.values()}
+        if missing:
+            raise BagError(p, f'topic(s) not in the recording: {sorted(missing)}')
+    idx = sorted(summary.chunk_indexes, key=lambda c: (c.message_start_time, c.chunk_start_offset))
+    overlapping = any(b.message_start_time < a.message_end_time for a, b in zip(idx, idx[1:]))
+    if overlapping:
+        yield from _iter_raw_mcap(p, chans)
+        return
+    with open(p, 'rb') as f:
+        for ci in idx:
+            if want is not None and not (set(ci.message_index_offsets) & set(chans)):
+                continue
+            yield from _chunk_messages(p, f, ci, chans)
+
+
+def _chunk_messages(p, f, ci, chans):
+    try:
+        f.seek(ci.chunk_start_offset)
+        raw = f.read(ci.chunk_length)
+        op, _length = _REC.unpack_from(raw, 0)
+        if op != OP_CHUNK:
+            raise ValueError(f'chunk index points at opcode {op}')
+        t0, t1, usize, crc = struct.unpack_from('<QQQI', raw, 9)
+        pos = 9 + 28
+        (n,) = _U32.unpack_from(raw, pos)
+        comp = raw[pos + 4:pos + 4 + n].decode()
+        pos += 4 + n
+        (clen,) = _U64.unpack_from(raw, pos)
+        pos += 8
+        data = _decompress(comp, raw[pos:pos + clen], usize)
+        if len(data) != usize:
+            raise ValueError('chunk size mismatch after decompression')
+        if crc and zlib.crc32(data) != crc:
+            raise ValueError('chunk CRC mismatch')
+    except Exception as exc:
+        raise BagError(p, f'corrupt chunk at byte {ci.chunk_start_offset}: {exc}') from None
+    out = []
+    pos, end, seq = 0, len(data), 0
+    while pos < end:
+        op, length = _REC.unpack_from(data, pos)
+        if op == OP_MESSAGE:
+            cid, _, log_time, _ = struct.unpack_from('<HIQQ', data, pos + 9)
+            c = chans.get(cid)
+            if c is not None:
+                out.append((log_time, seq, c[0], c[1], data[pos + 9 + _MSG_FIXED:pos + 9 + length]))
+                seq += 1
+        pos += 9 + length
+    out.sort(key=lambda e: (e[0], e[1]))
+    for log_time, _, topic, tname, payload in out:
+        yield topic, tname, log_time, payload
+
+
+def _iter_raw_mcap(p, chans):
+    from mcap.reader import make_reader
+    try:
+        with open(p, 'rb') as f:
+            for sch, ch, m in make_reader(f, validate_crcs=True).iter_messages(log_time_order=True):
+                if m.channel_id in chans:
+                    topic, tname = chans[m.channel_id]
+                    yield topic, tname, m.log_time, m.data
+    except BagError:
+        raise
+    except Exception as exc:
+        raise BagError(p, f'corrupt MCAP data: {type(exc).__name__}: {exc}') from None
+
+
+def read_messages(path, topics: Optional[Iterable[str]] = None
+                  ) -> Iterator[Tuple[str, int, object]]:
+    """(topic, log_time_ns, rclpy message) in log-time order."""
+    from rclpy.serialization import deserialize_message
+    classes = {}
+    for topic, tname, t, data in iter_raw(path, topics):
+        cls = classes.get(tname)
+        if cls is None:
+            try:
+                cls = classes[tname] = cdr.message_class(tname)
+            except ValueError as exc:
+                raise BagError(path, str(exc)) from None
+        try:
+            msg = deserialize_message(data, cls)
+        except Exception as exc:
+            raise BagError(path, f'message on {topic} at t = {t} ns does not deserialize as '
+                           f'{tname}: {exc}') from None
+        yield topic, t, msg
+
+
+# load_run / Run live in im_bringup.run; re-exported here for the documented API.
+from .run import Run, load_run  # noqa: E402,F401
