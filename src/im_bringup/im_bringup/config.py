@@ -80,4 +80,4 @@ def to_yaml(parameters: Dict[str, Dict[str, object]], use_sim_time: bool = True)
         if use_sim_time and node != 'plant':
             vals['use_sim_time'] = True
         doc[node] = {'ros__parameters': vals}
-    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
+    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
