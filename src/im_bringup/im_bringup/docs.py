@@ -1,0 +1,65 @@
+"""Regenerate the README's topic and parameter tables from the code (``python -m im_bringup.docs``).
+
+The tables sit between ``<!-- topics:begin -->`` / ``<!-- topics:end -->`` and
+``<!-- parameters:begin -->`` / ``<!-- parameters:end -->``; ``tests/test_readme.py`` fails when the
+README no longer matches what the nodes declare.
+"""
+from __future__ import annotations
+
+import os
+import random
+import re
+import sys
+
+
+def parameter_tables() -> str:
+    import rclpy
+    from rclpy.context import Context
+
+    from im_adapt.adapter_node import AdapterNode
+    from im_common.lockstep import parameter_table
+    from im_controller.controller_node import ControllerNode
+    from im_observer.observer_node import ObserverNode
+    from im_plant.plant_node import PlantNode
+    parts = []
+    for title, factory in (('plant (`ros2 run im_plant plant`)', PlantNode),
+                           ('controller (`ros2 run im_controller controller`)', ControllerNode),
+                           ('observer (`ros2 run im_observer observer`)', ObserverNode),
+                           ('adapter (`ros2 run im_adapt adapter`)', AdapterNode)):
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+        try:
+            node = factory(context=ctx)
+            parts.append(f'### {title}\n\n{parameter_table(node)}\n')
+            node.destroy_node()
+        finally:
+            rclpy.shutdown(context=ctx)
+    return '\n'.join(parts)
+
+
+def render(text: str) -> str:
+    from im_common.topics import markdown_table
+    text = replace_section(text, 'topics', markdown_table())
+    return replace_section(text, 'parameters', parameter_tables())
+
+
+def replace_section(text: str, name: str, body: str) -> str:
+    pattern = re.compile(rf'(<!-- {name}:begin -->\n)(.*?)(<!-- {name}:end -->)', re.S)
+    if not pattern.search(text):
+        raise ValueError(f'README has no <!-- {name}:begin --> ... <!-- {name}:end --> section')
+    return pattern.sub(lambda m: m.group(1) + body.rstrip('\n') + '\n' + m.group(3), text)
+
+
+def main(argv=None) -> int:
+    path = (argv or sys.argv[1:] or [os.path.join(os.getcwd(), 'README.md')])[0]
+    with open(path) as f:
+        text = f.read()
+    new = render(text)
+    with open(path, 'w') as f:
+        f.write(new)
+    print(f'{path}: tables regenerated')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
