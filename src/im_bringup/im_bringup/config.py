@@ -11,7 +11,7 @@ from typing import Dict, Optional, Sequence
 
 TASKS = ('position', 'speed')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive')
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'robust')
 VARIATIONS = ('none', 'chapter4')
 
 # Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.
@@ -52,7 +52,7 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
                  truth_decimation=int(truth_decimation),
                  **{k: v for k, v in preset.items() if k != 'duration'})
     estimates = dict(CHAPTER4_ESTIMATES) if variation == 'chapter4' else {}
-    adaptive = controller != 'nominal'
+    adaptive = controller in ('adaptive_thesis', 'adaptive')
     ctl = dict(common, mode=task, strategy=strategy, use_adapter=adaptive,
                v_limit=float(v_limit), reference_decimation=int(reference_decimation),
                load_known=True, load=preset['load'],
