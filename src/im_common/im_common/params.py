@@ -39,6 +39,7 @@ class InvalidParameter(ValueError):
     def __init__(self, name: str, value, reason: str):
         self.name = name
         self.value = value
+        self.reason = reason
         super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
 
 
@@ -243,7 +244,7 @@ class ParameterSchedule:
                 self.params_at(t)
             except InvalidParameter as exc:
                 raise InvalidParameter(exc.name, exc.value,
-                                       f'{exc} at t = {t:.6g} s of schedule {self.name!r}') from None
+                                       f'{exc.reason} at t = {t:.6g} s of schedule {self.name!r}') from None
 
     def describe(self) -> Dict[str, object]:
         return {'name': self.name,
