@@ -109,3 +109,24 @@ def test_invalid_parameter_is_refused_by_name(ctx, name, value, needle):
                         rclpy.exceptions.InvalidParameterValueException)) as err:
         PlantNode(context=ctx, parameter_overrides=[Parameter(name, value=value)])
     assert needle in str(err.value)
+
+
+def test_custom_variation_drives_the_true_parameter(ctx):
+    plant = PlantNode(context=ctx, parameter_overrides=[
+        Parameter('duration', value=0.01), Parameter('variation', value='custom'),
+        Parameter('variation_parameter', value='R_r'), Parameter('variation_kind', value='ramp'),
+        Parameter('variation_offset', value=0.5), Parameter('variation_slope', value=10.0)])
+    cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0))
+    _spin(ctx, [plant, cmd], lambda: plant.done)
+    assert plant.sim.truth()['R_r'] == pytest.approx(0.5 + 10.0 * 0.01)
+    plant.destroy_node()
+    cmd.destroy_node()
+
+
+def test_custom_variation_that_breaks_sigma_is_refused(ctx):
+    with pytest.raises(InvalidParameter) as err:
+        PlantNode(context=ctx, parameter_overrides=[
+            Parameter('duration', value=1.0), Parameter('variation', value='custom'),
+            Parameter('variation_parameter', value='L_sr'), Parameter('variation_kind', value='ramp'),
+            Parameter('variation_offset', value=0.08136), Parameter('variation_slope', value=0.01)])
+    assert 'L_sr' in str(err.value) and 't = ' in str(err.value)

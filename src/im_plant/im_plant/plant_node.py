@@ -19,7 +19,7 @@ from im_common.conversions import (JointStateOut, Vector3Out, clock_msg, period_
 from im_common.loads import LOAD_KINDS, make_load
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
-from im_common.params import SCHEDULES, ParameterSchedule
+from im_common.params import ELECTRICAL_NAMES, SCHEDULES, ParameterSchedule, Variation
 from im_common.plant_sim import PlantSimulator
 
 
@@ -31,8 +31,19 @@ class PlantNode(LockstepNode):
         p = self.param
         self.T_s, self.duration, timeout, startup = declare_run(self)
         motor = declare_motor(self)
-        variation = p('variation', 'none', 'time variation of the true parameters',
-                      choices=tuple(SCHEDULES))
+        variation = p('variation', 'none',
+                      'time variation of the true parameters (custom: one parameter varied as '
+                      'variation_kind with the variation_* values below)',
+                      choices=tuple(SCHEDULES) + ('custom',))
+        v_name = p('variation_parameter', 'R_r', 'custom variation: which parameter',
+                   choices=ELECTRICAL_NAMES)
+        v_kind = p('variation_kind', 'ramp', 'custom variation: value(t) = offset + slope*t '
+                   '(ramp), offset + amplitude*sin(omega*t) (sinusoid), offset (constant)',
+                   choices=('constant', 'ramp', 'sinusoid'))
+        v_off = p('variation_offset', 0.842, 'custom variation: offset [SI]', -1e6, 1e6)
+        v_slope = p('variation_slope', 0.0, 'custom variation: slope [SI/s]', -1e6, 1e6)
+        v_amp = p('variation_amplitude', 0.0, 'custom variation: amplitude [SI]', -1e6, 1e6)
+        v_omega = p('variation_omega', 0.0, 'custom variation: angular frequency [rad/s]', -1e6, 1e6)
         load = p('load', 'none', 'shaft load', choices=LOAD_KINDS)
         mgl = p('load_mgl', 10.0, 'pendulum load: m g l [N m]', -1e4, 1e4)
         c1 = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
@@ -52,7 +63,11 @@ class PlantNode(LockstepNode):
         self.truth_every = p('truth_decimation', 10,
                              'publish ground truth every N steps (0: never); the last step is '
                              'always published', 0, 1000000)
-        schedule: ParameterSchedule = SCHEDULES[variation](motor)
+        if variation == 'custom':
+            schedule = ParameterSchedule(motor, {v_name: Variation(
+                v_kind, v_off, slope=v_slope, amplitude=v_amp, omega=v_omega)}, name='custom')
+        else:
+            schedule = SCHEDULES[variation](motor)
         if self.duration > 0:
             schedule.validate(self.duration)
         self.sim = PlantSimulator(schedule, make_load(load, mgl, c1, c2, tau), self.T_s,
