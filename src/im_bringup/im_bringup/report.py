@@ -1,0 +1,228 @@
+"""Figures of merit and figures from recorded runs.
+
+``ros2 run im_bringup report bags/a.mcap [more.mcap ...] [--out DIR] [--no-plots]``
+
+writes ``DIR/report.md`` (a Markdown table, one column per run), ``DIR/report.json`` (the same
+numbers with the runs' metadata) and PNG figures in the style of seed 000 (:mod:`.plots`), and
+prints where they are. Default DIR: ``<first bag without .mcap>_report``.
+
+The numbers come from :mod:`im_common.metrics` (tracking errors, peaks) and
+:func:`im_common.plant_sim.energy_summary` (energy books), plus parameter-estimate errors when an
+adapter ran. An unreadable bag is a one-line error and exit code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Dict, List, Sequence
+
+import numpy as np
+
+# (key, label, unit) rows of the table, in order; absent keys are skipped.
+ROWS = [
+    ('E_in_J', 'energy drawn E_in', 'J'),
+    ('E_loss_J', 'losses (copper + core)', 'J'),
+    ('E_copper_J', 'copper losses', 'J'),
+    ('E_core_J', 'core losses', 'J'),
+    ('W_load_J', 'work on the load', 'J'),
+    ('E_friction_J', 'friction', 'J'),
+    ('dE_kinetic_J', 'Δ kinetic energy', 'J'),
+    ('dW_magnetic_J', 'Δ magnetic energy', 'J'),
+    ('E_param_J', 'parameter-variation energy', 'J'),
+    ('balance_residual_J', 'energy balance residual', 'J'),
+    ('balance_relative', 'balance residual / E_in', '—'),
+    ('pos_err_max_rad', 'position error max', 'rad'),
+    ('pos_err_rms_rad', 'position error RMS', 'rad'),
+    ('speed_err_max_rad_s', 'speed error max', 'rad/s'),
+    ('speed_err_rms_rad_s', 'speed error RMS', 'rad/s'),
+    ('torque_err_max_Nm', 'torque error max', 'N·m'),
+    ('torque_err_rms_Nm', 'torque error RMS', 'N·m'),
+    ('flux_err_max_Wb', 'flux tracking error max', 'Wb'),
+    ('flux_err_rms_Wb', 'flux tracking error RMS', 'Wb'),
+    ('flux_est_err_max_Wb', 'flux estimate error max', 'Wb'),
+    ('flux_est_err_rms_Wb', 'flux estimate error RMS', 'Wb'),
+    ('R_r_est_err_max', 'R_r estimate error max', 'Ω'),
+    ('R_r_est_err_rms', 'R_r estimate error RMS', 'Ω'),
+    ('R_r_est_err_final_rel', 'R_r estimate error at end (relative)', '—'),
+    ('theta_est_err_max', 'θ estimate error max', '—'),
+    ('theta_est_err_rms', 'θ estimate error RMS', '—'),
+    ('theta_est_err_final_rel', 'θ estimate error at end (relative)', '—'),
+    ('L_M_est_err_max', 'L_M estimate error max', 'H'),
+    ('L_M_est_err_final_rel', 'L_M estimate error at end (relative)', '—'),
+    ('R_R_est_err_max', 'R_R estimate error max', 'Ω'),
+    ('R_R_est_err_final_rel', 'R_R estimate error at end (relative)', '—'),
+    ('V_max_V', 'voltage peak |V_s|', 'V'),
+    ('i_max_A', 'current peak |i_s|', 'A'),
+    ('duration_s', 'recorded duration', 's'),
+    ('steps', 'control steps', '—'),
+]
+
+
+def _finite(x):
+    x = np.asarray(x, float)
+    return x[np.isfinite(x)]
+
+
+def estimate_figures(trace) -> Dict[str, float]:
+    """Max / RMS / final relative error of each adapted parameter against the truth."""
+    out = {}
+    for n in ('R_r', 'theta', 'L_M', 'R_R'):
+        hat, true = f'{n}_hat', n
+        if hat not in trace or true not in trace:
+            continue
+        e = np.asarray(trace[hat], float) - np.asarray(trace[true], float)
+        ok = np.isfinite(e)
+        if not ok.any():
+            continue
+        e_ok = e[ok]
+        out[f'{n}_est_err_max'] = float(np.max(np.abs(e_ok)))
+        out[f'{n}_est_err_rms'] = float(math.sqrt(np.mean(e_ok ** 2)))
+        last = np.flatnonzero(ok)[-1]
+        tv = float(trace[true][last])
+        out[f'{n}_est_err_final_rel'] = float(abs(e[last]) / abs(tv)) if tv else float('nan')
+    return out
+
+
+def figures_of_merit(run) -> Dict[str, float]:
+    """Every figure of merit a run's recording supports."""
+    from im_common.metrics import balance_relative, energy_figures, tracking_figures
+    tr = run.trace
+    # metrics treats every sample as valid: give it only the instants where the pair exists
+    fig: Dict[str, float] = {}
+    clean = {}
+    for k, v in tr.items():
+        clean[k] = np.asarray(v)
+    pairs = [('theta_r', 'theta_ref'), ('omega_r', 'omega_ref'), ('tau_m', 'tau_ref'),
+             ('phi_r_alpha', 'phi_ref_alpha'), ('phi_r_alpha', 'phi_hat_alpha'),
+             ('v_alpha', 'v_beta'), ('i_alpha', 'i_beta')]
+    for a, b in pairs:
+        if a in clean and b in clean:
+            sub = {}
+            mask = np.isfinite(clean[a]) & np.isfinite(clean[b])
+            for k in {a, b} | {a.replace('alpha', 'beta'), b.replace('alpha', 'beta')}:
+                if k in clean:
+                    sub[k] = clean[k][mask]
+            part = tracking_figures(sub, run.task)
+            fig.update(part)
+    need = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
+            'dE_kin', 'dW_mag', 'balance_residual')
+    if all(k in run.truth_final for k in need):
+        fig.update(energy_figures(run.truth_final))
+        fig['balance_relative'] = balance_relative(fig)
+    fig.update(estimate_figures(tr))
+    t = tr.get('t')
+    if t is not None and len(t):
+        fig['duration_s'] = float(t[-1] - t[0])
+        fig['steps'] = int(len(t))
+    return fig
+
+
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return '—'
+    if isinstance(v, int):
+        return str(v)
+    a = abs(v)
+    if a != 0 and (a < 1e-3 or a >= 1e5):
+        return f'{v:.3e}'
+    return f'{v:.4g}' if a < 1 else f'{v:.2f}'
+
+
+def markdown_table(results: List[dict]) -> str:
+    heads = [r['label'].replace('|', '\\|') for r in results]
+    lines = ['| figure of merit | unit | ' + ' | '.join(heads) + ' |',
+             '| --- | --- | ' + ' | '.join('---:' for _ in heads) + ' |']
+    for key, label, unit in ROWS:
+        vals = [r['figures'].get(key) for r in results]
+        if all(v is None for v in vals):
+            continue
+        label = label.replace('|', '\\|')
+        lines.append(f'| {label} | {unit} | ' + ' | '.join(_fmt(v) for v in vals) + ' |')
+    return '\n'.join(lines)
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
+    """Report on one or more recordings; returns {'markdown', 'json', 'figures', 'runs'}.
+
+    Raises :class:`~im_bringup.bag.BagError` for an unreadable recording.
+    """
+    from .run import load_run
+    if not bag_paths:
+        raise ValueError('write_report needs at least one bag')
+    runs = [load_run(p) for p in bag_paths]
+    labels = [r.label for r in runs]
+    if len(set(labels)) < len(labels):   # same file names in different directories
+        labels = [str(Path(r.path)) for r in runs]
+    results = []
+    for run, label in zip(runs, labels):
+        results.append({'bag': str(run.path), 'label': label, 'task': run.task,
+                        'figures': figures_of_merit(run), 'truth_final': run.truth_final,
+                        'metadata': run.metadata, 'message_counts': run.counts})
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    pngs: List[str] = []
+    if plots:
+        from .plots import all_figures
+        pngs = all_figures(runs, out)
+    md = ['# Run report', '']
+    md.append('Recordings: ' + ', '.join(f'`{r["bag"]}`' for r in results))
+    md += ['', markdown_table(results), '']
+    md.append('Energies are the plant\'s integrated books over the recorded window '
+              '(`/im/truth/energy`); tracking errors and peaks from `im_common.metrics`. '
+              'The balance residual is E_in − copper − friction − load − parameter-variation '
+              '− ΔW_mag − ΔE_kin (core loss is an accounting model outside the balance).')
+    if pngs:
+        md += ['', '## Figures', '']
+        md += [f'![{Path(p).stem}]({Path(p).name})' for p in pngs]
+    md_path = out / 'report.md'
+    md_path.write_text('\n'.join(md) + '\n', encoding='utf-8')
+    json_path = out / 'report.json'
+    with open(json_path, 'w', encoding='utf-8') as f:
+        json.dump(_jsonable({'runs': results, 'figures': pngs}), f, indent=1, allow_nan=False)
+    return {'markdown': str(md_path), 'json': str(json_path), 'figures': pngs,
+            'runs': results}
+
+
+def main(argv=None) -> int:
+    from rclpy.utilities import remove_ros_args
+    from .bag import BagError
+    args = remove_ros_args(args=list(sys.argv if argv is None else ['report'] + list(argv)))[1:]
+    ap = argparse.ArgumentParser(prog='report', description='Figures of merit and figures of '
+                                 'recorded runs (several bags: side-by-side comparison).')
+    ap.add_argument('bags', nargs='+', help='MCAP recordings')
+    ap.add_argument('--out', '-o', default=None, help='output directory')
+    ap.add_argument('--no-plots', action='store_true', help='tables only')
+    a = ap.parse_args(args)
+    out = a.out or str(Path(a.bags[0]).with_suffix('')) + '_report'
+    try:
+        res = write_report(a.bags, out, plots=not a.no_plots)
+    except BagError as exc:
+        print(f'report: error: {exc}', file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as exc:
+        print(f'report: error: {exc}', file=sys.stderr)
+        return 2
+    print(markdown_table(res['runs']))
+    print(f'\nreport: {res["markdown"]}\njson:   {res["json"]}')
+    for p in res['figures']:
+        print(f'figure: {p}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
