@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType
@@ -79,6 +80,7 @@ class PlantNode(LockstepNode):
         self.rejected = 0
         self.overruns = 0
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
+        self.wall_start = None      # wall time of the first step (for the steps/s report)
 
         q = lockstep_qos()
         self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
@@ -129,6 +131,8 @@ class PlantNode(LockstepNode):
             return
         ready = self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy))
         while ready is not None and not self.done:
+            if self.wall_start is None:
+                self.wall_start = time.perf_counter()
             self.mark_started()
             self.advance(*ready[T.CMD_VOLTAGE])
             ready = self.gate.advance()
@@ -164,9 +168,11 @@ class PlantNode(LockstepNode):
             if (self.truth_every and k % self.truth_every == 0) or final:
                 self.publish_truth(ns, tr)
         if final:
+            wall = time.perf_counter() - (self.wall_start or time.perf_counter())
+            rate = k / wall if wall > 0 else float('nan')
             self.get_logger().info(
-                f'reached duration {self.duration} s at step {k}; rejected commands: '
-                f'{self.rejected}, overruns: {self.overruns}')
+                f'reached duration {self.duration} s at step {k} ({rate:.0f} steps/s); '
+                f'rejected commands: {self.rejected}, overruns: {self.overruns}')
             self.finish()
 
     def publish_truth(self, ns: int, tr: dict) -> None:
