@@ -1,0 +1,111 @@
+"""Report on synthetic recordings: the numbers are the plant's, the files exist."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from im_bringup.bag import BagWriter
+from im_bringup.report import main as report_main, write_report
+from im_bringup.run import load_run
+from im_bringup.synth import make_synthetic_bag
+
+
+@pytest.fixture(scope='module')
+def two_bags(tmp_path_factory):
+    d = tmp_path_factory.mktemp('bags')
+    a, b = d / 'slow.mcap', d / 'fast.mcap'
+    truth_a = make_synthetic_bag(a, steps=300, V=50.0, f=15.0)
+    truth_b = make_synthetic_bag(b, steps=300, V=80.0, f=25.0)
+    return (a, truth_a), (b, truth_b)
+
+
+def test_load_run_energy_books_match_the_plant(two_bags):
+    (a, truth), _ = two_bags
+    run = load_run(a)
+    for k in ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
+              'W_mag', 'E_kin', 'dW_mag', 'dE_kin', 'balance_residual', 'R_r', 'L_sr'):
+        assert run.truth_final[k] == pytest.approx(truth[k], rel=1e-12, abs=1e-12), k
+    assert run.task == 'speed'
+    assert len(run.trace['t']) == 301
+
+
+def test_report_numbers_files_and_cli(two_bags, tmp_path, capsys):
+    (a, ta), (b, tb) = two_bags
+    out = tmp_path / 'rep'
+    res = write_report([a], out)
+    fig = res['runs'][0]['figures']
+    e_loss = ta['E_cu_s'] + ta['E_cu_r'] + ta['E_core']
+    assert fig['E_in_J'] == pytest.approx(ta['E_in'], rel=1e-12)
+    assert fig['E_loss_J'] == pytest.approx(e_loss, rel=1e-12)
+    assert fig['E_core_J'] == pytest.approx(ta['E_core'], rel=1e-12)
+    assert fig['W_load_J'] == pytest.approx(ta['W_load'], rel=1e-12)
+    # the books close: the plant integrates them with the state
+    assert abs(fig['balance_residual_J']) < 1e-4 * fig['E_in_J']
+    # peaks from the trace: the voltage magnitude is the commanded constant amplitude
+    assert fig['V_max_V'] == pytest.approx(50.0, rel=1e-12)
+    run = load_run(a)
+    assert fig['i_max_A'] == pytest.approx(np.nanmax(np.hypot(run.trace['i_alpha'],
+                                                              run.trace['i_beta'])))
+    e = run.trace['omega_r'] - run.trace['omega_ref']
+    assert fig['speed_err_rms_rad_s'] == pytest.approx(math.sqrt(np.mean(e ** 2)))
+    md = (out / 'report.md').read_text()
+    assert f"{ta['E_in']:.2f}" in md and 'energy drawn E_in' in md
+    js = json.loads((out / 'report.json').read_text())
+    assert js['runs'][0]['figures']['E_in_J'] == pytest.approx(ta['E_in'])
+    pngs = [p for p in res['figures']]
+    names = {p.split('/')[-1] for p in pngs}
+    assert {'speed.png', 'energy.png', 'currents_dq.png', 'flux_dq.png'} <= names
+    for p in pngs:
+        with open(p, 'rb') as f:
+            assert f.read(8) == b'\x89PNG\r\n\x1a\n'
+
+    # comparison of two runs: one column each, overlaid plots
+    out2 = tmp_path / 'cmp'
+    assert report_main([str(a), str(b), '--out', str(out2), '--no-plots']) == 0
+    printed = capsys.readouterr().out
+    assert 'slow' in printed and 'fast' in printed and str(out2 / 'report.md') in printed
+    js2 = json.loads((out2 / 'report.json').read_text())
+    assert [r['figures']['E_in_J'] for r in js2['runs']] == pytest.approx([ta['E_in'],
+                                                                           tb['E_in']])
+    header = (out2 / 'report.md').read_text().split('\n')[4]
+    assert header.count('|') == 5                       # label, unit, two runs
+
+
+def test_report_with_observer_and_estimates(tmp_path):
+    path = tmp_path / 'obs.mcap'
+    with BagWriter(path, metadata={'scenario': {'task': 'position'}}) as w:
+        for k in range(200):
+            t = k * 1_000_000
+            th = 0.01 * k
+            w.write_vector3('/im/measured/current', t, math.cos(th), math.sin(th))
+            w.write_vector3('/im/truth/flux', t, 0.8 * math.cos(th), 0.8 * math.sin(th))
+            w.write_vector3('/im/observer/flux', t, 0.7 * math.cos(th), 0.7 * math.sin(th))
+            w.write_vector3('/im/reference/flux', t, 0.8 * math.cos(th), 0.8 * math.sin(th), 0.8)
+            w.write_joint_state('/im/measured/shaft', t, ('rotor',), (th,), (10.0,))
+            w.write_joint_state('/im/reference/shaft', t, ('rotor',), (th + 0.01,), (10.0,),
+                                (1.0,))
+            w.write_vector3('/im/truth/torque', t, 1.5, 0.0, 0.0)
+            w.write_joint_state('/im/adapter/estimate', t, ('R_r', 'theta'), (1.0, 0.95))
+            w.write_joint_state('/im/truth/parameters', t, ('R_r', 'theta'), (0.8, 0.95))
+    res = write_report([path], tmp_path / 'r')
+    f = res['runs'][0]['figures']
+    assert f['flux_est_err_max_Wb'] == pytest.approx(0.1)
+    assert f['flux_err_max_Wb'] == pytest.approx(0.0, abs=1e-12)
+    assert f['pos_err_max_rad'] == pytest.approx(0.01)
+    assert f['torque_err_rms_Nm'] == pytest.approx(0.5)
+    assert f['R_r_est_err_max'] == pytest.approx(0.2)
+    assert f['R_r_est_err_final_rel'] == pytest.approx(0.25)
+    assert f['theta_est_err_max'] == pytest.approx(0.0)
+    names = {p.split('/')[-1] for p in res['figures']}
+    assert {'position.png', 'observer.png', 'estimates.png', 'flux_dq.png'} <= names
+
+
+def test_report_cli_bad_bag_is_one_line_exit_2(tmp_path, capsys):
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(b'\x89MCAP0\r\n' + b'\x00' * 40)
+    assert report_main([str(bad), '--out', str(tmp_path / 'o')]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'bad.mcap' in err and 'Traceback' not in err
+    assert report_main([str(tmp_path / 'nope.mcap')]) == 2
+    assert 'no such file' in capsys.readouterr().err
