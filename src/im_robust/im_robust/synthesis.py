@@ -140,7 +140,7 @@ def _solve_sdp(prob: Problem, solver: str, verbose: bool = False):
         cons.append(expr(M) << -prob.margin * np.eye(n))
     cp_prob = cp.Problem(cp.Minimize(t), cons)
     name = {'clarabel': 'CLARABEL', 'scs': 'SCS'}[solver]
-    kwargs = {'eps': 1e-9, 'max_iters': 200000} if solver == 'scs' else {}
+    kwargs = {'eps': 1e-8, 'max_iters': 100000} if solver == 'scs' else {}
     cp_prob.solve(solver=name, verbose=verbose, **kwargs)
     iters = None
     try:
