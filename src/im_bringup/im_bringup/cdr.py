@@ -309,6 +309,7 @@ def _len_clock(data):
 
 
 _LENGTH_FAST = {
+    'sensor_msgs/msg/JointState': lambda d: _len_js(d),
     'geometry_msgs/msg/Vector3Stamped': _len_v3,
     'rosgraph_msgs/msg/Clock': _len_clock,
 }
@@ -351,6 +352,14 @@ def encode(msg) -> bytes:
 
 def decode_joint_state(data) -> Tuple[int, int, tuple, tuple, tuple, tuple]:
     """(sec, nanosec, names, position, velocity, effort) of a JointState payload."""
+    return _parse_joint_state(data)[0]
+
+
+def _len_js(data):
+    return _parse_joint_state(data)[1]
+
+
+def _parse_joint_state(data):
     try:
         sec, nsec = _STAMP.unpack_from(data, 4)
         (n,) = _U32.unpack_from(data, 12)
@@ -378,7 +387,9 @@ def decode_joint_state(data) -> Tuple[int, int, tuple, tuple, tuple, tuple]:
                 seqs.append(())
     except (struct.error, UnicodeDecodeError) as exc:
         raise CdrError(f'bad JointState payload: {exc}') from None
-    return sec, nsec, tuple(names), seqs[0], seqs[1], seqs[2]
+    if pos > len(data):
+        raise CdrError('JointState payload shorter than its sequences')
+    return (sec, nsec, tuple(names), seqs[0], seqs[1], seqs[2]), pos
 
 
 def decode_vector3_stamped(data) -> Tuple[int, int, float, float, float]:
