@@ -1,0 +1,338 @@
+"""Replay a recording, or re-run the observer on it.
+
+Publishing::
+
+    ros2 run im_bringup replay bags/run.mcap [--rate X | --lockstep] [--topics T ...]
+                                             [--remap /old:=/new ...] [--no-clock]
+
+publishes the recorded topics (the recorded bytes, so the original header stamps) and drives
+``/clock`` from the recording: one Clock message at each new stamp, before that stamp's messages
+(a recorded ``/clock`` topic is not republished twice). Pacing: ``--rate X`` plays X times the
+recorded speed (1 = real time) against the wall clock; ``--lockstep`` plays as fast as the
+subscribers keep up — after each stamp it waits until every reliable subscriber acknowledged
+(``Publisher.wait_for_all_acked``). Publishers use the recorded offered QoS (reliability,
+durability, depth).
+
+Re-estimation (no ROS graph needed)::
+
+    ros2 run im_bringup replay bags/run.mcap --reestimate --out bags/run_reest.mcap
+        [--k-e K] [--param R_r=0.9 ...] [--use-adapter] [--force]
+
+feeds the recorded measured current (/im/measured/current), command voltage
+(/im/command/voltage) and speed (/im/measured/shaft) into a fresh
+:class:`im_observer.observer.RotorFluxObserver`, stepped as in the live graph: at step k it uses
+V_k, i_k, ω_k (and, with ``--use-adapter``, the estimates stamped t_k) and produces x̂_{k+1},
+stamped t_{k+1}. The new file holds every recorded message plus
+``/im/reestimate/observer/flux`` and ``/im/reestimate/observer/current``. Observer parameters are
+taken from the recording's ``parameters/observer`` metadata when present, then the command line.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import heapq
+import math
+import sys
+import time
+from dataclasses import fields
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from . import cdr
+from .bag import BagError, BagWriter, info, iter_raw
+from .run import REEST_CURRENT, REEST_FLUX
+
+MEAS_CURRENT = '/im/measured/current'
+MEAS_SHAFT = '/im/measured/shaft'
+CMD_VOLTAGE = '/im/command/voltage'
+ADAPT_ESTIMATE = '/im/adapter/estimate'
+CLOCK = '/clock'
+
+
+# ------------------------------------------------------------------------------------------
+# Re-estimation
+# ------------------------------------------------------------------------------------------
+def _lit(text: str):
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def observer_config(metadata: Dict[str, Dict[str, str]],
+                    overrides: Optional[Dict[str, float]] = None) -> dict:
+    """Observer settings: recorded ``parameters/observer`` metadata, then ``overrides``."""
+    from im_common.params import MotorParams
+    rec = {k: _lit(v) for k, v in metadata.get('parameters/observer', {}).items()}
+    rec.update(overrides or {})
+    names = {f.name for f in fields(MotorParams)}
+    motor = {k: (int(v) if k == 'pole_pairs' else float(v)) for k, v in rec.items() if k in names}
+    gain = rec.get('injection_gain')
+    gain = list(gain) if isinstance(gain, (list, tuple)) and len(gain) == 8 else None
+    return {
+        'params': MotorParams(**motor),
+        'k_e': float(rec.get('k_e_injection', 0.0)) or None,
+        'max_substep': float(rec.get('max_substep', 1e-4)),
+        'injection_gain': gain,
+        'gain_period': float(rec.get('gain_period', 0.0)) or None,
+        'use_adapter': bool(rec.get('use_adapter', False)),
+        'x0': tuple(rec.get('x0', (0.0, 0.0, 0.0, 0.0))),
+    }
+
+
+def _series(path) -> Dict[str, Dict[int, tuple]]:
+    want = [MEAS_CURRENT, MEAS_SHAFT, CMD_VOLTAGE, ADAPT_ESTIMATE]
+    present = [t for t in want if t in info(path).topics]
+    out: Dict[str, Dict[int, tuple]] = {t: {} for t in want}
+    for topic, tname, _t, data in iter_raw(path, present):
+        if topic == MEAS_SHAFT:
+            sec, ns, _names, pos, vel, _eff = cdr.decode_joint_state(data)
+            if vel:
+                out[topic][sec * 1_000_000_000 + ns] = (vel[0],)
+        elif topic == ADAPT_ESTIMATE:
+            sec, ns, names, pos, _v, _e = cdr.decode_joint_state(data)
+            out[topic][sec * 1_000_000_000 + ns] = dict(zip(names, pos))
+        else:
+            sec, ns, x, y, _z = cdr.decode_vector3_stamped(data)
+            out[topic][sec * 1_000_000_000 + ns] = (x, y)
+    return out
+
+
+def reestimate_series(path, config: dict) -> List[Tuple[int, Tuple[float, float, float, float]]]:
+    """[(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k."""
+    from im_observer.observer import RotorFluxObserver
+    s = _series(path)
+    steps = sorted(set(s[MEAS_CURRENT]) & set(s[MEAS_SHAFT]) & set(s[CMD_VOLTAGE]))
+    if not steps:
+        raise BagError(path, 'nothing to re-estimate: needs /im/measured/current, '
+                       '/im/measured/shaft and /im/command/voltage at common stamps')
+    kw = {k: config[k] for k in ('k_e', 'max_substep', 'injection_gain', 'gain_period', 'x0')}
+    obs = RotorFluxObserver(config['params'], **kw)
+    grid = sorted(s[MEAS_CURRENT])
+    nxt = {a: b for a, b in zip(grid, grid[1:])}
+    period = int(np.median(np.diff(grid))) if len(grid) > 1 else None
+    out = []
+    for t in steps:
+        t1 = nxt.get(t, t + period if period else None)
+        if t1 is None:
+            break
+        if config.get('use_adapter'):
+            est = s[ADAPT_ESTIMATE].get(t)
+            if est is None:
+                raise BagError(path, f'--use-adapter: no /im/adapter/estimate stamped {t} ns')
+            obs.set_estimates(R_r=est.get('R_r'), theta=est.get('theta'))
+        va, vb = s[CMD_VOLTAGE][t]
+        ia, ib = s[MEAS_CURRENT][t]
+        (w,) = s[MEAS_SHAFT][t]
+        x = obs.step((t1 - t) * 1e-9, va, vb, ia, ib, w)
+        out.append((t1, tuple(x)))
+    return out
+
+
+def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
+               use_adapter: Optional[bool] = None, force: bool = False) -> dict:
+    """Write ``out_path``: every message of ``path`` plus the re-estimated observer outputs."""
+    bi = info(path)
+    cfg = observer_config(bi.metadata, overrides)
+    if use_adapter is not None:
+        cfg['use_adapter'] = use_adapter
+    est = reestimate_series(path, cfg)
+    new = []
+    for t, (ia, ib, pa, pb) in est:
+        s_, ns = divmod(t, 1_000_000_000)
+        new.append((t, 1, REEST_FLUX, cdr.pack_vector3_stamped(s_, ns, pa, pb, 0.0)))
+        new.append((t, 2, REEST_CURRENT, cdr.pack_vector3_stamped(s_, ns, ia, ib, 0.0)))
+    md = {k: v for k, v in bi.metadata.items() if k != 'rosbag2'}
+    md['reestimate'] = {'source': str(path), 'k_e': repr(cfg['k_e']),
+                        'max_substep': repr(cfg['max_substep']),
+                        'use_adapter': repr(cfg['use_adapter']),
+                        **{f'param/{f.name}': repr(getattr(cfg['params'], f.name))
+                           for f in fields(cfg['params'])}}
+    old = ((t, 0, topic, data) for topic, _tn, t, data in iter_raw(path))
+    n = 0
+    with BagWriter(out_path, force=force, metadata=md) as w:
+        for topic, tname in bi.topics.items():
+            meta = next((m for (tp, _, m) in bi.channels.values() if tp == topic), {})
+            w.add_topic(topic, tname, qos=meta.get('offered_qos_profiles'))
+        w.add_topic(REEST_FLUX, 'geometry_msgs/msg/Vector3Stamped')
+        w.add_topic(REEST_CURRENT, 'geometry_msgs/msg/Vector3Stamped')
+        for t, _o, topic, data in heapq.merge(old, new, key=lambda e: (e[0], e[1])):
+            w.write_serialized(topic, data, t)
+            n += 1
+    return {'input': str(path), 'output': str(out_path), 'steps': len(est), 'messages': n}
+
+
+# ------------------------------------------------------------------------------------------
+# Publishing
+# ------------------------------------------------------------------------------------------
+def _qos_from_yaml(text: Optional[str]):
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    rel, dur, depth = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 100
+    try:
+        import yaml
+        prof = (yaml.safe_load(text) or [{}])[0] if text else {}
+        r = str(prof.get('reliability', 'reliable')).lower()
+        d = str(prof.get('durability', 'volatile')).lower()
+        rel = ReliabilityPolicy.BEST_EFFORT if r in ('best_effort', '2') else rel
+        dur = DurabilityPolicy.TRANSIENT_LOCAL if d in ('transient_local', '1') else dur
+        depth = max(int(prof.get('depth', 100) or 100), 100)
+    except Exception:
+        pass
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel,
+                      durability=dur)
+
+
+def parse_remaps(items: Optional[Sequence[str]]) -> Dict[str, str]:
+    out = {}
+    for it in items or ():
+        if ':=' not in it:
+            raise ValueError(f'--remap takes /old:=/new, not {it!r}')
+        a, b = it.split(':=', 1)
+        out[a] = b
+    return out
+
+
+class Player:
+    """Publishes a recording on ``node``; ``play()`` returns the number of messages sent."""
+
+    def __init__(self, node, path, topics: Optional[Sequence[str]] = None,
+                 remap: Optional[Dict[str, str]] = None, rate: float = 1.0,
+                 lockstep: bool = False, clock: bool = True, ack_timeout: float = 5.0):
+        from rosgraph_msgs.msg import Clock
+        self.node, self.path = node, path
+        self.rate, self.lockstep, self.clock = float(rate), lockstep, clock
+        self.ack_timeout = ack_timeout
+        bi = info(path)
+        sel = list(bi.topics) if not topics else list(topics)
+        missing = [t for t in sel if t not in bi.topics]
+        if missing:
+            raise BagError(path, f'topic(s) not in the recording: {missing}')
+        if clock and CLOCK in sel:
+            sel.remove(CLOCK)      # /clock is driven from the stamps
+        self.topics = sel
+        remap = remap or {}
+        qos = {tp: m.get('offered_qos_profiles') for tp, _, m in bi.channels.values()}
+        self.pubs = {}
+        for tp in sel:
+            cls = cdr.message_class(bi.topics[tp])
+            self.pubs[tp] = node.create_publisher(cls, remap.get(tp, tp), _qos_from_yaml(qos[tp]))
+        self.clock_pub = node.create_publisher(Clock, remap.get(CLOCK, CLOCK), 10) if clock \
+            else None
+
+    def wait_for_subscribers(self, count: int = 1, timeout: float = 10.0, spin=None) -> bool:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            if all(p.get_subscription_count() >= count for p in self.pubs.values()):
+                return True
+            if spin:
+                spin()
+            else:
+                time.sleep(0.01)
+        return False
+
+    def _ack(self):
+        from rclpy.duration import Duration
+        for p in self.pubs.values():
+            if p.get_subscription_count():
+                p.wait_for_all_acked(Duration(seconds=self.ack_timeout))
+
+    def play(self, spin=None) -> int:
+        n = 0
+        t0 = None
+        wall0 = time.monotonic()
+        last = None
+        for topic, _tn, t, data in iter_raw(self.path, self.topics):
+            if t != last:
+                if last is not None and self.lockstep:
+                    self._ack()
+                if self.clock_pub is not None:
+                    self.clock_pub.publish(cdr.pack_clock(*divmod(t, 1_000_000_000)))
+                last = t
+                if t0 is None:
+                    t0 = t
+                if not self.lockstep and self.rate > 0:
+                    delay = wall0 + (t - t0) * 1e-9 / self.rate - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                if spin:
+                    spin()
+            self.pubs[topic].publish(data)
+            n += 1
+        if self.lockstep:
+            self._ack()
+        return n
+
+
+def main(argv=None) -> int:
+    from rclpy.utilities import remove_ros_args
+    full = list(sys.argv if argv is None else ['replay'] + list(argv))
+    ap = argparse.ArgumentParser(prog='replay', description='Replay a recording (or re-run the '
+                                 'observer on it with --reestimate).')
+    ap.add_argument('bag')
+    g = ap.add_mutually_exclusive_group()
+    g.add_argument('--rate', type=float, default=1.0, help='multiple of the recorded speed')
+    g.add_argument('--lockstep', action='store_true',
+                   help='as fast as the subscribers acknowledge each stamp')
+    ap.add_argument('--topics', nargs='+', default=None)
+    ap.add_argument('--remap', nargs='+', default=None, metavar='/OLD:=/NEW')
+    ap.add_argument('--no-clock', action='store_true', help='do not publish /clock')
+    ap.add_argument('--wait-subscribers', type=float, default=2.0,
+                    help='seconds to wait for subscribers before playing')
+    ap.add_argument('--reestimate', action='store_true', help='re-run the observer offline')
+    ap.add_argument('--out', '-o', default=None, help='output of --reestimate')
+    ap.add_argument('--force', action='store_true')
+    ap.add_argument('--k-e', type=float, default=None, help='observer injection gain k_e')
+    ap.add_argument('--param', nargs='+', default=None, metavar='NAME=VALUE',
+                    help='observer model parameters (R_s, R_r, L_s, L_r, L_sr, pole_pairs, ...)')
+    ap.add_argument('--use-adapter', action='store_true', default=None,
+                    help='apply the recorded /im/adapter/estimate at each step')
+    a = ap.parse_args(remove_ros_args(args=full)[1:])
+    try:
+        if a.reestimate:
+            over: Dict[str, float] = {}
+            for it in a.param or ():
+                k, _, v = it.partition('=')
+                over[k] = float(v)
+            if a.k_e is not None:
+                over['k_e_injection'] = a.k_e
+            out = a.out or a.bag.rsplit('.mcap', 1)[0] + '_reest.mcap'
+            r = reestimate(a.bag, out, over, a.use_adapter, a.force)
+            print(f"replay: re-estimated {r['steps']} steps; {r['messages']} messages "
+                  f"written to {r['output']}")
+            return 0
+        if a.rate is not None and not (a.rate > 0 and math.isfinite(a.rate)):
+            raise ValueError(f'--rate must be > 0, not {a.rate}')
+        return _play(a, full)
+    except (BagError, FileExistsError, ValueError, OSError) as exc:
+        print(f'replay: error: {exc}', file=sys.stderr)
+        return 2
+
+
+def _play(a, full) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.node import Node
+    remap = parse_remaps(a.remap)
+    info(a.bag)   # fail with BagError before starting ROS
+    rclpy.init(args=full)
+    node = None
+    n = 0
+    try:
+        node = Node('replay')
+        player = Player(node, a.bag, a.topics, remap, rate=a.rate, lockstep=a.lockstep,
+                        clock=not a.no_clock)
+        player.wait_for_subscribers(timeout=a.wait_subscribers)
+        n = player.play()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        print(f'replay: {n} messages published from {a.bag}', file=sys.stderr)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
