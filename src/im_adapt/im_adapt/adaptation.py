@@ -1,0 +1,505 @@
+"""Online adaptation of the rotor resistance and of θ = L_sr/L_r (seed 000 §4.2.2-4.2.3).
+
+ROS-free. :class:`ParameterAdapter` is stepped once per control period with the step's data
+(V_k held over [t_k, t_k+1], measured i_k and ω_k, the observer's rotor flux φ̂_k) and produces the
+estimates p̂_k+1 used by the controller and the observer at step k+1. The derivation, the choice of
+the gains and the measured behaviour are in ``docs/adaptation.md``; the essentials:
+
+Identifiable quantities
+    Multiply the rotor flux by θ = L_sr/L_r: φ_M = θ φ_r. With L_M = L_sr θ = L_sr²/L_r,
+    R_R = R_r θ² and L_σ = σL_s = L_s − L_M the motor seen from its terminals is
+
+        ψ_s = L_σ i_s + φ_M,           dψ_s/dt = V_s − R_s i_s
+        dφ_M/dt = R_R i_s − (R_R/L_M) φ_M + v ω_r 𝒥 φ_M,      τ_m = v (i_sβ φ_Mα − i_sα φ_Mβ)
+
+    so currents, voltages and speed determine R_s, L_σ, L_M and R_R, never R_r and θ apart
+    (eq. 4.10-4.13 only ever use R̂_r θ̂², L̂_sr θ̂ and L̂_s − L̂_sr θ̂). Both laws report
+    L_M and R_R next to R_r and θ.
+
+Voltage-model stator flux (eq. 4.3) without drift
+    A pure integral of V − R̂_s i drifts with any offset. Drives blend it with a current-model
+    flux ψ_cm below a corner ω_c (Jansen & Lorenz's flux observer):
+
+        dψ̂/dt = V − R̂_s i + ω_c (ψ_cm − ψ̂)
+
+    i.e. ψ̂ = s/(s+ω_c)·∫(V − R̂_s i) + ω_c/(s+ω_c)·ψ_cm: the voltage model above ω_c, the current
+    model below it, no integrator left open. ``flux_corner = 0`` gives the thesis's pure integral.
+    The current-model ψ_cm is L̂_σ i + θ̂ φ̂_r from the observer (law 'thesis') or the adapter's own
+    current model with its own L̂_M, R̂_R (law 'improved').
+
+law = 'thesis' (eq. 4.1-4.9, typos corrected)
+    τ̂ = v (i_β ψ̂_α − i_α ψ̂_β)                          (4.2, ψ̂ from 4.3 as above)
+    τ* = v θ̂ (i_β φ̂_α − i_α φ̂_β)                        (4.1)
+    dθ̂/dt = γ_t (τ̂ − τ*) i_β                              (4.4, as printed)
+    î_r = θ̂ (φ̂_r / L̂_sr − i),  P_r* = R̂_r |î_r|²          (4.5-4.7)
+    P̂_r = V·i − R̂_s |i|² − τ̂ ω_r                          (4.8 with the squares and the sign of
+                                                            the mechanical power restored)
+    dR̂_r/dt = γ_r (P̂_r − P_r*) / (|î_r|² + ε)              (4.9)
+
+law = 'improved'
+    Least squares on the rotor equation written with the voltage-model rotor flux
+    φ_M = ψ̂ − L̂_σ i, linear in p = (R_R, c = R_R/L_M):
+
+        dφ_M/dt − v ω_r 𝒥 φ_M = R_R i − c φ_M
+
+    Both sides are filtered by H(s) = ω_f/(s+ω_f) (Tustin; the derivative becomes
+    ω_f (φ_M − Hφ_M), exact in the discrete filter), giving two real equations per step,
+    y = Φ p. Recursive least squares in information form with exponential forgetting (memory
+    ``memory`` seconds) and a floor on the information matrix (``i_floor``, ``phi_floor``) so
+    that unexcited directions hold their value instead of winding up. The torque model (4.1) is the
+    quadrature row of this equation and the rotor-loss model (4.5) its inner product with the rotor
+    current, so the thesis's two reference models are both inside it. The controller-facing pair
+    is θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂
+    hits its bound, R̂_r keeps the rotor time constant R̂_r θ̂/L̂_sr = R̂_R/L̂_M (flux orientation)
+    rather than R̂_R.
+
+Projection
+    R̂_r ∈ [R_r_min, R_r_max]; θ̂ ∈ [theta_min, θ_max] with
+    θ_max = min(theta_max, (1 − sigma_min) L̂_s / L̂_sr), because the model leakage factor is
+    σ̂ = 1 − θ̂ L̂_sr / L̂_s and σ̂ ≤ 0 makes D̂ of eq. 4.12-4.13 singular. The improved law's
+    L̂_M ∈ [L_M_min, L_M_max] and R̂_R ∈ [R_r_min θ_min², R_r_max θ_max²].
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Optional
+
+from im_common.params import InvalidParameter, MotorParams
+
+LAWS = ('thesis', 'improved')
+
+
+@dataclass(frozen=True)
+class AdaptationGains:
+    """Gains, bounds and filter corners of the adaptation (SI units).
+
+    ``None`` bounds are derived from the motor parameters given to :class:`ParameterAdapter`
+    (see :meth:`resolve`). Invalid values raise :class:`InvalidParameter` naming the field.
+    """
+
+    law: str = 'improved'
+    """'thesis' (eq. 4.4, 4.9 as printed) or 'improved' (least squares on the rotor equation)."""
+    freeze: bool = False
+    """Hold the estimates (the flux and filter states keep running, so unfreezing is smooth)."""
+    decimation: int = 10
+    """Update the estimates every N control periods (information is gathered every period)."""
+    # Thesis law (eq. 4.4 and 4.9).
+    gamma_t: float = 0.02
+    """γ_t of eq. 4.4 [1/(N·m·A·s)]."""
+    gamma_r: float = 20.0
+    """γ_r of eq. 4.9 [1/s]: the inverse time constant of R̂_r when |î_r|² ≫ ε."""
+    epsilon: float = 1.0
+    """ε of eq. 4.9 [A²]: keeps the normalisation finite when î_r passes through zero."""
+    # Voltage-model flux (eq. 4.3).
+    flux_corner: float = 5.0
+    """ω_c [rad/s]: below it the stator flux comes from the current model (0: pure integral)."""
+    # Improved law.
+    filter_corner: float = 200.0
+    """ω_f [rad/s] of the regression filter H(s) = ω_f/(s+ω_f)."""
+    memory: float = 0.02
+    """Time constant [s] of the exponential forgetting of the least squares."""
+    i_floor: float = 0.3
+    """Current [A] whose information is always present (holds unexcited directions)."""
+    phi_floor: float = 0.01
+    """Flux [Wb] whose information is always present (holds unexcited directions)."""
+    L_sigma: Optional[float] = None
+    """Leakage L_σ = σL_s [H] used for φ_M = ψ_s − L_σ i (None: L̂_s − L̂_sr θ̂_0)."""
+    # Projection.
+    R_r_min: Optional[float] = None
+    """Lower bound of R̂_r [Ω] (None: R_r/4 of the nominal parameters)."""
+    R_r_max: Optional[float] = None
+    """Upper bound of R̂_r [Ω] (None: 4 R_r of the nominal parameters)."""
+    theta_min: float = 0.5
+    """Lower bound of θ̂."""
+    theta_max: float = 1.0
+    """Upper bound of θ̂ before the σ̂ bound (θ = L_sr/L_r < 1 for a motor with rotor leakage)."""
+    sigma_min: float = 0.04
+    """Smallest model leakage factor σ̂ = 1 − θ̂ L̂_sr/L̂_s allowed (θ̂ ≤ (1−σ_min) L̂_s/L̂_sr)."""
+    L_M_min: Optional[float] = None
+    """Lower bound of L̂_M [H] (None: half the nominal L_sr²/L_r)."""
+    L_M_max: Optional[float] = None
+    """Upper bound of L̂_M [H] (None: twice the nominal L_sr²/L_r)."""
+
+    def __post_init__(self):
+        if self.law not in LAWS:
+            raise InvalidParameter('law', self.law, f'must be one of {", ".join(LAWS)}')
+        if not isinstance(self.freeze, bool):
+            raise InvalidParameter('freeze', self.freeze, 'must be true or false')
+        d = self.decimation
+        if isinstance(d, bool) or not isinstance(d, int) or d < 1:
+            raise InvalidParameter('decimation', d, 'must be a whole number >= 1')
+        for name in ('gamma_t', 'gamma_r', 'flux_corner'):
+            _finite(name, getattr(self, name), lo=0.0)
+        for name in ('epsilon', 'filter_corner', 'memory', 'i_floor', 'phi_floor', 'theta_min',
+                     'theta_max'):
+            _finite(name, getattr(self, name), lo=0.0, strict=True)
+        _finite('sigma_min', self.sigma_min, lo=0.0, strict=True)
+        if self.sigma_min >= 1.0:
+            raise InvalidParameter('sigma_min', self.sigma_min, 'must be < 1')
+        for name in ('L_sigma', 'R_r_min', 'R_r_max', 'L_M_min', 'L_M_max'):
+            if getattr(self, name) is not None:
+                _finite(name, getattr(self, name), lo=0.0, strict=True)
+        if self.theta_min >= self.theta_max:
+            raise InvalidParameter('theta_min', self.theta_min,
+                                   f'must be below theta_max = {self.theta_max}')
+        _ordered('R_r_min', self.R_r_min, 'R_r_max', self.R_r_max)
+        _ordered('L_M_min', self.L_M_min, 'L_M_max', self.L_M_max)
+
+    def theta_bound(self, L_s_hat: float, L_sr_hat: float) -> float:
+        """θ_max: the tighter of ``theta_max`` and the σ̂ ≥ σ_min bound (1 − σ_min) L̂_s/L̂_sr."""
+        return min(self.theta_max, (1.0 - self.sigma_min) * L_s_hat / L_sr_hat)
+
+    def resolve(self, params: MotorParams, theta0: Optional[float] = None) -> 'AdaptationGains':
+        """A copy with every ``None`` bound derived from the nominal ``params``; checks consistency.
+
+        Raises :class:`InvalidParameter` naming ``sigma_min``/``theta_min`` if the σ̂ bound leaves
+        no room for θ̂.
+        """
+        th0 = params.theta if theta0 is None else theta0
+        th0 = _clip(th0, self.theta_min, self.theta_bound(params.L_s, params.L_sr))
+        L_M0 = params.L_sr * params.L_sr / params.L_r
+        g = replace(
+            self,
+            R_r_min=0.25 * params.R_r if self.R_r_min is None else self.R_r_min,
+            R_r_max=4.0 * params.R_r if self.R_r_max is None else self.R_r_max,
+            L_M_min=0.5 * L_M0 if self.L_M_min is None else self.L_M_min,
+            L_M_max=2.0 * L_M0 if self.L_M_max is None else self.L_M_max,
+            L_sigma=(params.L_s - params.L_sr * th0) if self.L_sigma is None else self.L_sigma)
+        th_max = g.theta_bound(params.L_s, params.L_sr)
+        if th_max <= g.theta_min:
+            raise InvalidParameter(
+                'sigma_min', g.sigma_min,
+                f'the bound theta <= (1 - sigma_min) L_s/L_sr = {th_max:.6g} leaves no room above '
+                f'theta_min = {g.theta_min}')
+        if not g.L_sigma > 0.0:
+            raise InvalidParameter(
+                'L_sigma', g.L_sigma,
+                f'the leakage L_s - L_sr*theta0 = {g.L_sigma:.6g} H must be > 0 (sigma > 0); '
+                'give L_sigma explicitly or a smaller theta_initial')
+        return g
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _finite(name, value, lo=None, strict=False):
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameter(name, value, 'must be a real number') from None
+    if not math.isfinite(x):
+        raise InvalidParameter(name, value, 'must be finite')
+    if lo is not None and (x <= lo if strict else x < lo):
+        raise InvalidParameter(name, value, f'must be {">" if strict else ">="} {lo:g}')
+
+
+def _ordered(lo_name, lo, hi_name, hi):
+    if lo is not None and hi is not None and not lo < hi:
+        raise InvalidParameter(lo_name, lo, f'must be below {hi_name} = {hi}')
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else hi if x > hi else x
+
+
+class ParameterAdapter:
+    """Online estimates of R_r and θ = L_sr/L_r (and of the identifiable L_M, R_R).
+
+    Parameters
+    ----------
+    params : MotorParams
+        The controller's (nominal) estimates: R̂_s, L̂_s, L̂_sr are used as fixed, pole pairs v.
+    gains : AdaptationGains
+    R_r0, theta0 : float
+        Initial estimates (projected into their bounds).
+
+    Notes
+    -----
+    ``update`` is scalar Python on complex numbers (αβ pairs as α + jβ); one call per period.
+    """
+
+    def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float):
+        _finite('R_r_initial', R_r0, lo=0.0, strict=True)
+        _finite('theta_initial', theta0, lo=0.0, strict=True)
+        self.params = params
+        self.gains = g = gains.resolve(params, theta0)
+        self.R_s = params.R_s
+        self.L_s = params.L_s
+        self.L_sr = params.L_sr
+        self.v = params.pole_pairs
+        self.theta_lo = g.theta_min
+        self.theta_hi = g.theta_bound(params.L_s, params.L_sr)
+        self.R_r_lo, self.R_r_hi = g.R_r_min, g.R_r_max
+        self.R_R_lo = g.R_r_min * g.theta_min ** 2
+        self.R_R_hi = g.R_r_max * self.theta_hi ** 2
+        self.L_M_lo, self.L_M_hi = g.L_M_min, g.L_M_max
+        self.L_sigma = g.L_sigma
+        self.improved = g.law == 'improved'
+        self.freeze = g.freeze
+        self.N = g.decimation
+        # Controller-facing estimates.
+        self.theta = _clip(float(theta0), self.theta_lo, self.theta_hi)
+        self.R_r = _clip(float(R_r0), self.R_r_lo, self.R_r_hi)
+        # Identifiable estimates (the improved law's own parameters).
+        self.L_M = _clip(self.L_sr * self.theta, self.L_M_lo, self.L_M_hi)
+        self.R_R = _clip(self.R_r * self.theta ** 2, self.R_R_lo, self.R_R_hi)
+        self.k = 0
+        self._started = False
+        self._psi = 0j            # voltage-model stator flux ψ̂ [Wb]
+        self._phi_cm = 0j         # improved law: own current-model φ_M [Wb]
+        self._phi_obs_prev = 0j   # thesis law: the observer's φ̂_r at t_k-1
+        self._i_prev = 0j
+        self._v_prev = 0j
+        self._acc_t = 0.0         # thesis law: accumulated integrands over the block
+        self._acc_r = 0.0
+        # Improved law: regression filters and least-squares information.
+        T_w = g.memory
+        self._Hi = self._Hphi = self._Hw = 0j
+        self._u_prev = (0j, 0j, 0j)
+        self._S11 = self._S12 = self._S22 = 0.0
+        self._b1 = self._b2 = 0.0
+        self._R11 = self._R12 = self._R22 = None
+        self._T_w = T_w
+        self._filter_T = None     # period for which the filter coefficients are computed
+        self.last = {}            # diagnostics of the last step (for tests and plots)
+
+    @property
+    def stator_flux(self) -> tuple:
+        """The voltage-model stator flux ψ̂_s(t_k) (α, β) [Wb] after the last update."""
+        return self._psi.real, self._psi.imag
+
+    @property
+    def sigma_hat(self) -> float:
+        """The controller's model leakage factor σ̂ = 1 − θ̂ L̂_sr / L̂_s."""
+        return 1.0 - self.theta * self.L_sr / self.L_s
+
+    # ------------------------------------------------------------------------------------
+    def estimates(self) -> dict:
+        """{'R_r', 'theta', 'L_M', 'R_R'}: the controller-facing pair and the identifiable pair.
+
+        For law 'thesis' L_M = L̂_sr θ̂ and R_R = R̂_r θ̂². For law 'improved' L_M and R_R are the
+        least-squares estimates; they equal L̂_sr θ̂ and R̂_r θ̂² whenever θ̂ is inside its bounds.
+        """
+        return {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
+
+    # ------------------------------------------------------------------------------------
+    def update(self, T_s, v_a, v_b, i_a, i_b, omega_r, phi_hat_a, phi_hat_b) -> None:
+        """One control period: data of step k in, estimates p̂_k+1 out (see :meth:`estimates`).
+
+        Parameters are V_k (held over the period), the measured i_k and ω_k and the observer's
+        rotor flux φ̂_k (rotor scaling, as the observer of eq. 4.13 carries it).
+        """
+        V = complex(v_a, v_b)
+        i = complex(i_a, i_b)
+        g = self.gains
+        if not self._started:
+            # ψ_s(t_0) from the current model (zero for a motor starting unmagnetised).
+            self._started = True
+            if self.improved:
+                self._psi = self.L_sigma * i + self._phi_cm
+            else:
+                self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
+                self._psi = (self.L_s - self.L_sr * self.theta) * i + self.theta * self._phi_obs_prev
+            self._i_prev = i
+            self._v_prev = V
+            if self.improved:
+                self._init_filters(T_s, i, omega_r)
+            return
+        # Voltage-model flux ψ̂_k (eq. 4.3) over [t_k-1, t_k]: V_k-1 was held, i trapezoidal.
+        i_prev = self._i_prev
+        # Current-model stator flux at t_k-1 (the start of the period, explicit blend).
+        if self.improved:
+            psi_cm = self.L_sigma * i_prev + self._phi_cm
+        else:
+            psi_cm = (self.L_s - self.L_sr * self.theta) * i_prev + self.theta * self._phi_obs_prev
+            self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
+        self._psi += T_s * (self._v_prev - self.R_s * 0.5 * (i + i_prev)
+                            + g.flux_corner * (psi_cm - self._psi))
+        V_prev = self._v_prev
+        self._i_prev = i
+        self._v_prev = V
+        if self.improved:
+            self._improved_step(T_s, i, omega_r, i_prev)
+        else:
+            self._thesis_step(T_s, V_prev, i, i_prev, omega_r, phi_hat_a, phi_hat_b)
+
+    # Thesis law -------------------------------------------------------------------------
+    def _thesis_step(self, T_s, V_prev, i, i_prev, omega_r, phi_a, phi_b):
+        v = self.v
+        psi = self._psi
+        th = self.theta
+        # Estimated torque from the stator flux (4.2) and the reference model (4.1).
+        tau_hat = v * (i.imag * psi.real - i.real * psi.imag)
+        tau_ref = v * th * (i.imag * phi_a - i.real * phi_b)
+        # Rotor currents (4.6-4.7), loss reference (4.5) and loss estimate (4.8, corrected).
+        k = th / self.L_sr
+        ir_a = k * phi_a - th * i.real
+        ir_b = k * phi_b - th * i.imag
+        ir2 = ir_a * ir_a + ir_b * ir_b
+        P_ref = self.R_r * ir2
+        # Input and stator copper power over the period just integrated: V_k-1 was held while
+        # the current went from i_k-1 to i_k (sampling V_k·i_k instead is off by ~|V||i|ω_e T_s/2).
+        P_hat = (0.5 * (V_prev.real * (i.real + i_prev.real) + V_prev.imag * (i.imag + i_prev.imag))
+                 - 0.5 * self.R_s * (i.real * i.real + i.imag * i.imag
+                                     + i_prev.real * i_prev.real + i_prev.imag * i_prev.imag)
+                 - tau_hat * omega_r)
+        self._acc_t += (tau_hat - tau_ref) * i.imag
+        self._acc_r += (P_hat - P_ref) / (ir2 + self.gains.epsilon)
+        self.k += 1
+        if self.k % self.N:
+            return
+        if not self.freeze:
+            g = self.gains
+            self.theta = _clip(th + g.gamma_t * T_s * self._acc_t, self.theta_lo, self.theta_hi)
+            self.R_r = _clip(self.R_r + g.gamma_r * T_s * self._acc_r, self.R_r_lo, self.R_r_hi)
+            self.L_M = self.L_sr * self.theta
+            self.R_R = self.R_r * self.theta * self.theta
+        self.last = {'tau_hat': tau_hat, 'tau_ref': tau_ref, 'P_r_hat': P_hat, 'P_r_ref': P_ref}
+        self._acc_t = 0.0
+        self._acc_r = 0.0
+
+    # Improved law -----------------------------------------------------------------------
+    def _init_filters(self, T_s, i, omega_r):
+        self._set_filter(T_s)
+        phi = self._psi - self.L_sigma * i
+        w = 1j * self.v * omega_r * phi
+        # Filters start at their steady state for the first sample (no start-up transient).
+        self._Hi, self._Hphi, self._Hw = i, phi, w
+        self._u_prev = (i, phi, w)
+
+    def _set_filter(self, T_s):
+        g = self.gains
+        wT = g.filter_corner * T_s
+        self._fa = (2.0 - wT) / (2.0 + wT)
+        self._fb = wT / (2.0 + wT)
+        self._lam = math.exp(-T_s / g.memory)
+        self._filter_T = T_s
+        # Information floor per period: one equation with |Hi| = i_floor, one with |Hφ| = phi_floor.
+        self._F11 = g.i_floor ** 2
+        self._F22 = g.phi_floor ** 2
+        if self._R11 is None:
+            n = 1.0 / (1.0 - self._lam)
+            self._R11, self._R12, self._R22 = self._F11 * n, 0.0, self._F22 * n
+
+    def _improved_step(self, T_s, i, omega_r, i_prev):
+        if T_s != self._filter_T:
+            self._set_filter(T_s)
+        # Own current model φ_cm over [t_k-1, t_k]: dφ/dt = R_R i − c φ + j v ω φ (Tustin).
+        c = self.R_R / self.L_M
+        a = complex(-c, self.v * omega_r) * (0.5 * T_s)
+        self._phi_cm = ((1.0 + a) * self._phi_cm + self.R_R * T_s * 0.5 * (i + i_prev)) / (1.0 - a)
+        # Voltage-model rotor flux and the rotation term.
+        phi = self._psi - self.L_sigma * i
+        w = 1j * self.v * omega_r * phi
+        # Tustin filters H(s) = ω_f/(s+ω_f) on i, φ_M and v ω 𝒥 φ_M.
+        fa, fb = self._fa, self._fb
+        ui, uphi, uw = self._u_prev
+        Hi = self._Hi = fa * self._Hi + fb * (i + ui)
+        Hphi = self._Hphi = fa * self._Hphi + fb * (phi + uphi)
+        Hw = self._Hw = fa * self._Hw + fb * (w + uw)
+        self._u_prev = (i, phi, w)
+        # y = H[dφ/dt − v ω 𝒥 φ] = R_R H[i] − c H[φ].
+        y = self.gains.filter_corner * (phi - Hphi) - Hw
+        # Information of this period's two real equations (rows Re, Im of [Hi, −Hφ]).
+        hi_r, hi_i, hp_r, hp_i = Hi.real, Hi.imag, Hphi.real, Hphi.imag
+        self._S11 += hi_r * hi_r + hi_i * hi_i
+        self._S12 -= hi_r * hp_r + hi_i * hp_i
+        self._S22 += hp_r * hp_r + hp_i * hp_i
+        self._b1 += hi_r * y.real + hi_i * y.imag
+        self._b2 -= hp_r * y.real + hp_i * y.imag
+        self.k += 1
+        if self.k % self.N:
+            return
+        self._ls_update()
+
+    def _ls_update(self):
+        N = self.N
+        lamN = self._lam ** N
+        floor = (1.0 - lamN) / (1.0 - self._lam)       # the floor's share of N periods
+        R11 = lamN * self._R11 + self._S11 + floor * self._F11
+        R12 = lamN * self._R12 + self._S12
+        R22 = lamN * self._R22 + self._S22 + floor * self._F22
+        self._R11, self._R12, self._R22 = R11, R12, R22
+        p1, p2 = self.R_R, self.R_R / self.L_M
+        # Σ Φᵀ(y − Φ p̂) = b − S p̂
+        e1 = self._b1 - (self._S11 * p1 + self._S12 * p2)
+        e2 = self._b2 - (self._S12 * p1 + self._S22 * p2)
+        self._S11 = self._S12 = self._S22 = self._b1 = self._b2 = 0.0
+        if self.freeze:
+            return
+        det = R11 * R22 - R12 * R12
+        p1 += (R22 * e1 - R12 * e2) / det
+        p2 += (R11 * e2 - R12 * e1) / det
+        R_R = _clip(p1, self.R_R_lo, self.R_R_hi)
+        c_lo = R_R / self.L_M_hi
+        c_hi = R_R / self.L_M_lo
+        c = _clip(p2, c_lo, c_hi)
+        self.R_R = R_R
+        self.L_M = _clip(R_R / c, self.L_M_lo, self.L_M_hi)     # (round-off at the bound)
+        self._publish_pair(R_R, R_R / self.L_M)
+
+    def _publish_pair(self, R_R, c):
+        """θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected; at a θ̂ bound keep R̂_r θ̂/L̂_sr = c."""
+        th = self.L_M / self.L_sr
+        th_c = _clip(th, self.theta_lo, self.theta_hi)
+        if th_c == th:
+            R_r = R_R / (th * th)
+        else:
+            R_r = c * self.L_sr / th_c
+        self.theta = th_c
+        self.R_r = _clip(R_r, self.R_r_lo, self.R_r_hi)
+
+
+# ---------------------------------------------------------------------------------------------
+# ROS parameters (the node calls declare_law; nothing here imports rclpy)
+# ---------------------------------------------------------------------------------------------
+_DOC = {
+    'gamma_t': 'thesis law: gain gamma_t of eq. 4.4 for theta [1/(N m A s)]',
+    'gamma_r': 'thesis law: gain gamma_r of eq. 4.9 for R_r [1/s]',
+    'epsilon': 'thesis law: epsilon of eq. 4.9 [A^2]',
+    'flux_corner': 'corner [rad/s] below which the stator flux of eq. 4.3 follows the current '
+                   'model (drift removal; 0 = pure integral)',
+    'filter_corner': 'improved law: corner [rad/s] of the regression filter',
+    'memory': 'improved law: forgetting time constant of the least squares [s]',
+    'i_floor': 'improved law: current [A] of the information floor (holds unexcited directions)',
+    'phi_floor': 'improved law: flux [Wb] of the information floor',
+    'L_sigma': 'improved law: leakage sigma*L_s [H] for the voltage-model rotor flux '
+               '(0 = L_s - L_sr*theta_initial)',
+    'R_r_min': 'projection: lower bound of the R_r estimate [ohm]',
+    'R_r_max': 'projection: upper bound of the R_r estimate [ohm]',
+    'theta_min': 'projection: lower bound of the theta estimate',
+    'theta_max': 'projection: upper bound of theta before the sigma bound',
+    'sigma_min': 'projection: smallest model leakage factor 1 - theta*L_sr/L_s',
+    'L_M_min': 'projection: lower bound of the L_M estimate [H]',
+    'L_M_max': 'projection: upper bound of the L_M estimate [H]',
+}
+_RANGES = {
+    'gamma_t': (0.0, 1e3), 'gamma_r': (0.0, 1e4), 'epsilon': (1e-9, 1e6),
+    'flux_corner': (0.0, 1e3), 'filter_corner': (1.0, 1e5), 'memory': (1e-4, 1e3),
+    'i_floor': (1e-6, 1e3), 'phi_floor': (1e-9, 10.0), 'L_sigma': (0.0, 10.0),
+    'R_r_min': (1e-6, 100.0), 'R_r_max': (1e-6, 100.0), 'theta_min': (1e-3, 10.0),
+    'theta_max': (1e-3, 10.0), 'sigma_min': (1e-6, 0.999), 'L_M_min': (1e-6, 10.0),
+    'L_M_max': (1e-6, 10.0),
+}
+
+
+def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> ParameterAdapter:
+    """Declare the adaptation gains on ``node`` (``node.param(name, default, description, lo, hi)``)
+    and return the adapter. Invalid values raise :class:`InvalidParameter` naming the parameter."""
+    d = AdaptationGains().resolve(params, theta0)
+    values = {
+        'law': node.param('law', d.law, 'adaptation law', choices=list(LAWS)),
+        'freeze': node.param('freeze', d.freeze, 'hold the estimates (signals keep running)'),
+        'decimation': node.param('decimation', d.decimation,
+                                 'update the estimates every N control periods', 1, 100000),
+    }
+    for name, doc in _DOC.items():
+        default = getattr(d, name)
+        if name == 'L_sigma':
+            default = 0.0
+        lo, hi = _RANGES[name]
+        values[name] = float(node.param(name, float(default), doc, lo, hi))
+    if values['L_sigma'] == 0.0:
+        values['L_sigma'] = None
+    return ParameterAdapter(params, AdaptationGains(**values), R_r0, theta0)
