@@ -1,0 +1,155 @@
+"""Rotor-flux strategies and the smoothing filters that give references their derivatives.
+
+Flux strategies map the torque reference τ* (and the speed) to a *target* rotor flux φ_tgt:
+
+``min_energy`` (seed 000 eq. 3.19, 3.22, 3.25)
+    Slip at the minimum-magnetic-energy value ω_sl⁰ = R_r/(L_r√σ) while the flux it implies,
+    φ = √(R_r|τ*|/(v ω_sl⁰)), lies in [φ_min, φ_max]; otherwise the flux is held at the bound
+    (the constant-flux branches ω_sl = R_r τ*/(v φ_bound²) of eq. 3.25). Written in terms of the
+    flux this is one clip, and it extends (3.25) to negative torques (|τ*|, slip of τ*'s sign).
+``constant_flux`` (eq. 3.23-3.24)
+    φ_tgt = φ_d.
+``min_loss`` (beyond the thesis)
+    The flux minimizing the steady-state copper + core loss (eq. 3.34-3.38) at the demanded
+    torque and the measured speed:
+    P(φ) = A φ² + C τ²/φ² + K(f_e) (θφ)^m, A = R_s/L_sr², C = (R_s L_r²/L_sr² + R_r)/v²,
+    K = (k_h + k_e f_e) f_e, f_e = |v ω_r + ω_sl(φ)|/2π. For m = 2: φ⁴ = C τ²/(A + K θ²);
+    for m = 1 a Newton solve of 2Aφ⁴ + Kθφ³ − 2Cτ² = 0; f_e is refreshed twice with the slip
+    of the current solution. Clipped to [φ_min, φ_max].
+
+The target is not used directly: eq. 3.13 needs dφ*/dt and d²φ*/dt² (the d-axis current and its
+derivative), and τ* needs dτ*/dt. Both come out of linear filters whose *states are the
+derivatives* (:class:`LowPass2`), discretized exactly for a held input — no numerical
+differentiation, so measurement noise enters the voltage only through bounded filter gains.
+"""
+from __future__ import annotations
+
+import math
+
+from .reference import ModelCoefficients
+
+STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
+TWO_PI = 2.0 * math.pi
+
+
+class LowPass2:
+    """y'' = p₁p₂(u − y) − (p₁ + p₂) y', poles −p₁, −p₂ (time constants τ₁ = 1/p₁, τ₂ = 1/p₂).
+
+    Unity DC gain. ``advance(dt)`` propagates (y, y') exactly over dt with the input held
+    (zero-order hold); ``accel`` is y'' right after the last ``set_input``.
+    """
+
+    __slots__ = ('p_sum', 'p_prod', 'y', 'dy', 'u', '_dt', '_phi')
+
+    def __init__(self, tau1: float, tau2: float, y0: float = 0.0, dy0: float = 0.0, u0=None):
+        for name, tc in (('tau1', tau1), ('tau2', tau2)):
+            if not (math.isfinite(tc) and tc > 0.0):
+                raise ValueError(f"filter time constant '{name}' = {tc!r} must be > 0 s")
+        p1, p2 = 1.0 / tau1, 1.0 / tau2
+        self.p_sum = p1 + p2
+        self.p_prod = p1 * p2
+        self.y = float(y0)
+        self.dy = float(dy0)
+        self.u = float(y0 if u0 is None else u0)
+        self._dt = None
+        self._phi = None
+
+    def reset(self, y: float, dy: float = 0.0, u=None) -> None:
+        self.y, self.dy = float(y), float(dy)
+        self.u = float(y if u is None else u)
+
+    def _transition(self, dt: float):
+        """Φ = e^{A dt} of A = [[0, 1], [−p₁p₂, −(p₁+p₂)]] (closed form)."""
+        if dt == self._dt:
+            return self._phi
+        a0, a1 = self.p_prod, self.p_sum
+        disc = a1 * a1 - 4.0 * a0
+        if disc > 1e-9 * a1 * a1:
+            r = math.sqrt(disc)
+            l1, l2 = 0.5 * (-a1 + r), 0.5 * (-a1 - r)
+            e1, e2 = math.exp(l1 * dt), math.exp(l2 * dt)
+            c0 = (l1 * e2 - l2 * e1) / (l1 - l2)
+            c1 = (e1 - e2) / (l1 - l2)
+        else:  # repeated pole
+            lam = -0.5 * a1
+            e = math.exp(lam * dt)
+            c0 = e * (1.0 - lam * dt)
+            c1 = e * dt
+        # Φ = c0 I + c1 A
+        phi = (c0, c1, -a0 * c1, c0 - a1 * c1)
+        self._dt, self._phi = dt, phi
+        return phi
+
+    def advance(self, dt: float) -> None:
+        if dt <= 0.0:
+            return
+        f11, f12, f21, f22 = self._transition(dt)
+        ey = self.y - self.u           # deviation from the steady state (u, 0)
+        dy = self.dy
+        self.y = self.u + f11 * ey + f12 * dy
+        self.dy = f21 * ey + f22 * dy
+
+    def set_input(self, u: float) -> None:
+        self.u = u
+
+    @property
+    def accel(self) -> float:
+        return self.p_prod * (self.u - self.y) - self.p_sum * self.dy
+
+
+def flux_min_energy(c: ModelCoefficients, tau: float, phi_min: float, phi_max: float) -> float:
+    """Eq. 3.25 as a flux: √(R_r|τ|/(v ω_sl⁰)) clipped to [φ_min, φ_max]."""
+    phi = math.sqrt(c.R_r * abs(tau) / (c.v * c.slip_min_energy))
+    return phi_min if phi < phi_min else (phi_max if phi > phi_max else phi)
+
+
+def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: float, phi_max: float,
+                  k_e: float, k_h: float, core_exponent: float = 2.0) -> float:
+    """Steady-state loss-minimizing flux (see module docstring), clipped to [φ_min, φ_max]."""
+    A = c.R_s / (c.L_sr * c.L_sr)
+    C = (c.R_s * c.L_r * c.L_r / (c.L_sr * c.L_sr) + c.R_r) / (c.v * c.v)
+    th = c.theta
+    tau2 = tau * tau
+    ve = c.v * omega_r
+    phi = (C * tau2 / A) ** 0.25  # copper-only optimum: the starting point
+    if phi < phi_min:
+        phi = phi_min
+    for _ in range(2):  # refresh f_e with the slip of the current solution
+        f_e = abs(ve + c.R_r * tau / (c.v * phi * phi)) / TWO_PI
+        K = (k_h + k_e * f_e) * f_e
+        if core_exponent == 2.0:
+            phi = (C * tau2 / (A + K * th * th)) ** 0.25
+        else:
+            x = (C * tau2 / A) ** 0.25   # h(x) = 2A x⁴ + Kθ x³ − 2Cτ² ≥ 0 here; Newton descends
+            for _ in range(5):
+                h = 2.0 * A * x ** 4 + K * th * x ** 3 - 2.0 * C * tau2
+                dh = 8.0 * A * x ** 3 + 3.0 * K * th * x * x
+                if dh <= 0.0:
+                    break
+                x -= h / dh
+            phi = x
+        if phi < phi_min:
+            phi = phi_min
+        elif phi > phi_max:
+            phi = phi_max
+    return phi
+
+
+class FluxStrategy:
+    """Target rotor flux for a torque demand: ``target(coefficients, tau, omega_r)``."""
+
+    def __init__(self, name: str, phi_d: float = 1.2, phi_min: float = 0.2, phi_max: float = 1.2,
+                 k_e: float = 0.012, k_h: float = 0.012, core_exponent: float = 2.0):
+        if name not in STRATEGIES:
+            raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {name!r}")
+        self.name = name
+        self.phi_d, self.phi_min, self.phi_max = float(phi_d), float(phi_min), float(phi_max)
+        self.k_e, self.k_h, self.core_exponent = float(k_e), float(k_h), float(core_exponent)
+
+    def target(self, c: ModelCoefficients, tau: float, omega_r: float) -> float:
+        if self.name == 'constant_flux':
+            return self.phi_d
+        if self.name == 'min_energy':
+            return flux_min_energy(c, tau, self.phi_min, self.phi_max)
+        return flux_min_loss(c, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
+                             self.core_exponent)
