@@ -1,0 +1,478 @@
+"""Torque-tracking drive controller with flux strategies (seed 000 §3.2-3.3, eq. 3.1, 3.13, 3.25-3.31;
+§4.2, eq. 4.10-4.14 with adapted estimates).
+
+One call of :meth:`DriveController.compute` per control period t_k:
+
+1. Mechanical loop (eq. 3.1): τ* = J θ̈* + b θ̇* + τ_c(θ, ω) − k_v(ω − ω*) − k_p(θ − θ*).
+   The feedforward part and the load model are differentiated analytically (trajectory jerk,
+   ∂τ_c/∂θ · ω); the PD part passes through a critically damped 2nd-order filter whose states are
+   its value and derivative. So dτ*/dt is known without numerical differentiation.
+2. Flux strategy → target flux → 2nd-order filter → (φ*, dφ*/dt, d²φ*/dt²) (:mod:`.flux`).
+3. Reference model (eq. 3.13 in flux form, :mod:`.reference`) → dq currents, electrical slip ω_sl;
+   field angle ρ integrated (trapezoid over the samples) from dρ/dt = v ω_r + ω_sl with the
+   *measured* speed (indirect field orientation); αβ reference by eq. 3.26.
+4. Voltage: V = V* + ΔV. V* = eq. 3.29 (exact inverse of the stator equation at the measured
+   speed), rotated to the middle of the hold interval [t_k, t_k + T_s] when ``hold_compensation``
+   (the voltage is held for a period; a rotating vector sampled at t_k lags by T_s/2).
+   ΔV = −K₁ (i − i*) + v ω_r θ 𝒥 (φ̂ − φ*)   (eq. 3.30 with measured currents, observed fluxes).
+   Sign convention: ΔV = −K₁(i − i*) with K₁ = k₁ I > 0 (the thesis's "k₁ = −40" is this gain
+   with the sign of ΔV = K(x̂ − x*)). The flux term cancels the non-skew speed coupling of the
+   stator equation, so with exact fluxes ½eᵀDe decreases along the tracking error
+   (docs/controller.md); ``flux_coupling='thesis'`` uses the printed K₂ = −(vL_sr/2L_r) ω_r* 𝒥
+   in ΔV = K₂(φ̂ − φ*) instead, ``'none'`` drops it.
+5. Optional voltage-vector limit with anti-windup (below).
+
+Everything per call is scalar Python.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional
+
+from im_common.loads import LOAD_KINDS, make_load
+from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR
+
+from .flux import STRATEGIES, FluxStrategy, LowPass2
+from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
+from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, ThesisPositionProfile,
+                           ThesisSpeedProfile)
+
+MODES = ('position', 'speed', 'torque')
+PROFILES = ('thesis', 'setpoint')
+FLUX_COUPLINGS = ('cancel', 'thesis', 'none')
+DEFAULT_FLUX_PREVIEW = 0.06
+
+# §3.4.6, decoded: the printed table is three columns (electrical gains | position | speed) read
+# row by row: k1, k_e on the electrical side; position k_p = 10, k_v = 1; speed k_p = 1, k_v = 3.
+DEFAULT_GAINS = {'position': (10.0, 1.0), 'speed': (1.0, 3.0), 'torque': (0.0, 0.0)}
+DEFAULT_LOADS = {'position': 'pendulum', 'speed': 'linear', 'torque': 'none'}
+
+
+def _real(name, value, lo=None, lo_open=False, allow_none=False):
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool):
+        raise InvalidParameter(name, value, 'must be a real number')
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameter(name, value, 'must be a real number') from None
+    if not math.isfinite(x):
+        raise InvalidParameter(name, value, 'must be finite')
+    if lo is not None:
+        if lo_open and not x > lo:
+            raise InvalidParameter(name, value, f'must be > {lo:g}')
+        if not lo_open and not x >= lo:
+            raise InvalidParameter(name, value, f'must be >= {lo:g}')
+    return x
+
+
+@dataclass
+class ControllerConfig:
+    """Configuration of :class:`DriveController` (SI units). Validated on construction; every
+    error names the field.
+
+    mode            'position' | 'speed' | 'torque'
+    profile         'thesis' (§3.4.4 trajectories) | 'setpoint' (``set_setpoint``)
+    strategy        'min_energy' (eq. 3.19/3.25) | 'constant_flux' (φ_d) | 'min_loss'
+    phi_d, phi_min, phi_max   [Wb] constant-flux level and the strategy bounds (§3.4.6)
+    k1              [V/A] > 0, current gain K₁ = k₁ I (§3.4.6 "k1 = −40", sign see module doc)
+    k_p, k_v        [N·m/rad], [N·m·s/rad] PD gains of eq. 3.1; None → per-mode defaults
+                    (position 10, 1; speed 1, 3; torque unused)
+    load_known      use the load model τ_c(θ, ω) in eq. 3.1 (else τ_c = 0)
+    load            'pendulum' | 'linear' | 'constant' | 'none' | None (per-mode default)
+    load_mgl, load_c1, load_c2, load_tau   load-model coefficients (τ = mgl cos θ, c1 + c2 ω, τ)
+    params          nominal motor parameters (the controller's estimates)
+    v_limit         [V] magnitude limit of the voltage vector, or None
+    current_gain    2×2 K₁ (ΔV = −K₁ (i − i*)) overriding k1·I, or None
+    flux_coupling   'cancel' | 'thesis' | 'none' (see module doc)
+    T_s             [s] control period (hold compensation and the first step)
+    hold_compensation  rotate V* to the middle of the hold interval
+    torque_filter_bandwidth  [rad/s] of the PD-part filter (critically damped)
+    flux_time_constants  (τ₁, τ₂) [s] of the flux-reference filter; None → (T_r, 1 ms): the flux
+                    follows its target like the rotor's own response to a d-current step
+    core_loss_exponent  1 | 2, the loss model the ``min_loss`` map minimizes
+    flux_preview    [s] look-ahead of the flux target: the strategy sees τ* plus the change of
+                    the reference-path torque J θ̈* + b θ̇* + τ_c(θ*, θ̇*) over this horizon
+                    (compensates the flux filter's lag; 0 = off; position/speed profiles only).
+                    None → 0.06 s for ``min_loss`` (≈ 0.6 T_r, from the sweep in
+                    docs/controller.md), 0 for the thesis strategies
+    setpoint_duration  [s] of quintic setpoint transitions (torque: /10)
+    """
+
+    mode: str = 'position'
+    profile: str = 'thesis'
+    strategy: str = 'min_energy'
+    phi_d: float = 1.2
+    phi_min: float = 0.2
+    phi_max: float = 1.2
+    k1: float = 40.0
+    k_p: Optional[float] = None
+    k_v: Optional[float] = None
+    load_known: bool = True
+    load: Optional[str] = None
+    load_mgl: float = 10.0
+    load_c1: float = 1.0
+    load_c2: float = 0.001
+    load_tau: float = 0.0
+    params: MotorParams = field(default_factory=lambda: THESIS_MOTOR)
+    v_limit: Optional[float] = None
+    current_gain: Optional[list] = None
+    flux_coupling: str = 'cancel'
+    T_s: float = 1e-4
+    hold_compensation: bool = True
+    torque_filter_bandwidth: float = 1000.0
+    flux_time_constants: Optional[tuple] = None
+    core_loss_exponent: float = 2.0
+    setpoint_duration: float = 0.5
+    flux_preview: Optional[float] = None
+
+    def __post_init__(self):
+        for name, allowed in (('mode', MODES), ('profile', PROFILES), ('strategy', STRATEGIES),
+                              ('flux_coupling', FLUX_COUPLINGS)):
+            if getattr(self, name) not in allowed:
+                raise InvalidParameter(name, getattr(self, name), f'must be one of {", ".join(allowed)}')
+        if self.mode == 'torque' and self.profile == 'thesis':
+            raise InvalidParameter('profile', self.profile,
+                                   "the thesis profiles are position/speed trajectories; "
+                                   "mode 'torque' needs profile 'setpoint'")
+        if not isinstance(self.params, MotorParams):
+            raise InvalidParameter('params', self.params, 'must be a MotorParams')
+        self.phi_d = _real('phi_d', self.phi_d, 0.0, lo_open=True)
+        self.phi_min = _real('phi_min', self.phi_min, 0.0, lo_open=True)
+        self.phi_max = _real('phi_max', self.phi_max, 0.0, lo_open=True)
+        if self.phi_max < self.phi_min:
+            raise InvalidParameter('phi_max', self.phi_max, f'must be >= phi_min = {self.phi_min:g}')
+        self.k1 = _real('k1', self.k1, 0.0, lo_open=True)
+        kp0, kv0 = DEFAULT_GAINS[self.mode]
+        self.k_p = kp0 if self.k_p is None else _real('k_p', self.k_p, 0.0)
+        self.k_v = kv0 if self.k_v is None else _real('k_v', self.k_v, 0.0)
+        if self.mode == 'position' and self.k_p <= 0.0:
+            raise InvalidParameter('k_p', self.k_p, 'must be > 0 in position mode')
+        if self.mode == 'speed' and self.k_v <= 0.0:
+            raise InvalidParameter('k_v', self.k_v, 'must be > 0 in speed mode')
+        if not isinstance(self.load_known, bool):
+            raise InvalidParameter('load_known', self.load_known, 'must be true or false')
+        if self.load is None:
+            self.load = DEFAULT_LOADS[self.mode]
+        if self.load not in LOAD_KINDS:
+            raise InvalidParameter('load', self.load, f'must be one of {", ".join(LOAD_KINDS)}')
+        for name in ('load_mgl', 'load_c1', 'load_c2', 'load_tau'):
+            setattr(self, name, _real(name, getattr(self, name)))
+        self.v_limit = _real('v_limit', self.v_limit, 0.0, lo_open=True, allow_none=True)
+        if self.current_gain is not None:
+            g = self.current_gain
+            try:
+                rows = [[float(x) for x in r] for r in g]
+            except (TypeError, ValueError):
+                raise InvalidParameter('current_gain', g, 'must be a 2x2 matrix of numbers') from None
+            if len(rows) != 2 or any(len(r) != 2 for r in rows) or \
+                    not all(math.isfinite(x) for r in rows for x in r):
+                raise InvalidParameter('current_gain', g, 'must be a 2x2 matrix of finite numbers')
+            # ΔV = −K e: the symmetric part of K must be positive definite for the dissipation
+            # argument (K + Kᵀ > 0).
+            a, b2, c2, d = rows[0][0], rows[0][1], rows[1][0], rows[1][1]
+            s12 = 0.5 * (b2 + c2)
+            if not (a > 0 and a * d - s12 * s12 > 0):
+                raise InvalidParameter('current_gain', g,
+                                       'K + K^T must be positive definite (Delta V = -K (i - i*))')
+            self.current_gain = rows
+        self.T_s = _real('T_s', self.T_s, 0.0, lo_open=True)
+        if not isinstance(self.hold_compensation, bool):
+            raise InvalidParameter('hold_compensation', self.hold_compensation, 'must be true or false')
+        self.torque_filter_bandwidth = _real('torque_filter_bandwidth', self.torque_filter_bandwidth,
+                                             0.0, lo_open=True)
+        if self.flux_time_constants is not None:
+            try:
+                tc = tuple(float(x) for x in self.flux_time_constants)
+            except (TypeError, ValueError):
+                raise InvalidParameter('flux_time_constants', self.flux_time_constants,
+                                       'must be two time constants in seconds') from None
+            if len(tc) != 2 or not all(math.isfinite(x) and x > 0 for x in tc):
+                raise InvalidParameter('flux_time_constants', self.flux_time_constants,
+                                       'must be two positive, finite time constants in seconds')
+            self.flux_time_constants = tc
+        if self.core_loss_exponent not in (1, 2, 1.0, 2.0):
+            raise InvalidParameter('core_loss_exponent', self.core_loss_exponent, 'must be 1 or 2')
+        self.core_loss_exponent = float(self.core_loss_exponent)
+        self.setpoint_duration = _real('setpoint_duration', self.setpoint_duration, 0.0, lo_open=True)
+        if self.flux_preview is None:
+            self.flux_preview = DEFAULT_FLUX_PREVIEW if self.strategy == 'min_loss' else 0.0
+        self.flux_preview = _real('flux_preview', self.flux_preview, 0.0)
+
+
+class DriveController:
+    """Stateful controller: call :meth:`compute` once per period with increasing t."""
+
+    def __init__(self, config: ControllerConfig | None = None):
+        self.config = config if config is not None else ControllerConfig()
+        cfg = self.config
+        self._c_nominal = ModelCoefficients.from_params(cfg.params)
+        self._c = self._c_nominal
+        self._est_key = None
+        self._strategy = FluxStrategy(cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max,
+                                      cfg.params.k_e, cfg.params.k_h, cfg.core_loss_exponent)
+        self._load = make_load(cfg.load if cfg.load_known else 'none', mgl=cfg.load_mgl,
+                               c1=cfg.load_c1, c2=cfg.load_c2, tau=cfg.load_tau)
+        self._load_kind = cfg.load if cfg.load_known else 'none'
+        if cfg.current_gain is None:
+            k = cfg.k1
+            self._K = (k, 0.0, 0.0, k)
+        else:
+            g = cfg.current_gain
+            self._K = (g[0][0], g[0][1], g[1][0], g[1][1])
+        tc = cfg.flux_time_constants or (self._c_nominal.T_r, 1e-3)
+        self._flux_tc = tc
+        self._phi_floor = 0.5 * cfg.phi_min
+        self.reset()
+
+    # ------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the run: the next ``compute`` re-initializes from its inputs."""
+        cfg = self.config
+        wb = cfg.torque_filter_bandwidth
+        self._pd = LowPass2(1.0 / wb, 1.0 / wb)
+        self._flux = LowPass2(self._flux_tc[0], self._flux_tc[1])
+        self._t_prev = None
+        self._rho = 0.0
+        self._rho_dot = 0.0
+        self._theta_offset = 0.0
+        self._saturated = False
+        self._traj = None
+        self._torque_sp = None
+        self._pending_setpoint = None
+        self.reference = {}
+        if cfg.profile == 'thesis':
+            self._traj = ThesisPositionProfile() if cfg.mode == 'position' else ThesisSpeedProfile()
+
+    @property
+    def coefficients(self) -> ModelCoefficients:
+        return self._c
+
+    def set_setpoint(self, kind: str, value: float, t: float) -> None:
+        """New setpoint ('position' rad | 'speed' rad/s | 'torque' N·m) reached smoothly from t
+        (quintic over ``setpoint_duration``; torque over a tenth of it)."""
+        cfg = self.config
+        if cfg.profile != 'setpoint':
+            raise ValueError("set_setpoint needs profile 'setpoint' (the thesis profile is fixed)")
+        if kind != cfg.mode:
+            raise ValueError(f"setpoint kind {kind!r} does not match the controller mode {cfg.mode!r}")
+        value = _real('value', value)
+        t = _real('t', t)
+        if self._t_prev is None:
+            # not started yet: initialize at the first compute, then apply
+            self._pending_setpoint = (value, t)
+            return
+        if kind == 'torque':
+            self._torque_sp.set(value, t, 0.1 * cfg.setpoint_duration)
+        else:
+            self._traj.set(value, t, cfg.setpoint_duration)
+
+    def _set_estimates(self, estimates) -> None:
+        R_r = estimates.get('R_r')
+        theta = estimates.get('theta')
+        key = (R_r, theta)
+        if key != self._est_key:
+            self._c = ModelCoefficients.from_params(self.config.params, R_r=R_r, theta=theta)
+            self._est_key = key
+
+    def _init_run(self, t, theta_r, omega_r, phi_a, phi_b) -> None:
+        cfg = self.config
+        if cfg.profile == 'setpoint':
+            if cfg.mode == 'position':
+                self._traj = SetpointPosition(theta_r)
+            elif cfg.mode == 'speed':
+                self._traj = SetpointSpeed(omega_r, theta_r)
+            else:
+                self._torque_sp = SetpointTorque(0.0)
+        elif cfg.mode == 'speed':
+            # the speed task's position reference is ∫ω*, anchored at the measured position
+            self._theta_offset = theta_r - self._traj.sample(t)[0]
+        mag = math.hypot(phi_a, phi_b)
+        self._flux.reset(mag)
+        self._rho = math.atan2(phi_b, phi_a) if mag > 1e-9 else 0.0
+        pending = self._pending_setpoint
+        self._t_prev = t
+        if pending is not None:
+            self._pending_setpoint = None
+            self.set_setpoint(cfg.mode, pending[0], max(pending[1], t))
+
+    def _path_torque(self, t: float, c: ModelCoefficients) -> float:
+        """Torque needed to follow the reference exactly at time t (feedforward + load model)."""
+        theta, omega, acc, _ = self._traj.sample(t)
+        tau = c.J * acc + c.b * omega
+        kind = self._load_kind
+        cfg = self.config
+        if kind == 'pendulum':
+            tau += cfg.load_mgl * math.cos(theta + self._theta_offset)
+        elif kind == 'linear':
+            tau += cfg.load_c1 + cfg.load_c2 * omega
+        elif kind == 'constant':
+            tau += cfg.load_tau
+        return tau
+
+    # ------------------------------------------------------------------------------------------
+    def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
+                phi_alpha_hat: float, phi_beta_hat: float, estimates: dict | None = None):
+        """Stator voltage (V_α, V_β) to hold over [t, t + T_s]. Updates ``self.reference``."""
+        if not (math.isfinite(t) and math.isfinite(i_alpha) and math.isfinite(i_beta)
+                and math.isfinite(theta_r) and math.isfinite(omega_r)
+                and math.isfinite(phi_alpha_hat) and math.isfinite(phi_beta_hat)):
+            names = ('t', 'i_alpha', 'i_beta', 'theta_r', 'omega_r', 'phi_alpha_hat', 'phi_beta_hat')
+            vals = (t, i_alpha, i_beta, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
+            bad = [n for n, v in zip(names, vals) if not math.isfinite(v)]
+            raise ValueError(f'controller input(s) not finite: {", ".join(bad)}')
+        cfg = self.config
+        if estimates:
+            self._set_estimates(estimates)
+        c = self._c
+        first = self._t_prev is None
+        if first:
+            self._init_run(t, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
+            dt = 0.0
+        else:
+            dt = t - self._t_prev
+            if dt < 0.0:
+                raise ValueError(f'time went backwards: t = {t!r} after {self._t_prev!r}')
+            self._pd.advance(dt)
+            self._flux.advance(dt)
+            if self._saturated and cfg.mode == 'speed':
+                # anti-windup: the position integral of the speed task follows the shaft
+                self._theta_offset += dt * (omega_r - self.reference['omega_ref'])
+        v = c.v
+
+        # 1. mechanical loop, eq. 3.1 -----------------------------------------------------------
+        if cfg.mode == 'torque':
+            tau_ff, dtau_ff = self._torque_sp.sample(t)
+            theta_ref, omega_ref = theta_r, omega_r
+            tau_c = dtau_c = 0.0
+            u_pd = 0.0
+        else:
+            theta_ref, omega_ref, acc_ref, jerk_ref = self._traj.sample(t)
+            theta_ref += self._theta_offset
+            tau_ff = c.J * acc_ref + c.b * omega_ref
+            dtau_ff = c.J * jerk_ref + c.b * acc_ref
+            kind = self._load_kind
+            if kind == 'pendulum':
+                mgl = cfg.load_mgl
+                tau_c = mgl * math.cos(theta_r)
+                dtau_c = -mgl * math.sin(theta_r) * omega_r
+            elif kind == 'linear':
+                tau_c = cfg.load_c1 + cfg.load_c2 * omega_r
+                dtau_c = cfg.load_c2 * acc_ref
+            elif kind == 'constant':
+                tau_c, dtau_c = cfg.load_tau, 0.0
+            else:
+                tau_c = dtau_c = 0.0
+            u_pd = -cfg.k_v * (omega_r - omega_ref) - cfg.k_p * (theta_r - theta_ref)
+        if first:
+            self._pd.reset(u_pd)
+        tau_pd, dtau_pd = self._pd.y, self._pd.dy
+        tau = tau_ff + tau_c + tau_pd
+        dtau = dtau_ff + dtau_c + dtau_pd
+
+        # 2. flux reference ------------------------------------------------------------------------
+        tau_tgt = tau
+        if cfg.flux_preview > 0.0 and cfg.mode != 'torque':
+            tau_tgt += (self._path_torque(t + cfg.flux_preview, c)
+                        - self._path_torque(t, c))
+        phi_tgt = self._strategy.target(c, tau_tgt, omega_r)
+        flt = self._flux
+        flt.set_input(phi_tgt)
+        phi, dphi, ddphi = flt.y, flt.dy, flt.accel
+        if phi < self._phi_floor:   # only while the machine is being magnetized
+            phi, dphi, ddphi = self._phi_floor, 0.0, 0.0
+
+        # 3. reference model, eq. 3.13 / 3.26 -------------------------------------------------------
+        i_ds, i_qs, di_ds, di_qs, i_dr, i_qr, w_sl = dq_reference(c, tau, dtau, phi, dphi, ddphi)
+        rho_dot = v * omega_r + w_sl
+        if first:
+            rho = self._rho
+        else:
+            rho = self._rho + 0.5 * dt * (self._rho_dot + rho_dot)
+        cr, sr = math.cos(rho), math.sin(rho)
+        i_a_ref = cr * i_ds - sr * i_qs
+        i_b_ref = sr * i_ds + cr * i_qs
+        p_a_ref = cr * phi
+        p_b_ref = sr * phi
+
+        # 4. feedforward (3.29) + feedback (3.30-3.31) ------------------------------------------------
+        v_d, v_q = feedforward_dq(c, i_ds, i_qs, di_ds, di_qs, phi, rho_dot, omega_r)
+        if cfg.hold_compensation:
+            rm = rho + 0.5 * (dt if dt > 0.0 else cfg.T_s) * rho_dot
+            cm, sm = math.cos(rm), math.sin(rm)
+        else:
+            cm, sm = cr, sr
+        v_a_ff = cm * v_d - sm * v_q
+        v_b_ff = sm * v_d + cm * v_q
+        ea = i_alpha - i_a_ref
+        eb = i_beta - i_b_ref
+        K11, K12, K21, K22 = self._K
+        dva = -(K11 * ea + K12 * eb)
+        dvb = -(K21 * ea + K22 * eb)
+        fa = phi_alpha_hat - p_a_ref
+        fb = phi_beta_hat - p_b_ref
+        coupling = cfg.flux_coupling
+        if coupling == 'cancel':
+            g = v * omega_r * c.theta          # + g 𝒥 (φ̂ − φ*)
+            dva -= g * fb
+            dvb += g * fa
+        elif coupling == 'thesis':
+            g = -0.5 * v * c.theta * omega_ref   # K₂ = g 𝒥, ΔV = K₂ (φ̂ − φ*)
+            dva -= g * fb
+            dvb += g * fa
+        v_a = v_a_ff + dva
+        v_b = v_b_ff + dvb
+
+        # 5. voltage limit + anti-windup -------------------------------------------------------------
+        saturated = False
+        if cfg.v_limit is not None:
+            mag = math.hypot(v_a, v_b)
+            if mag > cfg.v_limit:
+                s = cfg.v_limit / mag
+                v_a *= s
+                v_b *= s
+                saturated = True
+        self._saturated = saturated
+        if not saturated or first:
+            # conditional update: while saturated the PD filter keeps its last input
+            self._pd.set_input(u_pd)
+
+        self._t_prev = t
+        self._rho = rho
+        self._rho_dot = rho_dot
+        self.reference = {
+            't': t, 'theta_ref': theta_ref, 'omega_ref': omega_ref, 'tau_ref': tau,
+            'dtau_ref': dtau, 'i_alpha_ref': i_a_ref, 'i_beta_ref': i_b_ref,
+            'phi_alpha_ref': p_a_ref, 'phi_beta_ref': p_b_ref, 'phi_d_ref': phi,
+            'phi_target': phi_tgt, 'i_d_ref': i_ds, 'i_q_ref': i_qs, 'omega_sl': w_sl,
+            'rho': rho, 'v_alpha_ff': v_a_ff, 'v_beta_ff': v_b_ff, 'saturated': saturated,
+        }
+        return v_a, v_b
+
+
+def steady_operating_point(config: ControllerConfig, t0: float, theta0: float, omega0: float) -> dict:
+    """The electrical state the controller holds at t0 when the shaft is exactly on its
+    reference at constant speed: torque from eq. 3.1 with zero tracking error, flux at the
+    strategy's target, field angle 0. Used to start the speed task in steady state.
+    """
+    ctl = DriveController(config)
+    c = ctl.coefficients
+    if config.mode == 'torque':
+        tau = 0.0
+    else:
+        _, w_ref, a_ref, _ = ctl._traj.sample(t0) if ctl._traj is not None else (theta0, omega0, 0.0, 0.0)
+        if config.profile == 'setpoint':
+            w_ref, a_ref = omega0, 0.0
+        tau = c.J * a_ref + c.b * w_ref
+        if config.load_known:
+            tau += make_load(config.load, mgl=config.load_mgl, c1=config.load_c1, c2=config.load_c2,
+                             tau=config.load_tau).torque(t0, theta0, omega0)
+    phi = ctl._strategy.target(c, tau, omega0)
+    if config.strategy == 'min_loss':   # settle the fixed point of the f_e refresh
+        for _ in range(3):
+            phi = ctl._strategy.target(c, tau, omega0)
+    out = steady_state(c, tau, phi, omega0, 0.0)
+    out.update({'tau': tau, 'phi': phi})
+    return out
