@@ -1,0 +1,227 @@
+"""Offline closed loop: plant + controller + observer stepped in pure Python, in exactly the order
+the lock-step ROS graph uses (DESIGN.md §3, "Time and rate"):
+
+    meas_k = plant.measure()                                  # plant publishes stamped t_k
+    V_k    = controller.compute(t_k, meas_k, φ̂_k, p̂_k)        # controller holds all inputs of step k
+    plant.step(V_k)                                           # plant integrates [t_k, t_k+1], V held
+    x̂_k+1  = observer.step(T_s, V_k, meas_k.i, meas_k.ω)      # observer predicts from the same data
+    p̂_k+1  = adapter.step(...)  (optional hook, chapter 4)
+
+So results of the ROS graph and of this loop are comparable sample by sample.
+
+Scenarios (seed 000 §3.4): the position task starts at rest, θ₀ = −π/2, demagnetized (pendulum
+hanging, τ_L = 0). The speed task's reference starts at 135 rad/s with a load of 2.49 N·m, which a
+demagnetized motor cannot carry; the thesis implies a drive already running, so the speed task
+starts in the controller's own steady state at 135 rad/s (flux at the strategy's level, field
+angle 0) — plant and observer both start there (``start='steady'``).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from im_common.loads import LinearLoad, PendulumLoad
+from im_common.metrics import energy_figures, tracking_figures
+from im_common.model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, W_LOAD,
+                             stator_flux)
+from im_common.params import SCHEDULES, InvalidParameter, THESIS_MOTOR
+from im_common.plant_sim import PlantSimulator
+from im_controller.control_law import ControllerConfig, DriveController, steady_operating_point
+from im_observer.observer import RotorFluxObserver
+
+TASKS = ('position', 'speed')
+CONTROLLERS = ('nominal',)
+START_MODES = ('rest', 'steady')
+DEFAULT_DURATION = {'position': 2.0, 'speed': 1.5}
+
+# Chapter 4 (§4.3): the controller's fixed estimates under the parameter-variation profile.
+CHAPTER4_ESTIMATES = THESIS_MOTOR.with_values(R_s=0.687, L_s=0.084, L_sr=0.081, R_r=0.842,
+                                              L_r=0.081 / 0.952941)
+
+
+@dataclass
+class Scenario:
+    """One closed-loop run. Units SI; None picks the task default (see module docstring)."""
+
+    task: str = 'position'
+    strategy: str = 'min_energy'
+    T_s: float = 1e-4
+    duration: Optional[float] = None
+    variation: str = 'none'
+    controller: str = 'nominal'
+    v_limit: Optional[float] = None
+    current_gain: Optional[list] = None
+    observer_gain: Optional[list] = None
+    k_e: Optional[float] = None
+    current_noise_std: float = 0.0
+    speed_noise_std: float = 0.0
+    noise_seed: int = 0
+    start: Optional[str] = None
+    theta0: Optional[float] = None
+    omega0: Optional[float] = None
+    core_loss_exponent: float = 2.0
+    plant_substep: float = 1e-4
+    observer_substep: float = 1e-4
+    controller_options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.task not in TASKS:
+            raise InvalidParameter('task', self.task, f'must be one of {", ".join(TASKS)}')
+        if self.controller not in CONTROLLERS:
+            raise InvalidParameter('controller', self.controller,
+                                   f'must be one of {", ".join(CONTROLLERS)} (adaptive: pass an adapter)')
+        if self.variation not in SCHEDULES:
+            raise InvalidParameter('variation', self.variation, f'must be one of {", ".join(SCHEDULES)}')
+        if not (math.isfinite(self.T_s) and self.T_s > 0):
+            raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
+        if self.duration is None:
+            self.duration = DEFAULT_DURATION[self.task]
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise InvalidParameter('duration', self.duration, 'must be > 0 s')
+        if self.start is None:
+            self.start = 'rest' if self.task == 'position' else 'steady'
+        if self.start not in START_MODES:
+            raise InvalidParameter('start', self.start, f'must be one of {", ".join(START_MODES)}')
+        if self.theta0 is None:
+            self.theta0 = -0.5 * math.pi if self.task == 'position' else 0.0
+        if self.omega0 is None:
+            self.omega0 = 0.0 if self.task == 'position' else 135.0
+
+    def controller_config(self) -> ControllerConfig:
+        params = CHAPTER4_ESTIMATES if self.variation == 'chapter4' else THESIS_MOTOR
+        opts = dict(self.controller_options)
+        opts.setdefault('core_loss_exponent', self.core_loss_exponent)
+        return ControllerConfig(mode=self.task, profile='thesis', strategy=self.strategy,
+                                params=params, v_limit=self.v_limit, current_gain=self.current_gain,
+                                T_s=self.T_s, **opts)
+
+
+@dataclass
+class RunResult:
+    scenario: Scenario
+    summary: dict
+    trace: dict
+
+
+TRACE_KEYS = ('t', 'theta_r', 'omega_r', 'theta_ref', 'omega_ref', 'tau_m', 'tau_ref', 'tau_L',
+              'v_alpha', 'v_beta', 'i_alpha', 'i_beta', 'i_alpha_ref', 'i_beta_ref',
+              'phi_r_alpha', 'phi_r_beta', 'phi_ref_alpha', 'phi_ref_beta', 'phi_hat_alpha',
+              'phi_hat_beta', 'phi_d_ref', 'phi_target', 'omega_sl', 'E_in', 'E_loss', 'E_copper',
+              'E_core')
+
+
+def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
+             adapter=None) -> RunResult:
+    """Run ``scenario`` in the lock-step order; returns figures of merit and traces.
+
+    ``adapter`` (optional, chapter 4): an object with ``step(T_s, t, v_alpha, v_beta, meas,
+    x_hat) -> dict`` returning estimates (e.g. {'R_r': ..., 'theta': ...}) for the next step;
+    they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13).
+    """
+    sc = scenario
+    if record_every < 1:
+        raise InvalidParameter('record_every', record_every, 'must be >= 1')
+    wall0 = time.perf_counter()
+    schedule = SCHEDULES[sc.variation](THESIS_MOTOR)
+    load = PendulumLoad(10.0) if sc.task == 'position' else LinearLoad(1.0, 0.001)
+    cfg = sc.controller_config()
+    x0 = None
+    obs_x0 = (0.0, 0.0, 0.0, 0.0)
+    if sc.start == 'steady':
+        op = steady_operating_point(cfg, 0.0, sc.theta0, sc.omega0)
+        P = schedule.params_at(0.0)
+        psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'],
+                                   P.L_s, P.L_r, P.L_sr)
+        x0 = (psi_a, psi_b, op['phi_alpha'], op['phi_beta'], sc.theta0, sc.omega0)
+        obs_x0 = (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])
+    plant = PlantSimulator(schedule, load, T_s=sc.T_s, max_substep=sc.plant_substep,
+                           v_limit=sc.v_limit, current_noise_std=sc.current_noise_std,
+                           speed_noise_std=sc.speed_noise_std, noise_seed=sc.noise_seed,
+                           theta0=sc.theta0, omega0=sc.omega0, x0=x0,
+                           core_loss_exponent=sc.core_loss_exponent)
+    controller = DriveController(cfg)
+    observer = RotorFluxObserver(cfg.params, k_e=sc.k_e, max_substep=sc.observer_substep, x0=obs_x0,
+                                 injection_gain=sc.observer_gain,
+                                 gain_period=sc.T_s if sc.observer_gain is not None else None)
+    n_steps = int(round(sc.duration / sc.T_s))
+    n_rec = n_steps // record_every + 1
+    tr = {k: np.empty(n_rec) for k in TRACE_KEYS}
+    T_s = sc.T_s
+    estimates = None
+    x_hat = observer.state
+    vp = THESIS_MOTOR.pole_pairs
+    rec = 0
+    report_every = max(1, n_steps // 20)
+    label = f'{sc.task}/{sc.strategy} T_s={sc.T_s:g}'
+    for k in range(n_steps + 1):
+        m = plant.measure()
+        v_a, v_b = controller.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r,
+                                      x_hat[2], x_hat[3], estimates)
+        if k % record_every == 0 and rec < n_rec:
+            x = plant.x
+            _, _, L_s, L_r, L_sr = schedule.values(m.t)
+            i_sa, i_sb, _, _ = plant.state_currents()
+            ref = controller.reference
+            applied = plant.limit(v_a, v_b)
+            row = tr
+            row['t'][rec] = m.t
+            row['theta_r'][rec] = x[4]
+            row['omega_r'][rec] = x[5]
+            row['theta_ref'][rec] = ref['theta_ref']
+            row['omega_ref'][rec] = ref['omega_ref']
+            row['tau_m'][rec] = vp * L_sr / L_r * (i_sb * x[2] - i_sa * x[3])
+            row['tau_ref'][rec] = ref['tau_ref']
+            row['tau_L'][rec] = load.torque(m.t, x[4], x[5])
+            row['v_alpha'][rec] = applied[0]
+            row['v_beta'][rec] = applied[1]
+            row['i_alpha'][rec] = i_sa
+            row['i_beta'][rec] = i_sb
+            row['i_alpha_ref'][rec] = ref['i_alpha_ref']
+            row['i_beta_ref'][rec] = ref['i_beta_ref']
+            row['phi_r_alpha'][rec] = x[2]
+            row['phi_r_beta'][rec] = x[3]
+            row['phi_ref_alpha'][rec] = ref['phi_alpha_ref']
+            row['phi_ref_beta'][rec] = ref['phi_beta_ref']
+            row['phi_hat_alpha'][rec] = x_hat[2]
+            row['phi_hat_beta'][rec] = x_hat[3]
+            row['phi_d_ref'][rec] = ref['phi_d_ref']
+            row['phi_target'][rec] = ref['phi_target']
+            row['omega_sl'][rec] = ref['omega_sl']
+            row['E_in'][rec] = x[E_IN]
+            row['E_copper'][rec] = x[E_CU_S] + x[E_CU_R]
+            row['E_core'][rec] = x[E_CORE]
+            row['E_loss'][rec] = x[E_CU_S] + x[E_CU_R] + x[E_CORE]
+            rec += 1
+        if k == n_steps:
+            break
+        plant.step(v_a, v_b)
+        x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)
+        if adapter is not None:
+            estimates = adapter.step(T_s, m.t, v_a, v_b, m, x_hat)
+            if estimates:
+                observer.set_estimates(estimates.get('R_r'), estimates.get('theta'))
+        if progress and k % report_every == 0:
+            print(f'\r{label}: {100.0 * k / n_steps:5.1f} %', end='', file=sys.stderr, flush=True)
+    if progress:
+        print(f'\r{label}: done in {time.perf_counter() - wall0:.1f} s', file=sys.stderr, flush=True)
+    trace = {k: v[:rec] for k, v in tr.items()}
+    truth = plant.truth()
+    summary = {'task': sc.task, 'strategy': sc.strategy, 'controller': sc.controller,
+               'variation': sc.variation, 'rate_hz': 1.0 / sc.T_s, 'T_s': sc.T_s,
+               'duration_s': sc.duration, 'core_loss_exponent': sc.core_loss_exponent}
+    summary.update(energy_figures(truth))
+    summary.update(tracking_figures(trace, sc.task))
+    summary['E_loss_J'] = summary['E_copper_J'] + summary['E_core_J']
+    summary['balance_relative'] = abs(summary['balance_residual_J']) / max(abs(summary['E_in_J']), 1e-12)
+    summary['steps'] = n_steps
+    summary['wall_s'] = time.perf_counter() - wall0
+    return RunResult(sc, summary, trace)
+
+
+def scenario_dict(sc: Scenario) -> dict:
+    return asdict(sc)
