@@ -340,3 +340,16 @@ def test_load_run_aligns_topics_on_stamps(tmp_path):
     assert math.isnan(tr['phi_hat_alpha'][2])
     assert list(tr['R_r_hat']) == [1.0 + k for k in range(10)]
     assert list(tr['i_beta']) == [-k for k in range(10)]
+
+
+def test_load_run_decodes_framed_vector3_like_the_graph_publishes(tmp_path):
+    path = tmp_path / 'framed.mcap'
+    with BagWriter(path) as w:
+        for k in range(20):
+            t = k * 1_000_000
+            w.write('/im/measured/current', _v3(t, 0.5 * k, -k, 0.0, 'alphabeta'), t)
+            w.write('/im/truth/torque', _v3(t, 1.0 + k, 2.0, 3.0, 'x' * (k % 3 + 1)), t)
+    tr = load_run(path).trace
+    assert list(tr['i_alpha']) == [0.5 * k for k in range(20)]
+    assert list(tr['tau_m']) == [1.0 + k for k in range(20)]
+    assert list(tr['tau_friction']) == [3.0] * 20

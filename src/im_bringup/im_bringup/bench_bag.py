@@ -21,6 +21,7 @@ def _bench(n_steps: int, mode: str, compression: str, tmp: str) -> float:
     from .bag import BagWriter
     path = os.path.join(tmp, f'{mode}_{compression}.mcap')
     v3 = Vector3Stamped()
+    v3.header.frame_id = 'alphabeta'       # as im_common.conversions.Vector3Out
     js = JointState()
     js.name = ['rotor']
     js.position = [0.0]

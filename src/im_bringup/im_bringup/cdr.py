@@ -215,18 +215,26 @@ _STAMP = struct.Struct('<iI')
 _DDD = struct.Struct('<ddd')
 
 
+_v3_framed: Dict[str, Tuple[struct.Struct, int, bytes]] = {}
+
+
+def _v3_struct(frame_id: str):
+    """(Struct, string length, frame bytes) of a Vector3Stamped with this frame_id."""
+    b = frame_id.encode('utf-8')
+    n = len(b) + 1
+    pad = _pad(12 + n, 8)            # doubles start 8-aligned in the payload
+    entry = (struct.Struct(f'<HHiII{n}s{pad}xddd'), n, b)
+    if len(_v3_framed) < 256:
+        _v3_framed[frame_id] = entry
+    return entry
+
+
 def pack_vector3_stamped(sec: int, nanosec: int, x: float, y: float, z: float,
                          frame_id: str = '') -> bytes:
     if not frame_id:
         return _V3_EMPTY.pack(256, 0, sec, nanosec, 1, 0, x, y, z)
-    b = frame_id.encode('utf-8')
-    out = bytearray(ENCAPSULATION)
-    out += _STAMP.pack(sec, nanosec)
-    out += _U32.pack(len(b) + 1)
-    out += b + b'\x00'
-    out += bytes(_pad(len(out) - 4, 8))
-    out += _DDD.pack(x, y, z)
-    return bytes(out)
+    e = _v3_framed.get(frame_id) or _v3_struct(frame_id)
+    return e[0].pack(256, 0, sec, nanosec, e[1], e[2], x, y, z)
 
 
 def pack_clock(sec: int, nanosec: int) -> bytes:

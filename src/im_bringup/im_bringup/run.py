@@ -120,6 +120,16 @@ def _decode_v3(payloads: List[bytes]):
     if payloads and all(len(p) == cdr.V3_EMPTY_SIZE for p in payloads):
         a = np.frombuffer(b''.join(payloads), dtype=_V3_DTYPE)
         return _stamp_ns(a['sec'], a['nsec']), a['x'].copy(), a['y'].copy(), a['z'].copy()
+    if payloads:
+        n = len(payloads[0])
+        head = payloads[0][12:n - 24]
+        if n >= 44 and all(len(p) == n and p[12:n - 24] == head for p in payloads):
+            # one frame_id throughout: fixed layout, decode in one go
+            dt = np.dtype({'names': ['sec', 'nsec', 'x', 'y', 'z'],
+                           'formats': ['<i4', '<u4', '<f8', '<f8', '<f8'],
+                           'offsets': [4, 8, n - 24, n - 16, n - 8], 'itemsize': n})
+            a = np.frombuffer(b''.join(payloads), dtype=dt)
+            return _stamp_ns(a['sec'], a['nsec']), a['x'].copy(), a['y'].copy(), a['z'].copy()
     rows = [cdr.decode_vector3_stamped(p) for p in payloads]
     if not rows:
         e = np.zeros(0)
