@@ -7,8 +7,6 @@ import pytest
 
 from im_bringup.testing import run_graph
 
-pytest_plugins = ['im_bringup.testing']
-
 
 def test_same_run_twice_gives_identical_numbers():
     a = run_graph(task='speed', strategy='min_energy', duration=0.05)

@@ -98,10 +98,13 @@ class DriveGraph:
                     if ns is not None:
                         rec.write(_topic, msg, ns)
                 pub.publish = tapped
-        # Messages the nodes published while being built (initial estimates, step 0).
-        plant = self.nodes.get('plant')
-        if plant is not None:
-            plant.publish_step()
+        # Messages the nodes published while being built (initial estimates, step 0), again for
+        # the tap (a repeated stamp is ignored by the receiving gates).
+        for name in ('observer', 'adapter'):
+            if name in self.nodes:
+                self.nodes[name].publish_estimate(0)
+        if 'plant' in self.nodes:
+            self.nodes['plant'].publish_step()
 
     def run(self, progress: bool = False, wall_limit: Optional[float] = None) -> dict:
         """Spin until the plant reached its duration or a node failed; return run statistics."""
@@ -111,10 +114,14 @@ class DriveGraph:
         last = t0
         k0 = plant.sim.k if plant is not None else 0
         total = plant.last_step if plant is not None else None
+        first_failure = None
         while rclpy.ok(context=self.context):
-            if any(n.exit_code for n in nodes):
-                break
-            if plant is not None and plant.done:
+            if first_failure is None and any(n.exit_code for n in nodes):
+                first_failure = time.perf_counter()
+            if first_failure is not None and (
+                    all(n.done for n in nodes) or time.perf_counter() - first_failure > 1.0):
+                break       # after a failure, give the others a moment to report theirs
+            if plant is not None and plant.done and first_failure is None:
                 break
             if plant is None and all(n.done for n in nodes):
                 break

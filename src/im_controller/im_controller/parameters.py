@@ -1,0 +1,76 @@
+"""ROS parameters of the controller node ↔ :class:`im_controller.control_law.ControllerConfig`.
+
+Every field of the configuration is a declared parameter with a description and a range; the
+node builds the configuration from them, so an invalid value is refused with its name (by the
+range check at declaration, or by ``ControllerConfig`` validation).
+"""
+from __future__ import annotations
+
+from im_common.loads import LOAD_KINDS
+
+from .control_law import FLUX_COUPLINGS, MODES, PROFILES, STRATEGIES, ControllerConfig
+
+
+def declare_controller(node) -> dict:
+    """Declare the controller's parameters on ``node``; return their values by name."""
+    p = node.param
+    v = {}
+    v['mode'] = p('mode', 'position', 'tracking task', choices=MODES)
+    v['profile'] = p('profile', 'thesis',
+                     'reference source: the thesis trajectories (seed 000 §3.4.4) or setpoints '
+                     'from /im/setpoint turned into smooth references', choices=PROFILES)
+    v['strategy'] = p('strategy', 'min_energy', 'flux strategy', choices=STRATEGIES)
+    v['phi_d'] = p('phi_d', 1.2, 'constant-flux level [Wb]', 1e-3, 10.0)
+    v['phi_min'] = p('phi_min', 0.2, 'lower flux bound of min_energy / min_loss [Wb]', 1e-3, 10.0)
+    v['phi_max'] = p('phi_max', 1.2, 'upper flux bound (saturation) [Wb]', 1e-3, 10.0)
+    v['k1'] = p('k1', 40.0, 'current feedback gain K1 = k1 I [V/A] (Delta V = -K1 (i - i*))',
+                1e-6, 1e6)
+    v['k_p'] = p('k_p', -1.0, 'PD position gain of eq. 3.1 [N m/rad] (-1: per-mode default, '
+                 'position 10, speed 1)', -1.0, 1e6)
+    v['k_v'] = p('k_v', -1.0, 'PD speed gain of eq. 3.1 [N m s/rad] (-1: per-mode default, '
+                 'position 1, speed 3)', -1.0, 1e6)
+    v['load_known'] = p('load_known', True, 'feed the load model tau_c forward in eq. 3.1')
+    v['load'] = p('load', 'pendulum', 'load model for tau_c', choices=LOAD_KINDS)
+    v['load_mgl'] = p('load_mgl', 10.0, 'pendulum load model m g l [N m]', -1e4, 1e4)
+    v['load_c1'] = p('load_c1', 1.0, 'linear load model c1 [N m]', -1e4, 1e4)
+    v['load_c2'] = p('load_c2', 0.001, 'linear load model c2 [N m s]', -1e3, 1e3)
+    v['load_tau'] = p('load_tau', 0.0, 'constant load model [N m]', -1e4, 1e4)
+    v['v_limit'] = p('v_limit', 0.0, 'voltage-vector limit with anti-windup [V] (0: none)',
+                     0.0, 1e5)
+    v['current_gain'] = p('current_gain', [0.0],
+                          'full 2x2 current gain K1, row-major, from design_gains ([0.0]: k1 I)')
+    v['gain_period'] = p('gain_period', 0.0, 'period current_gain was designed for [s]', 0.0, 1.0)
+    v['flux_coupling'] = p('flux_coupling', 'cancel',
+                           "flux term of the current feedback: 'cancel', 'thesis' (K2 of eq. "
+                           "3.30) or 'none'", choices=FLUX_COUPLINGS)
+    v['hold_compensation'] = p('hold_compensation', True,
+                               'rotate the feedforward to the middle of the hold interval')
+    v['torque_filter_bandwidth'] = p('torque_filter_bandwidth', 1000.0,
+                                     'bandwidth of the PD-part torque filter [rad/s]', 1.0, 1e6)
+    v['flux_preview'] = p('flux_preview', -1.0,
+                          'look-ahead of the flux target [s] (-1: strategy default)', -1.0, 10.0)
+    v['core_loss_exponent'] = p('core_loss_exponent', 2.0,
+                                'flux exponent of the core-loss model min_loss minimizes (1 or 2)',
+                                1.0, 2.0)
+    v['setpoint_duration'] = p('setpoint_duration', 0.5,
+                               'duration of the smooth transition to a new setpoint [s]', 1e-3, 100.0)
+    return v
+
+
+def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig:
+    """The controller configuration from declared parameter values (-1 / 0 / [0.0]: defaults)."""
+    v = dict(values)
+    gain = list(v.pop('current_gain'))
+    gain_period = v.pop('gain_period')
+    if len(gain) == 4:
+        if abs(gain_period - T_s) > 1e-12:
+            raise ValueError(f"invalid parameter 'gain_period' = {gain_period!r}: current_gain "
+                             f"was designed for another period than T_s = {T_s}")
+        v['current_gain'] = [gain[0:2], gain[2:4]]
+    elif gain != [0.0]:
+        raise ValueError(f"invalid parameter 'current_gain' = {gain!r}: 4 numbers (row-major 2x2)")
+    for key in ('k_p', 'k_v', 'flux_preview'):
+        if v[key] < 0:
+            v[key] = None
+    v['v_limit'] = v['v_limit'] or None
+    return ControllerConfig(params=params, T_s=T_s, **v)
