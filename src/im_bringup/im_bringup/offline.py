@@ -116,12 +116,13 @@ TRACE_KEYS = ('t', 'theta_r', 'omega_r', 'theta_ref', 'omega_ref', 'tau_m', 'tau
 
 
 def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
-             adapter=None) -> RunResult:
+             adapter=None, timing: bool = False) -> RunResult:
     """Run ``scenario`` in the lock-step order; returns figures of merit and traces.
 
     ``adapter`` (optional, chapter 4): an object with ``step(T_s, t, v_alpha, v_beta, meas,
     x_hat) -> dict`` returning estimates (e.g. {'R_r': ..., 'theta': ...}) for the next step;
     they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13).
+    ``timing`` adds the mean wall time per ``compute`` and per ``observer.step`` [µs] to the summary.
     """
     sc = scenario
     if record_every < 1:
@@ -158,10 +159,16 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     rec = 0
     report_every = max(1, n_steps // 20)
     label = f'{sc.task}/{sc.strategy} T_s={sc.T_s:g}'
+    clock = time.perf_counter
+    t_ctl = t_obs = 0.0
     for k in range(n_steps + 1):
         m = plant.measure()
+        if timing:
+            c0 = clock()
         v_a, v_b = controller.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r,
                                       x_hat[2], x_hat[3], estimates)
+        if timing:
+            t_ctl += clock() - c0
         if k % record_every == 0 and rec < n_rec:
             x = plant.x
             _, _, L_s, L_r, L_sr = schedule.values(m.t)
@@ -200,7 +207,11 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         if k == n_steps:
             break
         plant.step(v_a, v_b)
+        if timing:
+            c0 = clock()
         x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)
+        if timing:
+            t_obs += clock() - c0
         if adapter is not None:
             estimates = adapter.step(T_s, m.t, v_a, v_b, m, x_hat)
             if estimates:
@@ -219,6 +230,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     summary['E_loss_J'] = summary['E_copper_J'] + summary['E_core_J']
     summary['balance_relative'] = abs(summary['balance_residual_J']) / max(abs(summary['E_in_J']), 1e-12)
     summary['steps'] = n_steps
+    if timing:
+        summary['us_per_compute'] = 1e6 * t_ctl / (n_steps + 1)
+        summary['us_per_observer_step'] = 1e6 * t_obs / max(n_steps, 1)
     summary['wall_s'] = time.perf_counter() - wall0
     return RunResult(sc, summary, trace)
 
