@@ -219,7 +219,8 @@ class GainDesign:
         }
 
 
-DEFAULT_VERTEX_POINTS = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 17}
+CURRENT_VERTEX_POINTS = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 17}
+OBSERVER_VERTEX_POINTS = {'R_r': 2, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 17}
 DEFAULT_CERTIFY_POINTS = {'R_r': 5, 'L_s': 5, 'L_r': 5, 'L_sr': 5, 'omega_r': 41}
 
 
@@ -240,16 +241,20 @@ def _log(progress: bool, msg: str) -> None:
 def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 0.0,
                         motor: MotorParams = THESIS_MOTOR, sigma_min: float = DEFAULT_SIGMA_MIN,
                         vertex_points=None, certify_points=None, margin: float = 1e-6,
-                        progress: bool = False) -> GainDesign:
+                        design_extra_rate: float = 1.0, progress: bool = False) -> GainDesign:
     """Robust 2×2 current gain K (ΔV = −K(i − i*)) at the period T_s with |λ| < exp(−α T_s).
 
     Solves seed 001 (3.33) with ``normalization='output'`` and a small ε (``margin``; the rate is the
     margin that matters here) in per-unit coordinates, trying the D of
-    :func:`_current_D_candidates` in turn; certifies on the dense grid.
+    :func:`_current_D_candidates` in turn. The synthesis asks for α + ``design_extra_rate`` at the
+    vertex models and the certificate checks α on the dense grid: without that reserve the
+    minimum-norm solution sits on the boundary at the vertices and the dense-grid models just
+    outside their hull fail.
     """
     sc = Scaling.for_motor(motor)
     rho = math.exp(-decay_rate * T_s)
-    vg = parameter_grid(vertex_points or DEFAULT_VERTEX_POINTS, omega_max, sigma_min=sigma_min)
+    rho_design = math.exp(-(decay_rate + design_extra_rate) * T_s)
+    vg = parameter_grid(vertex_points or CURRENT_VERTEX_POINTS, omega_max, sigma_min=sigma_min)
     cg = parameter_grid(certify_points or DEFAULT_CERTIFY_POINTS, omega_max, sigma_min=sigma_min)
     A_v, B_v = sampled_models(vg, T_s, motor)
     A_c, B_c = sampled_models(cg, T_s, motor)
@@ -259,8 +264,8 @@ def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_ra
     for D in _current_D_candidates():
         _log(progress, f'current loop T_s = {T_s:g} s, rho = {rho:.6f}: {len(vg)} vertex models, '
                        f'D = {D.tolist()} ...')
-        res = synthesize(sysm, D=D, solver='clarabel', rho=rho, margin=margin,
-                         normalization='output', grid_models=dense)
+        res = synthesize(sysm, D=D, solver='clarabel', rho=rho_design, margin=margin,
+                         normalization='output', grid_models=dense, certify_rho=rho)
         _log(progress, f'  {res.status} ({res.solver_status}), {res.wall_s:.1f} s')
         rank = {'certified': 0, 'uncertified': 1, 'failed': 2, 'infeasible': 3}
         if last is None or rank[res.status] < rank[last.status]:
@@ -284,19 +289,20 @@ def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_ra
 def design_observer_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 20.0,
                          motor: MotorParams = THESIS_MOTOR, sigma_min: float = DEFAULT_SIGMA_MIN,
                          vertex_points=None, certify_points=None, margin: float = 1e-6,
-                         progress: bool = False) -> GainDesign:
+                         design_extra_rate: float = 2.0, progress: bool = False) -> GainDesign:
     """Robust 4×2 observer injection L at the period T_s with |λ(A_d − L C)| < exp(−α T_s)."""
     sc = Scaling.for_motor(motor)
     rho = math.exp(-decay_rate * T_s)
-    vg = parameter_grid(vertex_points or DEFAULT_VERTEX_POINTS, omega_max, sigma_min=sigma_min)
+    rho_design = math.exp(-(decay_rate + design_extra_rate) * T_s)
+    vg = parameter_grid(vertex_points or OBSERVER_VERTEX_POINTS, omega_max, sigma_min=sigma_min)
     cg = parameter_grid(certify_points or DEFAULT_CERTIFY_POINTS, omega_max, sigma_min=sigma_min)
     A_v, _ = sampled_models(vg, T_s, motor)
     A_c, _ = sampled_models(cg, T_s, motor)
     sysm = observer_dual_system(A_v, sc)
     dense = observer_dual_system(A_c, sc).models
     _log(progress, f'observer T_s = {T_s:g} s, rho = {rho:.6f}: {len(vg)} vertex models ...')
-    res = synthesize(sysm, solver='clarabel', rho=rho, margin=margin, normalization='thesis',
-                     grid_models=dense)
+    res = synthesize(sysm, solver='clarabel', rho=rho_design, margin=margin,
+                     normalization='thesis', grid_models=dense, certify_rho=rho)
     _log(progress, f'  {res.status} ({res.solver_status}), {res.wall_s:.1f} s')
     design = GainDesign('observer', T_s, decay_rate, rho, None, res, len(vg), len(cg))
     if res.status == 'certified':
