@@ -15,7 +15,7 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from im_bringup import cdr
+from im_common import cdr
 from im_bringup.bag import BagError, BagWriter, info, iter_raw, load_run, read_messages
 from im_bringup.msgdefs import full_definition, type_hash
 

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import sys
 
-from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
 from im_common import topics as T
-from im_common.conversions import JointStateOut, period_ns, stamp_ns
+from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, StepGate, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
 
@@ -38,16 +37,9 @@ class AdapterNode(LockstepNode):
         self.out = JointStateOut(T.ESTIMATE_NAMES)
         self.gate = StepGate([T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
                              self.period)
-        put = self.gate.put
-        for topic, typ, get in (
-                (T.MEAS_CURRENT, Vector3Stamped, lambda m: (m.vector.x, m.vector.y)),
-                (T.CMD_VOLTAGE, Vector3Stamped, lambda m: (m.vector.x, m.vector.y)),
-                (T.OBS_FLUX, Vector3Stamped, lambda m: (m.vector.x, m.vector.y)),
-                (T.MEAS_SHAFT, JointState, lambda m: m.velocity[0])):
-            self.create_subscription(
-                typ, topic,
-                lambda m, topic=topic, get=get: self.ready(put(topic, stamp_ns(m.header.stamp),
-                                                               get(m))), q)
+        for topic in (T.MEAS_CURRENT, T.CMD_VOLTAGE, T.OBS_FLUX):
+            self.gate_input(topic, xy_in)
+        self.gate_input(T.MEAS_SHAFT, shaft_in)
         self.start_watchdog(timeout, startup)
         self.publish_estimate(0)
 
@@ -59,7 +51,7 @@ class AdapterNode(LockstepNode):
                 i_a, i_b = inputs[T.MEAS_CURRENT]
                 v_a, v_b = inputs[T.CMD_VOLTAGE]
                 f_a, f_b = inputs[T.OBS_FLUX]
-                self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT], f_a, f_b)
+                self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1], f_a, f_b)
             self.publish_estimate(k + 1)
             if self.last_step is not None and k + 1 >= self.last_step:
                 self.finish()

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 
-from . import cdr
+from im_common import cdr
 from .msgdefs import full_definition, ros_distro, type_hash
 
 MAGIC = b'\x89MCAP0\r\n'

@@ -19,19 +19,10 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from im_common.conversions import NS_PER_S
 
 
 def _overrides(values: Mapping[str, object]):
     return [Parameter(k, value=v) for k, v in values.items()]
-
-
-def _stamp_of(msg) -> Optional[int]:
-    h = getattr(msg, 'header', None)
-    st = h.stamp if h is not None else getattr(msg, 'clock', None)
-    if st is None:
-        return None
-    return st.sec * NS_PER_S + st.nanosec
 
 
 class DriveGraph:
@@ -44,7 +35,8 @@ class DriveGraph:
         ``adapter``); see :func:`im_bringup.config.node_parameters`.
     nodes : which nodes to start (default: all four). Leaving one out exercises the
         missing-input path: the others report what they waited for and stop.
-    recorder : optional BagWriter; every published message is written to it.
+    recorder : optional sink with ``write(topic, payload)`` (an :class:`im_bringup.traces.Tap`):
+        every message a node publishes is handed to it (serialized).
     domain_id : DDS domain (default random in 150-229).
     """
 
@@ -92,11 +84,9 @@ class DriveGraph:
                     continue
                 original = pub.publish
 
-                def tapped(msg, _orig=original, _topic=topic):
+                def tapped(msg, _orig=original, _topic=topic, _write=rec.write):
                     _orig(msg)
-                    ns = _stamp_of(msg)
-                    if ns is not None:
-                        rec.write(_topic, msg, ns)
+                    _write(_topic, msg)
                 pub.publish = tapped
         # Messages the nodes published while being built (initial estimates, step 0), again for
         # the tap (a repeated stamp is ignored by the receiving gates).
@@ -106,37 +96,47 @@ class DriveGraph:
         if 'plant' in self.nodes:
             self.nodes['plant'].publish_step()
 
+    def _stopped(self, node) -> None:
+        """A node finished or failed: the run ends when the plant is done or a node failed."""
+        if (node.exit_code or node is self.nodes.get('plant')) and not self._stop.done():
+            self._stop.set_result(node.get_name())
+
     def run(self, progress: bool = False, wall_limit: Optional[float] = None) -> dict:
-        """Spin until the plant reached its duration or a node failed; return run statistics."""
+        """Spin until the plant reached its duration or a node failed; return run statistics.
+
+        The executor runs natively (``spin_until_future_complete``) in slices of 0.5 s between
+        which progress is printed; after a failure the others get up to a second to report theirs.
+        """
+        from rclpy.task import Future
         nodes = list(self.nodes.values())
+        self._stop = Future()
+        for n in nodes:
+            n.on_stop = self._stopped
+            if n.done:
+                self._stopped(n)
         plant = self.nodes.get('plant')
+        if plant is None:      # nothing ends the run but failures
+            wall_limit = wall_limit or 60.0
         t0 = time.perf_counter()
-        last = t0
         k0 = plant.sim.k if plant is not None else 0
         total = plant.last_step if plant is not None else None
-        first_failure = None
-        while rclpy.ok(context=self.context):
-            if first_failure is None and any(n.exit_code for n in nodes):
-                first_failure = time.perf_counter()
-            if first_failure is not None and (
-                    all(n.done for n in nodes) or time.perf_counter() - first_failure > 1.0):
-                break       # after a failure, give the others a moment to report theirs
-            if plant is not None and plant.done and first_failure is None:
-                break
-            if plant is None and all(n.done for n in nodes):
-                break
-            self.executor.spin_once(timeout_sec=0.05)
+        ex = self.executor
+        while not self._stop.done() and rclpy.ok(context=self.context):
+            ex.spin_until_future_complete(self._stop, timeout_sec=0.5)
             now = time.perf_counter()
-            if progress and now - last > 0.5 and plant is not None:
-                last = now
+            if progress and plant is not None and not self._stop.done():
                 k = plant.sim.k
                 rate = (k - k0) / (now - t0)
                 frac = f'{100.0 * k / total:5.1f} %' if total else ''
                 print(f'\r  t = {plant.sim.t:8.4f} s  step {k}  {frac}  {rate:8.0f} steps/s',
                       end='', file=sys.stderr, flush=True)
             if wall_limit is not None and now - t0 > wall_limit:
-                raise TimeoutError(f'run exceeded {wall_limit} s of wall time')
+                break
         self.wall_s = time.perf_counter() - t0
+        if any(n.exit_code for n in nodes):
+            t_fail = time.perf_counter()
+            while not all(n.done for n in nodes) and time.perf_counter() - t_fail < 1.0:
+                ex.spin_once(timeout_sec=0.05)
         if progress:
             print(file=sys.stderr)
         steps = (plant.sim.k - k0) if plant is not None else 0

@@ -94,7 +94,7 @@ _INTRO_MAP = {'double': 'float64', 'float': 'float32', 'boolean': 'bool', 'octet
 
 def _generated_text(type_name: str) -> str:
     """A .msg text from the class introspection (used only when no .msg file is installed)."""
-    from .cdr import message_class
+    from im_common.cdr import message_class
     cls = message_class(type_name)
     lines = []
     for field, ftype in cls.get_fields_and_field_types().items():

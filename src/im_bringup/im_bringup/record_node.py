@@ -22,7 +22,7 @@ from typing import Dict, Iterable, Optional
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from . import cdr
+from im_common import cdr
 from .bag import BagError, BagWriter, qos_yaml
 
 STAMPED_TYPES = {'geometry_msgs/msg/Vector3Stamped', 'sensor_msgs/msg/JointState',

@@ -39,7 +39,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import cdr
+from im_common import cdr
 from .bag import BagError, BagWriter, info, iter_raw
 from .run import REEST_CURRENT, REEST_FLUX
 

@@ -90,23 +90,7 @@ def figures_of_merit(run) -> Dict[str, float]:
     """Every figure of merit a run's recording supports."""
     from im_common.metrics import balance_relative, energy_figures, tracking_figures
     tr = run.trace
-    # metrics treats every sample as valid: give it only the instants where the pair exists
-    fig: Dict[str, float] = {}
-    clean = {}
-    for k, v in tr.items():
-        clean[k] = np.asarray(v)
-    pairs = [('theta_r', 'theta_ref'), ('omega_r', 'omega_ref'), ('tau_m', 'tau_ref'),
-             ('phi_r_alpha', 'phi_ref_alpha'), ('phi_r_alpha', 'phi_hat_alpha'),
-             ('v_alpha', 'v_beta'), ('i_alpha', 'i_beta')]
-    for a, b in pairs:
-        if a in clean and b in clean:
-            sub = {}
-            mask = np.isfinite(clean[a]) & np.isfinite(clean[b])
-            for k in {a, b} | {a.replace('alpha', 'beta'), b.replace('alpha', 'beta')}:
-                if k in clean:
-                    sub[k] = clean[k][mask]
-            part = tracking_figures(sub, run.task)
-            fig.update(part)
+    fig: Dict[str, float] = dict(tracking_figures(tr, run.task))
     need = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
             'dE_kin', 'dW_mag', 'balance_residual')
     if all(k in run.truth_final for k in need):

@@ -57,6 +57,7 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False) -> List[dict]
         s = run_scenario(params, task=spec['task'], strategy=spec['strategy'],
                          controller=spec['controller'], variation=spec.get('variation', 'none'),
                          record=bag, force=True, progress=True)
+        s.pop('_run', None)
         results.append(s)
     return results
 

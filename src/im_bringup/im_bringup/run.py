@@ -39,7 +39,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from . import cdr
+from im_common import cdr
 
 try:
     from im_common import topics as T

@@ -109,39 +109,37 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         meta.update(metadata or {})
         writer = BagWriter(record, force=force,
                            metadata={k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()})
-    sink = Tap(builder, writer)
+    sink = Tap(writer)
     graph = None
     try:
         graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
         stats = graph.run(progress=progress)
-        plant = graph.plant
-        truth = plant.sim.truth()
     finally:
         if graph is not None:
             graph.close()
         if writer is not None:
             writer.close()
-    summary = summarize(parameters, stats, truth, builder, task=task, strategy=strategy,
+    summary = summarize(parameters, stats, sink, task=task, strategy=strategy,
                         controller=controller, variation=variation)
     if record:
         summary['bag'] = record
     return summary
 
 
-def summarize(parameters: dict, stats: dict, truth: Optional[dict], builder, *, task: str,
-              strategy: str, controller: str, variation: str) -> dict:
-    """The figures of merit of a graph run (energy books from the plant, errors from traces)."""
-    from im_common.metrics import tracking_figures
-    from im_common.plant_sim import energy_summary
+def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
+              controller: str, variation: str) -> dict:
+    """The figures of merit of a graph run, computed from the captured messages by the report's
+    own code (:func:`im_bringup.report.figures_of_merit`), plus the run's statistics."""
+    from im_bringup.report import figures_of_merit
     T_s = parameters['plant']['T_s']
+    run = tap.run(metadata={'scenario': {'task': task}})
     summary = {'task': task, 'strategy': strategy, 'controller': controller,
                'variation': variation, 'rate_hz': round(1.0 / T_s, 6)}
-    if truth is not None:
-        summary.update(energy_summary(truth))
-    summary.update(tracking_figures(builder.trace(), task))
+    summary.update(figures_of_merit(run))
     summary.update({'steps': stats['steps'], 'wall_s': stats['wall_s'],
                     'steps_per_s': stats['steps_per_s'], 'ok': stats['ok'],
                     'failures': stats['failures']})
+    summary['_run'] = run
     return summary
 
 
@@ -197,6 +195,7 @@ def main(argv=None) -> int:
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
     os.makedirs(os.path.dirname(out) or '.', exist_ok=True)
+    summary.pop('_run', None)
     with open(out, 'w') as f:
         json.dump(summary, f, indent=2, default=float)
     print_summary(summary)

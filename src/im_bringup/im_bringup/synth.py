@@ -68,5 +68,5 @@ def make_synthetic_bag(path, steps: int = 400, T_s: float = 1e-3, V: float = 60.
 
 
 def _clock(t_ns: int) -> bytes:
-    from .cdr import pack_clock
+    from im_common.cdr import pack_clock
     return pack_clock(*divmod(t_ns, SEC))

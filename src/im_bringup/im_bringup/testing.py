@@ -36,27 +36,26 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
-    from im_bringup.traces import Tap, TraceBuilder
+    from im_bringup.traces import Tap
     params = node_parameters(task, strategy, controller, variation, T_s, duration, **config)
     for node, values in (parameters or {}).items():
         params.setdefault(node, {}).update(values)
-    builder = TraceBuilder()
     writer = None
     if record:
         from im_bringup.bag import BagWriter
         writer = BagWriter(record, force=True)
-    sink = Tap(builder, writer)
+    sink = Tap(writer)
     graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink)
     try:
         stats = graph.run()
-        truth = graph.plant.sim.truth() if 'plant' in graph.nodes else None
     finally:
         graph.close()
         if writer is not None:
             writer.close()
-    summary = summarize(params, stats, truth, builder, task=task, strategy=strategy,
+    summary = summarize(params, stats, sink, task=task, strategy=strategy,
                         controller=controller, variation=variation)
-    return GraphResult(summary, builder.trace(), params)
+    run = summary.pop('_run')
+    return GraphResult(summary, run.trace, params)
 
 
 @pytest.fixture

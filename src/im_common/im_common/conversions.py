@@ -1,8 +1,9 @@
 """Message conversions: exact integer-nanosecond stamps and filling of reusable messages.
 
 Stamps are simulated time t_k = k·T_s carried as integer nanoseconds, so a stamp identifies a
-step exactly (no float comparison anywhere in the lock-step protocol). Messages are allocated once
-per publisher and refilled each step (rclpy serializes on ``publish``), which keeps the hot path short.
+step exactly (no float comparison anywhere in the lock-step protocol). Lock-step messages are
+published and received serialized (``publish(bytes)``, ``raw=True`` subscriptions) and encoded /
+decoded with ``struct`` (:mod:`im_common.cdr`), which keeps the hot path short.
 """
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ import math
 from typing import Iterable, Sequence
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Vector3Stamped
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
+
+from .cdr import (decode_joint_state, decode_vector3_stamped, pack_clock, pack_joint_state,
+                  pack_vector3_stamped)
 
 NS_PER_S = 1_000_000_000
 
@@ -51,59 +52,82 @@ def finite(*values: float) -> bool:
 
 
 class Vector3Out:
-    """A reusable Vector3Stamped: ``fill(ns, x, y, z=0.0)`` returns the message."""
+    """Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.
 
-    __slots__ = ('msg',)
+    The lock-step topics travel as exact CDR made with ``struct`` (:mod:`im_common.cdr`), which
+    costs a fraction of building and serializing a message object; subscribers that ask for
+    message objects get them as usual.
+    """
+
+    __slots__ = ('frame_id',)
 
     def __init__(self, frame_id: str = 'alphabeta'):
-        self.msg = Vector3Stamped()
-        self.msg.header.frame_id = frame_id
+        self.frame_id = frame_id
 
-    def fill(self, ns: int, x: float, y: float, z: float = 0.0) -> Vector3Stamped:
-        m = self.msg
-        st = m.header.stamp
-        st.sec, st.nanosec = divmod(ns, NS_PER_S)
-        v = m.vector
-        v.x = x
-        v.y = y
-        v.z = z
-        return m
+    def fill(self, ns: int, x: float, y: float, z: float = 0.0) -> bytes:
+        sec, nsec = divmod(ns, NS_PER_S)
+        return pack_vector3_stamped(sec, nsec, x, y, z, self.frame_id)
 
 
 class JointStateOut:
-    """A reusable JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``."""
+    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``."""
 
-    __slots__ = ('msg',)
+    __slots__ = ('names', 'frame_id')
 
     def __init__(self, names: Sequence[str], frame_id: str = ''):
-        self.msg = JointState()
-        self.msg.name = list(names)
-        self.msg.header.frame_id = frame_id
+        self.names = tuple(names)
+        self.frame_id = frame_id
 
     def fill(self, ns: int, position: Iterable[float] = (), velocity: Iterable[float] = (),
-             effort: Iterable[float] = ()) -> JointState:
-        m = self.msg
-        st = m.header.stamp
-        st.sec, st.nanosec = divmod(ns, NS_PER_S)
-        m.position = list(position)
-        m.velocity = list(velocity)
-        m.effort = list(effort)
-        return m
+             effort: Iterable[float] = ()) -> bytes:
+        sec, nsec = divmod(ns, NS_PER_S)
+        return pack_joint_state(sec, nsec, self.names, tuple(position), tuple(velocity),
+                                tuple(effort), self.frame_id)
 
 
-def clock_msg(ns: int) -> Clock:
-    c = Clock()
-    set_stamp(c.clock, ns)
-    return c
+def vector3_in(data: bytes):
+    """(stamp_ns, x, y, z) of a serialized Vector3Stamped (raw subscription)."""
+    sec, nsec, x, y, z = decode_vector3_stamped(data)
+    return sec * NS_PER_S + nsec, x, y, z
 
 
-def joint_values(msg: JointState, names: Sequence[str]) -> dict:
-    """Values of a named-vector JointState as a dict (position field), checked for names."""
-    got = list(msg.name)
+def joint_state_in(data: bytes):
+    """(stamp_ns, names, position, velocity, effort) of a serialized JointState."""
+    sec, nsec, names, pos, vel, eff = decode_joint_state(data)
+    return sec * NS_PER_S + nsec, names, pos, vel, eff
+
+
+def named_values(names, values, wanted: Sequence[str]) -> dict:
+    """``{name: value}`` for ``wanted`` from a named-vector JointState's names and positions."""
     out = {}
-    for n in names:
+    for n in wanted:
         try:
-            out[n] = float(msg.position[got.index(n)])
-        except ValueError:
-            raise KeyError(f"JointState has no entry '{n}' (names: {got})") from None
+            out[n] = float(values[names.index(n)])
+        except (ValueError, IndexError):
+            raise KeyError(f"JointState has no value for '{n}' (names: {list(names)})") from None
     return out
+
+
+def clock_bytes(ns: int) -> bytes:
+    """Serialized rosgraph_msgs/Clock at ``ns``."""
+    sec, nsec = divmod(ns, NS_PER_S)
+    return pack_clock(sec, nsec)
+
+
+# Extractors for LockstepNode.gate_input: serialized message -> (stamp_ns, value).
+def xy_in(data: bytes):
+    """(stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair."""
+    sec, nsec, x, y, _ = decode_vector3_stamped(data)
+    return sec * NS_PER_S + nsec, (x, y)
+
+
+def shaft_in(data: bytes):
+    """(stamp_ns, (theta_r, omega_r)) of the measured-shaft JointState."""
+    sec, nsec, _, pos, vel, _ = decode_joint_state(data)
+    return sec * NS_PER_S + nsec, (pos[0], vel[0])
+
+
+def estimates_in(data: bytes):
+    """(stamp_ns, {'R_r': ..., 'theta': ...}) of the adapter's estimate JointState."""
+    sec, nsec, names, pos, _, _ = decode_joint_state(data)
+    return sec * NS_PER_S + nsec, named_values(names, pos, ('R_r', 'theta'))

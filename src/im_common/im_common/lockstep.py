@@ -110,6 +110,7 @@ class LockstepNode(Node):
         self._startup_timeout = 30.0
         self._started = False
         self._watchdog = None
+        self.on_stop: Optional[Callable[['LockstepNode'], None]] = None   # set by a graph
 
     # Parameters -----------------------------------------------------------------------
     def param(self, name: str, default, description: str, lo=None, hi=None, read_only: bool = True,
@@ -148,6 +149,24 @@ class LockstepNode(Node):
             self.fail(f"no {', '.join(missing)} stamped {g.expected / NS_PER_S:.9f} s "
                       f"(step {step}) within {limit:.1f} s of wall time; stopping")
 
+    def gate_input(self, topic: str, extract: Callable) -> None:
+        """Subscribe (serialized, lock-step QoS) to ``topic`` and feed ``extract(data)`` =
+        (stamp_ns, value) into the step gate; complete steps go to ``self.ready(inputs)``."""
+        from geometry_msgs.msg import Vector3Stamped
+        from sensor_msgs.msg import JointState
+        from .topics import JS, TOPIC_TYPES
+        cls = JointState if TOPIC_TYPES[topic] == JS else Vector3Stamped
+        put = self.gate.put
+        ready = self.ready
+
+        def on_data(data, topic=topic):
+            ns, value = extract(data)
+            ready(put(topic, ns, value))
+        self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
+
+    def ready(self, inputs) -> None:  # pragma: no cover - each node defines it
+        raise NotImplementedError
+
     def mark_started(self) -> None:
         self._started = True
 
@@ -156,9 +175,13 @@ class LockstepNode(Node):
         self.failure = reason
         self.exit_code = 1
         self.done = True
+        if self.on_stop is not None:
+            self.on_stop(self)
 
     def finish(self) -> None:
         self.done = True
+        if self.on_stop is not None:
+            self.on_stop(self)
 
 
 def make_executor(context=None):

@@ -2,7 +2,8 @@
 the report (seed 000 §3.4: energy drawn, losses, tracking errors).
 
 A *trace* is a mapping of equal-length 1-D arrays sampled at the control instants t_k. Keys used
-(missing optional keys simply drop their figures):
+(missing optional keys simply drop their figures; NaN samples — instants where a decimated topic
+has no value — are left out of each figure):
 
     t, theta_r, omega_r, theta_ref, omega_ref, tau_m, tau_ref, v_alpha, v_beta, i_alpha, i_beta,
     phi_r_alpha, phi_r_beta, phi_ref_alpha, phi_ref_beta (optional),
@@ -19,11 +20,20 @@ from typing import Mapping, Optional
 import numpy as np
 
 
+def _finite(x) -> np.ndarray:
+    x = np.asarray(x, dtype=float)
+    return x[np.isfinite(x)]
+
+
 def _maxabs(x) -> float:
+    """Largest magnitude over the samples that exist (NaN marks an instant a decimated topic
+    was not sampled at)."""
+    x = _finite(x)
     return float(np.max(np.abs(x))) if len(x) else float('nan')
 
 
 def _rms(x) -> float:
+    x = _finite(x)
     return float(math.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')
 
 

@@ -14,7 +14,8 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
 from im_common import topics as T
-from im_common.conversions import JointStateOut, Vector3Out, joint_values, period_ns, stamp_ns
+from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, period_ns, shaft_in,
+                                   stamp_ns, xy_in)
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
@@ -48,21 +49,11 @@ class ControllerNode(LockstepNode):
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
         self.gate = StepGate(required, self.period)
-        put = self.gate.put
-        self.create_subscription(Vector3Stamped, T.MEAS_CURRENT,
-                                 lambda m: self.ready(put(T.MEAS_CURRENT, stamp_ns(m.header.stamp),
-                                                          (m.vector.x, m.vector.y))), q)
-        self.create_subscription(JointState, T.MEAS_SHAFT,
-                                 lambda m: self.ready(put(T.MEAS_SHAFT, stamp_ns(m.header.stamp),
-                                                          (m.position[0], m.velocity[0]))), q)
-        self.create_subscription(Vector3Stamped, T.OBS_FLUX,
-                                 lambda m: self.ready(put(T.OBS_FLUX, stamp_ns(m.header.stamp),
-                                                          (m.vector.x, m.vector.y))), q)
+        self.gate_input(T.MEAS_CURRENT, xy_in)
+        self.gate_input(T.MEAS_SHAFT, shaft_in)
+        self.gate_input(T.OBS_FLUX, xy_in)
         if self.use_adapter:
-            self.create_subscription(
-                JointState, T.ADAPT_ESTIMATE,
-                lambda m: self.ready(put(T.ADAPT_ESTIMATE, stamp_ns(m.header.stamp),
-                                         joint_values(m, ('R_r', 'theta')))), q)
+            self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
         self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos())
         self.start_watchdog(timeout, startup)
 

@@ -10,10 +10,9 @@ from __future__ import annotations
 import sys
 
 from geometry_msgs.msg import Vector3Stamped
-from sensor_msgs.msg import JointState
 
 from im_common import topics as T
-from im_common.conversions import Vector3Out, joint_values, period_ns, stamp_ns
+from im_common.conversions import Vector3Out, estimates_in, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
@@ -56,21 +55,11 @@ class ObserverNode(LockstepNode):
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
         self.gate = StepGate(required, self.period)
-        put = self.gate.put
-        self.create_subscription(Vector3Stamped, T.MEAS_CURRENT,
-                                 lambda m: self.ready(put(T.MEAS_CURRENT, stamp_ns(m.header.stamp),
-                                                          (m.vector.x, m.vector.y))), q)
-        self.create_subscription(JointState, T.MEAS_SHAFT,
-                                 lambda m: self.ready(put(T.MEAS_SHAFT, stamp_ns(m.header.stamp),
-                                                          m.velocity[0])), q)
-        self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE,
-                                 lambda m: self.ready(put(T.CMD_VOLTAGE, stamp_ns(m.header.stamp),
-                                                          (m.vector.x, m.vector.y))), q)
+        self.gate_input(T.MEAS_CURRENT, xy_in)
+        self.gate_input(T.MEAS_SHAFT, shaft_in)
+        self.gate_input(T.CMD_VOLTAGE, xy_in)
         if self.use_adapter:
-            self.create_subscription(
-                JointState, T.ADAPT_ESTIMATE,
-                lambda m: self.ready(put(T.ADAPT_ESTIMATE, stamp_ns(m.header.stamp),
-                                         joint_values(m, ('R_r', 'theta')))), q)
+            self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
         self.start_watchdog(timeout, startup)
         self.publish_estimate(0)
 
@@ -86,7 +75,7 @@ class ObserverNode(LockstepNode):
             self.obs.set_estimates(**inputs[T.ADAPT_ESTIMATE])
         v_a, v_b = inputs[T.CMD_VOLTAGE]
         i_a, i_b = inputs[T.MEAS_CURRENT]
-        self.obs.step(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT])
+        self.obs.step(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1])
         self.publish_estimate(k + 1)
         if self.last_step is not None and k + 1 >= self.last_step:
             self.finish()

@@ -16,7 +16,7 @@ from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from im_common import topics as T
-from im_common.conversions import (JointStateOut, Vector3Out, clock_msg, period_ns, stamp_ns)
+from im_common.conversions import JointStateOut, Vector3Out, clock_bytes, period_ns, xy_in
 from im_common.loads import LOAD_KINDS, make_load
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
@@ -104,7 +104,7 @@ class PlantNode(LockstepNode):
 
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)
         self.last_cmd = (0.0, 0.0)
-        self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE, self.on_command, q)
+        self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE, self.on_command, q, raw=True)
         if self.mode == 'free_run':
             self.create_timer(self.T_s, self.on_wall_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
             self.gate = None
@@ -113,17 +113,19 @@ class PlantNode(LockstepNode):
         self.publish_step()
 
     # Lock-step ---------------------------------------------------------------------------
-    def on_command(self, msg: Vector3Stamped) -> None:
-        ns = stamp_ns(msg.header.stamp)
-        v = msg.vector
-        if not (math.isfinite(v.x) and math.isfinite(v.y)):
+    def on_command(self, data: bytes) -> None:
+        try:
+            ns, (vx, vy) = xy_in(data)
+        except ValueError as exc:
+            self.rejected += 1
+            self.get_logger().error(f'rejected malformed {T.CMD_VOLTAGE}: {exc}')
+            return
+        if not (math.isfinite(vx) and math.isfinite(vy)):
             self.rejected += 1
             self.get_logger().error(
                 f'rejected {T.CMD_VOLTAGE} stamped {ns / 1e9:.9f} s: non-finite voltage '
-                f'({v.x!r}, {v.y!r}); holding the previous command')
+                f'({vx!r}, {vy!r}); holding the previous command')
             vx, vy = self.last_cmd
-        else:
-            vx, vy = v.x, v.y
         if self.gate is None:           # free-running: just hold the latest command
             if ns < self.sim.k * self.period:
                 self.overruns += 1
@@ -160,7 +162,7 @@ class PlantNode(LockstepNode):
         self.pub_current.publish(self.out_current.fill(ns, m.i_alpha, m.i_beta))
         self.pub_shaft.publish(self.out_shaft.fill(ns, (m.theta_r,), (m.omega_r,)))
         if k % self.clock_every == 0 or final:
-            self.pub_clock.publish(clock_msg(ns))
+            self.pub_clock.publish(clock_bytes(ns))
         if (self.truth_every and k % self.truth_every == 0) or final or self.truth_sink:
             tr = sim.truth()
             if self.truth_sink is not None:
