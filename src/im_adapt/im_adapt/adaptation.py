@@ -50,8 +50,8 @@ law = 'improved'
     quadrature row of this equation and the rotor-loss model (4.5) its inner product with the rotor
     current, so the thesis's two reference models are both inside it. The controller-facing pair
     is θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂
-    hits its bound, R̂_r keeps the rotor time constant R̂_r θ̂/L̂_sr = R̂_R/L̂_M (flux orientation)
-    rather than R̂_R.
+    hits its bound R̂_r still keeps R̂_r θ̂² = R̂_R (not the rotor time constant R̂_R/L̂_M): in
+    closed loop the terminal rotor resistance is what the controller and observer need most.
 
 Projection
     R̂_r ∈ [R_r_min, R_r_max]; θ̂ ∈ [theta_min, θ_max] with
@@ -68,6 +68,7 @@ from typing import Optional
 from im_common.params import InvalidParameter, MotorParams
 
 LAWS = ('thesis', 'improved')
+TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -98,13 +99,23 @@ class AdaptationGains:
     filter_corner: float = 200.0
     """ω_f [rad/s] of the regression filter H(s) = ω_f/(s+ω_f)."""
     memory: float = 0.02
-    """Time constant [s] of the exponential forgetting of the least squares."""
+    """Time constant [s] of the exponential forgetting of the least squares (R_R and L_M)."""
+    leakage_memory: float = 2.0
+    """Time constant [s] of the forgetting in the leakage direction (L_σ varies slowly)."""
     i_floor: float = 0.3
     """Current [A] whose information is always present (holds unexcited directions)."""
     phi_floor: float = 0.01
     """Flux [Wb] whose information is always present (holds unexcited directions)."""
+    didt_floor: float = 20.0
+    """Current rate [A/s] whose information is always present (holds L̂_σ when unexcited)."""
+    estimate_leakage: bool = True
+    """Estimate the leakage L_σ = σL_s as well (else hold it at ``L_sigma``)."""
     L_sigma: Optional[float] = None
-    """Leakage L_σ = σL_s [H] used for φ_M = ψ_s − L_σ i (None: L̂_s − L̂_sr θ̂_0)."""
+    """Initial (or fixed) leakage L_σ = σL_s [H] (None: L̂_s − L̂_sr θ̂_0)."""
+    L_sigma_min: Optional[float] = None
+    """Lower bound of L̂_σ [H] (None: a quarter of the initial L_σ)."""
+    L_sigma_max: Optional[float] = None
+    """Upper bound of L̂_σ [H] (None: four times the initial L_σ)."""
     # Projection.
     R_r_min: Optional[float] = None
     """Lower bound of R̂_r [Ω] (None: R_r/4 of the nominal parameters)."""
@@ -124,20 +135,22 @@ class AdaptationGains:
     def __post_init__(self):
         if self.law not in LAWS:
             raise InvalidParameter('law', self.law, f'must be one of {", ".join(LAWS)}')
-        if not isinstance(self.freeze, bool):
-            raise InvalidParameter('freeze', self.freeze, 'must be true or false')
+        for name in ('freeze', 'estimate_leakage'):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidParameter(name, getattr(self, name), 'must be true or false')
         d = self.decimation
         if isinstance(d, bool) or not isinstance(d, int) or d < 1:
             raise InvalidParameter('decimation', d, 'must be a whole number >= 1')
         for name in ('gamma_t', 'gamma_r', 'flux_corner'):
             _finite(name, getattr(self, name), lo=0.0)
-        for name in ('epsilon', 'filter_corner', 'memory', 'i_floor', 'phi_floor', 'theta_min',
-                     'theta_max'):
+        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor', 'phi_floor', 'didt_floor',
+                     'theta_min', 'theta_max'):
             _finite(name, getattr(self, name), lo=0.0, strict=True)
         _finite('sigma_min', self.sigma_min, lo=0.0, strict=True)
         if self.sigma_min >= 1.0:
             raise InvalidParameter('sigma_min', self.sigma_min, 'must be < 1')
-        for name in ('L_sigma', 'R_r_min', 'R_r_max', 'L_M_min', 'L_M_max'):
+        for name in ('L_sigma', 'L_sigma_min', 'L_sigma_max', 'R_r_min', 'R_r_max', 'L_M_min',
+                     'L_M_max'):
             if getattr(self, name) is not None:
                 _finite(name, getattr(self, name), lo=0.0, strict=True)
         if self.theta_min >= self.theta_max:
@@ -145,6 +158,7 @@ class AdaptationGains:
                                    f'must be below theta_max = {self.theta_max}')
         _ordered('R_r_min', self.R_r_min, 'R_r_max', self.R_r_max)
         _ordered('L_M_min', self.L_M_min, 'L_M_max', self.L_M_max)
+        _ordered('L_sigma_min', self.L_sigma_min, 'L_sigma_max', self.L_sigma_max)
 
     def theta_bound(self, L_s_hat: float, L_sr_hat: float) -> float:
         """θ_max: the tighter of ``theta_max`` and the σ̂ ≥ σ_min bound (1 − σ_min) L̂_s/L̂_sr."""
@@ -177,6 +191,9 @@ class AdaptationGains:
                 'L_sigma', g.L_sigma,
                 f'the leakage L_s - L_sr*theta0 = {g.L_sigma:.6g} H must be > 0 (sigma > 0); '
                 'give L_sigma explicitly or a smaller theta_initial')
+        g = replace(g,
+                    L_sigma_min=0.25 * g.L_sigma if g.L_sigma_min is None else g.L_sigma_min,
+                    L_sigma_max=4.0 * g.L_sigma if g.L_sigma_max is None else g.L_sigma_max)
         return g
 
     def as_dict(self) -> dict:
@@ -201,6 +218,22 @@ def _ordered(lo_name, lo, hi_name, hi):
 
 def _clip(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else hi if x > hi else x
+
+
+def _solve_sym3(R, e):
+    """R⁻¹ e for a symmetric positive-definite 3×3 R stored as [11, 12, 13, 22, 23, 33]."""
+    a, b, c, d, f, g = R
+    A11 = d * g - f * f
+    A12 = c * f - b * g
+    A13 = b * f - c * d
+    A22 = a * g - c * c
+    A23 = b * c - a * f
+    A33 = a * d - b * b
+    det = a * A11 + b * A12 + c * A13
+    e1, e2, e3 = e
+    return ((A11 * e1 + A12 * e2 + A13 * e3) / det,
+            (A12 * e1 + A22 * e2 + A23 * e3) / det,
+            (A13 * e1 + A23 * e2 + A33 * e3) / det)
 
 
 class ParameterAdapter:
@@ -253,14 +286,19 @@ class ParameterAdapter:
         self._v_prev = 0j
         self._acc_t = 0.0         # thesis law: accumulated integrands over the block
         self._acc_r = 0.0
-        # Improved law: regression filters and least-squares information.
-        T_w = g.memory
-        self._Hi = self._Hphi = self._Hw = 0j
-        self._u_prev = (0j, 0j, 0j)
-        self._S11 = self._S12 = self._S22 = 0.0
-        self._b1 = self._b2 = 0.0
-        self._R11 = self._R12 = self._R22 = None
-        self._T_w = T_w
+        # Improved law: regression filters and least-squares information (symmetric 3×3
+        # matrices stored as [11, 12, 13, 22, 23, 33]).
+        self.estimate_leakage = g.estimate_leakage
+        self.L_sigma_lo, self.L_sigma_hi = g.L_sigma_min, g.L_sigma_max
+        self.L_sigma = _clip(self.L_sigma, self.L_sigma_lo, self.L_sigma_hi)
+        self._Hi = self._Hpsi = 0j
+        self._u_prev = (0j, 0j)
+        self._rho = 0.0
+        self._omega_prev = 0.0
+        self._S = [0.0] * 6
+        self._b = [0.0] * 3
+        self._R = None
+        self._c = self.R_R / self.L_M        # c = R_R/L_M = 1/T_r [1/s]
         self._filter_T = None     # period for which the filter coefficients are computed
         self.last = {}            # diagnostics of the last step (for tests and plots)
 
@@ -276,12 +314,14 @@ class ParameterAdapter:
 
     # ------------------------------------------------------------------------------------
     def estimates(self) -> dict:
-        """{'R_r', 'theta', 'L_M', 'R_R'}: the controller-facing pair and the identifiable pair.
+        """{'R_r', 'theta', 'L_M', 'R_R', 'L_sigma'}: the controller-facing pair, the identifiable
+        pair, and the leakage σL_s the adapter uses for its voltage-model rotor flux.
 
         For law 'thesis' L_M = L̂_sr θ̂ and R_R = R̂_r θ̂². For law 'improved' L_M and R_R are the
         least-squares estimates; they equal L̂_sr θ̂ and R̂_r θ̂² whenever θ̂ is inside its bounds.
         """
-        return {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
+        return {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R,
+                'L_sigma': self.L_sigma}
 
     # ------------------------------------------------------------------------------------
     def update(self, T_s, v_a, v_b, i_a, i_b, omega_r, phi_hat_a, phi_hat_b) -> None:
@@ -297,6 +337,9 @@ class ParameterAdapter:
             # ψ_s(t_0) from the current model (zero for a motor starting unmagnetised).
             self._started = True
             if self.improved:
+                # Own current model starts from the observer's flux (θ̂ φ̂_r = φ̂_M): a drive that
+                # is already magnetised at t_0 has no start-up offset in ψ̂.
+                self._phi_cm = self.theta * complex(phi_hat_a, phi_hat_b)
                 self._psi = self.L_sigma * i + self._phi_cm
             else:
                 self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
@@ -355,6 +398,7 @@ class ParameterAdapter:
             self.R_r = _clip(self.R_r + g.gamma_r * T_s * self._acc_r, self.R_r_lo, self.R_r_hi)
             self.L_M = self.L_sr * self.theta
             self.R_R = self.R_r * self.theta * self.theta
+            self.L_sigma = self.L_s - self.L_M
         self.last = {'tau_hat': tau_hat, 'tau_ref': tau_ref, 'P_r_hat': P_hat, 'P_r_ref': P_ref}
         self._acc_t = 0.0
         self._acc_r = 0.0
@@ -362,52 +406,80 @@ class ParameterAdapter:
     # Improved law -----------------------------------------------------------------------
     def _init_filters(self, T_s, i, omega_r):
         self._set_filter(T_s)
-        phi = self._psi - self.L_sigma * i
-        w = 1j * self.v * omega_r * phi
+        # Rotor frame: electrical rotor angle ρ = ∫ v ω_r dt from 0 (any start angle will do).
+        self._rho = 0.0
+        self._omega_prev = omega_r
         # Filters start at their steady state for the first sample (no start-up transient).
-        self._Hi, self._Hphi, self._Hw = i, phi, w
-        self._u_prev = (i, phi, w)
+        self._Hi, self._Hpsi = i, self._psi
+        self._u_prev = (i, self._psi)
 
     def _set_filter(self, T_s):
         g = self.gains
         wT = g.filter_corner * T_s
+        self._wf = g.filter_corner
         self._fa = (2.0 - wT) / (2.0 + wT)
         self._fb = wT / (2.0 + wT)
-        self._lam = math.exp(-T_s / g.memory)
         self._filter_T = T_s
-        # Information floor per period: one equation with |Hi| = i_floor, one with |Hφ| = phi_floor.
-        self._F11 = g.i_floor ** 2
-        self._F22 = g.phi_floor ** 2
-        if self._R11 is None:
-            n = 1.0 / (1.0 - self._lam)
-            self._R11, self._R12, self._R22 = self._F11 * n, 0.0, self._F22 * n
+        # Forgetting per period of (L_σ, R_R, c), its N-period factors for the stored
+        # [11, 12, 13, 22, 23, 33] entries, and the floor's share of N periods.
+        lam = (math.exp(-T_s / g.leakage_memory), math.exp(-T_s / g.memory),
+               math.exp(-T_s / g.memory))
+        N = self.N
+        self._lamN = tuple(math.sqrt(lam[a] * lam[b]) ** N
+                           for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
+        self._share = tuple((1.0 - l ** N) / (1.0 - l) for l in lam)
+        # Information floor per period (one equation per parameter with the floor's regressor).
+        self._floor = (g.didt_floor ** 2, g.i_floor ** 2, g.phi_floor ** 2)
+        if self._R is None:
+            f = self._floor
+            self._R = [f[0] / (1.0 - lam[0]), 0.0, 0.0, f[1] / (1.0 - lam[1]), 0.0,
+                       f[2] / (1.0 - lam[2])]
 
     def _improved_step(self, T_s, i, omega_r, i_prev):
         if T_s != self._filter_T:
             self._set_filter(T_s)
         # Own current model φ_cm over [t_k-1, t_k]: dφ/dt = R_R i − c φ + j v ω φ (Tustin).
-        c = self.R_R / self.L_M
-        a = complex(-c, self.v * omega_r) * (0.5 * T_s)
+        a = complex(-self._c, self.v * omega_r) * (0.5 * T_s)
         self._phi_cm = ((1.0 + a) * self._phi_cm + self.R_R * T_s * 0.5 * (i + i_prev)) / (1.0 - a)
-        # Voltage-model rotor flux and the rotation term.
-        phi = self._psi - self.L_sigma * i
-        w = 1j * self.v * omega_r * phi
-        # Tustin filters H(s) = ω_f/(s+ω_f) on i, φ_M and v ω 𝒥 φ_M.
+        # To the rotor frame (angle ρ = ∫ v ω_r dt, trapezoidal): there the rotor equation has no
+        # rotation term and the signals move at the slip frequency, so the filters below are
+        # accurate even where ω_e ≫ ω_sl (in αβ, dψ/dt and j v ω ψ nearly cancel and the
+        # O((ω_e T_s)²) error of a discrete derivative swamps the slip term at low torque).
+        self._rho = rho = (self._rho + 0.5 * T_s * self.v * (omega_r + self._omega_prev)) % TWO_PI
+        self._omega_prev = omega_r
+        rot = complex(math.cos(rho), -math.sin(rho))
+        i_r = i * rot
+        psi_r = self._psi * rot
+        # Tustin filters H(s) = ω_f/(s+ω_f) on the rotor-frame i and ψ̂.
         fa, fb = self._fa, self._fb
-        ui, uphi, uw = self._u_prev
-        Hi = self._Hi = fa * self._Hi + fb * (i + ui)
-        Hphi = self._Hphi = fa * self._Hphi + fb * (phi + uphi)
-        Hw = self._Hw = fa * self._Hw + fb * (w + uw)
-        self._u_prev = (i, phi, w)
-        # y = H[dφ/dt − v ω 𝒥 φ] = R_R H[i] − c H[φ].
-        y = self.gains.filter_corner * (phi - Hphi) - Hw
-        # Information of this period's two real equations (rows Re, Im of [Hi, −Hφ]).
-        hi_r, hi_i, hp_r, hp_i = Hi.real, Hi.imag, Hphi.real, Hphi.imag
-        self._S11 += hi_r * hi_r + hi_i * hi_i
-        self._S12 -= hi_r * hp_r + hi_i * hp_i
-        self._S22 += hp_r * hp_r + hp_i * hp_i
-        self._b1 += hi_r * y.real + hi_i * y.imag
-        self._b2 -= hp_r * y.real + hp_i * y.imag
+        ui, upsi = self._u_prev
+        Hi = self._Hi = fa * self._Hi + fb * (i_r + ui)
+        Hpsi = self._Hpsi = fa * self._Hpsi + fb * (psi_r + upsi)
+        self._u_prev = (i_r, psi_r)
+        # H[dψ/dt] = L_σ H[di/dt] + R_R H[i] − c H[ψ − L_σ i] (rotor frame; H[dx/dt] = ω_f(x − Hx)):
+        # residual at the current estimates and its gradient in (L_σ, R_R, c) (Gauss-Newton;
+        # linear in R_R and c).
+        wf = self._wf
+        c = self._c
+        L_sig = self.L_sigma
+        y = wf * (psi_r - Hpsi)
+        r1 = wf * (i_r - Hi)
+        Hphi = Hpsi - L_sig * Hi
+        e = y - (L_sig * r1 + self.R_R * Hi - c * Hphi)
+        g1 = r1 + c * Hi
+        x1, y1, x2, y2, x3, y3 = g1.real, g1.imag, Hi.real, Hi.imag, -Hphi.real, -Hphi.imag
+        S = self._S
+        S[0] += x1 * x1 + y1 * y1
+        S[1] += x1 * x2 + y1 * y2
+        S[2] += x1 * x3 + y1 * y3
+        S[3] += x2 * x2 + y2 * y2
+        S[4] += x2 * x3 + y2 * y3
+        S[5] += x3 * x3 + y3 * y3
+        b = self._b
+        er, ei = e.real, e.imag
+        b[0] += x1 * er + y1 * ei
+        b[1] += x2 * er + y2 * ei
+        b[2] += x3 * er + y3 * ei
         self.k += 1
         if self.k % self.N:
             return
@@ -415,40 +487,49 @@ class ParameterAdapter:
 
     def _ls_update(self):
         N = self.N
-        lamN = self._lam ** N
-        floor = (1.0 - lamN) / (1.0 - self._lam)       # the floor's share of N periods
-        R11 = lamN * self._R11 + self._S11 + floor * self._F11
-        R12 = lamN * self._R12 + self._S12
-        R22 = lamN * self._R22 + self._S22 + floor * self._F22
-        self._R11, self._R12, self._R22 = R11, R12, R22
-        p1, p2 = self.R_R, self.R_R / self.L_M
-        # Σ Φᵀ(y − Φ p̂) = b − S p̂
-        e1 = self._b1 - (self._S11 * p1 + self._S12 * p2)
-        e2 = self._b2 - (self._S12 * p1 + self._S22 * p2)
-        self._S11 = self._S12 = self._S22 = self._b1 = self._b2 = 0.0
+        f = self._floor
+        S, b, R = self._S, self._b, self._R
+        # Per-parameter exponential forgetting over N periods: R_ij ← √(λ_i λ_j)^N R_ij, plus the
+        # information floor's share of those N periods.
+        lam = self._lamN
+        share = self._share
+        for j in range(6):
+            R[j] = lam[j] * R[j] + S[j]
+            S[j] = 0.0
+        R[0] += share[0] * f[0]
+        R[3] += share[1] * f[1]
+        R[5] += share[2] * f[2]
+        g = (b[0], b[1], b[2])
+        b[0] = b[1] = b[2] = 0.0
         if self.freeze:
             return
-        det = R11 * R22 - R12 * R12
-        p1 += (R22 * e1 - R12 * e2) / det
-        p2 += (R11 * e2 - R12 * e1) / det
-        R_R = _clip(p1, self.R_R_lo, self.R_R_hi)
-        c_lo = R_R / self.L_M_hi
-        c_hi = R_R / self.L_M_lo
-        c = _clip(p2, c_lo, c_hi)
+        c = self._c
+        L_sig = self.L_sigma
+        if self.estimate_leakage:
+            d = _solve_sym3(R, g)
+            L_sig = _clip(L_sig + d[0], self.L_sigma_lo, self.L_sigma_hi)
+            R_R = self.R_R + d[1]
+            c = c + d[2]
+        else:
+            R22, R23, R33 = R[3], R[4], R[5]
+            det = R22 * R33 - R23 * R23
+            R_R = self.R_R + (R33 * g[1] - R23 * g[2]) / det
+            c = c + (R22 * g[2] - R23 * g[1]) / det
+        R_R = _clip(R_R, self.R_R_lo, self.R_R_hi)
+        L_M = _clip(R_R / max(c, 1e-12), self.L_M_lo, self.L_M_hi)
+        self.L_sigma = L_sig
         self.R_R = R_R
-        self.L_M = _clip(R_R / c, self.L_M_lo, self.L_M_hi)     # (round-off at the bound)
-        self._publish_pair(R_R, R_R / self.L_M)
+        self.L_M = L_M
+        self._c = R_R / L_M
+        self._publish_pair(R_R, self._c)
 
     def _publish_pair(self, R_R, c):
-        """θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected; at a θ̂ bound keep R̂_r θ̂/L̂_sr = c."""
-        th = self.L_M / self.L_sr
-        th_c = _clip(th, self.theta_lo, self.theta_hi)
-        if th_c == th:
-            R_r = R_R / (th * th)
-        else:
-            R_r = c * self.L_sr / th_c
-        self.theta = th_c
-        self.R_r = _clip(R_r, self.R_r_lo, self.R_r_hi)
+        """θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected: R̂_r θ̂² = R̂_R holds even when θ̂ is at
+        its σ̂ bound (the rotor resistance seen from the terminals, which the closed loop needs
+        most; see docs/adaptation.md), while L̂_sr θ̂ = L̂_M only inside the bounds."""
+        th = _clip(self.L_M / self.L_sr, self.theta_lo, self.theta_hi)
+        self.theta = th
+        self.R_r = _clip(R_R / (th * th), self.R_r_lo, self.R_r_hi)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -461,11 +542,15 @@ _DOC = {
     'flux_corner': 'corner [rad/s] below which the stator flux of eq. 4.3 follows the current '
                    'model (drift removal; 0 = pure integral)',
     'filter_corner': 'improved law: corner [rad/s] of the regression filter',
-    'memory': 'improved law: forgetting time constant of the least squares [s]',
+    'memory': 'improved law: forgetting time constant of the least squares for R_R, L_M [s]',
+    'leakage_memory': 'improved law: forgetting time constant for the leakage sigma*L_s [s]',
+    'didt_floor': 'improved law: current rate [A/s] of the information floor for the leakage',
     'i_floor': 'improved law: current [A] of the information floor (holds unexcited directions)',
     'phi_floor': 'improved law: flux [Wb] of the information floor',
-    'L_sigma': 'improved law: leakage sigma*L_s [H] for the voltage-model rotor flux '
-               '(0 = L_s - L_sr*theta_initial)',
+    'L_sigma': 'improved law: initial (or fixed) leakage sigma*L_s [H] for the voltage-model '
+               'rotor flux (0 = L_s - L_sr*theta_initial)',
+    'L_sigma_min': 'projection: lower bound of the leakage estimate [H] (0 = L_sigma/4)',
+    'L_sigma_max': 'projection: upper bound of the leakage estimate [H] (0 = 4*L_sigma)',
     'R_r_min': 'projection: lower bound of the R_r estimate [ohm]',
     'R_r_max': 'projection: upper bound of the R_r estimate [ohm]',
     'theta_min': 'projection: lower bound of the theta estimate',
@@ -477,6 +562,8 @@ _DOC = {
 _RANGES = {
     'gamma_t': (0.0, 1e3), 'gamma_r': (0.0, 1e4), 'epsilon': (1e-9, 1e6),
     'flux_corner': (0.0, 1e3), 'filter_corner': (1.0, 1e5), 'memory': (1e-4, 1e3),
+    'leakage_memory': (1e-4, 1e4), 'didt_floor': (1e-6, 1e6), 'L_sigma_min': (0.0, 10.0),
+    'L_sigma_max': (0.0, 10.0),
     'i_floor': (1e-6, 1e3), 'phi_floor': (1e-9, 10.0), 'L_sigma': (0.0, 10.0),
     'R_r_min': (1e-6, 100.0), 'R_r_max': (1e-6, 100.0), 'theta_min': (1e-3, 10.0),
     'theta_max': (1e-3, 10.0), 'sigma_min': (1e-6, 0.999), 'L_M_min': (1e-6, 10.0),
@@ -487,19 +574,23 @@ _RANGES = {
 def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> ParameterAdapter:
     """Declare the adaptation gains on ``node`` (``node.param(name, default, description, lo, hi)``)
     and return the adapter. Invalid values raise :class:`InvalidParameter` naming the parameter."""
-    d = AdaptationGains().resolve(params, theta0)
+    d = AdaptationGains()
     values = {
         'law': node.param('law', d.law, 'adaptation law', choices=list(LAWS)),
         'freeze': node.param('freeze', d.freeze, 'hold the estimates (signals keep running)'),
+        'estimate_leakage': node.param('estimate_leakage', d.estimate_leakage,
+                                       'improved law: estimate sigma*L_s too (else hold L_sigma)'),
         'decimation': node.param('decimation', d.decimation,
                                  'update the estimates every N control periods', 1, 100000),
     }
+    derived = d.resolve(params, theta0)       # defaults of the bounds derived from the motor
     for name, doc in _DOC.items():
-        default = getattr(d, name)
-        if name == 'L_sigma':
-            default = 0.0
+        default = getattr(derived, name)
+        if name in ('L_sigma', 'L_sigma_min', 'L_sigma_max'):
+            default = 0.0                       # 0: derived (documented in the description)
         lo, hi = _RANGES[name]
         values[name] = float(node.param(name, float(default), doc, lo, hi))
-    if values['L_sigma'] == 0.0:
-        values['L_sigma'] = None
+    for name in ('L_sigma', 'L_sigma_min', 'L_sigma_max'):
+        if values[name] == 0.0:
+            values[name] = None
     return ParameterAdapter(params, AdaptationGains(**values), R_r0, theta0)
