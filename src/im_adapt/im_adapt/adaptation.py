@@ -88,7 +88,7 @@ class AdaptationGains:
     # Thesis law (eq. 4.4 and 4.9).
     gamma_t: float = 0.02
     """γ_t of eq. 4.4 [1/(N·m·A·s)]."""
-    gamma_r: float = 20.0
+    gamma_r: float = 100.0
     """γ_r of eq. 4.9 [1/s]: the inverse time constant of R̂_r when |î_r|² ≫ ε."""
     epsilon: float = 1.0
     """ε of eq. 4.9 [A²]: keeps the normalisation finite when î_r passes through zero."""
