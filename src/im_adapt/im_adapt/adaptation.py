@@ -37,21 +37,23 @@ law = 'thesis' (eq. 4.1-4.9, typos corrected)
     dR̂_r/dt = γ_r (P̂_r − P_r*) / (|î_r|² + ε)              (4.9)
 
 law = 'improved'
-    Least squares on the rotor equation written with the voltage-model rotor flux
-    φ_M = ψ̂ − L̂_σ i, linear in p = (R_R, c = R_R/L_M):
+    Least squares on the rotor equation written with the voltage-model stator flux ψ̂ in the
+    rotor frame (angle ρ = ∫ v ω_r dt; there the equation has no rotation term and the signals
+    move at the slip frequency, so discrete derivatives stay accurate at high ω_e):
 
-        dφ_M/dt − v ω_r 𝒥 φ_M = R_R i − c φ_M
+        dψ^r/dt = L_σ di^r/dt + R_R i^r − c (ψ^r − L_σ i^r),      c = R_R/L_M
 
-    Both sides are filtered by H(s) = ω_f/(s+ω_f) (Tustin; the derivative becomes
-    ω_f (φ_M − Hφ_M), exact in the discrete filter), giving two real equations per step,
-    y = Φ p. Recursive least squares in information form with exponential forgetting (memory
-    ``memory`` seconds) and a floor on the information matrix (``i_floor``, ``phi_floor``) so
-    that unexcited directions hold their value instead of winding up. The torque model (4.1) is the
-    quadrature row of this equation and the rotor-loss model (4.5) its inner product with the rotor
-    current, so the thesis's two reference models are both inside it. The controller-facing pair
-    is θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂
-    hits its bound R̂_r still keeps R̂_r θ̂² = R̂_R (not the rotor time constant R̂_R/L̂_M): in
-    closed loop the terminal rotor resistance is what the controller and observer need most.
+    Both sides are filtered by H(s) = ω_f/(s+ω_f) (Tustin; H[dx/dt] = ω_f (x − Hx), exact in the
+    discrete filter), giving two real equations per period in (L_σ, R_R, c), linear in R_R and c
+    and solved Gauss-Newton style in L_σ. Recursive least squares in information form with
+    exponential forgetting (``memory`` for R_R and c, ``leakage_memory`` for L_σ) and a floor on the
+    information matrix (``didt_floor``, ``i_floor``, ``phi_floor``) so that unexcited directions hold
+    their value instead of winding up. The torque model (4.1) is the quadrature row of this
+    equation and the rotor-loss model (4.5) its inner product with the rotor current, so the
+    thesis's two reference models are both inside it. The controller-facing pair is
+    θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂ hits
+    its bound R̂_r still keeps R̂_r θ̂² = R̂_R (not the rotor time constant R̂_R/L̂_M): in closed
+    loop the terminal rotor resistance is what the controller and observer need most.
 
 Projection
     R̂_r ∈ [R_r_min, R_r_max]; θ̂ ∈ [theta_min, θ_max] with
