@@ -122,7 +122,7 @@ def parameter_grid(points: Dict[str, int] | int, omega_max: float,
     L_sr_max = np.sqrt((1.0 - sigma_min) * pts[:, 1] * pts[:, 2])
     pts[:, 3] = np.minimum(pts[:, 3], L_sr_max)
     pts = pts[pts[:, 3] >= box['L_sr'][0]]
-    return np.unique(np.round(pts, 12), axis=0)
+    return np.unique(pts, axis=0)
 
 
 def sampled_models(grid: np.ndarray, T_s: float, motor: MotorParams = THESIS_MOTOR
@@ -286,7 +286,7 @@ def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_ra
     return design
 
 
-def design_observer_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 20.0,
+def design_observer_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 0.0,
                          motor: MotorParams = THESIS_MOTOR, sigma_min: float = DEFAULT_SIGMA_MIN,
                          vertex_points=None, certify_points=None, margin: float = 1e-6,
                          design_extra_rate: float = 2.0, progress: bool = False) -> GainDesign:
