@@ -6,13 +6,12 @@ the estimates for analysis.
 
 Lock-step order (DESIGN.md §3): at step k the adapter uses V_k, i_k, ω_k and the observer's x̂_k
 and produces p̂_k+1, used by the controller and the observer at step k+1 — what the adapter node
-does with the topics stamped t_k. The offline loop calls the hook *after* the observer has
-stepped, with x̂_k+1; the hook therefore keeps the observer state of the previous call and hands
-the law x̂_k (x̂_0 is given at construction: the observer's initial state).
+does with the topics stamped t_k. The offline loop hands the hook x̂_k (the observer's state
+before its own step k).
 """
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Optional
 
 from .adaptation import AdaptationGains, ParameterAdapter
 
@@ -23,16 +22,12 @@ class LockstepAdapter:
     Parameters
     ----------
     adapter : ParameterAdapter
-    x_hat0 : sequence of 4 floats
-        The observer's state x̂_0 = (î_α, î_β, φ̂_α, φ̂_β) at t_0.
     record_every : int
         Keep one estimate sample every this many steps (0: keep none).
     """
 
-    def __init__(self, adapter: ParameterAdapter, x_hat0: Sequence[float] = (0.0, 0.0, 0.0, 0.0),
-                 record_every: int = 10):
+    def __init__(self, adapter: ParameterAdapter, record_every: int = 10):
         self.adapter = adapter
-        self._x_hat = tuple(float(v) for v in x_hat0)
         self.record_every = int(record_every)
         self.k = 0
         self.t = []
@@ -40,19 +35,17 @@ class LockstepAdapter:
 
     @classmethod
     def build(cls, params, gains: Optional[AdaptationGains] = None, R_r0: Optional[float] = None,
-              theta0: Optional[float] = None, x_hat0=(0.0, 0.0, 0.0, 0.0), record_every: int = 10):
+              theta0: Optional[float] = None, record_every: int = 10):
         """Adapter with the given gains (default: :class:`AdaptationGains`) from ``params``."""
         gains = gains if gains is not None else AdaptationGains()
         ad = ParameterAdapter(params, gains, params.R_r if R_r0 is None else R_r0,
                               params.theta if theta0 is None else theta0)
-        return cls(ad, x_hat0, record_every)
+        return cls(ad, record_every)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
-        """Data of step k (x̂_k kept from the previous call) in, p̂_k+1 out."""
-        xh = self._x_hat
+        """Data of step k (with the observer's x̂_k) in, p̂_k+1 out."""
         self.adapter.update(T_s, v_alpha, v_beta, meas.i_alpha, meas.i_beta, meas.omega_r,
-                            xh[2], xh[3])
-        self._x_hat = (x_hat[0], x_hat[1], x_hat[2], x_hat[3])
+                            x_hat[2], x_hat[3])
         est = self.adapter.estimates()
         self.k += 1
         if self.record_every and self.k % self.record_every == 0:

@@ -15,16 +15,15 @@ CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'robust')
 VARIATIONS = ('none', 'chapter4')
 
 # Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.
+# The position task starts at rest, demagnetized, pendulum hanging (τ_L = 0). The speed task's
+# reference starts at 135 rad/s with 2.49 N·m of load that a demagnetized motor cannot carry, so
+# it starts in the controller's own steady state there ('steady', see im_bringup.offline).
 TASK_PRESETS = {
     'position': {'load': 'pendulum', 'load_mgl': 10.0, 'theta0': -math.pi / 2, 'omega0': 0.0,
-                 'duration': 2.0},
+                 'start': 'rest', 'duration': 2.0},
     'speed': {'load': 'linear', 'load_c1': 1.0, 'load_c2': 0.001, 'theta0': 0.0, 'omega0': 135.0,
-              'duration': 1.5},
+              'start': 'steady', 'duration': 1.5},
 }
-
-# Seed 000 §4.3: the controller's fixed estimates under the chapter-4 profile.
-CHAPTER4_ESTIMATES = {'R_s': 0.687, 'L_s': 0.084, 'L_sr': 0.081, 'R_r': 0.842,
-                      'L_r': 0.081 / 0.952941}
 
 
 def node_parameters(task: str = 'position', strategy: str = 'min_energy',
@@ -43,15 +42,19 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
         raise ValueError(f"invalid controller {controller!r}: one of {', '.join(CONTROLLERS)}")
     if variation not in VARIATIONS:
         raise ValueError(f"invalid variation {variation!r}: one of {', '.join(VARIATIONS)}")
+    from im_bringup.offline import Scenario
+    from im_common.params import CHAPTER4_ESTIMATES
     preset = dict(TASK_PRESETS[task])
     if duration is None:
         duration = preset['duration']
-    preset['duration'] = float(duration)
     common = {'T_s': float(T_s), 'duration': float(duration), 'input_timeout': float(input_timeout)}
     plant = dict(common, variation=variation, v_limit=float(v_limit),
                  truth_decimation=int(truth_decimation),
-                 **{k: v for k, v in preset.items() if k != 'duration'})
-    estimates = dict(CHAPTER4_ESTIMATES) if variation == 'chapter4' else {}
+                 **{k: v for k, v in preset.items() if k not in ('duration', 'start')})
+    estimates = ({k: getattr(CHAPTER4_ESTIMATES, k) for k in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')}
+                 if variation == 'chapter4' else {})
+    x0, obs_x0 = Scenario(task=task, strategy=strategy, T_s=T_s, duration=duration,
+                          variation=variation).initial_state()
     adaptive = controller in ('adaptive_thesis', 'adaptive')
     ctl = dict(common, mode=task, strategy=strategy, use_adapter=adaptive,
                v_limit=float(v_limit), reference_decimation=int(reference_decimation),
@@ -61,7 +64,12 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     if current_gain is not None:
         ctl['current_gain'] = [float(g) for g in current_gain]
         ctl['gain_period'] = float(T_s)
+    if x0 is not None:          # plant and observer start in the controller's steady state
+        plant['initial_current'] = [float(obs_x0[0]), float(obs_x0[1])]
+        plant['initial_flux'] = [float(x0[2]), float(x0[3])]
     obs = dict(common, use_adapter=adaptive, **estimates)
+    if x0 is not None:
+        obs['initial_state'] = [float(v) for v in obs_x0]
     if injection_gain is not None:
         obs['injection_gain'] = [float(g) for g in injection_gain]
         obs['gain_period'] = float(T_s)

@@ -5,7 +5,7 @@ the lock-step ROS graph uses (DESIGN.md §3, "Time and rate"):
     V_k    = controller.compute(t_k, meas_k, φ̂_k, p̂_k)        # controller holds all inputs of step k
     plant.step(V_k)                                           # plant integrates [t_k, t_k+1], V held
     x̂_k+1  = observer.step(T_s, V_k, meas_k.i, meas_k.ω)      # observer predicts from the same data
-    p̂_k+1  = adapter.step(...)  (optional hook, chapter 4)
+    p̂_k+1  = adapter.step(..., x̂_k)  (optional hook, chapter 4; used from step k+1 on)
 
 So results of the ROS graph and of this loop are comparable sample by sample.
 
@@ -25,23 +25,19 @@ from typing import Optional
 
 import numpy as np
 
-from im_common.loads import LinearLoad, PendulumLoad
+from im_common.loads import make_load
 from im_common.metrics import energy_figures, tracking_figures
-from im_common.model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, W_LOAD,
-                             stator_flux)
-from im_common.params import SCHEDULES, InvalidParameter, THESIS_MOTOR
+from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN, stator_flux
+from im_common.params import (CHAPTER4_ESTIMATES, SCHEDULES, InvalidParameter, ParameterSchedule,
+                              THESIS_MOTOR)
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, steady_operating_point
 from im_observer.observer import RotorFluxObserver
 
-TASKS = ('position', 'speed')
-CONTROLLERS = ('nominal',)
-START_MODES = ('rest', 'steady')
-DEFAULT_DURATION = {'position': 2.0, 'speed': 1.5}
+from .config import CONTROLLERS, TASK_PRESETS, TASKS  # noqa: E402  (the one table of tasks)
 
-# Chapter 4 (§4.3): the controller's fixed estimates under the parameter-variation profile.
-CHAPTER4_ESTIMATES = THESIS_MOTOR.with_values(R_s=0.687, L_s=0.084, L_sr=0.081, R_r=0.842,
-                                              L_r=0.081 / 0.952941)
+START_MODES = ('rest', 'steady')
+DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
 
 
 @dataclass
@@ -68,14 +64,16 @@ class Scenario:
     plant_substep: float = 1e-4
     observer_substep: float = 1e-4
     controller_options: dict = field(default_factory=dict)
+    schedule: Optional[ParameterSchedule] = None   # overrides the named ``variation``
 
     def __post_init__(self):
         if self.task not in TASKS:
             raise InvalidParameter('task', self.task, f'must be one of {", ".join(TASKS)}')
         if self.controller not in CONTROLLERS:
             raise InvalidParameter('controller', self.controller,
-                                   f'must be one of {", ".join(CONTROLLERS)} (adaptive: pass an adapter)')
-        if self.variation not in SCHEDULES:
+                                   f'must be one of {", ".join(CONTROLLERS)} (a label; adaptive '
+                                   f'runs pass an adapter to simulate)')
+        if self.schedule is None and self.variation not in SCHEDULES:
             raise InvalidParameter('variation', self.variation, f'must be one of {", ".join(SCHEDULES)}')
         if not (math.isfinite(self.T_s) and self.T_s > 0):
             raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
@@ -83,14 +81,35 @@ class Scenario:
             self.duration = DEFAULT_DURATION[self.task]
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise InvalidParameter('duration', self.duration, 'must be > 0 s')
+        preset = TASK_PRESETS[self.task]
         if self.start is None:
-            self.start = 'rest' if self.task == 'position' else 'steady'
+            self.start = preset['start']
         if self.start not in START_MODES:
             raise InvalidParameter('start', self.start, f'must be one of {", ".join(START_MODES)}')
         if self.theta0 is None:
-            self.theta0 = -0.5 * math.pi if self.task == 'position' else 0.0
+            self.theta0 = preset['theta0']
         if self.omega0 is None:
-            self.omega0 = 0.0 if self.task == 'position' else 135.0
+            self.omega0 = preset['omega0']
+
+    def plant_schedule(self) -> ParameterSchedule:
+        return self.schedule if self.schedule is not None else SCHEDULES[self.variation](THESIS_MOTOR)
+
+    def load(self):
+        p = TASK_PRESETS[self.task]
+        return make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
+                         c2=p.get('load_c2', 0.001))
+
+    def initial_state(self):
+        """(plant x0 or None, observer x̂_0): at rest demagnetized, or ('steady') in the
+        controller's own steady state at (θ0, ω0) — plant and observer both start there."""
+        if self.start != 'steady':
+            return None, (0.0, 0.0, 0.0, 0.0)
+        op = steady_operating_point(self.controller_config(), 0.0, self.theta0, self.omega0)
+        P = self.plant_schedule().params_at(0.0)
+        psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'],
+                                   P.L_s, P.L_r, P.L_sr)
+        x0 = (psi_a, psi_b, op['phi_alpha'], op['phi_beta'], self.theta0, self.omega0)
+        return x0, (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])
 
     def controller_config(self) -> ControllerConfig:
         params = CHAPTER4_ESTIMATES if self.variation == 'chapter4' else THESIS_MOTOR
@@ -128,18 +147,10 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     if record_every < 1:
         raise InvalidParameter('record_every', record_every, 'must be >= 1')
     wall0 = time.perf_counter()
-    schedule = SCHEDULES[sc.variation](THESIS_MOTOR)
-    load = PendulumLoad(10.0) if sc.task == 'position' else LinearLoad(1.0, 0.001)
+    schedule = sc.plant_schedule()
+    load = sc.load()
     cfg = sc.controller_config()
-    x0 = None
-    obs_x0 = (0.0, 0.0, 0.0, 0.0)
-    if sc.start == 'steady':
-        op = steady_operating_point(cfg, 0.0, sc.theta0, sc.omega0)
-        P = schedule.params_at(0.0)
-        psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'],
-                                   P.L_s, P.L_r, P.L_sr)
-        x0 = (psi_a, psi_b, op['phi_alpha'], op['phi_beta'], sc.theta0, sc.omega0)
-        obs_x0 = (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])
+    x0, obs_x0 = sc.initial_state()
     plant = PlantSimulator(schedule, load, T_s=sc.T_s, max_substep=sc.plant_substep,
                            v_limit=sc.v_limit, current_noise_std=sc.current_noise_std,
                            speed_noise_std=sc.speed_noise_std, noise_seed=sc.noise_seed,
@@ -209,11 +220,13 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         plant.step(v_a, v_b)
         if timing:
             c0 = clock()
-        x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)
+        x_hat_k = x_hat
+        x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)   # uses p̂_k
         if timing:
             t_obs += clock() - c0
         if adapter is not None:
-            estimates = adapter.step(T_s, m.t, v_a, v_b, m, x_hat)
+            # the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out
+            estimates = adapter.step(T_s, m.t, v_a, v_b, m, x_hat_k)
             if estimates:
                 observer.set_estimates(estimates.get('R_r'), estimates.get('theta'))
         if progress and k % report_every == 0:

@@ -96,8 +96,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                  metadata: Optional[dict] = None) -> dict:
     """Run one scenario through the lock-step graph; return its summary (figures of merit)."""
     from im_bringup.graph import DriveGraph
-    from im_bringup.traces import Tap, TraceBuilder
-    builder = TraceBuilder()
+    from im_bringup.traces import Tap
     writer = None
     if record:
         from im_bringup.bag import BagWriter

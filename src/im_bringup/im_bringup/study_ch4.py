@@ -15,7 +15,6 @@ Writes ``study_ch4.json`` and ``study_ch4.md`` into DIR; progress on stderr. Run
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
@@ -27,7 +26,7 @@ import numpy as np
 
 from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
-from im_common.params import (SCHEDULES, THESIS_MOTOR, InvalidParameter, ParameterSchedule,
+from im_common.params import (THESIS_MOTOR, InvalidParameter, ParameterSchedule,
                               constant, ramp, sinusoid)
 
 from . import offline
@@ -73,34 +72,9 @@ def sensitivity_cases(base=THESIS_MOTOR) -> Dict[str, Callable[[], ParameterSche
             for name, v in cases.items()}
 
 
-@contextlib.contextmanager
-def registered_schedule(key: str, factory: Callable[[], ParameterSchedule]):
-    """Make ``Scenario(variation=key)`` resolve to ``factory`` for the duration of the block.
-
-    offline.simulate looks the variation up in :data:`im_common.params.SCHEDULES` by name; this
-    adds a name for the sensitivity cases and removes it again (see docs/adaptation.md).
-    """
-    if key in SCHEDULES:
-        raise KeyError(f'schedule {key!r} already registered')
-    SCHEDULES[key] = lambda base=THESIS_MOTOR: factory()
-    try:
-        yield key
-    finally:
-        SCHEDULES.pop(key, None)
-
-
 # ---------------------------------------------------------------------------------------------
 # Runs
 # ---------------------------------------------------------------------------------------------
-def _observer_x0(sc: Scenario):
-    """The observer's x̂_0 as offline.simulate sets it (rest: zero; steady: the controller's
-    operating point), for the hook's one-step lag."""
-    if sc.start != 'steady':
-        return (0.0, 0.0, 0.0, 0.0)
-    op = offline.steady_operating_point(sc.controller_config(), 0.0, sc.theta0, sc.omega0)
-    return (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])
-
-
 class OracleEstimates:
     """A bound, not a controller: publishes the *true* identifiable R_R and L_M through the
     adapter's projection (θ̂ = L_M/L̂_sr clipped by σ_min, R̂_r = R_R/θ̂²) — the best the pair
@@ -136,22 +110,26 @@ def gains_for(controller: str, **overrides) -> Optional[AdaptationGains]:
 
 def run_case(task: str, strategy: str, controller: str, variation: str,
              gains: Optional[AdaptationGains] = None, T_s: float = 1e-4,
-             duration: Optional[float] = None, record_every: int = 10) -> dict:
-    """One closed-loop run; the summary plus estimates against truth (see module docstring)."""
-    sc = Scenario(task=task, strategy=strategy, variation=variation, T_s=T_s, duration=duration)
+             duration: Optional[float] = None, record_every: int = 10,
+             schedule: Optional[ParameterSchedule] = None) -> dict:
+    """One closed-loop run; the summary plus estimates against truth (see module docstring).
+    ``schedule`` overrides the named variation (``variation`` is then only a label)."""
+    ctl_label = controller if controller in offline.CONTROLLERS else 'nominal'
+    sc = Scenario(task=task, strategy=strategy, variation=variation, T_s=T_s, duration=duration,
+                  schedule=schedule, controller=ctl_label)
     est_params = CHAPTER4_ESTIMATES if variation == 'chapter4' else THESIS_MOTOR
     hook = None
     if controller == ORACLE:
-        hook = OracleEstimates(SCHEDULES[variation](THESIS_MOTOR), est_params,
+        hook = OracleEstimates(sc.plant_schedule(), est_params,
                                record_every=record_every)
     elif controller != 'nominal':
         hook = LockstepAdapter.build(est_params, gains or gains_for(controller),
-                                     x_hat0=_observer_x0(sc), record_every=record_every)
+                                     record_every=record_every)
     res = simulate(sc, adapter=hook, record_every=record_every)
     out = dict(res.summary)
     out['controller'] = controller
     out['variation'] = variation
-    schedule = SCHEDULES[variation](THESIS_MOTOR)
+    schedule = sc.plant_schedule()
     t_end = sc.duration
     truth = schedule.params_at(t_end)
     if hook is not None and hook.samples:
@@ -202,9 +180,7 @@ def sensitivity(tasks=TASKS, strategy: str = 'min_energy', T_s: float = 1e-4) ->
                              'skipped': f'not a physical motor: {exc}'})
                 _log(f'sensitivity {task}: {name}: skipped ({exc.name})')
                 continue
-            key = f'sens:{name}'
-            with registered_schedule(key, factory):
-                r = run_case(task, strategy, 'nominal', key, T_s=T_s)
+            r = run_case(task, strategy, 'nominal', name, T_s=T_s, schedule=factory())
             r['case'] = name
             r['variation'] = name
             rows.append(r)

@@ -131,6 +131,11 @@ class MotorParams:
 
 THESIS_MOTOR = MotorParams()
 
+# Seed 000 §4.3: the controller's fixed estimates under the chapter-4 variation profile
+# (R̂_s 0.687, L̂_s 0.084, L̂_sr 0.081, initial R̂_r 0.842 and θ̂ = L̂_sr/L̂_r = 0.952941).
+CHAPTER4_ESTIMATES = THESIS_MOTOR.with_values(R_s=0.687, L_s=0.084, L_sr=0.081, R_r=0.842,
+                                              L_r=0.081 / 0.952941)
+
 
 # ---------------------------------------------------------------------------------------------
 # Time-varying parameters

@@ -35,6 +35,10 @@ class ObserverNode(LockstepNode):
                         0.0, 1.0)
         self.use_adapter = p('use_adapter', False,
                              'wait for and use the adapter estimates (eq. 4.13)')
+        x0 = p('initial_state', [0.0, 0.0, 0.0, 0.0],
+               'initial estimate [i_alpha, i_beta, phi_alpha, phi_beta] [A, Wb]')
+        if len(x0) != 4:
+            raise ValueError(f"invalid parameter 'initial_state' = {list(x0)!r}: 4 values")
         max_sub = p('max_substep', 1e-4, 'longest integration sub-step [s]', 1e-7, 0.1)
         self.publish_every = p('estimate_decimation', 10,
                                'publish the current estimate every N steps (the flux estimate is '
@@ -43,7 +47,7 @@ class ObserverNode(LockstepNode):
         if gain is not None and abs(gain_period - self.T_s) > 1e-12:
             raise ValueError(f"invalid parameter 'gain_period' = {gain_period!r}: the injection "
                              f"gain was designed for another period than T_s = {self.T_s}")
-        self.obs = RotorFluxObserver(params, k_e=k_e or None, max_substep=max_sub,
+        self.obs = RotorFluxObserver(params, k_e=k_e or None, max_substep=max_sub, x0=tuple(x0),
                                      injection_gain=gain, gain_period=gain_period or None)
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None

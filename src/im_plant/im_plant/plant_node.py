@@ -21,6 +21,7 @@ from im_common.loads import LOAD_KINDS, make_load
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
 from im_common.params import ELECTRICAL_NAMES, SCHEDULES, ParameterSchedule, Variation
+from im_common.model import stator_flux
 from im_common.plant_sim import PlantSimulator
 
 
@@ -52,6 +53,8 @@ class PlantNode(LockstepNode):
         tau = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
         theta0 = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
         omega0 = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
+        i0 = p('initial_current', [0.0, 0.0], 'initial stator current [i_alpha, i_beta] [A]')
+        f0 = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
         v_limit = p('v_limit', 0.0, 'inverter voltage-vector limit [V] (0: no limit)', 0.0, 1e5)
         i_noise = p('current_noise_std', 0.0, 'std of current measurement noise [A]', 0.0, 1e3)
         w_noise = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]', 0.0, 1e4)
@@ -71,10 +74,18 @@ class PlantNode(LockstepNode):
             schedule = SCHEDULES[variation](motor)
         if self.duration > 0:
             schedule.validate(self.duration)
+        x0 = None
+        if any(i0) or any(f0):
+            if len(i0) != 2 or len(f0) != 2:
+                raise ValueError("invalid parameter 'initial_current'/'initial_flux': two "
+                                 "values each (alpha, beta)")
+            P0 = schedule.params_at(0.0)
+            psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
+            x0 = (psi[0], psi[1], f0[0], f0[1], theta0, omega0)
         self.sim = PlantSimulator(schedule, make_load(load, mgl, c1, c2, tau), self.T_s,
                                   max_substep=max_sub, v_limit=v_limit or None,
                                   current_noise_std=i_noise, speed_noise_std=w_noise,
-                                  noise_seed=seed, theta0=theta0, omega0=omega0)
+                                  noise_seed=seed, theta0=theta0, omega0=omega0, x0=x0)
         self.period = period_ns(self.T_s)
         self.last_step = (round(self.duration / self.T_s) if self.duration > 0 else None)
         self.rejected = 0
