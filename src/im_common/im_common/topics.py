@@ -50,7 +50,7 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
                 'W_mag', 'E_kin')
 
 TOPICS: Tuple[TopicSpec, ...] = (
-    TopicSpec(CLOCK, CLK, 'plant', 'simulated time (every clock_period)'),
+    TopicSpec(CLOCK, CLK, 'plant', 'simulated time (every clock_decimation steps, and the last)'),
     TopicSpec(MEAS_CURRENT, V3, 'plant', 'measured stator current i_alpha, i_beta [A]', True),
     TopicSpec(MEAS_SHAFT, JS, 'plant',
               "measured shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s]",
