@@ -109,3 +109,18 @@ def test_report_cli_bad_bag_is_one_line_exit_2(tmp_path, capsys):
     assert err.count('\n') == 1 and 'bad.mcap' in err and 'Traceback' not in err
     assert report_main([str(tmp_path / 'nope.mcap')]) == 2
     assert 'no such file' in capsys.readouterr().err
+
+
+def test_plots_draw_decimated_topics_through_their_gaps():
+    """Topics published every N steps are NaN between samples on the per-step time base; a plot
+    must draw them from the samples that exist (else matplotlib draws nothing at all)."""
+    import numpy as np
+
+    from im_bringup.plots import _dec
+
+    class R:
+        trace = {'t': np.arange(100) * 1e-4, 'tau_ref': np.full(100, np.nan)}
+    R.trace['tau_ref'][::10] = np.arange(10.0)
+    t, y = _dec(R, 'tau_ref')
+    assert len(t) == 10 and np.all(np.isfinite(y))
+    np.testing.assert_array_equal(y, np.arange(10.0))

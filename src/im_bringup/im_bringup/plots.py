@@ -44,11 +44,15 @@ def _has(run, *keys) -> bool:
 
 
 def _dec(run, *keys):
-    """Time and the given series, decimated to at most MAX_POINTS samples."""
+    """Time and the given series at the instants where all of them were sampled (decimated
+    topics are NaN in between), thinned to at most MAX_POINTS samples."""
     tr = run.trace
-    n = len(tr['t'])
-    step = max(1, int(np.ceil(n / MAX_POINTS)))
-    return [tr['t'][::step]] + [tr[k][::step] for k in keys]
+    ok = np.ones(len(tr['t']), bool)
+    for k in keys:
+        ok &= np.isfinite(tr[k])
+    idx = np.flatnonzero(ok)
+    idx = idx[::max(1, int(np.ceil(len(idx) / MAX_POINTS)))]
+    return [tr['t'][idx]] + [tr[k][idx] for k in keys]
 
 
 def dq_frame_angle(trace) -> Optional[np.ndarray]:
@@ -91,7 +95,7 @@ def _ref_real(ax, runs, ref_key, real_key, ylabel, ref_name, real_name, scale=1.
     for i, run in enumerate(runs):
         if _has(run, ref_key):
             t, y = _dec(run, ref_key)
-            ax.plot(t, y * scale, '--', color=_style(i), lw=1.2,
+            ax.plot(t, y * scale, '--', color=_style(i) if many else 'k', lw=1.2, zorder=3,
                     label=_label(run, ref_name, many))
         if _has(run, real_key):
             t, y = _dec(run, real_key)
@@ -197,14 +201,13 @@ def plot_energy(runs: Sequence, out_dir) -> Optional[str]:
     fig, ax = plt.subplots(1, 1, figsize=(7.5, 4.5))
     many = len(runs) > 1
     for i, r in enumerate(runs):
-        tr = r.trace
-        e0 = lambda k: tr[k] - tr[k][np.isfinite(tr[k])][0]  # noqa: E731 (window origin)
-        loss = sum(e0(k) for k in ('E_cu_s', 'E_cu_r', 'E_core') if k in tr)
-        step = max(1, int(np.ceil(len(tr['t']) / MAX_POINTS)))
-        ax.plot(tr['t'][::step], e0('E_in')[::step], '-', color=_style(i),
-                label=_label(r, 'E_in (energy drawn)', many))
-        if not np.isscalar(loss):
-            ax.plot(tr['t'][::step], loss[::step], '--', color=_style(i),
+        keys = [k for k in ('E_in', 'E_cu_s', 'E_cu_r', 'E_core') if k in r.trace]
+        t, *cols = _dec(r, *keys)
+        e = {k: c - c[0] for k, c in zip(keys, cols)}        # energies over the window
+        ax.plot(t, e['E_in'], '-', color=_style(i), label=_label(r, 'E_in (energy drawn)', many))
+        loss = [e[k] for k in ('E_cu_s', 'E_cu_r', 'E_core') if k in e]
+        if loss:
+            ax.plot(t, sum(loss), '--', color=_style(i),
                     label=_label(r, 'E_l (losses: copper + core)', many))
     ax.set_xlabel('t [s]')
     ax.set_ylabel('energy [J]')
