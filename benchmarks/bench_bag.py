@@ -1,4 +1,4 @@
-"""Micro-benchmark of the recorder's per-message cost: ``python -m im_bringup.bench_bag``.
+"""Micro-benchmark of the recorder's per-message cost: ``python benchmarks/bench_bag.py``.
 
 Writes N steps of the lock-step loop's messages (Vector3Stamped and JointState) through each
 write path of :class:`~im_bringup.bag.BagWriter` into a temporary file and prints µs per message
@@ -18,7 +18,7 @@ import time
 def _bench(n_steps: int, mode: str, compression: str, tmp: str) -> float:
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import JointState
-    from .bag import BagWriter
+    from im_bringup.bag import BagWriter
     path = os.path.join(tmp, f'{mode}_{compression}.mcap')
     v3 = Vector3Stamped()
     v3.header.frame_id = 'alphabeta'       # as im_common.conversions.Vector3Out
@@ -86,6 +86,18 @@ def _bench_serialize(n: int) -> float:
     for _ in range(n):
         serialize_message(m)
     return (time.perf_counter() - t0) / n * 1e6
+
+
+def run(quick: bool = False) -> dict:
+    """µs per written message for each write path (zstd), for benchmarks/run_all.py."""
+    steps = 4000 if quick else 20000
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        out['us_per_msg_write_msg_zstd'] = _bench(steps, 'write(msg)', 'zstd', tmp)
+        out['us_per_msg_write_serialized_zstd'] = _bench(steps, 'write_vector3/joint_state',
+                                                         'zstd', tmp)
+    out['us_rclpy_serialize_message_v3'] = _bench_serialize(10000 if quick else 50000)
+    return out
 
 
 def main(argv=None) -> int:
