@@ -3,8 +3,8 @@
 1. Ping-pong: two nodes in one process bounce a Vector3Stamped, SingleThreadedExecutor vs
    ``rclpy.experimental.EventsExecutor`` (round trips/s).
 2. Bare protocol loop: four nodes exchanging exactly the messages the drive graph exchanges per
-   step (plant: current + shaft; controller: voltage; observer: flux; adapter: estimate), gated by
-   stamp like the real nodes, with no computation (steps/s). The drive graph is measured against
+   step (plant: current + shaft; controller: voltage; observer: flux; adapter: estimate), serialized
+   and gated by stamp like the real nodes, with no computation (steps/s). The drive graph is measured against
    this loop in the same run (benchmarks/bench_graph.py).
 """
 from __future__ import annotations
@@ -17,10 +17,12 @@ from geometry_msgs.msg import Vector3Stamped
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from im_common import topics as T
-from im_common.conversions import JointStateOut, Vector3Out, stamp_ns
+from im_common.conversions import (JointStateOut, Vector3Out, clock_bytes, estimates_in, shaft_in,
+                                   xy_in)
 from im_common.lockstep import StepGate, lockstep_qos, make_executor
 
 
@@ -71,6 +73,9 @@ def ping_pong(executor_kind: str, n: int = 5000, limit_s: float = 60.0) -> float
 
 
 class _Bare(Node):
+    """A node of the bare loop: gated serialized inputs, serialized outputs, no computation —
+    the same mechanism as the drive nodes (im_common.lockstep.LockstepNode.gate_input)."""
+
     def __init__(self, name, ctx, required, outputs, period, on_step):
         super().__init__(name, context=ctx)
         q = lockstep_qos()
@@ -78,24 +83,38 @@ class _Bare(Node):
         self.pubs = {t: self.create_publisher(typ, t, q) for t, typ in outputs}
         self.on_step = on_step
         for t in required:
-            typ = JointState if t in (T.MEAS_SHAFT, T.ADAPT_ESTIMATE) else Vector3Stamped
-            self.create_subscription(typ, t, lambda m, t=t: self._put(t, m), q)
+            js = t in (T.MEAS_SHAFT, T.ADAPT_ESTIMATE)
+            typ = JointState if js else Vector3Stamped
+            extract = {T.MEAS_SHAFT: shaft_in, T.ADAPT_ESTIMATE: estimates_in}.get(t, xy_in)
+            self.create_subscription(typ, t, lambda d, t=t, x=extract: self._put(t, *x(d)), q,
+                                     raw=True)
 
-    def _put(self, topic, m):
-        ready = self.gate.put(topic, stamp_ns(m.header.stamp), m)
+    def _put(self, topic, ns, value):
+        ready = self.gate.put(topic, ns, value)
         while ready is not None:
             self.on_step(self, self.gate.expected)
             ready = self.gate.advance()
 
 
-def bare_loop(steps: int = 5000, with_adapter: bool = True, limit_s: float = 120.0) -> float:
-    """Steps per second of the drive's message pattern with no computation (EventsExecutor)."""
+def bare_loop(steps: int = 5000, adapter_on_path: bool = True, limit_s: float = 120.0,
+              decimation: int = 10) -> float:
+    """Steps per second of the drive's message pattern with no computation (EventsExecutor).
+
+    Four nodes exchange what the graph exchanges per step: plant → current + shaft, controller →
+    voltage, observer → flux, adapter → estimates. With ``adapter_on_path`` the controller waits
+    for the estimates (adaptive runs); without, the adapter still receives every step but nobody
+    waits for it (nominal runs). Clock, ground truth, references and the observer's current
+    estimate go out every ``decimation`` steps, as the graph's defaults publish them.
+    """
     ctx = _context()
     try:
         period = 100_000
-        v3, js_shaft, js_est = Vector3Out(), JointStateOut([T.SHAFT_JOINT]), JointStateOut(T.ESTIMATE_NAMES)
-        v3b, v3c = Vector3Out(), Vector3Out()
+        v3, js_shaft = Vector3Out(), JointStateOut([T.SHAFT_JOINT])
+        js_est = JointStateOut(T.ESTIMATE_NAMES)
         state = {'k': 0}
+
+        js_par, js_pow = JointStateOut(T.PARAM_NAMES), JointStateOut(T.POWER_NAMES)
+        js_en = JointStateOut(T.ENERGY_NAMES)
 
         def plant_step(node, ns):
             state['k'] += 1
@@ -103,35 +122,54 @@ def bare_loop(steps: int = 5000, with_adapter: bool = True, limit_s: float = 120
                 nxt = ns + period
                 node.pubs[T.MEAS_CURRENT].publish(v3.fill(nxt, 1.0, 2.0))
                 node.pubs[T.MEAS_SHAFT].publish(js_shaft.fill(nxt, (0.0,), (0.0,)))
+                if state['k'] % decimation == 0:       # clock and ground truth, decimated
+                    p = node.pubs
+                    p[T.CLOCK].publish(clock_bytes(nxt))
+                    for topic in (T.TRUTH_VOLTAGE, T.TRUTH_FLUX, T.TRUTH_TORQUE):
+                        p[topic].publish(v3.fill(nxt, 1.0, 2.0))
+                    p[T.TRUTH_PARAMS].publish(js_par.fill(nxt, [1.0] * len(T.PARAM_NAMES)))
+                    p[T.TRUTH_POWER].publish(js_pow.fill(nxt, [1.0] * len(T.POWER_NAMES)))
+                    p[T.TRUTH_ENERGY].publish(js_en.fill(nxt, [1.0] * len(T.ENERGY_NAMES)))
 
         def ctl_step(node, ns):
-            node.pubs[T.CMD_VOLTAGE].publish(v3b.fill(ns, 1.0, 2.0))
+            node.pubs[T.CMD_VOLTAGE].publish(v3.fill(ns, 1.0, 2.0))
+            if (ns // period) % decimation == 0:        # references, decimated
+                node.pubs[T.REF_SHAFT].publish(js_shaft.fill(ns, (0.0,), (0.0,), (0.0,)))
+                node.pubs[T.REF_CURRENT].publish(v3.fill(ns, 1.0, 2.0))
+                node.pubs[T.REF_FLUX].publish(v3.fill(ns, 1.0, 2.0, 3.0))
 
         def obs_step(node, ns):
-            node.pubs[T.OBS_FLUX].publish(v3c.fill(ns + period, 1.0, 2.0))
+            node.pubs[T.OBS_FLUX].publish(v3.fill(ns + period, 1.0, 2.0))
+            if (ns // period + 1) % decimation == 0:
+                node.pubs[T.OBS_CURRENT].publish(v3.fill(ns + period, 1.0, 2.0))
 
         def ad_step(node, ns):
             node.pubs[T.ADAPT_ESTIMATE].publish(js_est.fill(ns + period, (1.0, 1.0, 1.0, 1.0)))
 
-        ctl_req = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX] + ([T.ADAPT_ESTIMATE] if with_adapter else [])
+        ctl_req = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX]
+        if adapter_on_path:
+            ctl_req.append(T.ADAPT_ESTIMATE)
+        V3, JS = Vector3Stamped, JointState
         nodes = [
             _Bare('plant', ctx, [T.CMD_VOLTAGE],
-                  [(T.MEAS_CURRENT, Vector3Stamped), (T.MEAS_SHAFT, JointState)], period, plant_step),
-            _Bare('controller', ctx, ctl_req, [(T.CMD_VOLTAGE, Vector3Stamped)], period, ctl_step),
+                  [(T.MEAS_CURRENT, V3), (T.MEAS_SHAFT, JS), (T.CLOCK, Clock), (T.TRUTH_VOLTAGE, V3),
+                   (T.TRUTH_FLUX, V3), (T.TRUTH_TORQUE, V3), (T.TRUTH_PARAMS, JS),
+                   (T.TRUTH_POWER, JS), (T.TRUTH_ENERGY, JS)], period, plant_step),
+            _Bare('controller', ctx, ctl_req,
+                  [(T.CMD_VOLTAGE, V3), (T.REF_SHAFT, JS), (T.REF_CURRENT, V3), (T.REF_FLUX, V3)],
+                  period, ctl_step),
             _Bare('observer', ctx, [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE],
-                  [(T.OBS_FLUX, Vector3Stamped)], period, obs_step),
+                  [(T.OBS_FLUX, V3), (T.OBS_CURRENT, V3)], period, obs_step),
+            _Bare('adapter', ctx, [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
+                  [(T.ADAPT_ESTIMATE, JointState)], period, ad_step),
         ]
-        if with_adapter:
-            nodes.append(_Bare('adapter', ctx, [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
-                               [(T.ADAPT_ESTIMATE, JointState)], period, ad_step))
         ex = make_executor(ctx)
         for n in nodes:
             ex.add_node(n)
         t0 = time.perf_counter()
-        # Step 0: initial estimates and measurement (transient-local QoS delivers them late joiners).
-        nodes[2].pubs[T.OBS_FLUX].publish(v3c.fill(0, 1.0, 2.0))
-        if with_adapter:
-            nodes[3].pubs[T.ADAPT_ESTIMATE].publish(js_est.fill(0, (1.0, 1.0, 1.0, 1.0)))
+        # Step 0: initial estimates and measurement (transient-local QoS delivers them to late joiners).
+        nodes[2].pubs[T.OBS_FLUX].publish(v3.fill(0, 1.0, 2.0))
+        nodes[3].pubs[T.ADAPT_ESTIMATE].publish(js_est.fill(0, (1.0, 1.0, 1.0, 1.0)))
         nodes[0].pubs[T.MEAS_CURRENT].publish(v3.fill(0, 1.0, 2.0))
         nodes[0].pubs[T.MEAS_SHAFT].publish(js_shaft.fill(0, (0.0,), (0.0,)))
         _spin(ex, lambda: state['k'] >= steps, limit_s)
@@ -149,8 +187,8 @@ def run(quick: bool = False) -> dict:
     return {
         'ping_pong_single_threaded_rt_per_s': ping_pong('single', n),
         'ping_pong_events_rt_per_s': ping_pong('events', n),
-        'bare_loop_4_nodes_steps_per_s': bare_loop(n, with_adapter=True),
-        'bare_loop_3_nodes_steps_per_s': bare_loop(n, with_adapter=False),
+        'bare_loop_adapter_on_path_steps_per_s': bare_loop(n, adapter_on_path=True),
+        'bare_loop_adapter_off_path_steps_per_s': bare_loop(n, adapter_on_path=False),
     }
 
 
