@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test bench reproduce robust-examples clean distclean
+.PHONY: all setup build demo test bench reproduce study sensitivity robust-examples clean distclean
 
 all: demo
 
@@ -44,6 +44,14 @@ bench: build
 
 reproduce: build
 	$(RUN) python -m im_bringup.reproduce --out bags/reproduce
+
+# Chapter-3 study on the ROS-free loop (energy table, sampled-data limit, core-loss exponent).
+study: build
+	$(RUN) python -m im_bringup.study --out bags/study
+
+# Seed 000 §4.2.1 sensitivity of the nominal controller, and §4.3 nominal vs adaptive (offline).
+sensitivity: build
+	$(RUN) python -m im_bringup.study_ch4 --part sensitivity --out bags/sensitivity
 
 robust-examples: build
 	$(RUN) python -m im_robust.cli examples --out bags/robust

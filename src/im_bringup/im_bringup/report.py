@@ -66,9 +66,12 @@ def _finite(x):
     return x[np.isfinite(x)]
 
 
-def estimate_figures(trace) -> Dict[str, float]:
-    """Max / RMS / final relative error of each adapted parameter against the truth."""
+def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
+    """Each adapted parameter against the truth: max / RMS / final relative error, the final
+    values (``<n>_hat_final``, ``<n>_true_final``), and over the last ``last_window`` seconds the
+    relative RMS and peak-to-peak of the error (issue targets: < 5 %)."""
     out = {}
+    t = np.asarray(trace.get('t', ()), float)
     for n in ('R_r', 'theta', 'L_M', 'R_R'):
         hat, true = f'{n}_hat', n
         if hat not in trace or true not in trace:
@@ -83,6 +86,15 @@ def estimate_figures(trace) -> Dict[str, float]:
         last = np.flatnonzero(ok)[-1]
         tv = float(trace[true][last])
         out[f'{n}_est_err_final_rel'] = float(abs(e[last]) / abs(tv)) if tv else float('nan')
+        out[f'{n}_hat_final'] = float(trace[hat][last])
+        out[f'{n}_true_final'] = tv
+        if len(t) == len(e):
+            win = ok & (t > t[last] - last_window)
+            tru = np.asarray(trace[true], float)[win]
+            if win.any() and np.all(tru != 0):
+                rel = e[win] / tru
+                out[f'{n}_err_rms_rel_last1s'] = float(math.sqrt(np.mean(rel ** 2)))
+                out[f'{n}_err_ptp_rel_last1s'] = float(np.ptp(e[win]) / abs(np.mean(tru)))
     return out
 
 
