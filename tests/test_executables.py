@@ -41,3 +41,26 @@ def test_executable_resolves_and_starts(package, executable):
     proc = subprocess.run([path, '--help'], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert 'usage' in proc.stdout.lower(), proc.stdout[:500]
+
+
+def test_plant_process_loads_the_thesis_yaml_and_reports_a_missing_controller():
+    """`ros2 run im_plant plant --ros-args --params-file .../thesis_motor.yaml` starts with the
+    shipped parameters; with no controller it names the topic and stamp it waited for and exits 1."""
+    import random
+    from ament_index_python.packages import get_package_share_directory
+    yml = os.path.join(get_package_share_directory('im_plant'), 'config', 'thesis_motor.yaml')
+    assert os.path.exists(yml)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(150, 229)))
+    proc = subprocess.run([ros2_run_path('im_plant', 'plant'), '--ros-args', '--params-file', yml,
+                           '-p', 'startup_timeout:=0.5', '-p', 'input_timeout:=0.5'],
+                          capture_output=True, text=True, timeout=60, env=env)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert '/im/command/voltage' in proc.stderr and 'stamped 0.000000000 s' in proc.stderr
+
+
+def test_node_process_refuses_an_impossible_parameter_by_name():
+    proc = subprocess.run([ros2_run_path('im_plant', 'plant'), '--ros-args', '-p', 'L_sr:=0.09'],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "'L_sr'" in proc.stderr and 'sigma' in proc.stderr
+    assert 'Traceback' not in proc.stderr
