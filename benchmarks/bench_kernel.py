@@ -16,22 +16,14 @@ benchmarks/results/kernel.json); ``benchmarks/run_all.py`` imports :func:`run`.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
-import platform
 import sys
 import time
 
 import numpy as np
 
-try:
-    import im_common  # noqa: F401
-except ImportError:  # standalone run from a source checkout without the workspace sourced
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'src',
-                                    'im_common'))
-
-from scipy.integrate import solve_ivp  # noqa: E402
+from scipy.integrate import solve_ivp
 
 from im_common.loads import LinearLoad  # noqa: E402
 from im_common.params import THESIS_MOTOR, chapter4_schedule  # noqa: E402
@@ -42,20 +34,6 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 T_S = 1e-4
 V_HAT = 220.0                       # power-invariant αβ amplitude = line-to-line RMS [V]
 OMEGA_E = 2.0 * math.pi * 60.0
-
-
-def machine() -> dict:
-    cpu = ''
-    try:
-        with open('/proc/cpuinfo') as f:
-            for line in f:
-                if line.startswith('model name'):
-                    cpu = line.split(':', 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return {'platform': platform.platform(), 'python': platform.python_version(),
-            'cpus': os.cpu_count(), 'cpu_model': cpu}
 
 
 def _voltages(n: int, T_s: float):
@@ -139,25 +117,6 @@ def run(quick: bool = False) -> dict:
     return res
 
 
-def main(argv=None) -> int:
-    quick = '--quick' in (argv if argv is not None else sys.argv[1:])
-    t0 = time.perf_counter()
-    res = run(quick=quick)
-    info = machine()
-    print(f"machine: {info['cpu_model']} ({info['cpus']} cpus), Python {info['python']}, "
-          f"{info['platform']}")
-    print(f"{'figure':48s} {'value':>14s}")
-    for k, v in res.items():
-        print(f'{k:48s} {v:14.6g}')
-    out_dir = os.path.join(HERE, 'results')
-    os.makedirs(out_dir, exist_ok=True)
-    path = os.path.join(out_dir, 'kernel.json')
-    with open(path, 'w') as f:
-        json.dump({'benchmark': 'kernel', 'machine': info, 'quick': quick,
-                   'wall_s': time.perf_counter() - t0, 'results': res}, f, indent=2)
-    print(f'JSON written to {path}')
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())
+if __name__ == '__main__':      # the table and JSON come from the driver
+    from run_all import main
+    sys.exit(main(['--only', 'kernel'] + sys.argv[1:]))

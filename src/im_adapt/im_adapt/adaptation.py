@@ -67,7 +67,7 @@ import math
 from dataclasses import dataclass, fields, replace
 from typing import Optional
 
-from im_common.params import InvalidParameter, MotorParams
+from im_common.params import InvalidParameter, MotorParams, check_real
 
 LAWS = ('thesis', 'improved')
 TWO_PI = 2.0 * math.pi
@@ -203,14 +203,7 @@ class AdaptationGains:
 
 
 def _finite(name, value, lo=None, strict=False):
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameter(name, value, 'must be a real number') from None
-    if not math.isfinite(x):
-        raise InvalidParameter(name, value, 'must be finite')
-    if lo is not None and (x <= lo if strict else x < lo):
-        raise InvalidParameter(name, value, f'must be {">" if strict else ">="} {lo:g}')
+    return check_real(name, value, lo, lo_open=strict)
 
 
 def _ordered(lo_name, lo, hi_name, hi):

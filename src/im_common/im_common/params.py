@@ -43,17 +43,29 @@ class InvalidParameter(ValueError):
         super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
 
 
-def _check_finite_positive(name: str, value, allow_zero: bool = False) -> None:
+def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: bool = False):
+    """``value`` as a finite float (≥ lo, or > lo when ``lo_open``); else InvalidParameter
+    naming ``name``. The one validation helper of the stack's math modules."""
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool):
+        raise InvalidParameter(name, value, 'must be a real number')
     try:
         x = float(value)
     except (TypeError, ValueError):
         raise InvalidParameter(name, value, 'must be a real number') from None
     if not math.isfinite(x):
         raise InvalidParameter(name, value, 'must be finite')
-    if allow_zero and x < 0.0:
-        raise InvalidParameter(name, value, 'must be >= 0')
-    if not allow_zero and x <= 0.0:
-        raise InvalidParameter(name, value, 'must be > 0')
+    if lo is not None:
+        if lo_open and not x > lo:
+            raise InvalidParameter(name, value, f'must be > {lo:g}')
+        if not lo_open and not x >= lo:
+            raise InvalidParameter(name, value, f'must be >= {lo:g}')
+    return x
+
+
+def _check_finite_positive(name: str, value, allow_zero: bool = False) -> None:
+    check_real(name, value, 0.0, lo_open=not allow_zero)
 
 
 def leakage_factor(L_s: float, L_r: float, L_sr: float) -> float:

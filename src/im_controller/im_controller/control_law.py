@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from im_common.loads import LOAD_KINDS, make_load
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR
+from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
 
 from .flux import STRATEGIES, FluxStrategy, LowPass2
 from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
@@ -49,23 +49,7 @@ DEFAULT_GAINS = {'position': (10.0, 1.0), 'speed': (1.0, 3.0), 'torque': (0.0, 0
 DEFAULT_LOADS = {'position': 'pendulum', 'speed': 'linear', 'torque': 'none'}
 
 
-def _real(name, value, lo=None, lo_open=False, allow_none=False):
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool):
-        raise InvalidParameter(name, value, 'must be a real number')
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameter(name, value, 'must be a real number') from None
-    if not math.isfinite(x):
-        raise InvalidParameter(name, value, 'must be finite')
-    if lo is not None:
-        if lo_open and not x > lo:
-            raise InvalidParameter(name, value, f'must be > {lo:g}')
-        if not lo_open and not x >= lo:
-            raise InvalidParameter(name, value, f'must be >= {lo:g}')
-    return x
+_real = check_real
 
 
 @dataclass

@@ -43,17 +43,10 @@ from __future__ import annotations
 import math
 from typing import Optional, Sequence, Tuple
 
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR
+from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
 
 
-def _finite(name, value):
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameter(name, value, 'must be a real number') from None
-    if not math.isfinite(x):
-        raise InvalidParameter(name, value, 'must be finite')
-    return x
+_finite = check_real
 
 
 class RotorFluxObserver:
