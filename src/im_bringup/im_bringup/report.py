@@ -140,11 +140,12 @@ def markdown_table(results: List[dict]) -> str:
     return '\n'.join(lines)
 
 
-def _jsonable(x):
+def jsonable(x):
+    """``x`` with numpy scalars as Python numbers and NaN/inf as None (strict JSON)."""
     if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
+        return {k: jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, (np.floating, float)):
         return float(x) if math.isfinite(x) else None
     if isinstance(x, np.integer):
@@ -189,7 +190,7 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     md_path.write_text('\n'.join(md) + '\n', encoding='utf-8')
     json_path = out / 'report.json'
     with open(json_path, 'w', encoding='utf-8') as f:
-        json.dump(_jsonable({'runs': results, 'figures': pngs}), f, indent=1, allow_nan=False)
+        json.dump(jsonable({'runs': results, 'figures': pngs}), f, indent=1, allow_nan=False)
     return {'markdown': str(md_path), 'json': str(json_path), 'figures': pngs,
             'runs': results}
 

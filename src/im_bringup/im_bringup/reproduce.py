@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from typing import List
@@ -62,6 +63,13 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False) -> List[dict]
     return results
 
 
+def _f(value, fmt: str, scale: float = 1.0) -> str:
+    """A table cell: the number formatted, or '—' where the figure does not apply."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return '—'
+    return format(value * scale, fmt)
+
+
 def markdown(results: List[dict]) -> str:
     rows = ['| task | strategy | controller | variation | rate [Hz] | E_in [J] | thesis E_in | '
             'losses [J] | thesis losses | copper | core | load work | friction | ΔE_kin | ΔW_mag | '
@@ -76,9 +84,9 @@ def markdown(results: List[dict]) -> str:
             f"{r['rate_hz']:g} | {r['E_in_J']:.2f} | {the} | {r['E_loss_J']:.2f} | {thl} | "
             f"{r['E_copper_J']:.2f} | {r['E_core_J']:.2f} | {r['W_load_J']:.2f} | "
             f"{r['E_friction_J']:.2f} | {r['dE_kinetic_J']:.2f} | {r['dW_magnetic_J']:.2f} | "
-            f"{r['balance_residual_J']:.2e} | {1e3 * r.get('pos_err_max_rad', float('nan')):.2f} | "
-            f"{r.get('speed_err_max_rad_s', float('nan')):.3f} | "
-            f"{r.get('torque_err_max_Nm', float('nan')):.3f} | {r['steps'] / r['wall_s']:.0f} |")
+            f"{r['balance_residual_J']:.2e} | {_f(r.get('pos_err_max_rad'), '.2f', 1e3)} | "
+            f"{_f(r.get('speed_err_max_rad_s'), '.3f')} | {_f(r.get('torque_err_max_Nm'), '.3f')} | "
+            f"{r['steps'] / r['wall_s']:.0f} |")
     return '\n'.join(rows) + '\n'
 
 
@@ -98,8 +106,9 @@ def main(argv=None) -> int:
     if 'robust' in parts:
         specs += robust_runs()
     results = run_all(specs, args.out, record=args.record)
+    from im_bringup.report import jsonable
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
-        json.dump(results, f, indent=2, default=float)
+        json.dump(jsonable(results), f, indent=2, allow_nan=False)
     with open(os.path.join(args.out, 'summary.md'), 'w') as f:
         f.write('# Thesis figures re-run through the lock-step graph\n\n')
         f.write('Thesis: seed 000 §3.4.7 (energy drawn / losses). Energies from the plant\'s '

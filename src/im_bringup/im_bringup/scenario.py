@@ -195,8 +195,9 @@ def main(argv=None) -> int:
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
     os.makedirs(os.path.dirname(out) or '.', exist_ok=True)
     summary.pop('_run', None)
+    from im_bringup.report import jsonable
     with open(out, 'w') as f:
-        json.dump(summary, f, indent=2, default=float)
+        json.dump(jsonable(summary), f, indent=2, allow_nan=False)
     print_summary(summary)
     print(f'summary: {out}')
     if args.record:
