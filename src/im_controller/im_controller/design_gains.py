@@ -1,14 +1,24 @@
-"""``ros2 run im_controller design_gains``: robust sampled gains for the controller and observer.
+"""``ros2 run im_controller design_gains``: certified sampled gains for the controller and observer.
 
-Designs, at the node period T_s, the 2×2 current gain K (ΔV = −K (i − i*)) and the 4×2 observer
-injection L (x̂_{k+1} = A_d x̂_k + B_d V_k + L (i_k − î_k)) over the motor's parameter box with
-seed 001's convex output-feedback synthesis (``im_robust.motor``), certifies both, and writes a
-ROS 2 parameters YAML:
+Designs, at the node period T_s, the gains the nodes actually use (``im_robust.drive``; derivation
+in docs/robust.md, "Drive gains at the node period"):
+
+- controller: the 2×2 current gain K of ΔV = −K (i − i*), designed on the ZOH-sampled
+  stator-current error subsystem σL_s de/dt = −R_eq e + ΔV over every (R_eq, σL_s) of the
+  parameter box with σ ≥ σ_min (the feedforward of eq. 3.29 removes the flux and back-EMF terms),
+  with a guaranteed decay rate; plus the flux-coupling mode ('cancel' only while its held sample
+  costs little of the flux-error damping, else 'none');
+- observer: the discrete injection L = [ℓ I; 0] of x̂_{k+1} = A_d x̂_k + B_d V_k + L (i_k − î_k),
+  ℓ designed on the same subsystem, the 4-state error certified over the box and
+  ω_r ∈ [−ω_max, ω_max] (box-wide, or per frozen parameter point for every speed).
+
+It writes a ROS 2 parameters YAML:
 
     controller:
       ros__parameters:
         current_gain: [k11, k12, k21, k22]     # row-major 2x2, dV = -K (i - i*)
         gain_period: 0.001
+        flux_coupling: none
     observer:
       ros__parameters:
         injection_gain: [l11, l12, ..., l42]   # row-major 4x2
@@ -16,10 +26,13 @@ ROS 2 parameters YAML:
 
 A gain that is not certified is never written: if either design fails, the YAML is not written,
 the JSON certificate summary says why, and the exit status is 1.
+
+``design_for_scenario(T_s)`` returns the same parameters as node overrides (for im_bringup).
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -60,17 +73,30 @@ def _nonnegative(name):
     return parse
 
 
+def _fraction(name):
+    def parse(text):
+        v = _positive(name)(text)
+        if v >= 1.0:
+            raise argparse.ArgumentTypeError(f'{name} must be in (0, 1), got {text!r}')
+        return v
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='design_gains', description=__doc__.split('\n')[0])
     p.add_argument('--period', type=_positive('--period'), default=1e-3,
                    help='node period T_s [s] (default 1e-3)')
     p.add_argument('--omega-max', type=_nonnegative('--omega-max'), default=200.0,
-                   help='speed range [-omega_max, omega_max] of the design [rad/s] (default 200)')
-    p.add_argument('--decay-rate', type=_nonnegative('--decay-rate'), default=0.0,
-                   help='guaranteed decay rate of the current loop [1/s], rho = exp(-rate*T_s); '
-                        'bounded by min R_r/L_r (about 3.6 1/s) (default 0)')
-    p.add_argument('--observer-decay-rate', type=_nonnegative('--observer-decay-rate'), default=0.0,
-                   help='guaranteed decay rate of the observer error [1/s] (default 0)')
+                   help='speed range [-omega_max, omega_max] of the observer certificate and of '
+                        'the flux-coupling choice [rad/s] (default 200)')
+    p.add_argument('--decay-rate', type=_nonnegative('--decay-rate'), default=None,
+                   help='guaranteed decay rate of the current error [1/s], rho = exp(-rate*T_s) '
+                        '(default: --rate-fraction of the largest feasible rate)')
+    p.add_argument('--rate-fraction', type=_fraction('--rate-fraction'), default=0.9,
+                   help='share of the largest feasible rate asked for by default (default 0.9)')
+    p.add_argument('--observer-decay-rate', type=_nonnegative('--observer-decay-rate'),
+                   default=1.0, help='guaranteed decay rate of the 4-state observer error [1/s]; '
+                                     'the flux error decays with T_r, so at most about 3 (default 1)')
     p.add_argument('--sigma-min', type=_positive('--sigma-min'), default=None,
                    help='smallest leakage factor sigma of the parameter set (default 0.05)')
     p.add_argument('--out', default='config/robust_gains.yaml',
@@ -78,58 +104,95 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def format_yaml(K, L, period: float, summary: dict) -> str:
-    k = [float(x) for x in K.reshape(-1)]
-    l_ = [float(x) for x in L.reshape(-1)]
+def node_overrides(gains) -> dict:
+    """{'controller': {...}, 'observer': {...}} node parameters of a certified DriveGains."""
+    if not gains.certified:
+        raise ValueError(f'no certified gains at T_s = {gains.T_s!r} s')
+    return {'controller': {'current_gain': [float(x) for x in gains.K.reshape(-1)],
+                           'gain_period': float(gains.T_s),
+                           'flux_coupling': gains.flux_coupling},
+            'observer': {'injection_gain': [float(x) for x in gains.L.reshape(-1)],
+                         'gain_period': float(gains.T_s)}}
+
+
+@functools.lru_cache(maxsize=8)
+def _design_cached(T_s: float):
+    from im_robust.drive import design_drive_gains
+    return design_drive_gains(T_s)
+
+
+def design_for_scenario(T_s: float) -> dict:
+    """Certified node parameter overrides at the node period T_s (default design settings).
+
+    Returns ``{'controller': {'current_gain': [4], 'gain_period': T_s, 'flux_coupling': ...},
+    'observer': {'injection_gain': [8], 'gain_period': T_s}}``; raises ValueError when no
+    certified design exists. Cached per T_s.
+    """
+    return node_overrides(_design_cached(float(T_s)))
+
+
+def format_yaml(params: dict, summary: dict) -> str:
+    ctl, obs = params['controller'], params['observer']
     fmt = ', '.join
+    cur, ocur, o = summary['current'], summary['observer_current'], summary['observer']
     return (HEADER +
-            f'# current loop: certified, worst Lyapunov contraction over the dense grid '
-            f'{summary["current"]["lyapunov_rho_dense"]}\n'
-            f'# observer:     certified, worst Lyapunov contraction over the dense grid '
-            f'{summary["observer"]["lyapunov_rho_dense"]}\n'
+            f'# current error subsystem: certified decay {cur["certified_rate_dense"]:.1f} 1/s '
+            f'(Lyapunov rho {cur["lyapunov_rho_dense"]:.6f} over {cur["certificate_models"]} '
+            f'models, sigma >= {summary["sigma_min"]})\n'
+            f'# observer current error: certified decay {ocur["certified_rate_dense"]:.1f} 1/s; '
+            f'4-state error: certified ({o["scope"]}), rho {o["worst_rho_dense"]:.8f}, '
+            f'|omega_r| <= {summary["omega_max"]} rad/s\n'
             f'# full certificate: {summary["certificate_file"]}\n'
             'controller:\n  ros__parameters:\n'
-            f'    current_gain: [{fmt(repr(x) for x in k)}]   # row-major 2x2 [V/A], dV = -K (i - i*)\n'
-            f'    gain_period: {period!r}\n'
+            f'    current_gain: [{fmt(repr(x) for x in ctl["current_gain"])}]   '
+            f'# row-major 2x2 [V/A], dV = -K (i - i*)\n'
+            f'    gain_period: {ctl["gain_period"]!r}\n'
+            f'    flux_coupling: {ctl["flux_coupling"]}\n'
             'observer:\n  ros__parameters:\n'
-            f'    injection_gain: [{fmt(repr(x) for x in l_)}]   # row-major 4x2, '
+            f'    injection_gain: [{fmt(repr(x) for x in obs["injection_gain"])}]   # row-major 4x2, '
             f'x_{{k+1}} = A_d x_k + B_d V_k + L (i_k - i_hat_k)\n'
-            f'    gain_period: {period!r}\n')
+            f'    gain_period: {obs["gain_period"]!r}\n')
 
 
 def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(_strip_ros_args(sys.argv[1:] if argv is None else argv))
-    from im_robust import motor as robust_motor
+    from im_robust import drive
+    from im_robust.motor import DEFAULT_SIGMA_MIN
 
-    kw = {} if args.sigma_min is None else {'sigma_min': args.sigma_min}
+    sigma_min = DEFAULT_SIGMA_MIN if args.sigma_min is None else args.sigma_min
     try:
-        cur = robust_motor.design_current_gain(args.period, omega_max=args.omega_max,
-                                               decay_rate=args.decay_rate, progress=True, **kw)
-        obs = robust_motor.design_observer_gain(args.period, omega_max=args.omega_max,
-                                                decay_rate=args.observer_decay_rate,
-                                                progress=True, **kw)
+        gains = drive.design_drive_gains(args.period, omega_max=args.omega_max,
+                                         decay_rate=args.decay_rate,
+                                         observer_decay_rate=args.observer_decay_rate,
+                                         rate_fraction=args.rate_fraction, sigma_min=sigma_min,
+                                         progress=True)
     except ValueError as exc:
         print(f'design_gains: {exc}', file=sys.stderr)
         return 2
     out = Path(args.out)
     cert_path = out.with_suffix('.json')
-    summary = {'period': args.period, 'omega_max': args.omega_max,
-               'sigma_min': kw.get('sigma_min', robust_motor.DEFAULT_SIGMA_MIN),
-               'current': cur.summary(), 'observer': obs.summary(),
-               'certificate_file': cert_path.name}
+    summary = gains.summary()
+    summary.update(period=args.period, certificate_file=cert_path.name)
     out.parent.mkdir(parents=True, exist_ok=True)
-    cert_path.write_text(json.dumps(summary, indent=2) + '\n')
-    for d in (cur, obs):
-        s = d.summary()
-        print(f'{d.loop}: {s["status"]}; gain = {s["gain"]}; '
-              f'Lyapunov rho (vertices) = {s["lyapunov_rho_vertices"]}, '
-              f'(dense grid, {s["certificate_models"]} models) = {s["lyapunov_rho_dense"]}; '
-              f'spectral radius (dense) = {s["dense_spectral_radius"]}; {s["message"]}')
-    if not (cur.certified and obs.certified):
+    cert_path.write_text(json.dumps(summary, indent=2, default=float) + '\n')
+    for key in ('current', 'observer_current'):
+        s = summary[key]
+        print(f'{key}: {s["status"]}; gain = {s["gain"]}; best feasible rate '
+              f'{s["best_feasible_rate"]} 1/s, requested {s["decay_rate_requested"]} 1/s; '
+              f'Lyapunov rho (vertices) = {s["lyapunov_rho_vertices"]}, (dense grid, '
+              f'{s["certificate_models"]} models) = {s["lyapunov_rho_dense"]}; {s["message"]}')
+    o = summary['observer']
+    if o is not None:
+        print(f'observer 4-state error: certified = {o["certified"]} ({o["scope"]}), '
+              f'rho = {o["worst_rho_dense"]}, spectral radius = {o["worst_spectral_radius"]} '
+              f'{o["reason"]}')
+    print(f'flux_coupling: {gains.flux_coupling} (held residual uses '
+          f'{100 * gains.coupling["share"]:.1f} % of the flux-error damping 1/T_r)')
+    if not gains.certified:
         print(f'design_gains: no certified gain for these settings; nothing written to {out} '
               f'(certificate summary in {cert_path})', file=sys.stderr)
         return 1
-    out.write_text(format_yaml(cur.gain, obs.gain, args.period, summary))
+    out.write_text(format_yaml(node_overrides(gains), summary))
     print(f'wrote {out} and {cert_path}')
     return 0
 

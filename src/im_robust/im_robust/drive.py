@@ -1,0 +1,434 @@
+"""Drive gains at the node period, posed the way the controller and observer use them.
+
+The 4-state designs of :mod:`im_robust.motor` ask one static gain to make the whole (i, φ_r) ZOH
+model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms that is
+infeasible (no common Lyapunov function, flux modes fixed by T_r). The controller does not need
+it: it feeds forward the back-EMF and flux terms (seed 000 eq. 3.29), so the current gain only
+has to stabilize the *stator-current error* subsystem. This module designs and certifies that
+(see docs/robust.md, "Drive gains at the node period"):
+
+Current loop. With V = V* + ΔV, ΔV_k = −K e_k, e = i − i*, the current error obeys
+
+    σL_s de/dt = −R_eq e + ΔV + w,     R_eq = R_s + R_r (L_sr/L_r)²,
+
+where w collects the model mismatch and the flux-error coupling (bounded; not part of the
+certificate). In αβ the stator-current block of eq. 1.112 has no speed term, so the subsystem is
+isotropic and independent of ω_r: its ZOH model at T_s is
+
+    e_{k+1} = a e_k + b (ΔV_k + w̄_k),   a = exp(−R_eq T_s/σL_s),   b = (1 − a)/R_eq,
+
+a 2×2 model (a I, b I) that depends on the parameters only through (R_eq, σL_s). K is designed by
+seed 001's synthesis (state feedback, discrete, |λ| < ρ) over these models at a grid of the
+parameter box ∩ {σ ≥ σ_min} and certified by :func:`im_robust.certificate.certify` on a dense grid.
+
+Observer. The observer's discrete path (``injection_gain`` L) predicts with the plant copy and adds
+L (i_k − î_k). With L = [ℓ I; 0] its current-error part is e⁺ = (a − ℓ) e (+ flux coupling): the
+same scalar problem with b replaced by 1 (models (a I, I)). The full 4-state error
+(A_d(p, ω) − L C) is then certified with the library's certificate: box-wide (one P for every
+parameter point and speed) when that passes, otherwise per frozen parameter point with one P
+common to every speed in [−ω_max, ω_max] (arbitrary speed variation, constant parameters).
+
+Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_robust.motor.Scaling`).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from im_common.params import MotorParams, THESIS_MOTOR
+
+from .certificate import Certificate, certify
+from .motor import (C_CURRENT, DEFAULT_BOX, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling, parameter_grid,
+                    sampled_models)
+from .polytope import UncertainSystem
+from .synthesis import SynthesisResult, synthesize
+
+#: parameter grid of the (R_eq, σL_s) vertex models and of the dense certificate grid
+SUBSYSTEM_VERTEX_POINTS = {'R_r': 2, 'L_s': 3, 'L_r': 3, 'L_sr': 5, 'omega_r': 1}
+SUBSYSTEM_CERTIFY_POINTS = {'R_r': 7, 'L_s': 9, 'L_r': 9, 'L_sr': 13, 'omega_r': 1}
+#: observer 4-state certificate: parameter points, speed vertices, dense speed grid
+OBSERVER_PARAM_POINTS = {'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 1}
+OBSERVER_OMEGA_VERTICES = 17
+OBSERVER_OMEGA_DENSE = 41
+DEFAULT_RATE_FRACTION = 0.9
+DEFAULT_OBSERVER_RATE = 1.0     # 1/s, 4-state observer error (flux modes decay with T_r)
+FLUX_COUPLING_BUDGET = 0.1      # share of 1/T_r the held flux-coupling residual may use
+
+
+def _log(progress: bool, msg: str) -> None:
+    if progress:
+        print(f'[im_robust.drive] {msg}', file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# The current-error subsystem
+# ---------------------------------------------------------------------------------------------
+def subsystem_points(points=None, *, sigma_min: float = DEFAULT_SIGMA_MIN, box=None,
+                     motor: MotorParams = THESIS_MOTOR) -> np.ndarray:
+    """Rows (R_eq [Ω], σL_s [H]) at a grid of the parameter box ∩ {σ ≥ σ_min} (ω irrelevant)."""
+    g = parameter_grid(points or SUBSYSTEM_VERTEX_POINTS, 0.0, box=box, sigma_min=sigma_min)
+    R_r, L_s, L_r, L_sr = g[:, 0], g[:, 1], g[:, 2], g[:, 3]
+    R_eq = motor.R_s + R_r * (L_sr / L_r) ** 2
+    sLs = L_s - L_sr ** 2 / L_r
+    return np.unique(np.round(np.stack([R_eq, sLs], axis=1), 12), axis=0)
+
+
+def subsystem_ab(pts: np.ndarray, T_s: float):
+    """ZOH scalars a = exp(−R_eq T_s/σL_s), b = (1 − a)/R_eq [A/(V·step)] at rows (R_eq, σL_s)."""
+    R_eq, sLs = pts[:, 0], pts[:, 1]
+    a = np.exp(-R_eq * T_s / sLs)
+    return a, -np.expm1(-R_eq * T_s / sLs) / R_eq
+
+
+def current_error_system(pts: np.ndarray, T_s: float, *, injection: str = 'voltage',
+                         motor: MotorParams = THESIS_MOTOR, name: str = '') -> UncertainSystem:
+    """Per-unit 2×2 models of the current error: (a I, b̃ I) for a voltage gain, (a I, I) for the
+    observer's direct current-error injection. State feedback (C = I)."""
+    sc = Scaling.for_motor(motor)
+    a, b = subsystem_ab(pts, T_s)
+    if injection == 'voltage':
+        b = b * sc.v_base / sc.i_base
+    elif injection == 'direct':
+        b = np.ones_like(a)
+    else:
+        raise ValueError(f"injection must be 'voltage' or 'direct', got {injection!r}")
+    I = np.eye(2)
+    return UncertainSystem([(ak * I, bk * I) for ak, bk in zip(a, b)], None, discrete=True,
+                           name=name or f'current error ({injection}) T_s={T_s:g}')
+
+
+def _gain_to_si(G: np.ndarray, injection: str, motor: MotorParams) -> np.ndarray:
+    sc = Scaling.for_motor(motor)
+    return G * (sc.v_base / sc.i_base) if injection == 'voltage' else G.copy()
+
+
+@dataclass
+class LoopDesign:
+    """A certified 2×2 gain of the current-error subsystem (SI), or None with the reason."""
+
+    loop: str                      # 'current' (V/A) or 'observer-current' (dimensionless)
+    T_s: float
+    injection: str
+    decay_rate: float              # requested α [1/s]: certified |λ| and Lyapunov ρ < exp(−α T_s)
+    best_rate: Optional[float]     # largest α for which the synthesis is feasible [1/s]
+    gain: Optional[np.ndarray]
+    result: Optional[SynthesisResult]
+    vertex_models: int
+    certificate_models: int
+    sigma_min: float
+    range_R_eq: tuple = ()
+    range_sigma_L_s: tuple = ()
+    dense_spectral_radius: Optional[float] = None
+    notes: List[str] = field(default_factory=list)
+
+    @property
+    def certified(self) -> bool:
+        return self.gain is not None
+
+    @property
+    def certificate(self) -> Optional[Certificate]:
+        return None if self.result is None else self.result.certificate
+
+    @property
+    def rho(self) -> float:
+        return math.exp(-self.decay_rate * self.T_s)
+
+    def summary(self) -> dict:
+        c = self.certificate
+        rho_dense = None if c is None or c.grid_margin is None else float(self.rho - c.grid_margin)
+        return {
+            'loop': self.loop, 'T_s': self.T_s, 'injection': self.injection,
+            'status': 'no design' if self.result is None else self.result.status,
+            'certified': self.certified,
+            'gain': None if self.gain is None else self.gain.tolist(),
+            'decay_rate_requested': self.decay_rate, 'rho_requested': self.rho,
+            'best_feasible_rate': self.best_rate,
+            'lyapunov_rho_vertices': None if c is None else float(c.rate),
+            'lyapunov_rho_dense': rho_dense,
+            'certified_rate_dense': None if rho_dense is None or rho_dense <= 0
+            else -math.log(rho_dense) / self.T_s,
+            'dense_spectral_radius': self.dense_spectral_radius,
+            'vertex_models': self.vertex_models, 'certificate_models': self.certificate_models,
+            'sigma_min': self.sigma_min, 'R_eq_range': list(self.range_R_eq),
+            'sigma_L_s_range': list(self.range_sigma_L_s),
+            'message': '' if self.result is None else self.result.message, 'notes': self.notes,
+        }
+
+
+def _feasible(system: UncertainSystem, rho: float) -> bool:
+    res = synthesize(system, solver='clarabel', rho=rho, margin=1e-6, normalization='thesis')
+    return res.status == 'certified'
+
+
+def best_feasible_rate(system: UncertainSystem, T_s: float, *, iterations: int = 11) -> float:
+    """Largest α [1/s] (bisection on ρ = exp(−α T_s)) for which (3.33) yields a certified gain on
+    the vertex models; 0 if even ρ = 1 fails."""
+    if not _feasible(system, 1.0):
+        return 0.0
+    lo, hi = 0.0, 1.0     # ρ: infeasible ≤ lo, feasible ≥ hi
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        if _feasible(system, mid):
+            hi = mid
+        else:
+            lo = mid
+    return -math.log(hi) / T_s
+
+
+def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate: Optional[float] = None,
+                          rate_fraction: float = DEFAULT_RATE_FRACTION,
+                          sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                          vertex_points=None, certify_points=None, design_reserve: float = 0.02,
+                          progress: bool = False) -> LoopDesign:
+    """Certified 2×2 gain of the current-error subsystem at T_s.
+
+    ``decay_rate`` None: ``rate_fraction`` × the largest feasible rate (bisection). The synthesis is
+    asked for (1 + ``design_reserve``)·α at the vertex models and the certificate checks α at the
+    vertices and on the dense grid (the sampled (a, b) curve bulges out of the hull of its samples).
+    """
+    if not (math.isfinite(T_s) and T_s > 0):
+        raise ValueError(f'T_s = {T_s!r} must be a positive period in seconds')
+    loop = 'current' if injection == 'voltage' else 'observer-current'
+    vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
+    cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
+                          motor=motor)
+    sysm = current_error_system(vp, T_s, injection=injection, motor=motor)
+    dense = current_error_system(cp, T_s, injection=injection, motor=motor).models
+    best = None
+    if decay_rate is None:
+        t0 = time.perf_counter()
+        best = best_feasible_rate(sysm, T_s)
+        decay_rate = rate_fraction * best
+        _log(progress, f'{loop} T_s = {T_s:g} s: best feasible rate {best:.1f} 1/s '
+                       f'({time.perf_counter() - t0:.1f} s); designing for {decay_rate:.1f} 1/s')
+    if not decay_rate >= 0:
+        raise ValueError(f'decay_rate = {decay_rate!r} must be >= 0')
+    rho = math.exp(-decay_rate * T_s)
+    rho_design = math.exp(-(1.0 + design_reserve) * decay_rate * T_s)
+    res = synthesize(sysm, solver='clarabel', rho=rho_design, margin=1e-6, normalization='thesis',
+                     grid_models=dense, certify_rho=rho)
+    _log(progress, f'{loop}: {res.status} ({res.solver_status}) {res.message}')
+    d = LoopDesign(loop, T_s, injection, float(decay_rate), best, None, res, len(vp), len(cp),
+                   sigma_min, (float(cp[:, 0].min()), float(cp[:, 0].max())),
+                   (float(cp[:, 1].min()), float(cp[:, 1].max())))
+    if res.status == 'certified':
+        d.gain = _gain_to_si(res.G, injection, motor)
+        d.dense_spectral_radius = float(max(np.abs(np.linalg.eigvals(A - B @ res.G)).max()
+                                            for A, B in dense))
+    return d
+
+
+def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
+                         sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                         vertex_points=None, certify_points=None) -> Certificate:
+    """The library's certificate for a given current gain K [V/A] on the subsystem at T_s."""
+    sc = Scaling.for_motor(motor)
+    vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
+    cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
+                          motor=motor)
+    sysm = current_error_system(vp, T_s, motor=motor)
+    dense = current_error_system(cp, T_s, motor=motor).models
+    G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
+    return certify(sysm, G, rho=math.exp(-decay_rate * T_s), grid_models=dense)
+
+
+# ---------------------------------------------------------------------------------------------
+# The observer's 4-state error with a discrete injection
+# ---------------------------------------------------------------------------------------------
+def _observer_system(A_d: np.ndarray, sc: Scaling, name: str) -> UncertainSystem:
+    """Models (Ã, I₄), C̃ = S_y⁻¹ C S, so Ã − I G̃ C̃ = S⁻¹ (A_d − L C) S with G̃ = S⁻¹ L S_y."""
+    S, Si = sc.S, np.linalg.inv(sc.S)
+    Ct = np.linalg.inv(sc.S_y) @ C_CURRENT @ S
+    return UncertainSystem([(Si @ A @ S, np.eye(4)) for A in A_d], Ct, discrete=True, name=name)
+
+
+@dataclass
+class ObserverCertificate:
+    """Certificate of x̂⁺ = A_d x̂ + B_d V + L (i − î): scope 'box' (one P for every parameter
+    point and speed) or 'frozen-parameter' (one P per parameter point, common to every speed)."""
+
+    certified: bool
+    scope: str
+    T_s: float
+    omega_max: float
+    decay_rate: float
+    worst_rho_vertices: Optional[float]
+    worst_rho_dense: Optional[float]
+    worst_spectral_radius: Optional[float]
+    parameter_points: int
+    models: int
+    box_reason: str = ''
+    reason: str = ''
+    wall_s: float = 0.0
+
+    def summary(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _certify_strict(system: UncertainSystem, G, rho: float, decay_rate: float, T_s: float,
+                    dense) -> Certificate:
+    """certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin
+    is not left at the LMI's numerical floor; certify() falls back to its own P if that fails."""
+    from .certificate import analysis_lmi
+    strict = math.exp(-1.5 * decay_rate * T_s) if decay_rate > 0 else rho
+    P = analysis_lmi(system.closed_loops(G), True, rho=strict)
+    return certify(system, G, rho=rho, P=P, grid_models=dense)
+
+
+def certify_observer_gain(L, T_s: float, *, omega_max: float = 200.0,
+                          decay_rate: float = DEFAULT_OBSERVER_RATE,
+                          sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                          param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
+                          omega_dense: int = OBSERVER_OMEGA_DENSE,
+                          progress: bool = False) -> ObserverCertificate:
+    """Certify the 4-state observer error e⁺ = (A_d(p, ω) − L C) e with the library's certificate.
+
+    First box-wide (vertex models: parameter grid × ``omega_vertices`` speeds, dense check:
+    ``omega_dense`` speeds at the same parameter points); if no common P exists, per frozen
+    parameter point (one P for all speeds, checked on the dense speed grid).
+    """
+    t0 = time.perf_counter()
+    sc = Scaling.for_motor(motor)
+    L = np.asarray(L, dtype=float).reshape(4, 2)
+    G = np.linalg.inv(sc.S) @ L @ sc.S_y
+    rho = math.exp(-decay_rate * T_s)
+    pts = parameter_grid(param_points or OBSERVER_PARAM_POINTS, 0.0, sigma_min=sigma_min)
+    nom = np.array([[motor.R_r, motor.L_s, motor.L_r, motor.L_sr, 0.0]])
+    pts = np.vstack([pts, nom])
+    w_v = np.linspace(-omega_max, omega_max, omega_vertices) if omega_max > 0 else np.zeros(1)
+    w_d = np.linspace(-omega_max, omega_max, omega_dense) if omega_max > 0 else np.zeros(1)
+
+    def models(ws):
+        g = np.array([(*p[:4], w) for p in pts for w in ws])
+        A, _ = sampled_models(g, T_s, motor)
+        return A.reshape(len(pts), len(ws), 4, 4)
+
+    A_v, A_d = models(w_v), models(w_d)
+    spec = float(np.abs(np.linalg.eigvals(A_d - L @ C_CURRENT)).max())
+    n_models = A_v.shape[0] * A_v.shape[1] + A_d.shape[0] * A_d.shape[1]
+    box = _observer_system(A_v.reshape(-1, 4, 4), sc, 'observer error (box)')
+    dense = _observer_system(A_d.reshape(-1, 4, 4), sc, 'dense').models
+    cert = _certify_strict(box, G, rho, decay_rate, T_s, dense)
+    if cert.certified:
+        _log(progress, f'observer T_s = {T_s:g}: certified box-wide, rho_c = {cert.rate:.6f}')
+        return ObserverCertificate(True, 'box', T_s, omega_max, decay_rate, float(cert.rate),
+                                   float(rho - cert.grid_margin), spec, len(pts), n_models,
+                                   wall_s=time.perf_counter() - t0)
+    box_reason = cert.reason
+    _log(progress, f'observer T_s = {T_s:g}: no box-wide P ({box_reason}); '
+                   f'certifying {len(pts)} frozen parameter points over the speed range')
+    worst_v = worst_d = 0.0
+    for k in range(len(pts)):
+        s = _observer_system(A_v[k], sc, f'observer error at p{k}')
+        c = _certify_strict(s, G, rho, decay_rate, T_s,
+                            _observer_system(A_d[k], sc, 'dense').models)
+        if not c.certified:
+            return ObserverCertificate(False, 'frozen-parameter', T_s, omega_max, decay_rate, None,
+                                       None, spec, len(pts), n_models, box_reason,
+                                       f'parameter point {pts[k, :4].tolist()}: {c.reason}',
+                                       time.perf_counter() - t0)
+        worst_v = max(worst_v, float(c.rate))
+        worst_d = max(worst_d, float(rho - c.grid_margin))
+    _log(progress, f'observer: certified per frozen parameter point, worst rho_c = {worst_d:.8f}')
+    return ObserverCertificate(True, 'frozen-parameter', T_s, omega_max, decay_rate, worst_v,
+                               worst_d, spec, len(pts), n_models, box_reason,
+                               wall_s=time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------------------------------
+# The flux-coupling term of the current feedback at the node period
+# ---------------------------------------------------------------------------------------------
+def held_coupling_residual(T_s: float, k: float, *, omega_max: float = 200.0,
+                           motor: MotorParams = THESIS_MOTOR) -> Dict[str, float]:
+    """Damping of the flux-error mode lost to the *held* cancellation term v ω θ 𝒥 (φ̂ − φ*)_k.
+
+    The plant's coupling −v ω θ 𝒥 f(t) rotates with the field (ρ̇ = v ω + ω_sl); the controller
+    holds its sample over the period, so the residual averages to v ω θ ρ̇ (T_s/2) f — in phase
+    with f, not skew. Through the current loop (e ≈ w/(R_eq + k)) and the rotor equation
+    (ḟ = R_r θ e − f/T_r) it removes R_r θ · v ω θ ρ̇ T_s/2 /(R_eq + k) from the flux-error damping
+    1/T_r. Slip: the minimum-energy value R_r/(L_r √σ) (eq. 3.19) of the nominal motor.
+    """
+    m = motor
+    theta = m.L_sr / m.L_r
+    R_eq = m.R_s + m.R_r * theta ** 2
+    w_e = m.pole_pairs * abs(omega_max)
+    rho_dot = w_e + m.R_r / (m.L_r * math.sqrt(m.sigma))
+    c = w_e * theta * rho_dot * T_s / 2.0
+    lost = m.R_r * theta * c / (R_eq + k)
+    return {'residual_gain_V_per_Wb': c, 'damping_lost_per_s': lost,
+            'flux_damping_per_s': m.R_r / m.L_r, 'share': lost * m.L_r / m.R_r}
+
+
+def choose_flux_coupling(T_s: float, k: float, *, omega_max: float = 200.0,
+                         motor: MotorParams = THESIS_MOTOR) -> str:
+    """'cancel' while the held residual costs ≤ ``FLUX_COUPLING_BUDGET`` of 1/T_r, else 'none'."""
+    r = held_coupling_residual(T_s, k, omega_max=omega_max, motor=motor)
+    return 'cancel' if r['share'] <= FLUX_COUPLING_BUDGET else 'none'
+
+
+# ---------------------------------------------------------------------------------------------
+# Both gains
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class DriveGains:
+    T_s: float
+    omega_max: float
+    sigma_min: float
+    current: LoopDesign
+    observer_current: LoopDesign
+    observer: Optional[ObserverCertificate]
+    flux_coupling: str
+    coupling: Dict[str, float]
+
+    @property
+    def K(self) -> Optional[np.ndarray]:
+        return self.current.gain
+
+    @property
+    def L(self) -> Optional[np.ndarray]:
+        g = self.observer_current.gain
+        return None if g is None else np.vstack([g, np.zeros((2, 2))])
+
+    @property
+    def certified(self) -> bool:
+        return (self.current.certified and self.observer_current.certified
+                and self.observer is not None and self.observer.certified)
+
+    def summary(self) -> dict:
+        return {'T_s': self.T_s, 'omega_max': self.omega_max, 'sigma_min': self.sigma_min,
+                'certified': self.certified, 'current': self.current.summary(),
+                'observer_current': self.observer_current.summary(),
+                'observer': None if self.observer is None else self.observer.summary(),
+                'observer_injection_gain': None if self.L is None else self.L.tolist(),
+                'flux_coupling': self.flux_coupling, 'held_coupling': self.coupling}
+
+
+def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Optional[float] = None,
+                       observer_rate: Optional[float] = None,
+                       observer_decay_rate: float = DEFAULT_OBSERVER_RATE,
+                       rate_fraction: float = DEFAULT_RATE_FRACTION,
+                       sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                       vertex_points=None, certify_points=None, observer_param_points=None,
+                       progress: bool = False) -> DriveGains:
+    """Current gain K, observer injection L = [ℓ I; 0] and the flux-coupling choice at T_s."""
+    if not omega_max >= 0:
+        raise ValueError(f'omega_max = {omega_max!r} must be >= 0 rad/s')
+    kw = dict(sigma_min=sigma_min, motor=motor, vertex_points=vertex_points,
+              certify_points=certify_points, rate_fraction=rate_fraction, progress=progress)
+    cur = design_subsystem_gain(T_s, injection='voltage', decay_rate=decay_rate, **kw)
+    obs_cur = design_subsystem_gain(T_s, injection='direct', decay_rate=observer_rate, **kw)
+    obs = None
+    if obs_cur.certified:
+        L = np.vstack([obs_cur.gain, np.zeros((2, 2))])
+        obs = certify_observer_gain(L, T_s, omega_max=omega_max, decay_rate=observer_decay_rate,
+                                    sigma_min=sigma_min, motor=motor,
+                                    param_points=observer_param_points, progress=progress)
+    k = float(np.linalg.eigvalsh(0.5 * (cur.gain + cur.gain.T)).min()) if cur.certified else THESIS_K1
+    return DriveGains(T_s, omega_max, sigma_min, cur, obs_cur, obs,
+                      choose_flux_coupling(T_s, k, omega_max=omega_max, motor=motor),
+                      held_coupling_residual(T_s, k, omega_max=omega_max, motor=motor))
