@@ -33,7 +33,9 @@ truncated or missing file raises :class:`BagError` naming the file and what is w
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
+import signal
 import struct
 import weakref
 import zlib
@@ -60,6 +62,20 @@ _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _QQ = struct.Struct('<QQ')
 
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """Hold SIGINT and SIGTERM back (delivered on exit) where the platform allows it."""
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    except (AttributeError, OSError, ValueError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 class BagError(Exception):
@@ -371,29 +387,38 @@ class BagWriter:
             data = self._compress(records) if self._compress else records
             body = (struct.pack('<QQQI', t0, t1, len(records), crc) + _s(self._compression)
                     + _U64.pack(len(data)))
+            # The chunk and its message indexes go to the file in one write, with SIGINT/SIGTERM
+            # held back until the write and its bookkeeping are done: a KeyboardInterrupt or a
+            # handler's SystemExit can then never leave half a chunk in the file.
             chunk_start = self._pos
-            self._write(_REC.pack(OP_CHUNK, len(body) + len(data)))
-            self._write(body)
-            self._write(data)
-            chunk_len = self._pos - chunk_start
+            head = _REC.pack(OP_CHUNK, len(body) + len(data)) + body
+            chunk_len = len(head) + len(data)
             offsets = {}
-            ix_start = self._pos
+            ix_recs = []
+            pos = chunk_start + chunk_len
             for cid in sorted(per_chan):
                 entries = per_chan[cid]
                 entries.sort()
                 arr = b''.join(_QQ.pack(t, o) for t, o in entries)
-                offsets[cid] = self._pos
-                self._write(_record(OP_MESSAGE_INDEX, _U16.pack(cid) + _b(arr)))
-                self._counts[cid] = self._counts.get(cid, 0) + len(entries)
-            ix_len = self._pos - ix_start
-            self._f.flush()
+                offsets[cid] = pos
+                rec = _record(OP_MESSAGE_INDEX, _U16.pack(cid) + _b(arr))
+                ix_recs.append(rec)
+                pos += len(rec)
+            ix_len = pos - chunk_start - chunk_len
             omap = b''.join(_U16.pack(c) + _U64.pack(o) for c, o in sorted(offsets.items()))
-            self._chunk_indexes.append(_record(
+            chunk_index = _record(
                 OP_CHUNK_INDEX,
                 struct.pack('<QQQQ', t0, t1, chunk_start, chunk_len) + _b(omap)
-                + _U64.pack(ix_len) + _s(self._compression) + _QQ.pack(len(data), len(records))))
-            self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
-            self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
+                + _U64.pack(ix_len) + _s(self._compression) + _QQ.pack(len(data), len(records)))
+            blob = b''.join([head, data] + ix_recs)
+            with _signals_held():
+                self._write(blob)
+                for cid in per_chan:
+                    self._counts[cid] = self._counts.get(cid, 0) + len(per_chan[cid])
+                self._chunk_indexes.append(chunk_index)
+                self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
+                self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
+            self._f.flush()
         finally:
             self._flushing = False
         if self._close_pending:
