@@ -23,7 +23,8 @@ setup(
     entry_points={
         'console_scripts': [
             'controller = im_controller.controller_node:main',
-            'design_gains = im_controller.design_gains:main'
+            'design_gains = im_controller.design_gains:main',
+            'robust_study = im_controller.robust_study:main',
         ],
     },
 )

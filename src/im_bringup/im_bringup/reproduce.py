@@ -70,12 +70,19 @@ def _f(value, fmt: str, scale: float = 1.0) -> str:
     return format(value * scale, fmt)
 
 
+def _status(r: dict) -> str:
+    if r.get('ok', True):
+        return 'ok'
+    why = '; '.join(str(v) for v in (r.get('failures') or {}).values())
+    return f'stopped: {why}'.replace('|', '/')
+
+
 def markdown(results: List[dict]) -> str:
     rows = ['| task | strategy | controller | variation | rate [Hz] | E_in [J] | thesis E_in | '
             'losses [J] | thesis losses | copper | core | load work | friction | ΔE_kin | ΔW_mag | '
             'balance residual | pos err max [mrad] | speed err max [rad/s] | torque err max [N·m] | '
-            'steps/s |',
-            '|' + ' --- |' * 20]
+            'steps/s | run |',
+            '|' + ' --- |' * 21]
     for r in results:
         th = THESIS.get((r['task'], r['strategy'])) if r.get('variation', 'none') == 'none' else None
         the, thl = (f'{th[0]:.2f}', f'{th[1]:.2f}') if th and r['controller'] == 'nominal' else ('', '')
@@ -86,7 +93,7 @@ def markdown(results: List[dict]) -> str:
             f"{r['E_friction_J']:.2f} | {r['dE_kinetic_J']:.2f} | {r['dW_magnetic_J']:.2f} | "
             f"{r['balance_residual_J']:.2e} | {_f(r.get('pos_err_max_rad'), '.2f', 1e3)} | "
             f"{_f(r.get('speed_err_max_rad_s'), '.3f')} | {_f(r.get('torque_err_max_Nm'), '.3f')} | "
-            f"{r['steps'] / r['wall_s']:.0f} |")
+            f"{r['steps'] / r['wall_s']:.0f} | {_status(r)} |")
     return '\n'.join(rows) + '\n'
 
 
