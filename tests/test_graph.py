@@ -74,3 +74,12 @@ def test_each_strategy_tracks_through_the_graph(drive_graph, strategy):
     assert s['pos_err_max_rad'] < 0.01
     assert abs(s['balance_residual_J']) < 1e-6 * s['E_in_J']
     assert math.isfinite(s['E_loss_J']) and s['E_loss_J'] > 0
+
+
+def test_a_diverging_run_stops_cleanly_and_says_where():
+    """The thesis's current gain (40 V/A) is unstable at T_s = 1 ms: the graph must stop with
+    the plant's report (time of the non-finite state), not hang or raise out of the executor."""
+    res = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=0.1)
+    assert not res.summary['ok']
+    assert 'non-finite' in res.summary['failures']['plant']
+    assert res.summary['steps'] < 100

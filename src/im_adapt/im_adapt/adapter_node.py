@@ -51,7 +51,12 @@ class AdapterNode(LockstepNode):
                 i_a, i_b = inputs[T.MEAS_CURRENT]
                 v_a, v_b = inputs[T.CMD_VOLTAGE]
                 f_a, f_b = inputs[T.OBS_FLUX]
-                self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1], f_a, f_b)
+                try:
+                    self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1],
+                                    f_a, f_b)
+                except (ValueError, ArithmeticError) as exc:
+                    self.fail(f'adapter failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
+                    return
             self.publish_estimate(k + 1)
             if self.last_step is not None and k + 1 >= self.last_step:
                 self.finish()

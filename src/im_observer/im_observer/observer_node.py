@@ -79,7 +79,11 @@ class ObserverNode(LockstepNode):
             self.obs.set_estimates(**inputs[T.ADAPT_ESTIMATE])
         v_a, v_b = inputs[T.CMD_VOLTAGE]
         i_a, i_b = inputs[T.MEAS_CURRENT]
-        self.obs.step(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1])
+        try:
+            self.obs.step(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1])
+        except (ValueError, ArithmeticError) as exc:
+            self.fail(f'observer failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
+            return
         self.publish_estimate(k + 1)
         if self.last_step is not None and k + 1 >= self.last_step:
             self.finish()
