@@ -317,14 +317,7 @@ class BagWriter:
         if msg.__class__ is not cls:
             raise TypeError(f'{topic}: expected {cls.__module__}.{cls.__name__}, got '
                             f'{type(msg).__module__}.{type(msg).__name__}')
-        data = enc(msg)
-        buf = self._buf
-        off = len(buf)
-        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns, stamp_ns)
-        buf += data
-        self._ix.append((cid, stamp_ns, off))
-        if off >= self._chunk_size:
-            self._flush_chunk()
+        self.write_serialized(topic, enc(msg), stamp_ns)
 
     def write_serialized(self, topic: str, data: bytes, stamp_ns: int) -> None:
         """Record an already serialized (CDR) message."""
