@@ -83,3 +83,23 @@ def test_a_diverging_run_stops_cleanly_and_says_where():
     assert not res.summary['ok']
     assert 'non-finite' in res.summary['failures']['plant']
     assert res.summary['steps'] < 100
+
+
+def test_adapter_enable_switches_at_run_time():
+    import random
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from im_adapt.adapter_node import AdapterNode
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    try:
+        node = AdapterNode(context=ctx)
+        assert node.enable is False
+        assert node.set_parameters([Parameter('enable', value=True)])[0].successful
+        assert node.enable is True
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

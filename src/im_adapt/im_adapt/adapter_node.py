@@ -3,18 +3,21 @@
 A thin shell around the adaptation law. At step k it waits for the measured current and speed,
 the voltage command and the observer's estimate stamped t_k, updates the estimates, and publishes
 p̂_k+1 stamped t_k+1 for the controller (eq. 4.10-4.12) and the observer (eq. 4.13).
-With ``enable`` false it holds its initial estimates (a pass-through that keeps the lock-step).
+With ``enable`` false it holds its estimates (and still keeps the lock-step); ``enable`` can be
+switched while running.
 """
 from __future__ import annotations
 
 import sys
 
+from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 
 from im_common import topics as T
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, StepGate, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
+from im_adapt.adaptation import declare_law
 
 
 class AdapterNode(LockstepNode):
@@ -29,7 +32,8 @@ class AdapterNode(LockstepNode):
         theta0 = p('theta_initial', float(params.theta), 'initial estimate of L_sr/L_r', 1e-3, 1.0)
         self.enable = p('enable', False, 'adapt (true) or hold the initial estimates (false)',
                         read_only=False)
-        self.law = make_law(self, params, R_r0, theta0)
+        self.law = declare_law(self, params, R_r0, theta0)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         q = lockstep_qos()
@@ -63,34 +67,19 @@ class AdapterNode(LockstepNode):
                 return
             inputs = self.gate.advance()
 
+    def _on_set_parameters(self, parameters):
+        """``enable`` may be switched at run time (from the next step on)."""
+        for prm in parameters:
+            if prm.name == 'enable':
+                if not isinstance(prm.value, bool):
+                    return SetParametersResult(successful=False,
+                                               reason="parameter 'enable' must be true or false")
+                self.enable = prm.value
+        return SetParametersResult(successful=True)
+
     def publish_estimate(self, k: int) -> None:
         e = self.law.estimates()
         self.pub.publish(self.out.fill(k * self.period, [e[n] for n in T.ESTIMATE_NAMES]))
-
-
-class HeldEstimates:
-    """Estimates that do not move (used until an adaptation law is configured)."""
-
-    def __init__(self, params, R_r, theta):
-        self.params = params
-        self.R_r = R_r
-        self.theta = theta
-
-    def update(self, *args) -> None:
-        pass
-
-    def estimates(self) -> dict:
-        L_M = self.params.L_sr * self.theta
-        return {'R_r': self.R_r, 'theta': self.theta, 'L_M': L_M,
-                'R_R': self.R_r * self.theta * self.theta}
-
-
-def make_law(node, params, R_r0, theta0):
-    try:
-        from im_adapt.adaptation import declare_law
-    except ImportError:
-        return HeldEstimates(params, R_r0, theta0)
-    return declare_law(node, params, R_r0, theta0)
 
 
 def main(argv=None) -> None:
