@@ -103,3 +103,34 @@ def test_adapter_enable_switches_at_run_time():
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_speed_setpoint_from_the_topic_is_reached_smoothly():
+    """profile 'setpoint': a JointState on /im/setpoint (velocity) becomes a smooth reference
+    that the drive follows; the plant ends at the new speed."""
+    import rclpy.node
+    from sensor_msgs.msg import JointState
+
+    from im_bringup.config import node_parameters
+    from im_bringup.graph import DriveGraph
+    from im_common import topics as T
+    from im_common.conversions import set_stamp
+    from im_common.lockstep import lockstep_qos
+    params = node_parameters('speed', 'min_loss', duration=0.8)
+    params['controller']['profile'] = 'setpoint'
+    graph = DriveGraph(params)
+    try:
+        user = rclpy.node.Node('user', context=graph.context)
+        pub = user.create_publisher(JointState, T.SETPOINT, lockstep_qos())
+        sp = JointState()
+        set_stamp(sp.header.stamp, 100_000_000)          # from t = 0.1 s
+        sp.velocity = [150.0]
+        pub.publish(sp)
+        graph.executor.add_node(user)
+        stats = graph.run()
+        omega = graph.plant.sim.x[5]
+        user.destroy_node()
+    finally:
+        graph.close()
+    assert stats['ok'], stats['failures']
+    assert omega == pytest.approx(150.0, abs=0.05)

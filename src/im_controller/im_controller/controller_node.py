@@ -54,7 +54,8 @@ class ControllerNode(LockstepNode):
         self.gate_input(T.OBS_FLUX, xy_in)
         if self.use_adapter:
             self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
-        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos())
+        # transient-local: a setpoint published before the controller came up is not lost
+        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, lockstep_qos())
         self.start_watchdog(timeout, startup)
 
     def on_setpoint(self, msg: JointState) -> None:
