@@ -103,8 +103,6 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
                              'variation': variation},
                 'versions': package_versions(), 'git': {'revision': git_revision()}}
-        for node, values in parameters.items():
-            meta[f'parameters/{node}'] = {k: repr(v) for k, v in values.items()}
         meta.update(metadata or {})
         writer = BagWriter(record, force=force,
                            metadata={k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()})
@@ -112,6 +110,10 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     graph = None
     try:
         graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
+        if writer is not None:      # every parameter of every node, defaults included
+            for name, node in graph.nodes.items():
+                writer.add_metadata(f'parameters/{name}', {
+                    p: repr(node.get_parameter(p).value) for p in sorted(node._parameters)})
         stats = graph.run(progress=progress)
     finally:
         if graph is not None:
