@@ -134,3 +134,22 @@ def test_speed_setpoint_from_the_topic_is_reached_smoothly():
         graph.close()
     assert stats['ok'], stats['failures']
     assert omega == pytest.approx(150.0, abs=0.05)
+
+
+def test_scenario_recording_carries_run_metadata_and_matches_its_summary(tmp_path):
+    from im_bringup.bag import info, load_run
+    from im_bringup.config import node_parameters
+    from im_bringup.report import figures_of_merit
+    from im_bringup.scenario import run_scenario
+    path = str(tmp_path / 'run.mcap')
+    params = node_parameters('speed', 'constant_flux', duration=0.05)
+    s = run_scenario(params, task='speed', strategy='constant_flux', record=path, progress=False)
+    s.pop('_run')
+    meta = info(path).metadata
+    assert meta['scenario']['strategy'] == 'constant_flux'
+    assert meta['parameters/plant']['R_s'] == '0.687'          # a default, not an override
+    assert meta['parameters/controller']['strategy'] == "'constant_flux'"
+    assert 'revision' in meta['git'] and 'ros-rclpy' in meta['versions']
+    fig = figures_of_merit(load_run(path))      # the report of the bag = the live summary
+    for key in ('E_in_J', 'E_loss_J', 'speed_err_max_rad_s', 'torque_err_max_Nm'):
+        assert fig[key] == pytest.approx(s[key], rel=1e-12), key
