@@ -130,3 +130,15 @@ def test_custom_variation_that_breaks_sigma_is_refused(ctx):
             Parameter('variation_parameter', value='L_sr'), Parameter('variation_kind', value='ramp'),
             Parameter('variation_offset', value=0.08136), Parameter('variation_slope', value=0.01)])
     assert 'L_sr' in str(err.value) and 't = ' in str(err.value)
+
+
+def test_shaft_decoder_fast_path_equals_the_general_decoder():
+    from im_common.cdr import decode_joint_state, pack_joint_state
+    from im_common.conversions import JointStateOut, shaft_in
+    for theta, omega in ((0.0, 0.0), (-1.5707963267948966, 135.25), (1e9, -3e-12)):
+        data = JointStateOut([T.SHAFT_JOINT]).fill(123_456_789_000, (theta,), (omega,))
+        assert shaft_in(data) == (123_456_789_000, (theta, omega))
+    # another layout (frame id, extra joint) takes the general path and still decodes right
+    other = pack_joint_state(1, 2, ('rotor', 'x'), (0.5, 9.0), (7.0, 8.0), (), 'frame')
+    assert shaft_in(other) == (1_000_000_002, (0.5, 7.0))
+    assert decode_joint_state(other)[3] == (0.5, 9.0)
