@@ -8,9 +8,14 @@ in docs/robust.md, "Drive gains at the node period"):
   parameter box with σ ≥ σ_min (the feedforward of eq. 3.29 removes the flux and back-EMF terms),
   with a guaranteed decay rate; plus the flux-coupling mode ('cancel' only while its held sample
   costs little of the flux-error damping, else 'none');
-- observer: the discrete injection L = [ℓ I; 0] of x̂_{k+1} = A_d x̂_k + B_d V_k + L (i_k − î_k),
-  ℓ designed on the same subsystem, the 4-state error certified over the box and
-  ω_r ∈ [−ω_max, ω_max] (box-wide, or per frozen parameter point for every speed).
+- observer: the thesis's structure (k_e = 1/σ̂ and the speed-scheduled skew injection) when its
+  sampled error map — taken from RotorFluxObserver itself — is certified at T_s (per frozen
+  parameter point, with a speed-dependent P(ω), for every speed trajectory in [−ω_max, ω_max]
+  changing by at most 20 rad/s per period: 100 µs); otherwise (1 ms) the discrete injection
+  L = [ℓ I; 0] of x̂_{k+1} = A_d x̂_k + B_d V_k + L (i_k − î_k), ℓ designed on the same
+  subsystem, the 4-state error certified over the box and ω_r ∈ [−ω_max, ω_max].
+- the current gain is the thesis's 40 I wherever the subsystem certificate passes for it
+  (100 µs), else the minimum-norm synthesis (1 ms).
 
 It writes a ROS 2 parameters YAML:
 
@@ -21,8 +26,9 @@ It writes a ROS 2 parameters YAML:
         flux_coupling: none
     observer:
       ros__parameters:
-        injection_gain: [l11, l12, ..., l42]   # row-major 4x2
+        injection_gain: [l11, l12, ..., l42]   # row-major 4x2 (discrete structure), or
         gain_period: 0.001
+        # k_e_injection: 0.0                   # thesis structure (0: k_e = 1/sigma)
 
 A gain that is not certified is never written: if either design fails, the YAML is not written,
 the JSON certificate summary says why, and the exit status is 1.
@@ -97,6 +103,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--observer-decay-rate', type=_nonnegative('--observer-decay-rate'),
                    default=1.0, help='guaranteed decay rate of the 4-state observer error [1/s]; '
                                      'the flux error decays with T_r, so at most about 3 (default 1)')
+    p.add_argument('--current-policy', choices=('thesis-if-certified', 'synthesis'),
+                   default='thesis-if-certified',
+                   help="keep the thesis's 40 V/A where it is certified (default) or always "
+                        'synthesize the minimum-norm gain')
+    p.add_argument('--observer-structure', choices=('auto', 'thesis', 'discrete'), default='auto',
+                   help='thesis structure (k_e, skew injection) where certified, else the '
+                        'discrete injection (default auto)')
     p.add_argument('--sigma-min', type=_positive('--sigma-min'), default=None,
                    help='smallest leakage factor sigma of the parameter set (default 0.05)')
     p.add_argument('--out', default='config/robust_gains.yaml',
@@ -111,8 +124,15 @@ def node_overrides(gains) -> dict:
     return {'controller': {'current_gain': [float(x) for x in gains.K.reshape(-1)],
                            'gain_period': float(gains.T_s),
                            'flux_coupling': gains.flux_coupling},
-            'observer': {'injection_gain': [float(x) for x in gains.L.reshape(-1)],
-                         'gain_period': float(gains.T_s)}}
+            'observer': _observer_overrides(gains)}
+
+
+def _observer_overrides(gains) -> dict:
+    if gains.observer_structure == 'thesis':
+        # k_e_injection 0 is the node's thesis value 1/σ̂ — the k_e the certificate used
+        return {'k_e_injection': 0.0}
+    return {'injection_gain': [float(x) for x in gains.L.reshape(-1)],
+            'gain_period': float(gains.T_s)}
 
 
 @functools.lru_cache(maxsize=8)
@@ -125,8 +145,9 @@ def design_for_scenario(T_s: float) -> dict:
     """Certified node parameter overrides at the node period T_s (default design settings).
 
     Returns ``{'controller': {'current_gain': [4], 'gain_period': T_s, 'flux_coupling': ...},
-    'observer': {'injection_gain': [8], 'gain_period': T_s}}``; raises ValueError when no
-    certified design exists. Cached per T_s.
+    'observer': {...}}`` with observer ``{'k_e_injection': 0.0}`` (thesis structure, 100 µs) or
+    ``{'injection_gain': [8], 'gain_period': T_s}`` (discrete injection, 1 ms); raises ValueError
+    when no certified design exists. Cached per T_s.
     """
     return node_overrides(_design_cached(float(T_s)))
 
@@ -134,24 +155,34 @@ def design_for_scenario(T_s: float) -> dict:
 def format_yaml(params: dict, summary: dict) -> str:
     ctl, obs = params['controller'], params['observer']
     fmt = ', '.join
-    cur, ocur, o = summary['current'], summary['observer_current'], summary['observer']
+    cur = summary['current']
+    if summary.get('observer_structure') == 'thesis':
+        t = summary['thesis_observer']
+        obs_line = (f'# observer: thesis structure, k_e = {t["k_e"]:.6g} (1/sigma) + skew injection; '
+                    f'4-state error certified ({t["scope"]}, |d omega| <= {t["speed_step"]:g} '
+                    f'rad/s per period), rho {t["worst_rho_dense"]:.8f}, '
+                    f'|omega_r| <= {summary["omega_max"]} rad/s\n')
+        obs_yaml = f'    k_e_injection: {obs["k_e_injection"]!r}   # 0: the thesis value 1/sigma\n'
+    else:
+        ocur, o = summary['observer_current'], summary['observer']
+        obs_line = (f'# observer current error: certified decay {ocur["certified_rate_dense"]:.1f} '
+                    f'1/s; 4-state error: certified ({o["scope"]}), rho {o["worst_rho_dense"]:.8f}, '
+                    f'|omega_r| <= {summary["omega_max"]} rad/s\n')
+        obs_yaml = (f'    injection_gain: [{fmt(repr(x) for x in obs["injection_gain"])}]   # row-major '
+                    f'4x2, x_{{k+1}} = A_d x_k + B_d V_k + L (i_k - i_hat_k)\n'
+                    f'    gain_period: {obs["gain_period"]!r}\n')
     return (HEADER +
-            f'# current error subsystem: certified decay {cur["certified_rate_dense"]:.1f} 1/s '
+            f'# current error subsystem ({cur["source"]}): certified decay '
+            f'{cur["certified_rate_dense"]:.1f} 1/s '
             f'(Lyapunov rho {cur["lyapunov_rho_dense"]:.6f} over {cur["certificate_models"]} '
-            f'models, sigma >= {summary["sigma_min"]})\n'
-            f'# observer current error: certified decay {ocur["certified_rate_dense"]:.1f} 1/s; '
-            f'4-state error: certified ({o["scope"]}), rho {o["worst_rho_dense"]:.8f}, '
-            f'|omega_r| <= {summary["omega_max"]} rad/s\n'
+            f'models, sigma >= {summary["sigma_min"]})\n' + obs_line +
             f'# full certificate: {summary["certificate_file"]}\n'
             'controller:\n  ros__parameters:\n'
             f'    current_gain: [{fmt(repr(x) for x in ctl["current_gain"])}]   '
             f'# row-major 2x2 [V/A], dV = -K (i - i*)\n'
             f'    gain_period: {ctl["gain_period"]!r}\n'
             f'    flux_coupling: {ctl["flux_coupling"]}\n'
-            'observer:\n  ros__parameters:\n'
-            f'    injection_gain: [{fmt(repr(x) for x in obs["injection_gain"])}]   # row-major 4x2, '
-            f'x_{{k+1}} = A_d x_k + B_d V_k + L (i_k - i_hat_k)\n'
-            f'    gain_period: {obs["gain_period"]!r}\n')
+            'observer:\n  ros__parameters:\n' + obs_yaml)
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -165,6 +196,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                                          decay_rate=args.decay_rate,
                                          observer_decay_rate=args.observer_decay_rate,
                                          rate_fraction=args.rate_fraction, sigma_min=sigma_min,
+                                         current_policy=args.current_policy,
+                                         observer_structure=args.observer_structure,
                                          progress=True)
     except ValueError as exc:
         print(f'design_gains: {exc}', file=sys.stderr)
@@ -177,10 +210,18 @@ def main(argv: Optional[List[str]] = None) -> int:
     cert_path.write_text(json.dumps(summary, indent=2, default=float) + '\n')
     for key in ('current', 'observer_current'):
         s = summary[key]
+        if s is None:
+            continue
         print(f'{key}: {s["status"]}; gain = {s["gain"]}; best feasible rate '
               f'{s["best_feasible_rate"]} 1/s, requested {s["decay_rate_requested"]} 1/s; '
               f'Lyapunov rho (vertices) = {s["lyapunov_rho_vertices"]}, (dense grid, '
               f'{s["certificate_models"]} models) = {s["lyapunov_rho_dense"]}; {s["message"]}')
+    t = summary['thesis_observer']
+    if t is not None:
+        print(f'thesis-structure observer (k_e = {t["k_e"]:.6g}): certified = {t["certified"]} '
+              f'({t["scope"]}), rho = {t["worst_rho_dense"]}, spectral radius = '
+              f'{t["worst_spectral_radius"]} {t["reason"]}')
+    print(f'observer structure: {gains.observer_structure}')
     o = summary['observer']
     if o is not None:
         print(f'observer 4-state error: certified = {o["certified"]} ({o["scope"]}), '

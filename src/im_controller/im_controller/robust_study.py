@@ -7,7 +7,8 @@ Runs the chapter-3 position and speed tasks × {min_energy, constant_flux, min_l
 
 - the thesis's gains (k1 = 40 V/A, k_e = 1/σ, flux coupling 'cancel') at 100 µs and at 1 ms;
 - the certified gains of :func:`im_robust.drive.design_drive_gains` at 100 µs and at 1 ms
-  (current gain K, observer injection L, the flux-coupling mode chosen for the period).
+  (current gain K; the observer in the thesis's structure where it is certified, else the
+  discrete injection L; the flux-coupling mode chosen for the period).
 
 A diverging run is reported with the simulated time at which the plant or observer state left
 the finite numbers (the simulator raises there) — no traces are kept. Writes DIR/robust_study.json
@@ -43,13 +44,14 @@ def gains_for(T_s: float, progress: bool = True) -> dict:
     g = design_drive_gains(T_s, progress=progress)
     if not g.certified:
         raise RuntimeError(f'no certified gains at T_s = {T_s:g} s')
-    return {'current_gain': g.K.tolist(), 'observer_gain': g.L.tolist(),
-            'controller_options': {'flux_coupling': g.flux_coupling}, 'design': g.summary()}
+    return {'current_gain': g.K.tolist(), 'observer_gain': None if g.L is None else g.L.tolist(),
+            'k_e': g.k_e, 'controller_options': {'flux_coupling': g.flux_coupling},
+            'design': g.summary()}
 
 
 def run_one(task: str, strategy: str, T_s: float, gains: Optional[dict]) -> dict:
     from im_bringup.offline import Scenario, simulate
-    kw = {} if gains is None else {k: gains[k] for k in ('current_gain', 'observer_gain',
+    kw = {} if gains is None else {k: gains[k] for k in ('current_gain', 'observer_gain', 'k_e',
                                                           'controller_options')}
     sc = Scenario(task=task, strategy=strategy, T_s=T_s, **kw)
     row = {'task': task, 'strategy': strategy, 'T_s': T_s,
@@ -80,7 +82,7 @@ def study(progress: bool = True) -> dict:
                 _log(f'[{k}/{n}] {task}/{strategy} T_s = {T:g} s, {which} gains')
                 rows.append(run_one(task, strategy, T, None if which == 'thesis' else designs[T]))
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
-            'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain',
+            'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',
                                                    'controller_options')}
                       for T, d in designs.items()},
             'runs': rows, 'comparison': compare(rows)}
@@ -126,14 +128,22 @@ def _f(x, fmt):
 def markdown(res: dict) -> str:
     lines = ['# Certified gains at the node period vs the thesis\'s (offline loop)', '']
     lines.append('| T_s | current gain K [V/A] | certified current-error rate [1/s] | '
-                 'observer injection ℓ | observer 4-state certificate | flux coupling |')
+                 'observer | observer 4-state certificate | flux coupling |')
     lines.append('|---|---|---|---|---|---|')
     for T, d in res['designs'].items():
-        cur, o = d['current'], d['observer']
-        lines.append(f"| {T} s | {cur['gain'][0][0]:.3f} I | {cur['certified_rate_dense']:.1f} "
-                     f"(ρ = {cur['lyapunov_rho_dense']:.5f}, best feasible "
-                     f"{cur['best_feasible_rate']:.1f}) | {d['observer_current']['gain'][0][0]:.4f} I | "
-                     f"{o['scope']}, ρ = {o['worst_rho_dense']:.6f} | {d['flux_coupling']} |")
+        cur = d['current']
+        if d.get('observer_structure') == 'thesis':
+            t = d['thesis_observer']
+            obs = f"thesis structure, k_e = {t['k_e']:.4g} (1/σ) + skew"
+            oc = (f"{t['scope']} (|Δω| ≤ {t['speed_step']:g} rad/s per period), "
+                  f"ρ = {t['worst_rho_dense']:.6f}")
+        else:
+            o = d['observer']
+            obs = f"discrete L = [{d['observer_current']['gain'][0][0]:.4f} I; 0]"
+            oc = f"{o['scope']}, ρ = {o['worst_rho_dense']:.6f}"
+        lines.append(f"| {T} s | {cur['gain'][0][0]:.3f} I ({cur['source']}) | "
+                     f"{cur['certified_rate_dense']:.1f} (ρ = {cur['lyapunov_rho_dense']:.5f}, best "
+                     f"{cur['best_feasible_rate']:.1f}) | {obs} | {oc} | {d['flux_coupling']} |")
     lines += ['', '## Losses [J] and tracking', '',
               '| task | strategy | 100 µs thesis | 1 ms certified | Δ | within 5 % | '
               '100 µs certified | Δ | max err 100 µs thesis | 100 µs certified | 1 ms certified | '

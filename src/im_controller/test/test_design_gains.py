@@ -100,3 +100,67 @@ def test_bad_arguments_are_rejected(args, capsys):
         design_gains.main(args)
     assert exc.value.code == 2
     assert args[0] in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# 100 µs: the thesis's gains certified as they are (docs/robust.md §7 (e))
+# ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope='module')
+def gains_100us():
+    return drive.design_drive_gains(1e-4, observer_param_points=SMALL_OBS)
+
+
+def test_thesis_observer_error_map_is_the_observers_own():
+    """M built column by column propagates the difference of two observers fed the same data,
+    and differs from the exact held-injection ZOH map only at RK4 order (one 100 µs sub-step)."""
+    from im_common.params import THESIS_MOTOR
+    from im_observer.observer import RotorFluxObserver
+    m = THESIS_MOTOR
+    p, w, k_e = (m.R_r, m.L_s, m.L_r, m.L_sr), 150.0, 1.0 / m.sigma
+    M = drive.thesis_observer_error_map(p, w, 1e-4, k_e)
+    x1, x2 = (1.0, -2.0, 0.3, 0.1), (0.5, 1.0, -0.2, 0.4)
+    o1 = RotorFluxObserver(m, k_e=k_e, x0=x1)
+    o2 = RotorFluxObserver(m, k_e=k_e, x0=x2)
+    d = np.subtract(o1.step(1e-4, 30.0, -10.0, 2.0, 1.0, w), o2.step(1e-4, 30.0, -10.0, 2.0, 1.0, w))
+    assert np.allclose(d, M @ np.subtract(x1, x2), rtol=0, atol=1e-12)
+    Mz, _ = drive.held_injection_zoh_map(p, w, 1e-4, k_e)
+    assert np.abs(M - Mz).max() < 1e-5 * np.abs(M).max()
+
+
+def test_100us_thesis_observer_certified_1ms_not(gains_100us):
+    c = gains_100us.thesis_observer
+    assert gains_100us.observer_structure == 'thesis' and c.certified
+    assert abs(c.k_e - 1.0 / 0.07562) < 1e-3                       # k_e = 1/σ̂ of the nominal motor
+    assert c.scope.startswith('frozen-parameter') and c.speed_step >= 20.0
+    assert c.worst_rho_dense < math.exp(-1.0 * 1e-4)                # ≥ 1 1/s for every speed path
+    assert c.worst_spectral_radius < 1.0
+    assert c.common_P_over_speed is False                           # the held skew injection
+    assert c.rk4_vs_zoh_map < 1e-6 and c.model_residual < 1e-6
+    bad = drive.certify_thesis_observer(1e-3, param_points=SMALL_OBS)
+    assert not bad.certified and bad.worst_spectral_radius > 1.0
+
+
+def test_100us_overrides_keep_the_thesis_gains(gains_100us, monkeypatch):
+    cur = gains_100us.current
+    assert cur.source == 'thesis gain' and np.allclose(cur.gain, 40.0 * np.eye(2))
+    assert cur.summary()['lyapunov_rho_dense'] < math.exp(-500.0 * 1e-4)   # ≥ 500 1/s
+    assert gains_100us.certified and gains_100us.L is None
+    monkeypatch.setattr(design_gains, '_design_cached', lambda T_s: gains_100us)
+    p = design_gains.design_for_scenario(1e-4)
+    assert p['observer'] == {'k_e_injection': 0.0}
+    assert p['controller']['current_gain'] == [40.0, 0.0, 0.0, 40.0]
+    assert p['controller']['flux_coupling'] == 'cancel' and p['controller']['gain_period'] == 1e-4
+
+
+def test_offline_100us_certified_no_worse_than_thesis(gains_100us):
+    """Same gains through the certified path: equal speed error up to rounding (1e-9 relative)."""
+    from im_bringup.offline import Scenario, simulate
+    p = design_gains.node_overrides(gains_100us)
+    K = np.array(p['controller']['current_gain']).reshape(2, 2).tolist()
+    k_e = p['observer']['k_e_injection'] or None
+    base = dict(task='speed', strategy='min_energy', T_s=1e-4, duration=0.15)
+    ref = simulate(Scenario(**base)).summary
+    cert = simulate(Scenario(**base, current_gain=K, k_e=k_e,
+                             controller_options={'flux_coupling': p['controller']['flux_coupling']})
+                    ).summary
+    assert cert['speed_err_max_rad_s'] <= ref['speed_err_max_rad_s'] * (1.0 + 1e-9)

@@ -28,6 +28,15 @@ same scalar problem with b replaced by 1 (models (a I, I)). The full 4-state err
 parameter point and speed) when that passes, otherwise per frozen parameter point with one P
 common to every speed in [−ω_max, ω_max] (arbitrary speed variation, constant parameters).
 
+Thesis's gains at the node period. Where they certify (100 µs) they are kept:
+:func:`thesis_current_design` certifies K = 40 I on the same subsystem, and
+:func:`certify_thesis_observer` certifies the observer in the thesis's structure (k_e = 1/σ̂ plus
+the speed-scheduled skew injection). Its one-period error map is taken from
+:class:`im_observer.observer.RotorFluxObserver` itself. Because the skew injection is held over
+the period there is no common P over the speeds, so the certificate is per frozen parameter point
+with an affine speed-dependent P(ω), valid for a bounded speed change per period. Where they do
+not certify (1 ms), the synthesis above is used.
+
 Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_robust.motor.Scaling`).
 """
 from __future__ import annotations
@@ -43,7 +52,8 @@ import numpy as np
 from im_common.params import MotorParams, THESIS_MOTOR
 
 from .certificate import Certificate, certify
-from .motor import (C_CURRENT, DEFAULT_BOX, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling, parameter_grid,
+from .motor import (C_CURRENT, DEFAULT_BOX, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
+                    electrical_matrices, parameter_grid, zoh,
                     sampled_models)
 from .polytope import UncertainSystem
 from .synthesis import SynthesisResult, synthesize
@@ -125,6 +135,7 @@ class LoopDesign:
     range_sigma_L_s: tuple = ()
     dense_spectral_radius: Optional[float] = None
     notes: List[str] = field(default_factory=list)
+    source: str = 'synthesis'      # or 'thesis gain' (the thesis's gain, certified as it is)
 
     @property
     def certified(self) -> bool:
@@ -142,7 +153,7 @@ class LoopDesign:
         c = self.certificate
         rho_dense = None if c is None or c.grid_margin is None else float(self.rho - c.grid_margin)
         return {
-            'loop': self.loop, 'T_s': self.T_s, 'injection': self.injection,
+            'loop': self.loop, 'T_s': self.T_s, 'injection': self.injection, 'source': self.source,
             'status': 'no design' if self.result is None else self.result.status,
             'certified': self.certified,
             'gain': None if self.gain is None else self.gain.tolist(),
@@ -235,6 +246,51 @@ def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
     dense = current_error_system(cp, T_s, motor=motor).models
     G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
     return certify(sysm, G, rho=math.exp(-decay_rate * T_s), grid_models=dense)
+
+
+def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
+                          rate_fraction: float = DEFAULT_RATE_FRACTION,
+                          sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                          vertex_points=None, certify_points=None,
+                          progress: bool = False) -> Optional[LoopDesign]:
+    """The thesis's current gain K = k I, certified as it is on the current-error subsystem.
+
+    The largest rate α_k for which a common P exists at the vertex models is found by bisection
+    (:func:`im_robust.certificate.best_rate`); K is then certified at ``rate_fraction``·α_k on the
+    vertices *and* the dense grid. Returns None when K is not certified even at ρ = 1 (at 1 ms:
+    its sampled pole leaves the unit circle), so the caller falls back to the synthesis.
+    """
+    from .certificate import best_rate
+    sc = Scaling.for_motor(motor)
+    vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
+    cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
+                          motor=motor)
+    sysm = current_error_system(vp, T_s, motor=motor)
+    dense = current_error_system(cp, T_s, motor=motor).models
+    K = k * np.eye(2)
+    G = K * (sc.i_base / sc.v_base)
+    rho_best = best_rate(sysm, G)
+    if not (math.isfinite(rho_best) and 0.0 < rho_best < 1.0):
+        _log(progress, f'current T_s = {T_s:g}: the thesis gain {k:g} I is not certified')
+        return None
+    best = -math.log(rho_best) / T_s
+    alpha = rate_fraction * best
+    cert = certify(sysm, G, rho=math.exp(-alpha * T_s), grid_models=dense)
+    if not cert.certified:
+        _log(progress, f'current T_s = {T_s:g}: thesis gain fails the dense grid ({cert.reason})')
+        return None
+    res = SynthesisResult('certified', 'analysis-lmi', 'thesis gain certified', G=G,
+                          certificate=cert,
+                          message=f'thesis gain {k:g} I certified at {alpha:.1f} 1/s '
+                                  f'({rate_fraction:g} x its best vertex rate {best:.1f} 1/s)')
+    d = LoopDesign('current', T_s, 'voltage', float(alpha), float(best), K, res, len(vp), len(cp),
+                   sigma_min, (float(cp[:, 0].min()), float(cp[:, 0].max())),
+                   (float(cp[:, 1].min()), float(cp[:, 1].max())), source='thesis gain')
+    d.dense_spectral_radius = float(max(np.abs(np.linalg.eigvals(A - B @ G)).max()
+                                        for A, B in dense))
+    d.notes.append('best_feasible_rate is the best certified vertex rate of the thesis gain')
+    _log(progress, f'current T_s = {T_s:g}: {res.message}')
+    return d
 
 
 # ---------------------------------------------------------------------------------------------
@@ -341,6 +397,225 @@ def certify_observer_gain(L, T_s: float, *, omega_max: float = 200.0,
 
 
 # ---------------------------------------------------------------------------------------------
+# The observer in the thesis's structure (k_e + speed-scheduled skew injection), sampled
+# ---------------------------------------------------------------------------------------------
+#: largest speed change per period |ω_{k+1} − ω_k| [rad/s] the speed-dependent certificate allows
+#: (20 rad/s per 100 µs is 2·10⁵ rad/s²; the chapter-3 tasks reach 0.014 rad/s per 100 µs)
+THESIS_OBSERVER_SPEED_STEP = 20.0
+
+
+def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
+                              motor: MotorParams = THESIS_MOTOR, max_substep: float = 1e-4,
+                              skew_injection: bool = True) -> np.ndarray:
+    """The observer's own one-period error map M (SI, 4×4), built column by column from
+    :class:`im_observer.observer.RotorFluxObserver` (thesis structure, ``k_e`` fixed, skew
+    injection on) with model parameters ``point`` = (R_r, L_s, L_r, L_sr) and R_s of ``motor``.
+
+    With the measured current and speed held over the period the observer is linear in its state:
+    x̂⁺ = Φ x̂ + Γ (B V + H (i − C x̂)), H = [k_e/(σL_s) I; vωL_sr 𝒥], Φ, Γ its RK4 sub-step
+    propagators. Stepping it from x̂ = unit vector j with V = 0 and i = 0 returns column j of
+    M = Φ − Γ H C, which is also the map of the difference of two observers fed the same data.
+    With k_e = 0 and ``skew_injection=False`` it returns the prediction Φ alone.
+    """
+    from im_observer.observer import RotorFluxObserver
+    R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
+    mp = MotorParams(R_s=motor.R_s, R_r=R_r, L_s=L_s, L_r=L_r, L_sr=L_sr, J=motor.J, b=motor.b,
+                     pole_pairs=motor.pole_pairs)
+    M = np.empty((4, 4))
+    for j in range(4):
+        x0 = [0.0, 0.0, 0.0, 0.0]
+        x0[j] = 1.0
+        obs = RotorFluxObserver(mp, k_e=k_e, max_substep=max_substep, x0=x0,
+                                skew_injection=skew_injection)
+        M[:, j] = obs.step(T_s, 0.0, 0.0, 0.0, 0.0, float(omega_r))
+    return M
+
+
+def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
+                           motor: MotorParams = THESIS_MOTOR):
+    """(M_zoh, A_d): the same held-injection map with the period integrated exactly,
+    M_zoh = A_d − Γ_d H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction
+    were the plant's exact ZOH flow."""
+    R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
+    A, _ = electrical_matrices(motor.R_s, R_r, L_s, L_r, L_sr, float(omega_r), motor.pole_pairs)
+    sLs = L_s - L_sr ** 2 / L_r
+    J = np.array([[0.0, -1.0], [1.0, 0.0]])
+    H = np.vstack([k_e / sLs * np.eye(2), motor.pole_pairs * omega_r * L_sr * J])
+    A_d, GH = zoh(A, H, T_s)
+    return A_d - GH @ C_CURRENT, A_d
+
+
+@dataclass
+class ThesisObserverCertificate:
+    """Certificate of the sampled thesis-structure observer (k_e, skew injection) at T_s.
+
+    Scope 'frozen-parameter, speed-dependent P': at each parameter point one
+    P(ω) = P₀ + (ω/ω_max) P₁ ≻ 0 with ‖M(ω)‖ contracting from P(ω) to P(ω') by ρ for every
+    |ω' − ω| ≤ ``speed_step`` — V_k = e_kᵀ P(ω_k) e_k decays by ρ² per step along any speed
+    trajectory in [−ω_max, ω_max] whose per-period change is at most ``speed_step``.
+    """
+
+    certified: bool
+    T_s: float
+    k_e: float
+    omega_max: float
+    speed_step: float
+    decay_rate: float
+    scope: str
+    worst_rho_vertices: Optional[float]
+    worst_rho_dense: Optional[float]
+    worst_spectral_radius: Optional[float]
+    common_P_over_speed: Optional[bool]      # at the nominal point, ρ = 1 (checked, not assumed)
+    rk4_vs_zoh_map: Optional[float]          # max ‖S⁻¹(M_rk4 − M_zoh)S‖₂, per unit
+    model_residual: Optional[float]          # max ‖S⁻¹(A_d − Φ_rk4)S‖₂, per unit
+    worst_P_condition: Optional[float]
+    parameter_points: int
+    models: int
+    reason: str = ''
+    wall_s: float = 0.0
+
+    def summary(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: float, step: float,
+                       rho: float):
+    """(P₀, P₁) of P(ω) = P₀ + (ω/ω_max)P₁ with P(±ω_max) ⪰ I and, at every (M, ω),
+    Mᵀ P(ω') M ⪯ ρ² P(ω) for ω' = ω ± step (clipped to the range); None if the SDP fails.
+    For fixed ω the inequality is affine in ω', so the two ends cover every |ω' − ω| ≤ step."""
+    import cvxpy as cp
+    n = 4
+    P0 = cp.Variable((n, n), symmetric=True)
+    P1 = cp.Variable((n, n), symmetric=True)
+    s = cp.Variable()
+    I = np.eye(n)
+
+    def P(w):
+        return P0 + (w / omega_max) * P1
+    cons = [P(omega_max) >> I, P(-omega_max) >> I, P(omega_max) << s * I, P(-omega_max) << s * I]
+    for M, w in zip(Ms, ws):
+        for wp in {max(-omega_max, w - step), min(omega_max, w + step)}:
+            Q = P(wp)
+            cons.append(cp.bmat([[rho ** 2 * P(w) - 1e-6 * I, M.T @ Q], [Q @ M, Q]]) >> 0)
+    prob = cp.Problem(cp.Minimize(s), cons)
+    try:
+        prob.solve(solver='CLARABEL')
+    except Exception:  # a solver failure is a non-certificate
+        return None
+    if P0.value is None or prob.status not in ('optimal', 'optimal_inaccurate'):
+        return None
+    return 0.5 * (P0.value + P0.value.T), 0.5 * (P1.value + P1.value.T)
+
+
+def _speed_dependent_rate(P0, P1, Ms, ws, omega_max: float, step: float):
+    """(worst ρ_c, worst cond P) of e ↦ M e from P(ω) to P(ω'), ω' ∈ {ω − step, ω, ω + step}
+    clipped, with numpy eigenvalues; (inf, inf) if some P(ω) is not positive definite."""
+    worst, cond = 0.0, 0.0
+    for M, w in zip(Ms, ws):
+        lam, V = np.linalg.eigh(P0 + (w / omega_max) * P1)
+        if lam.min() <= 0.0:
+            return math.inf, math.inf
+        cond = max(cond, lam.max() / lam.min())
+        Pih = (V / np.sqrt(lam)) @ V.T
+        for wp in (max(-omega_max, w - step), w, min(omega_max, w + step)):
+            Q = P0 + (wp / omega_max) * P1
+            worst = max(worst, math.sqrt(max(0.0, np.linalg.eigvalsh(Pih @ M.T @ Q @ M @ Pih).max())))
+    return worst, cond
+
+
+def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_max: float = 200.0,
+                            speed_step: float = THESIS_OBSERVER_SPEED_STEP,
+                            decay_rate: float = DEFAULT_OBSERVER_RATE,
+                            sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                            param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
+                            omega_dense: int = OBSERVER_OMEGA_DENSE, max_substep: float = 1e-4,
+                            progress: bool = False) -> ThesisObserverCertificate:
+    """Certify the observer in the thesis's structure (``k_e`` fixed, default 1/σ̂ of ``motor``
+    — what the node uses with k_e_injection = 0 — plus the speed-scheduled skew injection).
+
+    Error map: the observer's own M(p, ω) (:func:`thesis_observer_error_map`, RK4 sub-steps) at
+    each parameter point (observer model = plant, as in :func:`certify_observer_gain`). With the
+    plant integrated exactly, e⁺ = M e + d with d = (A_d − Φ)x + (B_d − ΓB)V, the model's one-period
+    integration error (RK4: O((‖A‖T_s/n)⁵) per sub-step), an input to the certified map, reported
+    as ``model_residual``. The exact held-injection map M_zoh (:func:`held_injection_zoh_map`) is
+    checked with the same P on the dense speeds too.
+
+    Steps: (1) spectral radius of every map (stop if ≥ ρ); (2) a common P over the speed range at
+    the nominal point (reported; the held skew injection defeats it); (3) per parameter point the
+    speed-dependent P(ω) of :class:`ThesisObserverCertificate`, from the SDP at a 1.5× stricter
+    rate on ``omega_vertices`` speeds, checked with numpy at ρ = exp(−decay_rate·T_s) on them and
+    on ``omega_dense`` speeds (both maps).
+    """
+    from .certificate import analysis_lmi
+    t0 = time.perf_counter()
+    k_e = 1.0 / motor.sigma if k_e is None else float(k_e)
+    sc = Scaling.for_motor(motor)
+    S, Si = sc.S, np.linalg.inv(sc.S)
+    rho = math.exp(-decay_rate * T_s)
+    rho_strict = math.exp(-1.5 * decay_rate * T_s)
+    pts = parameter_grid(param_points or OBSERVER_PARAM_POINTS, 0.0, sigma_min=sigma_min)[:, :4]
+    pts = np.vstack([pts, [[motor.R_r, motor.L_s, motor.L_r, motor.L_sr]]])
+    w_v = np.linspace(-omega_max, omega_max, omega_vertices) if omega_max > 0 else np.zeros(1)
+    w_d = np.linspace(-omega_max, omega_max, omega_dense) if omega_max > 0 else np.zeros(1)
+    om = max(omega_max, 1e-9)
+
+    def pu(M):
+        return Si @ M @ S
+    Mv = [[pu(thesis_observer_error_map(p, w, T_s, k_e, motor=motor, max_substep=max_substep))
+           for w in w_v] for p in pts]
+    Md, Mz = [], []
+    diff = resid = 0.0
+    h = T_s / max(1, int(math.ceil(T_s / max_substep - 1e-9)))
+    for p in pts:
+        row, rowz = [], []
+        for w in w_d:
+            M = pu(thesis_observer_error_map(p, w, T_s, k_e, motor=motor, max_substep=max_substep))
+            Mzoh, A_d = held_injection_zoh_map(p, w, T_s, k_e, motor=motor)
+            Phi = thesis_observer_error_map(p, w, T_s, 0.0, motor=motor, max_substep=max_substep,
+                                            skew_injection=False)
+            row.append(M)
+            rowz.append(pu(Mzoh))
+            diff = max(diff, float(np.linalg.norm(M - pu(Mzoh), 2)))
+            resid = max(resid, float(np.linalg.norm(pu(A_d - Phi), 2)))
+        Md.append(row)
+        Mz.append(rowz)
+    n_models = len(pts) * (len(w_v) + 2 * len(w_d))
+    spec = float(max(np.abs(np.linalg.eigvals(M)).max() for r in Md + Mz for M in r))
+
+    def result(ok, scope, rv, rd, common, cond, reason=''):
+        return ThesisObserverCertificate(ok, T_s, k_e, omega_max, speed_step, decay_rate, scope, rv,
+                                         rd, spec, common, diff, resid, cond, len(pts), n_models,
+                                         reason, time.perf_counter() - t0)
+    if not spec < rho:
+        return result(False, 'eigenvalues', None, None, None, None,
+                      f'spectral radius {spec:.6g} >= rho = {rho:.8f}: the sampled thesis-structure '
+                      f'error map is not stable on the grid (T_s = {T_s:g} s, k_e = {k_e:.4g})')
+    nominal = len(pts) - 1
+    common = analysis_lmi(Mv[nominal], True, rho=1.0) is not None
+    _log(progress, f'thesis observer T_s = {T_s:g}, k_e = {k_e:.4g}: spectral radius {spec:.8f}; '
+                   f'common P over the speeds at the nominal point: {common}; RK4 vs ZOH map '
+                   f'{diff:.2e}, model residual {resid:.2e} (per unit, h = {h:g} s)')
+    worst_v = worst_d = cond_max = 0.0
+    for k in range(len(pts)):
+        PP = _speed_dependent_P(Mv[k], w_v, om, speed_step, rho_strict)
+        if PP is None:
+            return result(False, 'frozen-parameter, speed-dependent P', None, None, common, None,
+                          f'parameter point {pts[k].tolist()}: no speed-dependent P')
+        rv, c1 = _speed_dependent_rate(*PP, Mv[k], w_v, om, speed_step)
+        rd, c2 = _speed_dependent_rate(*PP, Md[k] + Mz[k], np.concatenate([w_d, w_d]), om,
+                                       speed_step)
+        cond = max(c1, c2)
+        if not (rv < rho - 1e-9 and rd < rho - 1e-9 and cond < 1e12):
+            return result(False, 'frozen-parameter, speed-dependent P', rv, rd, common, cond,
+                          f'parameter point {pts[k].tolist()}: rho_c vertices {rv:.8f}, '
+                          f'dense {rd:.8f} (required < {rho:.8f}), cond P {cond:.3g}')
+        worst_v, worst_d, cond_max = max(worst_v, rv), max(worst_d, rd), max(cond_max, cond)
+    _log(progress, f'thesis observer: certified per parameter point with P(omega), worst rho_c '
+                   f'{worst_d:.8f} ({-math.log(worst_d) / T_s:.2f} 1/s)')
+    return result(True, 'frozen-parameter, speed-dependent P', worst_v, worst_d, common, cond_max)
+
+
+# ---------------------------------------------------------------------------------------------
 # The flux-coupling term of the current feedback at the node period
 # ---------------------------------------------------------------------------------------------
 def held_coupling_residual(T_s: float, k: float, *, omega_max: float = 200.0,
@@ -376,14 +651,20 @@ def choose_flux_coupling(T_s: float, k: float, *, omega_max: float = 200.0,
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class DriveGains:
+    """Both gains at T_s. ``observer_structure`` 'thesis': the observer keeps k_e (1/σ̂) and the
+    skew injection, certified by ``thesis_observer``; 'discrete': the injection L = [ℓ I; 0]
+    of ``observer_current``, certified by ``observer``."""
+
     T_s: float
     omega_max: float
     sigma_min: float
     current: LoopDesign
-    observer_current: LoopDesign
+    observer_current: Optional[LoopDesign]
     observer: Optional[ObserverCertificate]
     flux_coupling: str
     coupling: Dict[str, float]
+    observer_structure: str = 'discrete'
+    thesis_observer: Optional[ThesisObserverCertificate] = None
 
     @property
     def K(self) -> Optional[np.ndarray]:
@@ -391,18 +672,35 @@ class DriveGains:
 
     @property
     def L(self) -> Optional[np.ndarray]:
+        if self.observer_structure != 'discrete' or self.observer_current is None:
+            return None
         g = self.observer_current.gain
         return None if g is None else np.vstack([g, np.zeros((2, 2))])
 
     @property
+    def k_e(self) -> Optional[float]:
+        """The thesis-structure observer's k_e (None with the discrete injection)."""
+        t = self.thesis_observer
+        return t.k_e if self.observer_structure == 'thesis' and t is not None else None
+
+    @property
     def certified(self) -> bool:
-        return (self.current.certified and self.observer_current.certified
+        if not self.current.certified:
+            return False
+        if self.observer_structure == 'thesis':
+            return self.thesis_observer is not None and self.thesis_observer.certified
+        return (self.observer_current is not None and self.observer_current.certified
                 and self.observer is not None and self.observer.certified)
 
     def summary(self) -> dict:
         return {'T_s': self.T_s, 'omega_max': self.omega_max, 'sigma_min': self.sigma_min,
                 'certified': self.certified, 'current': self.current.summary(),
-                'observer_current': self.observer_current.summary(),
+                'observer_structure': self.observer_structure,
+                'thesis_observer': None if self.thesis_observer is None
+                else self.thesis_observer.summary(),
+                'observer_k_e': self.k_e,
+                'observer_current': None if self.observer_current is None
+                else self.observer_current.summary(),
                 'observer': None if self.observer is None else self.observer.summary(),
                 'observer_injection_gain': None if self.L is None else self.L.tolist(),
                 'flux_coupling': self.flux_coupling, 'held_coupling': self.coupling}
@@ -414,21 +712,59 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
                        rate_fraction: float = DEFAULT_RATE_FRACTION,
                        sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                        vertex_points=None, certify_points=None, observer_param_points=None,
+                       current_policy: str = 'thesis-if-certified',
+                       observer_structure: str = 'auto',
                        progress: bool = False) -> DriveGains:
-    """Current gain K, observer injection L = [ℓ I; 0] and the flux-coupling choice at T_s."""
+    """Current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
+    flux-coupling choice at T_s.
+
+    ``current_policy`` 'thesis-if-certified' (default, ``decay_rate`` None): keep the thesis's
+    K = 40 I when the subsystem certificate passes at ``rate_fraction`` × its own best rate (the
+    design then is not more aggressive than the reference); otherwise — and always with
+    'synthesis' or an explicit ``decay_rate`` — the minimum-norm synthesis at ``rate_fraction`` ×
+    the largest feasible rate (or ``decay_rate``).
+    ``observer_structure`` 'auto': the thesis structure (k_e = 1/σ̂, skew injection) when
+    :func:`certify_thesis_observer` passes at T_s, else the discrete injection; 'thesis' or
+    'discrete' force one (a failed certificate then leaves the design uncertified).
+    """
     if not omega_max >= 0:
         raise ValueError(f'omega_max = {omega_max!r} must be >= 0 rad/s')
+    if current_policy not in ('thesis-if-certified', 'synthesis'):
+        raise ValueError(f"current_policy must be 'thesis-if-certified' or 'synthesis', "
+                         f"got {current_policy!r}")
+    if observer_structure not in ('auto', 'thesis', 'discrete'):
+        raise ValueError(f"observer_structure must be 'auto', 'thesis' or 'discrete', "
+                         f"got {observer_structure!r}")
     kw = dict(sigma_min=sigma_min, motor=motor, vertex_points=vertex_points,
               certify_points=certify_points, rate_fraction=rate_fraction, progress=progress)
-    cur = design_subsystem_gain(T_s, injection='voltage', decay_rate=decay_rate, **kw)
-    obs_cur = design_subsystem_gain(T_s, injection='direct', decay_rate=observer_rate, **kw)
-    obs = None
-    if obs_cur.certified:
-        L = np.vstack([obs_cur.gain, np.zeros((2, 2))])
-        obs = certify_observer_gain(L, T_s, omega_max=omega_max, decay_rate=observer_decay_rate,
-                                    sigma_min=sigma_min, motor=motor,
-                                    param_points=observer_param_points, progress=progress)
+    cur = None
+    if current_policy == 'thesis-if-certified' and decay_rate is None:
+        cur = thesis_current_design(T_s, **kw)
+    if cur is None:
+        cur = design_subsystem_gain(T_s, injection='voltage', decay_rate=decay_rate, **kw)
+    thesis_obs = None
+    structure = 'discrete'
+    if observer_structure in ('auto', 'thesis'):
+        thesis_obs = certify_thesis_observer(T_s, omega_max=omega_max,
+                                             decay_rate=observer_decay_rate, sigma_min=sigma_min,
+                                             motor=motor, param_points=observer_param_points,
+                                             progress=progress)
+        if thesis_obs.certified or observer_structure == 'thesis':
+            structure = 'thesis'
+        else:
+            _log(progress, f'thesis-structure observer not certified at T_s = {T_s:g} '
+                           f'({thesis_obs.reason}); designing the discrete injection')
+    obs_cur = obs = None
+    if structure == 'discrete':
+        obs_cur = design_subsystem_gain(T_s, injection='direct', decay_rate=observer_rate, **kw)
+        if obs_cur.certified:
+            L = np.vstack([obs_cur.gain, np.zeros((2, 2))])
+            obs = certify_observer_gain(L, T_s, omega_max=omega_max,
+                                        decay_rate=observer_decay_rate, sigma_min=sigma_min,
+                                        motor=motor, param_points=observer_param_points,
+                                        progress=progress)
     k = float(np.linalg.eigvalsh(0.5 * (cur.gain + cur.gain.T)).min()) if cur.certified else THESIS_K1
     return DriveGains(T_s, omega_max, sigma_min, cur, obs_cur, obs,
                       choose_flux_coupling(T_s, k, omega_max=omega_max, motor=motor),
-                      held_coupling_residual(T_s, k, omega_max=omega_max, motor=motor))
+                      held_coupling_residual(T_s, k, omega_max=omega_max, motor=motor),
+                      structure, thesis_obs)
