@@ -481,7 +481,6 @@ class ParameterAdapter:
         self._ls_update()
 
     def _ls_update(self):
-        N = self.N
         f = self._floor
         S, b, R = self._S, self._b, self._R
         # Per-parameter exponential forgetting over N periods: R_ij ← √(λ_i λ_j)^N R_ij, plus the
