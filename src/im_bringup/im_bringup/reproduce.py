@@ -49,7 +49,8 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False) -> List[dict]
                  f"{spec.get('variation', 'none')}/{1.0 / spec['T_s']:g} Hz")
         print(f'[{n}/{len(specs)}] {label}', file=sys.stderr, flush=True)
         params = node_parameters(spec['task'], spec['strategy'], spec['controller'],
-                                 spec.get('variation', 'none'), spec['T_s'])
+                                 spec.get('variation', 'none'), spec['T_s'],
+                                 spec.get('duration'))
         for node, values in (extra or {}).items():
             params[node].update(values)
         bag = None
