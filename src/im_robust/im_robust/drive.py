@@ -52,7 +52,7 @@ import numpy as np
 from im_common.params import MotorParams, THESIS_MOTOR
 
 from .certificate import Certificate, certify
-from .motor import (C_CURRENT, DEFAULT_BOX, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
+from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
                     electrical_matrices, parameter_grid, zoh,
                     sampled_models)
 from .polytope import UncertainSystem
@@ -234,16 +234,23 @@ def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate:
     return d
 
 
-def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
-                         sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
-                         vertex_points=None, certify_points=None) -> Certificate:
-    """The library's certificate for a given current gain K [V/A] on the subsystem at T_s."""
+def _subsystem_models(T_s, sigma_min, motor, vertex_points, certify_points):
+    """(scaling, vertex points, dense points, vertex system, dense certification models) of the
+    current-error subsystem."""
     sc = Scaling.for_motor(motor)
     vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
     cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
                           motor=motor)
     sysm = current_error_system(vp, T_s, motor=motor)
-    dense = current_error_system(cp, T_s, motor=motor).models
+    return sc, vp, cp, sysm, current_error_system(cp, T_s, motor=motor).models
+
+
+def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
+                         sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                         vertex_points=None, certify_points=None) -> Certificate:
+    """The library's certificate for a given current gain K [V/A] on the subsystem at T_s."""
+    sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
+                                                certify_points)
     G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
     return certify(sysm, G, rho=math.exp(-decay_rate * T_s), grid_models=dense)
 
@@ -261,12 +268,8 @@ def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
     its sampled pole leaves the unit circle), so the caller falls back to the synthesis.
     """
     from .certificate import best_rate
-    sc = Scaling.for_motor(motor)
-    vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
-    cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
-                          motor=motor)
-    sysm = current_error_system(vp, T_s, motor=motor)
-    dense = current_error_system(cp, T_s, motor=motor).models
+    sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
+                                                certify_points)
     K = k * np.eye(2)
     G = K * (sc.i_base / sc.v_base)
     rho_best = best_rate(sysm, G)
