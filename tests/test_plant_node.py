@@ -25,6 +25,13 @@ def ctx():
     rclpy.try_shutdown(context=c)
 
 
+def make_plant(ctx, **overrides):
+    """A plant alone with a stand-in controller: it waits for no other node before step 0."""
+    params = [Parameter('wait_for', value='')]
+    params += [Parameter(k, value=v) for k, v in overrides.items()]
+    return PlantNode(context=ctx, parameter_overrides=params)
+
+
 def _commander(ctx, voltage):
     """A stand-in controller: answers each measurement with voltage(ns) stamped like it."""
     node = Node('fake_controller', context=ctx)
@@ -57,8 +64,7 @@ def _spin(ctx, nodes, until, cap=4000):
 
 
 def test_lockstep_advances_exactly_to_duration(ctx):
-    plant = PlantNode(context=ctx, parameter_overrides=[
-        Parameter('duration', value=0.05), Parameter('load', value='linear')])
+    plant = make_plant(ctx, duration=0.05, load='linear')
     w = 2 * math.pi * 60
     cmd, seen = _commander(ctx, lambda ns: (200 * math.cos(w * ns * 1e-9),
                                             200 * math.sin(w * ns * 1e-9)))
@@ -73,9 +79,7 @@ def test_lockstep_advances_exactly_to_duration(ctx):
 
 
 def test_missing_command_is_reported_by_topic_and_stamp(ctx, caplog):
-    plant = PlantNode(context=ctx, parameter_overrides=[
-        Parameter('duration', value=1.0), Parameter('input_timeout', value=0.3),
-        Parameter('startup_timeout', value=0.3)])
+    plant = make_plant(ctx, duration=1.0, input_timeout=0.3, startup_timeout=0.3)
     # The stand-in controller stops answering after step 3.
     cmd, _ = _commander(ctx, lambda ns: (1.0, 0.0) if ns < 4 * 100_000 else None)
     _spin(ctx, [plant, cmd], lambda: plant.done)
@@ -88,7 +92,7 @@ def test_missing_command_is_reported_by_topic_and_stamp(ctx, caplog):
 
 
 def test_non_finite_command_rejected_state_stays_finite(ctx):
-    plant = PlantNode(context=ctx, parameter_overrides=[Parameter('duration', value=0.002)])
+    plant = make_plant(ctx, duration=0.002)
     cmd, _ = _commander(ctx, lambda ns: (float('nan'), 1.0) if ns == 500_000 else (10.0, 0.0))
     _spin(ctx, [plant, cmd], lambda: plant.done)
     assert plant.exit_code == 0
@@ -112,10 +116,8 @@ def test_invalid_parameter_is_refused_by_name(ctx, name, value, needle):
 
 
 def test_custom_variation_drives_the_true_parameter(ctx):
-    plant = PlantNode(context=ctx, parameter_overrides=[
-        Parameter('duration', value=0.01), Parameter('variation', value='custom'),
-        Parameter('variation_parameter', value='R_r'), Parameter('variation_kind', value='ramp'),
-        Parameter('variation_offset', value=0.5), Parameter('variation_slope', value=10.0)])
+    plant = make_plant(ctx, duration=0.01, variation='custom', variation_parameter='R_r',
+                       variation_kind='ramp', variation_offset=0.5, variation_slope=10.0)
     cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0))
     _spin(ctx, [plant, cmd], lambda: plant.done)
     assert plant.sim.truth()['R_r'] == pytest.approx(0.5 + 10.0 * 0.01)

@@ -1,10 +1,15 @@
 """``ros2 run im_adapt adapter``: online estimates of R_r and θ = L_sr/L_r (seed 000 §4.2).
 
-A thin shell around the adaptation law. At step k it waits for the measured current and speed,
-the voltage command and the observer's estimate stamped t_k, updates the estimates, and publishes
+A thin shell around the adaptation law. At step k it takes the measured current and speed, the
+voltage command and the observer's estimate stamped t_k, updates the estimates, and publishes
 p̂_k+1 stamped t_k+1 for the controller (eq. 4.10-4.12) and the observer (eq. 4.13).
-With ``enable`` false it holds its estimates (and still keeps the lock-step); ``enable`` can be
-switched while running.
+
+The adapter *follows* the run (:mod:`im_common.lockstep`): when the controller and observer use its
+estimates they wait for them, so it is on the critical path without needing a watchdog of its own;
+when nobody uses them it is off the critical path, and if it falls behind or joins late it takes
+what arrives, skips the steps it lost (counted and reported at the end, estimates held across the
+gap) and never stops the run. With ``enable`` false it holds its estimates; ``enable`` can be
+switched while running (``ros2 param set /adapter enable true``), from the next step on.
 """
 from __future__ import annotations
 
@@ -15,13 +20,15 @@ from sensor_msgs.msg import JointState
 
 from im_common import topics as T
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
-from im_common.lockstep import LockstepNode, StepGate, lockstep_qos, node_main
+from im_common.lockstep import PARAMETERS, LockstepNode, StepGate, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
-from im_adapt.adaptation import declare_law
+from im_adapt.parameters import declare_law
 
 
 class AdapterNode(LockstepNode):
     """Online adaptation of the rotor resistance and of L_sr/L_r."""
+
+    critical = False
 
     def __init__(self, **kwargs):
         super().__init__('adapter', **kwargs)
@@ -32,25 +39,30 @@ class AdapterNode(LockstepNode):
         theta0 = p('theta_initial', float(params.theta), 'initial estimate of L_sr/L_r', 1e-3, 1.0)
         self.enable = p('enable', False, 'adapt (true) or hold the initial estimates (false)',
                         read_only=False)
+        self._enable_next = None
         self.law = declare_law(self, params, R_r0, theta0)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
-        q = lockstep_qos()
-        self.pub = self.create_publisher(JointState, T.ADAPT_ESTIMATE, q)
+        self.pub = self.create_publisher(JointState, T.ADAPT_ESTIMATE, lockstep_qos())
         self.out = JointStateOut(T.ESTIMATE_NAMES)
         self.gate = StepGate([T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
-                             self.period)
+                             self.period, follow=True)
         for topic in (T.MEAS_CURRENT, T.CMD_VOLTAGE, T.OBS_FLUX):
             self.gate_input(topic, xy_in)
         self.gate_input(T.MEAS_SHAFT, shaft_in)
-        self.start_watchdog(timeout, startup)
+        self.k_done = -1
         self.publish_estimate(0)
+        self.start_protocol(timeout, startup)
 
     def ready(self, inputs) -> None:
         while inputs is not None and not self.done:
             self.mark_started()
             k = self.gate.expected // self.period
+            if self._enable_next is not None:
+                self.enable, self._enable_next = self._enable_next, None
+                self.status(PARAMETERS, enable=self.enable)
             if self.enable:
                 i_a, i_b = inputs[T.MEAS_CURRENT]
                 v_a, v_b = inputs[T.CMD_VOLTAGE]
@@ -61,21 +73,31 @@ class AdapterNode(LockstepNode):
                 except (ValueError, ArithmeticError) as exc:
                     self.fail(f'adapter failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
                     return
+            self.k_done = k
             self.publish_estimate(k + 1)
             if self.last_step is not None and k + 1 >= self.last_step:
-                self.finish()
+                self.reached_last_step()
                 return
             inputs = self.gate.advance()
 
+    def end_run(self, reason: str, notify: bool = False) -> None:
+        if not self.done and self.gate.gaps:
+            ranges = ', '.join(f'{a / 1e9:.4f}-{b / 1e9:.4f} s' for a, b in self.gate.gap_ranges[:5])
+            self.get_logger().warning(f'{self.gate.gaps} steps skipped (inputs lost): {ranges}')
+        super().end_run(reason, notify)
+
     def _on_set_parameters(self, parameters):
-        """``enable`` may be switched at run time (from the next step on)."""
+        """``enable`` may be switched at run time (validated here, applied at the next step)."""
+        for prm in parameters:
+            if prm.name == 'enable' and not isinstance(prm.value, bool):
+                return SetParametersResult(successful=False,
+                                           reason="parameter 'enable' must be true or false")
+        return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, parameters) -> None:
         for prm in parameters:
             if prm.name == 'enable':
-                if not isinstance(prm.value, bool):
-                    return SetParametersResult(successful=False,
-                                               reason="parameter 'enable' must be true or false")
-                self.enable = prm.value
-        return SetParametersResult(successful=True)
+                self._enable_next = prm.value
 
     def publish_estimate(self, k: int) -> None:
         e = self.law.estimates()

@@ -1,10 +1,11 @@
-"""declare_law: every gain is a declared parameter with a description and a range, overrides reach
+"""im_adapt.parameters.declare_law: every gain is a declared parameter with a description and a range, overrides reach
 the adapter, and bad values are refused naming the parameter (ROS-free stand-in and the real node)."""
 import random
 
 import pytest
 
-from im_adapt.adaptation import AdaptationGains, ParameterAdapter, declare_law
+from im_adapt.adaptation import AdaptationGains, ParameterAdapter
+from im_adapt.parameters import declare_law
 from im_common.params import THESIS_MOTOR, InvalidParameter
 
 CH4 = THESIS_MOTOR.with_values(L_s=0.084, L_sr=0.081, L_r=0.081 / 0.952941)

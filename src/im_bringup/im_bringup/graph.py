@@ -18,6 +18,7 @@ from typing import Dict, Mapping, Optional
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
 
 
 
@@ -86,6 +87,8 @@ class DriveGraph:
 
                 def tapped(msg, _orig=original, _topic=topic, _write=rec.write):
                     _orig(msg)
+                    if not isinstance(msg, bytes):     # status events: rare, not on the hot path
+                        msg = serialize_message(msg)
                     _write(_topic, msg)
                 pub.publish = tapped
         # Messages the nodes published while being built (initial estimates, step 0), again for

@@ -1,34 +1,62 @@
-"""The lock-step helper shared by every node: step gate, watchdog, parameters, and ``main``.
+"""The lock-step helper shared by every node: step gate, run protocol, watchdog, and ``main``.
 
-Protocol (DESIGN.md §3): step k is
+Step protocol (``docs/architecture.md``): step k is
   plant publishes measurements stamped t_k → controller computes V_k once it holds every input
   stamped t_k → plant integrates [t_k, t_k+1] with V_k held while the observer predicts x̂_{k+1}
   and the adapter updates p̂_{k+1} from the same step's data, both stamped t_k+1.
-Two topic hops per step on the critical path (measurement → command → next measurement; the
-observer's and adapter's outputs travel in parallel with the plant's integration).
+Two topic hops per step on the critical path. Every node computes from inputs identified by their
+stamps, never by arrival order, so the same run gives the same numbers whatever the scheduling.
 
-Every node computes from inputs identified by their stamps, never by arrival order, so the same run
-gives the same numbers whatever the scheduling. A node waiting longer than ``input_timeout`` (wall
-clock) for an input reports the topic and stamp it waited for and stops with a non-zero exit code.
+Run protocol (``/im/status``, one ``diagnostic_msgs/DiagnosticArray`` per event):
+- *startup*: each node publishes ``waiting`` and, once every one of its inputs has a publisher in
+  the graph, ``ready``. The plant (time master) publishes step 0 only when every node of its
+  ``wait_for`` list is ready, logging who is missing while it waits.
+- *running*: a node on the critical path (``exact`` gate) that waits longer than
+  ``input_timeout`` for an input reports the topic and stamp and stops with exit code 1. A node off
+  the critical path (``follow`` gate: the adapter when nobody uses its estimates, any node when the
+  plant runs in ``free_run``) never dies from being late: it takes what arrives, skips the steps it
+  lost, and counts them.
+- *lossless followers* (the recorder) announce themselves; the plant then stays within
+  ``follower_window`` steps of the last step they acknowledged on ``/im/progress``, so their
+  history can never overflow.
+- *end*: the plant publishes ``finished`` after its last step; every other node waits for it after
+  its own last step, so no node exits while its last message is still needed. Before a node exits
+  it waits until its reliable publishers' data has been acknowledged.
+- *stop*: SIGINT/SIGTERM/SIGHUP make a node publish ``stopping`` and exit 0. A node whose input
+  provider stops or fails ends its part of the run cleanly (``stopped``, exit 0); the plant's
+  ``stopped``/``failed``/``finished`` ends every node.
 """
 from __future__ import annotations
 
+import difflib
+import math
 import sys
 import time
-from typing import Callable, Dict, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .conversions import NS_PER_S
+from .stopping import StopSignals
+
+#: History of the lock-step topics: deep enough for a lossless follower ``follower_window`` steps
+#: behind, and for a node that joins a little late.
+LOCKSTEP_DEPTH = 100
+
+# Run states published on /im/status.
+WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
+PARAMETERS = 'parameters'
+FINISHED, STOPPING, STOPPED, FAILED = 'finished', 'stopping', 'stopped', 'failed'
+END_STATES = (FINISHED, STOPPED, FAILED)
 
 
-def lockstep_qos(depth: int = 10) -> QoSProfile:
+def lockstep_qos(depth: int = LOCKSTEP_DEPTH) -> QoSProfile:
     """Reliable, transient-local, keep-last: a late-joining node still gets the step it needs."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
@@ -42,34 +70,80 @@ def data_qos(depth: int = 100) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
+def status_qos() -> QoSProfile:
+    """Run-protocol events: reliable and transient-local (a node that starts late sees them)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 class StepGate:
     """Collects the inputs of step k by stamp; ``put`` returns them once all have arrived.
 
-    Inputs stamped before the expected step (replays of transient-local history) are ignored;
-    inputs for later steps wait in ``pending`` until their step comes.
+    ``follow=False`` (*exact*): steps are taken strictly in order; inputs stamped before the
+    expected step (replays of transient-local history) are ignored, inputs for later steps wait in
+    ``pending`` until their step comes.
+
+    ``follow=True`` (*follow*): as above, but when a later step is complete while the expected one
+    is not, the expected one can never complete — each publisher delivers its samples in order, so
+    every sample of the earlier step that was ever going to arrive has arrived — and the gate
+    jumps to the complete step. The steps jumped over are counted in ``gaps`` and their stamp
+    ranges kept (the first ``MAX_GAP_RANGES``). ``pending`` is bounded to ``max_pending`` steps.
     """
 
-    __slots__ = ('required', 'n', 'period', 'expected', 'pending', 'since')
+    MAX_GAP_RANGES = 100
 
-    def __init__(self, required: Sequence[str], period_ns: int, first_ns: int = 0):
+    __slots__ = ('required', 'n', 'period', 'expected', 'pending', 'since', 'follow', 'gaps',
+                 'gap_ranges', 'max_pending')
+
+    def __init__(self, required: Sequence[str], period_ns: int, first_ns: int = 0,
+                 follow: bool = False, max_pending: int = 4 * LOCKSTEP_DEPTH):
         self.required = tuple(required)
         self.n = len(self.required)
         self.period = int(period_ns)
         self.expected = int(first_ns)
         self.pending: Dict[int, dict] = {}
         self.since = time.monotonic()
+        self.follow = follow
+        self.gaps = 0
+        self.gap_ranges: List[tuple] = []
+        self.max_pending = max_pending
 
     def put(self, topic: str, ns: int, value) -> Optional[dict]:
         if ns < self.expected:
             return None
-        slot = self.pending.get(ns)
+        pending = self.pending
+        slot = pending.get(ns)
         if slot is None:
-            slot = self.pending[ns] = {}
+            slot = pending[ns] = {}
+            if self.follow and len(pending) > self.max_pending:
+                self._drop_oldest()
         slot[topic] = value
-        if ns == self.expected and len(slot) == self.n:
-            del self.pending[ns]
-            return slot
+        if len(slot) == self.n:
+            if ns == self.expected:
+                del pending[ns]
+                return slot
+            if self.follow:
+                self._skip_to(ns)
+                del pending[ns]
+                return slot
         return None
+
+    def _skip_to(self, ns: int) -> None:
+        lost = (ns - self.expected) // self.period
+        if lost > 0:
+            self.gaps += lost
+            if len(self.gap_ranges) < self.MAX_GAP_RANGES:
+                self.gap_ranges.append((self.expected, ns - self.period))
+        for old in [t for t in self.pending if t < ns]:
+            del self.pending[old]
+        self.expected = ns
+
+    def _drop_oldest(self) -> None:
+        oldest = min(self.pending)
+        del self.pending[oldest]
+        if oldest == self.expected:
+            self._skip_to(min(self.pending) if self.pending else oldest + self.period)
 
     def advance(self) -> Optional[dict]:
         """Move to the next step; return its inputs if they are already complete."""
@@ -79,6 +153,12 @@ class StepGate:
         if slot is not None and len(slot) == self.n:
             del self.pending[self.expected]
             return slot
+        if self.follow:     # a later complete step may already be waiting
+            done = [t for t, s in self.pending.items() if len(s) == self.n]
+            if done:
+                ns = min(done)
+                self._skip_to(ns)
+                return self.pending.pop(ns)
         return None
 
     def missing(self) -> list:
@@ -98,19 +178,45 @@ def describe(description: str, lo=None, hi=None, read_only: bool = False, intege
     return d
 
 
+def stamp_text(ns: int) -> str:
+    return f'{ns / NS_PER_S:.9f} s'
+
+
 class LockstepNode(Node):
-    """Base of the four drive nodes: parameters with descriptors, the watchdog, a clean stop."""
+    """Base of the drive nodes: parameters with descriptors, the run protocol, the watchdog.
+
+    A subclass declares its gate inputs with :meth:`gate_input`, implements :meth:`ready` (called
+    with each complete step's inputs) and calls :meth:`start_protocol` at the end of its
+    ``__init__``. ``critical`` nodes (the default) use an exact gate and a watchdog in lock-step;
+    ``critical = False`` nodes follow.
+    """
+
+    critical = True
+    time_master = False
 
     def __init__(self, name: str, **kwargs):
         super().__init__(name, **kwargs)
         self.done = False
         self.exit_code = 0
+        self.failure: Optional[str] = None
         self.gate: Optional[StepGate] = None
+        self.state = 'starting'
+        self.period = 0
+        self.last_step: Optional[int] = None
+        self.inputs: List[str] = []
+        self.providers: Dict[str, str] = {}        # publisher node name -> one topic it provides
+        self.peers: Dict[str, tuple] = {}          # node name -> (state, values)
+        self.free_run = False
+        self.master_state = ''                      # last state of the time master (plant)
         self._timeout = 5.0
         self._startup_timeout = 30.0
-        self._started = False
+        self._since = time.monotonic()
+        self._last_wait_log = 0.0
         self._watchdog = None
         self.on_stop: Optional[Callable[['LockstepNode'], None]] = None   # set by a graph
+        from diagnostic_msgs.msg import DiagnosticArray
+        self._status_pub = self.create_publisher(DiagnosticArray, _status_topic(), status_qos())
+        self.create_subscription(DiagnosticArray, _status_topic(), self._on_status, status_qos())
 
     # Parameters -----------------------------------------------------------------------
     def param(self, name: str, default, description: str, lo=None, hi=None, read_only: bool = True,
@@ -125,63 +231,273 @@ class LockstepNode(Node):
                              f"{', '.join(choices)}")
         return value
 
-    def use_sim_time(self) -> None:
-        if not self.has_parameter('use_sim_time'):
-            self.declare_parameter('use_sim_time', True)
-        self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
+    def check_overrides(self) -> None:
+        """Refuse parameters given for this node (YAML, ``-p``) that it does not declare, naming
+        the nearest valid one: a misspelt gain must not silently fall back to its default."""
+        declared = set(self._parameters)
+        unknown = sorted(n for n in getattr(self, '_parameter_overrides', {}) if n not in declared
+                         and not n.startswith('qos_overrides.'))
+        if unknown:
+            name = unknown[0]
+            near = difflib.get_close_matches(name, sorted(declared), n=1, cutoff=0.5)
+            hint = f"; did you mean '{near[0]}'?" if near else ''
+            raise ValueError(f"unknown parameter '{name}' for node '{self.get_name()}'{hint}"
+                             + (f' (also unknown: {", ".join(unknown[1:])})' if unknown[1:] else ''))
 
-    # Watchdog --------------------------------------------------------------------------
-    def start_watchdog(self, input_timeout: float, startup_timeout: float) -> None:
+    # Status ------------------------------------------------------------------------------
+    def status(self, state: str, level: int = 0, stamp_ns: Optional[int] = None,
+               **values) -> None:
+        """Publish a run-protocol event on /im/status (and keep it as this node's state)."""
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        if state not in (PARAMETERS,):
+            self.state = state
+        msg = DiagnosticArray()
+        ns = self.current_ns() if stamp_ns is None else stamp_ns
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), NS_PER_S)
+        st = DiagnosticStatus(level=bytes([level]), name=self.get_name(), message=state,
+                              hardware_id='im_drive')
+        base = {'role': 'critical' if self.critical else 'follower',
+                'T_s_ns': self.period, 'step': ns // self.period if self.period else 0}
+        if self.time_master:
+            base['time_master'] = 'true'
+        base.update(values)
+        st.values = [KeyValue(key=str(k), value=str(v)) for k, v in base.items()]
+        msg.status = [st]
+        try:
+            self._status_pub.publish(msg)
+        except Exception as exc:  # noqa: BLE001 - a closed context during shutdown: log, go on
+            if rclpy.ok(context=self.context):
+                raise
+            self.get_logger().debug(f'status {state} not published: {exc}')
+
+    def current_ns(self) -> int:
+        return self.gate.expected if self.gate is not None else 0
+
+    def _on_status(self, msg) -> None:
+        for st in msg.status:
+            name = st.name
+            if name == self.get_name():
+                continue
+            values = {kv.key: kv.value for kv in st.values}
+            self.peers[name] = (st.message, values)
+            self.on_peer_status(name, st.message, values)
+
+    def on_peer_status(self, name: str, state: str, values: dict) -> None:
+        """React to another node's event: the time master's end ends this node; a provider that
+        stops or fails ends this node's part of the run."""
+        if values.get('time_master') == 'true':
+            self.master_state = state
+            if state == RUNNING:
+                self.free_run = values.get('mode') == 'free_run'
+                if self.free_run and self.gate is not None:
+                    self.gate.follow = True
+        if self.done:
+            return
+        if values.get('time_master') == 'true' and state in END_STATES:
+            following = not self.critical or (self.gate is not None and self.gate.follow)
+            if state != FINISHED or self.state == FINISHING or following:
+                self.end_run(f"run ended by {name}: {state}"
+                             + (f" ({values['reason']})" if values.get('reason') else ''))
+            return
+        if state in (STOPPING, FAILED, STOPPED) and name in self.providers and self.critical:
+            self.end_run(f"input provider '{name}' {state}"
+                         + (f" ({values['reason']})" if values.get('reason') else ''),
+                         notify=True)
+
+    def end_run(self, reason: str, notify: bool = False) -> None:
+        """This node's part of the run is over (not a failure of this node)."""
+        if self.done:
+            return
+        self.get_logger().info(reason)
+        if notify:
+            self.status(STOPPED, reason=reason)
+        self.done = True
+        if self.on_stop is not None:
+            self.on_stop(self)
+
+    # Protocol ----------------------------------------------------------------------------
+    def start_protocol(self, input_timeout: float, startup_timeout: float) -> None:
+        """Announce ``waiting``; become ``ready`` once every input has a publisher; watch inputs."""
         self._timeout = float(input_timeout)
         self._startup_timeout = float(startup_timeout)
-        self._watchdog = self.create_timer(0.05, self._check_inputs,
+        self._since = time.monotonic()
+        self._missing_said = None
+        self.state = WAITING
+        self._watchdog = self.create_timer(0.1, self._tick,
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._tick()
 
-    def _check_inputs(self) -> None:
-        g = self.gate
-        if g is None or self.done:
+    def _tick(self) -> None:
+        if self.done:
             return
-        limit = self._timeout if self._started else max(self._timeout, self._startup_timeout)
-        waited = time.monotonic() - g.since
-        if waited > limit:
+        if self.state == WAITING:
+            self._check_ready()
+        elif self.state == FINISHING:
+            if time.monotonic() - self._since > max(self._timeout, 1.0):
+                self.end_run(f'finished step {self.last_step - 1}; the plant did not confirm '
+                             f'the end within {max(self._timeout, 1.0):.1f} s')
+        else:
+            self.check_inputs()
+
+    def missing_inputs(self) -> List[str]:
+        return [t for t in self.inputs if self.count_publishers(t) == 0]
+
+    def _check_ready(self) -> None:
+        missing = self.missing_inputs()
+        if missing != self._missing_said:      # tell the time master what this node waits for
+            self._missing_said = missing
+            self.status(WAITING, waiting_for=' '.join(missing))
+        waited = time.monotonic() - self._since
+        if not missing and self.ready_to_start():
+            self.providers = {}
+            for t in self.inputs:
+                infos = self.get_publishers_info_by_topic(t)
+                names = sorted({i.node_name for i in infos})
+                for n in names:
+                    self.providers.setdefault(n, t)
+                if len(infos) > 1:
+                    self.get_logger().warning(
+                        f'{t} has {len(infos)} publishers ({", ".join(names)}); only one is '
+                        f'expected — another graph or a foreign node on this ROS domain?')
+            self.on_ready()
+            return
+        if waited > self._startup_timeout:
+            self.fail(f'not started within {self._startup_timeout:.1f} s: '
+                      + self.waiting_text(missing))
+            return
+        if waited - self._last_wait_log >= 2.0:
+            self._last_wait_log = waited
+            self.get_logger().info(f'waiting ({waited:.0f} s): {self.waiting_text(missing)}')
+
+    def waiting_text(self, missing: List[str]) -> str:
+        return ('no publisher yet of ' + ', '.join(missing)) if missing else 'waiting'
+
+    def ready_to_start(self) -> bool:
+        return True
+
+    def on_ready(self) -> None:
+        self._since = time.monotonic()
+        self.status(READY)
+
+    def check_inputs(self) -> None:
+        """Watchdog of an exact gate: a critical input missing for ``input_timeout`` is a fault."""
+        g = self.gate
+        if g is None or g.follow or self.state != RUNNING and self.state != READY:
+            return
+        limit = self._timeout if self.state == RUNNING else max(self._timeout,
+                                                                 self._startup_timeout)
+        if not self.time_master:        # the time master diagnoses a stalled run first
+            limit = 1.5 * limit + 1.0
+        if time.monotonic() - g.since > limit:
             missing = g.missing()
-            step = g.expected // g.period
-            self.fail(f"no {', '.join(missing)} stamped {g.expected / NS_PER_S:.9f} s "
-                      f"(step {step}) within {limit:.1f} s of wall time; stopping")
+            gone = [t for t in missing if self.count_publishers(t) == 0]
+            hint = (f' ({", ".join(gone)} no longer has a publisher)' if gone else '')
+            self.fail(f"no {', '.join(missing)} stamped {stamp_text(g.expected)} "
+                      f"(step {g.expected // g.period}) within {limit:.1f} s of wall time"
+                      f"{hint}; stopping")
 
     def gate_input(self, topic: str, extract: Callable) -> None:
         """Subscribe (serialized, lock-step QoS) to ``topic`` and feed ``extract(data)`` =
-        (stamp_ns, value) into the step gate; complete steps go to ``self.ready(inputs)``."""
+        (stamp_ns, value) into the step gate; complete steps go to ``self.ready(inputs)``.
+        A payload that cannot be decoded is refused with its topic and counted, never fatal."""
         from geometry_msgs.msg import Vector3Stamped
         from sensor_msgs.msg import JointState
         from .topics import JS, TOPIC_TYPES
         cls = JointState if TOPIC_TYPES[topic] == JS else Vector3Stamped
-        put = self.gate.put
+        self.inputs.append(topic)
+        gate = self.gate
         ready = self.ready
 
+        last_good = {}
+
         def on_data(data, topic=topic):
-            ns, value = extract(data)
-            ready(put(topic, ns, value))
+            try:
+                ns, value = extract(data)
+            except (ValueError, KeyError, IndexError) as exc:
+                self.refuse(topic, None, f'cannot decode: {exc}')
+                return
+            if not _finite(value):
+                held = last_good.get(topic)
+                self.refuse(topic, ns, f'non-finite value {value!r}; '
+                            + ('holding the previous one' if held is not None
+                               else 'nothing to hold yet'))
+                if held is None:
+                    return
+                value = held
+            else:
+                last_good[topic] = value
+            ready(gate.put(topic, ns, value))
         self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
+
+    def refuse(self, topic: str, ns: Optional[int], reason: str) -> None:
+        """Count and log an input that is refused (the node keeps running)."""
+        self.refused = getattr(self, 'refused', 0) + 1
+        where = f' stamped {stamp_text(ns)}' if ns is not None else ''
+        if self.refused <= 20 or self.refused % 1000 == 0:
+            self.get_logger().error(f'refused {topic}{where}: {reason} (refused so far: '
+                                    f'{self.refused})')
 
     def ready(self, inputs) -> None:  # pragma: no cover - each node defines it
         raise NotImplementedError
 
     def mark_started(self) -> None:
-        self._started = True
+        if self.state != RUNNING and self.state != FINISHING:
+            self.state = RUNNING
+
+    def reached_last_step(self) -> None:
+        """This node computed its last step: wait for the plant to confirm the end."""
+        self.state = FINISHING
+        self._since = time.monotonic()
+        if self.master_state in END_STATES:
+            self.end_run('finished')
 
     def fail(self, reason: str) -> None:
         self.get_logger().error(reason)
         self.failure = reason
         self.exit_code = 1
+        self.status(FAILED, level=2, reason=reason)
         self.done = True
         if self.on_stop is not None:
             self.on_stop(self)
 
-    def finish(self) -> None:
+    def finish(self, **values) -> None:
         self.done = True
         if self.on_stop is not None:
             self.on_stop(self)
+
+    def request_stop(self, signame: str) -> None:
+        """A stop signal: say so on /im/status and end (exit code 0)."""
+        if self.done:
+            return
+        self.get_logger().info(f'{signame}: stopping')
+        self.status(STOPPING, level=1, reason=signame)
+        self.done = True
+
+    def flush(self, timeout: float = 2.0) -> None:
+        """Wait (bounded) until every reliable publisher's data has been acknowledged."""
+        deadline = time.monotonic() + timeout
+        for pub in list(self.publishers):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            try:
+                pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+            except Exception:  # noqa: BLE001 - context already shut down: nothing to wait for
+                return
+
+
+def _finite(value) -> bool:
+    """Every number in a decoded input (a tuple of floats or a dict of them) is finite."""
+    vals = value.values() if isinstance(value, dict) else value
+    for v in vals:
+        if not math.isfinite(v):
+            return False
+    return True
+
+
+def _status_topic() -> str:
+    from .topics import STATUS
+    return STATUS
 
 
 def make_executor(context=None):
@@ -190,49 +506,102 @@ def make_executor(context=None):
     return EventsExecutor(context=context)
 
 
-def spin_until_done(nodes, executor, context=None, wall_limit: Optional[float] = None) -> None:
-    """Spin until every node in ``nodes`` is done (or one failed, or the context shut down)."""
-    t0 = time.monotonic()
+def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] = None) -> None:
+    """Spin until every node in ``nodes`` is done, one failed, or a stop signal arrived (then
+    every node is asked to stop and spun a little longer so that it can say so)."""
     while rclpy.ok(context=context):
         if any(n.exit_code for n in nodes) or all(n.done for n in nodes):
             return
+        if stop is not None and stop.requested:
+            for n in nodes:
+                n.request_stop(stop.requested)
+            return
         executor.spin_once(timeout_sec=0.05)
-        if wall_limit is not None and time.monotonic() - t0 > wall_limit:
-            raise TimeoutError(f'run exceeded {wall_limit} s of wall time')
+
+
+def _rcl_error():
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+    return _rclpy.RCLError
+
+
+def init_args_error(args: List[str]) -> Optional[str]:
+    """A readable line for a bad ``--params-file`` (missing, unreadable, malformed) before
+    ``rclpy.init`` turns it into a traceback; None when the files look loadable."""
+    import yaml
+    for i, a in enumerate(args):
+        if a == '--params-file':
+            if i + 1 >= len(args):
+                return '--params-file needs a file name'
+            path = args[i + 1]
+            try:
+                with open(path) as f:
+                    doc = yaml.safe_load(f)
+            except OSError as exc:
+                return f'cannot read parameters file {path}: {exc.strerror}'
+            except yaml.YAMLError as exc:
+                mark = getattr(exc, 'problem_mark', None)
+                where = f' (line {mark.line + 1})' if mark is not None else ''
+                return f'parameters file {path} is not valid YAML{where}'
+            if not isinstance(doc, dict) or not all(
+                    isinstance(v, dict) and isinstance(v.get('ros__parameters'), dict)
+                    for v in doc.values()):
+                return (f'parameters file {path} is not a ROS 2 parameters file (expected '
+                        f'<node or /**>: {{ros__parameters: {{name: value}}}})')
+    return None
 
 
 def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
-    """``main`` of a drive node: Jazzy shutdown idiom, parameter errors as one-line messages."""
-    args = sys.argv if argv is None else argv
+    """``main`` of a drive node: Jazzy shutdown idiom, stop signals, one-line errors.
+
+    Exit codes: 0 finished or stopped (signal, or the run ended elsewhere), 1 failed, 2 refused
+    configuration.
+    """
+    from rclpy.signals import SignalHandlerOptions
+    args = list(sys.argv if argv is None else argv)
     user_args = args[1:args.index('--ros-args')] if '--ros-args' in args else args[1:]
     if '-h' in user_args or '--help' in user_args:
         return print_node_help(factory, args[0])
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
+    prog = args[0].rsplit('/', 1)[-1]
+    bad = init_args_error(args)
+    if bad:
+        print(f'{prog}: error: {bad}', file=sys.stderr)
+        return 2
+    with StopSignals() as stop:
         try:
-            node = factory()
-        except (ValueError, rclpy.exceptions.InvalidParameterValueException,
-                rclpy.exceptions.ParameterException) as exc:
-            print(f'error: {exc}', file=sys.stderr)
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        except _rcl_error() as exc:
+            print(f'{prog}: error: {str(exc).splitlines()[0]}', file=sys.stderr)
             return 2
-        executor = make_executor()
-        executor.add_node(node)
-        spin_until_done([node], executor)
-        code = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        code = 0 if node is None or not node.exit_code else node.exit_code
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        node = None
+        code = 0
+        try:
+            try:
+                node = factory()
+                node.check_overrides()
+            except (ValueError, rclpy.exceptions.InvalidParameterValueException,
+                    rclpy.exceptions.ParameterException) as exc:
+                print(f'{prog}: error: {exc}', file=sys.stderr)
+                return 2
+            executor = make_executor()
+            executor.add_node(node)
+            spin_until_done([node], executor, stop=stop)
+            code = node.exit_code
+            if not stop.requested:      # let the end of the run reach the others
+                node.flush()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            code = 0 if node is None or not node.exit_code else node.exit_code
+        finally:
+            if node is not None:
+                node.flush(timeout=1.0)
+                node.destroy_node()
+            rclpy.try_shutdown()
     return code
 
 
 def parameter_table(node: Node) -> str:
     """Markdown table of a node's declared parameters (name, default, range, description)."""
-    rows = ['| parameter | default | range | description |', '| --- | --- | --- | --- |']
+    rows = ['| parameter | default | range | live | description |',
+            '| --- | --- | --- | --- | --- |']
     for name in sorted(node._parameters):
         if name in ('use_sim_time', 'start_type_description_service'):
             continue
@@ -245,7 +614,8 @@ def parameter_table(node: Node) -> str:
             r = d.integer_range[0]
             rng = f'[{r.from_value}, {r.to_value}]'
         value = node.get_parameter(name).value
-        rows.append(f'| `{name}` | `{value!r}` | {rng} | {d.description} |')
+        live = '' if d.read_only else 'yes'
+        rows.append(f'| `{name}` | `{value!r}` | {rng} | {live} | {d.description} |')
     return '\n'.join(rows)
 
 

@@ -18,6 +18,7 @@ class TopicSpec:
     publisher: str      # node that publishes it
     layout: str         # how the fields are used
     critical: bool = False   # on the lock-step critical path
+    recorded: bool = True    # part of a default recording
 
 
 CLOCK = '/clock'
@@ -37,10 +38,14 @@ TRUTH_TORQUE = '/im/truth/torque'
 TRUTH_PARAMS = '/im/truth/parameters'
 TRUTH_POWER = '/im/truth/power'
 TRUTH_ENERGY = '/im/truth/energy'
+STATUS = '/im/status'
+PROGRESS = '/im/progress'
 
 V3 = 'geometry_msgs/msg/Vector3Stamped'
 JS = 'sensor_msgs/msg/JointState'
 CLK = 'rosgraph_msgs/msg/Clock'
+DIAG = 'diagnostic_msgs/msg/DiagnosticArray'
+HEADER = 'std_msgs/msg/Header'
 
 SHAFT_JOINT = 'rotor'
 ESTIMATE_NAMES = ('R_r', 'theta', 'L_M', 'R_R')
@@ -74,9 +79,18 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     TopicSpec(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
     TopicSpec(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
+    TopicSpec(STATUS, DIAG, 'every node',
+              'run protocol: one status per event (waiting, ready, running, parameters, finished, '
+              'stopping, stopped, failed); name = node, message = state, values = details; '
+              'stamp = simulated time of the event'),
+    TopicSpec(PROGRESS, HEADER, 'lossless followers (recorder)',
+              'flow control: stamp = last step received completely, frame_id = node; the plant '
+              'stays within follower_window steps of it', recorded=False),
 )
 
 TOPIC_TYPES: Dict[str, str] = {t.name: t.type for t in TOPICS}
+LOCKSTEP_TOPICS: Tuple[str, ...] = tuple(t.name for t in TOPICS if t.critical)
+RECORDED_TOPICS: Tuple[str, ...] = tuple(t.name for t in TOPICS if t.recorded)
 
 
 def markdown_table() -> str:

@@ -4,7 +4,14 @@ A thin shell around :class:`im_controller.control_law.DriveController`. At step 
 measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the adapter's
 estimates stamped t_k when ``use_adapter``), computes V_k and publishes it stamped t_k. References
 are published every ``reference_decimation`` steps for analysis. Setpoints on ``/im/setpoint``
-(profile ``setpoint``) take effect at the first step at or after their stamp.
+(profile ``setpoint``) take effect at the first step at or after their stamp; the topic takes both
+a default ``ros2 topic pub`` (volatile) and a transient-local publisher (a setpoint latched before
+the controller started is not lost).
+
+Parameters marked live (``--help``) can be changed while running (``ros2 param set /controller
+k1 30.0``): the whole new configuration is validated in the set-parameters callback (a refused
+value leaves the old one in force and says why), applied at the next step boundary, and announced
+on ``/im/status`` with the step it took effect, so a recording holds it.
 """
 from __future__ import annotations
 
@@ -16,10 +23,12 @@ from sensor_msgs.msg import JointState
 from im_common import topics as T
 from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, period_ns, shaft_in,
                                    stamp_ns, xy_in)
-from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
+from im_common.lockstep import (PARAMETERS, LockstepNode, StepGate, data_qos, lockstep_qos,
+                                node_main, status_qos)
+from rcl_interfaces.msg import SetParametersResult
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
-from im_controller.parameters import config_from_parameters, declare_controller
+from im_controller.parameters import LIVE_PARAMETERS, config_from_parameters, declare_controller
 
 
 class ControllerNode(LockstepNode):
@@ -29,7 +38,8 @@ class ControllerNode(LockstepNode):
         super().__init__('controller', **kwargs)
         self.T_s, self.duration, timeout, startup = declare_run(self)
         params = declare_motor(self, what='controller model (nominal estimates)')
-        values = declare_controller(self)
+        self._model = params
+        self._values = values = declare_controller(self)
         self.use_adapter = self.param('use_adapter', False,
                                       'wait for and use the adapter estimates (eq. 4.10-4.12)')
         self.ref_every = self.param('reference_decimation', 10,
@@ -54,12 +64,59 @@ class ControllerNode(LockstepNode):
         self.gate_input(T.OBS_FLUX, xy_in)
         if self.use_adapter:
             self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
-        # transient-local: a setpoint published before the controller came up is not lost
-        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, lockstep_qos())
-        self.start_watchdog(timeout, startup)
+        # volatile: matches every publisher, `ros2 topic pub` included; transient-local: also
+        # gets a setpoint latched before the controller came up. A message that arrives on
+        # both is applied once.
+        self._seen_setpoints = []
+        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos(10))
+        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, status_qos())
+        self._pending_changes = None
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+        self.start_protocol(timeout, startup)
+
+    # Live parameters -------------------------------------------------------------------
+    def _on_set_parameters(self, parameters):
+        """Validate a set of changes as a whole configuration; apply at the next step."""
+        changes = {p.name: p.value for p in parameters if p.name in LIVE_PARAMETERS}
+        if not changes:
+            return SetParametersResult(successful=True)
+        values = dict(self._values)
+        if self._pending_changes:
+            values.update(self._pending_changes)
+        values.update(changes)
+        try:
+            config_from_parameters(self._model, values, self.T_s)
+        except (ValueError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, parameters) -> None:
+        """Accepted: stage the changes for the next step boundary."""
+        changes = {p.name: p.value for p in parameters if p.name in LIVE_PARAMETERS}
+        if changes:
+            pending = dict(self._pending_changes or {})
+            pending.update(changes)
+            self._pending_changes = pending
+
+    def _apply_changes(self, k: int) -> None:
+        changes, self._pending_changes = self._pending_changes, None
+        try:
+            self.ctl.reconfigure(changes)
+        except ValueError as exc:       # validated already; a refusal here is a defect: say so
+            self.get_logger().error(f'parameters {changes} not applied at step {k}: {exc}')
+            return
+        self._values.update(changes)
+        self.get_logger().info(f'parameters applied at step {k}: '
+                               + ', '.join(f'{n} = {v!r}' for n, v in changes.items()))
+        self.status(PARAMETERS, **{n: repr(v) for n, v in changes.items()})
 
     def on_setpoint(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
+        key = (ns, tuple(msg.position), tuple(msg.velocity), tuple(msg.effort))
+        if key in self._seen_setpoints:
+            return
+        self._seen_setpoints = (self._seen_setpoints + [key])[-20:]
         for kind, field in (('position', msg.position), ('speed', msg.velocity),
                             ('torque', msg.effort)):
             if len(field):
@@ -74,13 +131,15 @@ class ControllerNode(LockstepNode):
         while inputs is not None and not self.done:
             self.mark_started()
             self.step(inputs)
-            if self.done:
+            if self.done or self.state == 'finishing':
                 return
             inputs = self.gate.advance()
 
     def step(self, inputs: dict) -> None:
         ns = self.gate.expected
         k = ns // self.period
+        if self._pending_changes is not None:
+            self._apply_changes(k)
         i_a, i_b = inputs[T.MEAS_CURRENT]
         theta, omega = inputs[T.MEAS_SHAFT]
         f_a, f_b = inputs[T.OBS_FLUX]
@@ -99,7 +158,7 @@ class ControllerNode(LockstepNode):
             self.pub_ref_flux.publish(self.out_rf.fill(ns, r['phi_alpha_ref'], r['phi_beta_ref'],
                                                        r['phi_d_ref']))
         if self.last_step is not None and k + 1 >= self.last_step:
-            self.finish()
+            self.reached_last_step()
 
 
 def main(argv=None) -> None:

@@ -74,3 +74,8 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
             v[key] = None
     v['v_limit'] = v['v_limit'] or None
     return ControllerConfig(params=params, T_s=T_s, **v)
+
+
+#: Parameters that may change while the controller runs (applied at a step boundary).
+LIVE_PARAMETERS = ('k1', 'k_p', 'k_v', 'strategy', 'phi_d', 'phi_min', 'phi_max', 'v_limit',
+                   'torque_filter_bandwidth', 'setpoint_duration')

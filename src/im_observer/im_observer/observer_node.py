@@ -1,9 +1,13 @@
 """``ros2 run im_observer observer``: full-order rotor-flux observer (seed 000 eq. 3.27 / 4.13).
 
-A thin shell around :class:`im_observer.observer.RotorFluxObserver`. At step k it waits for the
+A thin shell around :class:`im_observer.observer.RotorFluxObserver`. At step k it takes the
 measured current and speed and the voltage command stamped t_k (and the adapter's estimates
 stamped t_k when ``use_adapter``), integrates the observer over [t_k, t_k+1] and publishes the
 estimate x̂_k+1 stamped t_k+1 — in parallel with the plant's own integration.
+
+In lock-step every step is taken in order. When the plant runs in ``free_run`` the observer
+follows: a step whose inputs never came (a command that missed its deadline) is bridged by
+predicting open-loop with the previous command — what the plant itself did — and counted.
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ from im_common.conversions import Vector3Out, estimates_in, period_ns, shaft_in,
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
+from im_observer.parameters import check_gain_period, declare_observer
 
 
 class ObserverNode(LockstepNode):
@@ -25,34 +30,17 @@ class ObserverNode(LockstepNode):
         super().__init__('observer', **kwargs)
         self.T_s, self.duration, timeout, startup = declare_run(self)
         params = declare_motor(self, what='observer model (nominal estimates)')
-        p = self.param
-        k_e = p('k_e_injection', 0.0,
-                'current-error injection gain k_e of eq. 3.27 [V/A] (0: the thesis value 1/sigma)',
-                0.0, 1e6)
-        gain = p('injection_gain', [0.0],
-                 'discrete-time 4x2 injection gain, row-major, from design_gains ([0.0]: unused)')
-        gain_period = p('gain_period', 0.0, 'period the injection_gain was designed for [s]',
-                        0.0, 1.0)
-        self.use_adapter = p('use_adapter', False,
-                             'wait for and use the adapter estimates (eq. 4.13)')
-        x0 = p('initial_state', [0.0, 0.0, 0.0, 0.0],
-               'initial estimate [i_alpha, i_beta, phi_alpha, phi_beta] [A, Wb]')
-        if len(x0) != 4:
-            raise ValueError(f"invalid parameter 'initial_state' = {list(x0)!r}: 4 values")
-        max_sub = p('max_substep', 1e-4, 'longest integration sub-step [s]', 1e-7, 0.1)
-        self.publish_every = p('estimate_decimation', 10,
-                               'publish the current estimate every N steps (the flux estimate is '
-                               'published every step: the controller needs it)', 1, 1000000)
-        gain = list(gain) if len(gain) == 8 else None
-        if gain is not None and abs(gain_period - self.T_s) > 1e-12:
-            raise ValueError(f"invalid parameter 'gain_period' = {gain_period!r}: the injection "
-                             f"gain was designed for another period than T_s = {self.T_s}")
-        self.obs = RotorFluxObserver(params, k_e=k_e or None, max_substep=max_sub, x0=tuple(x0),
-                                     injection_gain=gain, gain_period=gain_period or None)
+        v = declare_observer(self)
+        check_gain_period(v, self.T_s)
+        self.use_adapter = v['use_adapter']
+        self.publish_every = v['estimate_decimation']
+        self.obs = RotorFluxObserver(params, k_e=v['k_e_injection'] or None,
+                                     max_substep=v['max_substep'], x0=tuple(v['initial_state']),
+                                     injection_gain=v['injection_gain'],
+                                     gain_period=v['gain_period'] or None)
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
-        q = lockstep_qos()
-        self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, q)
+        self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
         self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, data_qos())
         self.out_flux, self.out_current = Vector3Out(), Vector3Out()
         required = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE]
@@ -64,29 +52,52 @@ class ObserverNode(LockstepNode):
         self.gate_input(T.CMD_VOLTAGE, xy_in)
         if self.use_adapter:
             self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
-        self.start_watchdog(timeout, startup)
+        self.k_done = -1
+        self.held = (0.0, 0.0, 0.0)         # last command and speed (for bridging a gap)
+        self.bridged = 0
         self.publish_estimate(0)
+        self.start_protocol(timeout, startup)
 
     def ready(self, inputs) -> None:
         while inputs is not None and not self.done:
             self.mark_started()
             self.step(inputs)
+            if self.done or self.state == 'finishing':
+                return
             inputs = self.gate.advance()
 
     def step(self, inputs: dict) -> None:
         k = self.gate.expected // self.period
-        if self.use_adapter:
-            self.obs.set_estimates(**inputs[T.ADAPT_ESTIMATE])
-        v_a, v_b = inputs[T.CMD_VOLTAGE]
-        i_a, i_b = inputs[T.MEAS_CURRENT]
         try:
-            self.obs.step(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1])
+            while self.k_done + 1 < k:          # steps lost in free_run: predict open-loop
+                self._bridge(self.k_done + 1)
+            if self.use_adapter:
+                self.obs.set_estimates(**inputs[T.ADAPT_ESTIMATE])
+            v_a, v_b = inputs[T.CMD_VOLTAGE]
+            i_a, i_b = inputs[T.MEAS_CURRENT]
+            omega = inputs[T.MEAS_SHAFT][1]
+            self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
         except (ValueError, ArithmeticError) as exc:
             self.fail(f'observer failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
             return
+        self.held = (v_a, v_b, omega)
+        self.k_done = k
         self.publish_estimate(k + 1)
         if self.last_step is not None and k + 1 >= self.last_step:
-            self.finish()
+            self.reached_last_step()
+
+    def _bridge(self, j: int) -> None:
+        v_a, v_b, omega = self.held
+        i_a, i_b = self.obs.state[0], self.obs.state[1]      # no measurement: no injection
+        self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
+        self.bridged += 1
+        self.k_done = j
+        self.publish_estimate(j + 1)
+
+    def end_run(self, reason: str, notify: bool = False) -> None:
+        if not self.done and self.bridged:
+            self.get_logger().warning(f'{self.bridged} steps bridged open-loop (inputs lost)')
+        super().end_run(reason, notify)
 
     def publish_estimate(self, k: int) -> None:
         ns = k * self.period

@@ -1,9 +1,16 @@
 """``ros2 run im_plant plant``: the simulated motor, load and inverter; the time master.
 
 A thin shell around :class:`im_common.plant_sim.PlantSimulator`: parameters in, voltage commands
-in, measurements and ground truth out. In ``lockstep`` mode (default) it advances from t_k to
-t_k+1 only when the command stamped t_k has arrived; in ``free_run`` mode it advances on a
-wall-clock timer at T_s holding the last command and counts overruns (steps whose command was late).
+in, measurements and ground truth out. It is the time master of the run protocol
+(:mod:`im_common.lockstep`): it publishes step 0 only when every node of ``wait_for`` is ready, and
+``finished`` after the last step.
+
+``lockstep`` (default): it advances from t_k to t_k+1 only when the command stamped t_k has
+arrived, and stays within ``follower_window`` steps of every lossless follower (the recorder).
+``free_run``: it advances on a wall-clock timer at T_s. The command stamped t_k must arrive before
+the tick that ends step k (its deadline); otherwise the previous command is held for that step
+and the step counts as *missed* (a command that arrives after its deadline is *late* and dropped).
+Latencies (measurement k published → command k received) go into a histogram reported at the end.
 """
 from __future__ import annotations
 
@@ -16,9 +23,13 @@ from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from im_common import topics as T
-from im_common.conversions import JointStateOut, Vector3Out, clock_bytes, period_ns, xy_in
+from im_common.conversions import (NS_PER_S, JointStateOut, Vector3Out, clock_bytes, period_ns,
+                                   xy_in)
 from im_common.loads import LOAD_KINDS, make_load
-from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
+from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, READY, RUNNING, STOPPED,
+                                STOPPING, LockstepNode, StepGate, data_qos, lockstep_qos, node_main,
+                                stamp_text)
+from im_common.timing import LatencyHistogram
 from im_common.node_params import declare_motor, declare_run
 from im_common.params import ELECTRICAL_NAMES, SCHEDULES, ParameterSchedule, Variation
 from im_common.model import stator_flux
@@ -27,6 +38,8 @@ from im_common.plant_sim import PlantSimulator
 
 class PlantNode(LockstepNode):
     """Simulated induction motor, load and inverter; owns simulated time."""
+
+    time_master = True
 
     def __init__(self, **kwargs):
         super().__init__('plant', **kwargs)
@@ -88,10 +101,27 @@ class PlantNode(LockstepNode):
                                   noise_seed=seed, theta0=theta0, omega0=omega0, x0=x0)
         self.period = period_ns(self.T_s)
         self.last_step = (round(self.duration / self.T_s) if self.duration > 0 else None)
+        self.wait_for = self.param(
+            'wait_for', 'controller observer',
+            'names of the nodes that must be ready before step 0, separated by spaces (add '
+            'adapter, recorder to wait for them; empty: start at once)').split()
+        self.window = self.param('follower_window', 50,
+                                 'lock-step: how many steps the plant may run ahead of the last '
+                                 'step a lossless follower (the recorder) acknowledged', 1,
+                                 LOCKSTEP_DEPTH // 2)
         self.rejected = 0
-        self.overruns = 0
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
         self.wall_start = None      # wall time of the first step (for the steps/s report)
+        # free_run deadline accounting
+        self.missed = 0             # steps whose command had not arrived by the deadline
+        self.late = 0               # commands that arrived after their deadline (dropped)
+        self.overruns = 0           # ticks the plant itself was late for (caught up)
+        self.latency = LatencyHistogram()
+        self._published_at: dict = {}
+        self._free_cmd: dict = {}
+        # lossless followers: name -> [acked stamp ns, wall time of the last ack]
+        self.followers: dict = {}
+        self._parked = None
 
         q = lockstep_qos()
         self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
@@ -114,14 +144,122 @@ class PlantNode(LockstepNode):
         self.out_en = JointStateOut(T.ENERGY_NAMES)
 
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)
+        self.inputs.append(T.CMD_VOLTAGE)
         self.last_cmd = (0.0, 0.0)
         self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE, self.on_command, q, raw=True)
+        from std_msgs.msg import Header
+        self.create_subscription(Header, T.PROGRESS, self.on_progress, 10)
+        self.start_protocol(timeout, startup)
+
+    # Startup -----------------------------------------------------------------------------
+    def ready_to_start(self) -> bool:
+        for name in self.wait_for:
+            state, values = self.peers.get(name, ('', {}))
+            if state != READY and state != RUNNING:
+                return False
+            t_s = int(values.get('T_s_ns', self.period))
+            if t_s != self.period:
+                self.fail(f"node '{name}' runs at T_s = {t_s / 1e9:g} s, the plant at "
+                          f"{self.T_s:g} s: give every node the same T_s")
+                return False
+        return True
+
+    def waiting_text(self, missing) -> str:
+        nodes = [n for n in self.wait_for if self.peers.get(n, ('',))[0] not in (READY, RUNNING)]
+        parts = []
+        if missing:
+            parts.append('no publisher yet of ' + ', '.join(missing))
+        if nodes:
+            parts.append('not ready: ' + ', '.join(_peer_text(n, self.peers.get(n))
+                                                   for n in nodes))
+        return '; '.join(parts) or 'waiting'
+
+    def on_ready(self) -> None:
+        """Everyone is there: publish step 0 (and start the wall clock in free_run)."""
+        self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers))
+        self.get_logger().info(
+            f"starting: {', '.join(self.wait_for)} ready; {self.mode}, T_s = {self.T_s:g} s"
+            + (f', lossless followers: {", ".join(self.followers)}' if self.followers else ''))
         if self.mode == 'free_run':
-            self.create_timer(self.T_s, self.on_wall_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
-            self.gate = None
-        else:
-            self.start_watchdog(timeout, startup)
+            self.gate.follow = True
+            self._t0 = time.perf_counter()
+            self.wall_start = self._t0
+            self.create_timer(self.T_s, self.on_wall_tick,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.publish_step()
+
+    def current_ns(self) -> int:
+        return self.sim.k * self.period
+
+    # Peers -------------------------------------------------------------------------------
+    def on_peer_status(self, name: str, state: str, values: dict) -> None:
+        if state == READY and values.get('lossless') == 'true' and name not in self.followers:
+            base = self.current_ns() if self.state == RUNNING else 0
+            self.followers[name] = [base, time.monotonic()]
+            if self.state == RUNNING:
+                self.get_logger().info(f"lossless follower '{name}' joined at step "
+                                       f"{self.sim.k}; keeping within {self.window} steps of it")
+            return
+        if state in (STOPPING, STOPPED) + END_STATES and name in self.followers:
+            del self.followers[name]
+            self.get_logger().info(f"follower '{name}' {state}")
+            self._resume()
+            return
+        if self.done or state not in (STOPPING, STOPPED) + END_STATES:
+            return
+        if name in self.wait_for or name in self.providers:
+            reason = f"{name} {state}" + (f" ({values['reason']})" if values.get('reason') else '')
+            self.get_logger().warning(f'run stopped at step {self.sim.k}: {reason}')
+            self.status(STOPPED, level=1, reason=reason)
+            self.finish()
+
+    def request_stop(self, signame: str) -> None:
+        if self.done:
+            return
+        self.get_logger().info(f'{signame}: stopping the run at step {self.sim.k}')
+        self.status(STOPPED, level=1, reason=signame)
+        self.done = True
+
+    def on_progress(self, msg) -> None:
+        f = self.followers.get(msg.frame_id)
+        if f is None:
+            return
+        ns = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
+        if ns > f[0]:
+            f[0] = ns
+        f[1] = time.monotonic()
+        self._resume()
+
+    def _follower_lag(self, next_ns: int):
+        """The first follower more than ``follower_window`` steps behind ``next_ns`` (None if
+        none); a follower silent for ``input_timeout`` is dropped with a warning (its recording
+        will show the gap) — it is off the critical path and must not stop the run."""
+        limit = next_ns - self.window * self.period
+        for name, (ack, seen) in list(self.followers.items()):
+            if ack >= limit:
+                continue
+            if time.monotonic() - seen > self._timeout:
+                self.get_logger().warning(
+                    f"follower '{name}' acknowledged nothing after {stamp_text(ack)} for "
+                    f"{self._timeout:.1f} s; continuing without it (its recording will miss "
+                    f"steps from there on)")
+                del self.followers[name]
+                continue
+            return name
+        return None
+
+    def _resume(self) -> None:
+        if self._parked is not None and not self.done:
+            ready, self._parked = self._parked, None
+            self._run(ready)
+        elif self.state == 'draining':
+            self._try_finish()
+
+    def check_inputs(self) -> None:
+        if self._parked is not None or self.state == 'draining':
+            self._resume()
+            return
+        super().check_inputs()
 
     # Lock-step ---------------------------------------------------------------------------
     def on_command(self, data: bytes) -> None:
@@ -129,32 +267,58 @@ class PlantNode(LockstepNode):
             ns, (vx, vy) = xy_in(data)
         except ValueError as exc:
             self.rejected += 1
-            self.get_logger().error(f'rejected malformed {T.CMD_VOLTAGE}: {exc}')
+            self.refuse(T.CMD_VOLTAGE, None, f'malformed: {exc}')
             return
         if not (math.isfinite(vx) and math.isfinite(vy)):
             self.rejected += 1
-            self.get_logger().error(
-                f'rejected {T.CMD_VOLTAGE} stamped {ns / 1e9:.9f} s: non-finite voltage '
-                f'({vx!r}, {vy!r}); holding the previous command')
+            self.refuse(T.CMD_VOLTAGE, ns, f'non-finite voltage ({vx!r}, {vy!r}); holding the '
+                        f'previous command')
             vx, vy = self.last_cmd
-        if self.gate is None:           # free-running: just hold the latest command
-            if ns < self.sim.k * self.period:
-                self.overruns += 1
-            self.last_cmd = (vx, vy)
+        if self.mode == 'free_run':
+            self._free_command(ns, vx, vy)
             return
-        ready = self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy))
+        self._run(self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy)))
+
+    def _run(self, ready) -> None:
         while ready is not None and not self.done:
+            if self.followers and self._follower_lag((self.sim.k + 1) * self.period):
+                self._parked = ready
+                return
             if self.wall_start is None:
                 self.wall_start = time.perf_counter()
             self.mark_started()
             self.advance(*ready[T.CMD_VOLTAGE])
+            if self.state != RUNNING:
+                return
             ready = self.gate.advance()
 
-    def on_wall_tick(self) -> None:
-        if self.done:
+    # Free run ----------------------------------------------------------------------------
+    def _free_command(self, ns: int, vx: float, vy: float) -> None:
+        k = ns // self.period
+        if k < self.sim.k:              # its step has already been integrated
+            self.late += 1
             return
-        self.advance(*self.last_cmd)
+        t_pub = self._published_at.pop(k, None)
+        if t_pub is not None:
+            self.latency.add(time.perf_counter() - t_pub)
+        self._free_cmd[k] = (vx, vy)
 
+    def on_wall_tick(self) -> None:
+        if self.done or self.state != RUNNING:
+            return
+        target = int((time.perf_counter() - self._t0) / self.T_s)
+        if target - self.sim.k > 1:
+            self.overruns += target - self.sim.k - 1
+        while self.sim.k < target and self.state == RUNNING and not self.done:
+            k = self.sim.k
+            cmd = self._free_cmd.pop(k, None)
+            if cmd is None:
+                self.missed += 1
+                self._published_at.pop(k, None)
+                cmd = self.last_cmd
+            self.advance(*cmd)
+
+    # Stepping ----------------------------------------------------------------------------
     def advance(self, v_a: float, v_b: float) -> None:
         self.last_cmd = (v_a, v_b)
         try:
@@ -172,6 +336,8 @@ class PlantNode(LockstepNode):
         m = sim.measure()
         self.pub_current.publish(self.out_current.fill(ns, m.i_alpha, m.i_beta))
         self.pub_shaft.publish(self.out_shaft.fill(ns, (m.theta_r,), (m.omega_r,)))
+        if self.mode == 'free_run':
+            self._published_at[k] = time.perf_counter()
         if k % self.clock_every == 0 or final:
             self.pub_clock.publish(clock_bytes(ns))
         if (self.truth_every and k % self.truth_every == 0) or final or self.truth_sink:
@@ -181,12 +347,33 @@ class PlantNode(LockstepNode):
             if (self.truth_every and k % self.truth_every == 0) or final:
                 self.publish_truth(ns, tr)
         if final:
-            wall = time.perf_counter() - (self.wall_start or time.perf_counter())
-            rate = k / wall if wall > 0 else float('nan')
-            self.get_logger().info(
-                f'reached duration {self.duration} s at step {k} ({rate:.0f} steps/s); '
-                f'rejected commands: {self.rejected}, overruns: {self.overruns}')
-            self.finish()
+            self.state = 'draining'
+            self._since = time.monotonic()
+            self._try_finish()
+
+    def _try_finish(self) -> None:
+        """After the last step: wait for lossless followers to acknowledge it, then finish."""
+        if self.done:
+            return
+        final_ns = self.sim.k * self.period
+        if self.followers and self._follower_lag(final_ns + (self.window - 1) * self.period):
+            return
+        wall = time.perf_counter() - (self.wall_start or time.perf_counter())
+        k = self.sim.k
+        rate = k / wall if wall > 0 else 0.0
+        stats = {'steps': k, 'steps_per_s': f'{rate:.1f}', 'rejected': self.rejected,
+                 'reason': 'duration reached'}
+        text = (f'reached duration {self.duration} s at step {k} ({rate:.0f} steps/s); '
+                f'rejected commands: {self.rejected}')
+        if self.mode == 'free_run':
+            stats.update(missed=self.missed, late=self.late, overruns=self.overruns,
+                         **self.latency.as_values())
+            text += (f'; free_run: {self.missed} of {k} steps without a command by their '
+                     f'deadline ({100.0 * self.missed / max(k, 1):.2f} %), {self.late} late, '
+                     f'{self.overruns} plant overruns; latency {self.latency.describe()}')
+        self.get_logger().info(text)
+        self.status(FINISHED, **stats)
+        self.finish()
 
     def publish_truth(self, ns: int, tr: dict) -> None:
         pt = self.pub_truth
@@ -197,6 +384,15 @@ class PlantNode(LockstepNode):
         pt['params'].publish(self.out_par.fill(ns, truth_params(tr)))
         pt['power'].publish(self.out_pow.fill(ns, [tr[n] for n in T.POWER_NAMES]))
         pt['energy'].publish(self.out_en.fill(ns, [tr[n] for n in T.ENERGY_NAMES]))
+
+
+def _peer_text(name: str, peer) -> str:
+    if peer is None:
+        return f'{name} (not seen on this ROS domain)'
+    state, values = peer
+    if state == 'waiting' and values.get('waiting_for'):
+        return f"{name} (waiting for a publisher of {values['waiting_for']})"
+    return f'{name} ({state})'
 
 
 def truth_params(tr: dict) -> list:
