@@ -1,37 +1,56 @@
-"""``ros2 run im_bringup record [--out bags/<run>.mcap] [--force] [--topics T ...]``
+"""``ros2 run im_bringup record [--out bags/<run>.mcap] [--force] [--topics T ...] [--continuous]``
 
-Records a running graph to MCAP: one raw (serialized) subscription per topic of
-:data:`im_common.topics.TOPICS` (or the given topics; a topic outside the table needs
-``topic:=pkg/msg/Type``), written as received through :class:`~im_bringup.bag.BagWriter`. Each
-message's log time is its header stamp (simulated time), so the recording lines up with the run and
-not with the recorder's scheduling; a payload's trailing bytes beyond its CDR length are trimmed.
+Records a running graph to MCAP: one subscription per topic of :data:`im_common.topics.TOPICS`
+(or the given topics; a topic outside the table needs ``topic:=pkg/msg/Type``), written as
+received through :class:`~im_bringup.bag.BagWriter`. Each message's log time is its header stamp
+(simulated time), so the recording lines up with the run and not with the recorder's scheduling.
 
-QoS: reliable, volatile, keep-last 1000 — compatible with the stack's reliable publishers
-(transient-local or volatile); if a topic already has a best-effort publisher when the recorder
-starts, that topic is subscribed best-effort. SIGINT / SIGTERM stop spinning and close the file
-(summary, footer), so an interrupted recording is complete up to the stop; after a hard kill use
-``recover``. The in-process graph records without this node (``DriveGraph(recorder=BagWriter)``).
+Lossless across processes. The recorder is a *lossless follower* of the run protocol
+(:mod:`im_common.lockstep`): it announces itself on ``/im/status`` and acknowledges on
+``/im/progress`` the last step it has received on every lock-step topic; the plant never runs
+more than ``follower_window`` steps ahead of that acknowledgement, and the lock-step topics keep
+twice that many samples, so no sample can be overwritten before the recorder has it — however busy
+the machine. Start it before the graph, or have the plant wait for it (``wait_for`` includes
+``recorder``; the launch file's ``record:=PATH`` does both); a recorder that joins a running graph
+records losslessly from the step it joined (transient-local topics also give it the last
+``LOCKSTEP_DEPTH`` samples before that).
+
+Every lock-step topic is checked step by step: missing stamps are counted, their ranges logged at
+the end and written into the bag's ``recording`` metadata, with the run's end state (finished,
+stopped, failed, interrupted) — ``report`` shows them.
+
+It stops when the run ends (the plant's ``finished``/``stopped``/``failed``, after receiving the
+last step) unless ``--continuous``; SIGINT / SIGTERM / SIGHUP close the file (summary, footer), so
+an interrupted recording is complete up to the stop; after a hard kill use ``recover``. The
+in-process graph records without this node (``DriveGraph(recorder=...)``).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import time
-from typing import Dict, Iterable, Optional
+from typing import Dict, Iterable, List, Optional
 
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from im_common import cdr
+from im_common import topics as T
+from im_common.lockstep import END_STATES, READY, LockstepNode, stamp_text
 from .bag import BagError, BagWriter, qos_yaml
 
-STAMPED_TYPES = {'geometry_msgs/msg/Vector3Stamped', 'sensor_msgs/msg/JointState',
-                 'rosgraph_msgs/msg/Clock'}
+#: Types written raw (exact CDR length known without a full decode); others are taken as
+#: message objects and serialized by rclpy (rare: status events).
+RAW_TYPES = {T.V3, T.JS, T.CLK}
+#: Types whose first field is a header stamp (or a time): their log time is that stamp; other
+#: types are logged at the recorder's clock.
+STAMPED_TYPES = RAW_TYPES | {T.DIAG, T.HEADER}
+#: Lock-step topics whose progress the recorder acknowledges (the adapter's estimates follow the
+#: run and are recorded as they come, but do not hold the plant back).
+ACK_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
 
 
 def default_topics() -> Dict[str, str]:
-    from im_common.topics import TOPICS
-    return {t.name: t.type for t in TOPICS}
+    return {name: T.TOPIC_TYPES[name] for name in T.RECORDED_TOPICS}
 
 
 def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
@@ -44,7 +63,7 @@ def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
         if ':=' in it:
             topic, tname = it.split(':=', 1)
         else:
-            topic, tname = it, table.get(it)
+            topic, tname = it, T.TOPIC_TYPES.get(it)
             if tname is None:
                 raise ValueError(f'topic {it!r} is not in im_common.topics; give its type as '
                                  f'{it}:=pkg/msg/Type')
@@ -54,62 +73,193 @@ def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
     return out
 
 
-class RecorderNode(Node):
-    """Subscribes raw to ``topics`` and writes every message to ``writer``."""
+class StampTrack:
+    """Per-topic continuity check of a lock-step topic: counts steps whose stamp never arrived."""
+
+    __slots__ = ('last', 'missing', 'ranges')
+
+    def __init__(self):
+        self.last: Optional[int] = None
+        self.missing = 0
+        self.ranges: List[tuple] = []
+
+    def see(self, ns: int, period: int) -> None:
+        last = self.last
+        if last is not None and period and ns > last + period:
+            n = (ns - last) // period - 1
+            self.missing += n
+            if len(self.ranges) < 100:
+                self.ranges.append((last + period, ns - period))
+        if last is None or ns > last:
+            self.last = ns
+
+
+class RecorderNode(LockstepNode):
+    """Subscribes to ``topics`` and writes every message to ``writer``; a lossless follower."""
+
+    critical = False
 
     def __init__(self, writer: BagWriter, topics: Optional[Dict[str, str]] = None,
-                 node_name: str = 'recorder', depth: int = 1000, **kwargs):
+                 node_name: str = 'recorder', depth: int = 1000, lossless: bool = True,
+                 **kwargs):
         super().__init__(node_name, **kwargs)
         self.writer = writer
+        self.lossless = lossless
         self.counts: Dict[str, int] = {}
         self.trimmed = 0
+        self.undecodable = 0
+        self.track: Dict[str, StampTrack] = {}
+        self.end_state: Optional[str] = None
+        self.end_values: dict = {}
+        self._acked = -1
         self._subs = []
-        for topic, tname in (topics or default_topics()).items():
-            cls = cdr.message_class(tname)
+        self.topics = dict(topics or default_topics())
+        critical = set(T.LOCKSTEP_TOPICS)
+        for topic, tname in self.topics.items():
             reliability = ReliabilityPolicy.RELIABLE
-            try:
-                infos = self.get_publishers_info_by_topic(topic)
-                if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
-                    reliability = ReliabilityPolicy.BEST_EFFORT
-            except Exception:   # pragma: no cover - graph query is best-effort
-                pass
+            infos = self.get_publishers_info_by_topic(topic)
+            if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
+                reliability = ReliabilityPolicy.BEST_EFFORT
+                self.get_logger().warning(f'{topic} has a best-effort publisher: recorded '
+                                          f'best-effort (samples may be lost)')
+            latched = topic in critical or topic == T.STATUS
+            durability = (DurabilityPolicy.TRANSIENT_LOCAL if latched
+                          else DurabilityPolicy.VOLATILE)
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                             reliability=reliability, durability=DurabilityPolicy.VOLATILE)
+                             reliability=reliability, durability=durability)
             writer.add_topic(topic, tname, qos=qos_yaml(
                 reliability='best_effort' if reliability == ReliabilityPolicy.BEST_EFFORT
-                else 'reliable'))
+                else 'reliable', durability='transient_local' if latched else 'volatile'))
             self.counts[topic] = 0
+            if topic in critical:
+                self.track[topic] = StampTrack()
+            raw = tname in RAW_TYPES
+            cls = cdr.message_class(tname)
             self._subs.append(self.create_subscription(
-                cls, topic, self._callback(topic, tname), qos, raw=True))
+                cls, topic, self._callback(topic, tname, raw), qos, raw=raw))
+        from std_msgs.msg import Header
+        self._progress = self.create_publisher(Header, T.PROGRESS, 10)
+        self._ack_topics = [t for t in ACK_TOPICS if t in self.track]
+        self.create_timer(0.02, self._maybe_ack)
+        self.start_protocol(input_timeout=5.0, startup_timeout=1e9)
 
-    def _callback(self, topic: str, tname: str):
+    # Protocol ---------------------------------------------------------------------------
+    def on_ready(self) -> None:
+        self.status(READY, lossless='true' if self.lossless else 'false',
+                    topics=len(self.topics))
+
+    def on_peer_status(self, name: str, state: str, values: dict) -> None:
+        if values.get('time_master') == 'true':
+            period = int(values.get('T_s_ns', 0) or 0)
+            if period:
+                self.period = period
+            if state in END_STATES:
+                self.end_state = state
+                self.end_values = dict(values, node=name)
+                self._end_wall = time.monotonic()
+
+    def check_inputs(self) -> None:      # a follower has no watchdog
+        return
+
+    def drained(self) -> bool:
+        """After the run's end: every lock-step topic has reached the plant's last step (or
+        nothing new came for a second)."""
+        if self.end_state is None:
+            return False
+        last_step = int(self.end_values.get('step', 0) or 0)
+        final_ns = last_step * self.period
+        behind = [t for t in (T.MEAS_CURRENT, T.MEAS_SHAFT) if t in self.track
+                  and (self.track[t].last or -1) < final_ns]
+        quiet = time.monotonic() - max(self._end_wall, self._last_msg) > 1.0
+        return not behind or quiet
+
+    # Messages ---------------------------------------------------------------------------
+    def _callback(self, topic: str, tname: str, raw: bool):
         stamped = tname in STAMPED_TYPES
         write = self.writer.write_serialized
         counts = self.counts
-
-        def cb(data: bytes) -> None:
-            try:
+        track = self.track.get(topic)
+        if raw:
+            def cb(data: bytes) -> None:
                 n = cdr.payload_length(tname, data)
-            except Exception:
-                n = len(data)
-            if n < len(data):
-                data = data[:n]
-                self.trimmed += 1
-            if stamped:
+                if n is None or n > len(data):
+                    self.undecodable += 1
+                    self.get_logger().error(f'{topic}: payload of {len(data)} bytes is not a '
+                                            f'valid {tname}; not recorded (so far: '
+                                            f'{self.undecodable})')
+                    return
+                if n < len(data):
+                    data = data[:n]
+                    self.trimmed += 1
                 t = cdr.header_stamp_ns(data)
-            else:
-                t = self.get_clock().now().nanoseconds
-            try:
-                write(topic, data, t)
-            except BagError:
-                return          # closed by a signal while a callback was pending
-            counts[topic] += 1
+                self._write(write, topic, data, t, counts, track)
+        else:
+            from rclpy.serialization import serialize_message
+
+            def cb(msg) -> None:
+                data = serialize_message(msg)
+                t = cdr.header_stamp_ns(data) if stamped else self.get_clock().now().nanoseconds
+                self._write(write, topic, data, t, counts, track)
         return cb
+
+    def _write(self, write, topic, data, t, counts, track) -> None:
+        try:
+            write(topic, data, t)
+        except BagError:
+            return          # closed by a signal while a callback was pending
+        counts[topic] += 1
+        self._last_msg = time.monotonic()
+        if track is not None:
+            track.see(t, self.period)
+
+    _last_msg = 0.0
+    _end_wall = 0.0
+
+    def _maybe_ack(self) -> None:
+        if not self._ack_topics:
+            return
+        lasts = [self.track[t].last for t in self._ack_topics if self.track[t].last is not None]
+        if not lasts:
+            return
+        ack = min(lasts)
+        if ack > self._acked:
+            from std_msgs.msg import Header
+            h = Header(frame_id=self.get_name())
+            h.stamp.sec, h.stamp.nanosec = divmod(ack, 1_000_000_000)
+            self._progress.publish(h)
+            self._acked = ack
+
+    # Report ------------------------------------------------------------------------------
+    def gaps(self) -> Dict[str, dict]:
+        return {t: {'missing_steps': tr.missing,
+                    'ranges': [(a, b) for a, b in tr.ranges]}
+                for t, tr in self.track.items()}
+
+    def close_metadata(self, interrupted: Optional[str]) -> dict:
+        gaps = self.gaps()
+        missing = sum(g['missing_steps'] for g in gaps.values())
+        meta = {'messages': str(sum(self.counts.values())),
+                'period_ns': str(self.period),
+                'run_end': (f"{self.end_state} ({self.end_values.get('reason', '')})"
+                            if self.end_state else 'not seen'),
+                'interrupted': interrupted or '',
+                'missing_steps': str(missing),
+                'undecodable': str(self.undecodable)}
+        for t, g in gaps.items():
+            meta[f'missing_steps{t}'] = str(g['missing_steps'])
+            if g['ranges']:
+                meta[f'missing_ranges{t}'] = ' '.join(f'{a}-{b}' for a, b in g['ranges'])
+            if self.track[t].last is not None:
+                meta[f'last_stamp{t}'] = str(self.track[t].last)
+        return meta
 
 
 def main(argv=None) -> int:
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from im_common.lockstep import make_executor
+    from im_common.stopping import StopSignals
     from rclpy.utilities import remove_ros_args
     full = list(sys.argv if argv is None else ['record'] + list(argv))
     ap = argparse.ArgumentParser(prog='record', description='Record the drive graph to MCAP.')
@@ -121,6 +271,11 @@ def main(argv=None) -> int:
                          'others as /topic:=pkg/msg/Type')
     ap.add_argument('--duration', type=float, default=None,
                     help='stop after this many wall-clock seconds')
+    ap.add_argument('--continuous', action='store_true',
+                    help='keep recording after the run ends (until a signal)')
+    ap.add_argument('--lossy', action='store_true',
+                    help='do not hold the plant back (the recording may then miss steps; they '
+                         'are counted and listed)')
     a = ap.parse_args(remove_ros_args(args=full)[1:])
     out = a.out or time.strftime('bags/run_%Y%m%d_%H%M%S.mcap')
     try:
@@ -131,27 +286,46 @@ def main(argv=None) -> int:
     except (FileExistsError, ValueError, OSError) as exc:
         print(f'record: error: {exc}', file=sys.stderr)
         return 2
-    rclpy.init(args=full)
     node = None
-    try:
-        node = RecorderNode(writer, topics)
-        node.get_logger().info(f'recording {len(topics)} topics to {out}')
-        ex = SingleThreadedExecutor()
-        ex.add_node(node)
-        t_end = None if a.duration is None else time.monotonic() + a.duration
-        while rclpy.ok() and (t_end is None or time.monotonic() < t_end):
-            ex.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        writer.close()
-        n = sum(node.counts.values()) if node is not None else 0
-        print(f'record: {n} messages written to {out}', file=sys.stderr)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    with StopSignals() as stop:
+        rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            node = RecorderNode(writer, topics, lossless=not a.lossy)
+            node.get_logger().info(f'recording {len(topics)} topics to {out}')
+            ex = make_executor()
+            ex.add_node(node)
+            t_end = None if a.duration is None else time.monotonic() + a.duration
+            while rclpy.ok() and not stop.requested:
+                if t_end is not None and time.monotonic() >= t_end:
+                    break
+                if not a.continuous and node.drained():
+                    break
+                ex.spin_once(timeout_sec=0.05)
+            if stop.requested:
+                node.request_stop(stop.requested)
+        finally:
+            if node is not None:
+                writer.add_metadata('recording', node.close_metadata(stop.requested))
+            writer.close()
+            if node is not None:
+                n = sum(node.counts.values())
+                missing = {t: tr.missing for t, tr in node.track.items() if tr.missing}
+                text = f'record: {n} messages written to {out}'
+                if node.end_state:
+                    text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
+                if missing:
+                    first = {t: node.track[t].ranges[:3] for t in missing}
+                    text += ('; MISSING steps ' + ', '.join(f'{t}: {m}' for t, m in
+                                                           missing.items())
+                             + ' (first ranges: ' + '; '.join(
+                                 f"{t} " + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}'
+                                                      for x, y in r) for t, r in first.items())
+                             + ')')
+                else:
+                    text += '; no step missing on the lock-step topics'
+                print(text, file=sys.stderr)
+                node.flush(timeout=0.5)
+                node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -1,0 +1,220 @@
+"""The drive graph as separate processes: which nodes, with which parameters, started how.
+
+One description, :func:`graph_processes`, serves ``launch/drive.launch.py`` (``ros2 launch``) and
+:class:`GraphProcesses`, the small supervisor that the tests, the benchmarks and ``scenario
+--processes`` use where ``ros2 launch`` is not installed. Both start every node the way
+``launch_ros`` does: the node's executable from the ament index (``lib/<pkg>/<exe>``, what
+``ros2 run`` finds), ``--ros-args -r __node:=<name>`` and one ``--params-file`` per node holding
+``/**: ros__parameters: {...}``.
+
+What is started:
+- ``plant``, ``controller``, ``observer`` always; ``adapter`` when the controller uses it
+  (``controller:=adaptive`` / ``adaptive_thesis`` or ``use_adapter:=true``); ``record`` (the
+  recorder, a lossless follower) when ``record`` names a file.
+- The plant waits for controller, observer (and adapter, recorder when started) before step 0.
+- ``mode`` is the plant's: ``lockstep`` (default) or ``free_run`` (wall-clock fixed rate; give it
+  gains certified at that period, e.g. ``gains:=.../config/gains_1ms.yaml`` at ``T_s:=0.001``).
+- Discovery stays on this host unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set by the user.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Dict, List, Mapping, Optional, Sequence
+
+import yaml
+
+#: Order in which the supervisor starts nodes (the time master last: it waits for the others
+#: anyway, but starting it last makes its "waiting for" log short).
+START_ORDER = ('recorder', 'controller', 'observer', 'adapter', 'plant')
+
+#: Package and executable of each node of the graph.
+EXECUTABLES = {'plant': ('im_plant', 'plant'), 'controller': ('im_controller', 'controller'),
+               'observer': ('im_observer', 'observer'), 'adapter': ('im_adapt', 'adapter'),
+               'recorder': ('im_bringup', 'record')}
+
+
+@dataclass
+class NodeProcess:
+    """One process of the graph: ``ros2 run <package> <executable>`` with these parameters."""
+    name: str
+    package: str
+    executable: str
+    parameters: Dict[str, object] = field(default_factory=dict)
+    arguments: List[str] = field(default_factory=list)     # before --ros-args
+
+
+def graph_processes(task: str = 'position', strategy: str = 'min_energy',
+                    controller: str = 'nominal', T_s: float = 1e-4,
+                    duration: Optional[float] = None, mode: str = 'lockstep',
+                    use_adapter: Optional[bool] = None, record: Optional[str] = None,
+                    extra: Optional[Mapping[str, Mapping[str, object]]] = None,
+                    **config) -> List[NodeProcess]:
+    """The processes of one run (see the module docstring); ``extra`` = {node: {param: value}}
+    merged last (a gains or parameters YAML), ``config`` goes to
+    :func:`im_bringup.config.node_parameters`."""
+    from im_bringup.config import node_parameters
+    if mode not in ('lockstep', 'free_run'):
+        raise ValueError(f"invalid mode {mode!r}: lockstep or free_run")
+    params = node_parameters(task, strategy, controller, T_s=T_s, duration=duration, **config)
+    adaptive = params['controller'].get('use_adapter', False)
+    if use_adapter is not None and use_adapter != adaptive:
+        adaptive = bool(use_adapter)
+        for node in ('controller', 'observer'):
+            params[node]['use_adapter'] = adaptive
+        params['adapter']['enable'] = adaptive
+    for node, values in (extra or {}).items():
+        if node not in params:
+            raise ValueError(f"unknown node '{node}' in the extra parameters (expected one of "
+                             f"{', '.join(params)})")
+        params[node].update(values)
+    names = ['controller', 'observer'] + (['adapter'] if adaptive else [])
+    params['plant']['mode'] = mode
+    params['plant']['wait_for'] = ' '.join(names + (['recorder'] if record else []))
+    procs = [NodeProcess(n, *EXECUTABLES[n], parameters=params[n]) for n in ['plant'] + names]
+    if record:
+        procs.append(NodeProcess('recorder', *EXECUTABLES['recorder'],
+                                 arguments=['--out', str(record)]))
+    return procs
+
+
+def params_file_text(parameters: Mapping[str, object]) -> str:
+    """A node's parameters as ``launch_ros`` writes them: ``/**: ros__parameters: {...}``."""
+    return yaml.safe_dump({'/**': {'ros__parameters': dict(parameters)}}, sort_keys=False)
+
+
+def load_params_yaml(path: str) -> Dict[str, Dict[str, object]]:
+    """{node: {param: value}} of a ROS 2 parameters YAML (e.g. from ``design_gains``)."""
+    with open(path) as f:
+        doc = yaml.safe_load(f) or {}
+    out = {}
+    for node, body in doc.items():
+        out[str(node).strip('/').split('/')[-1]] = dict((body or {}).get('ros__parameters', {}))
+    return out
+
+
+def executable_path(package: str, executable: str) -> str:
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(package), 'lib', package, executable)
+
+
+class GraphProcesses:
+    """Start the graph's processes, forward stop signals, collect exit codes and logs.
+
+    ``workdir`` receives one ``<name>.yaml`` (parameters) and one ``<name>.log`` (stdout+stderr)
+    per process. ``env`` is added to this process's environment (e.g. ``ROS_DOMAIN_ID``).
+    """
+
+    def __init__(self, processes: Sequence[NodeProcess], workdir: str,
+                 env: Optional[Mapping[str, str]] = None):
+        self.processes = {p.name: p for p in processes}
+        self.workdir = workdir
+        self.env = dict(os.environ)
+        self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        self.env.update(env or {})
+        self.env['PYTHONUNBUFFERED'] = '1'
+        self.popen: Dict[str, subprocess.Popen] = {}
+        self.started_at: Optional[float] = None
+
+    def command(self, p: NodeProcess) -> List[str]:
+        cmd = [executable_path(p.package, p.executable)] + list(p.arguments)
+        cmd += ['--ros-args', '-r', f'__node:={p.name}']
+        if p.parameters:
+            path = os.path.join(self.workdir, f'{p.name}.yaml')
+            with open(path, 'w') as f:
+                f.write(params_file_text(p.parameters))
+            cmd += ['--params-file', path]
+        return cmd
+
+    def start(self, only: Optional[Sequence[str]] = None) -> 'GraphProcesses':
+        os.makedirs(self.workdir, exist_ok=True)
+        self.started_at = time.monotonic()
+        order = [n for n in START_ORDER if n in self.processes] + [
+            n for n in self.processes if n not in START_ORDER]
+        for name in order:
+            if only is not None and name not in only:
+                continue
+            self.start_one(name)
+        return self
+
+    def start_one(self, name: str) -> subprocess.Popen:
+        p = self.processes[name]
+        log = open(os.path.join(self.workdir, f'{name}.log'), 'w')
+        self.popen[name] = subprocess.Popen(self.command(p), stdout=log, stderr=subprocess.STDOUT,
+                                            stdin=subprocess.DEVNULL, env=self.env)
+        log.close()
+        return self.popen[name]
+
+    def send(self, sig: int, names: Optional[Sequence[str]] = None) -> None:
+        for name, proc in self.popen.items():
+            if (names is None or name in names) and proc.poll() is None:
+                proc.send_signal(sig)
+
+    def wait(self, timeout: float) -> Dict[str, Optional[int]]:
+        """Wait until every process exits or ``timeout`` [s] passes; exit codes (None: running)."""
+        deadline = time.monotonic() + timeout
+        for proc in self.popen.values():
+            left = deadline - time.monotonic()
+            try:
+                proc.wait(timeout=max(left, 0.01))
+            except subprocess.TimeoutExpired:
+                pass
+        return self.returncodes()
+
+    def returncodes(self) -> Dict[str, Optional[int]]:
+        return {n: p.poll() for n, p in self.popen.items()}
+
+    def stop(self, grace: float = 10.0) -> Dict[str, Optional[int]]:
+        """SIGINT to every running process (what ``ros2 launch`` does on Ctrl-C), then SIGKILL
+        after ``grace`` seconds for any that did not exit (reported as -9)."""
+        self.send(signal.SIGINT)
+        codes = self.wait(grace)
+        stuck = [n for n, c in codes.items() if c is None]
+        if stuck:
+            self.send(signal.SIGKILL, stuck)
+            codes = self.wait(5.0)
+        return codes
+
+    def log(self, name: str) -> str:
+        try:
+            with open(os.path.join(self.workdir, f'{name}.log')) as f:
+                return f.read()
+        except OSError:
+            return ''
+
+    def __enter__(self) -> 'GraphProcesses':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if any(p.poll() is None for p in self.popen.values()):
+            self.stop(grace=5.0)
+
+
+def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float,
+                  env: Optional[Mapping[str, str]] = None, progress: bool = False
+                  ) -> Dict[str, Optional[int]]:
+    """Start the graph, wait for every process to exit (SIGINT/SIGTERM to this process stop
+    the graph cleanly), stop it after ``timeout``; return the exit codes."""
+    from im_common.stopping import StopSignals
+    g = GraphProcesses(processes, workdir, env)
+    with StopSignals() as stop:
+        g.start()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if stop.requested:
+                break
+            codes = g.returncodes()
+            if all(c is not None for c in codes.values()):
+                return codes
+            if progress:
+                running = [n for n, c in codes.items() if c is None]
+                print(f'\r  {time.monotonic() - t0:6.1f} s  running: {" ".join(running):50s}',
+                      end='', file=sys.stderr, flush=True)
+            time.sleep(0.1)
+        if progress:
+            print(file=sys.stderr)
+        return g.stop()

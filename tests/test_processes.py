@@ -1,0 +1,224 @@
+"""The graph as ROS users run it: every node its own process, started the way the launch file
+starts them (:mod:`im_bringup.processes`: the executables ``ros2 run`` finds, ``-r __node:=``,
+one ``/**`` parameters file per node), plus the recorder.
+
+What users rely on: every process exits 0 at the end; the multi-process run computes the same
+numbers as the in-process graph (stamps decide, not scheduling); the recording holds every
+lock-step message even with a busy process beside the graph; Ctrl-C (on the graph or on one node)
+ends every process cleanly with a readable recording; a killed node is reported by the plant and
+nothing hangs; a recorder that joins late records without a gap from where it joined; free_run
+closes the loop in wall-clock time; live parameters are validated, applied and recorded.
+"""
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+
+import pytest
+
+from im_bringup.bag import info, iter_raw
+from im_bringup.processes import GraphProcesses, graph_processes
+from im_common import topics as T
+
+LOCKSTEP = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
+
+
+@pytest.fixture
+def domain():
+    return {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+
+
+def counts(bag):
+    return Counter(t for t, *_ in iter_raw(bag))
+
+
+def no_traceback(g):
+    for name in g.popen:
+        log = g.log(name)
+        assert 'Traceback' not in log and 'FATAL' not in log, f'{name}:\n{log[-3000:]}'
+
+
+def wait_for_log(g, name, needle, timeout=60.0):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if needle in g.log(name):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path, domain):
+    """Three short runs in a row, one CPU-bound process beside them: every process exits 0 and
+    the bag holds every step on every lock-step topic; the numbers equal the in-process graph's."""
+    from im_bringup.bag import load_run
+    from im_bringup.report import figures_of_merit
+    from im_bringup.testing import run_graph
+    busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+    try:
+        for i in range(3):
+            bag = tmp_path / f'run{i}.mcap'
+            with GraphProcesses(graph_processes('position', 'min_energy', duration=0.2,
+                                                record=bag), str(tmp_path / f'r{i}'),
+                                domain) as g:
+                codes = g.start().wait(120)
+                no_traceback(g)
+                assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+            c = counts(bag)
+            for topic in LOCKSTEP:
+                expected = 2000 if topic == T.CMD_VOLTAGE else 2001      # steps 0..2000
+                assert c[topic] == expected, (topic, c[topic])
+            assert info(bag).metadata['recording']['missing_steps'] == '0'
+    finally:
+        busy.kill()
+    live = run_graph(task='position', strategy='min_energy', duration=0.2)
+    fig = figures_of_merit(load_run(bag))
+    for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V'):
+        assert fig[key] == pytest.approx(live.summary[key], rel=1e-12), key
+
+
+@pytest.mark.parametrize('target', ['all', 'controller', 'plant', 'recorder'])
+def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
+    """Ctrl-C on `ros2 launch` (SIGINT to all) or on one node: every process exits 0, no
+    traceback, and the recording is complete up to the stop (rosbags reads it)."""
+    bag = tmp_path / 'run.mcap'
+    procs = graph_processes('position', 'min_energy', duration=30.0, record=bag)
+    with GraphProcesses(procs, str(tmp_path), domain) as g:
+        g.start()
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+        time.sleep(1.0)
+        g.send(signal.SIGINT, None if target == 'all' else [target])
+        if target == 'recorder':        # off the critical path: the run goes on without it
+            assert g.popen['recorder'].wait(30) == 0
+            time.sleep(1.0)
+            assert all(p.poll() is None for n, p in g.popen.items() if n != 'recorder')
+            assert "follower 'recorder' stopping" in g.log('plant')
+            g.send(signal.SIGINT)
+        codes = g.wait(30)
+        no_traceback(g)
+        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        if target == 'controller':
+            assert 'controller stopping (SIGINT)' in g.log('plant')
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as ar:
+        n = sum(1 for c, _, raw in ar.messages() if ar.deserialize(raw, c.msgtype))
+    assert n > 100
+    meta = info(bag).metadata['recording']
+    assert meta['missing_steps'] == '0'
+    if target in ('all', 'recorder'):
+        assert meta['interrupted'] == 'SIGINT'
+    else:
+        assert meta['run_end'].startswith('stopped'), meta
+
+
+def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
+    procs = graph_processes('position', 'min_energy', duration=30.0, input_timeout=1.0)
+    with GraphProcesses(procs, str(tmp_path), domain) as g:
+        g.start()
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+        time.sleep(0.5)
+        g.send(signal.SIGKILL, ['observer'])
+        codes = g.wait(30)
+        assert None not in codes.values(), codes
+        assert codes['observer'] == -signal.SIGKILL
+        assert codes['plant'] == 1
+        assert 'no /im/command/voltage stamped' in g.log('plant')
+        assert codes['controller'] in (0, 1)
+        no_traceback(g)
+
+
+def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, domain):
+    bag = tmp_path / 'late.mcap'
+    procs = graph_processes('position', 'min_energy', duration=1.5)
+    rec = graph_processes('position', 'min_energy', duration=1.5, record=bag)[-1]
+    g = GraphProcesses(procs + [rec], str(tmp_path), domain)
+    with g:
+        g.start(only=['plant', 'controller', 'observer'])
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+        time.sleep(0.5)
+        g.start_one('recorder')
+        codes = g.wait(120)
+        no_traceback(g)
+        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+    assert 'joined at step' in g.log('plant')
+    c = counts(bag)
+    meta = info(bag).metadata['recording']
+    assert meta['missing_steps'] == '0', meta
+    stamps = sorted(t for _, _, t, _ in iter_raw(bag, [T.MEAS_CURRENT]))
+    assert stamps[-1] == 15000 * 100_000 and 0 < c[T.MEAS_CURRENT] <= 15001
+    assert all(b - a == 100_000 for a, b in zip(stamps, stamps[1:]))
+
+
+def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
+    """free_run at 1 kHz with the certified 1 ms gains: the plant starts after discovery, most
+    steps get their command before the deadline, and the pendulum is held and moved."""
+    from ament_index_python.packages import get_package_share_directory
+
+    from im_bringup.bag import load_run
+    from im_bringup.processes import load_params_yaml
+    from im_bringup.report import figures_of_merit
+    gains = os.path.join(get_package_share_directory('im_bringup'), 'config', 'gains_1ms.yaml')
+    bag = tmp_path / 'free.mcap'
+    procs = graph_processes('position', 'min_energy', T_s=1e-3, duration=1.0, mode='free_run',
+                            record=bag, extra=load_params_yaml(gains))
+    with GraphProcesses(procs, str(tmp_path), domain) as g:
+        codes = g.start().wait(120)
+        no_traceback(g)
+        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+    plant = g.log('plant')
+    assert 'free_run:' in plant and 'latency' in plant
+    end = [m for t, m in _statuses(bag) if m.status[0].message == 'finished'][0]
+    values = {kv.key: kv.value for kv in end.status[0].values}
+    steps, missed = int(values['steps']), int(values['missed'])
+    assert steps == 1000 and missed < steps // 2, values
+    fig = figures_of_merit(load_run(bag))
+    assert fig['E_in_J'] > 0 and fig['pos_err_max_rad'] < 0.5, fig
+
+
+def _statuses(bag):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.serialization import deserialize_message
+    return [(t, deserialize_message(bytes(raw), DiagnosticArray))
+            for _, _, t, raw in iter_raw(bag, [T.STATUS])]
+
+
+def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
+    """`ros2 param set /controller k1 ...` on a running controller process: an invalid value is
+    refused with a reason, a valid one is applied at a step boundary and recorded."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from rcl_interfaces.srv import SetParameters
+    bag = tmp_path / 'live.mcap'
+    procs = graph_processes('position', 'min_energy', duration=2.0, record=bag)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(domain['ROS_DOMAIN_ID']))
+    try:
+        node = rclpy.create_node('tuner', context=ctx)
+        cli = node.create_client(SetParameters, '/controller/set_parameters')
+        with GraphProcesses(procs, str(tmp_path), domain) as g:
+            g.start()
+            assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+            assert cli.wait_for_service(timeout_sec=20)
+
+            def set_(value):
+                req = SetParameters.Request(
+                    parameters=[Parameter('k1', value=value).to_parameter_msg()])
+                fut = cli.call_async(req)
+                rclpy.spin_until_future_complete(node, fut, timeout_sec=20)
+                return fut.result().results[0]
+            bad = set_(-5.0)
+            assert not bad.successful and 'k1' in bad.reason
+            assert set_(30.0).successful
+            codes = g.wait(120)
+            assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+            no_traceback(g)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    events = [m.status[0] for t, m in _statuses(bag) if m.status[0].message == 'parameters']
+    assert events and events[0].name == 'controller'
+    assert {kv.key: kv.value for kv in events[0].values}['k1'] == '30.0'
