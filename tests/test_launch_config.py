@@ -1,9 +1,14 @@
-"""The launch file's parameters YAML is the scenario mapping's output (no drift), and it loads."""
+"""The launch file and the project's own process supervisor start the same graph (one description,
+:func:`im_bringup.processes.graph_processes`), and the shipped example YAML is the scenario
+mapping's output (no drift)."""
+import ast
 import os
 
+import pytest
 import yaml
 
 from im_bringup.config import node_parameters
+from im_bringup.processes import graph_processes, params_file_text
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SHIPPED = os.path.join(HERE, '..', 'src', 'im_bringup', 'config', 'drive.yaml')
@@ -22,10 +27,36 @@ def test_shipped_yaml_matches_the_scenario_mapping():
         assert got == values, node
 
 
-def test_launch_file_names_every_node_and_the_yaml():
+def test_launch_file_declares_the_arguments_and_uses_the_one_description():
     src = open(LAUNCH).read()
-    for pkg, exe in (('im_plant', 'plant'), ('im_controller', 'controller'),
-                     ('im_observer', 'observer'), ('im_adapt', 'adapter')):
-        assert f"('{pkg}', '{exe}')" in src
-    assert "'drive.yaml'" in src
-    compile(src, LAUNCH, 'exec')      # valid Python, without importing launch
+    tree = ast.parse(src)          # valid Python, without importing launch
+    args = next(n for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                and getattr(n.targets[0], 'id', '') == 'ARGUMENTS')
+    names = {elt.elts[0].value for elt in args.value.elts}
+    assert {'task', 'strategy', 'controller', 'T_s', 'duration', 'mode', 'use_adapter',
+            'record'} <= names
+    assert 'graph_processes' in src and 'OpaqueFunction' in src
+
+
+def test_graph_processes_starts_what_the_run_needs():
+    names = [p.name for p in graph_processes('position', 'min_energy')]
+    assert names == ['plant', 'controller', 'observer']
+    procs = {p.name: p for p in graph_processes('speed', 'min_loss', controller='adaptive',
+                                                record='x.mcap', mode='free_run')}
+    assert set(procs) == {'plant', 'controller', 'observer', 'adapter', 'recorder'}
+    assert procs['plant'].parameters['wait_for'] == 'controller observer adapter recorder'
+    assert procs['plant'].parameters['mode'] == 'free_run'
+    assert procs['controller'].parameters['use_adapter'] is True
+    assert procs['recorder'].arguments == ['--out', 'x.mcap']
+    on = {p.name: p for p in graph_processes('position', 'min_energy', use_adapter=True)}
+    assert 'adapter' in on and on['adapter'].parameters['enable'] is True
+    with pytest.raises(ValueError, match='mode'):
+        graph_processes(mode='fast')
+    with pytest.raises(ValueError, match="unknown node 'plnt'"):
+        graph_processes(extra={'plnt': {'T_s': 1.0}})
+
+
+def test_params_file_is_what_launch_ros_writes():
+    text = params_file_text({'T_s': 0.001, 'mode': 'free_run'})
+    assert yaml.safe_load(text) == {'/**': {'ros__parameters': {'T_s': 0.001,
+                                                                 'mode': 'free_run'}}}

@@ -1,28 +1,62 @@
-"""Jazzy launch file: the four drive nodes as separate processes, one parameters YAML.
+"""Jazzy launch file: the drive graph as separate processes.
 
-    ros2 launch im_bringup drive.launch.py [params_file:=/path/to/params.yaml]
+    ros2 launch im_bringup drive.launch.py [task:=position|speed] [strategy:=min_energy|...]
+        [controller:=nominal|adaptive|adaptive_thesis] [T_s:=0.0001] [duration:=2.0]
+        [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
+        [gains:=FILE.yaml] [params_file:=FILE.yaml]
 
-The default YAML is the position task with the min-energy strategy (generate another with
-``ros2 run im_bringup scenario --task speed --strategy min_loss --write-params my.yaml``).
-Record the running graph with ``ros2 run im_bringup record --out bags/run.mcap``.
+Which processes start, with which parameters, comes from :func:`im_bringup.processes.
+graph_processes` — the same description the project's tests start the graph from: plant,
+controller, observer; the adapter when the controller uses it; the recorder (a lossless follower)
+when ``record`` names a file, and the plant then waits for it before step 0. ``gains`` and
+``params_file`` are ROS 2 parameters files merged over the scenario's parameters (``gains`` e.g.
+``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``, which
+``mode:=free_run`` needs). Ctrl-C stops every process cleanly (exit 0) and closes the recording.
+
 Needs a full ROS 2 Jazzy install (``launch``/``launch_ros`` are not on PyPI); nothing in the test
 suite imports this file.
 """
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-from launch_ros.substitutions import FindPackageShare
+
+ARGUMENTS = (
+    ('task', 'position', 'position or speed (seed 000 §3.4.4-3.4.5)'),
+    ('strategy', 'min_energy', 'flux strategy: min_energy, constant_flux or min_loss'),
+    ('controller', 'nominal', 'nominal, adaptive (improved law) or adaptive_thesis'),
+    ('T_s', '0.0001', 'control period [s]'),
+    ('duration', '', 'simulated seconds (empty: the task length)'),
+    ('mode', 'lockstep', 'lockstep (simulated time) or free_run (wall-clock fixed rate)'),
+    ('use_adapter', '', 'true/false: controller and observer use the adapter (empty: as '
+                        'the controller argument implies)'),
+    ('record', '', 'MCAP file to record the run to (empty: no recorder)'),
+    ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),
+    ('params_file', '', 'extra parameters YAML merged last'),
+)
+
+
+def _processes(context):
+    from im_bringup.processes import graph_processes, load_params_yaml
+    a = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
+    extra = {}
+    for key in ('gains', 'params_file'):
+        if a[key]:
+            for node, values in load_params_yaml(a[key]).items():
+                extra.setdefault(node, {}).update(values)
+    procs = graph_processes(
+        task=a['task'], strategy=a['strategy'], controller=a['controller'],
+        T_s=float(a['T_s']), duration=float(a['duration']) if a['duration'] else None,
+        mode=a['mode'], record=a['record'] or None, extra=extra,
+        use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()])
+    return [Node(package=p.package, executable=p.executable, name=p.name,
+                 parameters=[p.parameters] if p.parameters else [], arguments=p.arguments,
+                 output='screen', sigterm_timeout='10', sigkill_timeout='5')
+            for p in procs]
 
 
 def generate_launch_description():
-    params = LaunchConfiguration('params_file')
-    default = PathJoinSubstitution([FindPackageShare('im_bringup'), 'config', 'drive.yaml'])
-    nodes = [('im_plant', 'plant'), ('im_controller', 'controller'),
-             ('im_observer', 'observer'), ('im_adapt', 'adapter')]
     return LaunchDescription(
-        [DeclareLaunchArgument('params_file', default_value=default,
-                               description='ROS 2 parameters YAML for plant, controller, '
-                                           'observer and adapter')]
-        + [Node(package=pkg, executable=exe, name=exe, parameters=[params], output='screen')
-           for pkg, exe in nodes])
+        [DeclareLaunchArgument(name, default_value=default, description=doc)
+         for name, default, doc in ARGUMENTS]
+        + [OpaqueFunction(function=_processes)])

@@ -524,10 +524,29 @@ def _rcl_error():
     return _rclpy.RCLError
 
 
+def _params_loader():
+    """A safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
+    ``!!python/tuple``)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    def untagged(loader, _suffix, node):
+        if isinstance(node, yaml.SequenceNode):
+            return loader.construct_sequence(node)
+        if isinstance(node, yaml.MappingNode):
+            return loader.construct_mapping(node)
+        return loader.construct_scalar(node)
+    Loader.add_multi_constructor('', untagged)
+    return Loader
+
+
 def init_args_error(args: List[str]) -> Optional[str]:
     """A readable line for a bad ``--params-file`` (missing, unreadable, malformed) before
     ``rclpy.init`` turns it into a traceback; None when the files look loadable."""
     import yaml
+    _ParamsLoader = _params_loader()
     for i, a in enumerate(args):
         if a == '--params-file':
             if i + 1 >= len(args):
@@ -535,7 +554,7 @@ def init_args_error(args: List[str]) -> Optional[str]:
             path = args[i + 1]
             try:
                 with open(path) as f:
-                    doc = yaml.safe_load(f)
+                    doc = yaml.load(f, Loader=_ParamsLoader)
             except OSError as exc:
                 return f'cannot read parameters file {path}: {exc.strerror}'
             except yaml.YAMLError as exc:

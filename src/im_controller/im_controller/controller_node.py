@@ -26,6 +26,7 @@ from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, peri
 from im_common.lockstep import (PARAMETERS, LockstepNode, StepGate, data_qos, lockstep_qos,
                                 node_main, status_qos)
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import SubscriptionEventCallbacks
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
 from im_controller.parameters import LIVE_PARAMETERS, config_from_parameters, declare_controller
@@ -69,7 +70,9 @@ class ControllerNode(LockstepNode):
         # both is applied once.
         self._seen_setpoints = []
         self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos(10))
-        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, status_qos())
+        self.create_subscription(  # a volatile publisher does not match it: that is expected
+            JointState, T.SETPOINT, self.on_setpoint, status_qos(),
+            event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _event: None))
         self._pending_changes = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
