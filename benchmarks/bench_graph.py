@@ -2,19 +2,14 @@
 
 * in one process (DriveGraph, EventsExecutor): steps/s of the full graph, with and without the
   adapter on the critical path, with and without in-process MCAP recording;
-* as separate processes (the four executables started as `ros2 run` would, one parameters YAML):
-  steps/s as reported by the plant;
+* (separate processes: benchmarks/bench_processes.py);
 * the bare loop (benchmarks/bench_rclpy.py: same messages, no computation) measured in this run.
-Targets (issue 3/4): >= 5,000 steps/s and >= 0.8 of the bare loop in one process; >= 1,000 steps/s
-as separate processes; recording costs <= 15 %.
+Targets: >= 5,000 steps/s and >= 0.8 of the bare loop in one process; recording costs <= 15 %.
 """
 from __future__ import annotations
 
 import importlib.util
 import os
-import random
-import re
-import subprocess
 import sys
 import tempfile
 
@@ -40,36 +35,6 @@ def in_process(duration: float, controller: str = 'nominal', record: bool = Fals
     return res.summary['steps'] / res.summary['wall_s']
 
 
-def separate_processes(duration: float) -> float:
-    from ament_index_python.packages import get_package_prefix
-    from im_bringup.config import node_parameters, to_yaml
-    params = node_parameters('speed', 'min_energy', duration=duration)
-    tmp = tempfile.mkdtemp(prefix='bench_procs_')
-    yml = os.path.join(tmp, 'params.yaml')
-    with open(yml, 'w') as f:
-        f.write(to_yaml(params))
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(150, 229)))
-    procs = []
-    for pkg, exe in (('im_observer', 'observer'), ('im_adapt', 'adapter'),
-                     ('im_controller', 'controller'), ('im_plant', 'plant')):
-        path = os.path.join(get_package_prefix(pkg), 'lib', pkg, exe)
-        procs.append(subprocess.Popen([path, '--ros-args', '--params-file', yml],
-                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                      env=env))
-    try:
-        out, _ = procs[-1].communicate(timeout=600)
-    finally:
-        for p in procs[:-1]:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-    m = re.search(r'\((\d+) steps/s\)', out)
-    if procs[-1].returncode != 0 or not m:
-        raise RuntimeError(f'plant process failed:\n{out[-2000:]}')
-    return float(m.group(1))
-
-
 def run(quick: bool = False) -> dict:
     d = 0.2 if quick else 1.0
     bare = _bench_rclpy()
@@ -79,7 +44,6 @@ def run(quick: bool = False) -> dict:
     res['graph_in_process_steps_per_s'] = in_process(d)
     res['graph_in_process_recording_steps_per_s'] = in_process(d, record=True)
     res['graph_in_process_adaptive_steps_per_s'] = in_process(d, controller='adaptive')
-    res['graph_separate_processes_steps_per_s'] = separate_processes(d)
     res['nominal_graph_vs_bare_loop'] = (res['graph_in_process_steps_per_s']
                                          / res['bare_loop_adapter_off_path_steps_per_s'])
     res['adaptive_graph_vs_bare_loop'] = (res['graph_in_process_adaptive_steps_per_s']

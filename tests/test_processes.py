@@ -222,3 +222,22 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     events = [m.status[0] for t, m in _statuses(bag) if m.status[0].message == 'parameters']
     assert events and events[0].name == 'controller'
     assert {kv.key: kv.value for kv in events[0].values}['k1'] == '30.0'
+
+
+def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
+    """Two graphs on one ROS_DOMAIN_ID would step on each other's messages: the second plant
+    refuses to start and says so; the first run is not disturbed."""
+    first = graph_processes('position', 'min_energy', duration=30.0)
+    second = graph_processes('position', 'min_energy', duration=30.0)[0]
+    second.name, second.parameters = 'plant2', dict(second.parameters, wait_for='')
+    with GraphProcesses(first + [second], str(tmp_path), domain) as g:
+        g.start(only=['plant', 'controller', 'observer'])
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+        g.start_one('plant2')
+        assert g.popen['plant2'].wait(60) == 1
+        assert 'ROS_DOMAIN_ID' in g.log('plant2') and '/im/measured/current' in g.log('plant2')
+        time.sleep(1.0)
+        assert all(g.popen[n].poll() is None for n in ('plant', 'controller', 'observer'))
+        codes = g.stop()
+        no_traceback(g)
+        assert codes == {n: 0 for n in ('plant', 'controller', 'observer')} | {'plant2': 1}

@@ -208,6 +208,8 @@ class LockstepNode(Node):
         self.peers: Dict[str, tuple] = {}          # node name -> (state, values)
         self.free_run = False
         self.master_state = ''                      # last state of the time master (plant)
+        self.run_id = ''                            # the time master's run this node follows
+        self._foreign_said = False
         self._timeout = 5.0
         self._startup_timeout = 30.0
         self._since = time.monotonic()
@@ -260,6 +262,7 @@ class LockstepNode(Node):
                 'T_s_ns': self.period, 'step': ns // self.period if self.period else 0}
         if self.time_master:
             base['time_master'] = 'true'
+            base['run_id'] = self.run_id
         base.update(values)
         st.values = [KeyValue(key=str(k), value=str(v)) for k, v in base.items()]
         msg.status = [st]
@@ -286,6 +289,16 @@ class LockstepNode(Node):
         """React to another node's event: the time master's end ends this node; a provider that
         stops or fails ends this node's part of the run."""
         if values.get('time_master') == 'true':
+            run = values.get('run_id', '')
+            if state == RUNNING and not self.run_id:
+                self.run_id = run                   # this node follows that run from now on
+            elif self.run_id and run != self.run_id:
+                if not self._foreign_said:
+                    self._foreign_said = True
+                    self.get_logger().warning(
+                        f"ignoring '{name}' of another run ({run}) on this ROS domain; this "
+                        f"node follows run {self.run_id}")
+                return
             self.master_state = state
             if state == RUNNING:
                 self.free_run = values.get('mode') == 'free_run'
@@ -356,9 +369,14 @@ class LockstepNode(Node):
                 for n in names:
                     self.providers.setdefault(n, t)
                 if len(infos) > 1:
-                    self.get_logger().warning(
-                        f'{t} has {len(infos)} publishers ({", ".join(names)}); only one is '
-                        f'expected — another graph or a foreign node on this ROS domain?')
+                    text = (f'{t} has {len(infos)} publishers (nodes: {", ".join(names)}); only '
+                            f'one is expected: another graph or a foreign node is on this ROS '
+                            f'domain (ROS_DOMAIN_ID={self.context.get_domain_id()})')
+                    if self.time_master:
+                        self.fail(text + '; refusing to start — give each graph its own '
+                                  'ROS_DOMAIN_ID')
+                        return
+                    self.get_logger().warning(text)
             self.on_ready()
             return
         if waited > self._startup_timeout:

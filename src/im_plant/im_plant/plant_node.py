@@ -15,6 +15,7 @@ Latencies (measurement k published → command k received) go into a histogram r
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 
@@ -109,6 +110,7 @@ class PlantNode(LockstepNode):
                                  'lock-step: how many steps the plant may run ahead of the last '
                                  'step a lossless follower (the recorder) acknowledged', 1,
                                  LOCKSTEP_DEPTH // 2)
+        self.run_id = os.urandom(4).hex()       # tells this run's events from another graph's
         self.rejected = 0
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
         self.wall_start = None      # wall time of the first step (for the steps/s report)
@@ -153,6 +155,14 @@ class PlantNode(LockstepNode):
 
     # Startup -----------------------------------------------------------------------------
     def ready_to_start(self) -> bool:
+        for topic in (T.MEAS_CURRENT, T.MEAS_SHAFT):
+            if self.count_publishers(topic) > 1:
+                others = sorted({i.node_name for i in self.get_publishers_info_by_topic(topic)})
+                self.fail(f'another plant publishes {topic} on this ROS domain (ROS_DOMAIN_ID='
+                          f'{self.context.get_domain_id()}; nodes: {", ".join(others)}): two '
+                          f'graphs on one domain would step on each other — give each graph '
+                          f'its own ROS_DOMAIN_ID')
+                return False
         for name in self.wait_for:
             state, values = self.peers.get(name, ('', {}))
             if state != READY and state != RUNNING:

@@ -1,0 +1,172 @@
+"""The graph as separate processes (how users run it), next to its yardstick in the same run.
+
+1. Two-process rclpy ping-pong (EventsExecutor on both sides, lock-step QoS, serialized
+   Vector3Stamped): round trips/s — the fastest a two-hop-per-step loop across processes can go.
+2. Four processes in lock-step (plant, controller, observer, + the recorder as a lossless
+   follower, started by :class:`im_bringup.processes.GraphProcesses` the way the launch file
+   starts them): steps/s reported by the plant, and the ratio to the ping-pong (target >= 0.8).
+3. free_run at 1 kHz (T_s = 1 ms, the certified gains of ``config/gains_1ms.yaml``), position
+   task, 2 s: fraction of steps whose command missed its deadline, latency quantiles, position
+   error, against the lock-step run at the same period and gains (in-process).
+"""
+from __future__ import annotations
+
+import os
+import random
+import re
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def _pong_main() -> None:
+    """Child process: answer every /bench/ping with the same bytes on /bench/pong."""
+    import rclpy
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.node import Node
+
+    from im_common.lockstep import lockstep_qos, make_executor
+    rclpy.init()
+    node = Node('bench_pong')
+    pub = node.create_publisher(Vector3Stamped, '/bench/pong', lockstep_qos())
+    node.create_subscription(Vector3Stamped, '/bench/ping', pub.publish, lockstep_qos(), raw=True)
+    ex = make_executor()
+    ex.add_node(node)
+    t_end = time.monotonic() + 120
+    while time.monotonic() < t_end and rclpy.ok():
+        ex.spin_once(timeout_sec=0.1)
+
+
+def ping_pong_processes(n: int = 5000) -> float:
+    """Round trips per second between two processes."""
+    import rclpy
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.context import Context
+    from rclpy.node import Node
+
+    from im_common.conversions import Vector3Out
+    from im_common.lockstep import lockstep_qos, make_executor
+    domain = random.randint(150, 229)
+    child = subprocess.Popen([sys.executable, os.path.abspath(__file__), '--pong'],
+                             env=dict(os.environ, ROS_DOMAIN_ID=str(domain)))
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    try:
+        node = Node('bench_ping', context=ctx)
+        pub = node.create_publisher(Vector3Stamped, '/bench/ping', lockstep_qos())
+        count = [0]
+        data = Vector3Out().fill(0, 1.0, 2.0)
+
+        def on_pong(_msg):
+            count[0] += 1
+            if count[0] < n:
+                pub.publish(data)
+        node.create_subscription(Vector3Stamped, '/bench/pong', on_pong, lockstep_qos(), raw=True)
+        ex = make_executor(ctx)
+        ex.add_node(node)
+        t_wait = time.monotonic() + 30
+        while (pub.get_subscription_count() < 1 or node.count_publishers('/bench/pong') < 1) \
+                and time.monotonic() < t_wait:
+            ex.spin_once(timeout_sec=0.01)
+        time.sleep(0.5)
+        t0 = time.perf_counter()
+        pub.publish(data)
+        while count[0] < n and time.perf_counter() - t0 < 60:
+            ex.spin_once(timeout_sec=0.05)
+        dt = time.perf_counter() - t0
+        ex.shutdown()
+        node.destroy_node()
+        return count[0] / dt
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        child.kill()
+        child.wait()
+
+
+def _run_graph_processes(procs, tag: str):
+    from im_bringup.processes import GraphProcesses
+    tmp = tempfile.mkdtemp(prefix=f'bench_{tag}_')
+    env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    with GraphProcesses(procs, tmp, env) as g:
+        codes = g.start().wait(600)
+        if any(c != 0 for c in codes.values()):
+            raise RuntimeError(f'{tag}: exit codes {codes}\n' + g.log('plant')[-2000:])
+        return g.log('plant'), tmp
+
+
+def lockstep_processes(duration: float, record: bool) -> float:
+    from im_bringup.processes import graph_processes
+    bag = os.path.join(tempfile.mkdtemp(prefix='bench_bag_'), 'run.mcap') if record else None
+    log, _ = _run_graph_processes(graph_processes('position', 'min_energy', duration=duration,
+                                                  record=bag), 'lockstep')
+    m = re.search(r'\((\d+) steps/s\)', log)
+    return float(m.group(1))
+
+
+def _gains():
+    from ament_index_python.packages import get_package_share_directory
+
+    from im_bringup.processes import load_params_yaml
+    return load_params_yaml(os.path.join(get_package_share_directory('im_bringup'), 'config',
+                                         'gains_1ms.yaml'))
+
+
+def free_run(duration: float) -> dict:
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.serialization import deserialize_message
+
+    from im_bringup.bag import iter_raw, load_run
+    from im_bringup.processes import graph_processes
+    from im_bringup.report import figures_of_merit
+    from im_bringup.testing import run_graph
+    from im_common import topics as T
+    from im_common.timing import LatencyHistogram
+    bag = os.path.join(tempfile.mkdtemp(prefix='bench_free_'), 'free.mcap')
+    _run_graph_processes(graph_processes('position', 'min_energy', T_s=1e-3, duration=duration,
+                                         mode='free_run', record=bag, extra=_gains()), 'free')
+    end = None
+    for _, _, _, raw in iter_raw(bag, [T.STATUS]):
+        st = deserialize_message(bytes(raw), DiagnosticArray).status[0]
+        if st.message == 'finished':
+            end = {kv.key: kv.value for kv in st.values}
+    fig = figures_of_merit(load_run(bag))
+    hist = LatencyHistogram.from_values(end)
+    steps = int(end['steps'])
+    ref = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=duration,
+                    parameters=_gains())
+    return {'free_run_1kHz_steps': steps,
+            'free_run_1kHz_missed_fraction': int(end['missed']) / steps,
+            'free_run_1kHz_late_commands': int(end['late']),
+            'free_run_1kHz_plant_overruns': int(end['overruns']),
+            'free_run_1kHz_latency_mean_us': hist.mean * 1e6,
+            'free_run_1kHz_latency_p50_le_us': hist.quantile(0.5) * 1e6,
+            'free_run_1kHz_latency_p99_le_us': hist.quantile(0.99) * 1e6,
+            'free_run_1kHz_latency_max_us': hist.max * 1e6,
+            'free_run_1kHz_pos_err_max_rad': fig['pos_err_max_rad'],
+            'free_run_1kHz_pos_err_rms_rad': fig['pos_err_rms_rad'],
+            'lockstep_1kHz_pos_err_rms_rad': ref.summary['pos_err_rms_rad'],
+            'free_run_vs_lockstep_pos_err_rms': fig['pos_err_rms_rad']
+            / ref.summary['pos_err_rms_rad']}
+
+
+def run(quick: bool = False) -> dict:
+    d = 0.3 if quick else 2.0
+    res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(
+        2000 if quick else 10000)}
+    res['lockstep_processes_steps_per_s'] = lockstep_processes(d, record=False)
+    res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
+    res['lockstep_processes_vs_ping_pong'] = (res['lockstep_processes_steps_per_s']
+                                              / res['ping_pong_two_processes_round_trips_per_s'])
+    res.update(free_run(d))
+    return res
+
+
+if __name__ == '__main__':
+    if '--pong' in sys.argv:
+        _pong_main()
+    else:
+        for k, v in run('--quick' in sys.argv).items():
+            print(f'{k:50s} {v:12.4g}')
