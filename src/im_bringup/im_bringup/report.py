@@ -70,49 +70,32 @@ def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
     """Each adapted parameter against the truth: max / RMS / final relative error, the final
     values (``<n>_hat_final``, ``<n>_true_final``), and over the last ``last_window`` seconds the
     relative RMS and peak-to-peak of the error (issue targets: < 5 %)."""
-    out = {}
-    t = np.asarray(trace.get('t', ()), float)
-    for n in ('R_r', 'theta', 'L_M', 'R_R'):
-        hat, true = f'{n}_hat', n
-        if hat not in trace or true not in trace:
-            continue
-        e = np.asarray(trace[hat], float) - np.asarray(trace[true], float)
-        ok = np.isfinite(e)
-        if not ok.any():
-            continue
-        e_ok = e[ok]
-        out[f'{n}_est_err_max'] = float(np.max(np.abs(e_ok)))
-        out[f'{n}_est_err_rms'] = float(math.sqrt(np.mean(e_ok ** 2)))
-        last = np.flatnonzero(ok)[-1]
-        tv = float(trace[true][last])
-        out[f'{n}_est_err_final_rel'] = float(abs(e[last]) / abs(tv)) if tv else float('nan')
-        out[f'{n}_hat_final'] = float(trace[hat][last])
-        out[f'{n}_true_final'] = tv
-        if len(t) == len(e):
-            win = ok & (t > t[last] - last_window)
-            tru = np.asarray(trace[true], float)[win]
-            if win.any() and np.all(tru != 0):
-                rel = e[win] / tru
-                out[f'{n}_err_rms_rel_last1s'] = float(math.sqrt(np.mean(rel ** 2)))
-                out[f'{n}_err_ptp_rel_last1s'] = float(np.ptp(e[win]) / abs(np.mean(tru)))
-    return out
+    from .run import RunningFigures
+    acc = RunningFigures(last_window)
+    acc.rows(trace)
+    return acc.estimates()
 
 
 def figures_of_merit(run) -> Dict[str, float]:
-    """Every figure of merit a run's recording supports."""
-    from im_common.metrics import balance_relative, energy_figures, tracking_figures
-    tr = run.trace
-    fig: Dict[str, float] = dict(tracking_figures(tr, run.task))
+    """Every figure of merit a run's recording supports, over every control instant: from the
+    run's running figures when it was streamed (:func:`im_bringup.run.stream_run`), else from its
+    trace."""
+    from im_common.metrics import balance_relative, energy_figures
+    from .run import RunningFigures
+    acc = run.running
+    if acc is None:
+        acc = RunningFigures()
+        acc.rows(run.trace)
+    fig: Dict[str, float] = dict(acc.tracking(run.task))
     need = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
             'dE_kin', 'dW_mag', 'balance_residual')
     if all(k in run.truth_final for k in need):
         fig.update(energy_figures(run.truth_final))
         fig['balance_relative'] = balance_relative(fig)
-    fig.update(estimate_figures(tr))
-    t = tr.get('t')
-    if t is not None and len(t):
-        fig['duration_s'] = float(t[-1] - t[0])
-        fig['steps'] = int(len(t))
+    fig.update(acc.estimates())
+    if acc.steps:
+        fig['duration_s'] = float(acc.t_last - acc.t_first)
+        fig['steps'] = int(acc.steps)
     return fig
 
 
@@ -161,7 +144,7 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     from .run import load_run
     if not bag_paths:
         raise ValueError('write_report needs at least one bag')
-    runs = [load_run(p) for p in bag_paths]
+    runs = [load_run(p, trace='decimated' if plots else None) for p in bag_paths]
     labels = [r.label for r in runs]
     if len(set(labels)) < len(labels):   # same file names in different directories
         labels = [str(Path(r.path)) for r in runs]
