@@ -99,6 +99,43 @@ def figures_of_merit(run) -> Dict[str, float]:
     return fig
 
 
+def run_status(run, fig: Dict[str, float]) -> dict:
+    """Whether a recording holds the whole run: ``interrupted`` (stopped by a signal),
+    ``partial`` (recovered from a damaged file, or fewer control steps than its duration asks),
+    ``gaps`` (lock-step topics without a message at some control instants, with the ranges),
+    and one human-readable note per finding in ``notes``."""
+    md = run.metadata
+    notes: List[str] = []
+    st: dict = {'interrupted': None, 'partial': False, 'gaps': {}, 'notes': notes}
+    if 'interrupted' in md:
+        st['interrupted'] = md['interrupted'].get('signal', 'yes')
+        notes.append(f"interrupted by {st['interrupted']} after "
+                     f"{md['interrupted'].get('steps', '?')} steps")
+    rec = md.get('recovered_from')
+    if rec:
+        st['partial'] = True
+        notes.append(f"recovered from {rec.get('path')} ({rec.get('reason')})"
+                     + (f"; {rec['lost']}" if rec.get('lost') else ''))
+    plant = md.get('parameters/plant', {})
+    try:
+        want = int(round(float(plant['duration']) / float(plant['T_s']))) + 1
+    except (KeyError, ValueError, ZeroDivisionError):
+        want = None
+    have = fig.get('steps')
+    if want and have is not None and have < want:
+        st['partial'] = True
+        st['steps_expected'] = want
+        notes.append(f'{have} of {want} control instants recorded')
+    if run.running is not None:
+        st['gaps'] = run.running.gaps()
+        for topic, g in st['gaps'].items():
+            rs = ', '.join(f'{a:.6f}-{b:.6f} s' for a, b in g['ranges'])
+            notes.append(f"{topic}: {g['missing']} control instants missing ({rs})")
+    if run.late:
+        notes.append(f'{run.late} messages arrived out of order and are not in the figures')
+    return st
+
+
 def _fmt(v) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return '—'
@@ -150,8 +187,10 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
         labels = [str(Path(r.path)) for r in runs]
     results = []
     for run, label in zip(runs, labels):
+        fig = figures_of_merit(run)
         results.append({'bag': str(run.path), 'label': label, 'task': run.task,
-                        'figures': figures_of_merit(run), 'truth_final': run.truth_final,
+                        'figures': fig, 'truth_final': run.truth_final,
+                        'status': run_status(run, fig),
                         'metadata': run.metadata, 'message_counts': run.counts})
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -169,11 +208,16 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     if pngs:
         md += ['', '## Figures', '']
         md += [f'![{Path(p).stem}]({Path(p).name})' for p in pngs]
+    warn = [f'- **{r["label"]}**: ' + '; '.join(r['status']['notes']) for r in results
+            if r['status']['notes']]
+    if warn:
+        md[2:2] = ['## Incomplete runs', ''] + warn + ['']
+    from .bag import write_atomic
     md_path = out / 'report.md'
-    md_path.write_text('\n'.join(md) + '\n', encoding='utf-8')
+    write_atomic(md_path, '\n'.join(md) + '\n')
     json_path = out / 'report.json'
-    with open(json_path, 'w', encoding='utf-8') as f:
-        json.dump(jsonable({'runs': results, 'figures': pngs}), f, indent=1, allow_nan=False)
+    write_atomic(json_path, json.dumps(jsonable({'runs': results, 'figures': pngs}), indent=1,
+                                       allow_nan=False))
     return {'markdown': str(md_path), 'json': str(json_path), 'figures': pngs,
             'runs': results}
 

@@ -529,9 +529,17 @@ class RunningFigures:
         self._open[topic] = bool(absent[-1])
 
     def gaps(self) -> Dict[str, dict]:
-        """Lock-step topics with control instants that have no message: count and ranges [s]."""
-        return {t: {'missing': self.missing[t], 'ranges': [tuple(r) for r in self.ranges[t]]}
-                for t in self.lockstep if self.missing[t]}
+        """Lock-step topics with control instants that have no message: count and ranges [s].
+        The run's last instant is not a gap: the plant's final measurement is answered by no one.
+        """
+        out = {}
+        for t in self.lockstep:
+            n, rs = self.missing[t], [tuple(r) for r in self.ranges[t]]
+            if rs and rs[-1] == (self.t_last, self.t_last) and self._open[t]:
+                n, rs = n - 1, rs[:-1]
+            if n:
+                out[t] = {'missing': n, 'ranges': rs}
+        return out
 
     def tracking(self, task: Optional[str]) -> Dict[str, float]:
         out: Dict[str, float] = {}
