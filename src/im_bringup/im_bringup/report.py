@@ -211,7 +211,7 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     warn = [f'- **{r["label"]}**: ' + '; '.join(r['status']['notes']) for r in results
             if r['status']['notes']]
     if warn:
-        md[2:2] = ['## Incomplete runs', ''] + warn + ['']
+        md += ['', '## Incomplete runs', ''] + warn
     from .bag import write_atomic
     md_path = out / 'report.md'
     write_atomic(md_path, '\n'.join(md) + '\n')

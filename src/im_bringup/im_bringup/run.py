@@ -534,6 +534,8 @@ class RunningFigures:
         """
         out = {}
         for t in self.lockstep:
+            if 'present:' + t not in self.seen:
+                continue                # not in this run at all (node not started/recorded)
             n, rs = self.missing[t], [tuple(r) for r in self.ranges[t]]
             if rs and rs[-1] == (self.t_last, self.t_last) and self._open[t]:
                 n, rs = n - 1, rs[:-1]
