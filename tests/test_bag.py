@@ -17,7 +17,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from im_common import cdr
-from im_bringup.bag import BagError, BagWriter, info, iter_raw, load_run, read_messages
+from im_bringup.bag import BagError, BagWriter, info, iter_raw, read_messages
+from im_bringup.run import load_run
 from im_bringup.msgdefs import full_definition, type_hash
 
 REPO = Path(__file__).resolve().parents[1]

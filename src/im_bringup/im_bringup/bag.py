@@ -26,8 +26,8 @@ messages are encoded with :mod:`im_bringup.cdr` (exact-length CDR). Cost: see
 Reading
 -------
 :func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
-:func:`load_run` turns a recording into a :class:`Run` (trace arrays in the
-:mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
+:func:`im_bringup.run.load_run` turns a recording into a :class:`~im_bringup.run.Run` (trace
+arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
 truncated or missing file raises :class:`BagError` naming the file and what is wrong.
 """
 from __future__ import annotations
@@ -805,7 +805,3 @@ def read_messages(path, topics: Optional[Iterable[str]] = None
             raise BagError(path, f'message on {topic} at t = {t} ns does not deserialize as '
                            f'{tname}: {exc}') from None
         yield topic, t, msg
-
-
-# load_run / Run live in im_bringup.run; re-exported here for the documented API.
-from .run import Run, load_run  # noqa: E402,F401

@@ -130,7 +130,8 @@ def run_status(run, fig: Dict[str, float]) -> dict:
         st['gaps'] = run.running.gaps()
         for topic, g in st['gaps'].items():
             rs = ', '.join(f'{a:.6f}-{b:.6f} s' for a, b in g['ranges'])
-            notes.append(f"{topic}: {g['missing']} control instants missing ({rs})")
+            notes.append(f"{topic}: {g['missing']} control instants missing "
+                         f"({rs})")
     if run.late:
         notes.append(f'{run.late} messages arrived out of order and are not in the figures')
     return st

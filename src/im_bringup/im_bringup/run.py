@@ -40,44 +40,40 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from im_common import cdr
-
-try:
-    from im_common import topics as T
-except ImportError:  # pragma: no cover - im_common is an exec_depend
-    T = None
+from im_common import topics as T
 
 REEST_FLUX = '/im/reestimate/observer/flux'
 REEST_CURRENT = '/im/reestimate/observer/current'
 
 # topic -> trace keys for x, y, z (None: not used)
 V3_KEYS: Dict[str, Tuple[Optional[str], Optional[str], Optional[str]]] = {
-    '/im/measured/current': ('i_alpha', 'i_beta', None),
-    '/im/command/voltage': ('v_cmd_alpha', 'v_cmd_beta', None),
-    '/im/truth/voltage': ('v_alpha', 'v_beta', None),
-    '/im/observer/flux': ('phi_hat_alpha', 'phi_hat_beta', None),
-    '/im/observer/current': ('i_hat_alpha', 'i_hat_beta', None),
-    '/im/reference/current': ('i_ref_alpha', 'i_ref_beta', None),
-    '/im/reference/flux': ('phi_ref_alpha', 'phi_ref_beta', 'phi_ref_mag'),
-    '/im/truth/flux': ('phi_r_alpha', 'phi_r_beta', None),
-    '/im/truth/torque': ('tau_m', 'tau_L', 'tau_friction'),
+    T.MEAS_CURRENT: ('i_alpha', 'i_beta', None),
+    T.CMD_VOLTAGE: ('v_cmd_alpha', 'v_cmd_beta', None),
+    T.TRUTH_VOLTAGE: ('v_alpha', 'v_beta', None),
+    T.OBS_FLUX: ('phi_hat_alpha', 'phi_hat_beta', None),
+    T.OBS_CURRENT: ('i_hat_alpha', 'i_hat_beta', None),
+    T.REF_CURRENT: ('i_ref_alpha', 'i_ref_beta', None),
+    T.REF_FLUX: ('phi_ref_alpha', 'phi_ref_beta', 'phi_ref_mag'),
+    T.TRUTH_FLUX: ('phi_r_alpha', 'phi_r_beta', None),
+    T.TRUTH_TORQUE: ('tau_m', 'tau_L', 'tau_friction'),
     REEST_FLUX: ('phi_reest_alpha', 'phi_reest_beta', None),
     REEST_CURRENT: ('i_reest_alpha', 'i_reest_beta', None),
 }
 # JointState topics with fixed meaning of position/velocity/effort
 JS_FIELDS = {
-    '/im/measured/shaft': ('theta_r', 'omega_r', None),
-    '/im/reference/shaft': ('theta_ref', 'omega_ref', 'tau_ref'),
+    T.MEAS_SHAFT: ('theta_r', 'omega_r', None),
+    T.REF_SHAFT: ('theta_ref', 'omega_ref', 'tau_ref'),
 }
 # JointState topics carrying named values in position: topic -> key suffix
 JS_NAMED = {
-    '/im/adapter/estimate': '_hat',
-    '/im/truth/parameters': '',
-    '/im/truth/power': '',
-    '/im/truth/energy': '',
+    T.ADAPT_ESTIMATE: '_hat',
+    T.TRUTH_PARAMS: '',
+    T.TRUTH_POWER: '',
+    T.TRUTH_ENERGY: '',
 }
 TRACE_TOPICS = frozenset(V3_KEYS) | frozenset(JS_FIELDS) | frozenset(JS_NAMED)
-MASTER_TOPICS = ('/im/measured/current', '/im/measured/shaft', '/im/truth/energy',
-                 '/im/command/voltage')
+MASTER_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.TRUTH_ENERGY,
+                 T.CMD_VOLTAGE)
 ENERGY_INTEGRALS = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param')
 PARAM_KEYS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 
@@ -375,7 +371,7 @@ class TruthBooks:
         self.par: Optional[tuple] = None
 
     def series(self, sent) -> None:
-        en = sent.get('/im/truth/energy')
+        en = sent.get(T.TRUTH_ENERGY)
         if en is not None and len(en['t_ns']):
             order = np.argsort(en['t_ns'], kind='stable')
             i0, i1 = order[0], order[-1]
@@ -383,7 +379,7 @@ class TruthBooks:
                 self.first = (int(en['t_ns'][i0]), {k: v[i0] for k, v in en.items()})
             if self.last is None or en['t_ns'][i1] >= self.last[0]:
                 self.last = (int(en['t_ns'][i1]), {k: v[i1] for k, v in en.items()})
-        par = sent.get('/im/truth/parameters')
+        par = sent.get(T.TRUTH_PARAMS)
         if par is not None and len(par['t_ns']):
             i = int(np.argmax(par['t_ns']))
             if self.par is None or par['t_ns'][i] > self.par[0]:
@@ -396,10 +392,10 @@ class TruthBooks:
         series = {}
         if self.first is not None:
             keys = [k for k in self.last[1] if k in self.first[1]]
-            series['/im/truth/energy'] = {k: np.array([self.first[1][k], self.last[1][k]])
+            series[T.TRUTH_ENERGY] = {k: np.array([self.first[1][k], self.last[1][k]])
                                           for k in keys}
         if self.par is not None:
-            series['/im/truth/parameters'] = {k: np.array([v]) for k, v in self.par[1].items()}
+            series[T.TRUTH_PARAMS] = {k: np.array([v]) for k, v in self.par[1].items()}
         return truth_final_from(series)
 
 
@@ -604,7 +600,7 @@ def build_trace(raw: Dict[str, List[bytes]]) -> Tuple[Dict[str, np.ndarray], Dic
 def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
     """The energy books over the recorded window (see module doc)."""
     out: Dict[str, float] = {}
-    en = series.get('/im/truth/energy')
+    en = series.get(T.TRUTH_ENERGY)
     if en is not None and len(en['t_ns']):
         order = np.argsort(en['t_ns'], kind='stable')
         first, last = order[0], order[-1]
@@ -627,7 +623,7 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
                                        - out['E_friction'] - out['W_load'] - out['E_param']
                                        - out['dW_mag'] - out['dE_kin'])
         out['t_final'] = float(en['t_ns'][last]) * 1e-9
-    par = series.get('/im/truth/parameters')
+    par = series.get(T.TRUTH_PARAMS)
     if par is not None and len(par['t_ns']):
         last = int(np.argmax(par['t_ns']))
         for k, v in par.items():
