@@ -233,7 +233,8 @@ class Player:
         self.pubs = {}
         for tp in sel:
             cls = cdr.message_class(bi.topics[tp])
-            self.pubs[tp] = node.create_publisher(cls, remap.get(tp, tp), _qos_from_yaml(qos[tp], tp))
+            self.pubs[tp] = node.create_publisher(cls, remap.get(tp, tp),
+                                                  _qos_from_yaml(qos[tp], tp))
         self.clock_pub = node.create_publisher(Clock, remap.get(CLOCK, CLOCK), 10) if clock \
             else None
 
