@@ -141,20 +141,23 @@ def full_definition(type_name: str) -> str:
 
 @functools.lru_cache(maxsize=None)
 def type_hash(type_name: str) -> str:
-    """``RIHS01_<sha256>`` of a type from its installed type description, or '' if unknown."""
+    """``RIHS01_<sha256>`` of a type from its installed type description; ValueError naming the
+    type and the file when it cannot be found or read (a recording without it would be
+    rejected by ``ros2 bag play`` later, far from the cause)."""
     package, name = split_type(type_name)
     f = _msg_file(package, name, '.json')
     if f is None:
-        return ''
+        raise ValueError(f'{type_name}: no installed type description ({package}/msg/{name}.json)'
+                         ' to take its RIHS01 hash from; is the ROS 2 environment sourced?')
+    full = f'{package}/msg/{name}'
     try:
         data = json.loads(f.read_text(encoding='utf-8'))
-        full = f'{package}/msg/{name}'
         for h in data.get('type_hashes', []):
-            if h.get('type_name') == full:
-                return str(h.get('hash_string', ''))
-    except (OSError, ValueError):
-        pass
-    return ''
+            if h.get('type_name') == full and h.get('hash_string'):
+                return str(h['hash_string'])
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ValueError(f'{type_name}: unreadable type description {f}: {exc}') from None
+    raise ValueError(f'{type_name}: {f} has no type hash for {full}')
 
 
 def ros_distro() -> str:
