@@ -177,3 +177,27 @@ def test_corrupt_middle_chunk_recover_keeps_the_rest(short_bag, tmp_path):
     assert rosbags_count(fixed) >= 0.55 * n_all
     with pytest.raises(BagError):
         load_run(bad)
+
+
+def test_sigterm_during_reestimate_leaves_a_complete_output(tmp_path):
+    bag = tmp_path / 'two_s.mcap'
+    r = run_tool('scenario', '--task', 'speed', '--duration', '2', '--record', bag,
+                 '--no-progress', timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / 'reest.mcap'
+    p = subprocess.Popen([exe('replay'), str(bag), '--reestimate', '--out', str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    part = partial_path(out)
+    t_end = time.monotonic() + 120
+    while not (part.exists() and part.stat().st_size > 100_000):   # writing, first chunk out
+        assert p.poll() is None and time.monotonic() < t_end, p.stderr.read()
+        time.sleep(0.01)
+    p.send_signal(signal.SIGTERM)
+    _o, err = p.communicate(timeout=120)
+    assert p.returncode == 143, err
+    assert 'interrupted by SIGTERM' in err and 'Traceback' not in err
+    n = rosbags_count(out)
+    assert 0 < n == info(out).message_count < info(bag).message_count
+    reest = [t for _, _, t, _ in iter_raw(out, ['/im/reestimate/observer/flux'])]
+    meas = [t for _, _, t, _ in iter_raw(out, ['/im/measured/current'])]
+    assert reest and max(meas) <= max(reest)     # nothing recorded past the last finished step
