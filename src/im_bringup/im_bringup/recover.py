@@ -21,11 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-from .bag import (MAGIC, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_MESSAGE, OP_METADATA,
-                  OP_SCHEMA, BagError, BagWriter, _decompress, check_output, partial_path)
-
-_REC = struct.Struct('<BQ')
-_U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
+from .bag import (_REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER,
+                  OP_MESSAGE, OP_METADATA, OP_SCHEMA, BagError, BagWriter, _decompress,
+                  check_output, partial_path)
 
 
 @dataclass
@@ -117,8 +115,7 @@ def _take(s: Salvage, op: int, body: bytes, in_chunk: bool) -> None:
         s.metadata.append((name, b.smap()))
 
 
-_KNOWN_OPS = (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_METADATA, OP_DATA_END,
-              OP_FOOTER, 1, 7, 8, 9, 10, 11, 13, 14)
+_KNOWN_OPS = frozenset(range(1, 16))      # MCAP opcodes 0x01-0x0F
 
 
 def _chunk_records(body: bytes):
