@@ -78,10 +78,22 @@ def test_cdr_fast_paths_decode_identically_with_rclpy():
 
 def test_schema_has_dependencies_and_type_hash():
     text = full_definition('geometry_msgs/msg/Vector3Stamped')
-    assert 'std_msgs/Header header' in text
+    assert 'std_msgs/Header header' in text and 'geometry_msgs/Vector3 vector' in text
     assert '\n' + '=' * 80 + '\nMSG: std_msgs/Header\n' in text
     assert 'MSG: geometry_msgs/Vector3' in text and 'MSG: builtin_interfaces/Time' in text
     assert type_hash('sensor_msgs/msg/JointState').startswith('RIHS01_')
+
+
+@pytest.mark.parametrize('type_name', ['geometry_msgs/msg/Vector3Stamped',
+                                       'sensor_msgs/msg/JointState', 'rosgraph_msgs/msg/Clock'])
+def test_type_hash_is_the_installed_type_description(type_name):
+    import json
+    pkg, _, name = type_name.split('/')
+    desc = json.loads((Path(sys.prefix) / 'share' / pkg / 'msg' / f'{name}.json').read_text())
+    want = next(h['hash_string'] for h in desc['type_hashes'] if h['type_name'] == type_name)
+    assert type_hash(type_name) == want
+    with pytest.raises(ValueError, match='no_pkg/msg/Nope'):
+        type_hash('no_pkg/msg/Nope')
 
 
 def test_round_trip_own_reader_mcap_and_rosbags(tmp_path):
