@@ -201,3 +201,21 @@ def test_sigterm_during_reestimate_leaves_a_complete_output(tmp_path):
     reest = [t for _, _, t, _ in iter_raw(out, ['/im/reestimate/observer/flux'])]
     meas = [t for _, _, t, _ in iter_raw(out, ['/im/measured/current'])]
     assert reest and max(meas) <= max(reest)     # nothing recorded past the last finished step
+
+
+def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
+    """The live summary (streamed while the run went) and the report of the bag it recorded are
+    the same numbers."""
+    import json
+    summary = json.loads(short_bag.with_suffix('.json').read_text())
+    r = run_tool('report', short_bag, '--no-plots', '--out', tmp_path / 'rep')
+    assert r.returncode == 0, r.stderr
+    fig = json.loads((tmp_path / 'rep' / 'report.json').read_text())['runs'][0]['figures']
+    keys = [k for k in ('E_in_J', 'E_loss_J', 'balance_residual_J', 'speed_err_max_rad_s',
+                        'speed_err_rms_rad_s', 'torque_err_max_Nm', 'flux_est_err_rms_Wb',
+                        'V_max_V', 'i_max_A', 'duration_s')]
+    assert all(k in summary and k in fig for k in keys)
+    for k in keys:
+        assert fig[k] == pytest.approx(summary[k], rel=1e-12), k
+    status = json.loads((tmp_path / 'rep' / 'report.json').read_text())['runs'][0]['status']
+    assert status['notes'] == [] and status['interrupted'] is None     # a whole run

@@ -199,6 +199,8 @@ def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
     summary.update({'steps': stats['steps'], 'wall_s': stats['wall_s'],
                     'steps_per_s': stats['steps_per_s'], 'ok': stats['ok'],
                     'failures': stats['failures']})
+    for k, v in stats.items():          # anything else the graph counts (e.g. rejected inputs)
+        summary.setdefault(k, v)
     gaps = run.running.gaps() if run.running is not None else {}
     if gaps:
         summary['lockstep_gaps'] = gaps
