@@ -156,9 +156,9 @@ def test_corrupt_middle_chunk_recover_keeps_the_rest(short_bag, tmp_path):
     from im_bringup.bag import BagWriter
     src = tmp_path / 'three.mcap'
     with BagWriter(src, chunk_size=128 * 1024) as w:     # the recorded run, in small chunks
-        for topic, tname, t, data in iter_raw(short_bag):
-            if topic not in w._topics:
-                w.add_topic(topic, tname)
+        for topic, tname in info(short_bag).topics.items():
+            w.add_topic(topic, tname)
+        for topic, _tname, t, data in iter_raw(short_bag):
             w.write_serialized(topic, data, t)
     with open(src, 'rb') as f:
         ci = make_reader(f).get_summary().chunk_indexes
@@ -211,9 +211,9 @@ def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
     r = run_tool('report', short_bag, '--no-plots', '--out', tmp_path / 'rep')
     assert r.returncode == 0, r.stderr
     fig = json.loads((tmp_path / 'rep' / 'report.json').read_text())['runs'][0]['figures']
-    keys = [k for k in ('E_in_J', 'E_loss_J', 'balance_residual_J', 'speed_err_max_rad_s',
-                        'speed_err_rms_rad_s', 'torque_err_max_Nm', 'flux_est_err_rms_Wb',
-                        'V_max_V', 'i_max_A', 'duration_s')]
+    keys = ('E_in_J', 'E_loss_J', 'balance_residual_J', 'speed_err_max_rad_s',
+            'speed_err_rms_rad_s', 'torque_err_max_Nm', 'flux_est_err_rms_Wb', 'V_max_V',
+            'i_max_A', 'duration_s')
     assert all(k in summary and k in fig for k in keys)
     for k in keys:
         assert fig[k] == pytest.approx(summary[k], rel=1e-12), k
