@@ -219,3 +219,17 @@ def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
         assert fig[k] == pytest.approx(summary[k], rel=1e-12), k
     status = json.loads((tmp_path / 'rep' / 'report.json').read_text())['runs'][0]['status']
     assert status['notes'] == [] and status['interrupted'] is None     # a whole run
+
+
+def test_report_refuses_to_replace_a_report_or_write_into_a_bag(short_bag, tmp_path):
+    out = tmp_path / 'rep'
+    assert run_tool('report', short_bag, '--no-plots', '--out', out).returncode == 0
+    before = (out / 'report.md').read_bytes()
+    r = run_tool('report', short_bag, '--no-plots', '--out', out)
+    assert r.returncode == 2 and 'exists' in one_line(r.stderr)
+    assert (out / 'report.md').read_bytes() == before
+    assert run_tool('report', short_bag, '--no-plots', '--out', out, '--force').returncode == 0
+    bag_bytes = short_bag.read_bytes()
+    r = run_tool('report', short_bag, '--no-plots', '--out', short_bag, '--force')
+    assert r.returncode == 2 and 'directory' in one_line(r.stderr)
+    assert short_bag.read_bytes() == bag_bytes

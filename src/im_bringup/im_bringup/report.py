@@ -232,9 +232,15 @@ def main(argv=None) -> int:
     ap.add_argument('bags', nargs='+', help='MCAP recordings')
     ap.add_argument('--out', '-o', default=None, help='output directory')
     ap.add_argument('--no-plots', action='store_true', help='tables only')
+    ap.add_argument('--force', action='store_true', help='replace an existing report in --out')
     a = ap.parse_args(args)
     out = a.out or str(Path(a.bags[0]).with_suffix('')) + '_report'
     try:
+        from .bag import check_output
+        if Path(out).exists() and not Path(out).is_dir():
+            raise FileExistsError(f'{out}: --out must be a directory, and this is a file')
+        for name in ('report.md', 'report.json'):
+            check_output(Path(out) / name, a.bags, a.force, what='report')
         res = write_report(a.bags, out, plots=not a.no_plots)
     except BagError as exc:
         print(f'report: error: {exc}', file=sys.stderr)
