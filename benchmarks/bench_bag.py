@@ -88,6 +88,71 @@ def _bench_serialize(n: int) -> float:
     return (time.perf_counter() - t0) / n * 1e6
 
 
+def _messages(n_steps: int):
+    """The lock-step loop's serialized messages, one list for every writer and reader."""
+    from im_common import cdr
+    v3 = ('/im/measured/current', '/im/command/voltage', '/im/observer/flux', '/im/truth/flux',
+          '/im/truth/torque')
+    out = []
+    for k in range(n_steps):
+        t = k * 100_000
+        s, ns = divmod(t, 1_000_000_000)
+        for topic in v3:
+            out.append((topic, t, cdr.pack_vector3_stamped(s, ns, 0.001 * k, -0.001 * k, 0.0)))
+        out.append(('/im/measured/shaft', t,
+                    cdr.pack_joint_state(s, ns, ('rotor',), (0.001 * k,), (1.0,), ())))
+    return out
+
+
+def _bench_own_vs_library(n_steps: int, tmp: str) -> dict:
+    """The project's MCAP writer and reader against the ``mcap`` library's on the same serialized
+    messages (zstd, 1 MiB chunks): µs per message, writing including the close, reading every
+    message back with its payload."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+    from im_bringup.bag import BagWriter, iter_raw
+    from im_bringup.msgdefs import full_definition
+    msgs = _messages(n_steps)
+    own, lib = os.path.join(tmp, 'own.mcap'), os.path.join(tmp, 'lib.mcap')
+    t0 = time.perf_counter()
+    w = BagWriter(own, force=True)
+    ws = w.write_serialized
+    for topic, t, data in msgs:
+        ws(topic, data, t)
+    w.close()
+    t_own_w = time.perf_counter() - t0
+    types = {'/im/measured/shaft': 'sensor_msgs/msg/JointState'}
+    t0 = time.perf_counter()
+    with open(lib, 'wb') as f:
+        mw = Writer(f, chunk_size=1 << 20, compression=CompressionType.ZSTD)
+        mw.start(profile='ros2', library='bench')
+        schemas, chans = {}, {}
+        for topic in dict.fromkeys(m[0] for m in msgs):
+            tn = types.get(topic, 'geometry_msgs/msg/Vector3Stamped')
+            if tn not in schemas:
+                schemas[tn] = mw.register_schema(tn, 'ros2msg', full_definition(tn).encode())
+            chans[topic] = mw.register_channel(topic, 'cdr', schemas[tn])
+        add = mw.add_message
+        for topic, t, data in msgs:
+            add(chans[topic], t, data, t)
+        mw.finish()
+    t_lib_w = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    n_own = sum(1 for _ in iter_raw(own))
+    t_own_r = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with open(own, 'rb') as f:
+        n_lib = sum(1 for _ in make_reader(f).iter_messages(log_time_order=True))
+    t_lib_r = time.perf_counter() - t0
+    if not n_own == n_lib == len(msgs):
+        raise RuntimeError(f'readers disagree: {n_own} / {n_lib} / {len(msgs)} messages')
+    n = len(msgs)
+    return {'us_per_msg_own_writer_zstd': t_own_w / n * 1e6,
+            'us_per_msg_mcap_Writer_zstd': t_lib_w / n * 1e6,
+            'us_per_msg_own_reader_iter_raw': t_own_r / n * 1e6,
+            'us_per_msg_mcap_make_reader_iter_messages': t_lib_r / n * 1e6}
+
+
 def run(quick: bool = False) -> dict:
     """µs per written message for each write path (zstd), for benchmarks/run_all.py."""
     steps = 4000 if quick else 20000
@@ -96,6 +161,7 @@ def run(quick: bool = False) -> dict:
         out['us_per_msg_write_msg_zstd'] = _bench(steps, 'write(msg)', 'zstd', tmp)
         out['us_per_msg_write_serialized_zstd'] = _bench(steps, 'write_vector3/joint_state',
                                                          'zstd', tmp)
+        out.update(_bench_own_vs_library(steps, tmp))
     out['us_rclpy_serialize_message_v3'] = _bench_serialize(10000 if quick else 50000)
     return out
 
@@ -111,6 +177,7 @@ def main(argv=None) -> int:
             for comp in ('zstd', 'none'):
                 rows.append({'path': mode, 'compression': comp,
                              'us_per_msg': _bench(a.steps, mode, comp, tmp)})
+        lib = _bench_own_vs_library(a.steps, tmp)
     fill = _bench_fill(a.steps)
     ser = _bench_serialize(50000)
     print(f'{"write path":30s} {"compression":12s} µs/message')
@@ -118,9 +185,12 @@ def main(argv=None) -> int:
         print(f'{r["path"]:30s} {r["compression"]:12s} {r["us_per_msg"]:8.2f}')
     print(f'{"(filling the message objects)":30s} {"":12s} {fill:8.2f}')
     print(f'{"(rclpy serialize_message V3)":30s} {"":12s} {ser:8.2f}')
+    print('\nsame serialized messages, zstd, 1 MiB chunks: own code vs the mcap library')
+    for k, v in lib.items():
+        print(f'{k[11:]:42s} {v:8.2f} µs/message')
     if a.json:
         with open(a.json, 'w') as f:
-            json.dump({'rows': rows, 'fill_us': fill, 'serialize_message_us': ser,
+            json.dump({'rows': rows, 'fill_us': fill, 'serialize_message_us': ser, **lib,
                        'steps': a.steps, 'python': sys.version}, f, indent=1)
     return 0
 

@@ -4,6 +4,7 @@ import math
 import os
 import random
 import signal
+import struct
 import subprocess
 import sys
 import textwrap
@@ -16,7 +17,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from im_common import cdr
-from im_bringup.bag import BagError, BagWriter, info, iter_raw, load_run, read_messages
+from im_bringup.bag import BagError, BagWriter, info, iter_raw, read_messages
+from im_bringup.run import load_run
 from im_bringup.msgdefs import full_definition, type_hash
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,10 +78,22 @@ def test_cdr_fast_paths_decode_identically_with_rclpy():
 
 def test_schema_has_dependencies_and_type_hash():
     text = full_definition('geometry_msgs/msg/Vector3Stamped')
-    assert 'std_msgs/Header header' in text
+    assert 'std_msgs/Header header' in text and 'geometry_msgs/Vector3 vector' in text
     assert '\n' + '=' * 80 + '\nMSG: std_msgs/Header\n' in text
     assert 'MSG: geometry_msgs/Vector3' in text and 'MSG: builtin_interfaces/Time' in text
     assert type_hash('sensor_msgs/msg/JointState').startswith('RIHS01_')
+
+
+@pytest.mark.parametrize('type_name', ['geometry_msgs/msg/Vector3Stamped',
+                                       'sensor_msgs/msg/JointState', 'rosgraph_msgs/msg/Clock'])
+def test_type_hash_is_the_installed_type_description(type_name):
+    import json
+    pkg, _, name = type_name.split('/')
+    desc = json.loads((Path(sys.prefix) / 'share' / pkg / 'msg' / f'{name}.json').read_text())
+    want = next(h['hash_string'] for h in desc['type_hashes'] if h['type_name'] == type_name)
+    assert type_hash(type_name) == want
+    with pytest.raises(ValueError, match='no_pkg/msg/Nope'):
+        type_hash('no_pkg/msg/Nope')
 
 
 def test_round_trip_own_reader_mcap_and_rosbags(tmp_path):
@@ -253,9 +267,11 @@ def test_hard_kill_then_recover_salvages_the_prefix(tmp_path):
     assert p.stdout.readline().strip() == 'ready'
     p.send_signal(signal.SIGKILL)
     p.wait(timeout=20)
-    with pytest.raises(BagError, match='truncated') as ei:
+    # the killed writer's data is under <name>.part, never half-written under the final name
+    assert not path.exists() and (tmp_path / 'killed.mcap.part').exists()
+    with pytest.raises(BagError, match='interrupted') as ei:
         load_run(path)
-    assert str(path) in str(ei.value)
+    assert str(path) in str(ei.value) and 'recover' in str(ei.value)
     r = recover(path, str(tmp_path / 'fixed.mcap'))
     stamps = [t for _, _, t, _ in iter_raw(tmp_path / 'fixed.mcap')]
     assert r['messages'] == len(stamps) > 0
@@ -353,3 +369,70 @@ def test_load_run_decodes_framed_vector3_like_the_graph_publishes(tmp_path):
     assert list(tr['i_alpha']) == [0.5 * k for k in range(20)]
     assert list(tr['tau_m']) == [1.0 + k for k in range(20)]
     assert list(tr['tau_friction']) == [3.0] * 20
+
+
+def _three_chunks(path):
+    with BagWriter(path, chunk_size=64 * 1024) as w:
+        k = 0
+        while len(w._chunk_indexes) < 3:
+            w.write_vector3('/im/measured/current', k * 1000, 1.37 * k, -float(k))
+            k += 1
+    from mcap.reader import make_reader
+    with open(path, 'rb') as f:
+        return make_reader(f).get_summary().chunk_indexes
+
+
+def test_recover_skips_a_corrupt_middle_chunk_and_keeps_the_ones_after(tmp_path, capsys):
+    from im_bringup import recover as rec
+    path = tmp_path / 'three.mcap'
+    ci = _three_chunks(path)
+    n_all = info(path).message_count
+    data = bytearray(path.read_bytes())
+    mid = ci[1].chunk_start_offset + ci[1].chunk_length // 2
+    data[mid - 2048:mid + 2048] = bytes((b * 7 + 3) & 0xFF for b in range(4096))   # 4 KiB
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(bytes(data))
+    with pytest.raises(BagError, match='bad.mcap'):
+        load_run(bad)
+    assert rec.main([str(bad), '-o', str(tmp_path / 'fixed.mcap')]) == 0
+    err = capsys.readouterr().err
+    lost = ci[1].message_start_time * 1e-9
+    assert 'skipped bytes' in err and f'{lost:.6f}' in err
+    got = [t for _, _, t, _ in iter_raw(tmp_path / 'fixed.mcap')]
+    assert len(got) >= 0.55 * n_all
+    assert got[-1] == ci[2].message_end_time            # the chunk after the damage is kept
+    assert not any(ci[1].message_start_time <= t <= ci[1].message_end_time for t in got)
+
+
+def test_summary_and_data_crc_mismatches_are_reported(tmp_path):
+    from im_bringup.bag import check_data_crc
+    path = tmp_path / 'ok.mcap'
+    _three_chunks(path)
+    check_data_crc(path)
+    data = bytearray(path.read_bytes())
+    start = struct.unpack_from('<Q', data, len(data) - 8 - 29 + 9)[0]
+    bad = bytearray(data)
+    bad[start + 40] ^= 1                 # one bit in the summary's schema text
+    (tmp_path / 's.mcap').write_bytes(bytes(bad))
+    with pytest.raises(BagError, match='summary section CRC mismatch'):
+        info(tmp_path / 's.mcap')
+    bad = bytearray(data)
+    bad[30] ^= 1                         # one bit in the header record
+    (tmp_path / 'd.mcap').write_bytes(bytes(bad))
+    with pytest.raises(BagError, match='data section CRC mismatch'):
+        check_data_crc(tmp_path / 'd.mcap')
+
+
+def test_outputs_are_never_inputs_and_never_overwritten_silently(tmp_path):
+    from im_bringup.bag import check_output, write_atomic
+    a = tmp_path / 'a.json'
+    write_atomic(a, 'one')
+    with pytest.raises(FileExistsError, match='exists'):
+        check_output(a)
+    check_output(a, force=True)
+    link = tmp_path / 'link.json'
+    os.symlink(a, link)
+    with pytest.raises(FileExistsError, match='also an input'):
+        check_output(link, [a], force=True)
+    assert a.read_text() == 'one' and sorted(p.name for p in tmp_path.iterdir()) == ['a.json',
+                                                                                    'link.json']

@@ -124,3 +124,61 @@ def test_plots_draw_decimated_topics_through_their_gaps():
     t, y = _dec(R, 'tau_ref')
     assert len(t) == 10 and np.all(np.isfinite(y))
     np.testing.assert_array_equal(y, np.arange(10.0))
+
+
+def _varied_bag(path, steps=2000):
+    """Every trace kind: per-step and decimated topics, estimates drifting, a gap in one
+    lock-step topic (steps 1000-1009) and a NaN sample."""
+    with BagWriter(path, metadata={'scenario': {'task': 'position'}}) as w:
+        for k in range(steps):
+            t = k * 100_000
+            th = 0.003 * k
+            w.write_vector3('/im/measured/current', t, 3 * math.cos(th), 2 * math.sin(3 * th))
+            w.write_vector3('/im/truth/voltage', t, 40 * math.sin(th), 40 * math.cos(2 * th))
+            if not 1000 <= k < 1010:
+                w.write_vector3('/im/command/voltage', t, 41 * math.sin(th), 39 * math.cos(th))
+            w.write_vector3('/im/truth/flux', t, 0.8 * math.cos(th), 0.8 * math.sin(th))
+            w.write_vector3('/im/observer/flux', t + 100_000, 0.7 * math.cos(th),
+                            0.75 * math.sin(th) if k != 7 else float('nan'))
+            w.write_joint_state('/im/measured/shaft', t, ('rotor',), (th,), (10.0 + math.sin(th),))
+            if k % 10 == 0:
+                w.write_joint_state('/im/reference/shaft', t, ('rotor',), (th + 1e-3 * k,),
+                                    (10.0,), (1.0,))
+                w.write_vector3('/im/reference/flux', t, 0.8 * math.cos(th),
+                                0.81 * math.sin(th), 0.8)
+            w.write_vector3('/im/truth/torque', t, 1.5 + math.sin(th), 0.1, 0.0)
+            w.write_joint_state('/im/adapter/estimate', t, ('R_r', 'theta'),
+                                (1.0 - 1e-4 * k, 0.95 + 1e-5 * k))
+            w.write_joint_state('/im/truth/parameters', t, ('R_r', 'theta'), (0.8, 0.95))
+
+
+def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch):
+    """The running figures, folded batch by batch, are im_common.metrics' definitions on the
+    whole trace (and the estimate errors computed directly), to rounding."""
+    from im_common.metrics import tracking_figures
+
+    from im_bringup import run as R
+    from im_bringup.report import figures_of_merit
+    path = tmp_path / 'v.mcap'
+    _varied_bag(path)
+    full = load_run(path)
+    ref = tracking_figures(full.trace, 'position')
+    monkeypatch.setattr(R.TraceStream.__init__, '__defaults__', ((), 997, 13))   # many batches
+    streamed = load_run(path, trace='decimated', limit=200)
+    fig = figures_of_merit(streamed)
+    assert set(ref) <= set(fig)
+    for k, v in ref.items():
+        assert fig[k] == pytest.approx(v, rel=1e-12, nan_ok=True), k
+    e = full.trace['R_r_hat'] - full.trace['R_r']
+    assert fig['R_r_est_err_max'] == pytest.approx(np.nanmax(np.abs(e)), rel=1e-12)
+    assert fig['R_r_est_err_rms'] == pytest.approx(np.sqrt(np.nanmean(e ** 2)), rel=1e-12)
+    last = full.trace['t'] > full.trace['t'][-1] - 1.0
+    assert fig['R_r_err_ptp_rel_last1s'] == pytest.approx(np.ptp(e[last]) / 0.8, rel=1e-12)
+    assert fig['steps'] == 2000 and streamed.late == 0
+    assert len(streamed.trace['t']) <= 400                         # decimated ...
+    assert np.isfinite(streamed.trace['theta_ref']).sum() > 0       # ... keeping decimated topics
+    assert figures_of_merit(full) == pytest.approx(fig, rel=1e-12, nan_ok=True)
+    # the 10 missing commands are a gap at their stamps
+    gaps = streamed.running.gaps()
+    assert gaps == {'/im/command/voltage': {'missing': 10, 'ranges': [(0.1, 0.1009)]},
+                    '/im/observer/flux': {'missing': 1, 'ranges': [(0.0, 0.0)]}}

@@ -26,8 +26,8 @@ messages are encoded with :mod:`im_bringup.cdr` (exact-length CDR). Cost: see
 Reading
 -------
 :func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
-:func:`load_run` turns a recording into a :class:`Run` (trace arrays in the
-:mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
+:func:`im_bringup.run.load_run` turns a recording into a :class:`~im_bringup.run.Run` (trace
+arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
 truncated or missing file raises :class:`BagError` naming the file and what is wrong.
 """
 from __future__ import annotations
@@ -158,6 +158,62 @@ def _topic_type_default(topic: str) -> Optional[str]:
 # ------------------------------------------------------------------------------------------
 # Writer
 # ------------------------------------------------------------------------------------------
+# Outputs: never an input, never an existing file without force, always renamed into place
+# ------------------------------------------------------------------------------------------
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'output') -> Path:
+    """Refuse an output that is one of ``inputs`` (same real path or inode; even with
+    ``force``) or that exists (without ``force``). :class:`FileExistsError`, one line."""
+    o = Path(out)
+    for i in inputs:
+        if i is not None and _same_file(o, Path(i)):
+            raise FileExistsError(f'{o}: the {what} is also an input ({i}); refusing to write over '
+                                  'it (even with --force); choose another file')
+    if o.is_dir():
+        raise FileExistsError(f'{o}: the {what} is a directory, not a file')
+    if o.exists() and not force:
+        raise FileExistsError(f'{o}: the {what} exists; refusing to overwrite it '
+                              '(pass --force)')
+    return o
+
+
+def write_atomic(path, text: str) -> None:
+    """Write ``text`` to a temporary file in ``path``'s directory and rename it into place."""
+    import tempfile
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix='.' + p.name + '.', suffix='.tmp', dir=str(p.parent))
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as f:
+            f.write(text)
+        umask = os.umask(0o22)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+PART_SUFFIX = '.part'
+
+
+def partial_path(path) -> Path:
+    """Where :class:`BagWriter` writes ``path`` until it is closed (``run.mcap.part``); a killed
+    writer leaves its data there, and ``recover run.mcap`` finds it."""
+    p = Path(path)
+    return p.with_name(p.name + PART_SUFFIX)
+
+
 class BagWriter:
     """MCAP writer for ROS 2 runs (context manager).
 
@@ -187,13 +243,20 @@ class BagWriter:
             raise ValueError(f'chunk_size must be >= 1024 bytes, not {chunk_size!r}')
         self._chunk_size = int(chunk_size)
         self._closed = True
+        self.part = partial_path(self.path)
+        if self.path.is_dir():
+            raise IsADirectoryError(f'{self.path}: is a directory, not an MCAP file path')
         if self.path.exists() and not force:
             raise FileExistsError(f'{self.path}: refusing to overwrite an existing recording '
                                   '(pass force=True / --force)')
-        if self.path.exists() and self.path.is_dir():
-            raise IsADirectoryError(f'{self.path}: is a directory, not an MCAP file path')
+        if self.part.exists() and not force:
+            raise FileExistsError(f'{self.part}: an interrupted recording is in the way; salvage '
+                                  f'it with `ros2 run im_bringup recover {self.path}` or pass '
+                                  'force=True / --force to discard it')
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, 'wb')
+        # written under <name>.part and renamed into place by close(): an interrupted or killed
+        # write never leaves a half-written file under the final name
+        self._f = open(self.part, 'wb')
         self._crc = 0
         self._pos = 0
         self._schemas: Dict[str, int] = {}          # type -> schema id
@@ -513,6 +576,8 @@ class BagWriter:
                 os.fsync(self._f.fileno())
             except OSError:
                 pass
+            self._f.close()
+            os.replace(self.part, self.path)
         finally:
             self._closed = True
             self._f.close()
@@ -539,6 +604,9 @@ class BagInfo:
 def _open_checked(path):
     p = Path(path)
     if not p.exists():
+        if partial_path(p).exists():
+            raise BagError(p, f'no such file, but an interrupted (truncated) recording is at '
+                           f'{partial_path(p)}; salvage it with `ros2 run im_bringup recover {p}`')
         raise BagError(p, 'no such file')
     if p.is_dir():
         raise BagError(p, 'is a directory; expected an .mcap file')
@@ -556,9 +624,62 @@ def _open_checked(path):
     return p
 
 
+def _check_summary_crc(p: Path) -> None:
+    """The footer's summary CRC (summary start .. footer's own fields) must match."""
+    size = p.stat().st_size
+    with open(p, 'rb') as f:
+        f.seek(size - 8 - 29)
+        foot = f.read(29)
+        op, length = _REC.unpack_from(foot, 0)
+        if op != OP_FOOTER or length != 20:
+            raise BagError(p, 'corrupt footer (the last record is not an MCAP Footer)')
+        start, _offsets, crc = struct.unpack_from('<QQI', foot, 9)
+        if not crc or not start:
+            return
+        if start > size - 8 - 29:
+            raise BagError(p, f'corrupt footer: summary start {start} past the footer')
+        f.seek(start)
+        body = f.read(size - 8 - 4 - start)
+    got = zlib.crc32(body)
+    if got != crc:
+        raise BagError(p, f'summary section CRC mismatch (stored {crc:#010x}, computed '
+                          f'{got:#010x}): the index is damaged; `ros2 run im_bringup recover {p}` '
+                          'rebuilds it from the data')
+
+
+def check_data_crc(path) -> None:
+    """The Data End record's CRC over the whole data section (BagError on a mismatch)."""
+    p = _open_checked(path)
+    size = p.stat().st_size
+    with open(p, 'rb') as f:
+        f.seek(size - 8 - 29)
+        foot = f.read(29)
+        start = struct.unpack_from('<Q', foot, 9)[0] or (size - 8 - 29)
+        f.seek(start - 13)
+        end_rec = f.read(13)
+        op, length = _REC.unpack_from(end_rec, 0)
+        if op != OP_DATA_END or length != 4:
+            return                  # a writer that does not put Data End right before
+        (stored,) = _U32.unpack_from(end_rec, 9)
+        if not stored:
+            return
+        f.seek(0)
+        crc, left = 0, start - 13
+        while left > 0:
+            block = f.read(min(left, 1 << 22))
+            if not block:
+                break
+            crc = zlib.crc32(block, crc)
+            left -= len(block)
+    if crc != stored:
+        raise BagError(p, f'data section CRC mismatch (stored {stored:#010x}, computed '
+                          f'{crc:#010x}): the file was altered after it was written')
+
+
 def _summary(path):
     from mcap.reader import make_reader
     p = _open_checked(path)
+    _check_summary_crc(p)
     try:
         with open(p, 'rb') as f:
             reader = make_reader(f)
@@ -684,7 +805,3 @@ def read_messages(path, topics: Optional[Iterable[str]] = None
             raise BagError(path, f'message on {topic} at t = {t} ns does not deserialize as '
                            f'{tname}: {exc}') from None
         yield topic, t, msg
-
-
-# load_run / Run live in im_bringup.run; re-exported here for the documented API.
-from .run import Run, load_run  # noqa: E402,F401

@@ -40,14 +40,9 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from im_common import cdr
-from .bag import BagError, BagWriter, info, iter_raw
+from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
+from .bag import BagError, BagWriter, check_output, info, iter_raw
 from .run import REEST_CURRENT, REEST_FLUX
-
-MEAS_CURRENT = '/im/measured/current'
-MEAS_SHAFT = '/im/measured/shaft'
-CMD_VOLTAGE = '/im/command/voltage'
-ADAPT_ESTIMATE = '/im/adapter/estimate'
-CLOCK = '/clock'
 
 
 # ------------------------------------------------------------------------------------------
@@ -99,8 +94,10 @@ def _series(path) -> Dict[str, Dict[int, tuple]]:
     return out
 
 
-def reestimate_series(path, config: dict) -> List[Tuple[int, Tuple[float, float, float, float]]]:
-    """[(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k."""
+def reestimate_series(path, config: dict, stop=None
+                      ) -> List[Tuple[int, Tuple[float, float, float, float]]]:
+    """[(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k (up to
+    the step at which ``stop()`` turned true, if given)."""
     from im_observer.observer import RotorFluxObserver
     s = _series(path)
     steps = sorted(set(s[MEAS_CURRENT]) & set(s[MEAS_SHAFT]) & set(s[CMD_VOLTAGE]))
@@ -115,7 +112,7 @@ def reestimate_series(path, config: dict) -> List[Tuple[int, Tuple[float, float,
     out = []
     for t in steps:
         t1 = nxt.get(t, t + period if period else None)
-        if t1 is None:
+        if t1 is None or (stop is not None and stop()):
             break
         if config.get('use_adapter'):
             est = s[ADAPT_ESTIMATE].get(t)
@@ -131,13 +128,20 @@ def reestimate_series(path, config: dict) -> List[Tuple[int, Tuple[float, float,
 
 
 def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
-               use_adapter: Optional[bool] = None, force: bool = False) -> dict:
-    """Write ``out_path``: every message of ``path`` plus the re-estimated observer outputs."""
+               use_adapter: Optional[bool] = None, force: bool = False, stop=None) -> dict:
+    """Write ``out_path``: every message of ``path`` plus the re-estimated observer outputs.
+
+    ``out_path`` is never ``path`` (FileExistsError, even with ``force``); an existing file only
+    with ``force``. ``stop()`` (e.g. a :class:`im_common.stopping.StopSignals` flag) ends the
+    work early: the file is then closed complete up to the last finished step, and
+    ``'interrupted'`` in the result is True.
+    """
+    check_output(out_path, [path], force, what='--out file')
     bi = info(path)
     cfg = observer_config(bi.metadata, overrides)
     if use_adapter is not None:
         cfg['use_adapter'] = use_adapter
-    est = reestimate_series(path, cfg)
+    est = reestimate_series(path, cfg, stop)
     new = []
     for t, (ia, ib, pa, pb) in est:
         s_, ns = divmod(t, 1_000_000_000)
@@ -151,34 +155,47 @@ def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
                            for f in fields(cfg['params'])}}
     old = ((t, 0, topic, data) for topic, _tn, t, data in iter_raw(path))
     n = 0
+    check = stop
+    if stop is not None and stop():     # interrupted while estimating: up to that step only
+        last = est[-1][0] if est else -1
+        old = (e for e in old if e[0] <= last)
+        check = None
     with BagWriter(out_path, force=force, metadata=md) as w:
         for topic, tname in bi.topics.items():
             meta = next((m for (tp, _, m) in bi.channels.values() if tp == topic), {})
             w.add_topic(topic, tname, qos=meta.get('offered_qos_profiles'))
         w.add_topic(REEST_FLUX, 'geometry_msgs/msg/Vector3Stamped')
         w.add_topic(REEST_CURRENT, 'geometry_msgs/msg/Vector3Stamped')
+        t_prev = None
         for t, _o, topic, data in heapq.merge(old, new, key=lambda e: (e[0], e[1])):
+            if t != t_prev and check is not None and check():
+                break               # a signal while writing: end after the last complete stamp
             w.write_serialized(topic, data, t)
+            t_prev = t
             n += 1
-    return {'input': str(path), 'output': str(out_path), 'steps': len(est), 'messages': n}
+    return {'input': str(path), 'output': str(out_path), 'steps': len(est), 'messages': n,
+            'interrupted': bool(stop is not None and stop())}
 
 
 # ------------------------------------------------------------------------------------------
 # Publishing
 # ------------------------------------------------------------------------------------------
-def _qos_from_yaml(text: Optional[str]):
+def _qos_from_yaml(text: Optional[str], topic: str = '?'):
+    """The recorded offered QoS of ``topic``; a record without one gets reliable/volatile, a
+    record that does not parse is a ValueError naming the topic (never a silent default)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    import yaml
     rel, dur, depth = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 100
     try:
-        import yaml
         prof = (yaml.safe_load(text) or [{}])[0] if text else {}
         r = str(prof.get('reliability', 'reliable')).lower()
         d = str(prof.get('durability', 'volatile')).lower()
-        rel = ReliabilityPolicy.BEST_EFFORT if r in ('best_effort', '2') else rel
-        dur = DurabilityPolicy.TRANSIENT_LOCAL if d in ('transient_local', '1') else dur
         depth = max(int(prof.get('depth', 100) or 100), 100)
-    except Exception:
-        pass
+    except (yaml.YAMLError, AttributeError, TypeError, ValueError, IndexError, KeyError) as exc:
+        raise ValueError(f'{topic}: recorded offered_qos_profiles does not parse '
+                         f'({type(exc).__name__}: {exc})') from None
+    rel = ReliabilityPolicy.BEST_EFFORT if r in ('best_effort', '2') else rel
+    dur = DurabilityPolicy.TRANSIENT_LOCAL if d in ('transient_local', '1') else dur
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel,
                       durability=dur)
 
@@ -216,7 +233,8 @@ class Player:
         self.pubs = {}
         for tp in sel:
             cls = cdr.message_class(bi.topics[tp])
-            self.pubs[tp] = node.create_publisher(cls, remap.get(tp, tp), _qos_from_yaml(qos[tp]))
+            self.pubs[tp] = node.create_publisher(cls, remap.get(tp, tp),
+                                                  _qos_from_yaml(qos[tp], tp))
         self.clock_pub = node.create_publisher(Clock, remap.get(CLOCK, CLOCK), 10) if clock \
             else None
 
@@ -297,10 +315,16 @@ def main(argv=None) -> int:
             if a.k_e is not None:
                 over['k_e_injection'] = a.k_e
             out = a.out or a.bag.rsplit('.mcap', 1)[0] + '_reest.mcap'
-            r = reestimate(a.bag, out, over, a.use_adapter, a.force)
+            from im_common.stopping import StopSignals
+            with StopSignals() as sig:
+                r = reestimate(a.bag, out, over, a.use_adapter, a.force,
+                               stop=lambda: sig.requested is not None)
             print(f"replay: re-estimated {r['steps']} steps; {r['messages']} messages "
                   f"written to {r['output']}")
-            return 0
+            if r['interrupted']:
+                print(f'replay: interrupted by {sig.requested}; {r["output"]} is complete up to '
+                      'the last finished step', file=sys.stderr)
+            return sig.exit_code
         if a.rate is not None and not (a.rate > 0 and math.isfinite(a.rate)):
             raise ValueError(f'--rate must be > 0, not {a.rate}')
         return _play(a, full)

@@ -70,50 +70,71 @@ def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
     """Each adapted parameter against the truth: max / RMS / final relative error, the final
     values (``<n>_hat_final``, ``<n>_true_final``), and over the last ``last_window`` seconds the
     relative RMS and peak-to-peak of the error (issue targets: < 5 %)."""
-    out = {}
-    t = np.asarray(trace.get('t', ()), float)
-    for n in ('R_r', 'theta', 'L_M', 'R_R'):
-        hat, true = f'{n}_hat', n
-        if hat not in trace or true not in trace:
-            continue
-        e = np.asarray(trace[hat], float) - np.asarray(trace[true], float)
-        ok = np.isfinite(e)
-        if not ok.any():
-            continue
-        e_ok = e[ok]
-        out[f'{n}_est_err_max'] = float(np.max(np.abs(e_ok)))
-        out[f'{n}_est_err_rms'] = float(math.sqrt(np.mean(e_ok ** 2)))
-        last = np.flatnonzero(ok)[-1]
-        tv = float(trace[true][last])
-        out[f'{n}_est_err_final_rel'] = float(abs(e[last]) / abs(tv)) if tv else float('nan')
-        out[f'{n}_hat_final'] = float(trace[hat][last])
-        out[f'{n}_true_final'] = tv
-        if len(t) == len(e):
-            win = ok & (t > t[last] - last_window)
-            tru = np.asarray(trace[true], float)[win]
-            if win.any() and np.all(tru != 0):
-                rel = e[win] / tru
-                out[f'{n}_err_rms_rel_last1s'] = float(math.sqrt(np.mean(rel ** 2)))
-                out[f'{n}_err_ptp_rel_last1s'] = float(np.ptp(e[win]) / abs(np.mean(tru)))
-    return out
+    from .run import RunningFigures
+    acc = RunningFigures(last_window)
+    acc.rows(trace)
+    return acc.estimates()
 
 
 def figures_of_merit(run) -> Dict[str, float]:
-    """Every figure of merit a run's recording supports."""
-    from im_common.metrics import balance_relative, energy_figures, tracking_figures
-    tr = run.trace
-    fig: Dict[str, float] = dict(tracking_figures(tr, run.task))
+    """Every figure of merit a run's recording supports, over every control instant: from the
+    run's running figures when it was streamed (:func:`im_bringup.run.stream_run`), else from its
+    trace."""
+    from im_common.metrics import balance_relative, energy_figures
+    from .run import RunningFigures
+    acc = run.running
+    if acc is None:
+        acc = RunningFigures()
+        acc.rows(run.trace)
+    fig: Dict[str, float] = dict(acc.tracking(run.task))
     need = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
             'dE_kin', 'dW_mag', 'balance_residual')
     if all(k in run.truth_final for k in need):
         fig.update(energy_figures(run.truth_final))
         fig['balance_relative'] = balance_relative(fig)
-    fig.update(estimate_figures(tr))
-    t = tr.get('t')
-    if t is not None and len(t):
-        fig['duration_s'] = float(t[-1] - t[0])
-        fig['steps'] = int(len(t))
+    fig.update(acc.estimates())
+    if acc.steps:
+        fig['duration_s'] = float(acc.t_last - acc.t_first)
+        fig['steps'] = int(acc.steps)
     return fig
+
+
+def run_status(run, fig: Dict[str, float]) -> dict:
+    """Whether a recording holds the whole run: ``interrupted`` (stopped by a signal),
+    ``partial`` (recovered from a damaged file, or fewer control steps than its duration asks),
+    ``gaps`` (lock-step topics without a message at some control instants, with the ranges),
+    and one human-readable note per finding in ``notes``."""
+    md = run.metadata
+    notes: List[str] = []
+    st: dict = {'interrupted': None, 'partial': False, 'gaps': {}, 'notes': notes}
+    if 'interrupted' in md:
+        st['interrupted'] = md['interrupted'].get('signal', 'yes')
+        notes.append(f"interrupted by {st['interrupted']} after "
+                     f"{md['interrupted'].get('steps', '?')} steps")
+    rec = md.get('recovered_from')
+    if rec:
+        st['partial'] = True
+        notes.append(f"recovered from {rec.get('path')} ({rec.get('reason')})"
+                     + (f"; {rec['lost']}" if rec.get('lost') else ''))
+    plant = md.get('parameters/plant', {})
+    try:
+        want = int(round(float(plant['duration']) / float(plant['T_s']))) + 1
+    except (KeyError, ValueError, ZeroDivisionError):
+        want = None
+    have = fig.get('steps')
+    if want and have is not None and have < want:
+        st['partial'] = True
+        st['steps_expected'] = want
+        notes.append(f'{have} of {want} control instants recorded')
+    if run.running is not None:
+        st['gaps'] = run.running.gaps()
+        for topic, g in st['gaps'].items():
+            rs = ', '.join(f'{a:.6f}-{b:.6f} s' for a, b in g['ranges'])
+            notes.append(f"{topic}: {g['missing']} control instants missing "
+                         f"({rs})")
+    if run.late:
+        notes.append(f'{run.late} messages arrived out of order and are not in the figures')
+    return st
 
 
 def _fmt(v) -> str:
@@ -161,14 +182,16 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     from .run import load_run
     if not bag_paths:
         raise ValueError('write_report needs at least one bag')
-    runs = [load_run(p) for p in bag_paths]
+    runs = [load_run(p, trace='decimated' if plots else None) for p in bag_paths]
     labels = [r.label for r in runs]
     if len(set(labels)) < len(labels):   # same file names in different directories
         labels = [str(Path(r.path)) for r in runs]
     results = []
     for run, label in zip(runs, labels):
+        fig = figures_of_merit(run)
         results.append({'bag': str(run.path), 'label': label, 'task': run.task,
-                        'figures': figures_of_merit(run), 'truth_final': run.truth_final,
+                        'figures': fig, 'truth_final': run.truth_final,
+                        'status': run_status(run, fig),
                         'metadata': run.metadata, 'message_counts': run.counts})
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -186,11 +209,16 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     if pngs:
         md += ['', '## Figures', '']
         md += [f'![{Path(p).stem}]({Path(p).name})' for p in pngs]
+    warn = [f'- **{r["label"]}**: ' + '; '.join(r['status']['notes']) for r in results
+            if r['status']['notes']]
+    if warn:
+        md += ['', '## Incomplete runs', ''] + warn
+    from .bag import write_atomic
     md_path = out / 'report.md'
-    md_path.write_text('\n'.join(md) + '\n', encoding='utf-8')
+    write_atomic(md_path, '\n'.join(md) + '\n')
     json_path = out / 'report.json'
-    with open(json_path, 'w', encoding='utf-8') as f:
-        json.dump(jsonable({'runs': results, 'figures': pngs}), f, indent=1, allow_nan=False)
+    write_atomic(json_path, json.dumps(jsonable({'runs': results, 'figures': pngs}), indent=1,
+                                       allow_nan=False))
     return {'markdown': str(md_path), 'json': str(json_path), 'figures': pngs,
             'runs': results}
 
@@ -204,9 +232,15 @@ def main(argv=None) -> int:
     ap.add_argument('bags', nargs='+', help='MCAP recordings')
     ap.add_argument('--out', '-o', default=None, help='output directory')
     ap.add_argument('--no-plots', action='store_true', help='tables only')
+    ap.add_argument('--force', action='store_true', help='replace an existing report in --out')
     a = ap.parse_args(args)
     out = a.out or str(Path(a.bags[0]).with_suffix('')) + '_report'
     try:
+        from .bag import check_output
+        if Path(out).exists() and not Path(out).is_dir():
+            raise FileExistsError(f'{out}: --out must be a directory, and this is a file')
+        for name in ('report.md', 'report.json'):
+            check_output(Path(out) / name, a.bags, a.force, what='report')
         res = write_report(a.bags, out, plots=not a.no_plots)
     except BagError as exc:
         print(f'report: error: {exc}', file=sys.stderr)

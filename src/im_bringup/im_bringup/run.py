@@ -40,43 +40,40 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from im_common import cdr
-
-try:
-    from im_common import topics as T
-except ImportError:  # pragma: no cover - im_common is an exec_depend
-    T = None
+from im_common import topics as T
 
 REEST_FLUX = '/im/reestimate/observer/flux'
 REEST_CURRENT = '/im/reestimate/observer/current'
 
 # topic -> trace keys for x, y, z (None: not used)
 V3_KEYS: Dict[str, Tuple[Optional[str], Optional[str], Optional[str]]] = {
-    '/im/measured/current': ('i_alpha', 'i_beta', None),
-    '/im/command/voltage': ('v_cmd_alpha', 'v_cmd_beta', None),
-    '/im/truth/voltage': ('v_alpha', 'v_beta', None),
-    '/im/observer/flux': ('phi_hat_alpha', 'phi_hat_beta', None),
-    '/im/observer/current': ('i_hat_alpha', 'i_hat_beta', None),
-    '/im/reference/current': ('i_ref_alpha', 'i_ref_beta', None),
-    '/im/reference/flux': ('phi_ref_alpha', 'phi_ref_beta', 'phi_ref_mag'),
-    '/im/truth/flux': ('phi_r_alpha', 'phi_r_beta', None),
-    '/im/truth/torque': ('tau_m', 'tau_L', 'tau_friction'),
+    T.MEAS_CURRENT: ('i_alpha', 'i_beta', None),
+    T.CMD_VOLTAGE: ('v_cmd_alpha', 'v_cmd_beta', None),
+    T.TRUTH_VOLTAGE: ('v_alpha', 'v_beta', None),
+    T.OBS_FLUX: ('phi_hat_alpha', 'phi_hat_beta', None),
+    T.OBS_CURRENT: ('i_hat_alpha', 'i_hat_beta', None),
+    T.REF_CURRENT: ('i_ref_alpha', 'i_ref_beta', None),
+    T.REF_FLUX: ('phi_ref_alpha', 'phi_ref_beta', 'phi_ref_mag'),
+    T.TRUTH_FLUX: ('phi_r_alpha', 'phi_r_beta', None),
+    T.TRUTH_TORQUE: ('tau_m', 'tau_L', 'tau_friction'),
     REEST_FLUX: ('phi_reest_alpha', 'phi_reest_beta', None),
     REEST_CURRENT: ('i_reest_alpha', 'i_reest_beta', None),
 }
 # JointState topics with fixed meaning of position/velocity/effort
 JS_FIELDS = {
-    '/im/measured/shaft': ('theta_r', 'omega_r', None),
-    '/im/reference/shaft': ('theta_ref', 'omega_ref', 'tau_ref'),
+    T.MEAS_SHAFT: ('theta_r', 'omega_r', None),
+    T.REF_SHAFT: ('theta_ref', 'omega_ref', 'tau_ref'),
 }
 # JointState topics carrying named values in position: topic -> key suffix
 JS_NAMED = {
-    '/im/adapter/estimate': '_hat',
-    '/im/truth/parameters': '',
-    '/im/truth/power': '',
-    '/im/truth/energy': '',
+    T.ADAPT_ESTIMATE: '_hat',
+    T.TRUTH_PARAMS: '',
+    T.TRUTH_POWER: '',
+    T.TRUTH_ENERGY: '',
 }
-MASTER_TOPICS = ('/im/measured/current', '/im/measured/shaft', '/im/truth/energy',
-                 '/im/command/voltage')
+TRACE_TOPICS = frozenset(V3_KEYS) | frozenset(JS_FIELDS) | frozenset(JS_NAMED)
+MASTER_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.TRUTH_ENERGY,
+                 T.CMD_VOLTAGE)
 ENERGY_INTEGRALS = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param')
 PARAM_KEYS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 
@@ -94,6 +91,11 @@ class Run:
     metadata: Dict[str, Dict[str, str]]
     counts: Dict[str, int] = field(default_factory=dict)
     types: Dict[str, str] = field(default_factory=dict)
+    #: running figures over every control instant (:class:`RunningFigures`); when None,
+    #: :func:`im_bringup.report.figures_of_merit` computes them from ``trace``
+    running: Optional['RunningFigures'] = None
+    #: messages stamped before rows already summarized (not in the figures)
+    late: int = 0
 
     @property
     def task(self) -> Optional[str]:
@@ -157,67 +159,448 @@ def _align(master: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.nda
     return out
 
 
+def _decode_js(topic: str, payloads: List[bytes]):
+    rows = [cdr.decode_joint_state(p) for p in payloads]
+    st = _stamp_ns([r[0] for r in rows], [r[1] for r in rows]) if rows else np.zeros(0, np.int64)
+    cols = {}
+    if topic in JS_FIELDS:
+        for j, key in enumerate(JS_FIELDS[topic]):
+            if key is None:
+                continue
+            col = np.array([r[3 + j][0] if r[3 + j] else np.nan for r in rows], float)
+            if np.isfinite(col).any():
+                cols[key] = col
+        return st, cols
+    suffix = JS_NAMED[topic]
+    names: List[str] = []
+    for r in rows:
+        for n in r[2]:
+            if n not in names:
+                names.append(n)
+    for n in names:
+        col = np.full(len(rows), np.nan)
+        for i, r in enumerate(rows):
+            try:
+                col[i] = r[3][r[2].index(n)]
+            except (ValueError, IndexError):
+                pass
+        cols[n + suffix] = col
+    return st, cols
+
+
+def decode_topic(topic: str, payloads: List[bytes]):
+    """(stamps ns, {trace key: values}) of one topic's payloads, in their order; None for a topic
+    the trace does not use."""
+    if topic in V3_KEYS:
+        st, x, y, z = _decode_v3(payloads)
+        kx, ky, kz = V3_KEYS[topic]
+        cols = {kx: x, ky: y}
+        if kz:
+            cols[kz] = z
+        return st, cols
+    if topic in JS_FIELDS or topic in JS_NAMED:
+        return _decode_js(topic, payloads)
+    return None
+
+
+class TraceStream:
+    """:func:`build_trace` in bounded memory: payloads go in with :meth:`add`, and every
+    ``batch`` messages the rows older than the newest ``margin`` master stamps are aligned and
+    handed to ``sinks`` (objects with ``rows(chunk)`` and ``series(series_chunk)``), then
+    dropped. A message stamped before rows already handed on cannot be aligned any more: it is
+    counted in :attr:`late` (the caller reports it), never silently merged.
+    """
+
+    def __init__(self, sinks=(), batch: int = 40000, margin: int = 256):
+        self.sinks = list(sinks)
+        self.batch, self.margin = int(batch), int(margin)
+        self.pending: Dict[str, List[bytes]] = {}
+        self.counts: Dict[str, int] = {}
+        self.master: Optional[str] = None      # '' = union of all stamps
+        self.cutoff: Optional[int] = None      # rows before it were handed on
+        self.late = 0
+        self._n = 0
+
+    def add(self, topic: str, data: bytes) -> None:
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        if topic not in TRACE_TOPICS:
+            return
+        lst = self.pending.get(topic)
+        if lst is None:
+            lst = self.pending[topic] = []
+        lst.append(data)
+        self._n += 1
+        if self._n >= self.batch:
+            self.flush(final=False)
+
+    def _pick_master(self, series) -> None:
+        if self.master is not None:
+            return
+        for topic in MASTER_TOPICS:
+            if topic in series and len(series[topic][0]):
+                self.master = topic
+                return
+        self.master = ''
+
+    def flush(self, final: bool = True) -> None:
+        series = {}
+        for topic, payloads in self.pending.items():
+            dec = decode_topic(topic, payloads)
+            if dec is not None:
+                series[topic] = dec
+        if not series:
+            self._n = 0
+            return
+        self._pick_master(series)
+        if self.master:
+            ms = series[self.master][0] if self.master in series else np.zeros(0, np.int64)
+        else:
+            ms = np.concatenate([st for st, _ in series.values()])
+        ms = np.unique(ms)
+        if self.cutoff is not None:
+            ms = ms[ms >= self.cutoff]
+        if final:
+            cutoff = None
+        elif len(ms) <= self.margin:
+            self._n = sum(len(v) for v in self.pending.values()) // 2   # wait for more
+            return
+        else:
+            cutoff = int(ms[-self.margin])
+            ms = ms[ms < cutoff]
+        chunk: Dict[str, np.ndarray] = {'t_ns': ms, 't': ms.astype(float) * 1e-9}
+        sent: Dict[str, dict] = {}
+        for topic, (st, cols) in series.items():
+            now = np.ones(len(st), bool) if cutoff is None else st < cutoff
+            if self.cutoff is not None:
+                old = st < self.cutoff
+                self.late += int(old.sum())
+                now &= ~old
+            for key, col in cols.items():
+                chunk[key] = _align(ms, st[now], col[now])
+            chunk['present:' + topic] = _align(ms, st[now], np.ones(int(now.sum())))
+            sent[topic] = {'t_ns': st[now], **{k: c[now] for k, c in cols.items()}}
+            if cutoff is not None:
+                keep = np.flatnonzero(st >= cutoff)
+                payloads = self.pending[topic]
+                self.pending[topic] = [payloads[i] for i in keep]
+        if cutoff is None:
+            self.pending = {t: [] for t in self.pending}
+        if cutoff is not None:
+            self.cutoff = cutoff
+        self._n = sum(len(v) for v in self.pending.values())
+        for sink in self.sinks:
+            sink.series(sent)
+            if len(ms):
+                sink.rows(chunk)
+
+
+class TraceKeeper:
+    """Sink of a :class:`TraceStream` that keeps the aligned rows: all of them, or (``limit``)
+    at most about 2·limit, thinned to every S-th control instant where S is a multiple of every
+    topic's own publishing period (so decimated topics keep their samples)."""
+
+    def __init__(self, limit: Optional[int] = None):
+        self.limit = limit
+        self.stride = 1
+        self.parts: List[Dict[str, np.ndarray]] = []
+        self.n = 0
+        self._t0: Optional[int] = None
+        self._dt: Dict[str, int] = {}       # topic -> smallest stamp step seen
+
+    def series(self, sent) -> None:
+        for topic, cols in sent.items():
+            st = np.unique(cols['t_ns'])
+            if len(st) > 1:
+                d = int(np.min(np.diff(st)))
+                self._dt[topic] = min(d, self._dt.get(topic, d))
+
+    def _base(self) -> int:
+        if not self._dt:
+            return 2
+        step = min(self._dt.values())
+        base = 1
+        for d in self._dt.values():
+            base = int(np.lcm(base, max(1, int(round(d / step)))))
+        return max(base, 2)
+
+    def rows(self, chunk) -> None:
+        if self._t0 is None:
+            self._t0 = int(chunk['t_ns'][0])
+        if self.stride > 1:
+            chunk = self._thin(chunk, self.stride)
+        self.parts.append(chunk)
+        self.n += len(chunk['t_ns'])
+        if self.limit is not None and self.n > 2 * self.limit:
+            self.stride = self._base() if self.stride == 1 else 2 * self.stride
+            whole = self._thin(self.trace(raw=True), self.stride)
+            self.parts, self.n = [whole], len(whole['t_ns'])
+
+    def _thin(self, chunk, stride):
+        step = min(self._dt.values()) if self._dt else 1
+        k = (chunk['t_ns'] - self._t0) // max(step, 1)
+        sel = k % stride == 0
+        return {key: v[sel] for key, v in chunk.items()}
+
+    def trace(self, raw: bool = False) -> Dict[str, np.ndarray]:
+        keys: List[str] = []
+        for part in self.parts:
+            keys += [k for k in part if k not in keys]
+        out = {}
+        for key in keys:
+            out[key] = np.concatenate([p[key] if key in p else np.full(len(p['t_ns']), np.nan)
+                                       for p in self.parts]) if self.parts else np.zeros(0)
+        if not self.parts:
+            out = {'t_ns': np.zeros(0, np.int64), 't': np.zeros(0)}
+        if raw:
+            return out
+        out['t_ns'] = out['t_ns'].astype(np.int64)
+        out = {k: v for k, v in out.items() if not k.startswith('present:')}
+        if 'v_alpha' not in out and 'v_cmd_alpha' in out:
+            out['v_alpha'] = out['v_cmd_alpha']
+            out['v_beta'] = out['v_cmd_beta']
+        return out
+
+
+class TruthBooks:
+    """Sink of a :class:`TraceStream` keeping the first and last energy sample and the last
+    parameter sample: all :func:`truth_final_from` needs."""
+
+    def __init__(self):
+        self.first: Optional[tuple] = None
+        self.last: Optional[tuple] = None
+        self.par: Optional[tuple] = None
+
+    def series(self, sent) -> None:
+        en = sent.get(T.TRUTH_ENERGY)
+        if en is not None and len(en['t_ns']):
+            order = np.argsort(en['t_ns'], kind='stable')
+            i0, i1 = order[0], order[-1]
+            if self.first is None or en['t_ns'][i0] < self.first[0]:
+                self.first = (int(en['t_ns'][i0]), {k: v[i0] for k, v in en.items()})
+            if self.last is None or en['t_ns'][i1] >= self.last[0]:
+                self.last = (int(en['t_ns'][i1]), {k: v[i1] for k, v in en.items()})
+        par = sent.get(T.TRUTH_PARAMS)
+        if par is not None and len(par['t_ns']):
+            i = int(np.argmax(par['t_ns']))
+            if self.par is None or par['t_ns'][i] > self.par[0]:
+                self.par = (int(par['t_ns'][i]), {k: v[i] for k, v in par.items()})
+
+    def rows(self, chunk) -> None:
+        pass
+
+    def final(self) -> Dict[str, float]:
+        series = {}
+        if self.first is not None:
+            keys = [k for k in self.last[1] if k in self.first[1]]
+            series[T.TRUTH_ENERGY] = {k: np.array([self.first[1][k], self.last[1][k]])
+                                          for k in keys}
+        if self.par is not None:
+            series[T.TRUTH_PARAMS] = {k: np.array([v]) for k, v in self.par[1].items()}
+        return truth_final_from(series)
+
+
+def _diff(a, b):
+    return lambda tr: tr[a] - tr[b]
+
+
+def _norm_diff(a, b):
+    return lambda tr: np.hypot(tr[a + '_alpha'] - tr[b + '_alpha'],
+                               tr[a + '_beta'] - tr[b + '_beta'])
+
+
+def _norm(a):
+    return lambda tr: np.hypot(tr[a + '_alpha'], tr[a + '_beta'])
+
+
+# (max figure, RMS figure or None, keys that must be in the trace, signal): the definitions of
+# im_common.metrics.tracking_figures, as running maxima and sums of squares
+TRACKING = (
+    ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_r'), _diff('theta_r', 'theta_ref')),
+    ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_r'),
+     _diff('omega_r', 'omega_ref')),
+    ('torque_err_max_Nm', 'torque_err_rms_Nm', ('tau_ref', 'tau_m'), _diff('tau_m', 'tau_ref')),
+    ('flux_err_max_Wb', 'flux_err_rms_Wb', ('phi_ref_alpha', 'phi_r_alpha'),
+     _norm_diff('phi_r', 'phi_ref')),
+    ('flux_est_err_max_Wb', 'flux_est_err_rms_Wb', ('phi_hat_alpha', 'phi_r_alpha'),
+     _norm_diff('phi_r', 'phi_hat')),
+    ('V_max_V', None, ('v_alpha',), _norm('v')),
+    ('V_cmd_max', None, ('v_cmd_alpha',), _norm('v_cmd')),
+    ('i_max_A', None, ('i_alpha',), _norm('i')),
+)
+ESTIMATED = ('R_r', 'theta', 'L_M', 'R_R')
+
+
+class _Acc:
+    __slots__ = ('mx', 'ss', 'n')
+
+    def __init__(self):
+        self.mx, self.ss, self.n = -np.inf, 0.0, 0
+
+    def add(self, e) -> None:
+        e = e[np.isfinite(e)]
+        if len(e):
+            self.mx = max(self.mx, float(np.max(np.abs(e))))
+            self.ss += float(np.sum(np.square(e)))
+            self.n += len(e)
+
+    def max(self) -> float:
+        return self.mx if self.n else float('nan')
+
+    def rms(self) -> float:
+        return float(np.sqrt(self.ss / self.n)) if self.n else float('nan')
+
+
+class RunningFigures:
+    """Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`): the tracking,
+    peak and estimate figures of :func:`im_bringup.report.figures_of_merit` from running maxima,
+    sums of squares and the last ``last_window`` seconds only, plus the lock-step topics'
+    missing control instants (:meth:`gaps`)."""
+
+    def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20):
+        self.window = float(last_window)
+        self.seen: set = set()
+        self.acc = {f[0]: _Acc() for f in TRACKING}
+        self.est = {n: _Acc() for n in ESTIMATED}
+        self.est_last: Dict[str, tuple] = {}
+        self.est_win: Dict[str, List[np.ndarray]] = {n: [] for n in ESTIMATED}
+        self.t_first: Optional[float] = None
+        self.t_last: Optional[float] = None
+        self.steps = 0
+        self.lockstep = tuple(lockstep_topics)
+        self.missing = {t: 0 for t in self.lockstep}
+        self.ranges: Dict[str, List[list]] = {t: [] for t in self.lockstep}
+        self._open: Dict[str, bool] = {t: False for t in self.lockstep}
+        self.max_ranges = max_ranges
+
+    def series(self, sent) -> None:
+        pass
+
+    def rows(self, tr) -> None:
+        t = np.asarray(tr['t'], float)
+        if not len(t):
+            return
+        self.seen.update(tr)
+        if self.t_first is None:
+            self.t_first = float(t[0])
+        self.t_last = float(t[-1])
+        self.steps += len(t)
+        nan = np.full(len(t), np.nan)
+        full = {k: (np.asarray(tr[k], float) if k in tr else nan) for k in _SIGNAL_KEYS}
+        for mx_name, _rms, keys, fn in TRACKING:
+            if all(k in tr for k in keys):
+                self.acc[mx_name].add(fn(full))
+        for n in ESTIMATED:
+            if n + '_hat' in tr and n in tr:
+                self._estimate(n, t, np.asarray(tr[n + '_hat'], float), np.asarray(tr[n], float))
+        for topic in self.lockstep:
+            self._gaps(topic, t, tr.get('present:' + topic))
+
+    def _estimate(self, n, t, hat, true) -> None:
+        e = hat - true
+        ok = np.isfinite(e)
+        self.est[n].add(e)
+        if not ok.any():
+            return
+        last = np.flatnonzero(ok)[-1]
+        self.est_last[n] = (float(t[last]), float(hat[last]), float(true[last]), float(e[last]))
+        win = self.est_win[n]
+        win.append(np.stack([t[ok], e[ok], true[ok]]))
+        t_cut = self.est_last[n][0] - self.window
+        while win and win[0][0, -1] <= t_cut:
+            win.pop(0)
+
+    def _gaps(self, topic, t, present) -> None:
+        absent = np.ones(len(t), bool) if present is None else ~(present == 1)
+        if not absent.any():
+            self._open[topic] = False
+            return
+        self.missing[topic] += int(absent.sum())
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], absent.astype(np.int8), [0]])))
+        rs = self.ranges[topic]
+        for a, b in zip(edges[::2], edges[1::2]):
+            if a == 0 and self._open[topic] and rs:
+                rs[-1][1] = float(t[b - 1])
+            elif len(rs) < self.max_ranges:
+                rs.append([float(t[a]), float(t[b - 1])])
+        self._open[topic] = bool(absent[-1])
+
+    def gaps(self) -> Dict[str, dict]:
+        """Lock-step topics with control instants that have no message: count and ranges [s].
+        The run's last instant is not a gap: the plant's final measurement is answered by no one.
+        """
+        out = {}
+        for t in self.lockstep:
+            if 'present:' + t not in self.seen:
+                continue                # not in this run at all (node not started/recorded)
+            n, rs = self.missing[t], [tuple(r) for r in self.ranges[t]]
+            if rs and rs[-1] == (self.t_last, self.t_last) and self._open[t]:
+                n, rs = n - 1, rs[:-1]
+            if n:
+                out[t] = {'missing': n, 'ranges': rs}
+        return out
+
+    def tracking(self, task: Optional[str]) -> Dict[str, float]:
+        out: Dict[str, float] = {}
+        for mx_name, rms_name, keys, _fn in TRACKING:
+            if mx_name == 'V_cmd_max':
+                continue
+            have = all(k in self.seen for k in keys)
+            acc = self.acc[mx_name]
+            if mx_name == 'V_max_V' and not have and 'v_cmd_alpha' in self.seen:
+                have, acc = True, self.acc['V_cmd_max']     # no applied voltage: the command
+            if not have:
+                continue
+            position_only = mx_name.startswith('pos_') and task not in (None, 'position')
+            out[mx_name] = float('nan') if position_only else acc.max()
+            if rms_name:
+                out[rms_name] = float('nan') if position_only else acc.rms()
+        return out
+
+    def estimates(self) -> Dict[str, float]:
+        out: Dict[str, float] = {}
+        for n in ESTIMATED:
+            if n not in self.est_last:
+                continue
+            acc = self.est[n]
+            t_last, hat, tv, e_last = self.est_last[n]
+            out[f'{n}_est_err_max'] = acc.max()
+            out[f'{n}_est_err_rms'] = acc.rms()
+            out[f'{n}_est_err_final_rel'] = float(abs(e_last) / abs(tv)) if tv else float('nan')
+            out[f'{n}_hat_final'] = hat
+            out[f'{n}_true_final'] = tv
+            w = np.concatenate(self.est_win[n], axis=1)
+            w = w[:, w[0] > t_last - self.window]
+            if w.shape[1] and np.all(w[2] != 0):
+                rel = w[1] / w[2]
+                out[f'{n}_err_rms_rel_last1s'] = float(np.sqrt(np.mean(rel ** 2)))
+                out[f'{n}_err_ptp_rel_last1s'] = float(np.ptp(w[1]) / abs(np.mean(w[2])))
+        return out
+
+
+_SIGNAL_KEYS = sorted({k for _m, _r, keys, _f in TRACKING for k in keys}
+                      | {'theta_r', 'omega_r', 'tau_m', 'phi_r_beta', 'phi_ref_beta',
+                         'phi_hat_beta', 'v_beta', 'v_cmd_beta', 'i_beta'})
+
+
 def build_trace(raw: Dict[str, List[bytes]]) -> Tuple[Dict[str, np.ndarray], Dict[str, dict]]:
     """Trace arrays from raw payloads grouped by topic; also the per-topic decoded series."""
-    series: Dict[str, Tuple[np.ndarray, Dict[str, np.ndarray]]] = {}
+    series = {}
     for topic, payloads in raw.items():
-        if topic in V3_KEYS:
-            st, x, y, z = _decode_v3(payloads)
-            kx, ky, kz = V3_KEYS[topic]
-            cols = {kx: x, ky: y}
-            if kz:
-                cols[kz] = z
-            series[topic] = (st, cols)
-        elif topic in JS_FIELDS or topic in JS_NAMED:
-            rows = [cdr.decode_joint_state(p) for p in payloads]
-            st = _stamp_ns([r[0] for r in rows], [r[1] for r in rows]) if rows else \
-                np.zeros(0, np.int64)
-            cols = {}
-            if topic in JS_FIELDS:
-                for j, key in enumerate(JS_FIELDS[topic]):
-                    if key is None:
-                        continue
-                    col = np.array([r[3 + j][0] if r[3 + j] else np.nan for r in rows], float)
-                    if np.isfinite(col).any():
-                        cols[key] = col
-            else:
-                suffix = JS_NAMED[topic]
-                names = []
-                for r in rows:
-                    for n in r[2]:
-                        if n not in names:
-                            names.append(n)
-                for n in names:
-                    col = np.full(len(rows), np.nan)
-                    for i, r in enumerate(rows):
-                        try:
-                            col[i] = r[3][r[2].index(n)]
-                        except (ValueError, IndexError):
-                            pass
-                    cols[n + suffix] = col
-            series[topic] = (st, cols)
-    master = None
-    for topic in MASTER_TOPICS:
-        if topic in series and len(series[topic][0]):
-            master = np.unique(series[topic][0])
-            break
-    if master is None:
-        allst = [s for s, _ in series.values() if len(s)]
-        master = np.unique(np.concatenate(allst)) if allst else np.zeros(0, np.int64)
-    trace: Dict[str, np.ndarray] = {'t_ns': master, 't': master.astype(float) * 1e-9}
-    for topic, (st, cols) in series.items():
-        for key, col in cols.items():
-            trace[key] = _align(master, st, col)
-    if 'v_alpha' not in trace and 'v_cmd_alpha' in trace:
-        trace['v_alpha'] = trace['v_cmd_alpha']
-        trace['v_beta'] = trace['v_cmd_beta']
-    return trace, {t: {'t_ns': s, **c} for t, (s, c) in series.items()}
+        dec = decode_topic(topic, payloads)
+        if dec is not None:
+            series[topic] = {'t_ns': dec[0], **dec[1]}
+    keeper = TraceKeeper()
+    stream = TraceStream([keeper])
+    for topic, payloads in raw.items():
+        stream.pending[topic] = list(payloads)
+    stream.flush(final=True)
+    return keeper.trace(), series
 
 
 def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
     """The energy books over the recorded window (see module doc)."""
     out: Dict[str, float] = {}
-    en = series.get('/im/truth/energy')
+    en = series.get(T.TRUTH_ENERGY)
     if en is not None and len(en['t_ns']):
         order = np.argsort(en['t_ns'], kind='stable')
         first, last = order[0], order[-1]
@@ -240,7 +623,7 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
                                        - out['E_friction'] - out['W_load'] - out['E_param']
                                        - out['dW_mag'] - out['dE_kin'])
         out['t_final'] = float(en['t_ns'][last]) * 1e-9
-    par = series.get('/im/truth/parameters')
+    par = series.get(T.TRUTH_PARAMS)
     if par is not None and len(par['t_ns']):
         last = int(np.argmax(par['t_ns']))
         for k, v in par.items():
@@ -249,17 +632,47 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
     return out
 
 
-def load_run(path) -> Run:
-    """Read a recording into a :class:`Run`; :class:`~im_bringup.bag.BagError` if unreadable."""
-    from .bag import BagError, info, iter_raw
+def lockstep_topics() -> Tuple[str, ...]:
+    """The topics every control instant must have (``critical`` rows of the topic table)."""
+    return tuple(t.name for t in T.TOPICS if t.critical)
+
+
+def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full',
+               limit: int = 10000, types: Optional[dict] = None) -> Run:
+    """A :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
+    ``trace='full'`` (every row kept); ``'decimated'`` keeps about ``limit``-``2·limit`` rows for
+    the plots, None none. The figures always cover every control instant."""
+    books, figs = TruthBooks(), RunningFigures(lockstep_topics=lockstep_topics())
+    sinks = [books, figs]
+    keeper = None
+    if trace is not None:
+        keeper = TraceKeeper(None if trace == 'full' else limit)
+        sinks.append(keeper)
+    stream = TraceStream(sinks)
+    for topic, data in messages:
+        stream.add(topic, data)
+    stream.flush(final=True)
+    tr = keeper.trace() if keeper is not None else {}
+    return Run(str(path), tr, books.final(), metadata, dict(stream.counts), dict(types or {}),
+               running=figs, late=stream.late)
+
+
+def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
+    """Read a recording into a :class:`Run`; :class:`~im_bringup.bag.BagError` if unreadable.
+
+    ``trace``: 'full' (every control instant), 'decimated' (about ``limit`` rows, what the
+    report's plots need) or None; the figures cover the whole run either way. Every CRC is
+    checked (data section, chunks, summary).
+    """
+    from .bag import BagError, check_data_crc, info, iter_raw
     bi = info(path)
-    raw: Dict[str, List[bytes]] = {}
-    wanted = set(V3_KEYS) | set(JS_FIELDS) | set(JS_NAMED)
-    for topic, tname, _t, data in iter_raw(path, [t for t in bi.topics if t in wanted]):
-        raw.setdefault(topic, []).append(data)
+    check_data_crc(path)
+    wanted = [t for t in bi.topics if t in TRACE_TOPICS]
+    meta = {k: v for k, v in bi.metadata.items() if k != 'rosbag2'}
     try:
-        trace, series = build_trace(raw)
+        run = stream_run(((topic, data) for topic, _tn, _t, data in iter_raw(path, wanted)),
+                         str(path), meta, trace, limit, bi.topics)
     except cdr.CdrError as exc:
         raise BagError(path, f'undecodable message: {exc}') from None
-    meta = {k: v for k, v in bi.metadata.items() if k != 'rosbag2'}
-    return Run(str(path), trace, truth_final_from(series), meta, dict(bi.counts), dict(bi.topics))
+    run.counts = dict(bi.counts)
+    return run

@@ -59,9 +59,20 @@ def merge_yaml(parameters: dict, path: str) -> dict:
             doc = yaml.safe_load(f) or {}
     except OSError as exc:
         raise SystemExit(f'error: cannot read parameters file {path}: {exc.strerror}')
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+        what = getattr(exc, 'problem', None) or type(exc).__name__
+        raise SystemExit(f'error: parameters file {path} is not valid YAML{where}: {what}')
+    if not isinstance(doc, dict):
+        raise SystemExit(f'error: parameters file {path}: expected a mapping of node names to '
+                         f'{{ros__parameters: {{...}}}}, not a {type(doc).__name__}')
     for node, body in doc.items():
-        name = node.strip('/').split('/')[-1]
-        values = (body or {}).get('ros__parameters', {})
+        name = str(node).strip('/').split('/')[-1]
+        values = (body or {}).get('ros__parameters', {}) if isinstance(body, dict) else None
+        if not isinstance(values, dict):
+            raise SystemExit(f"error: parameters file {path}: node '{node}' needs a "
+                             "'ros__parameters' mapping")
         if name not in parameters:
             raise SystemExit(f"error: {path}: unknown node '{node}' "
                              f"(expected one of {', '.join(parameters)})")
@@ -97,6 +108,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     """Run one scenario through the lock-step graph; return its summary (figures of merit)."""
     from im_bringup.graph import DriveGraph
     from im_bringup.traces import Tap
+    from im_common.stopping import StopSignals
     writer = None
     if record:
         from im_bringup.bag import BagWriter
@@ -106,25 +118,72 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         meta.update(metadata or {})
         writer = BagWriter(record, force=force,
                            metadata={k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()})
-    sink = Tap(writer)
+    sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
     graph = None
-    try:
-        graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
-        if writer is not None:      # every parameter of every node, defaults included
-            for name, node in graph.nodes.items():
-                writer.add_metadata(f'parameters/{name}', {
-                    p: repr(node.get_parameter(p).value) for p in sorted(node._parameters)})
-        stats = graph.run(progress=progress)
-    finally:
-        if graph is not None:
-            graph.close()
-        if writer is not None:
-            writer.close()
+    with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
+        watcher = _StopWatcher(stop)
+        try:
+            graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
+            if writer is not None:      # every parameter of every node, defaults included
+                for name, node in graph.nodes.items():
+                    writer.add_metadata(f'parameters/{name}', {
+                        p: repr(node.get_parameter(p).value) for p in sorted(node._parameters)})
+            if stop.requested:
+                stats = {'steps': 0, 'wall_s': 0.0, 'steps_per_s': float('nan'),
+                         'failures': {}, 'ok': True}
+            else:
+                watcher.start(graph)
+                stats = graph.run(progress=progress)
+        finally:
+            watcher.stop()
+            plant = graph.nodes.get('plant') if graph is not None else None
+            k = plant.sim.k if plant is not None else 0
+            if graph is not None:
+                graph.close()
+            if writer is not None:
+                if stop.requested:
+                    writer.add_metadata('interrupted', {'signal': stop.requested,
+                                                        'steps': str(k)})
+                writer.close()
+        signal = stop.requested
     summary = summarize(parameters, stats, sink, task=task, strategy=strategy,
                         controller=controller, variation=variation)
+    if signal is not None:
+        summary['interrupted'] = signal
+        summary['failures'] = {'run': f'interrupted by {signal}'}
     if record:
         summary['bag'] = record
     return summary
+
+
+class _StopWatcher:
+    """Ends :meth:`DriveGraph.run` soon after a stop signal: a thread that watches the
+    :class:`~im_common.stopping.StopSignals` flag and completes the graph's stop future (from a
+    thread, not from the signal handler, which may run while the executor holds its locks)."""
+
+    def __init__(self, stop):
+        self.flag = stop
+        self._done = None
+        self._thread = None
+
+    def start(self, graph) -> None:
+        import threading
+        self._done = threading.Event()
+
+        def watch():
+            while not self._done.wait(0.05):
+                if self.flag.requested:
+                    fut = getattr(graph, '_stop', None)
+                    if fut is not None and not fut.done():
+                        fut.set_result(f'stop signal {self.flag.requested}')
+                        return
+        self._thread = threading.Thread(target=watch, name='scenario-stop', daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._done.set()
+            self._thread.join()
 
 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
@@ -140,6 +199,13 @@ def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
     summary.update({'steps': stats['steps'], 'wall_s': stats['wall_s'],
                     'steps_per_s': stats['steps_per_s'], 'ok': stats['ok'],
                     'failures': stats['failures']})
+    for k, v in stats.items():          # anything else the graph counts (e.g. rejected inputs)
+        summary.setdefault(k, v)
+    gaps = run.running.gaps() if run.running is not None else {}
+    if gaps:
+        summary['lockstep_gaps'] = gaps
+    if run.late:
+        summary['late_messages'] = run.late
     summary['_run'] = run
     return summary
 
@@ -173,37 +239,61 @@ def main(argv=None) -> int:
         return 2
     for extra in (args.gains, args.params_file):
         if extra:
-            merge_yaml(parameters, extra)
+            try:
+                merge_yaml(parameters, extra)
+            except SystemExit as exc:
+                print(exc, file=sys.stderr)
+                return 2
+    from im_bringup.bag import check_output, write_atomic
     if args.write_params:
-        with open(args.write_params, 'w') as f:
-            f.write(to_yaml(parameters))
+        try:
+            check_output(args.write_params, [args.gains, args.params_file], args.force,
+                         what='--write-params file')
+            write_atomic(args.write_params, to_yaml(parameters))
+        except OSError as exc:
+            print(f'error: {exc}', file=sys.stderr)
+            return 2
         print(f'parameters written to {args.write_params}')
         return 0
-    if args.record and os.path.exists(args.record) and not args.force:
-        print(f'error: {args.record} exists; pass --force to overwrite it', file=sys.stderr)
+    out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
+                           else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
+    inputs = [args.gains, args.params_file]
+    try:
+        if args.record:
+            if _same(args.record, out):
+                raise FileExistsError(f'{out}: --record and --summary name the same file; '
+                                      'choose two different files')
+            check_output(args.record, inputs, args.force, what='--record file')
+            from im_bringup.bag import partial_path
+            check_output(partial_path(args.record), inputs, args.force,
+                         what='interrupted recording (recover it, or --force)')
+        check_output(out, inputs + [args.record], args.force, what='--summary file')
+        if args.report:
+            check_output(os.path.join(args.report, 'report.md'), inputs + [args.record],
+                         args.force, what='report')
+    except OSError as exc:
+        print(f'error: {exc}', file=sys.stderr)
         return 2
     try:
         summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
                                controller=args.controller, variation=args.variation,
                                record=args.record, force=args.force,
                                progress=not args.no_progress, domain_id=args.domain_id)
-    except KeyboardInterrupt:
-        print('\ninterrupted; the recording (if any) was closed and is readable', file=sys.stderr)
-        return 130
     except (ValueError, FileExistsError, rclpy_errors()) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
-                           else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
-    os.makedirs(os.path.dirname(out) or '.', exist_ok=True)
     summary.pop('_run', None)
     from im_bringup.report import jsonable
-    with open(out, 'w') as f:
-        json.dump(jsonable(summary), f, indent=2, allow_nan=False)
+    write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
     print_summary(summary)
     print(f'summary: {out}')
     if args.record:
         print(f'recording: {args.record}')
+    if summary.get('interrupted'):
+        from im_common.stopping import exit_code_for
+        print(f"interrupted by {summary['interrupted']} after {summary['steps']} steps; the "
+              'summary and the recording (if any) are complete up to there', file=sys.stderr)
+        return exit_code_for(summary['interrupted'])
     if not summary['ok']:
         print(f"error: the run stopped early: {summary['failures']}", file=sys.stderr)
         return 1
@@ -212,6 +302,10 @@ def main(argv=None) -> int:
         write_report([args.record], args.report)
         print(f'report: {args.report}/')
     return 0
+
+
+def _same(a: str, b: str) -> bool:
+    return os.path.realpath(a) == os.path.realpath(b)
 
 
 if __name__ == '__main__':

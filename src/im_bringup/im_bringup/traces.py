@@ -1,41 +1,58 @@
-"""Live capture of a graph run: the serialized messages every node publishes, turned into the
-same :class:`im_bringup.run.Run` a recording gives — so the scenario's summary and the report of
-its MCAP are computed by the same code (:func:`im_bringup.report.figures_of_merit`).
+"""Live capture of a graph run: the serialized messages every node publishes, summarized while
+the run goes into the same :class:`im_bringup.run.Run` a recording gives — so the scenario's
+summary and the report of its MCAP are computed by the same code
+(:class:`im_bringup.run.RunningFigures` behind :func:`im_bringup.report.figures_of_merit`).
 
-Capturing costs one list append per message (the payload bytes the node already built); the
-decoding happens once, vectorized, at the end.
+Memory stays bounded: the payloads are decoded and folded into running sums every
+:attr:`im_bringup.run.TraceStream.batch` messages and then dropped; the per-step trace is kept
+only when asked (``keep=True``: every row, for tests; ``keep='decimated'``: a few thousand rows).
 """
 from __future__ import annotations
 
-from typing import Dict, List, Optional
+from typing import Optional, Union
 
 from im_common.cdr import encode, header_stamp_ns
 
 
 class Tap:
-    """Graph publisher tap: keeps each published payload and, if given, writes it to a bag."""
+    """Graph publisher tap: folds each published payload into the run's figures and, if given,
+    writes it to a bag.
 
-    def __init__(self, writer=None, keep: bool = True):
+    ``keep``: True keeps the whole per-step trace (memory grows with the run), 'decimated'
+    about ``limit`` rows, False none (the figures still cover every step).
+    """
+
+    def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000):
+        from im_bringup.run import (RunningFigures, TraceKeeper, TraceStream, TruthBooks,
+                                    lockstep_topics)
         self.writer = writer
         self.keep = keep
-        self.raw: Dict[str, List[bytes]] = {}
+        self.books = TruthBooks()
+        self.figures = RunningFigures(lockstep_topics=lockstep_topics())
+        sinks = [self.books, self.figures]
+        self.keeper = None
+        if keep:
+            self.keeper = TraceKeeper(None if keep is True else limit)
+            sinks.append(self.keeper)
+        self.stream = TraceStream(sinks)
+        self._run = None
 
     def write(self, topic: str, data, ns: Optional[int] = None) -> None:
         if not isinstance(data, (bytes, bytearray)):
             data = encode(data)
-        if ns is None:
-            ns = header_stamp_ns(data)
-        if self.keep:
-            lst = self.raw.get(topic)
-            if lst is None:
-                lst = self.raw[topic] = []
-            lst.append(data)
         if self.writer is not None:
+            if ns is None:
+                ns = header_stamp_ns(data)
             self.writer.write_serialized(topic, data, ns)
+        self.stream.add(topic, data)
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):
-        """The captured messages as a :class:`im_bringup.run.Run`."""
-        from im_bringup.run import Run, build_trace, truth_final_from
-        trace, series = build_trace(self.raw)
-        return Run(path, trace, truth_final_from(series), metadata or {},
-                   {t: len(v) for t, v in self.raw.items()})
+        """The captured run as a :class:`im_bringup.run.Run` (ends the capture)."""
+        from im_bringup.run import Run
+        if self._run is None:
+            self.stream.flush(final=True)
+            tr = self.keeper.trace() if self.keeper is not None else {}
+            self._run = Run(path, tr, self.books.final(), metadata or {},
+                            dict(self.stream.counts), running=self.figures,
+                            late=self.stream.late)
+        return self._run

@@ -177,13 +177,6 @@ def _message_codec(cls):
     return enc, dec
 
 
-def encode_generic(msg) -> bytes:
-    enc, _ = _message_codec(type(msg))
-    out = bytearray(ENCAPSULATION)
-    enc(msg, out)
-    return bytes(out)
-
-
 def decode_generic(cls, data) -> Tuple[dict, int]:
     """Decode to nested dicts; returns (fields, end offset of the CDR payload)."""
     if len(data) < 4 or data[1] != 1:
