@@ -118,7 +118,8 @@ def free_run(duration: float) -> dict:
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
-    from im_bringup.bag import iter_raw, load_run
+    from im_bringup.bag import iter_raw
+    from im_bringup.run import load_run
     from im_bringup.processes import graph_processes
     from im_bringup.report import figures_of_merit
     from im_bringup.testing import run_graph

@@ -148,7 +148,8 @@ def test_speed_setpoint_from_the_topic_is_reached_smoothly():
 
 
 def test_scenario_recording_carries_run_metadata_and_matches_its_summary(tmp_path):
-    from im_bringup.bag import info, load_run
+    from im_bringup.bag import info
+    from im_bringup.run import load_run
     from im_bringup.config import node_parameters
     from im_bringup.report import figures_of_merit
     from im_bringup.scenario import run_scenario

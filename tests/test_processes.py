@@ -53,7 +53,7 @@ def wait_for_log(g, name, needle, timeout=60.0):
 def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path, domain):
     """Three short runs in a row, one CPU-bound process beside them: every process exits 0 and
     the bag holds every step on every lock-step topic; the numbers equal the in-process graph's."""
-    from im_bringup.bag import load_run
+    from im_bringup.run import load_run
     from im_bringup.report import figures_of_merit
     from im_bringup.testing import run_graph
     busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
@@ -157,7 +157,7 @@ def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
     steps get their command before the deadline, and the pendulum is held and moved."""
     from ament_index_python.packages import get_package_share_directory
 
-    from im_bringup.bag import load_run
+    from im_bringup.run import load_run
     from im_bringup.processes import load_params_yaml
     from im_bringup.report import figures_of_merit
     gains = os.path.join(get_package_share_directory('im_bringup'), 'config', 'gains_1ms.yaml')

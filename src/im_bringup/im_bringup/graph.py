@@ -104,11 +104,15 @@ class DriveGraph:
         if (node.exit_code or node is self.nodes.get('plant')) and not self._stop.done():
             self._stop.set_result(node.get_name())
 
-    def run(self, progress: bool = False, wall_limit: Optional[float] = None) -> dict:
-        """Spin until the plant reached its duration or a node failed; return run statistics.
+    def run(self, progress: bool = False, wall_limit: Optional[float] = None,
+            stop=None) -> dict:
+        """Spin until the plant reached its duration, a node failed, ``wall_limit`` [s] passed
+        (a failure: ``failures['graph']``) or ``stop`` (a :class:`~im_common.stopping.
+        StopSignals`) was requested; return run statistics.
 
-        The executor runs natively (``spin_until_future_complete``) in slices of 0.5 s between
-        which progress is printed; after a failure the others get up to a second to report theirs.
+        The executor runs natively (``spin_until_future_complete``) in slices of 0.1 s between
+        which progress is printed and the stop flag checked; after a failure the others get up to
+        a second to report theirs.
         """
         from rclpy.task import Future
         nodes = list(self.nodes.values())
@@ -122,32 +126,61 @@ class DriveGraph:
             wall_limit = wall_limit or 60.0
         t0 = time.perf_counter()
         k0 = plant.sim.k if plant is not None else 0
-        total = plant.last_step if plant is not None else None
-        ex = self.executor
-        while not self._stop.done() and rclpy.ok(context=self.context):
-            ex.spin_until_future_complete(self._stop, timeout_sec=0.5)
-            now = time.perf_counter()
-            if progress and plant is not None and not self._stop.done():
-                k = plant.sim.k
-                rate = (k - k0) / (now - t0)
-                frac = f'{100.0 * k / total:5.1f} %' if total else ''
-                print(f'\r  t = {plant.sim.t:8.4f} s  step {k}  {frac}  {rate:8.0f} steps/s',
-                      end='', file=sys.stderr, flush=True)
-            if wall_limit is not None and now - t0 > wall_limit:
-                break
+        failures = {}
+        self._spin(plant, t0, k0, progress, wall_limit, stop, failures)
         self.wall_s = time.perf_counter() - t0
         if any(n.exit_code for n in nodes):
             t_fail = time.perf_counter()
             while not all(n.done for n in nodes) and time.perf_counter() - t_fail < 1.0:
-                ex.spin_once(timeout_sec=0.05)
+                self.executor.spin_once(timeout_sec=0.05)
         if progress:
             print(file=sys.stderr)
         steps = (plant.sim.k - k0) if plant is not None else 0
-        failures = {name: getattr(n, 'failure', None) for name, n in self.nodes.items()
-                    if n.exit_code}
-        return {'steps': steps, 'wall_s': self.wall_s,
-                'steps_per_s': steps / self.wall_s if self.wall_s > 0 else float('nan'),
-                'failures': failures, 'ok': not failures}
+        failures.update({name: n.failure for name, n in self.nodes.items() if n.exit_code})
+        stats = {'steps': steps, 'wall_s': self.wall_s,
+                 'steps_per_s': steps / self.wall_s if self.wall_s > 0 else float('nan'),
+                 'failures': failures, 'ok': not failures}
+        refused = {name: getattr(n, 'refused', 0) for name, n in self.nodes.items()}
+        if any(refused.values()):
+            stats['refused_inputs'] = refused
+        return stats
+
+    def _spin(self, plant, t0, k0, progress, wall_limit, stop, failures) -> None:
+        """Spin natively until the stop future completes. The EventsExecutor does not return
+        from ``spin_until_future_complete`` while events keep coming, so a watcher thread prints
+        progress and completes the future on a stop request or at the wall-clock limit."""
+        import threading
+        total = plant.last_step if plant is not None else None
+        quit_watch = threading.Event()
+
+        def watch():
+            last_print = 0.0
+            while not quit_watch.wait(0.05):
+                now = time.perf_counter()
+                reason = None
+                if stop is not None and stop.requested:
+                    reason = f'stop signal {stop.requested}'
+                elif wall_limit is not None and now - t0 > wall_limit:
+                    failures['graph'] = reason = f'wall-clock limit of {wall_limit} s reached'
+                if reason is not None:
+                    if not self._stop.done():
+                        self._stop.set_result(reason)
+                    return
+                if progress and plant is not None and now - last_print >= 0.5:
+                    last_print = now
+                    k = plant.sim.k
+                    frac = f'{100.0 * k / total:5.1f} %' if total else ''
+                    print(f'\r  t = {k * plant.T_s:8.4f} s  step {k}  {frac}  '
+                          f'{(k - k0) / (now - t0):8.0f} steps/s', end='', file=sys.stderr,
+                          flush=True)
+        watcher = threading.Thread(target=watch, name='graph-watch', daemon=True)
+        watcher.start()
+        try:
+            while not self._stop.done() and rclpy.ok(context=self.context):
+                self.executor.spin_until_future_complete(self._stop, timeout_sec=0.5)
+        finally:
+            quit_watch.set()
+            watcher.join()
 
     def close(self) -> None:
         for n in getattr(self, 'nodes', {}).values():

@@ -42,8 +42,7 @@ import numpy as np
 from im_common import cdr
 from im_common import topics as T
 
-REEST_FLUX = '/im/reestimate/observer/flux'
-REEST_CURRENT = '/im/reestimate/observer/current'
+REEST_FLUX, REEST_CURRENT = T.REEST_FLUX, T.REEST_CURRENT
 
 # topic -> trace keys for x, y, z (None: not used)
 V3_KEYS: Dict[str, Tuple[Optional[str], Optional[str], Optional[str]]] = {

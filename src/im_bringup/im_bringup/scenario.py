@@ -121,7 +121,6 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
     graph = None
     with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
-        watcher = _StopWatcher(stop)
         try:
             graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
             if writer is not None:      # every parameter of every node, defaults included
@@ -132,10 +131,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                 stats = {'steps': 0, 'wall_s': 0.0, 'steps_per_s': float('nan'),
                          'failures': {}, 'ok': True}
             else:
-                watcher.start(graph)
-                stats = graph.run(progress=progress)
+                stats = graph.run(progress=progress, stop=stop)
         finally:
-            watcher.stop()
             plant = graph.nodes.get('plant') if graph is not None else None
             k = plant.sim.k if plant is not None else 0
             if graph is not None:
@@ -154,36 +151,6 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     if record:
         summary['bag'] = record
     return summary
-
-
-class _StopWatcher:
-    """Ends :meth:`DriveGraph.run` soon after a stop signal: a thread that watches the
-    :class:`~im_common.stopping.StopSignals` flag and completes the graph's stop future (from a
-    thread, not from the signal handler, which may run while the executor holds its locks)."""
-
-    def __init__(self, stop):
-        self.flag = stop
-        self._done = None
-        self._thread = None
-
-    def start(self, graph) -> None:
-        import threading
-        self._done = threading.Event()
-
-        def watch():
-            while not self._done.wait(0.05):
-                if self.flag.requested:
-                    fut = getattr(graph, '_stop', None)
-                    if fut is not None and not fut.done():
-                        fut.set_result(f'stop signal {self.flag.requested}')
-                        return
-        self._thread = threading.Thread(target=watch, name='scenario-stop', daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        if self._thread is not None:
-            self._done.set()
-            self._thread.join()
 
 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,

@@ -38,6 +38,8 @@ TRUTH_TORQUE = '/im/truth/torque'
 TRUTH_PARAMS = '/im/truth/parameters'
 TRUTH_POWER = '/im/truth/power'
 TRUTH_ENERGY = '/im/truth/energy'
+REEST_FLUX = '/im/reestimate/observer/flux'          # replay --reestimate (not a graph topic)
+REEST_CURRENT = '/im/reestimate/observer/current'
 STATUS = '/im/status'
 PROGRESS = '/im/progress'
 
