@@ -68,7 +68,7 @@ def test_reversal_on_every_shipped_motor_and_strategy(motor_file, strategy):
     tr = r.trace
     assert tr['omega_ref'][-1] < 0 < tr['omega_ref'][0]
     assert _tail_error(tr, tr['t'][-1] - 0.5) < 2.0
-    assert r.summary['trip'] is None and r.summary['rating_hits'] == 0
+    assert r.summary['trip'] is None
     v = np.hypot(tr['v_alpha'], tr['v_beta'])
     assert v.max() <= motor.rated_voltage * (1 + 1e-12)
     phi = np.hypot(tr['phi_r_alpha'], tr['phi_r_beta'])
@@ -154,12 +154,18 @@ def test_load_files(tmp_path):
     assert r.summary['speed_err_max_rad_s'] < 0.5
 
 
-def test_plant_saturates_absurd_commands_onto_its_rating():
+def test_a_command_above_the_inverter_rating_trips_and_never_reaches_the_model():
     sim = PlantSimulator(THESIS_MOTOR, T_s=1e-4)
+    sim.step(100.0, 0.0)
+    assert sim.trip is None and sim.v_applied == (100.0, 0.0)
     sim.step(1e30, 0.0)
-    assert math.hypot(*sim.v_applied) == pytest.approx(sim.inverter_rating)
-    assert sim.rating_hits == 1 and all(math.isfinite(x) for x in sim.x)
-    assert sim.truth()['rating_hits'] == 1.0
+    assert sim.v_applied == (0.0, 0.0) and all(math.isfinite(x) for x in sim.x)
+    assert sim.trip[0] == pytest.approx(1e-4) and 'above the inverter rating 1000 V' in sim.trip[1]
+    assert sim.truth()['tripped'] == 1.0
+    # below the rating, a configured v_limit saturates (the controller's anti-windup knows it)
+    sim = PlantSimulator(THESIS_MOTOR, T_s=1e-4, v_limit=300.0)
+    sim.step(900.0, 0.0)
+    assert sim.trip is None and sim.v_applied == pytest.approx((300.0, 0.0))
 
 
 def test_plant_trips_on_overcurrent_to_zero_voltage_and_keeps_the_reason():

@@ -232,7 +232,6 @@ def _summary(sc: Scenario, plant, trace: dict, n_steps: int) -> dict:
     summary['balance_relative'] = abs(summary['balance_residual_J']) / max(abs(summary['E_in_J']), 1e-12)
     summary['steps'] = n_steps
     summary['trip'] = None if plant.trip is None else {'t': plant.trip[0], 'reason': plant.trip[1]}
-    summary['rating_hits'] = plant.rating_hits
     return summary
 
 

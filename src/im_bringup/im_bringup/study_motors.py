@@ -102,7 +102,7 @@ def run_motor(motor: MotorParams, name: str, record_every: int = 10) -> list:
                          'err_max': float(err.max()), 'err_tail': float(err[tail].max()),
                          'V_max_V': float(v.max()), 'i_max_A': float(i.max()),
                          'balance_relative': s['balance_relative'],
-                         'trip': s['trip'], 'rating_hits': s['rating_hits']})
+                         'trip': s['trip']})
     return rows
 
 

@@ -1,13 +1,16 @@
 """The simulated plant: motor model + load + inverter, stepped one control period at a time.
 
 The inverter is an ideal voltage source whose command is held over each period (zero-order hold),
-limited in vector magnitude to ``v_limit`` (optional) and always to its own rating
-``inverter_rating``: a command above the rating is scaled onto it and counted (``rating_hits``),
-so no finite command however large reaches the model.
+limited in vector magnitude to ``v_limit`` (optional, the configured limit the controller knows
+about: commands above it are scaled onto it). A command above the inverter's own rating
+``inverter_rating`` is not something an inverter can make, and a controller asking for it has
+lost control: it trips the protection (below), so no finite command however large reaches the
+model and the fault is reported rather than hidden by a saturation.
 
 Protection (docs/limits.md): after every period the plant checks the stator-current magnitude
 against ``current_trip``, the speed against ``speed_trip`` and the state for non-finite values.
-On a trip it latches ``trip = (t, reason)`` and applies zero voltage from then on (all lower
+On a trip (or a command above the rating) it latches ``trip = (t, reason)`` and applies zero
+voltage from then on (all lower
 switches on: the stator is short-circuited through the inverter, the machine's stored magnetic
 energy decays through its resistances and the shaft coasts against its load). A non-finite
 state is not kept: the period is integrated again from the last finite state with zero voltage. The model is integrated with fixed-step RK4 sub-steps in
@@ -26,8 +29,7 @@ from .model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, N_AUG, Mo
 from .params import InvalidParameter, MotorParams, ParameterSchedule, THESIS_MOTOR
 
 # The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
-# inverter (≈ 1 kV). Above every shipped motor's needs; a bound, so a runaway command cannot reach
-# the model.
+# inverter (≈ 1 kV), above every shipped motor's needs; a larger command trips the plant.
 DEFAULT_INVERTER_RATING = 1000.0
 
 
@@ -99,7 +101,6 @@ class PlantSimulator:
         self.current_trip = current_trip
         self.speed_trip = speed_trip
         self.trip: Optional[tuple] = None     # (t, reason) once the protection tripped
-        self.rating_hits = 0                  # commands scaled onto the inverter rating
         self.current_noise_std = float(current_noise_std)
         self.speed_noise_std = float(speed_noise_std)
         self._rng = None
@@ -127,7 +128,7 @@ class PlantSimulator:
 
     def limit(self, v_a: float, v_b: float):
         """The voltage the inverter applies for a commanded (v_a, v_b): zero once tripped, else
-        scaled onto min(v_limit, inverter_rating) when above it."""
+        scaled onto the limit when above it."""
         if self.trip is not None:
             return 0.0, 0.0
         mag = math.hypot(v_a, v_b)
@@ -141,8 +142,11 @@ class PlantSimulator:
         overcurrent, overspeed or a non-finite state (module doc)."""
         if not (math.isfinite(v_a) and math.isfinite(v_b)):
             raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) at t = {self.t:.9f} s')
-        if self.trip is None and math.hypot(v_a, v_b) > self.inverter_rating:
-            self.rating_hits += 1
+        if self.trip is None:
+            mag = math.hypot(v_a, v_b)
+            if mag > self.inverter_rating:
+                self.trip = (self.t, f'voltage command |V| = {mag:.4g} V above the inverter rating '
+                                     f'{self.inverter_rating:g} V')
         v_a, v_b = self.limit(v_a, v_b)
         x0 = self.x
         t0 = self.t
@@ -213,7 +217,6 @@ class PlantSimulator:
         out['tripped'] = 0.0 if self.trip is None else 1.0
         out['trip_t'] = math.nan if self.trip is None else self.trip[0]
         out['trip_reason'] = '' if self.trip is None else self.trip[1]
-        out['rating_hits'] = float(self.rating_hits)
         out['dW_mag'] = out['W_mag'] - self.W_mag0
         out['dE_kin'] = out['E_kin'] - self.E_kin0
         out['balance_residual'] = (out['E_in'] - out['E_cu_s'] - out['E_cu_r'] - out['E_friction']

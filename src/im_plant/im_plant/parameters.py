@@ -48,8 +48,8 @@ def declare_plant(node) -> dict:
     v['initial_flux'] = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
     v['v_limit'] = p('v_limit', 0.0, 'inverter voltage-vector limit [V] (0: no limit)', 0.0, 1e5)
     v['inverter_rating'] = p('inverter_rating', DEFAULT_INVERTER_RATING,
-                             'the inverter\'s own voltage-vector limit [V]: larger commands are '
-                             'scaled onto it and counted (rating_hits in the truth)', 1.0, 1e6)
+                             'the inverter\'s own voltage-vector limit [V]: a larger command trips '
+                             'the plant to zero voltage (trip in the truth)', 1.0, 1e6)
     v['current_trip'] = p('current_trip', 0.0,
                           'protection: trip to zero voltage when |i_s| exceeds this [A] (0: off)',
                           0.0, 1e6)
