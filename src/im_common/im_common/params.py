@@ -213,7 +213,7 @@ def shipped_motors_dir() -> str:
         d = os.path.join(get_package_share_directory('im_common'), 'config', 'motors')
         if os.path.isdir(d):
             return d
-    except (ImportError, LookupError):   # not installed (tests from src/): the source tree
+    except (ImportError, LookupError, OSError):   # not installed (run from src/): the source tree
         pass
     return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'config',
                         'motors')

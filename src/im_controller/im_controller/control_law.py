@@ -50,6 +50,8 @@ DEFAULT_FLUX_PREVIEW = 0.06
 # Field weakening keeps the steady stator voltage ω_e (L_s/L_sr) φ below this share of the voltage
 # limit; the rest is headroom for the resistive drop, the q-axis leakage drop and the transients.
 DEFAULT_VOLTAGE_MARGIN = 0.85
+# |i_q*| ≤ MAGNETIZING_RATIO · i_d*/√σ: the torque a partly magnetized machine is asked for
+MAGNETIZING_RATIO = 2.0
 # Reconfigurable while running (ros2 param set on the controller node): gains, strategy, flux
 # levels and limits. Everything else (mode, profile, motor model, period) is fixed for a run.
 LIVE_FIELDS = ('strategy', 'phi_d', 'phi_min', 'phi_max', 'k1', 'k_p', 'k_v', 'current_gain',
@@ -448,8 +450,14 @@ class DriveController:
         limit; dτ*/dt = 0 while a bound holds (the bound is what is demanded then)."""
         cfg = self.config
         hi = math.inf if cfg.torque_limit is None else cfg.torque_limit
+        i_d = (phi + c.T_r * dphi) / c.L_sr
+        if i_d > 0.0:
+            # torque grows with the flux: τ* ≤ v (L_sr/L_r)(φ* − ε) κ i_d*, κ = 2/√σ (twice the
+            # min-energy ratio i_q/i_d = 1/√σ, eq. 3.19), zero at the floor ε: a torque demand
+            # on a demagnetized machine does not step the q-current at start-up (docs/limits.md)
+            hi = min(hi, c.v * c.L_sr * (phi - cfg.magnetizing_floor) * i_d * MAGNETIZING_RATIO
+                     / (c.L_r * math.sqrt(c.sigma)))
         if cfg.current_limit is not None:
-            i_d = (phi + c.T_r * dphi) / c.L_sr
             room = cfg.current_limit * cfg.current_limit - i_d * i_d
             i_q_max = math.sqrt(room) if room > 0.0 else 0.0
             hi = min(hi, c.v * c.L_sr * phi * i_q_max / c.L_r)
