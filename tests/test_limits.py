@@ -223,3 +223,13 @@ def test_every_strategy_respects_a_voltage_limit_in_the_thesis_position_task():
         # drive catches up: no runaway, no latch
         e = np.abs(r.trace['theta_r'] - r.trace['theta_ref'])
         assert e[-1] < 1e-3
+
+
+def test_shipped_profiles_and_loads_load():
+    from im_controller.profiles import load_profile
+    root = os.path.join(MOTOR_DIR, '..')
+    assert load_profile(os.path.join(root, 'profiles', 'speed_steps.yaml')).start_value == 100.0
+    assert load_profile(os.path.join(root, 'profiles', 'reversal.yaml')).setpoints[-1][1] == -100.0
+    prof = load_profile(os.path.join(root, 'profiles', 'position_samples.csv'))
+    assert prof.mode == 'position' and prof.end_time == pytest.approx(2.0)
+    assert load_file(os.path.join(root, 'loads', 'fan.yaml')).describe()['c2'] == 0.02

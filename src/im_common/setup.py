@@ -13,6 +13,8 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/motors', glob('config/motors/*.yaml')),
+        ('share/' + package_name + '/config/profiles', glob('config/profiles/*')),
+        ('share/' + package_name + '/config/loads', glob('config/loads/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
     ],
     install_requires=['setuptools'],
