@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from im_bringup.offline import Scenario, simulate
-from im_common.loads import LinearLoad, load_file
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, load_motor_file
+from im_common.loads import load_file
+from im_common.params import InvalidParameter, THESIS_MOTOR, load_motor_file
 from im_common.plant_sim import PlantSimulator
 from im_controller.profiles import from_setpoints
 

@@ -90,7 +90,7 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
         raise ValueError(f"invalid controller {controller!r}: one of {', '.join(CONTROLLERS)}")
     if variation not in VARIATIONS:
         raise ValueError(f"invalid variation {variation!r}: one of {', '.join(VARIATIONS)}")
-    from im_common.loads import load_parameters, make_load
+    from im_common.loads import load_parameters
     from im_common.params import CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR
     from im_controller.control_law import ControllerConfig, steady_start
     motor = _motor(motor, 'motor')
