@@ -147,8 +147,8 @@ def test_load_files(tmp_path):
     with pytest.raises(InvalidParameter, match='mgl'):
         load_file(str(p))
     # a load of one's own in the loop: the controller's load model is the same load
-    sc = Scenario(task='speed', strategy='min_energy', load_model=load_file(str(tmp_path / 'l.yaml'))
-                  if p.write_text('kind: constant\ntau: 3.0\n') else None, duration=0.3)
+    p.write_text('kind: constant\ntau: 3.0\n')
+    sc = Scenario(task='speed', strategy='min_energy', load_model=load_file(str(p)), duration=0.3)
     assert sc.controller_config().load == 'constant' and sc.controller_config().load_tau == 3.0
     r = simulate(sc, record_every=10)
     assert r.summary['speed_err_max_rad_s'] < 0.5
