@@ -79,3 +79,20 @@ def test_graph_equals_the_offline_loop_with_motor_profile_load_and_limits(files)
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12, err_msg=key)
     # the profile was followed: the reference reached 120 rad/s
     assert np.nanmax(g.trace['omega_ref']) == pytest.approx(120.0, abs=1e-6)
+
+
+def test_torque_task_follows_an_effort_profile_in_the_graph_and_offline(tmp_path):
+    """The torque task (an effort profile, beyond the thesis): graph and offline loop agree, the
+    torque follows the profile once the machine is magnetized."""
+    from im_bringup.offline import Scenario, simulate
+    from im_controller.profiles import load_profile
+    prof = tmp_path / 'effort.yaml'
+    prof.write_text('setpoints:\n  - {t: 0.0, effort: 0.0}\n  - {t: 0.03, effort: 2.0, duration: 0.01}\n')
+    g = run_graph(task='torque', strategy='constant_flux', duration=0.06, profile=str(prof))
+    off = simulate(Scenario(task='torque', strategy='constant_flux', duration=0.06,
+                            profile=load_profile(str(prof))))
+    assert g.summary['ok'], g.summary['failures']
+    assert g.summary['E_in_J'] == pytest.approx(off.summary['E_in_J'], rel=1e-9)
+    assert off.trace['tau_ref'][-1] == pytest.approx(2.0)
+    with pytest.raises(ValueError, match='torque task needs a profile'):
+        node_parameters('torque')

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Dict, Optional, Sequence
 
-TASKS = ('position', 'speed')
+TASKS = ('position', 'speed', 'torque')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'robust')
 VARIATIONS = ('none', 'chapter4')
@@ -23,7 +23,11 @@ TASK_PRESETS = {
                  'start': 'rest', 'duration': 2.0},
     'speed': {'load': 'linear', 'load_c1': 1.0, 'load_c2': 0.001, 'theta0': 0.0, 'omega0': 135.0,
               'start': 'steady', 'duration': 1.5},
+    # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
+    'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
 }
+TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
+                        "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
 
 
 def _motor(value, what: str):
@@ -105,6 +109,8 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     for key in protection:
         if key not in PLANT_PROTECTION:
             raise ValueError(f"invalid protection {key!r}: one of {', '.join(PLANT_PROTECTION)}")
+    if task == 'torque' and profile is None:
+        raise ValueError(TORQUE_NEEDS_PROFILE)
     if profile is not None and profile.mode != task:
         raise ValueError(f'invalid profile {profile.source}: a {profile.mode} profile for the '
                          f'{task} task')

@@ -35,7 +35,7 @@ from im_controller.control_law import ControllerConfig, DriveController, steady_
 from im_controller.profiles import Profile
 from im_observer.observer import RotorFluxObserver
 
-from .config import CONTROLLERS, TASK_PRESETS, TASKS  # the one table of tasks
+from .config import CONTROLLERS, TASK_PRESETS, TASKS, TORQUE_NEEDS_PROFILE  # the one table of tasks
 
 START_MODES = ('rest', 'steady')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
@@ -83,6 +83,8 @@ class Scenario:
             raise InvalidParameter('variation', self.variation, f'must be one of {", ".join(SCHEDULES)}')
         if not (math.isfinite(self.T_s) and self.T_s > 0):
             raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
+        if self.task == 'torque' and self.profile is None:
+            raise InvalidParameter('profile', None, TORQUE_NEEDS_PROFILE)
         if self.profile is not None and self.profile.mode != self.task:
             raise InvalidParameter('profile', self.profile.source,
                                    f'is a {self.profile.mode} profile; the task is {self.task}')

@@ -44,8 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
                          '(an explicit model mismatch; default: --motor)')
     ap.add_argument('--profile', metavar='FILE',
                     help='setpoints of your own: YAML "setpoints: [{t: 0.0, velocity: 100.0}, ...]" '
-                         '(position/velocity as on /im/setpoint) or a sampled CSV "t,velocity"; '
-                         'the task must match its kind')
+                         '(position/velocity/effort as on /im/setpoint) or a sampled CSV '
+                         '"t,velocity"; the task must match its kind (effort: --task torque)')
     ap.add_argument('--load', metavar='YAML',
                     help='shaft load: YAML {kind: linear, c1: 1.0, c2: 0.001} (kinds none, '
                          'constant tau, pendulum mgl, linear c1 c2); default: the task\'s load')
