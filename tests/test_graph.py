@@ -82,7 +82,8 @@ def test_a_diverging_run_stops_cleanly_and_says_where():
     the plant's report (time of the non-finite state), not hang or raise out of the executor."""
     res = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=0.1)
     assert not res.summary['ok']
-    assert 'non-finite' in res.summary['failures']['plant']
+    assert 'protection trip' in res.summary['failures']['plant']
+    assert 'above the inverter rating' in res.summary['failures']['plant']
     assert res.summary['steps'] < 100
 
 

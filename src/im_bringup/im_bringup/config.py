@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Dict, Optional, Sequence
 
-TASKS = ('position', 'speed')
+TASKS = ('position', 'speed', 'torque')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'robust')
 VARIATIONS = ('none', 'chapter4')
@@ -23,7 +23,49 @@ TASK_PRESETS = {
                  'start': 'rest', 'duration': 2.0},
     'speed': {'load': 'linear', 'load_c1': 1.0, 'load_c2': 0.001, 'theta0': 0.0, 'omega0': 135.0,
               'start': 'steady', 'duration': 1.5},
+    # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
+    'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
 }
+TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
+                        "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
+
+
+def _motor(value, what: str):
+    """A MotorParams from a MotorParams or a motor-file path (None stays None)."""
+    from im_common.params import MotorParams, load_motor_file
+    if value is None or isinstance(value, MotorParams):
+        return value
+    if isinstance(value, str):
+        return load_motor_file(value)
+    raise ValueError(f'invalid {what} {value!r}: a motor file path or MotorParams')
+
+
+def _profile(value):
+    from im_controller.profiles import Profile, load_profile
+    if value is None or isinstance(value, Profile):
+        return value
+    if isinstance(value, str):
+        return load_profile(value)
+    raise ValueError(f'invalid profile {value!r}: a profile file path or Profile')
+
+
+def _load(value):
+    from im_common.loads import Load, load_file
+    if value is None or isinstance(value, Load):
+        return value
+    if isinstance(value, str):
+        return load_file(value)
+    raise ValueError(f'invalid load {value!r}: a load file path or Load')
+
+
+def motor_parameters(motor) -> Dict[str, object]:
+    """The node parameters of a motor (every field ``declare_motor`` declares)."""
+    return {k: (int(v) if k == 'pole_pairs' else float(v)) for k, v in motor.as_dict().items()}
+
+
+CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weakening',
+                     'voltage_margin')
+PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
 
 
 def node_parameters(task: str = 'position', strategy: str = 'min_energy',
@@ -32,8 +74,18 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
                     current_gain: Optional[Sequence[float]] = None,
                     injection_gain: Optional[Sequence[float]] = None,
                     truth_decimation: int = 10, reference_decimation: int = 10,
-                    input_timeout: float = 5.0) -> Dict[str, Dict[str, object]]:
-    """Parameters of the four nodes for one scenario (validated names, no ROS import)."""
+                    input_timeout: float = 5.0, *, motor=None, estimates=None, profile=None,
+                    load=None, limits: Optional[dict] = None,
+                    protection: Optional[dict] = None) -> Dict[str, Dict[str, object]]:
+    """Parameters of the four nodes for one scenario (validated names, no ROS import).
+
+    ``motor``: the plant's motor (file path or MotorParams; every node's model defaults to it),
+    ``estimates``: a different model for controller, observer and adapter (a mismatch set
+    explicitly), ``profile``: setpoints of one's own (file or :class:`Profile`; the task must
+    match its kind), ``load``: shaft load (file or Load; plant and the controller's load model),
+    ``limits``: controller limits (:data:`CONTROLLER_LIMITS`), ``protection``: plant inverter
+    rating and trips (:data:`PLANT_PROTECTION`). Without them the thesis scenario is unchanged.
+    """
     if task not in TASKS:
         raise ValueError(f"invalid task {task!r}: one of {', '.join(TASKS)}")
     if strategy not in STRATEGIES:
@@ -42,38 +94,83 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
         raise ValueError(f"invalid controller {controller!r}: one of {', '.join(CONTROLLERS)}")
     if variation not in VARIATIONS:
         raise ValueError(f"invalid variation {variation!r}: one of {', '.join(VARIATIONS)}")
-    from im_bringup.offline import Scenario
-    from im_common.params import CHAPTER4_ESTIMATES
+    from im_common.loads import load_parameters
+    from im_common.params import CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR
+    from im_controller.control_law import ControllerConfig, steady_start
+    motor = _motor(motor, 'motor')
+    estimates = _motor(estimates, 'estimates')
+    profile = _profile(profile)
+    load = _load(load)
+    limits = dict(limits or {})
+    protection = dict(protection or {})
+    for key in limits:
+        if key not in CONTROLLER_LIMITS:
+            raise ValueError(f"invalid limit {key!r}: one of {', '.join(CONTROLLER_LIMITS)}")
+    for key in protection:
+        if key not in PLANT_PROTECTION:
+            raise ValueError(f"invalid protection {key!r}: one of {', '.join(PLANT_PROTECTION)}")
+    if task == 'torque' and profile is None:
+        raise ValueError(TORQUE_NEEDS_PROFILE)
+    if profile is not None and profile.mode != task:
+        raise ValueError(f'invalid profile {profile.source}: a {profile.mode} profile for the '
+                         f'{task} task')
     preset = dict(TASK_PRESETS[task])
+    if load is not None:
+        for key in ('load', 'load_mgl', 'load_c1', 'load_c2', 'load_tau'):
+            preset.pop(key, None)
+        preset.update(load_parameters(load))
+    if profile is not None and profile.start_value is not None:
+        preset['theta0' if task == 'position' else 'omega0'] = profile.start_value
     if duration is None:
-        duration = preset['duration']
+        duration = preset['duration'] if profile is None else profile.end_time + 1.0
     common = {'T_s': float(T_s), 'duration': float(duration), 'input_timeout': float(input_timeout)}
+    plant_motor = motor if motor is not None else THESIS_MOTOR
+    model = (estimates if estimates is not None
+             else CHAPTER4_ESTIMATES if variation == 'chapter4' else plant_motor)
+    mine = {}
+    if motor is not None:
+        mine = motor_parameters(motor)
+    model_values = dict(mine)
+    if estimates is not None:
+        model_values = motor_parameters(estimates)
+    elif variation == 'chapter4':
+        model_values.update({k: getattr(CHAPTER4_ESTIMATES, k)
+                             for k in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')})
     plant = dict(common, variation=variation, v_limit=float(v_limit),
-                 truth_decimation=int(truth_decimation),
+                 truth_decimation=int(truth_decimation), **mine,
                  **{k: v for k, v in preset.items() if k not in ('duration', 'start')})
-    estimates = ({k: getattr(CHAPTER4_ESTIMATES, k) for k in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')}
-                 if variation == 'chapter4' else {})
-    x0, obs_x0 = Scenario(task=task, strategy=strategy, T_s=T_s, duration=duration,
-                          variation=variation).initial_state()
+    plant.update({k: float(v) for k, v in protection.items()})
+    load_keys = [k for k in ('load_mgl', 'load_c1', 'load_c2', 'load_tau') if k in preset]
+    ctl_load = {'load': preset['load'], **{k: preset[k] for k in load_keys}}
+    cfg = ControllerConfig(mode=task, strategy=strategy, params=model, v_limit=v_limit or None,
+                           T_s=T_s, **ctl_load,
+                           **({} if profile is None else {'profile': 'setpoint',
+                                                            'setpoints': profile.setpoints}),
+                           **{k: v for k, v in limits.items()})
+    x0 = obs_x0 = None
+    if preset['start'] == 'steady':
+        x0, obs_x0 = steady_start(cfg, SCHEDULES[variation](plant_motor).params_at(0.0),
+                                  preset['theta0'], preset['omega0'])
     adaptive = controller in ('adaptive_thesis', 'adaptive')
     ctl = dict(common, mode=task, strategy=strategy, use_adapter=adaptive,
                v_limit=float(v_limit), reference_decimation=int(reference_decimation),
-               load_known=True, load=preset['load'],
-               **{k: preset[k] for k in ('load_mgl', 'load_c1', 'load_c2') if k in preset},
-               **estimates)
+               load_known=True, **ctl_load, **model_values)
+    if profile is not None:
+        ctl.update(profile.as_parameters())
+    ctl.update({k: (v if isinstance(v, bool) else float(v)) for k, v in limits.items()})
     if current_gain is not None:
         ctl['current_gain'] = [float(g) for g in current_gain]
         ctl['gain_period'] = float(T_s)
     if x0 is not None:          # plant and observer start in the controller's steady state
         plant['initial_current'] = [float(obs_x0[0]), float(obs_x0[1])]
         plant['initial_flux'] = [float(x0[2]), float(x0[3])]
-    obs = dict(common, use_adapter=adaptive, **estimates)
+    obs = dict(common, use_adapter=adaptive, **model_values)
     if x0 is not None:
         obs['initial_state'] = [float(v) for v in obs_x0]
     if injection_gain is not None:
         obs['injection_gain'] = [float(g) for g in injection_gain]
         obs['gain_period'] = float(T_s)
-    adapter = dict(common, enable=adaptive, **estimates)
+    adapter = dict(common, enable=adaptive, **model_values)
     if adaptive:
         adapter['law'] = 'thesis' if controller == 'adaptive_thesis' else 'improved'
     return {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}

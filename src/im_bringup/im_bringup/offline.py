@@ -20,21 +20,22 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-from im_common.loads import make_load
+from im_common.loads import Load, load_parameters, make_load
 from im_common.metrics import energy_figures, tracking_figures
-from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN, stator_flux
-from im_common.params import (CHAPTER4_ESTIMATES, SCHEDULES, InvalidParameter, ParameterSchedule,
-                              THESIS_MOTOR)
+from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
+from im_common.params import (CHAPTER4_ESTIMATES, SCHEDULES, InvalidParameter, MotorParams,
+                              ParameterSchedule, THESIS_MOTOR)
 from im_common.plant_sim import PlantSimulator
-from im_controller.control_law import ControllerConfig, DriveController, steady_operating_point
+from im_controller.control_law import ControllerConfig, DriveController, steady_start
+from im_controller.profiles import Profile
 from im_observer.observer import RotorFluxObserver
 
-from .config import CONTROLLERS, TASK_PRESETS, TASKS  # noqa: E402  (the one table of tasks)
+from .config import CONTROLLERS, TASK_PRESETS, TASKS, TORQUE_NEEDS_PROFILE  # the one table of tasks
 
 START_MODES = ('rest', 'steady')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
@@ -65,6 +66,11 @@ class Scenario:
     observer_substep: float = 1e-4
     controller_options: dict = field(default_factory=dict)
     schedule: Optional[ParameterSchedule] = None   # overrides the named ``variation``
+    motor: Optional[MotorParams] = None       # the plant's motor (None: the thesis motor)
+    estimates: Optional[MotorParams] = None   # the controller/observer model (None: = motor)
+    profile: Optional[Profile] = None         # setpoints of one's own (None: thesis profile)
+    load_model: Optional[Load] = None         # shaft load (None: the task's thesis load)
+    inverter_rating: Optional[float] = None   # plant's inverter limit [V] (None: plant default)
 
     def __post_init__(self):
         if self.task not in TASKS:
@@ -77,8 +83,14 @@ class Scenario:
             raise InvalidParameter('variation', self.variation, f'must be one of {", ".join(SCHEDULES)}')
         if not (math.isfinite(self.T_s) and self.T_s > 0):
             raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
+        if self.task == 'torque' and self.profile is None:
+            raise InvalidParameter('profile', None, TORQUE_NEEDS_PROFILE)
+        if self.profile is not None and self.profile.mode != self.task:
+            raise InvalidParameter('profile', self.profile.source,
+                                   f'is a {self.profile.mode} profile; the task is {self.task}')
         if self.duration is None:
-            self.duration = DEFAULT_DURATION[self.task]
+            self.duration = (DEFAULT_DURATION[self.task] if self.profile is None
+                             else self.profile.end_time + 1.0)
         if not (math.isfinite(self.duration) and self.duration > 0):
             raise InvalidParameter('duration', self.duration, 'must be > 0 s')
         preset = TASK_PRESETS[self.task]
@@ -86,15 +98,34 @@ class Scenario:
             self.start = preset['start']
         if self.start not in START_MODES:
             raise InvalidParameter('start', self.start, f'must be one of {", ".join(START_MODES)}')
+        start_value = self.profile.start_value if self.profile is not None else None
         if self.theta0 is None:
-            self.theta0 = preset['theta0']
+            self.theta0 = (start_value if self.task == 'position' and start_value is not None
+                           else preset['theta0'])
         if self.omega0 is None:
-            self.omega0 = preset['omega0']
+            self.omega0 = (start_value if self.task == 'speed' and start_value is not None
+                           else preset['omega0'])
+
+    def plant_motor(self) -> MotorParams:
+        return self.motor if self.motor is not None else THESIS_MOTOR
 
     def plant_schedule(self) -> ParameterSchedule:
-        return self.schedule if self.schedule is not None else SCHEDULES[self.variation](THESIS_MOTOR)
+        if self.schedule is not None:
+            return self.schedule
+        return SCHEDULES[self.variation](self.plant_motor())
 
-    def load(self):
+    def model_estimates(self) -> MotorParams:
+        """The controller's and observer's motor model: explicit ``estimates``, else the
+        chapter-4 estimates under that variation, else the plant's own motor."""
+        if self.estimates is not None:
+            return self.estimates
+        if self.variation == 'chapter4':
+            return CHAPTER4_ESTIMATES
+        return self.plant_motor()
+
+    def plant_load(self) -> Load:
+        if self.load_model is not None:
+            return self.load_model
         p = TASK_PRESETS[self.task]
         return make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
                          c2=p.get('load_c2', 0.001))
@@ -104,20 +135,21 @@ class Scenario:
         controller's own steady state at (θ0, ω0) — plant and observer both start there."""
         if self.start != 'steady':
             return None, (0.0, 0.0, 0.0, 0.0)
-        op = steady_operating_point(self.controller_config(), 0.0, self.theta0, self.omega0)
-        P = self.plant_schedule().params_at(0.0)
-        psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'],
-                                   P.L_s, P.L_r, P.L_sr)
-        x0 = (psi_a, psi_b, op['phi_alpha'], op['phi_beta'], self.theta0, self.omega0)
-        return x0, (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])
+        return steady_start(self.controller_config(), self.plant_schedule().params_at(0.0),
+                            self.theta0, self.omega0)
 
     def controller_config(self) -> ControllerConfig:
-        params = CHAPTER4_ESTIMATES if self.variation == 'chapter4' else THESIS_MOTOR
         opts = dict(self.controller_options)
         opts.setdefault('core_loss_exponent', self.core_loss_exponent)
-        return ControllerConfig(mode=self.task, profile='thesis', strategy=self.strategy,
-                                params=params, v_limit=self.v_limit, current_gain=self.current_gain,
-                                T_s=self.T_s, **opts)
+        if self.profile is not None:
+            opts.setdefault('profile', 'setpoint')
+            opts.setdefault('setpoints', self.profile.setpoints)
+        lp = load_parameters(self.plant_load())
+        for key, value in lp.items():
+            opts.setdefault(key, value)
+        return ControllerConfig(mode=self.task, strategy=self.strategy,
+                                params=self.model_estimates(), v_limit=self.v_limit,
+                                current_gain=self.current_gain, T_s=self.T_s, **opts)
 
 
 @dataclass
@@ -134,6 +166,77 @@ TRACE_KEYS = ('t', 'theta_r', 'omega_r', 'theta_ref', 'omega_ref', 'tau_m', 'tau
               'E_core')
 
 
+def build(sc: Scenario):
+    """(plant, controller, observer) of a scenario, started as the scenario says."""
+    cfg = sc.controller_config()
+    x0, obs_x0 = sc.initial_state()
+    plant = PlantSimulator(sc.plant_schedule(), sc.plant_load(), T_s=sc.T_s,
+                           max_substep=sc.plant_substep, v_limit=sc.v_limit,
+                           current_noise_std=sc.current_noise_std,
+                           speed_noise_std=sc.speed_noise_std, noise_seed=sc.noise_seed,
+                           theta0=sc.theta0, omega0=sc.omega0, x0=x0,
+                           core_loss_exponent=sc.core_loss_exponent,
+                           **({} if sc.inverter_rating is None
+                              else {'inverter_rating': sc.inverter_rating}))
+    controller = DriveController(cfg)
+    observer = RotorFluxObserver(cfg.params, k_e=sc.k_e, max_substep=sc.observer_substep, x0=obs_x0,
+                                 injection_gain=sc.observer_gain,
+                                 gain_period=sc.T_s if sc.observer_gain is not None else None)
+    return plant, controller, observer
+
+
+def _record(tr: dict, rec: int, plant, controller, x_hat, t: float, v_a: float, v_b: float) -> None:
+    """One row of the traces at t_k (true state, references, applied voltage, energy books)."""
+    x = plant.x
+    _, _, L_s, L_r, L_sr = plant.schedule.values(t)
+    i_sa, i_sb, _, _ = plant.state_currents()
+    ref = controller.reference
+    applied = plant.limit(v_a, v_b)
+    vp = plant.params.pole_pairs
+    row = tr
+    row['t'][rec] = t
+    row['theta_r'][rec] = x[4]
+    row['omega_r'][rec] = x[5]
+    row['theta_ref'][rec] = ref['theta_ref']
+    row['omega_ref'][rec] = ref['omega_ref']
+    row['tau_m'][rec] = vp * L_sr / L_r * (i_sb * x[2] - i_sa * x[3])
+    row['tau_ref'][rec] = ref['tau_ref']
+    row['tau_L'][rec] = plant.load.torque(t, x[4], x[5])
+    row['v_alpha'][rec] = applied[0]
+    row['v_beta'][rec] = applied[1]
+    row['i_alpha'][rec] = i_sa
+    row['i_beta'][rec] = i_sb
+    row['i_alpha_ref'][rec] = ref['i_alpha_ref']
+    row['i_beta_ref'][rec] = ref['i_beta_ref']
+    row['phi_r_alpha'][rec] = x[2]
+    row['phi_r_beta'][rec] = x[3]
+    row['phi_ref_alpha'][rec] = ref['phi_alpha_ref']
+    row['phi_ref_beta'][rec] = ref['phi_beta_ref']
+    row['phi_hat_alpha'][rec] = x_hat[2]
+    row['phi_hat_beta'][rec] = x_hat[3]
+    row['phi_d_ref'][rec] = ref['phi_d_ref']
+    row['phi_target'][rec] = ref['phi_target']
+    row['omega_sl'][rec] = ref['omega_sl']
+    row['E_in'][rec] = x[E_IN]
+    row['E_copper'][rec] = x[E_CU_S] + x[E_CU_R]
+    row['E_core'][rec] = x[E_CORE]
+    row['E_loss'][rec] = x[E_CU_S] + x[E_CU_R] + x[E_CORE]
+
+
+def _summary(sc: Scenario, plant, trace: dict, n_steps: int) -> dict:
+    truth = plant.truth()
+    summary = {'task': sc.task, 'strategy': sc.strategy, 'controller': sc.controller,
+               'variation': sc.variation, 'rate_hz': 1.0 / sc.T_s, 'T_s': sc.T_s,
+               'duration_s': sc.duration, 'core_loss_exponent': sc.core_loss_exponent}
+    summary.update(energy_figures(truth))
+    summary.update(tracking_figures(trace, sc.task))
+    summary['E_loss_J'] = summary['E_copper_J'] + summary['E_core_J']
+    summary['balance_relative'] = abs(summary['balance_residual_J']) / max(abs(summary['E_in_J']), 1e-12)
+    summary['steps'] = n_steps
+    summary['trip'] = None if plant.trip is None else {'t': plant.trip[0], 'reason': plant.trip[1]}
+    return summary
+
+
 def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
              adapter=None, timing: bool = False) -> RunResult:
     """Run ``scenario`` in the lock-step order; returns figures of merit and traces.
@@ -147,26 +250,13 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     if record_every < 1:
         raise InvalidParameter('record_every', record_every, 'must be >= 1')
     wall0 = time.perf_counter()
-    schedule = sc.plant_schedule()
-    load = sc.load()
-    cfg = sc.controller_config()
-    x0, obs_x0 = sc.initial_state()
-    plant = PlantSimulator(schedule, load, T_s=sc.T_s, max_substep=sc.plant_substep,
-                           v_limit=sc.v_limit, current_noise_std=sc.current_noise_std,
-                           speed_noise_std=sc.speed_noise_std, noise_seed=sc.noise_seed,
-                           theta0=sc.theta0, omega0=sc.omega0, x0=x0,
-                           core_loss_exponent=sc.core_loss_exponent)
-    controller = DriveController(cfg)
-    observer = RotorFluxObserver(cfg.params, k_e=sc.k_e, max_substep=sc.observer_substep, x0=obs_x0,
-                                 injection_gain=sc.observer_gain,
-                                 gain_period=sc.T_s if sc.observer_gain is not None else None)
+    plant, controller, observer = build(sc)
     n_steps = int(round(sc.duration / sc.T_s))
     n_rec = n_steps // record_every + 1
     tr = {k: np.empty(n_rec) for k in TRACE_KEYS}
     T_s = sc.T_s
     estimates = None
     x_hat = observer.state
-    vp = THESIS_MOTOR.pole_pairs
     rec = 0
     report_every = max(1, n_steps // 20)
     label = f'{sc.task}/{sc.strategy} T_s={sc.T_s:g}'
@@ -181,39 +271,7 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         if timing:
             t_ctl += clock() - c0
         if k % record_every == 0 and rec < n_rec:
-            x = plant.x
-            _, _, L_s, L_r, L_sr = schedule.values(m.t)
-            i_sa, i_sb, _, _ = plant.state_currents()
-            ref = controller.reference
-            applied = plant.limit(v_a, v_b)
-            row = tr
-            row['t'][rec] = m.t
-            row['theta_r'][rec] = x[4]
-            row['omega_r'][rec] = x[5]
-            row['theta_ref'][rec] = ref['theta_ref']
-            row['omega_ref'][rec] = ref['omega_ref']
-            row['tau_m'][rec] = vp * L_sr / L_r * (i_sb * x[2] - i_sa * x[3])
-            row['tau_ref'][rec] = ref['tau_ref']
-            row['tau_L'][rec] = load.torque(m.t, x[4], x[5])
-            row['v_alpha'][rec] = applied[0]
-            row['v_beta'][rec] = applied[1]
-            row['i_alpha'][rec] = i_sa
-            row['i_beta'][rec] = i_sb
-            row['i_alpha_ref'][rec] = ref['i_alpha_ref']
-            row['i_beta_ref'][rec] = ref['i_beta_ref']
-            row['phi_r_alpha'][rec] = x[2]
-            row['phi_r_beta'][rec] = x[3]
-            row['phi_ref_alpha'][rec] = ref['phi_alpha_ref']
-            row['phi_ref_beta'][rec] = ref['phi_beta_ref']
-            row['phi_hat_alpha'][rec] = x_hat[2]
-            row['phi_hat_beta'][rec] = x_hat[3]
-            row['phi_d_ref'][rec] = ref['phi_d_ref']
-            row['phi_target'][rec] = ref['phi_target']
-            row['omega_sl'][rec] = ref['omega_sl']
-            row['E_in'][rec] = x[E_IN]
-            row['E_copper'][rec] = x[E_CU_S] + x[E_CU_R]
-            row['E_core'][rec] = x[E_CORE]
-            row['E_loss'][rec] = x[E_CU_S] + x[E_CU_R] + x[E_CORE]
+            _record(tr, rec, plant, controller, x_hat, m.t, v_a, v_b)
             rec += 1
         if k == n_steps:
             break
@@ -234,21 +292,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     if progress:
         print(f'\r{label}: done in {time.perf_counter() - wall0:.1f} s', file=sys.stderr, flush=True)
     trace = {k: v[:rec] for k, v in tr.items()}
-    truth = plant.truth()
-    summary = {'task': sc.task, 'strategy': sc.strategy, 'controller': sc.controller,
-               'variation': sc.variation, 'rate_hz': 1.0 / sc.T_s, 'T_s': sc.T_s,
-               'duration_s': sc.duration, 'core_loss_exponent': sc.core_loss_exponent}
-    summary.update(energy_figures(truth))
-    summary.update(tracking_figures(trace, sc.task))
-    summary['E_loss_J'] = summary['E_copper_J'] + summary['E_core_J']
-    summary['balance_relative'] = abs(summary['balance_residual_J']) / max(abs(summary['E_in_J']), 1e-12)
-    summary['steps'] = n_steps
+    summary = _summary(sc, plant, trace, n_steps)
     if timing:
         summary['us_per_compute'] = 1e6 * t_ctl / (n_steps + 1)
         summary['us_per_observer_step'] = 1e6 * t_obs / max(n_steps, 1)
     summary['wall_s'] = time.perf_counter() - wall0
     return RunResult(sc, summary, trace)
-
-
-def scenario_dict(sc: Scenario) -> dict:
-    return asdict(sc)

@@ -35,6 +35,29 @@ def build_parser() -> argparse.ArgumentParser:
                     help='simulated seconds (default: the task length, 2.0 / 1.5 s)')
     ap.add_argument('--v-limit', type=float, default=0.0,
                     help='inverter voltage limit [V] shared by plant and controller (0: none)')
+    ap.add_argument('--motor', metavar='YAML',
+                    help='motor file (ROS 2 parameters, /**: ros__parameters: R_s, R_r, L_s, L_r, '
+                         'L_sr, pole_pairs, J, b, ...); every node uses it (default: the thesis '
+                         'motor; shipped: share/im_common/config/motors/)')
+    ap.add_argument('--estimates', metavar='YAML',
+                    help='a different motor file for the controller/observer/adapter model '
+                         '(an explicit model mismatch; default: --motor)')
+    ap.add_argument('--profile', metavar='FILE',
+                    help='setpoints of your own: YAML "setpoints: [{t: 0.0, velocity: 100.0}, ...]" '
+                         '(position/velocity/effort as on /im/setpoint) or a sampled CSV '
+                         '"t,velocity"; the task must match its kind (effort: --task torque)')
+    ap.add_argument('--load', metavar='YAML',
+                    help='shaft load: YAML {kind: linear, c1: 1.0, c2: 0.001} (kinds none, '
+                         'constant tau, pendulum mgl, linear c1 c2); default: the task\'s load')
+    ap.add_argument('--torque-limit', type=float, default=0.0, help='|tau*| bound [N m] (0: none)')
+    ap.add_argument('--current-limit', type=float, default=0.0,
+                    help='stator-current magnitude the torque demand may ask for [A] (0: none)')
+    ap.add_argument('--speed-limit', type=float, default=0.0,
+                    help='no torque pushes the shaft beyond this speed [rad/s] (0: none)')
+    ap.add_argument('--current-trip', type=float, default=0.0,
+                    help='plant protection: zero voltage above this |i_s| [A] (0: off)')
+    ap.add_argument('--speed-trip', type=float, default=0.0,
+                    help='plant protection: zero voltage above this |omega_r| [rad/s] (0: off)')
     ap.add_argument('--gains', metavar='YAML',
                     help='parameters YAML from `design_gains` (controller current gain, observer '
                          'injection gain); merged over the scenario parameters')
@@ -199,8 +222,15 @@ def main(argv=None) -> int:
     raw = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(remove_ros_args(args=['scenario'] + raw)[1:])
     try:
+        limits = {k: v for k, v in (('torque_limit', args.torque_limit),
+                                    ('current_limit', args.current_limit),
+                                    ('speed_limit', args.speed_limit)) if v}
+        protection = {k: v for k, v in (('current_trip', args.current_trip),
+                                        ('speed_trip', args.speed_trip)) if v}
         parameters = node_parameters(args.task, args.strategy, args.controller, args.variation,
-                                     args.T_s, args.duration, args.v_limit)
+                                     args.T_s, args.duration, args.v_limit, motor=args.motor,
+                                     estimates=args.estimates, profile=args.profile,
+                                     load=args.load, limits=limits, protection=protection)
     except ValueError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

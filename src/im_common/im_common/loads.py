@@ -15,6 +15,11 @@ class Load:
     def torque(self, t: float, theta: float, omega: float) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def rate(self, t: float, theta: float, omega: float, accel: float) -> float:
+        """dτ_L/dt along a motion (θ, ω, ω̇) — what a controller feeding the load model forward
+        needs for dτ*/dt without differentiating numerically."""
+        return 0.0
+
     def describe(self) -> dict:
         return {'kind': self.name}
 
@@ -57,6 +62,9 @@ class PendulumLoad(Load):
     def torque(self, t, theta, omega):
         return self.mgl * math.cos(theta)
 
+    def rate(self, t, theta, omega, accel):
+        return -self.mgl * math.sin(theta) * omega
+
     def describe(self):
         return {'kind': self.name, 'mgl': self.mgl}
 
@@ -77,6 +85,9 @@ class LinearLoad(Load):
     def torque(self, t, theta, omega):
         return self.c1 + self.c2 * omega
 
+    def rate(self, t, theta, omega, accel):
+        return self.c2 * accel
+
     def describe(self):
         return {'kind': self.name, 'c1': self.c1, 'c2': self.c2}
 
@@ -96,3 +107,51 @@ def make_load(kind: str, mgl: float = 10.0, c1: float = 1.0, c2: float = 0.001,
     if kind == 'linear':
         return LinearLoad(c1, c2)
     raise InvalidParameter('load', kind, f'must be one of {", ".join(LOAD_KINDS)}')
+
+
+LOAD_FIELDS = {'none': (), 'constant': ('tau',), 'pendulum': ('mgl',), 'linear': ('c1', 'c2')}
+
+
+def load_from_dict(doc, source: str = 'load') -> Load:
+    """A load from a description ``{kind: linear, c1: 1.0, c2: 0.001}`` (YAML ``--load`` files);
+    every error is one line naming ``source`` and the field."""
+    if not isinstance(doc, dict):
+        raise InvalidParameter(f'{source}', doc, 'must be a mapping with a kind')
+    kind = doc.get('kind')
+    if kind not in LOAD_FIELDS:
+        raise InvalidParameter(f'{source}: kind', kind, f'must be one of {", ".join(LOAD_KINDS)}')
+    allowed = LOAD_FIELDS[kind]
+    values = {}
+    for key, val in doc.items():
+        if key == 'kind':
+            continue
+        if key not in allowed:
+            raise InvalidParameter(f'{source}: {key}', val,
+                                   f"unknown for a {kind} load (fields: {', '.join(allowed) or 'none'})")
+        if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
+            raise InvalidParameter(f'{source}: {key}', val, 'must be a finite number')
+        values[key] = float(val)
+    return make_load(kind, **values)
+
+
+def load_file(path: str) -> Load:
+    """Read a load description (YAML mapping, see :func:`load_from_dict`) from ``path``."""
+    import yaml
+    try:
+        with open(path) as f:
+            doc = yaml.safe_load(f)
+    except OSError as exc:
+        raise InvalidParameter('load file', path, f'cannot be read ({exc.strerror})') from None
+    except yaml.YAMLError as exc:
+        raise InvalidParameter('load file', path, f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+    return load_from_dict(doc, source=path)
+
+
+def load_parameters(load: Load) -> dict:
+    """The node parameters (``load``, ``load_mgl``, ``load_c1``, ``load_c2``, ``load_tau``) that
+    rebuild ``load`` with :func:`make_load` — plant and controller read the same ones."""
+    d = load.describe()
+    out = {'load': d['kind']}
+    for key in LOAD_FIELDS[d['kind']]:
+        out['load_' + key] = float(d[key])
+    return out

@@ -13,11 +13,16 @@ _MOTOR_DOC = {
     'b': ('viscous friction [N m s]', 0.0, 100.0),
     'k_e': ('eddy-current core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
     'k_h': ('hysteresis core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
+    'rated_voltage': ('rated stator-voltage vector magnitude [V] (0: not given)', 0.0, 1e5),
+    'rated_current': ('rated stator-current vector magnitude [A] (0: not given)', 0.0, 1e5),
+    'rated_speed': ('rated (base) shaft speed [rad/s] (0: not given)', 0.0, 1e5),
+    'rated_torque': ('rated shaft torque [N m] (0: not given)', 0.0, 1e7),
 }
 
 
 def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -> MotorParams:
     """Declare the motor parameters on ``node`` (defaults: the thesis motor) and validate them.
+    A motor file (``--params-file motor.yaml`` with ``/**:``) sets them on every node at once.
 
     Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
     """

@@ -16,7 +16,16 @@ b         0.010       N·m·s    viscous friction
 pole_pairs 2          —        pole pairs ``v`` of the thesis (60 Hz, 1750 rpm)
 k_e       0.012       W·s/Wb²  eddy-current core-loss coefficient (eq. 3.34)
 k_h       0.012       W·s/Wb²  hysteresis core-loss coefficient (eq. 3.34)
+rated_voltage  0      V        stator-voltage vector magnitude the inverter can apply (0: not given)
+rated_current  0      A        stator-current vector magnitude (continuous rating; 0: not given)
+rated_speed    0      rad/s    mechanical base speed (0: not given)
+rated_torque   0      N·m      shaft torque at rated load (0: not given)
 ========  ==========  =======  =====================================================
+
+A motor of one's own is a ROS 2 parameters file (``/**:`` + ``ros__parameters:`` with the names
+above) read by :func:`load_motor_file`; the same file given to the nodes with ``--params-file``
+reaches every node through the ``/**`` wildcard. The shipped motors are in
+``src/im_common/config/motors/`` (installed to ``share/im_common/config/motors``).
 
 Derived quantities (seed 000 eq. 1.113, ch. 4): σ = 1 − L_sr²/(L_s L_r), θ = L_sr/L_r,
 L_M = L_sr²/L_r (the magnetizing inductance seen from the stator terminals) and
@@ -30,6 +39,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Callable, Dict, Mapping, Tuple
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
+RATING_NAMES = ('rated_voltage', 'rated_current', 'rated_speed', 'rated_torque')
 INDUCTANCE_NAMES = ('L_s', 'L_r', 'L_sr')
 
 
@@ -87,11 +97,15 @@ class MotorParams:
     pole_pairs: int = 2
     k_e: float = 0.012
     k_h: float = 0.012
+    rated_voltage: float = 0.0
+    rated_current: float = 0.0
+    rated_speed: float = 0.0
+    rated_torque: float = 0.0
 
     def __post_init__(self):
         for name in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'J'):
             _check_finite_positive(name, getattr(self, name))
-        for name in ('b', 'k_e', 'k_h'):
+        for name in ('b', 'k_e', 'k_h') + RATING_NAMES:
             _check_finite_positive(name, getattr(self, name), allow_zero=True)
         v = self.pole_pairs
         if isinstance(v, bool) or not isinstance(v, int) and not (isinstance(v, float) and v.is_integer()):
@@ -142,6 +156,67 @@ class MotorParams:
 
 
 THESIS_MOTOR = MotorParams()
+MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
+REQUIRED_MOTOR_FIELDS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'pole_pairs', 'J', 'b')
+
+
+def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
+    """A :class:`MotorParams` from a mapping of the motor fields; every error is one line
+    naming ``source`` and the field (missing, unknown with the nearest valid name, invalid)."""
+    import difflib
+    if not isinstance(values, Mapping):
+        raise InvalidParameter(f'{source}', values, 'must be a mapping of motor parameters')
+    for key in values:
+        if key not in MOTOR_FIELDS:
+            near = difflib.get_close_matches(str(key), MOTOR_FIELDS, n=1)
+            hint = f"; did you mean '{near[0]}'?" if near else f" (known: {', '.join(MOTOR_FIELDS)})"
+            raise InvalidParameter(f'{source}: {key}', values[key], f'unknown motor parameter{hint}')
+    for key in REQUIRED_MOTOR_FIELDS:
+        if key not in values:
+            raise InvalidParameter(f'{source}: {key}', None, 'is missing')
+    clean = {}
+    for key, val in values.items():
+        if isinstance(val, bool) or not isinstance(val, (int, float)):
+            raise InvalidParameter(f'{source}: {key}', val, 'must be a number')
+        clean[key] = val if key == 'pole_pairs' else float(val)
+    try:
+        return MotorParams(**clean)
+    except InvalidParameter as exc:
+        raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
+
+
+def load_motor_file(path: str) -> MotorParams:
+    """Read a motor file: a ROS 2 parameters YAML whose ``/**`` (every node) section holds the
+    motor fields under ``ros__parameters``."""
+    import yaml
+    try:
+        with open(path) as f:
+            doc = yaml.safe_load(f)
+    except OSError as exc:
+        raise InvalidParameter('motor file', path, f'cannot be read ({exc.strerror})') from None
+    except yaml.YAMLError as exc:
+        raise InvalidParameter('motor file', path,
+                               f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+    if not isinstance(doc, dict) or set(doc) != {'/**'} or not isinstance(doc['/**'], dict) \
+            or set(doc['/**']) != {'ros__parameters'}:
+        raise InvalidParameter(f'{path}', 'layout',
+                               "must be '/**:' with one 'ros__parameters:' mapping (a ROS 2 "
+                               "parameters file for every node)")
+    return motor_from_dict(doc['/**']['ros__parameters'] or {}, source=path)
+
+
+def shipped_motors_dir() -> str:
+    """Directory of the shipped motor files (installed share, else the source tree)."""
+    import os
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        d = os.path.join(get_package_share_directory('im_common'), 'config', 'motors')
+        if os.path.isdir(d):
+            return d
+    except (ImportError, LookupError, OSError):   # not installed (run from src/): the source tree
+        pass
+    return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'config',
+                        'motors')
 
 # Seed 000 §4.3: the controller's fixed estimates under the chapter-4 variation profile
 # (R̂_s 0.687, L̂_s 0.084, L̂_sr 0.081, initial R̂_r 0.842 and θ̂ = L̂_sr/L̂_r = 0.952941).

@@ -1,7 +1,19 @@
 """The simulated plant: motor model + load + inverter, stepped one control period at a time.
 
 The inverter is an ideal voltage source whose command is held over each period (zero-order hold),
-optionally limited in vector magnitude. The model is integrated with fixed-step RK4 sub-steps in
+limited in vector magnitude to ``v_limit`` (optional, the configured limit the controller knows
+about: commands above it are scaled onto it). A command above the inverter's own rating
+``inverter_rating`` is not something an inverter can make, and a controller asking for it has
+lost control: it trips the protection (below), so no finite command however large reaches the
+model and the fault is reported rather than hidden by a saturation.
+
+Protection (docs/limits.md): after every period the plant checks the stator-current magnitude
+against ``current_trip``, the speed against ``speed_trip`` and the state for non-finite values.
+On a trip (or a command above the rating) it latches ``trip = (t, reason)`` and applies zero
+voltage from then on (all lower
+switches on: the stator is short-circuited through the inverter, the machine's stored magnetic
+energy decays through its resistances and the shaft coasts against its load). A non-finite
+state is not kept: the period is integrated again from the last finite state with zero voltage. The model is integrated with fixed-step RK4 sub-steps in
 each period (at most ``max_substep`` long), together with the energy integrals, so the energy books
 are part of the integration and not computed after the fact.
 """
@@ -13,8 +25,12 @@ from typing import Optional, Sequence
 
 from .loads import Load
 from .model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, N_AUG, MotorModel,
-                    W_LOAD, currents, rk4_step, torque)
+                    W_LOAD, currents, rk4_step)
 from .params import InvalidParameter, MotorParams, ParameterSchedule, THESIS_MOTOR
+
+# The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
+# inverter (≈ 1 kV), above every shipped motor's needs; a larger command trips the plant.
+DEFAULT_INVERTER_RATING = 1000.0
 
 
 @dataclass(frozen=True)
@@ -55,13 +71,19 @@ class PlantSimulator:
                  v_limit: Optional[float] = None, current_noise_std: float = 0.0,
                  speed_noise_std: float = 0.0, noise_seed: int = 0, theta0: float = 0.0,
                  omega0: float = 0.0, x0: Optional[Sequence[float]] = None,
-                 core_loss_exponent: float = 2.0):
+                 core_loss_exponent: float = 2.0, inverter_rating: float = DEFAULT_INVERTER_RATING,
+                 current_trip: Optional[float] = None, speed_trip: Optional[float] = None):
         if not (math.isfinite(T_s) and T_s > 0):
             raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
         if not (math.isfinite(max_substep) and max_substep > 0):
             raise InvalidParameter('max_substep', max_substep, 'must be > 0')
         if v_limit is not None and not (math.isfinite(v_limit) and v_limit > 0):
             raise InvalidParameter('v_limit', v_limit, 'must be > 0 (or None for no limit)')
+        if not (math.isfinite(inverter_rating) and inverter_rating > 0):
+            raise InvalidParameter('inverter_rating', inverter_rating, 'must be > 0 V')
+        for name, val in (('current_trip', current_trip), ('speed_trip', speed_trip)):
+            if val is not None and not (math.isfinite(val) and val > 0):
+                raise InvalidParameter(name, val, 'must be > 0 (or None for no trip)')
         for name, val in (('current_noise_std', current_noise_std),
                           ('speed_noise_std', speed_noise_std)):
             if not (math.isfinite(val) and val >= 0):
@@ -74,6 +96,11 @@ class PlantSimulator:
         self.n_sub = max(1, int(math.ceil(self.T_s / max_substep - 1e-9)))
         self.h = self.T_s / self.n_sub
         self.v_limit = v_limit
+        self.inverter_rating = float(inverter_rating)
+        self._v_max = self.inverter_rating if v_limit is None else min(v_limit, self.inverter_rating)
+        self.current_trip = current_trip
+        self.speed_trip = speed_trip
+        self.trip: Optional[tuple] = None     # (t, reason) once the protection tripped
         self.current_noise_std = float(current_noise_std)
         self.speed_noise_std = float(speed_noise_std)
         self._rng = None
@@ -100,30 +127,61 @@ class PlantSimulator:
         return self.k * self.T_s
 
     def limit(self, v_a: float, v_b: float):
-        """The voltage the inverter applies for a commanded (v_a, v_b)."""
-        if self.v_limit is not None:
-            mag = math.hypot(v_a, v_b)
-            if mag > self.v_limit:
-                s = self.v_limit / mag
-                return v_a * s, v_b * s
+        """The voltage the inverter applies for a commanded (v_a, v_b): zero once tripped, else
+        scaled onto the limit when above it."""
+        if self.trip is not None:
+            return 0.0, 0.0
+        mag = math.hypot(v_a, v_b)
+        if mag > self._v_max:
+            s = self._v_max / mag
+            return v_a * s, v_b * s
         return v_a, v_b
 
     def step(self, v_a: float, v_b: float) -> None:
-        """Integrate [t_k, t_k+1] with the command held; refuse non-finite commands."""
+        """Integrate [t_k, t_k+1] with the command held; refuse non-finite commands; trip on
+        overcurrent, overspeed or a non-finite state (module doc)."""
         if not (math.isfinite(v_a) and math.isfinite(v_b)):
             raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) at t = {self.t:.9f} s')
+        if self.trip is None:
+            mag = math.hypot(v_a, v_b)
+            if mag > self.inverter_rating:
+                self.trip = (self.t, f'voltage command |V| = {mag:.4g} V above the inverter rating '
+                                     f'{self.inverter_rating:g} V')
         v_a, v_b = self.limit(v_a, v_b)
-        self.v_applied = (v_a, v_b)
-        f = self.model.rhs
-        x = self.x
+        x0 = self.x
         t0 = self.t
+        x = self._integrate(x0, t0, v_a, v_b)
+        if not all(math.isfinite(v) for v in x):
+            self.trip = (t0 + self.T_s, 'non-finite state')
+            v_a = v_b = 0.0
+            x = self._integrate(x0, t0, 0.0, 0.0)
+            if not all(math.isfinite(v) for v in x):
+                raise FloatingPointError(
+                    f'plant state became non-finite at t = {t0 + self.T_s:.9f} s even at zero voltage')
+        self.v_applied = (v_a, v_b)
+        self.x = x
+        self.k += 1
+        if self.trip is None:
+            self._protect()
+
+    def _integrate(self, x, t0: float, v_a: float, v_b: float):
+        f = self.model.rhs
         h = self.h
         for j in range(self.n_sub):
             x = rk4_step(f, t0 + j * h, x, h, v_a, v_b)
-        if not all(math.isfinite(v) for v in x):
-            raise FloatingPointError(f'plant state became non-finite at t = {t0 + self.T_s:.9f} s')
-        self.x = x
-        self.k += 1
+        return x
+
+    def _protect(self) -> None:
+        """Latch a trip on overcurrent or overspeed at t_k (after the period)."""
+        if self.current_trip is not None:
+            i_a, i_b, _, _ = self.state_currents()
+            mag = math.hypot(i_a, i_b)
+            if mag > self.current_trip:
+                self.trip = (self.t, f'overcurrent: |i_s| = {mag:.4g} A > {self.current_trip:g} A')
+                return
+        if self.speed_trip is not None and abs(self.x[5]) > self.speed_trip:
+            self.trip = (self.t, f'overspeed: |omega_r| = {abs(self.x[5]):.4g} rad/s > '
+                                 f'{self.speed_trip:g} rad/s')
 
     # Outputs -----------------------------------------------------------------------------
     def state_currents(self):
@@ -156,17 +214,15 @@ class PlantSimulator:
             'E_in': x[E_IN], 'E_cu_s': x[E_CU_S], 'E_cu_r': x[E_CU_R], 'E_core': x[E_CORE],
             'E_friction': x[E_FRICTION], 'W_load': x[W_LOAD], 'E_param': x[E_PARAM],
         })
+        out['tripped'] = 0.0 if self.trip is None else 1.0
+        out['trip_t'] = math.nan if self.trip is None else self.trip[0]
+        out['trip_reason'] = '' if self.trip is None else self.trip[1]
         out['dW_mag'] = out['W_mag'] - self.W_mag0
         out['dE_kin'] = out['E_kin'] - self.E_kin0
         out['balance_residual'] = (out['E_in'] - out['E_cu_s'] - out['E_cu_r'] - out['E_friction']
                                    - out['W_load'] - out['E_param'] - out['dW_mag']
                                    - out['dE_kin'])
         return out
-
-    def torque_now(self) -> float:
-        i_sa, i_sb, _, _ = self.state_currents()
-        _, _, L_s, L_r, L_sr = self.schedule.values(self.t)
-        return torque(i_sa, i_sb, self.x[2], self.x[3], L_r, L_sr, self.params.pole_pairs)
 
 
 def energy_summary(truth: dict) -> dict:

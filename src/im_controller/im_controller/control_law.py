@@ -20,7 +20,12 @@ One call of :meth:`DriveController.compute` per control period t_k:
    stator equation, so with exact fluxes ½eᵀDe decreases along the tracking error
    (docs/controller.md); ``flux_coupling='thesis'`` uses the printed K₂ = −(vL_sr/2L_r) ω_r* 𝒥
    in ΔV = K₂(φ̂ − φ*) instead, ``'none'`` drops it.
-5. Optional voltage-vector limit with anti-windup (below).
+5. Limits (docs/limits.md): τ* clamped to the torque limit and to the torque the current limit
+   allows at the present flux; no torque pushing further beyond the speed limit; the flux target
+   capped above base speed so the steady voltage fits the voltage limit (field weakening); the
+   voltage vector scaled into the limit with an anti-windup that cannot latch: no controller state
+   is ever frozen, and the one integrator (the speed task's θ* = ∫ω*) is back-calculated to the
+   shaft while the voltage is limited.
 
 Everything per call is scalar Python.
 """
@@ -42,6 +47,16 @@ MODES = ('position', 'speed', 'torque')
 PROFILES = ('thesis', 'setpoint')
 FLUX_COUPLINGS = ('cancel', 'thesis', 'none')
 DEFAULT_FLUX_PREVIEW = 0.06
+# Field weakening keeps the steady stator voltage ω_e (L_s/L_sr) φ below this share of the voltage
+# limit; the rest is headroom for the resistive drop, the q-axis leakage drop and the transients.
+DEFAULT_VOLTAGE_MARGIN = 0.85
+# |i_q*| ≤ MAGNETIZING_RATIO · i_d*/√σ: the torque a partly magnetized machine is asked for
+MAGNETIZING_RATIO = 2.0
+# Reconfigurable while running (ros2 param set on the controller node): gains, strategy, flux
+# levels and limits. Everything else (mode, profile, motor model, period) is fixed for a run.
+LIVE_FIELDS = ('strategy', 'phi_d', 'phi_min', 'phi_max', 'k1', 'k_p', 'k_v', 'current_gain',
+               'flux_coupling', 'v_limit', 'torque_limit', 'current_limit', 'speed_limit',
+               'field_weakening', 'voltage_margin', 'flux_preview', 'setpoint_duration')
 
 # §3.4.6, decoded: the printed table is three columns (electrical gains | position | speed) read
 # row by row: k1, k_e on the electrical side; position k_p = 10, k_v = 1; speed k_p = 1, k_v = 3.
@@ -83,6 +98,16 @@ class ControllerConfig:
                     None → 0.06 s for ``min_loss`` (≈ 0.6 T_r, from the sweep in
                     docs/controller.md), 0 for the thesis strategies
     setpoint_duration  [s] of quintic setpoint transitions (torque: /10)
+    setpoints       ((t, value, duration), ...) applied by the controller itself at t (profile
+                    'setpoint'): a profile file reaches the node through its parameters;
+                    duration None → ``setpoint_duration``
+    torque_limit    [N·m] |τ*| bound, or None
+    current_limit   [A] stator-current magnitude the torque demand may ask for, or None
+    speed_limit     [rad/s] beyond it no torque pushes the shaft further, or None
+    field_weakening cap the flux target above base speed (needs v_limit)
+    voltage_margin  share of v_limit the steady voltage may use under field weakening
+    magnetizing_floor  [Wb] the smallest flux the reference model uses (a smooth floor, C²:
+                    the start-up from a demagnetized machine needs no step); None → 0.1 φ_min
     """
 
     mode: str = 'position'
@@ -111,6 +136,13 @@ class ControllerConfig:
     core_loss_exponent: float = 2.0
     setpoint_duration: float = 0.5
     flux_preview: Optional[float] = None
+    setpoints: tuple = ()
+    torque_limit: Optional[float] = None
+    current_limit: Optional[float] = None
+    speed_limit: Optional[float] = None
+    field_weakening: bool = True
+    voltage_margin: float = DEFAULT_VOLTAGE_MARGIN
+    magnetizing_floor: Optional[float] = None
 
     def __post_init__(self):
         for name, allowed in (('mode', MODES), ('profile', PROFILES), ('strategy', STRATEGIES),
@@ -184,6 +216,62 @@ class ControllerConfig:
         if self.flux_preview is None:
             self.flux_preview = DEFAULT_FLUX_PREVIEW if self.strategy == 'min_loss' else 0.0
         self.flux_preview = _real('flux_preview', self.flux_preview, 0.0)
+        for name in ('torque_limit', 'current_limit', 'speed_limit'):
+            setattr(self, name, _real(name, getattr(self, name), 0.0, lo_open=True, allow_none=True))
+        if not isinstance(self.field_weakening, bool):
+            raise InvalidParameter('field_weakening', self.field_weakening, 'must be true or false')
+        self.voltage_margin = _real('voltage_margin', self.voltage_margin, 0.0, lo_open=True)
+        if self.voltage_margin > 1.0:
+            raise InvalidParameter('voltage_margin', self.voltage_margin, 'must be <= 1')
+        if self.magnetizing_floor is None:
+            self.magnetizing_floor = 0.1 * self.phi_min
+        self.magnetizing_floor = _real('magnetizing_floor', self.magnetizing_floor, 0.0,
+                                       lo_open=True)
+        if self.magnetizing_floor > self.phi_min:
+            raise InvalidParameter('magnetizing_floor', self.magnetizing_floor,
+                                   f'must be <= phi_min = {self.phi_min:g}')
+        self.setpoints = _check_setpoints(self.setpoints, self.profile)
+        if self.current_limit is not None:
+            i_mag = self.phi_max / self.params.L_sr
+            if self.current_limit <= i_mag:
+                raise InvalidParameter('current_limit', self.current_limit,
+                                       f'must exceed the magnetizing current phi_max/L_sr = '
+                                       f'{i_mag:.4g} A (no torque would be left)')
+
+
+def _check_setpoints(setpoints, profile: str) -> tuple:
+    """((t, value, duration|None), ...) sorted by t; clear errors naming the entry."""
+    out = []
+    for k, entry in enumerate(setpoints or ()):
+        try:
+            t, value, duration = entry
+        except (TypeError, ValueError):
+            raise InvalidParameter(f'setpoints[{k}]', entry, 'must be (t, value, duration)') from None
+        t = _real(f'setpoints[{k}].t', t, 0.0)
+        value = _real(f'setpoints[{k}].value', value)
+        duration = _real(f'setpoints[{k}].duration', duration, 0.0, lo_open=True, allow_none=True)
+        out.append((t, value, duration))
+    if out and profile != 'setpoint':
+        raise InvalidParameter('setpoints', setpoints, "need profile 'setpoint'")
+    if any(b[0] < a[0] for a, b in zip(out, out[1:])):
+        raise InvalidParameter('setpoints', setpoints, 'times must not decrease')
+    return tuple(out)
+
+
+def smooth_floor(phi: float, dphi: float, ddphi: float, eps: float):
+    """(f, df/dt, d²f/dt²) of f(φ) = φ for φ ≥ 3ε and ε + φ²/(3ε) − φ³/(27ε²) below: f(0) = ε,
+    f'(0) = 0, and f, f', f'' continuous at 3ε. So a flux reference rising from zero keeps
+    φ* ≥ ε > 0 (eq. 3.13 divides by it) without a step in dφ*/dt or d²φ*/dt² — the start-up
+    needs no voltage beyond the magnetizing ramp (docs/limits.md)."""
+    p1 = 3.0 * eps
+    x = abs(phi)
+    if x >= p1:
+        return phi, dphi, ddphi
+    f = eps + x * x / p1 - x ** 3 / (3.0 * p1 * p1)
+    f1 = 2.0 * x / p1 - x * x / (p1 * p1)
+    f2 = 2.0 / p1 - 2.0 * x / (p1 * p1)
+    s = 1.0 if phi >= 0.0 else -1.0
+    return f, f1 * s * dphi, f2 * dphi * dphi + f1 * s * ddphi
 
 
 class DriveController:
@@ -191,25 +279,26 @@ class DriveController:
 
     def __init__(self, config: ControllerConfig | None = None):
         self.config = config if config is not None else ControllerConfig()
-        cfg = self.config
-        self._c_nominal = ModelCoefficients.from_params(cfg.params)
+        self._c_nominal = ModelCoefficients.from_params(self.config.params)
         self._c = self._c_nominal
         self._est_key = None
+        self._apply_config(self.config)
+        tc = self.config.flux_time_constants or (self._c_nominal.T_r, 1e-3)
+        self._flux_tc = tc
+        self.reset()
+
+    def _apply_config(self, cfg: ControllerConfig) -> None:
+        """The derived objects of the reconfigurable fields (no run state touched)."""
+        self.config = cfg
         self._strategy = FluxStrategy(cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max,
                                       cfg.params.k_e, cfg.params.k_h, cfg.core_loss_exponent)
         self._load = make_load(cfg.load if cfg.load_known else 'none', mgl=cfg.load_mgl,
                                c1=cfg.load_c1, c2=cfg.load_c2, tau=cfg.load_tau)
-        self._load_kind = cfg.load if cfg.load_known else 'none'
         if cfg.current_gain is None:
-            k = cfg.k1
-            self._K = (k, 0.0, 0.0, k)
+            self._K = (cfg.k1, 0.0, 0.0, cfg.k1)
         else:
             g = cfg.current_gain
             self._K = (g[0][0], g[0][1], g[1][0], g[1][1])
-        tc = cfg.flux_time_constants or (self._c_nominal.T_r, 1e-3)
-        self._flux_tc = tc
-        self._phi_floor = 0.5 * cfg.phi_min
-        self.reset()
 
     # ------------------------------------------------------------------------------------------
     def reset(self) -> None:
@@ -222,21 +311,38 @@ class DriveController:
         self._rho = 0.0
         self._rho_dot = 0.0
         self._theta_offset = 0.0
-        self._saturated = False
+        self._limited = False
         self._traj = None
         self._torque_sp = None
         self._pending_setpoint = None
+        self._schedule = list(cfg.setpoints)
         self.reference = {}
         if cfg.profile == 'thesis':
             self._traj = ThesisPositionProfile() if cfg.mode == 'position' else ThesisSpeedProfile()
+
+    def reconfigure(self, changes: dict) -> None:
+        """Change live fields (:data:`LIVE_FIELDS`) while running. The whole new configuration is
+        validated first (ValueError naming the field; the old one stays in force); then it is
+        applied keeping every run state (filters, field angle, reference generator, estimates),
+        so the next step continues from where this one left off."""
+        from dataclasses import replace
+        bad = [k for k in changes if k not in LIVE_FIELDS]
+        if bad:
+            raise InvalidParameter(bad[0], changes[bad[0]],
+                                   f'cannot change while running (live: {", ".join(LIVE_FIELDS)})')
+        values = dict(changes)
+        if 'phi_min' in values and self.config.magnetizing_floor == 0.1 * self.config.phi_min:
+            values['magnetizing_floor'] = None     # the default floor follows phi_min
+        cfg = replace(self.config, **values)       # __post_init__ validates the whole
+        self._apply_config(cfg)
 
     @property
     def coefficients(self) -> ModelCoefficients:
         return self._c
 
-    def set_setpoint(self, kind: str, value: float, t: float) -> None:
+    def set_setpoint(self, kind: str, value: float, t: float, duration: float | None = None) -> None:
         """New setpoint ('position' rad | 'speed' rad/s | 'torque' N·m) reached smoothly from t
-        (quintic over ``setpoint_duration``; torque over a tenth of it)."""
+        (quintic over ``duration``, default ``setpoint_duration``; torque over a tenth of it)."""
         cfg = self.config
         if cfg.profile != 'setpoint':
             raise ValueError("set_setpoint needs profile 'setpoint' (the thesis profile is fixed)")
@@ -246,12 +352,12 @@ class DriveController:
         t = _real('t', t)
         if self._t_prev is None:
             # not started yet: initialize at the first compute, then apply
-            self._pending_setpoint = (value, t)
+            self._pending_setpoint = (value, t, duration)
             return
         if kind == 'torque':
-            self._torque_sp.set(value, t, 0.1 * cfg.setpoint_duration)
+            self._torque_sp.set(value, t, duration or 0.1 * cfg.setpoint_duration)
         else:
-            self._traj.set(value, t, cfg.setpoint_duration)
+            self._traj.set(value, t, duration or cfg.setpoint_duration)
 
     def _set_estimates(self, estimates) -> None:
         R_r = estimates.get('R_r')
@@ -280,21 +386,130 @@ class DriveController:
         self._t_prev = t
         if pending is not None:
             self._pending_setpoint = None
-            self.set_setpoint(cfg.mode, pending[0], max(pending[1], t))
+            self.set_setpoint(cfg.mode, pending[0], max(pending[1], t), pending[2])
+
+    def _apply_schedule(self, t: float) -> None:
+        """Setpoints of the configured profile whose time has come (in order)."""
+        sched = self._schedule
+        while sched and sched[0][0] <= t:
+            t_i, value, duration = sched.pop(0)
+            self.set_setpoint(self.config.mode, value, t_i, duration)
 
     def _path_torque(self, t: float, c: ModelCoefficients) -> float:
         """Torque needed to follow the reference exactly at time t (feedforward + load model)."""
         theta, omega, acc, _ = self._traj.sample(t)
-        tau = c.J * acc + c.b * omega
-        kind = self._load_kind
+        return c.J * acc + c.b * omega + self._load.torque(t, theta + self._theta_offset, omega)
+
+    # Stage 1 ----------------------------------------------------------------------------------
+    def _mechanical(self, t, theta_r, omega_r, c):
+        """Eq. 3.1: (θ*, ω*, feedforward + load torque, its rate, PD input u_pd)."""
         cfg = self.config
-        if kind == 'pendulum':
-            tau += cfg.load_mgl * math.cos(theta + self._theta_offset)
-        elif kind == 'linear':
-            tau += cfg.load_c1 + cfg.load_c2 * omega
-        elif kind == 'constant':
-            tau += cfg.load_tau
-        return tau
+        if cfg.mode == 'torque':
+            tau_ff, dtau_ff = self._torque_sp.sample(t)
+            return theta_r, omega_r, tau_ff, dtau_ff, 0.0
+        theta_ref, omega_ref, acc_ref, jerk_ref = self._traj.sample(t)
+        theta_ref += self._theta_offset
+        load = self._load
+        tau = c.J * acc_ref + c.b * omega_ref + load.torque(t, theta_r, omega_r)
+        # the load's rate along the motion: measured position/speed, reference acceleration
+        dtau = c.J * jerk_ref + c.b * acc_ref + load.rate(t, theta_r, omega_r, acc_ref)
+        u_pd = -cfg.k_v * (omega_r - omega_ref) - cfg.k_p * (theta_r - theta_ref)
+        return theta_ref, omega_ref, tau, dtau, u_pd
+
+    # Stage 2 ----------------------------------------------------------------------------------
+    def _flux_reference(self, t, tau, omega_r, c):
+        """Target flux (strategy, capped above base speed) → filter → smooth floor."""
+        cfg = self.config
+        tau_tgt = tau
+        if cfg.flux_preview > 0.0 and cfg.mode != 'torque':
+            tau_tgt += self._path_torque(t + cfg.flux_preview, c) - self._path_torque(t, c)
+        phi_tgt = self._strategy.target(c, tau_tgt, omega_r)
+        cap = self.flux_cap(omega_r)
+        if phi_tgt > cap:
+            phi_tgt = cap
+        flt = self._flux
+        flt.set_input(phi_tgt)
+        phi, dphi, ddphi = smooth_floor(flt.y, flt.dy, flt.accel, cfg.magnetizing_floor)
+        return phi_tgt, phi, dphi, ddphi
+
+    def flux_cap(self, omega_r: float) -> float:
+        """Field weakening: the largest flux whose steady voltage ω_e (L_s/L_sr) φ stays within
+        ``voltage_margin`` · v_limit at the speed ω_r (ω_e ≈ v ω_r); ∞ without a voltage limit."""
+        cfg = self.config
+        if cfg.v_limit is None or not cfg.field_weakening:
+            return math.inf
+        c = self._c
+        w_e = c.v * abs(omega_r)
+        if w_e <= 0.0:
+            return math.inf
+        return cfg.voltage_margin * cfg.v_limit * c.L_sr / (c.L_s * w_e)
+
+    # Stage 1b: limits of the torque demand -----------------------------------------------------
+    def _limit_torque(self, tau, dtau, phi, dphi, omega_r, c):
+        """τ* within the torque limit, the current limit at the present flux and the speed
+        limit; dτ*/dt = 0 while a bound holds (the bound is what is demanded then)."""
+        cfg = self.config
+        hi = math.inf if cfg.torque_limit is None else cfg.torque_limit
+        i_d = (phi + c.T_r * dphi) / c.L_sr
+        if i_d > 0.0:
+            # torque grows with the flux: τ* ≤ v (L_sr/L_r)(φ* − ε) κ i_d*, κ = 2/√σ (twice the
+            # min-energy ratio i_q/i_d = 1/√σ, eq. 3.19), zero at the floor ε: a torque demand
+            # on a demagnetized machine does not step the q-current at start-up (docs/limits.md)
+            hi = min(hi, c.v * c.L_sr * (phi - cfg.magnetizing_floor) * i_d * MAGNETIZING_RATIO
+                     / (c.L_r * math.sqrt(c.sigma)))
+        if cfg.current_limit is not None:
+            room = cfg.current_limit * cfg.current_limit - i_d * i_d
+            i_q_max = math.sqrt(room) if room > 0.0 else 0.0
+            hi = min(hi, c.v * c.L_sr * phi * i_q_max / c.L_r)
+        lo = -hi
+        if cfg.speed_limit is not None:
+            if omega_r > cfg.speed_limit:
+                hi = min(hi, 0.0)
+            elif omega_r < -cfg.speed_limit:
+                lo = max(lo, 0.0)
+        if tau > hi:
+            return hi, 0.0, True
+        if tau < lo:
+            return lo, 0.0, True
+        return tau, dtau, False
+
+    # Stage 4 ----------------------------------------------------------------------------------
+    def _voltage(self, c, i_ds, i_qs, di_ds, di_qs, phi, rho, rho_dot, dt, omega_r, omega_ref,
+                 i_alpha, i_beta, phi_alpha_hat, phi_beta_hat):
+        """Feedforward eq. 3.29 rotated to the hold interval + feedback eq. 3.30-3.31."""
+        cfg = self.config
+        v = c.v
+        cr, sr = math.cos(rho), math.sin(rho)
+        i_a_ref = cr * i_ds - sr * i_qs
+        i_b_ref = sr * i_ds + cr * i_qs
+        p_a_ref = cr * phi
+        p_b_ref = sr * phi
+        v_d, v_q = feedforward_dq(c, i_ds, i_qs, di_ds, di_qs, phi, rho_dot, omega_r)
+        if cfg.hold_compensation:
+            rm = rho + 0.5 * (dt if dt > 0.0 else cfg.T_s) * rho_dot
+            cm, sm = math.cos(rm), math.sin(rm)
+        else:
+            cm, sm = cr, sr
+        v_a_ff = cm * v_d - sm * v_q
+        v_b_ff = sm * v_d + cm * v_q
+        ea = i_alpha - i_a_ref
+        eb = i_beta - i_b_ref
+        K11, K12, K21, K22 = self._K
+        dva = -(K11 * ea + K12 * eb)
+        dvb = -(K21 * ea + K22 * eb)
+        fa = phi_alpha_hat - p_a_ref
+        fb = phi_beta_hat - p_b_ref
+        coupling = cfg.flux_coupling
+        if coupling == 'cancel':
+            g = v * omega_r * c.theta          # + g 𝒥 (φ̂ − φ*)
+            dva -= g * fb
+            dvb += g * fa
+        elif coupling == 'thesis':
+            g = -0.5 * v * c.theta * omega_ref   # K₂ = g 𝒥, ΔV = K₂ (φ̂ − φ*)
+            dva -= g * fb
+            dvb += g * fa
+        refs = (i_a_ref, i_b_ref, p_a_ref, p_b_ref, v_a_ff, v_b_ff)
+        return v_a_ff + dva, v_b_ff + dvb, refs
 
     # ------------------------------------------------------------------------------------------
     def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
@@ -321,95 +536,30 @@ class DriveController:
                 raise ValueError(f'time went backwards: t = {t!r} after {self._t_prev!r}')
             self._pd.advance(dt)
             self._flux.advance(dt)
-            if self._saturated and cfg.mode == 'speed':
-                # anti-windup: the position integral of the speed task follows the shaft
+            if self._limited and cfg.mode == 'speed':
+                # back-calculation: while the voltage is limited, θ* = ∫ω* follows the shaft
                 self._theta_offset += dt * (omega_r - self.reference['omega_ref'])
-        v = c.v
+        if self._schedule:
+            self._apply_schedule(t)
 
-        # 1. mechanical loop, eq. 3.1 -----------------------------------------------------------
-        if cfg.mode == 'torque':
-            tau_ff, dtau_ff = self._torque_sp.sample(t)
-            theta_ref, omega_ref = theta_r, omega_r
-            tau_c = dtau_c = 0.0
-            u_pd = 0.0
-        else:
-            theta_ref, omega_ref, acc_ref, jerk_ref = self._traj.sample(t)
-            theta_ref += self._theta_offset
-            tau_ff = c.J * acc_ref + c.b * omega_ref
-            dtau_ff = c.J * jerk_ref + c.b * acc_ref
-            kind = self._load_kind
-            if kind == 'pendulum':
-                mgl = cfg.load_mgl
-                tau_c = mgl * math.cos(theta_r)
-                dtau_c = -mgl * math.sin(theta_r) * omega_r
-            elif kind == 'linear':
-                tau_c = cfg.load_c1 + cfg.load_c2 * omega_r
-                dtau_c = cfg.load_c2 * acc_ref
-            elif kind == 'constant':
-                tau_c, dtau_c = cfg.load_tau, 0.0
-            else:
-                tau_c = dtau_c = 0.0
-            u_pd = -cfg.k_v * (omega_r - omega_ref) - cfg.k_p * (theta_r - theta_ref)
+        # 1. mechanical loop, eq. 3.1
+        theta_ref, omega_ref, tau_fc, dtau_fc, u_pd = self._mechanical(t, theta_r, omega_r, c)
         if first:
             self._pd.reset(u_pd)
-        tau_pd, dtau_pd = self._pd.y, self._pd.dy
-        tau = tau_ff + tau_c + tau_pd
-        dtau = dtau_ff + dtau_c + dtau_pd
-
-        # 2. flux reference ------------------------------------------------------------------------
-        tau_tgt = tau
-        if cfg.flux_preview > 0.0 and cfg.mode != 'torque':
-            tau_tgt += (self._path_torque(t + cfg.flux_preview, c)
-                        - self._path_torque(t, c))
-        phi_tgt = self._strategy.target(c, tau_tgt, omega_r)
-        flt = self._flux
-        flt.set_input(phi_tgt)
-        phi, dphi, ddphi = flt.y, flt.dy, flt.accel
-        if phi < self._phi_floor:   # only while the machine is being magnetized
-            phi, dphi, ddphi = self._phi_floor, 0.0, 0.0
-
-        # 3. reference model, eq. 3.13 / 3.26 -------------------------------------------------------
-        i_ds, i_qs, di_ds, di_qs, i_dr, i_qr, w_sl = dq_reference(c, tau, dtau, phi, dphi, ddphi)
-        rho_dot = v * omega_r + w_sl
-        if first:
-            rho = self._rho
-        else:
-            rho = self._rho + 0.5 * dt * (self._rho_dot + rho_dot)
-        cr, sr = math.cos(rho), math.sin(rho)
-        i_a_ref = cr * i_ds - sr * i_qs
-        i_b_ref = sr * i_ds + cr * i_qs
-        p_a_ref = cr * phi
-        p_b_ref = sr * phi
-
-        # 4. feedforward (3.29) + feedback (3.30-3.31) ------------------------------------------------
-        v_d, v_q = feedforward_dq(c, i_ds, i_qs, di_ds, di_qs, phi, rho_dot, omega_r)
-        if cfg.hold_compensation:
-            rm = rho + 0.5 * (dt if dt > 0.0 else cfg.T_s) * rho_dot
-            cm, sm = math.cos(rm), math.sin(rm)
-        else:
-            cm, sm = cr, sr
-        v_a_ff = cm * v_d - sm * v_q
-        v_b_ff = sm * v_d + cm * v_q
-        ea = i_alpha - i_a_ref
-        eb = i_beta - i_b_ref
-        K11, K12, K21, K22 = self._K
-        dva = -(K11 * ea + K12 * eb)
-        dvb = -(K21 * ea + K22 * eb)
-        fa = phi_alpha_hat - p_a_ref
-        fb = phi_beta_hat - p_b_ref
-        coupling = cfg.flux_coupling
-        if coupling == 'cancel':
-            g = v * omega_r * c.theta          # + g 𝒥 (φ̂ − φ*)
-            dva -= g * fb
-            dvb += g * fa
-        elif coupling == 'thesis':
-            g = -0.5 * v * c.theta * omega_ref   # K₂ = g 𝒥, ΔV = K₂ (φ̂ − φ*)
-            dva -= g * fb
-            dvb += g * fa
-        v_a = v_a_ff + dva
-        v_b = v_b_ff + dvb
-
-        # 5. voltage limit + anti-windup -------------------------------------------------------------
+        tau = tau_fc + self._pd.y
+        dtau = dtau_fc + self._pd.dy
+        # 2. flux reference (strategy, field weakening, smooth floor)
+        phi_tgt, phi, dphi, ddphi = self._flux_reference(t, tau, omega_r, c)
+        # 1b. torque, current and speed limits on τ*
+        tau, dtau, tau_limited = self._limit_torque(tau, dtau, phi, dphi, omega_r, c)
+        # 3. reference model, eq. 3.13 / 3.26
+        i_ds, i_qs, di_ds, di_qs, _, _, w_sl = dq_reference(c, tau, dtau, phi, dphi, ddphi)
+        rho_dot = c.v * omega_r + w_sl
+        rho = self._rho if first else self._rho + 0.5 * dt * (self._rho_dot + rho_dot)
+        # 4. feedforward + feedback
+        v_a, v_b, refs = self._voltage(c, i_ds, i_qs, di_ds, di_qs, phi, rho, rho_dot, dt, omega_r,
+                                       omega_ref, i_alpha, i_beta, phi_alpha_hat, phi_beta_hat)
+        # 5. voltage limit; the PD filter always takes its input (no frozen state, no latch)
         saturated = False
         if cfg.v_limit is not None:
             mag = math.hypot(v_a, v_b)
@@ -418,20 +568,20 @@ class DriveController:
                 v_a *= s
                 v_b *= s
                 saturated = True
-        self._saturated = saturated
-        if not saturated or first:
-            # conditional update: while saturated the PD filter keeps its last input
-            self._pd.set_input(u_pd)
+        self._limited = saturated or tau_limited
+        self._pd.set_input(u_pd)
 
         self._t_prev = t
         self._rho = rho
         self._rho_dot = rho_dot
+        i_a_ref, i_b_ref, p_a_ref, p_b_ref, v_a_ff, v_b_ff = refs
         self.reference = {
             't': t, 'theta_ref': theta_ref, 'omega_ref': omega_ref, 'tau_ref': tau,
             'dtau_ref': dtau, 'i_alpha_ref': i_a_ref, 'i_beta_ref': i_b_ref,
             'phi_alpha_ref': p_a_ref, 'phi_beta_ref': p_b_ref, 'phi_d_ref': phi,
             'phi_target': phi_tgt, 'i_d_ref': i_ds, 'i_q_ref': i_qs, 'omega_sl': w_sl,
             'rho': rho, 'v_alpha_ff': v_a_ff, 'v_beta_ff': v_b_ff, 'saturated': saturated,
+            'torque_limited': tau_limited,
         }
         return v_a, v_b
 
@@ -450,13 +600,20 @@ def steady_operating_point(config: ControllerConfig, t0: float, theta0: float, o
         if config.profile == 'setpoint':
             w_ref, a_ref = omega0, 0.0
         tau = c.J * a_ref + c.b * w_ref
-        if config.load_known:
-            tau += make_load(config.load, mgl=config.load_mgl, c1=config.load_c1, c2=config.load_c2,
-                             tau=config.load_tau).torque(t0, theta0, omega0)
-    phi = ctl._strategy.target(c, tau, omega0)
-    if config.strategy == 'min_loss':   # settle the fixed point of the f_e refresh
-        for _ in range(3):
-            phi = ctl._strategy.target(c, tau, omega0)
+        tau += ctl._load.torque(t0, theta0, omega0)
+    phi = min(ctl._strategy.target(c, tau, omega0), ctl.flux_cap(omega0))
     out = steady_state(c, tau, phi, omega0, 0.0)
     out.update({'tau': tau, 'phi': phi})
     return out
+
+
+def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, omega0: float):
+    """(plant x₀, observer x̂₀) of a run started in the controller's own steady state at
+    (θ₀, ω₀): the plant's stator flux from the reference currents and rotor flux with the
+    plant's (true) inductances, the observer on the reference."""
+    from im_common.model import stator_flux
+    op = steady_operating_point(config, 0.0, theta0, omega0)
+    psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'],
+                               plant.L_s, plant.L_r, plant.L_sr)
+    x0 = (psi_a, psi_b, op['phi_alpha'], op['phi_beta'], float(theta0), float(omega0))
+    return x0, (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])

@@ -29,7 +29,8 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
-from im_controller.parameters import LIVE_PARAMETERS, config_from_parameters, declare_controller
+from im_controller.parameters import (LIVE_PARAMETERS, config_from_parameters,
+                                      declare_controller, live_changes)
 
 
 class ControllerNode(LockstepNode):
@@ -80,16 +81,13 @@ class ControllerNode(LockstepNode):
 
     # Live parameters -------------------------------------------------------------------
     def _on_set_parameters(self, parameters):
-        """Validate a set of changes as a whole configuration; apply at the next step."""
+        """Validate a set of changes as a whole new configuration; applied at the next step."""
         changes = {p.name: p.value for p in parameters if p.name in LIVE_PARAMETERS}
         if not changes:
             return SetParametersResult(successful=True)
-        values = dict(self._values)
-        if self._pending_changes:
-            values.update(self._pending_changes)
-        values.update(changes)
         try:
-            config_from_parameters(self._model, values, self.T_s)
+            live_changes(self._model, self._values, dict(self._pending_changes or {}, **changes),
+                         self.T_s)
         except (ValueError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
@@ -98,14 +96,12 @@ class ControllerNode(LockstepNode):
         """Accepted: stage the changes for the next step boundary."""
         changes = {p.name: p.value for p in parameters if p.name in LIVE_PARAMETERS}
         if changes:
-            pending = dict(self._pending_changes or {})
-            pending.update(changes)
-            self._pending_changes = pending
+            self._pending_changes = dict(self._pending_changes or {}, **changes)
 
     def _apply_changes(self, k: int) -> None:
         changes, self._pending_changes = self._pending_changes, None
         try:
-            self.ctl.reconfigure(changes)
+            self.ctl.reconfigure(live_changes(self._model, self._values, changes, self.T_s))
         except ValueError as exc:       # validated already; a refusal here is a defect: say so
             self.get_logger().error(f'parameters {changes} not applied at step {k}: {exc}')
             return

@@ -8,12 +8,21 @@ from __future__ import annotations
 
 from im_common.loads import LOAD_KINDS
 
-from .control_law import FLUX_COUPLINGS, MODES, PROFILES, STRATEGIES, ControllerConfig
+from .control_law import (DEFAULT_VOLTAGE_MARGIN, FLUX_COUPLINGS, LIVE_FIELDS, MODES, PROFILES,
+                          STRATEGIES, ControllerConfig)
+from .profiles import from_parameters as setpoints_from_parameters
+
+# Parameters that make sense to change while the node runs (``ros2 param set``): gains, strategy,
+# flux levels and limits — the configuration fields of the same names. The rest (mode, profile,
+# motor model, period, load model, setpoints) are read-only.
+LIVE_PARAMETERS = LIVE_FIELDS
 
 
 def declare_controller(node) -> dict:
-    """Declare the controller's parameters on ``node``; return their values by name."""
-    p = node.param
+    """Declare the controller's parameters on ``node``; return their values by name (the
+    :data:`LIVE_PARAMETERS` writable while running, the rest read-only)."""
+    def p(name, *args, **kwargs):
+        return node.param(name, *args, read_only=name not in LIVE_PARAMETERS, **kwargs)
     v = {}
     v['mode'] = p('mode', 'position', 'tracking task', choices=MODES)
     v['profile'] = p('profile', 'thesis',
@@ -54,6 +63,21 @@ def declare_controller(node) -> dict:
                                 1.0, 2.0)
     v['setpoint_duration'] = p('setpoint_duration', 0.5,
                                'duration of the smooth transition to a new setpoint [s]', 1e-3, 100.0)
+    v['setpoints'] = p('setpoints', [0.0],
+                       "profile 'setpoint': setpoints the controller applies itself, flat triples "
+                       "t [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none "
+                       "(im_controller.profiles writes them from a profile file)")
+    v['torque_limit'] = p('torque_limit', 0.0, 'bound on |tau*| [N m] (0: none)', 0.0, 1e7)
+    v['current_limit'] = p('current_limit', 0.0,
+                           'stator-current magnitude the torque demand may ask for [A] (0: none)',
+                           0.0, 1e6)
+    v['speed_limit'] = p('speed_limit', 0.0,
+                         'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0, 1e5)
+    v['field_weakening'] = p('field_weakening', True,
+                             'cap the flux above base speed so the steady voltage fits v_limit')
+    v['voltage_margin'] = p('voltage_margin', DEFAULT_VOLTAGE_MARGIN,
+                            'share of v_limit the steady voltage may use under field weakening',
+                            0.05, 1.0)
     return v
 
 
@@ -72,10 +96,26 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
     for key in ('k_p', 'k_v', 'flux_preview'):
         if v[key] < 0:
             v[key] = None
-    v['v_limit'] = v['v_limit'] or None
+    for key in ('v_limit', 'torque_limit', 'current_limit', 'speed_limit'):
+        v[key] = v[key] or None
+    v['setpoints'] = setpoints_from_parameters(v['setpoints'])
     return ControllerConfig(params=params, T_s=T_s, **v)
 
 
-#: Parameters that may change while the controller runs (applied at a step boundary).
-LIVE_PARAMETERS = ('k1', 'k_p', 'k_v', 'strategy', 'phi_d', 'phi_min', 'phi_max', 'v_limit',
-                   'torque_filter_bandwidth', 'setpoint_duration')
+def live_changes(params, values: dict, changes: dict, T_s: float) -> dict:
+    """The :meth:`DriveController.reconfigure` changes for new values of live parameters (the
+    node's parameter callback): the same conversions as :func:`config_from_parameters`."""
+    bad = [k for k in changes if k not in LIVE_PARAMETERS]
+    if bad:
+        raise ValueError(f"parameter '{bad[0]}' is read-only while running "
+                         f"(live: {', '.join(LIVE_PARAMETERS)})")
+    merged = dict(values, **changes)
+    if 'current_gain' in changes and 'gain_period' not in changes and len(changes['current_gain']) == 4:
+        merged['gain_period'] = T_s
+    cfg = config_from_parameters(params, merged, T_s)
+    out = {}
+    for key in changes:
+        out[key] = getattr(cfg, key)
+    if 'k1' in changes and 'current_gain' not in changes:
+        out['current_gain'] = cfg.current_gain
+    return out

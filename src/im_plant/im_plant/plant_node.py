@@ -26,15 +26,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from im_common import topics as T
 from im_common.conversions import (NS_PER_S, JointStateOut, Vector3Out, clock_bytes, period_ns,
                                    xy_in)
-from im_common.loads import LOAD_KINDS, make_load
 from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, READY, RUNNING, STOPPED,
                                 STOPPING, LockstepNode, StepGate, data_qos, lockstep_qos, node_main,
                                 stamp_text)
+from im_common.node_params import declare_run
 from im_common.timing import LatencyHistogram
-from im_common.node_params import declare_motor, declare_run
-from im_common.params import ELECTRICAL_NAMES, SCHEDULES, ParameterSchedule, Variation
-from im_common.model import stator_flux
-from im_common.plant_sim import PlantSimulator
+from im_plant.parameters import declare_plant, simulator_from_parameters
 
 
 class PlantNode(LockstepNode):
@@ -44,62 +41,12 @@ class PlantNode(LockstepNode):
 
     def __init__(self, **kwargs):
         super().__init__('plant', **kwargs)
-        p = self.param
         self.T_s, self.duration, timeout, startup = declare_run(self)
-        motor = declare_motor(self)
-        variation = p('variation', 'none',
-                      'time variation of the true parameters (custom: one parameter varied as '
-                      'variation_kind with the variation_* values below)',
-                      choices=tuple(SCHEDULES) + ('custom',))
-        v_name = p('variation_parameter', 'R_r', 'custom variation: which parameter',
-                   choices=ELECTRICAL_NAMES)
-        v_kind = p('variation_kind', 'ramp', 'custom variation: value(t) = offset + slope*t '
-                   '(ramp), offset + amplitude*sin(omega*t) (sinusoid), offset (constant)',
-                   choices=('constant', 'ramp', 'sinusoid'))
-        v_off = p('variation_offset', 0.842, 'custom variation: offset [SI]', -1e6, 1e6)
-        v_slope = p('variation_slope', 0.0, 'custom variation: slope [SI/s]', -1e6, 1e6)
-        v_amp = p('variation_amplitude', 0.0, 'custom variation: amplitude [SI]', -1e6, 1e6)
-        v_omega = p('variation_omega', 0.0, 'custom variation: angular frequency [rad/s]', -1e6, 1e6)
-        load = p('load', 'none', 'shaft load', choices=LOAD_KINDS)
-        mgl = p('load_mgl', 10.0, 'pendulum load: m g l [N m]', -1e4, 1e4)
-        c1 = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
-        c2 = p('load_c2', 0.001, 'linear load: c2 [N m s]', -1e3, 1e3)
-        tau = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
-        theta0 = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
-        omega0 = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
-        i0 = p('initial_current', [0.0, 0.0], 'initial stator current [i_alpha, i_beta] [A]')
-        f0 = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
-        v_limit = p('v_limit', 0.0, 'inverter voltage-vector limit [V] (0: no limit)', 0.0, 1e5)
-        i_noise = p('current_noise_std', 0.0, 'std of current measurement noise [A]', 0.0, 1e3)
-        w_noise = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]', 0.0, 1e4)
-        seed = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
-        max_sub = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7, 0.1)
-        self.mode = p('mode', 'lockstep', 'stepping', choices=('lockstep', 'free_run'))
-        self.clock_every = p('clock_decimation', 10,
-                             'publish /clock every N steps (the lock-step protocol runs on stamps; '
-                             '/clock drives sim time for timers and tools)', 1, 1000000)
-        self.truth_every = p('truth_decimation', 10,
-                             'publish ground truth every N steps (0: never); the last step is '
-                             'always published', 0, 1000000)
-        if variation == 'custom':
-            schedule = ParameterSchedule(motor, {v_name: Variation(
-                v_kind, v_off, slope=v_slope, amplitude=v_amp, omega=v_omega)}, name='custom')
-        else:
-            schedule = SCHEDULES[variation](motor)
-        if self.duration > 0:
-            schedule.validate(self.duration)
-        x0 = None
-        if any(i0) or any(f0):
-            if len(i0) != 2 or len(f0) != 2:
-                raise ValueError("invalid parameter 'initial_current'/'initial_flux': two "
-                                 "values each (alpha, beta)")
-            P0 = schedule.params_at(0.0)
-            psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
-            x0 = (psi[0], psi[1], f0[0], f0[1], theta0, omega0)
-        self.sim = PlantSimulator(schedule, make_load(load, mgl, c1, c2, tau), self.T_s,
-                                  max_substep=max_sub, v_limit=v_limit or None,
-                                  current_noise_std=i_noise, speed_noise_std=w_noise,
-                                  noise_seed=seed, theta0=theta0, omega0=omega0, x0=x0)
+        values = declare_plant(self)
+        self.mode = values['mode']
+        self.clock_every = values['clock_decimation']
+        self.truth_every = values['truth_decimation']
+        self.sim = simulator_from_parameters(values, self.T_s, self.duration)
         self.period = period_ns(self.T_s)
         self.last_step = (round(self.duration / self.T_s) if self.duration > 0 else None)
         self.wait_for = self.param(
@@ -337,6 +284,11 @@ class PlantNode(LockstepNode):
             self.sim.step(v_a, v_b)
         except (ValueError, FloatingPointError) as exc:
             self.fail(f'plant step failed: {exc}')
+            return
+        if self.sim.trip is not None:       # the protection is in its safe state: end the run
+            self.publish_step()
+            t, reason = self.sim.trip
+            self.fail(f'protection trip at t = {t:.9f} s: {reason}')
             return
         self.publish_step()
 

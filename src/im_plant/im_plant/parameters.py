@@ -1,0 +1,105 @@
+"""ROS parameters of the plant node ↔ :class:`im_common.plant_sim.PlantSimulator`.
+
+Every plant parameter is declared here with a description and a range (the motor through
+:func:`im_common.node_params.declare_motor`, so a motor file's ``/**`` section reaches it);
+the node builds its simulator from the values with :func:`simulator_from_parameters`.
+"""
+from __future__ import annotations
+
+from im_common.loads import LOAD_KINDS, make_load
+from im_common.model import stator_flux
+from im_common.node_params import declare_motor
+from im_common.params import ELECTRICAL_NAMES, SCHEDULES, MotorParams, ParameterSchedule, Variation
+from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
+
+STEPPING_MODES = ('lockstep', 'free_run')
+
+
+def declare_plant(node) -> dict:
+    """Declare the plant's parameters on ``node``; return their values by name (``motor``: the
+    validated :class:`MotorParams`)."""
+    p = node.param
+    v = {'motor': declare_motor(node)}
+    v['variation'] = p('variation', 'none',
+                       'time variation of the true parameters (custom: one parameter varied as '
+                       'variation_kind with the variation_* values below)',
+                       choices=tuple(SCHEDULES) + ('custom',))
+    v['variation_parameter'] = p('variation_parameter', 'R_r', 'custom variation: which parameter',
+                                 choices=ELECTRICAL_NAMES)
+    v['variation_kind'] = p('variation_kind', 'ramp',
+                            'custom variation: value(t) = offset + slope*t (ramp), offset + '
+                            'amplitude*sin(omega*t) (sinusoid), offset (constant)',
+                            choices=('constant', 'ramp', 'sinusoid'))
+    v['variation_offset'] = p('variation_offset', 0.842, 'custom variation: offset [SI]', -1e6, 1e6)
+    v['variation_slope'] = p('variation_slope', 0.0, 'custom variation: slope [SI/s]', -1e6, 1e6)
+    v['variation_amplitude'] = p('variation_amplitude', 0.0, 'custom variation: amplitude [SI]',
+                                 -1e6, 1e6)
+    v['variation_omega'] = p('variation_omega', 0.0,
+                             'custom variation: angular frequency [rad/s]', -1e6, 1e6)
+    v['load'] = p('load', 'none', 'shaft load', choices=LOAD_KINDS)
+    v['load_mgl'] = p('load_mgl', 10.0, 'pendulum load: m g l [N m]', -1e4, 1e4)
+    v['load_c1'] = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
+    v['load_c2'] = p('load_c2', 0.001, 'linear load: c2 [N m s]', -1e3, 1e3)
+    v['load_tau'] = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
+    v['theta0'] = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
+    v['omega0'] = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
+    v['initial_current'] = p('initial_current', [0.0, 0.0],
+                             'initial stator current [i_alpha, i_beta] [A]')
+    v['initial_flux'] = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
+    v['v_limit'] = p('v_limit', 0.0, 'inverter voltage-vector limit [V] (0: no limit)', 0.0, 1e5)
+    v['inverter_rating'] = p('inverter_rating', DEFAULT_INVERTER_RATING,
+                             'the inverter\'s own voltage-vector limit [V]: a larger command trips '
+                             'the plant to zero voltage (trip in the truth)', 1.0, 1e6)
+    v['current_trip'] = p('current_trip', 0.0,
+                          'protection: trip to zero voltage when |i_s| exceeds this [A] (0: off)',
+                          0.0, 1e6)
+    v['speed_trip'] = p('speed_trip', 0.0,
+                        'protection: trip to zero voltage when |omega_r| exceeds this [rad/s] '
+                        '(0: off)', 0.0, 1e6)
+    v['current_noise_std'] = p('current_noise_std', 0.0, 'std of current measurement noise [A]',
+                               0.0, 1e3)
+    v['speed_noise_std'] = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]',
+                             0.0, 1e4)
+    v['noise_seed'] = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
+    v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7, 0.1)
+    v['mode'] = p('mode', 'lockstep', 'stepping', choices=STEPPING_MODES)
+    v['clock_decimation'] = p('clock_decimation', 10,
+                              'publish /clock every N steps (the lock-step protocol runs on stamps; '
+                              '/clock drives sim time for timers and tools)', 1, 1000000)
+    v['truth_decimation'] = p('truth_decimation', 10,
+                              'publish ground truth every N steps (0: never); the last step is '
+                              'always published', 0, 1000000)
+    return v
+
+
+def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -> PlantSimulator:
+    """The plant simulator from declared parameter values (0 = off for limits and trips);
+    ``duration`` > 0 validates the parameter schedule over the run."""
+    v = values
+    motor: MotorParams = v['motor']
+    if v['variation'] == 'custom':
+        schedule = ParameterSchedule(motor, {v['variation_parameter']: Variation(
+            v['variation_kind'], v['variation_offset'], slope=v['variation_slope'],
+            amplitude=v['variation_amplitude'], omega=v['variation_omega'])}, name='custom')
+    else:
+        schedule = SCHEDULES[v['variation']](motor)
+    if duration > 0:
+        schedule.validate(duration)
+    i0, f0 = list(v['initial_current']), list(v['initial_flux'])
+    x0 = None
+    if any(i0) or any(f0):
+        if len(i0) != 2 or len(f0) != 2:
+            raise ValueError("invalid parameter 'initial_current'/'initial_flux': two "
+                             "values each (alpha, beta)")
+        P0 = schedule.params_at(0.0)
+        psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
+        x0 = (psi[0], psi[1], f0[0], f0[1], v['theta0'], v['omega0'])
+    load = make_load(v['load'], v['load_mgl'], v['load_c1'], v['load_c2'], v['load_tau'])
+    return PlantSimulator(schedule, load, T_s, max_substep=v['max_substep'],
+                          v_limit=v['v_limit'] or None,
+                          current_noise_std=v['current_noise_std'],
+                          speed_noise_std=v['speed_noise_std'], noise_seed=v['noise_seed'],
+                          theta0=v['theta0'], omega0=v['omega0'], x0=x0,
+                          inverter_rating=v['inverter_rating'],
+                          current_trip=v['current_trip'] or None,
+                          speed_trip=v['speed_trip'] or None)
