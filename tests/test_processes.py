@@ -197,7 +197,10 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     ctx = Context()
     rclpy.init(context=ctx, domain_id=int(domain['ROS_DOMAIN_ID']))
     try:
+        from rclpy.executors import SingleThreadedExecutor
         node = rclpy.create_node('tuner', context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
         cli = node.create_client(SetParameters, '/controller/set_parameters')
         with GraphProcesses(procs, str(tmp_path), domain) as g:
             g.start()
@@ -208,7 +211,7 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
                 req = SetParameters.Request(
                     parameters=[Parameter('k1', value=value).to_parameter_msg()])
                 fut = cli.call_async(req)
-                rclpy.spin_until_future_complete(node, fut, timeout_sec=20)
+                ex.spin_until_future_complete(fut, timeout_sec=20)
                 return fut.result().results[0]
             bad = set_(-5.0)
             assert not bad.successful and 'k1' in bad.reason
