@@ -7,7 +7,7 @@ in, measurements and ground truth out. It is the time master of the run protocol
 
 ``lockstep`` (default): it advances from t_k to t_k+1 only when the command stamped t_k has
 arrived, and stays within ``follower_window`` steps of every lossless follower (the recorder).
-``free_run``: it advances on a wall-clock timer at T_s. The command stamped t_k must arrive before
+``free_run``: it advances on a wall clock at T_s (a thread of its own). The command stamped t_k must arrive before
 the tick that ends step k (its deadline); otherwise the previous command is held for that step
 and the step counts as *missed* (a command that arrives after its deadline is *late* and dropped).
 Latencies (measurement k published → command k received) go into a histogram reported at the end.
@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import threading
 import time
 
 from geometry_msgs.msg import Vector3Stamped
@@ -68,6 +69,7 @@ class PlantNode(LockstepNode):
         self.latency = LatencyHistogram()
         self._published_at: dict = {}
         self._free_cmd: dict = {}
+        self._tick_lock = threading.Lock()
         # lossless followers: name -> [acked stamp ns, wall time of the last ack]
         self.followers: dict = {}
         self._parked = None
@@ -141,9 +143,31 @@ class PlantNode(LockstepNode):
             self.gate.follow = True
             self._t0 = time.perf_counter()
             self.wall_start = self._t0
-            self.create_timer(self.T_s, self.on_wall_tick,
-                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self.publish_step()
+            self._ticker = threading.Thread(target=self._tick_loop, name='plant-ticks',
+                                            daemon=True)
+            self._ticker.start()
+            return
         self.publish_step()
+
+    def _tick_loop(self) -> None:
+        """free_run's clock: a thread of its own that wakes at t0 + (k+1)·T_s (sleeping, then
+        spinning the last 200 µs), so the ticks do not queue behind the executor's callbacks.
+        Commands are still received by the executor thread (a dict insert under the GIL)."""
+        T_s, t0 = self.T_s, self._t0
+        while not self.done and self.state == RUNNING:
+            deadline = t0 + (self.sim.k + 1) * T_s
+            left = deadline - time.perf_counter()
+            if left > 2e-4:
+                time.sleep(left - 2e-4)
+            while time.perf_counter() < deadline:
+                pass
+            if self.done or self.state != RUNNING:
+                return
+            if time.perf_counter() - deadline > 0.5 * T_s:
+                self.overruns += 1          # this tick itself is late (the plant lags)
+            with self._tick_lock:
+                self.on_wall_tick()
 
     def current_ns(self) -> int:
         return self.sim.k * self.period
@@ -251,31 +275,44 @@ class PlantNode(LockstepNode):
 
     # Free run ----------------------------------------------------------------------------
     def _free_command(self, ns: int, vx: float, vy: float) -> None:
-        k = ns // self.period
-        if k < self.sim.k:              # its step has already been integrated
-            self.late += 1
-            return
-        t_pub = self._published_at.pop(k, None)
-        if t_pub is not None:
-            self.latency.add(time.perf_counter() - t_pub)
-        self._free_cmd[k] = (vx, vy)
+        with self._tick_lock:
+            k = ns // self.period
+            t_pub = self._published_at.pop(k, None)
+            if t_pub is not None:           # latency of every command, on time or late
+                self.latency.add(time.perf_counter() - t_pub)
+            if k < self.sim.k:              # its step has already been integrated
+                self.late += 1
+                return
+            self._free_cmd[k] = (vx, vy)
 
     def on_wall_tick(self) -> None:
-        """One step per tick: integrate step k with the command stamped t_k if it arrived by
-        now (its deadline), else hold the previous one. A tick that comes more than a period
-        late is an overrun of the plant itself (counted; the plant does not catch up by
-        running steps back to back, which would starve the loop of its commands)."""
+        """Integrate step k with the command stamped t_k if it arrived by now (its deadline),
+        else hold the previous one and count the step as missed."""
         if self.done or self.state != RUNNING:
             return
         k = self.sim.k
-        if int((time.perf_counter() - self._t0) / self.T_s) > k + 1:
-            self.overruns += 1
         cmd = self._free_cmd.pop(k, None)
         if cmd is None:
             self.missed += 1
-            self._published_at.pop(k, None)
             cmd = self.last_cmd
+        for old in [j for j in self._published_at if j < k - 1000]:   # never answered
+            del self._published_at[old]
         self.advance(*cmd)
+
+    def free_run_stats(self) -> dict:
+        return dict(missed=self.missed, late=self.late, overruns=self.overruns,
+                    **self.latency.as_values())
+
+    def free_run_text(self) -> str:
+        k = self.sim.k
+        return (f'free_run: {self.missed} of {k} steps without a command by their deadline '
+                f'({100.0 * self.missed / max(k, 1):.2f} %), {self.late} late, {self.overruns} '
+                f'plant overruns; latency {self.latency.describe()}')
+
+    def fail(self, reason: str) -> None:
+        if self.mode == 'free_run' and self.state == RUNNING:
+            reason += f' ({self.free_run_text()})'
+        super().fail(reason)
 
     # Stepping ----------------------------------------------------------------------------
     def advance(self, v_a: float, v_b: float) -> None:
@@ -330,11 +367,8 @@ class PlantNode(LockstepNode):
         text = (f'reached duration {self.duration} s at step {k} ({rate:.0f} steps/s); '
                 f'rejected commands: {self.rejected}')
         if self.mode == 'free_run':
-            stats.update(missed=self.missed, late=self.late, overruns=self.overruns,
-                         **self.latency.as_values())
-            text += (f'; free_run: {self.missed} of {k} steps without a command by their '
-                     f'deadline ({100.0 * self.missed / max(k, 1):.2f} %), {self.late} late, '
-                     f'{self.overruns} plant overruns; latency {self.latency.describe()}')
+            stats.update(self.free_run_stats())
+            text += '; ' + self.free_run_text()
         self.get_logger().info(text)
         self.status(FINISHED, **stats)
         self.finish()
