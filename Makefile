@@ -58,7 +58,7 @@ robust-examples: build
 
 # Seed 001 applied to the drive: certified gains vs the thesis's at 1 ms and 100 µs (offline loop).
 robust-study: build
-	$(RUN) python -m im_controller.robust_study --out bags/robust_study
+	$(RUN) python -m im_bringup.robust_study --out bags/robust_study
 
 clean:
 	rm -rf build install log

@@ -1,6 +1,6 @@
 """``ros2 run im_controller design_gains``: certified sampled gains for the controller and observer.
 
-Designs, at the node period T_s, the gains the nodes actually use (``im_robust.drive``; derivation
+Designs, at the node period T_s, the gains the nodes actually use (``im_controller.gain_design.drive``; derivation
 in docs/robust.md, "Drive gains at the node period"):
 
 - controller: the 2×2 current gain K of ΔV = −K (i − i*), designed on the ZOH-sampled
@@ -137,7 +137,7 @@ def _observer_overrides(gains) -> dict:
 
 @functools.lru_cache(maxsize=8)
 def _design_cached(T_s: float):
-    from im_robust.drive import design_drive_gains
+    from im_controller.gain_design.drive import design_drive_gains
     return design_drive_gains(T_s)
 
 
@@ -187,8 +187,8 @@ def format_yaml(params: dict, summary: dict) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(_strip_ros_args(sys.argv[1:] if argv is None else argv))
-    from im_robust import drive
-    from im_robust.motor import DEFAULT_SIGMA_MIN
+    from im_controller.gain_design import drive
+    from im_controller.gain_design.motor import DEFAULT_SIGMA_MIN
 
     sigma_min = DEFAULT_SIGMA_MIN if args.sigma_min is None else args.sigma_min
     try:

@@ -1,12 +1,12 @@
 """Certified gains at the node period against the thesis's, in the offline closed loop.
 
-    python -m im_controller.robust_study --out DIR
+    python -m im_bringup.robust_study --out DIR
 
 Runs the chapter-3 position and speed tasks × {min_energy, constant_flux, min_loss}
 (im_bringup.offline, the lock-step order of the ROS graph) with
 
 - the thesis's gains (k1 = 40 V/A, k_e = 1/σ, flux coupling 'cancel') at 100 µs and at 1 ms;
-- the certified gains of :func:`im_robust.drive.design_drive_gains` at 100 µs and at 1 ms
+- the certified gains of :func:`im_controller.gain_design.drive.design_drive_gains` at 100 µs and at 1 ms
   (current gain K; the observer in the thesis's structure where it is certified, else the
   discrete injection L; the flux-coupling mode chosen for the period).
 
@@ -40,7 +40,7 @@ def _log(msg: str) -> None:
 
 def gains_for(T_s: float, progress: bool = True) -> dict:
     """Certified gains at T_s as offline Scenario arguments, with the design summary."""
-    from im_robust.drive import design_drive_gains
+    from im_controller.gain_design.drive import design_drive_gains
     g = design_drive_gains(T_s, progress=progress)
     if not g.certified:
         raise RuntimeError(f'no certified gains at T_s = {T_s:g} s')

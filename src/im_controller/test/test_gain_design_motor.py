@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from im_common.params import THESIS_MOTOR as M
-from im_robust import motor
+from im_controller.gain_design import motor
 
 SMALL = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 3}
 

@@ -55,9 +55,9 @@ from scipy.linalg import expm
 
 from im_common.params import MotorParams, THESIS_MOTOR
 
-from .certificate import Certificate, certify
-from .polytope import UncertainSystem
-from .synthesis import SynthesisResult, synthesize
+from im_robust.certificate import Certificate, certify
+from im_robust.polytope import UncertainSystem
+from im_robust.synthesis import SynthesisResult, synthesize
 
 DEFAULT_BOX: Dict[str, Tuple[float, float]] = {
     'R_r': (0.42, 1.26), 'L_s': (0.084, 0.116), 'L_r': (0.084, 0.116), 'L_sr': (0.081, 0.113)}
@@ -235,7 +235,7 @@ def _current_D_candidates() -> List[np.ndarray]:
 
 def _log(progress: bool, msg: str) -> None:
     if progress:
-        print(f'[im_robust.motor] {msg}', file=sys.stderr, flush=True)
+        print(f'[im_controller.gain_design.motor] {msg}', file=sys.stderr, flush=True)
 
 
 def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 0.0,
