@@ -39,40 +39,6 @@ def test_offline_1ms_certified_bounded_thesis_diverges(gains_1ms):
     assert abs(s['balance_relative']) < 1e-3
 
 
-def test_writes_parameters_yaml_with_certificate(tmp_path):
-    out = tmp_path / 'gains.yaml'
-    rc = design_gains.main(['--period', '1e-3', '--omega-max', '0', '--out', str(out)])
-    assert rc == 0
-    text = out.read_text()
-    assert 'controller:\n  ros__parameters:' in text and 'observer:\n  ros__parameters:' in text
-    assert len(_floats(text, 'current_gain')) == 4
-    assert len(_floats(text, 'injection_gain')) == 8
-    assert re.search(r'gain_period: 0\.001', text)
-    cert = json.loads(out.with_suffix('.json').read_text())
-    assert cert['certified'] and cert['current']['certified'] and cert['observer']['certified']
-    assert cert['current']['dense_spectral_radius'] < 1
-
-
-def test_no_yaml_without_certificate(tmp_path):
-    out = tmp_path / 'gains.yaml'
-    # 1000 1/s at 1 ms is beyond the largest feasible current-error rate (about 155 1/s)
-    rc = design_gains.main(['--period', '1e-3', '--omega-max', '0', '--decay-rate', '1000',
-                            '--out', str(out)])
-    assert rc == 1
-    assert not out.exists()
-    cert = json.loads(out.with_suffix('.json').read_text())
-    assert cert['current']['status'] == 'infeasible' and cert['current']['gain'] is None
-
-
-@pytest.mark.parametrize('args', [['--period', '0'], ['--period', 'nan'], ['--omega-max', '-1'],
-                                  ['--rate-fraction', '1.5']])
-def test_bad_arguments_are_rejected(args, capsys):
-    with pytest.raises(SystemExit) as exc:
-        design_gains.main(args)
-    assert exc.value.code == 2
-    assert args[0] in capsys.readouterr().err
-
-
 def test_offline_100us_certified_no_worse_than_thesis(gains_100us):
     """Same gains through the certified path: equal speed error up to rounding (1e-9 relative)."""
     p = design_gains.node_overrides(gains_100us)

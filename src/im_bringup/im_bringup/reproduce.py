@@ -18,13 +18,7 @@ import os
 import sys
 from typing import List
 
-# Seed 000 §3.4.7: energy drawn / losses [J].
-THESIS = {
-    ('position', 'min_energy'): (146.78, 128.25),
-    ('position', 'constant_flux'): (340.15, 313.78),
-    ('speed', 'min_energy'): (587.69, 56.31),
-    ('speed', 'constant_flux'): (1078.8, 528.57),
-}
+from im_bringup import thesis
 
 CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', 'E_copper_J',
             'E_core_J', 'W_load_J', 'E_friction_J', 'dE_kinetic_J', 'dW_magnetic_J',
@@ -86,7 +80,7 @@ def markdown(results: List[dict]) -> str:
             'steps/s | run |',
             '|' + ' --- |' * 21]
     for r in results:
-        th = THESIS.get((r['task'], r['strategy'])) if r.get('variation', 'none') == 'none' else None
+        th = thesis.energy(r['task'], r['strategy']) if r.get('variation', 'none') == 'none' else None
         the, thl = (f'{th[0]:.2f}', f'{th[1]:.2f}') if th and r['controller'] == 'nominal' else ('', '')
         rows.append(
             f"| {r['task']} | {r['strategy']} | {r['controller']} | {r.get('variation', 'none')} | "
