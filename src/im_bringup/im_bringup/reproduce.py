@@ -18,6 +18,8 @@ import os
 import sys
 from typing import List
 
+from im_common.cli import parse_args, progress
+
 from im_bringup import thesis
 
 CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', 'E_copper_J',
@@ -41,7 +43,7 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False) -> List[dict]
         extra = spec.pop('parameters', None)
         label = (f"{spec['task']}/{spec['strategy']}/{spec['controller']}/"
                  f"{spec.get('variation', 'none')}/{1.0 / spec['T_s']:g} Hz")
-        print(f'[{n}/{len(specs)}] {label}', file=sys.stderr, flush=True)
+        progress(n, len(specs), label)
         params = node_parameters(spec['task'], spec['strategy'], spec['controller'],
                                  spec.get('variation', 'none'), spec['T_s'],
                                  spec.get('duration'))
@@ -98,7 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument('--out', default='bags/reproduce')
     ap.add_argument('--record', action='store_true', help='also record every run to MCAP')
     ap.add_argument('--only', choices=('ch3', 'ch4', 'robust'), nargs='*')
-    args = ap.parse_args(argv)
+    args = parse_args(ap, argv)
     os.makedirs(args.out, exist_ok=True)
     parts = args.only or ['ch3', 'ch4', 'robust']
     specs: List[dict] = []

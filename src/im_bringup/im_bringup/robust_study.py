@@ -27,6 +27,8 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from im_common.cli import logger, parse_args, progress
+
 TASKS = ('position', 'speed')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 KEYS = ('E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'pos_err_max_rad', 'speed_err_max_rad_s',
@@ -34,8 +36,7 @@ KEYS = ('E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'pos_err_max_rad', 'spee
 LOSS_TOLERANCE = 0.05
 
 
-def _log(msg: str) -> None:
-    print(f'[robust_study] {msg}', file=sys.stderr, flush=True)
+_log = logger('robust_study')
 
 
 def gains_for(T_s: float, progress: bool = True) -> dict:
@@ -79,7 +80,7 @@ def study(progress: bool = True) -> dict:
         for task in TASKS:
             for strategy in STRATEGIES:
                 k += 1
-                _log(f'[{k}/{n}] {task}/{strategy} T_s = {T:g} s, {which} gains')
+                progress(k, n, f'{task}/{strategy} T_s = {T:g} s, {which} gains', _log)
                 rows.append(run_one(task, strategy, T, None if which == 'thesis' else designs[T]))
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
             'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',
@@ -172,7 +173,7 @@ def markdown(res: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='robust_study', description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', default='robust_study_out', help='output directory')
-    args = ap.parse_args(argv)
+    args = parse_args(ap, argv)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.perf_counter()
     res = study()

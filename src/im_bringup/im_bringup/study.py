@@ -24,7 +24,10 @@ import os
 import sys
 import time
 
+from im_common.cli import logger, parse_args
+
 from im_common.params import THESIS_MOTOR
+from im_controller.gain_design.motor import thesis_gain_stability_limit
 
 from . import thesis
 from .offline import Scenario, simulate
@@ -33,8 +36,7 @@ STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 TASKS = ('position', 'speed')
 
 
-def _log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+_log = logger()
 
 
 def energy_table(T_s: float, exponent: float, quick: bool, progress: bool) -> list:
@@ -165,7 +167,7 @@ def main(argv=None) -> int:
     ap.add_argument('--no-limit', action='store_true', help='skip the T_s stability bisection')
     ap.add_argument('--no-exponent1', action='store_true', help='skip the core-loss exponent-1 table')
     ap.add_argument('--sweep', action='store_true', help='also sweep the min_loss design knobs')
-    args = ap.parse_args(argv)
+    args = parse_args(ap, argv)
     wall0 = time.perf_counter()
     result = {'T_s': args.T_s, 'quick': args.quick}
     rows2 = energy_table(args.T_s, 2.0, args.quick, True)
@@ -206,6 +208,9 @@ def main(argv=None) -> int:
                 _log(f'T_s stability limit: {task}/{strategy}')
                 limits.append(sampling_limit(task, strategy))
         result['sampling_limit'] = {'scalar_current_loop_estimate_s': est, 'runs': limits}
+        _log('T_s stability limit over the chapter-4 parameter box (eigenvalues on a grid)')
+        box = thesis_gain_stability_limit(samples=12, refine_steps=10)
+        result['sampling_limit']['parameter_box'] = {k: v for k, v in box.items() if k != 'table'}
         print(f'\nSampled-data limit with the thesis gains (k1 = 40 V/A, k_e = 1/sigma), bisection over T_s;'
               f' scalar current-loop estimate {est * 1e6:.1f} us')
         for L in limits:
@@ -215,6 +220,9 @@ def main(argv=None) -> int:
                       f"  (>= {L['rate_hz_needed']:.0f} Hz)")
             else:
                 print(f"  {L['task']:8s} {L['strategy']:13s} {L['note']}")
+        print(f"  over the chapter-4 parameter box, |omega_r| <= {box['omega_max']:g} rad/s "
+              f"(eigenvalues on a grid, not a certificate): current loop stable up to "
+              f"{box['current_loop_limit'] * 1e6:.0f} us, observer up to {box['observer_limit'] * 1e6:.0f} us")
     if args.sweep:
         result['min_loss_sweep'] = sweep_min_loss(True)
         print('\nmin_loss design knobs (flux filter time constant tau1, preview) -> losses [J]')

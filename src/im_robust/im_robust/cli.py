@@ -18,13 +18,14 @@ from typing import List, Optional
 
 import numpy as np
 
+from im_common.cli import logger, parse_args
+
 from .examples import EXAMPLES, check_printed_solution, thesis_gain_decay
 from .refine import reduce_gain_norm
 from .synthesis import synthesize
 
 
-def _log(msg: str) -> None:
-    print(f'[robust_examples] {msg}', file=sys.stderr, flush=True)
+_log = logger('robust_examples')
 
 
 def _row(ex, label, res=None, *, G=None, cert=None, objective=None, iterations=None, wall=0.0,
@@ -162,20 +163,13 @@ def render_markdown(rows: List[dict], checks: dict) -> str:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    if argv is None:
-        argv = sys.argv[1:]
-    try:
-        from rclpy.utilities import remove_ros_args
-        argv = remove_ros_args(args=['robust_examples'] + list(argv))[1:]
-    except ImportError:
-        pass
     parser = argparse.ArgumentParser(prog='robust_examples', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
     pe = sub.add_parser('examples', help='solve the three examples of seed 001 §4.2')
     pe.add_argument('--out', default='bags/robust', help='output directory (default bags/robust)')
     pe.add_argument('--only', nargs='*', choices=sorted(EXAMPLES), help='subset of examples')
     pe.add_argument('--no-refine', action='store_true', help='skip the gain-norm reduction')
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
     if args.command == 'examples':
         rows = run_examples(Path(args.out), args.only, refine=not args.no_refine)
         bad = [r for r in rows if r['solver'] in ('clarabel', 'scs', 'cutting-plane')

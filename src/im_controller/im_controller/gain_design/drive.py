@@ -49,6 +49,7 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
+from im_common.cli import gated_logger
 from im_common.params import MotorParams, THESIS_MOTOR
 
 from im_robust.certificate import Certificate, certify
@@ -70,9 +71,7 @@ DEFAULT_OBSERVER_RATE = 1.0     # 1/s, 4-state observer error (flux modes decay 
 FLUX_COUPLING_BUDGET = 0.1      # share of 1/T_r the held flux-coupling residual may use
 
 
-def _log(progress: bool, msg: str) -> None:
-    if progress:
-        print(f'[im_controller.gain_design.drive] {msg}', file=sys.stderr, flush=True)
+_log = gated_logger('im_controller.gain_design.drive')
 
 
 # ---------------------------------------------------------------------------------------------

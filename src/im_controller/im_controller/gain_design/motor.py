@@ -53,6 +53,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 from scipy.linalg import expm
 
+from im_common.cli import gated_logger
 from im_common.params import MotorParams, THESIS_MOTOR
 
 from im_robust.certificate import Certificate, certify
@@ -233,9 +234,7 @@ def _current_D_candidates() -> List[np.ndarray]:
     return [np.hstack([Z, I]), np.hstack([-I, I]), np.hstack([I, I]), np.hstack([-0.5 * I, I])]
 
 
-def _log(progress: bool, msg: str) -> None:
-    if progress:
-        print(f'[im_controller.gain_design.motor] {msg}', file=sys.stderr, flush=True)
+_log = gated_logger('im_controller.gain_design.motor')
 
 
 def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 0.0,
