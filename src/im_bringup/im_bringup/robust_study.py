@@ -23,7 +23,7 @@ import os
 import re
 import sys
 import time
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import numpy as np
 

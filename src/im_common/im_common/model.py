@@ -70,12 +70,6 @@ def torque(i_sa, i_sb, phi_ra, phi_rb, L_r, L_sr, pole_pairs):
     return pole_pairs * L_sr / L_r * (i_sb * phi_ra - i_sa * phi_rb)
 
 
-def magnetic_energy(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
-    """W = ½ (i_s·ψ_s + i_r·φ_r) [J]."""
-    i_sa, i_sb, i_ra, i_rb = currents(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr)
-    return 0.5 * (i_sa * psi_sa + i_sb * psi_sb + i_ra * phi_ra + i_rb * phi_rb)
-
-
 class MotorModel:
     """Right-hand side of the plant: ``rhs(t, x, v_alpha, v_beta)`` on the augmented state.
 

@@ -70,9 +70,6 @@ class PhasorSteadyState:
         psi, phi = self.Psi_s * rot, self.Phi_r * rot
         return [psi.real, psi.imag, phi.real, phi.imag]
 
-    def stator_current(self, t: float = 0.0) -> complex:
-        return self.I_s * np.exp(1j * self.omega_e * t)
-
 
 def phasor_steady_state(R_s: float, R_r: float, L_s: float, L_r: float, L_sr: float,
                         pole_pairs: int, V_hat: complex, omega_e: float,

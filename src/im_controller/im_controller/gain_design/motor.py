@@ -45,10 +45,9 @@ so for the current loop α is bounded by min R_r/L_r = 0.42/0.116 ≈ 3.6 1/s wh
 from __future__ import annotations
 
 import math
-import sys
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 from scipy.linalg import expm
@@ -56,7 +55,6 @@ from scipy.linalg import expm
 from im_common.cli import gated_logger
 from im_common.params import MotorParams, THESIS_MOTOR
 
-from im_robust.certificate import Certificate, certify
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
 
