@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from im_common.model import eq112_matrices
 from im_common.params import THESIS_MOTOR as M
 from im_controller.gain_design import motor
 
@@ -10,7 +11,7 @@ SMALL = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 3}
 
 def test_dc_steady_state_of_eq_1_112():
     # ω_r = 0, constant V_α: i_α = V/R_s, φ_rα = L_sr i_α (no rotor current) is an equilibrium.
-    A, B = motor.electrical_matrices(M.R_s, M.R_r, M.L_s, M.L_r, M.L_sr, 0.0, M.pole_pairs)
+    A, B = eq112_matrices(M.R_s, M.R_r, M.L_s, M.L_r, M.L_sr, M.pole_pairs, 0.0)
     V = 10.0
     x = np.array([V / M.R_s, 0.0, M.L_sr * V / M.R_s, 0.0])
     np.testing.assert_allclose(A @ x + B @ np.array([V, 0.0]), 0.0, atol=1e-9)

@@ -49,11 +49,12 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from im_common.cli import gated_logger
+from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
 
 from im_robust.certificate import Certificate, certify
 from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
-                    electrical_matrices, parameter_grid, zoh,
+                    parameter_grid, zoh,
                     sampled_models)
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
@@ -438,7 +439,7 @@ def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k
     M_zoh = A_d − Γ_d H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction
     were the plant's exact ZOH flow."""
     R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
-    A, _ = electrical_matrices(motor.R_s, R_r, L_s, L_r, L_sr, float(omega_r), motor.pole_pairs)
+    A, _ = eq112_matrices(motor.R_s, R_r, L_s, L_r, L_sr, motor.pole_pairs, float(omega_r))
     sLs = L_s - L_sr ** 2 / L_r
     J = np.array([[0.0, -1.0], [1.0, 0.0]])
     H = np.vstack([k_e / sLs * np.eye(2), motor.pole_pairs * omega_r * L_sr * J])
