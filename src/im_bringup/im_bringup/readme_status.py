@@ -197,7 +197,11 @@ def main(argv=None) -> int:
     mode.add_argument('--check', action='store_true', help='exit 1 if the README block differs')
     args = parse_args(ap, argv)
     try:
-        block = render(load_summary(args.summary))
+        try:
+            block = render(load_summary(args.summary))
+        except KeyError as exc:
+            raise SummaryError(f'summary {args.summary}: a run lacks the figure {exc} '
+                               f'(made by an older make reproduce?)') from None
         if not (args.write or args.check):
             sys.stdout.write(block)
             return 0
