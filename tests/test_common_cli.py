@@ -42,3 +42,6 @@ def test_loggers_write_one_prefixed_line_to_stderr(capsys):
     cli.progress(2, 5, 'item', cli.logger('tool'))
     out, err = capsys.readouterr()
     assert out == '' and err == '[tool] hello\n[tool] [2/5] item\n'
+    cli.status_line('run: 50.0 %')
+    cli.status_line('run: done in 1.0 s', done=True)
+    assert capsys.readouterr().err == '\rrun: 50.0 %\rrun: done in 1.0 s\n'

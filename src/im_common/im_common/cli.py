@@ -53,3 +53,12 @@ def gated_logger(prefix: Optional[str] = None, stream=None) -> Callable[[bool, s
 def progress(k: int, n: int, label: str, log: Optional[Callable[[str], None]] = None) -> None:
     """Announce item k of n: ``[k/n] label``."""
     (log or logger())(f'[{k}/{n}] {label}')
+
+
+def status_line(text: str, *, done: bool = False, stream=None) -> None:
+    """Rewrite the one-line status of a long run in place on stderr (``\\r``); ``done`` ends it.
+
+    For loops that report how far they are (``status_line(f'{label}: {pct:5.1f} %')``) and their
+    final line (``status_line(f'{label}: done in {s:.1f} s', done=True)``).
+    """
+    print('\r' + text, end='\n' if done else '', file=stream or sys.stderr, flush=True)
