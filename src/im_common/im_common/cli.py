@@ -5,7 +5,8 @@
   is an ImportError, not a silent fallback.
 - :func:`logger` / :func:`gated_logger`: progress and diagnostics on stderr, one line each,
   prefixed with the tool's name, flushed (stdout stays for results).
-- :func:`progress`: the ``[k/n] label`` line long batch tools print before each item.
+- :func:`progress`: the ``[k/n] label`` line long batch tools print before each item;
+  :func:`status_line`: the in-place ``\r`` status of one long run.
 
 ROS-free at import time (rclpy is imported inside :func:`strip_ros_args`).
 """

@@ -1,6 +1,7 @@
 """Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27-3.28, 4.13).
 
-Plant, electrical part (eq. 1.112 / the first four rows of eq. 1.126), x = (i_s, φ_r) in αβ:
+Plant, electrical part (eq. 1.112 / the first four rows of eq. 1.126), x = (i_s, φ_r) in αβ; the
+coefficients come from :func:`im_common.model.eq112_coefficients`, the one home of the model:
 
     σL_s di/dt = V − R_eq i + (R_r L_sr/L_r²) φ − v ω (L_sr/L_r) 𝒥 φ
          dφ/dt = v ω 𝒥 φ + R_r (L_sr/L_r) i − (R_r/L_r) φ,          𝒥 = [[0, −1], [1, 0]]
