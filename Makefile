@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test bench reproduce study sensitivity robust-examples robust-study clean distclean
+.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study clean distclean
 
 all: demo
 
@@ -42,8 +42,14 @@ test: build
 bench: build
 	$(RUN) python benchmarks/run_all.py
 
+# Also refreshes the committed summary the README's results block is generated from (make readme).
 reproduce: build
 	$(RUN) python -m im_bringup.reproduce --out bags/reproduce
+	mkdir -p docs/data && cp bags/reproduce/summary.json docs/data/reproduce_summary.json
+
+# README results block (between the status markers) generated from docs/data/reproduce_summary.json.
+readme: build
+	$(RUN) python -m im_bringup.readme_status --summary docs/data/reproduce_summary.json --write
 
 # Chapter-3 study on the ROS-free loop (energy table, sampled-data limit, core-loss exponent).
 study: build
@@ -58,7 +64,7 @@ robust-examples: build
 
 # Seed 001 applied to the drive: certified gains vs the thesis's at 1 ms and 100 µs (offline loop).
 robust-study: build
-	$(RUN) python -m im_controller.robust_study --out bags/robust_study
+	$(RUN) python -m im_bringup.robust_study --out bags/robust_study
 
 clean:
 	rm -rf build install log

@@ -11,10 +11,10 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from im_common.loads import LinearLoad, NoLoad
-from im_common.model import MotorModel, currents, stator_flux, torque
+from im_common.model import MotorModel, currents, eq112_matrices, stator_flux, torque
 from im_common.params import THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
-from im_common.steady_state import (eq112_matrices, params_steady_state, zoh_gain,
+from im_common.steady_state import (params_steady_state, zoh_gain,
                                     zoh_sample_flux_offset)
 
 P = THESIS_MOTOR

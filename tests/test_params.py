@@ -172,7 +172,7 @@ def test_derived_quantities(p):
 
 
 def test_thesis_motor_values_are_the_design_table():
-    """The defaults are the thesis motor of seed 000 §3.4.1 as listed in DESIGN.md."""
+    """The defaults are the thesis motor of seed 000 §3.4.1 as listed in the README's parameter table."""
     p = THESIS_MOTOR
     assert (p.R_s, p.R_r, p.L_s, p.L_r, p.L_sr) == (0.687, 0.842, 0.08397, 0.08528, 0.08136)
     assert (p.J, p.b, p.pole_pairs, p.k_e, p.k_h) == (0.030, 0.010, 2, 0.012, 0.012)

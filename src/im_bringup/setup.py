@@ -26,7 +26,8 @@ setup(
             'record = im_bringup.record_node:main',
             'replay = im_bringup.replay:main',
             'report = im_bringup.report:main',
-            'recover = im_bringup.recover:main'
+            'recover = im_bringup.recover:main',
+            'robust_study = im_bringup.robust_study:main',
         ],
     },
 )

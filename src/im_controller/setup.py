@@ -24,7 +24,6 @@ setup(
         'console_scripts': [
             'controller = im_controller.controller_node:main',
             'design_gains = im_controller.design_gains:main',
-            'robust_study = im_controller.robust_study:main',
         ],
     },
 )

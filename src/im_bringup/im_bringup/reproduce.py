@@ -18,13 +18,9 @@ import os
 import sys
 from typing import List
 
-# Seed 000 §3.4.7: energy drawn / losses [J].
-THESIS = {
-    ('position', 'min_energy'): (146.78, 128.25),
-    ('position', 'constant_flux'): (340.15, 313.78),
-    ('speed', 'min_energy'): (587.69, 56.31),
-    ('speed', 'constant_flux'): (1078.8, 528.57),
-}
+from im_common.cli import parse_args, progress
+
+from im_bringup import thesis
 
 CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', 'E_copper_J',
             'E_core_J', 'W_load_J', 'E_friction_J', 'dE_kinetic_J', 'dW_magnetic_J',
@@ -47,7 +43,7 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False) -> List[dict]
         extra = spec.pop('parameters', None)
         label = (f"{spec['task']}/{spec['strategy']}/{spec['controller']}/"
                  f"{spec.get('variation', 'none')}/{1.0 / spec['T_s']:g} Hz")
-        print(f'[{n}/{len(specs)}] {label}', file=sys.stderr, flush=True)
+        progress(n, len(specs), label)
         params = node_parameters(spec['task'], spec['strategy'], spec['controller'],
                                  spec.get('variation', 'none'), spec['T_s'],
                                  spec.get('duration'))
@@ -86,7 +82,7 @@ def markdown(results: List[dict]) -> str:
             'steps/s | run |',
             '|' + ' --- |' * 21]
     for r in results:
-        th = THESIS.get((r['task'], r['strategy'])) if r.get('variation', 'none') == 'none' else None
+        th = thesis.energy(r['task'], r['strategy']) if r.get('variation', 'none') == 'none' else None
         the, thl = (f'{th[0]:.2f}', f'{th[1]:.2f}') if th and r['controller'] == 'nominal' else ('', '')
         rows.append(
             f"| {r['task']} | {r['strategy']} | {r['controller']} | {r.get('variation', 'none')} | "
@@ -104,7 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument('--out', default='bags/reproduce')
     ap.add_argument('--record', action='store_true', help='also record every run to MCAP')
     ap.add_argument('--only', choices=('ch3', 'ch4', 'robust'), nargs='*')
-    args = ap.parse_args(argv)
+    args = parse_args(ap, argv)
     os.makedirs(args.out, exist_ok=True)
     parts = args.only or ['ch3', 'ch4', 'robust']
     specs: List[dict] = []

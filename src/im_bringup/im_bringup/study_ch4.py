@@ -24,6 +24,8 @@ from typing import Callable, Dict, List, Optional
 
 import numpy as np
 
+from im_common.cli import logger, parse_args
+
 from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
 from im_common.params import (THESIS_MOTOR, InvalidParameter, ParameterSchedule,
@@ -40,8 +42,7 @@ SENS_KEYS = ('pos_err_rms_rad', 'pos_err_max_rad', 'speed_err_rms_rad_s', 'speed
              'torque_err_rms_Nm', 'torque_err_max_Nm', 'E_in_J', 'E_loss_J')
 
 
-def _log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+_log = logger()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -327,7 +328,7 @@ def main(argv=None) -> int:
     ap.add_argument('--tasks', default=','.join(TASKS))
     ap.add_argument('--strategies', default=','.join(STRATEGIES))
     ap.add_argument('--T-s', type=float, default=1e-4, dest='T_s')
-    args = ap.parse_args(argv)
+    args = parse_args(ap, argv)
     tasks = tuple(x for x in args.tasks.split(',') if x)
     strategies = tuple(x for x in args.strategies.split(',') if x)
     os.makedirs(args.out, exist_ok=True)

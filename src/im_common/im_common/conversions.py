@@ -7,10 +7,7 @@ decoded with ``struct`` (:mod:`im_common.cdr`), which keeps the hot path short.
 """
 from __future__ import annotations
 
-import math
 from typing import Iterable, Sequence
-
-from builtin_interfaces.msg import Time
 
 from .cdr import (decode_joint_state, decode_vector3_stamped, pack_clock, pack_joint_state,
                   pack_vector3_stamped)
@@ -34,21 +31,7 @@ def set_stamp(stamp, ns: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
 
 
-def ns_to_s(ns: int) -> float:
-    return ns / NS_PER_S
 
-
-def time_msg(ns: int) -> Time:
-    t = Time()
-    set_stamp(t, ns)
-    return t
-
-
-def finite(*values: float) -> bool:
-    for v in values:
-        if not math.isfinite(v):
-            return False
-    return True
 
 
 class Vector3Out:
@@ -84,17 +67,6 @@ class JointStateOut:
         return pack_joint_state(sec, nsec, self.names, tuple(position), tuple(velocity),
                                 tuple(effort), self.frame_id)
 
-
-def vector3_in(data: bytes):
-    """(stamp_ns, x, y, z) of a serialized Vector3Stamped (raw subscription)."""
-    sec, nsec, x, y, z = decode_vector3_stamped(data)
-    return sec * NS_PER_S + nsec, x, y, z
-
-
-def joint_state_in(data: bytes):
-    """(stamp_ns, names, position, velocity, effort) of a serialized JointState."""
-    sec, nsec, names, pos, vel, eff = decode_joint_state(data)
-    return sec * NS_PER_S + nsec, names, pos, vel, eff
 
 
 def named_values(names, values, wanted: Sequence[str]) -> dict:

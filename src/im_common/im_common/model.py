@@ -33,7 +33,7 @@ quantity in steady state), and φ^m ≈ (L_sr/L_r)|φ_r| (eq. 3.38).
 from __future__ import annotations
 
 import math
-from typing import Sequence, Tuple
+from typing import NamedTuple, Sequence, Tuple
 
 from .loads import Load, NoLoad
 from .params import MotorParams, ParameterSchedule, THESIS_MOTOR
@@ -65,15 +65,56 @@ def stator_flux(i_sa, i_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
     return sls * i_sa + k * phi_ra, sls * i_sb + k * phi_rb
 
 
+class Eq112(NamedTuple):
+    """Coefficients of eq. 1.112 (γ, K, 1/T_r of eq. 1.113) at one parameter point."""
+
+    inv_sigma_Ls: float     # 1/(σL_s), the voltage gain of the current rows [1/H]
+    gamma: float            # (R_s + R_r (L_sr/L_r)²)/(σL_s) = R_eq/(σL_s) [1/s]
+    K: float                # L_sr/(σ L_s L_r) [1/H]
+    inv_Tr: float           # R_r/L_r [1/s]
+    L_sr: float             # [H]
+
+
+def eq112_coefficients(R_s, R_r, L_s, L_r, L_sr) -> Eq112:
+    """γ, K, 1/T_r of eq. 1.113 for the (i_s, φ_r) form of the electrical model (constant L).
+
+    With i_r = (φ_r − L_sr i_s)/L_r the flux-linkage equations above become, with 𝒥 = [[0, −1], [1, 0]]
+    and ω_e = v ω_r,
+
+        di_s/dt = −γ i_s + (K/T_r) φ_r − ω_e K 𝒥 φ_r + V/(σL_s)
+        dφ_r/dt = (L_sr/T_r) i_s − φ_r/T_r + ω_e 𝒥 φ_r
+
+    Raises ValueError when σL_s = L_s − L_sr²/L_r is not positive.
+    """
+    k = L_sr / L_r
+    sigma_Ls = L_s - L_sr * k
+    if not sigma_Ls > 0.0:
+        raise ValueError(f'sigma*L_s = L_s - L_sr^2/L_r = {sigma_Ls:.4g} H must be > 0 '
+                         f'(L_sr^2 < L_s L_r)')
+    inv = 1.0 / sigma_Ls
+    return Eq112(inv, (R_s + R_r * k * k) * inv, k * inv, R_r / L_r, L_sr)
+
+
+def eq112_matrices(R_s, R_r, L_s, L_r, L_sr, pole_pairs, omega_r):
+    """A(ω_r) (4×4) and B (4×2) of seed 000 eq. 1.112, numpy arrays.
+
+    State ``[i_sα, i_sβ, φ_rα, φ_rβ]``, input ``[V_sα, V_sβ]``; see :func:`eq112_coefficients`.
+    """
+    import numpy as np
+    c = eq112_coefficients(R_s, R_r, L_s, L_r, L_sr)
+    we = pole_pairs * omega_r
+    kf, ks, r_f = c.K * c.inv_Tr, we * c.K, c.L_sr * c.inv_Tr
+    A = np.array([[-c.gamma, 0.0, kf, ks],
+                  [0.0, -c.gamma, -ks, kf],
+                  [r_f, 0.0, -c.inv_Tr, -we],
+                  [0.0, r_f, we, -c.inv_Tr]])
+    B = np.array([[c.inv_sigma_Ls, 0.0], [0.0, c.inv_sigma_Ls], [0.0, 0.0], [0.0, 0.0]])
+    return A, B
+
+
 def torque(i_sa, i_sb, phi_ra, phi_rb, L_r, L_sr, pole_pairs):
     """Electromagnetic torque τ_m = v (L_sr/L_r)(i_sβ φ_rα − i_sα φ_rβ) [N·m] (eq. 1.127)."""
     return pole_pairs * L_sr / L_r * (i_sb * phi_ra - i_sa * phi_rb)
-
-
-def magnetic_energy(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
-    """W = ½ (i_s·ψ_s + i_r·φ_r) [J]."""
-    i_sa, i_sb, i_ra, i_rb = currents(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr)
-    return 0.5 * (i_sa * psi_sa + i_sb * psi_sb + i_ra * phi_ra + i_rb * phi_rb)
 
 
 class MotorModel:

@@ -1,7 +1,8 @@
-"""Closed forms for the induction motor: the eq. 1.112 state matrices and the phasor steady state.
+"""Closed forms for the induction motor: the phasor steady state of the equivalent circuit.
 
-Pure helpers (numpy only) used by the physics tests and benchmarks to check the plant against
-formulas that do not share code with :mod:`im_common.model`.
+Pure helpers (numpy only) used by the physics tests and benchmarks to check the plant against a
+formulation (phasors) that shares no code with :mod:`im_common.model`. The eq. 1.112 state
+matrices live in the model (:func:`im_common.model.eq112_matrices`).
 
 Phasor convention (power-invariant αβ, seed 000 eq. 1.111-1.113): a balanced sinusoidal supply is
 the rotating vector ``V_αβ(t) = V_hat·e^{jω_e t}`` (α = real part, β = imaginary part), so
@@ -26,26 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def eq112_matrices(R_s: float, R_r: float, L_s: float, L_r: float, L_sr: float,
-                   pole_pairs: int, omega_r: float):
-    """A(ω_r) (4×4) and B (4×2) of seed 000 eq. 1.112 with γ, K, T_r of eq. 1.113.
-
-    State ``[i_sα, i_sβ, φ_rα, φ_rβ]``, input ``[V_sα, V_sβ]``.
-    """
-    sigma = 1.0 - L_sr * L_sr / (L_s * L_r)
-    T_r = L_r / R_r
-    K = L_sr / (sigma * L_s * L_r)
-    gamma = (R_s * L_r ** 2 + R_r * L_sr ** 2) / (sigma * L_s * L_r ** 2)
-    vw = pole_pairs * omega_r
-    A = np.array([
-        [-gamma, 0.0, K / T_r, vw * K],
-        [0.0, -gamma, -vw * K, K / T_r],
-        [L_sr / T_r, 0.0, -1.0 / T_r, -vw],
-        [0.0, L_sr / T_r, vw, -1.0 / T_r],
-    ])
-    B = np.array([[1.0 / (sigma * L_s), 0.0], [0.0, 1.0 / (sigma * L_s)], [0.0, 0.0], [0.0, 0.0]])
-    return A, B
+# benchmarks/bench_kernel.py imports eq112_matrices from here; the one definition is the model's
+from .model import eq112_matrices  # noqa: F401
 
 
 @dataclass(frozen=True)
@@ -69,9 +52,6 @@ class PhasorSteadyState:
         rot = np.exp(1j * self.omega_e * t)
         psi, phi = self.Psi_s * rot, self.Phi_r * rot
         return [psi.real, psi.imag, phi.real, phi.imag]
-
-    def stator_current(self, t: float = 0.0) -> complex:
-        return self.I_s * np.exp(1j * self.omega_e * t)
 
 
 def phasor_steady_state(R_s: float, R_r: float, L_s: float, L_r: float, L_sr: float,

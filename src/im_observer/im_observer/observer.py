@@ -1,6 +1,7 @@
 """Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27-3.28, 4.13).
 
-Plant, electrical part (eq. 1.112 / the first four rows of eq. 1.126), x = (i_s, φ_r) in αβ:
+Plant, electrical part (eq. 1.112 / the first four rows of eq. 1.126), x = (i_s, φ_r) in αβ; the
+coefficients come from :func:`im_common.model.eq112_coefficients`, the one home of the model:
 
     σL_s di/dt = V − R_eq i + (R_r L_sr/L_r²) φ − v ω (L_sr/L_r) 𝒥 φ
          dφ/dt = v ω 𝒥 φ + R_r (L_sr/L_r) i − (R_r/L_r) φ,          𝒥 = [[0, −1], [1, 0]]
@@ -43,6 +44,7 @@ from __future__ import annotations
 import math
 from typing import Optional, Sequence, Tuple
 
+from im_common.model import eq112_coefficients
 from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
 
 
@@ -98,15 +100,12 @@ class RotorFluxObserver:
     def _update(self) -> None:
         th = self._theta
         L_r = self.L_sr / th
-        sLs = self.L_s - self.L_sr * th
-        if not sLs > 0.0:
+        if not self.L_s - self.L_sr * th > 0.0:
             raise InvalidParameter('theta', th, 'estimate makes sigma*L_s = L_s - L_sr*theta <= 0')
         self.L_r = L_r
-        self._inv_sLs = 1.0 / sLs
-        self._R_eq = self.R_s + self._R_r * th * th
-        self._k_phi = self._R_r * th / L_r         # R_r L_sr / L_r²
-        self._R_th = self._R_r * th                 # R_r L_sr / L_r
-        self._inv_Tr = self._R_r / L_r
+        # the plant copy: eq. 1.112 at the estimates, from the model (the one home of the equations)
+        self._c = eq112_coefficients(self.R_s, self._R_r, self.L_s, L_r, self.L_sr)
+        self._inv_sLs = self._c.inv_sigma_Ls
 
     @property
     def estimates(self) -> dict:
@@ -156,10 +155,10 @@ class RotorFluxObserver:
         if n < 1:
             n = 1
         h = T_s / n
-        inv_sLs = self._inv_sLs
-        R_eq, k_phi, R_th, inv_Tr = self._R_eq, self._k_phi, self._R_th, self._inv_Tr
+        c = self._c
+        inv_sLs, inv_Tr = c.inv_sigma_Ls, c.inv_Tr
+        R_th = c.L_sr * inv_Tr              # L_sr/T_r, flux rows' coefficient on î
         w = self.v * omega_r
-        w_th = w * self._theta
         if discrete:
             k_e = 0.0
             w_Lsr = 0.0
@@ -174,9 +173,9 @@ class RotorFluxObserver:
         e_a0, e_b0 = i_alpha - ia, i_beta - ib
         ca = (v_alpha + k_e * e_a0) * inv_sLs
         cb = (v_beta + k_e * e_b0) * inv_sLs
-        a_i = -R_eq * inv_sLs               # di/dt coefficient on î
-        a_p = k_phi * inv_sLs               # on φ̂
-        a_w = w_th * inv_sLs                # on 𝒥-rotated φ̂ (with sign below)
+        a_i = -c.gamma                      # di/dt coefficient on î
+        a_p = c.K * inv_Tr                  # on φ̂
+        a_w = w * c.K                       # on 𝒥-rotated φ̂ (with sign below)
         # flux rows: dφ̂ = w𝒥φ̂ + R_th î − φ̂/T_r + w L_sr 𝒥 e
         da_c = -w_Lsr * e_b0
         db_c = w_Lsr * e_a0

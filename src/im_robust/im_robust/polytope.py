@@ -16,7 +16,7 @@ model) is passed directly.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Dict, Iterable, List, Optional, Sequence, Tuple
+from typing import Callable, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -182,10 +182,3 @@ def complete_basis(C: np.ndarray, D: np.ndarray | None = None) -> Tuple[np.ndarr
     if not np.isfinite(cond) or cond > 1e12:
         raise ValueError(f'T = [C; D] is singular (cond = {cond:.3g}); choose another D')
     return T, D
-
-
-def describe_models(models: Sequence[Model]) -> Dict[str, float]:
-    """Largest entries, for scaling diagnostics."""
-    a = max(np.abs(A).max() for A, _ in models)
-    b = max(np.abs(B).max() for _, B in models)
-    return {'max_abs_A': float(a), 'max_abs_B': float(b)}

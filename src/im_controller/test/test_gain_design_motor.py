@@ -2,15 +2,16 @@
 import numpy as np
 import pytest
 
+from im_common.model import eq112_matrices
 from im_common.params import THESIS_MOTOR as M
-from im_robust import motor
+from im_controller.gain_design import motor
 
 SMALL = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 3}
 
 
 def test_dc_steady_state_of_eq_1_112():
     # ω_r = 0, constant V_α: i_α = V/R_s, φ_rα = L_sr i_α (no rotor current) is an equilibrium.
-    A, B = motor.electrical_matrices(M.R_s, M.R_r, M.L_s, M.L_r, M.L_sr, 0.0, M.pole_pairs)
+    A, B = eq112_matrices(M.R_s, M.R_r, M.L_s, M.L_r, M.L_sr, M.pole_pairs, 0.0)
     V = 10.0
     x = np.array([V / M.R_s, 0.0, M.L_sr * V / M.R_s, 0.0])
     np.testing.assert_allclose(A @ x + B @ np.array([V, 0.0]), 0.0, atol=1e-9)
@@ -60,3 +61,23 @@ def test_observer_dual_gain_maps_back():
     g = motor.parameter_grid({'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 1}, 0.0)
     A_d, _ = motor.sampled_models(g, 1e-3)
     assert np.abs(np.linalg.eigvals(A_d - d.gain @ motor.C_CURRENT)).max() < 1.0
+
+
+def test_thesis_gain_limit_over_the_box_is_the_scalar_current_loop_closed_form():
+    """The 210 µs the README quotes: the 4-state sampled current loop with K = 40 I loses stability
+    where the scalar current-error loop does, T_s = −(σL_s/R_eq) ln(1 − 2R_eq/(R_eq + k₁)), at the
+    stiffest admissible point of the box (σ = σ_min); the nominal motor tolerates more (≈ 318 µs)."""
+    pts = {'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 3}
+    r = motor.thesis_gain_stability_limit(points=pts, T_min=1e-4, T_max=1e-3, samples=6,
+                                          refine_steps=10)
+    g = motor.parameter_grid(pts, 200.0)
+    R_r, L_s, L_r, L_sr = g[:, 0], g[:, 1], g[:, 2], g[:, 3]
+    sigma_L_s = L_s - L_sr ** 2 / L_r
+    R_eq = M.R_s + R_r * (L_sr / L_r) ** 2
+    closed = (-(sigma_L_s / R_eq) * np.log(1.0 - 2.0 * R_eq / (R_eq + 40.0))).min()
+    assert r['current_loop_limit'] == pytest.approx(closed, rel=2e-3)
+    assert 2.0e-4 < r['current_loop_limit'] < 2.2e-4
+    assert r['limit'] == min(r['current_loop_limit'], r['observer_limit'])
+    nominal_R_eq = M.R_s + M.R_r * (M.L_sr / M.L_r) ** 2
+    nominal = -(M.sigma * M.L_s / nominal_R_eq) * np.log(1 - 2 * nominal_R_eq / (nominal_R_eq + 40.0))
+    assert nominal > 1.4 * r['current_loop_limit']

@@ -1,6 +1,6 @@
 """Drive gains at the node period, posed the way the controller and observer use them.
 
-The 4-state designs of :mod:`im_robust.motor` ask one static gain to make the whole (i, φ_r) ZOH
+The 4-state designs of :mod:`im_controller.gain_design.motor` ask one static gain to make the whole (i, φ_r) ZOH
 model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms that is
 infeasible (no common Lyapunov function, flux modes fixed by T_r). The controller does not need
 it: it feeds forward the back-EMF and flux terms (seed 000 eq. 3.29), so the current gain only
@@ -37,26 +37,27 @@ the period there is no common P over the speeds, so the certificate is per froze
 with an affine speed-dependent P(ω), valid for a bounded speed change per period. Where they do
 not certify (1 ms), the synthesis above is used.
 
-Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_robust.motor.Scaling`).
+Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_controller.gain_design.motor.Scaling`).
 """
 from __future__ import annotations
 
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
+from im_common.cli import gated_logger
+from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
 
-from .certificate import Certificate, certify
+from im_robust.certificate import Certificate, certify
 from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
-                    electrical_matrices, parameter_grid, zoh,
+                    parameter_grid, zoh,
                     sampled_models)
-from .polytope import UncertainSystem
-from .synthesis import SynthesisResult, synthesize
+from im_robust.polytope import UncertainSystem
+from im_robust.synthesis import SynthesisResult, synthesize
 
 #: parameter grid of the (R_eq, σL_s) vertex models and of the dense certificate grid
 SUBSYSTEM_VERTEX_POINTS = {'R_r': 2, 'L_s': 3, 'L_r': 3, 'L_sr': 5, 'omega_r': 1}
@@ -70,9 +71,7 @@ DEFAULT_OBSERVER_RATE = 1.0     # 1/s, 4-state observer error (flux modes decay 
 FLUX_COUPLING_BUDGET = 0.1      # share of 1/T_r the held flux-coupling residual may use
 
 
-def _log(progress: bool, msg: str) -> None:
-    if progress:
-        print(f'[im_robust.drive] {msg}', file=sys.stderr, flush=True)
+_log = gated_logger('im_controller.gain_design.drive')
 
 
 # ---------------------------------------------------------------------------------------------
@@ -267,7 +266,7 @@ def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
     vertices *and* the dense grid. Returns None when K is not certified even at ρ = 1 (at 1 ms:
     its sampled pole leaves the unit circle), so the caller falls back to the synthesis.
     """
-    from .certificate import best_rate
+    from im_robust.certificate import best_rate
     sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
                                                 certify_points)
     K = k * np.eye(2)
@@ -333,7 +332,7 @@ def _certify_strict(system: UncertainSystem, G, rho: float, decay_rate: float, T
                     dense) -> Certificate:
     """certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin
     is not left at the LMI's numerical floor; certify() falls back to its own P if that fails."""
-    from .certificate import analysis_lmi
+    from im_robust.certificate import analysis_lmi
     strict = math.exp(-1.5 * decay_rate * T_s) if decay_rate > 0 else rho
     P = analysis_lmi(system.closed_loops(G), True, rho=strict)
     return certify(system, G, rho=rho, P=P, grid_models=dense)
@@ -440,7 +439,7 @@ def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k
     M_zoh = A_d − Γ_d H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction
     were the plant's exact ZOH flow."""
     R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
-    A, _ = electrical_matrices(motor.R_s, R_r, L_s, L_r, L_sr, float(omega_r), motor.pole_pairs)
+    A, _ = eq112_matrices(motor.R_s, R_r, L_s, L_r, L_sr, motor.pole_pairs, float(omega_r))
     sLs = L_s - L_sr ** 2 / L_r
     J = np.array([[0.0, -1.0], [1.0, 0.0]])
     H = np.vstack([k_e / sLs * np.eye(2), motor.pole_pairs * omega_r * L_sr * J])
@@ -549,7 +548,7 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
     rate on ``omega_vertices`` speeds, checked with numpy at ρ = exp(−decay_rate·T_s) on them and
     on ``omega_dense`` speeds (both maps).
     """
-    from .certificate import analysis_lmi
+    from im_robust.certificate import analysis_lmi
     t0 = time.perf_counter()
     k_e = 1.0 / motor.sigma if k_e is None else float(k_e)
     sc = Scaling.for_motor(motor)

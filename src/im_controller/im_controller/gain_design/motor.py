@@ -45,19 +45,19 @@ so for the current loop α is bounded by min R_r/L_r = 0.42/0.116 ≈ 3.6 1/s wh
 from __future__ import annotations
 
 import math
-import sys
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 from scipy.linalg import expm
 
+from im_common.cli import gated_logger
+from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
 
-from .certificate import Certificate, certify
-from .polytope import UncertainSystem
-from .synthesis import SynthesisResult, synthesize
+from im_robust.polytope import UncertainSystem
+from im_robust.synthesis import SynthesisResult, synthesize
 
 DEFAULT_BOX: Dict[str, Tuple[float, float]] = {
     'R_r': (0.42, 1.26), 'L_s': (0.084, 0.116), 'L_r': (0.084, 0.116), 'L_sr': (0.081, 0.113)}
@@ -65,25 +65,6 @@ PARAM_NAMES = ('R_r', 'L_s', 'L_r', 'L_sr', 'omega_r')
 C_CURRENT = np.hstack([np.eye(2), np.zeros((2, 2))])
 DEFAULT_SIGMA_MIN = 0.05   # below the chapter-4 profile's smallest σ (0.051)
 THESIS_K1 = 40.0   # V/A, |k1| of seed 000 §3.4.6 (printed −40 in the form ΔV = K(x̂ − x*))
-
-
-def electrical_matrices(R_s: float, R_r: float, L_s: float, L_r: float, L_sr: float,
-                        omega_r: float, pole_pairs: int = 2) -> Tuple[np.ndarray, np.ndarray]:
-    """Continuous (A, B) of seed 000 eq. 1.112 at one parameter point."""
-    sigma = 1.0 - L_sr * L_sr / (L_s * L_r)
-    if not sigma > 0.0:
-        raise ValueError(f'sigma = {sigma:.4g} must be > 0 (L_sr^2 < L_s L_r)')
-    T_r = L_r / R_r
-    K = L_sr / (sigma * L_s * L_r)
-    gamma = (R_s * L_r ** 2 + R_r * L_sr ** 2) / (sigma * L_s * L_r ** 2)
-    we = pole_pairs * omega_r
-    A = np.array([[-gamma, 0.0, K / T_r, we * K],
-                  [0.0, -gamma, -we * K, K / T_r],
-                  [L_sr / T_r, 0.0, -1.0 / T_r, -we],
-                  [0.0, L_sr / T_r, we, -1.0 / T_r]])
-    B = np.zeros((4, 2))
-    B[0, 0] = B[1, 1] = 1.0 / (sigma * L_s)
-    return A, B
 
 
 def zoh(A: np.ndarray, B: np.ndarray, T_s: float) -> Tuple[np.ndarray, np.ndarray]:
@@ -132,7 +113,7 @@ def sampled_models(grid: np.ndarray, T_s: float, motor: MotorParams = THESIS_MOT
     A = np.zeros((N, 4, 4))
     B = np.zeros((N, 4, 2))
     for k, (R_r, L_s, L_r, L_sr, w) in enumerate(grid):
-        A[k], B[k] = electrical_matrices(motor.R_s, R_r, L_s, L_r, L_sr, w, motor.pole_pairs)
+        A[k], B[k] = eq112_matrices(motor.R_s, R_r, L_s, L_r, L_sr, motor.pole_pairs, w)
     return zoh(A, B, T_s)
 
 
@@ -233,9 +214,7 @@ def _current_D_candidates() -> List[np.ndarray]:
     return [np.hstack([Z, I]), np.hstack([-I, I]), np.hstack([I, I]), np.hstack([-0.5 * I, I])]
 
 
-def _log(progress: bool, msg: str) -> None:
-    if progress:
-        print(f'[im_robust.motor] {msg}', file=sys.stderr, flush=True)
+_log = gated_logger('im_controller.gain_design.motor')
 
 
 def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_rate: float = 0.0,
@@ -337,8 +316,8 @@ def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
     """K (unchanged: a static voltage gain) and L = Γ L_c with Γ = ∫₀^{T_s} e^{Aτ} dτ of the nominal
     model at ω_r = 0 (the injection held over the period like the voltage)."""
     K_c, L_c = thesis_continuous_gains(motor)
-    A, _ = electrical_matrices(motor.R_s, motor.R_r, motor.L_s, motor.L_r, motor.L_sr, 0.0,
-                               motor.pole_pairs)
+    A, _ = eq112_matrices(motor.R_s, motor.R_r, motor.L_s, motor.L_r, motor.L_sr,
+                          motor.pole_pairs, 0.0)
     _, Gamma_L = zoh(A, L_c, T_s)
     return K_c, Gamma_L
 

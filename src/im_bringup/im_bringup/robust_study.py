@@ -1,12 +1,12 @@
 """Certified gains at the node period against the thesis's, in the offline closed loop.
 
-    python -m im_controller.robust_study --out DIR
+    python -m im_bringup.robust_study --out DIR
 
 Runs the chapter-3 position and speed tasks × {min_energy, constant_flux, min_loss}
 (im_bringup.offline, the lock-step order of the ROS graph) with
 
 - the thesis's gains (k1 = 40 V/A, k_e = 1/σ, flux coupling 'cancel') at 100 µs and at 1 ms;
-- the certified gains of :func:`im_robust.drive.design_drive_gains` at 100 µs and at 1 ms
+- the certified gains of :func:`im_controller.gain_design.drive.design_drive_gains` at 100 µs and at 1 ms
   (current gain K; the observer in the thesis's structure where it is certified, else the
   discrete injection L; the flux-coupling mode chosen for the period).
 
@@ -23,9 +23,11 @@ import os
 import re
 import sys
 import time
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import numpy as np
+
+from im_common.cli import logger, parse_args, progress
 
 TASKS = ('position', 'speed')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
@@ -34,13 +36,12 @@ KEYS = ('E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'pos_err_max_rad', 'spee
 LOSS_TOLERANCE = 0.05
 
 
-def _log(msg: str) -> None:
-    print(f'[robust_study] {msg}', file=sys.stderr, flush=True)
+_log = logger('robust_study')
 
 
 def gains_for(T_s: float, progress: bool = True) -> dict:
     """Certified gains at T_s as offline Scenario arguments, with the design summary."""
-    from im_robust.drive import design_drive_gains
+    from im_controller.gain_design.drive import design_drive_gains
     g = design_drive_gains(T_s, progress=progress)
     if not g.certified:
         raise RuntimeError(f'no certified gains at T_s = {T_s:g} s')
@@ -79,7 +80,7 @@ def study(progress: bool = True) -> dict:
         for task in TASKS:
             for strategy in STRATEGIES:
                 k += 1
-                _log(f'[{k}/{n}] {task}/{strategy} T_s = {T:g} s, {which} gains')
+                progress(k, n, f'{task}/{strategy} T_s = {T:g} s, {which} gains', _log)
                 rows.append(run_one(task, strategy, T, None if which == 'thesis' else designs[T]))
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
             'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',
@@ -172,7 +173,7 @@ def markdown(res: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='robust_study', description=__doc__.split('\n\n')[0])
     ap.add_argument('--out', default='robust_study_out', help='output directory')
-    args = ap.parse_args(argv)
+    args = parse_args(ap, argv)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.perf_counter()
     res = study()

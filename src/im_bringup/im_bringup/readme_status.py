@@ -1,0 +1,225 @@
+"""The README's results block, generated from ``make reproduce``'s summary (never edited by hand).
+
+    python -m im_bringup.readme_status [--summary FILE] [--readme README.md] [--write | --check]
+
+Reads the summary (a list of runs, ``bags/reproduce/summary.json``; by default the committed copy
+``docs/data/reproduce_summary.json`` that the committed block was made from), renders the block
+between ``<!-- status:begin -->`` and ``<!-- status:end -->`` and prints it, writes it into the
+README (``--write``), or exits 1 naming the first differing line when the README's block differs
+(``--check``). Figures that do not come from the graph runs (the sampled-data limits of ``make
+study`` and the gains of ``design_gains``) are quoted with the command that measures them.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+from im_common.cli import parse_args
+
+from im_bringup import thesis
+
+BEGIN, END = '<!-- status:begin -->', '<!-- status:end -->'
+DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'
+STRATEGY_LABEL = {'min_energy': 'min_energy (eq. 3.19/3.25)', 'constant_flux': 'constant_flux (1.2 Wb)',
+                  'min_loss': 'min_loss (beyond the thesis)'}
+
+
+class SummaryError(ValueError):
+    """The summary lacks a run or a figure the block needs."""
+
+
+def load_summary(path: str) -> List[dict]:
+    try:
+        with open(path) as f:
+            runs = json.load(f)
+    except OSError as exc:
+        raise SummaryError(f'cannot read summary {path}: {exc.strerror}') from None
+    except json.JSONDecodeError as exc:
+        raise SummaryError(f'summary {path} is not JSON ({exc.msg}, line {exc.lineno})') from None
+    if not isinstance(runs, list) or not all(isinstance(r, dict) for r in runs):
+        raise SummaryError(f'summary {path} is not a list of runs (make reproduce writes one)')
+    return runs
+
+
+def _run(runs: List[dict], task: str, strategy: str, controller: str = 'nominal',
+         variation: str = 'none', rate_hz: float = 1e4) -> dict:
+    for r in runs:
+        if (r.get('task'), r.get('strategy'), r.get('controller'), r.get('variation', 'none'),
+                r.get('rate_hz')) == (task, strategy, controller, variation, rate_hz):
+            return r
+    raise SummaryError(f'summary has no run task={task} strategy={strategy} controller={controller} '
+                       f'variation={variation} rate={rate_hz:g} Hz (run make reproduce)')
+
+
+def _sci(x: float) -> str:
+    """1.8e-06 -> '2·10⁻⁶' (one significant digit, rounded up: it is a bound)."""
+    e = math.floor(math.log10(x))
+    m = math.ceil(x / 10 ** e)
+    if m == 10:
+        m, e = 1, e + 1
+    sup = str(e).translate(str.maketrans('-0123456789', '⁻⁰¹²³⁴⁵⁶⁷⁸⁹'))
+    return f'{m}·10{sup}'
+
+
+def _tracking(r: dict) -> str:
+    if r['task'] == 'position':
+        return f"{r['pos_err_max_rad'] * 1e3:.2f} mrad"
+    digits = 3 if r['speed_err_max_rad_s'] < 0.01 else 2
+    return f"{r['speed_err_max_rad_s']:.{digits}f} rad/s"
+
+
+def _table(runs: List[dict]) -> Tuple[List[str], float]:
+    rows = ['| task | strategy | E_in [J] (thesis) | losses [J] (thesis) | max tracking error |',
+            '| --- | --- | ---: | ---: | --- |']
+    worst = 0.0
+    for task in ('position', 'speed'):
+        for strategy in ('min_energy', 'constant_flux', 'min_loss'):
+            r = _run(runs, task, strategy)
+            worst = max(worst, abs(r['balance_relative']))
+            th = thesis.energy(task, strategy)
+            label = strategy if task == 'speed' else STRATEGY_LABEL[strategy]
+            e_in = f"{r['E_in_J']:.2f}" + (f' ({th[0]:g})' if th else '')
+            loss = f"{r['E_loss_J']:.2f}"
+            if th and (task, strategy) == ('position', 'constant_flux'):
+                loss = f"**{loss} ({th[1]:g}, {100 * (r['E_loss_J'] / th[1] - 1):+.1f} %)**"
+            elif th:
+                loss += f' ({th[1]:g})'
+            elif task == 'position':
+                loss = f'**{loss}**'
+            else:
+                cf = _run(runs, 'speed', 'constant_flux')
+                loss = f"**{loss}** ({r['E_loss_J'] / cf['E_loss_J']:.2f} × constant flux)"
+            rows.append(f'| {task} | {label} | {e_in} | {loss} | {_tracking(r)} |')
+    return rows, worst
+
+
+def render(runs: List[dict]) -> str:
+    """The status block (without the marker lines), deterministic in the summary."""
+    table, worst = _table(runs)
+    pme = _run(runs, 'position', 'min_energy')
+    th_pme = thesis.energy('position', 'min_energy')
+    sme = _run(runs, 'speed', 'min_energy')
+    mech = sme['dE_kinetic_J'] + sme['W_load_J'] + sme['E_friction_J']
+    th_speed = sorted(e - l for (t, _), (e, l) in thesis.ENERGY.items() if t == 'speed')
+    ch4 = {c: _run(runs, 'position', 'min_energy', c, 'chapter4') for c in ('nominal', 'adaptive')}
+    robust_dev = max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
+                         / _run(runs, t, s)['E_loss_J'] - 1.0)
+                     for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
+    lines = [
+        '## What it reproduces (measured)',
+        '',
+        'All figures below come from `make reproduce` (the four-node graph, in lock-step, T_s = 100 µs,',
+        'thesis motor, loads and gains; `bags/reproduce/summary.json`, committed as',
+        '`docs/data/reproduce_summary.json`; this block is generated by `make readme`). The graph\'s',
+        'numbers are identical to the ROS-free loop\'s (`tests/test_graph.py`), and the energy books close',
+        f'to ≤ {_sci(worst)} of E_in.',
+        '',
+        *table,
+        '',
+        'Where the faithful implementation disagrees with the thesis, the energy balance says why',
+        '(details in `docs/controller.md` §8):',
+        '- *Position, min-energy:* the minimum-magnetic-energy flux is the wrong flux for *holding* the',
+        '  pendulum at the end (τ_L = 10 cos(0.7π) = −5.88 N·m): at 0.263 Wb it costs 207 W of copper loss,',
+        '  at the loss-optimal 0.60 Wb 76 W. The 0.8 s hold alone costs 166 J, more than the thesis\'s whole',
+        f'  {th_pme[1]:g} J. The mechanical side agrees with the thesis (E_in − losses = '
+        f"{pme['E_in_J'] - pme['E_loss_J']:.1f} J vs {th_pme[0] - th_pme[1]:.1f} J: the",
+        f"  pendulum's {pme['W_load_J']:.2f} J of potential energy plus friction and magnetization).",
+        f'- *Speed task:* the stated J, b, load and trajectory need {mech:.0f} J of mechanical energy (ΔE_kin',
+        f"  {sme['dE_kinetic_J']:.1f} + load {sme['W_load_J']:.1f} + friction {sme['E_friction_J']:.1f} J);"
+        f" the thesis's E_in − losses is only {th_speed[0]:.0f}-{th_speed[-1]:.0f} J. No factor",
+        '  was added to match a number.',
+        '- The core-loss model is printed with φ^m but its coefficients are in W·s/Wb²; we use φ^m²',
+        '  (exponent 1 moves only the core loss, the ranking of the strategies is unchanged).',
+        '',
+        '**Sampled-data limit of the thesis\'s gains** (k₁ = 40 V/A, k_e = 1/σ; `make study`): all six runs',
+        'are stable at T_s = 316.7 µs and unstable at 318.5 µs (closed form 2σL_s/k₁ ≈ 317.6 µs) — the loop',
+        'needs at least ≈ 3.2 kHz with the nominal motor; over the whole chapter-4 parameter box the',
+        'limit is 210 µs (`im_controller.gain_design.motor.thesis_gain_stability_limit`, printed by',
+        '`make study`).',
+        '',
+        '**Chapter 4** (`make reproduce`, chapter-4 variation profile, controller estimates of §4.3):',
+        'the improved adaptation law reduces the position error of the nominal min-energy controller',
+        f"(max {ch4['adaptive']['pos_err_max_rad'] * 1e3:.0f} mrad vs "
+        f"{ch4['nominal']['pos_err_max_rad'] * 1e3:.0f} mrad; RMS "
+        f"{ch4['adaptive']['pos_err_rms_rad']:.3f} vs {ch4['nominal']['pos_err_rms_rad']:.3f} rad) and the"
+        ' thesis law\'s own oscillation is',
+        'gone; with the constant-flux and min-loss strategies even true parameters cannot help much,',
+        'because the controller\'s L̂_s and L̂_sr stay fixed (`docs/adaptation.md` §6).',
+        '',
+        '**Robust gains at the node period (seed 001).** `ros2 run im_controller design_gains --period 1e-3',
+        '--out gains.yaml` designs, over the polytope R_r ∈ [0.42, 1.26] Ω, L_s, L_r, L_sr over the',
+        'chapter-4 ranges (σ ≥ 0.05), ω_r ∈ [−200, 200] rad/s, the current-error gain and the observer',
+        'injection on the zero-order-hold models, and writes them only with a certificate (a Lyapunov',
+        'matrix re-checked with numpy on a dense grid; `docs/robust.md` §7 states exactly what each',
+        'certificate does and does not guarantee). At 1 ms: K = 7.08 I V/A (current error contracts by',
+        'ρ = 0.867 per step, 143 1/s, one P for the whole box) and a discrete observer injection ℓ = 0.785',
+        '(certified per parameter point for every speed). With the thesis\'s K = 40 I the sampled current',
+        'pole is −4.85 at 1 ms and the run diverges within 10 steps (`tests/test_graph.py`); with the',
+        f'certified gains all six chapter-3 runs at 1 kHz have losses within {100 * robust_dev:.1f} % of the'
+        ' 100 µs runs',
+        '(`make reproduce`, rows `robust` at 1000 Hz). At 100 µs the thesis\'s own gains pass the',
+        'certificate (K = 40 I at 712 1/s; the thesis-structure observer with k_e = 1/σ per parameter point',
+        'with a speed-dependent P for speed changes ≤ 20 rad/s per period — no speed-independent P exists),',
+        'so the certified design keeps them and is no worse than the thesis by construction. Use the YAML',
+        'with `scenario --T-s 1e-3 --gains gains.yaml` or `--params-file` on the nodes.',
+    ]
+    return '\n'.join(lines) + '\n'
+
+
+def split_readme(text: str, path: str = 'README.md') -> Tuple[str, str, str]:
+    """(before and including BEGIN line, block, END line and after); ValueError names the problem."""
+    if text.count(BEGIN) != 1 or text.count(END) != 1:
+        raise ValueError(f'{path} must contain {BEGIN} and {END} exactly once each')
+    head, rest = text.split(BEGIN + '\n', 1)
+    block, tail = rest.split(END, 1)
+    return head + BEGIN + '\n', block, END + tail
+
+
+def first_difference(a: str, b: str) -> Optional[str]:
+    for n, (x, y) in enumerate(zip(a.splitlines(), b.splitlines()), 1):
+        if x != y:
+            return f'line {n} of the block: README has {x!r}, generated {y!r}'
+    if a != b:
+        return 'the blocks differ in length'
+    return None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='readme_status', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--summary', default=DEFAULT_SUMMARY, help=f'summary JSON (default {DEFAULT_SUMMARY})')
+    ap.add_argument('--readme', default='README.md')
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument('--write', action='store_true', help='replace the README block')
+    mode.add_argument('--check', action='store_true', help='exit 1 if the README block differs')
+    args = parse_args(ap, argv)
+    try:
+        try:
+            block = render(load_summary(args.summary))
+        except KeyError as exc:
+            raise SummaryError(f'summary {args.summary}: a run lacks the figure {exc} '
+                               f'(made by an older make reproduce?)') from None
+        if not (args.write or args.check):
+            sys.stdout.write(block)
+            return 0
+        text = Path(args.readme).read_text()
+        head, old, tail = split_readme(text, args.readme)
+    except (SummaryError, ValueError, OSError) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    if args.check:
+        diff = first_difference(old, block)
+        if diff:
+            print(f'{args.readme} status block is stale ({diff}); run make readme', file=sys.stderr)
+            return 1
+        return 0
+    Path(args.readme).write_text(head + block + tail)
+    print(f'wrote the status block of {args.readme} from {args.summary}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,47 @@
+"""im_common.yamlio and im_common.cli: the one parameter-YAML writer and the one CLI helper."""
+import argparse
+import math
+
+import numpy as np
+import pytest
+
+from im_common import cli, yamlio
+
+
+def test_parameter_yaml_round_trips_exactly():
+    params = {'controller': {'current_gain': np.array([7.076535486730557, 2.2e-17, -2.2e-17, 0.1]),
+                             'gain_period': 1e-3, 'flux_coupling': 'cancel', 'enable': True},
+              'observer': {'k_e_injection': np.float64(1.0 / 3.0), 'steps': np.int64(4)}}
+    text = yamlio.parameters_yaml(params, header='made by a test\nsecond line')
+    assert text.startswith('# made by a test\n# second line\ncontroller:\n  ros__parameters:\n')
+    assert 'current_gain: [7.076535486730557, 2.2e-17, -2.2e-17, 0.1]' in text   # one line
+    back = yamlio.read_parameters(text)
+    assert back['controller']['current_gain'] == params['controller']['current_gain'].tolist()
+    assert back['observer']['k_e_injection'] == 1.0 / 3.0     # bit-exact, not rounded
+    assert back['observer']['steps'] == 4 and back['controller']['enable'] is True
+
+
+@pytest.mark.parametrize('bad', [math.nan, math.inf, [1.0, math.nan]])
+def test_non_finite_parameter_is_rejected_by_name(bad):
+    with pytest.raises(ValueError, match=r'controller\.current_gain'):
+        yamlio.parameters_yaml({'controller': {'current_gain': bad}})
+
+
+def test_ros_arguments_are_stripped_before_parsing():
+    ap = argparse.ArgumentParser(prog='tool')
+    ap.add_argument('--out')
+    a = cli.parse_args(ap, ['--out', 'x', '--ros-args', '-r', '__node:=n', '-p', 'a:=1', '--'])
+    assert a.out == 'x'
+    with pytest.raises(SystemExit):
+        cli.parse_args(ap, ['--bogus'])
+
+
+def test_loggers_write_one_prefixed_line_to_stderr(capsys):
+    cli.logger('tool')('hello')
+    cli.gated_logger('tool')(False, 'hidden')
+    cli.progress(2, 5, 'item', cli.logger('tool'))
+    out, err = capsys.readouterr()
+    assert out == '' and err == '[tool] hello\n[tool] [2/5] item\n'
+    cli.status_line('run: 50.0 %')
+    cli.status_line('run: done in 1.0 s', done=True)
+    assert capsys.readouterr().err == '\rrun: 50.0 %\rrun: done in 1.0 s\n'
