@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study clean distclean
+.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study motors gains clean distclean
 
 all: demo
 
@@ -65,6 +65,15 @@ robust-examples: build
 # Seed 001 applied to the drive: certified gains vs the thesis's at 1 ms and 100 µs (offline loop).
 robust-study: build
 	$(RUN) python -m im_bringup.robust_study --out bags/robust_study
+
+# Every shipped motor (share/im_common/config/motors) through rating-scaled tasks (offline loop).
+motors: build
+	$(RUN) python -m im_bringup.study_motors --out bags/motors
+
+# The certified 1 ms gains shipped for free_run (src/im_bringup/config/gains_1ms.yaml).
+gains: build
+	$(RUN) design_gains() { "$$(python -c 'from ament_index_python.packages import get_package_prefix as p; print(p("im_controller"))')/lib/im_controller/design_gains" "$$@"; }; \
+	design_gains --period 1e-3 --out src/im_bringup/config/gains_1ms.yaml
 
 clean:
 	rm -rf build install log

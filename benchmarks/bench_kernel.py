@@ -28,7 +28,7 @@ from scipy.integrate import solve_ivp
 from im_common.loads import LinearLoad  # noqa: E402
 from im_common.params import THESIS_MOTOR, chapter4_schedule  # noqa: E402
 from im_common.plant_sim import PlantSimulator  # noqa: E402
-from im_common.steady_state import eq112_matrices  # noqa: E402
+from im_common.model import eq112_matrices  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 T_S = 1e-4

@@ -8,7 +8,6 @@ import math
 
 import pytest
 
-pytest.importorskip('im_bringup.offline')
 from im_bringup.study_ch4 import run_case  # noqa: E402
 
 KEYS = ('variation', 'controller', 'R_r_hat_final', 'R_r_true_final', 'theta_hat_final',

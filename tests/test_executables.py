@@ -13,7 +13,7 @@ EXECUTABLES = [
     ('im_observer', 'observer'),
     ('im_controller', 'controller'),
     ('im_controller', 'design_gains'),
-    ('im_controller', 'robust_study'),
+    ('im_bringup', 'robust_study'),
     ('im_adapt', 'adapter'),
     ('im_robust', 'robust_examples'),
     ('im_bringup', 'scenario'),

@@ -19,7 +19,7 @@ from im_bringup.replay import Player, main as replay_main, reestimate
 from im_bringup.run import load_run
 from im_bringup.synth import make_synthetic_bag
 
-observer = pytest.importorskip('im_observer.observer')
+from im_observer import observer  # noqa: E402
 
 
 @pytest.fixture(scope='module')

@@ -178,11 +178,11 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
 
 def to_yaml(parameters: Dict[str, Dict[str, object]], use_sim_time: bool = True) -> str:
     """A ROS 2 parameters file (``--params-file``) for the given node parameters."""
-    import yaml
+    from im_common.yamlio import parameters_yaml
     doc = {}
     for node, values in parameters.items():
         vals = dict(values)
         if use_sim_time and node != 'plant':
             vals['use_sim_time'] = True
-        doc[node] = {'ros__parameters': vals}
-    return yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
+        doc[node] = vals
+    return parameters_yaml(doc)

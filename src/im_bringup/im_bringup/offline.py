@@ -1,5 +1,5 @@
 """Offline closed loop: plant + controller + observer stepped in pure Python, in exactly the order
-the lock-step ROS graph uses (DESIGN.md §3, "Time and rate"):
+the lock-step ROS graph uses (docs/architecture.md, "Lock-step protocol, startup and shutdown"):
 
     meas_k = plant.measure()                                  # plant publishes stamped t_k
     V_k    = controller.compute(t_k, meas_k, φ̂_k, p̂_k)        # controller holds all inputs of step k

@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Dict, List, Mapping, Optional, Sequence
 
-import yaml
 
 #: Order in which the supervisor starts nodes (the time master last: it waits for the others
 #: anyway, but starting it last makes its "waiting for" log short).
@@ -84,17 +83,16 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
 
 def params_file_text(parameters: Mapping[str, object]) -> str:
     """A node's parameters as ``launch_ros`` writes them: ``/**: ros__parameters: {...}``."""
-    return yaml.safe_dump({'/**': {'ros__parameters': dict(parameters)}}, sort_keys=False)
+    from im_common.yamlio import parameters_yaml
+    return parameters_yaml({'/**': dict(parameters)})
 
 
 def load_params_yaml(path: str) -> Dict[str, Dict[str, object]]:
     """{node: {param: value}} of a ROS 2 parameters YAML (e.g. from ``design_gains``)."""
+    from im_common.yamlio import read_parameters
     with open(path) as f:
-        doc = yaml.safe_load(f) or {}
-    out = {}
-    for node, body in doc.items():
-        out[str(node).strip('/').split('/')[-1]] = dict((body or {}).get('ros__parameters', {}))
-    return out
+        doc = read_parameters(f.read())
+    return {str(node).strip('/').split('/')[-1]: values for node, values in doc.items()}
 
 
 def executable_path(package: str, executable: str) -> str:

@@ -260,7 +260,7 @@ def main(argv=None) -> int:
 
     from im_common.lockstep import make_executor
     from im_common.stopping import StopSignals
-    from rclpy.utilities import remove_ros_args
+    from im_common.cli import parse_args
     full = list(sys.argv if argv is None else ['record'] + list(argv))
     ap = argparse.ArgumentParser(prog='record', description='Record the drive graph to MCAP.')
     ap.add_argument('--out', '-o', default=None,
@@ -276,7 +276,7 @@ def main(argv=None) -> int:
     ap.add_argument('--lossy', action='store_true',
                     help='do not hold the plant back (the recording may then miss steps; they '
                          'are counted and listed)')
-    a = ap.parse_args(remove_ros_args(args=full)[1:])
+    a = parse_args(ap, full[1:])
     out = a.out or time.strftime('bags/run_%Y%m%d_%H%M%S.mcap')
     try:
         topics = parse_topics(a.topics)

@@ -284,14 +284,13 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
 
 
 def main(argv=None) -> int:
-    from rclpy.utilities import remove_ros_args
-    args = remove_ros_args(args=list(sys.argv if argv is None else ['recover'] + list(argv)))[1:]
+    from im_common.cli import parse_args
     ap = argparse.ArgumentParser(prog='recover', description='Salvage the readable part of a '
                                  'truncated MCAP recording into a new, valid file.')
     ap.add_argument('bag')
     ap.add_argument('-o', '--out', default=None)
     ap.add_argument('--force', action='store_true', help='overwrite the output file')
-    a = ap.parse_args(args)
+    a = parse_args(ap, argv)
     try:
         r = recover(a.bag, a.out, a.force)
     except (BagError, FileExistsError, OSError) as exc:

@@ -283,8 +283,7 @@ class Player:
 
 
 def main(argv=None) -> int:
-    from rclpy.utilities import remove_ros_args
-    full = list(sys.argv if argv is None else ['replay'] + list(argv))
+    from im_common.cli import parse_args
     ap = argparse.ArgumentParser(prog='replay', description='Replay a recording (or re-run the '
                                  'observer on it with --reestimate).')
     ap.add_argument('bag')
@@ -305,7 +304,7 @@ def main(argv=None) -> int:
                     help='observer model parameters (R_s, R_r, L_s, L_r, L_sr, pole_pairs, ...)')
     ap.add_argument('--use-adapter', action='store_true', default=None,
                     help='apply the recorded /im/adapter/estimate at each step')
-    a = ap.parse_args(remove_ros_args(args=full)[1:])
+    a = parse_args(ap, argv)
     try:
         if a.reestimate:
             over: Dict[str, float] = {}

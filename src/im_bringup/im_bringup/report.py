@@ -224,16 +224,15 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
 
 
 def main(argv=None) -> int:
-    from rclpy.utilities import remove_ros_args
+    from im_common.cli import parse_args
     from .bag import BagError
-    args = remove_ros_args(args=list(sys.argv if argv is None else ['report'] + list(argv)))[1:]
     ap = argparse.ArgumentParser(prog='report', description='Figures of merit and figures of '
                                  'recorded runs (several bags: side-by-side comparison).')
     ap.add_argument('bags', nargs='+', help='MCAP recordings')
     ap.add_argument('--out', '-o', default=None, help='output directory')
     ap.add_argument('--no-plots', action='store_true', help='tables only')
     ap.add_argument('--force', action='store_true', help='replace an existing report in --out')
-    a = ap.parse_args(args)
+    a = parse_args(ap, argv)
     out = a.out or str(Path(a.bags[0]).with_suffix('')) + '_report'
     try:
         from .bag import check_output

@@ -115,8 +115,9 @@ def git_revision() -> str:
 def package_versions() -> dict:
     from importlib import metadata
     out = {}
-    for dist in ('ros-rclpy', 'ros-common-interfaces', 'ros-rmw-fastrtps-cpp', 'numpy', 'scipy',
-                 'mcap', 'mcap-ros2-support'):
+    for dist in ('ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-rclpy',
+                 'ros-common-interfaces', 'ros-rmw-fastrtps-cpp', 'numpy', 'scipy', 'mcap',
+                 'rosbags'):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
@@ -218,9 +219,8 @@ def print_summary(s: dict) -> None:
 
 
 def main(argv=None) -> int:
-    from rclpy.utilities import remove_ros_args
-    raw = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser().parse_args(remove_ros_args(args=['scenario'] + raw)[1:])
+    from im_common.cli import parse_args
+    args = parse_args(build_parser(), argv)
     try:
         limits = {k: v for k, v in (('torque_limit', args.torque_limit),
                                     ('current_limit', args.current_limit),

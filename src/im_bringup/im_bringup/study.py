@@ -117,6 +117,8 @@ def is_stable(task: str, strategy: str, T_s: float, duration: float | None = Non
                      record_every=1).summary
     except (FloatingPointError, OverflowError, ValueError) as exc:
         return False, {'error': str(exc)}
+    if s.get('trip'):                   # the protection stopped a run that lost control
+        return False, {'trip': s['trip']}
     err_ok = (s['pos_err_max_rad'] < 0.05) if task == 'position' else (s['speed_err_max_rad_s'] < 2.0)
     ok = math.isfinite(s['E_in_J']) and s['i_max_A'] < 100.0 and err_ok
     return ok, {k: s[k] for k in ('pos_err_max_rad', 'speed_err_max_rad_s', 'torque_err_max_Nm',

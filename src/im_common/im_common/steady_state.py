@@ -27,8 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# benchmarks/bench_kernel.py imports eq112_matrices from here; the one definition is the model's
-from .model import eq112_matrices  # noqa: F401
 
 
 @dataclass(frozen=True)
