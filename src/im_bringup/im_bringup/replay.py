@@ -284,6 +284,7 @@ class Player:
 
 def main(argv=None) -> int:
     from im_common.cli import parse_args
+    full = list(sys.argv if argv is None else ['replay'] + list(argv))    # rclpy.init's args
     ap = argparse.ArgumentParser(prog='replay', description='Replay a recording (or re-run the '
                                  'observer on it with --reestimate).')
     ap.add_argument('bag')
@@ -304,7 +305,7 @@ def main(argv=None) -> int:
                     help='observer model parameters (R_s, R_r, L_s, L_r, L_sr, pole_pairs, ...)')
     ap.add_argument('--use-adapter', action='store_true', default=None,
                     help='apply the recorded /im/adapter/estimate at each step')
-    a = parse_args(ap, argv)
+    a = parse_args(ap, full[1:])
     try:
         if a.reestimate:
             over: Dict[str, float] = {}
