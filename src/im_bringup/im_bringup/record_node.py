@@ -27,6 +27,7 @@ in-process graph records without this node (``DriveGraph(recorder=...)``).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from typing import Dict, Iterable, List, Optional
@@ -153,6 +154,13 @@ class RecorderNode(LockstepNode):
             period = int(values.get('T_s_ns', 0) or 0)
             if period:
                 self.period = period
+            if state == 'running' and values.get('mode') == 'free_run' and not self._niced:
+                # real time: the control loop has a deadline, the recorder does not (its history
+                # holds LOCKSTEP_DEPTH steps): give the loop's processes the CPU first
+                self._niced = True
+                os.nice(10)
+                self.get_logger().info('free_run: recording at a lower CPU priority than the '
+                                       'control loop')
             if state in END_STATES:
                 self.end_state = state
                 self.end_values = dict(values, node=name)
@@ -214,6 +222,7 @@ class RecorderNode(LockstepNode):
 
     _last_msg = 0.0
     _end_wall = 0.0
+    _niced = False
 
     def _maybe_ack(self) -> None:
         if not self._ack_topics:

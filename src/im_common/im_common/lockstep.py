@@ -410,9 +410,21 @@ class LockstepNode(Node):
             missing = g.missing()
             gone = [t for t in missing if self.count_publishers(t) == 0]
             hint = (f' ({", ".join(gone)} no longer has a publisher)' if gone else '')
+            hint += self.crosstalk_hint()
             self.fail(f"no {', '.join(missing)} stamped {stamp_text(g.expected)} "
                       f"(step {g.expected // g.period}) within {limit:.1f} s of wall time"
                       f"{hint}; stopping")
+
+    def crosstalk_hint(self) -> str:
+        """Names the lock-step topics with more than one publisher (another graph on this
+        domain), or '' if there are none."""
+        from .topics import LOCKSTEP_TOPICS
+        busy = [t for t in LOCKSTEP_TOPICS if self.count_publishers(t) > 1]
+        if not busy:
+            return ''
+        return (f'; {", ".join(busy)} ha{"ve" if len(busy) > 1 else "s"} more than one publisher:'
+                f' another graph is on this ROS domain (ROS_DOMAIN_ID='
+                f'{self.context.get_domain_id()}) — give each graph its own')
 
     def gate_input(self, topic: str, extract: Callable) -> None:
         """Subscribe (serialized, lock-step QoS) to ``topic`` and feed ``extract(data)`` =

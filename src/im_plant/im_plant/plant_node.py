@@ -73,6 +73,7 @@ class PlantNode(LockstepNode):
         # lossless followers: name -> [acked stamp ns, wall time of the last ack]
         self.followers: dict = {}
         self._parked = None
+        self._ok_since = None
 
         q = lockstep_qos()
         self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
@@ -103,7 +104,21 @@ class PlantNode(LockstepNode):
         self.start_protocol(timeout, startup)
 
     # Startup -----------------------------------------------------------------------------
+    #: How long the start condition must hold before step 0: discovery is asynchronous, and a
+    #: second graph on the domain is seen a moment after the nodes of one's own.
+    SETTLE_S = 0.3
+
     def ready_to_start(self) -> bool:
+        ok = self._start_condition()
+        now = time.monotonic()
+        if not ok:
+            self._ok_since = None
+            return False
+        if self._ok_since is None:
+            self._ok_since = now
+        return now - self._ok_since >= self.SETTLE_S
+
+    def _start_condition(self) -> bool:
         for topic in (T.MEAS_CURRENT, T.MEAS_SHAFT):
             if self.count_publishers(topic) > 1:
                 others = sorted({i.node_name for i in self.get_publishers_info_by_topic(topic)})
@@ -144,6 +159,7 @@ class PlantNode(LockstepNode):
             self._t0 = time.perf_counter()
             self.wall_start = self._t0
             self.publish_step()
+            sys.setswitchinterval(1e-4)     # hand the GIL over quickly between the two threads
             self._ticker = threading.Thread(target=self._tick_loop, name='plant-ticks',
                                             daemon=True)
             self._ticker.start()
@@ -151,17 +167,16 @@ class PlantNode(LockstepNode):
         self.publish_step()
 
     def _tick_loop(self) -> None:
-        """free_run's clock: a thread of its own that wakes at t0 + (k+1)·T_s (sleeping, then
-        spinning the last 200 µs), so the ticks do not queue behind the executor's callbacks.
-        Commands are still received by the executor thread (a dict insert under the GIL)."""
+        """free_run's clock: a thread of its own that sleeps until t0 + (k+1)·T_s, so the ticks
+        do not queue behind the executor's callbacks. Commands are still received by the executor
+        thread (a dict insert under a lock). No busy-waiting: a spinning thread would hold the
+        GIL for up to the interpreter's switch interval and starve the executor thread."""
         T_s, t0 = self.T_s, self._t0
         while not self.done and self.state == RUNNING:
             deadline = t0 + (self.sim.k + 1) * T_s
             left = deadline - time.perf_counter()
-            if left > 2e-4:
-                time.sleep(left - 2e-4)
-            while time.perf_counter() < deadline:
-                pass
+            if left > 0:        # sleeping releases the GIL: the executor thread takes commands
+                time.sleep(left)
             if self.done or self.state != RUNNING:
                 return
             if time.perf_counter() - deadline > 0.5 * T_s:
