@@ -79,7 +79,7 @@ def test_lockstep_advances_exactly_to_duration(ctx):
 
 
 def test_missing_command_is_reported_by_topic_and_stamp(ctx, caplog):
-    plant = make_plant(ctx, duration=1.0, input_timeout=0.3, startup_timeout=0.3)
+    plant = make_plant(ctx, duration=1.0, input_timeout=0.3, startup_timeout=5.0)
     # The stand-in controller stops answering after step 3.
     cmd, _ = _commander(ctx, lambda ns: (1.0, 0.0) if ns < 4 * 100_000 else None)
     _spin(ctx, [plant, cmd], lambda: plant.done)

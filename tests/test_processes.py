@@ -153,10 +153,13 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
 
 
 def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
-    """free_run at 1 kHz with the certified 1 ms gains: the plant starts after discovery, runs
-    on the wall clock (1 s of simulated time in about 1 s), accounts for every step's deadline
-    and the commands' latency, and the loop holds the pendulum. (How many deadlines this machine
-    meets is a benchmark figure: benchmarks/bench_processes.py.)"""
+    """free_run at 1 kHz with the certified 1 ms gains: the plant starts after discovery, runs on
+    the wall clock (never faster than real time), applies the commands that arrive by their
+    deadline and accounts for every step and every command's latency — in its final log line
+    whether the run reached its end or the protection tripped because this machine could not keep
+    the deadlines (how many it meets is a benchmark figure: benchmarks/bench_processes.py)."""
+    import re
+
     from ament_index_python.packages import get_package_share_directory
 
     from im_bringup.processes import load_params_yaml
@@ -170,14 +173,19 @@ def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
         codes = g.wait(120)
         wall = time.monotonic() - t0
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
     plant = g.log('plant')
-    assert 'free_run:' in plant and 'latency mean' in plant, plant
-    import re
-    m = re.search(r'free_run: (\d+) of (\d+) steps without a command', plant)
-    missed, steps = int(m.group(1)), int(m.group(2))
-    assert steps == 1000 and missed < steps // 2, plant
-    assert 0.9 < wall < 3.0             # wall-clock paced, not as fast as possible
+    m = re.search(r'free_run: (\d+) of (\d+) steps without a command by their deadline .*?'
+                  r'(\d+) late, (\d+) plant overruns; latency mean (\d+) µs.*?\((\d+) samples',
+                  plant)
+    assert m, plant
+    missed, steps, late, _, _, samples = (int(x) for x in m.groups())
+    if codes['plant'] == 0:
+        assert steps == 1000
+    else:                               # the protection stopped a loop that missed its deadlines
+        assert codes['plant'] == 1 and 'protection trip' in plant, plant
+    assert samples > 0 and abs(samples - (steps - missed + late)) <= 2  # every command counted
+    assert wall >= 0.9 * steps * 1e-3                               # paced by the wall clock
+    assert codes['controller'] == 0 and codes['observer'] == 0
 
 
 def _statuses(bag):

@@ -169,9 +169,30 @@ class RecorderNode(LockstepNode):
     def check_inputs(self) -> None:      # a follower has no watchdog
         return
 
+    def _check_master_left(self) -> None:
+        now = time.monotonic()
+        if now - self._master_checked < 0.5 or not self.counts.get(T.MEAS_CURRENT):
+            return
+        self._master_checked = now
+        if self.count_publishers(T.MEAS_CURRENT) > 0:
+            self._master_gone_since = None
+        elif self._master_gone_since is None:
+            self._master_gone_since = now
+        elif now - self._master_gone_since > 2.0:
+            self.get_logger().warning('the plant left the graph without a final status; '
+                                      'closing the recording')
+            self.end_state = 'ended'
+            self.end_values = {'reason': 'the plant left the graph without a final status',
+                               'step': str((self.track[T.MEAS_CURRENT].last or 0)
+                                           // max(self.period, 1))}
+            self._end_wall = now
+
     def drained(self) -> bool:
         """After the run's end: every lock-step topic has reached the plant's last step (or
-        nothing new came for a second)."""
+        nothing new came for a second). A plant that left the graph without a final status (its
+        last event lost, or killed) also ends the recording, and the bag says so."""
+        if self.end_state is None:
+            self._check_master_left()
         if self.end_state is None:
             return False
         last_step = int(self.end_values.get('step', 0) or 0)
@@ -223,6 +244,8 @@ class RecorderNode(LockstepNode):
     _last_msg = 0.0
     _end_wall = 0.0
     _niced = False
+    _master_checked = 0.0
+    _master_gone_since = None
 
     def _maybe_ack(self) -> None:
         if not self._ack_topics:

@@ -12,13 +12,15 @@ when ``record`` names a file, and the plant then waits for it before step 0. ``g
 ``params_file`` are ROS 2 parameters files merged over the scenario's parameters (``gains`` e.g.
 ``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``, which
 ``mode:=free_run`` needs). Ctrl-C stops every process cleanly (exit 0) and closes the recording.
+Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless that variable is
+already set (``SUBNET`` opens the graph to other machines on purpose).
 
 Needs a full ROS 2 Jazzy install (``launch``/``launch_ros`` are not on PyPI); nothing in the test
 suite imports this file.
 """
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.substitutions import LaunchConfiguration
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 ARGUMENTS = (
@@ -59,4 +61,7 @@ def generate_launch_description():
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=doc)
          for name, default, doc in ARGUMENTS]
-        + [OpaqueFunction(function=_processes)])
+        # discovery stays on this host unless the user opened it on purpose
+        + [SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', EnvironmentVariable(
+            'ROS_AUTOMATIC_DISCOVERY_RANGE', default_value='LOCALHOST')),
+           OpaqueFunction(function=_processes)])
