@@ -166,3 +166,32 @@ def test_scenario_recording_carries_run_metadata_and_matches_its_summary(tmp_pat
     fig = figures_of_merit(load_run(path))      # the report of the bag = the live summary
     for key in ('E_in_J', 'E_loss_J', 'speed_err_max_rad_s', 'torque_err_max_Nm'):
         assert fig[key] == pytest.approx(s[key], rel=1e-12), key
+
+
+def test_a_node_at_another_period_is_refused_by_name():
+    """Different T_s per node would deadlock at step 1: the plant refuses to start and names the
+    node and both periods."""
+    res = run_graph(task='position', duration=0.05, parameters={'observer': {'T_s': 2e-4}})
+    assert not res.summary['ok']
+    msg = res.summary['failures']['plant']
+    assert "node 'observer' runs at T_s = 0.0002 s" in msg and '0.0001 s' in msg
+
+
+def test_non_finite_command_is_refused_and_held_by_the_observer(ros_context):
+    """A NaN on /im/command/voltage (the plant rejects and holds it) must not kill the observer
+    either: refused, logged with its stamp, counted, the previous command held."""
+    from im_common import topics as T
+    from im_common.conversions import JointStateOut, Vector3Out
+    from im_observer.observer_node import ObserverNode
+    node = ObserverNode(context=ros_context)
+    subs = {s.topic_name: s for s in node.subscriptions}
+    vec, shaft = Vector3Out(), JointStateOut([T.SHAFT_JOINT])
+    for k in range(3):
+        ns = k * node.period
+        subs[T.MEAS_CURRENT].callback(vec.fill(ns, 1.0, 0.0))
+        subs[T.MEAS_SHAFT].callback(shaft.fill(ns, (0.0,), (0.0,)))
+        subs[T.CMD_VOLTAGE].callback(vec.fill(ns, 10.0 if k == 0 else float('nan'), 0.0))
+    assert not node.done and node.exit_code == 0
+    assert node.refused == 2 and node.k_done == 2           # steps 1, 2 ran on the held 10 V
+    assert all(math.isfinite(v) for v in node.obs.state)
+    node.destroy_node()

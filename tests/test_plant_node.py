@@ -1,12 +1,10 @@
 """The plant node in lock-step: it advances only on a command stamped t_k, refuses bad input,
 reports a missing command by topic and stamp, and never lets its state become NaN."""
 import math
-import random
 
 import pytest
 import rclpy
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -18,11 +16,8 @@ from im_plant.plant_node import PlantNode
 
 
 @pytest.fixture
-def ctx():
-    c = Context()
-    rclpy.init(context=c, domain_id=random.randint(150, 229))
-    yield c
-    rclpy.try_shutdown(context=c)
+def ctx(ros_context):
+    return ros_context
 
 
 def make_plant(ctx, **overrides):

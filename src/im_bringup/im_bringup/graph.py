@@ -11,7 +11,6 @@ the :class:`im_bringup.bag.BagWriter` with its stamp, without an extra subscript
 from __future__ import annotations
 
 import random
-import sys
 import time
 from typing import Dict, Mapping, Optional
 
@@ -19,6 +18,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
+
+from im_common.cli import status_line
 
 
 
@@ -134,7 +135,7 @@ class DriveGraph:
             while not all(n.done for n in nodes) and time.perf_counter() - t_fail < 1.0:
                 self.executor.spin_once(timeout_sec=0.05)
         if progress:
-            print(file=sys.stderr)
+            status_line('', done=True)
         steps = (plant.sim.k - k0) if plant is not None else 0
         failures.update({name: n.failure for name, n in self.nodes.items() if n.exit_code})
         stats = {'steps': steps, 'wall_s': self.wall_s,
@@ -170,9 +171,8 @@ class DriveGraph:
                     last_print = now
                     k = plant.sim.k
                     frac = f'{100.0 * k / total:5.1f} %' if total else ''
-                    print(f'\r  t = {k * plant.T_s:8.4f} s  step {k}  {frac}  '
-                          f'{(k - k0) / (now - t0):8.0f} steps/s', end='', file=sys.stderr,
-                          flush=True)
+                    status_line(f'  t = {k * plant.T_s:8.4f} s  step {k}  {frac}  '
+                                f'{(k - k0) / (now - t0):8.0f} steps/s')
         watcher = threading.Thread(target=watch, name='graph-watch', daemon=True)
         watcher.start()
         try:

@@ -18,13 +18,13 @@ angle 0) — plant and observer both start there (``start='steady'``).
 from __future__ import annotations
 
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
+from im_common.cli import status_line
 from im_common.loads import Load, load_parameters, make_load
 from im_common.metrics import energy_figures, tracking_figures
 from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
@@ -288,9 +288,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             if estimates:
                 observer.set_estimates(estimates.get('R_r'), estimates.get('theta'))
         if progress and k % report_every == 0:
-            print(f'\r{label}: {100.0 * k / n_steps:5.1f} %', end='', file=sys.stderr, flush=True)
+            status_line(f'{label}: {100.0 * k / n_steps:5.1f} %')
     if progress:
-        print(f'\r{label}: done in {time.perf_counter() - wall0:.1f} s', file=sys.stderr, flush=True)
+        status_line(f'{label}: done in {time.perf_counter() - wall0:.1f} s', done=True)
     trace = {k: v[:rec] for k, v in tr.items()}
     summary = _summary(sc, plant, trace, n_steps)
     if timing:

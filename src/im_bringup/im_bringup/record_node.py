@@ -199,8 +199,11 @@ class RecorderNode(LockstepNode):
         final_ns = last_step * self.period
         behind = [t for t in (T.MEAS_CURRENT, T.MEAS_SHAFT) if t in self.track
                   and (self.track[t].last or -1) < final_ns]
-        quiet = time.monotonic() - max(self._end_wall, self._last_msg) > 1.0
-        return not behind or quiet
+        now = time.monotonic()
+        quiet = now - max(self._end_wall, self._last_msg) > 1.0
+        # a short grace after the end event, so that the event itself (delivered to the
+        # recording subscription separately) and the last steps' messages are written too
+        return (not behind and now - self._end_wall > 0.3) or quiet
 
     # Messages ---------------------------------------------------------------------------
     def _callback(self, topic: str, tname: str, raw: bool):

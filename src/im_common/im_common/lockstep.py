@@ -51,7 +51,7 @@ LOCKSTEP_DEPTH = 100
 
 # Run states published on /im/status.
 WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
-PARAMETERS = 'parameters'
+PARAMETERS, WARNING = 'parameters', 'warning'     # events that are not a state
 FINISHED, STOPPING, STOPPED, FAILED = 'finished', 'stopping', 'stopped', 'failed'
 END_STATES = (FINISHED, STOPPED, FAILED)
 
@@ -210,6 +210,8 @@ class LockstepNode(Node):
         self.master_state = ''                      # last state of the time master (plant)
         self.run_id = ''                            # the time master's run this node follows
         self._foreign_said = False
+        self._publishers_checked = 0.0
+        self._reported_publishers: set = set()
         self._timeout = 5.0
         self._startup_timeout = 30.0
         self._since = time.monotonic()
@@ -251,7 +253,7 @@ class LockstepNode(Node):
                **values) -> None:
         """Publish a run-protocol event on /im/status (and keep it as this node's state)."""
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-        if state not in (PARAMETERS,):
+        if state not in (PARAMETERS, WARNING):
             self.state = state
         msg = DiagnosticArray()
         ns = self.current_ns() if stamp_ns is None else stamp_ns
@@ -351,6 +353,26 @@ class LockstepNode(Node):
                              f'the end within {max(self._timeout, 1.0):.1f} s')
         else:
             self.check_inputs()
+            self.check_publishers()
+
+    def check_publishers(self) -> None:
+        """Every second while running: a lock-step input with more than one publisher (a foreign
+        node, another graph) is reported once, with the nodes, on the log and on /im/status."""
+        now = time.monotonic()
+        if now - self._publishers_checked < 1.0:
+            return
+        self._publishers_checked = now
+        for t in self.inputs:
+            if t in self._reported_publishers:
+                continue
+            infos = self.get_publishers_info_by_topic(t)
+            if len(infos) > 1:
+                self._reported_publishers.add(t)
+                names = sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}' for i in infos)
+                text = (f'{t} has {len(infos)} publishers ({", ".join(names)}); only one is '
+                        f'expected: a foreign node or another graph is on this ROS domain')
+                self.get_logger().error(text)
+                self.status(WARNING, level=1, reason=text)
 
     def missing_inputs(self) -> List[str]:
         return [t for t in self.inputs if self.count_publishers(t) == 0]
@@ -481,11 +503,11 @@ class LockstepNode(Node):
         if self.master_state in END_STATES:
             self.end_run('finished')
 
-    def fail(self, reason: str) -> None:
+    def fail(self, reason: str, **values) -> None:
         self.get_logger().error(reason)
         self.failure = reason
         self.exit_code = 1
-        self.status(FAILED, level=2, reason=reason)
+        self.status(FAILED, level=2, reason=reason, **values)
         self.done = True
         if self.on_stop is not None:
             self.on_stop(self)

@@ -324,10 +324,11 @@ class PlantNode(LockstepNode):
                 f'({100.0 * self.missed / max(k, 1):.2f} %), {self.late} late, {self.overruns} '
                 f'plant overruns; latency {self.latency.describe()}')
 
-    def fail(self, reason: str) -> None:
+    def fail(self, reason: str, **values) -> None:
         if self.mode == 'free_run' and self.state == RUNNING:
             reason += f' ({self.free_run_text()})'
-        super().fail(reason)
+            values.update(self.free_run_stats(), steps=self.sim.k)
+        super().fail(reason, **values)
 
     # Stepping ----------------------------------------------------------------------------
     def advance(self, v_a: float, v_b: float) -> None:
