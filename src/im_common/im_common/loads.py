@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .params import InvalidParameter
+from .params import InvalidParameter, read_yaml_file
 
 
 class Load:
@@ -136,15 +136,7 @@ def load_from_dict(doc, source: str = 'load') -> Load:
 
 def load_file(path: str) -> Load:
     """Read a load description (YAML mapping, see :func:`load_from_dict`) from ``path``."""
-    import yaml
-    try:
-        with open(path) as f:
-            doc = yaml.safe_load(f)
-    except OSError as exc:
-        raise InvalidParameter('load file', path, f'cannot be read ({exc.strerror})') from None
-    except yaml.YAMLError as exc:
-        raise InvalidParameter('load file', path, f'is not valid YAML ({str(exc).splitlines()[0]})') from None
-    return load_from_dict(doc, source=path)
+    return load_from_dict(read_yaml_file(path, 'load file'), source=path)
 
 
 def load_parameters(load: Load) -> dict:

@@ -185,18 +185,24 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
         raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
 
 
-def load_motor_file(path: str) -> MotorParams:
-    """Read a motor file: a ROS 2 parameters YAML whose ``/**`` (every node) section holds the
-    motor fields under ``ros__parameters``."""
+def read_yaml_file(path: str, what: str):
+    """The YAML document in ``path``; a file that cannot be read or parsed is one
+    :class:`InvalidParameter` naming ``what`` (e.g. 'motor file') and the file."""
     import yaml
     try:
         with open(path) as f:
-            doc = yaml.safe_load(f)
+            return yaml.safe_load(f)
     except OSError as exc:
-        raise InvalidParameter('motor file', path, f'cannot be read ({exc.strerror})') from None
+        raise InvalidParameter(what, path, f'cannot be read ({exc.strerror})') from None
     except yaml.YAMLError as exc:
-        raise InvalidParameter('motor file', path,
+        raise InvalidParameter(what, path,
                                f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+
+
+def load_motor_file(path: str) -> MotorParams:
+    """Read a motor file: a ROS 2 parameters YAML whose ``/**`` (every node) section holds the
+    motor fields under ``ros__parameters``."""
+    doc = read_yaml_file(path, 'motor file')
     if not isinstance(doc, dict) or set(doc) != {'/**'} or not isinstance(doc['/**'], dict) \
             or set(doc['/**']) != {'ros__parameters'}:
         raise InvalidParameter(f'{path}', 'layout',

@@ -29,7 +29,7 @@ import math
 from dataclasses import dataclass
 from typing import Optional, Sequence, Tuple
 
-from im_common.params import InvalidParameter
+from im_common.params import InvalidParameter, read_yaml_file
 
 # the field names of /im/setpoint (sensor_msgs/JointState) → controller modes
 KINDS = {'position': 'position', 'velocity': 'speed', 'effort': 'torque'}
@@ -138,15 +138,7 @@ def load_profile(path: str) -> Profile:
     """Read a profile file: ``.yaml``/``.yml`` setpoints or ``.csv`` samples (module doc)."""
     if path.endswith('.csv'):
         return _load_csv(path)
-    import yaml
-    try:
-        with open(path) as f:
-            doc = yaml.safe_load(f)
-    except OSError as exc:
-        raise InvalidParameter('profile file', path, f'cannot be read ({exc.strerror})') from None
-    except yaml.YAMLError as exc:
-        raise InvalidParameter('profile file', path,
-                               f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+    doc = read_yaml_file(path, 'profile file')
     if not isinstance(doc, dict) or 'setpoints' not in doc:
         raise InvalidParameter(f'{path}: setpoints', None,
                                'is missing (expected setpoints: [{t: 0.0, velocity: 100.0}, ...])')
