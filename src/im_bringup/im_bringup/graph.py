@@ -92,13 +92,12 @@ class DriveGraph:
                         msg = serialize_message(msg)
                     _write(_topic, msg)
                 pub.publish = tapped
-        # Messages the nodes published while being built (initial estimates, step 0), again for
-        # the tap (a repeated stamp is ignored by the receiving gates).
+        # Messages the nodes published while being built (initial estimates), again for the tap
+        # (a repeated stamp is ignored by the receiving gates). The plant publishes step 0 only
+        # when the run starts (the run protocol), through its tapped publishers.
         for name in ('observer', 'adapter'):
             if name in self.nodes:
                 self.nodes[name].publish_estimate(0)
-        if 'plant' in self.nodes:
-            self.nodes['plant'].publish_step()
 
     def _stopped(self, node) -> None:
         """A node finished or failed: the run ends when the plant is done or a node failed."""

@@ -270,6 +270,9 @@ class PlantNode(LockstepNode):
             self.refuse(T.CMD_VOLTAGE, ns, f'non-finite voltage ({vx!r}, {vy!r}); holding the '
                         f'previous command')
             vx, vy = self.last_cmd
+        if self.state not in (RUNNING, 'draining'):   # before step 0: not a command of this run
+            self.refuse(T.CMD_VOLTAGE, ns, 'arrived before the run started (no step published)')
+            return
         if self.mode == 'free_run':
             self._free_command(ns, vx, vy)
             return
