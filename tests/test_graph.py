@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from im_bringup.testing import run_graph
+from im_bringup.testing import assert_samples_match, run_graph
 
 
 def test_same_run_twice_gives_identical_numbers():
@@ -43,16 +43,7 @@ def test_graph_equals_the_ros_free_loop(task, strategy, controller, variation):
     for key in ('E_in_J', 'E_copper_J', 'dW_magnetic_J'):
         assert g.summary[key] == pytest.approx(off.summary[key], rel=1e-9, abs=1e-12), key
     # the graph's samples at t_k equal the offline per-step trace at the same instants
-    t_off = np.round(np.asarray(off.trace['t']) * 1e9).astype(np.int64)
-    idx = {ns: i for i, ns in enumerate(t_off)}
-    shared = [(i, idx[ns]) for i, ns in enumerate(np.round(g.trace['t'] * 1e9).astype(np.int64))
-              if ns in idx]
-    assert len(shared) >= 500
-    for key in ('omega_r', 'theta_r', 'phi_hat_alpha'):
-        a = np.array([g.trace[key][i] for i, _ in shared])
-        b = np.array([off.trace[key][j] for _, j in shared])
-        ok = np.isfinite(a)
-        np.testing.assert_allclose(a[ok], b[ok], rtol=1e-9, atol=1e-12, err_msg=key)
+    assert_samples_match(g.trace, off.trace, ('omega_r', 'theta_r', 'phi_hat_alpha'), 500)
 
 
 def test_missing_observer_is_reported_and_the_run_stops():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from im_bringup.config import node_parameters
-from im_bringup.testing import run_graph
+from im_bringup.testing import assert_samples_match, run_graph
 from im_common.params import load_motor_file
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -68,15 +68,7 @@ def test_graph_equals_the_offline_loop_with_motor_profile_load_and_limits(files)
     assert g.summary['ok'], g.summary['failures']
     for key in ('E_in_J', 'E_copper_J', 'dW_magnetic_J'):
         assert g.summary[key] == pytest.approx(off.summary[key], rel=1e-9, abs=1e-12), key
-    t_off = np.round(np.asarray(off.trace['t']) * 1e9).astype(np.int64)
-    idx = {ns: i for i, ns in enumerate(t_off)}
-    shared = [(i, idx[ns]) for i, ns in enumerate(np.round(g.trace['t'] * 1e9).astype(np.int64))
-              if ns in idx]
-    assert len(shared) >= 400
-    for key in ('omega_r', 'theta_r'):
-        a = np.array([g.trace[key][i] for i, _ in shared])
-        b = np.array([off.trace[key][j] for _, j in shared])
-        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12, err_msg=key)
+    assert_samples_match(g.trace, off.trace, ('omega_r', 'theta_r'), 400)
     # the profile was followed: the reference reached 120 rad/s
     assert np.nanmax(g.trace['omega_ref']) == pytest.approx(120.0, abs=1e-6)
 

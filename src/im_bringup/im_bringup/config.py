@@ -30,32 +30,13 @@ TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
                         "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
 
 
-def _motor(value, what: str):
-    """A MotorParams from a MotorParams or a motor-file path (None stays None)."""
-    from im_common.params import MotorParams, load_motor_file
-    if value is None or isinstance(value, MotorParams):
+def _from_file(value, kind: type, read, what: str):
+    """``value`` as given when it is already a ``kind`` (or None), else read from its file path."""
+    if value is None or isinstance(value, kind):
         return value
     if isinstance(value, str):
-        return load_motor_file(value)
-    raise ValueError(f'invalid {what} {value!r}: a motor file path or MotorParams')
-
-
-def _profile(value):
-    from im_controller.profiles import Profile, load_profile
-    if value is None or isinstance(value, Profile):
-        return value
-    if isinstance(value, str):
-        return load_profile(value)
-    raise ValueError(f'invalid profile {value!r}: a profile file path or Profile')
-
-
-def _load(value):
-    from im_common.loads import Load, load_file
-    if value is None or isinstance(value, Load):
-        return value
-    if isinstance(value, str):
-        return load_file(value)
-    raise ValueError(f'invalid load {value!r}: a load file path or Load')
+        return read(value)
+    raise ValueError(f'invalid {what} {value!r}: a {what} file path or {kind.__name__}')
 
 
 def motor_parameters(motor) -> Dict[str, object]:
@@ -97,10 +78,13 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     from im_common.loads import load_parameters
     from im_common.params import CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR
     from im_controller.control_law import ControllerConfig, steady_start
-    motor = _motor(motor, 'motor')
-    estimates = _motor(estimates, 'estimates')
-    profile = _profile(profile)
-    load = _load(load)
+    from im_common.loads import Load, load_file
+    from im_common.params import MotorParams, load_motor_file
+    from im_controller.profiles import Profile, load_profile
+    motor = _from_file(motor, MotorParams, load_motor_file, 'motor')
+    estimates = _from_file(estimates, MotorParams, load_motor_file, 'estimates')
+    profile = _from_file(profile, Profile, load_profile, 'profile')
+    load = _from_file(load, Load, load_file, 'load')
     limits = dict(limits or {})
     protection = dict(protection or {})
     for key in limits:

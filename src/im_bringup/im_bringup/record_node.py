@@ -48,6 +48,8 @@ STAMPED_TYPES = RAW_TYPES | {T.DIAG, T.HEADER}
 #: Lock-step topics whose progress the recorder acknowledges (the adapter's estimates follow the
 #: run and are recorded as they come, but do not hold the plant back).
 ACK_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
+#: Reader history of the lock-step topics (samples; ≈ 100 bytes each).
+LOCKSTEP_READER_DEPTH = 5000
 
 
 def default_topics() -> Dict[str, str]:
@@ -115,6 +117,9 @@ class RecorderNode(LockstepNode):
         self._acked = -1
         self._subs = []
         self.topics = dict(topics or default_topics())
+        # Announce the lossless follower before subscribing: from the moment the plant sees it,
+        # the plant stays within follower_window steps of the recorder's acknowledgements.
+        self.start_protocol(input_timeout=5.0, startup_timeout=1e9)
         critical = set(T.LOCKSTEP_TOPICS)
         for topic, tname in self.topics.items():
             reliability = ReliabilityPolicy.RELIABLE
@@ -126,7 +131,10 @@ class RecorderNode(LockstepNode):
             latched = topic in critical or topic == T.STATUS
             durability = (DurabilityPolicy.TRANSIENT_LOCAL if latched
                           else DurabilityPolicy.VOLATILE)
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+            # lock-step topics: a reader history deep enough for a few seconds of a run that had
+            # not yet seen the recorder (joining late, or slow to start): no overwrite meanwhile
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
+                             depth=max(depth, LOCKSTEP_READER_DEPTH) if topic in critical else depth,
                              reliability=reliability, durability=durability)
             writer.add_topic(topic, tname, qos=qos_yaml(
                 reliability='best_effort' if reliability == ReliabilityPolicy.BEST_EFFORT
@@ -142,7 +150,6 @@ class RecorderNode(LockstepNode):
         self._progress = self.create_publisher(Header, T.PROGRESS, 10)
         self._ack_topics = [t for t in ACK_TOPICS if t in self.track]
         self.create_timer(0.02, self._maybe_ack)
-        self.start_protocol(input_timeout=5.0, startup_timeout=1e9)
 
     # Protocol ---------------------------------------------------------------------------
     def on_ready(self) -> None:

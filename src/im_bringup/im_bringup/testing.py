@@ -58,6 +58,22 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     return GraphResult(summary, run.trace, params)
 
 
+def assert_samples_match(graph_trace: Dict[str, np.ndarray], offline_trace: Dict[str, np.ndarray],
+                         keys, min_shared: int, rtol: float = 1e-9, atol: float = 1e-12) -> None:
+    """The graph's samples at t_k equal the ROS-free loop's per-step trace at the same instants
+    (stamps matched in integer ns; NaN samples of decimated topics skipped)."""
+    t_off = np.round(np.asarray(offline_trace['t']) * 1e9).astype(np.int64)
+    idx = {ns: i for i, ns in enumerate(t_off)}
+    stamps = np.round(np.asarray(graph_trace['t']) * 1e9).astype(np.int64)
+    shared = [(i, idx[ns]) for i, ns in enumerate(stamps) if ns in idx]
+    assert len(shared) >= min_shared, f'only {len(shared)} shared instants'
+    for key in keys:
+        a = np.array([graph_trace[key][i] for i, _ in shared])
+        b = np.array([offline_trace[key][j] for _, j in shared])
+        ok = np.isfinite(a)
+        np.testing.assert_allclose(a[ok], b[ok], rtol=rtol, atol=atol, err_msg=key)
+
+
 @pytest.fixture
 def drive_graph():
     """Callable fixture: ``drive_graph(task=..., strategy=..., duration=..., parameters=...)``."""

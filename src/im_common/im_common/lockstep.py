@@ -518,11 +518,13 @@ class LockstepNode(Node):
             self.on_stop(self)
 
     def request_stop(self, signame: str) -> None:
-        """A stop signal: say so on /im/status and end (exit code 0)."""
+        """A stop signal: say so on /im/status and end (exit code 0). The time master's stop
+        ends the run (``stopped``); any other node's is news for the others (``stopping``)."""
         if self.done:
             return
-        self.get_logger().info(f'{signame}: stopping')
-        self.status(STOPPING, level=1, reason=signame)
+        self.get_logger().info(f'{signame}: stopping' + (
+            f' the run at step {self.current_ns() // self.period}' if self.period else ''))
+        self.status(STOPPED if self.time_master else STOPPING, level=1, reason=signame)
         self.done = True
 
     def flush(self, timeout: float = 2.0) -> None:

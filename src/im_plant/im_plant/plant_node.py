@@ -209,13 +209,6 @@ class PlantNode(LockstepNode):
             self.status(STOPPED, level=1, reason=reason)
             self.finish()
 
-    def request_stop(self, signame: str) -> None:
-        if self.done:
-            return
-        self.get_logger().info(f'{signame}: stopping the run at step {self.sim.k}')
-        self.status(STOPPED, level=1, reason=signame)
-        self.done = True
-
     def on_progress(self, msg) -> None:
         f = self.followers.get(msg.frame_id)
         if f is None:
