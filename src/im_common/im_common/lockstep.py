@@ -522,8 +522,9 @@ class LockstepNode(Node):
         ends the run (``stopped``); any other node's is news for the others (``stopping``)."""
         if self.done:
             return
-        self.get_logger().info(f'{signame}: stopping' + (
-            f' the run at step {self.current_ns() // self.period}' if self.period else ''))
+        where = f' at step {self.current_ns() // self.period}' if self.period else ''
+        self.get_logger().info(f'{signame}: stopping' + (' the run' if self.time_master else '')
+                               + where)
         self.status(STOPPED if self.time_master else STOPPING, level=1, reason=signame)
         self.done = True
 
