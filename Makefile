@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study motors gains clean distclean
+.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study motors gains policy clean distclean
 
 all: demo
 
@@ -74,6 +74,10 @@ motors: build
 gains: build
 	$(RUN) design_gains() { "$$(python -c 'from ament_index_python.packages import get_package_prefix as p; print(p("im_controller"))')/lib/im_controller/design_gains" "$$@"; }; \
 	design_gains --period 1e-3 --out src/im_bringup/config/gains_1ms.yaml
+
+# The SROS2 access-control policy, generated from the nodes (src/im_bringup/config/sros2/policy.xml).
+policy: build
+	$(RUN) python -m im_bringup.sros2_policy --write
 
 clean:
 	rm -rf build install log

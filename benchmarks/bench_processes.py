@@ -115,7 +115,16 @@ def _gains():
                                          'gains_1ms.yaml'))
 
 
-def free_run(duration: float) -> dict:
+def free_run(duration: float, realtime: bool = True, busy: bool = False) -> dict:
+    """free_run at 1 kHz; ``realtime``: the nodes' default SCHED_FIFO (rt_priority 50) — the
+    scheduling each node got is in the plant's final status — else ordinary scheduling;
+    ``busy``: a CPU-bound process beside the graph."""
+    if busy:
+        hog = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+        try:
+            return free_run(duration, realtime)
+        finally:
+            hog.kill()
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
@@ -127,8 +136,12 @@ def free_run(duration: float) -> dict:
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
     bag = os.path.join(tempfile.mkdtemp(prefix='bench_free_'), 'free.mcap')
+    extra = _gains()
+    if not realtime:
+        for node in ('plant', 'controller', 'observer', 'adapter'):
+            extra.setdefault(node, {})['rt_priority'] = 0
     _run_graph_processes(graph_processes('position', 'min_energy', T_s=1e-3, duration=duration,
-                                         mode='free_run', record=bag, extra=_gains()), 'free',
+                                         mode='free_run', record=bag, extra=extra), 'free',
                          plant_may_fail=True)      # a trip is a result: the loop lost its deadlines
     end, tripped = None, 0
     for _, _, _, raw in iter_raw(bag, [T.STATUS]):
@@ -141,7 +154,8 @@ def free_run(duration: float) -> dict:
     steps = int(end['steps'])
     ref = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=duration,
                     parameters=_gains())
-    return {'free_run_1kHz_steps': steps, 'free_run_1kHz_tripped': tripped,
+    return {'free_run_1kHz_realtime': int(end.get('scheduling', '').startswith('fifo')),
+            'free_run_1kHz_steps': steps, 'free_run_1kHz_tripped': tripped,
             'free_run_1kHz_missed_fraction': int(end['missed']) / steps,
             'free_run_1kHz_late_commands': int(end['late']),
             'free_run_1kHz_plant_overruns': int(end['overruns']),
@@ -165,6 +179,10 @@ def run(quick: bool = False) -> dict:
     res['lockstep_processes_vs_ping_pong'] = (res['lockstep_processes_steps_per_s']
                                               / res['ping_pong_two_processes_round_trips_per_s'])
     res.update(free_run(d))
+    res.update({k.replace('free_run_1kHz', 'free_run_1kHz_busy'): v
+                for k, v in free_run(d, busy=True).items()})
+    res.update({k.replace('free_run_1kHz', 'free_run_1kHz_normal_sched'): v
+                for k, v in free_run(d, realtime=False).items()})
     return res
 
 

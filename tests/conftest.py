@@ -8,6 +8,22 @@ pytest_plugins = ['im_bringup.testing']
 TEST_DOMAINS = (150, 229)
 
 
+@pytest.fixture(scope='session', autouse=True)
+def graph_key_file(tmp_path_factory):
+    """Nodes built without a key of their own (``ros2 run`` style) share this session's key file
+    instead of the user's ``~/.ros/im_drive/graph.key``."""
+    import os
+    from im_common import auth
+    path = str(tmp_path_factory.mktemp('key') / 'graph.key')
+    old = os.environ.get(auth.KEY_ENV)
+    os.environ[auth.KEY_ENV] = path
+    yield path
+    if old is None:
+        os.environ.pop(auth.KEY_ENV, None)
+    else:
+        os.environ[auth.KEY_ENV] = old
+
+
 @pytest.fixture
 def ros_context():
     """An initialized rclpy ``Context`` on a random DDS domain in 150-229, shut down afterwards.

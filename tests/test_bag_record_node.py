@@ -12,8 +12,11 @@ from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from im_bringup.bag import read_messages
-from im_bringup.bag import BagWriter
+from rclpy.serialization import deserialize_message
+
+from im_bringup.bag import BagWriter, info, read_messages
+from im_common.auth import Signer
+from im_common.conversions import JointStateOut, Vector3Out
 from im_bringup.record_node import RecorderNode, parse_topics
 
 
@@ -46,26 +49,35 @@ def test_recorder_node_records_what_was_published(tmp_path):
         while (p_cur.get_subscription_count() == 0 or p_sh.get_subscription_count() == 0
                or p_clk.get_subscription_count() == 0) and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
+        # the talker is the graph's plant: it signs the lock-step topics for its run
+        rec.adopt_run('run1')
+        sign = Signer(rec.signer.key, 'run1').sign
+        v3, shaft = Vector3Out(Signer.frame('alphabeta')), JointStateOut(['rotor'],
+                                                                          Signer.frame(''))
         sent = []
         for k in range(50):
             t = 2 * 10**9 + k * 100_000
-            m = Vector3Stamped()
-            m.header.stamp.sec, m.header.stamp.nanosec = divmod(t, 10**9)
-            m.vector.x, m.vector.y = 0.5 * k, -1.0 * k
-            js = JointState()
-            js.header.stamp = m.header.stamp
-            js.name = ['rotor']
-            js.position, js.velocity = [0.1 * k], [3.0]
+            cur = sign('/im/measured/current', v3.fill(t, 0.5 * k, -1.0 * k))
+            sh = sign('/im/measured/shaft', shaft.fill(t, (0.1 * k,), (3.0,)))
             c = Clock()
-            c.clock = m.header.stamp
-            p_cur.publish(m)
-            p_sh.publish(js)
+            c.clock.sec, c.clock.nanosec = divmod(t, 10**9)
+            p_cur.publish(cur)
+            p_sh.publish(sh)
             p_clk.publish(c)
-            sent += [('/im/measured/current', t, m), ('/im/measured/shaft', t, js),
+            sent += [('/im/measured/current', t, deserialize_message(cur, Vector3Stamped)),
+                     ('/im/measured/shaft', t, deserialize_message(sh, JointState)),
                      ('/clock', t, c)]
             ex.spin_once(timeout_sec=0.0)
-        while sum(rec.counts.values()) < len(sent) and time.monotonic() < deadline:
+        # a foreign message on a lock-step topic: kept apart, never mixed into the run's data
+        rogue = Vector3Stamped()
+        rogue.header.stamp.sec = 2
+        rogue.vector.x = 50.0
+        p_cur.publish(rogue)
+        while (sum(rec.counts.values()) < len(sent) or not (rec.unsigned or rec._early)) \
+                and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
+        rec.flush_unverified()          # the run never started: what did not verify is refused
+        rec.writer.add_metadata('recording', rec.close_metadata(None))
     finally:
         writer.close()
         for n in (rec, pub_node):
@@ -77,9 +89,14 @@ def test_recorder_node_records_what_was_published(tmp_path):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as ar:
-        assert sum(1 for c, _, raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent)
+        assert sum(1 for c, _, raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 1
     key = lambda e: (e[1], e[0])  # noqa: E731
-    assert sorted([(tp, t) for tp, t, _ in got]) == sorted([(tp, t) for tp, t, _ in sent])
-    by = {(tp, t): m for tp, t, m in got}
+    assert sorted([(tp, t) for tp, t, _ in got if not tp.startswith('/im/refused')]) == sorted([(tp, t) for tp, t, _ in sent])
+    by = {(tp, t): m for tp, t, m in got if not tp.startswith('/im/refused')}
     for tp, t, m in sorted(sent, key=key):
         assert by[(tp, t)] == m
+    refused = [(tp, m.vector.x) for tp, t, m in got if tp.startswith('/im/refused')]
+    assert refused == [('/im/refused/im/measured/current', 50.0)]
+    meta = info(path).metadata['recording']
+    assert meta['refused_unsigned'] == '1' and '/talker@/im/measured/current' in \
+        meta['foreign_publishers']

@@ -172,16 +172,20 @@ def test_non_finite_command_is_refused_and_held_by_the_observer(ros_context):
     """A NaN on /im/command/voltage (the plant rejects and holds it) must not kill the observer
     either: refused, logged with its stamp, counted, the previous command held."""
     from im_common import topics as T
+    from im_common.auth import Signer
     from im_common.conversions import JointStateOut, Vector3Out
     from im_observer.observer_node import ObserverNode
-    node = ObserverNode(context=ros_context)
+    node = ObserverNode(context=ros_context, graph_key=bytes(32))
+    node.adopt_run('run1')                 # as if the plant of run1 had announced itself
+    sign = Signer(bytes(32), 'run1').sign  # ... and the graph's nodes signed their messages
     subs = {s.topic_name: s for s in node.subscriptions}
-    vec, shaft = Vector3Out(), JointStateOut([T.SHAFT_JOINT])
+    vec, shaft = Vector3Out(Signer.frame('ab')), JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
     for k in range(3):
         ns = k * node.period
-        subs[T.MEAS_CURRENT].callback(vec.fill(ns, 1.0, 0.0))
-        subs[T.MEAS_SHAFT].callback(shaft.fill(ns, (0.0,), (0.0,)))
-        subs[T.CMD_VOLTAGE].callback(vec.fill(ns, 10.0 if k == 0 else float('nan'), 0.0))
+        subs[T.MEAS_CURRENT].callback(sign(T.MEAS_CURRENT, vec.fill(ns, 1.0, 0.0)))
+        subs[T.MEAS_SHAFT].callback(sign(T.MEAS_SHAFT, shaft.fill(ns, (0.0,), (0.0,))))
+        subs[T.CMD_VOLTAGE].callback(sign(T.CMD_VOLTAGE, vec.fill(
+            ns, 10.0 if k == 0 else float('nan'), 0.0)))
     assert not node.done and node.exit_code == 0
     assert node.refused == 2 and node.k_done == 2           # steps 1, 2 ran on the held 10 V
     assert all(math.isfinite(v) for v in node.obs.state)

@@ -9,7 +9,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from im_common import topics as T
-from im_common.conversions import stamp_ns
+from im_common.auth import Signer
+from im_common.conversions import Vector3Out, stamp_ns
 from im_common.lockstep import lockstep_qos, make_executor
 from im_common.params import InvalidParameter
 from im_plant.plant_node import PlantNode
@@ -27,10 +28,12 @@ def make_plant(ctx, **overrides):
     return PlantNode(context=ctx, parameter_overrides=params)
 
 
-def _commander(ctx, voltage):
-    """A stand-in controller: answers each measurement with voltage(ns) stamped like it."""
-    node = Node('fake_controller', context=ctx)
+def _commander(ctx, voltage, plant):
+    """A stand-in controller of the plant's graph (it signs with the plant's key and run):
+    answers each measurement with voltage(ns) stamped like it."""
+    node = Node('controller', context=ctx)
     pub = node.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, lockstep_qos())
+    out = Vector3Out(Signer.frame('alphabeta'))
     seen = []
 
     def on_meas(m):
@@ -39,10 +42,7 @@ def _commander(ctx, voltage):
         v = voltage(ns)
         if v is None:
             return
-        out = Vector3Stamped()
-        out.header.stamp = m.header.stamp
-        out.vector.x, out.vector.y = v
-        pub.publish(out)
+        pub.publish(plant.signer.sign(T.CMD_VOLTAGE, out.fill(ns, *v)))
     node.create_subscription(Vector3Stamped, T.MEAS_CURRENT, on_meas, lockstep_qos())
     return node, seen
 
@@ -62,7 +62,7 @@ def test_lockstep_advances_exactly_to_duration(ctx):
     plant = make_plant(ctx, duration=0.05, load='linear')
     w = 2 * math.pi * 60
     cmd, seen = _commander(ctx, lambda ns: (200 * math.cos(w * ns * 1e-9),
-                                            200 * math.sin(w * ns * 1e-9)))
+                                            200 * math.sin(w * ns * 1e-9)), plant)
     _spin(ctx, [plant, cmd], lambda: plant.done)
     assert plant.exit_code == 0
     assert plant.sim.k == 500                      # 0.05 s at the default T_s = 100 µs
@@ -76,7 +76,7 @@ def test_lockstep_advances_exactly_to_duration(ctx):
 def test_missing_command_is_reported_by_topic_and_stamp(ctx, caplog):
     plant = make_plant(ctx, duration=1.0, input_timeout=0.3, startup_timeout=5.0)
     # The stand-in controller stops answering after step 3.
-    cmd, _ = _commander(ctx, lambda ns: (1.0, 0.0) if ns < 4 * 100_000 else None)
+    cmd, _ = _commander(ctx, lambda ns: (1.0, 0.0) if ns < 4 * 100_000 else None, plant)
     _spin(ctx, [plant, cmd], lambda: plant.done)
     assert plant.exit_code == 1
     assert T.CMD_VOLTAGE in plant.failure
@@ -88,7 +88,8 @@ def test_missing_command_is_reported_by_topic_and_stamp(ctx, caplog):
 
 def test_non_finite_command_rejected_state_stays_finite(ctx):
     plant = make_plant(ctx, duration=0.002)
-    cmd, _ = _commander(ctx, lambda ns: (float('nan'), 1.0) if ns == 500_000 else (10.0, 0.0))
+    cmd, _ = _commander(ctx, lambda ns: (float('nan'), 1.0) if ns == 500_000 else (10.0, 0.0),
+                        plant)
     _spin(ctx, [plant, cmd], lambda: plant.done)
     assert plant.exit_code == 0
     assert plant.rejected == 1
@@ -113,7 +114,7 @@ def test_invalid_parameter_is_refused_by_name(ctx, name, value, needle):
 def test_custom_variation_drives_the_true_parameter(ctx):
     plant = make_plant(ctx, duration=0.01, variation='custom', variation_parameter='R_r',
                        variation_kind='ramp', variation_offset=0.5, variation_slope=10.0)
-    cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0))
+    cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0), plant)
     _spin(ctx, [plant, cmd], lambda: plant.done)
     assert plant.sim.truth()['R_r'] == pytest.approx(0.5 + 10.0 * 0.01)
     plant.destroy_node()

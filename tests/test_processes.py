@@ -133,7 +133,8 @@ def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
 def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, domain):
     bag = tmp_path / 'late.mcap'
     procs = graph_processes('position', 'min_energy', duration=1.5)
-    rec = graph_processes('position', 'min_energy', duration=1.5, record=bag)[-1]
+    key = procs[0].parameters['graph_key_file']          # the recorder of this graph
+    rec = graph_processes('position', 'min_energy', duration=1.5, record=bag, key_file=key)[-1]
     g = GraphProcesses(procs + [rec], str(tmp_path), domain)
     with g:
         g.start(only=['plant', 'controller', 'observer'])
@@ -174,11 +175,13 @@ def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
         wall = time.monotonic() - t0
         no_traceback(g)
     plant = g.log('plant')
-    m = re.search(r'free_run: (\d+) of (\d+) steps without a command by their deadline .*?'
-                  r'(\d+) late, (\d+) plant overruns; latency mean (\d+) µs.*?\((\d+) samples',
-                  plant)
+    m = re.search(r'free_run \((.*?) scheduling\): (\d+) of (\d+) steps without a command by '
+                  r'their deadline .*?(\d+) late, (\d+) plant overruns; latency mean (\d+) µs.*?'
+                  r'\((\d+) samples', plant)
     assert m, plant
-    missed, steps, late, _, _, samples = (int(x) for x in m.groups())
+    scheduling = m.group(1)      # real-time when this user may (root, CAP_SYS_NICE, rtprio)
+    assert scheduling.startswith('fifo:') or scheduling == 'normal (refused)', scheduling
+    missed, steps, late, _, _, samples = (int(x) for x in m.groups()[1:])
     if codes['plant'] == 0:
         assert steps == 1000
     else:                               # the protection stopped a loop that missed its deadlines
@@ -238,19 +241,47 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
 
 
 def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
-    """Two graphs on one ROS_DOMAIN_ID would step on each other's messages: the second plant
-    refuses to start and says so; the first run is not disturbed."""
+    """Two graphs with the same key on one ROS_DOMAIN_ID (nodes started by hand share the user's
+    key): nodes could not tell which run to follow, so the second plant refuses to start and
+    says so; the first run is not disturbed."""
     first = graph_processes('position', 'min_energy', duration=30.0)
-    second = graph_processes('position', 'min_energy', duration=30.0)[0]
+    key = first[0].parameters['graph_key_file']
+    second = graph_processes('position', 'min_energy', duration=30.0, key_file=key)[0]
     second.name, second.parameters = 'plant2', dict(second.parameters, wait_for='')
     with GraphProcesses(first + [second], str(tmp_path), domain) as g:
         g.start(only=['plant', 'controller', 'observer'])
         assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
         g.start_one('plant2')
         assert g.popen['plant2'].wait(60) == 1
-        assert 'ROS_DOMAIN_ID' in g.log('plant2') and '/im/measured/current' in g.log('plant2')
+        assert 'ROS_DOMAIN_ID' in g.log('plant2') and "another plant ('plant'" in g.log('plant2')
         time.sleep(1.0)
         assert all(g.popen[n].poll() is None for n in ('plant', 'controller', 'observer'))
         codes = g.stop()
         no_traceback(g)
         assert codes == {n: 0 for n in ('plant', 'controller', 'observer')} | {'plant2': 1}
+
+
+def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_path, domain):
+    """Each launch makes its own key: two graphs on one ROS_DOMAIN_ID refuse each other's
+    messages (and say so) and both compute exactly what they compute alone."""
+    from im_bringup.run import load_run
+    from im_bringup.report import figures_of_merit
+    from im_bringup.testing import run_graph
+    bags = [tmp_path / 'a.mcap', tmp_path / 'b.mcap']
+    a = graph_processes('position', 'min_energy', duration=0.1, record=bags[0])
+    b = graph_processes('position', 'min_energy', duration=0.1, record=bags[1])
+    for p in b:
+        p.name += '_b'
+    for p in b:
+        if p.name == 'plant_b':
+            p.parameters['wait_for'] = ' '.join(n + '_b' for n in p.parameters['wait_for'].split())
+    with GraphProcesses(a + b, str(tmp_path), domain) as g:
+        codes = g.start().wait(180)
+        no_traceback(g)
+        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+    assert 'not signed by this graph' in g.log('controller') + g.log('observer')
+    live = run_graph(task='position', strategy='min_energy', duration=0.1)
+    for bag in bags:
+        fig = figures_of_merit(load_run(str(bag)))
+        for key in ('E_in_J', 'pos_err_max_rad', 'V_max_V'):
+            assert fig[key] == pytest.approx(live.summary[key], rel=1e-12), (bag, key)

@@ -19,6 +19,7 @@ from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 
 from im_common import topics as T
+from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import PARAMETERS, LockstepNode, StepGate, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
@@ -46,15 +47,19 @@ class AdapterNode(LockstepNode):
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub = self.create_publisher(JointState, T.ADAPT_ESTIMATE, lockstep_qos())
-        self.out = JointStateOut(T.ESTIMATE_NAMES)
+        self.out = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))
         self.gate = StepGate([T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
                              self.period, follow=True)
         for topic in (T.MEAS_CURRENT, T.CMD_VOLTAGE, T.OBS_FLUX):
             self.gate_input(topic, xy_in)
         self.gate_input(T.MEAS_SHAFT, shaft_in)
         self.k_done = -1
-        self.publish_estimate(0)
         self.start_protocol(timeout, startup)
+
+    def on_run_adopted(self) -> None:
+        """p̂_0 for the run this node now follows (signed for it)."""
+        if self.k_done < 0:
+            self.publish_estimate(0)
 
     def ready(self, inputs) -> None:
         while inputs is not None and not self.done:
@@ -101,7 +106,8 @@ class AdapterNode(LockstepNode):
 
     def publish_estimate(self, k: int) -> None:
         e = self.law.estimates()
-        self.pub.publish(self.out.fill(k * self.period, [e[n] for n in T.ESTIMATE_NAMES]))
+        self.pub.publish(self.sign(T.ADAPT_ESTIMATE, self.out.fill(
+            k * self.period, [e[n] for n in T.ESTIMATE_NAMES])))
 
 
 def main(argv=None) -> None:

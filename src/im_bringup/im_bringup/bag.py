@@ -305,6 +305,14 @@ class BagWriter:
     def closed(self) -> bool:
         return self._closed
 
+    def discard(self) -> None:
+        """Abandon a file nothing was written to yet (its ``.part``); an existing ``path`` is
+        left as it was."""
+        if not self._closed:
+            self._closed = True
+            self._f.close()
+            os.remove(self.part)
+
     # -- low level ------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
         self._f.write(data)

@@ -29,7 +29,7 @@ def parameter_tables() -> str:
         ctx = Context()
         rclpy.init(context=ctx, domain_id=random.randint(150, 229))
         try:
-            node = factory(context=ctx)
+            node = factory(context=ctx, graph_key=bytes(32))
             parts.append(f'### {title}\n\n{parameter_table(node)}\n')
             node.destroy_node()
         finally:

@@ -10,6 +10,7 @@ the :class:`im_bringup.bag.BagWriter` with its stamp, without an extra subscript
 """
 from __future__ import annotations
 
+import os
 import random
 import time
 from typing import Dict, Mapping, Optional
@@ -40,12 +41,15 @@ class DriveGraph:
     recorder : optional sink with ``write(topic, payload)`` (an :class:`im_bringup.traces.Tap`):
         every message a node publishes is handed to it (serialized).
     domain_id : DDS domain (default random in 150-229).
+    graph_key : the key its nodes sign their messages with (default: a random one, in memory;
+        ``docs/security.md``).
     """
 
     NODE_NAMES = ('plant', 'controller', 'observer', 'adapter')
 
     def __init__(self, parameters: Mapping[str, Mapping[str, object]],
-                 nodes=NODE_NAMES, recorder=None, domain_id: Optional[int] = None):
+                 nodes=NODE_NAMES, recorder=None, domain_id: Optional[int] = None,
+                 graph_key: Optional[bytes] = None):
         from im_adapt.adapter_node import AdapterNode
         from im_controller.controller_node import ControllerNode
         from im_observer.observer_node import ObserverNode
@@ -53,6 +57,10 @@ class DriveGraph:
         factories = {'plant': PlantNode, 'controller': ControllerNode, 'observer': ObserverNode,
                      'adapter': AdapterNode}
         self.context = Context()
+        # closed by default (docs/security.md): discovery on this host unless the user chose
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        # this graph's key, in memory only: its nodes accept each other's messages, nobody else's
+        self.graph_key = os.urandom(32) if graph_key is None else graph_key
         self.domain_id = random.randint(150, 229) if domain_id is None else int(domain_id)
         rclpy.init(context=self.context, domain_id=self.domain_id)
         self.nodes: Dict[str, object] = {}
@@ -60,7 +68,7 @@ class DriveGraph:
         try:
             for name in nodes:
                 self.nodes[name] = factories[name](
-                    context=self.context,
+                    context=self.context, graph_key=self.graph_key,
                     parameter_overrides=_overrides(parameters.get(name, {})))
             from im_common.lockstep import make_executor
             self.executor = make_executor(self.context)
@@ -92,12 +100,8 @@ class DriveGraph:
                         msg = serialize_message(msg)
                     _write(_topic, msg)
                 pub.publish = tapped
-        # Messages the nodes published while being built (initial estimates), again for the tap
-        # (a repeated stamp is ignored by the receiving gates). The plant publishes step 0 only
-        # when the run starts (the run protocol), through its tapped publishers.
-        for name in ('observer', 'adapter'):
-            if name in self.nodes:
-                self.nodes[name].publish_estimate(0)
+        # The observer and adapter publish their initial estimates when they adopt the run,
+        # through these tapped publishers; the plant publishes step 0 when the run starts.
 
     def _stopped(self, node) -> None:
         """A node finished or failed: the run ends when the plant is done or a node failed."""
@@ -143,6 +147,13 @@ class DriveGraph:
         refused = {name: getattr(n, 'refused', 0) for name, n in self.nodes.items()}
         if any(refused.values()):
             stats['refused_inputs'] = refused
+        unsigned = {name: dict(n.refused_by_topic) for name, n in self.nodes.items()
+                    if n.refused_by_topic}
+        if unsigned:        # messages not signed by this graph: counted, their publishers named
+            stats['refused_unsigned'] = unsigned
+            stats['foreign_publishers'] = {
+                name: {t: sorted(v) for t, v in n.foreign.items() if v}
+                for name, n in self.nodes.items() if any(n.foreign.values())}
         return stats
 
     def _spin(self, plant, t0, k0, progress, wall_limit, stop, failures) -> None:

@@ -52,10 +52,12 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                     duration: Optional[float] = None, mode: str = 'lockstep',
                     use_adapter: Optional[bool] = None, record: Optional[str] = None,
                     extra: Optional[Mapping[str, Mapping[str, object]]] = None,
-                    **config) -> List[NodeProcess]:
+                    key_file: Optional[str] = None, **config) -> List[NodeProcess]:
     """The processes of one run (see the module docstring); ``extra`` = {node: {param: value}}
     merged last (a gains or parameters YAML), ``config`` goes to
-    :func:`im_bringup.config.node_parameters`."""
+    :func:`im_bringup.config.node_parameters`. ``key_file``: the graph's key (default: a fresh
+    one, :func:`im_common.auth.new_key_file`, removed when this process exits), given to every
+    node as ``graph_key_file``."""
     from im_bringup.config import node_parameters
     if mode not in ('lockstep', 'free_run'):
         raise ValueError(f"invalid mode {mode!r}: lockstep or free_run")
@@ -74,11 +76,24 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     names = ['controller', 'observer'] + (['adapter'] if adaptive else [])
     params['plant']['mode'] = mode
     params['plant']['wait_for'] = ' '.join(names + (['recorder'] if record else []))
-    procs = [NodeProcess(n, *EXECUTABLES[n], parameters=params[n]) for n in ['plant'] + names]
+    if key_file is None:
+        key_file = graph_key_file()
+    procs = [NodeProcess(n, *EXECUTABLES[n], parameters=dict(params[n], graph_key_file=key_file))
+             for n in ['plant'] + names]
     if record:
         procs.append(NodeProcess('recorder', *EXECUTABLES['recorder'],
+                                 parameters={'graph_key_file': key_file},
                                  arguments=['--out', str(record)]))
     return procs
+
+
+def graph_key_file() -> str:
+    """A fresh key for one graph (``docs/security.md``), removed when this process exits."""
+    import atexit
+    from im_common import auth
+    path = auth.new_key_file()
+    atexit.register(auth.remove_key_file, path)
+    return path
 
 
 def params_file_text(parameters: Mapping[str, object]) -> str:

@@ -36,7 +36,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from im_common import cdr
 from im_common import topics as T
-from im_common.lockstep import END_STATES, READY, LockstepNode, stamp_text
+from im_common.lockstep import END_STATES, READY, LockstepNode, _unsigned, stamp_text
 from .bag import BagError, BagWriter, qos_yaml
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
@@ -48,6 +48,8 @@ STAMPED_TYPES = RAW_TYPES | {T.DIAG, T.HEADER}
 #: Lock-step topics whose progress the recorder acknowledges (the adapter's estimates follow the
 #: run and are recorded as they come, but do not hold the plant back).
 ACK_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
+#: Where messages not signed by the recorded graph are kept (``/im/refused/im/command/voltage``).
+REFUSED_PREFIX = '/im/refused'
 #: Reader history of the lock-step topics (samples; ≈ 100 bytes each).
 LOCKSTEP_READER_DEPTH = 5000
 
@@ -116,6 +118,8 @@ class RecorderNode(LockstepNode):
         self.end_values: dict = {}
         self._acked = -1
         self._subs = []
+        self.unsigned: Dict[str, int] = {}      # lock-step / status messages not of this graph
+        self._named_at: Dict[str, float] = {}
         self.topics = dict(topics or default_topics())
         # Announce the lossless follower before subscribing: from the moment the plant sees it,
         # the plant stays within follower_window steps of the recorder's acknowledgements.
@@ -158,6 +162,8 @@ class RecorderNode(LockstepNode):
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         if values.get('time_master') == 'true':
+            if not self.follow_master(state, values.get('run_id', '')):
+                return                          # another run's time master
             period = int(values.get('T_s_ns', 0) or 0)
             if period:
                 self.period = period
@@ -218,8 +224,12 @@ class RecorderNode(LockstepNode):
         write = self.writer.write_serialized
         counts = self.counts
         track = self.track.get(topic)
+        signed = topic in T.LOCKSTEP_TOPICS
         if raw:
             def cb(data: bytes) -> None:
+                if signed and not self.signer.verify(topic, data):
+                    self.unsigned_input(topic, data, cb)
+                    return
                 n = cdr.payload_length(tname, data)
                 if n is None or n > len(data):
                     self.undecodable += 1
@@ -236,10 +246,46 @@ class RecorderNode(LockstepNode):
             from rclpy.serialization import serialize_message
 
             def cb(msg) -> None:
+                if topic == T.STATUS and not self.status_signer.check_bytes(
+                        T.STATUS, _unsigned(msg), msg.header.frame_id):
+                    self._refused(topic, serialize_message(msg))
+                    return
                 data = serialize_message(msg)
                 t = cdr.header_stamp_ns(data) if stamped else self.get_clock().now().nanoseconds
                 self._write(write, topic, data, t, counts, track)
         return cb
+
+    EARLY_MAX = LOCKSTEP_READER_DEPTH
+
+    def refuse_unsigned(self, topic: str, data: bytes) -> None:
+        self._refused(topic, data)
+
+    def _refused(self, topic: str, data: bytes) -> None:
+        """A message not signed by this graph: kept apart on ``/im/refused<topic>`` (evidence,
+        never mixed with the run's data), counted, its publisher named."""
+        n = self.unsigned[topic] = self.unsigned.get(topic, 0) + 1
+        now = time.monotonic()
+        if not self.foreign.get(topic) and now - self._named_at.get(topic, 0.0) > 0.2:
+            self._named_at[topic] = now         # ask the graph until the sender has a name
+            pubs = self.foreign_publishers(topic)
+            self.foreign.setdefault(topic, set()).update(pubs)
+            if n == 1 or pubs:
+                who = ', '.join(pubs) or ('none named yet: another graph with its own key, or '
+                                          'a recording played back')
+                self.get_logger().error(f'{topic}: messages not signed by this graph go to '
+                                        f'{REFUSED_PREFIX}{topic} (foreign publishers: {who})')
+        where = REFUSED_PREFIX + topic
+        try:
+            self.writer.add_topic(where, self.topics[topic])
+            self.writer.write_serialized(where, data, cdr.header_stamp_ns(data))
+        except (BagError, ValueError, IndexError, KeyError):
+            return
+
+    def flush_unverified(self) -> None:
+        """At the end: messages kept until their run was known are recorded if they verify now,
+        else kept as refused (no run of this graph was seen: a playback, another graph)."""
+        self._run_locked = True
+        self._drain_early()
 
     def _write(self, write, topic, data, t, counts, track) -> None:
         try:
@@ -266,7 +312,10 @@ class RecorderNode(LockstepNode):
         ack = min(lasts)
         if ack > self._acked:
             from std_msgs.msg import Header
-            h = Header(frame_id=self.get_name())
+            from im_common.auth import SEPARATOR, progress_payload
+            name = self.get_name()
+            tag = self.signer.tag_bytes(T.PROGRESS, progress_payload(name, ack))
+            h = Header(frame_id=name + SEPARATOR + tag)
             h.stamp.sec, h.stamp.nanosec = divmod(ack, 1_000_000_000)
             self._progress.publish(h)
             self._acked = ack
@@ -286,7 +335,12 @@ class RecorderNode(LockstepNode):
                             if self.end_state else 'not seen'),
                 'interrupted': interrupted or '',
                 'missing_steps': str(missing),
-                'undecodable': str(self.undecodable)}
+                'undecodable': str(self.undecodable),
+                'refused_unsigned': str(sum(self.unsigned.values())),
+                'foreign_publishers': ' '.join(sorted({f'{n}@{t}' for t, nodes in
+                                                      self.foreign.items() for n in nodes}))}
+        for t, n in self.unsigned.items():
+            meta[f'refused_unsigned{t}'] = str(n)
         for t, g in gaps.items():
             meta[f'missing_steps{t}'] = str(g['missing_steps'])
             if g['ranges']:
@@ -332,7 +386,12 @@ def main(argv=None) -> int:
     with StopSignals() as stop:
         rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO)
         try:
-            node = RecorderNode(writer, topics, lossless=not a.lossy)
+            try:
+                node = RecorderNode(writer, topics, lossless=not a.lossy)
+            except ValueError as exc:       # a graph key file that cannot be used
+                print(f'record: error: {exc}', file=sys.stderr)
+                writer.discard()            # nothing was recorded: leave no file behind
+                return 2
             node.get_logger().info(f'recording {len(topics)} topics to {out}')
             ex = make_executor()
             ex.add_node(node)
@@ -347,6 +406,7 @@ def main(argv=None) -> int:
                 node.request_stop(stop.requested)
         finally:
             if node is not None:
+                node.flush_unverified()
                 writer.add_metadata('recording', node.close_metadata(stop.requested))
             writer.close()
             if node is not None:

@@ -123,9 +123,9 @@ def _decode_v3(payloads: List[bytes]):
         return _stamp_ns(a['sec'], a['nsec']), a['x'].copy(), a['y'].copy(), a['z'].copy()
     if payloads:
         n = len(payloads[0])
-        head = payloads[0][12:n - 24]
-        if n >= 44 and all(len(p) == n and p[12:n - 24] == head for p in payloads):
-            # one frame_id throughout: fixed layout, decode in one go
+        head = payloads[0][12:16]
+        if n >= 44 and all(len(p) == n and p[12:16] == head for p in payloads):
+            # one frame_id length throughout (the tag changes, not its length): fixed layout
             dt = np.dtype({'names': ['sec', 'nsec', 'x', 'y', 'z'],
                            'formats': ['<i4', '<u4', '<f8', '<f8', '<f8'],
                            'offsets': [4, 8, n - 24, n - 16, n - 8], 'itemsize': n})

@@ -31,8 +31,11 @@ class GraphResult:
 def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: str = 'nominal',
               variation: str = 'none', T_s: float = 1e-4, duration: Optional[float] = None,
               parameters: Optional[dict] = None, nodes=None, record: Optional[str] = None,
-              **config) -> GraphResult:
-    """Run one scenario in-process and return its summary and traces."""
+              beside=None, **config) -> GraphResult:
+    """Run one scenario in-process and return its summary and traces.
+
+    ``beside(domain_id)``: a context manager entered while the graph runs (e.g. your own node,
+    or a foreign one, on the graph's ROS domain)."""
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
@@ -47,7 +50,11 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     sink = Tap(writer)
     graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink)
     try:
-        stats = graph.run()
+        if beside is None:
+            stats = graph.run()
+        else:
+            with beside(graph.domain_id):
+                stats = graph.run()
     finally:
         graph.close()
         if writer is not None:

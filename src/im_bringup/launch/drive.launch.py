@@ -3,7 +3,7 @@
     ros2 launch im_bringup drive.launch.py [task:=position|speed] [strategy:=min_energy|...]
         [controller:=nominal|adaptive|adaptive_thesis] [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
-        [gains:=FILE.yaml] [params_file:=FILE.yaml]
+        [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true]
 
 Which processes start, with which parameters, comes from :func:`im_bringup.processes.
 graph_processes` — the same description the project's tests start the graph from: plant,
@@ -13,7 +13,8 @@ when ``record`` names a file, and the plant then waits for it before step 0. ``g
 ``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``, which
 ``mode:=free_run`` needs). Ctrl-C stops every process cleanly (exit 0) and closes the recording.
 Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless that variable is
-already set (``SUBNET`` opens the graph to other machines on purpose).
+already set (``SUBNET`` opens the graph to other machines on purpose). Every launch makes a fresh
+graph key: the nodes refuse lock-step messages and run events of anyone else (docs/security.md).
 
 Needs a full ROS 2 Jazzy install (``launch``/``launch_ros`` are not on PyPI); nothing in the test
 suite imports this file.
@@ -35,6 +36,9 @@ ARGUMENTS = (
     ('record', '', 'MCAP file to record the run to (empty: no recorder)'),
     ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),
     ('params_file', '', 'extra parameters YAML merged last'),
+    ('security', 'false', 'true: start each node in its SROS2 enclave /im_drive/<node> (needs a '
+                          'keystore from config/sros2/policy.xml and a middleware with DDS '
+                          'security; docs/security.md)'),
 )
 
 
@@ -46,13 +50,15 @@ def _processes(context):
         if a[key]:
             for node, values in load_params_yaml(a[key]).items():
                 extra.setdefault(node, {}).update(values)
-    procs = graph_processes(
+    procs = graph_processes(       # with a fresh graph key, removed when ros2 launch exits
         task=a['task'], strategy=a['strategy'], controller=a['controller'],
         T_s=float(a['T_s']), duration=float(a['duration']) if a['duration'] else None,
         mode=a['mode'], record=a['record'] or None, extra=extra,
         use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()])
+    secure = a['security'].lower() == 'true'
     return [Node(package=p.package, executable=p.executable, name=p.name,
                  parameters=[p.parameters] if p.parameters else [], arguments=p.arguments,
+                 ros_arguments=['--enclave', f'/im_drive/{p.name}'] if secure else [],
                  output='screen', sigterm_timeout='10', sigkill_timeout='5')
             for p in procs]
 

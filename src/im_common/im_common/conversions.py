@@ -95,24 +95,29 @@ def xy_in(data: bytes):
 
 def _shaft_layout():
     """Byte layout of the plant's shaft JointState (name ['rotor'], one position, one velocity,
-    no effort, empty frame): its length, the bytes between stamp and values, and the offsets of
-    the two doubles — found by packing a sample, so it follows cdr.pack_joint_state exactly."""
+    no effort, a tagged frame id of fixed length, :mod:`im_common.auth`): its length, the
+    frame-id length field, where the names start, the bytes from there to the values, and the
+    offsets of the two doubles — found by packing a sample, so it follows cdr.pack_joint_state."""
     import struct
-    a = pack_joint_state(0, 0, ('rotor',), (1.5,), (2.5,), ())
+    from .auth import Signer
+    a = pack_joint_state(0, 0, ('rotor',), (1.5,), (2.5,), (), Signer.frame(''))
     pos_off = a.index(struct.pack('<d', 1.5))
     vel_off = a.index(struct.pack('<d', 2.5))
-    return len(a), a[12:pos_off], pos_off, vel_off
+    names_at = 16 + struct.unpack_from('<I', a, 12)[0]
+    return len(a), a[12:16], names_at, a[names_at:pos_off], pos_off, vel_off
 
 
-_SHAFT_LEN, _SHAFT_MIDDLE, _SHAFT_POS, _SHAFT_VEL = _shaft_layout()
-_SHAFT_MID_END = 12 + len(_SHAFT_MIDDLE)
+_SHAFT_LEN, _SHAFT_FRAME_LEN, _SHAFT_NAMES, _SHAFT_MIDDLE, _SHAFT_POS, _SHAFT_VEL = \
+    _shaft_layout()
+_SHAFT_MID_END = _SHAFT_NAMES + len(_SHAFT_MIDDLE)
 
 
 def shaft_in(data: bytes, _unpack=__import__('struct').Struct('<iI').unpack_from,
              _d=__import__('struct').Struct('<d').unpack_from):
     """(stamp_ns, (theta_r, omega_r)) of the measured-shaft JointState (fixed-layout fast path for
     the plant's own message; anything else goes through the general decoder)."""
-    if len(data) == _SHAFT_LEN and data[12:_SHAFT_MID_END] == _SHAFT_MIDDLE:
+    if len(data) == _SHAFT_LEN and data[12:16] == _SHAFT_FRAME_LEN \
+            and data[_SHAFT_NAMES:_SHAFT_MID_END] == _SHAFT_MIDDLE:
         sec, nsec = _unpack(data, 4)
         return sec * NS_PER_S + nsec, (_d(data, _SHAFT_POS)[0], _d(data, _SHAFT_VEL)[0])
     sec, nsec, _, pos, vel, _ = decode_joint_state(data)

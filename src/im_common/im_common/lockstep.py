@@ -42,6 +42,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from . import auth, realtime
 from .conversions import NS_PER_S
 from .stopping import StopSignals
 
@@ -193,8 +194,10 @@ class LockstepNode(Node):
 
     critical = True
     time_master = False
+    #: Moves to SCHED_FIFO in free_run when it runs as its own process (not the recorder).
+    realtime_capable = True
 
-    def __init__(self, name: str, **kwargs):
+    def __init__(self, name: str, graph_key: Optional[bytes] = None, **kwargs):
         super().__init__(name, **kwargs)
         self.done = False
         self.exit_code = 0
@@ -218,6 +221,31 @@ class LockstepNode(Node):
         self._last_wait_log = 0.0
         self._watchdog = None
         self.on_stop: Optional[Callable[['LockstepNode'], None]] = None   # set by a graph
+        self.own_process = False      # set by node_main: real-time scheduling is this process's
+        self.scheduling = 'normal'
+        self._run_locked = False      # the followed run is running: no other is adopted
+        self._masters: Dict[str, str] = {}          # run id -> last state of its time master
+        self._early: List[tuple] = []               # (topic, data, handler) before the run
+        self.refused_by_topic: Dict[str, int] = {}
+        self.foreign: Dict[str, set] = {}           # topic -> foreign publishers seen on it
+        self._foreign_status_said: set = set()
+        self.rt_priority = self.param(
+            'rt_priority', realtime.DEFAULT_PRIORITY,
+            'free_run, this node as its own process: SCHED_FIFO priority of its threads (0: '
+            'ordinary scheduling); needs root, CAP_SYS_NICE or an rtprio limit', 0, 99)
+        key_file = self.param(
+            'graph_key_file', '',
+            "file holding the graph's key (empty: $IM_GRAPH_KEY_FILE, else "
+            "$ROS_HOME/im_drive/graph.key, created on first use); see docs/security.md")
+        self.allowed = self._allowed_publishers(self.param(
+            'allowed_publishers', '',
+            'publishers allowed on this node\'s inputs besides the topic table\'s: space-separated '
+            'topic=node items (e.g. /im/command/voltage=/ctl2)'))
+        if graph_key is None:
+            path = key_file or auth.default_key_file()
+            graph_key = auth.read_key_file(path, create=not key_file)
+        self.signer = auth.Signer(graph_key)
+        self.status_signer = auth.Signer(graph_key)
         from diagnostic_msgs.msg import DiagnosticArray
         self._status_pub = self.create_publisher(DiagnosticArray, _status_topic(), status_qos())
         self.create_subscription(DiagnosticArray, _status_topic(), self._on_status, status_qos())
@@ -264,10 +292,11 @@ class LockstepNode(Node):
                 'T_s_ns': self.period, 'step': ns // self.period if self.period else 0}
         if self.time_master:
             base['time_master'] = 'true'
-            base['run_id'] = self.run_id
+        base['run_id'] = self.run_id
         base.update(values)
         st.values = [KeyValue(key=str(k), value=str(v)) for k, v in base.items()]
         msg.status = [st]
+        msg.header.frame_id = self._status_tag(msg)
         try:
             self._status_pub.publish(msg)
         except Exception as exc:  # noqa: BLE001 - a closed context during shutdown: log, go on
@@ -278,24 +307,98 @@ class LockstepNode(Node):
     def current_ns(self) -> int:
         return self.gate.expected if self.gate is not None else 0
 
+    def _status_tag(self, msg) -> str:
+        """The tag of a status event, over its content (:func:`_unsigned`)."""
+        return self.status_signer.tag_bytes(_status_topic(), _unsigned(msg))
+
     def _on_status(self, msg) -> None:
+        tag = msg.header.frame_id
+        if not self.status_signer.check_bytes(_status_topic(), _unsigned(msg), tag):
+            self._foreign_status(msg)
+            return
         for st in msg.status:
             name = st.name
-            if name == self.get_name():
-                continue
             values = {kv.key: kv.value for kv in st.values}
-            self.peers[name] = (st.message, values)
+            if name == self.get_name() and values.get('run_id', '') == self.run_id:
+                continue                                   # this node's own event
+            master = values.get('time_master') == 'true'
+            if not master and values.get('run_id') and self.run_id \
+                    and values['run_id'] != self.run_id:
+                continue                                   # a node of another run (same key)
+            if not master:
+                self.peers[name] = (st.message, values)
             self.on_peer_status(name, st.message, values)
+
+    def _foreign_status(self, msg) -> None:
+        """A run-protocol event not signed by this graph: never acted on, reported once per
+        sender (another graph with its own key, or a rogue)."""
+        for st in msg.status:
+            key = (st.name, st.message)
+            if st.name in self._foreign_status_said or len(self._foreign_status_said) > 100:
+                continue
+            self._foreign_status_said.add(st.name)
+            pubs = self.foreign_publishers(_status_topic())
+            self.get_logger().warning(
+                f"ignoring {_status_topic()} event '{key[1]}' from '{key[0]}': not signed by "
+                f"this graph (another graph with its own key, or a foreign node"
+                + (f"; publishers not of this graph: {', '.join(pubs)}" if pubs else '') + ')')
+
+    def adopt_run(self, run_id: str) -> None:
+        """Follow the time master's run ``run_id``: the lock-step messages of that run verify."""
+        if run_id == self.run_id:
+            return
+        self.run_id = run_id
+        self.signer.set_run(run_id)
+        if run_id:
+            self.on_run_adopted()
+            self._drain_early()
+
+    def on_run_adopted(self) -> None:
+        """Hook: this node now follows a run (nodes publishing an initial estimate do it here,
+        signed for that run)."""
+
+    def enter_realtime(self) -> None:
+        """free_run, as its own process: SCHED_FIFO for every thread of this process (or one
+        warning saying why not, also on /im/status: the run then has no real-time guarantee)."""
+        if not self.own_process or not self.realtime_capable or self.scheduling != 'normal':
+            return
+        if self.rt_priority <= 0:
+            self.get_logger().info('free_run with ordinary scheduling (rt_priority 0)')
+            return
+        ok, text = realtime.enter(self.rt_priority)
+        if ok:
+            self.scheduling = text
+            self.get_logger().info(f'free_run: real-time scheduling ({text})')
+        else:
+            self.scheduling = 'normal (refused)'
+            msg = f'free_run without real-time scheduling: {text}; deadlines may be missed'
+            self.get_logger().warning(msg)
+            self.status(WARNING, level=1, reason=msg)
+
+    def follow_master(self, state: str, run: str) -> bool:
+        """A time master's event: choose the run to follow (the one running, else the latest
+        waiting to start) and tell whether this event belongs to it."""
+        if run and not self._run_locked:
+            self._masters[run] = state
+            live = [r for r, st in self._masters.items() if st not in END_STATES]
+            running = [r for r in live if self._masters[r] == RUNNING]
+            if running:                         # follow the run that started
+                self.adopt_run(running[0])
+                self._run_locked = True
+                self._drain_early()             # what does not verify now is refused
+            elif live and self.run_id not in live:   # the latest time master waiting to start
+                self.adopt_run(live[-1])
+            elif not live and not self.run_id:
+                self.adopt_run(run)             # its end is news for this node too
+        return bool(run) and run == self.run_id
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         """React to another node's event: the time master's end ends this node; a provider that
         stops or fails ends this node's part of the run."""
-        if values.get('time_master') == 'true':
+        if values.get('time_master') == 'true' and not self.time_master:
             run = values.get('run_id', '')
-            if state == RUNNING and not self.run_id:
-                self.run_id = run                   # this node follows that run from now on
-            elif self.run_id and run != self.run_id:
-                if not self._foreign_said:
+            if not self.follow_master(state, run):
+                if self.run_id and run != self.run_id and not self._foreign_said:
                     self._foreign_said = True
                     self.get_logger().warning(
                         f"ignoring '{name}' of another run ({run}) on this ROS domain; this "
@@ -306,6 +409,8 @@ class LockstepNode(Node):
                 self.free_run = values.get('mode') == 'free_run'
                 if self.free_run and self.gate is not None:
                     self.gate.follow = True
+                if self.free_run:
+                    self.enter_realtime()
         if self.done:
             return
         if values.get('time_master') == 'true' and state in END_STATES:
@@ -355,24 +460,96 @@ class LockstepNode(Node):
             self.check_inputs()
             self.check_publishers()
 
-    def check_publishers(self) -> None:
-        """Every second while running: a lock-step input with more than one publisher (a foreign
-        node, another graph) is reported once, with the nodes, on the log and on /im/status."""
-        now = time.monotonic()
+    # Who may publish ------------------------------------------------------------------------
+    def _allowed_publishers(self, text: str) -> Dict[str, set]:
+        """topic -> allowed publisher nodes ('/ns/name'): the topic table's publisher in this
+        node's namespace, plus the ``allowed_publishers`` items."""
+        from .topics import TOPICS
+        ns = self.get_namespace().rstrip('/')
+        allowed = {t.name: {f'{ns}/{t.publisher}'} for t in TOPICS if ' ' not in t.publisher}
+        for item in text.split():
+            topic, sep, node = item.partition('=')
+            if not sep or not topic.startswith('/') or not node:
+                raise ValueError(f"invalid parameter 'allowed_publishers' item {item!r}: "
+                                 f"expected /topic=node")
+            allowed.setdefault(topic, set()).add(node if node.startswith('/')
+                                                 else f'{ns}/{node}')
+        return allowed
+
+    def foreign_publishers(self, topic: str) -> List[str]:
+        """Publishers of ``topic`` (graph API) that are not allowed on it, as '/ns/name'."""
+        allowed = self.allowed.get(topic)
+        out = []
+        for i in self.get_publishers_info_by_topic(topic):
+            if i.node_name == '_NODE_NAME_UNKNOWN_':
+                continue            # a participant whose node is not discovered yet: next time
+            full = f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+            if allowed is not None and full not in allowed and full not in out:
+                out.append(full)
+        return out
+
+    def check_publishers(self, now: Optional[float] = None) -> None:
+        """About every second (and before the first step): a publisher of an input that the
+        allow-list does not name is reported once (node, namespace, topic) on the log and on
+        /im/status; its messages are refused anyway, since they do not carry this graph's tag."""
+        now = time.monotonic() if now is None else now
         if now - self._publishers_checked < 1.0:
             return
         self._publishers_checked = now
         for t in self.inputs:
-            if t in self._reported_publishers:
-                continue
-            infos = self.get_publishers_info_by_topic(t)
-            if len(infos) > 1:
-                self._reported_publishers.add(t)
-                names = sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}' for i in infos)
-                text = (f'{t} has {len(infos)} publishers ({", ".join(names)}); only one is '
-                        f'expected: a foreign node or another graph is on this ROS domain')
+            seen = self.foreign.setdefault(t, set())
+            for node in self.foreign_publishers(t):
+                if node in seen:
+                    continue
+                seen.add(node)
+                text = (f"foreign publisher {node} on {t} (allowed: "
+                        f"{', '.join(sorted(self.allowed.get(t, ())))}): its messages are "
+                        f"refused")
                 self.get_logger().error(text)
-                self.status(WARNING, level=1, reason=text)
+                self.status(WARNING, level=1, reason=text, topic=t, foreign_node=node)
+
+    #: Messages kept while this node does not yet follow a running run (they may be signed for
+    #: the run it is about to follow): checked again when it adopts or locks a run.
+    EARLY_MAX = 4 * LOCKSTEP_DEPTH
+
+    def unsigned_input(self, topic: str, data: bytes, handler: Callable) -> None:
+        """``data`` does not verify for the run this node follows now: before that run is running
+        it may belong to the run this node is about to follow (kept, bounded, and handed to
+        ``handler`` again when the run is adopted or starts); afterwards it is refused."""
+        if not self._run_locked and not self.time_master and len(self._early) < self.EARLY_MAX:
+            self._early.append((topic, data, handler))
+            return
+        self.refuse_unsigned(topic, data)
+
+    def _drain_early(self) -> None:
+        early, self._early = self._early, []
+        for _topic, data, handler in early:
+            handler(data)
+
+    def sign(self, topic: str, data: bytes) -> bytes:
+        """A lock-step message of this node, tagged for the run it follows."""
+        return self.signer.sign(topic, data)
+
+    def refuse_unsigned(self, topic: str, data: bytes) -> None:
+        """A message without this graph's tag for this run: refused, counted, its topic's
+        foreign publishers named (the graph API is asked again when a new one appears)."""
+        self.refused_by_topic[topic] = self.refused_by_topic.get(topic, 0) + 1
+        try:
+            ns = _U32x2.unpack_from(data, 4)
+            ns = ns[0] * NS_PER_S + ns[1]
+        except Exception:  # noqa: BLE001 - too short to hold a stamp
+            ns = None
+        now = time.monotonic()
+        # ask the graph again: until the sender is named, then at most 10 times a second
+        if not self.foreign.get(topic) or now - self._publishers_checked >= 0.1:
+            self._publishers_checked = 0.0
+            self.check_publishers(now)
+        pubs = sorted(self.foreign.get(topic, ()))
+        who = (f"foreign publisher{'s' if len(pubs) > 1 else ''} on it: {', '.join(pubs)}"
+               if pubs else 'its publisher uses an allowed name: another graph with its own '
+               'key, or a node of an earlier run')
+        self.refuse(topic, ns, f"not signed by this graph for run {self.run_id or '(none yet)'}"
+                    f" ({who})")
 
     def missing_inputs(self) -> List[str]:
         return [t for t in self.inputs if self.count_publishers(t) == 0]
@@ -383,22 +560,16 @@ class LockstepNode(Node):
             self._missing_said = missing
             self.status(WAITING, waiting_for=' '.join(missing))
         waited = time.monotonic() - self._since
-        if not missing and self.ready_to_start():
+        if not missing and not self.time_master and not self.run_id:
+            missing_master = True
+        else:
+            missing_master = False
+        if not missing and not missing_master and self.ready_to_start():
             self.providers = {}
             for t in self.inputs:
-                infos = self.get_publishers_info_by_topic(t)
-                names = sorted({i.node_name for i in infos})
-                for n in names:
+                for n in sorted({i.node_name for i in self.get_publishers_info_by_topic(t)}):
                     self.providers.setdefault(n, t)
-                if len(infos) > 1:
-                    text = (f'{t} has {len(infos)} publishers (nodes: {", ".join(names)}); only '
-                            f'one is expected: another graph or a foreign node is on this ROS '
-                            f'domain (ROS_DOMAIN_ID={self.context.get_domain_id()})')
-                    if self.time_master:
-                        self.fail(text + '; refusing to start — give each graph its own '
-                                  'ROS_DOMAIN_ID')
-                        return
-                    self.get_logger().warning(text)
+            self.check_publishers(now=time.monotonic() + 1.0)
             self.on_ready()
             return
         if waited > self._startup_timeout:
@@ -410,7 +581,11 @@ class LockstepNode(Node):
             self.get_logger().info(f'waiting ({waited:.0f} s): {self.waiting_text(missing)}')
 
     def waiting_text(self, missing: List[str]) -> str:
-        return ('no publisher yet of ' + ', '.join(missing)) if missing else 'waiting'
+        if missing:
+            return 'no publisher yet of ' + ', '.join(missing)
+        if not self.time_master and not self.run_id:
+            return 'no run-protocol event of a time master (plant) signed with this graph\'s key'
+        return 'waiting'
 
     def ready_to_start(self) -> bool:
         return True
@@ -462,7 +637,12 @@ class LockstepNode(Node):
 
         last_good = {}
 
+        verify = self.signer.verify
+
         def on_data(data, topic=topic):
+            if not verify(topic, data):
+                self.unsigned_input(topic, data, on_data)
+                return
             try:
                 ns, value = extract(data)
             except (ValueError, KeyError, IndexError) as exc:
@@ -548,6 +728,20 @@ def _finite(value) -> bool:
         if not math.isfinite(v):
             return False
     return True
+
+
+_U32x2 = __import__('struct').Struct('<iI')
+
+
+def _unsigned(msg) -> bytes:
+    """What a status event's tag covers: its stamp and every field of every status, encoded
+    canonically (rclpy's serialization leaves padding bytes undefined, so it cannot be signed)."""
+    import json
+    st = msg.header.stamp
+    return json.dumps([st.sec, st.nanosec, [
+        [int.from_bytes(s.level, 'little') if isinstance(s.level, bytes) else int(s.level),
+         s.name, s.message, s.hardware_id, [[kv.key, kv.value] for kv in s.values]]
+        for s in msg.status]], separators=(',', ':')).encode()
 
 
 def _status_topic() -> str:
@@ -652,6 +846,7 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
             try:
                 node = factory()
                 node.check_overrides()
+                node.own_process = True         # free_run may make this process real-time
             except (ValueError, rclpy.exceptions.InvalidParameterValueException,
                     rclpy.exceptions.ParameterException) as exc:
                 print(f'{prog}: error: {exc}', file=sys.stderr)
@@ -701,7 +896,7 @@ def print_node_help(factory, prog: str) -> int:
     ctx = Context()
     rclpy.init(args=[prog], context=ctx, domain_id=random.randint(150, 229))
     try:
-        node = factory(context=ctx)
+        node = factory(context=ctx, graph_key=bytes(32))    # --help signs nothing
         print(f'usage: {os.path.basename(prog)} [--ros-args -p name:=value ... '
               f'--params-file FILE.yaml]\n')
         print((node.__doc__ or '').strip().splitlines()[0] if node.__doc__ else '')

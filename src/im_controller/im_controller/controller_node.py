@@ -21,6 +21,7 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
 from im_common import topics as T
+from im_common.auth import Signer
 from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, period_ns, shaft_in,
                                    stamp_ns, xy_in)
 from im_common.lockstep import (PARAMETERS, LockstepNode, StepGate, data_qos, lockstep_qos,
@@ -55,7 +56,8 @@ class ControllerNode(LockstepNode):
         self.pub_ref_shaft = self.create_publisher(JointState, T.REF_SHAFT, dq)
         self.pub_ref_current = self.create_publisher(Vector3Stamped, T.REF_CURRENT, dq)
         self.pub_ref_flux = self.create_publisher(Vector3Stamped, T.REF_FLUX, dq)
-        self.out_cmd, self.out_ri, self.out_rf = Vector3Out(), Vector3Out(), Vector3Out()
+        self.out_cmd = Vector3Out(Signer.frame('alphabeta'))
+        self.out_ri, self.out_rf = Vector3Out(), Vector3Out()
         self.out_rs = JointStateOut([T.SHAFT_JOINT])
         required = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX]
         if self.use_adapter:
@@ -148,7 +150,7 @@ class ControllerNode(LockstepNode):
         except (ValueError, ArithmeticError) as exc:
             self.fail(f'controller failed at step {k} (t = {ns / 1e9:.9f} s): {exc}')
             return
-        self.pub_cmd.publish(self.out_cmd.fill(ns, v_a, v_b))
+        self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE, self.out_cmd.fill(ns, v_a, v_b)))
         if k % self.ref_every == 0:
             r = self.ctl.reference
             self.pub_ref_shaft.publish(self.out_rs.fill(ns, (r['theta_ref'],), (r['omega_ref'],),

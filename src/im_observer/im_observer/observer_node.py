@@ -16,6 +16,7 @@ import sys
 from geometry_msgs.msg import Vector3Stamped
 
 from im_common import topics as T
+from im_common.auth import Signer
 from im_common.conversions import Vector3Out, estimates_in, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
@@ -42,7 +43,7 @@ class ObserverNode(LockstepNode):
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
         self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, data_qos())
-        self.out_flux, self.out_current = Vector3Out(), Vector3Out()
+        self.out_flux, self.out_current = Vector3Out(Signer.frame('alphabeta')), Vector3Out()
         required = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE]
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
@@ -55,8 +56,12 @@ class ObserverNode(LockstepNode):
         self.k_done = -1
         self.held = (0.0, 0.0, 0.0)         # last command and speed (for bridging a gap)
         self.bridged = 0
-        self.publish_estimate(0)
         self.start_protocol(timeout, startup)
+
+    def on_run_adopted(self) -> None:
+        """x̂_0 for the run this node now follows (signed for it): the controller's step 0."""
+        if self.k_done < 0:
+            self.publish_estimate(0)
 
     def ready(self, inputs) -> None:
         while inputs is not None and not self.done:
@@ -102,7 +107,7 @@ class ObserverNode(LockstepNode):
     def publish_estimate(self, k: int) -> None:
         ns = k * self.period
         i_a, i_b, f_a, f_b = self.obs.state
-        self.pub_flux.publish(self.out_flux.fill(ns, f_a, f_b))
+        self.pub_flux.publish(self.sign(T.OBS_FLUX, self.out_flux.fill(ns, f_a, f_b)))
         if k % self.publish_every == 0 or (self.last_step is not None and k >= self.last_step):
             self.pub_current.publish(self.out_current.fill(ns, i_a, i_b))
 

@@ -25,6 +25,7 @@ from rclpy.clock import Clock, ClockType
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from im_common import topics as T
+from im_common.auth import Signer, progress_payload, split_frame
 from im_common.conversions import (NS_PER_S, JointStateOut, Vector3Out, clock_bytes, period_ns,
                                    xy_in)
 from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, READY, RUNNING, STOPPED,
@@ -59,6 +60,8 @@ class PlantNode(LockstepNode):
                                  'step a lossless follower (the recorder) acknowledged', 1,
                                  LOCKSTEP_DEPTH // 2)
         self.run_id = os.urandom(4).hex()       # tells this run's events from another graph's
+        self.signer.set_run(self.run_id)        # ... and its lock-step messages (their tags)
+        self.other_masters: dict = {}           # run id -> (name, state) of another plant
         self.rejected = 0
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
         self.wall_start = None      # wall time of the first step (for the steps/s report)
@@ -88,8 +91,8 @@ class PlantNode(LockstepNode):
             'power': self.create_publisher(*_js(), T.TRUTH_POWER, dq),
             'energy': self.create_publisher(*_js(), T.TRUTH_ENERGY, dq),
         }
-        self.out_current = Vector3Out()
-        self.out_shaft = JointStateOut([T.SHAFT_JOINT])
+        self.out_current = Vector3Out(Signer.frame('alphabeta'))
+        self.out_shaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
         self.out_tv, self.out_tf, self.out_tt = Vector3Out(), Vector3Out(), Vector3Out()
         self.out_par = JointStateOut(T.PARAM_NAMES)
         self.out_pow = JointStateOut(T.POWER_NAMES)
@@ -119,17 +122,16 @@ class PlantNode(LockstepNode):
         return now - self._ok_since >= self.SETTLE_S
 
     def _start_condition(self) -> bool:
-        for topic in (T.MEAS_CURRENT, T.MEAS_SHAFT):
-            if self.count_publishers(topic) > 1:
-                others = sorted({i.node_name for i in self.get_publishers_info_by_topic(topic)})
-                self.fail(f'another plant publishes {topic} on this ROS domain (ROS_DOMAIN_ID='
-                          f'{self.context.get_domain_id()}; nodes: {", ".join(others)}): two '
-                          f'graphs on one domain would step on each other — give each graph '
-                          f'its own ROS_DOMAIN_ID')
+        for run, (name, state) in self.other_masters.items():
+            if state not in END_STATES:
+                self.fail(f"another plant ('{name}', run {run}) of this graph's key is on this "
+                          f"ROS domain (ROS_DOMAIN_ID={self.context.get_domain_id()}): the nodes "
+                          f"started by hand would not know which run to follow — give each "
+                          f"graph its own ROS_DOMAIN_ID or its own graph_key_file")
                 return False
         for name in self.wait_for:
             state, values = self.peers.get(name, ('', {}))
-            if state != READY and state != RUNNING:
+            if state != READY and state != RUNNING or values.get('run_id') != self.run_id:
                 return False
             t_s = int(values.get('T_s_ns', 0) or 0)
             if t_s and t_s != self.period:        # 0: a node without a period (the recorder)
@@ -156,6 +158,7 @@ class PlantNode(LockstepNode):
             + (f', lossless followers: {", ".join(self.followers)}' if self.followers else ''))
         if self.mode == 'free_run':
             self.gate.follow = True
+            self.enter_realtime()
             self._t0 = time.perf_counter()
             self.wall_start = self._t0
             self.publish_step()
@@ -189,6 +192,12 @@ class PlantNode(LockstepNode):
 
     # Peers -------------------------------------------------------------------------------
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
+        if values.get('time_master') == 'true':
+            if values.get('run_id') != self.run_id:
+                self.other_masters[values.get('run_id', '')] = (name, state)
+            return
+        if values.get('run_id') != self.run_id:
+            return                  # a node that does not follow this run (yet)
         if state == READY and values.get('lossless') == 'true' and name not in self.followers:
             base = self.current_ns() if self.state == RUNNING else 0
             self.followers[name] = [base, time.monotonic()]
@@ -210,10 +219,14 @@ class PlantNode(LockstepNode):
             self.finish()
 
     def on_progress(self, msg) -> None:
-        f = self.followers.get(msg.frame_id)
+        name, tag = split_frame(msg.frame_id)
+        f = self.followers.get(name)
         if f is None:
             return
         ns = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
+        if not self.signer.check_bytes(T.PROGRESS, progress_payload(name, ns), tag):
+            self.refuse_unsigned(T.PROGRESS, b'')
+            return
         if ns > f[0]:
             f[0] = ns
         f[1] = time.monotonic()
@@ -252,6 +265,9 @@ class PlantNode(LockstepNode):
 
     # Lock-step ---------------------------------------------------------------------------
     def on_command(self, data: bytes) -> None:
+        if not self.signer.verify(T.CMD_VOLTAGE, data):
+            self.refuse_unsigned(T.CMD_VOLTAGE, data)
+            return
         try:
             ns, (vx, vy) = xy_in(data)
         except ValueError as exc:
@@ -312,13 +328,14 @@ class PlantNode(LockstepNode):
 
     def free_run_stats(self) -> dict:
         return dict(missed=self.missed, late=self.late, overruns=self.overruns,
-                    **self.latency.as_values())
+                    scheduling=self.scheduling, **self.latency.as_values())
 
     def free_run_text(self) -> str:
         k = self.sim.k
-        return (f'free_run: {self.missed} of {k} steps without a command by their deadline '
-                f'({100.0 * self.missed / max(k, 1):.2f} %), {self.late} late, {self.overruns} '
-                f'plant overruns; latency {self.latency.describe()}')
+        return (f'free_run ({self.scheduling} scheduling): {self.missed} of {k} steps without a '
+                f'command by their deadline ({100.0 * self.missed / max(k, 1):.2f} %), '
+                f'{self.late} late, {self.overruns} plant overruns; latency '
+                f'{self.latency.describe()}')
 
     def fail(self, reason: str, **values) -> None:
         if self.mode == 'free_run' and self.state == RUNNING:
@@ -347,8 +364,10 @@ class PlantNode(LockstepNode):
         ns = k * self.period
         final = self.last_step is not None and k >= self.last_step
         m = sim.measure()
-        self.pub_current.publish(self.out_current.fill(ns, m.i_alpha, m.i_beta))
-        self.pub_shaft.publish(self.out_shaft.fill(ns, (m.theta_r,), (m.omega_r,)))
+        self.pub_current.publish(self.sign(T.MEAS_CURRENT,
+                                           self.out_current.fill(ns, m.i_alpha, m.i_beta)))
+        self.pub_shaft.publish(self.sign(T.MEAS_SHAFT,
+                                         self.out_shaft.fill(ns, (m.theta_r,), (m.omega_r,))))
         if self.mode == 'free_run':
             self._published_at[k] = time.perf_counter()
         if k % self.clock_every == 0 or final:
@@ -378,6 +397,12 @@ class PlantNode(LockstepNode):
                  'reason': 'duration reached'}
         text = (f'reached duration {self.duration} s at step {k} ({rate:.0f} steps/s); '
                 f'rejected commands: {self.rejected}')
+        unsigned = self.refused_by_topic.get(T.CMD_VOLTAGE, 0)
+        if unsigned:
+            foreign = sorted(self.foreign.get(T.CMD_VOLTAGE, ()))
+            stats.update(unsigned_commands=unsigned, foreign_publishers=' '.join(foreign))
+            text += (f'; refused {unsigned} commands not signed by this graph (foreign '
+                     f'publishers: {", ".join(foreign) or "none named"})')
         if self.mode == 'free_run':
             stats.update(self.free_run_stats())
             text += '; ' + self.free_run_text()

@@ -1,0 +1,151 @@
+"""The SROS2 access-control policy of the drive graph: ``config/sros2/policy.xml``.
+
+One enclave per node (``/im_drive/<node>``) granting exactly the topics the node publishes and
+subscribes and the services it answers (its parameter services), read off the nodes themselves
+(built in-process, not spun), plus ``/im_drive/user`` for a person at the console: publish a
+setpoint (``ros2 topic pub /im/setpoint``), read the run protocol, set live parameters
+(``ros2 param set``). ``tests/test_security.py`` checks that the shipped file is what this module
+generates and that it agrees with the topic table (:mod:`im_common.topics`).
+
+    python -m im_bringup.sros2_policy [--write]   # print (or, from the repository's root,
+                                                  # rewrite) the shipped policy
+
+Using it needs a ROS 2 install whose middleware has DDS security (``docs/security.md``); the
+Fast DDS of the PyPI wheels has none.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import sys
+from typing import Dict, List, Tuple
+from xml.sax.saxutils import escape
+
+ENCLAVE_ROOT = '/im_drive'
+POLICY_VERSION = '0.2.0'
+NODES = ('plant', 'controller', 'observer', 'adapter', 'recorder')
+#: The shipped file, relative to the repository's root (installed to share/im_bringup/config/sros2).
+SHIPPED = os.path.join('src', 'im_bringup', 'config', 'sros2', 'policy.xml')
+
+
+def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
+    """{node: {'publish': [...], 'subscribe': [...], 'reply': [...]}} read off the nodes."""
+    import rclpy
+    from rclpy.context import Context
+
+    from im_adapt.adapter_node import AdapterNode
+    from im_controller.controller_node import ControllerNode
+    from im_observer.observer_node import ObserverNode
+    from im_plant.plant_node import PlantNode
+    from .bag import BagWriter
+    from .record_node import RecorderNode
+    import tempfile
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    out = {}
+    tmp = tempfile.mkdtemp(prefix='im_policy_')
+    writer = BagWriter(os.path.join(tmp, 'x.mcap'))
+    try:
+        key = bytes(32)
+        P = rclpy.parameter.Parameter
+        sim = P('use_sim_time', value=True)     # as written by config.to_yaml: they read /clock
+        built = {'plant': PlantNode(context=ctx, graph_key=key),
+                 'controller': ControllerNode(context=ctx, graph_key=key, parameter_overrides=[
+                     P('use_adapter', value=True), sim]),
+                 'observer': ObserverNode(context=ctx, graph_key=key, parameter_overrides=[
+                     P('use_adapter', value=True), sim]),
+                 'adapter': AdapterNode(context=ctx, graph_key=key, parameter_overrides=[sim]),
+                 'recorder': RecorderNode(writer, context=ctx, graph_key=key)}
+        for name, node in built.items():
+            out[name] = {      # every node also logs to /rosout (rcl's own publisher)
+                'publish': sorted({p.topic_name for p in node.publishers} | {'/rosout'}),
+                'subscribe': sorted({s.topic_name for s in node.subscriptions}),
+                'reply': sorted({'/' + s.srv_name.lstrip('/') for s in node.services}),
+            }
+            node.destroy_node()
+    finally:
+        writer.discard()
+        os.rmdir(tmp)
+        rclpy.shutdown(context=ctx)
+    return out
+
+
+def user_endpoints(nodes: Dict[str, Dict[str, List[str]]]) -> Dict[str, List[str]]:
+    """The console user: setpoint, run protocol, parameters of every node."""
+    from im_common import topics as T
+    services = sorted({s for e in nodes.values() for s in e['reply'] if 'parameter' in s})
+    return {'publish': [T.SETPOINT, '/rosout', '/parameter_events'],
+            'subscribe': [T.STATUS, '/rosout', '/parameter_events'],
+            'request': services}
+
+
+def _rel(name: str) -> str:
+    return name[1:] if name.startswith('/') else name
+
+
+def _block(kind: str, rule: str, names: List[str], tag: str, indent: str) -> List[str]:
+    if not names:
+        return []
+    lines = [f'{indent}<{kind} {rule}="ALLOW">']
+    lines += [f'{indent}  <{tag}>{escape(_rel(n))}</{tag}>' for n in names]
+    lines.append(f'{indent}</{kind}>')
+    return lines
+
+
+def policy_xml(endpoints: Dict[str, Dict[str, List[str]]] = None) -> str:
+    endpoints = endpoints or node_endpoints()
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>',
+             '<!-- Generated from the nodes themselves by im_bringup/sros2_policy.py (make '
+             'policy);',
+             '     tests/test_security.py keeps it equal to the code. See docs/security.md. -->',
+             f'<policy version="{POLICY_VERSION}">', '  <enclaves>']
+    entries: List[Tuple[str, Dict[str, List[str]]]] = [(n, endpoints[n]) for n in NODES]
+    entries.append(('user', user_endpoints(endpoints)))
+    for name, e in entries:
+        ind = '          '
+        lines += [f'    <enclave path="{ENCLAVE_ROOT}/{name}">', '      <profiles>',
+                  f'        <profile ns="/" node="{name if name != "user" else "*"}">']
+        lines += _block('topics', 'publish', e.get('publish', []), 'topic', ind)
+        lines += _block('topics', 'subscribe', e.get('subscribe', []), 'topic', ind)
+        lines += _block('services', 'reply', e.get('reply', []), 'service', ind)
+        lines += _block('services', 'request', e.get('request', []), 'service', ind)
+        lines += ['        </profile>', '      </profiles>', '    </enclave>']
+    lines += ['  </enclaves>', '</policy>', '']
+    return '\n'.join(lines)
+
+
+def parse_policy(text: str) -> Dict[str, Dict[str, List[str]]]:
+    """{enclave name: {'publish'|'subscribe'|'reply'|'request': [absolute names]}}."""
+    import xml.etree.ElementTree as ET
+    root = ET.fromstring(text)
+    out = {}
+    for enc in root.iter('enclave'):
+        name = enc.get('path').rsplit('/', 1)[-1]
+        rules: Dict[str, List[str]] = {}
+        for group in enc.iter():
+            for rule in ('publish', 'subscribe', 'reply', 'request'):
+                if group.get(rule) == 'ALLOW':
+                    rules.setdefault(rule, []).extend(
+                        '/' + c.text for c in group)
+        out[name] = rules
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='sros2_policy', description=__doc__.splitlines()[0])
+    ap.add_argument('--write', action='store_true', help=f'rewrite {SHIPPED}')
+    a = ap.parse_args(argv)
+    text = policy_xml()
+    if a.write:
+        os.makedirs(os.path.dirname(SHIPPED), exist_ok=True)
+        with open(SHIPPED, 'w') as f:
+            f.write(text)
+        print(f'wrote {SHIPPED}', file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,296 @@
+"""Who may command the motor (docs/security.md): a foreign node on the graph's ROS domain that
+publishes commands, estimates, measurements, a clock or run-protocol events never changes what the
+plant integrates — lock-step, free_run, in-process and as separate processes — and the refusal
+names it; the graph's key is private; the SROS2 policy matches the topic table."""
+import os
+import stat
+import struct
+import subprocess
+import sys
+import time
+
+import pytest
+
+from im_common import auth
+from im_common import topics as T
+from im_common.auth import Signer
+from im_common.conversions import JointStateOut, Vector3Out
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+# --- the tag ---------------------------------------------------------------------------------
+def _msg(ns=123_400_000, x=1.5, y=-2.0, frame='alphabeta'):
+    return Vector3Out(Signer.frame(frame)).fill(ns, x, y)
+
+
+def test_a_signed_message_verifies_only_for_its_key_topic_and_run():
+    key = os.urandom(32)
+    s = Signer(key, 'run1')
+    data = s.sign(T.CMD_VOLTAGE, _msg())
+    assert s.verify(T.CMD_VOLTAGE, data)
+    assert not s.verify(T.OBS_FLUX, data)                       # another topic
+    assert not Signer(key, 'run2').verify(T.CMD_VOLTAGE, data)  # replayed into another run
+    assert not Signer(os.urandom(32), 'run1').verify(T.CMD_VOLTAGE, data)   # another graph
+    assert not s.verify(T.CMD_VOLTAGE, _msg())                  # unsigned (placeholder tag)
+    assert not s.verify(T.CMD_VOLTAGE, Vector3Out('').fill(0, 1.0, 2.0))    # no tag at all
+    assert not s.verify(T.CMD_VOLTAGE, b'\x00\x01')             # not even a header
+
+
+def test_every_byte_of_stamp_frame_and_values_is_covered():
+    s = Signer(os.urandom(32), 'r')
+    data = s.sign(T.CMD_VOLTAGE, _msg())
+    n = int.from_bytes(data[12:16], 'little')
+    tag = range(16 + n - 1 - auth.TAG_HEX, 16 + n - 1)
+    for i in range(4, len(data)):
+        if i in tag or i in range(12, 16):
+            continue
+        bad = bytearray(data)
+        bad[i] ^= 0x01
+        assert not s.verify(T.CMD_VOLTAGE, bytes(bad)), i
+
+
+def test_joint_state_messages_are_signed_the_same_way():
+    s = Signer(os.urandom(32), 'r')
+    out = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))
+    data = s.sign(T.ADAPT_ESTIMATE, out.fill(5, [1.0, 0.5, 0.1, 0.9]))
+    assert s.verify(T.ADAPT_ESTIMATE, data)
+    at = data.index(struct.pack('<d', 0.9))         # change one estimate, keep the tag
+    forged = data[:at] + struct.pack('<d', 0.8) + data[at + 8:]
+    assert not s.verify(T.ADAPT_ESTIMATE, forged)
+
+
+def test_key_files_are_private_and_errors_name_the_file(tmp_path):
+    path = str(tmp_path / 'k' / 'graph.key')
+    key = auth.read_key_file(path, create=True)
+    assert len(key) == auth.KEY_BYTES
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
+    assert stat.S_IMODE(os.stat(os.path.dirname(path)).st_mode) == 0o700
+    assert auth.read_key_file(path) == key                  # created once, then kept
+    os.chmod(path, 0o644)
+    with pytest.raises(auth.GraphKeyError, match=f'chmod 600 {path}'):
+        auth.read_key_file(path)
+    with pytest.raises(auth.GraphKeyError, match='missing.key: No such file'):
+        auth.read_key_file(str(tmp_path / 'missing.key'))
+    junk = tmp_path / 'junk.key'
+    junk.write_text('not a key')
+    os.chmod(junk, 0o600)
+    with pytest.raises(auth.GraphKeyError, match='does not hold a key'):
+        auth.read_key_file(str(junk))
+    fresh = auth.new_key_file(str(tmp_path))
+    assert auth.read_key_file(fresh) != key
+    auth.remove_key_file(fresh)
+    assert not os.path.exists(os.path.dirname(fresh))
+
+
+def test_a_node_with_an_unusable_key_file_says_so_in_one_line(tmp_path):
+    from im_bringup.processes import executable_path
+    bad = tmp_path / 'open.key'
+    bad.write_text(os.urandom(32).hex())
+    os.chmod(bad, 0o644)
+    r = subprocess.run([executable_path('im_controller', 'controller'), '--ros-args', '-p',
+                        f'graph_key_file:={bad}'], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and 'chmod 600' in lines[0] and 'Traceback' not in r.stderr
+
+
+# --- a rogue beside the graph ------------------------------------------------------------------
+def _rogue_in_process():
+    sys.path.insert(0, HERE)
+    from rogue import Rogue
+    return Rogue
+
+
+def _clean_and_attacked(**kw):
+    from im_bringup.testing import run_graph
+    clean = run_graph(**kw)
+    attacked = run_graph(beside=_rogue_in_process(), **kw)
+    return clean.summary, attacked.summary
+
+
+@pytest.mark.parametrize('controller', ['nominal', 'adaptive'])
+def test_a_rogue_changes_nothing_in_lockstep_and_is_named(controller):
+    clean, s = _clean_and_attacked(task='position', strategy='min_energy', controller=controller,
+                                   duration=0.05)
+    assert s['ok'], s['failures']
+    for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V', 'steps'):
+        assert s[key] == pytest.approx(clean[key], rel=1e-12), key
+    assert s['V_max_V'] < 40.0                      # the rogue's 50 V never reached the motor
+    foreign = s['foreign_publishers']
+    assert foreign['plant'][T.CMD_VOLTAGE] == ['/rogue']
+    assert foreign['controller'][T.OBS_FLUX] == ['/rogue']
+    assert foreign['controller'][T.MEAS_CURRENT] == ['/rogue']
+    assert foreign['observer'][T.CMD_VOLTAGE] == ['/rogue']
+    if controller == 'adaptive':
+        assert foreign['controller'][T.ADAPT_ESTIMATE] == ['/rogue']
+    assert s['refused_unsigned']['plant'][T.CMD_VOLTAGE] >= 50    # of 500 steps
+
+
+def test_a_rogue_changes_nothing_in_free_run():
+    """free_run in-process (wall-clock ticks): the rogue's commands are all refused; none is
+    applied (the applied voltage never reaches the rogue's 50 V on the α axis)."""
+    from im_bringup.processes import load_params_yaml
+    from im_bringup.testing import run_graph
+    from ament_index_python.packages import get_package_share_directory
+    gains = load_params_yaml(os.path.join(get_package_share_directory('im_bringup'), 'config',
+                                          'gains_1ms.yaml'))
+    params = {n: dict(v) for n, v in gains.items()}
+    params.setdefault('plant', {})['mode'] = 'free_run'
+    res = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=0.3,
+                    parameters=params, beside=_rogue_in_process())
+    s = res.summary
+    assert s['steps'] == 300
+    assert s['refused_unsigned']['plant'][T.CMD_VOLTAGE] > 0
+    assert s['foreign_publishers']['plant'][T.CMD_VOLTAGE] == ['/rogue']
+    assert s['V_max_V'] < 40.0
+    assert s['pos_err_max_rad'] < 0.05
+
+
+def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
+    """The graph as separate processes (as the launch file starts it) with the rogue as another
+    process: same numbers as the in-process graph, every process exits 0, the plant's log and
+    the recording name the rogue, the bag holds only the graph's own lock-step messages."""
+    import random
+    from collections import Counter
+
+    from im_bringup.bag import info, iter_raw
+    from im_bringup.processes import GraphProcesses, graph_processes
+    from im_bringup.report import figures_of_merit
+    from im_bringup.run import load_run
+    from im_bringup.testing import run_graph
+    env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    bag = tmp_path / 'run.mcap'
+    rogue = subprocess.Popen([sys.executable, os.path.join(HERE, 'rogue.py')],
+                             env=dict(os.environ, **env), stdout=subprocess.PIPE, text=True)
+    try:
+        assert rogue.stdout.readline().startswith('rogue: up')
+        time.sleep(1.0)                     # discovery: the rogue is on the graph from step 0
+        with GraphProcesses(graph_processes('position', 'min_energy', duration=0.3, record=bag),
+                            str(tmp_path / 'g'), env) as g:
+            codes = g.start().wait(120)
+            assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+            plant_log = g.log('plant')
+            assert 'foreign publisher /rogue on /im/command/voltage' in plant_log
+            assert 'refused' in plant_log and 'Traceback' not in plant_log
+    finally:
+        rogue.send_signal(2)
+        out = rogue.communicate(timeout=30)[0]
+    assert 'answered' in out and int(out.split('answered ')[1].split()[0]) > 0
+    meta = info(bag).metadata['recording']
+    assert int(meta['refused_unsigned']) > 0 and '/rogue@/im/command/voltage' in \
+        meta['foreign_publishers']
+    c = Counter(t for t, *_ in iter_raw(bag))
+    assert c[T.CMD_VOLTAGE] == 3000 and c[T.MEAS_CURRENT] == 3001 and c[T.OBS_FLUX] == 3001
+    assert c['/im/refused' + T.CMD_VOLTAGE] > 0
+    live = run_graph(task='position', strategy='min_energy', duration=0.3)
+    fig = figures_of_merit(load_run(str(bag)))
+    for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V'):
+        assert fig[key] == pytest.approx(live.summary[key], rel=1e-12), key
+
+
+# --- SROS2 ------------------------------------------------------------------------------------
+def test_the_shipped_sros2_policy_is_generated_from_the_nodes_and_matches_the_topic_table():
+    """The policy grants each node exactly what it publishes, subscribes and answers (read off
+    the nodes), and every topic of the table is published only by its owner's enclave."""
+    from im_bringup import sros2_policy as P
+    repo = os.path.dirname(HERE)
+    with open(os.path.join(repo, P.SHIPPED)) as f:
+        shipped = f.read()
+    endpoints = P.node_endpoints()
+    assert shipped == P.policy_xml(endpoints), \
+        'policy.xml is stale: run python -m im_bringup.sros2_policy --write'
+    rules = P.parse_policy(shipped)
+    assert set(rules) == set(P.NODES) | {'user'}
+    for name in P.NODES:
+        assert sorted(rules[name]['publish']) == endpoints[name]['publish']
+        assert sorted(rules[name]['subscribe']) == endpoints[name]['subscribe']
+    for spec in T.TOPICS:
+        owners = [n for n in P.NODES if spec.name in rules[n]['publish']]
+        if spec.publisher in P.NODES:
+            assert owners == [spec.publisher], (spec.name, owners)
+        elif spec.name == T.SETPOINT:
+            assert owners == [] and spec.name in rules['user']['publish']
+    for topic in T.LOCKSTEP_TOPICS:          # every lock-step input has its reader's grant
+        readers = [n for n in P.NODES if topic in rules[n].get('subscribe', [])]
+        assert 'recorder' in readers and len(readers) >= 2, (topic, readers)
+    assert '/controller/set_parameters' in rules['user']['request']
+
+
+# --- discovery range --------------------------------------------------------------------------
+_LISTER = '''
+import sys, time, rclpy
+rclpy.init()
+n = rclpy.create_node('other_host')
+seen = set()
+t_end = time.monotonic() + float(sys.argv[1])
+while time.monotonic() < t_end:
+    rclpy.spin_once(n, timeout_sec=0.1)
+    seen |= set(n.get_node_names())
+print(' '.join(sorted(seen)), flush=True)
+'''
+
+
+@pytest.fixture
+def other_host():
+    """A network namespace joined to this host by a veth pair: another machine on the subnet."""
+    import uuid
+    name = 'im' + uuid.uuid4().hex[:8]
+    veth = 'v' + name
+    cmds = [['ip', 'netns', 'add', name],
+            ['ip', 'link', 'add', veth + 'a', 'type', 'veth', 'peer', 'name', veth + 'b'],
+            ['ip', 'link', 'set', veth + 'b', 'netns', name],
+            ['ip', 'addr', 'add', '10.213.0.1/24', 'dev', veth + 'a'],
+            ['ip', 'link', 'set', veth + 'a', 'up'],
+            ['ip', 'netns', 'exec', name, 'ip', 'addr', 'add', '10.213.0.2/24', 'dev', veth + 'b'],
+            ['ip', 'netns', 'exec', name, 'ip', 'link', 'set', veth + 'b', 'up'],
+            ['ip', 'netns', 'exec', name, 'ip', 'link', 'set', 'lo', 'up']]
+    first = subprocess.run(cmds[0], capture_output=True, text=True)
+    if first.returncode != 0:
+        pytest.skip(f'cannot create a network namespace here ({first.stderr.strip()}): needs '
+                    f'root or CAP_NET_ADMIN')
+    try:
+        for c in cmds[1:]:
+            subprocess.run(c, check=True, capture_output=True)
+        yield name
+    finally:
+        subprocess.run(['ip', 'netns', 'del', name], capture_output=True)
+
+
+def _seen_from(host, env, seconds=5.0):
+    return subprocess.run(['ip', 'netns', 'exec', host, 'env',
+                           'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET',
+                           f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}", sys.executable, '-c', _LISTER,
+                           str(seconds)], capture_output=True, text=True, timeout=60,
+                          env=dict(os.environ, **env)).stdout.split()
+
+
+def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(tmp_path,
+                                                                                other_host):
+    """Started as the tools start it, the graph cannot be discovered from another machine of the
+    subnet; started with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (on purpose) it can — the
+    control that shows the other host would see it."""
+    import random
+    from im_bringup.processes import GraphProcesses, graph_processes
+    for opened in (False, True):
+        env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+        if opened:
+            env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
+        with GraphProcesses(graph_processes('position', 'min_energy', duration=1.0),
+                            str(tmp_path / f'g{opened}'), env) as g:
+            g.start(only=['plant'])          # it waits for its controller: alive meanwhile
+            seen = _seen_from(other_host, env)
+            assert g.popen['plant'].poll() is None
+        assert ('plant' in seen) == opened, (opened, seen)
+
+
+def test_the_in_process_graph_is_invisible_from_another_host(other_host, monkeypatch):
+    from im_bringup.config import node_parameters
+    from im_bringup.graph import DriveGraph
+    monkeypatch.delenv('ROS_AUTOMATIC_DISCOVERY_RANGE', raising=False)
+    graph = DriveGraph(node_parameters('position', 'min_energy', 'nominal', 'none', 1e-4, 0.1))
+    try:
+        seen = _seen_from(other_host, {'ROS_DOMAIN_ID': str(graph.domain_id)})
+    finally:
+        graph.close()
+    assert 'plant' not in seen and 'other_host' in seen, seen
