@@ -166,7 +166,7 @@ def free_run(duration: float, realtime: bool = True, busy: bool = False) -> dict
             'free_run_1kHz_pos_err_max_rad': fig['pos_err_max_rad'],
             'free_run_1kHz_pos_err_rms_rad': fig['pos_err_rms_rad'],
             'lockstep_1kHz_pos_err_rms_rad': ref.summary['pos_err_rms_rad'],
-            'free_run_vs_lockstep_pos_err_rms': fig['pos_err_rms_rad']
+            'free_run_1kHz_vs_lockstep_pos_err_rms': fig['pos_err_rms_rad']
             / ref.summary['pos_err_rms_rad']}
 
 

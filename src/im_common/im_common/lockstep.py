@@ -367,6 +367,7 @@ class LockstepNode(Node):
             return
         ok, text = realtime.enter(self.rt_priority)
         if ok:
+            realtime.quiet_gc()
             self.scheduling = text
             self.get_logger().info(f'free_run: real-time scheduling ({text})')
         else:

@@ -68,6 +68,16 @@ def enter(priority: int = DEFAULT_PRIORITY) -> Tuple[bool, str]:
     return True, f'fifo:{priority}'
 
 
+def quiet_gc() -> None:
+    """Shorter garbage-collection pauses in the loop: everything allocated before the run (modules,
+    the node, the middleware's objects) moves to the permanent generation, so a full collection
+    during the run only walks what the run itself allocated. Collection stays on: memory stays
+    bounded however long the run."""
+    import gc
+    gc.collect()
+    gc.freeze()
+
+
 def leave() -> None:
     """Every thread of this process back to ordinary scheduling."""
     if not hasattr(os, 'sched_setscheduler'):
