@@ -122,6 +122,7 @@ def test_a_rogue_changes_nothing_in_lockstep_and_is_named(controller):
     assert foreign['controller'][T.OBS_FLUX] == ['/rogue']
     assert foreign['controller'][T.MEAS_CURRENT] == ['/rogue']
     assert foreign['observer'][T.CMD_VOLTAGE] == ['/rogue']
+    assert foreign['controller'][T.CLOCK] == ['/rogue']      # reported; ROS time is never used
     if controller == 'adaptive':
         assert foreign['controller'][T.ADAPT_ESTIMATE] == ['/rogue']
     assert s['refused_unsigned']['plant'][T.CMD_VOLTAGE] >= 50    # of 500 steps

@@ -490,22 +490,26 @@ class LockstepNode(Node):
         return out
 
     def check_publishers(self, now: Optional[float] = None) -> None:
-        """About every second (and before the first step): a publisher of an input that the
-        allow-list does not name is reported once (node, namespace, topic) on the log and on
-        /im/status; its messages are refused anyway, since they do not carry this graph's tag."""
+        """About every second (and before the first step): a publisher of an input (or of /clock)
+        that the allow-list does not name is reported once (node, namespace, topic) on the log and
+        on /im/status; its messages are refused anyway, since they do not carry this graph's tag
+        (and /clock only sets ROS time, which no computation of the drive uses)."""
         now = time.monotonic() if now is None else now
         if now - self._publishers_checked < 1.0:
             return
         self._publishers_checked = now
-        for t in self.inputs:
+        from .topics import CLOCK
+        watched = list(self.inputs) + ([] if self.time_master else [CLOCK])
+        for t in watched:
             seen = self.foreign.setdefault(t, set())
             for node in self.foreign_publishers(t):
                 if node in seen:
                     continue
                 seen.add(node)
+                effect = ('its messages are refused' if t != CLOCK else
+                          'ignored: the drive computes on step stamps, never on ROS time')
                 text = (f"foreign publisher {node} on {t} (allowed: "
-                        f"{', '.join(sorted(self.allowed.get(t, ())))}): its messages are "
-                        f"refused")
+                        f"{', '.join(sorted(self.allowed.get(t, ())))}): {effect}")
                 self.get_logger().error(text)
                 self.status(WARNING, level=1, reason=text, topic=t, foreign_node=node)
 
