@@ -295,3 +295,26 @@ def test_the_in_process_graph_is_invisible_from_another_host(other_host, monkeyp
     finally:
         graph.close()
     assert 'plant' not in seen and 'other_host' in seen, seen
+
+
+def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(ros_context):
+    """Before step 0 a node keeps messages that may belong to the run it is about to follow;
+    foreign ones are refused at once, so a flood cannot fill that buffer and starve step 0."""
+    from im_observer.observer_node import ObserverNode
+    key = os.urandom(32)
+    node = ObserverNode(context=ros_context, graph_key=key)
+    try:
+        node.follow_master('waiting', 'plantrun')           # the plant of its graph, waiting
+        sub = {s.topic_name: s for s in node.subscriptions}[T.MEAS_CURRENT]
+        rogue = Vector3Out(Signer.frame('alphabeta'))
+        for k in range(3 * node.EARLY_MAX):
+            sub.callback(rogue.fill(0, 100.0, 0.0))           # unsigned
+            sub.callback(Signer(os.urandom(32), 'plantrun').sign(T.MEAS_CURRENT,
+                                                                  rogue.fill(0, 100.0, 0.0)))
+        assert node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX
+        assert node._early == []
+        ours = Signer(key, 'plantrun').sign(T.MEAS_CURRENT, rogue.fill(0, 1.0, 0.0))
+        sub.callback(ours)                                   # verifies: taken by the gate
+        assert node.gate.pending and node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX
+    finally:
+        node.destroy_node()

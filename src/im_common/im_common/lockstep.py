@@ -46,6 +46,9 @@ from . import auth, realtime
 from .conversions import NS_PER_S
 from .stopping import StopSignals
 
+#: Reader history of /im/status (events of every node on the domain while this one starts).
+STATUS_READER_DEPTH = 1000
+
 #: History of the lock-step topics: deep enough for a lossless follower ``follower_window`` steps
 #: behind, and for a node that joins a little late.
 LOCKSTEP_DEPTH = 100
@@ -71,9 +74,12 @@ def data_qos(depth: int = 100) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
-def status_qos() -> QoSProfile:
-    """Run-protocol events: reliable and transient-local (a node that starts late sees them)."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20,
+def status_qos(depth: int = 20) -> QoSProfile:
+    """Run-protocol events: reliable and transient-local (a node that starts late sees them).
+    Readers ask for a deeper history (:data:`STATUS_READER_DEPTH`): while a node is still
+    starting, the events of every node on the domain (another graph's too) queue up, and the time
+    master's one ``waiting`` must not be pushed out by them."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -226,6 +232,7 @@ class LockstepNode(Node):
         self._run_locked = False      # the followed run is running: no other is adopted
         self._masters: Dict[str, str] = {}          # run id -> last state of its time master
         self._early: List[tuple] = []               # (topic, data, handler) before the run
+        self._candidates: Dict[str, auth.Signer] = {}   # run id -> signer (runs not followed)
         self.refused_by_topic: Dict[str, int] = {}
         self.foreign: Dict[str, set] = {}           # topic -> foreign publishers seen on it
         self._foreign_status_said: set = set()
@@ -248,7 +255,8 @@ class LockstepNode(Node):
         self.status_signer = auth.Signer(graph_key)
         from diagnostic_msgs.msg import DiagnosticArray
         self._status_pub = self.create_publisher(DiagnosticArray, _status_topic(), status_qos())
-        self.create_subscription(DiagnosticArray, _status_topic(), self._on_status, status_qos())
+        self.create_subscription(DiagnosticArray, _status_topic(), self._on_status,
+                                 status_qos(STATUS_READER_DEPTH))
 
     # Parameters -----------------------------------------------------------------------
     def param(self, name: str, default, description: str, lo=None, hi=None, read_only: bool = True,
@@ -522,9 +530,21 @@ class LockstepNode(Node):
         it may belong to the run this node is about to follow (kept, bounded, and handed to
         ``handler`` again when the run is adopted or starts); afterwards it is refused."""
         if not self._run_locked and not self.time_master and len(self._early) < self.EARLY_MAX:
-            self._early.append((topic, data, handler))
-            return
+            # keep it only if it may be of a run this node could still follow: before any time
+            # master was seen, anything (bounded); afterwards only what verifies for one of them
+            # (a flood of foreign messages cannot push the graph's own out of this buffer)
+            others = [r for r, st in self._masters.items()
+                      if st not in END_STATES and r != self.run_id]
+            if not self._masters or any(self._signer_for(r).verify(topic, data) for r in others):
+                self._early.append((topic, data, handler))
+                return
         self.refuse_unsigned(topic, data)
+
+    def _signer_for(self, run_id: str) -> auth.Signer:
+        signer = self._candidates.get(run_id)
+        if signer is None:
+            signer = self._candidates[run_id] = auth.Signer(self.signer.key, run_id)
+        return signer
 
     def _drain_early(self) -> None:
         early, self._early = self._early, []
