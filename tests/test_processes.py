@@ -285,3 +285,27 @@ def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_pat
         fig = figures_of_merit(load_run(str(bag)))
         for key in ('E_in_J', 'pos_err_max_rad', 'V_max_V'):
             assert fig[key] == pytest.approx(live.summary[key], rel=1e-12), (bag, key)
+
+
+def test_scenario_runs_as_separate_processes(tmp_path):
+    """``scenario --processes``: the same numbers as the in-process scenario, from the
+    recorder's bag; every process exits 0; logs next to the recording."""
+    import json
+
+    from im_bringup.processes import executable_path
+    from im_bringup.testing import run_graph
+    bag = tmp_path / 'p.mcap'
+    r = subprocess.run([executable_path('im_bringup', 'scenario'), '--processes', '--duration',
+                        '0.1', '--record', str(bag), '--no-progress'], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    s = json.loads((tmp_path / 'p.json').read_text())
+    assert s['ok'] and set(s['processes']) == {'plant', 'controller', 'observer', 'recorder'}
+    assert (tmp_path / 'p_logs' / 'plant.log').exists()
+    live = run_graph(task='position', strategy='min_energy', duration=0.1)
+    for key in ('E_in_J', 'pos_err_max_rad', 'V_max_V'):
+        assert s[key] == pytest.approx(live.summary[key], rel=1e-12), key
+    r2 = subprocess.run([executable_path('im_bringup', 'scenario'), '--processes', '--duration',
+                         '0.1'], capture_output=True, text=True, timeout=60)
+    assert r2.returncode == 2 and r2.stderr.strip() == \
+        'error: --processes needs --record (the figures come from the recording)'

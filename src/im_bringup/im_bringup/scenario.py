@@ -69,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help='summary file (default: next to the recording, or bags/<task>_<strategy>.json)')
     ap.add_argument('--write-params', metavar='YAML',
                     help='only write the node parameters of this scenario (for the launch file) and exit')
+    ap.add_argument('--processes', action='store_true',
+                    help='run every node as its own process, started as the launch file starts '
+                         'them, with the recorder (needs --record); logs next to the recording')
     ap.add_argument('--domain-id', type=int, default=None, help='DDS domain (default: random 150-229)')
     ap.add_argument('--no-progress', action='store_true')
     return ap
@@ -271,6 +274,8 @@ def main(argv=None) -> int:
     except OSError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
+    if args.processes:
+        return _run_processes(args, parameters, out)
     try:
         summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
                                controller=args.controller, variation=args.variation,
@@ -295,6 +300,49 @@ def main(argv=None) -> int:
         print(f"error: the run stopped early: {summary['failures']}", file=sys.stderr)
         return 1
     if args.report and args.record:
+        from im_bringup.report import write_report
+        write_report([args.record], args.report)
+        print(f'report: {args.report}/')
+    return 0
+
+
+def _run_processes(args, parameters: dict, out: str) -> int:
+    """``--processes``: the scenario's nodes as separate processes (``im_bringup.processes``, what
+    ``ros2 launch im_bringup drive.launch.py`` starts) plus the recorder; the figures come from
+    the recording, by the report's own code."""
+    import random
+
+    from im_bringup.bag import write_atomic
+    from im_bringup.processes import graph_processes, run_processes
+    from im_bringup.report import figures_of_merit, jsonable
+    from im_bringup.run import load_run
+    if not args.record:
+        print('error: --processes needs --record (the figures come from the recording)',
+              file=sys.stderr)
+        return 2
+    procs = graph_processes(args.task, args.strategy, args.controller, T_s=args.T_s,
+                            duration=args.duration, mode=parameters['plant'].get('mode',
+                                                                                'lockstep'),
+                            record=args.record, extra=parameters)
+    for p in procs:
+        if p.name == 'recorder' and args.force:
+            p.arguments.append('--force')
+    logs = os.path.splitext(args.record)[0] + '_logs'
+    domain = args.domain_id if args.domain_id is not None else random.randint(150, 229)
+    codes = run_processes(procs, logs, timeout=24 * 3600.0,
+                          env={'ROS_DOMAIN_ID': str(domain)}, progress=not args.no_progress)
+    summary = {'task': args.task, 'strategy': args.strategy, 'controller': args.controller,
+               'variation': args.variation, 'rate_hz': round(1.0 / args.T_s, 6),
+               'processes': codes, 'logs': logs, 'ok': all(c == 0 for c in codes.values())}
+    if os.path.exists(args.record):
+        summary.update(figures_of_merit(load_run(args.record)))
+    write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
+    print_summary(summary)
+    print(f'summary: {out}\nrecording: {args.record}\nlogs: {logs}/')
+    if not summary['ok']:
+        print(f'error: exit codes {codes} (see {logs}/<node>.log)', file=sys.stderr)
+        return 1
+    if args.report:
         from im_bringup.report import write_report
         write_report([args.record], args.report)
         print(f'report: {args.report}/')
