@@ -179,6 +179,11 @@ class RecorderNode(LockstepNode):
                 self.end_values = dict(values, node=name)
                 self._end_wall = time.monotonic()
 
+    def current_ns(self) -> int:
+        """The last step it recorded on the measured current (its own position in the run)."""
+        tr = self.track.get(T.MEAS_CURRENT)
+        return tr.last if tr is not None and tr.last is not None else 0
+
     def check_inputs(self) -> None:      # a follower has no watchdog
         return
 
