@@ -95,6 +95,17 @@ def test_a_node_with_an_unusable_key_file_says_so_in_one_line(tmp_path):
     assert len(lines) == 1 and 'chmod 600' in lines[0] and 'Traceback' not in r.stderr
 
 
+def test_a_malformed_allow_list_item_is_refused_by_name():
+    from im_bringup.processes import executable_path
+    r = subprocess.run([executable_path('im_plant', 'plant'), '--ros-args', '-p',
+                        'allowed_publishers:=im/command/voltage'], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and 'Traceback' not in r.stderr
+    assert r.stderr.strip().splitlines() == [
+        "plant: error: invalid parameter 'allowed_publishers' item 'im/command/voltage': "
+        "expected /topic=node"]
+
+
 # --- a rogue beside the graph ------------------------------------------------------------------
 def _rogue_in_process():
     sys.path.insert(0, HERE)
