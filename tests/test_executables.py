@@ -21,6 +21,7 @@ EXECUTABLES = [
     ('im_bringup', 'replay'),
     ('im_bringup', 'report'),
     ('im_bringup', 'recover'),
+    ('im_bringup', 'campaign'),
 ]
 
 

@@ -29,6 +29,7 @@ setup(
             'report = im_bringup.report:main',
             'recover = im_bringup.recover:main',
             'robust_study = im_bringup.robust_study:main',
+            'campaign = im_bringup.campaign:main',
         ],
     },
 )

@@ -152,6 +152,37 @@ class Scenario:
                                 current_gain=self.current_gain, T_s=self.T_s, **opts)
 
 
+#: controller / observer node parameters a gains file may set, and their Scenario counterparts
+GAIN_PARAMETERS = {'controller': ('current_gain', 'gain_period', 'flux_coupling'),
+                   'observer': ('injection_gain', 'gain_period', 'k_e_injection')}
+
+
+def gain_arguments_from_parameters(params: dict) -> dict:
+    """Scenario keyword arguments of node-parameter gain overrides (``design_gains --out``,
+    :func:`im_controller.design_gains.design_for_scenario`): {'controller': {...}, 'observer':
+    {...}} -> current_gain (2×2), observer_gain (4×2), k_e, controller_options. Empty -> the
+    thesis's gains. Any other parameter is refused by name (the offline loop would ignore it)."""
+    kw: dict = {}
+    for node, values in (params or {}).items():
+        allowed = GAIN_PARAMETERS.get(node)
+        if allowed is None:
+            raise InvalidParameter('gains', node, 'only controller and observer gains apply')
+        for key in values:
+            if key not in allowed:
+                raise InvalidParameter(f'{node}.{key}', values[key],
+                                       f'not a gain parameter (one of {", ".join(allowed)})')
+    c, o = (params or {}).get('controller', {}), (params or {}).get('observer', {})
+    if c.get('current_gain') is not None:
+        kw['current_gain'] = np.asarray(c['current_gain'], float).reshape(2, 2).tolist()
+    if c.get('flux_coupling') is not None:
+        kw['controller_options'] = {'flux_coupling': c['flux_coupling']}
+    if o.get('injection_gain') is not None:
+        kw['observer_gain'] = np.asarray(o['injection_gain'], float).reshape(4, 2).tolist()
+    if o.get('k_e_injection'):
+        kw['k_e'] = float(o['k_e_injection'])
+    return kw
+
+
 @dataclass
 class RunResult:
     scenario: Scenario

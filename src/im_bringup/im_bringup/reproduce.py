@@ -16,9 +16,9 @@ import json
 import math
 import os
 import sys
-from typing import List
+from typing import List, Optional
 
-from im_common.cli import parse_args, progress
+from im_common.cli import parse_args
 
 from im_bringup import thesis
 
@@ -34,31 +34,35 @@ def chapter3_runs(T_s: float = 1e-4) -> List[dict]:
             for strategy in ('min_energy', 'constant_flux', 'min_loss')]
 
 
-def run_all(specs: List[dict], out_dir: str, record: bool = False) -> List[dict]:
+def run_one(item) -> dict:
+    """One run of ``make reproduce`` through the in-process graph: ``item`` = (n, spec, out_dir,
+    record); DDS domain 150 + n mod 80, so the pool's concurrent graphs never share one."""
     from im_bringup.config import node_parameters
     from im_bringup.scenario import run_scenario
-    results = []
-    for n, spec in enumerate(specs, 1):
-        spec = dict(spec)
-        extra = spec.pop('parameters', None)
-        label = (f"{spec['task']}/{spec['strategy']}/{spec['controller']}/"
-                 f"{spec.get('variation', 'none')}/{1.0 / spec['T_s']:g} Hz")
-        progress(n, len(specs), label)
-        params = node_parameters(spec['task'], spec['strategy'], spec['controller'],
-                                 spec.get('variation', 'none'), spec['T_s'],
-                                 spec.get('duration'))
-        for node, values in (extra or {}).items():
-            params[node].update(values)
-        bag = None
-        if record:
-            bag = os.path.join(out_dir, f"{spec['task']}_{spec['strategy']}_{spec['controller']}_"
-                                        f"{spec.get('variation', 'none')}_{1.0 / spec['T_s']:g}Hz.mcap")
-        s = run_scenario(params, task=spec['task'], strategy=spec['strategy'],
-                         controller=spec['controller'], variation=spec.get('variation', 'none'),
-                         record=bag, force=True, progress=True)
-        s.pop('_run', None)
-        results.append(s)
-    return results
+    n, spec, out_dir, record = item
+    spec = dict(spec)
+    extra = spec.pop('parameters', None)
+    params = node_parameters(spec['task'], spec['strategy'], spec['controller'],
+                             spec.get('variation', 'none'), spec['T_s'], spec.get('duration'))
+    for node, values in (extra or {}).items():
+        params[node].update(values)
+    bag = None
+    if record:
+        bag = os.path.join(out_dir, f"{spec['task']}_{spec['strategy']}_{spec['controller']}_"
+                                    f"{spec.get('variation', 'none')}_{1.0 / spec['T_s']:g}Hz.mcap")
+    s = run_scenario(params, task=spec['task'], strategy=spec['strategy'],
+                     controller=spec['controller'], variation=spec.get('variation', 'none'),
+                     record=bag, force=True, progress=False, domain_id=150 + n % 80)
+    s.pop('_run', None)
+    return s
+
+
+def run_all(specs: List[dict], out_dir: str, record: bool = False,
+            workers: Optional[int] = None) -> List[dict]:
+    """Every spec through the graph on the campaign pool (im_bringup.campaign), in order."""
+    from im_bringup.campaign import pool_map
+    return pool_map(run_one, [(n, spec, out_dir, record) for n, spec in enumerate(specs)],
+                    workers=workers, label='reproduce')
 
 
 def _f(value, fmt: str, scale: float = 1.0) -> str:
@@ -100,6 +104,7 @@ def main(argv=None) -> int:
     ap.add_argument('--out', default='bags/reproduce')
     ap.add_argument('--record', action='store_true', help='also record every run to MCAP')
     ap.add_argument('--only', choices=('ch3', 'ch4', 'robust'), nargs='*')
+    ap.add_argument('--workers', type=int, help='parallel runs (default: every core)')
     args = parse_args(ap, argv)
     os.makedirs(args.out, exist_ok=True)
     parts = args.only or ['ch3', 'ch4', 'robust']
@@ -110,7 +115,7 @@ def main(argv=None) -> int:
         specs += chapter4_runs()
     if 'robust' in parts:
         specs += robust_runs()
-    results = run_all(specs, args.out, record=args.record)
+    results = run_all(specs, args.out, record=args.record, workers=args.workers)
     from im_bringup.report import jsonable
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(jsonable(results), f, indent=2, allow_nan=False)

@@ -27,7 +27,7 @@ from typing import List, Optional
 
 import numpy as np
 
-from im_common.cli import logger, parse_args, progress
+from im_common.cli import logger, parse_args
 
 TASKS = ('position', 'speed')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
@@ -70,18 +70,17 @@ def run_one(task: str, strategy: str, T_s: float, gains: Optional[dict]) -> dict
     return row
 
 
+def _run_item(item) -> dict:
+    return run_one(*item)
+
+
 def study(progress: bool = True) -> dict:
     designs = {T: gains_for(T, progress) for T in (1e-3, 1e-4)}
-    rows: List[dict] = []
-    plan = [(T, g) for T in (1e-4, 1e-3) for g in ('thesis', 'certified')]
-    n = len(plan) * len(TASKS) * len(STRATEGIES)
-    k = 0
-    for T, which in plan:
-        for task in TASKS:
-            for strategy in STRATEGIES:
-                k += 1
-                progress(k, n, f'{task}/{strategy} T_s = {T:g} s, {which} gains', _log)
-                rows.append(run_one(task, strategy, T, None if which == 'thesis' else designs[T]))
+    plan = [(task, strategy, T, None if which == 'thesis' else designs[T])
+            for T in (1e-4, 1e-3) for which in ('thesis', 'certified')
+            for task in TASKS for strategy in STRATEGIES]
+    from im_bringup.campaign import pool_map
+    rows = pool_map(_run_item, plan, label='robust_study', progress=progress)
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
             'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',
                                                    'controller_options')}

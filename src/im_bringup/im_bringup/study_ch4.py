@@ -189,19 +189,19 @@ def sensitivity(tasks=TASKS, strategy: str = 'min_energy', T_s: float = 1e-4) ->
     return rows
 
 
+def _case(args) -> dict:
+    task, strategy, controller, variation, T_s = args
+    return run_case(task, strategy, controller, variation, T_s=T_s)
+
+
 def comparison(tasks=TASKS, strategies=STRATEGIES, controllers=CONTROLLERS + (ORACLE,),
-               variations=('chapter4', 'none'), T_s: float = 1e-4) -> List[dict]:
-    rows = []
-    for variation in variations:
-        for task in tasks:
-            for strategy in strategies:
-                for controller in controllers:
-                    t0 = time.perf_counter()
-                    r = run_case(task, strategy, controller, variation, T_s=T_s)
-                    rows.append(r)
-                    _log(f'compare {variation} {task} {strategy} {controller}: '
-                         f'{time.perf_counter() - t0:.1f} s')
-    return rows
+               variations=('chapter4', 'none'), T_s: float = 1e-4,
+               workers: Optional[int] = None) -> List[dict]:
+    """Every (variation, task, strategy, controller) case on the campaign pool, in order."""
+    from im_bringup.campaign import pool_map
+    cases = [(task, strategy, controller, variation, T_s) for variation in variations
+             for task in tasks for strategy in strategies for controller in controllers]
+    return pool_map(_case, cases, workers=workers, label='compare')
 
 
 # ---------------------------------------------------------------------------------------------
