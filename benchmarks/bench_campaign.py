@@ -53,8 +53,9 @@ def _rss_mb(pid: int) -> float:
                 for line in f:
                     if line.startswith('VmRSS:'):
                         total += int(line.split()[1]) * 1024
-            with open(f'/proc/{p}/task/{p}/children') as f:
-                todo += [int(c) for c in f.read().split()]
+            for tid in os.listdir(f'/proc/{p}/task'):   # children of every thread, not only
+                with open(f'/proc/{p}/task/{tid}/children') as f:   # the main one (Dask's
+                    todo += [int(c) for c in f.read().split()]      # nannies start elsewhere)
         except OSError:
             continue
     return total / 2 ** 20

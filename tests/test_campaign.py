@@ -57,6 +57,7 @@ def same_rows(a, b):
     ({'gain_sets': [{'name': 'g', 'gains': 'missing.yaml', 'T_s': 1e-3}]}, 'no such file'),
     ({'gain_sets': [{'name': 'g', 'gains': 'thesis', 'T_s': -1}]}, 'T_s = -1'),
     ({'map': ['R_r']}, 'map ='),
+    ({'controllers': ['robust']}, "controllers: 'robust' is not one of"),
 ])
 def test_a_bad_spec_is_one_line_naming_the_key(tmp_path, over, needle):
     path = write_spec(tmp_path, **over)
@@ -133,6 +134,27 @@ def test_a_row_through_the_graph_equals_the_offline_row(tmp_path):
     graph = cp.run_job(job, dict(spec, mode='graph'), gains)
     assert graph['status'] == off['status'] == 'ok', graph['error']
     for k in ('E_in_J', 'E_copper_J', 'pos_err_max_rad', 'i_max_A'):
+        assert graph[k] == pytest.approx(off[k], rel=1e-9, abs=1e-12), k
+
+
+def test_adaptive_rows_adapt_to_the_drawn_motor(tmp_path):
+    """controllers: [nominal, adaptive]: on a motor whose R_r is 40 % below the nominal model's,
+    the adapter (starting from the nominal motor) cuts the position error; the rows say which
+    controller ran, and the graph gives the offline row."""
+    spec = cp.read_spec(write_spec(tmp_path, draws=1, duration=1.0, box={'R_r': 0.5},
+                                   controllers=['nominal', 'adaptive'],
+                                   gain_sets=[{'name': 'thesis', 'gains': 'thesis',
+                                               'T_s': 1e-4}]))
+    gains = cp.gain_arguments(spec)
+    nominal, adaptive = (cp.run_job(j, spec, gains) for j in cp.jobs(spec))
+    assert (nominal['controller'], adaptive['controller']) == ('nominal', 'adaptive')
+    assert nominal['status'] == adaptive['status'] == 'ok'
+    assert adaptive['pos_err_rms_rad'] < 0.5 * nominal['pos_err_rms_rad']
+    short = dict(spec, duration=0.05)
+    off = cp.run_job(cp.jobs(short)[1], short, gains)
+    graph = cp.run_job(cp.jobs(short)[1], dict(short, mode='graph'), gains)
+    assert graph['status'] == 'ok', graph['error']
+    for k in ('E_in_J', 'pos_err_max_rad'):
         assert graph[k] == pytest.approx(off[k], rel=1e-9, abs=1e-12), k
 
 

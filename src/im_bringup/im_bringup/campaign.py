@@ -5,7 +5,8 @@
 
 A spec (YAML) names the parameter box or distributions of the plant's motor, the number of draws,
 the tasks, strategies, gain sets (each with its period), loads, profiles and the seed. Every draw
-is a motor; every run is one draw × task × strategy × gain set × load × profile, executed by the
+is a motor; every run is one draw × task × strategy × controller × gain set × load × profile,
+executed by the
 ROS-free loop (``im_bringup.offline``; same numbers as the graph) or, with ``mode: graph``, by
 the in-process ROS graph. Runs are Dask tasks on a local cluster of every core, or on an existing
 Dask scheduler (``--address``); Dask was chosen over Ray by ``benchmarks/bench_campaign.py``.
@@ -37,12 +38,15 @@ from im_common.cli import logger
 _log = logger('campaign')
 
 SPEC_KEYS = ('name', 'seed', 'draws', 'motor', 'box', 'sigma_min', 'tasks', 'strategies',
+             'controllers',
              'gain_sets', 'loads', 'profiles', 'duration', 'mode', 'map', 'worst',
              'speedup_runs')
 #: parameters of the plant's motor a spec may draw (the motor's electrical parameters)
 DRAWN = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: what the stability map may be drawn over: a drawn parameter, σ or σL_s
 MAP_AXES = DRAWN + ('sigma', 'sigma_L_s')
+#: controllers a campaign runs: the nominal one, or with the adapter's improved or thesis law
+CAMPAIGN_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis')
 STATUSES = ('ok', 'tripped', 'diverged', 'failed')
 UNSTABLE = ('tripped', 'diverged')
 JOURNAL = 'rows.jsonl'
@@ -213,7 +217,8 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
         raise SpecError(f'{where}: sigma_min = {s!r} must be in (0, 1)')
     spec['sigma_min'] = float(s)
     for key, allowed, default in (('tasks', TASKS, ['position']),
-                                  ('strategies', STRATEGIES, ['min_energy'])):
+                                  ('strategies', STRATEGIES, ['min_energy']),
+                                  ('controllers', CAMPAIGN_CONTROLLERS, ['nominal'])):
         v = raw.get(key, default)
         v = [v] if isinstance(v, str) else v
         if not isinstance(v, list) or not v:
@@ -295,18 +300,16 @@ def draw(spec: dict, d: int) -> Dict[str, float]:
 
 def jobs(spec: dict) -> List[dict]:
     """Every run of the campaign, in index order (draw-major)."""
+    import itertools
     out = []
     for d in range(spec['draws']):
         motor = draw(spec, d)
-        for task in spec['tasks']:
-            for strategy in spec['strategies']:
-                for g in spec['gain_sets']:
-                    for load in spec['loads']:
-                        for profile in spec['profiles']:
-                            out.append({'index': len(out), 'draw': d, 'task': task,
-                                        'strategy': strategy, 'gain_set': g['name'],
-                                        'T_s': g['T_s'], 'load': load, 'profile': profile,
-                                        **motor})
+        for task, strategy, controller, g, load, profile in itertools.product(
+                spec['tasks'], spec['strategies'], spec['controllers'], spec['gain_sets'],
+                spec['loads'], spec['profiles']):
+            out.append({'index': len(out), 'draw': d, 'task': task, 'strategy': strategy,
+                        'controller': controller, 'gain_set': g['name'], 'T_s': g['T_s'],
+                        'load': load, 'profile': profile, **motor})
     return out
 
 
@@ -344,17 +347,29 @@ def scenario_for(job: dict, spec: dict, gains: dict):
     base = _base_motor(spec)
     motor = base.with_values(**{k: job[k] for k in DRAWN})
     return Scenario(task=job['task'], strategy=job['strategy'], T_s=job['T_s'],
+                    controller=job['controller'],
                     duration=spec['duration'], motor=motor, estimates=base,
                     load_model=None if job['load'] == 'task' else load_file(job['load']),
                     profile=None if job['profile'] == 'task' else load_profile(job['profile']),
                     **gain_arguments_from_parameters(gains[job['gain_set']]))
 
 
+def adapter_for(job: dict, spec: dict):
+    """The offline loop's adapter hook of an adaptive job (None for the nominal controller):
+    the adapter starts from the nominal motor, like the controller and observer."""
+    if job['controller'] == 'nominal':
+        return None
+    from im_adapt.adaptation import AdaptationGains
+    from im_adapt.hook import LockstepAdapter
+    law = 'thesis' if job['controller'] == 'adaptive_thesis' else 'improved'
+    return LockstepAdapter.build(_base_motor(spec), AdaptationGains(law=law))
+
+
 def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
     """Node parameters of one job for the ROS graph (the same run as :func:`scenario_for`)."""
     from im_bringup.config import node_parameters
     base = _base_motor(spec)
-    params = node_parameters(job['task'], job['strategy'], 'nominal', 'none', job['T_s'],
+    params = node_parameters(job['task'], job['strategy'], job['controller'], 'none', job['T_s'],
                              spec['duration'],
                              motor=base.with_values(**{k: job[k] for k in DRAWN}),
                              estimates=base,
@@ -384,14 +399,15 @@ def run_job(job: dict, spec: dict, gains: dict) -> dict:
         if spec['mode'] == 'graph':
             from im_bringup.scenario import run_scenario
             s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
-                             strategy=job['strategy'], progress=False,
+                             strategy=job['strategy'], controller=job['controller'],
+                             progress=False,
                              domain_id=150 + job['index'] % 80)
             s.pop('_run', None)
             if not s.get('ok', True) and not s.get('trip'):
                 raise RuntimeError('; '.join(str(v) for v in (s.get('failures') or {}).values()))
         else:
             from im_bringup.offline import simulate
-            s = simulate(scenario_for(job, spec, gains)).summary
+            s = simulate(scenario_for(job, spec, gains), adapter=adapter_for(job, spec)).summary
     except (FloatingPointError, OverflowError) as exc:
         m = re.search(r't = ([0-9.eE+-]+)', str(exc))
         row.update(status='diverged', error=_one_line(exc),
@@ -544,6 +560,7 @@ class Journal:
 
 # ------------------------------------------------------------------------------------ results
 COLUMNS = (('index', 'int64'), ('draw', 'int64'), ('task', 'string'), ('strategy', 'string'),
+           ('controller', 'string'),
            ('gain_set', 'string'), ('T_s', 'float64'), ('load', 'string'), ('profile', 'string'),
            *((k, 'float64') for k in DRAWN), ('sigma', 'float64'), ('sigma_L_s', 'float64'), ('status', 'string'),
            ('trip', 'string'), ('t_end_s', 'float64'), ('error', 'string'),
@@ -591,6 +608,22 @@ def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
             'unstable_draws': sorted({r['draw'] for r in rs if r['status'] in UNSTABLE}),
             'E_loss_J': pct('E_loss_J'), 'pos_err_max_rad': pct('pos_err_max_rad'),
             'speed_err_max_rad_s': pct('speed_err_max_rad_s')}
+    groups = []     # per gain set × controller × task × strategy: the spread of the figures
+    for g in spec['gain_sets']:
+        for c in spec['controllers']:
+            for task in spec['tasks']:
+                for strategy in spec['strategies']:
+                    rs = [r for r in rows if (r['gain_set'], r['controller'], r['task'],
+                                              r['strategy']) == (g['name'], c, task, strategy)]
+                    ok = [r for r in rs if r['status'] == 'ok']
+                    err = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
+                    if task == 'torque':
+                        err = 'torque_err_max_Nm'
+                    groups.append({'gain_set': g['name'], 'controller': c, 'task': task,
+                                   'strategy': strategy, 'runs': len(rs), 'ok': len(ok),
+                                   'unstable': sum(r['status'] in UNSTABLE for r in rs),
+                                   'error_figure': err, err: pct(err, ok),
+                                   'E_loss_J': pct('E_loss_J', ok)})
     worst = sorted(rows, key=_badness, reverse=True)[:spec['worst']]
     out = {'name': spec['name'], 'spec_hash': spec_hash(spec), 'seed': spec['seed'],
            'draws': spec['draws'], 'runs': len(rows),
@@ -601,8 +634,10 @@ def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
            **info,
            **{f'unstable_{n}': s['unstable'] for n, s in by_set.items()},
            'gain_sets': by_set,
+           'groups': groups,
            'worst': [{'index': r['index'], 'draw': r['draw'], 'task': r['task'],
-                      'strategy': r['strategy'], 'gain_set': r['gain_set'],
+                      'strategy': r['strategy'], 'controller': r['controller'],
+                      'gain_set': r['gain_set'],
                       'status': r['status'], 'trip': r['trip'], 'error': r['error'],
                       'pos_err_max_rad': r['pos_err_max_rad'],
                       'speed_err_max_rad_s': r['speed_err_max_rad_s'],
@@ -758,6 +793,10 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
             ax.set_title(f'{task} task', fontsize=9)
             if ax.get_legend_handles_labels()[0]:
                 ax.legend(fontsize=7)
+            else:   # e.g. the position error of the speed task: the task has no such figure
+                ax.set_axis_off()
+                ax.text(0.5, 0.5, f'{task} task: no {label.split(" [")[0]}', ha='center',
+                        va='center', transform=ax.transAxes, fontsize=9, color='0.4')
     fig.tight_layout()
     fig.savefig(out / 'histograms.png', dpi=110)
     plt.close(fig)
@@ -804,6 +843,19 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
         lines.append(f"| {s} | {g['T_s'] * 1e6:g} | {g['runs']} | {g['ok']} | {g['unstable']} "
                      f"| {g['failed']} | {p('E_loss_J', 'p50')} / {p('E_loss_J', 'p95')} | "
                      f"{p('pos_err_max_rad', 'p95', 1e3)} | {p('speed_err_max_rad_s', 'p95')} |")
+    units = {'pos_err_rms_rad': ('position RMS', 'mrad', 1e3),
+             'speed_err_rms_rad_s': ('speed RMS', 'rad/s', 1.0),
+             'torque_err_max_Nm': ('torque max', 'N·m', 1.0)}
+    lines += ['', '| gain set | controller | task | strategy | runs | unstable | error p50 / p95 '
+              '/ max | losses p50 [J] |', '| --- | --- | --- | --- | ---: | ---: | --- | ---: |']
+    for g in summary['groups']:
+        name, unit, scale = units[g['error_figure']]
+        e = g[g['error_figure']]
+        err = (f'{e["p50"] * scale:.3g} / {e["p95"] * scale:.3g} / {e["max"] * scale:.3g} '
+               f'{unit} ({name})' if e else '—')
+        loss = f'{g["E_loss_J"]["p50"]:.1f}' if g['E_loss_J'] else '—'
+        lines.append(f"| {g['gain_set']} | {g['controller']} | {g['task']} | {g['strategy']} | "
+                     f"{g['runs']} | {g['unstable']} | {err} | {loss} |")
     if 'speedup_vs_one_worker' in summary:
         lines += ['', f"Speed-up: {summary['speedup_runs']} runs took "
                       f"{summary['speedup_wall_1_worker_s']:.1f} s on 1 worker and "
@@ -812,15 +864,17 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
     lines += ['']
     for f, caption in figs:
         lines += [f'![{caption}]({f})', '', f'*{caption}*', '']
-    lines += ['## Worst runs', '', '| index | task | gain set | status | why / error | '
-              + ' | '.join(DRAWN) + ' | σ | σL_s [mH] | replay alone |',
-              '| ---: | --- | --- | --- | --- |' + ' ---: |' * (len(DRAWN) + 2) + ' --- |']
+    lines += ['## Worst runs', '', '| index | task | strategy | controller | gain set | status | '
+              'why / error | ' + ' | '.join(DRAWN) + ' | σ | σL_s [mH] | replay alone |',
+              '| ---: | --- | --- | --- | --- | --- | --- |' + ' ---: |' * (len(DRAWN) + 2)
+              + ' --- |']
     for w in summary['worst']:
         why = w['trip'] or w['error'] or (
             f"pos. err {w['pos_err_max_rad'] * 1e3:.3g} mrad" if w['task'] == 'position'
             else f"speed err {w['speed_err_max_rad_s']:.3g} rad/s")
-        lines.append(f"| {w['index']} | {w['task']} | {w['gain_set']} | {w['status']} | "
-                     f"{why.replace('|', '/')} | "
+        lines.append(f"| {w['index']} | {w['task']} | {w['strategy']} | {w['controller']} | "
+                     f"{w['gain_set']} | {w['status']} | "
+                     f"{why.replace('|', '∣')} | "
                      + ' | '.join(f'{w[k]:.4g}' for k in DRAWN)
                      + f" | {w['sigma']:.3f} | {w['sigma_L_s'] * 1e3:.3f} | `{w['replay']}` |")
     from im_bringup.bag import write_atomic
@@ -855,7 +909,8 @@ def _run_alone(spec: dict, args) -> int:
     if args.record:
         from im_bringup.scenario import run_scenario
         s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
-                         strategy=job['strategy'], record=args.record,
+                         strategy=job['strategy'], controller=job['controller'],
+                         record=args.record,
                          progress=not args.no_progress)
         print(f"recorded {args.record}; ok={s.get('ok')}, E_in = {s.get('E_in_J')}")
         return 0
