@@ -28,8 +28,8 @@ from im_common.cli import status_line
 from im_common.loads import Load, load_parameters, make_load
 from im_common.metrics import energy_figures, tracking_figures
 from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
-from im_common.params import (CHAPTER4_ESTIMATES, SCHEDULES, InvalidParameter, MotorParams,
-                              ParameterSchedule, THESIS_MOTOR)
+from im_common.params import (CHAPTER4_ESTIMATES, InvalidParameter, MotorParams,
+                              ParameterSchedule, SCHEDULES, THESIS_MOTOR, estimate_arguments)
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, steady_start
 from im_controller.profiles import Profile
@@ -317,7 +317,7 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             # the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out
             estimates = adapter.step(T_s, m.t, v_a, v_b, m, x_hat_k)
             if estimates:
-                observer.set_estimates(estimates.get('R_r'), estimates.get('theta'))
+                observer.set_estimates(**estimate_arguments(estimates))
         if progress and k % report_every == 0:
             status_line(f'{label}: {100.0 * k / n_steps:5.1f} %')
     if progress:

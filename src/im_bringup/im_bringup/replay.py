@@ -40,6 +40,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from im_common import cdr
+from im_common.params import estimate_arguments
 from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
 from .bag import BagError, BagWriter, check_output, info, iter_raw
 from .run import REEST_CURRENT, REEST_FLUX
@@ -118,7 +119,7 @@ def reestimate_series(path, config: dict, stop=None
             est = s[ADAPT_ESTIMATE].get(t)
             if est is None:
                 raise BagError(path, f'--use-adapter: no /im/adapter/estimate stamped {t} ns')
-            obs.set_estimates(R_r=est.get('R_r'), theta=est.get('theta'))
+            obs.set_estimates(**estimate_arguments(est))
         va, vb = s[CMD_VOLTAGE][t]
         ia, ib = s[MEAS_CURRENT][t]
         (w,) = s[MEAS_SHAFT][t]

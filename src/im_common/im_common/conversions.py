@@ -125,6 +125,11 @@ def shaft_in(data: bytes, _unpack=__import__('struct').Struct('<iI').unpack_from
 
 
 def estimates_in(data: bytes):
-    """(stamp_ns, {'R_r': ..., 'theta': ...}) of the adapter's estimate JointState."""
+    """(stamp_ns, model estimates) of the adapter's estimate JointState: {'R_r', 'theta'} from
+    the thesis pair, the inverse-Γ set {'L_sigma', 'L_M', 'R_R'} when the message carries
+    L_sigma (:func:`im_common.params.estimate_arguments`)."""
+    from .params import estimate_arguments
+    from .topics import ESTIMATE_NAMES
     sec, nsec, names, pos, _, _ = decode_joint_state(data)
-    return sec * NS_PER_S + nsec, named_values(names, pos, ('R_r', 'theta'))
+    wanted = ESTIMATE_NAMES if 'L_sigma' in names else ESTIMATE_NAMES[:4]
+    return sec * NS_PER_S + nsec, estimate_arguments(named_values(names, pos, wanted))

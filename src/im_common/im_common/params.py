@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
-from typing import Callable, Dict, Mapping, Tuple
+from typing import Callable, Dict, Mapping, Optional, Tuple
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 RATING_NAMES = ('rated_voltage', 'rated_current', 'rated_speed', 'rated_torque')
@@ -139,8 +139,41 @@ class MotorParams:
         return self.R_r * (self.L_sr / self.L_r) ** 2
 
     @property
+    def L_sigma(self) -> float:
+        """σL_s = L_s − L_M, the stator transient (leakage) inductance of the inverse-Γ model."""
+        return self.L_s - self.L_M
+
+    @property
     def T_r(self) -> float:
         return self.L_r / self.R_r
+
+    def identifiable(self) -> Dict[str, float]:
+        """The inverse-Γ parameters {'R_s', 'L_sigma', 'L_M', 'R_R'}: everything the terminals
+        (voltages, currents, speed) determine (docs/adaptation.md §1)."""
+        return dict(zip(IDENTIFIABLE_NAMES, (self.R_s, self.L_sigma, self.L_M, self.R_R)))
+
+    def with_identifiable(self, R_s: Optional[float] = None, L_sigma: Optional[float] = None,
+                          L_M: Optional[float] = None, R_R: Optional[float] = None
+                          ) -> 'MotorParams':
+        """The motor with these inverse-Γ parameters, in this motor's rotor gauge θ = L_sr/L_r.
+
+        Terminal signals fix R_s, L_σ, L_M and R_R but not θ (docs/adaptation.md §1); keeping θ
+        fixes the scale of the rotor-flux coordinate φ_r = φ_M/θ: L_sr = L_M/θ, L_r = L_M/θ²,
+        L_s = L_σ + L_M, R_r = R_R/θ². The result is terminal-equivalent to any motor with the
+        same four values, and equal to this motor when none changes. Raises InvalidParameter
+        naming the value that is not a positive finite number."""
+        th = self.theta
+        ident = self.identifiable()
+        given = {'R_s': R_s, 'L_sigma': L_sigma, 'L_M': L_M, 'R_R': R_R}
+        for name, value in given.items():
+            if value is not None:
+                _check_finite_positive(name, value)
+                ident[name] = float(value)
+        if all(v is None for v in given.values()):
+            return self
+        return replace(self, R_s=ident['R_s'], L_s=ident['L_sigma'] + ident['L_M'],
+                       L_sr=ident['L_M'] / th, L_r=ident['L_M'] / (th * th),
+                       R_r=ident['R_R'] / (th * th))
 
     @property
     def v(self) -> int:
@@ -156,6 +189,18 @@ class MotorParams:
 
 
 THESIS_MOTOR = MotorParams()
+#: the inverse-Γ parameters: what the terminals identify (MotorParams.identifiable)
+IDENTIFIABLE_NAMES = ('R_s', 'L_sigma', 'L_M', 'R_R')
+#: the thesis's adapted pair (eq. 4.10-4.13: L_s, L_sr, R_s stay nominal)
+THESIS_ESTIMATE_NAMES = ('R_r', 'theta')
+
+
+def estimate_arguments(estimates: Mapping) -> Dict[str, float]:
+    """What a controller or observer model takes from the adapter's estimates: the inverse-Γ
+    set (``R_s``, ``L_sigma``, ``L_M``, ``R_R``, those present) when it carries ``L_sigma`` — the
+    improved law and truth-fed runs —, else the thesis's ``R_r``/``theta`` (docs/adaptation.md §7)."""
+    names = IDENTIFIABLE_NAMES if 'L_sigma' in estimates else THESIS_ESTIMATE_NAMES
+    return {n: estimates[n] for n in names if estimates.get(n) is not None}
 MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
 REQUIRED_MOTOR_FIELDS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'pole_pairs', 'J', 'b')
 

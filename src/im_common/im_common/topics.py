@@ -50,7 +50,9 @@ DIAG = 'diagnostic_msgs/msg/DiagnosticArray'
 HEADER = 'std_msgs/msg/Header'
 
 SHAFT_JOINT = 'rotor'
-ESTIMATE_NAMES = ('R_r', 'theta', 'L_M', 'R_R')
+# the adapter's estimate message: the first four, and L_sigma with the adapter's feed
+# 'inverse_gamma' (then the controller and observer take the inverse-Γ set, docs/adaptation.md §7)
+ESTIMATE_NAMES = ('R_r', 'theta', 'L_M', 'R_R', 'L_sigma')
 PARAM_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 POWER_NAMES = ('P_in', 'P_cu_s', 'P_cu_r', 'P_core', 'P_friction', 'P_load', 'P_param')
 ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
@@ -66,7 +68,8 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(OBS_FLUX, V3, 'observer', 'rotor-flux estimate phi_r_alpha, phi_r_beta [Wb]', True),
     TopicSpec(OBS_CURRENT, V3, 'observer', 'stator-current estimate i_alpha, i_beta [A]'),
     TopicSpec(ADAPT_ESTIMATE, JS, 'adapter',
-              "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'] in position [SI]", True),
+              "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma')] in position "
+              "[SI]", True),
     TopicSpec(REF_SHAFT, JS, 'controller',
               "reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]"),
     TopicSpec(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),

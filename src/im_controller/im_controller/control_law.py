@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from im_common.loads import LOAD_KINDS, make_load
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
+from im_common.params import (InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
+                              estimate_arguments)
 
 from .flux import STRATEGIES, FluxStrategy, LowPass2
 from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
@@ -360,11 +361,12 @@ class DriveController:
             self._traj.set(value, t, duration or cfg.setpoint_duration)
 
     def _set_estimates(self, estimates) -> None:
-        R_r = estimates.get('R_r')
-        theta = estimates.get('theta')
-        key = (R_r, theta)
+        """Adapted estimates: the inverse-Γ set when it carries ``L_sigma`` (the improved law,
+        truth-fed runs: every coefficient follows), else the thesis's ``R_r``/``theta``."""
+        args = estimate_arguments(estimates)
+        key = tuple(args.items())
         if key != self._est_key:
-            self._c = ModelCoefficients.from_params(self.config.params, R_r=R_r, theta=theta)
+            self._c = ModelCoefficients.from_params(self.config.params, **args)
             self._est_key = key
 
     def _init_run(self, t, theta_r, omega_r, phi_a, phi_b) -> None:

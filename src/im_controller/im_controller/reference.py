@@ -36,7 +36,7 @@ import math
 from dataclasses import dataclass
 from typing import Optional
 
-from im_common.params import MotorParams, THESIS_MOTOR
+from im_common.params import IDENTIFIABLE_NAMES, MotorParams, THESIS_MOTOR
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,8 @@ class ModelCoefficients:
 
     With the chapter-4 estimates (R̂_r, θ̂ = L̂_sr/L̂_r) and fixed R̂_s, L̂_s, L̂_sr, use
     :meth:`from_params` with ``R_r`` and ``theta``: then L̂_r = L̂_sr/θ̂, σ̂L̂_s = L̂_s − L̂_sr θ̂ and
-    R̂_eq = R̂_s + R̂_r θ̂², exactly the entries of D̂, R̂ in eq. 4.12.
+    R̂_eq = R̂_s + R̂_r θ̂², exactly the entries of D̂, R̂ in eq. 4.12. With the inverse-Γ estimates
+    (L̂_M, R̂_R, L̂_σ, R̂_s) every coefficient follows them (``from_params(params, L_M=...)``).
     """
 
     R_s: float
@@ -59,7 +60,27 @@ class ModelCoefficients:
 
     @classmethod
     def from_params(cls, params: MotorParams = THESIS_MOTOR, R_r: Optional[float] = None,
-                    theta: Optional[float] = None) -> 'ModelCoefficients':
+                    theta: Optional[float] = None, **identifiable) -> 'ModelCoefficients':
+        """The coefficients of ``params`` with adapted estimates, in one of two parametrizations:
+
+        * ``R_r``, ``theta`` — the thesis's (eq. 4.10-4.12): L̂_s, L̂_sr stay, L̂_r = L̂_sr/θ̂;
+        * ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``) — the inverse-Γ parameters the
+          terminals identify (docs/adaptation.md §1, §7), in the rotor gauge θ of ``params``
+          (:meth:`MotorParams.with_identifiable`): every coefficient follows them.
+        """
+        if identifiable:
+            unknown = set(identifiable) - set(IDENTIFIABLE_NAMES)
+            if unknown:
+                raise ValueError(f'estimate {sorted(unknown)[0]!r} is not an inverse-Gamma '
+                                 'parameter (R_s, L_sigma, L_M, R_R)')
+            if R_r is not None or theta is not None:
+                raise ValueError("estimates: give either 'R_r'/'theta' (the thesis's "
+                                 "parametrization) or 'L_M'/'R_R'/'L_sigma', not both")
+            try:
+                p = params.with_identifiable(**identifiable)
+            except ValueError as exc:
+                raise ValueError(f'estimate {exc}') from None
+            return cls(p.R_s, p.R_r, p.L_s, p.L_r, p.L_sr, p.pole_pairs, p.J, p.b)
         Rr = params.R_r if R_r is None else float(R_r)
         Lr = params.L_r if theta is None else params.L_sr / float(theta)
         if not (math.isfinite(Rr) and Rr > 0.0):

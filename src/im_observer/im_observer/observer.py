@@ -27,7 +27,8 @@ injection (``skew_injection=False``, the literal F of the thesis) the error stil
 practice but V is not monotone at speed (see docs/controller.md and the tests).
 
 Estimates (eq. 4.13): ``set_estimates(R_r, theta)`` replaces R̂_r and θ̂ = L̂_sr/L̂_r (L̂_r = L̂_sr/θ̂,
-L̂_s, L̂_sr, R̂_s fixed).
+L̂_s, L̂_sr, R̂_s fixed); ``set_estimates(L_M=..., R_R=..., L_sigma=...[, R_s=...])`` replaces the
+inverse-Γ parameters, so every coefficient follows the identified motor (docs/adaptation.md §7).
 
 Sampling: each ``step`` integrates [t_k, t_k + T_s] with V held (ZOH) and the measured current and
 speed held at their t_k values, by classical RK4 in sub-steps of at most ``max_substep``.
@@ -45,7 +46,8 @@ import math
 from typing import Optional, Sequence, Tuple
 
 from im_common.model import eq112_coefficients
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
+from im_common.params import (IDENTIFIABLE_NAMES, InvalidParameter, MotorParams, THESIS_MOTOR,
+                              check_real)
 
 
 _finite = check_real
@@ -111,8 +113,32 @@ class RotorFluxObserver:
     def estimates(self) -> dict:
         return {'R_r': self._R_r, 'theta': self._theta}
 
-    def set_estimates(self, R_r: Optional[float] = None, theta: Optional[float] = None) -> None:
-        """Use adapted R̂_r and/or θ̂ = L̂_sr/L̂_r from now on (eq. 4.13)."""
+    def set_estimates(self, R_r: Optional[float] = None, theta: Optional[float] = None,
+                      **identifiable) -> None:
+        """Use adapted estimates from now on, in one of two parametrizations:
+
+        * ``R_r`` and/or ``theta`` = L̂_sr/L̂_r (eq. 4.13; L̂_s, L̂_sr, R̂_s fixed);
+        * the inverse-Γ set ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``): every
+          coefficient follows them, in the rotor gauge of the nominal model (θ = L_sr/L_r of
+          ``params``, :meth:`MotorParams.with_identifiable`; docs/adaptation.md §7).
+        Errors (InvalidParameter) name the estimate."""
+        if identifiable:
+            unknown = set(identifiable) - set(IDENTIFIABLE_NAMES)
+            if unknown:
+                raise InvalidParameter(sorted(unknown)[0], identifiable[sorted(unknown)[0]],
+                                       'is not an estimate (R_r, theta or R_s, L_sigma, L_M, '
+                                       'R_R)')
+            if R_r is not None or theta is not None:
+                raise InvalidParameter('R_r' if R_r is not None else 'theta',
+                                       R_r if R_r is not None else theta,
+                                       'give either R_r/theta or the inverse-Gamma estimates '
+                                       '(L_M, R_R, L_sigma), not both')
+            p = self.params.with_identifiable(**{k: _finite(k, v) for k, v in identifiable.items()
+                                                 if v is not None})
+            self.R_s, self.L_s, self.L_sr = p.R_s, p.L_s, p.L_sr
+            self._R_r, self._theta = p.R_r, p.theta
+            self._update()
+            return
         if R_r is not None:
             r = _finite('R_r', R_r)
             if r <= 0.0:
