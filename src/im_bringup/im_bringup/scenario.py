@@ -255,6 +255,10 @@ def main(argv=None) -> int:
             return 2
         print(f'parameters written to {args.write_params}')
         return 0
+    if args.processes and not args.record:       # a usage error, before any file is looked at
+        print('error: --processes needs --record (the figures come from the recording)',
+              file=sys.stderr)
+        return 2
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
     inputs = [args.gains, args.params_file]
@@ -316,10 +320,6 @@ def _run_processes(args, parameters: dict, out: str) -> int:
     from im_bringup.processes import graph_processes, run_processes
     from im_bringup.report import figures_of_merit, jsonable
     from im_bringup.run import load_run
-    if not args.record:
-        print('error: --processes needs --record (the figures come from the recording)',
-              file=sys.stderr)
-        return 2
     procs = graph_processes(args.task, args.strategy, args.controller, T_s=args.T_s,
                             duration=args.duration, mode=parameters['plant'].get('mode',
                                                                                 'lockstep'),
