@@ -46,3 +46,19 @@ def test_improved_law_leaves_a_nominal_drive_alone():
     assert ada['pos_err_rms_rad'] < 1e-3
     for k in ('R_R', 'L_M'):
         assert math.isclose(ada[f'{k}_hat_final'], ada[f'{k}_true_final'], rel_tol=0.01)
+
+
+@pytest.mark.parametrize('strategy', ['constant_flux', 'min_loss'])
+def test_the_truth_fed_bound_and_the_inverse_gamma_feed(strategy):
+    """Chapter-4 drift, position task. Fed the truth's R_s, L_σ, L_M, R_R at every step, the
+    controller's error is a small fraction of the nominal one (what is left is the drift's own
+    speed); the adapter's inverse-Γ feed reaches every coefficient and
+    beats the thesis-pair feed, whose fixed L̂_s, L̂_sr no (R̂_r, θ̂) can correct (docs/adaptation.md §6)."""
+    runs = {c: run_case('position', strategy, c, 'chapter4')
+            for c in ('nominal', 'truth_fed', 'adaptive', 'adaptive_inverse_gamma')}
+    nominal = runs['nominal']['pos_err_rms_rad']
+    assert runs['truth_fed']['pos_err_rms_rad'] < 0.05 * nominal
+    assert runs['adaptive_inverse_gamma']['pos_err_rms_rad'] < \
+        0.5 * runs['adaptive']['pos_err_rms_rad']
+    for r in runs.values():
+        assert r.get('trip') is None

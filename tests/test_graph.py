@@ -23,6 +23,7 @@ def test_same_run_twice_gives_identical_numbers():
     ('position', 'min_energy', 'nominal', 'none'),
     ('speed', 'min_loss', 'nominal', 'none'),
     ('speed', 'min_energy', 'adaptive', 'chapter4'),
+    ('position', 'min_loss', 'adaptive_inverse_gamma', 'chapter4'),   # L_sigma on the topic
 ])
 def test_graph_equals_the_ros_free_loop(task, strategy, controller, variation):
     """Stamps, not arrival order, decide what each node computes: the graph reproduces the
@@ -35,8 +36,9 @@ def test_graph_equals_the_ros_free_loop(task, strategy, controller, variation):
     if controller != 'nominal':
         from im_adapt.adaptation import AdaptationGains
         from im_adapt.hook import LockstepAdapter
+        from im_bringup.config import ADAPTATION
         est = CHAPTER4_ESTIMATES if variation == 'chapter4' else THESIS_MOTOR
-        hook = LockstepAdapter.build(est, AdaptationGains(law='improved'))
+        hook = LockstepAdapter.build(est, AdaptationGains(**ADAPTATION[controller]))
     off = simulate(Scenario(task=task, strategy=strategy, variation=variation, duration=0.05),
                    adapter=hook)
     assert g.summary['ok'], g.summary['failures']

@@ -70,6 +70,11 @@ from typing import Optional
 from im_common.params import InvalidParameter, MotorParams, check_real
 
 LAWS = ('thesis', 'improved')
+#: what the controller and observer take from the improved law (docs/adaptation.md §7):
+#: 'thesis_pair' — R̂_r, θ̂ into eq. 4.12-4.13 with L̂_s, L̂_sr, R̂_s nominal (robust over the
+#: parameter box); 'inverse_gamma' — L̂_σ, L̂_M, R̂_R into every coefficient (best when R̂_s and
+#: σL̂_s are right, trips more often when they are not)
+FEEDS = ('thesis_pair', 'inverse_gamma')
 TWO_PI = 2.0 * math.pi
 
 
@@ -83,6 +88,9 @@ class AdaptationGains:
 
     law: str = 'improved'
     """'thesis' (eq. 4.4, 4.9 as printed) or 'improved' (least squares on the rotor equation)."""
+    feed: str = 'thesis_pair'
+    """Improved law: what the controller and observer take (``FEEDS``): 'thesis_pair' (R̂_r, θ̂) or
+    'inverse_gamma' (L̂_σ, L̂_M, R̂_R: every coefficient follows them)."""
     freeze: bool = False
     """Hold the estimates (the flux and filter states keep running, so unfreezing is smooth)."""
     decimation: int = 10
@@ -137,6 +145,11 @@ class AdaptationGains:
     def __post_init__(self):
         if self.law not in LAWS:
             raise InvalidParameter('law', self.law, f'must be one of {", ".join(LAWS)}')
+        if self.feed not in FEEDS:
+            raise InvalidParameter('feed', self.feed, f'must be one of {", ".join(FEEDS)}')
+        if self.feed != 'thesis_pair' and self.law == 'thesis':
+            raise InvalidParameter('feed', self.feed, "needs law 'improved' (the thesis law "
+                                   'estimates only R_r and theta)')
         for name in ('freeze', 'estimate_leakage'):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameter(name, getattr(self, name), 'must be true or false')
@@ -309,14 +322,19 @@ class ParameterAdapter:
 
     # ------------------------------------------------------------------------------------
     def estimates(self) -> dict:
-        """{'R_r', 'theta', 'L_M', 'R_R', 'L_sigma'}: the controller-facing pair, the identifiable
-        pair, and the leakage σL_s the adapter uses for its voltage-model rotor flux.
+        """The estimates handed to the controller and observer (topic ``/im/adapter/estimate``).
 
-        For law 'thesis' L_M = L̂_sr θ̂ and R_R = R̂_r θ̂². For law 'improved' L_M and R_R are the
-        least-squares estimates; they equal L̂_sr θ̂ and R̂_r θ̂² whenever θ̂ is inside its bounds.
+        {'R_r', 'theta', 'L_M', 'R_R'}: the controller and observer take the pair (R̂_r, θ̂) of
+        eq. 4.10-4.13 with their L̂_s, L̂_sr, R̂_s fixed; L_M and R_R are the identifiable image
+        (law 'thesis': L_M = L̂_sr θ̂, R_R = R̂_r θ̂²; law 'improved': the least-squares estimates).
+        Law 'improved' with ``feed='inverse_gamma'`` adds 'L_sigma': the controller and observer
+        then take the inverse-Γ set (L̂_σ, L̂_M, R̂_R) whole (every coefficient follows it,
+        docs/adaptation.md §7).
         """
-        return {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R,
-                'L_sigma': self.L_sigma}
+        e = {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
+        if self.improved and self.gains.feed == 'inverse_gamma':
+            e['L_sigma'] = self.L_sigma
+        return e
 
     # ------------------------------------------------------------------------------------
     def update(self, T_s, v_a, v_b, i_a, i_b, omega_r, phi_hat_a, phi_hat_b) -> None:

@@ -47,7 +47,9 @@ class AdapterNode(LockstepNode):
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub = self.create_publisher(JointState, T.ADAPT_ESTIMATE, lockstep_qos())
-        self.out = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))
+        # the law's estimates, in the topic's order (feed 'inverse_gamma' adds L_sigma)
+        self.names = tuple(n for n in T.ESTIMATE_NAMES if n in self.law.estimates())
+        self.out = JointStateOut(self.names, Signer.frame(''))
         self.gate = StepGate([T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
                              self.period, follow=True)
         for topic in (T.MEAS_CURRENT, T.CMD_VOLTAGE, T.OBS_FLUX):
@@ -107,7 +109,7 @@ class AdapterNode(LockstepNode):
     def publish_estimate(self, k: int) -> None:
         e = self.law.estimates()
         self.pub.publish(self.sign(T.ADAPT_ESTIMATE, self.out.fill(
-            k * self.period, [e[n] for n in T.ESTIMATE_NAMES])))
+            k * self.period, [e[n] for n in self.names])))
 
 
 def main(argv=None) -> None:

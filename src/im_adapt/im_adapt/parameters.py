@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from im_common.params import MotorParams
 
-from .adaptation import LAWS, AdaptationGains, ParameterAdapter
+from .adaptation import FEEDS, LAWS, AdaptationGains, ParameterAdapter
 
 _DOC = {
     'gamma_t': 'thesis law: gain gamma_t of eq. 4.4 for theta [1/(N m A s)]',
@@ -50,6 +50,9 @@ def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> Parame
     d = AdaptationGains()
     values = {
         'law': node.param('law', d.law, 'adaptation law', choices=list(LAWS)),
+        'feed': node.param('feed', d.feed, 'improved law: what the controller and observer take: '
+                           'thesis_pair (R_r, theta) or inverse_gamma (L_sigma, L_M, R_R)',
+                           choices=list(FEEDS)),
         'freeze': node.param('freeze', d.freeze, 'hold the estimates (signals keep running)'),
         'estimate_leakage': node.param('estimate_leakage', d.estimate_leakage,
                                        'improved law: estimate sigma*L_s too (else hold L_sigma)'),

@@ -46,7 +46,7 @@ DRAWN = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: what the stability map may be drawn over: a drawn parameter, σ or σL_s
 MAP_AXES = DRAWN + ('sigma', 'sigma_L_s')
 #: controllers a campaign runs: the nominal one, or with the adapter's improved or thesis law
-CAMPAIGN_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis')
+CAMPAIGN_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis', 'adaptive_inverse_gamma')
 STATUSES = ('ok', 'tripped', 'diverged', 'failed')
 UNSTABLE = ('tripped', 'diverged')
 JOURNAL = 'rows.jsonl'
@@ -361,8 +361,9 @@ def adapter_for(job: dict, spec: dict):
         return None
     from im_adapt.adaptation import AdaptationGains
     from im_adapt.hook import LockstepAdapter
-    law = 'thesis' if job['controller'] == 'adaptive_thesis' else 'improved'
-    return LockstepAdapter.build(_base_motor(spec), AdaptationGains(law=law))
+    from .config import ADAPTATION
+    return LockstepAdapter.build(_base_motor(spec),
+                                 AdaptationGains(**ADAPTATION[job['controller']]))
 
 
 def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:

@@ -11,7 +11,12 @@ from typing import Dict, Optional, Sequence
 
 TASKS = ('position', 'speed', 'torque')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'robust')
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_inverse_gamma', 'robust')
+# the adaptive controllers: the adapter's law and what the controller and observer take from it
+# (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
+ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},
+              'adaptive': {'law': 'improved', 'feed': 'thesis_pair'},
+              'adaptive_inverse_gamma': {'law': 'improved', 'feed': 'inverse_gamma'}}
 VARIATIONS = ('none', 'chapter4')
 
 # Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.
@@ -135,7 +140,7 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     if preset['start'] == 'steady':
         x0, obs_x0 = steady_start(cfg, SCHEDULES[variation](plant_motor).params_at(0.0),
                                   preset['theta0'], preset['omega0'])
-    adaptive = controller in ('adaptive_thesis', 'adaptive')
+    adaptive = controller in ADAPTATION
     ctl = dict(common, mode=task, strategy=strategy, use_adapter=adaptive,
                v_limit=float(v_limit), reference_decimation=int(reference_decimation),
                load_known=True, **ctl_load, **model_values)
@@ -156,7 +161,7 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
         obs['gain_period'] = float(T_s)
     adapter = dict(common, enable=adaptive, **model_values)
     if adaptive:
-        adapter['law'] = 'thesis' if controller == 'adaptive_thesis' else 'improved'
+        adapter.update(ADAPTATION[controller])
     return {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}
 
 

@@ -34,8 +34,8 @@ from im_common.params import (THESIS_MOTOR, InvalidParameter, ParameterSchedule,
 from . import offline
 from .offline import CHAPTER4_ESTIMATES, Scenario, simulate
 
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive')
-ORACLE = 'oracle'   # not a controller: the truth's R_R and L_M fed through the same projection
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_inverse_gamma')
+TRUTH_FED = 'truth_fed'   # not a controller: the truth's R_s, L_σ, L_M, R_R handed to the model
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 TASKS = ('position', 'speed')
 SENS_KEYS = ('pos_err_rms_rad', 'pos_err_max_rad', 'speed_err_rms_rad_s', 'speed_err_max_rad_s',
@@ -76,37 +76,36 @@ def sensitivity_cases(base=THESIS_MOTOR) -> Dict[str, Callable[[], ParameterSche
 # ---------------------------------------------------------------------------------------------
 # Runs
 # ---------------------------------------------------------------------------------------------
-class OracleEstimates:
-    """A bound, not a controller: publishes the *true* identifiable R_R and L_M through the
-    adapter's projection (θ̂ = L_M/L̂_sr clipped by σ_min, R̂_r = R_R/θ̂²) — the best the pair
-    (R̂_r, θ̂) can do for a controller whose L̂_s and L̂_sr stay fixed."""
+class TruthFed:
+    """A bound, not a controller: hands the controller and observer the plant's *true*
+    identifiable parameters (R_s, L_σ, L_M, R_R at t_k+1; docs/adaptation.md §7) — what a perfect
+    adapter would. Fed these, the controller's model is terminal-equivalent to the drifting motor
+    at every step; what is left of the tracking error is the drift's speed (dL/dt terms), not a
+    wrong model."""
 
-    def __init__(self, schedule, est_params, gains: Optional[AdaptationGains] = None,
-                 record_every: int = 10):
-        g = (gains or AdaptationGains()).resolve(est_params)
+    def __init__(self, schedule, est_params, record_every: int = 10):
         self.schedule = schedule
-        self.L_sr = est_params.L_sr
-        self.th_lo, self.th_hi = g.theta_min, g.theta_bound(est_params.L_s, est_params.L_sr)
+        self.gauge = est_params
         self.record_every = record_every
         self.k = 0
         self.t, self.samples = [], []
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
         p = self.schedule.params_at(t + T_s)
-        th = min(max(p.L_M / self.L_sr, self.th_lo), self.th_hi)
-        est = {'R_r': p.R_R / (th * th), 'theta': th, 'L_M': p.L_M, 'R_R': p.R_R}
+        est = p.identifiable()
+        model = self.gauge.with_identifiable(**est)      # the controller's image of it
         self.k += 1
         if self.k % self.record_every == 0:
             self.t.append(t + T_s)
-            self.samples.append((est['R_r'], th, p.L_M, p.R_R))
+            self.samples.append((model.R_r, model.theta, p.L_M, p.R_R, p.L_sigma))
         return est
 
 
 def gains_for(controller: str, **overrides) -> Optional[AdaptationGains]:
     if controller == 'nominal':
         return None
-    law = 'thesis' if controller == 'adaptive_thesis' else 'improved'
-    return AdaptationGains(law=law, **overrides)
+    from .config import ADAPTATION
+    return AdaptationGains(**{**ADAPTATION[controller], **overrides})
 
 
 def run_case(task: str, strategy: str, controller: str, variation: str,
@@ -120,9 +119,8 @@ def run_case(task: str, strategy: str, controller: str, variation: str,
                   schedule=schedule, controller=ctl_label)
     est_params = CHAPTER4_ESTIMATES if variation == 'chapter4' else THESIS_MOTOR
     hook = None
-    if controller == ORACLE:
-        hook = OracleEstimates(sc.plant_schedule(), est_params,
-                               record_every=record_every)
+    if controller == TRUTH_FED:
+        hook = TruthFed(sc.plant_schedule(), est_params, record_every=record_every)
     elif controller != 'nominal':
         hook = LockstepAdapter.build(est_params, gains or gains_for(controller),
                                      record_every=record_every)
@@ -194,7 +192,7 @@ def _case(args) -> dict:
     return run_case(task, strategy, controller, variation, T_s=T_s)
 
 
-def comparison(tasks=TASKS, strategies=STRATEGIES, controllers=CONTROLLERS + (ORACLE,),
+def comparison(tasks=TASKS, strategies=STRATEGIES, controllers=CONTROLLERS + (TRUTH_FED,),
                variations=('chapter4', 'none'), T_s: float = 1e-4,
                workers: Optional[int] = None) -> List[dict]:
     """Every (variation, task, strategy, controller) case on the campaign pool, in order."""
@@ -223,7 +221,8 @@ def targets(rows: List[dict]) -> List[dict]:
             ada = _find(rows, task=task, strategy=strategy, controller='adaptive', variation='chapter4')
             ada_n = _find(rows, task=task, strategy=strategy, controller='adaptive', variation='none')
             nom_n = _find(rows, task=task, strategy=strategy, controller='nominal', variation='none')
-            orc = _find(rows, task=task, strategy=strategy, controller=ORACLE, variation='chapter4')
+            orc = _find(rows, task=task, strategy=strategy, controller=TRUTH_FED,
+                        variation='chapter4')
             the_n = _find(rows, task=task, strategy=strategy, controller='adaptive_thesis',
                           variation='none')
             if nom is None or ada is None:
@@ -248,7 +247,7 @@ def targets(rows: List[dict]) -> List[dict]:
             if ada_n is not None and nom_n is not None:
                 t['E_in_nominal_params_vs_nominal_controller'] = ada_n['E_in_J'] / nom_n['E_in_J'] - 1.0
             if orc is not None:
-                t['tracking_rms_ratio_oracle_over_nominal'] = orc[key] / nom[key]
+                t['tracking_rms_ratio_truth_fed_over_nominal'] = orc[key] / nom[key]
             out.append(t)
     return out
 
@@ -303,7 +302,7 @@ def markdown(sens: List[dict], comp: List[dict], tgt: List[dict]) -> str:
         lines += ['## Issue-5 targets for the improved law (chapter-4 profile)', '',
                   '| task | strategy | tracking RMS adaptive/nominal | ≤ ½ | L_M RMS | R_R RMS | '
                   '≤ 5 % | L_M p-p | R_R p-p | < 5 % | E_in (nominal params) vs thesis law | '
-                  '≤ 5 % | E_in (nominal params) vs nominal controller | oracle/nominal |',
+                  '≤ 5 % | E_in (nominal params) vs nominal controller | truth-fed/nominal |',
                   '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
         for t in tgt:
             lines.append('| ' + ' | '.join([
@@ -316,7 +315,7 @@ def markdown(sens: List[dict], comp: List[dict], tgt: List[dict]) -> str:
                 f"{100 * t.get('E_in_nominal_params_vs_thesis_law', float('nan')):+.1f} %",
                 _f(t.get('energy_within_5pct')),
                 f"{100 * t.get('E_in_nominal_params_vs_nominal_controller', float('nan')):+.1f} %",
-                _f(t.get('tracking_rms_ratio_oracle_over_nominal'), '{:.3f}')]) + ' |')
+                _f(t.get('tracking_rms_ratio_truth_fed_over_nominal'), '{:.3f}')]) + ' |')
         lines.append('')
     return '\n'.join(lines)
 
