@@ -98,6 +98,29 @@ def test_non_finite_command_rejected_state_stays_finite(ctx):
     cmd.destroy_node()
 
 
+def test_of_two_running_plants_of_one_key_the_later_yields(ctx):
+    """Discovery is asynchronous: a plant can reach step 0 before it sees another plant of the
+    same key already running on the domain. When the two see each other, the one that started
+    later fails naming the other and the domain; the earlier run goes on."""
+    from im_common.lockstep import RUNNING
+    plant = make_plant(ctx, duration=5.0)
+    cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0), plant)
+    _spin(ctx, [plant, cmd], lambda: plant.sim.k >= 3)
+    assert plant.started_at is not None and not plant.done
+    later = {'time_master': 'true', 'run_id': 'later000',
+             'started_at': f'{plant.started_at + 0.5:.6f}'}
+    plant.on_peer_status('plant', RUNNING, later)
+    assert not plant.done                       # the other one started later: it yields
+    earlier = {'time_master': 'true', 'run_id': 'earlier0',
+               'started_at': f'{plant.started_at - 0.5:.6f}'}
+    plant.on_peer_status('plant_first', RUNNING, earlier)
+    assert plant.done and plant.exit_code == 1
+    assert "another plant ('plant_first', run earlier0)" in plant.failure
+    assert 'ROS_DOMAIN_ID' in plant.failure
+    plant.destroy_node()
+    cmd.destroy_node()
+
+
 @pytest.mark.parametrize('name,value,needle', [
     ('R_s', -1.0, 'R_s'),
     ('T_s', 0.0, 'T_s'),

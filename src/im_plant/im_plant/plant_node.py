@@ -61,7 +61,8 @@ class PlantNode(LockstepNode):
                                  LOCKSTEP_DEPTH // 2)
         self.run_id = os.urandom(4).hex()       # tells this run's events from another graph's
         self.signer.set_run(self.run_id)        # ... and its lock-step messages (their tags)
-        self.other_masters: dict = {}           # run id -> (name, state) of another plant
+        self.other_masters: dict = {}           # run id -> (name, state, started_at) of another plant
+        self.started_at = None                  # wall time of step 0 (which of two plants yields)
         self.rejected = 0
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
         self.wall_start = None      # wall time of the first step (for the steps/s report)
@@ -122,12 +123,9 @@ class PlantNode(LockstepNode):
         return now - self._ok_since >= self.SETTLE_S
 
     def _start_condition(self) -> bool:
-        for run, (name, state) in self.other_masters.items():
+        for run, (name, state, _started) in self.other_masters.items():
             if state not in END_STATES:
-                self.fail(f"another plant ('{name}', run {run}) of this graph's key is on this "
-                          f"ROS domain (ROS_DOMAIN_ID={self.context.get_domain_id()}): the nodes "
-                          f"started by hand would not know which run to follow — give each "
-                          f"graph its own ROS_DOMAIN_ID or its own graph_key_file")
+                self._yield_to(name, run)
                 return False
         for name in self.wait_for:
             state, values = self.peers.get(name, ('', {}))
@@ -139,6 +137,17 @@ class PlantNode(LockstepNode):
                           f"{self.T_s:g} s: give every node the same T_s")
                 return False
         return True
+
+    def _yield_to(self, name: str, run: str) -> None:
+        self.fail(f"another plant ('{name}', run {run}) of this graph's key is on this "
+                  f"ROS domain (ROS_DOMAIN_ID={self.context.get_domain_id()}): the nodes "
+                  f"started by hand would not know which run to follow — give each "
+                  f"graph its own ROS_DOMAIN_ID or its own graph_key_file")
+
+    def status(self, state: str, level: int = 0, stamp_ns=None, **values) -> None:
+        if self.started_at is not None:     # every event after step 0 says when it was taken
+            values.setdefault('started_at', f'{self.started_at:.6f}')
+        super().status(state, level, stamp_ns, **values)
 
     def waiting_text(self, missing) -> str:
         nodes = [n for n in self.wait_for if self.peers.get(n, ('',))[0] not in (READY, RUNNING)]
@@ -152,6 +161,7 @@ class PlantNode(LockstepNode):
 
     def on_ready(self) -> None:
         """Everyone is there: publish step 0 (and start the wall clock in free_run)."""
+        self.started_at = time.time()
         self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers))
         self.get_logger().info(
             f"starting: {', '.join(self.wait_for)} ready; {self.mode}, T_s = {self.T_s:g} s"
@@ -193,8 +203,18 @@ class PlantNode(LockstepNode):
     # Peers -------------------------------------------------------------------------------
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         if values.get('time_master') == 'true':
-            if values.get('run_id') != self.run_id:
-                self.other_masters[values.get('run_id', '')] = (name, state)
+            run = values.get('run_id', '')
+            if run != self.run_id:
+                started = _float(values.get('started_at'))
+                if started is None and run in self.other_masters:
+                    started = self.other_masters[run][2]
+                self.other_masters[run] = (name, state, started)
+                # Discovery is asynchronous: a plant may start before it sees one of the same key
+                # that is already running. The later of the two yields (the first run goes on).
+                if (not self.done and self.started_at is not None and state not in END_STATES
+                        and started is not None and (started, run) < (self.started_at,
+                                                                      self.run_id)):
+                    self._yield_to(name, run)
             return
         if values.get('run_id') != self.run_id:
             return                  # a node that does not follow this run (yet)
@@ -448,3 +468,10 @@ def main(argv=None) -> None:
 
 if __name__ == '__main__':
     main()
+
+
+def _float(text):
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
