@@ -451,8 +451,10 @@ class ParameterAdapter:
     def _improved_step(self, T_s, i, omega_r, i_prev):
         if T_s != self._filter_T:
             self._set_filter(T_s)
-        # Own current model φ_cm over [t_k-1, t_k]: dφ/dt = R_R i − c φ + j v ω φ (Tustin).
-        a = complex(-self._c, self.v * omega_r) * (0.5 * T_s)
+        # Own current model φ_cm over [t_k-1, t_k]: dφ/dt = R_R i − c φ + j v ω φ (Tustin, with
+        # the interval's mean speed: ω_k alone is off by T_s/2·dω/dt, which under a hard braking
+        # (1000 rad/s²) put 10⁻³ Wb into φ_cm and biased L̂_M by 13 % as the flux decayed).
+        a = complex(-self._c, self.v * 0.5 * (omega_r + self._omega_prev)) * (0.5 * T_s)
         self._phi_cm = ((1.0 + a) * self._phi_cm + self.R_R * T_s * 0.5 * (i + i_prev)) / (1.0 - a)
         # To the rotor frame (angle ρ = ∫ v ω_r dt, trapezoidal): there the rotor equation has no
         # rotation term and the signals move at the slip frequency, so the filters below are
