@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from im_common import auth
@@ -141,7 +142,10 @@ def test_a_rogue_changes_nothing_in_lockstep_and_is_named(controller):
 
 def test_a_rogue_changes_nothing_in_free_run():
     """free_run in-process (wall-clock ticks): the rogue's commands are all refused; none is
-    applied (the applied voltage never reaches the rogue's 50 V on the α axis)."""
+    applied (no step's applied voltage is the rogue's (50 V, 0 V)). free_run is not
+    deterministic: on a loaded machine commands miss their deadlines (the plant holds the last
+    one) and the controller itself may ask for more than the lock-step run's 25 V, so the
+    voltage's size is no test of the rogue."""
     from im_bringup.processes import load_params_yaml
     from im_bringup.testing import run_graph
     from ament_index_python.packages import get_package_share_directory
@@ -155,8 +159,11 @@ def test_a_rogue_changes_nothing_in_free_run():
     assert s['steps'] == 300
     assert s['refused_unsigned']['plant'][T.CMD_VOLTAGE] > 0
     assert s['foreign_publishers']['plant'][T.CMD_VOLTAGE] == ['/rogue']
-    assert s['V_max_V'] < 40.0
-    assert s['pos_err_max_rad'] < 0.05
+    from rogue import ROGUE_VOLTAGE
+    v_a, v_b = res.trace['v_alpha'], res.trace['v_beta']
+    assert len(v_a) >= 250
+    assert not np.any((v_a == ROGUE_VOLTAGE) & (v_b == 0.0))
+    assert s['pos_err_max_rad'] < 0.2          # 300 steps of the rogue's 50 V would spin it away
 
 
 def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
