@@ -119,8 +119,9 @@ def test_estimates_hold_when_excitation_vanishes(feed):
                          on_step=lambda ad, sim: currents.append(abs(complex(
                              *sim.state_currents()[:2]))))
     peak = max(currents)
-    gone = next(k for k, c in enumerate(currents) if k * T_S > 1.0 and c < 1e-6 * peak) * T_S
-    assert gone < 2.5                                       # excitation really vanished
+    gone = next((k * T_S for k, c in enumerate(currents) if k * T_S > 1.0 and c < 1e-6 * peak),
+                None)
+    assert gone is not None and gone < 2.5                  # excitation really vanished
     decay = rows[(rows[:, 0] > 1.0) & (rows[:, 0] <= gone)]
     errors = {name: np.max(np.abs(decay[:, col] - truth)) / truth
               for col, truth, name in ((4, true.R_R, 'R_R'), (3, true.L_M, 'L_M'),

@@ -462,16 +462,19 @@ def _js():
     return (JointState,)
 
 
+def _float(text):
+    """A status value as a number, None if absent or not a number. A plant whose events carry
+    no ``started_at`` has not reached step 0: a running plant does not yield to it (that plant
+    refuses to start when it sees this one)."""
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
 def main(argv=None) -> None:
     sys.exit(node_main(PlantNode, argv))
 
 
 if __name__ == '__main__':
     main()
-
-
-def _float(text):
-    try:
-        return float(text)
-    except (TypeError, ValueError):
-        return None
