@@ -55,10 +55,12 @@ def test_the_truth_fed_bound_and_the_inverse_gamma_feed(strategy):
     speed); the adapter's inverse-Γ feed reaches every coefficient and
     beats the thesis-pair feed, whose fixed L̂_s, L̂_sr no (R̂_r, θ̂) can correct (docs/adaptation.md §6)."""
     runs = {c: run_case('position', strategy, c, 'chapter4')
-            for c in ('nominal', 'truth_fed', 'adaptive', 'adaptive_inverse_gamma')}
+            for c in ('nominal', 'truth_fed', 'adaptive_thesis_pair', 'adaptive')}
     nominal = runs['nominal']['pos_err_rms_rad']
     assert runs['truth_fed']['pos_err_rms_rad'] < 0.05 * nominal
-    assert runs['adaptive_inverse_gamma']['pos_err_rms_rad'] < \
-        0.5 * runs['adaptive']['pos_err_rms_rad']
+    assert runs['adaptive']['pos_err_rms_rad'] < \
+        0.5 * runs['adaptive_thesis_pair']['pos_err_rms_rad']
+    # issue-13 target: within 15 mrad RMS under the drift with either strategy
+    assert runs['adaptive']['pos_err_rms_rad'] < 0.015
     for r in runs.values():
         assert r.get('trip') is None

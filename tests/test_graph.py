@@ -22,8 +22,8 @@ def test_same_run_twice_gives_identical_numbers():
 @pytest.mark.parametrize('task,strategy,controller,variation', [
     ('position', 'min_energy', 'nominal', 'none'),
     ('speed', 'min_loss', 'nominal', 'none'),
-    ('speed', 'min_energy', 'adaptive', 'chapter4'),
-    ('position', 'min_loss', 'adaptive_inverse_gamma', 'chapter4'),   # L_sigma on the topic
+    ('speed', 'min_energy', 'adaptive_thesis_pair', 'chapter4'),
+    ('position', 'min_loss', 'adaptive', 'chapter4'),   # L_sigma on the topic
 ])
 def test_graph_equals_the_ros_free_loop(task, strategy, controller, variation):
     """Stamps, not arrival order, decide what each node computes: the graph reproduces the

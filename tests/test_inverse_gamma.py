@@ -130,10 +130,12 @@ def test_observer_refuses_mixed_or_unknown_estimates_naming_them():
 
 
 def test_the_adapters_feed_decides_what_the_controller_takes():
-    base = ParameterAdapter(CHAPTER4_ESTIMATES, AdaptationGains(), 0.842, 0.952941)
-    assert 'L_sigma' not in base.estimates()                  # default: the thesis pair
-    ig = ParameterAdapter(CHAPTER4_ESTIMATES, AdaptationGains(feed='inverse_gamma'),
-                          0.842, 0.952941)
+    pair = ParameterAdapter(CHAPTER4_ESTIMATES, AdaptationGains(feed='thesis_pair'),
+                            0.842, 0.952941)
+    assert 'L_sigma' not in pair.estimates()
+    assert AdaptationGains(law='thesis').feed == 'thesis_pair'          # 'auto', thesis law
+    ig = ParameterAdapter(CHAPTER4_ESTIMATES, AdaptationGains(), 0.842, 0.952941)
+    assert ig.gains.feed == 'inverse_gamma'                            # 'auto', improved law
     e = ig.estimates()
     assert e['L_sigma'] == pytest.approx(CHAPTER4_ESTIMATES.L_sigma, rel=1e-6)
     assert set(estimate_arguments(e)) == {'L_sigma', 'L_M', 'R_R'}

@@ -25,7 +25,10 @@ Voltage-model stator flux (eq. 4.3) without drift
     i.e. ψ̂ = s/(s+ω_c)·∫(V − R̂_s i) + ω_c/(s+ω_c)·ψ_cm: the voltage model above ω_c, the current
     model below it, no integrator left open. ``flux_corner = 0`` gives the thesis's pure integral.
     The current-model ψ_cm is L̂_σ i + θ̂ φ̂_r from the observer (law 'thesis') or the adapter's own
-    current model with its own L̂_M, R̂_R (law 'improved').
+    current model with its own L̂_M, R̂_R (law 'improved'). The corner follows the stator frequency
+    ω_e (the rotation rate of that model's rotor flux): ω_c = clip(κ|ω_e|, ω_c,min, ω_c,max), so a
+    drive holding torque at a few rad/s still has the voltage model's information
+    (``flux_corner_ratio`` κ = 0.4, ``flux_corner_min`` 0.5, ``flux_corner`` 5 rad/s).
 
 law = 'thesis' (eq. 4.1-4.9, typos corrected)
     τ̂ = v (i_β ψ̂_α − i_α ψ̂_β)                          (4.2, ψ̂ from 4.3 as above)
@@ -70,11 +73,12 @@ from typing import Optional
 from im_common.params import InvalidParameter, MotorParams, check_real
 
 LAWS = ('thesis', 'improved')
-#: what the controller and observer take from the improved law (docs/adaptation.md §7):
-#: 'thesis_pair' — R̂_r, θ̂ into eq. 4.12-4.13 with L̂_s, L̂_sr, R̂_s nominal (robust over the
-#: parameter box); 'inverse_gamma' — L̂_σ, L̂_M, R̂_R into every coefficient (best when R̂_s and
-#: σL̂_s are right, trips more often when they are not)
-FEEDS = ('thesis_pair', 'inverse_gamma')
+#: what the controller and observer take from the adapter (docs/adaptation.md §7):
+#: 'inverse_gamma' — L̂_σ, L̂_M, R̂_R into every coefficient (the improved law's default);
+#: 'thesis_pair' — R̂_r, θ̂ into eq. 4.12-4.13 with L̂_s, L̂_sr, R̂_s nominal (the thesis law's
+#: only feed); 'auto' — the law's default
+FEEDS = ('auto', 'inverse_gamma', 'thesis_pair')
+FEED_DEFAULT = 'auto'
 TWO_PI = 2.0 * math.pi
 
 
@@ -88,9 +92,10 @@ class AdaptationGains:
 
     law: str = 'improved'
     """'thesis' (eq. 4.4, 4.9 as printed) or 'improved' (least squares on the rotor equation)."""
-    feed: str = 'thesis_pair'
-    """Improved law: what the controller and observer take (``FEEDS``): 'thesis_pair' (R̂_r, θ̂) or
-    'inverse_gamma' (L̂_σ, L̂_M, R̂_R: every coefficient follows them)."""
+    feed: str = FEED_DEFAULT
+    """What the controller and observer take (``FEEDS``): 'inverse_gamma' (L̂_σ, L̂_M, R̂_R: every
+    coefficient follows them) or 'thesis_pair' (R̂_r, θ̂); 'auto' resolves to 'inverse_gamma' for
+    the improved law and 'thesis_pair' for the thesis law (which estimates nothing else)."""
     freeze: bool = False
     """Hold the estimates (the flux and filter states keep running, so unfreezing is smooth)."""
     decimation: int = 10
@@ -104,7 +109,13 @@ class AdaptationGains:
     """ε of eq. 4.9 [A²]: keeps the normalisation finite when î_r passes through zero."""
     # Voltage-model flux (eq. 4.3).
     flux_corner: float = 5.0
-    """ω_c [rad/s]: below it the stator flux comes from the current model (0: pure integral)."""
+    """ω_c [rad/s]: below it the stator flux comes from the current model (0: pure integral).
+    With ``flux_corner_ratio`` > 0 it is the corner's upper bound."""
+    flux_corner_ratio: float = 0.4
+    """κ: the corner follows the stator frequency, ω_c = clip(κ|ω_e|, flux_corner_min, flux_corner)
+    (0: fixed at ``flux_corner``). ω_e is the rotation rate of the model rotor flux."""
+    flux_corner_min: float = 0.5
+    """Lower bound [rad/s] of the frequency-following corner."""
     # Improved law.
     filter_corner: float = 200.0
     """ω_f [rad/s] of the regression filter H(s) = ω_f/(s+ω_f)."""
@@ -125,7 +136,7 @@ class AdaptationGains:
     L_sigma_min: Optional[float] = None
     """Lower bound of L̂_σ [H] (None: a quarter of the initial L_σ)."""
     L_sigma_max: Optional[float] = None
-    """Upper bound of L̂_σ [H] (None: four times the initial L_σ)."""
+    """Upper bound of L̂_σ [H] (None: ten times the initial L_σ)."""
     # Projection.
     R_r_min: Optional[float] = None
     """Lower bound of R̂_r [Ω] (None: R_r/4 of the nominal parameters)."""
@@ -147,6 +158,9 @@ class AdaptationGains:
             raise InvalidParameter('law', self.law, f'must be one of {", ".join(LAWS)}')
         if self.feed not in FEEDS:
             raise InvalidParameter('feed', self.feed, f'must be one of {", ".join(FEEDS)}')
+        if self.feed == 'auto':
+            object.__setattr__(self, 'feed',
+                               'inverse_gamma' if self.law == 'improved' else 'thesis_pair')
         if self.feed != 'thesis_pair' and self.law == 'thesis':
             raise InvalidParameter('feed', self.feed, "needs law 'improved' (the thesis law "
                                    'estimates only R_r and theta)')
@@ -156,7 +170,7 @@ class AdaptationGains:
         d = self.decimation
         if isinstance(d, bool) or not isinstance(d, int) or d < 1:
             raise InvalidParameter('decimation', d, 'must be a whole number >= 1')
-        for name in ('gamma_t', 'gamma_r', 'flux_corner'):
+        for name in ('gamma_t', 'gamma_r', 'flux_corner', 'flux_corner_ratio', 'flux_corner_min'):
             _finite(name, getattr(self, name), lo=0.0)
         for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor', 'phi_floor', 'didt_floor',
                      'theta_min', 'theta_max'):
@@ -174,6 +188,8 @@ class AdaptationGains:
         _ordered('R_r_min', self.R_r_min, 'R_r_max', self.R_r_max)
         _ordered('L_M_min', self.L_M_min, 'L_M_max', self.L_M_max)
         _ordered('L_sigma_min', self.L_sigma_min, 'L_sigma_max', self.L_sigma_max)
+        if self.flux_corner > 0.0 and self.flux_corner_ratio > 0.0:
+            _ordered('flux_corner_min', self.flux_corner_min, 'flux_corner', self.flux_corner)
 
     def theta_bound(self, L_s_hat: float, L_sr_hat: float) -> float:
         """θ_max: the tighter of ``theta_max`` and the σ̂ ≥ σ_min bound (1 − σ_min) L̂_s/L̂_sr."""
@@ -208,7 +224,7 @@ class AdaptationGains:
                 'give L_sigma explicitly or a smaller theta_initial')
         g = replace(g,
                     L_sigma_min=0.25 * g.L_sigma if g.L_sigma_min is None else g.L_sigma_min,
-                    L_sigma_max=4.0 * g.L_sigma if g.L_sigma_max is None else g.L_sigma_max)
+                    L_sigma_max=10.0 * g.L_sigma if g.L_sigma_max is None else g.L_sigma_max)
         return g
 
     def as_dict(self) -> dict:
@@ -290,6 +306,7 @@ class ParameterAdapter:
         self._psi = 0j            # voltage-model stator flux ψ̂ [Wb]
         self._phi_cm = 0j         # improved law: own current-model φ_M [Wb]
         self._phi_obs_prev = 0j   # thesis law: the observer's φ̂_r at t_k-1
+        self._omega_e = math.inf  # stator frequency of the model rotor flux [rad/s] (∞: unknown)
         self._i_prev = 0j
         self._v_prev = 0j
         self._acc_t = 0.0         # thesis law: accumulated integrands over the block
@@ -365,20 +382,36 @@ class ParameterAdapter:
         # Voltage-model flux ψ̂_k (eq. 4.3) over [t_k-1, t_k]: V_k-1 was held, i trapezoidal.
         i_prev = self._i_prev
         # Current-model stator flux at t_k-1 (the start of the period, explicit blend).
+        phi_before = self._phi_cm
         if self.improved:
             psi_cm = self.L_sigma * i_prev + self._phi_cm
         else:
             psi_cm = (self.L_s - self.L_sr * self.theta) * i_prev + self.theta * self._phi_obs_prev
             self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
         self._psi += T_s * (self._v_prev - self.R_s * 0.5 * (i + i_prev)
-                            + g.flux_corner * (psi_cm - self._psi))
+                            + self._corner() * (psi_cm - self._psi))
         V_prev = self._v_prev
         self._i_prev = i
         self._v_prev = V
         if self.improved:
             self._improved_step(T_s, i, omega_r, i_prev)
+            # Stator frequency: the rotation rate of the own model's rotor flux over the period
+            # (it moves smoothly, unlike ψ̂, whose leakage part carries the current loop's steps).
+            rot = self._phi_cm * phi_before.conjugate()
+            self._omega_e = (math.atan2(rot.imag, rot.real) / T_s
+                             if abs(self._phi_cm) > g.phi_floor and abs(phi_before) > g.phi_floor
+                             else math.inf)
         else:
             self._thesis_step(T_s, V_prev, i, i_prev, omega_r, phi_hat_a, phi_hat_b)
+
+    def _corner(self) -> float:
+        """ω_c of the flux blend: the improved law's follows the stator frequency
+        (``flux_corner_ratio``; ∞ while the model flux is below ``phi_floor`` gives the upper
+        bound), the thesis law's is fixed."""
+        g = self.gains
+        if not self.improved or g.flux_corner_ratio <= 0.0 or g.flux_corner <= 0.0:
+            return g.flux_corner
+        return _clip(g.flux_corner_ratio * abs(self._omega_e), g.flux_corner_min, g.flux_corner)
 
     # Thesis law -------------------------------------------------------------------------
     def _thesis_step(self, T_s, V_prev, i, i_prev, omega_r, phi_a, phi_b):

@@ -6,14 +6,18 @@ from __future__ import annotations
 
 from im_common.params import MotorParams
 
-from .adaptation import FEEDS, LAWS, AdaptationGains, ParameterAdapter
+from .adaptation import FEED_DEFAULT, FEEDS, LAWS, AdaptationGains, ParameterAdapter
 
 _DOC = {
     'gamma_t': 'thesis law: gain gamma_t of eq. 4.4 for theta [1/(N m A s)]',
     'gamma_r': 'thesis law: gain gamma_r of eq. 4.9 for R_r [1/s]',
     'epsilon': 'thesis law: epsilon of eq. 4.9 [A^2]',
     'flux_corner': 'corner [rad/s] below which the stator flux of eq. 4.3 follows the current '
-                   'model (drift removal; 0 = pure integral)',
+                   'model (drift removal; 0 = pure integral); the upper bound of the '
+                   'frequency-following corner',
+    'flux_corner_ratio': 'corner / stator frequency: the flux corner follows kappa*abs(omega_e) '
+                         'between flux_corner_min and flux_corner (0 = fixed at flux_corner)',
+    'flux_corner_min': 'lower bound [rad/s] of the frequency-following flux corner',
     'filter_corner': 'improved law: corner [rad/s] of the regression filter',
     'memory': 'improved law: forgetting time constant of the least squares for R_R, L_M [s]',
     'leakage_memory': 'improved law: forgetting time constant for the leakage sigma*L_s [s]',
@@ -23,7 +27,7 @@ _DOC = {
     'L_sigma': 'improved law: initial (or fixed) leakage sigma*L_s [H] for the voltage-model '
                'rotor flux (0 = L_s - L_sr*theta_initial)',
     'L_sigma_min': 'projection: lower bound of the leakage estimate [H] (0 = L_sigma/4)',
-    'L_sigma_max': 'projection: upper bound of the leakage estimate [H] (0 = 4*L_sigma)',
+    'L_sigma_max': 'projection: upper bound of the leakage estimate [H] (0 = 10*L_sigma)',
     'R_r_min': 'projection: lower bound of the R_r estimate [ohm]',
     'R_r_max': 'projection: upper bound of the R_r estimate [ohm]',
     'theta_min': 'projection: lower bound of the theta estimate',
@@ -34,7 +38,8 @@ _DOC = {
 }
 _RANGES = {
     'gamma_t': (0.0, 1e3), 'gamma_r': (0.0, 1e4), 'epsilon': (1e-9, 1e6),
-    'flux_corner': (0.0, 1e3), 'filter_corner': (1.0, 1e5), 'memory': (1e-4, 1e3),
+    'flux_corner': (0.0, 1e3), 'flux_corner_ratio': (0.0, 100.0), 'flux_corner_min': (0.0, 1e3),
+    'filter_corner': (1.0, 1e5), 'memory': (1e-4, 1e3),
     'leakage_memory': (1e-4, 1e4), 'didt_floor': (1e-6, 1e6), 'L_sigma_min': (0.0, 10.0),
     'L_sigma_max': (0.0, 10.0),
     'i_floor': (1e-6, 1e3), 'phi_floor': (1e-9, 10.0), 'L_sigma': (0.0, 10.0),
@@ -50,8 +55,9 @@ def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> Parame
     d = AdaptationGains()
     values = {
         'law': node.param('law', d.law, 'adaptation law', choices=list(LAWS)),
-        'feed': node.param('feed', d.feed, 'improved law: what the controller and observer take: '
-                           'thesis_pair (R_r, theta) or inverse_gamma (L_sigma, L_M, R_R)',
+        'feed': node.param('feed', FEED_DEFAULT, 'what the controller and observer take: '
+                           'inverse_gamma (L_sigma, L_M, R_R) or thesis_pair (R_r, theta); auto = '
+                           'inverse_gamma for the improved law, thesis_pair for the thesis law',
                            choices=list(FEEDS)),
         'freeze': node.param('freeze', d.freeze, 'hold the estimates (signals keep running)'),
         'estimate_leakage': node.param('estimate_leakage', d.estimate_leakage,

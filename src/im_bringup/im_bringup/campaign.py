@@ -46,7 +46,7 @@ DRAWN = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: what the stability map may be drawn over: a drawn parameter, σ or σL_s
 MAP_AXES = DRAWN + ('sigma', 'sigma_L_s')
 #: controllers a campaign runs: the nominal one, or with the adapter's improved or thesis law
-CAMPAIGN_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis', 'adaptive_inverse_gamma')
+CAMPAIGN_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis', 'adaptive_thesis_pair')
 STATUSES = ('ok', 'tripped', 'diverged', 'failed')
 UNSTABLE = ('tripped', 'diverged')
 JOURNAL = 'rows.jsonl'

@@ -11,12 +11,12 @@ from typing import Dict, Optional, Sequence
 
 TASKS = ('position', 'speed', 'torque')
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_inverse_gamma', 'robust')
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
 # the adaptive controllers: the adapter's law and what the controller and observer take from it
 # (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
 ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},
-              'adaptive': {'law': 'improved', 'feed': 'thesis_pair'},
-              'adaptive_inverse_gamma': {'law': 'improved', 'feed': 'inverse_gamma'}}
+              'adaptive': {'law': 'improved', 'feed': 'inverse_gamma'},
+              'adaptive_thesis_pair': {'law': 'improved', 'feed': 'thesis_pair'}}
 VARIATIONS = ('none', 'chapter4')
 
 # Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.

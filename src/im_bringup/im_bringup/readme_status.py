@@ -21,6 +21,7 @@ from typing import List, Optional, Tuple
 from im_common.cli import parse_args
 
 from im_bringup import thesis
+from im_bringup.config import STRATEGIES
 
 BEGIN, END = '<!-- status:begin -->', '<!-- status:end -->'
 DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'
@@ -105,7 +106,10 @@ def render(runs: List[dict]) -> str:
     sme = _run(runs, 'speed', 'min_energy')
     mech = sme['dE_kinetic_J'] + sme['W_load_J'] + sme['E_friction_J']
     th_speed = sorted(e - l for (t, _), (e, l) in thesis.ENERGY.items() if t == 'speed')
-    ch4 = {c: _run(runs, 'position', 'min_energy', c, 'chapter4') for c in ('nominal', 'adaptive')}
+    ch4p = {s_: _run(runs, 'position', s_, 'adaptive', 'chapter4') for s_ in STRATEGIES}
+    ch4n = {s_: _run(runs, 'position', s_, 'nominal', 'chapter4') for s_ in STRATEGIES}
+    ch4s = {s_: _run(runs, 'speed', s_, 'adaptive', 'chapter4') for s_ in STRATEGIES}
+    ch4sn = {s_: _run(runs, 'speed', s_, 'nominal', 'chapter4') for s_ in STRATEGIES}
     robust_dev = max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
                          / _run(runs, t, s)['E_loss_J'] - 1.0)
                      for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
@@ -142,13 +146,17 @@ def render(runs: List[dict]) -> str:
         '`make study`).',
         '',
         '**Chapter 4** (`make reproduce`, chapter-4 variation profile, controller estimates of §4.3):',
-        'the improved adaptation law reduces the position error of the nominal min-energy controller',
-        f"(max {ch4['adaptive']['pos_err_max_rad'] * 1e3:.0f} mrad vs "
-        f"{ch4['nominal']['pos_err_max_rad'] * 1e3:.0f} mrad; RMS "
-        f"{ch4['adaptive']['pos_err_rms_rad']:.3f} vs {ch4['nominal']['pos_err_rms_rad']:.3f} rad) and the"
-        ' thesis law\'s own oscillation is',
-        'gone; with the constant-flux and min-loss strategies even true parameters cannot help much,',
-        'because the controller\'s L̂_s and L̂_sr stay fixed (`docs/adaptation.md` §6).',
+        'the improved adaptation law, feeding its L̂_σ, L̂_M, R̂_R into every coefficient of the',
+        'controller and observer, holds the position RMS error at '
+        + ' / '.join(f"{ch4p[s_]['pos_err_rms_rad']:.4f}" for s_ in STRATEGIES)
+        + ' rad (nominal '
+        + ' / '.join(f"{ch4n[s_]['pos_err_rms_rad']:.3f}" for s_ in STRATEGIES) + ')',
+        'and the speed RMS error at '
+        + ' / '.join(f"{ch4s[s_]['speed_err_rms_rad_s']:.3f}" for s_ in STRATEGIES)
+        + ' rad/s (nominal '
+        + ' / '.join(f"{ch4sn[s_]['speed_err_rms_rad_s']:.3f}" for s_ in STRATEGIES)
+        + ') for min-energy / constant flux / min-loss;',
+        'the thesis law\'s own oscillation is gone (`docs/adaptation.md` §6).',
         '',
         '**Robust gains at the node period (seed 001).** `ros2 run im_controller design_gains --period 1e-3',
         '--out gains.yaml` designs, over the polytope R_r ∈ [0.42, 1.26] Ω, L_s, L_r, L_sr over the',

@@ -34,7 +34,7 @@ from im_common.params import (THESIS_MOTOR, InvalidParameter, ParameterSchedule,
 from . import offline
 from .offline import CHAPTER4_ESTIMATES, Scenario, simulate
 
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_inverse_gamma')
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair')
 TRUTH_FED = 'truth_fed'   # not a controller: the truth's R_s, L_σ, L_M, R_R handed to the model
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 TASKS = ('position', 'speed')

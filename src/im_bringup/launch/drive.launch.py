@@ -1,7 +1,7 @@
 """Jazzy launch file: the drive graph as separate processes.
 
     ros2 launch im_bringup drive.launch.py [task:=position|speed] [strategy:=min_energy|...]
-        [controller:=nominal|adaptive|adaptive_thesis|adaptive_inverse_gamma] [T_s:=0.0001] [duration:=2.0]
+        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair] [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
         [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true]
 
@@ -27,8 +27,9 @@ from launch_ros.actions import Node
 ARGUMENTS = (
     ('task', 'position', 'position or speed (seed 000 §3.4.4-3.4.5)'),
     ('strategy', 'min_energy', 'flux strategy: min_energy, constant_flux or min_loss'),
-    ('controller', 'nominal', 'nominal, adaptive (improved law), adaptive_thesis or '
-                   'adaptive_inverse_gamma (improved law, inverse-Gamma feed)'),
+    ('controller', 'nominal', 'nominal, adaptive (improved law, inverse-Gamma feed), '
+                   'adaptive_thesis (thesis law) or adaptive_thesis_pair (improved law, thesis '
+                   'pair feed)'),
     ('T_s', '0.0001', 'control period [s]'),
     ('duration', '', 'simulated seconds (empty: the task length)'),
     ('mode', 'lockstep', 'lockstep (simulated time) or free_run (wall-clock fixed rate)'),
