@@ -139,10 +139,14 @@ def _drift_case(args) -> dict:
     hook = (None if controller == 'nominal'
             else TruthFed(sched, motor) if controller == 'truth_fed'
             else LockstepAdapter.build(motor, gains_for(controller)))
-    r = simulate(sc, adapter=hook, record_every=10)
+    row = {'motor': name, 'task': task, 'strategy': strategy, 'controller': controller}
+    try:
+        r = simulate(sc, adapter=hook, record_every=10)
+    except FloatingPointError as exc:          # a diverged run is a row of the table, not an abort
+        return {**row, 'err_rms': None, 'E_in_J': None, 'trip': {'reason': f'diverged: {exc}'}}
     key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
-    return {'motor': name, 'task': task, 'strategy': strategy, 'controller': controller,
-            'err_rms': r.summary[key], 'E_in_J': r.summary['E_in_J'], 'trip': r.summary['trip']}
+    return {**row, 'err_rms': r.summary[key], 'E_in_J': r.summary['E_in_J'],
+            'trip': r.summary['trip']}
 
 
 def run_drift(motors: dict, workers=None) -> list:
