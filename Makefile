@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study motors campaign gains policy clean distclean
+.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign gains policy clean distclean
 
 all: demo
 
@@ -71,6 +71,10 @@ robust-study: build
 # Every shipped motor (share/im_common/config/motors) through rating-scaled tasks (offline loop).
 motors: build
 	$(RUN) python -m im_bringup.study_motors --out bags/motors
+
+# The same motors under the chapter-4 drift scaled to each (nominal, adaptive feeds, truth-fed).
+motors-drift: build
+	$(RUN) python -m im_bringup.study_motors --drift --out bags/motors
 
 # Monte Carlo campaign over the parameter box (docs/campaign.md): 200 motors, certified 1 ms gains
 # at 1 kHz and the thesis's gains at 4 kHz, on a local Dask cluster of every core. Resumes when
