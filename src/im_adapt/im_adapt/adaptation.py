@@ -382,7 +382,6 @@ class ParameterAdapter:
         # Voltage-model flux ψ̂_k (eq. 4.3) over [t_k-1, t_k]: V_k-1 was held, i trapezoidal.
         i_prev = self._i_prev
         # Current-model stator flux at t_k-1 (the start of the period, explicit blend).
-        phi_before = self._phi_cm
         if self.improved:
             psi_cm = self.L_sigma * i_prev + self._phi_cm
         else:
@@ -394,13 +393,15 @@ class ParameterAdapter:
         self._i_prev = i
         self._v_prev = V
         if self.improved:
+            phi_before = self._phi_cm
             self._improved_step(T_s, i, omega_r, i_prev)
-            # Stator frequency: the rotation rate of the own model's rotor flux over the period
-            # (it moves smoothly, unlike ψ̂, whose leakage part carries the current loop's steps).
-            rot = self._phi_cm * phi_before.conjugate()
-            self._omega_e = (math.atan2(rot.imag, rot.real) / T_s
-                             if abs(self._phi_cm) > g.phi_floor and abs(phi_before) > g.phi_floor
-                             else math.inf)
+            if g.flux_corner_ratio > 0.0:
+                # Stator frequency: the rotation rate of the own model's rotor flux over the
+                # period (it moves smoothly, unlike ψ̂, whose leakage part carries the current
+                # loop's steps).
+                rot = self._phi_cm * phi_before.conjugate()
+                self._omega_e = (math.atan2(rot.imag, rot.real) / T_s
+                                 if abs(rot) > g.phi_floor * g.phi_floor else math.inf)
         else:
             self._thesis_step(T_s, V_prev, i, i_prev, omega_r, phi_hat_a, phi_hat_b)
 

@@ -106,10 +106,11 @@ def render(runs: List[dict]) -> str:
     sme = _run(runs, 'speed', 'min_energy')
     mech = sme['dE_kinetic_J'] + sme['W_load_J'] + sme['E_friction_J']
     th_speed = sorted(e - l for (t, _), (e, l) in thesis.ENERGY.items() if t == 'speed')
-    ch4p = {s_: _run(runs, 'position', s_, 'adaptive', 'chapter4') for s_ in STRATEGIES}
-    ch4n = {s_: _run(runs, 'position', s_, 'nominal', 'chapter4') for s_ in STRATEGIES}
-    ch4s = {s_: _run(runs, 'speed', s_, 'adaptive', 'chapter4') for s_ in STRATEGIES}
-    ch4sn = {s_: _run(runs, 'speed', s_, 'nominal', 'chapter4') for s_ in STRATEGIES}
+    def ch4(task: str, controller: str, fmt: str) -> str:
+        """The chapter-4 RMS errors of the three strategies, 'a / b / c'."""
+        key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
+        return ' / '.join(format(_run(runs, task, s_, controller, 'chapter4')[key], fmt)
+                          for s_ in STRATEGIES)
     robust_dev = max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
                          / _run(runs, t, s)['E_loss_J'] - 1.0)
                      for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
@@ -147,15 +148,10 @@ def render(runs: List[dict]) -> str:
         '',
         '**Chapter 4** (`make reproduce`, chapter-4 variation profile, controller estimates of §4.3):',
         'the improved adaptation law, feeding its L̂_σ, L̂_M, R̂_R into every coefficient of the',
-        'controller and observer, holds the position RMS error at '
-        + ' / '.join(f"{ch4p[s_]['pos_err_rms_rad']:.4f}" for s_ in STRATEGIES)
-        + ' rad (nominal '
-        + ' / '.join(f"{ch4n[s_]['pos_err_rms_rad']:.3f}" for s_ in STRATEGIES) + ')',
-        'and the speed RMS error at '
-        + ' / '.join(f"{ch4s[s_]['speed_err_rms_rad_s']:.3f}" for s_ in STRATEGIES)
-        + ' rad/s (nominal '
-        + ' / '.join(f"{ch4sn[s_]['speed_err_rms_rad_s']:.3f}" for s_ in STRATEGIES)
-        + ') for min-energy / constant flux / min-loss;',
+        f"controller and observer, holds the position RMS error at {ch4('position', 'adaptive', '.4f')}"
+        f" rad (nominal {ch4('position', 'nominal', '.3f')})",
+        f"and the speed RMS error at {ch4('speed', 'adaptive', '.3f')} rad/s (nominal "
+        f"{ch4('speed', 'nominal', '.3f')}) for min-energy / constant flux / min-loss;",
         'the thesis law\'s own oscillation is gone (`docs/adaptation.md` §6).',
         '',
         '**Robust gains at the node period (seed 001).** `ros2 run im_controller design_gains --period 1e-3',

@@ -45,6 +45,7 @@ from im_controller.control_law import DEFAULT_GAINS, DEFAULT_VOLTAGE_MARGIN, Con
 from im_controller.profiles import from_setpoints
 
 from .offline import Scenario, simulate
+from .study_ch4 import TRUTH_FED
 
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 OVERLOAD = 2.0
@@ -113,7 +114,7 @@ def run_motor(motor: MotorParams, name: str, record_every: int = 10) -> list:
     return rows
 
 
-DRIFT_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis_pair', 'truth_fed')
+DRIFT_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis_pair', TRUTH_FED)
 
 
 def drift_schedule(motor: MotorParams, duration: float) -> ParameterSchedule:
@@ -139,7 +140,7 @@ def _drift_case(args) -> dict:
     sched.validate(sc.duration)
     sc = replace(sc, schedule=sched, variation='chapter4_scaled', estimates=motor)
     hook = (None if controller == 'nominal'
-            else TruthFed(sched, motor) if controller == 'truth_fed'
+            else TruthFed(sched, motor) if controller == TRUTH_FED
             else LockstepAdapter.build(motor, gains_for(controller)))
     row = {'motor': name, 'task': task, 'strategy': strategy, 'controller': controller}
     try:
