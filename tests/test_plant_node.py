@@ -163,3 +163,32 @@ def test_shaft_decoder_fast_path_equals_the_general_decoder():
     other = pack_joint_state(1, 2, ('rotor', 'x'), (0.5, 9.0), (7.0, 8.0), (), 'frame')
     assert shaft_in(other) == (1_000_000_002, (0.5, 7.0))
     assert decode_joint_state(other)[3] == (0.5, 9.0)
+
+
+def test_a_peers_warning_does_not_undo_its_ready(ctx):
+    """A follower that is ready and then warns (a foreign graph's messages refused, real-time
+    scheduling refused, new parameters) is still ready: the warning and parameters events are
+    not states. Two graphs on one domain made the controller warn after 'ready' and the plant
+    waited for it until its startup timeout."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from im_common.lockstep import PARAMETERS, READY, WARNING, _status_topic, _unsigned
+    plant = make_plant(ctx, wait_for='controller', duration=0.01)
+
+    def event(state, **values):
+        msg = DiagnosticArray()
+        values = dict(values, run_id=plant.run_id, T_s_ns=plant.period)
+        msg.status = [DiagnosticStatus(level=bytes([0]), name='controller', message=state,
+                                       hardware_id='im_drive',
+                                       values=[KeyValue(key=k, value=str(v))
+                                               for k, v in values.items()])]
+        msg.header.frame_id = plant.status_signer.tag_bytes(_status_topic(), _unsigned(msg))
+        plant._on_status(msg)
+
+    assert not plant._start_condition()
+    event(READY)
+    assert plant._start_condition()
+    event(WARNING, reason="ignoring /im/status event 'waiting' from 'controller_b'")
+    event(PARAMETERS, k1='2.0')
+    assert plant.peers['controller'][0] == READY
+    assert plant._start_condition()
+    plant.destroy_node()

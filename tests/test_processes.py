@@ -275,12 +275,6 @@ def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_pat
     for p in b:
         if p.name == 'plant_b':
             p.parameters['wait_for'] = ' '.join(n + '_b' for n in p.parameters['wait_for'].split())
-    for p in a + b:
-        # ten processes importing rclpy on two cores under the full suite: the default 30 s
-        # startup budget (the plant's, then the 1.5×30+1 s the followers wait for step 0) was
-        # missed three times today; startup speed is not what this test is about
-        if p.name.split('_')[0] in ('plant', 'controller', 'observer'):
-            p.parameters['startup_timeout'] = 120.0
     with GraphProcesses(a + b, str(tmp_path), domain) as g:
         codes = g.start().wait(180)
         no_traceback(g)

@@ -329,6 +329,9 @@ class LockstepNode(Node):
             values = {kv.key: kv.value for kv in st.values}
             if name == self.get_name() and values.get('run_id', '') == self.run_id:
                 continue                                   # this node's own event
+            if st.message in (PARAMETERS, WARNING):
+                continue        # events for people and the recording, not states: a warning
+                                # after 'ready' does not undo it
             master = values.get('time_master') == 'true'
             if not master and values.get('run_id') and self.run_id \
                     and values['run_id'] != self.run_id:
