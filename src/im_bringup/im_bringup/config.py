@@ -50,7 +50,7 @@ def motor_parameters(motor) -> Dict[str, object]:
 
 
 CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weakening',
-                     'voltage_margin')
+                     'voltage_margin', 'current_margin')
 PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
 
 

@@ -39,7 +39,7 @@ from im_common.loads import LOAD_KINDS, make_load
 from im_common.params import (InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
                               estimate_arguments)
 
-from .flux import STRATEGIES, FluxStrategy, LowPass2
+from .flux import STRATEGIES, FluxStrategy, LowPass2, flux_range_within_current
 from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
 from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, ThesisPositionProfile,
                            ThesisSpeedProfile)
@@ -51,13 +51,18 @@ DEFAULT_FLUX_PREVIEW = 0.06
 # Field weakening keeps the steady stator voltage ω_e (L_s/L_sr) φ below this share of the voltage
 # limit; the rest is headroom for the resistive drop, the q-axis leakage drop and the transients.
 DEFAULT_VOLTAGE_MARGIN = 0.85
+# Under a current limit the optimizing strategies choose no flux whose steady current for the
+# demanded torque exceeds this share of the limit; the rest is headroom for the flux rise
+# (T_r dφ*/dt on the d axis) and the PD correction (docs/limits.md).
+DEFAULT_CURRENT_MARGIN = 0.9
 # |i_q*| ≤ MAGNETIZING_RATIO · i_d*/√σ: the torque a partly magnetized machine is asked for
 MAGNETIZING_RATIO = 2.0
 # Reconfigurable while running (ros2 param set on the controller node): gains, strategy, flux
 # levels and limits. Everything else (mode, profile, motor model, period) is fixed for a run.
 LIVE_FIELDS = ('strategy', 'phi_d', 'phi_min', 'phi_max', 'k1', 'k_p', 'k_v', 'current_gain',
                'flux_coupling', 'v_limit', 'torque_limit', 'current_limit', 'speed_limit',
-               'field_weakening', 'voltage_margin', 'flux_preview', 'setpoint_duration')
+               'field_weakening', 'voltage_margin', 'current_margin', 'flux_preview',
+               'setpoint_duration')
 
 # §3.4.6, decoded: the printed table is three columns (electrical gains | position | speed) read
 # row by row: k1, k_e on the electrical side; position k_p = 10, k_v = 1; speed k_p = 1, k_v = 3.
@@ -107,6 +112,8 @@ class ControllerConfig:
     speed_limit     [rad/s] beyond it no torque pushes the shaft further, or None
     field_weakening cap the flux target above base speed (needs v_limit)
     voltage_margin  share of v_limit the steady voltage may use under field weakening
+    current_margin  share of current_limit the steady current of min_energy / min_loss may use:
+                    their flux is clipped into the range that fits (docs/limits.md)
     magnetizing_floor  [Wb] the smallest flux the reference model uses (a smooth floor, C²:
                     the start-up from a demagnetized machine needs no step); None → 0.1 φ_min
     """
@@ -143,6 +150,7 @@ class ControllerConfig:
     speed_limit: Optional[float] = None
     field_weakening: bool = True
     voltage_margin: float = DEFAULT_VOLTAGE_MARGIN
+    current_margin: float = DEFAULT_CURRENT_MARGIN
     magnetizing_floor: Optional[float] = None
 
     def __post_init__(self):
@@ -224,6 +232,9 @@ class ControllerConfig:
         self.voltage_margin = _real('voltage_margin', self.voltage_margin, 0.0, lo_open=True)
         if self.voltage_margin > 1.0:
             raise InvalidParameter('voltage_margin', self.voltage_margin, 'must be <= 1')
+        self.current_margin = _real('current_margin', self.current_margin, 0.0, lo_open=True)
+        if self.current_margin > 1.0:
+            raise InvalidParameter('current_margin', self.current_margin, 'must be <= 1')
         if self.magnetizing_floor is None:
             self.magnetizing_floor = 0.1 * self.phi_min
         self.magnetizing_floor = _real('magnetizing_floor', self.magnetizing_floor, 0.0,
@@ -426,6 +437,12 @@ class DriveController:
         if cfg.flux_preview > 0.0 and cfg.mode != 'torque':
             tau_tgt += self._path_torque(t + cfg.flux_preview, c) - self._path_torque(t, c)
         phi_tgt = self._strategy.target(c, tau_tgt, omega_r)
+        if cfg.current_limit is not None and cfg.strategy != 'constant_flux':
+            # the optimizing strategies: a flux whose steady current for the torque fits in the
+            # limit, the nearest to their own optimum (docs/limits.md), within their bounds
+            lo, hi = flux_range_within_current(c, tau_tgt, cfg.current_margin * cfg.current_limit)
+            phi_tgt = min(max(phi_tgt, lo), hi)
+            phi_tgt = min(max(phi_tgt, cfg.phi_min), cfg.phi_max)
         cap = self.flux_cap(omega_r)
         if phi_tgt > cap:
             phi_tgt = cap

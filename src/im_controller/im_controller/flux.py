@@ -103,6 +103,24 @@ def flux_min_energy(c: ModelCoefficients, tau: float, phi_min: float, phi_max: f
     return phi_min if phi < phi_min else (phi_max if phi > phi_max else phi)
 
 
+def flux_range_within_current(c: ModelCoefficients, tau: float, i_max: float):
+    """(φ₁, φ₂): the rotor fluxes whose steady currents for the torque τ fit in ``i_max``.
+    i_d = φ/L_sr, i_q = L_r τ/(v L_sr φ), i_d² + i_q² ≤ i_max² is, with x = φ², the quadratic
+    x²/L_sr² − i_max² x + b ≤ 0, b = (L_r τ/(v L_sr))², between its roots
+    x₁ = 2b/(i_max² + √D), x₂ = L_sr² (i_max² + √D)/2, D = i_max⁴ − 4b/L_sr². A torque beyond
+    the current's reach at any flux (D ≤ 0) gets the flux of most torque per ampere, i_d = i_q:
+    φ₁ = φ₂ = L_sr i_max/√2. The optimizing strategies' flux is clipped into it
+    (docs/limits.md): min-energy's is far below φ₁ near the limit, min-loss's can pass φ₂."""
+    b = (c.L_r * tau / (c.v * c.L_sr)) ** 2
+    i2 = i_max * i_max
+    disc = i2 * i2 - 4.0 * b / (c.L_sr * c.L_sr)
+    if disc <= 0.0:
+        phi = c.L_sr * i_max / math.sqrt(2.0)
+        return phi, phi
+    r = i2 + math.sqrt(disc)
+    return math.sqrt(2.0 * b / r), c.L_sr * math.sqrt(0.5 * r)
+
+
 def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: float, phi_max: float,
                   k_e: float, k_h: float, core_exponent: float = 2.0) -> float:
     """Steady-state loss-minimizing flux (see module docstring), clipped to [φ_min, φ_max]."""

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from im_common.loads import LOAD_KINDS
 
-from .control_law import (DEFAULT_VOLTAGE_MARGIN, FLUX_COUPLINGS, LIVE_FIELDS, MODES, PROFILES,
-                          STRATEGIES, ControllerConfig)
+from .control_law import (DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN, FLUX_COUPLINGS,
+                          LIVE_FIELDS, MODES, PROFILES, STRATEGIES, ControllerConfig)
 from .profiles import from_parameters as setpoints_from_parameters
 
 # Parameters that make sense to change while the node runs (``ros2 param set``): gains, strategy,
@@ -78,6 +78,9 @@ def declare_controller(node) -> dict:
     v['voltage_margin'] = p('voltage_margin', DEFAULT_VOLTAGE_MARGIN,
                             'share of v_limit the steady voltage may use under field weakening',
                             0.05, 1.0)
+    v['current_margin'] = p('current_margin', DEFAULT_CURRENT_MARGIN,
+                            'share of current_limit the steady current of min_energy/min_loss may '
+                            'use (their flux moves into the range that fits)', 0.05, 1.0)
     return v
 
 

@@ -102,6 +102,60 @@ def test_current_limit_bounds_the_reference_current():
     assert r['torque_limited']
 
 
+def test_the_fluxes_within_a_current_limit_are_the_roots_of_a_quadratic():
+    """Closed form: at either end of the range the steady currents of τ are exactly i_max,
+    inside it they are below, outside above; beyond any flux's reach the range is the single
+    flux of most torque per ampere, i_d = i_q."""
+    from im_controller.flux import flux_range_within_current
+    c = DriveController(ControllerConfig()).coefficients
+
+    def current(phi, tau):
+        return math.hypot(phi / c.L_sr, c.L_r * tau / (c.v * c.L_sr * phi))
+
+    mtpa = c.L_sr * 20.0 / math.sqrt(2.0)
+    for tau in (0.5, 5.0, 20.0, -20.0):
+        lo, hi = flux_range_within_current(c, tau, 20.0)
+        assert lo < mtpa < hi
+        for phi in (lo, hi):
+            assert current(phi, tau) == pytest.approx(20.0, rel=1e-9)
+        assert current(0.99 * lo, tau) > 20.0 and current(1.01 * hi, tau) > 20.0
+        assert current(0.5 * (lo + hi), tau) < 20.0
+    assert flux_range_within_current(c, 1e3, 20.0) == pytest.approx((mtpa, mtpa))
+
+
+@pytest.mark.parametrize('strategy,tau,limit,side', [
+    ('min_energy', 25.0, 22.0, 0),      # its own flux (i_q/i_d = 1/√σ) is far below: raised
+    ('min_loss', 15.0, 15.5, 1),        # its own flux is above the most torque per ampere: lowered
+])
+def test_under_a_current_limit_the_optimizing_strategies_choose_a_flux_that_fits(
+        strategy, tau, limit, side):
+    """Under a current limit the flux target of min_energy / min_loss is the nearest to its own
+    optimum whose steady current for τ fits in 0.9 × the limit; constant flux keeps φ_d."""
+    from im_controller.flux import FluxStrategy, flux_range_within_current
+    c = DriveController(ControllerConfig()).coefficients
+    own = FluxStrategy(strategy).target(c, tau, 0.0)
+    assert math.hypot(own / c.L_sr, c.L_r * tau / (c.v * c.L_sr * own)) > 0.9 * limit
+
+    def target(cfg):
+        ctl = DriveController(cfg)
+        ctl.compute(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        ctl.set_setpoint('torque', tau, 0.0)
+        for k in range(1, 800):
+            ctl.compute(k * 1e-4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return ctl.reference['phi_target']
+
+    limited = ControllerConfig(mode='torque', profile='setpoint', strategy=strategy,
+                               current_limit=limit)
+    expected = flux_range_within_current(c, tau, 0.9 * limit)[side]
+    assert target(limited) == pytest.approx(expected, rel=1e-9)
+    assert (target(limited) - own) * (1 if side == 0 else -1) > 0
+    held = ControllerConfig(mode='torque', profile='setpoint', strategy='constant_flux',
+                            phi_d=0.5, current_limit=limit)
+    assert target(held) == 0.5
+    with pytest.raises(InvalidParameter, match='current_margin'):
+        ControllerConfig(current_margin=1.5)
+
+
 def test_speed_limit_stops_pushing_beyond_it():
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy='constant_flux',
                            speed_limit=50.0)
