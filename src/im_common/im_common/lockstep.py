@@ -55,7 +55,10 @@ LOCKSTEP_DEPTH = 100
 
 # Run states published on /im/status.
 WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
-PARAMETERS, WARNING = 'parameters', 'warning'     # events that are not a state
+PARAMETERS, WARNING = 'parameters', 'warning'
+#: Events for people and the recording, not states: they never change a node's state as its
+#: peers see it (a warning after 'ready' does not undo it).
+NOT_STATES = (PARAMETERS, WARNING)
 FINISHED, STOPPING, STOPPED, FAILED = 'finished', 'stopping', 'stopped', 'failed'
 END_STATES = (FINISHED, STOPPED, FAILED)
 
@@ -289,7 +292,7 @@ class LockstepNode(Node):
                **values) -> None:
         """Publish a run-protocol event on /im/status (and keep it as this node's state)."""
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-        if state not in (PARAMETERS, WARNING):
+        if state not in NOT_STATES:
             self.state = state
         msg = DiagnosticArray()
         ns = self.current_ns() if stamp_ns is None else stamp_ns
@@ -329,9 +332,8 @@ class LockstepNode(Node):
             values = {kv.key: kv.value for kv in st.values}
             if name == self.get_name() and values.get('run_id', '') == self.run_id:
                 continue                                   # this node's own event
-            if st.message in (PARAMETERS, WARNING):
-                continue        # events for people and the recording, not states: a warning
-                                # after 'ready' does not undo it
+            if st.message in NOT_STATES:
+                continue
             master = values.get('time_master') == 'true'
             if not master and values.get('run_id') and self.run_id \
                     and values['run_id'] != self.run_id:

@@ -39,7 +39,7 @@ from im_common.loads import LOAD_KINDS, make_load
 from im_common.params import (InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
                               estimate_arguments)
 
-from .flux import STRATEGIES, FluxStrategy, LowPass2, flux_range_within_current
+from .flux import STRATEGIES, FluxStrategy, LowPass2
 from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
 from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, ThesisPositionProfile,
                            ThesisSpeedProfile)
@@ -302,8 +302,10 @@ class DriveController:
     def _apply_config(self, cfg: ControllerConfig) -> None:
         """The derived objects of the reconfigurable fields (no run state touched)."""
         self.config = cfg
-        self._strategy = FluxStrategy(cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max,
-                                      cfg.params.k_e, cfg.params.k_h, cfg.core_loss_exponent)
+        self._strategy = FluxStrategy(
+            cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max, cfg.params.k_e, cfg.params.k_h,
+            cfg.core_loss_exponent,
+            i_max=None if cfg.current_limit is None else cfg.current_margin * cfg.current_limit)
         self._load = make_load(cfg.load if cfg.load_known else 'none', mgl=cfg.load_mgl,
                                c1=cfg.load_c1, c2=cfg.load_c2, tau=cfg.load_tau)
         if cfg.current_gain is None:
@@ -437,12 +439,6 @@ class DriveController:
         if cfg.flux_preview > 0.0 and cfg.mode != 'torque':
             tau_tgt += self._path_torque(t + cfg.flux_preview, c) - self._path_torque(t, c)
         phi_tgt = self._strategy.target(c, tau_tgt, omega_r)
-        if cfg.current_limit is not None and cfg.strategy != 'constant_flux':
-            # the optimizing strategies: a flux whose steady current for the torque fits in the
-            # limit, the nearest to their own optimum (docs/limits.md), within their bounds
-            lo, hi = flux_range_within_current(c, tau_tgt, cfg.current_margin * cfg.current_limit)
-            phi_tgt = min(max(phi_tgt, lo), hi)
-            phi_tgt = min(max(phi_tgt, cfg.phi_min), cfg.phi_max)
         cap = self.flux_cap(omega_r)
         if phi_tgt > cap:
             phi_tgt = cap

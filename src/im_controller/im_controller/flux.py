@@ -17,6 +17,9 @@ Flux strategies map the torque reference τ* (and the speed) to a *target* rotor
     for m = 1 a Newton solve of 2Aφ⁴ + Kθφ³ − 2Cτ² = 0; f_e is refreshed twice with the slip
     of the current solution. Clipped to [φ_min, φ_max].
 
+Under a current limit the two optimizing strategies keep their flux where the steady current for
+the torque fits (:func:`flux_range_within_current`, docs/limits.md).
+
 The target is not used directly: eq. 3.13 needs dφ*/dt and d²φ*/dt² (the d-axis current and its
 derivative), and τ* needs dτ*/dt. Both come out of linear filters whose *states are the
 derivatives* (:class:`LowPass2`), discretized exactly for a held input — no numerical
@@ -25,6 +28,7 @@ differentiation, so measurement noise enters the voltage only through bounded fi
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 from .reference import ModelCoefficients
 
@@ -154,20 +158,31 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
 
 
 class FluxStrategy:
-    """Target rotor flux for a torque demand: ``target(coefficients, tau, omega_r)``."""
+    """Target rotor flux for a torque demand: ``target(coefficients, tau, omega_r)``.
+
+    ``i_max`` (A, None: no bound): the optimizing strategies' flux is clipped into
+    :func:`flux_range_within_current` of it, then into [φ_min, φ_max]; constant flux keeps φ_d."""
 
     def __init__(self, name: str, phi_d: float = 1.2, phi_min: float = 0.2, phi_max: float = 1.2,
-                 k_e: float = 0.012, k_h: float = 0.012, core_exponent: float = 2.0):
+                 k_e: float = 0.012, k_h: float = 0.012, core_exponent: float = 2.0,
+                 i_max: Optional[float] = None):
         if name not in STRATEGIES:
             raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {name!r}")
         self.name = name
         self.phi_d, self.phi_min, self.phi_max = float(phi_d), float(phi_min), float(phi_max)
         self.k_e, self.k_h, self.core_exponent = float(k_e), float(k_h), float(core_exponent)
+        self.i_max = i_max
 
     def target(self, c: ModelCoefficients, tau: float, omega_r: float) -> float:
         if self.name == 'constant_flux':
             return self.phi_d
         if self.name == 'min_energy':
-            return flux_min_energy(c, tau, self.phi_min, self.phi_max)
-        return flux_min_loss(c, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
-                             self.core_exponent)
+            phi = flux_min_energy(c, tau, self.phi_min, self.phi_max)
+        else:
+            phi = flux_min_loss(c, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
+                                self.core_exponent)
+        if self.i_max is None:
+            return phi
+        lo, hi = flux_range_within_current(c, tau, self.i_max)
+        phi = min(max(phi, lo), hi)
+        return min(max(phi, self.phi_min), self.phi_max)
