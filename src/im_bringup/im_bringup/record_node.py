@@ -261,6 +261,7 @@ class RecorderNode(LockstepNode):
         return cb
 
     EARLY_MAX = LOCKSTEP_READER_DEPTH
+    EARLY_KEEP_NEWEST = True     # a late recorder: no gap between what it kept and what follows
 
     def refuse_unsigned(self, topic: str, data: bytes) -> None:
         self._refused(topic, data)

@@ -529,12 +529,17 @@ class LockstepNode(Node):
     #: Messages kept while this node does not yet follow a running run (they may be signed for
     #: the run it is about to follow): checked again when it adopts or locks a run.
     EARLY_MAX = 4 * LOCKSTEP_DEPTH
+    #: When that buffer is full: False refuses the new message (a follower needs the first steps
+    #: of its run, which come first); True refuses the oldest kept one instead (the recorder: it
+    #: records contiguously from where it joined, so what it keeps must reach up to now).
+    EARLY_KEEP_NEWEST = False
 
     def unsigned_input(self, topic: str, data: bytes, handler: Callable) -> None:
         """``data`` does not verify for the run this node follows now: before that run is running
         it may belong to the run this node is about to follow (kept, bounded, and handed to
         ``handler`` again when the run is adopted or starts); afterwards it is refused."""
-        if not self._run_locked and not self.time_master and len(self._early) < self.EARLY_MAX:
+        if not self._run_locked and not self.time_master and (
+                self.EARLY_KEEP_NEWEST or len(self._early) < self.EARLY_MAX):
             # keep it only if it may be of a run this node could still follow: before any time
             # master was seen, anything (bounded); afterwards only what verifies for one of them
             # (a flood of foreign messages cannot push the graph's own out of this buffer)
@@ -542,6 +547,9 @@ class LockstepNode(Node):
                       if st not in END_STATES and r != self.run_id]
             if not self._masters or any(self._signer_for(r).verify(topic, data) for r in others):
                 self._early.append((topic, data, handler))
+                if len(self._early) > self.EARLY_MAX:
+                    old_topic, old_data, _ = self._early.pop(0)
+                    self.refuse_unsigned(old_topic, old_data)
                 return
         self.refuse_unsigned(topic, data)
 
