@@ -61,7 +61,8 @@ _REC = struct.Struct('<BQ')
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _QQ = struct.Struct('<QQ')
 
-INFINITE = {'sec': 9223372036, 'nsec': 854775807}
+INFINITE = {'sec': 9223372036, 'nsec': 854775807}     # RMW_DURATION_INFINITE
+INFINITE_NS = 9223372036854775807
 
 
 @contextlib.contextmanager
@@ -108,18 +109,77 @@ def _record(op: int, body: bytes) -> bytes:
     return _REC.pack(op, len(body)) + body
 
 
+def _time(ns: int) -> dict:
+    """An ``rmw_time_t`` as rosbag2 writes it (``sec``, ``nsec``); a negative or infinite
+    duration is ``RMW_DURATION_INFINITE``."""
+    ns = int(ns)
+    if ns < 0 or ns >= INFINITE_NS:
+        return dict(INFINITE)
+    return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
+
+
+def qos_profile_dict(profile) -> dict:
+    """One QoS profile (an ``rclpy.qos.QoSProfile``, e.g. a ``TopicEndpointInfo.qos_profile``) as
+    rosbag2 Jazzy encodes it for metadata version 9: policies as their ``rmw`` names
+    (``keep_last``, ``reliable``, ``transient_local``, ``unknown``, ...), durations as
+    ``{sec, nsec}``."""
+    return {'history': profile.history.name.lower(), 'depth': int(profile.depth),
+            'reliability': profile.reliability.name.lower(),
+            'durability': profile.durability.name.lower(),
+            'deadline': _time(profile.deadline.nanoseconds),
+            'lifespan': _time(profile.lifespan.nanoseconds),
+            'liveliness': profile.liveliness.name.lower(),
+            'liveliness_lease_duration': _time(profile.liveliness_lease_duration.nanoseconds),
+            'avoid_ros_namespace_conventions': bool(profile.avoid_ros_namespace_conventions)}
+
+
+def offered_qos_yaml(profiles: Iterable) -> str:
+    """The ``offered_qos_profiles`` channel metadata: a YAML *list* with one entry per publisher
+    (``rclpy.qos.QoSProfile`` objects or :func:`qos_profile_dict` dicts), as rosbag2's recorder
+    writes the profiles the publishers offer (``get_publishers_info_by_topic``)."""
+    import yaml
+    items = [p if isinstance(p, dict) else qos_profile_dict(p) for p in profiles]
+    return yaml.safe_dump(items, sort_keys=False, default_flow_style=False) if items else ''
+
+
+def parse_qos_yaml(text: Optional[str], topic: str = '?') -> list:
+    """The list of profiles in an ``offered_qos_profiles`` string ('' is no profile); anything
+    but a YAML list of mappings is a ValueError naming the topic (rosbag2 would throw)."""
+    import yaml
+    if not text:
+        return []
+    try:
+        items = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f'{topic}: offered_qos_profiles is not YAML ({exc})') from None
+    if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
+        raise ValueError(f'{topic}: offered_qos_profiles must be a YAML list of profiles '
+                         f'(rosbag2 metadata version 9), not {text[:60]!r}')
+    return items
+
+
 def qos_yaml(reliability: str = 'reliable', durability: str = 'volatile', depth: int = 10,
              history: str = 'keep_last') -> str:
-    """One offered QoS profile as rosbag2 (metadata version 9) serializes it."""
-    def t(d):
-        return f'{{sec: {d["sec"]}, nsec: {d["nsec"]}}}'
-    return ('- history: {h}\n  depth: {d}\n  reliability: {r}\n  durability: {u}\n'
-            '  deadline: {i}\n  lifespan: {i}\n  liveliness: automatic\n'
-            '  liveliness_lease_duration: {i}\n  avoid_ros_namespace_conventions: false\n'
-            ).format(h=history, d=int(depth), r=reliability, u=durability, i=t(INFINITE))
+    """One offered profile with the given policies and every duration infinite."""
+    return offered_qos_yaml([{
+        'history': history, 'depth': int(depth), 'reliability': reliability,
+        'durability': durability, 'deadline': dict(INFINITE), 'lifespan': dict(INFINITE),
+        'liveliness': 'automatic', 'liveliness_lease_duration': dict(INFINITE),
+        'avoid_ros_namespace_conventions': False}])
 
 
 DEFAULT_QOS = qos_yaml()
+
+
+def parameters_metadata(values: Mapping[str, object]) -> Dict[str, str]:
+    """A node's parameters as a ``parameters/<node>`` metadata record: name -> ``repr`` of the
+    value, arrays as lists (the same text whether the values come from the node itself or over
+    its parameter services)."""
+    def norm(v):
+        if isinstance(v, (list, tuple)) or type(v).__name__ == 'array' or hasattr(v, 'tolist'):
+            return [norm(x) for x in (v.tolist() if hasattr(v, 'tolist') else v)]
+        return v
+    return {str(k): repr(norm(values[k])) for k in sorted(values)}
 
 
 def _compressor(name: str):
@@ -231,6 +291,13 @@ class BagWriter:
         Uncompressed chunk size [bytes] at which a chunk is closed and flushed.
     close_at_exit : bool
         Also close from an ``atexit`` hook (the interpreter exiting without ``close``).
+
+    Attributes
+    ----------
+    offered_qos : callable topic -> ``offered_qos_profiles`` YAML, or None
+        Where a topic declared without ``qos`` (by :meth:`add_topic`, on its first message, or
+        by :meth:`declare_expected`) takes its profiles from; a recorder sets it to the
+        publishers the ROS graph lists. None: :data:`DEFAULT_QOS`.
     """
 
     def __init__(self, path, force: bool = False,
@@ -264,7 +331,9 @@ class BagWriter:
         self._channel_recs: List[bytes] = []
         self._topics: Dict[str, Tuple[int, str]] = {}   # topic -> (channel id, type)
         self._chan: Dict[str, tuple] = {}           # hot path: topic -> (cid, cls, encoder)
-        self._qos: Dict[str, str] = {}
+        self._qos: Dict[str, list] = {}
+        self.offered_qos = None
+        self._expected: Dict[str, str] = {}         # topic -> type, declared on first use
         self._chunk_indexes: List[bytes] = []
         self._metadata_index: List[bytes] = []
         self._counts: Dict[int, int] = {}
@@ -323,7 +392,9 @@ class BagWriter:
     def add_topic(self, topic: str, type_name: str, qos: Optional[str] = None) -> int:
         """Declare a topic (idempotent for the same type); returns its channel id.
 
-        ``qos`` is the ``offered_qos_profiles`` YAML (default: reliable, volatile, keep_last 10).
+        ``qos`` is the ``offered_qos_profiles`` YAML list, one profile per publisher
+        (:func:`offered_qos_yaml`; default: one reliable, volatile, keep_last 10 profile); a
+        string that is not such a list is a ValueError naming the topic.
         """
         if self._closed:
             raise BagError(self.path, f'cannot add topic {topic!r}: the bag is closed')
@@ -335,6 +406,10 @@ class BagWriter:
                 raise ValueError(f'topic {topic!r} is already recorded as {t}, not {type_name}')
             return cid
         cls = cdr.message_class(type_name)      # fails early on unknown types
+        if qos is None:
+            qos = self.offered_qos(topic) if self.offered_qos is not None else DEFAULT_QOS
+        q = qos
+        profiles = parse_qos_yaml(q, topic)
         sid = self._schemas.get(type_name)
         if sid is None:
             sid = len(self._schemas) + 1
@@ -344,7 +419,6 @@ class BagWriter:
             self._schema_recs.append(rec)
             self._write(rec)
         cid = len(self._topics) + 1
-        q = qos if qos is not None else DEFAULT_QOS
         meta = {'offered_qos_profiles': q, 'topic_type_hash': type_hash(type_name)}
         rec = _record(OP_CHANNEL, _U16.pack(cid) + _U16.pack(sid) + _s(topic) + _s('cdr')
                       + _map_str(meta))
@@ -352,16 +426,28 @@ class BagWriter:
         self._write(rec)
         self._f.flush()
         self._topics[topic] = (cid, type_name)
-        self._qos[topic] = q
+        self._qos[topic] = profiles
         self._counts[cid] = 0
         self._chan[topic] = (cid, cls, cdr.encoder_for(cls))
         return cid
+
+    def expect_topic(self, topic: str, type_name: str) -> None:
+        """A topic to declare on its first message (its publishers known by then) or by
+        :meth:`declare_expected`."""
+        cdr.message_class(type_name)            # fails early on unknown types
+        self._expected[topic] = type_name
+
+    def declare_expected(self) -> None:
+        """Declare every expected topic that had no message (a channel with a count of 0)."""
+        for topic, type_name in self._expected.items():
+            if topic not in self._topics:
+                self.add_topic(topic, type_name)
 
     def _lookup_slow(self, topic: str):
         if self._closed:
             raise BagError(self.path, f'write to {topic!r} after the bag was closed')
         if topic not in self._topics:
-            t = _topic_type_default(topic)
+            t = self._expected.get(topic) or _topic_type_default(topic)
             if t is None:
                 raise KeyError(f'topic {topic!r} is not declared and not in im_common.topics; '
                                'call add_topic(topic, type_name) first')
@@ -500,6 +586,12 @@ class BagWriter:
         return sum(self._counts.values()) + len(self._ix)
 
     def _rosbag2_metadata(self) -> str:
+        """rosbag2's ``BagMetadata`` (version 9) as ``YAML::convert<BagMetadata>::encode`` lays
+        it out: the *bare* mapping (``version`` at the top; the ``rosbag2_bagfile_information:``
+        wrapper belongs to ``metadata.yaml`` files, not to this record) and each topic's
+        ``offered_qos_profiles`` as a YAML list. rosbag2's ``read_metadata()`` decodes it
+        without catching, so a wrong layout aborts ``ros2 bag info``/``play``
+        (``tests/test_rosbag2_compat.py`` applies its rules)."""
         import yaml
         start = self._t_min or 0
         dur = (self._t_max - self._t_min) if self._t_min is not None else 0
@@ -521,7 +613,7 @@ class BagWriter:
                        'duration': {'nanoseconds': dur}, 'message_count': total}],
             'custom_data': {}, 'ros_distro': ros_distro(),
         }
-        return yaml.safe_dump({'rosbag2_bagfile_information': md}, sort_keys=False)
+        return yaml.safe_dump(md, sort_keys=False, default_flow_style=False)
 
     def close(self) -> None:
         """Finish the file: last chunk, summary, footer. Idempotent; safe to call from a signal

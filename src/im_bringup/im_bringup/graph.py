@@ -7,6 +7,8 @@ random one in 150-229), so several graphs — or several test runs on one machin
 
 Recording in-process taps the nodes' publishers: every message a node publishes is also handed to
 the :class:`im_bringup.bag.BagWriter` with its stamp, without an extra subscription on the hot path.
+Each tapped topic is declared with the QoS profiles its publishers offer, as the ROS graph reports
+them (``get_publishers_info_by_topic``, what rosbag2's recorder and ``record`` store).
 """
 from __future__ import annotations
 
@@ -87,11 +89,13 @@ class DriveGraph:
 
     def _tap_publishers(self) -> None:
         rec = self.recorder
+        tapped_topics = {}
         for node in self.nodes.values():
             for pub in list(node.publishers):
                 topic = pub.topic_name
                 if topic.startswith('/rosout') or topic.startswith('/parameter_events'):
                     continue
+                tapped_topics.setdefault(topic, (node, pub.msg_type))
                 original = pub.publish
 
                 def tapped(msg, _orig=original, _topic=topic, _write=rec.write):
@@ -100,8 +104,27 @@ class DriveGraph:
                         msg = serialize_message(msg)
                     _write(_topic, msg)
                 pub.publish = tapped
+        writer = getattr(rec, 'writer', None)
+        if writer is not None:
+            self._declare_offers(writer, tapped_topics)
         # The observer and adapter publish their initial estimates when they adopt the run,
         # through these tapped publishers; the plant publishes step 0 when the run starts.
+
+    def _declare_offers(self, writer, topics) -> None:
+        """Declare each tapped topic with the profiles this graph's publishers offer (one per
+        publisher; the graph's own endpoints are known at once, no discovery needed)."""
+        from .bag import offered_qos_yaml
+        ours = {(n.get_name(), n.get_namespace()) for n in self.nodes.values()}
+        for topic, (node, cls) in topics.items():
+            infos = [i for i in node.get_publishers_info_by_topic(topic)
+                     if (i.node_name, i.node_namespace) in ours]
+            expected = sum(1 for n in self.nodes.values() for p in n.publishers
+                           if p.topic_name == topic)
+            if len(infos) != expected:
+                raise RuntimeError(f'{topic}: the ROS graph lists {len(infos)} of this graph\'s '
+                                   f'{expected} publishers; cannot record their QoS')
+            type_name = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+            writer.add_topic(topic, type_name, qos=offered_qos_yaml(i.qos_profile for i in infos))
 
     def _stopped(self, node) -> None:
         """A node finished or failed: the run ends when the plant is done or a node failed."""

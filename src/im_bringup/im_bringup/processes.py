@@ -18,6 +18,7 @@ What is started:
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -52,12 +53,16 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                     duration: Optional[float] = None, mode: str = 'lockstep',
                     use_adapter: Optional[bool] = None, record: Optional[str] = None,
                     extra: Optional[Mapping[str, Mapping[str, object]]] = None,
-                    key_file: Optional[str] = None, **config) -> List[NodeProcess]:
+                    key_file: Optional[str] = None,
+                    record_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
+                    **config) -> List[NodeProcess]:
     """The processes of one run (see the module docstring); ``extra`` = {node: {param: value}}
     merged last (a gains or parameters YAML), ``config`` goes to
     :func:`im_bringup.config.node_parameters`. ``key_file``: the graph's key (default: a fresh
     one, :func:`im_common.auth.new_key_file`, removed when this process exits), given to every
-    node as ``graph_key_file``."""
+    node as ``graph_key_file``. ``record_metadata``: named metadata records the recorder writes
+    into the bag (``record --metadata``; the scenario runner's
+    :func:`im_bringup.scenario.run_metadata`)."""
     from im_bringup.config import node_parameters
     if mode not in ('lockstep', 'free_run'):
         raise ValueError(f"invalid mode {mode!r}: lockstep or free_run")
@@ -83,7 +88,9 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     if record:
         procs.append(NodeProcess('recorder', *EXECUTABLES['recorder'],
                                  parameters={'graph_key_file': key_file},
-                                 arguments=['--out', str(record)]))
+                                 arguments=['--out', str(record)] + (
+                                     ['--metadata', json.dumps(record_metadata, sort_keys=True)]
+                                     if record_metadata else [])))
     return procs
 
 

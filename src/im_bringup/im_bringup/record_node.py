@@ -37,7 +37,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from im_common import cdr
 from im_common import topics as T
 from im_common.lockstep import END_STATES, READY, LockstepNode, _unsigned, stamp_text
-from .bag import BagError, BagWriter, qos_yaml
+from .bag import BagError, BagWriter, offered_qos_yaml
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
 #: message objects and serialized by rclpy (rare: status events).
@@ -121,10 +121,15 @@ class RecorderNode(LockstepNode):
         self.unsigned: Dict[str, int] = {}      # lock-step / status messages not of this graph
         self._named_at: Dict[str, float] = {}
         self.topics = dict(topics or default_topics())
+        self.parameters_asked: Dict[str, object] = {}
+        self.parameters_written: List[str] = []
         # Announce the lossless follower before subscribing: from the moment the plant sees it,
         # the plant stays within follower_window steps of the recorder's acknowledgements.
         self.start_protocol(input_timeout=5.0, startup_timeout=1e9)
         critical = set(T.LOCKSTEP_TOPICS)
+        # a topic's channel is written on its first message, when its publishers are known:
+        # the profiles they offer, as the ROS graph lists them (what rosbag2's recorder stores)
+        writer.offered_qos = self.offered_qos
         for topic, tname in self.topics.items():
             reliability = ReliabilityPolicy.RELIABLE
             infos = self.get_publishers_info_by_topic(topic)
@@ -140,9 +145,7 @@ class RecorderNode(LockstepNode):
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
                              depth=max(depth, LOCKSTEP_READER_DEPTH) if topic in critical else depth,
                              reliability=reliability, durability=durability)
-            writer.add_topic(topic, tname, qos=qos_yaml(
-                reliability='best_effort' if reliability == ReliabilityPolicy.BEST_EFFORT
-                else 'reliable', durability='transient_local' if latched else 'volatile'))
+            writer.expect_topic(topic, tname)   # declared with its publishers' offers
             self.counts[topic] = 0
             if topic in critical:
                 self.track[topic] = StampTrack()
@@ -155,12 +158,51 @@ class RecorderNode(LockstepNode):
         self._ack_topics = [t for t in ACK_TOPICS if t in self.track]
         self.create_timer(0.02, self._maybe_ack)
 
+    def _fetch_parameters(self, name: str) -> None:
+        """Once per peer of this graph: its parameters, every one with its value (defaults
+        included) over its parameter services, into ``parameters/<name>`` — what the in-process
+        scenario records from the nodes themselves."""
+        if name in self.parameters_asked or name == self.get_name():
+            return
+        from rclpy.parameter import parameter_value_to_python
+        from rclpy.parameter_client import AsyncParameterClient
+        from .bag import parameters_metadata
+        client = AsyncParameterClient(self, name)
+        self.parameters_asked[name] = client
+
+        def got_values(names, future) -> None:
+            res = future.result()
+            if res is None or len(res.values) != len(names):
+                return
+            try:
+                self.writer.add_metadata(f'parameters/{name}', parameters_metadata(
+                    {n: parameter_value_to_python(v) for n, v in zip(names, res.values)}))
+                self.parameters_written.append(name)
+            except BagError:
+                pass                # closed meanwhile: the 'recording' record names it
+
+        def got_names(future) -> None:
+            res = future.result()
+            if res is not None:
+                names = list(res.result.names)
+                client.get_parameters(names).add_done_callback(
+                    lambda f: got_values(names, f))
+        client.list_parameters().add_done_callback(got_names)
+
+    parameters_asked: dict
+    parameters_written: list
+
+    def offered_qos(self, topic: str) -> str:
+        """The ``offered_qos_profiles`` of ``topic``: one profile per publisher the graph lists."""
+        return offered_qos_yaml(i.qos_profile for i in self.get_publishers_info_by_topic(topic))
+
     # Protocol ---------------------------------------------------------------------------
     def on_ready(self) -> None:
         self.status(READY, lossless='true' if self.lossless else 'false',
                     topics=len(self.topics))
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
+        self._fetch_parameters(name)
         if values.get('time_master') == 'true':
             if not self.follow_master(state, values.get('run_id', '')):
                 return                          # another run's time master
@@ -356,6 +398,20 @@ class RecorderNode(LockstepNode):
         return meta
 
 
+def parse_metadata(text: Optional[str]) -> Dict[str, Dict[str, str]]:
+    """``--metadata`` JSON: {name: {key: value}} (ValueError naming what is wrong)."""
+    import json
+    if not text:
+        return {}
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f'--metadata is not JSON ({exc})') from None
+    if not isinstance(doc, dict) or not all(isinstance(v, dict) for v in doc.values()):
+        raise ValueError('--metadata must be a JSON object {"name": {"key": "value"}}')
+    return {str(k): {str(kk): str(vv) for kk, vv in v.items()} for k, v in doc.items()}
+
+
 def main(argv=None) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
@@ -375,6 +431,10 @@ def main(argv=None) -> int:
                     help='stop after this many wall-clock seconds')
     ap.add_argument('--continuous', action='store_true',
                     help='keep recording after the run ends (until a signal)')
+    ap.add_argument('--metadata', default=None, metavar='JSON',
+                    help='named metadata records to write into the bag, as JSON '
+                         '{"name": {"key": "value"}} (the scenario runner passes its scenario, '
+                         'versions and git records)')
     ap.add_argument('--lossy', action='store_true',
                     help='do not hold the plant back (the recording may then miss steps; they '
                          'are counted and listed)')
@@ -382,9 +442,10 @@ def main(argv=None) -> int:
     out = a.out or time.strftime('bags/run_%Y%m%d_%H%M%S.mcap')
     try:
         topics = parse_topics(a.topics)
-        writer = BagWriter(out, force=a.force, metadata={
-            'recorder': {'node': 'im_bringup record', 'topics': ' '.join(topics),
-                         'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')}})
+        extra = parse_metadata(a.metadata)
+        writer = BagWriter(out, force=a.force, metadata=dict(extra, recorder={
+            'node': 'im_bringup record', 'topics': ' '.join(topics),
+            'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')}))
     except (FileExistsError, ValueError, OSError) as exc:
         print(f'record: error: {exc}', file=sys.stderr)
         return 2
@@ -413,7 +474,11 @@ def main(argv=None) -> int:
         finally:
             if node is not None:
                 node.flush_unverified()
-                writer.add_metadata('recording', node.close_metadata(stop.requested))
+                writer.declare_expected()       # topics that had no message, while the node lives
+                meta = node.close_metadata(stop.requested)
+                meta['parameters_not_received'] = ' '.join(
+                    sorted(set(node.parameters_asked) - set(node.parameters_written)))
+                writer.add_metadata('recording', meta)
             writer.close()
             if node is not None:
                 n = sum(node.counts.values())

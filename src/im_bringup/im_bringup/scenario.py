@@ -128,6 +128,19 @@ def package_versions() -> dict:
     return out
 
 
+def run_metadata(task: str, strategy: str, controller: str, variation: str,
+                 extra: Optional[dict] = None) -> dict:
+    """The named metadata records of a scenario's recording — ``scenario``, ``versions``,
+    ``git`` (and ``extra``) — as strings: the one source for the in-process bag and for the
+    ``--processes`` recorder (``record --metadata``). ``parameters/<node>`` come from the
+    running nodes (:func:`im_bringup.bag.parameters_metadata`)."""
+    meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
+                         'variation': variation},
+            'versions': package_versions(), 'git': {'revision': git_revision()}}
+    meta.update(extra or {})
+    return {k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()}
+
+
 def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
                  variation: str = 'none', record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,
@@ -139,21 +152,18 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     writer = None
     if record:
         from im_bringup.bag import BagWriter
-        meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
-                             'variation': variation},
-                'versions': package_versions(), 'git': {'revision': git_revision()}}
-        meta.update(metadata or {})
-        writer = BagWriter(record, force=force,
-                           metadata={k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()})
+        writer = BagWriter(record, force=force, metadata=run_metadata(
+            task, strategy, controller, variation, metadata))
     sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
     graph = None
     with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
         try:
             graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
             if writer is not None:      # every parameter of every node, defaults included
+                from im_bringup.bag import parameters_metadata
                 for name, node in graph.nodes.items():
-                    writer.add_metadata(f'parameters/{name}', {
-                        p: repr(node.get_parameter(p).value) for p in sorted(node._parameters)})
+                    writer.add_metadata(f'parameters/{name}', parameters_metadata(
+                        {p: node.get_parameter(p).value for p in node._parameters}))
             if stop.requested:
                 stats = {'steps': 0, 'wall_s': 0.0, 'steps_per_s': float('nan'),
                          'failures': {}, 'ok': True}
@@ -323,7 +333,9 @@ def _run_processes(args, parameters: dict, out: str) -> int:
     procs = graph_processes(args.task, args.strategy, args.controller, T_s=args.T_s,
                             duration=args.duration, mode=parameters['plant'].get('mode',
                                                                                 'lockstep'),
-                            record=args.record, extra=parameters)
+                            record=args.record, extra=parameters,
+                            record_metadata=run_metadata(args.task, args.strategy,
+                                                         args.controller, args.variation))
     for p in procs:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
