@@ -4,7 +4,9 @@ A thin shell around :class:`im_controller.control_law.DriveController`. At step 
 measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the adapter's
 estimates stamped t_k when ``use_adapter``), computes V_k and publishes it stamped t_k. References
 are published every ``reference_decimation`` steps for analysis. Setpoints on ``/im/setpoint``
-(profile ``setpoint``) take effect at the first step at or after their stamp; the topic takes both
+(profile ``setpoint``) take effect at the first step at or after their stamp — a stamp in the past,
+0 included (``ros2 topic pub``'s unset header), means now: the reference moves on from where it is,
+continuous in position and speed; the topic takes both
 a default ``ros2 topic pub`` (volatile) and a transient-local publisher (a setpoint latched before
 the controller started is not lost).
 
@@ -16,6 +18,7 @@ on ``/im/status`` with the step it took effect, so a recording holds it.
 from __future__ import annotations
 
 import sys
+import time
 
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
@@ -71,10 +74,14 @@ class ControllerNode(LockstepNode):
         # volatile: matches every publisher, `ros2 topic pub` included; transient-local: also
         # gets a setpoint latched before the controller came up. A message that arrives on
         # both is applied once.
+        # a message that arrives on both is applied once; the same command sent again later
+        # (`ros2 topic pub` twice: same stamp 0, same value) is a new command
         self._seen_setpoints = []
-        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos(10))
+        self.create_subscription(JointState, T.SETPOINT,
+                                 lambda msg: self.on_setpoint(msg, 'volatile'), data_qos(10))
         self.create_subscription(  # a volatile publisher does not match it: that is expected
-            JointState, T.SETPOINT, self.on_setpoint, status_qos(),
+            JointState, T.SETPOINT, lambda msg: self.on_setpoint(msg, 'transient_local'),
+            status_qos(),
             event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _event: None))
         self._pending_changes = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -112,12 +119,20 @@ class ControllerNode(LockstepNode):
                                + ', '.join(f'{n} = {v!r}' for n, v in changes.items()))
         self.status(PARAMETERS, **{n: repr(v) for n, v in changes.items()})
 
-    def on_setpoint(self, msg: JointState) -> None:
+    def on_setpoint(self, msg: JointState, via: str = 'volatile') -> None:
+        """A setpoint takes effect at the first step at or after its stamp; a stamp in the past
+        (0 included: ``ros2 topic pub`` leaves it unset) means now (:meth:`DriveController.
+        set_setpoint`)."""
         ns = stamp_ns(msg.header.stamp)
         key = (ns, tuple(msg.position), tuple(msg.velocity), tuple(msg.effort))
-        if key in self._seen_setpoints:
+        now = time.monotonic()
+        seen = [s for s in self._seen_setpoints if now - s[2] < 1.0]
+        twin = next((s for s in seen if s[0] == key and s[1] != via), None)
+        if twin is not None:            # the same message through the other subscription
+            seen.remove(twin)
+            self._seen_setpoints = seen
             return
-        self._seen_setpoints = (self._seen_setpoints + [key])[-20:]
+        self._seen_setpoints = (seen + [(key, via, now)])[-20:]
         for kind, field in (('position', msg.position), ('speed', msg.velocity),
                             ('torque', msg.effort)):
             if len(field):
@@ -125,6 +140,11 @@ class ControllerNode(LockstepNode):
                     self.ctl.set_setpoint(kind, float(field[0]), ns / 1e9)
                 except ValueError as exc:
                     self.get_logger().error(f'rejected {T.SETPOINT} stamped {ns / 1e9:.9f} s: {exc}')
+                    return
+                start = max(ns, self.gate.expected)
+                self.get_logger().info(
+                    f'{T.SETPOINT}: {kind} {float(field[0])!r} stamped {ns / 1e9:.9f} s, from the '
+                    f'step at {start / 1e9:.9f} s' + (' (now)' if ns < self.gate.expected else ''))
                 return
         self.get_logger().error(f'rejected {T.SETPOINT}: no position, velocity or effort value')
 
