@@ -186,3 +186,33 @@ def test_the_same_setpoint_sent_twice_is_two_commands_and_one_message_on_both_su
         assert [v for _, v, _ in node.ctl._schedule] == [150.0, 100.0, 150.0, 120.0]
     finally:
         node.destroy_node()
+
+
+def test_a_negative_gain_is_refused_by_name_and_the_default_sentinel_says_what_it_uses(
+        ros_context):
+    """Issue 23: `ros2 param set /controller k_p -0.5` was accepted and logged as -0.5 while the
+    per-mode default ran. Now -0.5 is refused with one line naming k_p (the old value stays in
+    force); -1, the documented sentinel, is accepted and announced with the gain it stands for."""
+    from rclpy.parameter import Parameter
+
+    from im_common import topics as T
+    from im_controller.controller_node import ControllerNode
+    node = ControllerNode(context=ros_context, graph_key=bytes(32),
+                          parameter_overrides=[Parameter('k_p', value=4.0)])
+    said = []
+    node.status = lambda state, *a, **kw: said.append((state, kw))
+    try:
+        for name in ('k_p', 'k_v', 'flux_preview'):
+            res = node.set_parameters([Parameter(name, value=-0.5)])[0]
+            assert not res.successful and res.reason.startswith(f"invalid parameter '{name}' = -0.5")
+            assert '\n' not in res.reason
+        assert node.get_parameter('k_p').value == 4.0 and node._pending_changes is None
+        assert node.set_parameters([Parameter('k_p', value=-1.0)])[0].successful
+        assert node.ctl.config.k_p == 4.0                 # applied at the next step, not before
+        for topic, value in ((T.MEAS_CURRENT, (0.0, 0.0)), (T.MEAS_SHAFT, (0.0, 0.0)),
+                             (T.OBS_FLUX, (0.0, 0.0))):
+            node.ready(node.gate.put(topic, 0, value))
+        assert node.ctl.config.k_p == 10.0                # the position task's default
+        assert ('parameters', {'k_p': '-1.0 (per-mode default: 10.0)'}) in said
+    finally:
+        node.destroy_node()

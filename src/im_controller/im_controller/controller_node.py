@@ -33,7 +33,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
-from im_controller.parameters import (LIVE_PARAMETERS, config_from_parameters,
+from im_controller.parameters import (LIVE_PARAMETERS, SENTINEL_DEFAULTS, config_from_parameters,
                                       declare_controller, live_changes)
 
 
@@ -110,14 +110,19 @@ class ControllerNode(LockstepNode):
     def _apply_changes(self, k: int) -> None:
         changes, self._pending_changes = self._pending_changes, None
         try:
-            self.ctl.reconfigure(live_changes(self._model, self._values, changes, self.T_s))
+            applied = live_changes(self._model, self._values, changes, self.T_s)
+            self.ctl.reconfigure(applied)
         except ValueError as exc:       # validated already; a refusal here is a defect: say so
             self.get_logger().error(f'parameters {changes} not applied at step {k}: {exc}')
             return
         self._values.update(changes)
+        # what is in force: a sentinel (-1) is shown with the value it stands for
+        said = {n: repr(v) if n not in SENTINEL_DEFAULTS or v != -1.0
+                else f'{v!r} ({SENTINEL_DEFAULTS[n]}: {applied[n]!r})'
+                for n, v in changes.items()}
         self.get_logger().info(f'parameters applied at step {k}: '
-                               + ', '.join(f'{n} = {v!r}' for n, v in changes.items()))
-        self.status(PARAMETERS, **{n: repr(v) for n, v in changes.items()})
+                               + ', '.join(f'{n} = {v}' for n, v in said.items()))
+        self.status(PARAMETERS, **said)
 
     def on_setpoint(self, msg: JointState, via: str = 'volatile') -> None:
         """A setpoint takes effect at the first step at or after its stamp; a stamp in the past
