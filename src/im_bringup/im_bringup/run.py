@@ -95,6 +95,8 @@ class Run:
     running: Optional['RunningFigures'] = None
     #: messages stamped before rows already summarized (not in the figures)
     late: int = 0
+    #: the run-protocol events on /im/status that end a node's run (:class:`RunEvents`)
+    events: List[dict] = field(default_factory=list)
 
     @property
     def task(self) -> Optional[str]:
@@ -631,6 +633,35 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
     return out
 
 
+class RunEvents:
+    """The /im/status events that end a node's part of the run — ``finished``, ``stopped``,
+    ``failed`` — as dicts (node, state, t [s], reason, time_master), in recorded order: how the
+    run ended, whoever recorded it (the in-process graph's tap or the recorder node)."""
+
+    ENDS = ('finished', 'stopped', 'failed')
+
+    def __init__(self):
+        self.events: List[dict] = []
+        self.undecodable = 0
+
+    def add(self, data: bytes) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        try:
+            msg, _ = cdr.decode_generic(DiagnosticArray, data)
+        except cdr.CdrError:
+            self.undecodable += 1
+            return
+        stamp = msg['header']['stamp']
+        for st in msg['status']:
+            if st['message'] not in self.ENDS:
+                continue
+            values = {kv['key']: kv['value'] for kv in st['values']}
+            self.events.append({'node': st['name'], 'state': st['message'],
+                                't': stamp['sec'] + stamp['nanosec'] * 1e-9,
+                                'reason': values.get('reason', ''),
+                                'time_master': values.get('time_master') == 'true'})
+
+
 def lockstep_topics() -> Tuple[str, ...]:
     """The topics every control instant must have (``critical`` rows of the topic table)."""
     return tuple(t.name for t in T.TOPICS if t.critical)
@@ -648,12 +679,15 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
         keeper = TraceKeeper(None if trace == 'full' else limit)
         sinks.append(keeper)
     stream = TraceStream(sinks)
+    events = RunEvents()
     for topic, data in messages:
+        if topic == T.STATUS:
+            events.add(data)
         stream.add(topic, data)
     stream.flush(final=True)
     tr = keeper.trace() if keeper is not None else {}
     return Run(str(path), tr, books.final(), metadata, dict(stream.counts), dict(types or {}),
-               running=figs, late=stream.late)
+               running=figs, late=stream.late, events=events.events)
 
 
 def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
@@ -666,7 +700,7 @@ def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
     from .bag import BagError, check_data_crc, info, iter_raw
     bi = info(path)
     check_data_crc(path)
-    wanted = [t for t in bi.topics if t in TRACE_TOPICS]
+    wanted = [t for t in bi.topics if t in TRACE_TOPICS or t == T.STATUS]
     meta = {k: v for k, v in bi.metadata.items() if k != 'rosbag2'}
     try:
         run = stream_run(((topic, data) for topic, _tn, _t, data in iter_raw(path, wanted)),
