@@ -88,3 +88,131 @@ def test_torque_task_follows_an_effort_profile_in_the_graph_and_offline(tmp_path
     assert off.trace['tau_ref'][-1] == pytest.approx(2.0)
     with pytest.raises(ValueError, match='torque task needs a profile'):
         node_parameters('torque')
+
+
+def _message_from_yaml(msg_type, text: str):
+    """The message ``ros2 topic pub TOPIC TYPE 'TEXT'`` publishes: a default-constructed message
+    whose fields named in the YAML are set (rosidl_runtime_py.set_message_fields' rule), every
+    other field left at its default — an unset header stamp is 0 s 0 ns, unset arrays empty."""
+    import yaml
+    msg = msg_type()
+    for name, value in yaml.safe_load(text).items():
+        setattr(msg, name, value)
+    return msg
+
+
+def test_a_setpoint_sent_the_readme_way_moves_the_reference_from_where_it_is():
+    """Issue 23: the README's ``ros2 topic pub --once /im/setpoint sensor_msgs/msg/JointState
+    '{name: [rotor], velocity: [150.0]}'`` (stamp 0, "now") sent at t = 0.6 s, long after the
+    start: θ*, ω* continue from where they are (no rebuilt past), ω* takes the quintic's
+    setpoint_duration to 150 with its peak acceleration 1.875·Δω/T, τ* stays within the torque
+    that acceleration needs (far under the torque limit) and the shaft does not overshoot."""
+    import rclpy.node
+    from sensor_msgs.msg import JointState
+
+    from im_bringup.graph import DriveGraph
+    from im_common import topics as T
+    from im_common.conversions import stamp_ns
+    from im_common.params import THESIS_MOTOR
+
+    t_send, duration, T_s = 0.6, 0.5, 1e-4
+    params = node_parameters('speed', 'min_loss', duration=t_send + duration + 0.2)
+    params['controller'].update(profile='setpoint', setpoint_duration=duration,
+                                torque_limit=20.0)
+    msg = _message_from_yaml(JointState, '{name: [rotor], velocity: [150.0]}')
+    assert stamp_ns(msg.header.stamp) == 0 and list(msg.position) == [] and list(msg.effort) == []
+    rows, sent = [], []
+    graph = DriveGraph(params)
+    try:
+        user = rclpy.node.Node('user', context=graph.context)
+        pub = user.create_publisher(JointState, T.SETPOINT, 10)    # ros2 topic pub's default QoS
+        graph.executor.add_node(user)
+        node = graph.nodes['controller']
+        step = node.step
+
+        def recorded_step(inputs):
+            step(inputs)
+            r = node.ctl.reference
+            rows.append((r['t'], r['theta_ref'], r['omega_ref'], r['tau_ref'],
+                         inputs[T.MEAS_SHAFT][1]))
+            if not sent and r['t'] >= t_send:
+                pub.publish(msg)
+                sent.append(r['t'])
+        node.step = recorded_step
+        stats = graph.run()
+        user.destroy_node()
+    finally:
+        graph.close()
+    assert stats['ok'], stats['failures']
+    t, theta, omega, tau, omega_r = np.array(rows).T
+    assert np.all(np.diff(t) == pytest.approx(T_s, rel=1e-9))
+    start = int(np.argmax(omega > 135.0 + 1e-9))      # the first step the setpoint moved ω*
+    assert start > 0 and t[start] > sent[0], 'applied from now, not from its stamp 0'
+    a_max = 1.875 * (150.0 - 135.0) / duration         # peak acceleration of the quintic
+    # continuous: ω* moves at most a_max·T_s a step; θ* advances by ω*·T_s (no jump)
+    assert np.max(np.abs(np.diff(omega))) <= a_max * T_s * 1.001
+    assert np.max(np.abs(np.diff(theta) - omega[1:] * T_s)) < a_max * T_s * T_s
+    # the whole transition takes setpoint_duration (not cut short by a rebuilt past)
+    end = int(np.argmax(omega >= 150.0 - 1e-9))
+    assert t[end] - t[start] == pytest.approx(duration, abs=2 * T_s)
+    # τ*: the torque it held before plus what the acceleration, friction and the speed-dependent
+    # load need on the way (the PD's share is small); the torque limit never binds
+    m, c2 = THESIS_MOTOR, params['plant']['load_c2']
+    assert np.max(np.abs(tau)) < 1.05 * (tau[start - 1] + m.J * a_max + (m.b + c2) * 15.0) < 20.0
+    assert np.max(np.abs(np.diff(tau))) < 0.01
+    assert np.max(omega_r) < 150.0 + 0.05 and omega_r[-1] == pytest.approx(150.0, abs=0.01)
+
+
+def test_the_same_setpoint_sent_twice_is_two_commands_and_one_message_on_both_subscriptions_one(
+        ros_context):
+    """`ros2 topic pub` 150, then 100, then 150 again: three commands (same stamp 0, same
+    value as the first is no reason to drop the third); a transient-local publisher's message,
+    delivered on both of the controller's subscriptions, is one command."""
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+
+    from im_common import topics as T
+    from im_controller.controller_node import ControllerNode
+    node = ControllerNode(context=ros_context, graph_key=bytes(32), parameter_overrides=[
+        Parameter('mode', value='speed'), Parameter('profile', value='setpoint')])
+    try:
+        volatile, latched = [s for s in node.subscriptions if s.topic_name == T.SETPOINT]
+        for value in (150.0, 100.0, 150.0):
+            volatile.callback(_message_from_yaml(JointState, f'{{velocity: [{value}]}}'))
+        assert [v for _, v, _ in node.ctl._schedule] == [150.0, 100.0, 150.0]
+        msg = _message_from_yaml(JointState, '{velocity: [120.0]}')
+        latched.callback(msg)
+        volatile.callback(msg)
+        assert [v for _, v, _ in node.ctl._schedule] == [150.0, 100.0, 150.0, 120.0]
+    finally:
+        node.destroy_node()
+
+
+def test_a_negative_gain_is_refused_by_name_and_the_default_sentinel_says_what_it_uses(
+        ros_context):
+    """Issue 23: `ros2 param set /controller k_p -0.5` was accepted and logged as -0.5 while the
+    per-mode default ran. Now -0.5 is refused with one line naming k_p (the old value stays in
+    force); -1, the documented sentinel, is accepted and announced with the gain it stands for."""
+    from rclpy.parameter import Parameter
+
+    from im_common import topics as T
+    from im_controller.controller_node import ControllerNode
+    node = ControllerNode(context=ros_context, graph_key=bytes(32),
+                          parameter_overrides=[Parameter('k_p', value=4.0)])
+    said = []
+    node.status = lambda state, *a, **kw: said.append((state, kw))
+    try:
+        for name in ('k_p', 'k_v', 'flux_preview'):
+            res = node.set_parameters([Parameter(name, value=-0.5)])[0]
+            assert not res.successful and res.reason.startswith(f"invalid parameter '{name}' = -0.5")
+            assert '\n' not in res.reason
+        assert node.get_parameter('k_p').value == 4.0 and node._pending_changes is None
+        assert node.set_parameters([Parameter('k_p', value=-1.0)])[0].successful
+        assert node.ctl.config.k_p == 4.0                 # applied at the next step, not before
+        for topic, value in ((T.MEAS_CURRENT, (0.0, 0.0)), (T.MEAS_SHAFT, (0.0, 0.0)),
+                             (T.OBS_FLUX, (0.0, 0.0))):
+            node.ready(node.gate.put(topic, 0, value))
+        assert node.ctl.config.k_p == 10.0                # the position task's default
+        assert ('parameters', {'k_p': '-1.0 (per-mode default: 10.0)'}) in said
+    finally:
+        node.destroy_node()

@@ -182,3 +182,54 @@ def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch
     gaps = streamed.running.gaps()
     assert gaps == {'/im/command/voltage': {'missing': 10, 'ranges': [(0.1, 0.1009)]},
                     '/im/observer/flux': {'missing': 1, 'ranges': [(0.0, 0.0)]}}
+
+
+def _status(node: str, state: str, t_ns: int, **values) -> bytes:
+    """A run-protocol event as the nodes publish it on /im/status."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from rclpy.serialization import serialize_message
+    msg = DiagnosticArray()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, 1_000_000_000)
+    msg.status = [DiagnosticStatus(name=node, message=state, values=[
+        KeyValue(key=k, value=str(v)) for k, v in values.items()])]
+    return serialize_message(msg)
+
+
+def _recorder_bag(path, end_state: str, reason: str, steps: int = 76, T_s: float = 0.01):
+    """What the recorder node writes for a multi-process run: the lock-step topics, the nodes'
+    events on /im/status and its ``recording`` metadata — no scenario parameters (so no duration
+    to count steps against)."""
+    from im_common import topics as T
+    w = BagWriter(path)
+    dt = int(round(T_s * 1e9))
+    w.write_serialized(T.STATUS, _status('plant', 'running', 0, time_master='true'), 0)
+    for k in range(steps + 1):
+        w.write_vector3(T.MEAS_CURRENT, k * dt, 1.0, 0.0)
+        w.write_joint_state(T.MEAS_SHAFT, k * dt, ('rotor',), (0.0,), (1.0,))
+        w.write_vector3(T.CMD_VOLTAGE, k * dt, 10.0, 0.0)
+    w.write_serialized(T.STATUS, _status('plant', end_state, steps * dt, time_master='true',
+                                         reason=reason), steps * dt)
+    w.add_metadata('recording', {'run_end': f'{end_state} ({reason})', 'interrupted': '',
+                                 'missing_steps': '0'})
+    w.close()
+
+
+@pytest.mark.parametrize('state', ['failed', 'stopped'])
+def test_a_run_that_ended_before_its_duration_is_partial_with_the_reason(tmp_path, state):
+    """Issue 23: a multi-process run whose plant exited 1 at 0.76 s of 10 s was reported
+    `partial: false` with no incomplete-runs section. A failed or stopped end (the nodes' own
+    /im/status events, the recorder's run_end) makes it partial, and the report says why."""
+    reason = 'protection trip at t = 0.760000000 s: |i_s| = 61.2 A above current_trip 60 A'
+    bag = tmp_path / 'failed.mcap'
+    _recorder_bag(bag, state, reason)
+    res = write_report([bag], tmp_path / 'rep', plots=False)
+    st = res['runs'][0]['status']
+    assert st['partial'] is True
+    assert st['ended'][0]['node'] == 'plant' and st['ended'][0]['t'] == pytest.approx(0.76)
+    md = (tmp_path / 'rep' / 'report.md').read_text()
+    assert '## Incomplete runs' in md and f'plant {state} at t = 0.760000 s: {reason}' in md
+    # a finished run of the same shape is whole
+    ok = tmp_path / 'ok.mcap'
+    _recorder_bag(ok, 'finished', 'duration reached')
+    st = write_report([ok], tmp_path / 'rep_ok', plots=False)['runs'][0]['status']
+    assert st['partial'] is False and st['notes'] == []

@@ -101,16 +101,29 @@ def figures_of_merit(run) -> Dict[str, float]:
 
 def run_status(run, fig: Dict[str, float]) -> dict:
     """Whether a recording holds the whole run: ``interrupted`` (stopped by a signal),
-    ``partial`` (recovered from a damaged file, or fewer control steps than its duration asks),
-    ``gaps`` (lock-step topics without a message at some control instants, with the ranges),
-    and one human-readable note per finding in ``notes``."""
+    ``partial`` (the run ended before its duration — a node failed or stopped it, a signal
+    interrupted it, the recorder did not see it finish — or the file was recovered from a damaged
+    one, or holds fewer control steps than its duration asks), ``ended`` (the failed/stopped
+    events, with their reasons), ``gaps`` (lock-step topics without a message at some control
+    instants, with the ranges), and one human-readable note per finding in ``notes``."""
     md = run.metadata
     notes: List[str] = []
-    st: dict = {'interrupted': None, 'partial': False, 'gaps': {}, 'notes': notes}
+    st: dict = {'interrupted': None, 'partial': False, 'ended': [], 'gaps': {}, 'notes': notes}
     if 'interrupted' in md:
         st['interrupted'] = md['interrupted'].get('signal', 'yes')
+        st['partial'] = True
         notes.append(f"interrupted by {st['interrupted']} after "
                      f"{md['interrupted'].get('steps', '?')} steps")
+    for e in run.events:
+        if e['state'] in ('failed', 'stopped'):
+            st['partial'] = True
+            st['ended'].append(e)
+            notes.append(f"{e['node']} {e['state']} at t = {e['t']:.6f} s"
+                         + (f": {e['reason']}" if e['reason'] else ''))
+    run_end = md.get('recording', {}).get('run_end')
+    if run_end and not run_end.startswith('finished') and not st['ended']:
+        st['partial'] = True          # the recorder saw no normal end (and no failed event)
+        notes.append(f'run end: {run_end}')
     rec = md.get('recovered_from')
     if rec:
         st['partial'] = True

@@ -11,6 +11,9 @@ trace key                        source (``im_common.topics``)
 t [s], t_ns [ns]                 stamps of /im/measured/current (else /im/measured/shaft, ...)
 i_alpha, i_beta                  /im/measured/current
 theta_r, omega_r                 /im/measured/shaft position, velocity
+theta_true, omega_true           /im/truth/shaft position, velocity (no measurement noise)
+V_max, i_max                     /im/truth/peaks (largest |V_s|, |i_s| of every step since the
+                                 previous sample)
 theta_ref, omega_ref, tau_ref    /im/reference/shaft position, velocity, effort
 v_cmd_alpha, v_cmd_beta          /im/command/voltage
 v_alpha, v_beta                  /im/truth/voltage (applied; the command if not recorded)
@@ -62,6 +65,7 @@ V3_KEYS: Dict[str, Tuple[Optional[str], Optional[str], Optional[str]]] = {
 JS_FIELDS = {
     T.MEAS_SHAFT: ('theta_r', 'omega_r', None),
     T.REF_SHAFT: ('theta_ref', 'omega_ref', 'tau_ref'),
+    T.TRUTH_SHAFT: ('theta_true', 'omega_true', None),
 }
 # JointState topics carrying named values in position: topic -> key suffix
 JS_NAMED = {
@@ -69,6 +73,7 @@ JS_NAMED = {
     T.TRUTH_PARAMS: '',
     T.TRUTH_POWER: '',
     T.TRUTH_ENERGY: '',
+    T.TRUTH_PEAKS: '',
 }
 TRACE_TOPICS = frozenset(V3_KEYS) | frozenset(JS_FIELDS) | frozenset(JS_NAMED)
 MASTER_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.TRUTH_ENERGY,
@@ -95,6 +100,8 @@ class Run:
     running: Optional['RunningFigures'] = None
     #: messages stamped before rows already summarized (not in the figures)
     late: int = 0
+    #: the run-protocol events on /im/status that end a node's run (:class:`RunEvents`)
+    events: List[dict] = field(default_factory=list)
 
     @property
     def task(self) -> Optional[str]:
@@ -411,10 +418,17 @@ def _norm(a):
     return lambda tr: np.hypot(tr[a + '_alpha'], tr[a + '_beta'])
 
 
-# (max figure, RMS figure or None, keys that must be in the trace, signal): the definitions of
-# im_common.metrics.tracking_figures, as running maxima and sums of squares
+# (figure, RMS figure or None, keys that must be in the trace, signal): the definitions of
+# im_common.metrics.tracking_figures, as running maxima and sums of squares. A figure with
+# several rows takes the first whose keys the run recorded: tracking errors from the true shaft
+# (/im/truth/shaft) and peaks from every step (/im/truth/peaks); recordings made before those
+# topics existed, from the measurement and the sampled voltage.
 TRACKING = (
+    ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_true'),
+     _diff('theta_true', 'theta_ref')),
     ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_r'), _diff('theta_r', 'theta_ref')),
+    ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_true'),
+     _diff('omega_true', 'omega_ref')),
     ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_r'),
      _diff('omega_r', 'omega_ref')),
     ('torque_err_max_Nm', 'torque_err_rms_Nm', ('tau_ref', 'tau_m'), _diff('tau_m', 'tau_ref')),
@@ -422,8 +436,10 @@ TRACKING = (
      _norm_diff('phi_r', 'phi_ref')),
     ('flux_est_err_max_Wb', 'flux_est_err_rms_Wb', ('phi_hat_alpha', 'phi_r_alpha'),
      _norm_diff('phi_r', 'phi_hat')),
+    ('V_max_V', None, ('V_max',), lambda tr: tr['V_max']),
     ('V_max_V', None, ('v_alpha',), _norm('v')),
-    ('V_cmd_max', None, ('v_cmd_alpha',), _norm('v_cmd')),
+    ('V_max_V', None, ('v_cmd_alpha',), _norm('v_cmd')),
+    ('i_max_A', None, ('i_max',), lambda tr: tr['i_max']),
     ('i_max_A', None, ('i_alpha',), _norm('i')),
 )
 ESTIMATED = ('R_r', 'theta', 'L_M', 'R_R')
@@ -458,7 +474,7 @@ class RunningFigures:
     def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20):
         self.window = float(last_window)
         self.seen: set = set()
-        self.acc = {f[0]: _Acc() for f in TRACKING}
+        self.acc = {f[2]: _Acc() for f in TRACKING}         # by the keys they need
         self.est = {n: _Acc() for n in ESTIMATED}
         self.est_last: Dict[str, tuple] = {}
         self.est_win: Dict[str, List[np.ndarray]] = {n: [] for n in ESTIMATED}
@@ -485,9 +501,9 @@ class RunningFigures:
         self.steps += len(t)
         nan = np.full(len(t), np.nan)
         full = {k: (np.asarray(tr[k], float) if k in tr else nan) for k in _SIGNAL_KEYS}
-        for mx_name, _rms, keys, fn in TRACKING:
+        for _mx, _rms, keys, fn in TRACKING:
             if all(k in tr for k in keys):
-                self.acc[mx_name].add(fn(full))
+                self.acc[keys].add(fn(full))
         for n in ESTIMATED:
             if n + '_hat' in tr and n in tr:
                 self._estimate(n, t, np.asarray(tr[n + '_hat'], float), np.asarray(tr[n], float))
@@ -541,14 +557,9 @@ class RunningFigures:
     def tracking(self, task: Optional[str]) -> Dict[str, float]:
         out: Dict[str, float] = {}
         for mx_name, rms_name, keys, _fn in TRACKING:
-            if mx_name == 'V_cmd_max':
-                continue
-            have = all(k in self.seen for k in keys)
-            acc = self.acc[mx_name]
-            if mx_name == 'V_max_V' and not have and 'v_cmd_alpha' in self.seen:
-                have, acc = True, self.acc['V_cmd_max']     # no applied voltage: the command
-            if not have:
-                continue
+            if mx_name in out or not all(k in self.seen for k in keys):
+                continue            # an earlier row of this figure, or not recorded
+            acc = self.acc[keys]
             position_only = mx_name.startswith('pos_') and task not in (None, 'position')
             out[mx_name] = float('nan') if position_only else acc.max()
             if rms_name:
@@ -631,6 +642,35 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
     return out
 
 
+class RunEvents:
+    """The /im/status events that end a node's part of the run — ``finished``, ``stopped``,
+    ``failed`` — as dicts (node, state, t [s], reason, time_master), in recorded order: how the
+    run ended, whoever recorded it (the in-process graph's tap or the recorder node)."""
+
+    ENDS = ('finished', 'stopped', 'failed')
+
+    def __init__(self):
+        self.events: List[dict] = []
+        self.undecodable = 0
+
+    def add(self, data: bytes) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        try:
+            msg, _ = cdr.decode_generic(DiagnosticArray, data)
+        except cdr.CdrError:
+            self.undecodable += 1
+            return
+        stamp = msg['header']['stamp']
+        for st in msg['status']:
+            if st['message'] not in self.ENDS:
+                continue
+            values = {kv['key']: kv['value'] for kv in st['values']}
+            self.events.append({'node': st['name'], 'state': st['message'],
+                                't': stamp['sec'] + stamp['nanosec'] * 1e-9,
+                                'reason': values.get('reason', ''),
+                                'time_master': values.get('time_master') == 'true'})
+
+
 def lockstep_topics() -> Tuple[str, ...]:
     """The topics every control instant must have (``critical`` rows of the topic table)."""
     return tuple(t.name for t in T.TOPICS if t.critical)
@@ -648,12 +688,15 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
         keeper = TraceKeeper(None if trace == 'full' else limit)
         sinks.append(keeper)
     stream = TraceStream(sinks)
+    events = RunEvents()
     for topic, data in messages:
+        if topic == T.STATUS:
+            events.add(data)
         stream.add(topic, data)
     stream.flush(final=True)
     tr = keeper.trace() if keeper is not None else {}
     return Run(str(path), tr, books.final(), metadata, dict(stream.counts), dict(types or {}),
-               running=figs, late=stream.late)
+               running=figs, late=stream.late, events=events.events)
 
 
 def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
@@ -666,7 +709,7 @@ def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
     from .bag import BagError, check_data_crc, info, iter_raw
     bi = info(path)
     check_data_crc(path)
-    wanted = [t for t in bi.topics if t in TRACE_TOPICS]
+    wanted = [t for t in bi.topics if t in TRACE_TOPICS or t == T.STATUS]
     meta = {k: v for k, v in bi.metadata.items() if k != 'rosbag2'}
     try:
         run = stream_run(((topic, data) for topic, _tn, _t, data in iter_raw(path, wanted)),

@@ -8,6 +8,10 @@ has no value — are left out of each figure):
     t, theta_r, omega_r, theta_ref, omega_ref, tau_m, tau_ref, v_alpha, v_beta, i_alpha, i_beta,
     phi_r_alpha, phi_r_beta, phi_ref_alpha, phi_ref_beta (optional),
     phi_hat_alpha, phi_hat_beta (optional)
+    theta_true, omega_true (optional: the true shaft; when present the tracking errors use it
+    instead of the measured theta_r, omega_r, which may carry measurement noise)
+    V_max, i_max (optional: the plant's peaks over every step since the previous sample; when
+    present the peaks use them instead of the sampled v, i)
 
 Energies come from the plant's integrated books (``truth`` dict at the final instant, see
 :func:`im_common.plant_sim.energy_summary`), not from re-integrating sampled powers.
@@ -40,16 +44,18 @@ def _rms(x) -> float:
 def tracking_figures(trace: Mapping[str, np.ndarray], task: Optional[str] = None) -> dict:
     """Max/RMS tracking errors and peaks. ``task`` is 'position', 'speed' or 'torque'."""
     out = {}
-    if 'theta_ref' in trace and 'theta_r' in trace:
-        e = np.asarray(trace['theta_r']) - np.asarray(trace['theta_ref'])
+    theta = 'theta_true' if 'theta_true' in trace else 'theta_r'
+    omega = 'omega_true' if 'omega_true' in trace else 'omega_r'
+    if 'theta_ref' in trace and theta in trace:
+        e = np.asarray(trace[theta]) - np.asarray(trace['theta_ref'])
         if task in (None, 'position'):
             out['pos_err_max_rad'] = _maxabs(e)
             out['pos_err_rms_rad'] = _rms(e)
         else:
             out['pos_err_max_rad'] = float('nan')
             out['pos_err_rms_rad'] = float('nan')
-    if 'omega_ref' in trace and 'omega_r' in trace:
-        e = np.asarray(trace['omega_r']) - np.asarray(trace['omega_ref'])
+    if 'omega_ref' in trace and omega in trace:
+        e = np.asarray(trace[omega]) - np.asarray(trace['omega_ref'])
         out['speed_err_max_rad_s'] = _maxabs(e)
         out['speed_err_rms_rad_s'] = _rms(e)
     if 'tau_ref' in trace and 'tau_m' in trace:
@@ -66,9 +72,13 @@ def tracking_figures(trace: Mapping[str, np.ndarray], task: Optional[str] = None
                      np.asarray(trace['phi_r_beta']) - np.asarray(trace['phi_hat_beta']))
         out['flux_est_err_max_Wb'] = _maxabs(e)
         out['flux_est_err_rms_Wb'] = _rms(e)
-    if 'v_alpha' in trace:
+    if 'V_max' in trace:
+        out['V_max_V'] = _maxabs(trace['V_max'])
+    elif 'v_alpha' in trace:
         out['V_max_V'] = _maxabs(np.hypot(trace['v_alpha'], trace['v_beta']))
-    if 'i_alpha' in trace:
+    if 'i_max' in trace:
+        out['i_max_A'] = _maxabs(trace['i_max'])
+    elif 'i_alpha' in trace:
         out['i_max_A'] = _maxabs(np.hypot(trace['i_alpha'], trace['i_beta']))
     return out
 

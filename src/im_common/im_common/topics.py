@@ -38,6 +38,8 @@ TRUTH_TORQUE = '/im/truth/torque'
 TRUTH_PARAMS = '/im/truth/parameters'
 TRUTH_POWER = '/im/truth/power'
 TRUTH_ENERGY = '/im/truth/energy'
+TRUTH_SHAFT = '/im/truth/shaft'
+TRUTH_PEAKS = '/im/truth/peaks'
 REEST_FLUX = '/im/reestimate/observer/flux'          # replay --reestimate (not a graph topic)
 REEST_CURRENT = '/im/reestimate/observer/current'
 STATUS = '/im/status'
@@ -57,6 +59,9 @@ PARAM_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 POWER_NAMES = ('P_in', 'P_cu_s', 'P_cu_r', 'P_core', 'P_friction', 'P_load', 'P_param')
 ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
                 'W_mag', 'E_kin')
+# /im/truth/peaks: the largest |V_s| applied and true |i_s| over every step since the previous
+# sample (the figures of merit take their peaks from every step, not from the samples)
+PEAK_NAMES = ('V_max', 'i_max')
 
 TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(CLOCK, CLK, 'plant', 'simulated time (every clock_decimation steps, and the last)'),
@@ -84,6 +89,12 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     TopicSpec(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
     TopicSpec(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
+    TopicSpec(TRUTH_SHAFT, JS, 'plant',
+              "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
+              "(without measurement noise)"),
+    TopicSpec(TRUTH_PEAKS, JS, 'plant',
+              f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
+              'current magnitudes over every step since the previous sample'),
     TopicSpec(STATUS, DIAG, 'every node',
               'run protocol: one status per event (waiting, ready, running, parameters, finished, '
               'stopping, stopped, failed); name = node, message = state, values = details; '

@@ -31,6 +31,7 @@ Everything per call is scalar Python.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Optional
@@ -328,7 +329,6 @@ class DriveController:
         self._limited = False
         self._traj = None
         self._torque_sp = None
-        self._pending_setpoint = None
         self._schedule = list(cfg.setpoints)
         self.reference = {}
         if cfg.profile == 'thesis':
@@ -355,8 +355,14 @@ class DriveController:
         return self._c
 
     def set_setpoint(self, kind: str, value: float, t: float, duration: float | None = None) -> None:
-        """New setpoint ('position' rad | 'speed' rad/s | 'torque' N·m) reached smoothly from t
-        (quintic over ``duration``, default ``setpoint_duration``; torque over a tenth of it)."""
+        """New setpoint ('position' rad | 'speed' rad/s | 'torque' N·m) reached smoothly
+        (quintic over ``duration``, default ``setpoint_duration``; torque over a tenth of it),
+        taking effect at the first step at or after its stamp ``t``.
+
+        A stamp at or before the last computed step (0 included: ``ros2 topic pub`` leaves the
+        header unset) means *now*: the transition starts at the next step from where the reference
+        is then, so θ*, ω* (and a*) stay continuous — the past is never rebuilt. A future stamp
+        waits in the schedule; the reference keeps moving as it was until then."""
         cfg = self.config
         if cfg.profile != 'setpoint':
             raise ValueError("set_setpoint needs profile 'setpoint' (the thesis profile is fixed)")
@@ -364,14 +370,19 @@ class DriveController:
             raise ValueError(f"setpoint kind {kind!r} does not match the controller mode {cfg.mode!r}")
         value = _real('value', value)
         t = _real('t', t)
-        if self._t_prev is None:
-            # not started yet: initialize at the first compute, then apply
-            self._pending_setpoint = (value, t, duration)
-            return
-        if kind == 'torque':
-            self._torque_sp.set(value, t, duration or 0.1 * cfg.setpoint_duration)
+        # in stamp order; equal stamps in arrival order (insort_right)
+        bisect.insort(self._schedule, (t, value, duration), key=lambda s: s[0])
+
+    def _start_transition(self, value: float, t_i: float, duration: float | None, t: float) -> None:
+        """Start the transition of a setpoint stamped t_i at the step t (t_i <= t). Stamped after
+        the last computed step (within this period), it starts at its stamp — joining the
+        reference C² there; stamped at or before it (the past), it starts now, at t."""
+        cfg = self.config
+        start = t_i if t_i > self._t_prev else t
+        if cfg.mode == 'torque':
+            self._torque_sp.set(value, start, duration or 0.1 * cfg.setpoint_duration)
         else:
-            self._traj.set(value, t, duration or cfg.setpoint_duration)
+            self._traj.set(value, start, duration or cfg.setpoint_duration)
 
     def _set_estimates(self, estimates) -> None:
         """Adapted estimates: the inverse-Γ set when it carries ``L_sigma`` (the improved law,
@@ -397,18 +408,16 @@ class DriveController:
         mag = math.hypot(phi_a, phi_b)
         self._flux.reset(mag)
         self._rho = math.atan2(phi_b, phi_a) if mag > 1e-9 else 0.0
-        pending = self._pending_setpoint
         self._t_prev = t
-        if pending is not None:
-            self._pending_setpoint = None
-            self.set_setpoint(cfg.mode, pending[0], max(pending[1], t), pending[2])
 
     def _apply_schedule(self, t: float) -> None:
-        """Setpoints of the configured profile whose time has come (in order)."""
+        """Setpoints (the configured profile's and ``set_setpoint``'s) whose time has come, in
+        stamp order. Called at step t before ``_t_prev`` moves on (the first step: after
+        ``_init_run``, with ``_t_prev`` = t)."""
         sched = self._schedule
         while sched and sched[0][0] <= t:
             t_i, value, duration = sched.pop(0)
-            self.set_setpoint(self.config.mode, value, t_i, duration)
+            self._start_transition(value, t_i, duration, t)
 
     def _path_torque(self, t: float, c: ModelCoefficients) -> float:
         """Torque needed to follow the reference exactly at time t (feedforward + load model)."""

@@ -4,7 +4,9 @@ A thin shell around :class:`im_controller.control_law.DriveController`. At step 
 measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the adapter's
 estimates stamped t_k when ``use_adapter``), computes V_k and publishes it stamped t_k. References
 are published every ``reference_decimation`` steps for analysis. Setpoints on ``/im/setpoint``
-(profile ``setpoint``) take effect at the first step at or after their stamp; the topic takes both
+(profile ``setpoint``) take effect at the first step at or after their stamp — a stamp in the past,
+0 included (``ros2 topic pub``'s unset header), means now: the reference moves on from where it is,
+continuous in position and speed; the topic takes both
 a default ``ros2 topic pub`` (volatile) and a transient-local publisher (a setpoint latched before
 the controller started is not lost).
 
@@ -16,6 +18,7 @@ on ``/im/status`` with the step it took effect, so a recording holds it.
 from __future__ import annotations
 
 import sys
+import time
 
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
@@ -30,7 +33,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
-from im_controller.parameters import (LIVE_PARAMETERS, config_from_parameters,
+from im_controller.parameters import (LIVE_PARAMETERS, SENTINEL_DEFAULTS, config_from_parameters,
                                       declare_controller, live_changes)
 
 
@@ -71,10 +74,14 @@ class ControllerNode(LockstepNode):
         # volatile: matches every publisher, `ros2 topic pub` included; transient-local: also
         # gets a setpoint latched before the controller came up. A message that arrives on
         # both is applied once.
+        # a message that arrives on both is applied once; the same command sent again later
+        # (`ros2 topic pub` twice: same stamp 0, same value) is a new command
         self._seen_setpoints = []
-        self.create_subscription(JointState, T.SETPOINT, self.on_setpoint, data_qos(10))
+        self.create_subscription(JointState, T.SETPOINT,
+                                 lambda msg: self.on_setpoint(msg, 'volatile'), data_qos(10))
         self.create_subscription(  # a volatile publisher does not match it: that is expected
-            JointState, T.SETPOINT, self.on_setpoint, status_qos(),
+            JointState, T.SETPOINT, lambda msg: self.on_setpoint(msg, 'transient_local'),
+            status_qos(),
             event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _event: None))
         self._pending_changes = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -103,21 +110,34 @@ class ControllerNode(LockstepNode):
     def _apply_changes(self, k: int) -> None:
         changes, self._pending_changes = self._pending_changes, None
         try:
-            self.ctl.reconfigure(live_changes(self._model, self._values, changes, self.T_s))
+            applied = live_changes(self._model, self._values, changes, self.T_s)
+            self.ctl.reconfigure(applied)
         except ValueError as exc:       # validated already; a refusal here is a defect: say so
             self.get_logger().error(f'parameters {changes} not applied at step {k}: {exc}')
             return
         self._values.update(changes)
+        # what is in force: a sentinel (-1) is shown with the value it stands for
+        said = {n: repr(v) if n not in SENTINEL_DEFAULTS or v != -1.0
+                else f'{v!r} ({SENTINEL_DEFAULTS[n]}: {applied[n]!r})'
+                for n, v in changes.items()}
         self.get_logger().info(f'parameters applied at step {k}: '
-                               + ', '.join(f'{n} = {v!r}' for n, v in changes.items()))
-        self.status(PARAMETERS, **{n: repr(v) for n, v in changes.items()})
+                               + ', '.join(f'{n} = {v}' for n, v in said.items()))
+        self.status(PARAMETERS, **said)
 
-    def on_setpoint(self, msg: JointState) -> None:
+    def on_setpoint(self, msg: JointState, via: str = 'volatile') -> None:
+        """A setpoint takes effect at the first step at or after its stamp; a stamp in the past
+        (0 included: ``ros2 topic pub`` leaves it unset) means now (:meth:`DriveController.
+        set_setpoint`)."""
         ns = stamp_ns(msg.header.stamp)
         key = (ns, tuple(msg.position), tuple(msg.velocity), tuple(msg.effort))
-        if key in self._seen_setpoints:
+        now = time.monotonic()
+        seen = [s for s in self._seen_setpoints if now - s[2] < 1.0]
+        twin = next((s for s in seen if s[0] == key and s[1] != via), None)
+        if twin is not None:            # the same message through the other subscription
+            seen.remove(twin)
+            self._seen_setpoints = seen
             return
-        self._seen_setpoints = (self._seen_setpoints + [key])[-20:]
+        self._seen_setpoints = (seen + [(key, via, now)])[-20:]
         for kind, field in (('position', msg.position), ('speed', msg.velocity),
                             ('torque', msg.effort)):
             if len(field):
@@ -125,6 +145,11 @@ class ControllerNode(LockstepNode):
                     self.ctl.set_setpoint(kind, float(field[0]), ns / 1e9)
                 except ValueError as exc:
                     self.get_logger().error(f'rejected {T.SETPOINT} stamped {ns / 1e9:.9f} s: {exc}')
+                    return
+                start = max(ns, self.gate.expected)
+                self.get_logger().info(
+                    f'{T.SETPOINT}: {kind} {float(field[0])!r} stamped {ns / 1e9:.9f} s, from the '
+                    f'step at {start / 1e9:.9f} s' + (' (now)' if ns < self.gate.expected else ''))
                 return
         self.get_logger().error(f'rejected {T.SETPOINT}: no position, velocity or effort value')
 

@@ -17,6 +17,11 @@ from .profiles import from_parameters as setpoints_from_parameters
 # motor model, period, load model, setpoints) are read-only.
 LIVE_PARAMETERS = LIVE_FIELDS
 
+# Parameters whose -1 (exactly) stands for a default the configuration chooses; any other
+# negative value is refused by name, never quietly read as the sentinel.
+SENTINEL_DEFAULTS = {'k_p': 'per-mode default', 'k_v': 'per-mode default',
+                     'flux_preview': 'strategy default'}
+
 
 def declare_controller(node) -> dict:
     """Declare the controller's parameters on ``node``; return their values by name (the
@@ -96,9 +101,12 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
         v['current_gain'] = [gain[0:2], gain[2:4]]
     elif gain != [0.0]:
         raise ValueError(f"invalid parameter 'current_gain' = {gain!r}: 4 numbers (row-major 2x2)")
-    for key in ('k_p', 'k_v', 'flux_preview'):
-        if v[key] < 0:
+    for key in SENTINEL_DEFAULTS:
+        if v[key] == -1.0:
             v[key] = None
+        elif v[key] < 0:
+            raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
+                             f"the {SENTINEL_DEFAULTS[key]}")
     for key in ('v_limit', 'torque_limit', 'current_limit', 'speed_limit'):
         v[key] = v[key] or None
     v['setpoints'] = setpoints_from_parameters(v['setpoints'])

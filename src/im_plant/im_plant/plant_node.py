@@ -91,7 +91,12 @@ class PlantNode(LockstepNode):
             'params': self.create_publisher(*_js(), T.TRUTH_PARAMS, dq),
             'power': self.create_publisher(*_js(), T.TRUTH_POWER, dq),
             'energy': self.create_publisher(*_js(), T.TRUTH_ENERGY, dq),
+            'shaft': self.create_publisher(*_js(), T.TRUTH_SHAFT, dq),
+            'peaks': self.create_publisher(*_js(), T.TRUTH_PEAKS, dq),
         }
+        self.out_tshaft = JointStateOut([T.SHAFT_JOINT])
+        self.out_peaks = JointStateOut(T.PEAK_NAMES)
+        self._peak_v = self._peak_i = 0.0       # since the last truth sample, every step
         self.out_current = Vector3Out(Signer.frame('alphabeta'))
         self.out_shaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
         self.out_tv, self.out_tf, self.out_tt = Vector3Out(), Vector3Out(), Vector3Out()
@@ -372,17 +377,18 @@ class PlantNode(LockstepNode):
             self.fail(f'plant step failed: {exc}')
             return
         if self.sim.trip is not None:       # the protection is in its safe state: end the run
-            self.publish_step()
+            self.publish_step(truth=True)   # the truth (and peaks) up to the trip, recorded
             t, reason = self.sim.trip
             self.fail(f'protection trip at t = {t:.9f} s: {reason}')
             return
         self.publish_step()
 
-    def publish_step(self) -> None:
+    def publish_step(self, truth: bool = False) -> None:
         sim = self.sim
         k = sim.k
         ns = k * self.period
         final = self.last_step is not None and k >= self.last_step
+        truth = truth or final
         m = sim.measure()
         self.pub_current.publish(self.sign(T.MEAS_CURRENT,
                                            self.out_current.fill(ns, m.i_alpha, m.i_beta)))
@@ -392,11 +398,14 @@ class PlantNode(LockstepNode):
             self._published_at[k] = time.perf_counter()
         if k % self.clock_every == 0 or final:
             self.pub_clock.publish(clock_bytes(ns))
-        if (self.truth_every and k % self.truth_every == 0) or final or self.truth_sink:
+        i_a, i_b, _, _ = sim.state_currents()
+        self._peak_v = max(self._peak_v, math.hypot(*sim.v_applied))
+        self._peak_i = max(self._peak_i, math.hypot(i_a, i_b))
+        if (self.truth_every and k % self.truth_every == 0) or truth or self.truth_sink:
             tr = sim.truth()
             if self.truth_sink is not None:
                 self.truth_sink(ns, tr)
-            if (self.truth_every and k % self.truth_every == 0) or final:
+            if (self.truth_every and k % self.truth_every == 0) or truth:
                 self.publish_truth(ns, tr)
         if final:
             self.state = 'draining'
@@ -439,6 +448,9 @@ class PlantNode(LockstepNode):
         pt['params'].publish(self.out_par.fill(ns, truth_params(tr)))
         pt['power'].publish(self.out_pow.fill(ns, [tr[n] for n in T.POWER_NAMES]))
         pt['energy'].publish(self.out_en.fill(ns, [tr[n] for n in T.ENERGY_NAMES]))
+        pt['shaft'].publish(self.out_tshaft.fill(ns, (tr['theta_r'],), (tr['omega_r'],)))
+        pt['peaks'].publish(self.out_peaks.fill(ns, [self._peak_v, self._peak_i]))
+        self._peak_v = self._peak_i = 0.0
 
 
 def _peer_text(name: str, peer) -> str:
