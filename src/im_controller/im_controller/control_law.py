@@ -548,7 +548,9 @@ class DriveController:
                                          ('flux cap', plan.flux_cap_active)) if on]
         self.plan_note = (f'optimal: planned the flux over [{t0:g}, {t1:g}] s ({n} intervals) in '
                           f'{plan.solve_s:.2f} s, predicted losses {plan.loss_J:.2f} J'
-                          + (f', bound by the {" and ".join(limits)}' if limits else ''))
+                          + (f', bound by the {" and ".join(limits)}' if limits else '')
+                          + (f'; the limits leave {plan.torque_shortfall:.3g} N·m·s of the torque '
+                             f'undelivered' if plan.torque_shortfall > 1e-9 else ''))
 
     def flux_cap(self, omega_r: float) -> float:
         """Field weakening: the largest flux whose steady voltage ω_e (L_s/L_sr) φ stays within

@@ -100,6 +100,7 @@ class FluxPlan:
     solve_s: float
     status: str
     current_limit_active: bool = False
+    torque_shortfall: float = 0.0       # ∫|τ demanded − τ planned| dt [N·m·s] the limits forbid
     flux_cap_active: bool = False
     _spline: object = field(default=None, repr=False)
 
@@ -143,8 +144,9 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
     trajectory on the grid ``t`` (N+1 nodes) that delivers the torques ``tau_mid`` at the speeds
     ``omega_mid`` (N interval midpoints), from φ(t_0) = ``phi0``; the end flux is free unless
     ``phi_end``. ``phi_cap`` (a number or N+1 node values) bounds φ; ``i_max`` bounds the
-    stator current. Raises :class:`PlanError` when the program has no solution."""
-    import cvxpy as cp
+    stator current. Where the limits make the exact torque impossible, the program is re-solved
+    delivering as much of it as they allow (``torque_shortfall``). Raises :class:`PlanError`
+    when no solution is found."""
     t = np.asarray(t, float)
     tau = np.asarray(tau_mid, float)
     om = np.asarray(omega_mid, float)
@@ -155,64 +157,93 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
     if not (math.isfinite(phi0) and phi0 >= 0.0):
         raise ValueError(f'plan_flux: start flux phi0 = {phi0!r} must be >= 0')
     h = np.diff(t)
+    cap = None
+    if phi_cap is not None:
+        cap = np.array(np.broadcast_to(np.asarray(phi_cap, float), (n + 1,)))
+    try:
+        plan = _solve(c, t, h, tau, om, phi0, k_e, k_h, phi_end, cap, i_max, exact=True)
+    except PlanError:
+        if i_max is None and cap is None:
+            raise
+        # the limits leave part of the torque undeliverable (a load on a demagnetized machine,
+        # a torque beyond the current limit): re-solve delivering as much of it as they allow
+        plan = _solve(c, t, h, tau, om, phi0, k_e, k_h, phi_end, cap, i_max, exact=False)
+    return plan
+
+
+def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: bool) -> FluxPlan:
+    """One second-order-cone program of :func:`plan_flux`. ``exact``: the torque is delivered
+    exactly; else it is a variable between 0 and the demand (same sign) whose shortfall costs
+    1000 × the least steady copper loss per N·m (2√(AC)), so every achievable torque is delivered."""
+    import warnings
+    import cvxpy as cp
+    n = len(h)
     k = loss_constants(c, k_e, k_h)
     y = cp.Variable(n + 1, nonneg=True)
     s = cp.Variable(n)                       # epigraph of ‖w‖²/y_m per interval
     ym = 0.5 * (y[:-1] + y[1:])
     yd = cp.multiply(1.0 / h, y[1:] - y[:-1])
     drive = ym + 0.5 * c.T_r * yd
-    rows = [math.sqrt(k['A']) * drive, yd / (2.0 * math.sqrt(c.R_r)),
-            cp.Constant(math.sqrt(k['C']) * tau)]
-    rot = cp.multiply(c.v * om, ym) + c.R_r * tau / c.v
+    cons = [y[0] == phi0 * phi0]
+    penalty = 0.0
+    if exact:
+        tau = cp.Constant(tau_ref)
+    else:
+        mag = cp.Variable(n, nonneg=True)
+        cons.append(mag <= np.abs(tau_ref))
+        tau = cp.multiply(np.sign(tau_ref), mag)
+        penalty = 2e3 * math.sqrt(k['A'] * k['C']) * (h @ (np.abs(tau_ref) - mag))
+    rows = [math.sqrt(k['A']) * drive, yd / (2.0 * math.sqrt(c.R_r)), math.sqrt(k['C']) * tau]
+    rot = cp.multiply(c.v * om, ym) + (c.R_r / c.v) * tau
     core = k['Te'] > 0.0 or k['Th'] > 0.0
     if k['Te'] > 0.0:
         rows.append(math.sqrt(k['Te']) * rot)
     w = cp.vstack(rows)
     # ‖w‖² ≤ s·y_m  ⇔  ‖(2w, s − y_m)‖ ≤ s + y_m
-    cons = [y[0] == phi0 * phi0,
-            cp.SOC(s + ym, cp.vstack([2.0 * w, cp.reshape(s - ym, (1, n), order='C')]), axis=0)]
+    cons.append(cp.SOC(s + ym, cp.vstack([2.0 * w, cp.reshape(s - ym, (1, n), order='C')]),
+                       axis=0))
     cost = s
     if k['Th'] > 0.0:
         cost = cost + k['Th'] * cp.abs(rot)
     if phi_end is not None:
         cons.append(y[-1] == phi_end * phi_end)
-    cap_active = False
-    if phi_cap is not None:
-        cap = np.broadcast_to(np.asarray(phi_cap, float), (n + 1,))
-        finite = np.isfinite(cap)
-        if finite.any():
-            idx = np.nonzero(finite)[0]
+    if cap is not None:
+        idx = np.nonzero(np.isfinite(cap))[0]
+        if len(idx):
             cons.append(y[idx] <= cap[idx] ** 2)
     if i_max is not None:
         q = (i_max * c.L_sr) ** 2
-        g = np.abs(c.L_r * tau / c.v)
-        # (y_m + T_r ẏ/2)² + g² ≤ q y_m  ⇔  ‖(2 drive, 2g, y_m − q)‖ ≤ y_m + q
+        g = (c.L_r / c.v) * tau
+        # (y_m + T_r ẏ/2)² + (L_r τ/v)² ≤ q y_m  ⇔  ‖(2 drive, 2 L_r τ/v, y_m − q)‖ ≤ y_m + q
         cons.append(cp.SOC(ym + q, cp.vstack([2.0 * cp.reshape(drive, (1, n), order='C'),
-                                              cp.Constant(2.0 * g).reshape((1, n)),
+                                              2.0 * cp.reshape(g, (1, n), order='C'),
                                               cp.reshape(ym - q, (1, n), order='C')]), axis=0))
-    prob = cp.Problem(cp.Minimize(h @ cost), cons)
+    prob = cp.Problem(cp.Minimize(h @ cost + penalty), cons)
     t0 = time.perf_counter()
     try:
-        prob.solve(solver=cp.CLARABEL)
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')          # the status says it: 'optimal_inaccurate'
+            prob.solve(solver=cp.CLARABEL)
     except cp.error.SolverError as exc:
         raise PlanError(f'flux plan: the solver failed ({exc})') from None
     solve_s = time.perf_counter() - t0
     if prob.status not in ('optimal', 'optimal_inaccurate') or y.value is None:
         raise PlanError(f'flux plan: no flux trajectory delivers the torque within the limits '
                         f'(solver status {prob.status})')
+    tau_v = np.asarray(tau_ref if exact else np.sign(tau_ref) * mag.value, float)
     yv = np.maximum(np.asarray(y.value, float), 0.0)
     yv[0] = phi0 * phi0
     ymv = 0.5 * (yv[:-1] + yv[1:])
     ydv = np.diff(yv) / h
-    cu, co = loss_rates(c, ymv, ydv, tau, om, k_e, k_h)
+    cu, co = loss_rates(c, ymv, ydv, tau_v, om, k_e, k_h)
     plan = FluxPlan(t=t, y=yv, copper_J=float(h @ cu), core_J=float(h @ co) if core else 0.0,
-                    solve_s=solve_s, status=prob.status)
+                    solve_s=solve_s, status=prob.status,
+                    torque_shortfall=float(h @ np.abs(tau_ref - tau_v)))
     if i_max is not None:
-        i2 = ((ymv + 0.5 * c.T_r * ydv) ** 2 + (c.L_r * tau / c.v) ** 2) / (c.L_sr ** 2 *
-                                                                         np.maximum(ymv, 1e-300))
+        i2 = ((ymv + 0.5 * c.T_r * ydv) ** 2 + (c.L_r * tau_v / c.v) ** 2) / (
+            c.L_sr ** 2 * np.maximum(ymv, 1e-300))
         plan.current_limit_active = bool(np.max(i2) > (1.0 - 1e-4) * i_max * i_max)
-    if phi_cap is not None:
-        cap = np.broadcast_to(np.asarray(phi_cap, float), (n + 1,))
+    if cap is not None:
         plan.flux_cap_active = bool(np.any(yv > (1.0 - 1e-4) * cap * cap))
     return plan
 
