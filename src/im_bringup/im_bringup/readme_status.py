@@ -122,9 +122,9 @@ def _bound_lines(runs: List[dict]) -> List[str]:
         f"speed {bs['E_loss_bound_J']['optimal']:.2f} J from {bs['start_flux_Wb']['optimal']:.3f} Wb,"
         f" copper alone {bs['E_copper_bound_J']['optimal']:.2f} J; `docs/controller.md` §10). `optimal`"
         ' plans that',
-        'trajectory before the run and tracks it with the same current loop.'
-        + (f' A ratio below 1 ({low:.5f}) is the bound\'s exactness, not a better flux: it'
-           ' assumes exact torque tracking, the run tracks to ≈ 10⁻³ N·m.' if low < 1.0 else ''),
+        'trajectory before the run and tracks it with the same current loop.',
+        *([f'A ratio below 1 ({low:.6f}) is the bound\'s exactness, not a better flux: it assumes'
+           ' exact torque', 'tracking, the run tracks to ≈ 10⁻³ N·m.'] if low < 1.0 else []),
     ]
 
 
