@@ -20,3 +20,32 @@ def test_summary_rows_carry_the_chapter3_and_chapter4_keys(tmp_path):
     assert 0.42 + 0.42 * 0.018 < rows[1]['R_r_true_final'] <= 0.42 + 0.42 * 0.02 + 1e-12
     table = markdown(rows)
     assert table.count('\n') == 2 + len(rows)
+
+
+def test_bound_rows_give_each_run_its_own_start_and_ratio():
+    """Per task one bound row: the convex lower bound from each run's own start flux (position:
+    demagnetized; speed: the strategy's steady flux), refined to < 1e-5, and the run's ratios."""
+    import pytest
+    from im_bringup.reproduce import bound_markdown, bound_rows, loss_bound
+    runs = [dict(task=t, strategy=s, controller='nominal', variation='none', rate_hz=1e4,
+                 E_loss_J=200.0, E_copper_J=150.0)
+            for t in ('position', 'speed') for s in ('constant_flux', 'min_loss')]
+    runs.append(dict(task='speed', strategy='min_loss', controller='adaptive',
+                     variation='chapter4', rate_hz=1e4, E_loss_J=1.0, E_copper_J=1.0))
+    rows = bound_rows(runs)
+    assert [(r['task'], r['strategy']) for r in rows] == [('position', 'bound'), ('speed', 'bound')]
+    pos, spd = rows
+    assert pos['start_flux_Wb'] == {'constant_flux': 0.0, 'min_loss': 0.0}
+    assert spd['start_flux_Wb']['constant_flux'] == pytest.approx(1.2)       # φ_d
+    assert 0.3 < spd['start_flux_Wb']['min_loss'] < 0.45
+    for r in rows:
+        assert set(r['ratio_loss']) == {'constant_flux', 'min_loss'}         # nominal 100 µs only
+        assert r['refinement_rel'] < 1e-5 and r['solve_s_max'] > 0.0
+        for st, bound in r['E_loss_bound_J'].items():
+            assert r['ratio_loss'][st] == 200.0 / bound
+            assert r['ratio_copper'][st] == 150.0 / r['E_copper_bound_J'][st]
+            assert r['E_copper_bound_J'][st] < bound                      # core loss ≥ 0
+    assert pos['E_loss_bound_J']['min_loss'] == loss_bound('position', 0.0).loss_J
+    # the bound rows are not runs: the run table skips them, their own table has one line each
+    assert markdown(rows).count('\n') == 2
+    assert bound_markdown(rows).count('\n') == 2 + 4

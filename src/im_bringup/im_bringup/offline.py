@@ -141,6 +141,7 @@ class Scenario:
     def controller_config(self) -> ControllerConfig:
         opts = dict(self.controller_options)
         opts.setdefault('core_loss_exponent', self.core_loss_exponent)
+        opts.setdefault('horizon', self.duration)   # the run's end: the optimal strategy's plan
         if self.profile is not None:
             opts.setdefault('profile', 'setpoint')
             opts.setdefault('setpoints', self.profile.setpoints)

@@ -1,7 +1,11 @@
 """``make reproduce``: the thesis's tables re-run through the four-node lock-step graph.
 
 Chapter 3 (seed 000 §3.4): position and speed tasks × {min_energy, constant_flux, min_loss} at
-T_s = 100 µs with the thesis's motor, loads and gains. Chapter 4 (§4.3): the same tasks under the
+T_s = 100 µs with the thesis's motor, loads and gains, and the ``optimal`` strategy beside them
+(the loss-optimal flux trajectory, docs/controller.md §10). Per task a ``bound`` row: the convex
+lower bound on the losses over every flux trajectory that delivers the task's torque exactly
+(copper only, and copper + core), from each run's own start flux, and each strategy's ratio to
+it. Chapter 4 (§4.3): the same tasks under the
 chapter-4 variation profile, nominal vs the thesis's adaptation law vs the improved law. Robust
 gains (seed 001): the thesis's gains at 1 kHz (they diverge), and the chapter-3 tasks with the
 certified gains at 1 kHz and 10 kHz.
@@ -28,10 +32,94 @@ CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', '
             'torque_err_max_Nm', 'V_max_V', 'i_max_A', 'steps', 'wall_s')
 
 
+THESIS_STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
+TASK_NAMES = ('position', 'speed')
+
+
 def chapter3_runs(T_s: float = 1e-4) -> List[dict]:
     return [dict(task=task, strategy=strategy, controller='nominal', variation='none', T_s=T_s)
-            for task in ('position', 'speed')
-            for strategy in ('min_energy', 'constant_flux', 'min_loss')]
+            for task in TASK_NAMES for strategy in THESIS_STRATEGIES]
+
+
+def optimal_runs(T_s: float = 1e-4) -> List[dict]:
+    """The chapter-3 tasks with the loss-optimal flux trajectory (nominal controller)."""
+    return [dict(task=task, strategy='optimal', controller='nominal', variation='none', T_s=T_s)
+            for task in TASK_NAMES]
+
+
+def start_flux(task: str, strategy: str) -> float:
+    """|φ_r(0)| of the plant in a run of ``make reproduce``: 0 from rest (demagnetized), else the
+    controller's own steady state (the plant's initial_flux parameter)."""
+    from im_bringup.config import node_parameters
+    flux = node_parameters(task, strategy)['plant'].get('initial_flux')
+    return 0.0 if flux is None else math.hypot(*flux)
+
+
+def task_path(task: str):
+    """(τ(t), ω(t)) of exact tracking of the task's reference with the plant's own motor and
+    load: τ = J θ̈* + b θ̇* + τ_L(t, θ*, θ̇*)."""
+    from im_bringup.config import TASK_PRESETS
+    from im_common.loads import make_load
+    from im_common.params import THESIS_MOTOR
+    from im_controller.trajectories import ThesisPositionProfile, ThesisSpeedProfile
+    p = TASK_PRESETS[task]
+    load = make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
+                     c2=p.get('load_c2', 0.001))
+    traj = ThesisPositionProfile() if task == 'position' else ThesisSpeedProfile()
+    offset = p['theta0'] - traj.sample(0.0)[0]
+    m = THESIS_MOTOR
+
+    def path(t: float):
+        theta, w, a, _ = traj.sample(t)
+        return m.J * a + m.b * w + load.torque(t, theta + offset, w), w
+    return path
+
+
+def loss_bound(task: str, phi0: float, step: float = 1e-3, core: bool = True):
+    """The convex lower bound (im_controller.flux_plan) on the losses of the task run over
+    [0, duration] from the start flux φ0, end flux free: a FluxPlan."""
+    from im_bringup.config import TASK_PRESETS
+    from im_common.params import THESIS_MOTOR as m
+    from im_controller.flux_plan import plan_along
+    from im_controller.reference import ModelCoefficients
+    c = ModelCoefficients.from_params(m)
+    k = dict(k_e=m.k_e, k_h=m.k_h) if core else {}
+    return plan_along(c, task_path(task), 0.0, TASK_PRESETS[task]['duration'], phi0, step, **k)
+
+
+def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
+    """Per task, the bound row: copper-only and copper + core bounds from each nominal 100 µs
+    run's own start flux (one bound per distinct start), the grid refinement check (the same
+    bounds at step/2) and each strategy's ratios (losses / total bound, copper / copper bound)."""
+    rows = []
+    for task in TASK_NAMES:
+        runs = [r for r in results if r.get('task') == task and r.get('controller') == 'nominal'
+                and r.get('variation', 'none') == 'none' and r.get('rate_hz') == 1e4]
+        if not runs:
+            continue
+        cache = {}
+        row = {'task': task, 'strategy': 'bound', 'controller': 'nominal', 'variation': 'none',
+               'rate_hz': 1e4, 'grid_s': step, 'start_flux_Wb': {}, 'E_copper_bound_J': {},
+               'E_loss_bound_J': {}, 'ratio_loss': {}, 'ratio_copper': {}}
+        for r in runs:
+            phi0 = round(start_flux(task, r['strategy']), 12)
+            if phi0 not in cache:
+                cu, tot = loss_bound(task, phi0, step, core=False), loss_bound(task, phi0, step)
+                cu2, tot2 = (loss_bound(task, phi0, step / 2, core=False),
+                             loss_bound(task, phi0, step / 2))
+                cache[phi0] = (cu, tot, max(abs(cu2.copper_J / cu.copper_J - 1.0),
+                                            abs(tot2.loss_J / tot.loss_J - 1.0)))
+            cu, tot, refine = cache[phi0]
+            st = r['strategy']
+            row['start_flux_Wb'][st] = phi0
+            row['E_copper_bound_J'][st] = cu.copper_J
+            row['E_loss_bound_J'][st] = tot.loss_J
+            row['ratio_loss'][st] = r['E_loss_J'] / tot.loss_J
+            row['ratio_copper'][st] = r['E_copper_J'] / cu.copper_J
+            row['refinement_rel'] = max(row.get('refinement_rel', 0.0), refine)
+            row['solve_s_max'] = max(row.get('solve_s_max', 0.0), cu.solve_s, tot.solve_s)
+        rows.append(row)
+    return rows
 
 
 def run_one(item) -> dict:
@@ -86,6 +174,8 @@ def markdown(results: List[dict]) -> str:
             'steps/s | run |',
             '|' + ' --- |' * 21]
     for r in results:
+        if r.get('strategy') == 'bound':
+            continue
         th = thesis.energy(r['task'], r['strategy']) if r.get('variation', 'none') == 'none' else None
         the, thl = (f'{th[0]:.2f}', f'{th[1]:.2f}') if th and r['controller'] == 'nominal' else ('', '')
         rows.append(
@@ -96,6 +186,20 @@ def markdown(results: List[dict]) -> str:
             f"{r['balance_residual_J']:.2e} | {_f(r.get('pos_err_max_rad'), '.2f', 1e3)} | "
             f"{_f(r.get('speed_err_max_rad_s'), '.3f')} | {_f(r.get('torque_err_max_Nm'), '.3f')} | "
             f"{r['steps'] / r['wall_s']:.0f} | {_status(r)} |")
+    return '\n'.join(rows) + '\n'
+
+
+def bound_markdown(results: List[dict]) -> str:
+    """The bound rows: per task and run, the start flux, both bounds and the run's ratios."""
+    rows = ['| task | strategy | start flux [Wb] | copper bound [J] | copper / bound | '
+            'loss bound (copper + core) [J] | losses / bound |', '|' + ' --- |' * 7]
+    for b in results:
+        if b.get('strategy') != 'bound':
+            continue
+        for st, phi0 in b['start_flux_Wb'].items():
+            rows.append(f"| {b['task']} | {st} | {phi0:.3f} | {b['E_copper_bound_J'][st]:.2f} | "
+                        f"{b['ratio_copper'][st]:.4f} | {b['E_loss_bound_J'][st]:.2f} | "
+                        f"{b['ratio_loss'][st]:.4f} |")
     return '\n'.join(rows) + '\n'
 
 
@@ -110,12 +214,13 @@ def main(argv=None) -> int:
     parts = args.only or ['ch3', 'ch4', 'robust']
     specs: List[dict] = []
     if 'ch3' in parts:
-        specs += chapter3_runs()
+        specs += chapter3_runs() + optimal_runs()
     if 'ch4' in parts:
         specs += chapter4_runs()
     if 'robust' in parts:
         specs += robust_runs()
     results = run_all(specs, args.out, record=args.record, workers=args.workers)
+    results += bound_rows(results)
     from im_bringup.report import jsonable
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(jsonable(results), f, indent=2, allow_nan=False)
@@ -125,7 +230,11 @@ def main(argv=None) -> int:
                 'integrated books; balance residual = E_in − copper − friction − load work − '
                 'E_param − ΔW_mag − ΔE_kin (core loss is accounting only).\n\n')
         f.write(markdown(results))
+        f.write('\nLower bound on the losses over every flux trajectory with exact torque tracking '
+                '(docs/controller.md §10), from each run\'s own start flux, end flux free:\n\n')
+        f.write(bound_markdown(results))
     print(markdown(results))
+    print(bound_markdown(results))
     print(f'written: {args.out}/summary.json, {args.out}/summary.md')
     return 0
 
@@ -134,8 +243,8 @@ def chapter4_runs() -> List[dict]:
     """Nominal vs the thesis's adaptation law vs the improved law under the chapter-4 profile."""
     return [dict(task=task, strategy=strategy, controller=controller, variation='chapter4',
                  T_s=1e-4)
-            for task in ('position', 'speed')
-            for strategy in ('min_energy', 'constant_flux', 'min_loss')
+            for task in TASK_NAMES
+            for strategy in THESIS_STRATEGIES
             for controller in ('nominal', 'adaptive_thesis', 'adaptive')]
 
 

@@ -26,7 +26,7 @@ from launch_ros.actions import Node
 
 ARGUMENTS = (
     ('task', 'position', 'position or speed (seed 000 §3.4.4-3.4.5)'),
-    ('strategy', 'min_energy', 'flux strategy: min_energy, constant_flux or min_loss'),
+    ('strategy', 'min_energy', 'flux strategy: min_energy, constant_flux, min_loss or optimal'),
     ('controller', 'nominal', 'nominal, adaptive (improved law, inverse-Gamma feed), '
                    'adaptive_thesis (thesis law) or adaptive_thesis_pair (improved law, thesis '
                    'pair feed)'),

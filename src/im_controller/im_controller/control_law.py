@@ -40,7 +40,7 @@ from im_common.loads import LOAD_KINDS, make_load
 from im_common.params import (InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
                               estimate_arguments)
 
-from .flux import STRATEGIES, FluxStrategy, LowPass2
+from .flux import LOSS_OPTIMAL, STRATEGIES, FluxStrategy, LowPass2
 from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
 from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, ThesisPositionProfile,
                            ThesisSpeedProfile)
@@ -81,7 +81,9 @@ class ControllerConfig:
 
     mode            'position' | 'speed' | 'torque'
     profile         'thesis' (§3.4.4 trajectories) | 'setpoint' (``set_setpoint``)
-    strategy        'min_energy' (eq. 3.19/3.25) | 'constant_flux' (φ_d) | 'min_loss'
+    strategy        'min_energy' (eq. 3.19/3.25) | 'constant_flux' (φ_d) | 'min_loss' |
+                    'optimal' (the loss-optimal flux trajectory planned over a reference known
+                    ahead, docs/controller.md §10; else min_loss, and ``plan_note`` says so)
     phi_d, phi_min, phi_max   [Wb] constant-flux level and the strategy bounds (§3.4.6)
     k1              [V/A] > 0, current gain K₁ = k₁ I (§3.4.6 "k1 = −40", sign see module doc)
     k_p, k_v        [N·m/rad], [N·m·s/rad] PD gains of eq. 3.1; None → per-mode defaults
@@ -115,6 +117,9 @@ class ControllerConfig:
     voltage_margin  share of v_limit the steady voltage may use under field weakening
     current_margin  share of current_limit the steady current of min_energy / min_loss may use:
                     their flux is clipped into the range that fits (docs/limits.md)
+    horizon         [s] the run's end on the controller's clock: ``optimal`` plans up to it
+                    with the end flux free; None → open-ended (the plan ends on the steady
+                    loss-optimal flux of the final reference)
     magnetizing_floor  [Wb] the smallest flux the reference model uses (a smooth floor, C²:
                     the start-up from a demagnetized machine needs no step); None → 0.1 φ_min
     """
@@ -153,6 +158,7 @@ class ControllerConfig:
     voltage_margin: float = DEFAULT_VOLTAGE_MARGIN
     current_margin: float = DEFAULT_CURRENT_MARGIN
     magnetizing_floor: Optional[float] = None
+    horizon: Optional[float] = None
 
     def __post_init__(self):
         for name, allowed in (('mode', MODES), ('profile', PROFILES), ('strategy', STRATEGIES),
@@ -224,7 +230,7 @@ class ControllerConfig:
         self.core_loss_exponent = float(self.core_loss_exponent)
         self.setpoint_duration = _real('setpoint_duration', self.setpoint_duration, 0.0, lo_open=True)
         if self.flux_preview is None:
-            self.flux_preview = DEFAULT_FLUX_PREVIEW if self.strategy == 'min_loss' else 0.0
+            self.flux_preview = DEFAULT_FLUX_PREVIEW if self.strategy in LOSS_OPTIMAL else 0.0
         self.flux_preview = _real('flux_preview', self.flux_preview, 0.0)
         for name in ('torque_limit', 'current_limit', 'speed_limit'):
             setattr(self, name, _real(name, getattr(self, name), 0.0, lo_open=True, allow_none=True))
@@ -244,6 +250,7 @@ class ControllerConfig:
             raise InvalidParameter('magnetizing_floor', self.magnetizing_floor,
                                    f'must be <= phi_min = {self.phi_min:g}')
         self.setpoints = _check_setpoints(self.setpoints, self.profile)
+        self.horizon = _real('horizon', self.horizon, 0.0, lo_open=True, allow_none=True)
         if self.current_limit is not None:
             i_mag = self.phi_max / self.params.L_sr
             if self.current_limit <= i_mag:
@@ -331,6 +338,10 @@ class DriveController:
         self._torque_sp = None
         self._schedule = list(cfg.setpoints)
         self.reference = {}
+        self._plan = None            # optimal: the planned flux trajectory (flux_plan.FluxPlan)
+        self._plan_tried = False
+        self._live_setpoint = False  # a setpoint not in the configured profile: not known ahead
+        self.plan_note = ''          # optimal: what the flux reference follows, and why
         if cfg.profile == 'thesis':
             self._traj = ThesisPositionProfile() if cfg.mode == 'position' else ThesisSpeedProfile()
 
@@ -370,6 +381,8 @@ class DriveController:
             raise ValueError(f"setpoint kind {kind!r} does not match the controller mode {cfg.mode!r}")
         value = _real('value', value)
         t = _real('t', t)
+        # a setpoint not in the configured profile: the reference is not known ahead
+        self._live_setpoint = True
         # in stamp order; equal stamps in arrival order (insort_right)
         bisect.insort(self._schedule, (t, value, duration), key=lambda s: s[0])
 
@@ -444,6 +457,13 @@ class DriveController:
     def _flux_reference(self, t, tau, omega_r, c):
         """Target flux (strategy, capped above base speed) → filter → smooth floor."""
         cfg = self.config
+        if cfg.strategy == 'optimal':
+            planned = self._planned(t, c)
+            if planned is not None:
+                phi_p, dphi_p, ddphi_p = planned
+                self._flux.reset(phi_p, dphi_p)   # a fallback continues from the plan
+                phi, dphi, ddphi = smooth_floor(phi_p, dphi_p, ddphi_p, cfg.magnetizing_floor)
+                return phi_p, phi, dphi, ddphi
         tau_tgt = tau
         if cfg.flux_preview > 0.0 and cfg.mode != 'torque':
             tau_tgt += self._path_torque(t + cfg.flux_preview, c) - self._path_torque(t, c)
@@ -455,6 +475,86 @@ class DriveController:
         flt.set_input(phi_tgt)
         phi, dphi, ddphi = smooth_floor(flt.y, flt.dy, flt.accel, cfg.magnetizing_floor)
         return phi_tgt, phi, dphi, ddphi
+
+    def _planned(self, t: float, c: ModelCoefficients):
+        """optimal: (φ, φ̇, φ̈) of the plan at t, or None where the causal fallback rules (no plan:
+        the reason is in ``plan_note``; a live setpoint; past the plan's end)."""
+        if not self._plan_tried:
+            self._plan_tried = True
+            self._make_plan(t, c)
+        plan = self._plan
+        if plan is None:
+            return None
+        if self._live_setpoint:
+            self._plan = None
+            self.plan_note = (f'optimal: a live setpoint at t = {t:.4f} s changed the reference the '
+                              f'plan was made for: min_loss from here on')
+            return None
+        if t > plan.end:
+            self._plan = None
+            self.plan_note = f'optimal: past the plan\'s end ({plan.end:g} s): min_loss from here on'
+            return None
+        return plan.sample(t)
+
+    def _make_plan(self, t0: float, c: ModelCoefficients) -> None:
+        """The loss-optimal flux trajectory over the reference known ahead, from the present flux
+        reference (docs/controller.md §10), with the drive's limits as constraints."""
+        import copy
+        import numpy as np
+        from .flux_plan import PLAN_STEP, PlanError, plan_flux, static_loss_optimal_flux
+        cfg = self.config
+        if cfg.mode == 'torque':
+            self.plan_note = ('optimal: the torque task\'s speed is not known ahead: min_loss '
+                              '(the best causal plan)')
+            return
+        if self._live_setpoint or (cfg.profile == 'setpoint' and not self._schedule):
+            self.plan_note = ('optimal: setpoints arrive live, the reference is not known ahead: '
+                              'min_loss (the best causal plan)')
+            return
+        traj, sched = copy.deepcopy(self._traj), list(self._schedule)
+        if cfg.horizon is not None:
+            t1 = cfg.horizon
+        elif cfg.profile == 'thesis':
+            t1 = traj.t0 + 3.0            # the thesis profiles settle within 1.7 s of t0
+        else:
+            t1 = max(s_[0] + (s_[2] or cfg.setpoint_duration) for s_ in sched) + 3.0 * c.T_r
+        if t1 - t0 < 2.0 * PLAN_STEP:
+            self.plan_note = 'optimal: the run ends now: min_loss'
+            return
+        n = max(2, int(math.ceil((t1 - t0) / PLAN_STEP - 1e-9)))
+        times = np.linspace(t0, t1, 2 * n + 1)      # nodes (even) and midpoints (odd)
+        tau = np.empty(2 * n + 1)
+        omega = np.empty(2 * n + 1)
+        for j, t in enumerate(times):
+            while sched and sched[0][0] <= t:
+                t_i, value, duration = sched.pop(0)
+                traj.set(value, t_i, duration or cfg.setpoint_duration)
+            theta, w, acc, _ = traj.sample(t)
+            tau[j] = c.J * acc + c.b * w + self._load.torque(t, theta + self._theta_offset, w)
+            omega[j] = w
+        if cfg.torque_limit is not None:
+            np.clip(tau, -cfg.torque_limit, cfg.torque_limit, out=tau)
+        cap = np.array([min(cfg.phi_max, self.flux_cap(w)) for w in omega[::2]])
+        i_max = None if cfg.current_limit is None else cfg.current_margin * cfg.current_limit
+        phi_end = None
+        if cfg.horizon is None:
+            phi_end = min(static_loss_optimal_flux(c, tau[-1], omega[-1], cfg.params.k_e,
+                                                   cfg.params.k_h), cap[-1])
+        phi0 = max(self._flux.y, 0.0)
+        try:
+            plan = plan_flux(c, times[::2], tau[1::2], omega[1::2], phi0, k_e=cfg.params.k_e,
+                             k_h=cfg.params.k_h, phi_end=phi_end, phi_cap=cap, i_max=i_max)
+        except PlanError as exc:
+            self.plan_note = f'optimal: {exc}: min_loss (the best causal plan)'
+            return
+        self._plan = plan
+        limits = [name for name, on in (('current limit', plan.current_limit_active),
+                                         ('flux cap', plan.flux_cap_active)) if on]
+        self.plan_note = (f'optimal: planned the flux over [{t0:g}, {t1:g}] s ({n} intervals) in '
+                          f'{plan.solve_s:.2f} s, predicted losses {plan.loss_J:.2f} J'
+                          + (f', bound by the {" and ".join(limits)}' if limits else '')
+                          + (f'; the limits leave {plan.torque_shortfall:.3g} N·m·s of the torque '
+                             f'undelivered' if plan.torque_shortfall > 1e-9 else ''))
 
     def flux_cap(self, omega_r: float) -> float:
         """Field weakening: the largest flux whose steady voltage ω_e (L_s/L_sr) φ stays within

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
@@ -50,7 +51,10 @@ class ControllerNode(LockstepNode):
                                       'wait for and use the adapter estimates (eq. 4.10-4.12)')
         self.ref_every = self.param('reference_decimation', 10,
                                     'publish the references every N steps', 1, 1000000)
-        self.ctl = DriveController(config_from_parameters(params, values, self.T_s))
+        cfg = config_from_parameters(params, values, self.T_s)
+        # the run's end is the optimal strategy's planning horizon (0: open-ended)
+        self.ctl = DriveController(replace(cfg, horizon=self.duration if self.duration > 0 else None))
+        self._plan_note = ''
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         q = lockstep_qos()
@@ -176,6 +180,10 @@ class ControllerNode(LockstepNode):
             self.fail(f'controller failed at step {k} (t = {ns / 1e9:.9f} s): {exc}')
             return
         self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE, self.out_cmd.fill(ns, v_a, v_b)))
+        if self.ctl.plan_note != self._plan_note:     # optimal: what the flux follows, and why
+            self._plan_note = self.ctl.plan_note
+            log = self.get_logger()
+            (log.info if 'planned' in self._plan_note else log.warning)(self._plan_note)
         if k % self.ref_every == 0:
             r = self.ctl.reference
             self.pub_ref_shaft.publish(self.out_rs.fill(ns, (r['theta_ref'],), (r['omega_ref'],),

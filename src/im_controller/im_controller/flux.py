@@ -16,6 +16,11 @@ Flux strategies map the torque reference τ* (and the speed) to a *target* rotor
     K = (k_h + k_e f_e) f_e, f_e = |v ω_r + ω_sl(φ)|/2π. For m = 2: φ⁴ = C τ²/(A + K θ²);
     for m = 1 a Newton solve of 2Aφ⁴ + Kθφ³ − 2Cτ² = 0; f_e is refreshed twice with the slip
     of the current solution. Clipped to [φ_min, φ_max].
+``optimal`` (beyond the thesis)
+    When the reference is known ahead, the controller plans the loss-optimal flux trajectory over
+    it (:mod:`.flux_plan`, a convex program, docs/controller.md §10) and its reference follows the
+    plan; ``target`` — the causal plan it falls back to (live setpoints, the torque task, past the
+    plan's end) and the steady start — is ``min_loss``'s.
 
 Under a current limit the two optimizing strategies keep their flux where the steady current for
 the torque fits (:func:`flux_range_within_current`, docs/limits.md).
@@ -32,7 +37,9 @@ from typing import Optional
 
 from .reference import ModelCoefficients
 
-STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
+STRATEGIES = ('min_energy', 'constant_flux', 'min_loss', 'optimal')
+# the strategies whose causal target is the steady loss-optimal flux (optimal falls back to it)
+LOSS_OPTIMAL = ('min_loss', 'optimal')
 TWO_PI = 2.0 * math.pi
 
 
