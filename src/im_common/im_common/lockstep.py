@@ -44,6 +44,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from . import auth, realtime
 from .conversions import NS_PER_S
+from .params import parameter_error
 from .stopping import StopSignals
 
 #: Reader history of /im/status (events of every node on the domain while this one starts).
@@ -191,30 +192,6 @@ def describe(description: str, lo=None, hi=None, read_only: bool = False, intege
 class ConfigurationError(ValueError):
     """A node refuses its configuration (a parameter unknown, of the wrong type or out of
     range); the message is the one line every path prints (:func:`build_node`)."""
-
-
-def parameter_error(value, default, lo=None, hi=None) -> Optional[str]:
-    """Why ``value`` cannot be a parameter declared with ``default`` and range [lo, hi], or None.
-    The parameters are typed as in ROS 2: an integer is not taken for a real-valued parameter
-    (no silent conversion; the line says to write it as a real number)."""
-    if isinstance(default, bool):
-        return None if isinstance(value, bool) else 'must be true or false'
-    if isinstance(default, (int, float)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            kind = 'a whole number' if isinstance(default, int) else 'a real number'
-            return f'must be {kind}, not {type(value).__name__}'
-        if isinstance(default, float) and isinstance(value, int):
-            return f'an integer where a real number is expected; write {value}.0'
-        if isinstance(default, int) and isinstance(value, float):
-            return 'must be a whole number'
-        if not math.isfinite(value):
-            return 'must be finite'
-        if lo is not None and hi is not None and not lo <= value <= hi:
-            return f'out of range [{lo:g}, {hi:g}]'
-        return None
-    if isinstance(default, str) and not isinstance(value, str):
-        return f'must be a string, not {type(value).__name__}'
-    return None
 
 
 def build_node(factory: Callable[..., 'LockstepNode'], **kwargs) -> 'LockstepNode':
