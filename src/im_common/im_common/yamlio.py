@@ -103,15 +103,16 @@ def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Di
     if doc is None:
         doc = {}
     if not isinstance(doc, dict):
-        raise ParametersFileError(f'parameters file {path}: expected a mapping of node names to '
+        raise ParametersFileError(f'parameters file {path} is not a ROS 2 parameters file: '
+                                  f'expected a mapping of node names to '
                                   f'{{ros__parameters: {{...}}}}, not a {type(doc).__name__}')
     known = None if nodes is None else list(nodes)
     out: Dict[str, dict] = {}
     for key, body in doc.items():
         values = (body or {}).get('ros__parameters', {}) if isinstance(body, dict) else None
         if not isinstance(values, dict):
-            raise ParametersFileError(f"parameters file {path}: node '{key}' needs a "
-                                      "'ros__parameters' mapping")
+            raise ParametersFileError(f"parameters file {path} is not a ROS 2 parameters file: "
+                                      f"node '{key}' needs a 'ros__parameters' mapping")
         name = str(key)
         if known is not None:
             name = node_name(key)
