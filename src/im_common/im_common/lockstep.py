@@ -292,7 +292,7 @@ class LockstepNode(Node):
         desc = describe(description + (f' (one of: {", ".join(choices)})' if choices else ''),
                         lo, hi, read_only=read_only, integer=integer)
         given = getattr(self, '_parameter_overrides', {}).get(name)
-        if given is not None:       # our one line before rclpy's exception (docs/running.md)
+        if given is not None:       # one line naming node and parameter (docs/architecture.md)
             bad = parameter_error(given.value, default, lo, hi)
             if bad:
                 raise ConfigurationError(f"invalid parameter '{name}' = {given.value!r} for node "
