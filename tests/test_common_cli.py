@@ -45,3 +45,47 @@ def test_loggers_write_one_prefixed_line_to_stderr(capsys):
     cli.status_line('run: 50.0 %')
     cli.status_line('run: done in 1.0 s', done=True)
     assert capsys.readouterr().err == '\rrun: 50.0 %\rrun: done in 1.0 s\n'
+
+
+BAD_PARAMS_FILES = {
+    'not_yaml': ('plant: {ros__parameters: {T_s: [1,\n', 'not valid YAML (line 2'),
+    'a_list': ('- a\n- b\n', 'expected a mapping of node names'),
+    'no_ros_parameters': ('plant: 3\n', "node 'plant' needs a 'ros__parameters' mapping"),
+    'unknown_node': ('controler:\n  ros__parameters: {k1: 30.0}\n',
+                     "unknown node 'controler'; did you mean 'controller'?"),
+}
+
+
+@pytest.mark.parametrize('case', sorted(BAD_PARAMS_FILES))
+def test_every_reader_of_a_parameters_file_says_the_same_line(tmp_path, case):
+    """scenario (merge_yaml), the launch file (load_params_yaml) and a node executable
+    (init_args_error, before rclpy.init) read a parameters file through one function: one
+    message, naming the file."""
+    from im_bringup.config import node_parameters
+    from im_bringup.processes import load_params_yaml
+    from im_bringup.scenario import merge_yaml
+    from im_common.lockstep import init_args_error
+    text, wanted = BAD_PARAMS_FILES[case]
+    f = tmp_path / 'p.yaml'
+    f.write_text(text)
+    with pytest.raises(ValueError) as a:
+        merge_yaml(node_parameters(), str(f))
+    with pytest.raises(ValueError) as b:
+        load_params_yaml(str(f))
+    assert str(a.value) == str(b.value) and str(f) in str(a.value) and wanted in str(a.value)
+    assert '\n' not in str(a.value)
+    node_line = init_args_error(['controller', '--ros-args', '--params-file', str(f)])
+    if case == 'unknown_node':      # a node executable takes sections for other nodes
+        assert node_line is None
+    else:
+        assert node_line == str(a.value)
+
+
+def test_missing_parameters_file_is_one_line_on_every_reader(tmp_path):
+    from im_bringup.processes import load_params_yaml
+    from im_common.lockstep import init_args_error
+    f = str(tmp_path / 'nope.yaml')
+    with pytest.raises(ValueError) as a:
+        load_params_yaml(f)
+    assert str(a.value) == init_args_error(['x', '--params-file', f])
+    assert f in str(a.value) and 'No such file' in str(a.value)

@@ -233,3 +233,176 @@ def test_report_refuses_to_replace_a_report_or_write_into_a_bag(short_bag, tmp_p
     r = run_tool('report', short_bag, '--no-plots', '--out', short_bag, '--force')
     assert r.returncode == 2 and 'directory' in one_line(r.stderr)
     assert short_bag.read_bytes() == bag_bytes
+
+
+# ------------------------------------------------------------------------------------------
+# Issue 23: I/O and configuration faults — one line, no traceback, no result lost
+# ------------------------------------------------------------------------------------------
+#: Loaded by every Python process started with ``env=enospc_env(...)`` (the scenario, and with
+#: --processes the recorder it starts): the MCAP being recorded (``*.mcap.part``) takes
+#: ``IM_TEST_ENOSPC_BYTES`` bytes, then its writes fail with ENOSPC — a disk filling up.
+ENOSPC_SITECUSTOMIZE = '''
+import builtins, errno, io, os
+_LIMIT = int(os.environ['IM_TEST_ENOSPC_BYTES'])
+_open = builtins.open
+
+
+class _Full(io.RawIOBase):
+    def __init__(self, path):
+        self._f = _open(path, 'wb', buffering=0)
+        self._n = 0
+
+    def writable(self):
+        return True
+
+    def write(self, b):
+        room = _LIMIT - self._n
+        if room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = self._f.write(bytes(b)[:room])
+        self._n += n
+        return n
+
+    def fileno(self):
+        return self._f.fileno()
+
+    def close(self):
+        self._f.close()
+        super().close()
+
+
+def _open_full(file, mode='r', *a, **k):
+    if isinstance(file, (str, os.PathLike)) and str(file).endswith('.mcap.part') and 'w' in mode:
+        return io.BufferedWriter(_Full(file))
+    return _open(file, mode, *a, **k)
+
+
+builtins.open = _open_full
+'''
+
+
+def enospc_env(tmp_path, limit: int) -> dict:
+    site = tmp_path / 'enospc_site'
+    site.mkdir(exist_ok=True)
+    (site / 'sitecustomize.py').write_text(ENOSPC_SITECUSTOMIZE)
+    env = dict(os.environ, IM_TEST_ENOSPC_BYTES=str(limit))
+    env['PYTHONPATH'] = os.pathsep.join([str(site), env.get('PYTHONPATH', '')])
+    return env
+
+
+def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary_is_written(
+        tmp_path):
+    import json
+    bag = tmp_path / 'full.mcap'
+    r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '1.0', '--record',
+                        str(bag), '--no-progress'], capture_output=True, text=True, timeout=300,
+                       env=enospc_env(tmp_path, 1_500_000))
+    assert r.returncode == 1, r.stderr
+    line = one_line('\n'.join(ln for ln in r.stderr.splitlines() if not ln.startswith('[INFO]')))
+    assert str(partial_path(bag)) in line and 'No space left on device' in line, line
+    assert not bag.exists() and partial_path(bag).exists()
+    summary = json.loads(bag.with_suffix('.json').read_text())
+    assert summary['ok'] is False and 'No space left on device' in summary['failures']['recorder']
+    assert 0 < summary['steps'] < 10_000
+    fix = run_tool('recover', bag)
+    assert fix.returncode == 0, fix.stderr
+    assert rosbags_count(tmp_path / 'full.recovered.mcap') > 0
+
+
+def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_path):
+    bag = tmp_path / 'pfull.mcap'
+    t0 = time.monotonic()
+    r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '2.0', '--record',
+                        str(bag), '--processes', '--no-progress'], capture_output=True,
+                       text=True, timeout=300, env=enospc_env(tmp_path, 1_500_000))
+    assert r.returncode == 1, r.stderr
+    assert 'Traceback' not in r.stderr and 'Traceback' not in (
+        tmp_path / 'pfull_logs' / 'recorder.log').read_text()
+    errors = [ln for ln in r.stderr.splitlines() if 'error' in ln]
+    assert len(errors) == 1 and 'recorder' in errors[0], r.stderr
+    assert str(partial_path(bag)) in errors[0] and 'No space left on device' in errors[0]
+    assert partial_path(bag).exists() and run_tool('recover', bag).returncode == 0
+    assert bag.with_suffix('.json').exists()
+    assert time.monotonic() - t0 < 60
+
+
+def _read_only(directory: Path, argv: list) -> list:
+    """``argv`` run with ``directory`` read-only: a read-only bind mount in a mount namespace of
+    its own as root (root writes through permission bits), mode 0555 otherwise."""
+    if os.geteuid() != 0:
+        directory.chmod(0o555)
+        return argv
+    d = str(directory)
+    return ['unshare', '-m', 'sh', '-c', f'mount --bind "{d}" "{d}" && mount -o remount,bind,ro '
+            f'"{d}" "{d}" && exec "$@"', '_'] + argv
+
+
+@pytest.mark.parametrize('option', ['--record', '--summary', '--report', '--write-params'])
+def test_read_only_output_is_refused_before_the_run(tmp_path, option):
+    ro = tmp_path / 'ro'
+    ro.mkdir()
+    target = {'--record': ro / 'a.mcap', '--summary': ro / 'a.json', '--report': ro / 'rep',
+              '--write-params': ro / 'p.yaml'}[option]
+    argv = [exe('scenario'), '--task', 'speed', '--duration', '0.02', '--no-progress', option,
+            str(target)]
+    if option == '--report':
+        argv += ['--record', str(tmp_path / 'r.mcap')]
+    t0 = time.monotonic()
+    r = subprocess.run(_read_only(ro, argv), capture_output=True, text=True, timeout=120)
+    try:
+        assert r.returncode == 2, r.stderr
+        line = one_line(r.stderr)
+        assert str(ro) in line and ('Read-only' in line or 'Permission denied' in line), line
+        assert time.monotonic() - t0 < 20         # refused before any simulation
+        assert not (tmp_path / 'r.mcap').exists() and not list(ro.iterdir())
+    finally:
+        ro.chmod(0o755)
+
+
+PARAMS_FAULTS = {
+    'unknown': ('k_1: 30.0', ["unknown parameter 'k_1'", "did you mean 'k1'"]),
+    'integer': ('k1: 30', ["'k1' = 30", 'integer', '30.0']),
+    'string': ('k1: "abc"', ["'k1' = 'abc'", 'real number']),
+    'range': ('k1: -5.0', ["'k1' = -5.0", 'range']),
+}
+
+
+@pytest.mark.parametrize('fault', sorted(PARAMS_FAULTS))
+@pytest.mark.parametrize('processes', [False, True], ids=['in_process', 'processes'])
+def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, processes):
+    text, wanted = PARAMS_FAULTS[fault]
+    f = tmp_path / 'p.yaml'
+    f.write_text(f'controller:\n  ros__parameters:\n    {text}\n')
+    argv = ['scenario', '--task', 'speed', '--duration', '0.02', '--no-progress',
+            '--params-file', f, '--record', tmp_path / 'x.mcap']
+    t0 = time.monotonic()
+    r = run_tool(*argv, *(['--processes'] if processes else []))
+    assert r.returncode == 2, r.stderr
+    line = one_line(r.stderr)
+    assert "node 'controller'" in line and all(w in line for w in wanted), line
+    assert time.monotonic() - t0 < 20          # no 30 s startup wait, no run
+    assert not (tmp_path / 'x.mcap').exists() and not partial_path(tmp_path / 'x.mcap').exists()
+    # the node executable itself says the same thing about the same file
+    from ament_index_python.packages import get_package_prefix
+    ctl = os.path.join(get_package_prefix('im_controller'), 'lib', 'im_controller', 'controller')
+    node = subprocess.run([ctl, '--ros-args', '--params-file', str(f)], capture_output=True,
+                          text=True, timeout=60)
+    assert node.returncode == 2
+    assert one_line(node.stderr).split('error: ', 1)[1] == line.split('error: ', 1)[1]
+
+
+def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(tmp_path):
+    """A configuration only the node's own process sees (here a parameter given to the
+    controller on its command line) still ends every process at once, with the node's line."""
+    from im_bringup.processes import failure_line, graph_processes, run_processes
+    procs = graph_processes('speed', duration=0.02)
+    for p in procs:
+        if p.name == 'controller':
+            p.parameters['k_1'] = 30.0
+    t0 = time.monotonic()
+    codes = run_processes(procs, str(tmp_path / 'logs'), timeout=120,
+                          env={'ROS_DOMAIN_ID': '177'})
+    assert codes['controller'] == 2 and time.monotonic() - t0 < 15, codes
+    assert all(c is not None for c in codes.values())
+    failure = failure_line(str(tmp_path / 'logs'), codes)
+    assert failure.startswith("controller: unknown parameter 'k_1'") and "'k1'" in failure

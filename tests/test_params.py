@@ -205,3 +205,40 @@ def test_loads_follow_their_formulas():
     assert make_load('constant', tau=2.5).torque(0.0, 0.0, 0.0) == 2.5
     assert make_load('pendulum', mgl=10.0).torque(0.0, math.pi / 3, 5.0) == pytest.approx(5.0)
     assert make_load('linear', c1=1.0, c2=0.001).torque(0.0, 0.0, 135.0) == pytest.approx(1.135)
+
+
+# ---------------------------------------------------------------------------------------------
+# One type and range rule for every path that takes parameters (issue 23)
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize('value, default, lo, hi, needle', [
+    (30, 40.0, 1e-6, 1e6, 'integer where a real number is expected; write 30.0'),
+    ('abc', 40.0, None, None, 'must be a real number'),
+    (True, 40.0, None, None, 'must be a real number'),
+    (-5.0, 40.0, 1e-6, 1e6, 'out of range [1e-06, 1e+06]'),
+    (NAN, 40.0, None, None, 'finite'),
+    (2.0, 2, 1, 64, 'whole number'),
+    (1, True, None, None, 'true or false'),
+    (3, 'min_loss', None, None, 'string'),
+])
+def test_parameter_error_says_why_in_words(value, default, lo, hi, needle):
+    from im_common.params import parameter_error
+    assert needle in parameter_error(value, default, lo, hi)
+
+
+@pytest.mark.parametrize('value, default', [(30.0, 40.0), (2, 2), (False, True), ('x', 'y'),
+                                            ([1.0, 2.0], [0.0])])
+def test_parameter_error_accepts_the_declared_type(value, default):
+    from im_common.params import parameter_error
+    assert parameter_error(value, default, 0, 100) is None
+
+
+def test_motor_file_integer_for_a_real_is_refused_as_the_nodes_refuse_it(tmp_path):
+    """A motor file read by ``scenario --motor`` and the same file given to a node with
+    ``--params-file`` obey one rule: ``J: 1`` is an integer where a real number is declared."""
+    from im_common.params import load_motor_file
+    p = tmp_path / 'm.yaml'
+    p.write_text('/**:\n  ros__parameters:\n    R_s: 0.687\n    R_r: 0.842\n    L_s: 0.08397\n'
+                 '    L_r: 0.08528\n    L_sr: 0.08136\n    pole_pairs: 2\n    J: 1\n    b: 0.01\n')
+    with pytest.raises(InvalidParameter) as e:
+        load_motor_file(str(p))
+    assert 'J' in str(e.value) and 'write 1.0' in str(e.value) and str(p) in str(e.value)

@@ -242,7 +242,29 @@ def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'o
     if o.exists() and not force:
         raise FileExistsError(f'{o}: the {what} exists; refusing to overwrite it '
                               '(pass --force)')
+    check_writable(o, what)
     return o
+
+
+def check_writable(out, what: str = 'output') -> None:
+    """Refuse, before any work, an output that cannot be created: a file is created and removed
+    in its directory (or, where that does not exist yet, in the nearest existing one, whose
+    subdirectories the writer creates). A read-only file system, a directory without write
+    permission or a path through a file is one :class:`OSError` line naming the output."""
+    import tempfile
+    o = Path(out)
+    d = o.parent if str(o.parent) else Path('.')
+    while not d.exists() and d != d.parent:
+        d = d.parent
+    try:
+        if not d.is_dir():
+            raise NotADirectoryError(20, 'not a directory')
+        fd, probe = tempfile.mkstemp(prefix='.' + o.name + '.', suffix='.probe', dir=str(d))
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OSError(f'{o}: the {what} cannot be written ({exc.strerror or exc}: {d})') \
+            from None
 
 
 def write_atomic(path, text: str) -> None:
@@ -272,6 +294,37 @@ def partial_path(path) -> Path:
     writer leaves its data there, and ``recover run.mcap`` finds it."""
     p = Path(path)
     return p.with_name(p.name + PART_SUFFIX)
+
+
+class _Output:
+    """The writer's file: an OS error on a write or flush (disk full, I/O error, a file system
+    gone read-only) becomes one :class:`BagError` naming the ``.part`` and the cause, and the
+    writer stops there — what reached the file stays for ``recover``."""
+
+    def __init__(self, f, failed):
+        self._f = f
+        self._failed = failed
+
+    def write(self, data) -> None:
+        try:
+            self._f.write(data)
+        except OSError as exc:
+            self._failed(exc)
+
+    def flush(self) -> None:
+        try:
+            self._f.flush()
+        except OSError as exc:
+            self._failed(exc)
+
+    def fileno(self) -> int:
+        return self._f.fileno()
+
+    def close(self) -> None:
+        try:
+            self._f.close()
+        except OSError:         # its buffer could not be written either: already reported
+            pass
 
 
 class BagWriter:
@@ -320,10 +373,16 @@ class BagWriter:
             raise FileExistsError(f'{self.part}: an interrupted recording is in the way; salvage '
                                   f'it with `ros2 run im_bringup recover {self.path}` or pass '
                                   'force=True / --force to discard it')
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        # written under <name>.part and renamed into place by close(): an interrupted or killed
-        # write never leaves a half-written file under the final name
-        self._f = open(self.part, 'wb')
+        self.failed: Optional[BagError] = None     # the write error that stopped this writer
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            # written under <name>.part and renamed into place by close(): an interrupted or
+            # killed write never leaves a half-written file under the final name
+            f = open(self.part, 'wb')
+        except OSError as exc:
+            raise BagError(self.part, f'cannot create the recording ({exc.strerror or exc})') \
+                from None
+        self._f = _Output(f, self._write_failed)
         self._crc = 0
         self._pos = 0
         self._schemas: Dict[str, int] = {}          # type -> schema id
@@ -383,6 +442,20 @@ class BagWriter:
             os.remove(self.part)
 
     # -- low level ------------------------------------------------------------------------
+    def _write_failed(self, exc: OSError) -> None:
+        """The file cannot be written: stop here (no later write or close touches it), keep the
+        ``.part`` for ``recover``, raise one :class:`BagError` (also kept in :attr:`failed`)."""
+        self.failed = BagError(self.part, f'cannot write the recording '
+                                          f'({exc.strerror or exc}); what was written is kept: '
+                                          f'`ros2 run im_bringup recover {self.path}`')
+        self._closed = True
+        self._chan = {}
+        self._f.close()
+        if getattr(self, '_atexit', None) is not None:
+            atexit.unregister(self._atexit)
+            self._atexit = None
+        raise self.failed
+
     def _write(self, data: bytes) -> None:
         self._f.write(data)
         self._crc = zlib.crc32(data, self._crc)

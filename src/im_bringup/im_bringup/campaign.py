@@ -328,8 +328,8 @@ def gain_arguments(spec: dict) -> Dict[str, dict]:
             params: dict = {'controller': {}, 'observer': {}}
             try:
                 merge_yaml(params, g['gains'])
-            except SystemExit as exc:
-                raise SpecError(str(exc).removeprefix('error: ')) from None
+            except ValueError as exc:
+                raise SpecError(str(exc)) from None
             for n, p in params.items():
                 period = p.get('gain_period')
                 if period is not None and abs(float(period) - g['T_s']) > 1e-12:

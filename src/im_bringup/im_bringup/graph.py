@@ -30,6 +30,34 @@ def _overrides(values: Mapping[str, object]):
     return [Parameter(k, value=v) for k, v in values.items()]
 
 
+def node_factories() -> Dict[str, object]:
+    """The node class of each drive node name."""
+    from im_adapt.adapter_node import AdapterNode
+    from im_controller.controller_node import ControllerNode
+    from im_observer.observer_node import ObserverNode
+    from im_plant.plant_node import PlantNode
+    return {'plant': PlantNode, 'controller': ControllerNode, 'observer': ObserverNode,
+            'adapter': AdapterNode}
+
+
+def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
+    """Build every drive node named in ``parameters`` once, with its parameters, on a private
+    context that is shut down again, and raise the :class:`im_common.lockstep.ConfigurationError`
+    of the first one that refuses them — what its own process would print — before any process
+    of a graph is started (``scenario --processes``, the launch file)."""
+    from im_common.lockstep import build_node
+    factories = node_factories()
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    try:
+        for name, values in parameters.items():
+            if name in factories:
+                build_node(factories[name], context=ctx, graph_key=bytes(32),
+                           parameter_overrides=_overrides(values)).destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 class DriveGraph:
     """Plant, controller, observer and adapter nodes in one process.
 
@@ -52,12 +80,8 @@ class DriveGraph:
     def __init__(self, parameters: Mapping[str, Mapping[str, object]],
                  nodes=NODE_NAMES, recorder=None, domain_id: Optional[int] = None,
                  graph_key: Optional[bytes] = None):
-        from im_adapt.adapter_node import AdapterNode
-        from im_controller.controller_node import ControllerNode
-        from im_observer.observer_node import ObserverNode
-        from im_plant.plant_node import PlantNode
-        factories = {'plant': PlantNode, 'controller': ControllerNode, 'observer': ObserverNode,
-                     'adapter': AdapterNode}
+        from im_common.lockstep import build_node
+        factories = node_factories()
         self.context = Context()
         # closed by default (docs/security.md): discovery on this host unless the user chose
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -67,10 +91,12 @@ class DriveGraph:
         rclpy.init(context=self.context, domain_id=self.domain_id)
         self.nodes: Dict[str, object] = {}
         self.recorder = recorder
+        self._stop = None
+        self._failures: Dict[str, str] = {}
         try:
             for name in nodes:
-                self.nodes[name] = factories[name](
-                    context=self.context, graph_key=self.graph_key,
+                self.nodes[name] = build_node(       # refused: one ConfigurationError line
+                    factories[name], context=self.context, graph_key=self.graph_key,
                     parameter_overrides=_overrides(parameters.get(name, {})))
             from im_common.lockstep import make_executor
             self.executor = make_executor(self.context)
@@ -131,6 +157,13 @@ class DriveGraph:
         if (node.exit_code or node is self.nodes.get('plant')) and not self._stop.done():
             self._stop.set_result(node.get_name())
 
+    def fail(self, name: str, reason: str) -> None:
+        """A part of the run that is not a node failed (the in-process recorder: its file
+        cannot be written): the run ends as when a node fails, ``failures[name] = reason``."""
+        self._failures[name] = reason
+        if self._stop is not None and not self._stop.done():
+            self._stop.set_result(name)
+
     def run(self, progress: bool = False, wall_limit: Optional[float] = None,
             stop=None) -> dict:
         """Spin until the plant reached its duration, a node failed, ``wall_limit`` [s] passed
@@ -153,7 +186,7 @@ class DriveGraph:
             wall_limit = wall_limit or 60.0
         t0 = time.perf_counter()
         k0 = plant.sim.k if plant is not None else 0
-        failures = {}
+        failures = self._failures = {}
         self._spin(plant, t0, k0, progress, wall_limit, stop, failures)
         self.wall_s = time.perf_counter() - t0
         if any(n.exit_code for n in nodes):

@@ -110,11 +110,11 @@ def params_file_text(parameters: Mapping[str, object]) -> str:
 
 
 def load_params_yaml(path: str) -> Dict[str, Dict[str, object]]:
-    """{node: {param: value}} of a ROS 2 parameters YAML (e.g. from ``design_gains``)."""
-    from im_common.yamlio import read_parameters
-    with open(path) as f:
-        doc = read_parameters(f.read())
-    return {str(node).strip('/').split('/')[-1]: values for node, values in doc.items()}
+    """{node: {param: value}} of a ROS 2 parameters YAML (e.g. from ``design_gains``); a file
+    that cannot be used is one :class:`im_common.yamlio.ParametersFileError` naming it."""
+    from im_bringup.config import node_parameters
+    from im_common.yamlio import load_parameters_file
+    return load_parameters_file(path, nodes=node_parameters())
 
 
 def executable_path(package: str, executable: str) -> str:
@@ -214,22 +214,38 @@ class GraphProcesses:
             self.stop(grace=5.0)
 
 
+#: Exit code of a node that refused its configuration (``im_common.lockstep.node_main``).
+REFUSED = 2
+#: Seconds the others get to end on their own after a node failed at run time (they see its
+#: ``failed`` event) before they are stopped; a refused configuration stops them at once.
+FAILURE_GRACE = 2.0
+
+
 def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float,
                   env: Optional[Mapping[str, str]] = None, progress: bool = False
                   ) -> Dict[str, Optional[int]]:
     """Start the graph, wait for every process to exit (SIGINT/SIGTERM to this process stop
-    the graph cleanly), stop it after ``timeout``; return the exit codes."""
+    the graph cleanly), stop it after ``timeout``; return the exit codes. A process that exits
+    with an error stops the graph: at once when it refused its configuration (exit code 2),
+    after :data:`FAILURE_GRACE` otherwise — nobody waits out a startup timeout for a node that
+    is gone. :func:`failure_line` says which and why."""
     from im_common.stopping import StopSignals
     g = GraphProcesses(processes, workdir, env)
     with StopSignals() as stop:
         g.start()
         t0 = time.monotonic()
+        stop_at = None
         while time.monotonic() - t0 < timeout:
             if stop.requested:
                 break
             codes = g.returncodes()
             if all(c is not None for c in codes.values()):
                 return codes
+            failed = [c for c in codes.values() if c not in (None, 0)]
+            if failed and stop_at is None:
+                stop_at = time.monotonic() + (0.0 if REFUSED in failed else FAILURE_GRACE)
+            if stop_at is not None and time.monotonic() >= stop_at:
+                break
             if progress:
                 running = [n for n, c in codes.items() if c is None]
                 print(f'\r  {time.monotonic() - t0:6.1f} s  running: {" ".join(running):50s}',
@@ -238,3 +254,36 @@ def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float
         if progress:
             print(file=sys.stderr)
         return g.stop()
+
+
+def failure_line(workdir: str, codes: Mapping[str, Optional[int]]) -> Optional[str]:
+    """``'<node>: <its error line>'`` for the process that ended the graph (a refused
+    configuration first, then in start order), from its log in ``workdir``; None when every
+    process exited 0."""
+    failed = [n for n, c in codes.items() if c not in (None, 0)]
+    if not failed:
+        return None
+    order = list(START_ORDER)
+    failed.sort(key=lambda n: (codes[n] != REFUSED, order.index(n) if n in order else 99))
+    name = failed[0]
+    try:
+        with open(os.path.join(workdir, f'{name}.log')) as f:
+            lines = [ln.strip() for ln in f if ln.strip()]
+    except OSError:
+        lines = []
+    said = [ln for ln in lines if 'error: ' in ln and not ln.startswith('[')]
+    said = said or [ln for ln in lines if ln.startswith('[ERROR]') or ln.startswith('[FATAL]')]
+    if not said:
+        return f'{name}: exit code {codes[name]} (see {workdir}/{name}.log)'
+    line = said[0]
+    if line.startswith('['):                        # a ROS log line: [LEVEL] [stamp] [node]: text
+        line = line.split(']: ', 1)[-1]
+    return f"{name}: {line.split('error: ', 1)[-1]}"
+
+
+def check_processes(processes: Sequence[NodeProcess]) -> None:
+    """Refuse a configuration that a node's own process would refuse, before any process is
+    started: each node is built once with its parameters (:func:`im_bringup.graph.
+    check_parameters`); raises :class:`im_common.lockstep.ConfigurationError` (one line)."""
+    from im_bringup.graph import check_parameters
+    check_parameters({p.name: p.parameters for p in processes})

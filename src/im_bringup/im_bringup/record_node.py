@@ -339,7 +339,8 @@ class RecorderNode(LockstepNode):
         try:
             write(topic, data, t)
         except BagError:
-            return          # closed by a signal while a callback was pending
+            return          # closed by a signal while a callback was pending, or its file
+            # cannot be written (writer.failed: main ends the recording with that line)
         counts[topic] += 1
         self._last_msg = time.monotonic()
         if track is not None:
@@ -459,6 +460,10 @@ def main(argv=None) -> int:
                 print(f'record: error: {exc}', file=sys.stderr)
                 writer.discard()            # nothing was recorded: leave no file behind
                 return 2
+            except BagError:                # its file cannot be written: said below
+                if not writer.failed:
+                    raise
+                return 1
             node.get_logger().info(f'recording {len(topics)} topics to {out}')
             ex = make_executor()
             ex.add_node(node)
@@ -468,18 +473,29 @@ def main(argv=None) -> int:
                     break
                 if not a.continuous and node.drained():
                     break
+                if writer.failed:           # its file cannot be written: end, say why below
+                    break
                 ex.spin_once(timeout_sec=0.05)
             if stop.requested:
                 node.request_stop(stop.requested)
         finally:
-            if node is not None:
-                node.flush_unverified()
-                writer.declare_expected()       # topics that had no message, while the node lives
-                meta = node.close_metadata(stop.requested)
-                meta['parameters_not_received'] = ' '.join(
-                    sorted(set(node.parameters_asked) - set(node.parameters_written)))
-                writer.add_metadata('recording', meta)
-            writer.close()
+            try:
+                if node is not None:
+                    node.flush_unverified()
+                    writer.declare_expected()       # topics that had no message, while the node lives
+                    meta = node.close_metadata(stop.requested)
+                    meta['parameters_not_received'] = ' '.join(
+                        sorted(set(node.parameters_asked) - set(node.parameters_written)))
+                    writer.add_metadata('recording', meta)
+                writer.close()
+            except BagError:            # writer.failed: the error line below
+                pass
+            if writer.failed:
+                print(f'record: error: {writer.failed}', file=sys.stderr)
+                if node is not None:
+                    node.destroy_node()
+                rclpy.try_shutdown()
+                return 1
             if node is not None:
                 n = sum(node.counts.values())
                 missing = {t: tr.missing for t, tr in node.track.items() if tr.missing}

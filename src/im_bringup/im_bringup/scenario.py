@@ -78,30 +78,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def merge_yaml(parameters: dict, path: str) -> dict:
-    """Merge a ROS 2 parameters YAML (node: {ros__parameters: {...}}) over ``parameters``."""
-    import yaml
-    try:
-        with open(path) as f:
-            doc = yaml.safe_load(f) or {}
-    except OSError as exc:
-        raise SystemExit(f'error: cannot read parameters file {path}: {exc.strerror}')
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
-        what = getattr(exc, 'problem', None) or type(exc).__name__
-        raise SystemExit(f'error: parameters file {path} is not valid YAML{where}: {what}')
-    if not isinstance(doc, dict):
-        raise SystemExit(f'error: parameters file {path}: expected a mapping of node names to '
-                         f'{{ros__parameters: {{...}}}}, not a {type(doc).__name__}')
-    for node, body in doc.items():
-        name = str(node).strip('/').split('/')[-1]
-        values = (body or {}).get('ros__parameters', {}) if isinstance(body, dict) else None
-        if not isinstance(values, dict):
-            raise SystemExit(f"error: parameters file {path}: node '{node}' needs a "
-                             "'ros__parameters' mapping")
-        if name not in parameters:
-            raise SystemExit(f"error: {path}: unknown node '{node}' "
-                             f"(expected one of {', '.join(parameters)})")
+    """Merge a ROS 2 parameters YAML (node: {ros__parameters: {...}}) over ``parameters``; a
+    file that cannot be used is one :class:`im_common.yamlio.ParametersFileError` (ValueError)
+    naming it, the same line the launch file and the node executables give."""
+    from im_common.yamlio import load_parameters_file
+    for name, values in load_parameters_file(path, nodes=parameters).items():
         parameters[name].update(values)
     return parameters
 
@@ -159,6 +140,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
         try:
             graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
+            sink.on_error = lambda line: graph.fail('recorder', line)   # e.g. the disk is full
             if writer is not None:      # every parameter of every node, defaults included
                 from im_bringup.bag import parameters_metadata
                 for name, node in graph.nodes.items():
@@ -174,7 +156,9 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
             k = plant.sim.k if plant is not None else 0
             if graph is not None:
                 graph.close()
-            if writer is not None:
+            if writer is not None and graph is None:    # refused before the run: no file
+                writer.discard()
+            elif writer is not None and not writer.failed:
                 if stop.requested:
                     writer.add_metadata('interrupted', {'signal': stop.requested,
                                                         'steps': str(k)})
@@ -187,6 +171,11 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         summary['failures'] = {'run': f'interrupted by {signal}'}
     if record:
         summary['bag'] = record
+    if writer is not None and writer.failed:   # its .part holds what was written (recover)
+        summary['bag'] = None
+        summary['partial_recording'] = str(writer.part)
+        summary['ok'] = False
+        summary.setdefault('failures', {})['recorder'] = str(writer.failed)
     return summary
 
 
@@ -251,8 +240,8 @@ def main(argv=None) -> int:
         if extra:
             try:
                 merge_yaml(parameters, extra)
-            except SystemExit as exc:
-                print(exc, file=sys.stderr)
+            except ValueError as exc:
+                print(f'error: {exc}', file=sys.stderr)
                 return 2
     from im_bringup.bag import check_output, write_atomic
     if args.write_params:
@@ -261,7 +250,7 @@ def main(argv=None) -> int:
                          what='--write-params file')
             write_atomic(args.write_params, to_yaml(parameters))
         except OSError as exc:
-            print(f'error: {exc}', file=sys.stderr)
+            print(f'error: {_os_line(exc, args.write_params)}', file=sys.stderr)
             return 2
         print(f'parameters written to {args.write_params}')
         return 0
@@ -290,6 +279,7 @@ def main(argv=None) -> int:
         return 2
     if args.processes:
         return _run_processes(args, parameters, out)
+    from im_bringup.bag import BagError
     try:
         summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
                                controller=args.controller, variation=args.variation,
@@ -298,12 +288,15 @@ def main(argv=None) -> int:
     except (ValueError, FileExistsError, rclpy_errors()) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
+    except BagError as exc:         # the recording failed before the run started
+        print(f'error: {exc}', file=sys.stderr)
+        return 1
     summary.pop('_run', None)
-    from im_bringup.report import jsonable
-    write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
-    print_summary(summary)
-    print(f'summary: {out}')
-    if args.record:
+    print_summary(summary)          # on the console even if the summary file cannot be written
+    written = _write_summary(out, summary)
+    if written:
+        print(f'summary: {out}')
+    if args.record and summary.get('bag'):
         print(f'recording: {args.record}')
     if summary.get('interrupted'):
         from im_common.stopping import exit_code_for
@@ -311,12 +304,48 @@ def main(argv=None) -> int:
               'summary and the recording (if any) are complete up to there', file=sys.stderr)
         return exit_code_for(summary['interrupted'])
     if not summary['ok']:
-        print(f"error: the run stopped early: {summary['failures']}", file=sys.stderr)
+        print('error: the run stopped early: ' + '; '.join(
+            f'{n}: {r}' for n, r in summary['failures'].items()), file=sys.stderr)
+        return 1
+    if not written:
         return 1
     if args.report and args.record:
-        from im_bringup.report import write_report
-        write_report([args.record], args.report)
-        print(f'report: {args.report}/')
+        return _write_report(args.record, args.report)
+    return 0
+
+
+def _os_line(exc: OSError, path: str) -> str:
+    """One line for an OS error on ``path`` (the file and the cause, no errno noise)."""
+    if exc.strerror:
+        return f'{exc.filename or path}: {exc.strerror}'
+    return str(exc)
+
+
+def _write_summary(out: str, summary: dict) -> bool:
+    """Write the summary JSON; a write error (disk full, ...) is one line and False."""
+    from im_bringup.bag import write_atomic
+    from im_bringup.report import jsonable
+    try:
+        write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
+    except OSError as exc:
+        print(f'error: the summary cannot be written: {_os_line(exc, out)} (its figures are '
+              'printed above)', file=sys.stderr)
+        return False
+    return True
+
+
+def _write_report(record: str, report: str) -> int:
+    from im_bringup.bag import BagError
+    from im_bringup.report import write_report
+    try:
+        write_report([record], report)
+    except OSError as exc:
+        print(f'error: the report cannot be written: {_os_line(exc, report)}', file=sys.stderr)
+        return 1
+    except BagError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 1
+    print(f'report: {report}/')
     return 0
 
 
@@ -326,16 +355,22 @@ def _run_processes(args, parameters: dict, out: str) -> int:
     the recording, by the report's own code."""
     import random
 
-    from im_bringup.bag import write_atomic
-    from im_bringup.processes import graph_processes, run_processes
-    from im_bringup.report import figures_of_merit, jsonable
+    from im_bringup.processes import check_processes, failure_line, graph_processes, \
+        run_processes
+    from im_bringup.report import figures_of_merit
     from im_bringup.run import load_run
+    from im_common.lockstep import ConfigurationError
     procs = graph_processes(args.task, args.strategy, args.controller, T_s=args.T_s,
                             duration=args.duration, mode=parameters['plant'].get('mode',
                                                                                 'lockstep'),
                             record=args.record, extra=parameters,
                             record_metadata=run_metadata(args.task, args.strategy,
                                                          args.controller, args.variation))
+    try:            # what a node's own process would refuse, before any process starts
+        check_processes(procs)
+    except ConfigurationError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
     for p in procs:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
@@ -346,18 +381,30 @@ def _run_processes(args, parameters: dict, out: str) -> int:
     summary = {'task': args.task, 'strategy': args.strategy, 'controller': args.controller,
                'variation': args.variation, 'rate_hz': round(1.0 / args.T_s, 6),
                'processes': codes, 'logs': logs, 'ok': all(c == 0 for c in codes.values())}
+    failure = failure_line(logs, codes)
+    if failure:
+        summary['failures'] = {failure.split(':', 1)[0]: failure.split(': ', 1)[-1]}
     if os.path.exists(args.record):
         summary.update(figures_of_merit(load_run(args.record)))
-    write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
+    else:
+        from im_bringup.bag import partial_path
+        if partial_path(args.record).exists():     # the recorder failed: recover reads it
+            summary['partial_recording'] = str(partial_path(args.record))
     print_summary(summary)
-    print(f'summary: {out}\nrecording: {args.record}\nlogs: {logs}/')
+    written = _write_summary(out, summary)
+    if written:
+        print(f'summary: {out}')
+    print(f'logs: {logs}/')
+    if os.path.exists(args.record):
+        print(f'recording: {args.record}')
     if not summary['ok']:
-        print(f'error: exit codes {codes} (see {logs}/<node>.log)', file=sys.stderr)
+        print(f'error: {failure}' if failure else
+              f'error: exit codes {codes} (see {logs}/<node>.log)', file=sys.stderr)
+        return 1
+    if not written:
         return 1
     if args.report:
-        from im_bringup.report import write_report
-        write_report([args.record], args.report)
-        print(f'report: {args.report}/')
+        return _write_report(args.record, args.report)
     return 0
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Optional, Union
 
+from im_bringup.bag import BagError
 from im_common.cdr import encode, header_stamp_ns
 
 
@@ -26,6 +27,8 @@ class Tap:
         from im_bringup.run import (RunningFigures, TraceKeeper, TraceStream, TruthBooks,
                                     lockstep_topics)
         self.writer = writer
+        self.error: Optional[str] = None    # why the writer stopped (its file cannot be written)
+        self.on_error = None                # called with that line (a graph ends its run)
         self.keep = keep
         self.books = TruthBooks()
         self.figures = RunningFigures(lockstep_topics=lockstep_topics())
@@ -43,7 +46,15 @@ class Tap:
         if self.writer is not None:
             if ns is None:
                 ns = header_stamp_ns(data)
-            self.writer.write_serialized(topic, data, ns)
+            try:
+                self.writer.write_serialized(topic, data, ns)
+            except BagError as exc:         # the recording's file cannot be written (disk full)
+                if not self.writer.failed:
+                    raise
+                self.writer = None          # what it wrote stays in its .part (recover)
+                self.error = str(exc)
+                if self.on_error is not None:
+                    self.on_error(self.error)
         self.stream.add(topic, data)
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):

@@ -11,7 +11,11 @@ controller, observer; the adapter when the controller uses it; the recorder (a l
 when ``record`` names a file, and the plant then waits for it before step 0. ``gains`` and
 ``params_file`` are ROS 2 parameters files merged over the scenario's parameters (``gains`` e.g.
 ``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``, which
-``mode:=free_run`` needs). Ctrl-C stops every process cleanly (exit 0) and closes the recording.
+``mode:=free_run`` needs). The parameters are checked before any process starts, by the nodes'
+own checks (:func:`im_bringup.processes.check_processes`): a bad file or value is launch's one
+"Caught exception" line naming the node and parameter; a process that still exits with an error
+shuts the whole launch down at once. Ctrl-C stops every process cleanly (exit 0) and closes the
+recording.
 Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless that variable is
 already set (``SUBNET`` opens the graph to other machines on purpose). Every launch makes a fresh
 graph key: the nodes refuse lock-step messages and run events of anyone else (docs/security.md).
@@ -20,7 +24,10 @@ Needs a full ROS 2 Jazzy install (``launch``/``launch_ros`` are not on PyPI); no
 suite imports this file.
 """
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
+from launch.actions import (DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler,
+                            SetEnvironmentVariable)
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -45,7 +52,7 @@ ARGUMENTS = (
 
 
 def _processes(context):
-    from im_bringup.processes import graph_processes, load_params_yaml
+    from im_bringup.processes import check_processes, graph_processes, load_params_yaml
     a = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
     extra = {}
     for key in ('gains', 'params_file'):
@@ -57,12 +64,22 @@ def _processes(context):
         T_s=float(a['T_s']), duration=float(a['duration']) if a['duration'] else None,
         mode=a['mode'], record=a['record'] or None, extra=extra,
         use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()])
+    check_processes(procs)      # what a node would refuse, refused before any process starts
     secure = a['security'].lower() == 'true'
     return [Node(package=p.package, executable=p.executable, name=p.name,
                  parameters=[p.parameters] if p.parameters else [], arguments=p.arguments,
                  ros_arguments=['--enclave', f'/im_drive/{p.name}'] if secure else [],
                  output='screen', sigterm_timeout='10', sigkill_timeout='5')
             for p in procs]
+
+
+def _stop_on_failure(event, _context):
+    """A node that exits with an error (a refused configuration: 2) ends the launch at once:
+    the others do not wait out their startup timeout for it."""
+    if event.returncode:
+        name = getattr(event, 'process_name', None) or 'a node'
+        return [EmitEvent(event=Shutdown(reason=f'{name} exited with code {event.returncode}'))]
+    return None
 
 
 def generate_launch_description():
@@ -72,4 +89,5 @@ def generate_launch_description():
         # discovery stays on this host unless the user opened it on purpose
         + [SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', EnvironmentVariable(
             'ROS_AUTOMATIC_DISCOVERY_RANGE', default_value='LOCALHOST')),
+           RegisterEventHandler(OnProcessExit(on_exit=_stop_on_failure)),
            OpaqueFunction(function=_processes)])

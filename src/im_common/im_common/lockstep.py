@@ -44,6 +44,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from . import auth, realtime
 from .conversions import NS_PER_S
+from .params import parameter_error
 from .stopping import StopSignals
 
 #: Reader history of /im/status (events of every node on the domain while this one starts).
@@ -188,6 +189,28 @@ def describe(description: str, lo=None, hi=None, read_only: bool = False, intege
     return d
 
 
+class ConfigurationError(ValueError):
+    """A node refuses its configuration (a parameter unknown, of the wrong type or out of
+    range); the message is the one line every path prints (:func:`build_node`)."""
+
+
+def build_node(factory: Callable[..., 'LockstepNode'], **kwargs) -> 'LockstepNode':
+    """Construct a drive node and check its configuration: every declared parameter's type and
+    range (:meth:`LockstepNode.param`) and no parameter given that it does not declare
+    (:meth:`LockstepNode.check_overrides`). A node executable (:func:`node_main`), the in-process
+    graph and the check a supervisor makes before starting processes all build nodes here, so a
+    configuration is refused with the same :class:`ConfigurationError` line on every path."""
+    node = None
+    try:
+        node = factory(**kwargs)
+        node.check_overrides()
+        return node
+    except (ValueError, rclpy.exceptions.ParameterException) as exc:
+        if node is not None:
+            node.destroy_node()
+        raise ConfigurationError(str(exc).splitlines()[0]) from None
+
+
 def stamp_text(ns: int) -> str:
     return f'{ns / NS_PER_S:.9f} s'
 
@@ -268,10 +291,16 @@ class LockstepNode(Node):
         integer = isinstance(default, int) and not isinstance(default, bool)
         desc = describe(description + (f' (one of: {", ".join(choices)})' if choices else ''),
                         lo, hi, read_only=read_only, integer=integer)
+        given = getattr(self, '_parameter_overrides', {}).get(name)
+        if given is not None:       # one line naming node and parameter (docs/architecture.md)
+            bad = parameter_error(given.value, default, lo, hi)
+            if bad:
+                raise ConfigurationError(f"invalid parameter '{name}' = {given.value!r} for node "
+                                         f"'{self.get_name()}': {bad}")
         value = self.declare_parameter(name, default, desc).value
         if choices is not None and value not in choices:
-            raise ValueError(f"invalid parameter '{name}' = {value!r}: must be one of "
-                             f"{', '.join(choices)}")
+            raise ConfigurationError(f"invalid parameter '{name}' = {value!r} for node "
+                                     f"'{self.get_name()}': must be one of {', '.join(choices)}")
         return value
 
     def check_overrides(self) -> None:
@@ -811,48 +840,19 @@ def _rcl_error():
     return _rclpy.RCLError
 
 
-def _params_loader():
-    """A safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
-    ``!!python/tuple``)."""
-    import yaml
-
-    class Loader(yaml.SafeLoader):
-        pass
-
-    def untagged(loader, _suffix, node):
-        if isinstance(node, yaml.SequenceNode):
-            return loader.construct_sequence(node)
-        if isinstance(node, yaml.MappingNode):
-            return loader.construct_mapping(node)
-        return loader.construct_scalar(node)
-    Loader.add_multi_constructor('', untagged)
-    return Loader
-
-
 def init_args_error(args: List[str]) -> Optional[str]:
     """A readable line for a bad ``--params-file`` (missing, unreadable, malformed) before
-    ``rclpy.init`` turns it into a traceback; None when the files look loadable."""
-    import yaml
-    _ParamsLoader = _params_loader()
+    ``rclpy.init`` turns it into a traceback; None when the files look loadable. The file is
+    read by :func:`im_common.yamlio.load_parameters_file`, as on every other path."""
+    from im_common.yamlio import ParametersFileError, load_parameters_file
     for i, a in enumerate(args):
         if a == '--params-file':
             if i + 1 >= len(args):
                 return '--params-file needs a file name'
-            path = args[i + 1]
             try:
-                with open(path) as f:
-                    doc = yaml.load(f, Loader=_ParamsLoader)
-            except OSError as exc:
-                return f'cannot read parameters file {path}: {exc.strerror}'
-            except yaml.YAMLError as exc:
-                mark = getattr(exc, 'problem_mark', None)
-                where = f' (line {mark.line + 1})' if mark is not None else ''
-                return f'parameters file {path} is not valid YAML{where}'
-            if not isinstance(doc, dict) or not all(
-                    isinstance(v, dict) and isinstance(v.get('ros__parameters'), dict)
-                    for v in doc.values()):
-                return (f'parameters file {path} is not a ROS 2 parameters file (expected '
-                        f'<node or /**>: {{ros__parameters: {{name: value}}}})')
+                load_parameters_file(args[i + 1])
+            except ParametersFileError as exc:
+                return str(exc)
     return None
 
 
@@ -882,11 +882,9 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
         code = 0
         try:
             try:
-                node = factory()
-                node.check_overrides()
+                node = build_node(factory)
                 node.own_process = True         # free_run may make this process real-time
-            except (ValueError, rclpy.exceptions.InvalidParameterValueException,
-                    rclpy.exceptions.ParameterException) as exc:
+            except ConfigurationError as exc:
                 print(f'{prog}: error: {exc}', file=sys.stderr)
                 return 2
             executor = make_executor()

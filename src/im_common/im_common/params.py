@@ -74,6 +74,32 @@ def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: boo
     return x
 
 
+def parameter_error(value, default, lo=None, hi=None) -> Optional[str]:
+    """Why ``value`` cannot be a parameter declared with ``default`` and range [lo, hi], or None.
+    The parameters are typed as in ROS 2: an integer is not taken for a real-valued parameter
+    (no silent conversion; the line says to write it as a real number). The one type and range
+    rule of every path that takes parameters: the nodes (``LockstepNode.param``) and the motor
+    files (:func:`motor_from_dict`)."""
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else 'must be true or false'
+    if isinstance(default, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            kind = 'a whole number' if isinstance(default, int) else 'a real number'
+            return f'must be {kind}, not {type(value).__name__}'
+        if isinstance(default, float) and isinstance(value, int):
+            return f'an integer where a real number is expected; write {value}.0'
+        if isinstance(default, int) and isinstance(value, float):
+            return 'must be a whole number'
+        if not math.isfinite(value):
+            return 'must be finite'
+        if lo is not None and hi is not None and not lo <= value <= hi:
+            return f'out of range [{lo:g}, {hi:g}]'
+        return None
+    if isinstance(default, str) and not isinstance(value, str):
+        return f'must be a string, not {type(value).__name__}'
+    return None
+
+
 def _check_finite_positive(name: str, value, allow_zero: bool = False) -> None:
     check_real(name, value, 0.0, lo_open=not allow_zero)
 
@@ -221,9 +247,10 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
             raise InvalidParameter(f'{source}: {key}', None, 'is missing')
     clean = {}
     for key, val in values.items():
-        if isinstance(val, bool) or not isinstance(val, (int, float)):
-            raise InvalidParameter(f'{source}: {key}', val, 'must be a number')
-        clean[key] = val if key == 'pole_pairs' else float(val)
+        bad = parameter_error(val, getattr(THESIS_MOTOR, key))
+        if bad:
+            raise InvalidParameter(f'{source}: {key}', val, bad)
+        clean[key] = val
     try:
         return MotorParams(**clean)
     except InvalidParameter as exc:

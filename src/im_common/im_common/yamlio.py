@@ -1,13 +1,19 @@
-"""The one writer of ROS parameter YAML (``node: {ros__parameters: {...}}``) in the project.
+"""The one writer and the one reader of ROS parameter YAML (``node: {ros__parameters: {...}}``).
 
 Values are plain Python (numbers, strings, bools, lists of numbers); numpy scalars and arrays are
 converted. Floats are written with ``repr`` precision so a file read back gives the same numbers.
 A value YAML cannot carry (NaN/inf in a parameter, an object) is rejected naming the parameter.
+
+:func:`load_parameters_file` is how every path reads a parameters file — ``scenario
+--params-file``/``--gains``, the launch file, a node executable before ``rclpy.init`` — so a file
+that cannot be read, is not YAML or is not laid out as a parameters file gets the same one line
+everywhere (:class:`ParametersFileError`). The values themselves are checked by the nodes
+(``im_common.lockstep.build_node``), also on every path.
 """
 from __future__ import annotations
 
 import math
-from typing import Dict, Mapping, Optional
+from typing import Dict, Iterable, Mapping, Optional
 
 import yaml
 
@@ -50,6 +56,73 @@ def parameters_yaml(nodes: Mapping[str, Mapping[str, object]], header: Optional[
         lines = [ln if ln.startswith('#') else f'# {ln}' for ln in header.rstrip('\n').split('\n')]
         text = '\n'.join(lines) + '\n' + text
     return text
+
+
+class ParametersFileError(ValueError):
+    """A parameters file that cannot be used; the message is one line naming the file."""
+
+
+def _loader():
+    """A safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
+    ``!!python/tuple``)."""
+    class Loader(yaml.SafeLoader):
+        pass
+
+    def untagged(loader, _suffix, node):
+        if isinstance(node, yaml.SequenceNode):
+            return loader.construct_sequence(node)
+        if isinstance(node, yaml.MappingNode):
+            return loader.construct_mapping(node)
+        return loader.construct_scalar(node)
+    Loader.add_multi_constructor('', untagged)
+    return Loader
+
+
+def node_name(key) -> str:
+    """The node a parameters-file section is for: ``/ns/controller`` -> ``controller``."""
+    return str(key).strip('/').split('/')[-1]
+
+
+def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Dict[str, dict]:
+    """``{node: {param: value}}`` of a ROS 2 parameters file (section names as written, e.g.
+    ``/**`` or ``/controller``); with ``nodes``, sections are keyed by node name and a section
+    for a node not in ``nodes`` is refused naming the nearest one. Every problem is one
+    :class:`ParametersFileError` naming the file."""
+    import difflib
+    try:
+        with open(path) as f:
+            doc = yaml.load(f, Loader=_loader())
+    except OSError as exc:
+        raise ParametersFileError(f'cannot read parameters file {path}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+        what = getattr(exc, 'problem', None) or type(exc).__name__
+        raise ParametersFileError(f'parameters file {path} is not valid YAML{where}: {what}') \
+            from None
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise ParametersFileError(f'parameters file {path} is not a ROS 2 parameters file: '
+                                  f'expected a mapping of node names to '
+                                  f'{{ros__parameters: {{...}}}}, not a {type(doc).__name__}')
+    known = None if nodes is None else list(nodes)
+    out: Dict[str, dict] = {}
+    for key, body in doc.items():
+        values = (body or {}).get('ros__parameters', {}) if isinstance(body, dict) else None
+        if not isinstance(values, dict):
+            raise ParametersFileError(f"parameters file {path} is not a ROS 2 parameters file: "
+                                      f"node '{key}' needs a 'ros__parameters' mapping")
+        name = str(key)
+        if known is not None:
+            name = node_name(key)
+            if name not in known:
+                near = difflib.get_close_matches(name, known, n=1)
+                hint = f"; did you mean '{near[0]}'?" if near else ''
+                raise ParametersFileError(f"parameters file {path}: unknown node '{key}'{hint} "
+                                          f"(expected one of {', '.join(known)})")
+        out.setdefault(name, {}).update(values)
+    return out
 
 
 def read_parameters(text: str) -> Dict[str, dict]:
