@@ -44,10 +44,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-from .bag import (_REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX,
-                  OP_DATA_END, OP_FOOTER, OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA,
-                  OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET, BagError,
-                  BagWriter, check_output, partial_path)
+from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK,
+                  OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER, OP_MESSAGE,
+                  OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS,
+                  OP_SUMMARY_OFFSET, BagError, BagWriter, check_output, partial_path)
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
 
@@ -66,7 +66,6 @@ _SUMMARY_OPS = frozenset((OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_ATTACHMENT_I
 # (a Message may not: it carries no check and a damaged uncompressed chunk is full of them)
 _CANDIDATE = re.compile(rb'(?=[\x03\x04\x06\x07\x09\x0c\x0f][\x00-\xff]{5}\x00\x00\x00)', re.S)
 _CHUNK_HEAD = struct.Struct('<QQQI')
-_MSG_HEAD = struct.Struct('<HIQQ')
 
 
 class Damage(ValueError):
@@ -220,28 +219,40 @@ def _inflate(comp: str, raw, usize: int) -> bytes:
         raise Damage(f'chunk does not decompress ({type(exc).__name__})') from None
 
 
-def chunk_records(b) -> Tuple[int, int, bytes, List[Tuple[int, int, int]]]:
-    """Validate a whole Chunk body: (start, end, uncompressed records, [(op, start, end)])."""
-    t0, t1, usize, crc, comp, p = chunk_header(b)
+def chunk_records(b):
+    """Validate a whole Chunk body and everything in it. Returns (uncompressed records,
+    messages as [(channel, log time, data start, data end)], declarations as [(number of messages
+    before it, opcode, parsed Schema or Channel)])."""
+    _t0, _t1, usize, crc, comp, p = chunk_header(b)
     inner = _inflate(comp, memoryview(b)[p:], usize)
     if len(inner) != usize:
         raise Damage('chunk size differs from its header after decompression')
     if crc and zlib.crc32(inner) != crc:
         raise Damage('chunk CRC mismatch')
-    recs = []
-    pos = 0
+    msgs, decls = [], []
+    add = msgs.append
+    head, rec = _MSG_HDR.unpack_from, _REC.unpack_from
+    pos, last = 0, usize - _MSG_HDR.size
     while pos < usize:
-        if pos + 9 > usize:
+        if pos <= last:
+            op, length, cid, _seq, t, _pub = head(inner, pos)
+        elif pos + 9 <= usize:
+            op, length = rec(inner, pos)
+        else:
             raise Damage('torn record inside a chunk')
-        op, length = _REC.unpack_from(inner, pos)
         end = pos + 9 + length
-        if op not in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL) or end > usize:
-            raise Damage('bad record inside a chunk')
-        if op == OP_MESSAGE and length < _MSG_HEAD.size:
-            raise Damage('short message inside a chunk')
-        recs.append((op, pos + 9, end))
+        if end > usize:
+            raise Damage('a record inside the chunk runs past its end')
+        if op == OP_MESSAGE and length >= _MSG_FIXED:
+            add((cid, t, pos + 9 + _MSG_FIXED, end))
+        elif op == OP_SCHEMA:
+            decls.append((len(msgs), op, parse_schema(inner[pos + 9:end])))
+        elif op == OP_CHANNEL:
+            decls.append((len(msgs), op, parse_channel(inner[pos + 9:end])))
+        else:
+            raise Damage(f'record of opcode {op} inside a chunk')
         pos = end
-    return t0, t1, inner, recs
+    return inner, msgs, decls
 
 
 # ------------------------------------------------------------------------------------------
@@ -354,6 +365,7 @@ class _Scan:
         self.torn_index = False
         self.last_op = 0
         self._chunk_ok: Dict[int, bool] = {}
+        self._dead: set = set()                 # offsets where no validated run starts
         self.summary = self._footer()           # (summary start, its end) if CRC-checked
 
     # -- footer / summary ------------------------------------------------------------------
@@ -377,6 +389,8 @@ class _Scan:
             c, p = 0, start
             while p < size - 8 - 4:
                 block = self.src.read(p, min(_WINDOW, size - 8 - 4 - p))
+                if not block:
+                    return None
                 c = zlib.crc32(block, c)
                 p += len(block)
             if c != crc:
@@ -424,11 +438,25 @@ class _Scan:
     def _starts_here(self, pos: int) -> bool:
         """Records that parse exactly, from ``pos`` on, ending in one that carries a check (a
         Chunk or Attachment whose CRC matches, a Data End that validates) or at the end of the
-        file."""
+        file. A run found to fail is remembered, so no offset is walked twice."""
+        seen: List[int] = []
+        ok = self._walk(pos, seen)
+        if ok is None:              # too long a run to judge: nothing learnt about its offsets
+            return False
+        if not ok:
+            if len(self._dead) > 1 << 17:
+                self._dead.clear()
+            self._dead.update(seen)
+        return ok
+
+    def _walk(self, pos: int, seen: List[int]) -> Optional[bool]:
         n, j = 0, pos
         while n < MAX_CHAIN:
             if j == self.size:
                 return n > 0
+            if j in self._dead:
+                return False
+            seen.append(j)
             h = self._head(j)
             if h is None:
                 return False
@@ -452,22 +480,23 @@ class _Scan:
             except Damage:
                 return False
             n, j = n + 1, end
-        return False
+        return None
 
     def _resync(self, start: int) -> Optional[int]:
         """The first offset >= ``start`` where :meth:`_starts_here`; None if there is none.
-        One regular-expression pass over the bytes; only offsets shaped like a record header
-        are tried."""
-        pos = start
+        One regular-expression pass over the bytes (read in windows growing from 64 KiB to
+        1 MiB); only offsets shaped like a record header are tried."""
+        pos, win_size = start, 1 << 16
         while pos < self.size:
-            win = self.src.read(pos, _WINDOW + 8)
+            win = self.src.read(pos, win_size + 8)
             for m in _CANDIDATE.finditer(win):
                 i = m.start()
-                if i >= _WINDOW:
+                if i >= win_size:
                     break
                 if self._starts_here(pos + i):
                     return pos + i
-            pos += _WINDOW
+            pos += win_size
+            win_size = min(2 * win_size, _WINDOW)
         return None
 
     def _plausible_chunk(self, pos: int) -> Optional[Tuple[int, int, int]]:
@@ -500,6 +529,8 @@ class _Scan:
             nxt = self._resync(pos + 1)
         if nxt is not None:
             loss.end = nxt
+        elif 'runs past the end of the file' in why:
+            loss.why += ' (torn: the file ends inside it)'
         self.lost.append(loss)
         self.open_loss = loss
         self.crc = None
@@ -508,6 +539,7 @@ class _Scan:
     def run(self) -> None:
         if self.size < 8 or self.src.read(0, 8) != MAGIC:
             raise BagError(self.src.path, 'not an MCAP file (bad magic bytes at the start)')
+        self._declare_from_summary()
         pos = 8
         size = self.size
         while pos < size:
@@ -530,20 +562,46 @@ class _Scan:
             pos = nxt
         self.ending = f'the file ends at byte {size} after its last record'
 
+    def _declare_from_summary(self) -> None:
+        """An intact summary repeats every Schema and Channel: declare them first, so a channel
+        whose record in the data section is damaged still has its messages copied."""
+        if self.summary is None:
+            return
+        p, end = self.summary[0], self.summary[1]
+        while p < end:
+            op, length = _REC.unpack_from(self.src.read(p, 9), 0)
+            if op in (OP_SCHEMA, OP_CHANNEL):
+                body = self.src.read(p + 9, length)
+                try:
+                    rec = (parse_schema if op == OP_SCHEMA else parse_channel)(body)
+                except Damage:
+                    pass
+                else:
+                    (self.sink.schema if op == OP_SCHEMA else self.sink.channel)(*rec)
+            p += 9 + length
+
+    def _torn_index(self, pos: int, length: int) -> bool:
+        """The record at ``pos`` is the Message Index of the intact chunk before it, cut by the
+        end of the file (its fields agree with its length and nothing validates after it)."""
+        if self.open_loss is not None or self.last_op not in (OP_CHUNK, OP_MESSAGE_INDEX):
+            return False
+        head = self.src.read(pos + 9, 6)
+        if len(head) < 6 or 6 + _U32.unpack_from(head, 2)[0] != length or length % 16 != 6:
+            return False
+        return self._resync(pos + 1) is None
+
     def _record(self, pos: int, op: int, length: int, end: int):
         """Take the record at ``pos``; (None, None) if it validated, else (why, where the next
         record would start if only this one is bad)."""
         if end > self.size:
-            if op == OP_MESSAGE_INDEX and self.open_loss is None and \
-                    self.last_op in (OP_CHUNK, OP_MESSAGE_INDEX):
+            if op == OP_MESSAGE_INDEX and self._torn_index(pos, length):
                 # the index of the intact chunk before it, cut by the end of the file: the
                 # output gets its own index, nothing is lost
                 self.ending = (f'the file ends at byte {self.size} inside the message index of '
                                'its last chunk')
                 self.torn_index = True
                 return None, None
-            return (f'record (opcode {op}) runs past the end of the file'
-                    + (' (torn)' if op in _DATA_OPS else ''), None)
+            return f'record (opcode {op}) runs past the end of the file', None
         guess = end
         if op == OP_HEADER and pos == 8:
             body = self.src.read(pos + 9, length)
@@ -582,21 +640,12 @@ class _Scan:
     def _take(self, pos: int, op: int, body: bytes) -> None:
         sink = self.sink
         if op == OP_CHUNK:
-            _t0, _t1, inner, recs = chunk_records(body)
-            stamps = []
-            for iop, a, b in recs:      # all validated: now hand them on
-                if iop == OP_MESSAGE:
-                    cid, _seq, t, _pub = _MSG_HEAD.unpack_from(inner, a)
-                    stamps.append(t)
-                    sink.message(cid, t, inner[a + _MSG_HEAD.size:b])
-                elif iop == OP_SCHEMA:
-                    sink.schema(*parse_schema(inner[a:b]))
-                else:
-                    sink.channel(*parse_channel(inner[a:b]))
-            if stamps:
+            inner, msgs, decls = chunk_records(body)    # all validated: now hand them on
+            sink.chunk(inner, msgs, decls)
+            if msgs:
                 if self.open_loss is not None:
-                    self.open_loss.after = min(stamps)
-                self.t_last = max(stamps)
+                    self.open_loss.after = min(m[1] for m in msgs)
+                self.t_last = max(m[1] for m in msgs)
             self.open_loss = None
         elif op == OP_MESSAGE_INDEX:
             _cid, n, t0, t1 = parse_message_index(body)
@@ -609,10 +658,10 @@ class _Scan:
         elif op == OP_METADATA:
             sink.metadata(*parse_metadata(body))
         elif op == OP_MESSAGE:
-            if len(body) < _MSG_HEAD.size:
+            if len(body) < _MSG_FIXED:
                 raise Damage('shorter than its fixed fields')
-            cid, _seq, t, _pub = _MSG_HEAD.unpack_from(body, 0)
-            sink.message(cid, t, body[_MSG_HEAD.size:])
+            cid, _seq, t, _pub = struct.unpack_from('<HIQQ', body, 0)
+            sink.message(cid, t, body[_MSG_FIXED:])
         elif op == OP_ATTACHMENT:
             parse_attachment(body)
             self.attachments += 1
@@ -721,6 +770,38 @@ class _Out:
             self.t_first = t
         if self.t_last is None or t > self.t_last:
             self.t_last = t
+
+    def chunk(self, inner: bytes, msgs, decls) -> None:
+        """A validated chunk's messages, with any Schema/Channel it declares in their place."""
+        view = memoryview(inner)
+        k = 0
+        for at, op, rec in decls:
+            if at > k:
+                self._messages(view, msgs[k:at])
+                k = at
+            (self.schema if op == OP_SCHEMA else self.channel)(*rec)
+        if k < len(msgs):
+            self._messages(view, msgs[k:] if k else msgs)
+
+    def _messages(self, view, msgs) -> None:
+        topics = self.topics
+        ws = self.w.write_serialized if self.w is not None else None
+        n = 0
+        for cid, t, a, b in msgs:
+            topic = topics.get(cid)
+            if topic is None:
+                self.message(cid, t, view[a:b])
+                continue
+            ws(topic, view[a:b], t)
+            n += 1
+        if n:
+            self.n += n
+            if n < len(msgs):
+                msgs = [m for m in msgs if topics.get(m[0]) is not None]
+            t0 = min(m[1] for m in msgs)
+            t1 = max(m[1] for m in msgs)
+            self.t_first = t0 if self.t_first is None else min(self.t_first, t0)
+            self.t_last = t1 if self.t_last is None else max(self.t_last, t1)
 
     def metadata(self, name, md) -> None:
         if name not in ('rosbag2', 'recovered_from'):
