@@ -219,3 +219,17 @@ def test_random_damage_anywhere_keeps_every_untouched_chunk_and_invents_nothing(
                 c.message_start_time <= m[1] <= c.message_end_time for c in ci
                 if c.chunk_start_offset + c.chunk_length > len(data))]
             assert got == in_file, (it, a, n)
+
+
+def test_a_damaged_message_index_loses_no_message_and_says_so(tmp_path, capsys):
+    src = _many_chunks(tmp_path / 'a.mcap', steps=400)
+    ci = _chunks(src)
+    data = bytearray(src.read_bytes())
+    mi = min(ci[10].message_index_offsets.values())
+    data[mi + 1:mi + 9] = bytes(8)                      # the first index record's length
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(bytes(data))
+    assert rec.main([str(bad), '-o', str(tmp_path / 'o.mcap')]) == 1    # damage, said
+    cap = capsys.readouterr()
+    assert _all(tmp_path / 'o.mcap') == _all(src)
+    assert 'no messages lost' in cap.err and '0 of 800 messages lost' in cap.out

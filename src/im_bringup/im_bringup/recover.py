@@ -272,6 +272,7 @@ class Lost:
     chunks: int = 0
     chunk_t: Optional[Tuple[int, int]] = None
     chunk_mi: set = field(default_factory=set)
+    indexed: bool = False                 # that chunk index was read (so chunks == 0 is known)
     # the conclusion
     t0: Optional[int] = None
     t1: Optional[int] = None
@@ -288,6 +289,9 @@ class Lost:
                           'chunk index'
             if self.chunk_mi and self.chunk_mi <= set(self.index):
                 self.messages = sum(self.index[o][0] for o in self.chunk_mi)
+        elif self.indexed:
+            self.messages = 0
+            self.source = 'no chunk in them per the file\'s chunk index'
         elif self.header is not None and self.index and min(self.index) == self.header[2]:
             # the damaged chunk's own header, and its message index right after it
             self.t0, self.t1 = self.header[0], self.header[1]
@@ -316,6 +320,8 @@ class Lost:
         if self.t0 is not None:
             return f'lost t = {self.t0 * 1e-9:.9f} .. {self.t1 * 1e-9:.9f} s, {n} ' \
                    f'({self.source}; {where})'
+        if self.messages == 0:
+            return f'no messages lost ({self.source}; {where})'
 
         def s(t):
             return f'{t * 1e-9:.9f} s'
@@ -364,6 +370,7 @@ class _Scan:
         self.attachments = 0
         self.torn_index = False
         self.last_op = 0
+        self.last_chunk: list = []              # the last intact chunk's messages
         self._chunk_ok: Dict[int, bool] = {}
         self._dead: set = set()                 # offsets where no validated run starts
         self.summary = self._footer()           # (summary start, its end) if CRC-checked
@@ -642,14 +649,15 @@ class _Scan:
         if op == OP_CHUNK:
             inner, msgs, decls = chunk_records(body)    # all validated: now hand them on
             sink.chunk(inner, msgs, decls)
+            self.last_chunk = msgs
             if msgs:
                 if self.open_loss is not None:
                     self.open_loss.after = min(m[1] for m in msgs)
                 self.t_last = max(m[1] for m in msgs)
             self.open_loss = None
         elif op == OP_MESSAGE_INDEX:
-            _cid, n, t0, t1 = parse_message_index(body)
-            if self.open_loss is not None:
+            cid, n, t0, t1 = parse_message_index(body)
+            if self.open_loss is not None and not self._indexes_last_chunk(cid, n, t0, t1):
                 self.open_loss.index[pos] = (n, t0, t1)
         elif op == OP_SCHEMA:
             sink.schema(*parse_schema(body))
@@ -666,16 +674,23 @@ class _Scan:
             parse_attachment(body)
             self.attachments += 1
 
+    def _indexes_last_chunk(self, cid: int, n: int, t0, t1) -> bool:
+        """A Message Index read after damage that describes the intact chunk before the damage
+        (same channel, count and stamps), not a lost one."""
+        stamps = [m[1] for m in self.last_chunk if m[0] == cid]
+        return bool(stamps) and (len(stamps), min(stamps), max(stamps)) == (n, t0, t1)
+
     # -- after the pass: what the damaged bytes held ------------------------------------------
     def settle(self) -> Optional[int]:
         """Fill in each loss's time range and message count; return the file's own message
         count (its Statistics record) when its summary is intact."""
-        total = None
+        total, indexed = None, False
         if self.summary is not None and self.summary[0] < self.summary[1]:
             starts = [x.start for x in self.lost]
             p, end = self.summary[0], self.summary[1]
             while p < end:
                 op, length = _REC.unpack_from(self.src.read(p, 9), 0)
+                indexed = indexed or op == OP_CHUNK_INDEX
                 if op in (OP_CHUNK_INDEX, OP_STATISTICS):
                     body = self.src.read(p + 9, length)
                     try:
@@ -687,6 +702,8 @@ class _Scan:
                     except (Damage, struct.error):
                         pass
                 p += 9 + length
+        for x in self.lost:
+            x.indexed = indexed
         for x in self.lost:
             x.settle()
         return total
