@@ -8,9 +8,9 @@ write path of :class:`~im_bringup.bag.BagWriter` into a temporary file and print
 Recover rows (``--recover-steps 100000,400000``; ``--only-recover`` skips the rest): a synthetic
 recording of that many lock-step steps (6 messages each, zstd, 1 MiB chunks) with 4 KiB zeroed in
 its middle chunk, salvaged by ``im_bringup.recover.recover`` in a fresh subprocess: wall time,
-µs per message and the subprocess's peak RSS (``ru_maxrss``), next to the same for an intact
-1000-step file (the interpreter and its imports). Linear time is a flat µs/message, bounded
-memory a flat peak RSS across the sizes.
+the subprocess's CPU time in ``recover`` (less sensitive to other load), µs per message and
+its peak RSS (``ru_maxrss``), next to the same for an intact 1000-step file (the interpreter and
+its imports). Linear time is a flat µs/message, bounded memory a flat peak RSS across sizes.
 """
 from __future__ import annotations
 
@@ -193,11 +193,14 @@ def _synthetic(path: str, n_steps: int, damage: bool = True) -> int:
 _RECOVER_CHILD = """
 import json, resource, sys, time
 from im_bringup.recover import recover
-t0 = time.perf_counter()
+def cpu():
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+t0, c0 = time.perf_counter(), cpu()
 r = recover(sys.argv[1], sys.argv[2], force=True)
-dt = time.perf_counter() - t0
-print(json.dumps({'seconds': dt, 'saved': r['messages'], 'lost': r['messages_lost'],
-                  'ranges': len(r['lost_ranges']),
+dt, dc = time.perf_counter() - t0, cpu() - c0
+print(json.dumps({'seconds': dt, 'cpu_seconds': dc, 'saved': r['messages'],
+                  'lost': r['messages_lost'], 'ranges': len(r['lost_ranges']),
                   'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 
@@ -214,6 +217,8 @@ def _bench_recover(steps_list, tmp: str) -> list:
         res = json.loads(r.stdout.strip().splitlines()[-1])
         rows.append({'steps': steps, 'messages': n, 'file_mb': os.path.getsize(src) / 1e6,
                      'seconds': res['seconds'], 'us_per_msg': res['seconds'] / n * 1e6,
+                     'cpu_seconds': res['cpu_seconds'],
+                     'cpu_us_per_msg': res['cpu_seconds'] / n * 1e6,
                      'peak_rss_mb': res['peak_rss_mb'], 'saved': res['saved'],
                      'lost': res['lost'], 'ranges': res['ranges']})
         if res['ranges'] != (steps != 1000) or res['saved'] + res['lost'] != n:
@@ -226,11 +231,12 @@ def _bench_recover(steps_list, tmp: str) -> list:
 def _print_recover(rows) -> None:
     print('\nrecover: 4 KiB zeroed in the middle chunk, fresh subprocess '
           '(first row: intact, baseline)')
-    print(f'{"steps":>8s} {"messages":>9s} {"file MB":>8s} {"lost":>6s} {"s":>7s} '
-          f'{"µs/msg":>7s} {"peak RSS MB":>11s}')
+    print(f'{"steps":>8s} {"messages":>9s} {"file MB":>8s} {"lost":>6s} {"wall s":>7s} '
+          f'{"µs/msg":>7s} {"CPU s":>7s} {"CPU µs/msg":>10s} {"peak RSS MB":>11s}')
     for r in rows:
         print(f'{r["steps"]:8d} {r["messages"]:9d} {r["file_mb"]:8.1f} {r["lost"]:6d} '
-              f'{r["seconds"]:7.2f} {r["us_per_msg"]:7.2f} {r["peak_rss_mb"]:11.1f}')
+              f'{r["seconds"]:7.2f} {r["us_per_msg"]:7.2f} {r["cpu_seconds"]:7.2f} '
+              f'{r["cpu_us_per_msg"]:10.2f} {r["peak_rss_mb"]:11.1f}')
 
 
 def run(quick: bool = False) -> dict:
@@ -245,6 +251,7 @@ def run(quick: bool = False) -> dict:
         rec = _bench_recover((20000, 80000) if quick else (100000, 400000), tmp)
     for r in rec[1:]:
         out[f'recover_us_per_msg_{r["steps"]}_steps'] = r['us_per_msg']
+        out[f'recover_cpu_us_per_msg_{r["steps"]}_steps'] = r['cpu_us_per_msg']
         out[f'recover_peak_rss_mb_{r["steps"]}_steps'] = r['peak_rss_mb']
     out['recover_peak_rss_mb_baseline'] = rec[0]['peak_rss_mb']
     out['us_rclpy_serialize_message_v3'] = _bench_serialize(10000 if quick else 50000)

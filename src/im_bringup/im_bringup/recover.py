@@ -628,7 +628,10 @@ class _Scan:
             if self.crc is not None and stored and stored != self.crc:
                 self.crc_mismatch = True
             self.complete = True
-            self.ending = 'the file was complete (data end, summary and footer valid)'
+            self.ending = ('the file was complete (data end, then ' + (
+                'a valid summary and footer)' if self.summary is not None
+                and self.summary[0] == pos + 13 else 'the end of the file)' if pos + 13 == self.size
+                else 'a damaged summary, but the data CRC matches)'))
             return None, None
         elif op not in _DATA_OPS:
             return f'opcode {op} does not belong in the data section', guess
@@ -888,7 +891,8 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
         notes = []
         if scan.crc_mismatch:
             notes.append('the data section CRC does not match although every record validated: '
-                         'a record outside the chunks was altered (kept as read)')
+                         'a record outside the chunks, or the stored CRC, was altered (kept as '
+                         'read)')
         for why, n in sorted(sink.dropped.items()):
             notes.append(f'{n} message(s) not copied ({why})')
         if scan.attachments:
