@@ -4,6 +4,13 @@ Writes N steps of the lock-step loop's messages (Vector3Stamped and JointState) 
 write path of :class:`~im_bringup.bag.BagWriter` into a temporary file and prints µs per message
 (including chunk compression and the final close), plus the reference cost of
 ``rclpy.serialization.serialize_message``. ``--json FILE`` also writes the table as JSON.
+
+Recover rows (``--recover-steps 100000,400000``; ``--only-recover`` skips the rest): a synthetic
+recording of that many lock-step steps (6 messages each, zstd, 1 MiB chunks) with 4 KiB zeroed in
+its middle chunk, salvaged by ``im_bringup.recover.recover`` in a fresh subprocess: wall time,
+the subprocess's CPU time in ``recover`` (less sensitive to other load), µs per message and
+its peak RSS (``ru_maxrss``), next to the same for an intact 1000-step file (the interpreter and
+its imports). Linear time is a flat µs/message, bounded memory a flat peak RSS across sizes.
 """
 from __future__ import annotations
 
@@ -153,6 +160,85 @@ def _bench_own_vs_library(n_steps: int, tmp: str) -> dict:
             'us_per_msg_mcap_make_reader_iter_messages': t_lib_r / n * 1e6}
 
 
+def _synthetic(path: str, n_steps: int, damage: bool = True) -> int:
+    """A recording of ``n_steps`` lock-step steps (written as it goes: no list in memory), with
+    4 KiB zeroed in the middle of its middle chunk if ``damage``; returns its message count."""
+    from im_common import cdr
+    from im_bringup.bag import BagWriter
+    v3 = ('/im/measured/current', '/im/command/voltage', '/im/observer/flux', '/im/truth/flux',
+          '/im/truth/torque')
+    w = BagWriter(path, force=True)
+    ws = w.write_serialized
+    for k in range(n_steps):
+        t = k * 100_000
+        s, ns = divmod(t, 1_000_000_000)
+        for topic in v3:
+            ws(topic, cdr.pack_vector3_stamped(s, ns, 0.001 * k, -0.001 * k, 0.0), t)
+        ws('/im/measured/shaft', cdr.pack_joint_state(s, ns, ('rotor',), (0.001 * k,), (1.0,), ()),
+           t)
+    w.close()
+    if not damage:
+        return 6 * n_steps
+    from mcap.reader import make_reader
+    with open(path, 'rb') as f:
+        ci = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    c = ci[len(ci) // 2]
+    mid = c.chunk_start_offset + c.chunk_length // 2
+    with open(path, 'r+b') as f:
+        f.seek(mid - 2048)
+        f.write(bytes(4096))
+    return 6 * n_steps
+
+
+_RECOVER_CHILD = """
+import json, resource, sys, time
+from im_bringup.recover import recover
+def cpu():
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+t0, c0 = time.perf_counter(), cpu()
+r = recover(sys.argv[1], sys.argv[2], force=True)
+dt, dc = time.perf_counter() - t0, cpu() - c0
+print(json.dumps({'seconds': dt, 'cpu_seconds': dc, 'saved': r['messages'],
+                  'lost': r['messages_lost'], 'ranges': len(r['lost_ranges']),
+                  'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def _bench_recover(steps_list, tmp: str) -> list:
+    """One row per size: file size, messages, recover wall time, µs/message, peak RSS."""
+    import subprocess
+    rows = []
+    for steps in [1000] + list(steps_list):
+        src, out = os.path.join(tmp, f'rec_{steps}.mcap'), os.path.join(tmp, f'rec_{steps}.out')
+        n = _synthetic(src, steps, damage=steps != 1000)
+        r = subprocess.run([sys.executable, '-c', _RECOVER_CHILD, src, out], capture_output=True,
+                           text=True, check=True)
+        res = json.loads(r.stdout.strip().splitlines()[-1])
+        rows.append({'steps': steps, 'messages': n, 'file_mb': os.path.getsize(src) / 1e6,
+                     'seconds': res['seconds'], 'us_per_msg': res['seconds'] / n * 1e6,
+                     'cpu_seconds': res['cpu_seconds'],
+                     'cpu_us_per_msg': res['cpu_seconds'] / n * 1e6,
+                     'peak_rss_mb': res['peak_rss_mb'], 'saved': res['saved'],
+                     'lost': res['lost'], 'ranges': res['ranges']})
+        if res['ranges'] != (steps != 1000) or res['saved'] + res['lost'] != n:
+            raise RuntimeError(f'recover of {src}: {res}')
+        os.remove(src)
+        os.remove(out)
+    return rows
+
+
+def _print_recover(rows) -> None:
+    print('\nrecover: 4 KiB zeroed in the middle chunk, fresh subprocess '
+          '(first row: intact, baseline)')
+    print(f'{"steps":>8s} {"messages":>9s} {"file MB":>8s} {"lost":>6s} {"wall s":>7s} '
+          f'{"µs/msg":>7s} {"CPU s":>7s} {"CPU µs/msg":>10s} {"peak RSS MB":>11s}')
+    for r in rows:
+        print(f'{r["steps"]:8d} {r["messages"]:9d} {r["file_mb"]:8.1f} {r["lost"]:6d} '
+              f'{r["seconds"]:7.2f} {r["us_per_msg"]:7.2f} {r["cpu_seconds"]:7.2f} '
+              f'{r["cpu_us_per_msg"]:10.2f} {r["peak_rss_mb"]:11.1f}')
+
+
 def run(quick: bool = False) -> dict:
     """µs per written message for each write path (zstd), for benchmarks/run_all.py."""
     steps = 4000 if quick else 20000
@@ -162,6 +248,12 @@ def run(quick: bool = False) -> dict:
         out['us_per_msg_write_serialized_zstd'] = _bench(steps, 'write_vector3/joint_state',
                                                          'zstd', tmp)
         out.update(_bench_own_vs_library(steps, tmp))
+        rec = _bench_recover((20000, 80000) if quick else (100000, 400000), tmp)
+    for r in rec[1:]:
+        out[f'recover_us_per_msg_{r["steps"]}_steps'] = r['us_per_msg']
+        out[f'recover_cpu_us_per_msg_{r["steps"]}_steps'] = r['cpu_us_per_msg']
+        out[f'recover_peak_rss_mb_{r["steps"]}_steps'] = r['peak_rss_mb']
+    out['recover_peak_rss_mb_baseline'] = rec[0]['peak_rss_mb']
     out['us_rclpy_serialize_message_v3'] = _bench_serialize(10000 if quick else 50000)
     return out
 
@@ -170,7 +262,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--steps', type=int, default=20000)
     ap.add_argument('--json', default=None)
+    ap.add_argument('--recover-steps', default='100000,400000',
+                    help='comma-separated recording sizes (steps) for the recover rows')
+    ap.add_argument('--only-recover', action='store_true', help='only the recover rows')
     a = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = _bench_recover([int(x) for x in a.recover_steps.split(',') if x], tmp)
+    _print_recover(rec)
+    if a.only_recover:
+        if a.json:
+            with open(a.json, 'w') as f:
+                json.dump({'recover': rec, 'python': sys.version}, f, indent=1)
+        return 0
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for mode in ('write(msg)', 'write_vector3/joint_state'):
@@ -191,6 +294,7 @@ def main(argv=None) -> int:
     if a.json:
         with open(a.json, 'w') as f:
             json.dump({'rows': rows, 'fill_us': fill, 'serialize_message_us': ser, **lib,
+                       'recover': rec,
                        'steps': a.steps, 'python': sys.version}, f, indent=1)
     return 0
 

@@ -321,10 +321,15 @@ def test_recover_truncated_copy_and_cli_messages(tmp_path, capsys):
     n_all = info(path).message_count
     data = path.read_bytes()
     cut = tmp_path / 'cut.mcap'
-    cut.write_bytes(data[:int(len(data) * 0.6)])
-    assert rec.main([str(cut), '-o', str(tmp_path / 'ok.mcap')]) == 0
-    line = capsys.readouterr().out
-    assert 'saved' in line and 'ok.mcap' in line
+    from mcap.reader import make_reader
+    with open(path, 'rb') as f:
+        ci = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    c = ci[int(len(ci) * 0.6)]
+    cut.write_bytes(data[:c.chunk_start_offset + c.chunk_length // 2])     # inside a chunk
+    assert rec.main([str(cut), '-o', str(tmp_path / 'ok.mcap')]) == 1   # a torn chunk: lost
+    cap = capsys.readouterr()
+    assert 'saved' in cap.out and 'ok.mcap' in cap.out and 'complete' not in cap.out
+    assert 'torn' in cap.err and 'lost t = ' in cap.err
     got = [(tp, t) for tp, _, t, _ in iter_raw(tmp_path / 'ok.mcap')]
     full = [(tp, t) for tp, _, t, _ in iter_raw(path)]
     assert 0 < len(got) < n_all
@@ -394,10 +399,10 @@ def test_recover_skips_a_corrupt_middle_chunk_and_keeps_the_ones_after(tmp_path,
     bad.write_bytes(bytes(data))
     with pytest.raises(BagError, match='bad.mcap'):
         load_run(bad)
-    assert rec.main([str(bad), '-o', str(tmp_path / 'fixed.mcap')]) == 0
+    assert rec.main([str(bad), '-o', str(tmp_path / 'fixed.mcap')]) == 1
     err = capsys.readouterr().err
-    lost = ci[1].message_start_time * 1e-9
-    assert 'skipped bytes' in err and f'{lost:.6f}' in err
+    lost = f'{ci[1].message_start_time * 1e-9:.9f} .. {ci[1].message_end_time * 1e-9:.9f} s'
+    assert 'skipped bytes' in err and lost in err
     got = [t for _, _, t, _ in iter_raw(tmp_path / 'fixed.mcap')]
     assert len(got) >= 0.55 * n_all
     assert got[-1] == ci[2].message_end_time            # the chunk after the damage is kept

@@ -344,6 +344,9 @@ class BagWriter:
         Uncompressed chunk size [bytes] at which a chunk is closed and flushed.
     close_at_exit : bool
         Also close from an ``atexit`` hook (the interpreter exiting without ``close``).
+    part : str or Path, optional
+        Where the file is written until ``close`` renames it to ``path`` (default
+        ``<path>.part``); ``recover`` passes its own so it never writes over its input.
 
     Attributes
     ----------
@@ -356,14 +359,14 @@ class BagWriter:
     def __init__(self, path, force: bool = False,
                  metadata: Optional[Dict[str, Dict[str, str]]] = None,
                  compression: str = 'zstd', chunk_size: int = 1 << 20,
-                 close_at_exit: bool = True):
+                 close_at_exit: bool = True, part=None):
         self.path = Path(path)
         self._compression, self._compress = _compressor(compression)
         if int(chunk_size) < 1024:
             raise ValueError(f'chunk_size must be >= 1024 bytes, not {chunk_size!r}')
         self._chunk_size = int(chunk_size)
         self._closed = True
-        self.part = partial_path(self.path)
+        self.part = partial_path(self.path) if part is None else Path(part)
         if self.path.is_dir():
             raise IsADirectoryError(f'{self.path}: is a directory, not an MCAP file path')
         if self.path.exists() and not force:

@@ -1,19 +1,42 @@
-"""Salvage a recording cut short by a hard kill (no summary, no footer, maybe a torn chunk).
+"""Salvage a recording cut short by a hard kill or damaged on disk.
 
 ``ros2 run im_bringup recover bags/broken.mcap [-o fixed.mcap] [--force]``
 
-Reads the file record by record from the start, keeps every Schema, Channel and Metadata record
-and every message of every intact chunk (CRC verified) and loose Message records. A damaged
-chunk is skipped: reading resumes at the next chunk that passes its CRC, and the byte and time
-ranges lost are printed (one line each) and stored in the ``recovered_from`` metadata. Everything
-is rewritten through :class:`~im_bringup.bag.BagWriter` into a valid, indexed file (default
-``<name>.recovered.mcap``; never the input, an existing file only with ``--force``). A writer
-that was killed leaves its data in ``<name>.mcap.part``: ``recover <name>.mcap`` reads that.
-Exit code 2 if nothing could be read at all.
+The file is read once, front to back, one record at a time (opcode, 64-bit length, body), and
+every record is validated before anything in it is used: a known data-section opcode, a length
+inside the file, fields that parse to exactly that length, and for a Chunk a compression the
+project's writer uses, its declared sizes and its CRC over the uncompressed records (then the
+inner records must parse to exactly the chunk's size). Schemas, Channels, Metadata and every
+message of every intact chunk are streamed into :class:`~im_bringup.bag.BagWriter` as they are
+read, so memory holds one chunk plus the per-channel tables, however long the file.
+
+A record that fails is damage. Reading resumes at the first later offset where a validated
+record starts: a Chunk whose CRC checks, a Data End that is followed by a valid summary and
+footer (or by the end of the file, or whose data-section CRC matches), or a run of records that
+parse exactly and ends in one of those (the damaged chunk's Message Index records, a Channel
+declared between chunks). Candidates are found by one regular-expression pass over the bytes after
+the damage, so the search is linear; a byte pattern alone is never taken for a record.
+
+What was lost is reported exactly: the time range and the message count of the damaged chunks,
+taken from the file's chunk index when its summary is intact (CRC checked), else from the damaged
+chunk's own header and the Message Index records that follow it, else bounded by the neighbouring
+intact chunks. Exit code 0: every record of the file was read and kept; 1: the output was written
+but damaged bytes were skipped (each loss is printed on stderr and stored in the output's
+``recovered_from`` metadata); 2: nothing written (one line says why).
+
+The output (default ``<name>.recovered.mcap``; never an input, an existing file only with
+``--force``) is written to a temporary file next to it and renamed into place when complete; if
+writing fails (disk full) the temporary file is removed. The input is only ever opened for
+reading: ``recover run.mcap.part -o run.mcap`` turns an interrupted recording into the file it
+was meant to become. A writer that was killed leaves its data in ``<name>.mcap.part``;
+``recover <name>.mcap`` reads that.
 """
 from __future__ import annotations
 
 import argparse
+import bisect
+import os
+import re
 import struct
 import sys
 import zlib
@@ -21,222 +44,804 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-from .bag import (_REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER,
-                  OP_MESSAGE, OP_METADATA, OP_SCHEMA, BagError, BagWriter, _decompress,
-                  check_output, partial_path)
+from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK,
+                  OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER, OP_MESSAGE,
+                  OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS,
+                  OP_SUMMARY_OFFSET, BagError, BagWriter, check_output, partial_path)
+
+OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
+
+#: a chunk larger than this (uncompressed) is taken for damage; the writer's are ~1 MiB
+MAX_CHUNK = 1 << 30
+#: records that parse but prove nothing (Message Index, Channel, ...) accepted in a row while
+#: resynchronising before a CRC-checked record or the end of the file must vouch for them
+MAX_CHAIN = 4096
+_WINDOW = 1 << 20
+_COMPRESSIONS = ('', 'zstd', 'lz4')
+_DATA_OPS = frozenset((OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX,
+                       OP_ATTACHMENT, OP_METADATA, OP_DATA_END))
+_SUMMARY_OPS = frozenset((OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_ATTACHMENT_INDEX,
+                          OP_STATISTICS, OP_METADATA_INDEX, OP_SUMMARY_OFFSET))
+# where a resynchronisation may start: a record of these kinds with a length below 2**40
+# (a Message may not: it carries no check and a damaged uncompressed chunk is full of them)
+_CANDIDATE = re.compile(rb'(?=[\x03\x04\x06\x07\x09\x0c\x0f][\x00-\xff]{5}\x00\x00\x00)', re.S)
+_CHUNK_HEAD = struct.Struct('<QQQI')
 
 
-@dataclass
-class Salvage:
-    schemas: Dict[int, Tuple[str, str, bytes]] = field(default_factory=dict)
-    channels: Dict[int, Tuple[str, int, str, Dict[str, str]]] = field(default_factory=dict)
-    metadata: List[Tuple[str, Dict[str, str]]] = field(default_factory=list)
-    messages: List[Tuple[int, int, bytes]] = field(default_factory=list)   # (cid, log_time, data)
-    stopped_at: int = 0
-    reason: str = 'end of data section'
-    complete: bool = False
-    # skipped damage: (first byte, next intact byte, start ns, end ns or None, why)
-    lost: List[tuple] = field(default_factory=list)
+class Damage(ValueError):
+    """A record that does not validate (the message says why)."""
 
 
-class _Buf:
-    def __init__(self, data: bytes, pos: int = 0):
-        self.d, self.p = data, pos
+# ------------------------------------------------------------------------------------------
+# Record bodies: each parser consumes exactly the body or raises Damage
+# ------------------------------------------------------------------------------------------
+def _need(b, p: int, n: int) -> None:
+    if p + n > len(b):
+        raise Damage('a field runs past the end of its record')
 
-    def u16(self):
-        (v,) = _U16.unpack_from(self.d, self.p)
-        self.p += 2
-        return v
 
-    def u32(self):
-        (v,) = _U32.unpack_from(self.d, self.p)
-        self.p += 4
-        return v
+def _str(b, p: int) -> Tuple[str, int]:
+    _need(b, p, 4)
+    (n,) = _U32.unpack_from(b, p)
+    _need(b, p + 4, n)
+    try:
+        return bytes(b[p + 4:p + 4 + n]).decode('utf-8'), p + 4 + n
+    except UnicodeDecodeError:
+        raise Damage('a string field is not UTF-8') from None
 
-    def u64(self):
-        (v,) = _U64.unpack_from(self.d, self.p)
-        self.p += 8
-        return v
 
-    def s(self) -> str:
-        n = self.u32()
-        v = self.d[self.p:self.p + n]
-        if len(v) != n:
-            raise ValueError('string past the end of the record')
-        self.p += n
-        return v.decode('utf-8')
+def _blob32(b, p: int) -> int:
+    _need(b, p, 4)
+    (n,) = _U32.unpack_from(b, p)
+    _need(b, p + 4, n)
+    return p + 4 + n
 
-    def b32(self) -> bytes:
-        n = self.u32()
-        v = self.d[self.p:self.p + n]
-        if len(v) != n:
-            raise ValueError('bytes past the end of the record')
-        self.p += n
-        return v
 
-    def smap(self) -> Dict[str, str]:
-        n = self.u32()
-        end = self.p + n
-        out = {}
-        while self.p < end:
-            k = self.s()
-            out[k] = self.s()
+def _smap(b, p: int) -> Tuple[Dict[str, str], int]:
+    _need(b, p, 4)
+    (n,) = _U32.unpack_from(b, p)
+    end = p + 4 + n
+    _need(b, p + 4, n)
+    p += 4
+    out = {}
+    while p < end:
+        k, p = _str(b, p)
+        out[k], p = _str(b, p)
+    if p != end:
+        raise Damage('a map field does not end where its length says')
+    return out, p
+
+
+def _exact(b, p: int) -> None:
+    if p != len(b):
+        raise Damage(f'{len(b) - p} bytes left over after the last field')
+
+
+def parse_schema(b) -> Tuple[int, str, str]:
+    _need(b, 0, 2)
+    (sid,) = _U16.unpack_from(b, 0)
+    name, p = _str(b, 2)
+    enc, p = _str(b, p)
+    _exact(b, _blob32(b, p))
+    if sid == 0 or not name:
+        raise Damage('schema id 0 or an empty schema name')
+    return sid, name, enc
+
+
+def parse_channel(b) -> Tuple[int, int, str, str, Dict[str, str]]:
+    _need(b, 0, 4)
+    cid, sid = struct.unpack_from('<HH', b, 0)
+    topic, p = _str(b, 4)
+    enc, p = _str(b, p)
+    meta, p = _smap(b, p)
+    _exact(b, p)
+    if not topic:
+        raise Damage('a channel with an empty topic name')
+    return cid, sid, topic, enc, meta
+
+
+def parse_metadata(b) -> Tuple[str, Dict[str, str]]:
+    name, p = _str(b, 0)
+    md, p = _smap(b, p)
+    _exact(b, p)
+    return name, md
+
+
+def parse_message_index(b) -> Tuple[int, int, Optional[int], Optional[int]]:
+    """(channel, entries, first stamp, last stamp) of a Message Index record."""
+    _need(b, 0, 6)
+    cid, n = struct.unpack_from('<HI', b, 0)
+    if n % 16 or 6 + n != len(b):
+        raise Damage('message index array length does not match the record')
+    if n == 0:
+        return cid, 0, None, None
+    stamps = [t for t, _ in struct.iter_unpack('<QQ', b[6:])]
+    return cid, len(stamps), min(stamps), max(stamps)
+
+
+def parse_attachment(b) -> None:
+    _need(b, 0, 16)
+    _, p = _str(b, 16)
+    _, p = _str(b, p)
+    _need(b, p, 8)
+    (n,) = _U64.unpack_from(b, p)
+    p += 8
+    _need(b, p, n + 4)
+    (crc,) = _U32.unpack_from(b, p + n)
+    _exact(b, p + n + 4)
+    if crc and zlib.crc32(b[:p + n]) != crc:
+        raise Damage('attachment CRC mismatch')
+
+
+def chunk_header(b) -> Tuple[int, int, int, int, str, int]:
+    """(start, end, uncompressed size, CRC, compression, offset of the records) of a Chunk body;
+    Damage unless its fields are consistent with each other and with the record's length."""
+    _need(b, 0, _CHUNK_HEAD.size)
+    t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(b, 0)
+    comp, p = _str(b, _CHUNK_HEAD.size)
+    if comp not in _COMPRESSIONS:
+        raise Damage(f'unknown chunk compression {comp[:20]!r}')
+    _need(b, p, 8)
+    (clen,) = _U64.unpack_from(b, p)
+    p += 8
+    if p + clen != len(b):
+        raise Damage('chunk data size does not match the record length')
+    if t0 > t1 or usize > MAX_CHUNK or (comp == '' and usize != clen):
+        raise Damage('inconsistent chunk header')
+    return t0, t1, usize, crc, comp, p
+
+
+_zstd = None
+
+
+def _inflate(comp: str, raw, usize: int) -> bytes:
+    global _zstd
+    if comp == '':
+        return bytes(raw)
+    try:
+        if comp == 'zstd':
+            import zstandard
+            if _zstd is None:
+                _zstd = zstandard.ZstdDecompressor()
+            declared = zstandard.frame_content_size(raw)
+            if declared not in (-1, usize):
+                raise Damage('zstd frame size differs from the chunk header')
+            return _zstd.decompress(raw, max_output_size=usize)
+        import lz4.frame
+        d = lz4.frame.LZ4FrameDecompressor()
+        out = d.decompress(bytes(raw), max_length=usize + 1)
+        if not d.eof:
+            raise Damage('lz4 frame does not end where the chunk does')
         return out
+    except Damage:
+        raise
+    except Exception as exc:    # noqa: BLE001 - the libraries raise many kinds on bad input
+        raise Damage(f'chunk does not decompress ({type(exc).__name__})') from None
 
 
-def _records(data: bytes, pos: int, end: int):
-    while pos < end:
-        if pos + 9 > end:
-            raise ValueError('torn record header')
-        op, length = _REC.unpack_from(data, pos)
-        if pos + 9 + length > end:
-            raise ValueError(f'record (opcode {op}) runs past the end of the file')
-        yield op, pos, data[pos + 9:pos + 9 + length]
-        pos += 9 + length
-
-
-def _take(s: Salvage, op: int, body: bytes, in_chunk: bool) -> None:
-    b = _Buf(body)
-    if op == OP_SCHEMA:
-        sid = b.u16()
-        s.schemas[sid] = (b.s(), b.s(), b.b32())
-    elif op == OP_CHANNEL:
-        cid = b.u16()
-        sid = b.u16()
-        s.channels[cid] = (b.s(), sid, b.s(), b.smap())
-    elif op == OP_MESSAGE:
-        cid = b.u16()
-        b.u32()
-        log_time = b.u64()
-        b.u64()
-        s.messages.append((cid, log_time, body[b.p:]))
-    elif op == OP_METADATA and not in_chunk:
-        name = b.s()
-        s.metadata.append((name, b.smap()))
-
-
-_KNOWN_OPS = frozenset(range(1, 16))      # MCAP opcodes 0x01-0x0F
-
-
-def _chunk_records(body: bytes):
-    """(start, end, records) of a Chunk record body; ValueError if torn or failing its CRC."""
-    b = _Buf(body)
-    t0 = b.u64()
-    t1 = b.u64()
-    usize = b.u64()
-    crc = b.u32()
-    comp = b.s()
-    clen = b.u64()
-    raw = body[b.p:b.p + clen]
-    if len(raw) != clen:
-        raise ValueError('torn chunk')
-    inner = _decompress(comp, raw, usize)
+def chunk_records(b):
+    """Validate a whole Chunk body and everything in it. Returns (uncompressed records,
+    messages as [(channel, log time, data start, data end)], declarations as [(number of messages
+    before it, opcode, parsed Schema or Channel)])."""
+    _t0, _t1, usize, crc, comp, p = chunk_header(b)
+    inner = _inflate(comp, memoryview(b)[p:], usize)
     if len(inner) != usize:
-        raise ValueError('chunk fails its size check')
+        raise Damage('chunk size differs from its header after decompression')
     if crc and zlib.crc32(inner) != crc:
-        raise ValueError('chunk CRC mismatch')
-    return t0, t1, list(_records(inner, 0, len(inner)))
-
-
-def _resync(data: bytes, pos: int) -> Optional[int]:
-    """The next offset after ``pos`` where an intact Chunk (CRC verified) or the Data End
-    record starts; None if there is none."""
-    i = pos
-    while True:
-        i = data.find(bytes((OP_CHUNK,)), i + 1)
-        j = data.find(bytes((OP_DATA_END,)) + _U64.pack(4), pos + 1)
-        if i < 0 and j < 0:
-            return None
-        if j >= 0 and (i < 0 or j < i):
-            return j
-        if i + 9 > len(data):
-            return None
-        (length,) = _U64.unpack_from(data, i + 1)
-        if length < 40 or i + 9 + length > len(data):
-            continue
-        try:
-            _chunk_records(data[i + 9:i + 9 + length])
-        except Exception:       # noqa: BLE001 - not a chunk boundary, keep looking
-            continue
-        return i
-
-
-def scan(path) -> Salvage:
-    """Read every intact record of a (possibly truncated or damaged) MCAP file.
-
-    A chunk that fails its CRC or does not decompress is skipped and reading resumes at the
-    next intact chunk; the skipped byte and time ranges are in :attr:`Salvage.lost`.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise BagError(p, 'no such file')
-    data = p.read_bytes()
-    if data[:8] != MAGIC:
-        raise BagError(p, 'not an MCAP file (bad magic bytes at the start)')
-    s = Salvage()
-    pos, end = 8, len(data)
-    while pos < end:
-        s.stopped_at = pos
-        problem = None
-        t_range = (None, None)
-        if pos + 9 > end:
-            s.reason = f'stopped at byte {pos} of {end}: torn record header'
-            break
-        op, length = _REC.unpack_from(data, pos)
-        if op not in _KNOWN_OPS:
-            problem = f'unknown opcode {op}'
-        elif pos + 9 + length > end:
-            if op == OP_CHUNK or op == OP_MESSAGE:
-                s.reason = (f'stopped at byte {pos} of {end}: record (opcode {op}) runs past '
-                            'the end of the file')
-                if op == OP_CHUNK and length >= 16:
-                    t_range = struct.unpack_from('<QQ', data, pos + 9)
-                    s.lost.append((pos, end, t_range[0], t_range[1], 'torn at the end'))
-                break
-            problem = f'record (opcode {op}) runs past the end of the file'
+        raise Damage('chunk CRC mismatch')
+    msgs, decls = [], []
+    add = msgs.append
+    head, rec = _MSG_HDR.unpack_from, _REC.unpack_from
+    pos, last = 0, usize - _MSG_HDR.size
+    while pos < usize:
+        if pos <= last:
+            op, length, cid, _seq, t, _pub = head(inner, pos)
+        elif pos + 9 <= usize:
+            op, length = rec(inner, pos)
         else:
-            body = data[pos + 9:pos + 9 + length]
-            if op in (OP_DATA_END, OP_FOOTER):
-                s.complete = True
-                s.reason = 'file is complete (data end found)'
-                break
+            raise Damage('torn record inside a chunk')
+        end = pos + 9 + length
+        if end > usize:
+            raise Damage('a record inside the chunk runs past its end')
+        if op == OP_MESSAGE and length >= _MSG_FIXED:
+            add((cid, t, pos + 9 + _MSG_FIXED, end))
+        elif op == OP_SCHEMA:
+            decls.append((len(msgs), op, parse_schema(inner[pos + 9:end])))
+        elif op == OP_CHANNEL:
+            decls.append((len(msgs), op, parse_channel(inner[pos + 9:end])))
+        else:
+            raise Damage(f'record of opcode {op} inside a chunk')
+        pos = end
+    return inner, msgs, decls
+
+
+# ------------------------------------------------------------------------------------------
+# What was lost
+# ------------------------------------------------------------------------------------------
+@dataclass
+class Lost:
+    """Bytes ``start``..``end`` skipped as damaged, and what is known of the messages in them."""
+    start: int
+    end: int
+    why: str
+    header: Optional[Tuple[int, int, int]] = None      # damaged chunk's (t0, t1, record end)
+    index: Dict[int, Tuple[int, int, int]] = field(default_factory=dict)  # MI offset -> n, t0, t1
+    before: Optional[int] = None          # last stamp of the intact chunk before the damage
+    after: Optional[int] = None           # first stamp of the intact chunk after it
+    # from the file's own chunk index (summary CRC checked), when it has one
+    chunks: int = 0
+    chunk_t: Optional[Tuple[int, int]] = None
+    chunk_mi: set = field(default_factory=set)
+    indexed: bool = False                 # that chunk index was read (so chunks == 0 is known)
+    # the conclusion
+    t0: Optional[int] = None
+    t1: Optional[int] = None
+    messages: Optional[int] = None
+    source: str = ''
+
+    def settle(self) -> None:
+        full = [v for v in self.index.values() if v[0]]
+        idx_n = sum(v[0] for v in full)
+        idx_t = (min(v[1] for v in full), max(v[2] for v in full)) if full else None
+        if self.chunk_t is not None:
+            self.t0, self.t1 = self.chunk_t
+            self.source = f'{self.chunks} chunk{"s" if self.chunks > 1 else ""} per the file\'s ' \
+                          'chunk index'
+            if self.chunk_mi and self.chunk_mi <= set(self.index):
+                self.messages = sum(self.index[o][0] for o in self.chunk_mi)
+        elif self.indexed:
+            self.messages = 0
+            self.source = 'no chunk in them per the file\'s chunk index'
+        elif self.header is not None and self.index and min(self.index) == self.header[2]:
+            # the damaged chunk's own header, and its message index right after it
+            self.t0, self.t1 = self.header[0], self.header[1]
+            if idx_t is not None:
+                self.t0, self.t1 = min(self.t0, idx_t[0]), max(self.t1, idx_t[1])
+            self.messages = idx_n
+            self.source = '1 chunk per its header and message index'
+        elif self.header is not None:
+            self.t0, self.t1 = self.header[0], self.header[1]
+            self.source = '1 chunk per its header'
+        elif idx_t is not None:
+            self.t0, self.t1 = idx_t
+            self.messages = idx_n
+            self.source = ('per the message index after the damage; the damaged bytes may hold '
+                           'more')
+
+    def as_dict(self) -> dict:
+        return {'bytes': [self.start, self.end], 'why': self.why, 't0_ns': self.t0,
+                't1_ns': self.t1, 'messages': self.messages, 'source': self.source,
+                'between_ns': [self.before, self.after]}
+
+    def text(self) -> str:
+        where = f'skipped bytes {self.start}-{self.end}: {self.why}'
+        n = (f'{self.messages} message{"s" if self.messages != 1 else ""}'
+             if self.messages is not None else 'an unknown number of messages')
+        if self.t0 is not None:
+            return f'lost t = {self.t0 * 1e-9:.9f} .. {self.t1 * 1e-9:.9f} s, {n} ' \
+                   f'({self.source}; {where})'
+        if self.messages == 0:
+            return f'no messages lost ({self.source}; {where})'
+
+        def s(t):
+            return f'{t * 1e-9:.9f} s'
+        span = ('between ' + s(self.before) + ' and ' + s(self.after)
+                if self.before is not None and self.after is not None
+                else f'after {s(self.before)}' if self.before is not None
+                else f'before {s(self.after)}' if self.after is not None else 'at unknown times')
+        return f'lost {n} {span} (the damaged bytes say nothing readable; {where})'
+
+
+# ------------------------------------------------------------------------------------------
+# Reading
+# ------------------------------------------------------------------------------------------
+class _Source:
+    def __init__(self, path: Path):
+        self.path = path
+        try:
+            self.f = open(path, 'rb')
+            self.size = os.fstat(self.f.fileno()).st_size
+        except OSError as exc:
+            raise BagError(path, f'cannot read: {exc.strerror or exc}') from None
+
+    def read(self, off: int, n: int) -> bytes:
+        try:
+            self.f.seek(off)
+            return self.f.read(n)
+        except OSError as exc:
+            raise BagError(self.path, f'cannot read at byte {off}: {exc.strerror or exc}') from None
+
+    def close(self) -> None:
+        self.f.close()
+
+
+class _Scan:
+    """One pass over the file; ``sink`` receives what is intact, in file order."""
+
+    def __init__(self, src: _Source, sink):
+        self.src, self.sink, self.size = src, sink, src.size
+        self.lost: List[Lost] = []
+        self.open_loss: Optional[Lost] = None
+        self.t_last: Optional[int] = None       # last stamp of the last intact chunk
+        self.complete = False
+        self.ending = ''
+        self.crc: Optional[int] = zlib.crc32(MAGIC)   # data-section CRC while nothing skipped
+        self.crc_mismatch = False
+        self.attachments = 0
+        self.torn_index = False
+        self.last_op = 0
+        self.last_chunk: list = []              # the last intact chunk's messages
+        self._chunk_ok: Dict[int, bool] = {}
+        self._dead: set = set()                 # offsets where no validated run starts
+        self.summary = self._footer()           # (summary start, its end) if CRC-checked
+
+    # -- footer / summary ------------------------------------------------------------------
+    def _footer(self) -> Optional[Tuple[int, int, int]]:
+        """(summary start, summary end, footer start) when the file ends in a valid footer and
+        its summary (CRC checked where it has one) parses; None otherwise."""
+        size = self.size
+        fstart = size - 8 - 29
+        if fstart < 8 or self.src.read(size - 8, 8) != MAGIC:
+            return None
+        foot = self.src.read(fstart, 29)
+        op, length = _REC.unpack_from(foot, 0)
+        if op != OP_FOOTER or length != 20:
+            return None
+        start, ostart, crc = struct.unpack_from('<QQI', foot, 9)
+        if start == 0:
+            return (fstart, fstart, fstart)
+        if not 8 < start <= fstart or not (ostart == 0 or start <= ostart <= fstart):
+            return None
+        if crc:
+            c, p = 0, start
+            while p < size - 8 - 4:
+                block = self.src.read(p, min(_WINDOW, size - 8 - 4 - p))
+                if not block:
+                    return None
+                c = zlib.crc32(block, c)
+                p += len(block)
+            if c != crc:
+                return None
+        p = start
+        while p < fstart:
+            op, length = _REC.unpack_from(self.src.read(p, 9), 0) if p + 9 <= fstart else (0, 0)
+            if op not in _SUMMARY_OPS or p + 9 + length > fstart:
+                return None
+            p += 9 + length
+        return (start, ostart or fstart, fstart)
+
+    def _end_ok(self, pos: int, crc: Optional[int]) -> bool:
+        """A Data End record at ``pos`` validates: the end of the file or the summary follows
+        it, or its data-section CRC matches ``crc`` (the CRC of everything before it)."""
+        end = pos + 13
+        if end == self.size:
+            return True
+        if self.summary is not None and self.summary[0] == end:
+            return True
+        if crc is not None:
+            (stored,) = _U32.unpack_from(self.src.read(pos + 9, 4), 0)
+            return stored != 0 and stored == crc
+        return False
+
+    # -- validation at an offset -------------------------------------------------------------
+    def _head(self, pos: int) -> Optional[Tuple[int, int]]:
+        if pos + 9 > self.size:
+            return None
+        return _REC.unpack_from(self.src.read(pos, 9), 0)
+
+    def _chunk_valid(self, pos: int, length: int) -> bool:
+        ok = self._chunk_ok.get(pos)
+        if ok is None:
             try:
-                if op == OP_CHUNK:
-                    t_range = struct.unpack_from('<QQ', body, 0)
-                    _t0, _t1, recs = _chunk_records(body)
-                    staged = Salvage(s.schemas, s.channels)
-                    for iop, _, ibody in recs:
-                        _take(staged, iop, ibody, True)
-                    s.messages.extend(staged.messages)
-                else:
-                    _take(s, op, body, False)
-            except Exception as exc:    # noqa: BLE001 - any damage: skip this record
-                problem = str(exc) or type(exc).__name__
-        if problem is None:
-            pos += 9 + length
-            continue
-        nxt = _resync(data, pos)
-        s.lost.append((pos, nxt if nxt is not None else end, t_range[0], t_range[1], problem))
+                chunk_records(self.src.read(pos + 9, length))
+                ok = True
+            except Damage:
+                ok = False
+            if len(self._chunk_ok) > 4096:
+                self._chunk_ok.clear()
+            self._chunk_ok[pos] = ok
+        return ok
+
+    def _starts_here(self, pos: int) -> bool:
+        """Records that parse exactly, from ``pos`` on, ending in one that carries a check (a
+        Chunk or Attachment whose CRC matches, a Data End that validates) or at the end of the
+        file. A run found to fail is remembered, so no offset is walked twice."""
+        seen: List[int] = []
+        ok = self._walk(pos, seen)
+        if ok is None:              # too long a run to judge: nothing learnt about its offsets
+            return False
+        if not ok:
+            if len(self._dead) > 1 << 17:
+                self._dead.clear()
+            self._dead.update(seen)
+        return ok
+
+    def _walk(self, pos: int, seen: List[int]) -> Optional[bool]:
+        n, j = 0, pos
+        while n < MAX_CHAIN:
+            if j == self.size:
+                return n > 0
+            if j in self._dead:
+                return False
+            seen.append(j)
+            h = self._head(j)
+            if h is None:
+                return False
+            op, length = h
+            end = j + 9 + length
+            if op not in _DATA_OPS or op == OP_MESSAGE or end > self.size:
+                return False
+            if op == OP_CHUNK:
+                return self._chunk_valid(j, length)
+            if op == OP_DATA_END:
+                return length == 4 and self._end_ok(j, None)
+            if length > (1 << 26):
+                return False
+            try:
+                body = self.src.read(j + 9, length)
+                if op == OP_ATTACHMENT:
+                    parse_attachment(body)
+                    return True
+                {OP_SCHEMA: parse_schema, OP_CHANNEL: parse_channel,
+                 OP_MESSAGE_INDEX: parse_message_index, OP_METADATA: parse_metadata}[op](body)
+            except Damage:
+                return False
+            n, j = n + 1, end
+        return None
+
+    def _resync(self, start: int) -> Optional[int]:
+        """The first offset >= ``start`` where :meth:`_starts_here`; None if there is none.
+        One regular-expression pass over the bytes (read in windows growing from 64 KiB to
+        1 MiB); only offsets shaped like a record header are tried."""
+        pos, win_size = start, 1 << 16
+        while pos < self.size:
+            win = self.src.read(pos, win_size + 8)
+            for m in _CANDIDATE.finditer(win):
+                i = m.start()
+                if i >= win_size:
+                    break
+                if self._starts_here(pos + i):
+                    return pos + i
+            pos += win_size
+            win_size = min(2 * win_size, _WINDOW)
+        return None
+
+    def _plausible_chunk(self, pos: int) -> Optional[Tuple[int, int, int]]:
+        h = self._head(pos)
+        if h is None or h[0] != OP_CHUNK:
+            return None
+        end = pos + 9 + h[1]
+        head = self.src.read(pos + 9, min(h[1], 64))
+        try:
+            if len(head) < _CHUNK_HEAD.size + 4:
+                raise Damage('short')
+            t0, t1, usize, _ = _CHUNK_HEAD.unpack_from(head, 0)
+            comp, p = _str(head, _CHUNK_HEAD.size)
+            if comp not in _COMPRESSIONS or t0 > t1 or usize > MAX_CHUNK:
+                raise Damage('bad')
+            if p + 8 <= len(head) and p + 8 + _U64.unpack_from(head, p)[0] != h[1]:
+                raise Damage('bad')
+        except Damage:
+            return None
+        return t0, t1, end
+
+    # -- the pass ----------------------------------------------------------------------------
+    def _damage(self, pos: int, why: str, next_guess: Optional[int]) -> Optional[int]:
+        loss = Lost(pos, self.size, why, header=self._plausible_chunk(pos), before=self.t_last)
+        nxt = None
+        if next_guess is not None and pos < next_guess <= self.size and \
+                self._starts_here(next_guess):
+            nxt = next_guess
         if nxt is None:
-            s.reason = f'stopped at byte {pos} of {end}: {problem}; nothing intact after it'
-            break
-        pos = nxt
-    s.stopped_at = pos
-    if s.lost and s.complete:
-        s.reason = f'file is complete but {len(s.lost)} damaged range(s) were skipped'
-    elif s.lost and not s.reason.startswith('stopped'):
-        s.reason = f'{len(s.lost)} damaged range(s) skipped'
-    return s
+            nxt = self._resync(pos + 1)
+        if nxt is not None:
+            loss.end = nxt
+        elif 'runs past the end of the file' in why:
+            loss.why += ' (torn: the file ends inside it)'
+        self.lost.append(loss)
+        self.open_loss = loss
+        self.crc = None
+        return nxt
+
+    def run(self) -> None:
+        if self.size < 8 or self.src.read(0, 8) != MAGIC:
+            raise BagError(self.src.path, 'not an MCAP file (bad magic bytes at the start)')
+        self._declare_from_summary()
+        pos = 8
+        size = self.size
+        while pos < size:
+            h = self._head(pos)
+            if h is None:
+                why, guess = 'the file ends inside a record header (torn)', None
+            else:
+                op, length = h
+                end = pos + 9 + length
+                why, guess = self._record(pos, op, length, end)
+                if why is None:
+                    if self.complete or self.torn_index:
+                        return
+                    self.last_op = op
+                    pos = end
+                    continue
+            nxt = self._damage(pos, why, guess)
+            if nxt is None:
+                return
+            pos = nxt
+        self.ending = f'the file ends at byte {size} after its last record'
+
+    def _declare_from_summary(self) -> None:
+        """An intact summary repeats every Schema and Channel: declare them first, so a channel
+        whose record in the data section is damaged still has its messages copied."""
+        if self.summary is None:
+            return
+        p, end = self.summary[0], self.summary[1]
+        while p < end:
+            op, length = _REC.unpack_from(self.src.read(p, 9), 0)
+            if op in (OP_SCHEMA, OP_CHANNEL):
+                body = self.src.read(p + 9, length)
+                try:
+                    rec = (parse_schema if op == OP_SCHEMA else parse_channel)(body)
+                except Damage:
+                    pass
+                else:
+                    (self.sink.schema if op == OP_SCHEMA else self.sink.channel)(*rec)
+            p += 9 + length
+
+    def _torn_index(self, pos: int, length: int) -> bool:
+        """The record at ``pos`` is the Message Index of the intact chunk before it, cut by the
+        end of the file (its fields agree with its length and nothing validates after it)."""
+        if self.open_loss is not None or self.last_op not in (OP_CHUNK, OP_MESSAGE_INDEX):
+            return False
+        head = self.src.read(pos + 9, 6)
+        if len(head) < 6 or 6 + _U32.unpack_from(head, 2)[0] != length or length % 16 != 6:
+            return False
+        return self._resync(pos + 1) is None
+
+    def _record(self, pos: int, op: int, length: int, end: int):
+        """Take the record at ``pos``; (None, None) if it validated, else (why, where the next
+        record would start if only this one is bad)."""
+        if end > self.size:
+            if op == OP_MESSAGE_INDEX and self._torn_index(pos, length):
+                # the index of the intact chunk before it, cut by the end of the file: the
+                # output gets its own index, nothing is lost
+                self.ending = (f'the file ends at byte {self.size} inside the message index of '
+                               'its last chunk')
+                self.torn_index = True
+                return None, None
+            return f'record (opcode {op}) runs past the end of the file', None
+        guess = end
+        if op == OP_HEADER and pos == 8:
+            body = self.src.read(pos + 9, length)
+            try:
+                _, p = _str(body, 0)
+                _exact(body, _str(body, p)[1])
+            except Damage as exc:
+                return f'header record: {exc}', guess
+        elif op == OP_DATA_END:
+            if length != 4:
+                return 'data end record of the wrong length', guess
+            body = self.src.read(pos + 9, 4)
+            if not self._end_ok(pos, self.crc):
+                return ('data end record not followed by a valid summary, footer or end of file '
+                        'and its data CRC does not match', guess)
+            (stored,) = _U32.unpack_from(body, 0)
+            if self.crc is not None and stored and stored != self.crc:
+                self.crc_mismatch = True
+            self.complete = True
+            self.ending = ('the file was complete (data end, then ' + (
+                'a valid summary and footer)' if self.summary is not None
+                and self.summary[0] == pos + 13 else 'the end of the file)' if pos + 13 == self.size
+                else 'a damaged summary, but the data CRC matches)'))
+            return None, None
+        elif op not in _DATA_OPS:
+            return f'opcode {op} does not belong in the data section', guess
+        elif length > MAX_CHUNK + (1 << 20):
+            return f'record (opcode {op}) longer than any chunk recover accepts', guess
+        else:
+            body = self.src.read(pos + 9, length)
+            try:
+                self._take(pos, op, body)
+            except Damage as exc:
+                return f'{_OP_NAMES.get(op, op)} record: {exc}', guess
+        if self.crc is not None:
+            self.crc = zlib.crc32(body, zlib.crc32(_REC.pack(op, length), self.crc))
+        return None, None
+
+    def _take(self, pos: int, op: int, body: bytes) -> None:
+        sink = self.sink
+        if op == OP_CHUNK:
+            inner, msgs, decls = chunk_records(body)    # all validated: now hand them on
+            sink.chunk(inner, msgs, decls)
+            self.last_chunk = msgs
+            if msgs:
+                if self.open_loss is not None:
+                    self.open_loss.after = min(m[1] for m in msgs)
+                self.t_last = max(m[1] for m in msgs)
+            self.open_loss = None
+        elif op == OP_MESSAGE_INDEX:
+            cid, n, t0, t1 = parse_message_index(body)
+            if self.open_loss is not None and not self._indexes_last_chunk(cid, n, t0, t1):
+                self.open_loss.index[pos] = (n, t0, t1)
+        elif op == OP_SCHEMA:
+            sink.schema(*parse_schema(body))
+        elif op == OP_CHANNEL:
+            sink.channel(*parse_channel(body))
+        elif op == OP_METADATA:
+            sink.metadata(*parse_metadata(body))
+        elif op == OP_MESSAGE:
+            if len(body) < _MSG_FIXED:
+                raise Damage('shorter than its fixed fields')
+            cid, _seq, t, _pub = struct.unpack_from('<HIQQ', body, 0)
+            sink.message(cid, t, body[_MSG_FIXED:])
+        elif op == OP_ATTACHMENT:
+            parse_attachment(body)
+            self.attachments += 1
+
+    def _indexes_last_chunk(self, cid: int, n: int, t0, t1) -> bool:
+        """A Message Index read after damage that describes the intact chunk before the damage
+        (same channel, count and stamps), not a lost one."""
+        stamps = [m[1] for m in self.last_chunk if m[0] == cid]
+        return bool(stamps) and (len(stamps), min(stamps), max(stamps)) == (n, t0, t1)
+
+    # -- after the pass: what the damaged bytes held ------------------------------------------
+    def settle(self) -> Optional[int]:
+        """Fill in each loss's time range and message count; return the file's own message
+        count (its Statistics record) when its summary is intact."""
+        total, indexed = None, False
+        if self.summary is not None and self.summary[0] < self.summary[1]:
+            starts = [x.start for x in self.lost]
+            p, end = self.summary[0], self.summary[1]
+            while p < end:
+                op, length = _REC.unpack_from(self.src.read(p, 9), 0)
+                indexed = indexed or op == OP_CHUNK_INDEX
+                if op in (OP_CHUNK_INDEX, OP_STATISTICS):
+                    body = self.src.read(p + 9, length)
+                    try:
+                        if op == OP_STATISTICS:
+                            _need(body, 0, 8)
+                            (total,) = _U64.unpack_from(body, 0)
+                        elif self.lost:
+                            self._attribute(starts, body)
+                    except (Damage, struct.error):
+                        pass
+                p += 9 + length
+        for x in self.lost:
+            x.indexed = indexed
+        for x in self.lost:
+            x.settle()
+        return total
+
+    def _attribute(self, starts: List[int], body: bytes) -> None:
+        _need(body, 0, 40)
+        t0, t1, cstart, clen, n = struct.unpack_from('<QQQQI', body, 0)
+        _need(body, 36, n)
+        offsets = {o for _, o in struct.iter_unpack('<HQ', body[36:36 + n])} if n % 10 == 0 \
+            else set()
+        k = bisect.bisect_right(starts, cstart + clen - 1) - 1     # last loss starting inside
+        while k >= 0 and self.lost[k].end > cstart:
+            x = self.lost[k]
+            if x.start < cstart + clen:
+                x.chunks += 1
+                x.chunk_t = (t0, t1) if x.chunk_t is None else (min(x.chunk_t[0], t0),
+                                                                max(x.chunk_t[1], t1))
+                x.chunk_mi |= offsets
+            k -= 1
 
 
-def lost_text(s: Salvage) -> List[str]:
-    """One line per skipped range: bytes, and the stamps lost when the chunk header says so."""
-    out = []
-    for b0, b1, t0, t1, why in s.lost:
-        when = (f't = {t0 * 1e-9:.6f} .. {t1 * 1e-9:.6f} s lost' if t0 is not None
-                else 'time range unknown')
-        out.append(f'skipped bytes {b0}-{b1} ({why}): {when}')
-    return out
+_OP_NAMES = {OP_SCHEMA: 'schema', OP_CHANNEL: 'channel', OP_MESSAGE: 'message',
+             OP_CHUNK: 'chunk', OP_MESSAGE_INDEX: 'message index', OP_METADATA: 'metadata',
+             OP_ATTACHMENT: 'attachment'}
+
+
+# ------------------------------------------------------------------------------------------
+# Writing
+# ------------------------------------------------------------------------------------------
+class _Out:
+    """Streams what the scan hands over into a :class:`BagWriter` on a temporary file next to
+    ``out``; :meth:`finish` renames it into place, :meth:`abort` removes it."""
+
+    def __init__(self, out: Path, force: bool):
+        self.out, self.force = out, force
+        self.part = out.with_name(f'{out.name}.recover-{os.getpid()}.part')
+        self.w: Optional[BagWriter] = None
+        self.schemas: Dict[int, Tuple[str, str]] = {}
+        self.topics: Dict[int, Optional[str]] = {}
+        self.drop_why: Dict[int, str] = {}      # channel id -> why its messages are dropped
+        self.dropped: Dict[str, int] = {}       # why -> messages dropped
+        self.n = 0
+        self.t_first: Optional[int] = None
+        self.t_last: Optional[int] = None
+
+    def _writer(self) -> BagWriter:
+        if self.w is None:
+            try:
+                self.w = BagWriter(self.out, force=self.force, part=self.part,
+                                   close_at_exit=False)
+            except OSError as exc:
+                raise BagError(self.out, f'cannot write: {exc.strerror or exc}') from None
+        return self.w
+
+    def schema(self, sid, name, enc) -> None:
+        self.schemas[sid] = (name, enc)
+
+    def channel(self, cid, sid, topic, enc, meta) -> None:
+        name = self.schemas.get(sid, ('', ''))[0]
+        why = (f'{topic}: message encoding {enc!r}, not cdr' if enc != 'cdr'
+               else f'{topic}: its schema record was lost' if not name else None)
+        if why is None:
+            try:
+                self._writer().add_topic(topic, name, qos=meta.get('offered_qos_profiles'))
+            except ValueError as exc:
+                why = f'{topic}: {exc}'
+        self.topics[cid] = None if why else topic
+        if why:
+            self.drop_why[cid] = why
+            self.dropped.setdefault(why, 0)
+
+    def message(self, cid, t, data) -> None:
+        topic = self.topics.get(cid)
+        if topic is None:
+            why = self.drop_why.get(cid, f'channel id {cid}: its channel record was lost')
+            self.dropped[why] = self.dropped.get(why, 0) + 1
+            return
+        self.w.write_serialized(topic, data, t)
+        self.n += 1
+        if self.t_first is None or t < self.t_first:
+            self.t_first = t
+        if self.t_last is None or t > self.t_last:
+            self.t_last = t
+
+    def chunk(self, inner: bytes, msgs, decls) -> None:
+        """A validated chunk's messages, with any Schema/Channel it declares in their place."""
+        view = memoryview(inner)
+        k = 0
+        for at, op, rec in decls:
+            if at > k:
+                self._messages(view, msgs[k:at])
+                k = at
+            (self.schema if op == OP_SCHEMA else self.channel)(*rec)
+        if k < len(msgs):
+            self._messages(view, msgs[k:] if k else msgs)
+
+    def _messages(self, view, msgs) -> None:
+        topics = self.topics
+        ws = self.w.write_serialized if self.w is not None else None
+        n = 0
+        for cid, t, a, b in msgs:
+            topic = topics.get(cid)
+            if topic is None:
+                self.message(cid, t, view[a:b])
+                continue
+            ws(topic, view[a:b], t)
+            n += 1
+        if n:
+            self.n += n
+            if n < len(msgs):
+                msgs = [m for m in msgs if topics.get(m[0]) is not None]
+            t0 = min(m[1] for m in msgs)
+            t1 = max(m[1] for m in msgs)
+            self.t_first = t0 if self.t_first is None else min(self.t_first, t0)
+            self.t_last = t1 if self.t_last is None else max(self.t_last, t1)
+
+    def metadata(self, name, md) -> None:
+        if name not in ('rosbag2', 'recovered_from'):
+            self._writer().add_metadata(name, md)
+
+    def finish(self, recovered_from: Dict[str, str]) -> None:
+        w = self._writer()
+        w.add_metadata('recovered_from', recovered_from)
+        w.close()
+
+    def abort(self) -> None:
+        if self.w is not None:
+            try:
+                self.w.discard()
+            except OSError:
+                pass
+        try:
+            os.unlink(self.part)
+        except FileNotFoundError:
+            pass
 
 
 def source_of(path) -> Path:
@@ -247,62 +852,115 @@ def source_of(path) -> Path:
     return p
 
 
+def default_output(path) -> Path:
+    """``run.mcap`` and ``run.mcap.part`` -> ``run.recovered.mcap``."""
+    p = Path(path)
+    name = p.name[:-len('.part')] if p.name.endswith('.part') else p.name
+    stem = name[:-len('.mcap')] if name.endswith('.mcap') else name
+    return p.with_name(stem + '.recovered.mcap')
+
+
 def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
-    """Rewrite the readable records of ``path`` into ``out``; returns counts and paths.
+    """Rewrite the intact records of ``path`` into ``out``; returns counts, paths and what was
+    lost (``lost``: one line each; ``lost_ranges``: the same as dicts).
 
     ``path`` may name a recording whose writer was killed: its data is then in ``<path>.part``
     (see :class:`~im_bringup.bag.BagWriter`), which is read instead.
     """
     src = source_of(path)
-    out = out or str(Path(path).with_suffix('')) + '.recovered.mcap'
-    check_output(out, [src, path], force, what='recovered file')
-    s = scan(src)
-    if not s.channels:
-        raise BagError(src, f'nothing to recover (no channel readable; {s.reason})')
-    with BagWriter(out, force=force) as w:
-        for name, md in s.metadata:
-            if name not in ('rosbag2', 'recovered_from'):
-                w.add_metadata(name, md)
-        w.add_metadata('recovered_from', {'path': str(src), 'reason': s.reason,
-                                          'lost': '; '.join(lost_text(s))})
-        topics = {}
-        for cid, (topic, sid, enc, meta) in sorted(s.channels.items()):
-            tname = s.schemas.get(sid, ('',))[0]
-            if enc != 'cdr' or not tname:
-                continue
-            w.add_topic(topic, tname, qos=meta.get('offered_qos_profiles'))
-            topics[cid] = topic
-        n = 0
-        for cid, t, data in sorted(s.messages, key=lambda m: m[1]):
-            topic = topics.get(cid)
-            if topic is not None:
-                w.write_serialized(topic, data, t)
-                n += 1
-    return {'input': str(src), 'output': out, 'messages': n, 'topics': len(topics),
-            'complete': s.complete, 'reason': s.reason, 'lost': lost_text(s),
-            'last_stamp_ns': max((m[1] for m in s.messages), default=None)}
+    if not src.exists():
+        raise BagError(src, 'no such file')
+    if src.is_dir():
+        raise BagError(src, 'is a directory; expected an .mcap file')
+    out = Path(out) if out else default_output(path)
+    check_output(out, [p for p in (src, Path(path)) if p.exists()], force,
+                 what='recovered file')
+    source = _Source(src)
+    sink = _Out(out, force)
+    try:
+        scan = _Scan(source, sink)
+        try:
+            scan.run()
+        except OSError as exc:          # the output: BagWriter writing a chunk
+            raise BagError(out, f'cannot write: {exc.strerror or exc}') from None
+        total = scan.settle()
+        if sink.n == 0 and not any(t for t in sink.topics.values()):
+            raise BagError(src, 'nothing to recover (no intact channel or message; '
+                           + (scan.lost[0].text() if scan.lost else scan.ending) + ')')
+        lost = [x.text() for x in scan.lost]
+        notes = []
+        if scan.crc_mismatch:
+            notes.append('the data section CRC does not match although every record validated: '
+                         'a record outside the chunks, or the stored CRC, was altered (kept as '
+                         'read)')
+        for why, n in sorted(sink.dropped.items()):
+            notes.append(f'{n} message(s) not copied ({why})')
+        if scan.attachments:
+            notes.append(f'{scan.attachments} attachment(s) not copied')
+        n_lost = (total - sink.n if total is not None
+                  else sum(x.messages for x in scan.lost)
+                  if all(x.messages is not None for x in scan.lost) else None)
+        whole = not scan.lost and not scan.crc_mismatch
+        if whole:
+            reason = (scan.ending if scan.complete else scan.ending
+                      + ' (no data end: the writer did not close it; whatever it had not yet '
+                        'written is not in the file)') + '; nothing lost'
+        else:
+            reason = (f'{len(scan.lost)} damaged range(s) skipped ('
+                      f'{sum(x.end - x.start for x in scan.lost)} bytes)' if scan.lost
+                      else 'data section CRC mismatch')
+            if total is not None:
+                reason += f', {n_lost} of {total} messages lost'
+            elif n_lost is not None:
+                reason += f', {n_lost} messages lost'
+            else:
+                reason += ', number of messages lost unknown'
+        try:
+            sink.finish({'path': str(src), 'reason': reason, 'lost': '; '.join(lost + notes),
+                         'messages_lost': '' if n_lost is None else str(n_lost)})
+        except OSError as exc:
+            raise BagError(out, f'cannot write: {exc.strerror or exc}') from None
+    except BaseException:
+        sink.abort()
+        raise
+    finally:
+        source.close()
+    return {'input': str(src), 'output': str(out), 'messages': sink.n,
+            'topics': sum(1 for t in set(sink.topics.values()) if t),
+            'complete': scan.complete and whole, 'whole': whole, 'reason': reason,
+            'lost': lost, 'notes': notes, 'lost_ranges': [x.as_dict() for x in scan.lost],
+            'messages_lost': n_lost, 'messages_in_file': total,
+            'first_stamp_ns': sink.t_first, 'last_stamp_ns': sink.t_last}
 
 
 def main(argv=None) -> int:
     from im_common.cli import parse_args
-    ap = argparse.ArgumentParser(prog='recover', description='Salvage the readable part of a '
-                                 'truncated MCAP recording into a new, valid file.')
+    from im_common.stopping import StopSignals, exit_code_for
+    ap = argparse.ArgumentParser(prog='recover', description='Salvage the intact part of a '
+                                 'truncated or damaged MCAP recording into a new, valid file.')
     ap.add_argument('bag')
     ap.add_argument('-o', '--out', default=None)
     ap.add_argument('--force', action='store_true', help='overwrite the output file')
     a = parse_args(ap, argv)
     try:
-        r = recover(a.bag, a.out, a.force)
+        with StopSignals(raise_=True):
+            r = recover(a.bag, a.out, a.force)
     except (BagError, FileExistsError, OSError) as exc:
         print(f'recover: error: {exc}', file=sys.stderr)
         return 2
-    last = r['last_stamp_ns']
-    for line in r['lost']:
+    except KeyboardInterrupt as exc:
+        name = getattr(exc, 'signame', 'SIGINT')
+        print(f'recover: interrupted by {name}; nothing written', file=sys.stderr)
+        return exit_code_for(name)
+    for line in r['lost'] + r['notes']:
         print(f'recover: {line}', file=sys.stderr)
+
+    def s(t):
+        return f'{t * 1e-9:.9f}' if t is not None else '-'
     print(f"recover: saved {r['messages']} messages on {r['topics']} topics "
-          f"(up to t = {last * 1e-9 if last is not None else float('nan'):.6f} s) "
-          f"into {r['output']}; {r['reason']}")
-    return 0
+          f"(t = {s(r['first_stamp_ns'])} .. {s(r['last_stamp_ns'])} s) into {r['output']}; "
+          f"{r['reason']}")
+    return 0 if r['whole'] else 1
 
 
 if __name__ == '__main__':
