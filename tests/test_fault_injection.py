@@ -306,7 +306,8 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
     assert summary['ok'] is False and 'No space left on device' in summary['failures']['recorder']
     assert 0 < summary['steps'] < 10_000
     fix = run_tool('recover', bag)
-    assert fix.returncode == 0, fix.stderr
+    # the failed write may have torn the open chunk: recover then says so and exits 1
+    assert fix.returncode == 0 or (fix.returncode == 1 and 'torn' in fix.stderr), fix.stderr
     assert rosbags_count(tmp_path / 'full.recovered.mcap') > 0
 
 
