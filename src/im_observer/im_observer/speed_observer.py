@@ -37,7 +37,7 @@ import math
 from typing import Optional, Sequence
 
 from im_common.model import eq112_coefficients
-from im_common.params import MotorParams, THESIS_MOTOR, check_real
+from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
 
 from .observer import RotorFluxObserver
 
@@ -46,7 +46,11 @@ DEFAULT_SPEED_BANDWIDTH = 600.0
 #: default floor of |φ̂| in the adaptation's normalization [Wb] (a quarter of the default phi_min)
 DEFAULT_FLUX_FLOOR = 0.05
 #: low-speed rotation of the adaptation error (η₀) and the electrical frequency where it ends [rad/s]
-DEFAULT_ERROR_ROTATION = 0.3
+DEFAULT_ERROR_ROTATION = 0.0
+#: flux-row gain (c₀, c₁ [rad/s], c₂ [rad/s]) and the electrical-speed band (w₀, w₁) [rad/s]
+#: over which it fades in (SpeedAdaptiveObserver.flux_row_gain)
+DEFAULT_FLUX_GAIN = (1.2, 200.0, 100.0)
+DEFAULT_FLUX_GAIN_BAND = (10.0, 40.0)
 DEFAULT_ROTATION_FREQUENCY = 200.0
 
 
@@ -76,6 +80,8 @@ class SpeedAdaptiveObserver:
                  omega0: float = 0.0, theta0: float = 0.0,
                  speed_bandwidth: float = DEFAULT_SPEED_BANDWIDTH,
                  flux_floor: float = DEFAULT_FLUX_FLOOR,
+                 flux_gain: Sequence[float] = DEFAULT_FLUX_GAIN,
+                 flux_gain_band: Sequence[float] = DEFAULT_FLUX_GAIN_BAND,
                  error_rotation: float = DEFAULT_ERROR_ROTATION,
                  rotation_frequency: float = DEFAULT_ROTATION_FREQUENCY, injection_gain=None,
                  gain_period: Optional[float] = None):
@@ -89,6 +95,15 @@ class SpeedAdaptiveObserver:
         self.rotation_frequency = check_real('rotation_frequency', rotation_frequency, 0.0,
                                              lo_open=True)
         self.k_p, self.k_i = adaptation_gains(params, bw, self.flux.k_e)
+        if len(flux_gain) != 3:
+            raise InvalidParameter('flux_gain', flux_gain, 'must be (c0, c1, c2)')
+        self.flux_gain = tuple(check_real('flux_gain', x) for x in flux_gain)
+        if len(flux_gain_band) != 2:
+            raise InvalidParameter('flux_gain_band', flux_gain_band, 'must be (w0, w1) in rad/s')
+        w0, w1 = (check_real('flux_gain_band', x, 0.0) for x in flux_gain_band)
+        if not w1 > w0:
+            raise InvalidParameter('flux_gain_band', flux_gain_band, 'needs w1 > w0')
+        self.flux_gain_band = (w0, w1)
         self._integral = check_real('omega0', omega0)
         self.omega_hat = self._integral
         self.theta_hat = check_real('theta0', theta0)
@@ -127,9 +142,34 @@ class SpeedAdaptiveObserver:
         self._integral += self.k_i * T_s * eps
         w = self._integral + self.k_p * eps
         self.omega_hat = w
+        ia, ib, _, _ = self.flux.state
+        ea, eb = i_alpha - ia, i_beta - ib
         state = self.flux.step(T_s, v_alpha, v_beta, i_alpha, i_beta, w)
+        gr, gi = self.flux_row_gain(w)
+        if gr != 0.0 or gi != 0.0:     # + T_s G e with the error held, like the other injections
+            state = (state[0], state[1], state[2] + T_s * (gr * ea - gi * eb),
+                     state[3] + T_s * (gr * eb + gi * ea))
+            self.flux.state = state
         self.theta_hat += T_s * w
         return state
+
+    def flux_row_gain(self, omega_hat: float):
+        """(Re G, Im G) [Ω] of the flux-row injection dφ̂/dt += G e (complex, e = e_α + j e_β):
+
+            G = −(γ′/K) h [c₀ + (c₁ − j c₂ sign ω̂) / (v|ω̂|)],  h = clip((v|ω̂| − w₀)/(w₁ − w₀), 0, 1)
+
+        (docs/sensorless.md §3: fitted to the gains that minimize the slowest linearized pole
+        point by point; zero below w₀ where it would destabilize low-speed regeneration)."""
+        c0, c1, c2 = self.flux_gain
+        w0, w1 = self.flux_gain_band
+        w_e = abs(self.flux.v * omega_hat)
+        if w_e <= w0 or (c0 == 0.0 and c1 == 0.0 and c2 == 0.0):
+            return 0.0, 0.0
+        h = min(1.0, (w_e - w0) / (w1 - w0))
+        c = self.flux._c
+        scale = (c.gamma + self.flux.k_e * c.inv_sigma_Ls) / c.K
+        sgn = 1.0 if omega_hat >= 0.0 else -1.0
+        return -scale * h * (c0 + c1 / w_e), scale * h * c2 * sgn / w_e
 
     def error_rotation(self, omega_hat: float) -> float:
         """η(ω̂) = −η₀ sign(ω̂) max(0, 1 − |v ω̂|/ω_λ) (module docstring)."""
@@ -190,8 +230,9 @@ def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: 
         dib = (V[1] + k_e * eb) * c.inv_sigma_Ls - c.gamma * ib + c.K * c.inv_Tr * pb \
             - we * c.K * pa - w_s * ia
         sk = we * c.L_sr if fo.skew_injection else 0.0
-        dpa = -we * pb + c.L_sr * c.inv_Tr * ia - c.inv_Tr * pa - sk * eb + w_s * pb
-        dpb = we * pa + c.L_sr * c.inv_Tr * ib - c.inv_Tr * pb + sk * ea - w_s * pa
+        gr, gi = obs.flux_row_gain(w)
+        dpa = -we * pb + c.L_sr * c.inv_Tr * ia - c.inv_Tr * pa - sk * eb + w_s * pb + gr * ea - gi * eb
+        dpb = we * pa + c.L_sr * c.inv_Tr * ib - c.inv_Tr * pb + sk * ea - w_s * pa + gr * eb + gi * ea
         return np.array([dia, dib, dpa, dpb, obs.k_i * eps])
 
     z0 = np.array([i_m[0], i_m[1], phi, 0.0, omega_r])
