@@ -34,13 +34,11 @@ from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, steady_start
 from im_controller.profiles import Profile
 from im_observer.observer import RotorFluxObserver
-from im_observer.speed_observer import SpeedAdaptiveObserver
+from im_observer.speed_observer import POSITION_NEEDS_SENSOR, SpeedAdaptiveObserver
 
 from .config import CONTROLLERS, TASK_PRESETS, TASKS, TORQUE_NEEDS_PROFILE  # the one table of tasks
 
 START_MODES = ('rest', 'steady')
-SENSORLESS_NO_POSITION = ('the position task needs the measured shaft position; a sensorless '
-                          'drive runs the speed or torque task')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
 
 
@@ -89,7 +87,7 @@ class Scenario:
         if not (math.isfinite(self.T_s) and self.T_s > 0):
             raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
         if self.sensorless and self.task == 'position':
-            raise InvalidParameter('sensorless', True, SENSORLESS_NO_POSITION)
+            raise InvalidParameter('sensorless', True, POSITION_NEEDS_SENSOR)
         if self.task == 'torque' and self.profile is None:
             raise InvalidParameter('profile', None, TORQUE_NEEDS_PROFILE)
         if self.profile is not None and self.profile.mode != self.task:

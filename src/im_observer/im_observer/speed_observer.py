@@ -41,6 +41,9 @@ from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_
 
 from .observer import RotorFluxObserver
 
+#: why a sensorless drive refuses the position task (one line, every place that refuses it)
+POSITION_NEEDS_SENSOR = ('the position task needs the measured shaft position; a sensorless '
+                         'drive runs the speed or torque task')
 #: default bandwidth of the speed estimate [rad/s]: ~5× the speed task's loop (k_v/J ≈ 100 rad/s)
 DEFAULT_SPEED_BANDWIDTH = 600.0
 #: default floor of |φ̂| in the adaptation's normalization [Wb] (a quarter of the default phi_min)
