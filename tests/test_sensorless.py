@@ -104,3 +104,23 @@ def test_reversal_through_zero_speed_under_load_on_every_shipped_motor(motor):
     assert np.all(np.isfinite(tr['omega_hat']))
     assert abs(tr['omega_r'][-1] - tr['omega_ref'][-1]) <= 1.0
     assert abs(tr['omega_ref'][-1] + 100.0) < 1e-9
+
+
+def test_zero_stator_frequency_is_unobservable_and_the_drive_drifts_slowly_without_running_away():
+    """At ω_s = 0 (shaft at −ω_sl/v under a load) V = R_s i carries no speed: a linearized pole
+    sits at 0, and holding that speed the estimate drifts — bounded over the hold, no trip."""
+    from im_common.loads import ConstantLoad
+    from im_controller.profiles import Profile
+    p, tau, phi = THESIS_MOTOR, 2.0, 1.2
+    w0 = -p.R_r * tau / (p.pole_pairs ** 2 * phi ** 2)
+    slowest = max(linearized_poles(SpeedAdaptiveObserver(p), w0, tau, phi).real)
+    assert abs(slowest) < 0.05
+    prof = Profile('speed', ((0.0, 20.0, None), (0.3, w0, 0.5)), source='zero-frequency hold')
+    r = simulate(Scenario(task='speed', strategy='constant_flux', profile=prof,
+                          load_model=ConstantLoad(tau=tau), duration=4.0, sensorless=True),
+                 record_every=10)
+    tr = r.trace
+    hold = tr['t'] >= 1.0
+    assert r.summary['trip'] is None
+    assert np.max(np.abs(tr['omega_r'][hold] - w0)) < 0.5          # bounded over 3 s
+    assert np.max(np.abs(tr['omega_hat'][hold] - tr['omega_r'][hold])) > 0.05   # not observed
