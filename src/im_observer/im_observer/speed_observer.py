@@ -16,15 +16,19 @@ speed estimate: k_i = α_ω / g, k_p = 0 (:func:`adaptation_gains`). Normalizing
 loop's bandwidth independent of the flux level (min_energy's low flux); the floor φ_f keeps it
 bounded while the machine is demagnetized (there the speed is unobservable: ε carries no speed).
 
-Low-speed regeneration (docs/sensorless.md §3): with ε as above the linearized observer is unstable
-in a band of regenerating operation at low speed (torque and speed of opposite signs, stator
-frequency small), the classic weakness of this observer. The error is therefore rotated there:
+Flux-row gain (docs/sensorless.md §1): without it one real pole stays near −10 /s at every speed
+(a speed error traded against a flux-angle error through the rotor time constant), so ω̂ lags
+accelerations. The flux rows get dφ̂/dt += G(ω̂) e (complex), :meth:`flux_row_gain`, fitted to the
+point-by-point optimum of :func:`linearized_poles` and faded out at low speed, where it would
+destabilize regeneration.
+
+Optional low-speed rotation of the error (``error_rotation`` η₀, default 0: off):
 
     ε = [e_⊥ − η(ω̂) e_∥] / max(|φ̂|², φ_f²),   e_⊥ = e_α φ̂_β − e_β φ̂_α,  e_∥ = e_α φ̂_α + e_β φ̂_β
     η(ω̂) = −η₀ sign(ω̂) max(0, 1 − |v ω̂|/ω_λ)
 
-(η₀ = 0.3, ω_λ = 200 rad/s electrical by default, chosen with :func:`linearized_poles` on the
-thesis motor; η₀ = 0 gives the plain law). Above ω_λ the law is the plain gradient law.
+(without the flux-row gain η₀ = 0.3 reduced the regenerating-mode instability; with it, it does
+not help).
 
 Timing (lock-step): ``step`` takes V_k, i_k, computes ε_k from i_k − î_k, updates ω̂_k, and
 advances the flux estimate over [t_k, t_k+1] at ω̂_k. ``omega_hat`` is then the speed the next
