@@ -50,11 +50,14 @@ class AdapterNode(LockstepNode):
         # the law's estimates, in the topic's order (feed 'inverse_gamma' adds L_sigma)
         self.names = tuple(n for n in T.ESTIMATE_NAMES if n in self.law.estimates())
         self.out = JointStateOut(self.names, Signer.frame(''))
-        self.gate = StepGate([T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX],
+        sensorless = p('sensorless', False, "take the observer's speed estimate "
+                       f'({T.OBS_SPEED}) in place of the measured shaft (docs/sensorless.md)')
+        self.shaft = T.OBS_SPEED if sensorless else T.MEAS_SHAFT
+        self.gate = StepGate([T.MEAS_CURRENT, self.shaft, T.CMD_VOLTAGE, T.OBS_FLUX],
                              self.period, follow=True)
         for topic in (T.MEAS_CURRENT, T.CMD_VOLTAGE, T.OBS_FLUX):
             self.gate_input(topic, xy_in)
-        self.gate_input(T.MEAS_SHAFT, shaft_in)
+        self.gate_input(self.shaft, shaft_in)
         self.k_done = -1
         self.start_protocol(timeout, startup)
 
@@ -75,7 +78,7 @@ class AdapterNode(LockstepNode):
                 v_a, v_b = inputs[T.CMD_VOLTAGE]
                 f_a, f_b = inputs[T.OBS_FLUX]
                 try:
-                    self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[T.MEAS_SHAFT][1],
+                    self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[self.shaft][1],
                                     f_a, f_b)
                 except (ValueError, ArithmeticError) as exc:
                     self.fail(f'adapter failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')

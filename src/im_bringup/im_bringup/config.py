@@ -63,7 +63,8 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
                     truth_decimation: int = 10, reference_decimation: int = 10,
                     input_timeout: float = 5.0, *, motor=None, estimates=None, profile=None,
                     load=None, limits: Optional[dict] = None,
-                    protection: Optional[dict] = None) -> Dict[str, Dict[str, object]]:
+                    protection: Optional[dict] = None,
+                    sensorless: bool = False) -> Dict[str, Dict[str, object]]:
     """Parameters of the four nodes for one scenario (validated names, no ROS import).
 
     ``motor``: the plant's motor (file path or MotorParams; every node's model defaults to it),
@@ -71,7 +72,9 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     explicitly), ``profile``: setpoints of one's own (file or :class:`Profile`; the task must
     match its kind), ``load``: shaft load (file or Load; plant and the controller's load model),
     ``limits``: controller limits (:data:`CONTROLLER_LIMITS`), ``protection``: plant inverter
-    rating and trips (:data:`PLANT_PROTECTION`). Without them the thesis scenario is unchanged.
+    rating and trips (:data:`PLANT_PROTECTION`), ``sensorless``: controller, observer and adapter
+    use the observer's speed estimate, not the measured shaft (docs/sensorless.md). Without them
+    the thesis scenario is unchanged.
     """
     if task not in TASKS:
         raise ValueError(f"invalid task {task!r}: one of {', '.join(TASKS)}")
@@ -101,6 +104,9 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
             raise ValueError(f"invalid protection {key!r}: one of {', '.join(PLANT_PROTECTION)}")
     if task == 'torque' and profile is None:
         raise ValueError(TORQUE_NEEDS_PROFILE)
+    if sensorless and task == 'position':
+        from im_observer.speed_observer import POSITION_NEEDS_SENSOR
+        raise ValueError(f'invalid option sensorless: {POSITION_NEEDS_SENSOR}')
     if profile is not None and profile.mode != task:
         raise ValueError(f'invalid profile {profile.source}: a {profile.mode} profile for the '
                          f'{task} task')
@@ -161,6 +167,9 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
         obs['injection_gain'] = [float(g) for g in injection_gain]
         obs['gain_period'] = float(T_s)
     adapter = dict(common, enable=adaptive, **model_values)
+    if sensorless:      # controller, observer, adapter: the observer's ω̂ replaces the shaft
+        ctl['sensorless'] = obs['sensorless'] = adapter['sensorless'] = True
+        obs['initial_speed'] = float(preset['omega0']) if preset['start'] == 'steady' else 0.0
     if adaptive:
         adapter.update(ADAPTATION[controller])
     return {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
@@ -34,6 +34,7 @@ from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, steady_start
 from im_controller.profiles import Profile
 from im_observer.observer import RotorFluxObserver
+from im_observer.speed_observer import POSITION_NEEDS_SENSOR, SpeedAdaptiveObserver
 
 from .config import CONTROLLERS, TASK_PRESETS, TASKS, TORQUE_NEEDS_PROFILE  # the one table of tasks
 
@@ -71,6 +72,8 @@ class Scenario:
     profile: Optional[Profile] = None         # setpoints of one's own (None: thesis profile)
     load_model: Optional[Load] = None         # shaft load (None: the task's thesis load)
     inverter_rating: Optional[float] = None   # plant's inverter limit [V] (None: plant default)
+    sensorless: bool = False                  # controller/observer use no measured speed/position
+    speed_observer_options: dict = field(default_factory=dict)  # SpeedAdaptiveObserver keywords
 
     def __post_init__(self):
         if self.task not in TASKS:
@@ -83,6 +86,8 @@ class Scenario:
             raise InvalidParameter('variation', self.variation, f'must be one of {", ".join(SCHEDULES)}')
         if not (math.isfinite(self.T_s) and self.T_s > 0):
             raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
+        if self.sensorless and self.task == 'position':
+            raise InvalidParameter('sensorless', True, POSITION_NEEDS_SENSOR)
         if self.task == 'torque' and self.profile is None:
             raise InvalidParameter('profile', None, TORQUE_NEEDS_PROFILE)
         if self.profile is not None and self.profile.mode != self.task:
@@ -195,7 +200,7 @@ TRACE_KEYS = ('t', 'theta_r', 'omega_r', 'theta_ref', 'omega_ref', 'tau_m', 'tau
               'v_alpha', 'v_beta', 'i_alpha', 'i_beta', 'i_alpha_ref', 'i_beta_ref',
               'phi_r_alpha', 'phi_r_beta', 'phi_ref_alpha', 'phi_ref_beta', 'phi_hat_alpha',
               'phi_hat_beta', 'phi_d_ref', 'phi_target', 'omega_sl', 'E_in', 'E_loss', 'E_copper',
-              'E_core')
+              'E_core', 'omega_hat')
 
 
 def build(sc: Scenario):
@@ -211,6 +216,15 @@ def build(sc: Scenario):
                            **({} if sc.inverter_rating is None
                               else {'inverter_rating': sc.inverter_rating}))
     controller = DriveController(cfg)
+    if sc.sensorless:
+        # the drive's speed estimate starts where the drive is: at rest, or (a drive already
+        # running, 'steady') at the speed its controller holds
+        observer = SpeedAdaptiveObserver(cfg.params, k_e=sc.k_e, max_substep=sc.observer_substep,
+                                         x0=obs_x0, omega0=sc.omega0 if sc.start == 'steady'
+                                         else 0.0, injection_gain=sc.observer_gain,
+                                         gain_period=sc.T_s if sc.observer_gain is not None
+                                         else None, **sc.speed_observer_options)
+        return plant, controller, observer
     observer = RotorFluxObserver(cfg.params, k_e=sc.k_e, max_substep=sc.observer_substep, x0=obs_x0,
                                  injection_gain=sc.observer_gain,
                                  gain_period=sc.T_s if sc.observer_gain is not None else None)
@@ -296,6 +310,8 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     t_ctl = t_obs = 0.0
     for k in range(n_steps + 1):
         m = plant.measure()
+        if sc.sensorless:   # the shaft is not measured: the observer's ω̂ and θ̂ = ∫ω̂ instead
+            m = replace(m, theta_r=observer.theta_hat, omega_r=observer.omega_hat)
         if timing:
             c0 = clock()
         v_a, v_b = controller.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r,
@@ -304,6 +320,7 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             t_ctl += clock() - c0
         if k % record_every == 0 and rec < n_rec:
             _record(tr, rec, plant, controller, x_hat, m.t, v_a, v_b)
+            tr['omega_hat'][rec] = m.omega_r     # the speed the controller used
             rec += 1
         if k == n_steps:
             break
@@ -311,7 +328,10 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         if timing:
             c0 = clock()
         x_hat_k = x_hat
-        x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)   # uses p̂_k
+        if sc.sensorless:
+            x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta)   # ω̂ from V and i only
+        else:
+            x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)   # uses p̂_k
         if timing:
             t_obs += clock() - c0
         if adapter is not None:

@@ -64,6 +64,7 @@ V3_KEYS: Dict[str, Tuple[Optional[str], Optional[str], Optional[str]]] = {
 # JointState topics with fixed meaning of position/velocity/effort
 JS_FIELDS = {
     T.MEAS_SHAFT: ('theta_r', 'omega_r', None),
+    T.OBS_SPEED: ('theta_hat', 'omega_hat', None),
     T.REF_SHAFT: ('theta_ref', 'omega_ref', 'tau_ref'),
     T.TRUTH_SHAFT: ('theta_true', 'omega_true', None),
 }

@@ -58,6 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help='plant protection: zero voltage above this |i_s| [A] (0: off)')
     ap.add_argument('--speed-trip', type=float, default=0.0,
                     help='plant protection: zero voltage above this |omega_r| [rad/s] (0: off)')
+    ap.add_argument('--sensorless', action='store_true',
+                    help='speed-sensorless: controller, observer and adapter use the observer\'s '
+                         'speed estimate, not the measured shaft (speed and torque tasks; '
+                         'docs/sensorless.md)')
     ap.add_argument('--gains', metavar='YAML',
                     help='parameters YAML from `design_gains` (controller current gain, observer '
                          'injection gain); merged over the scenario parameters')
@@ -232,7 +236,8 @@ def main(argv=None) -> int:
         parameters = node_parameters(args.task, args.strategy, args.controller, args.variation,
                                      args.T_s, args.duration, args.v_limit, motor=args.motor,
                                      estimates=args.estimates, profile=args.profile,
-                                     load=args.load, limits=limits, protection=protection)
+                                     load=args.load, limits=limits, protection=protection,
+                                     sensorless=args.sensorless)
     except ValueError as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

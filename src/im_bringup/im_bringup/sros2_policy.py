@@ -57,13 +57,22 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
                      P('use_adapter', value=True), sim]),
                  'adapter': AdapterNode(context=ctx, graph_key=key, parameter_overrides=[sim]),
                  'recorder': RecorderNode(writer, context=ctx, graph_key=key)}
+        # the same nodes speed-sensorless (docs/sensorless.md): the union of both is granted
+        sl = [P('sensorless', value=True), P('use_adapter', value=True), sim]
+        also = {'controller': ControllerNode(context=ctx, graph_key=key, parameter_overrides=[
+                    P('mode', value='speed')] + sl),
+                'observer': ObserverNode(context=ctx, graph_key=key, parameter_overrides=sl),
+                'adapter': AdapterNode(context=ctx, graph_key=key, parameter_overrides=sl[::2])}
         for name, node in built.items():
+            nodes = [node] + ([also[name]] if name in also else [])
             out[name] = {      # every node also logs to /rosout (rcl's own publisher)
-                'publish': sorted({p.topic_name for p in node.publishers} | {'/rosout'}),
-                'subscribe': sorted({s.topic_name for s in node.subscriptions}),
-                'reply': sorted({'/' + s.srv_name.lstrip('/') for s in node.services}),
+                'publish': sorted({p.topic_name for n in nodes for p in n.publishers}
+                                  | {'/rosout'}),
+                'subscribe': sorted({s.topic_name for n in nodes for s in n.subscriptions}),
+                'reply': sorted({'/' + s.srv_name.lstrip('/') for n in nodes for s in n.services}),
             }
-            node.destroy_node()
+            for n in nodes:
+                n.destroy_node()
     finally:
         writer.discard()
         os.rmdir(tmp)

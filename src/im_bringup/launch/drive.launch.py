@@ -3,7 +3,7 @@
     ros2 launch im_bringup drive.launch.py [task:=position|speed] [strategy:=min_energy|...]
         [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair] [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
-        [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true]
+        [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true] [sensorless:=true]
 
 Which processes start, with which parameters, comes from :func:`im_bringup.processes.
 graph_processes` — the same description the project's tests start the graph from: plant,
@@ -45,6 +45,9 @@ ARGUMENTS = (
     ('record', '', 'MCAP file to record the run to (empty: no recorder)'),
     ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),
     ('params_file', '', 'extra parameters YAML merged last'),
+    ('sensorless', 'false', 'true: speed-sensorless, controller/observer/adapter use the '
+                            "observer's speed estimate, not the measured shaft (speed and torque "
+                            'tasks; docs/sensorless.md)'),
     ('security', 'false', 'true: start each node in its SROS2 enclave /im_drive/<node> (needs a '
                           'keystore from config/sros2/policy.xml and a middleware with DDS '
                           'security; docs/security.md)'),
@@ -63,7 +66,8 @@ def _processes(context):
         task=a['task'], strategy=a['strategy'], controller=a['controller'],
         T_s=float(a['T_s']), duration=float(a['duration']) if a['duration'] else None,
         mode=a['mode'], record=a['record'] or None, extra=extra,
-        use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()])
+        use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()],
+        sensorless=a['sensorless'].lower() == 'true')
     check_processes(procs)      # what a node would refuse, refused before any process starts
     secure = a['security'].lower() == 'true'
     return [Node(package=p.package, executable=p.executable, name=p.name,

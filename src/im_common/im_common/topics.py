@@ -27,6 +27,7 @@ MEAS_SHAFT = '/im/measured/shaft'
 CMD_VOLTAGE = '/im/command/voltage'
 OBS_FLUX = '/im/observer/flux'
 OBS_CURRENT = '/im/observer/current'
+OBS_SPEED = '/im/observer/speed'
 ADAPT_ESTIMATE = '/im/adapter/estimate'
 REF_SHAFT = '/im/reference/shaft'
 REF_CURRENT = '/im/reference/current'
@@ -72,6 +73,10 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(CMD_VOLTAGE, V3, 'controller', 'stator voltage command V_alpha, V_beta [V]', True),
     TopicSpec(OBS_FLUX, V3, 'observer', 'rotor-flux estimate phi_r_alpha, phi_r_beta [Wb]', True),
     TopicSpec(OBS_CURRENT, V3, 'observer', 'stator-current estimate i_alpha, i_beta [A]'),
+    TopicSpec(OBS_SPEED, JS, 'observer',
+              "sensorless runs: speed estimate in place of the measured shaft: name ['rotor'], "
+              "position theta_hat = integral of omega_hat [rad] (relative), velocity omega_hat "
+              "[rad/s]", True),
     TopicSpec(ADAPT_ESTIMATE, JS, 'adapter',
               "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma')] in position "
               "[SI]", True),

@@ -34,6 +34,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from im_common.node_params import declare_motor, declare_run
 from im_controller.control_law import DriveController
+from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_controller.parameters import (LIVE_PARAMETERS, SENTINEL_DEFAULTS, config_from_parameters,
                                       declare_controller, live_changes)
 
@@ -51,6 +52,12 @@ class ControllerNode(LockstepNode):
                                       'wait for and use the adapter estimates (eq. 4.10-4.12)')
         self.ref_every = self.param('reference_decimation', 10,
                                     'publish the references every N steps', 1, 1000000)
+        self.sensorless = self.param('sensorless', False, "take the observer's speed estimate "
+                                     f'({T.OBS_SPEED}) in place of the measured shaft, which is '
+                                     'not subscribed (docs/sensorless.md)')
+        if self.sensorless and values['mode'] == 'position':
+            raise ValueError(f"invalid parameter 'sensorless' = True: {POSITION_NEEDS_SENSOR}")
+        self.shaft = T.OBS_SPEED if self.sensorless else T.MEAS_SHAFT
         cfg = config_from_parameters(params, values, self.T_s)
         # the run's end is the optimal strategy's planning horizon (0: open-ended)
         self.ctl = DriveController(replace(cfg, horizon=self.duration if self.duration > 0 else None))
@@ -66,12 +73,12 @@ class ControllerNode(LockstepNode):
         self.out_cmd = Vector3Out(Signer.frame('alphabeta'))
         self.out_ri, self.out_rf = Vector3Out(), Vector3Out()
         self.out_rs = JointStateOut([T.SHAFT_JOINT])
-        required = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX]
+        required = [T.MEAS_CURRENT, self.shaft, T.OBS_FLUX]
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
         self.gate = StepGate(required, self.period)
         self.gate_input(T.MEAS_CURRENT, xy_in)
-        self.gate_input(T.MEAS_SHAFT, shaft_in)
+        self.gate_input(self.shaft, shaft_in)
         self.gate_input(T.OBS_FLUX, xy_in)
         if self.use_adapter:
             self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
@@ -171,7 +178,7 @@ class ControllerNode(LockstepNode):
         if self._pending_changes is not None:
             self._apply_changes(k)
         i_a, i_b = inputs[T.MEAS_CURRENT]
-        theta, omega = inputs[T.MEAS_SHAFT]
+        theta, omega = inputs[self.shaft]
         f_a, f_b = inputs[T.OBS_FLUX]
         est = inputs[T.ADAPT_ESTIMATE] if self.use_adapter else None
         try:

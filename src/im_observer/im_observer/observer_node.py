@@ -14,13 +14,16 @@ from __future__ import annotations
 import sys
 
 from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import JointState
 
 from im_common import topics as T
 from im_common.auth import Signer
-from im_common.conversions import Vector3Out, estimates_in, period_ns, shaft_in, xy_in
+from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, period_ns, shaft_in,
+                                   xy_in)
 from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
 from im_common.node_params import declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
+from im_observer.speed_observer import SpeedAdaptiveObserver
 from im_observer.parameters import check_gain_period, declare_observer
 
 
@@ -35,21 +38,27 @@ class ObserverNode(LockstepNode):
         check_gain_period(v, self.T_s)
         self.use_adapter = v['use_adapter']
         self.publish_every = v['estimate_decimation']
-        self.obs = RotorFluxObserver(params, k_e=v['k_e_injection'] or None,
-                                     max_substep=v['max_substep'], x0=tuple(v['initial_state']),
-                                     injection_gain=v['injection_gain'],
-                                     gain_period=v['gain_period'] or None)
+        self.sensorless = v['sensorless']
+        self.obs = (SpeedAdaptiveObserver if self.sensorless else RotorFluxObserver)(
+            params, k_e=v['k_e_injection'] or None, max_substep=v['max_substep'],
+            x0=tuple(v['initial_state']), injection_gain=v['injection_gain'],
+            gain_period=v['gain_period'] or None,
+            **({'omega0': v['initial_speed']} if self.sensorless else {}))
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
         self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, data_qos())
         self.out_flux, self.out_current = Vector3Out(Signer.frame('alphabeta')), Vector3Out()
-        required = [T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE]
+        if self.sensorless:     # the speed estimate, in the measured shaft's place
+            self.pub_speed = self.create_publisher(JointState, T.OBS_SPEED, lockstep_qos())
+            self.out_speed = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
+        required = [T.MEAS_CURRENT, T.CMD_VOLTAGE] + ([] if self.sensorless else [T.MEAS_SHAFT])
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
         self.gate = StepGate(required, self.period)
         self.gate_input(T.MEAS_CURRENT, xy_in)
-        self.gate_input(T.MEAS_SHAFT, shaft_in)
+        if not self.sensorless:
+            self.gate_input(T.MEAS_SHAFT, shaft_in)
         self.gate_input(T.CMD_VOLTAGE, xy_in)
         if self.use_adapter:
             self.gate_input(T.ADAPT_ESTIMATE, estimates_in)
@@ -80,8 +89,8 @@ class ObserverNode(LockstepNode):
                 self.obs.set_estimates(**inputs[T.ADAPT_ESTIMATE])
             v_a, v_b = inputs[T.CMD_VOLTAGE]
             i_a, i_b = inputs[T.MEAS_CURRENT]
-            omega = inputs[T.MEAS_SHAFT][1]
-            self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
+            omega = None if self.sensorless else inputs[T.MEAS_SHAFT][1]
+            self._step(v_a, v_b, i_a, i_b, omega)
         except (ValueError, ArithmeticError) as exc:
             self.fail(f'observer failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
             return
@@ -94,10 +103,16 @@ class ObserverNode(LockstepNode):
     def _bridge(self, j: int) -> None:
         v_a, v_b, omega = self.held
         i_a, i_b = self.obs.state[0], self.obs.state[1]      # no measurement: no injection
-        self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
+        self._step(v_a, v_b, i_a, i_b, omega)
         self.bridged += 1
         self.k_done = j
         self.publish_estimate(j + 1)
+
+    def _step(self, v_a, v_b, i_a, i_b, omega) -> None:
+        if self.sensorless:
+            self.obs.step(self.T_s, v_a, v_b, i_a, i_b)
+        else:
+            self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
 
     def end_run(self, reason: str, notify: bool = False) -> None:
         if not self.done and self.bridged:
@@ -108,6 +123,9 @@ class ObserverNode(LockstepNode):
         ns = k * self.period
         i_a, i_b, f_a, f_b = self.obs.state
         self.pub_flux.publish(self.sign(T.OBS_FLUX, self.out_flux.fill(ns, f_a, f_b)))
+        if self.sensorless:
+            self.pub_speed.publish(self.sign(T.OBS_SPEED, self.out_speed.fill(
+                ns, (self.obs.theta_hat,), (self.obs.omega_hat,))))
         if k % self.publish_every == 0 or (self.last_step is not None and k >= self.last_step):
             self.pub_current.publish(self.out_current.fill(ns, i_a, i_b))
 

@@ -18,6 +18,11 @@ def declare_observer(node) -> dict:
         'use_adapter': p('use_adapter', False, 'wait for and use the adapter estimates (eq. 4.13)'),
         'initial_state': list(p('initial_state', [0.0, 0.0, 0.0, 0.0],
                                 'initial estimate [i_alpha, i_beta, phi_alpha, phi_beta] [A, Wb]')),
+        'sensorless': p('sensorless', False, 'estimate the speed from V and i and publish it '
+                        '(speed-adaptive observer, docs/sensorless.md); the measured shaft is not '
+                        'subscribed'),
+        'initial_speed': p('initial_speed', 0.0, 'sensorless: initial speed estimate [rad/s]',
+                           -1e4, 1e4),
         'max_substep': p('max_substep', 1e-4, 'longest integration sub-step [s]', 1e-7, 0.1),
         'estimate_decimation': p('estimate_decimation', 10, 'publish the current estimate every N '
                                  'steps (the flux estimate is published every step: the '

@@ -167,6 +167,7 @@ class PlantNode(LockstepNode):
     def on_ready(self) -> None:
         """Everyone is there: publish step 0 (and start the wall clock in free_run)."""
         self.started_at = time.time()
+        self.gate.since = time.monotonic()   # step 0's command is due from now, not from startup
         self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers))
         self.get_logger().info(
             f"starting: {', '.join(self.wait_for)} ready; {self.mode}, T_s = {self.T_s:g} s"

@@ -1,0 +1,109 @@
+"""``python -m im_bringup.study_sensorless [--json FILE]``: the speed-sensorless drive on the
+offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy, sensored against
+sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s reversal against
+a constant 1 N·m on every shipped motor with its rating-scaled controller (``study_motors``).
+Prints a Markdown table; ``--json`` writes the rows.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from im_common.loads import ConstantLoad
+from im_common.params import load_motor_file, shipped_motors_dir
+from im_controller.profiles import Profile
+
+from .offline import Scenario, simulate
+from .study_motors import STRATEGIES, reversal_time, scaled_options
+
+#: the measured speed's noise in the sensorless runs [rad/s]: useless to a speed controller
+USELESS_SPEED_NOISE = 50.0
+MOTORS = ('thesis', 'krause_3hp', 'krause_50hp')
+REVERSAL_SPEED = 100.0
+REVERSAL_LOAD = 1.0
+#: the speed error is judged after this time [s] (the speed task starts in steady state)
+SETTLE = 0.1
+
+
+def motor_file(name: str):
+    return load_motor_file(f'{shipped_motors_dir()}/{name}.yaml')
+
+
+def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless: bool = True,
+                        **kw) -> Scenario:
+    """+100 → −100 rad/s (quintic as fast as :func:`study_motors.reversal_time` allows for the
+    span) against a constant 1 N·m, from steady state, the measured speed useless when sensorless."""
+    m = motor_file(motor)
+    ramp = reversal_time(m, span=2.0 * REVERSAL_SPEED / m.rated_speed)
+    prof = Profile('speed', ((0.0, REVERSAL_SPEED, None), (0.2, -REVERSAL_SPEED, ramp)),
+                   source='sensorless reversal')
+    return Scenario(task='speed', strategy=strategy, motor=m, profile=prof,
+                    load_model=ConstantLoad(tau=REVERSAL_LOAD), duration=0.2 + ramp + 0.8,
+                    v_limit=m.rated_voltage, controller_options=scaled_options(m, 'speed'),
+                    sensorless=sensorless,
+                    speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0, **kw)
+
+
+def _row(label: str, motor: str, strategy: str, sensored, sensorless) -> dict:
+    tr = sensorless.trace
+    late = tr['t'] >= SETTLE
+    e = tr['omega_r'] - tr['omega_ref']
+    return {'run': label, 'motor': motor, 'strategy': strategy,
+            'trip': sensorless.summary['trip'],
+            'speed_err_max': float(np.max(np.abs(e[late]))),
+            'speed_err_end': float(e[-1]),
+            'estimate_err_max': float(np.max(np.abs(tr['omega_hat'] - tr['omega_r']))),
+            'speed_err_max_sensored': float(np.max(np.abs(sensored.trace['omega_r']
+                                                          - sensored.trace['omega_ref']))),
+            'E_loss_sensored': sensored.summary['E_loss_J'],
+            'E_loss_sensorless': sensorless.summary['E_loss_J'],
+            'loss_change': sensorless.summary['E_loss_J'] / sensored.summary['E_loss_J'] - 1.0}
+
+
+def run(strategies=STRATEGIES, motors=MOTORS) -> list:
+    rows = []
+    for st in strategies:
+        a = simulate(Scenario(task='speed', strategy=st))
+        b = simulate(Scenario(task='speed', strategy=st, sensorless=True,
+                              speed_noise_std=USELESS_SPEED_NOISE))
+        rows.append(_row('thesis speed task', 'thesis', st, a, b))
+    for mo in motors:
+        for st in strategies:
+            a = simulate(sensorless_reversal(mo, st, sensorless=False), record_every=10)
+            b = simulate(sensorless_reversal(mo, st), record_every=10)
+            rows.append(_row('±100 rad/s reversal, 1 N·m', mo, st, a, b))
+    return rows
+
+
+def table(rows: list) -> str:
+    out = ['| run | motor | strategy | speed err max after 0.1 s [rad/s] | at the end | ω̂ − ω max '
+           '| sensored err max | E_loss sensored [J] | E_loss sensorless [J] | change |',
+           '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
+    for r in rows:
+        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        out.append(f"| {r['run']} | {r['motor']} | {r['strategy']}{trip} | {r['speed_err_max']:.3f} "
+                   f"| {r['speed_err_end']:+.3f} | {r['estimate_err_max']:.3f} "
+                   f"| {r['speed_err_max_sensored']:.4f} | {r['E_loss_sensored']:.1f} "
+                   f"| {r['E_loss_sensorless']:.1f} | {100 * r['loss_change']:+.2f} % |")
+    return '\n'.join(out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--json', help='write the rows to this file')
+    ap.add_argument('--strategy', action='append', choices=STRATEGIES)
+    ap.add_argument('--motor', action='append', choices=MOTORS)
+    a = ap.parse_args(argv)
+    rows = run(a.strategy or STRATEGIES, a.motor or MOTORS)
+    print(table(rows))
+    if a.json:
+        with open(a.json, 'w') as f:
+            json.dump(rows, f, indent=1)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
