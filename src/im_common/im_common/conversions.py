@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Iterable, Sequence
 
-from .cdr import (decode_joint_state, decode_vector3_stamped, pack_clock, pack_joint_state,
-                  pack_vector3_stamped)
+from .cdr import (decode_joint_state, decode_vector3_stamped, joint_state_packer, pack_clock,
+                  pack_joint_state, pack_vector3_stamped)
 
 NS_PER_S = 1_000_000_000
 
@@ -53,19 +53,25 @@ class Vector3Out:
 
 
 class JointStateOut:
-    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``."""
+    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``
+    (one packer per combination of sequence lengths, :func:`im_common.cdr.joint_state_packer`)."""
 
-    __slots__ = ('names', 'frame_id')
+    __slots__ = ('names', 'frame_id', '_packers')
 
     def __init__(self, names: Sequence[str], frame_id: str = ''):
         self.names = tuple(names)
         self.frame_id = frame_id
+        self._packers = {}
 
     def fill(self, ns: int, position: Iterable[float] = (), velocity: Iterable[float] = (),
              effort: Iterable[float] = ()) -> bytes:
         sec, nsec = divmod(ns, NS_PER_S)
-        return pack_joint_state(sec, nsec, self.names, tuple(position), tuple(velocity),
-                                tuple(effort), self.frame_id)
+        position, velocity, effort = tuple(position), tuple(velocity), tuple(effort)
+        key = (len(position), len(velocity), len(effort))
+        pack = self._packers.get(key)
+        if pack is None:
+            pack = self._packers[key] = joint_state_packer(self.names, *key, self.frame_id)
+        return pack(sec, nsec, position, velocity, effort)
 
 
 
