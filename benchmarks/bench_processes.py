@@ -191,8 +191,8 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
 
 def run(quick: bool = False) -> dict:
     """Full: every row. ``quick`` (a smoke test of every path, seconds): 500 round trips, one
-    0.2 s lock-step run without and one with the recorder, one 0.2 s free_run (real-time if
-    allowed)."""
+    0.2 s lock-step run without and one with the recorder, one 0.5 s free_run (real-time if
+    allowed; the position error it is compared by is still zero before 0.2 s)."""
     d = 0.2 if quick else 2.0
     res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(
         500 if quick else 10000)}
@@ -200,7 +200,7 @@ def run(quick: bool = False) -> dict:
     res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
     res['lockstep_processes_vs_ping_pong'] = (res['lockstep_processes_steps_per_s']
                                               / res['ping_pong_two_processes_round_trips_per_s'])
-    res.update(free_run(d))
+    res.update(free_run(0.5 if quick else d))
     if quick:
         return res
     res.update({k.replace('free_run_1kHz', 'free_run_1kHz_busy'): v

@@ -50,6 +50,18 @@ def machine() -> dict:
             'cpus': os.cpu_count(), 'cpu_model': cpu, 'load_1min_at_start': load}
 
 
+def strict(obj):
+    """``obj`` with every non-finite float as its name ('inf', 'nan'): the JSON stays standard
+    (a latency quantile beyond the histogram's last bin is 'inf', not the non-JSON Infinity)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return repr(obj)
+    if isinstance(obj, dict):
+        return {k: strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict(v) for v in obj]
+    return obj
+
+
 def run_one(name: str, quick: bool, info: dict) -> dict:
     spec = importlib.util.spec_from_file_location(f'bench_{name}',
                                                   os.path.join(HERE, f'bench_{name}.py'))
@@ -95,7 +107,7 @@ def main(argv=None) -> int:
         print(f'[bench] {name} ...', file=sys.stderr, flush=True)
         res = results[name] = run_one(name, args.quick, info)
         with open(os.path.join(args.out, f'{name}.json'), 'w') as f:
-            json.dump(res, f, indent=2, default=float)
+            json.dump(strict(res), f, indent=2, default=float, allow_nan=False)
         for k, v in res['results'].items():
             if isinstance(v, (int, float)):
                 rows.append((name, k, v))
@@ -103,7 +115,7 @@ def main(argv=None) -> int:
                 rows.append((name, k, v))
     summ = summary(results, info, args.quick)
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
-        json.dump(summ, f, indent=2)
+        json.dump(strict(summ), f, indent=2, allow_nan=False)
     print(f"\nmachine: {info['cpu_model']} ({info['cpus']} cpus), Python {info['python']}, "
           f"load {info['load_1min_at_start']:.2f} at start" + (' (quick run)' if args.quick else ''))
     print(f"{'benchmark':10s} {'figure':52s} {'value':>14s}")
