@@ -11,6 +11,7 @@
 """
 from __future__ import annotations
 
+import math
 import os
 import random
 import re
@@ -182,10 +183,11 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
             'free_run_1kHz_latency_p50_le_us': hist.quantile(0.5) * 1e6,
             'free_run_1kHz_latency_p99_le_us': hist.quantile(0.99) * 1e6,
             'free_run_1kHz_latency_max_us': hist.max * 1e6,
-            'free_run_1kHz_pos_err_max_rad': fig['pos_err_max_rad'],
-            'free_run_1kHz_pos_err_rms_rad': fig['pos_err_rms_rad'],
+            # a run that tripped before a reference was recorded has no tracking figures: 'nan'
+            'free_run_1kHz_pos_err_max_rad': fig.get('pos_err_max_rad', math.nan),
+            'free_run_1kHz_pos_err_rms_rad': fig.get('pos_err_rms_rad', math.nan),
             'lockstep_1kHz_pos_err_rms_rad': ref.summary['pos_err_rms_rad'],
-            'free_run_1kHz_vs_lockstep_pos_err_rms': fig['pos_err_rms_rad']
+            'free_run_1kHz_vs_lockstep_pos_err_rms': fig.get('pos_err_rms_rad', math.nan)
             / ref.summary['pos_err_rms_rad']}
 
 

@@ -76,7 +76,7 @@ def run_one(name: str, quick: bool, info: dict) -> dict:
 def summary(results: dict, info: dict, quick: bool) -> dict:
     """The ratios measured in this run (a ratio whose benchmark did not run is left out)."""
     out = {'date': datetime.datetime.now().isoformat(timespec='seconds'), 'quick': quick,
-           'machine': info, 'benchmarks': sorted(results)}
+           'machine': info, 'benchmarks': sorted(results)}     # those that completed
     for key, (bench, fig) in RATIOS.items():
         v = results.get(bench, {}).get('results', {}).get(fig)
         if isinstance(v, (int, float)) and math.isfinite(v):
@@ -103,9 +103,16 @@ def main(argv=None) -> int:
     info = machine()
     results = {}
     rows = []
+    failed = {}
     for name in names:
         print(f'[bench] {name} ...', file=sys.stderr, flush=True)
-        res = results[name] = run_one(name, args.quick, info)
+        try:
+            res = results[name] = run_one(name, args.quick, info)
+        except Exception as exc:  # noqa: BLE001 - the others still run; the exit code says it
+            import traceback
+            traceback.print_exc()
+            failed[name] = f'{type(exc).__name__}: {exc}'
+            continue
         with open(os.path.join(args.out, f'{name}.json'), 'w') as f:
             json.dump(strict(res), f, indent=2, default=float, allow_nan=False)
         for k, v in res['results'].items():
@@ -126,7 +133,9 @@ def main(argv=None) -> int:
         if k in summ:
             print(f'  {k:40s} {summ[k]:8.3f}')
     print(f'\nJSON written to {args.out}/')
-    return 0
+    for name, why in failed.items():
+        print(f'run_all: error: benchmark {name} failed: {why}', file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == '__main__':
