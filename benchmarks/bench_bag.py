@@ -241,20 +241,20 @@ def _print_recover(rows) -> None:
 
 def run(quick: bool = False) -> dict:
     """µs per written message for each write path (zstd), for benchmarks/run_all.py."""
-    steps = 4000 if quick else 20000
+    steps = 500 if quick else 20000
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         out['us_per_msg_write_msg_zstd'] = _bench(steps, 'write(msg)', 'zstd', tmp)
         out['us_per_msg_write_serialized_zstd'] = _bench(steps, 'write_vector3/joint_state',
                                                          'zstd', tmp)
         out.update(_bench_own_vs_library(steps, tmp))
-        rec = _bench_recover((20000, 80000) if quick else (100000, 400000), tmp)
+        rec = _bench_recover((4000, 16000) if quick else (100000, 400000), tmp)
     for r in rec[1:]:
         out[f'recover_us_per_msg_{r["steps"]}_steps'] = r['us_per_msg']
         out[f'recover_cpu_us_per_msg_{r["steps"]}_steps'] = r['cpu_us_per_msg']
         out[f'recover_peak_rss_mb_{r["steps"]}_steps'] = r['peak_rss_mb']
     out['recover_peak_rss_mb_baseline'] = rec[0]['peak_rss_mb']
-    out['us_rclpy_serialize_message_v3'] = _bench_serialize(10000 if quick else 50000)
+    out['us_rclpy_serialize_message_v3'] = _bench_serialize(1000 if quick else 50000)
     return out
 
 

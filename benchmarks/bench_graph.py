@@ -1,58 +1,84 @@
-"""Lock-step throughput of the drive graph, next to the bare protocol loop of the same run.
+"""Lock-step throughput of the drive graph, next to its yardsticks measured in the same run.
 
 * in one process (DriveGraph, EventsExecutor): steps/s of the full graph, with and without the
   adapter on the critical path, with and without in-process MCAP recording;
 * (separate processes: benchmarks/bench_processes.py);
-* the bare loop (benchmarks/bench_rclpy.py: same messages, no computation) measured in this run.
-Targets: >= 5,000 steps/s and >= 0.8 of the bare loop in one process; recording costs <= 15 %.
+* the bare loop (benchmarks/bench_rclpy.py: same messages, no computation), with and without the
+  message tags, and the plain model kernel (benchmarks/bench_kernel.py) measured in this run, so a
+  slower graph shows up as a smaller ratio whatever the machine's speed that day.
+
+Each figure is the best of ``repeats`` runs, the yardsticks and the graph taken in turn (the
+machine is shared: the best run is the one least disturbed).
+Targets: >= 0.9 of the bare loop in one process (``inprocess_over_bare``); recording <= 15 %.
 """
 from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import sys
 import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def _bench_rclpy():
-    spec = importlib.util.spec_from_file_location('bench_rclpy', os.path.join(HERE, 'bench_rclpy.py'))
+def _sibling(name: str):
+    spec = importlib.util.spec_from_file_location(name, os.path.join(HERE, f'{name}.py'))
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
 
 
 def in_process(duration: float, controller: str = 'nominal', record: bool = False) -> float:
+    """Steps/s of the speed task (min_energy) as ``scenario`` runs it, optionally recording."""
     from im_bringup.testing import run_graph
-    path = None
-    if record:
-        path = os.path.join(tempfile.mkdtemp(prefix='bench_graph_'), 'run.mcap')
-    res = run_graph(task='speed', strategy='min_energy', controller=controller, duration=duration,
-                    record=path)
+    tmp = tempfile.mkdtemp(prefix='bench_graph_') if record else None
+    try:
+        res = run_graph(task='speed', strategy='min_energy', controller=controller,
+                        duration=duration, record=os.path.join(tmp, 'run.mcap') if tmp else None)
+    finally:
+        if tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
     if not res.summary['ok']:
         raise RuntimeError(f'graph run failed: {res.summary["failures"]}')
     return res.summary['steps'] / res.summary['wall_s']
 
 
 def run(quick: bool = False) -> dict:
-    d = 0.2 if quick else 1.0
-    bare = _bench_rclpy()
-    res = {}
-    res['bare_loop_adapter_off_path_steps_per_s'] = bare.bare_loop(int(d * 1e4), adapter_on_path=False)
-    res['bare_loop_adapter_on_path_steps_per_s'] = bare.bare_loop(int(d * 1e4), adapter_on_path=True)
-    res['graph_in_process_steps_per_s'] = in_process(d)
-    res['graph_in_process_recording_steps_per_s'] = in_process(d, record=True)
-    res['graph_in_process_adaptive_steps_per_s'] = in_process(d, controller='adaptive')
-    res['nominal_graph_vs_bare_loop'] = (res['graph_in_process_steps_per_s']
-                                         / res['bare_loop_adapter_off_path_steps_per_s'])
+    d = 0.05 if quick else 1.0
+    steps = int(round(d * 1e4))
+    repeats = 1 if quick else 3
+    bare, kernel = _sibling('bench_rclpy'), _sibling('bench_kernel')
+    from im_common.params import THESIS_MOTOR
+    figures = {
+        'kernel_steps_per_s': lambda: kernel.steps_per_second(THESIS_MOTOR, max(steps, 2000), 1),
+        'bare_loop_adapter_off_path_steps_per_s':
+            lambda: bare.bare_loop(steps, adapter_on_path=False),
+        'bare_loop_tagged_adapter_off_path_steps_per_s':
+            lambda: bare.bare_loop(steps, adapter_on_path=False, tags=True),
+        'graph_in_process_steps_per_s': lambda: in_process(d),
+        'bare_loop_adapter_on_path_steps_per_s':
+            lambda: bare.bare_loop(steps, adapter_on_path=True),
+        'graph_in_process_adaptive_steps_per_s': lambda: in_process(d, controller='adaptive'),
+        'graph_in_process_recording_steps_per_s': lambda: in_process(d, record=True),
+    }
+    res = {k: 0.0 for k in figures}
+    for _ in range(repeats):
+        for k, f in figures.items():
+            res[k] = max(res[k], f())
+    g = res['graph_in_process_steps_per_s']
+    res['inprocess_over_bare'] = g / res['bare_loop_adapter_off_path_steps_per_s']
+    res['inprocess_over_tagged_bare'] = g / res['bare_loop_tagged_adapter_off_path_steps_per_s']
+    res['inprocess_over_kernel'] = g / res['kernel_steps_per_s']
     res['adaptive_graph_vs_bare_loop'] = (res['graph_in_process_adaptive_steps_per_s']
                                           / res['bare_loop_adapter_on_path_steps_per_s'])
-    res['recording_slowdown'] = 1.0 - (res['graph_in_process_recording_steps_per_s']
-                                       / res['graph_in_process_steps_per_s'])
+    res['tags_us_per_step_in_bare_loop'] = 1e6 * (
+        1.0 / res['bare_loop_tagged_adapter_off_path_steps_per_s']
+        - 1.0 / res['bare_loop_adapter_off_path_steps_per_s'])
+    res['recording_slowdown'] = 1.0 - res['graph_in_process_recording_steps_per_s'] / g
     return res
 
 
-if __name__ == '__main__':
-    for k, v in run('--quick' in sys.argv).items():
-        print(f'{k:45s} {v:12.4g}')
+if __name__ == '__main__':      # the table and JSON come from the driver
+    from run_all import main
+    sys.exit(main(['--only', 'graph'] + sys.argv[1:]))

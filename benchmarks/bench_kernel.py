@@ -12,7 +12,8 @@
    worst quantity. Full runs repeat it at T_s = h = 200 µs and 50 µs to show the 4th order.
 
 Run standalone: ``python benchmarks/bench_kernel.py [--quick]`` (prints a table, writes
-benchmarks/results/kernel.json); ``benchmarks/run_all.py`` imports :func:`run`.
+benchmarks/results/kernel.json); ``benchmarks/run_all.py`` imports :func:`run`. ``--quick``
+(seconds, a smoke test): 2,000 steps once, 0.01 s of the start against ``solve_ivp``.
 """
 from __future__ import annotations
 
@@ -99,16 +100,17 @@ def error_vs_solve_ivp(T_s: float = T_S, duration: float = 0.2) -> dict:
 
 
 def run(quick: bool = False) -> dict:
-    n = 20000 if quick else 50000
+    n = 2000 if quick else 50000
+    repeats = 1 if quick else 3
     res = {
         'T_s_s': T_S,
         'steps_timed': n,
-        'kernel_steps_per_s': steps_per_second(THESIS_MOTOR, n),
-        'kernel_chapter4_steps_per_s': steps_per_second(chapter4_schedule(), n),
+        'kernel_steps_per_s': steps_per_second(THESIS_MOTOR, n, repeats),
+        'kernel_chapter4_steps_per_s': steps_per_second(chapter4_schedule(), n, repeats),
     }
     res['kernel_us_per_step'] = 1e6 / res['kernel_steps_per_s']
     res['kernel_realtime_factor'] = res['kernel_steps_per_s'] * T_S   # simulated s per wall s
-    err = error_vs_solve_ivp(T_S)
+    err = error_vs_solve_ivp(T_S, duration=0.01 if quick else 0.2)
     for g, v in err.items():
         res[f'rel_err_vs_solve_ivp_{g}'] = v
     if not quick:

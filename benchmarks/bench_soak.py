@@ -9,7 +9,7 @@ Targets: a 600k-step run grows RSS by < 20 MB after warm-up (the first 20k steps
 run's max RSS is < 20 MB above a 20k-step run's.
 
     python benchmarks/bench_soak.py            # 20k, 180k and 600k steps (about 4 minutes)
-    python benchmarks/bench_soak.py --quick    # 20k and 60k steps
+    python benchmarks/bench_soak.py --quick    # 2k and 6k steps (a smoke test: the code path)
 """
 from __future__ import annotations
 
@@ -70,7 +70,8 @@ def _spawn(steps: int) -> dict:
 
 
 def run(quick: bool = False) -> dict:
-    lengths = (20_000, 60_000) if quick else (20_000, 180_000, 600_000)
+    lengths = (2_000, 6_000) if quick else (WARMUP, 180_000, 600_000)
+    warmup = lengths[0]
     res = {}
     runs = {n: _spawn(n) for n in lengths}
     longest = runs[lengths[-1]]
@@ -79,13 +80,13 @@ def run(quick: bool = False) -> dict:
     rows = longest['samples']
     for k, rss in rows[::max(1, len(rows) // 15)] + [rows[-1]]:
         print(f'{k:8d} {k * T_S:10.2f} {rss:9.1f}')
-    after = [rss for k, rss in rows if k >= WARMUP]
+    after = [rss for k, rss in rows if k >= warmup]
     res[f'rss_growth_after_warmup_{lengths[-1] // 1000}k_steps_mb'] = \
         (max(after) - after[0]) if after else float('nan')
     for n, r in runs.items():
         res[f'max_rss_{n // 1000}k_steps_mb'] = r['max_rss_mb']
-    res[f'max_rss_{lengths[1] // 1000}k_minus_20k_mb'] = \
-        runs[lengths[1]]['max_rss_mb'] - runs[20_000]['max_rss_mb']
+    res[f'max_rss_{lengths[1] // 1000}k_minus_{warmup // 1000}k_mb'] = \
+        runs[lengths[1]]['max_rss_mb'] - runs[warmup]['max_rss_mb']
     res['samples'] = rows
     return res
 
@@ -94,12 +95,5 @@ if __name__ == '__main__':
     if len(sys.argv) > 2 and sys.argv[1] == '--child':
         print(json.dumps(child(int(sys.argv[2]))))
         sys.exit(0)
-    r = run(quick='--quick' in sys.argv)
-    for k, v in r.items():
-        if isinstance(v, float):
-            print(f'{k:45s} {v:10.1f}')
-    os.makedirs(os.path.join(os.path.dirname(os.path.abspath(__file__)), 'results'),
-                exist_ok=True)
-    with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), 'results', 'soak.json'),
-              'w') as f:
-        json.dump(r, f, indent=1)
+    from run_all import main      # the table and JSON come from the driver
+    sys.exit(main(['--only', 'soak'] + sys.argv[1:]))

@@ -1,19 +1,38 @@
-"""Run every benchmark in this folder, print one table, write benchmarks/results/<name>.json.
+"""Run every benchmark in this folder, print one table, write <out>/<name>.json and summary.json.
 
 Benchmarks are files ``bench_*.py`` exposing ``run(quick=False) -> dict``. ``--quick`` shortens
-them (for a smoke run); the figures in the README come from a full run.
+them to seconds (tests/test_benchmarks.py runs every one that way, so none can break unseen); the
+figures in the README come from a full run (``make bench``). ``summary.json`` holds the ratios
+the targets are stated in, each measured within this run (:data:`RATIOS`).
 """
 from __future__ import annotations
 
 import argparse
+import datetime
 import importlib.util
 import json
+import math
 import os
 import platform
 import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:        # the benchmarks import each other (run standalone or from here)
+    sys.path.insert(0, HERE)
+
+#: summary.json key -> (benchmark, figure): the ratios of issue 25, each from one benchmark's run.
+RATIOS = {
+    'inprocess_over_bare': ('graph', 'inprocess_over_bare'),
+    'inprocess_over_tagged_bare': ('graph', 'inprocess_over_tagged_bare'),
+    'inprocess_over_kernel': ('graph', 'inprocess_over_kernel'),
+    'four_processes_over_pingpong': ('processes', 'lockstep_processes_vs_ping_pong'),
+    'free_run_missed_fraction_busy': ('processes', 'free_run_1kHz_busy_missed_fraction'),
+}
+
+
+def benchmark_names() -> list:
+    return sorted(f[6:-3] for f in os.listdir(HERE) if f.startswith('bench_') and f.endswith('.py'))
 
 
 def machine() -> dict:
@@ -26,42 +45,97 @@ def machine() -> dict:
                     break
     except OSError:
         pass
+    load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
     return {'platform': platform.platform(), 'python': platform.python_version(),
-            'cpus': os.cpu_count(), 'cpu_model': cpu}
+            'cpus': os.cpu_count(), 'cpu_model': cpu, 'load_1min_at_start': load}
+
+
+def strict(obj):
+    """``obj`` with every non-finite float as its name ('inf', 'nan'): the JSON stays standard
+    (a latency quantile beyond the histogram's last bin is 'inf', not the non-JSON Infinity)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return repr(obj)
+    if isinstance(obj, dict):
+        return {k: strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict(v) for v in obj]
+    return obj
+
+
+def run_one(name: str, quick: bool, info: dict) -> dict:
+    spec = importlib.util.spec_from_file_location(f'bench_{name}',
+                                                  os.path.join(HERE, f'bench_{name}.py'))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    t0 = time.perf_counter()
+    res = mod.run(quick=quick)
+    return {'benchmark': name, 'machine': info, 'quick': quick,
+            'wall_s': time.perf_counter() - t0, 'results': res}
+
+
+def summary(results: dict, info: dict, quick: bool) -> dict:
+    """The ratios measured in this run (a ratio whose benchmark did not run is left out)."""
+    out = {'date': datetime.datetime.now().isoformat(timespec='seconds'), 'quick': quick,
+           'machine': info, 'benchmarks': sorted(results)}     # those that completed
+    for key, (bench, fig) in RATIOS.items():
+        v = results.get(bench, {}).get('results', {}).get(fig)
+        if isinstance(v, (int, float)) and math.isfinite(v):
+            out[key] = v
+    return out
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument('--quick', action='store_true', help='short runs (smoke test)')
+    ap.add_argument('--quick', action='store_true', help='short runs (smoke test, seconds each)')
     ap.add_argument('--only', nargs='*', help='run only these benchmarks (e.g. kernel graph)')
+    ap.add_argument('--out', default=os.path.join(HERE, 'results'),
+                    help='directory for the JSON files (default: benchmarks/results)')
     args = ap.parse_args(argv)
-    out_dir = os.path.join(HERE, 'results')
-    os.makedirs(out_dir, exist_ok=True)
-    names = sorted(f[6:-3] for f in os.listdir(HERE) if f.startswith('bench_') and f.endswith('.py'))
+    names = benchmark_names()
     if args.only:
+        unknown = [n for n in args.only if n not in names]
+        if unknown:
+            print(f'run_all: error: no benchmark {", ".join(unknown)} (have: {", ".join(names)})',
+                  file=sys.stderr)
+            return 2
         names = [n for n in names if n in args.only]
+    os.makedirs(args.out, exist_ok=True)
     info = machine()
+    results = {}
     rows = []
+    failed = {}
     for name in names:
         print(f'[bench] {name} ...', file=sys.stderr, flush=True)
-        spec = importlib.util.spec_from_file_location(f'bench_{name}', os.path.join(HERE, f'bench_{name}.py'))
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        t0 = time.perf_counter()
-        res = mod.run(quick=args.quick)
-        res = {'benchmark': name, 'machine': info, 'quick': args.quick,
-               'wall_s': time.perf_counter() - t0, 'results': res}
-        with open(os.path.join(out_dir, f'{name}.json'), 'w') as f:
-            json.dump(res, f, indent=2, default=float)
+        try:
+            res = results[name] = run_one(name, args.quick, info)
+        except Exception as exc:  # noqa: BLE001 - the others still run; the exit code says it
+            import traceback
+            traceback.print_exc()
+            failed[name] = f'{type(exc).__name__}: {exc}'
+            continue
+        with open(os.path.join(args.out, f'{name}.json'), 'w') as f:
+            json.dump(strict(res), f, indent=2, default=float, allow_nan=False)
         for k, v in res['results'].items():
             if isinstance(v, (int, float)):
                 rows.append((name, k, v))
-    print(f"\nmachine: {info['cpu_model']} ({info['cpus']} cpus), Python {info['python']}")
+            elif isinstance(v, str):
+                rows.append((name, k, v))
+    summ = summary(results, info, args.quick)
+    with open(os.path.join(args.out, 'summary.json'), 'w') as f:
+        json.dump(strict(summ), f, indent=2, allow_nan=False)
+    print(f"\nmachine: {info['cpu_model']} ({info['cpus']} cpus), Python {info['python']}, "
+          f"load {info['load_1min_at_start']:.2f} at start" + (' (quick run)' if args.quick else ''))
     print(f"{'benchmark':10s} {'figure':52s} {'value':>14s}")
     for name, k, v in rows:
-        print(f'{name:10s} {k:52s} {v:14.6g}')
-    print(f'\nJSON written to {out_dir}/')
-    return 0
+        print(f'{name:10s} {k:52s} ' + (f'{v:14.6g}' if not isinstance(v, str) else v))
+    print('\nsummary (ratios within this run):')
+    for k in RATIOS:
+        if k in summ:
+            print(f'  {k:40s} {summ[k]:8.3f}')
+    print(f'\nJSON written to {args.out}/')
+    for name, why in failed.items():
+        print(f'run_all: error: benchmark {name} failed: {why}', file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == '__main__':

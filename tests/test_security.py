@@ -342,3 +342,23 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
         assert node.gate.pending and node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX
     finally:
         node.destroy_node()
+
+
+def test_a_message_seen_before_verifies_only_for_its_key_topic_and_run():
+    """A process hashes each message once (im_common.auth keeps the last one signed or verified
+    per key, run and topic): what it saw stays valid only for exactly those, and a copy changed
+    in any byte is hashed and refused."""
+    key = os.urandom(32)
+    data = Signer(key, 'run1').sign(T.CMD_VOLTAGE, _msg())
+    other = Signer(key, 'run1')                      # another node of the same process
+    assert other.verify(T.CMD_VOLTAGE, data)
+    assert not other.verify(T.OBS_FLUX, data)
+    assert not Signer(key, 'run2').verify(T.CMD_VOLTAGE, data)
+    assert not Signer(os.urandom(32), 'run1').verify(T.CMD_VOLTAGE, data)
+    for i in (4, 20, len(data) - 1):
+        bad = bytearray(data)
+        bad[i] ^= 0x01
+        assert not other.verify(T.CMD_VOLTAGE, bytes(bad)), i
+    assert other.verify(T.CMD_VOLTAGE, data)
+    other.set_run('run2')
+    assert not other.verify(T.CMD_VOLTAGE, data)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Iterable, Sequence
 
-from .cdr import (decode_joint_state, decode_vector3_stamped, pack_clock, pack_joint_state,
-                  pack_vector3_stamped)
+from .cdr import (decode_joint_state, decode_vector3_stamped, joint_state_packer, pack_clock,
+                  pack_joint_state, pack_vector3_stamped)
 
 NS_PER_S = 1_000_000_000
 
@@ -53,19 +53,25 @@ class Vector3Out:
 
 
 class JointStateOut:
-    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``."""
+    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``
+    (one packer per combination of sequence lengths, :func:`im_common.cdr.joint_state_packer`)."""
 
-    __slots__ = ('names', 'frame_id')
+    __slots__ = ('names', 'frame_id', '_packers')
 
     def __init__(self, names: Sequence[str], frame_id: str = ''):
         self.names = tuple(names)
         self.frame_id = frame_id
+        self._packers = {}
 
     def fill(self, ns: int, position: Iterable[float] = (), velocity: Iterable[float] = (),
              effort: Iterable[float] = ()) -> bytes:
         sec, nsec = divmod(ns, NS_PER_S)
-        return pack_joint_state(sec, nsec, self.names, tuple(position), tuple(velocity),
-                                tuple(effort), self.frame_id)
+        position, velocity, effort = tuple(position), tuple(velocity), tuple(effort)
+        key = (len(position), len(velocity), len(effort))
+        pack = self._packers.get(key)
+        if pack is None:
+            pack = self._packers[key] = joint_state_packer(self.names, *key, self.frame_id)
+        return pack(sec, nsec, position, velocity, effort)
 
 
 
@@ -87,10 +93,18 @@ def clock_bytes(ns: int) -> bytes:
 
 
 # Extractors for LockstepNode.gate_input: serialized message -> (stamp_ns, value).
-def xy_in(data: bytes):
-    """(stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair."""
-    sec, nsec, x, y, _ = decode_vector3_stamped(data)
-    return sec * NS_PER_S + nsec, (x, y)
+def xy_in(data: bytes, _head=__import__('struct').Struct('<iII').unpack_from,
+          _xyz=__import__('struct').Struct('<ddd').unpack_from):
+    """(stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair (the layout of
+    :func:`im_common.cdr.decode_vector3_stamped`, inlined: every node decodes several per step)."""
+    try:
+        sec, nsec, n = _head(data, 4)
+        pos = 16 + n
+        x, y, _ = _xyz(data, pos + (4 - pos) % 8)
+        return sec * NS_PER_S + nsec, (x, y)
+    except __import__('struct').error:
+        decode_vector3_stamped(data)        # raises its CdrError naming the payload's fault
+        raise
 
 
 def _shaft_layout():

@@ -725,7 +725,9 @@ class LockstepNode(Node):
                 value = held
             else:
                 last_good[topic] = value
-            ready(gate.put(topic, ns, value))
+            inputs = gate.put(topic, ns, value)
+            if inputs is not None:          # the step is complete
+                ready(inputs)
         self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
 
     def refuse(self, topic: str, ns: Optional[int], reason: str) -> None:
@@ -788,13 +790,9 @@ class LockstepNode(Node):
                 return
 
 
-def _finite(value) -> bool:
+def _finite(value, _isfinite=math.isfinite) -> bool:
     """Every number in a decoded input (a tuple of floats or a dict of them) is finite."""
-    vals = value.values() if isinstance(value, dict) else value
-    for v in vals:
-        if not math.isfinite(v):
-            return False
-    return True
+    return all(map(_isfinite, value.values() if isinstance(value, dict) else value))
 
 
 _U32x2 = __import__('struct').Struct('<iI')

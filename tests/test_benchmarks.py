@@ -1,0 +1,97 @@
+"""Every benchmark runs (quick mode, seconds) and writes well-formed JSON with its figures, so a
+benchmark can never break unseen (issue 25: ``make bench`` failed on a stand-in that drifted from
+the adapter's estimate names). No timing is asserted here: speed targets live in the benchmarks'
+own output (``benchmarks/results/summary.json``)."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+
+import pytest
+
+BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'benchmarks')
+
+
+def _run_all():
+    spec = importlib.util.spec_from_file_location('run_all', os.path.join(BENCH, 'run_all.py'))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _not_json(constant):
+    raise AssertionError(f'{constant} is not standard JSON')
+
+
+def _ray_installed() -> bool:
+    return importlib.util.find_spec('ray') is not None
+
+
+#: figures each benchmark must report (a renamed or lost figure fails here, not in the README)
+EXPECTED = {
+    'auth': ['auth_pack_us', 'auth_sign_us', 'auth_verify_us', 'auth_per_step_us'],
+    'bag': ['us_per_msg_write_msg_zstd', 'us_per_msg_write_serialized_zstd',
+            'us_per_msg_own_writer_zstd', 'us_per_msg_mcap_Writer_zstd',
+            'us_per_msg_own_reader_iter_raw', 'us_rclpy_serialize_message_v3',
+            'recover_cpu_us_per_msg_16000_steps', 'recover_peak_rss_mb_16000_steps'],
+    'campaign': ['engine_process_pool_startup_s', 'engine_dask_startup_s',
+                 'engine_dask_per_task_ms', 'campaign_4_runs_1_workers_wall_s'],
+    'graph': ['kernel_steps_per_s', 'bare_loop_adapter_off_path_steps_per_s',
+              'bare_loop_tagged_adapter_off_path_steps_per_s', 'graph_in_process_steps_per_s',
+              'graph_in_process_adaptive_steps_per_s', 'graph_in_process_recording_steps_per_s',
+              'inprocess_over_bare', 'inprocess_over_kernel', 'recording_slowdown'],
+    'kernel': ['kernel_steps_per_s', 'kernel_chapter4_steps_per_s', 'rel_err_vs_solve_ivp_max'],
+    'processes': ['ping_pong_two_processes_round_trips_per_s', 'lockstep_processes_steps_per_s',
+                  'lockstep_processes_recorded_steps_per_s', 'lockstep_processes_vs_ping_pong',
+                  'free_run_1kHz_missed_fraction', 'free_run_1kHz_latency_p99_le_us'],
+    'profile': ['steps_per_s_unprofiled', 'us_per_step_decode', 'us_per_step_tags',
+                'us_per_step_protocol', 'us_per_step_compute', 'us_per_step_publish',
+                'us_per_step_executor', 'us_per_step_plant_ready',
+                'us_per_step_controller_ready'],
+    'rclpy': ['ping_pong_events_rt_per_s', 'bare_loop_adapter_on_path_steps_per_s',
+              'bare_loop_adapter_off_path_steps_per_s',
+              'bare_loop_tagged_adapter_off_path_steps_per_s'],
+    'soak': ['max_rss_2k_steps_mb', 'max_rss_6k_steps_mb', 'max_rss_6k_minus_2k_mb',
+             'rss_growth_after_warmup_6k_steps_mb'],
+}
+#: summary.json ratios each benchmark contributes
+SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_over_tagged_bare', 'inprocess_over_kernel'],
+           'processes': ['four_processes_over_pingpong']}
+
+
+def test_every_benchmark_is_covered():
+    assert sorted(_run_all().benchmark_names()) == sorted(EXPECTED)
+
+
+@pytest.mark.parametrize('name', sorted(EXPECTED))
+def test_benchmark_quick_run_writes_its_figures(name, tmp_path):
+    run_all = _run_all()
+    assert run_all.main(['--quick', '--only', name, '--out', str(tmp_path)]) == 0
+    with open(tmp_path / f'{name}.json') as f:
+        doc = json.load(f, parse_constant=_not_json)
+    assert doc['benchmark'] == name and doc['quick'] is True
+    res = doc['results']
+    expected = list(EXPECTED[name])
+    if name == 'campaign':
+        expected += (['engine_ray_startup_s', 'engine_ray_per_task_ms'] if _ray_installed()
+                     else ['engine_ray_skipped'])
+    missing = [k for k in expected if k not in res]
+    assert not missing, f'{name}: figures missing: {missing} (have {sorted(res)})'
+    for k in expected:
+        if k.endswith('_skipped'):
+            assert isinstance(res[k], str) and res[k], k
+        elif k.endswith('_le_us'):      # a quantile beyond the latency histogram's last bin
+            assert isinstance(res[k], (int, float)) or res[k] == 'inf', f'{name}: {k} = {res[k]!r}'
+        else:
+            assert isinstance(res[k], (int, float)), f'{name}: {k} = {res[k]!r}'
+    with open(tmp_path / 'summary.json') as f:
+        summary = json.load(f, parse_constant=_not_json)
+    assert summary['quick'] is True and summary['benchmarks'] == [name]
+    for k in SUMMARY.get(name, []):
+        assert summary[k] > 0, k
+    # a ratio no benchmark of this run measured is absent, never a placeholder
+    others = {k for n, ks in SUMMARY.items() if n != name for k in ks}
+    assert not others & set(summary), sorted(others & set(summary))
+    if name != 'processes':
+        assert 'free_run_missed_fraction_busy' not in summary
