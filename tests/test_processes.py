@@ -35,6 +35,33 @@ def counts(bag):
     return Counter(t for t, *_ in iter_raw(bag))
 
 
+def plant_end(bag):
+    """(state, step, values) of the plant's final event in the bag (None if it has none)."""
+    end = None
+    for _, m in _statuses(bag):
+        st = m.status[0]
+        values = {kv.key: kv.value for kv in st.values}
+        if values.get('time_master') == 'true' and st.message in ('finished', 'stopped', 'failed'):
+            end = (st.message, int(values['step']), values)
+    return end
+
+
+def missing_in_bag(bag, period=100_000):
+    """Per lock-step topic: how many steps of the run the bag lacks, from step 0 to the plant's
+    final step (the command of the final step is never computed; after a stop only the
+    measurements of the final step are sure to exist)."""
+    state, step, _ = plant_end(bag)
+    stamps = {t: set() for t in LOCKSTEP}
+    for topic, _, t, _ in iter_raw(bag, list(LOCKSTEP)):
+        stamps[topic].add(t)
+    out = {}
+    for topic in LOCKSTEP:
+        measured = topic in (T.MEAS_CURRENT, T.MEAS_SHAFT)
+        last = step if measured or (state == 'finished' and topic != T.CMD_VOLTAGE) else step - 1
+        out[topic] = len({k * period for k in range(last + 1)} - stamps[topic])
+    return out
+
+
 def no_traceback(g):
     for name in g.popen:
         log = g.log(name)
@@ -70,7 +97,9 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
             for topic in LOCKSTEP:
                 expected = 2000 if topic == T.CMD_VOLTAGE else 2001      # steps 0..2000
                 assert c[topic] == expected, (topic, c[topic])
-            assert info(bag).metadata['recording']['missing_steps'] == '0'
+            meta = info(bag).metadata['recording']
+            assert meta['missing_steps'] == '0'
+            assert missing_in_bag(bag) == {t: int(meta[f'missing_steps{t}']) for t in LOCKSTEP}
     finally:
         busy.kill()
     live = run_graph(task='position', strategy='min_energy', duration=0.2)
@@ -112,6 +141,9 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
         assert meta['interrupted'] == 'SIGINT'
     else:
         assert meta['run_end'].startswith('stopped'), meta
+    if target != 'recorder':            # the run's stop is in the bag, and nothing before it lacks
+        assert plant_end(bag)[0] == 'stopped', [m.status[0].message for _, m in _statuses(bag)]
+        assert missing_in_bag(bag) == {t: 0 for t in LOCKSTEP}
 
 
 def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
