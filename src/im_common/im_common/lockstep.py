@@ -52,11 +52,13 @@ STATUS_READER_DEPTH = 1000
 #: Bound of the lock-step protocol's windows: a lossless follower stays within half of it
 #: (``follower_window``), a node keeps that many early or pending steps.
 LOCKSTEP_DEPTH = 100
-#: History of the lock-step topics (publishers and readers): one second of ``free_run`` at 1 kHz,
-#: where the plant cannot wait for anyone — a recorder the machine delays for up to that long
-#: (a busy neighbour, a chunk written to disk) still receives every sample. In lock-step the
-#: follower window keeps every reader within ``LOCKSTEP_DEPTH // 2`` steps anyway.
-LOCKSTEP_HISTORY = 1000
+#: History of the lock-step topics (publishers and readers). Deeper is not safer: a reliable
+#: writer resends its whole backlog to a reader that lags, from the loop's real-time threads in
+#: free_run. Tried with 1000: two free_run graphs on one domain under heavy machine load froze in
+#: 2 of 3 runs (a middleware thread of a plant at SCHED_FIFO 50 at 90 % of a core for minutes; its
+#: clock thread never ran again). In lock-step the follower window keeps
+#: every reader within ``LOCKSTEP_DEPTH // 2`` steps.
+LOCKSTEP_HISTORY = LOCKSTEP_DEPTH
 
 # Run states published on /im/status.
 WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
