@@ -15,9 +15,13 @@ the machine. Start it before the graph, or have the plant wait for it (``wait_fo
 records losslessly from the step it joined (transient-local topics also give it the last
 ``LOCKSTEP_DEPTH`` samples before that).
 
-Every lock-step topic is checked step by step: missing stamps are counted, their ranges logged at
-the end and written into the bag's ``recording`` metadata, with the run's end state (finished,
-stopped, failed, interrupted) — ``report`` shows them.
+The acknowledgement is the last step received on *every* lock-step topic of the run: a topic that
+has brought nothing yet holds it back. Every lock-step topic is checked step by step, from the
+run's first step to the plant's final one: the steps missing before the first stamp received,
+between stamps and after the last are counted, their ranges logged at the end and written into
+the bag's ``recording`` metadata, with the run's end state (finished, stopped, failed,
+interrupted) — ``report`` shows them. In ``free_run`` (the plant waits for no one) the recorder's
+threads run at ``SCHED_FIFO`` ``rt_priority`` (40), below the control loop's.
 
 It stops when the run ends (the plant's ``finished``/``stopped``/``failed``, after receiving the
 last step) unless ``--continuous``; SIGINT / SIGTERM / SIGHUP close the file (summary, footer), so

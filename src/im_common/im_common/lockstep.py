@@ -67,6 +67,8 @@ PARAMETERS, WARNING = 'parameters', 'warning'
 #: peers see it (a warning after 'ready' does not undo it).
 NOT_STATES = (PARAMETERS, WARNING)
 FINISHED, STOPPING, STOPPED, FAILED = 'finished', 'stopping', 'stopped', 'failed'
+#: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
+STOP_FLUSH_S = 3.0
 END_STATES = (FINISHED, STOPPED, FAILED)
 
 
@@ -922,7 +924,9 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
             code = 0 if node is None or not node.exit_code else node.exit_code
         finally:
             if node is not None:
-                node.flush(timeout=1.0)
+                # a stopped node's last samples are still owed to the recorder, which the plant
+                # let lag up to follower_window steps: under load 1 s was not always enough
+                node.flush(timeout=STOP_FLUSH_S)
                 node.destroy_node()
             rclpy.try_shutdown()
     return code
