@@ -8,6 +8,10 @@
 3. free_run at 1 kHz (T_s = 1 ms, the certified gains of ``config/gains_1ms.yaml``), position
    task, 2 s: fraction of steps whose command missed its deadline, latency quantiles, position
    error, against the lock-step run at the same period and gains (in-process).
+4. free_run recording completeness (``python benchmarks/bench_processes.py --free-run-record 10
+   [--busy] [--runs N]``; in ``make bench`` the 2 s runs of 3.): the fraction of the steps the
+   plant integrated whose measurements are in the recorder's bag, and of the commands the plant
+   received, next to the missed-deadline fraction of the same run.
 """
 from __future__ import annotations
 
@@ -172,11 +176,14 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
     fig = figures_of_merit(load_run(bag))
     hist = LatencyHistogram.from_values(end)
     steps = int(end['steps'])
+    rec = recorded_fraction(bag, end)
     ref = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=duration,
                     parameters=_gains())
     return {'free_run_1kHz_realtime': int(end.get('scheduling', '').startswith('fifo')),
             'free_run_1kHz_steps': steps, 'free_run_1kHz_tripped': tripped,
             'free_run_1kHz_missed_fraction': int(end['missed']) / steps,
+            'free_run_1kHz_recorded_steps_fraction': rec['steps'],
+            'free_run_1kHz_recorded_commands_fraction': rec['commands'],
             'free_run_1kHz_late_commands': int(end['late']),
             'free_run_1kHz_plant_overruns': int(end['overruns']),
             'free_run_1kHz_latency_mean_us': hist.mean * 1e6,
@@ -189,6 +196,34 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
             'lockstep_1kHz_pos_err_rms_rad': ref.summary['pos_err_rms_rad'],
             'free_run_1kHz_vs_lockstep_pos_err_rms': fig.get('pos_err_rms_rad', math.nan)
             / ref.summary['pos_err_rms_rad']}
+
+
+def recorded_fraction(bag: str, end: dict) -> dict:
+    """What a free_run bag holds of its run: ``steps`` = the fraction of the steps 0..N the plant
+    integrated (its final event's ``steps``) whose measured current *and* shaft are in the bag;
+    ``commands`` = recorded commands / commands the plant received (its latency samples, on time
+    or late); ``missing_meta`` = the recorder's own count of missing lock-step steps."""
+    from im_bringup.bag import info, iter_raw
+    from im_common import topics as T
+    from im_common.timing import LatencyHistogram
+    steps = int(end['steps'])
+    period = 1_000_000
+    got = {T.MEAS_CURRENT: set(), T.MEAS_SHAFT: set(), T.CMD_VOLTAGE: set()}
+    for topic, _, t, _ in iter_raw(bag, list(got)):
+        got[topic].add(t // period)
+    both = got[T.MEAS_CURRENT] & got[T.MEAS_SHAFT]
+    received = LatencyHistogram.from_values(end).n
+    return {'steps': len(both & set(range(steps + 1))) / (steps + 1),
+            'commands': len(got[T.CMD_VOLTAGE]) / max(received, 1),
+            'missing_meta': int(info(bag).metadata['recording']['missing_steps'])}
+
+
+def free_run_record(duration: float, busy: bool) -> dict:
+    """One free_run run at 1 kHz with the recorder: recorded fractions and deadlines."""
+    r = free_run(duration, busy=busy)
+    return {k: r[f'free_run_1kHz_{k}'] for k in ('steps', 'tripped', 'missed_fraction',
+                                                  'recorded_steps_fraction',
+                                                  'recorded_commands_fraction', 'realtime')}
 
 
 def run(quick: bool = False) -> dict:
@@ -215,6 +250,12 @@ def run(quick: bool = False) -> dict:
 if __name__ == '__main__':
     if '--pong' in sys.argv:
         _pong_main()
+    elif '--free-run-record' in sys.argv:
+        a = sys.argv
+        dur = float(a[a.index('--free-run-record') + 1])
+        n = int(a[a.index('--runs') + 1]) if '--runs' in a else 1
+        for i in range(n):
+            print(f'run {i}:', free_run_record(dur, busy='--busy' in a), flush=True)
     else:                       # the table and JSON come from the driver
         from run_all import main
         sys.exit(main(['--only', 'processes'] + sys.argv[1:]))

@@ -131,3 +131,100 @@ def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path)
         if rec is not None:
             rec.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+PERIOD = 100_000
+LOCK = ['/im/measured/current', '/im/measured/shaft', '/im/command/voltage', '/im/observer/flux']
+
+
+class _Run:
+    """A recorder on a private context, fed the signed messages of run 'run1' directly (what
+    its subscriptions would hand it), and a listener of its acknowledgements on /im/progress."""
+
+    def __init__(self, tmp_path):
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=random.randint(150, 229))
+        self.path = tmp_path / 'rec.mcap'
+        self.writer = BagWriter(self.path)
+        self.rec = RecorderNode(self.writer, parse_topics(LOCK + ['/im/status']), context=self.ctx)
+        self.sign = Signer(self.rec.signer.key, 'run1').sign
+        self.cb = {t: self.rec._callback(t, self.rec.topics[t], True) for t in LOCK}
+        self.v3 = Vector3Out(Signer.frame('alphabeta'))
+        self.js = JointStateOut(['rotor'], Signer.frame(''))
+        from std_msgs.msg import Header
+        self.acks = []
+        self.listener = Node('listener', context=self.ctx)
+        self.listener.create_subscription(
+            Header, '/im/progress',
+            lambda h: self.acks.append(h.stamp.sec * 10**9 + h.stamp.nanosec), 10)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.rec)
+        self.ex.add_node(self.listener)
+
+    def plant(self, state, step, **values):
+        self.rec.on_peer_status('plant', state, dict(
+            time_master='true', run_id='run1', T_s_ns=str(PERIOD), step=str(step), **values))
+
+    def feed(self, topic, steps):
+        for k in steps:
+            t = k * PERIOD
+            out = self.js.fill(t, (0.1 * k,), (3.0,)) if topic.endswith('shaft') else \
+                self.v3.fill(t, 0.5 * k, -1.0 * k)
+            self.cb[topic](self.sign(topic, out))
+
+    def spin(self, seconds=0.3):
+        t_end = time.monotonic() + seconds
+        while time.monotonic() < t_end:
+            self.ex.spin_once(timeout_sec=0.02)
+
+    def close(self):
+        self.writer.close()
+        self.rec.destroy_node()
+        self.listener.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def test_missing_steps_are_counted_before_the_first_between_and_after_the_last(tmp_path):
+    """A recording from the start of a run that got the commands only from step 10 on (its
+    reader matched the controller late), lost steps 20-22 of the flux and the last two of the
+    shaft: the bag's metadata counts each of them, on its topic, with its range."""
+    r = _Run(tmp_path)
+    try:
+        r.plant('running', 0, mode='lockstep', followers='recorder')
+        r.feed('/im/measured/current', range(0, 51))
+        r.feed('/im/measured/shaft', range(0, 49))
+        r.feed('/im/command/voltage', range(10, 50))           # 0-9 never arrived
+        r.feed('/im/observer/flux', [k for k in range(0, 51) if not 20 <= k <= 22])
+        r.plant('finished', 50, steps='50')
+        meta = r.rec.close_metadata(None)
+    finally:
+        r.close()
+    assert meta['missing_steps/im/command/voltage'] == '10'
+    assert meta['missing_ranges/im/command/voltage'] == f'0-{9 * PERIOD}'
+    assert meta['missing_steps/im/observer/flux'] == '3'
+    assert meta['missing_steps/im/measured/shaft'] == '2'
+    assert meta['missing_ranges/im/measured/shaft'] == f'{49 * PERIOD}-{50 * PERIOD}'
+    assert meta['missing_steps/im/measured/current'] == '0'
+    assert meta['missing_steps'] == '15'
+
+
+def test_a_topic_with_nothing_yet_holds_the_plant_back(tmp_path):
+    """The acknowledgement on /im/progress is the last step received on *every* lock-step
+    topic: while the commands have not reached the recorder, it acknowledges nothing (the plant
+    stays within follower_window steps of step 0 and the commands stay in their publisher's
+    history); once they arrive it acknowledges the least of the topics' last steps."""
+    r = _Run(tmp_path)
+    try:
+        deadline = time.monotonic() + 10
+        while r.rec.count_subscribers('/im/progress') < 1 and time.monotonic() < deadline:
+            r.spin(0.05)
+        r.plant('running', 0, mode='lockstep', followers='recorder')
+        for t in ('/im/measured/current', '/im/measured/shaft', '/im/observer/flux'):
+            r.feed(t, range(0, 40))
+        r.spin(0.5)
+        assert r.acks == []
+        r.feed('/im/command/voltage', range(0, 30))
+        r.spin(0.5)
+    finally:
+        r.close()
+    assert r.acks and r.acks[-1] == 29 * PERIOD

@@ -362,3 +362,32 @@ def test_a_message_seen_before_verifies_only_for_its_key_topic_and_run():
     assert other.verify(T.CMD_VOLTAGE, data)
     other.set_run('run2')
     assert not other.verify(T.CMD_VOLTAGE, data)
+
+
+def test_another_graphs_flood_costs_a_running_node_only_the_tag_checks(ros_context, monkeypatch):
+    """Two launches on one domain: each node receives the other graph's lock-step messages, whose
+    publishers carry the allowed names (plant, controller, ...) so none is ever named foreign.
+    Each is refused by its tag; the graph API is asked at most 10 times a second, not once per
+    message — asked per message, a node fell behind the other graph's thousands of messages per
+    second, its reader history overflowed with them, its own graph's step was pushed out and its
+    plant stopped ("no /im/command/voltage stamped ... within 5.0 s")."""
+    from im_observer.observer_node import ObserverNode
+    node = ObserverNode(context=ros_context, graph_key=os.urandom(32))
+    asked = []
+    real = node.get_publishers_info_by_topic
+    monkeypatch.setattr(node, 'get_publishers_info_by_topic',
+                        lambda topic: asked.append(time.monotonic()) or real(topic))
+    try:
+        node.follow_master('running', 'ours')                  # its run is running
+        sub = {s.topic_name: s for s in node.subscriptions}[T.MEAS_CURRENT]
+        other = Signer(os.urandom(32), 'theirs')
+        out = Vector3Out(Signer.frame('alphabeta'))
+        t0 = time.monotonic()
+        for k in range(3000):
+            sub.callback(other.sign(T.MEAS_CURRENT, out.fill(k * 100_000, 1.0, 0.0)))
+        elapsed = time.monotonic() - t0
+    finally:
+        node.destroy_node()
+    assert node.refused_by_topic[T.MEAS_CURRENT] == 3000
+    rounds = len(asked) / max(len(node.inputs) + 1, 1)       # one round asks every input
+    assert rounds <= 1 + 10 * elapsed + 1, (len(asked), elapsed)

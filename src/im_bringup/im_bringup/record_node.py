@@ -15,9 +15,13 @@ the machine. Start it before the graph, or have the plant wait for it (``wait_fo
 records losslessly from the step it joined (transient-local topics also give it the last
 ``LOCKSTEP_DEPTH`` samples before that).
 
-Every lock-step topic is checked step by step: missing stamps are counted, their ranges logged at
-the end and written into the bag's ``recording`` metadata, with the run's end state (finished,
-stopped, failed, interrupted) — ``report`` shows them.
+The acknowledgement is the last step received on *every* lock-step topic of the run: a topic that
+has brought nothing yet holds it back. Every lock-step topic is checked step by step, from the
+run's first step to the plant's final one: the steps missing before the first stamp received,
+between stamps and after the last are counted, their ranges logged at the end and written into
+the bag's ``recording`` metadata, with the run's end state (finished, stopped, failed,
+interrupted) — ``report`` shows them. In ``free_run`` (the plant waits for no one) the recorder's
+threads run at ``SCHED_FIFO`` ``rt_priority`` (40), below the control loop's.
 
 It stops when the run ends (the plant's ``finished``/``stopped``/``failed``, after receiving the
 last step) unless ``--continuous``; SIGINT / SIGTERM / SIGHUP close the file (summary, footer), so
@@ -27,16 +31,16 @@ in-process graph records without this node (``DriveGraph(recorder=...)``).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from typing import Dict, Iterable, List, Optional
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from im_common import cdr
+from im_common import cdr, realtime
 from im_common import topics as T
-from im_common.lockstep import END_STATES, READY, LockstepNode, _unsigned, stamp_text
+from im_common.lockstep import (END_STATES, FINISHED, READY, RUNNING, WARNING, LockstepNode,
+                                _unsigned, stamp_text)
 from .bag import BagError, BagWriter, offered_qos_yaml
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
@@ -50,6 +54,9 @@ STAMPED_TYPES = RAW_TYPES | {T.DIAG, T.HEADER}
 ACK_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
 #: Where messages not signed by the recorded graph are kept (``/im/refused/im/command/voltage``).
 REFUSED_PREFIX = '/im/refused'
+#: After a stop signal, how long the recorder waits for the plant's final event (the run's other
+#: processes got the same signal) before it closes the file [s].
+STOP_WAIT_S = 1.0
 #: Reader history of the lock-step topics (samples; ≈ 100 bytes each).
 LOCKSTEP_READER_DEPTH = 5000
 
@@ -79,30 +86,56 @@ def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
 
 
 class StampTrack:
-    """Per-topic continuity check of a lock-step topic: counts steps whose stamp never arrived."""
+    """Per-topic continuity check of a lock-step topic: the first and last stamp received and the
+    steps missing between received stamps (cheap enough for every message); the steps missing
+    before the first and after the last are added by :meth:`account`, once the run's first and
+    last step are known."""
 
-    __slots__ = ('last', 'missing', 'ranges')
+    __slots__ = ('first', 'last', 'missing', 'ranges')
+
+    MAX_RANGES = 100
 
     def __init__(self):
+        self.first: Optional[int] = None
         self.last: Optional[int] = None
         self.missing = 0
         self.ranges: List[tuple] = []
 
     def see(self, ns: int, period: int) -> None:
         last = self.last
-        if last is not None and period and ns > last + period:
-            n = (ns - last) // period - 1
-            self.missing += n
-            if len(self.ranges) < 100:
-                self.ranges.append((last + period, ns - period))
-        if last is None or ns > last:
+        if last is None:
+            self.first = self.last = ns
+            return
+        if ns > last:
+            if period and ns > last + period:
+                self.missing += (ns - last) // period - 1
+                if len(self.ranges) < self.MAX_RANGES:
+                    self.ranges.append((last + period, ns - period))
             self.last = ns
+
+    def account(self, start: Optional[int], end: Optional[int], period: int) -> tuple:
+        """(steps missing, their ranges) from ``start`` to ``end`` (stamps, both included; None:
+        not known, nothing counted on that side): before the first stamp received, between
+        received stamps, after the last."""
+        if self.first is None:
+            if start is None or end is None or not period or end < start:
+                return 0, []
+            return (end - start) // period + 1, [(start, end)]
+        n, ranges = self.missing, list(self.ranges)
+        if start is not None and period and self.first > start:
+            n += (self.first - start) // period
+            ranges.insert(0, (start, self.first - period))
+        if end is not None and period and self.last < end:
+            n += (end - self.last) // period
+            ranges.append((self.last + period, end))
+        return n, ranges
 
 
 class RecorderNode(LockstepNode):
     """Subscribes to ``topics`` and writes every message to ``writer``; a lossless follower."""
 
     critical = False
+    default_rt_priority = realtime.DEFAULT_PRIORITY - 10    # free_run: below the loop
 
     def __init__(self, writer: BagWriter, topics: Optional[Dict[str, str]] = None,
                  node_name: str = 'recorder', depth: int = 1000, lossless: bool = True,
@@ -118,6 +151,10 @@ class RecorderNode(LockstepNode):
         self.end_values: dict = {}
         self._acked = -1
         self._subs = []
+        self.run_start: Optional[int] = None     # stamp of the followed run's first step
+        self.from_start = False                  # the plant counted this recorder from step 0
+        self._event_period = 0
+        self._announced: Dict[str, set] = {}     # run id -> lock-step topics its nodes publish
         self.unsigned: Dict[str, int] = {}      # lock-step / status messages not of this graph
         self._named_at: Dict[str, float] = {}
         self.topics = dict(topics or default_topics())
@@ -196,30 +233,77 @@ class RecorderNode(LockstepNode):
         """The ``offered_qos_profiles`` of ``topic``: one profile per publisher the graph lists."""
         return offered_qos_yaml(i.qos_profile for i in self.get_publishers_info_by_topic(topic))
 
+    def run_topics(self) -> List[str]:
+        """The lock-step topics of the followed run this recorder tracks: those every graph has
+        (:data:`ACK_TOPICS`), those a node of the run announced (``publishes`` of its ``ready``:
+        the adapter's estimates), and any that brought data of the run."""
+        announced = self._announced.get(self.run_id, ())
+        return [t for t, tr in self.track.items()
+                if t in ACK_TOPICS or t in announced or tr.first is not None]
+
     # Protocol ---------------------------------------------------------------------------
     def on_ready(self) -> None:
         self.status(READY, lossless='true' if self.lossless else 'false',
                     topics=len(self.topics))
 
+    def on_run_adopted(self) -> None:
+        # the period of the run is known before the messages kept for it are checked and written
+        if self._event_period:
+            self.period = self._event_period
+
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         self._fetch_parameters(name)
+        if values.get('time_master') != 'true':
+            topics = values.get('publishes')
+            if topics and values.get('run_id'):
+                self._announced.setdefault(values['run_id'], set()).update(topics.split())
+                self._set_ack_topics()
+            return
         if values.get('time_master') == 'true':
+            self._event_period = int(values.get('T_s_ns', 0) or 0)
             if not self.follow_master(state, values.get('run_id', '')):
                 return                          # another run's time master
-            period = int(values.get('T_s_ns', 0) or 0)
-            if period:
-                self.period = period
-            if state == 'running' and values.get('mode') == 'free_run' and not self._niced:
-                # real time: the control loop has a deadline, the recorder does not (its history
-                # holds LOCKSTEP_DEPTH steps): give the loop's processes the CPU first
-                self._niced = True
-                os.nice(10)
-                self.get_logger().info('free_run: recording at a lower CPU priority than the '
-                                       'control loop')
+            if self._event_period:
+                self.period = self._event_period
+            if state == RUNNING and self.run_start is None and self.period:
+                self.run_start = int(values.get('step', 0) or 0) * self.period
+                self.from_start = self.get_name() in values.get('followers', '').split()
+                self._set_ack_topics()
+            if state == RUNNING and values.get('mode') == 'free_run':
+                self._enter_free_run()
             if state in END_STATES:
                 self.end_state = state
                 self.end_values = dict(values, node=name)
                 self._end_wall = time.monotonic()
+
+    def _set_ack_topics(self) -> None:
+        announced = self._announced.get(self.run_id, ())
+        self._ack_topics = [t for t in self.track if t in ACK_TOPICS or t in announced]
+
+    def _enter_free_run(self) -> None:
+        """free_run: the loop has deadlines, the recorder has none but must keep up with 1/T_s
+        steps, which the plant does not wait for. Its threads go to SCHED_FIFO *below* the loop's
+        (``rt_priority``, default 40 < the loop's 50): the loop preempts the recorder, and the
+        recorder preempts every ordinary process (a busy neighbour can no longer starve it until
+        the publishers' histories overflow)."""
+        if self._free_run_entered:
+            return
+        self._free_run_entered = True
+        if not self.own_process:
+            return
+        if self.rt_priority <= 0:
+            self.get_logger().info('free_run: recording with ordinary scheduling (rt_priority 0)')
+            return
+        ok, text = realtime.enter(self.rt_priority)
+        self.scheduling = text if ok else 'normal (refused)'
+        if ok:
+            self.get_logger().info(f'free_run: recording at real-time priority {text}, below '
+                                   f'the control loop')
+        else:
+            msg = (f'free_run: recording without real-time scheduling: {text}; a busy machine '
+                   f'may starve the recorder (its missing steps are counted)')
+            self.get_logger().warning(msg)
+            self.status(WARNING, level=1, reason=msg)
 
     def current_ns(self) -> int:
         """The last step it recorded on the measured current (its own position in the run)."""
@@ -255,10 +339,12 @@ class RecorderNode(LockstepNode):
             self._check_master_left()
         if self.end_state is None:
             return False
-        last_step = int(self.end_values.get('step', 0) or 0)
-        final_ns = last_step * self.period
-        behind = [t for t in (T.MEAS_CURRENT, T.MEAS_SHAFT) if t in self.track
-                  and (self.track[t].last or -1) < final_ns]
+        behind = []
+        for t in self.run_topics():
+            end = self.run_bounds(t)[1]
+            last = self.track[t].last
+            if end is not None and (last is None or last < end):
+                behind.append(t)
         now = time.monotonic()
         quiet = now - max(self._end_wall, self._last_msg) > 1.0
         # a short grace after the end event, so that the event itself (delivered to the
@@ -348,17 +434,23 @@ class RecorderNode(LockstepNode):
 
     _last_msg = 0.0
     _end_wall = 0.0
-    _niced = False
+    _free_run_entered = False
     _master_checked = 0.0
     _master_gone_since = None
 
     def _maybe_ack(self) -> None:
+        """Acknowledge the last step received on every lock-step topic of the run: a topic that
+        has brought nothing yet (its publisher not yet matched) holds the acknowledgement — and
+        so the plant — back, while its samples wait in the publisher's history."""
         if not self._ack_topics:
             return
-        lasts = [self.track[t].last for t in self._ack_topics if self.track[t].last is not None]
-        if not lasts:
-            return
-        ack = min(lasts)
+        ack = None
+        for t in self._ack_topics:
+            last = self.track[t].last
+            if last is None:
+                return
+            if ack is None or last < ack:
+                ack = last
         if ack > self._acked:
             from std_msgs.msg import Header
             from im_common.auth import SEPARATOR, progress_payload
@@ -370,10 +462,45 @@ class RecorderNode(LockstepNode):
             self._acked = ack
 
     # Report ------------------------------------------------------------------------------
+    def run_bounds(self, topic: str) -> tuple:
+        """(first, last) stamp this recording must hold on ``topic`` (None: not known).
+
+        First: the run's first step when the plant counted this recorder from the start (its
+        ``running`` lists it), else — it joined a running run — the first step every topic of the
+        run has. Last: the step of the plant's final event; the command of that step is never
+        computed, and after a stop or a failure only the measurements of that step are sure to
+        exist (the commands and estimates up to the step before)."""
+        p = self.period
+        if not p:
+            return None, None
+        if self.from_start:
+            start = self.run_start
+        else:
+            firsts = [self.track[t].first for t in self.run_topics()
+                      if self.track[t].first is not None]
+            start = max(firsts) if firsts else None
+        end = None
+        if self.end_state is not None:
+            step = int(self.end_values.get('step', 0) or 0)
+            measured = topic in (T.MEAS_CURRENT, T.MEAS_SHAFT)
+            if self.end_state == FINISHED:
+                end = (step - 1 if topic == T.CMD_VOLTAGE else step) * p
+            else:
+                end = (step if measured else step - 1) * p
+        return start, end
+
     def gaps(self) -> Dict[str, dict]:
-        return {t: {'missing_steps': tr.missing,
-                    'ranges': [(a, b) for a, b in tr.ranges]}
-                for t, tr in self.track.items()}
+        """Per tracked lock-step topic: the steps of the run it lacks (before its first stamp,
+        between, after its last) and their stamp ranges."""
+        out = {}
+        topics = set(self.run_topics())
+        for t, tr in self.track.items():
+            if t in topics:
+                n, ranges = tr.account(*self.run_bounds(t), self.period)
+            else:
+                n, ranges = 0, []
+            out[t] = {'missing_steps': n, 'ranges': ranges[:StampTrack.MAX_RANGES]}
+        return out
 
     def close_metadata(self, interrupted: Optional[str]) -> dict:
         gaps = self.gaps()
@@ -464,6 +591,7 @@ def main(argv=None) -> int:
                 if not writer.failed:
                     raise
                 return 1
+            node.own_process = True         # free_run may make this process real-time
             node.get_logger().info(f'recording {len(topics)} topics to {out}')
             ex = make_executor()
             ex.add_node(node)
@@ -478,6 +606,12 @@ def main(argv=None) -> int:
                 ex.spin_once(timeout_sec=0.05)
             if stop.requested:
                 node.request_stop(stop.requested)
+                # Ctrl-C on `ros2 launch` signals every process at once: keep recording until
+                # the plant's own stop event and the last steps are in (bounded: a signal to the
+                # recorder alone does not end the run)
+                t_stop = time.monotonic() + STOP_WAIT_S
+                while rclpy.ok() and time.monotonic() < t_stop and not node.drained():
+                    ex.spin_once(timeout_sec=0.02)
         finally:
             try:
                 if node is not None:
@@ -498,12 +632,13 @@ def main(argv=None) -> int:
                 return 1
             if node is not None:
                 n = sum(node.counts.values())
-                missing = {t: tr.missing for t, tr in node.track.items() if tr.missing}
+                gaps = node.gaps()
+                missing = {t: g['missing_steps'] for t, g in gaps.items() if g['missing_steps']}
                 text = f'record: {n} messages written to {out}'
                 if node.end_state:
                     text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
                 if missing:
-                    first = {t: node.track[t].ranges[:3] for t in missing}
+                    first = {t: gaps[t]['ranges'][:3] for t in missing}
                     text += ('; MISSING steps ' + ', '.join(f'{t}: {m}' for t, m in
                                                            missing.items())
                              + ' (first ranges: ' + '; '.join(

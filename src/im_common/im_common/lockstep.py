@@ -50,9 +50,16 @@ from .stopping import StopSignals
 #: Reader history of /im/status (events of every node on the domain while this one starts).
 STATUS_READER_DEPTH = 1000
 
-#: History of the lock-step topics: deep enough for a lossless follower ``follower_window`` steps
-#: behind, and for a node that joins a little late.
+#: Bound of the lock-step protocol's windows: a lossless follower stays within half of it
+#: (``follower_window``), a node keeps that many early or pending steps.
 LOCKSTEP_DEPTH = 100
+#: History of the lock-step topics (publishers and readers). Deeper is not safer: a reliable
+#: writer resends its whole backlog to a reader that lags, from the loop's real-time threads in
+#: free_run. Tried with 1000: two free_run graphs on one domain under heavy machine load froze in
+#: 2 of 3 runs (a middleware thread of a plant at SCHED_FIFO 50 at 90 % of a core for minutes; its
+#: clock thread never ran again). In lock-step the follower window keeps
+#: every reader within ``LOCKSTEP_DEPTH // 2`` steps.
+LOCKSTEP_HISTORY = LOCKSTEP_DEPTH
 
 # Run states published on /im/status.
 WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
@@ -61,10 +68,12 @@ PARAMETERS, WARNING = 'parameters', 'warning'
 #: peers see it (a warning after 'ready' does not undo it).
 NOT_STATES = (PARAMETERS, WARNING)
 FINISHED, STOPPING, STOPPED, FAILED = 'finished', 'stopping', 'stopped', 'failed'
+#: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
+STOP_FLUSH_S = 3.0
 END_STATES = (FINISHED, STOPPED, FAILED)
 
 
-def lockstep_qos(depth: int = LOCKSTEP_DEPTH) -> QoSProfile:
+def lockstep_qos(depth: int = LOCKSTEP_HISTORY) -> QoSProfile:
     """Reliable, transient-local, keep-last: a late-joining node still gets the step it needs."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
@@ -228,6 +237,8 @@ class LockstepNode(Node):
     time_master = False
     #: Moves to SCHED_FIFO in free_run when it runs as its own process (not the recorder).
     realtime_capable = True
+    #: Default of ``rt_priority`` (the recorder's is below the loop's).
+    default_rt_priority = realtime.DEFAULT_PRIORITY
 
     def __init__(self, name: str, graph_key: Optional[bytes] = None, **kwargs):
         super().__init__(name, **kwargs)
@@ -246,6 +257,7 @@ class LockstepNode(Node):
         self.run_id = ''                            # the time master's run this node follows
         self._foreign_said = False
         self._publishers_checked = 0.0
+        self._refused_asked = 0.0
         self._reported_publishers: set = set()
         self._timeout = 5.0
         self._startup_timeout = 30.0
@@ -263,7 +275,7 @@ class LockstepNode(Node):
         self.foreign: Dict[str, set] = {}           # topic -> foreign publishers seen on it
         self._foreign_status_said: set = set()
         self.rt_priority = self.param(
-            'rt_priority', realtime.DEFAULT_PRIORITY,
+            'rt_priority', self.default_rt_priority,
             'free_run, this node as its own process: SCHED_FIFO priority of its threads (0: '
             'ordinary scheduling); needs root, CAP_SYS_NICE or an rtprio limit', 0, 99)
         key_file = self.param(
@@ -599,18 +611,25 @@ class LockstepNode(Node):
 
     def refuse_unsigned(self, topic: str, data: bytes) -> None:
         """A message without this graph's tag for this run: refused, counted, its topic's
-        foreign publishers named (the graph API is asked again when a new one appears)."""
+        foreign publishers named (the graph API is asked at the first one, then at most 10 times a
+        second). Cheap: another graph on the domain (its own key, the same node names) sends
+        thousands a second, and a node that fell behind them would lose its own graph's samples
+        from its reader history."""
         self.refused_by_topic[topic] = self.refused_by_topic.get(topic, 0) + 1
+        now = time.monotonic()
+        if now - self._refused_asked >= 0.1:
+            self._refused_asked = now
+            self._publishers_checked = 0.0
+            self.check_publishers(now)
+        n = getattr(self, 'refused', 0) + 1
+        if n > 20 and n % 1000:             # counted; refuse() logs only these
+            self.refused = n
+            return
         try:
             ns = _U32x2.unpack_from(data, 4)
             ns = ns[0] * NS_PER_S + ns[1]
         except Exception:  # noqa: BLE001 - too short to hold a stamp
             ns = None
-        now = time.monotonic()
-        # ask the graph again: until the sender is named, then at most 10 times a second
-        if not self.foreign.get(topic) or now - self._publishers_checked >= 0.1:
-            self._publishers_checked = 0.0
-            self.check_publishers(now)
         pubs = sorted(self.foreign.get(topic, ()))
         who = (f"foreign publisher{'s' if len(pubs) > 1 else ''} on it: {', '.join(pubs)}"
                if pubs else 'its publisher uses an allowed name: another graph with its own '
@@ -659,7 +678,13 @@ class LockstepNode(Node):
 
     def on_ready(self) -> None:
         self._since = time.monotonic()
-        self.status(READY)
+        self.status(READY, publishes=' '.join(self.lockstep_outputs()))
+
+    def lockstep_outputs(self) -> List[str]:
+        """The lock-step topics this node publishes (its ``ready`` says so: a lossless follower
+        then knows which topics the run has and waits for each)."""
+        from .topics import LOCKSTEP_TOPICS
+        return [p.topic_name for p in self.publishers if p.topic_name in LOCKSTEP_TOPICS]
 
     def check_inputs(self) -> None:
         """Watchdog of an exact gate: a critical input missing for ``input_timeout`` is a fault."""
@@ -895,7 +920,9 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
             code = 0 if node is None or not node.exit_code else node.exit_code
         finally:
             if node is not None:
-                node.flush(timeout=1.0)
+                # a stopped node's last samples are still owed to the recorder, which the plant
+                # let lag up to follower_window steps: under load 1 s was not always enough
+                node.flush(timeout=STOP_FLUSH_S)
                 node.destroy_node()
             rclpy.try_shutdown()
     return code

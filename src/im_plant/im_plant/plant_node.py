@@ -78,6 +78,7 @@ class PlantNode(LockstepNode):
         self.followers: dict = {}
         self._parked = None
         self._ok_since = None
+        self._after_end_said = False
 
         q = lockstep_qos()
         self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
@@ -305,8 +306,14 @@ class PlantNode(LockstepNode):
             self.refuse(T.CMD_VOLTAGE, ns, f'non-finite voltage ({vx!r}, {vy!r}); holding the '
                         f'previous command')
             vx, vy = self.last_cmd
-        if self.state not in (RUNNING, 'draining'):   # before step 0: not a command of this run
-            self.refuse(T.CMD_VOLTAGE, ns, 'arrived before the run started (no step published)')
+        if self.state not in (RUNNING, 'draining'):
+            if self.started_at is None:         # before step 0: not a command of this run
+                self.refuse(T.CMD_VOLTAGE, ns, 'arrived before the run started (no step '
+                                               'published)')
+            elif not self._after_end_said:      # free_run: the controller was still busy
+                self._after_end_said = True
+                self.get_logger().info(f'{T.CMD_VOLTAGE} stamped {stamp_text(ns)} arrived '
+                                       f'after the run ended ({self.state}); not used')
             return
         if self.mode == 'free_run':
             self._free_command(ns, vx, vy)
