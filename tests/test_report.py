@@ -126,10 +126,16 @@ def test_plots_draw_decimated_topics_through_their_gaps():
     np.testing.assert_array_equal(y, np.arange(10.0))
 
 
-def _varied_bag(path, steps=2000):
+def _varied_bag(path, steps=2000, refused=0):
     """Every trace kind: per-step and decimated topics, estimates drifting, a gap in one
-    lock-step topic (steps 1000-1009) and a NaN sample."""
+    lock-step topic (steps 1000-1009) and a NaN sample; ``refused`` commands of a rogue (50 V)
+    kept apart as the recorder keeps them."""
+    from im_common import topics as T
     with BagWriter(path, metadata={'scenario': {'task': 'position'}}) as w:
+        if refused:
+            w.add_topic(T.REFUSED_PREFIX + T.CMD_VOLTAGE, T.TOPIC_TYPES[T.CMD_VOLTAGE])
+        for k in range(refused):
+            w.write_vector3(T.REFUSED_PREFIX + T.CMD_VOLTAGE, k * 100_000, 50.0, 0.0)
         for k in range(steps):
             t = k * 100_000
             th = 0.003 * k
@@ -233,3 +239,21 @@ def test_a_run_that_ended_before_its_duration_is_partial_with_the_reason(tmp_pat
     _recorder_bag(ok, 'finished', 'duration reached')
     st = write_report([ok], tmp_path / 'rep_ok', plots=False)['runs'][0]['status']
     assert st['partial'] is False and st['notes'] == []
+
+
+def test_refused_messages_are_counted_in_the_report_not_in_the_figures(tmp_path):
+    """A rogue's commands, kept by the recorder on /im/refused<topic>: the report counts them per
+    topic in their own section, and no figure changes."""
+    from im_common import topics as T
+    from im_bringup.report import write_report
+    clean, attacked = tmp_path / 'clean.mcap', tmp_path / 'attacked.mcap'
+    _varied_bag(clean, steps=300)
+    _varied_bag(attacked, steps=300, refused=7)
+    rep = write_report([clean, attacked], tmp_path / 'rep', plots=False)
+    a, b = rep['runs']
+    assert a['status']['refused'] == {}
+    assert b['status']['refused'] == {T.CMD_VOLTAGE: 7}
+    assert b['figures'] == pytest.approx(a['figures'], rel=1e-12, nan_ok=True)
+    with open(rep['markdown']) as f:
+        section = f.read().split('## Refused messages')[1]
+    assert f'7 on `{T.CMD_VOLTAGE}`' in section and 'clean' not in section

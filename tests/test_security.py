@@ -207,7 +207,15 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     c = Counter(t for t, *_ in iter_raw(bag))
     n = round(DURATION / 1e-4)
     assert c[T.CMD_VOLTAGE] == n and c[T.MEAS_CURRENT] == n + 1 and c[T.OBS_FLUX] == n + 1
-    assert c['/im/refused' + T.CMD_VOLTAGE] > 0
+    assert c[T.REFUSED_PREFIX + T.CMD_VOLTAGE] > 0
+    # the summary's and the report's count of the rogue's messages are the ones the bag kept
+    from im_bringup.report import write_report
+    assert load_run(str(bag)).refused[T.CMD_VOLTAGE] == c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]
+    rep = write_report([str(bag)], tmp_path / 'report', plots=False)
+    assert rep['runs'][0]['status']['refused'][T.CMD_VOLTAGE] == \
+        c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]
+    with open(rep['markdown']) as f:
+        assert f"on `{T.CMD_VOLTAGE}`" in f.read().split('## Refused messages')[1]
     live = run_graph(task='position', strategy='min_energy', duration=DURATION)
     fig = figures_of_merit(load_run(str(bag)))
     for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V'):

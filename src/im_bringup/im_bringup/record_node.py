@@ -52,8 +52,7 @@ STAMPED_TYPES = RAW_TYPES | {T.DIAG, T.HEADER}
 #: Lock-step topics whose progress the recorder acknowledges (the adapter's estimates follow the
 #: run and are recorded as they come, but do not hold the plant back).
 ACK_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
-#: Where messages not signed by the recorded graph are kept (``/im/refused/im/command/voltage``).
-REFUSED_PREFIX = '/im/refused'
+REFUSED_PREFIX = T.REFUSED_PREFIX
 #: After a stop signal, how long the recorder waits for the plant's final event (the run's other
 #: processes got the same signal) before it closes the file [s].
 STOP_WAIT_S = 1.0

@@ -21,6 +21,8 @@ from typing import Dict, List, Sequence
 
 import numpy as np
 
+from im_common import topics as T
+
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
 ROWS = [
     ('E_in_J', 'energy drawn E_in', 'J'),
@@ -147,6 +149,7 @@ def run_status(run, fig: Dict[str, float]) -> dict:
                          f"({rs})")
     if run.late:
         notes.append(f'{run.late} messages arrived out of order and are not in the figures')
+    st['refused'] = run.refused         # a rogue's or another graph's: not part of the run
     return st
 
 
@@ -226,6 +229,15 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
             if r['status']['notes']]
     if warn:
         md += ['', '## Incomplete runs', ''] + warn
+    refused = [f'- **{r["label"]}**: ' + '; '.join(
+        f'{n} on `{topic}` (kept on `{T.REFUSED_PREFIX}{topic}`)'
+        for topic, n in r['status']['refused'].items()) for r in results
+        if r['status']['refused']]
+    if refused:
+        md += ['', '## Refused messages', '',
+               'Messages not signed by the recorded graph (a rogue publisher, another graph on the '
+               'domain): refused by the nodes, kept apart by the recorder, in no figure.', '']
+        md += refused
     from .bag import write_atomic
     md_path = out / 'report.md'
     write_atomic(md_path, '\n'.join(md) + '\n')

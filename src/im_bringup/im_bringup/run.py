@@ -114,6 +114,14 @@ class Run:
         return None
 
     @property
+    def refused(self) -> Dict[str, int]:
+        """Messages not signed by the recorded graph (a rogue publisher, another graph), per topic
+        they came on, as the recorder kept them on ``/im/refused<topic>``."""
+        n = len(T.REFUSED_PREFIX)
+        return {t[n:]: c for t, c in sorted(self.counts.items())
+                if t.startswith(T.REFUSED_PREFIX + '/') and c}
+
+    @property
     def label(self) -> str:
         sc = self.metadata.get('scenario', {})
         parts = [sc.get(k) for k in ('task', 'strategy', 'controller') if sc.get(k)]

@@ -222,6 +222,9 @@ def print_summary(s: dict) -> None:
     for k in keys:
         if k in s:
             print(f'  {k:22s} {s[k]:14.6g}')
+    for node, topics in s.get('refused_unsigned', {}).items():
+        print(f'  refused by {node} (not signed by this graph): '
+              + ', '.join(f'{n} on {t}' for t, n in topics.items()))
 
 
 def main(argv=None) -> int:
@@ -390,7 +393,10 @@ def _run_processes(args, parameters: dict, out: str) -> int:
     if failure:
         summary['failures'] = {failure.split(':', 1)[0]: failure.split(': ', 1)[-1]}
     if os.path.exists(args.record):
-        summary.update(figures_of_merit(load_run(args.record)))
+        run = load_run(args.record)
+        summary.update(figures_of_merit(run))
+        if run.refused:                 # as the in-process graph counts them, per node and topic
+            summary['refused_unsigned'] = {'recorder': run.refused}
     else:
         from im_bringup.bag import partial_path
         if partial_path(args.record).exists():     # the recorder failed: recover reads it

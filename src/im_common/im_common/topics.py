@@ -45,6 +45,9 @@ REEST_FLUX = '/im/reestimate/observer/flux'          # replay --reestimate (not 
 REEST_CURRENT = '/im/reestimate/observer/current'
 STATUS = '/im/status'
 PROGRESS = '/im/progress'
+#: Where a recorder keeps the messages not signed by the graph it records, under their topic's
+#: name (``/im/refused/im/command/voltage``): evidence, never replayed, counted by ``report``.
+REFUSED_PREFIX = '/im/refused'
 
 V3 = 'geometry_msgs/msg/Vector3Stamped'
 JS = 'sensor_msgs/msg/JointState'
