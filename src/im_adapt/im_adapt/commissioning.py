@@ -461,8 +461,9 @@ class Commissioning:
                 return self._speed_cmd(i_a, i_b, c, s, e_a, e_b, self.i_q)
         elif self.phase == 'accelerate':
             iq = self.i_q
+            stuck = t > 1.0 and aw < 0.01 * SPEED_FRACTION * self.test_speed   # cannot turn
             if aw >= SPEED_FRACTION * self.test_speed or math.hypot(e_a, e_b) > 0.5 * self.v_max \
-                    or t > 10.0:
+                    or t > 10.0 or stuck:
                 self.t_accel = t
                 self._goto('coast')
                 iq = 0.0
