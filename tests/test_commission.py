@@ -144,6 +144,21 @@ def test_tool_commissions_a_plant_it_only_sees_through_topics(tmp_path):
     assert len(proc.stderr.strip().splitlines()) == 1 and out.read_text() == before
 
 
+def test_tool_locked_rotor_variant_writes_the_given_mechanics(tmp_path):
+    plate = tmp_path / 'plate.yaml'
+    plate.write_text(''.join(f'{k}: {v}\n' for k, v in THESIS_PLATE.items()))
+    out = tmp_path / 'motor.yaml'
+    proc = subprocess.run([_tool(), '--out', str(out), '--plant-motor',
+                           os.path.join(shipped_motors_dir(), 'thesis.yaml'), '--nameplate',
+                           str(plate), '--locked-rotor', '--J', '0.5', '--b', '0.25'],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    m, w = _motor('thesis'), load_motor_file(str(out))
+    for n, v in m.identifiable().items():
+        assert abs(w.identifiable()[n] / v - 1.0) < 0.03, n
+    assert (w.J, w.b) == (0.5, 0.25) and 'not measured: locked rotor' in out.read_text()
+
+
 @pytest.mark.parametrize('args,needle', [
     ([], 'no current limit'),
     (['--current-limit', '8', '--voltage-limit', '220'], 'no speed for the speed test'),

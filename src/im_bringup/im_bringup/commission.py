@@ -8,8 +8,8 @@ The tool joins the lock-step graph as the node ``commission``: at each step it t
 plant's ``/im/measured/current`` and ``/im/measured/shaft``, and publishes the test voltage on
 ``/im/command/voltage`` (signed with the graph's key like every lock-step message). The test
 sequence and the estimators are :mod:`im_adapt.commissioning`. With ``--plant-motor`` it starts
-the simulated plant in its own process with that motor file (the tool never reads it: the plant
-node does), the drive's limits as the plant's protection (``current_trip``, ``v_limit``) and
+the simulated plant as a process of its own with that motor file as a ``--params-file`` (the tool
+never opens it: the plant node reads it), the drive's limits as the plant's protection (``current_trip``, ``v_limit``) and
 waits for the tool; without it, a plant (the real drive) must run with ``wait_for:
 commission`` and ``allowed_publishers: /im/command/voltage=commission``.
 
@@ -142,18 +142,31 @@ def make_node(com, T_s: float, **kwargs):
     return CommissionNode()
 
 
-def plant_parameters(path: str, s: dict, args) -> dict:
-    """The simulated plant's parameters: the motor file's values (read by the plant side only),
-    the drive's limits as its protection, waiting for the tool."""
-    from im_common.params import load_motor_file
-    motor = load_motor_file(path)
-    p = {k: v for k, v in motor.as_dict().items()}
-    p.update(T_s=args.T_s, duration=0.0, wait_for='commission',
-             allowed_publishers=f'/im/command/voltage=commission',
-             current_trip=s['i_max'], v_limit=s['v_max'], locked_rotor=bool(args.locked_rotor),
-             current_noise_std=args.current_noise, speed_noise_std=args.speed_noise,
-             truth_decimation=0)
-    return p
+def plant_parameters(s: dict, args) -> dict:
+    """The simulated plant's parameters besides its motor file (which the plant process reads
+    itself): the drive's limits as its protection, waiting for the tool, no end of its own."""
+    return dict(T_s=args.T_s, duration=0.0, wait_for='commission',
+                allowed_publishers='/im/command/voltage=commission',
+                current_trip=s['i_max'], v_limit=s['v_max'], locked_rotor=bool(args.locked_rotor),
+                current_noise_std=args.current_noise, speed_noise_std=args.speed_noise,
+                truth_decimation=0)
+
+
+def start_plant(motor_file: str, s: dict, args, domain: int, key_file: str, workdir: str):
+    """``ros2 run im_plant plant --ros-args --params-file <ours> --params-file MOTOR`` as a
+    process of its own (processes.GraphProcesses): the tool never opens the motor file."""
+    from .processes import GraphProcesses, NodeProcess
+
+    class PlantProcess(GraphProcesses):
+        def command(self, p):
+            return super().command(p) + ['--params-file', os.path.abspath(motor_file)]
+
+    if not os.path.isfile(motor_file):
+        raise Refused(f'--plant-motor {motor_file}: no such file')
+    params = dict(plant_parameters(s, args), graph_key_file=key_file)
+    g = PlantProcess([NodeProcess('plant', 'im_plant', 'plant', parameters=params)], workdir,
+                     env={'ROS_DOMAIN_ID': str(domain)})
+    return g.start()
 
 
 def run(args) -> int:
@@ -169,23 +182,24 @@ def run(args) -> int:
                         test_speed=s['speed'], locked=args.locked_rotor)
     if os.path.exists(args.out) and not args.force:
         raise Refused(f'{args.out} exists: give --force to overwrite it')
-    plant_values = plant_parameters(args.plant_motor, s, args) if args.plant_motor else None
     import random
+    import tempfile
     ctx = Context()
     domain = args.domain_id if args.domain_id is not None else (
         random.randint(150, 229) if args.plant_motor else None)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    nodes, plant, key = [], None, None
+    workdir = tempfile.mkdtemp(prefix='commission_')
+    if args.plant_motor:
+        from im_common import auth
+        from .processes import graph_key_file
+        key_file = graph_key_file()
+        key = auth.read_key_file(key_file)
+        plant = start_plant(args.plant_motor, s, args, domain, key_file, workdir)
     rclpy.init(context=ctx, **({} if domain is None else {'domain_id': domain}))
-    nodes = []
-    key = os.urandom(32) if args.plant_motor else None
     try:
         node = make_node(com, args.T_s, context=ctx, graph_key=key)
         nodes.append(node)
-        if plant_values is not None:
-            from im_plant.plant_node import PlantNode
-            plant = PlantNode(context=ctx, graph_key=key, parameter_overrides=[
-                Parameter(k, value=v) for k, v in plant_values.items()])
-            nodes.append(plant)
         ex = make_executor(ctx)
         for n in nodes:
             ex.add_node(n)
@@ -199,12 +213,18 @@ def run(args) -> int:
                 status_line(f'  t = {com.k * args.T_s:7.3f} s  {com.progress:60s}')
             if any(n.exit_code for n in nodes):
                 break
+            if plant is not None and plant.returncodes()['plant'] is not None:
+                break
             if node.state == 'waiting' and now - t0 > args.timeout:
                 break
         status_line('', done=True)
         failed = [n for n in nodes if n.exit_code]
         if failed and not com.failure:
             raise NotInformative(f'{failed[0].get_name()}: {failed[0].failure}')
+        if plant is not None and not com.done:
+            log = [ln for ln in plant.log('plant').splitlines() if 'ERROR' in ln or 'error' in ln]
+            raise NotInformative('the plant ended before the tests did'
+                                 + (f': {log[-1].strip()}' if log else ''))
         if not com.done:
             raise NotInformative(f'no plant answered within {args.timeout:g} s '
                                  f'(ROS_DOMAIN_ID={ctx.get_domain_id()})')
@@ -213,6 +233,12 @@ def run(args) -> int:
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown(context=ctx)
+        if plant is not None:
+            codes = plant.wait(5.0)
+            if codes.get('plant') is None:
+                plant.stop(grace=5.0)
+        import shutil
+        shutil.rmtree(workdir, ignore_errors=True)
     ident = com.result()
     if args.locked_rotor:
         ident.values.update(J=args.J, b=args.b,
