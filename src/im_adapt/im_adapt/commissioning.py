@@ -165,9 +165,8 @@ class Identified:
                            **(ratings or {}))
 
 
-def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float,
-                   noise_floor: float = 0.0) -> Tuple[Dict[str, float], Dict[str, float], float,
-                                                      np.ndarray]:
+def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
+                   ) -> Tuple[Dict[str, float], Dict[str, float], float, np.ndarray]:
     """Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
 
     Returns (values, standard deviations, RMS residual [A], final state (i, ψ_R)). The start
@@ -199,8 +198,7 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float,
     vals = np.exp(best.x)
     values = dict(zip(IDENTIFIABLE_NAMES, (float(x) for x in vals)))
     std = dict(zip(IDENTIFIABLE_NAMES, (float(x * s) for x, s in zip(vals, rel))))
-    _, psi = standstill_response(vals, v, T_s)
-    sim, _ = standstill_response(vals, v, T_s)
+    sim, psi = standstill_response(vals, v, T_s)
     return values, std, math.sqrt(s2), np.array([sim[-1], psi[-1]])
 
 
@@ -408,8 +406,7 @@ class Commissioning:
     def _identify_electrical(self) -> None:
         v = np.array(self.log_v)[:, 0]
         i = np.array(self.log_i)[: len(v), 0]
-        i_full = np.array(self.log_i)[:, 0]
-        values, std, rms, x_end = fit_standstill(v, i_full[:len(v)], self.T_s, self.R_s0)
+        values, std, rms, _ = fit_standstill(v, i, self.T_s, self.R_s0)
         self.electrical = (values, std, rms)
         # the state at t_k of the current step: one more model step from the last logged one
         R_s, L_s, L_M, R_R = (values[n] for n in IDENTIFIABLE_NAMES)

@@ -67,7 +67,7 @@ class Refused(ValueError):
 def settings(args) -> dict:
     """Limits, nameplate and test speed from the arguments (Refused naming what is missing)."""
     from im_adapt.commissioning import nameplate_from_dict
-    from im_common.params import InvalidParameter, read_yaml_file
+    from im_common.params import read_yaml_file
     plate = None
     if args.nameplate:
         plate = nameplate_from_dict(read_yaml_file(args.nameplate, 'nameplate'),
@@ -94,7 +94,7 @@ def settings(args) -> dict:
         if not (val > 0 and math.isfinite(val)):
             raise Refused(f'{name} = {val} must be a positive number')
     return {'plate': plate, 'ratings': ratings, 'i_max': float(i_max), 'v_max': float(v_max),
-            'speed': speed, 'InvalidParameter': InvalidParameter}
+            'speed': speed}
 
 
 def make_node(com, T_s: float, **kwargs):
@@ -172,7 +172,6 @@ def start_plant(motor_file: str, s: dict, args, domain: int, key_file: str, work
 def run(args) -> int:
     import rclpy
     from rclpy.context import Context
-    from rclpy.parameter import Parameter
     from im_adapt.commissioning import Commissioning, NotInformative, rated_flux
     from im_common.lockstep import make_executor
     s = settings(args)

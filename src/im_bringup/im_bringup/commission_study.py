@@ -122,7 +122,7 @@ def study(draws: int, noise: float, out: Path, track: bool = True) -> list:
         row['peak_i_frac'] = com.peak_i / com.i_max
         row['peak_v_frac'] = com.peak_v / com.v_max
         row['test_s'] = com.k * com.T_s
-        if track and not name.startswith('box'):     # the tracking runs: the shipped motors
+        if track:
             est = ident.motor(plate_of(m).ratings())
             for key, e in (('true', speed_error(m, m)), ('identified', speed_error(m, est))):
                 for x, val in e.items():
@@ -149,12 +149,13 @@ def table(rows) -> str:
     lines = []
     for r in rows:
         if 'error' in r:
-            lines.append(f"| {r['motor']} | {r['sigma']:.3f} | refused: {r['error']} |||||")
+            lines.append(f"| {r['motor']} | {r['sigma']:.3f} | refused: {r['error']} "
+                         "| | | | | | | |")
             continue
         cells = ' | '.join(f"{r[n + '_err_pct']:+.3f} ± {r[n + '_std_pct']:.3f} %"
                            for n in ('R_s', 'L_sigma', 'L_M', 'R_R', 'J'))
         trk = ' | '.join(f"{1e3 * r[f'speed_{x}_true']:.3f} / {1e3 * r[f'speed_{x}_identified']:.3f}"
-                         for x in ('rms', 'max_after', 'max')) if 'speed_rms_true' in r else ''
+                         for x in ('rms', 'max_after', 'max')) if 'speed_rms_true' in r else '— | — | —'
         lines.append(f"| {r['motor']} | {r['sigma']:.3f} | {cells} | {trk} |")
     return head + '\n'.join(lines) + '\n'
 
