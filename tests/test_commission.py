@@ -61,6 +61,21 @@ def test_identifies_every_shipped_motor_within_its_limits(name):
     assert w.L_s == w.L_r and abs(w.L_M / m.L_M - 1) < 0.03 and abs(w.R_R / m.R_R - 1) < 0.03
 
 
+def test_a_locked_plant_holds_its_shaft_under_torque_and_keeps_its_energy_books():
+    m = _motor('thesis')
+    free = PlantSimulator(m, T_s=1e-4)
+    held = PlantSimulator(m, T_s=1e-4, locked_rotor=True)
+    for k in range(2000):               # a rotating voltage: torque on the shaft
+        v = (50 * math.cos(377 * k * 1e-4), 50 * math.sin(377 * k * 1e-4))
+        free.step(*v)
+        held.step(*v)
+    assert abs(free.x[5]) > 1.0 and held.x[5] == 0.0 and held.x[4] == 0.0
+    tr = held.truth()
+    assert abs(tr['tau_m']) > 0.1 and abs(tr['balance_residual']) < 1e-6 * tr['E_in']
+    with pytest.raises(ValueError, match='omega0'):
+        PlantSimulator(m, omega0=1.0, locked_rotor=True)
+
+
 def test_locked_rotor_measures_the_electrical_parameters():
     m = _motor('thesis')
     com = _commission(m, locked_plant=True, locked_test=True)
