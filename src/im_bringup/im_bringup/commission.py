@@ -11,7 +11,8 @@ sequence and the estimators are :mod:`im_adapt.commissioning`. With ``--plant-mo
 the simulated plant as a process of its own with that motor file as a ``--params-file`` (the tool
 never opens it: the plant node reads it), the drive's limits as the plant's protection (``current_trip``, ``v_limit``) and
 waits for the tool; without it, a plant (the real drive) must run with ``wait_for:
-commission`` and ``allowed_publishers: /im/command/voltage=commission``.
+commission``, ``allowed_publishers: /im/command/voltage=commission`` and an ``input_timeout``
+long enough for the fit between the tests (:data:`FIT_WAIT_S`).
 
 Exit codes: 0 written, 1 the tests could not determine the motor (one line why), 2 bad input.
 """
@@ -142,6 +143,11 @@ def make_node(com, T_s: float, **kwargs):
     return CommissionNode()
 
 
+#: How long the plant waits for the tool's command [wall s]: between the standstill and the speed
+#: test the tool fits the standstill record (seconds on a loaded machine) before it answers.
+FIT_WAIT_S = 300.0
+
+
 def plant_parameters(s: dict, args) -> dict:
     """The simulated plant's parameters besides its motor file (which the plant process reads
     itself): the drive's limits as its protection, waiting for the tool, no end of its own."""
@@ -149,7 +155,7 @@ def plant_parameters(s: dict, args) -> dict:
                 allowed_publishers='/im/command/voltage=commission',
                 current_trip=s['i_max'], v_limit=s['v_max'], locked_rotor=bool(args.locked_rotor),
                 current_noise_std=args.current_noise, speed_noise_std=args.speed_noise,
-                truth_decimation=0)
+                truth_decimation=0, input_timeout=FIT_WAIT_S)
 
 
 def start_plant(motor_file: str, s: dict, args, domain: int, key_file: str, workdir: str):
