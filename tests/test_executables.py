@@ -22,6 +22,7 @@ EXECUTABLES = [
     ('im_bringup', 'report'),
     ('im_bringup', 'recover'),
     ('im_bringup', 'campaign'),
+    ('im_bringup', 'commission'),
 ]
 
 

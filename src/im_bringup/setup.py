@@ -30,6 +30,7 @@ setup(
             'recover = im_bringup.recover:main',
             'robust_study = im_bringup.robust_study:main',
             'campaign = im_bringup.campaign:main',
+            'commission = im_bringup.commission:main',
         ],
     },
 )

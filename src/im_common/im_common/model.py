@@ -128,10 +128,13 @@ class MotorModel:
         Shaft load τ_L(t, θ, ω).
     core_loss_exponent : float
         Exponent of the air-gap flux in the core-loss model (2: the units of k_e, k_h).
+    locked : bool
+        The shaft is held (a locked-rotor test): dω_r/dt = 0 whatever the torque.
     """
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
-                 load: Load | None = None, core_loss_exponent: float = 2.0):
+                 load: Load | None = None, core_loss_exponent: float = 2.0,
+                 locked: bool = False):
         if isinstance(schedule, MotorParams):
             schedule = ParameterSchedule(schedule)
         self.schedule = schedule
@@ -140,6 +143,7 @@ class MotorModel:
         if core_loss_exponent not in (1.0, 2.0):
             raise ValueError("core_loss_exponent must be 1 or 2")
         self.core_loss_exponent = float(core_loss_exponent)
+        self.locked = bool(locked)
 
     def rhs(self, t: float, x: Sequence[float], v_a: float, v_b: float) -> Tuple[float, ...]:
         """Time derivative of the 13-element augmented state (6 states + 7 energy integrals)."""
@@ -157,7 +161,7 @@ class MotorModel:
         d_phi_rb = -R_r * i_rb + we * phi_ra
         tau_m = vp * L_sr / L_r * (i_sb * phi_ra - i_sa * phi_rb)
         tau_l = self.load.torque(t, theta, omega)
-        d_omega = (tau_m - p.b * omega - tau_l) / p.J
+        d_omega = 0.0 if self.locked else (tau_m - p.b * omega - tau_l) / p.J
         # Energy integrands.
         p_in = v_a * i_sa + v_b * i_sb
         p_cu_s = R_s * (i_sa * i_sa + i_sb * i_sb)

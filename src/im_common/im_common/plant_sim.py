@@ -64,6 +64,8 @@ class PlantSimulator:
     theta0, omega0 : float
         Initial shaft position [rad] and speed [rad/s]; fluxes and currents start at zero unless
         ``x0`` (the 6-element state ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r) is given.
+    locked_rotor : bool
+        The shaft is held where it starts (a locked-rotor test); the speed must start at 0.
     """
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
@@ -72,7 +74,8 @@ class PlantSimulator:
                  speed_noise_std: float = 0.0, noise_seed: int = 0, theta0: float = 0.0,
                  omega0: float = 0.0, x0: Optional[Sequence[float]] = None,
                  core_loss_exponent: float = 2.0, inverter_rating: float = DEFAULT_INVERTER_RATING,
-                 current_trip: Optional[float] = None, speed_trip: Optional[float] = None):
+                 current_trip: Optional[float] = None, speed_trip: Optional[float] = None,
+                 locked_rotor: bool = False):
         if not (math.isfinite(T_s) and T_s > 0):
             raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
         if not (math.isfinite(max_substep) and max_substep > 0):
@@ -88,7 +91,9 @@ class PlantSimulator:
                           ('speed_noise_std', speed_noise_std)):
             if not (math.isfinite(val) and val >= 0):
                 raise InvalidParameter(name, val, 'must be >= 0')
-        self.model = MotorModel(schedule, load, core_loss_exponent)
+        if locked_rotor and (omega0 != 0.0 or (x0 is not None and x0[5] != 0.0)):
+            raise InvalidParameter('omega0', omega0, 'must be 0 with a locked rotor')
+        self.model = MotorModel(schedule, load, core_loss_exponent, locked=locked_rotor)
         self.schedule = self.model.schedule
         self.params = self.model.params
         self.load = self.model.load

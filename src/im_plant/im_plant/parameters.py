@@ -43,6 +43,8 @@ def declare_plant(node) -> dict:
     v['load_tau'] = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
     v['theta0'] = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
     v['omega0'] = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
+    v['locked_rotor'] = p('locked_rotor', False,
+                          'the shaft is held where it starts (locked-rotor tests; omega0 must be 0)')
     v['initial_current'] = p('initial_current', [0.0, 0.0],
                              'initial stator current [i_alpha, i_beta] [A]')
     v['initial_flux'] = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
@@ -102,4 +104,5 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
                           theta0=v['theta0'], omega0=v['omega0'], x0=x0,
                           inverter_rating=v['inverter_rating'],
                           current_trip=v['current_trip'] or None,
-                          speed_trip=v['speed_trip'] or None)
+                          speed_trip=v['speed_trip'] or None,
+                          locked_rotor=v['locked_rotor'])

@@ -1,0 +1,587 @@
+"""Self-commissioning: the motor's parameters measured by the drive itself (docs/commissioning.md).
+
+ROS-free. :class:`Commissioning` is a test controller stepped once per period with what the drive
+measures (stator current, shaft speed) and returning the voltage to apply; when it is done,
+:meth:`Commissioning.result` identifies
+
+* the inverse-Γ set R_s, σL_s (``L_sigma``), L_M, R_R (params.MotorParams.identifiable) from a
+  standstill test: voltages along α only. At ω_r = 0 with everything on one axis the torque
+  τ_m = v(ψ_sα i_sβ − ψ_sβ i_sα) is exactly zero, so the test is the same with the rotor free or
+  locked. The machine is then the passive RL network v → i with admittance
+  Y(s) = (sL_M + R_R) / ((R_s + sL_σ)(sL_M + R_R) + sL_M R_R), fitted by output error on its
+  exact zero-order-hold discretization (least squares on the simulated current, parameters in
+  log scale; the standard deviations from the residuals and the Jacobian);
+* J and b (rotor free only) from a run-up, coast and braking under flux-oriented current control
+  built on the identified model: J Δω + b ∫ω dt = ∫τ̂ dt over windows, with the torque from the
+  voltage-model stator flux, τ̂ = v (ψ_sα i_β − ψ_sβ i_α), ψ_s = ∫(V − R̂_s i) dt;
+* the pole pairs from the same run (the flux's rotation against the measured shaft speed) when
+  no nameplate gives them.
+
+Limits: every current stays below ``i_max`` (the standstill voltages are bounded by
+R̂_s·I: the RL network's impulse response is positive, so |i| ≤ max|v| / R_s), every voltage
+below ``v_max``; a current above 0.9·i_max zeroes the voltage and ends the test
+(:class:`NotInformative`). A test whose data cannot determine a parameter (no current, a shaft
+that does not turn) raises :class:`NotInformative` with one line saying which and why.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from im_common.params import IDENTIFIABLE_NAMES, InvalidParameter, MotorParams, check_real
+
+#: the standstill excitation after the probe: (level as a fraction of the test voltage, seconds)
+EXCITATION = ((1.0, 0.5), (-1.0, 0.5), (0.5, 0.02), (-0.5, 0.01), (1.0, 0.005), (-1.0, 0.005),
+              (0.3, 0.05), (-0.7, 0.1), (1.0, 0.25), (0.0, 0.5))
+PROBE_CURRENT = 0.25     # probe current as a fraction of i_max
+TEST_CURRENT = 0.5       # standstill test current bound as a fraction of i_max
+SPEED_CURRENT = 0.8      # |i*| during the speed test as a fraction of i_max
+TRIP_FRACTION = 0.9      # a current above this fraction of i_max ends the test
+SPEED_FRACTION = 0.5     # the speed test runs up to this fraction of the rated (test) speed
+
+
+class NotInformative(ValueError):
+    """The test cannot determine a parameter; the message is one line saying which and why."""
+
+
+@dataclass(frozen=True)
+class Nameplate:
+    """A motor's nameplate: rated line-to-line voltage [V RMS], line current [A RMS], frequency
+    [Hz], speed [rpm] and shaft power [W]."""
+
+    voltage: float
+    current: float
+    frequency: float
+    speed: float
+    power: float
+
+    def __post_init__(self):
+        for name in ('voltage', 'current', 'frequency', 'speed', 'power'):
+            check_real(f'nameplate {name}', getattr(self, name), 0.0, lo_open=True)
+        if self.speed >= 60.0 * self.frequency:
+            raise InvalidParameter('nameplate speed', self.speed,
+                                   f'must be below 60·frequency = {60 * self.frequency:g} rpm '
+                                   f'(an induction motor runs below synchronous speed)')
+
+    @property
+    def pole_pairs(self) -> int:
+        """The whole number of pole pairs whose synchronous speed is just above the rated one."""
+        return max(1, int(math.floor(60.0 * self.frequency / self.speed)))
+
+    def ratings(self) -> Dict[str, float]:
+        """The motor file's rating fields in the model's power-invariant αβ frame
+        (docs/limits.md): voltage-vector magnitude = line-to-line RMS voltage, current-vector
+        magnitude = √3 × line current."""
+        w = 2.0 * math.pi * self.speed / 60.0
+        return {'rated_voltage': self.voltage, 'rated_current': math.sqrt(3.0) * self.current,
+                'rated_speed': w, 'rated_torque': self.power / w}
+
+
+def nameplate_from_dict(doc, source: str = 'nameplate') -> Nameplate:
+    """A :class:`Nameplate` from ``{voltage, current, frequency, speed, power}``; one-line errors
+    naming ``source`` and the field."""
+    keys = ('voltage', 'current', 'frequency', 'speed', 'power')
+    if not isinstance(doc, dict):
+        raise InvalidParameter(source, doc, f'must be a mapping with {", ".join(keys)}')
+    for k in doc:
+        if k not in keys:
+            raise InvalidParameter(f'{source}: {k}', doc[k], f'unknown (fields: {", ".join(keys)})')
+    for k in keys:
+        if k not in doc:
+            raise InvalidParameter(f'{source}: {k}', None, 'is missing')
+        if isinstance(doc[k], bool) or not isinstance(doc[k], (int, float)):
+            raise InvalidParameter(f'{source}: {k}', doc[k], 'must be a number')
+    try:
+        return Nameplate(**{k: float(doc[k]) for k in keys})
+    except InvalidParameter as exc:
+        raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
+
+
+def _zoh(A: np.ndarray, B: np.ndarray, T_s: float):
+    from scipy.linalg import expm
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n] = A, B
+    E = expm(M * T_s)
+    return E[:n, :n], E[:n, n]
+
+
+def standstill_response(ident: np.ndarray, v: np.ndarray, T_s: float, x0=(0.0, 0.0)):
+    """Stator current i_k and magnetizing flux ψ_R,k at t_k of the inverse-Γ model at standstill
+    (one axis) for the voltages v_k held over [t_k, t_k+1], from the state ``x0`` = (i, ψ_R).
+
+    ``ident`` = (R_s, L_σ, L_M, R_R); states i, ψ_R with L_σ di/dt = v − R_s i − dψ_R/dt,
+    dψ_R/dt = R_R i − (R_R/L_M) ψ_R (docs/commissioning.md §2)."""
+    from scipy.signal import lfilter
+    R_s, L_s, L_M, R_R = (float(x) for x in ident)
+    A = np.array([[-(R_s + R_R) / L_s, R_R / (L_s * L_M)], [R_R, -R_R / L_M]])
+    Ad, Bd = _zoh(A, np.array([1.0 / L_s, 0.0]), T_s)
+    # x_{k+1} = Ad x_k + Bd v_k: each state is a sum of two first-order filters of the input
+    w, V = np.linalg.eig(Ad)
+    n = len(v)
+    out = np.zeros((2, n))
+    if np.all(np.isreal(w)) and abs(w[0] - w[1]) > 1e-12:
+        w, V = w.real, V.real
+        Vi = np.linalg.inv(V)
+        zb = Vi @ Bd
+        z0 = Vi @ np.asarray(x0, dtype=float)
+        modes = np.zeros((2, n))
+        for j in range(2):
+            # z_{k+1} = w z_k + zb v_k, z_0 given: z_k for k = 0..n-1
+            y, _ = lfilter([0.0, zb[j]], [1.0, -w[j]], v, zi=[z0[j]])
+            modes[j] = y
+        out = V @ modes
+    else:                      # a repeated or complex pair (not a passive RL network): step it
+        x = np.asarray(x0, dtype=float)
+        for k in range(n):
+            out[:, k] = x
+            x = Ad @ x + Bd * v[k]
+    return out[0], out[1]
+
+
+@dataclass
+class Identified:
+    """What the tests measured: values and standard deviations (from the residuals)."""
+
+    values: Dict[str, float]
+    std: Dict[str, float]
+    notes: Dict[str, str] = field(default_factory=dict)
+    rms_residual: Dict[str, float] = field(default_factory=dict)
+
+    def motor(self, ratings: Optional[Dict[str, float]] = None) -> MotorParams:
+        """The identified motor in the equal-self-inductance gauge L_s = L_r (equal stator and
+        rotor leakage, the gauge of Krause's T-circuit): L_s = L_r = σL_s + L_M,
+        L_sr = √(L_M L_s), R_r = R_R L_s / L_M. Terminal-equivalent to every gauge
+        (MotorParams.with_identifiable); k_e = k_h = 0 (the core loss does not act on the
+        terminals: docs/commissioning.md §5)."""
+        v = self.values
+        L = v['L_sigma'] + v['L_M']
+        return MotorParams(R_s=v['R_s'], R_r=v['R_R'] * L / v['L_M'], L_s=L, L_r=L,
+                           L_sr=math.sqrt(v['L_M'] * L), J=v['J'], b=max(v['b'], 0.0),
+                           pole_pairs=int(v['pole_pairs']), k_e=0.0, k_h=0.0,
+                           **(ratings or {}))
+
+
+def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
+                   ) -> Tuple[Dict[str, float], Dict[str, float], float, np.ndarray]:
+    """Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
+
+    Returns (values, standard deviations, RMS residual [A], final state (i, ψ_R)). The start
+    comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2)."""
+    from scipy.optimize import least_squares
+    v = np.asarray(v, dtype=float)
+    i = np.asarray(i, dtype=float)
+    p0 = _arx_start(v, i, T_s, R_s0)
+
+    def resid(lp):
+        sim, _ = standstill_response(np.exp(lp), v, T_s)
+        return sim - i
+
+    best = None
+    for start in (p0, _physical_start(v, i, T_s, R_s0)):
+        sol = least_squares(resid, np.log(start), method='lm', x_scale=1.0, xtol=1e-12,
+                            ftol=1e-12, gtol=1e-12, max_nfev=400)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    n = len(i)
+    r = best.fun
+    s2 = float(r @ r) / max(n - 4, 1)
+    Jm = best.jac
+    try:
+        cov = s2 * np.linalg.inv(Jm.T @ Jm)
+        rel = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        rel = np.full(4, np.inf)
+    vals = np.exp(best.x)
+    values = dict(zip(IDENTIFIABLE_NAMES, (float(x) for x in vals)))
+    std = dict(zip(IDENTIFIABLE_NAMES, (float(x * s) for x, s in zip(vals, rel))))
+    sim, psi = standstill_response(vals, v, T_s)
+    return values, std, math.sqrt(s2), np.array([sim[-1], psi[-1]])
+
+
+def _physical_start(v, i, T_s, R_s0):
+    """A start from the probe alone: σL_s from the largest current slope after a voltage step,
+    L_M = 10 σL_s, R_R = R_s."""
+    di = np.abs(np.diff(i))
+    dv = np.abs(np.diff(v))
+    k = int(np.argmax(dv))
+    L_s = abs(v[k + 1] - v[k]) * T_s / max(abs(i[k + 2] - i[k + 1]) if k + 2 < len(i) else di.max(),
+                                           1e-12)
+    L_s = min(max(L_s, 1e-6), 10.0)
+    return np.array([R_s0, L_s, 10.0 * L_s, R_s0])
+
+
+def _arx_start(v, i, T_s, R_s0):
+    """(R_s, L_σ, L_M, R_R) from a second-order ARX fit, mapped through the continuous form
+    Y(s) = (1/L_σ)(s + z)/((s + p1)(s + p2)), z = R_R/L_M, p1 p2 = R_s z/L_σ,
+    p1 + p2 = (R_s + R_R)/L_σ + z. Falls back to the probe's start when the fit is not a
+    passive RL network."""
+    Phi = np.column_stack([i[1:-1], i[:-2], v[1:-1], v[:-2]])
+    y = i[2:]
+    try:
+        a1, a2, b1, b2 = np.linalg.lstsq(Phi, y, rcond=None)[0]
+        zs = np.roots([1.0, -a1, -a2])
+        if not (np.all(np.isreal(zs)) and np.all((zs.real > 0) & (zs.real < 1))):
+            raise ValueError
+        p = -np.log(zs.real) / T_s
+        L_s = T_s / b1 if b1 > 0 else None
+        R_s = (1.0 - a1 - a2) / (b1 + b2)
+        z = p[0] * p[1] * L_s / R_s
+        R_R = L_s * (p[0] + p[1] - z) - R_s
+        L_M = R_R / z
+        out = np.array([R_s, L_s, L_M, R_R])
+        if not np.all(np.isfinite(out)) or np.any(out <= 0):
+            raise ValueError
+        return out
+    except (ValueError, TypeError, np.linalg.LinAlgError, ZeroDivisionError):
+        return _physical_start(v, i, T_s, R_s0)
+
+
+def fit_mechanics(omega: np.ndarray, tau: np.ndarray, T_s: float, window: int
+                  ) -> Tuple[float, float, float, float, float]:
+    """J, b and their standard deviations (and the RMS residual [N·m·s]) from
+    J (ω_end − ω_start) + b ∫ω dt = ∫τ̂ dt over consecutive windows of ``window`` steps
+    (no load on the shaft). ``tau[k]`` acts over [t_k, t_k+1]."""
+    n = (len(omega) - 1) // window
+    rows, rhs = [], []
+    for w in range(n):
+        a, e = w * window, (w + 1) * window
+        rows.append((omega[e] - omega[a], T_s * (0.5 * omega[a] + omega[a + 1:e].sum()
+                                                 + 0.5 * omega[e])))
+        rhs.append(T_s * (0.5 * tau[a] + tau[a + 1:e].sum() + 0.5 * tau[e]))
+    Phi, y = np.array(rows), np.array(rhs)
+    theta, *_ = np.linalg.lstsq(Phi, y, rcond=None)
+    r = y - Phi @ theta
+    s2 = float(r @ r) / max(len(y) - 2, 1)
+    cov = s2 * np.linalg.pinv(Phi.T @ Phi)
+    return (float(theta[0]), float(theta[1]), math.sqrt(max(cov[0, 0], 0.0)),
+            math.sqrt(max(cov[1, 1], 0.0)), math.sqrt(s2))
+
+
+class Commissioning:
+    """The commissioning test sequence, one period at a time (module docstring).
+
+    ``step(i_a, i_b, omega)`` takes the measurement at t_k and returns the voltage (v_α, v_β)
+    to hold over [t_k, t_k+1], or None when the tests are over; then :meth:`result`.
+
+    Parameters
+    ----------
+    T_s : control period [s]
+    i_max, v_max : the drive's current- and voltage-vector limits [A], [V]
+    pole_pairs : from the nameplate (None: measured in the speed test)
+    test_speed : top speed of the speed test [rad/s] (the nameplate's: half the rated speed)
+    locked : the rotor is locked: the standstill tests only; J and b must come from elsewhere
+    flux : magnetizing flux of the speed test [Wb] (None: 0.4·i_max·L_M, capped)
+    """
+
+    def __init__(self, T_s: float, i_max: float, v_max: float, pole_pairs: Optional[int] = None,
+                 test_speed: Optional[float] = None, locked: bool = False,
+                 flux: Optional[float] = None):
+        self.T_s = check_real('T_s', T_s, 0.0, lo_open=True)
+        self.i_max = check_real('current limit', i_max, 0.0, lo_open=True)
+        self.v_max = check_real('voltage limit', v_max, 0.0, lo_open=True)
+        self.pole_pairs = pole_pairs
+        self.locked = bool(locked)
+        if not self.locked and test_speed is None:
+            raise InvalidParameter('test speed', None,
+                                   'the speed test needs a top speed (a nameplate, or a test '
+                                   'speed) unless the rotor is locked')
+        self.test_speed = None if test_speed is None else check_real('test speed', test_speed,
+                                                                       0.0, lo_open=True)
+        self.flux = flux
+        self.k = 0
+        self.phase = 'probe'
+        self.phase_k = 0
+        self.log_v: List[Tuple[float, float]] = []
+        self.log_i: List[Tuple[float, float]] = []
+        self.log_w: List[float] = []
+        self.marks: Dict[str, int] = {'probe': 0}
+        self.peak_i = 0.0
+        self.peak_v = 0.0
+        self._hold = 0.0
+        self._win: List[float] = []
+        self._prev_mean = None
+        self.R_s0 = None
+        self.electrical = None
+        self.mechanical = None
+        self._exc = None
+        self.failure: Optional[str] = None
+        self.done = False
+        self.progress = ''
+
+    # ---------------------------------------------------------------------------- stepping
+    def _goto(self, phase: str) -> None:
+        self.phase = phase
+        self.phase_k = 0
+        self.marks[phase] = self.k
+
+    def _fail(self, text: str):
+        self.failure = text
+        self.done = True
+        return None
+
+    def step(self, i_a: float, i_b: float, omega: float = 0.0):
+        """The measurement at t_k → the voltage over [t_k, t_k+1] (None: the tests are over)."""
+        if self.done:
+            return None
+        self.log_i.append((i_a, i_b))
+        self.log_w.append(omega)
+        mag = math.hypot(i_a, i_b)
+        self.peak_i = max(self.peak_i, mag)
+        if mag > TRIP_FRACTION * self.i_max:
+            self.log_v.append((0.0, 0.0))
+            return self._fail(f'|i_s| = {mag:.4g} A above {TRIP_FRACTION:g} x the current limit '
+                              f'{self.i_max:g} A in the {self.phase} test at '
+                              f't = {self.k * self.T_s:.4f} s: stopped')
+        cmd = getattr(self, '_' + self.phase)(i_a, i_b, omega)
+        if cmd is None:
+            self.done = True
+            self.log_v.append((0.0, 0.0))
+            return None
+        va, vb = cmd
+        m = math.hypot(va, vb)
+        if m > self.v_max:
+            va, vb = va * self.v_max / m, vb * self.v_max / m
+        self.peak_v = max(self.peak_v, math.hypot(va, vb))
+        self.log_v.append((va, vb))
+        self.k += 1
+        self.phase_k += 1
+        return va, vb
+
+    def _probe(self, i_a, i_b, w):
+        """Ramp the α voltage until the current reaches PROBE_CURRENT·i_max."""
+        if abs(i_a) >= PROBE_CURRENT * self.i_max:
+            self._goto('settle')
+            return self._settle(i_a, i_b, w)
+        self._hold = min(self._hold + 0.25 * self.v_max * self.T_s, 0.5 * self.v_max)
+        if self._hold >= 0.5 * self.v_max and self.phase_k * self.T_s > 5.0:
+            return self._fail(f'no current: |i_s| = {abs(i_a):.3g} A at {self._hold:.4g} V '
+                              f'(half the voltage limit) after {self.phase_k * self.T_s:.1f} s; '
+                              f'is the motor connected?')
+        self.progress = f'probe: {self._hold:.3g} V, {i_a:.3g} A'
+        return self._hold, 0.0
+
+    def _settle(self, i_a, i_b, w):
+        """Hold the probe voltage until the current is steady: R_s ≈ V/I."""
+        if abs(i_a) > 0.8 * TEST_CURRENT * self.i_max:
+            self._hold *= 0.5
+            self._win, self._prev_mean = [], None
+        n = max(int(round(0.02 / self.T_s)), 10)
+        self._win.append(i_a)
+        if len(self._win) == n:
+            mean = sum(self._win) / n
+            self._win = []
+            if self._prev_mean is not None and abs(mean - self._prev_mean) < 1e-3 * abs(mean):
+                self.R_s0 = self._hold / mean
+                self._goto('excite')
+                self._exc = self._excitation()
+                return self._excite(i_a, i_b, w)
+            self._prev_mean = mean
+        if self.phase_k * self.T_s > 10.0:
+            return self._fail(f'the probe current did not settle within 10 s '
+                              f'({i_a:.4g} A at {self._hold:.4g} V)')
+        self.progress = f'settle: {self._hold:.3g} V, {i_a:.4g} A'
+        return self._hold, 0.0
+
+    def _excitation(self) -> List[float]:
+        V = self.R_s0 * TEST_CURRENT * self.i_max
+        out = []
+        for level, seconds in EXCITATION:
+            out += [level * V] * max(1, int(round(seconds / self.T_s)))
+        return out
+
+    def _excite(self, i_a, i_b, w):
+        if self.phase_k >= len(self._exc):
+            self._identify_electrical()
+            if self.locked:
+                return None
+            self._start_speed_test()
+            return self._speed(i_a, i_b, w)
+        self.progress = f'standstill test {100.0 * self.phase_k / len(self._exc):.0f} %'
+        return self._exc[self.phase_k], 0.0
+
+    def _identify_electrical(self) -> None:
+        v = np.array(self.log_v)[:, 0]
+        i = np.array(self.log_i)[: len(v), 0]
+        values, std, rms, _ = fit_standstill(v, i, self.T_s, self.R_s0)
+        self.electrical = (values, std, rms)
+        # the state at t_k of the current step: one more model step from the last logged one
+        R_s, L_s, L_M, R_R = (values[n] for n in IDENTIFIABLE_NAMES)
+        _, psi = standstill_response(np.array([R_s, L_s, L_M, R_R]),
+                                     np.append(v, 0.0), self.T_s)
+        self._psi_R0 = float(psi[-1])
+        self._excitation_peak = float(np.max(np.abs(i)))
+
+    # ----------------------------------------------------------------------- speed test
+    def _start_speed_test(self) -> None:
+        e = self.electrical[0]
+        self.R_s, self.L_sigma, self.L_M, self.R_R = (e[n] for n in IDENTIFIABLE_NAMES)
+        i_a = self.log_i[-1][0]
+        # voltage-model stator flux: ψ_s = σL_s i + ψ_R at the start (from the fitted model)
+        self.psi = [self.L_sigma * i_a + self._psi_R0, 0.0]
+        self._psi_R_prev = (self._psi_R0, 0.0)
+        i_d = (self.flux / self.L_M) if self.flux else 0.4 * self.i_max
+        self.i_d = min(i_d, 0.5 * self.i_max)
+        self.i_q = math.sqrt(max((SPEED_CURRENT * self.i_max) ** 2 - self.i_d ** 2, 0.0))
+        self.t_mag = min(max(4.0 * self.L_M / self.R_R, 0.05), 3.0)
+        self.w_peak = 0.0
+        self.t_accel = 0.0
+        self.log_psi: List[Tuple[float, float]] = []
+        self._goto('magnetize')
+
+    def _speed(self, i_a, i_b, w):
+        T_s = self.T_s
+        # the flux after the previous period: ψ_s += T_s (V_{k-1} − R_s ī)
+        if self.phase != 'magnetize' or self.phase_k > 0:
+            va, vb = self.log_v[-1]
+            ia0, ib0 = self.log_i[-2]
+            self.psi[0] += T_s * (va - self.R_s * 0.5 * (ia0 + i_a))
+            self.psi[1] += T_s * (vb - self.R_s * 0.5 * (ib0 + i_b))
+        self.log_psi.append((self.psi[0], self.psi[1]))
+        pr_a = self.psi[0] - self.L_sigma * i_a
+        pr_b = self.psi[1] - self.L_sigma * i_b
+        mag = math.hypot(pr_a, pr_b)
+        c, s = (pr_a / mag, pr_b / mag) if mag > 1e-3 * self.L_M * self.i_max else (1.0, 0.0)
+        e_a = (pr_a - self._psi_R_prev[0]) / T_s
+        e_b = (pr_b - self._psi_R_prev[1]) / T_s
+        self._psi_R_prev = (pr_a, pr_b)
+        t = self.phase_k * T_s
+        aw = abs(w)
+        self.w_peak = max(self.w_peak, aw)
+        iq = 0.0
+        if self.phase == 'magnetize':
+            if t >= self.t_mag:
+                self._goto('accelerate')
+                return self._speed_cmd(i_a, i_b, c, s, e_a, e_b, self.i_q)
+        elif self.phase == 'accelerate':
+            iq = self.i_q
+            stuck = t > 1.0 and aw < 0.01 * SPEED_FRACTION * self.test_speed   # cannot turn
+            if aw >= SPEED_FRACTION * self.test_speed or math.hypot(e_a, e_b) > 0.5 * self.v_max \
+                    or t > 10.0 or stuck:
+                self.t_accel = t
+                self._goto('coast')
+                iq = 0.0
+        elif self.phase == 'coast':
+            if t >= max(0.2, 0.3 * self.t_accel):
+                self._goto('brake')
+                iq = -self.i_q * math.copysign(1.0, w if w else 1.0)
+        elif self.phase == 'brake':
+            iq = -self.i_q * math.copysign(1.0, w if w else 1.0)
+            if aw <= 0.05 * max(self.w_peak, 1e-9) or t > 2.0 * max(self.t_accel, 0.5):
+                self._goto('rest')
+                iq = 0.0
+        elif self.phase == 'rest':
+            if t >= 0.05:
+                return None
+            return 0.0, 0.0
+        self.progress = f'{self.phase}: omega_r = {w:.4g} rad/s'
+        return self._speed_cmd(i_a, i_b, c, s, e_a, e_b, iq)
+
+    _magnetize = _accelerate = _coast = _brake = _rest = _speed
+
+    def _speed_cmd(self, i_a, i_b, c, s, e_a, e_b, iq):
+        ra = self.i_d * c - iq * s
+        rb = self.i_d * s + iq * c
+        g = 0.5 * self.L_sigma / self.T_s
+        return (self.R_s * i_a + e_a + g * (ra - i_a), self.R_s * i_b + e_b + g * (rb - i_b))
+
+    # ---------------------------------------------------------------------------- results
+    def result(self) -> Identified:
+        """The identified parameters; :class:`NotInformative` when the tests ended early or
+        the data cannot determine a parameter."""
+        if self.failure:
+            raise NotInformative(self.failure)
+        if not self.done or self.electrical is None:
+            raise NotInformative(f'the tests did not finish (stopped in the {self.phase} test)')
+        values, std, rms = self.electrical
+        values, std = dict(values), dict(std)
+        notes = {}
+        for n in IDENTIFIABLE_NAMES:
+            if not std[n] < 0.05 * values[n]:
+                raise NotInformative(
+                    f'{n} = {values[n]:.4g} is not determined by the standstill test '
+                    f'(standard deviation {std[n]:.3g}, residual {rms:.3g} A RMS at '
+                    f'{self._excitation_peak:.3g} A peak): too little current against the noise')
+        out = Identified(values, std, notes, {'standstill_A': rms})
+        if self.locked:
+            return out
+        self._identify_mechanics(out)
+        return out
+
+    def _identify_mechanics(self, out: Identified) -> None:
+        T_s = self.T_s
+        k0 = self.marks['magnetize']
+        w = np.array(self.log_w[k0:])
+        i = np.array(self.log_i[k0:])
+        psi = np.array(self.log_psi)
+        n = min(len(psi), len(i), len(w))
+        w, i, psi = w[:n], i[:n], psi[:n]
+        cross = psi[:, 0] * i[:, 1] - psi[:, 1] * i[:, 0]
+        ka = self.marks['accelerate'] - k0
+        applied = float(np.mean(np.abs(cross[ka:self.marks['coast'] - k0])))
+        turned = float(np.max(np.abs(w)))
+        if turned < 0.05 * SPEED_FRACTION * self.test_speed:
+            t_acc = (self.marks['coast'] - self.marks['accelerate']) * T_s
+            raise NotInformative(
+                f'J test: the rotor did not turn (|omega_r| <= {turned:.3g} rad/s with '
+                f'{applied:.3g} Wb·A of torque per pole pair applied for {t_acc:.2f} s); free '
+                f'the rotor, or commission it locked (--locked-rotor) with J and b given')
+        # pole pairs: the flux's rotation against the shaft, slip removed
+        pr = psi - self.L_sigma * i
+        ang = np.unwrap(np.arctan2(pr[:, 1], pr[:, 0]))
+        w_psi = np.diff(ang) / T_s
+        m2 = np.maximum(np.sum(pr * pr, axis=1), 1e-30)
+        slip = self.R_R * (pr[:, 0] * i[:, 1] - pr[:, 1] * i[:, 0]) / m2
+        sel = np.abs(w[:-1]) > 0.3 * turned
+        ratio = float(np.median((w_psi[sel] - slip[:-1][sel]) / w[:-1][sel]))
+        vp = self.pole_pairs
+        if vp is None:
+            vp = int(round(ratio))
+            if vp < 1 or abs(ratio - vp) > 0.2:
+                raise NotInformative(f'pole pairs: the flux turns {ratio:.3f} times as fast as '
+                                     f'the shaft, not a whole number; give a nameplate')
+            out.notes['pole_pairs'] = f'measured (flux/shaft speed ratio {ratio:.4f})'
+        else:
+            out.notes['pole_pairs'] = f'nameplate (measured ratio {ratio:.4f})'
+        tau = vp * cross
+        window = max(int(round(0.02 / T_s)), 5)
+        J, b, sJ, sb, rms = fit_mechanics(w, tau, T_s, window)
+        if not (J > 0 and sJ < 0.05 * J):
+            raise NotInformative(f'J = {J:.4g} kg·m² is not determined by the speed test '
+                                 f'(standard deviation {sJ:.3g})')
+        out.values.update(J=J, b=b, pole_pairs=vp)
+        out.std.update(J=sJ, b=sb)
+        out.rms_residual['mechanics_Nms'] = rms
+
+
+def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float:
+    """The rotor flux |φ_r| at the nameplate's rated voltage, frequency and speed, in the gauge
+    θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e
+    at the rated slip (docs/commissioning.md §4)."""
+    we = 2.0 * math.pi * plate.frequency
+    vp = plate.pole_pairs
+    slip = 1.0 - plate.speed / (60.0 * plate.frequency / vp)
+    R_s, L_s, L_M, R_R = (ident[n] for n in IDENTIFIABLE_NAMES)
+    z_m = 1.0 / (1.0 / (1j * we * L_M) + slip / R_R)
+    z = R_s + 1j * we * L_s + z_m
+    V = plate.voltage                  # the voltage-vector magnitude (power-invariant frame)
+    psi_R = abs(V / z * z_m) / we
+    return psi_R / theta
+
+
+def simulate_commissioning(plant, com: Commissioning, max_steps: int = 10 ** 7) -> Commissioning:
+    """Run ``com`` on a ROS-free :class:`~im_common.plant_sim.PlantSimulator` (the same order
+    as the lock-step graph: measure t_k, command, integrate)."""
+    for _ in range(max_steps):
+        m = plant.measure()
+        cmd = com.step(m.i_alpha, m.i_beta, m.omega_r)
+        if cmd is None:
+            break
+        plant.step(*cmd)
+        if plant.trip is not None:
+            com._fail(f'the plant tripped at t = {plant.trip[0]:.4f} s: {plant.trip[1]}')
+            break
+    return com

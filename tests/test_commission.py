@@ -1,0 +1,187 @@
+"""Self-commissioning (docs/commissioning.md): the drive measures its motor through its own
+signals. The identification runs on the ROS-free plant with a motor it is never shown; the
+tool runs end to end through the lock-step graph (the plant in its own process's executor, the
+tool as the node ``commission``)."""
+import math
+import os
+import subprocess
+
+import pytest
+
+from im_adapt.commissioning import (Commissioning, NotInformative, nameplate_from_dict,
+                                    rated_flux, simulate_commissioning)
+from im_common.params import load_motor_file, shipped_motors_dir
+from im_common.plant_sim import PlantSimulator
+
+MOTORS = sorted(f[:-5] for f in os.listdir(shipped_motors_dir()) if f.endswith('.yaml'))
+THESIS_PLATE = {'voltage': 220.0, 'current': 4.9, 'frequency': 60.0, 'speed': 1750.0,
+                'power': 2200.0}
+
+
+def _motor(name):
+    return load_motor_file(os.path.join(shipped_motors_dir(), name + '.yaml'))
+
+
+def _commission(m, locked_plant=False, locked_test=False, noise=0.05):
+    """Commission ``m`` on the ROS-free plant; the drive's limits (its ratings) are the plant's
+    protection, so a test exceeding them trips the plant and fails."""
+    plant = PlantSimulator(m, T_s=1e-4, current_trip=m.rated_current, v_limit=m.rated_voltage,
+                           current_noise_std=noise * m.rated_current / 8.487,
+                           locked_rotor=locked_plant)
+    com = Commissioning(1e-4, m.rated_current, m.rated_voltage, pole_pairs=None,
+                        test_speed=m.rated_speed, locked=locked_test)
+    return simulate_commissioning(plant, com)
+
+
+_CACHE = {}
+
+
+def _identified(name):
+    if name not in _CACHE:
+        com = _commission(_motor(name))
+        _CACHE[name] = (com, com.result())
+    return _CACHE[name]
+
+
+@pytest.mark.parametrize('name', MOTORS)
+def test_identifies_every_shipped_motor_within_its_limits(name):
+    m = _motor(name)
+    com, ident = _identified(name)
+    truth = dict(m.identifiable(), J=m.J)
+    for n, tol in (('R_s', 0.03), ('L_sigma', 0.03), ('L_M', 0.03), ('R_R', 0.03), ('J', 0.05)):
+        err = ident.values[n] / truth[n] - 1.0
+        assert abs(err) < tol, (n, ident.values[n], truth[n])
+        # the reported uncertainty is the measurement's: the error is within a few of them
+        assert 0 < ident.std[n] and abs(err) * truth[n] < 5 * ident.std[n] + 1e-9 * truth[n], \
+            (n, err, ident.std[n])
+    assert ident.values['pole_pairs'] == m.pole_pairs            # measured, no nameplate given
+    assert com.peak_i <= 0.9 * m.rated_current and com.peak_v <= m.rated_voltage + 1e-9
+    # the written file is terminal-equivalent to the truth (same inverse-Γ set) in its gauge
+    w = ident.motor()
+    assert w.L_s == w.L_r and abs(w.L_M / m.L_M - 1) < 0.03 and abs(w.R_R / m.R_R - 1) < 0.03
+
+
+def test_a_locked_plant_holds_its_shaft_under_torque_and_keeps_its_energy_books():
+    m = _motor('thesis')
+    free = PlantSimulator(m, T_s=1e-4)
+    held = PlantSimulator(m, T_s=1e-4, locked_rotor=True)
+    for k in range(2000):               # a rotating voltage: torque on the shaft
+        v = (50 * math.cos(377 * k * 1e-4), 50 * math.sin(377 * k * 1e-4))
+        free.step(*v)
+        held.step(*v)
+    assert abs(free.x[5]) > 1.0 and held.x[5] == 0.0 and held.x[4] == 0.0
+    tr = held.truth()
+    assert abs(tr['tau_m']) > 0.1 and abs(tr['balance_residual']) < 1e-6 * tr['E_in']
+    with pytest.raises(ValueError, match='omega0'):
+        PlantSimulator(m, omega0=1.0, locked_rotor=True)
+
+
+def test_locked_rotor_measures_the_electrical_parameters():
+    m = _motor('thesis')
+    com = _commission(m, locked_plant=True, locked_test=True)
+    ident = com.result()
+    for n, v in m.identifiable().items():
+        assert abs(ident.values[n] / v - 1.0) < 0.03, n
+    assert 'J' not in ident.values
+
+
+def test_a_rotor_that_cannot_turn_is_refused_in_one_line():
+    com = _commission(_motor('thesis'), locked_plant=True, locked_test=False)
+    with pytest.raises(NotInformative) as exc:
+        com.result()
+    text = str(exc.value)
+    assert 'did not turn' in text and '\n' not in text
+
+
+def test_nameplate_gives_ratings_pole_pairs_and_the_rated_flux():
+    m = _motor('thesis')
+    plate = nameplate_from_dict(dict(THESIS_PLATE))
+    assert plate.pole_pairs == 2
+    r = plate.ratings()
+    assert r['rated_current'] == pytest.approx(m.rated_current, rel=1e-3)
+    assert r['rated_speed'] == pytest.approx(m.rated_speed, rel=1e-4)
+    assert r['rated_torque'] == pytest.approx(m.rated_torque, rel=1e-3)
+    # the rated rotor flux: the flux of the motor's own steady state at rated V, f and slip
+    phi = rated_flux(m.identifiable(), plate, m.theta)
+    from im_common.model import eq112_matrices
+    import numpy as np
+    we = 2 * math.pi * 60.0
+    w_r = plate.speed * 2 * math.pi / 60.0
+    A, B = eq112_matrices(m.R_s, m.R_r, m.L_s, m.L_r, m.L_sr, m.pole_pairs, w_r)
+    # phasor steady state x = (jω_e I − A)⁻¹ B V with V = 220 e^{jω_e t} (complex αβ: α + jβ)
+    M = np.zeros((4, 4), complex)
+    M[:] = 1j * we * np.eye(4) - A
+    x = np.linalg.solve(M, B @ np.array([220.0, -220.0j]))
+    assert phi == pytest.approx(abs(x[2]), rel=1e-6)
+    with pytest.raises(ValueError, match='nameplate speed'):
+        nameplate_from_dict(dict(THESIS_PLATE, speed=3700.0))
+    with pytest.raises(ValueError, match='power.*missing'):
+        nameplate_from_dict({k: v for k, v in THESIS_PLATE.items() if k != 'power'})
+
+
+def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one():
+    from im_bringup.commission_study import plate_of, speed_error
+    m = _motor('thesis')
+    _, ident = _identified('thesis')
+    true = speed_error(m, m)
+    mine = speed_error(m, ident.motor(plate_of(m).ratings()))
+    assert mine['rms'] <= 2.0 * true['rms'], (mine, true)
+    assert mine['max_after'] <= 2.0 * true['max_after'], (mine, true)
+
+
+# ------------------------------------------------------------------------------ the tool
+def _tool():
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix('im_bringup'), 'lib', 'im_bringup', 'commission')
+
+
+def test_tool_commissions_a_plant_it_only_sees_through_topics(tmp_path):
+    plate = tmp_path / 'plate.yaml'
+    plate.write_text(''.join(f'{k}: {v}\n' for k, v in THESIS_PLATE.items()))
+    out = tmp_path / 'motor.yaml'
+    true = os.path.join(shipped_motors_dir(), 'thesis.yaml')
+    proc = subprocess.run([_tool(), '--out', str(out), '--plant-motor', true, '--nameplate',
+                           str(plate), '--current-noise', '0.05'],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    m, w = _motor('thesis'), load_motor_file(str(out))
+    for n, v in m.identifiable().items():
+        assert abs(w.identifiable()[n] / v - 1.0) < 0.03, n
+    assert abs(w.J / m.J - 1.0) < 0.05 and w.pole_pairs == 2
+    assert w.rated_current == pytest.approx(m.rated_current, rel=1e-3)
+    text = out.read_text()
+    assert '+-' in text and 'Gauge: L_s = L_r' in text and 'Rated rotor flux' in text
+    # an existing file is not overwritten without --force: one line, exit 2
+    before = out.read_text()
+    proc = subprocess.run([_tool(), '--out', str(out), '--plant-motor', true, '--nameplate',
+                           str(plate)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and 'exists' in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and out.read_text() == before
+
+
+def test_tool_locked_rotor_variant_writes_the_given_mechanics(tmp_path):
+    plate = tmp_path / 'plate.yaml'
+    plate.write_text(''.join(f'{k}: {v}\n' for k, v in THESIS_PLATE.items()))
+    out = tmp_path / 'motor.yaml'
+    proc = subprocess.run([_tool(), '--out', str(out), '--plant-motor',
+                           os.path.join(shipped_motors_dir(), 'thesis.yaml'), '--nameplate',
+                           str(plate), '--locked-rotor', '--J', '0.5', '--b', '0.25'],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    m, w = _motor('thesis'), load_motor_file(str(out))
+    for n, v in m.identifiable().items():
+        assert abs(w.identifiable()[n] / v - 1.0) < 0.03, n
+    assert (w.J, w.b) == (0.5, 0.25) and 'not measured: locked rotor' in out.read_text()
+
+
+@pytest.mark.parametrize('args,needle', [
+    ([], 'no current limit'),
+    (['--current-limit', '8', '--voltage-limit', '220'], 'no speed for the speed test'),
+    (['--current-limit', '8', '--voltage-limit', '220', '--locked-rotor'], 'give --J and --b'),
+])
+def test_tool_refuses_missing_settings_in_one_line(tmp_path, args, needle):
+    proc = subprocess.run([_tool(), '--out', str(tmp_path / 'm.yaml')] + args,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and needle in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / 'm.yaml').exists()
