@@ -181,7 +181,8 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
     assert 'joined at step' in g.log('plant')
     c = counts(bag)
     meta = info(bag).metadata['recording']
-    assert meta['missing_steps'] == '0', meta
+    assert meta['missing_steps'] == '0', {k: v for k, v in meta.items()
+                                          if k.startswith(('missing', 'first', 'last'))}
     stamps = sorted(t for _, _, t, _ in iter_raw(bag, [T.MEAS_CURRENT]))
     assert stamps[-1] == 15000 * 100_000 and 0 < c[T.MEAS_CURRENT] <= 15001
     assert all(b - a == 100_000 for a, b in zip(stamps, stamps[1:]))
