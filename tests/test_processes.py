@@ -368,9 +368,12 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
     gb = GraphProcesses(b, str(tmp_path / 'b'), domain)     # the same names: two launches
     with ga, gb:
         ga.start()
-        if mode == 'lockstep':      # b starts while a runs (a free_run lasts only 2 s of wall time)
+        if mode == 'lockstep':      # b starts while a runs
             assert wait_for_log(ga, 'plant', 'starting:'), ga.log('plant')
-        time.sleep(0.5)
+            time.sleep(0.5)
+        # a free_run lasts only 2 s of wall time: started 0.5 s apart, a slow start-up of b (CI
+        # saw it) let a finish before b's nodes spoke, so nothing foreign ever reached either
+        # graph; started together, their start-ups and 2 s runs overlap
         gb.start()
         codes = [ga.wait(300), gb.wait(300)]
         for g, c in zip((ga, gb), codes):
