@@ -46,41 +46,41 @@ bench: build
 
 # Also refreshes the committed summary the README's results block is generated from (make readme).
 reproduce: build
-	$(RUN) python -m im_bringup.reproduce --out bags/reproduce
+	$(RUN) python -m im_studies.reproduce --out bags/reproduce
 	mkdir -p docs/data && cp bags/reproduce/summary.json docs/data/reproduce_summary.json
 
 # README results block (between the status markers) generated from docs/data/reproduce_summary.json.
 readme: build
-	$(RUN) python -m im_bringup.readme_status --summary docs/data/reproduce_summary.json --write
+	$(RUN) python -m im_studies.readme_status --summary docs/data/reproduce_summary.json --write
 
 # Chapter-3 study on the ROS-free loop (energy table, sampled-data limit, core-loss exponent).
 study: build
-	$(RUN) python -m im_bringup.study --out bags/study
+	$(RUN) python -m im_studies.study --out bags/study
 
 # Seed 000 §4.2.1 sensitivity of the nominal controller, and §4.3 nominal vs adaptive (offline).
 sensitivity: build
-	$(RUN) python -m im_bringup.study_ch4 --part sensitivity --out bags/sensitivity
+	$(RUN) python -m im_studies.study_ch4 --part sensitivity --out bags/sensitivity
 
 robust-examples: build
 	$(RUN) python -m im_robust.cli examples --out bags/robust
 
 # Seed 001 applied to the drive: certified gains vs the thesis's at 1 ms and 100 µs (offline loop).
 robust-study: build
-	$(RUN) python -m im_bringup.robust_study --out bags/robust_study
+	$(RUN) python -m im_studies.robust_study --out bags/robust_study
 
 # Every shipped motor (share/im_common/config/motors) through rating-scaled tasks (offline loop).
 motors: build
-	$(RUN) python -m im_bringup.study_motors --out bags/motors
+	$(RUN) python -m im_studies.study_motors --out bags/motors
 
 # The same motors under the chapter-4 drift scaled to each (nominal, adaptive feeds, truth-fed).
 motors-drift: build
-	$(RUN) python -m im_bringup.study_motors --drift --out bags/motors
+	$(RUN) python -m im_studies.study_motors --drift --out bags/motors
 
 # Monte Carlo campaign over the parameter box (docs/campaign.md): 200 motors, certified 1 ms gains
 # at 1 kHz and the thesis's gains at 4 kHz, on a local Dask cluster of every core. Resumes when
 # interrupted; CAMPAIGN_ARGS passes more options (e.g. --address tcp://HOST:8786, --force).
 campaign: build
-	$(RUN) python -m im_bringup.campaign src/im_bringup/config/campaign.yaml --out bags/campaign $(CAMPAIGN_ARGS)
+	$(RUN) python -m im_studies.campaign src/im_bringup/config/campaign.yaml --out bags/campaign $(CAMPAIGN_ARGS)
 
 # The certified 1 ms gains shipped for free_run (src/im_bringup/config/gains_1ms.yaml).
 gains: build

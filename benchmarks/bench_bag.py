@@ -1,13 +1,13 @@
 """Micro-benchmark of the recorder's per-message cost: ``python benchmarks/bench_bag.py``.
 
 Writes N steps of the lock-step loop's messages (Vector3Stamped and JointState) through each
-write path of :class:`~im_bringup.bag.BagWriter` into a temporary file and prints µs per message
+write path of :class:`~im_recording.bag.BagWriter` into a temporary file and prints µs per message
 (including chunk compression and the final close), plus the reference cost of
 ``rclpy.serialization.serialize_message``. ``--json FILE`` also writes the table as JSON.
 
 Recover rows (``--recover-steps 100000,400000``; ``--only-recover`` skips the rest): a synthetic
 recording of that many lock-step steps (6 messages each, zstd, 1 MiB chunks) with 4 KiB zeroed in
-its middle chunk, salvaged by ``im_bringup.recover.recover`` in a fresh subprocess: wall time,
+its middle chunk, salvaged by ``im_recording.recover.recover`` in a fresh subprocess: wall time,
 the subprocess's CPU time in ``recover`` (less sensitive to other load), µs per message and
 its peak RSS (``ru_maxrss``), next to the same for an intact 1000-step file (the interpreter and
 its imports). Linear time is a flat µs/message, bounded memory a flat peak RSS across sizes.
@@ -25,7 +25,7 @@ import time
 def _bench(n_steps: int, mode: str, compression: str, tmp: str) -> float:
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import JointState
-    from im_bringup.bag import BagWriter
+    from im_recording.bag import BagWriter
     path = os.path.join(tmp, f'{mode}_{compression}.mcap')
     v3 = Vector3Stamped()
     v3.header.frame_id = 'alphabeta'       # as im_common.conversions.Vector3Out
@@ -117,8 +117,8 @@ def _bench_own_vs_library(n_steps: int, tmp: str) -> dict:
     message back with its payload."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
-    from im_bringup.bag import BagWriter, iter_raw
-    from im_bringup.msgdefs import full_definition
+    from im_recording.bag import BagWriter, iter_raw
+    from im_recording.msgdefs import full_definition
     msgs = _messages(n_steps)
     own, lib = os.path.join(tmp, 'own.mcap'), os.path.join(tmp, 'lib.mcap')
     t0 = time.perf_counter()
@@ -164,7 +164,7 @@ def _synthetic(path: str, n_steps: int, damage: bool = True) -> int:
     """A recording of ``n_steps`` lock-step steps (written as it goes: no list in memory), with
     4 KiB zeroed in the middle of its middle chunk if ``damage``; returns its message count."""
     from im_common import cdr
-    from im_bringup.bag import BagWriter
+    from im_recording.bag import BagWriter
     v3 = ('/im/measured/current', '/im/command/voltage', '/im/observer/flux', '/im/truth/flux',
           '/im/truth/torque')
     w = BagWriter(path, force=True)
@@ -192,7 +192,7 @@ def _synthetic(path: str, n_steps: int, damage: bool = True) -> int:
 
 _RECOVER_CHILD = """
 import json, resource, sys, time
-from im_bringup.recover import recover
+from im_recording.recover import recover
 def cpu():
     ru = resource.getrusage(resource.RUSAGE_SELF)
     return ru.ru_utime + ru.ru_stime

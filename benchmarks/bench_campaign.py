@@ -63,7 +63,7 @@ def _rss_mb(pid: int) -> float:
 
 def _engine(name: str, n_noop: int, spec_path: str) -> dict:
     """Runs in a child interpreter: one engine's figures."""
-    from im_bringup import campaign as cp
+    from im_studies import campaign as cp
     spec = cp.read_spec(spec_path)
     jobs = cp.jobs(spec)
     gains = cp.gain_arguments(spec)
@@ -133,7 +133,7 @@ def _child(name: str, n_noop: int, spec_path: str) -> dict:
 
 
 def _campaign_wall(spec_path: str, workers: int, out: str) -> float:
-    from im_bringup import campaign as cp
+    from im_studies import campaign as cp
     s = cp.run_campaign(cp.read_spec(spec_path), out, spec_path, workers=workers,
                         progress=False)
     return s['wall_s']

@@ -153,10 +153,10 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
-    from im_bringup.bag import iter_raw
-    from im_bringup.run import load_run
+    from im_recording.bag import iter_raw
+    from im_recording.run import load_run
     from im_bringup.processes import graph_processes
-    from im_bringup.report import figures_of_merit
+    from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
@@ -203,7 +203,7 @@ def recorded_fraction(bag: str, end: dict) -> dict:
     integrated (its final event's ``steps``) whose measured current *and* shaft are in the bag;
     ``commands`` = recorded commands / commands the plant received (its latency samples, on time
     or late); ``missing_meta`` = the recorder's own count of missing lock-step steps."""
-    from im_bringup.bag import info, iter_raw
+    from im_recording.bag import info, iter_raw
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
     steps = int(end['steps'])

@@ -12,7 +12,7 @@ split as cProfile saw the calls:
   the node shells' own lines (``*_node.py``);
 * ``compute``: the model, control law, observer and adaptation (everything ROS-free);
 * ``publish``: packing outputs (``cdr.pack_*``, ``conversions.*Out``) and rclpy's ``publish``;
-* ``tap``: the scenario's summary tap (``im_bringup.traces`` / ``run``);
+* ``tap``: the scenario's summary tap (``im_recording.traces`` / ``run``);
 * ``executor``: the native spin's own time — rclpy's executor and DDS in C++.
 
 Figures are µs per step under the profiler (which inflates Python calls, so the shares matter,
@@ -104,7 +104,7 @@ def node_steps(stats: pstats.Stats) -> dict:
 def _graph(duration: float):
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
-    from im_bringup.traces import Tap
+    from im_recording.traces import Tap
     params = node_parameters('position', 'min_loss', 'nominal', 'none', 1e-4, duration)
     return DriveGraph(params, recorder=Tap(keep=False))
 

@@ -35,7 +35,7 @@ def child(steps: int) -> dict:
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
-    from im_bringup.traces import Tap
+    from im_recording.traces import Tap
     params = node_parameters('speed', 'min_energy', 'nominal', 'none', T_S, steps * T_S)
     tap = Tap(keep=False)
     graph = DriveGraph(params, recorder=tap)

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from im_bringup.study_ch4 import run_case  # noqa: E402
+from im_studies.study_ch4 import run_case  # noqa: E402
 
 KEYS = ('variation', 'controller', 'R_r_hat_final', 'R_r_true_final', 'theta_hat_final',
         'theta_true_final', 'L_M_hat_final', 'L_M_true_final', 'R_R_hat_final', 'R_R_true_final',

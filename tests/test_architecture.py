@@ -2,9 +2,10 @@
 
 Every module under src/<pkg>/<pkg>/ is parsed with :mod:`ast` (no import is executed) and each
 ``import`` / ``from ... import`` (module level or inside functions, relative ones resolved) becomes
-an edge. Asserted: the package-level import graph has no cycle; no node or library package imports
-the whole-system tools package im_bringup; every sibling package a package imports is declared in
-its package.xml; the ROS-free math modules reach no rclpy, directly or through project modules.
+an edge. Asserted: the package-level import graph has no cycle; the whole-system packages are
+layered (nodes and libraries < im_recording < im_bringup < im_studies: none imports a layer above
+it); every sibling package a package imports is declared in its package.xml; the ROS-free math
+modules reach no rclpy, directly or through project modules.
 """
 import ast
 import re
@@ -14,7 +15,12 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / 'src'
 PACKAGES = sorted(p.name for p in SRC.iterdir() if (p / 'package.xml').is_file())
-TOOLS = 'im_bringup'
+#: the whole-system layers, bottom to top; every other package (nodes, libraries) is below them all
+LAYERS = ['im_recording', 'im_bringup', 'im_studies']
+
+
+def _layer(pkg: str) -> int:
+    return LAYERS.index(pkg) + 1 if pkg in LAYERS else 0
 
 #: ROS-free math: nodes are thin shells over these, and they are unit-tested without ROS.
 ROS_FREE = [
@@ -151,15 +157,22 @@ def test_no_module_level_import_circle():
     assert not new, f'module import circles: {new}'
 
 
-def test_nothing_imports_the_tools_package():
-    bad = sorted(f'{n} imports {m}' for n, mods in IMPORTS.items() if not n.startswith(TOOLS)
-                 for m in mods if m.split('.')[0] == TOOLS)
-    assert not bad, 'node/library packages must not import im_bringup:\n' + '\n'.join(bad)
+def test_no_package_imports_a_layer_above_it():
+    bad = sorted(f'{n} imports {m}' for n, mods in IMPORTS.items() for m in mods
+                 if _layer(m.split('.')[0]) > _layer(n.split('.')[0]))
+    assert not bad, 'imports of a higher layer (' + ' < '.join(LAYERS) + '):\n' + '\n'.join(bad)
     # the unit tests of a package are held to the same rule
-    tests = sorted(str(f.relative_to(SRC)) for pkg in PACKAGES if pkg != TOOLS
+    tests = sorted(str(f.relative_to(SRC)) for pkg in PACKAGES
                    for f in (SRC / pkg).glob('test/*.py')
-                   if any(m.split('.')[0] == TOOLS for m in _imports('t', f)))
-    assert not tests, f'package tests importing im_bringup: {tests}'
+                   if any(_layer(m.split('.')[0]) > _layer(pkg) for m in _imports('t', f)))
+    assert not tests, f'package tests importing a higher layer: {tests}'
+
+
+def test_the_layers_are_the_packages():
+    # guards the layer test against a renamed package silently dropping to layer 0
+    assert set(LAYERS) <= set(PACKAGES)
+    assert 'im_recording' in _package_edges()['im_bringup']
+    assert 'im_bringup' in _package_edges()['im_studies']
 
 
 def test_imported_siblings_are_declared_in_package_xml():

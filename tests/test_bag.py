@@ -17,9 +17,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from im_common import cdr
-from im_bringup.bag import BagError, BagWriter, info, iter_raw, read_messages
-from im_bringup.run import load_run
-from im_bringup.msgdefs import full_definition, type_hash
+from im_recording.bag import BagError, BagWriter, info, iter_raw, read_messages
+from im_recording.run import load_run
+from im_recording.msgdefs import full_definition, type_hash
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -226,7 +226,7 @@ def test_close_from_signal_handler_mid_loop_keeps_every_message(tmp_path):
 
 _CHILD = textwrap.dedent('''
     import signal, sys
-    from im_bringup.bag import BagWriter
+    from im_recording.bag import BagWriter
     w = BagWriter(sys.argv[1], chunk_size=4096)
     def stop(signum, frame):
         w.close()
@@ -261,7 +261,7 @@ def test_sigint_to_a_writing_process_leaves_a_valid_file(tmp_path):
 
 
 def test_hard_kill_then_recover_salvages_the_prefix(tmp_path):
-    from im_bringup.recover import recover
+    from im_recording.recover import recover
     path = tmp_path / 'killed.mcap'
     p = _child(path)
     assert p.stdout.readline().strip() == 'ready'
@@ -316,7 +316,7 @@ def test_truncated_corrupt_and_missing_files_raise_bag_error(tmp_path):
 
 
 def test_recover_truncated_copy_and_cli_messages(tmp_path, capsys):
-    from im_bringup import recover as rec
+    from im_recording import recover as rec
     path = _written(tmp_path)
     n_all = info(path).message_count
     data = path.read_bytes()
@@ -388,7 +388,7 @@ def _three_chunks(path):
 
 
 def test_recover_skips_a_corrupt_middle_chunk_and_keeps_the_ones_after(tmp_path, capsys):
-    from im_bringup import recover as rec
+    from im_recording import recover as rec
     path = tmp_path / 'three.mcap'
     ci = _three_chunks(path)
     n_all = info(path).message_count
@@ -410,7 +410,7 @@ def test_recover_skips_a_corrupt_middle_chunk_and_keeps_the_ones_after(tmp_path,
 
 
 def test_summary_and_data_crc_mismatches_are_reported(tmp_path):
-    from im_bringup.bag import check_data_crc
+    from im_recording.bag import check_data_crc
     path = tmp_path / 'ok.mcap'
     _three_chunks(path)
     check_data_crc(path)
@@ -429,7 +429,7 @@ def test_summary_and_data_crc_mismatches_are_reported(tmp_path):
 
 
 def test_outputs_are_never_inputs_and_never_overwritten_silently(tmp_path):
-    from im_bringup.bag import check_output, write_atomic
+    from im_recording.bag import check_output, write_atomic
     a = tmp_path / 'a.json'
     write_atomic(a, 'one')
     with pytest.raises(FileExistsError, match='exists'):

@@ -14,10 +14,10 @@ from sensor_msgs.msg import JointState
 
 from rclpy.serialization import deserialize_message
 
-from im_bringup.bag import BagWriter, info, read_messages
+from im_recording.bag import BagWriter, info, read_messages
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, Vector3Out
-from im_bringup.record_node import RecorderNode, parse_topics
+from im_recording.record_node import RecorderNode, parse_topics
 
 
 def test_parse_topics():

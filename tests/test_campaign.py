@@ -1,4 +1,4 @@
-"""Campaigns (im_bringup.campaign, docs/campaign.md): specs, draws, the Dask pool (a real local
+"""Campaigns (im_studies.campaign, docs/campaign.md): specs, draws, the Dask pool (a real local
 cluster), determinism over worker counts, resume after a kill, failure rows, the Parquet file."""
 import json
 import math
@@ -11,7 +11,7 @@ import time
 import pytest
 import yaml
 
-from im_bringup import campaign as cp
+from im_studies import campaign as cp
 
 GAINS_1MS = os.path.join(os.path.dirname(__file__), '..', 'src', 'im_bringup', 'config',
                          'gains_1ms.yaml')
@@ -69,7 +69,7 @@ def test_a_bad_spec_is_one_line_naming_the_key(tmp_path, over, needle):
 
 def test_the_cli_refuses_a_bad_spec_without_a_traceback(tmp_path):
     path = write_spec(tmp_path, draws=-2)
-    p = subprocess.run([sys.executable, '-m', 'im_bringup.campaign', path], capture_output=True,
+    p = subprocess.run([sys.executable, '-m', 'im_studies.campaign', path], capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 2
     assert p.stderr.strip().splitlines() == [f'error: {path}: draws = -2 must be an integer >= 1']
@@ -205,7 +205,7 @@ def test_the_parquet_file_carries_spec_seed_and_versions(tmp_path):
     assert {'numpy', 'dask', 'pyarrow', 'python'} <= set(versions)
     summary = json.loads((tmp_path / 'c' / 'summary.json').read_text())
     assert summary['runs'] == 2 == s['runs']
-    assert summary['worst'][0]['replay'] == f'ros2 run im_bringup campaign {path} --run 1'
+    assert summary['worst'][0]['replay'] == f'ros2 run im_studies campaign {path} --run 1'
     assert (tmp_path / 'c' / 'report.md').read_text().count('.png)') == 2
     assert (tmp_path / 'c' / 'stability_map.png').stat().st_size > 0
 
@@ -234,7 +234,7 @@ def test_a_torn_last_journal_line_is_cut_and_that_run_only_is_redone(tmp_path):
 def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
     path = write_spec(tmp_path, draws=6, duration=2.0)
     out = tmp_path / 'c'
-    cmd = [sys.executable, '-m', 'im_bringup.campaign', path, '--out', str(out), '--workers',
+    cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
            '2', '--no-progress']
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          start_new_session=True)

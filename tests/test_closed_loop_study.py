@@ -1,7 +1,7 @@
 """The study entry point and the sampled-data limit of the thesis's gains."""
 import json
 
-from im_bringup.study import current_loop_estimate, is_stable, main
+from im_studies.study import current_loop_estimate, is_stable, main
 
 
 def test_sampling_limit_matches_the_scalar_current_loop():

@@ -120,7 +120,7 @@ def test_nameplate_gives_ratings_pole_pairs_and_the_rated_flux():
 
 
 def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one():
-    from im_bringup.commission_study import plate_of, speed_error
+    from im_studies.commission_study import plate_of, speed_error
     m = _motor('thesis')
     _, ident = _identified('thesis')
     true = speed_error(m, m)

@@ -12,18 +12,25 @@ from pathlib import Path
 
 import pytest
 
-from im_bringup.bag import BagError, info, iter_raw, partial_path
-from im_bringup.run import load_run
+from im_recording.bag import BagError, info, iter_raw, partial_path
+from im_recording.run import load_run
+
+
+#: the package of each executable the tests start
+PACKAGE_OF = {'scenario': 'im_bringup', 'commission': 'im_bringup', 'record': 'im_recording',
+              'replay': 'im_recording', 'report': 'im_recording', 'recover': 'im_recording',
+              'campaign': 'im_studies', 'robust_study': 'im_studies'}
 
 
 def exe(name: str) -> str:
     from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+    pkg = PACKAGE_OF[name]
     try:
-        prefix = get_package_prefix('im_bringup')
+        prefix = get_package_prefix(pkg)
     except PackageNotFoundError:
-        pytest.fail('im_bringup is not in the ament index: run `make build` and source '
+        pytest.fail(f'{pkg} is not in the ament index: run `make build` and source '
                     'install/setup.bash')
-    return os.path.join(prefix, 'lib', 'im_bringup', name)
+    return os.path.join(prefix, 'lib', pkg, name)
 
 
 def run_tool(*args, timeout=120):
@@ -154,7 +161,7 @@ def test_scenario_bad_params_file_is_one_line(tmp_path, text):
 
 def test_corrupt_middle_chunk_recover_keeps_the_rest(short_bag, tmp_path):
     from mcap.reader import make_reader
-    from im_bringup.bag import BagWriter
+    from im_recording.bag import BagWriter
     src = tmp_path / 'three.mcap'
     with BagWriter(src, chunk_size=128 * 1024) as w:     # the recorded run, in small chunks
         for topic, tname in info(short_bag).topics.items():

@@ -142,10 +142,10 @@ def test_speed_setpoint_from_the_topic_is_reached_smoothly():
 
 
 def test_scenario_recording_carries_run_metadata_and_matches_its_summary(tmp_path):
-    from im_bringup.bag import info
-    from im_bringup.run import load_run
+    from im_recording.bag import info
+    from im_recording.run import load_run
     from im_bringup.config import node_parameters
-    from im_bringup.report import figures_of_merit
+    from im_recording.report import figures_of_merit
     from im_bringup.scenario import run_scenario
     path = str(tmp_path / 'run.mcap')
     params = node_parameters('speed', 'constant_flux', duration=0.05)

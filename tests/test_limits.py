@@ -60,7 +60,7 @@ def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit
     """study_motors sizes the speed reversal to the motor: at the current limit 2 I_n and rated
     flux φ_n the steady field-oriented torque is v (L_sr/L_r) φ_n √((2 I_n)² − (φ_n/L_sr)²); the
     quintic's peak acceleration 1.875 Δω/T times J is 75 % of it."""
-    from im_bringup.study_motors import peak_torque, rated_flux, reversal_time, scaled_scenario
+    from im_studies.study_motors import peak_torque, rated_flux, reversal_time, scaled_scenario
     m = load_motor_file(motor_file)
     phi = rated_flux(m)
     i_d, i_lim = phi / m.L_sr, 2.0 * m.rated_current
@@ -78,12 +78,12 @@ def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit
 @pytest.mark.parametrize('strategy', STRATEGIES)
 def test_reversal_on_every_shipped_motor_and_strategy(motor_file, strategy):
     """+0.9 ω_n → −0.9 ω_n (a reversal through zero speed) scaled to the motor's ratings
-    (im_bringup.study_motors: rated flux, limits V_n, 2 I_n, peak torque 75 % of what the
+    (im_studies.study_motors: rated flux, limits V_n, 2 I_n, peak torque 75 % of what the
     current limit gives): the speed follows (RMS error < 0.005 rad/s over the whole run, the
     reversal included: it is feasible inside the limits, and min-energy raises its flux where the
     current limit would bind), the flux never collapses, no command
     exceeds the voltage limit, and the voltage has no one-step spike."""
-    from im_bringup.study_motors import peak_torque, rated_flux, scaled_scenario
+    from im_studies.study_motors import peak_torque, rated_flux, scaled_scenario
     motor = load_motor_file(motor_file)
     r = simulate(scaled_scenario(motor, 'speed', strategy), record_every=5)
     tr = r.trace
@@ -264,7 +264,7 @@ def test_scaled_chapter4_drift_and_the_adaptive_position_rows(motor_file):
     to 1.5 times the motor file's over the run, L_s, L_r, L_sr swing together by 0.16 L_sr so σL_s
     barely moves, every instant is a motor; on the min-loss position task the adaptive controller
     beats the nominal one at least 2.5× (docs/adaptation.md §6)."""
-    from im_bringup.study_motors import _drift_case, drift_schedule
+    from im_studies.study_motors import _drift_case, drift_schedule
     motor = load_motor_file(motor_file)
     sched = drift_schedule(motor, 2.2)
     sched.validate(2.2)

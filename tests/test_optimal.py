@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from im_bringup.offline import Scenario, build, simulate
-from im_bringup.reproduce import loss_bound, start_flux
+from im_studies.reproduce import loss_bound, start_flux
 from im_controller.control_law import ControllerConfig, DriveController
 from im_controller.flux import FluxStrategy
 from im_controller.flux_plan import plan_flux
@@ -70,7 +70,7 @@ def test_every_shipped_motor_plans_within_its_limits(motor_file):
     """The rating-scaled tasks of make motors (current, voltage limits; a load on the
     demagnetized start, so part of the torque is beyond any current at t = 0): the plan is made
     and followed, the losses are below min_loss's and the tracking no worse than twice its."""
-    from im_bringup.study_motors import scaled_scenario
+    from im_studies.study_motors import scaled_scenario
     motor = load_motor_file(motor_file)
     for task in ('position', 'speed'):
         plant, ctl, obs = build(scaled_scenario(motor, task, 'optimal'))
@@ -112,7 +112,7 @@ def test_the_plan_uses_the_controllers_estimates():
 
 
 def test_the_adaptive_controller_runs_optimal_under_the_chapter4_drift():
-    from im_bringup.study_ch4 import run_case
+    from im_studies.study_ch4 import run_case
     opt = run_case('position', 'optimal', 'adaptive', 'chapter4')
     ml = run_case('position', 'min_loss', 'adaptive', 'chapter4')
     assert opt['E_loss_J'] < ml['E_loss_J']

@@ -202,7 +202,7 @@ def _graph_summary(task, duration, plant=None, controller_hook=None, **config):
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
-    from im_bringup.traces import Tap
+    from im_recording.traces import Tap
     params = node_parameters(task, 'min_loss', duration=duration, **config)
     params['plant'].update(plant or {})
     sink = Tap(None, keep=True)

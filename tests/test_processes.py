@@ -19,7 +19,7 @@ from collections import Counter
 
 import pytest
 
-from im_bringup.bag import info, iter_raw
+from im_recording.bag import info, iter_raw
 from im_bringup.processes import GraphProcesses, graph_processes
 from im_common import topics as T
 
@@ -80,8 +80,8 @@ def wait_for_log(g, name, needle, timeout=60.0):
 def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path, domain):
     """Three short runs in a row, one CPU-bound process beside them: every process exits 0 and
     the bag holds every step on every lock-step topic; the numbers equal the in-process graph's."""
-    from im_bringup.run import load_run
-    from im_bringup.report import figures_of_merit
+    from im_recording.run import load_run
+    from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
     try:
@@ -317,8 +317,8 @@ def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
 def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_path, domain):
     """Each launch makes its own key: two graphs on one ROS_DOMAIN_ID refuse each other's
     messages (and say so) and both compute exactly what they compute alone."""
-    from im_bringup.run import load_run
-    from im_bringup.report import figures_of_merit
+    from im_recording.run import load_run
+    from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     bags = [tmp_path / 'a.mcap', tmp_path / 'b.mcap']
     a = graph_processes('position', 'min_energy', duration=0.1, record=bags[0])
@@ -356,8 +356,8 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
     API for every message of the other graph it refused, fell behind the other graph's flood, its
     reader history lost its own graph's step and that plant stopped ("no /im/command/voltage
     stamped 0.468 s ... within 5.0 s")."""
-    from im_bringup.run import load_run
-    from im_bringup.report import figures_of_merit
+    from im_recording.run import load_run
+    from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     kw = (dict(duration=1.0) if mode == 'lockstep' else
           dict(duration=2.0, T_s=1e-3, mode='free_run', extra=_gains_1ms()))

@@ -2,7 +2,7 @@
 first two commands are the ones CI and users run."""
 import os
 
-from im_bringup.docs import render
+from im_studies.docs import render
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..')
 
@@ -10,7 +10,7 @@ ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..')
 def test_readme_tables_match_the_code():
     with open(os.path.join(ROOT, 'README.md')) as f:
         text = f.read()
-    assert render(text) == text, 'README tables are stale: run `python -m im_bringup.docs README.md`'
+    assert render(text) == text, 'README tables are stale: run `python -m im_studies.docs README.md`'
 
 
 def test_readme_starts_with_the_two_commands_and_ci_runs_the_test_one():
@@ -24,8 +24,8 @@ def test_readme_starts_with_the_two_commands_and_ci_runs_the_test_one():
 def test_results_block_is_generated_from_the_committed_summary():
     """The block between the status markers is exactly what `make readme` renders from
     docs/data/reproduce_summary.json (the copy `make reproduce` refreshes)."""
-    from im_bringup.readme_status import DEFAULT_SUMMARY, first_difference, load_summary, split_readme
-    from im_bringup.readme_status import render as render_status
+    from im_studies.readme_status import DEFAULT_SUMMARY, first_difference, load_summary, split_readme
+    from im_studies.readme_status import render as render_status
     with open(os.path.join(ROOT, 'README.md')) as f:
         _, block, _ = split_readme(f.read())
     expected = render_status(load_summary(os.path.join(ROOT, DEFAULT_SUMMARY)))
@@ -39,8 +39,8 @@ def test_results_block_follows_the_summary_and_names_a_missing_run(tmp_path):
 
     import pytest
 
-    from im_bringup.readme_status import SummaryError, load_summary
-    from im_bringup.readme_status import render as render_status
+    from im_studies.readme_status import SummaryError, load_summary
+    from im_studies.readme_status import render as render_status
     runs = load_summary(os.path.join(ROOT, 'docs', 'data', 'reproduce_summary.json'))
     row = next(r for r in runs if (r['task'], r['strategy'], r['controller'], r['variation'],
                                    r['rate_hz']) == ('position', 'min_loss', 'nominal', 'none', 1e4))

@@ -5,8 +5,8 @@ import errno
 import os
 
 from im_common import cdr
-from im_bringup import recover as rec
-from im_bringup.bag import BagWriter, info, iter_raw, partial_path
+from im_recording import recover as rec
+from im_recording.bag import BagWriter, info, iter_raw, partial_path
 
 V3, JS = '/im/measured/current', '/im/measured/shaft'
 

@@ -14,10 +14,10 @@ from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from im_bringup.bag import iter_raw, read_messages
-from im_bringup.replay import Player, main as replay_main, reestimate
-from im_bringup.run import load_run
-from im_bringup.synth import make_synthetic_bag
+from im_recording.bag import iter_raw, read_messages
+from im_recording.replay import Player, main as replay_main, reestimate
+from im_recording.run import load_run
+from im_recording.synth import make_synthetic_bag
 
 from im_observer import observer  # noqa: E402
 

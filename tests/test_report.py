@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from im_bringup.bag import BagWriter
-from im_bringup.report import main as report_main, write_report
-from im_bringup.run import load_run
-from im_bringup.synth import make_synthetic_bag
+from im_recording.bag import BagWriter
+from im_recording.report import main as report_main, write_report
+from im_recording.run import load_run
+from im_recording.synth import make_synthetic_bag
 
 
 @pytest.fixture(scope='module')
@@ -116,7 +116,7 @@ def test_plots_draw_decimated_topics_through_their_gaps():
     must draw them from the samples that exist (else matplotlib draws nothing at all)."""
     import numpy as np
 
-    from im_bringup.plots import _dec
+    from im_recording.plots import _dec
 
     class R:
         trace = {'t': np.arange(100) * 1e-4, 'tau_ref': np.full(100, np.nan)}
@@ -163,8 +163,8 @@ def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch
     whole trace (and the estimate errors computed directly), to rounding."""
     from im_common.metrics import tracking_figures
 
-    from im_bringup import run as R
-    from im_bringup.report import figures_of_merit
+    from im_recording import run as R
+    from im_recording.report import figures_of_merit
     path = tmp_path / 'v.mcap'
     _varied_bag(path)
     full = load_run(path)
@@ -245,7 +245,7 @@ def test_refused_messages_are_counted_in_the_report_not_in_the_figures(tmp_path)
     """A rogue's commands, kept by the recorder on /im/refused<topic>: the report counts them per
     topic in their own section, and no figure changes."""
     from im_common import topics as T
-    from im_bringup.report import write_report
+    from im_recording.report import write_report
     clean, attacked = tmp_path / 'clean.mcap', tmp_path / 'attacked.mcap'
     _varied_bag(clean, steps=300)
     _varied_bag(attacked, steps=300, refused=7)

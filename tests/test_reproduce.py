@@ -1,5 +1,5 @@
 """`make reproduce` writes, per run, the keys the issues ask for (short runs here)."""
-from im_bringup.reproduce import CH3_KEYS, markdown, run_all
+from im_studies.reproduce import CH3_KEYS, markdown, run_all
 
 CH4_KEYS = ('variation', 'R_r_hat_final', 'R_r_true_final', 'theta_hat_final', 'theta_true_final',
             'L_M_hat_final', 'L_M_true_final', 'R_R_hat_final', 'R_R_true_final')
@@ -26,7 +26,7 @@ def test_bound_rows_give_each_run_its_own_start_and_ratio():
     """Per task one bound row: the convex lower bound from each run's own start flux (position:
     demagnetized; speed: the strategy's steady flux), refined to < 1e-5, and the run's ratios."""
     import pytest
-    from im_bringup.reproduce import bound_markdown, bound_rows, loss_bound
+    from im_studies.reproduce import bound_markdown, bound_rows, loss_bound
     runs = [dict(task=t, strategy=s, controller='nominal', variation='none', rate_hz=1e4,
                  E_loss_J=200.0, E_copper_J=150.0)
             for t in ('position', 'speed') for s in ('constant_flux', 'min_loss')]

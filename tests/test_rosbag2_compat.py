@@ -8,8 +8,8 @@ import subprocess
 import pytest
 
 from rosbag2_rules import Rosbag2Error, decode_bag_metadata, read_metadata
-from im_bringup.bag import BagWriter, info
-from im_bringup.msgdefs import SEPARATOR, full_definition, msg_file
+from im_recording.bag import BagWriter, info
+from im_recording.msgdefs import SEPARATOR, full_definition, msg_file
 from im_bringup.processes import executable_path
 from im_common import topics as T
 

@@ -173,10 +173,10 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     import random
     from collections import Counter
 
-    from im_bringup.bag import info, iter_raw
+    from im_recording.bag import info, iter_raw
     from im_bringup.processes import GraphProcesses, graph_processes
-    from im_bringup.report import figures_of_merit
-    from im_bringup.run import load_run
+    from im_recording.report import figures_of_merit
+    from im_recording.run import load_run
     from im_bringup.testing import run_graph
     env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
     bag = tmp_path / 'run.mcap'
@@ -209,7 +209,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     assert c[T.CMD_VOLTAGE] == n and c[T.MEAS_CURRENT] == n + 1 and c[T.OBS_FLUX] == n + 1
     assert c[T.REFUSED_PREFIX + T.CMD_VOLTAGE] > 0
     # the summary's and the report's count of the rogue's messages are the ones the bag kept
-    from im_bringup.report import write_report
+    from im_recording.report import write_report
     assert load_run(str(bag)).refused[T.CMD_VOLTAGE] == c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]
     rep = write_report([str(bag)], tmp_path / 'report', plots=False)
     assert rep['runs'][0]['status']['refused'][T.CMD_VOLTAGE] == \

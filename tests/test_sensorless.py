@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from im_bringup.offline import Scenario, build, simulate
-from im_bringup.study_sensorless import sensorless_reversal
+from im_studies.study_sensorless import sensorless_reversal
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_observer.speed_observer import SpeedAdaptiveObserver, linearized_poles
 

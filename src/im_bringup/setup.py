@@ -19,17 +19,11 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Whole-system tools: scenario runner, recorder, replay, report, launch file.',
+    description='Bringing the drive up: the launch file, configuration, the scenario runner, the graph and process starters, commissioning.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'scenario = im_bringup.scenario:main',
-            'record = im_bringup.record_node:main',
-            'replay = im_bringup.replay:main',
-            'report = im_bringup.report:main',
-            'recover = im_bringup.recover:main',
-            'robust_study = im_bringup.robust_study:main',
-            'campaign = im_bringup.campaign:main',
             'commission = im_bringup.commission:main',
         ],
     },

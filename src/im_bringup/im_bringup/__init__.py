@@ -1,1 +1,1 @@
-"""Whole-system tools: scenario runner, recorder, replay, report, launch file."""
+"""Bringing the drive up: the launch file, configuration, the scenario runner, the graph and process starters."""

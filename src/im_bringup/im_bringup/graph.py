@@ -6,7 +6,7 @@ pytest fixture). Each graph owns its ``Context`` and a DDS domain id of its own 
 random one in 150-229), so several graphs — or several test runs on one machine — never cross-talk.
 
 Recording in-process taps the nodes' publishers: every message a node publishes is also handed to
-the :class:`im_bringup.bag.BagWriter` with its stamp, without an extra subscription on the hot path.
+the :class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot path.
 Each tapped topic is declared with the QoS profiles its publishers offer, as the ROS graph reports
 them (``get_publishers_info_by_topic``, what rosbag2's recorder and ``record`` store).
 """
@@ -68,7 +68,7 @@ class DriveGraph:
         ``adapter``); see :func:`im_bringup.config.node_parameters`.
     nodes : which nodes to start (default: all four). Leaving one out exercises the
         missing-input path: the others report what they waited for and stop.
-    recorder : optional sink with ``write(topic, payload)`` (an :class:`im_bringup.traces.Tap`):
+    recorder : optional sink with ``write(topic, payload)`` (an :class:`im_recording.traces.Tap`):
         every message a node publishes is handed to it (serialized).
     domain_id : DDS domain (default random in 150-229).
     graph_key : the key its nodes sign their messages with (default: a random one, in memory;
@@ -139,7 +139,7 @@ class DriveGraph:
     def _declare_offers(self, writer, topics) -> None:
         """Declare each tapped topic with the profiles this graph's publishers offer (one per
         publisher; the graph's own endpoints are known at once, no discovery needed)."""
-        from .bag import offered_qos_yaml
+        from im_recording.bag import offered_qos_yaml
         ours = {(n.get_name(), n.get_namespace()) for n in self.nodes.values()}
         for topic, (node, cls) in topics.items():
             infos = [i for i in node.get_publishers_info_by_topic(topic)

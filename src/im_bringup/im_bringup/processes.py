@@ -35,7 +35,7 @@ START_ORDER = ('recorder', 'controller', 'observer', 'adapter', 'plant')
 #: Package and executable of each node of the graph.
 EXECUTABLES = {'plant': ('im_plant', 'plant'), 'controller': ('im_controller', 'controller'),
                'observer': ('im_observer', 'observer'), 'adapter': ('im_adapt', 'adapter'),
-               'recorder': ('im_bringup', 'record')}
+               'recorder': ('im_recording', 'record')}
 
 
 @dataclass

@@ -118,7 +118,7 @@ def run_metadata(task: str, strategy: str, controller: str, variation: str,
     """The named metadata records of a scenario's recording — ``scenario``, ``versions``,
     ``git`` (and ``extra``) — as strings: the one source for the in-process bag and for the
     ``--processes`` recorder (``record --metadata``). ``parameters/<node>`` come from the
-    running nodes (:func:`im_bringup.bag.parameters_metadata`)."""
+    running nodes (:func:`im_recording.bag.parameters_metadata`)."""
     meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
                          'variation': variation},
             'versions': package_versions(), 'git': {'revision': git_revision()}}
@@ -132,11 +132,11 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                  metadata: Optional[dict] = None) -> dict:
     """Run one scenario through the lock-step graph; return its summary (figures of merit)."""
     from im_bringup.graph import DriveGraph
-    from im_bringup.traces import Tap
+    from im_recording.traces import Tap
     from im_common.stopping import StopSignals
     writer = None
     if record:
-        from im_bringup.bag import BagWriter
+        from im_recording.bag import BagWriter
         writer = BagWriter(record, force=force, metadata=run_metadata(
             task, strategy, controller, variation, metadata))
     sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
@@ -146,7 +146,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
             graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
             sink.on_error = lambda line: graph.fail('recorder', line)   # e.g. the disk is full
             if writer is not None:      # every parameter of every node, defaults included
-                from im_bringup.bag import parameters_metadata
+                from im_recording.bag import parameters_metadata
                 for name, node in graph.nodes.items():
                     writer.add_metadata(f'parameters/{name}', parameters_metadata(
                         {p: node.get_parameter(p).value for p in node._parameters}))
@@ -186,8 +186,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
               controller: str, variation: str) -> dict:
     """The figures of merit of a graph run, computed from the captured messages by the report's
-    own code (:func:`im_bringup.report.figures_of_merit`), plus the run's statistics."""
-    from im_bringup.report import figures_of_merit
+    own code (:func:`im_recording.report.figures_of_merit`), plus the run's statistics."""
+    from im_recording.report import figures_of_merit
     T_s = parameters['plant']['T_s']
     run = tap.run(metadata={'scenario': {'task': task}})
     summary = {'task': task, 'strategy': strategy, 'controller': controller,
@@ -251,7 +251,7 @@ def main(argv=None) -> int:
             except ValueError as exc:
                 print(f'error: {exc}', file=sys.stderr)
                 return 2
-    from im_bringup.bag import check_output, write_atomic
+    from im_recording.bag import check_output, write_atomic
     if args.write_params:
         try:
             check_output(args.write_params, [args.gains, args.params_file], args.force,
@@ -275,7 +275,7 @@ def main(argv=None) -> int:
                 raise FileExistsError(f'{out}: --record and --summary name the same file; '
                                       'choose two different files')
             check_output(args.record, inputs, args.force, what='--record file')
-            from im_bringup.bag import partial_path
+            from im_recording.bag import partial_path
             check_output(partial_path(args.record), inputs, args.force,
                          what='interrupted recording (recover it, or --force)')
         check_output(out, inputs + [args.record], args.force, what='--summary file')
@@ -287,7 +287,7 @@ def main(argv=None) -> int:
         return 2
     if args.processes:
         return _run_processes(args, parameters, out)
-    from im_bringup.bag import BagError
+    from im_recording.bag import BagError
     try:
         summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
                                controller=args.controller, variation=args.variation,
@@ -331,8 +331,8 @@ def _os_line(exc: OSError, path: str) -> str:
 
 def _write_summary(out: str, summary: dict) -> bool:
     """Write the summary JSON; a write error (disk full, ...) is one line and False."""
-    from im_bringup.bag import write_atomic
-    from im_bringup.report import jsonable
+    from im_recording.bag import write_atomic
+    from im_recording.report import jsonable
     try:
         write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
     except OSError as exc:
@@ -343,8 +343,8 @@ def _write_summary(out: str, summary: dict) -> bool:
 
 
 def _write_report(record: str, report: str) -> int:
-    from im_bringup.bag import BagError
-    from im_bringup.report import write_report
+    from im_recording.bag import BagError
+    from im_recording.report import write_report
     try:
         write_report([record], report)
     except OSError as exc:
@@ -365,8 +365,8 @@ def _run_processes(args, parameters: dict, out: str) -> int:
 
     from im_bringup.processes import check_processes, failure_line, graph_processes, \
         run_processes
-    from im_bringup.report import figures_of_merit
-    from im_bringup.run import load_run
+    from im_recording.report import figures_of_merit
+    from im_recording.run import load_run
     from im_common.lockstep import ConfigurationError
     procs = graph_processes(args.task, args.strategy, args.controller, T_s=args.T_s,
                             duration=args.duration, mode=parameters['plant'].get('mode',
@@ -398,7 +398,7 @@ def _run_processes(args, parameters: dict, out: str) -> int:
         if run.refused:                 # as the in-process graph counts them, per node and topic
             summary['refused_unsigned'] = {'recorder': run.refused}
     else:
-        from im_bringup.bag import partial_path
+        from im_recording.bag import partial_path
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
             summary['partial_recording'] = str(partial_path(args.record))
     print_summary(summary)

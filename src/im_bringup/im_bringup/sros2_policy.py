@@ -38,8 +38,8 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
     from im_controller.controller_node import ControllerNode
     from im_observer.observer_node import ObserverNode
     from im_plant.plant_node import PlantNode
-    from .bag import BagWriter
-    from .record_node import RecorderNode
+    from im_recording.bag import BagWriter
+    from im_recording.record_node import RecorderNode
     import tempfile
     ctx = Context()
     rclpy.init(context=ctx, domain_id=random.randint(150, 229))

@@ -39,13 +39,13 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
-    from im_bringup.traces import Tap
+    from im_recording.traces import Tap
     params = node_parameters(task, strategy, controller, variation, T_s, duration, **config)
     for node, values in (parameters or {}).items():
         params.setdefault(node, {}).update(values)
     writer = None
     if record:
-        from im_bringup.bag import BagWriter
+        from im_recording.bag import BagWriter
         writer = BagWriter(record, force=True)
     sink = Tap(writer)
     graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink)

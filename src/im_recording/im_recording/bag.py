@@ -6,7 +6,7 @@ Writing
 Foxglove, PlotJuggler and ``rosbags`` open:
 
 * profile ``ros2``; one Schema per type, encoding ``ros2msg`` with the full dependency text
-  (:mod:`im_bringup.msgdefs`); one Channel per topic, message encoding ``cdr``, channel metadata
+  (:mod:`im_recording.msgdefs`); one Channel per topic, message encoding ``cdr``, channel metadata
   ``offered_qos_profiles`` (rosbag2 metadata version 9 YAML) and ``topic_type_hash``
   (``RIHS01_...``);
 * messages in chunks (zstd, lz4 or none), each followed by its Message Index records; a summary
@@ -20,13 +20,13 @@ chunk is flushed to the OS when full, so a hard kill loses at most the open chun
 ``recover`` can salvage the rest.
 
 The per-message path is a dict lookup, one ``struct.pack`` and two ``bytearray`` appends;
-messages are encoded with :mod:`im_bringup.cdr` (exact-length CDR). Cost: see
+messages are encoded with :mod:`im_common.cdr` (exact-length CDR). Cost: see
 ``benchmarks/bench_bag.py`` and ``docs/recording.md``.
 
 Reading
 -------
 :func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
-:func:`im_bringup.run.load_run` turns a recording into a :class:`~im_bringup.run.Run` (trace
+:func:`im_recording.run.load_run` turns a recording into a :class:`~im_recording.run.Run` (trace
 arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
 truncated or missing file raises :class:`BagError` naming the file and what is wrong.
 """
@@ -48,7 +48,7 @@ from .msgdefs import full_definition, ros_distro, type_hash
 
 MAGIC = b'\x89MCAP0\r\n'
 PROFILE = 'ros2'
-LIBRARY = 'im_bringup.bag 0.1 (MCAP writer for the IM drive stack)'
+LIBRARY = 'im_recording.bag 0.1 (MCAP writer for the IM drive stack)'
 ROSBAG2_METADATA_VERSION = 9
 
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -374,7 +374,7 @@ class BagWriter:
                                   '(pass force=True / --force)')
         if self.part.exists() and not force:
             raise FileExistsError(f'{self.part}: an interrupted recording is in the way; salvage '
-                                  f'it with `ros2 run im_bringup recover {self.path}` or pass '
+                                  f'it with `ros2 run im_recording recover {self.path}` or pass '
                                   'force=True / --force to discard it')
         self.failed: Optional[BagError] = None     # the write error that stopped this writer
         try:
@@ -450,7 +450,7 @@ class BagWriter:
         ``.part`` for ``recover``, raise one :class:`BagError` (also kept in :attr:`failed`)."""
         self.failed = BagError(self.part, f'cannot write the recording '
                                           f'({exc.strerror or exc}); what was written is kept: '
-                                          f'`ros2 run im_bringup recover {self.path}`')
+                                          f'`ros2 run im_recording recover {self.path}`')
         self._closed = True
         self._chan = {}
         self._f.close()
@@ -782,7 +782,7 @@ def _open_checked(path):
     if not p.exists():
         if partial_path(p).exists():
             raise BagError(p, f'no such file, but an interrupted (truncated) recording is at '
-                           f'{partial_path(p)}; salvage it with `ros2 run im_bringup recover {p}`')
+                           f'{partial_path(p)}; salvage it with `ros2 run im_recording recover {p}`')
         raise BagError(p, 'no such file')
     if p.is_dir():
         raise BagError(p, 'is a directory; expected an .mcap file')
@@ -796,7 +796,7 @@ def _open_checked(path):
         tail = f.read(8)
     if size < 16 or tail != MAGIC:
         raise BagError(p, 'truncated: no MCAP footer (the writer did not close the file - killed?)'
-                       f'; salvage it with `ros2 run im_bringup recover {p}`')
+                       f'; salvage it with `ros2 run im_recording recover {p}`')
     return p
 
 
@@ -819,7 +819,7 @@ def _check_summary_crc(p: Path) -> None:
     got = zlib.crc32(body)
     if got != crc:
         raise BagError(p, f'summary section CRC mismatch (stored {crc:#010x}, computed '
-                          f'{got:#010x}): the index is damaged; `ros2 run im_bringup recover {p}` '
+                          f'{got:#010x}): the index is damaged; `ros2 run im_recording recover {p}` '
                           'rebuilds it from the data')
 
 

@@ -1,6 +1,6 @@
 """The README's results block, generated from ``make reproduce``'s summary (never edited by hand).
 
-    python -m im_bringup.readme_status [--summary FILE] [--readme README.md] [--write | --check]
+    python -m im_studies.readme_status [--summary FILE] [--readme README.md] [--write | --check]
 
 Reads the summary (a list of runs, ``bags/reproduce/summary.json``; by default the committed copy
 ``docs/data/reproduce_summary.json`` that the committed block was made from), renders the block
@@ -20,8 +20,8 @@ from typing import List, Optional, Tuple
 
 from im_common.cli import parse_args
 
-from im_bringup import thesis
-from im_bringup.reproduce import THESIS_STRATEGIES as STRATEGIES
+from im_studies import thesis
+from im_studies.reproduce import THESIS_STRATEGIES as STRATEGIES
 
 BEGIN, END = '<!-- status:begin -->', '<!-- status:end -->'
 DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'

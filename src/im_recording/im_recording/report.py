@@ -1,6 +1,6 @@
 """Figures of merit and figures from recorded runs.
 
-``ros2 run im_bringup report bags/a.mcap [more.mcap ...] [--out DIR] [--no-plots]``
+``ros2 run im_recording report bags/a.mcap [more.mcap ...] [--out DIR] [--no-plots]``
 
 writes ``DIR/report.md`` (a Markdown table, one column per run), ``DIR/report.json`` (the same
 numbers with the runs' metadata) and PNG figures in the style of seed 000 (:mod:`.plots`), and
@@ -80,7 +80,7 @@ def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
 
 def figures_of_merit(run) -> Dict[str, float]:
     """Every figure of merit a run's recording supports, over every control instant: from the
-    run's running figures when it was streamed (:func:`im_bringup.run.stream_run`), else from its
+    run's running figures when it was streamed (:func:`im_recording.run.stream_run`), else from its
     trace."""
     from im_common.metrics import balance_relative, energy_figures
     from .run import RunningFigures
@@ -193,7 +193,7 @@ def jsonable(x):
 def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     """Report on one or more recordings; returns {'markdown', 'json', 'figures', 'runs'}.
 
-    Raises :class:`~im_bringup.bag.BagError` for an unreadable recording.
+    Raises :class:`~im_recording.bag.BagError` for an unreadable recording.
     """
     from .run import load_run
     if not bag_paths:

@@ -1,4 +1,4 @@
-"""``python -m im_bringup.study_sensorless [--json FILE]``: the speed-sensorless drive on the
+"""``python -m im_studies.study_sensorless [--json FILE]``: the speed-sensorless drive on the
 offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy, sensored against
 sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s reversal against
 a constant 1 N·m on every shipped motor with its rating-scaled controller (``study_motors``).
@@ -16,7 +16,7 @@ from im_common.loads import ConstantLoad
 from im_common.params import load_motor_file, shipped_motors_dir
 from im_controller.profiles import Profile
 
-from .offline import Scenario, simulate
+from im_bringup.offline import Scenario, simulate
 from .study_motors import STRATEGIES, reversal_time, scaled_options
 
 #: the measured speed's noise in the sensorless runs [rad/s]: useless to a speed controller

@@ -1,17 +1,17 @@
 """Live capture of a graph run: the serialized messages every node publishes, summarized while
-the run goes into the same :class:`im_bringup.run.Run` a recording gives — so the scenario's
+the run goes into the same :class:`im_recording.run.Run` a recording gives — so the scenario's
 summary and the report of its MCAP are computed by the same code
-(:class:`im_bringup.run.RunningFigures` behind :func:`im_bringup.report.figures_of_merit`).
+(:class:`im_recording.run.RunningFigures` behind :func:`im_recording.report.figures_of_merit`).
 
 Memory stays bounded: the payloads are decoded and folded into running sums every
-:attr:`im_bringup.run.TraceStream.batch` messages and then dropped; the per-step trace is kept
+:attr:`im_recording.run.TraceStream.batch` messages and then dropped; the per-step trace is kept
 only when asked (``keep=True``: every row, for tests; ``keep='decimated'``: a few thousand rows).
 """
 from __future__ import annotations
 
 from typing import Optional, Union
 
-from im_bringup.bag import BagError
+from im_recording.bag import BagError
 from im_common.cdr import encode, header_stamp_ns
 
 
@@ -24,7 +24,7 @@ class Tap:
     """
 
     def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000):
-        from im_bringup.run import (RunningFigures, TraceKeeper, TraceStream, TruthBooks,
+        from im_recording.run import (RunningFigures, TraceKeeper, TraceStream, TruthBooks,
                                     lockstep_topics)
         self.writer = writer
         self.error: Optional[str] = None    # why the writer stopped (its file cannot be written)
@@ -58,8 +58,8 @@ class Tap:
         self.stream.add(topic, data)
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):
-        """The captured run as a :class:`im_bringup.run.Run` (ends the capture)."""
-        from im_bringup.run import Run
+        """The captured run as a :class:`im_recording.run.Run` (ends the capture)."""
+        from im_recording.run import Run
         if self._run is None:
             self.stream.flush(final=True)
             tr = self.keeper.trace() if self.keeper is not None else {}

@@ -1,6 +1,6 @@
 """Closed-loop study of seed 000 chapter 3: the energy table of §3.4.7 and the sampled-data limit.
 
-    python -m im_bringup.study --out study_out [--quick] [--no-limit] [--no-exponent1] [--sweep]
+    python -m im_studies.study --out study_out [--quick] [--no-limit] [--no-exponent1] [--sweep]
 
 Runs position and speed tasks × {min_energy, constant_flux, min_loss} at T_s = 100 µs with the
 thesis motor, loads and gains (offline lock-step loop, :mod:`im_bringup.offline`), prints a table
@@ -30,7 +30,7 @@ from im_common.params import THESIS_MOTOR
 from im_controller.gain_design.motor import thesis_gain_stability_limit
 
 from . import thesis
-from .offline import Scenario, simulate
+from im_bringup.offline import Scenario, simulate
 
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 TASKS = ('position', 'speed')

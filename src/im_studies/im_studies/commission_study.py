@@ -1,9 +1,9 @@
 """Accuracy of self-commissioning (docs/commissioning.md §6), on the ROS-free plant.
 
-    python -m im_bringup.commission_study [--draws 20] [--noise 0.05] [--out bags/commission]
+    python -m im_studies.commission_study [--draws 20] [--noise 0.05] [--out bags/commission]
 
 Commissions every shipped motor and the first ``draws`` motors of the campaign's parameter box
-(``config/campaign.yaml``, :func:`im_bringup.campaign.draw`) with σ < 0.15, each on a
+(``config/campaign.yaml``, :func:`im_studies.campaign.draw`) with σ < 0.15, each on a
 :class:`~im_common.plant_sim.PlantSimulator` running the true motor with current noise
 ``noise`` [A] and the drive's limits as its protection; then runs the min_loss speed task
 (offline loop) with the identified motor as the controller's and observer's model and with the

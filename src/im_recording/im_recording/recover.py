@@ -1,13 +1,13 @@
 """Salvage a recording cut short by a hard kill or damaged on disk.
 
-``ros2 run im_bringup recover bags/broken.mcap [-o fixed.mcap] [--force]``
+``ros2 run im_recording recover bags/broken.mcap [-o fixed.mcap] [--force]``
 
 The file is read once, front to back, one record at a time (opcode, 64-bit length, body), and
 every record is validated before anything in it is used: a known data-section opcode, a length
 inside the file, fields that parse to exactly that length, and for a Chunk a compression the
 project's writer uses, its declared sizes and its CRC over the uncompressed records (then the
 inner records must parse to exactly the chunk's size). Schemas, Channels, Metadata and every
-message of every intact chunk are streamed into :class:`~im_bringup.bag.BagWriter` as they are
+message of every intact chunk are streamed into :class:`~im_recording.bag.BagWriter` as they are
 read, so memory holds one chunk plus the per-channel tables, however long the file.
 
 A record that fails is damage. Reading resumes at the first later offset where a validated
@@ -865,7 +865,7 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
     lost (``lost``: one line each; ``lost_ranges``: the same as dicts).
 
     ``path`` may name a recording whose writer was killed: its data is then in ``<path>.part``
-    (see :class:`~im_bringup.bag.BagWriter`), which is read instead.
+    (see :class:`~im_recording.bag.BagWriter`), which is read instead.
     """
     src = source_of(path)
     if not src.exists():

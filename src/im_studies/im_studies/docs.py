@@ -1,4 +1,4 @@
-"""Regenerate the README's topic and parameter tables from the code (``python -m im_bringup.docs``).
+"""Regenerate the README's topic and parameter tables from the code (``python -m im_studies.docs``).
 
 The tables sit between ``<!-- topics:begin -->`` / ``<!-- topics:end -->`` and
 ``<!-- parameters:begin -->`` / ``<!-- parameters:end -->``; ``tests/test_readme.py`` fails when the

@@ -1,7 +1,7 @@
 """Campaigns: Monte Carlo validation of the drive over a parameter box (docs/campaign.md).
 
-    ros2 run im_bringup campaign SPEC.yaml [--out DIR] [--workers N | --address tcp://HOST:8786]
-    ros2 run im_bringup campaign SPEC.yaml --run INDEX [--graph] [--record BAG]   # one run alone
+    ros2 run im_studies campaign SPEC.yaml [--out DIR] [--workers N | --address tcp://HOST:8786]
+    ros2 run im_studies campaign SPEC.yaml --run INDEX [--graph] [--record BAG]   # one run alone
 
 A spec (YAML) names the parameter box or distributions of the plant's motor, the number of draws,
 the tasks, strategies, gain sets (each with its period), loads, profiles and the seed. Every draw
@@ -361,7 +361,7 @@ def adapter_for(job: dict, spec: dict):
         return None
     from im_adapt.adaptation import AdaptationGains
     from im_adapt.hook import LockstepAdapter
-    from .config import ADAPTATION
+    from im_bringup.config import ADAPTATION
     return LockstepAdapter.build(_base_motor(spec),
                                  AdaptationGains(**ADAPTATION[job['controller']]))
 
@@ -515,7 +515,8 @@ def _progress(label: str, done: int, total: int, failed: int, elapsed: float) ->
 def _versions() -> dict:
     from importlib import metadata
     out = {'python': sys.version.split()[0]}
-    for dist in ('im_bringup', 'im_common', 'im_controller', 'im_observer', 'numpy', 'scipy',
+    for dist in ('im_bringup', 'im_recording', 'im_studies', 'im_common', 'im_controller',
+                 'im_observer', 'numpy', 'scipy',
                  'dask', 'distributed', 'pyarrow'):
         with contextlib.suppress(metadata.PackageNotFoundError):
             out[dist] = metadata.version(dist)
@@ -587,7 +588,7 @@ def read_rows(path) -> List[dict]:
 
 
 def replay_command(spec_path: str, index: int) -> str:
-    return f'ros2 run im_bringup campaign {spec_path} --run {index}'
+    return f'ros2 run im_studies campaign {spec_path} --run {index}'
 
 
 def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
@@ -682,7 +683,7 @@ def _prepare_out(out: Path, spec: dict, force: bool) -> Dict[int, dict]:
                               'overwrite (pass --force)')
     out.mkdir(parents=True, exist_ok=True)
     if not state.exists():
-        from im_bringup.bag import write_atomic
+        from im_recording.bag import write_atomic
         write_atomic(state, json.dumps({'name': spec['name'], 'spec_hash': spec_hash(spec),
                                         'spec': spec}, indent=2))
         with contextlib.suppress(FileNotFoundError):
@@ -730,7 +731,7 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
         else:
             info.update(measure_speedup(all_jobs, spec, gains, spec['speedup_runs'], workers,
                                         progress))
-            from im_bringup.bag import write_atomic
+            from im_recording.bag import write_atomic
             write_atomic(sp_file, json.dumps(info, indent=2))
     journal = Journal(out_p / JOURNAL)
     t0 = time.perf_counter()
@@ -759,8 +760,8 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
             'versions': _versions(), 'engine': 'dask'}
     write_parquet(rows, out_p / 'runs.parquet', meta)
     summary = summarize(rows, spec, info, spec_path)
-    from im_bringup.bag import write_atomic
-    from im_bringup.report import jsonable
+    from im_recording.bag import write_atomic
+    from im_recording.report import jsonable
     write_atomic(out_p / 'summary.json', json.dumps(jsonable(summary), indent=2,
                                                     allow_nan=False))
     write_report(rows, summary, spec, out_p)
@@ -770,7 +771,7 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
 # ------------------------------------------------------------------------------------ report
 def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None:
     """report.md with loss and error histograms, the stability map and the worst runs."""
-    from im_bringup.plots import _plt
+    from im_recording.plots import _plt
     plt = _plt()
     figs = []
     sets = [g['name'] for g in spec['gain_sets']]
@@ -878,7 +879,7 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
                      f"{why.replace('|', '∣')} | "
                      + ' | '.join(f'{w[k]:.4g}' for k in DRAWN)
                      + f" | {w['sigma']:.3f} | {w['sigma_L_s'] * 1e3:.3f} | `{w['replay']}` |")
-    from im_bringup.bag import write_atomic
+    from im_recording.bag import write_atomic
     write_atomic(out / 'report.md', '\n'.join(lines) + '\n')
 
 

@@ -2,7 +2,7 @@
 
 Publishing::
 
-    ros2 run im_bringup replay bags/run.mcap [--rate X | --lockstep] [--topics T ...]
+    ros2 run im_recording replay bags/run.mcap [--rate X | --lockstep] [--topics T ...]
                                              [--remap /old:=/new ...] [--no-clock]
 
 publishes the recorded topics (the recorded bytes, so the original header stamps) and drives
@@ -15,7 +15,7 @@ durability, depth).
 
 Re-estimation (no ROS graph needed)::
 
-    ros2 run im_bringup replay bags/run.mcap --reestimate --out bags/run_reest.mcap
+    ros2 run im_recording replay bags/run.mcap --reestimate --out bags/run_reest.mcap
         [--k-e K] [--param R_r=0.9 ...] [--use-adapter] [--force]
 
 feeds the recorded measured current (/im/measured/current), command voltage

@@ -97,7 +97,7 @@ class Run:
     counts: Dict[str, int] = field(default_factory=dict)
     types: Dict[str, str] = field(default_factory=dict)
     #: running figures over every control instant (:class:`RunningFigures`); when None,
-    #: :func:`im_bringup.report.figures_of_merit` computes them from ``trace``
+    #: :func:`im_recording.report.figures_of_merit` computes them from ``trace``
     running: Optional['RunningFigures'] = None
     #: messages stamped before rows already summarized (not in the figures)
     late: int = 0
@@ -476,7 +476,7 @@ class _Acc:
 
 class RunningFigures:
     """Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`): the tracking,
-    peak and estimate figures of :func:`im_bringup.report.figures_of_merit` from running maxima,
+    peak and estimate figures of :func:`im_recording.report.figures_of_merit` from running maxima,
     sums of squares and the last ``last_window`` seconds only, plus the lock-step topics'
     missing control instants (:meth:`gaps`)."""
 
@@ -709,7 +709,7 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
 
 
 def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
-    """Read a recording into a :class:`Run`; :class:`~im_bringup.bag.BagError` if unreadable.
+    """Read a recording into a :class:`Run`; :class:`~im_recording.bag.BagError` if unreadable.
 
     ``trace``: 'full' (every control instant), 'decimated' (about ``limit`` rows, what the
     report's plots need) or None; the figures cover the whole run either way. Every CRC is

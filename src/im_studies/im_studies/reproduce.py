@@ -24,7 +24,7 @@ from typing import List, Optional
 
 from im_common.cli import parse_args
 
-from im_bringup import thesis
+from im_studies import thesis
 
 CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', 'E_copper_J',
             'E_core_J', 'W_load_J', 'E_friction_J', 'dE_kinetic_J', 'dW_magnetic_J',
@@ -147,8 +147,8 @@ def run_one(item) -> dict:
 
 def run_all(specs: List[dict], out_dir: str, record: bool = False,
             workers: Optional[int] = None) -> List[dict]:
-    """Every spec through the graph on the campaign pool (im_bringup.campaign), in order."""
-    from im_bringup.campaign import pool_map
+    """Every spec through the graph on the campaign pool (im_studies.campaign), in order."""
+    from im_studies.campaign import pool_map
     return pool_map(run_one, [(n, spec, out_dir, record) for n, spec in enumerate(specs)],
                     workers=workers, label='reproduce')
 
@@ -221,7 +221,7 @@ def main(argv=None) -> int:
         specs += robust_runs()
     results = run_all(specs, args.out, record=args.record, workers=args.workers)
     results += bound_rows(results)
-    from im_bringup.report import jsonable
+    from im_recording.report import jsonable
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(jsonable(results), f, indent=2, allow_nan=False)
     with open(os.path.join(args.out, 'summary.md'), 'w') as f:

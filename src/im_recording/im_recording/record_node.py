@@ -1,8 +1,8 @@
-"""``ros2 run im_bringup record [--out bags/<run>.mcap] [--force] [--topics T ...] [--continuous]``
+"""``ros2 run im_recording record [--out bags/<run>.mcap] [--force] [--topics T ...] [--continuous]``
 
 Records a running graph to MCAP: one subscription per topic of :data:`im_common.topics.TOPICS`
 (or the given topics; a topic outside the table needs ``topic:=pkg/msg/Type``), written as
-received through :class:`~im_bringup.bag.BagWriter`. Each message's log time is its header stamp
+received through :class:`~im_recording.bag.BagWriter`. Each message's log time is its header stamp
 (simulated time), so the recording lines up with the run and not with the recorder's scheduling.
 
 Lossless across processes. The recorder is a *lossless follower* of the run protocol
@@ -571,7 +571,7 @@ def main(argv=None) -> int:
         topics = parse_topics(a.topics)
         extra = parse_metadata(a.metadata)
         writer = BagWriter(out, force=a.force, metadata=dict(extra, recorder={
-            'node': 'im_bringup record', 'topics': ' '.join(topics),
+            'node': 'im_recording record', 'topics': ' '.join(topics),
             'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')}))
     except (FileExistsError, ValueError, OSError) as exc:
         print(f'record: error: {exc}', file=sys.stderr)

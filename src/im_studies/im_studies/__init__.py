@@ -1,0 +1,1 @@
+"""Studies: the thesis reproduction, chapter studies, the Dask campaign, the README/docs generators."""
