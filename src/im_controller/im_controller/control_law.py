@@ -46,6 +46,8 @@ from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, Thes
                            ThesisSpeedProfile)
 
 MODES = ('position', 'speed', 'torque')
+#: the tasks of the thesis's tables (torque is ours)
+THESIS_TASKS = ('position', 'speed')
 PROFILES = ('thesis', 'setpoint')
 FLUX_COUPLINGS = ('cancel', 'thesis', 'none')
 DEFAULT_FLUX_PREVIEW = 0.06

@@ -38,6 +38,8 @@ from typing import Optional
 from .reference import ModelCoefficients
 
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss', 'optimal')
+#: the causal strategies every study compares (the thesis's two and ours); ``optimal`` plans ahead
+COMPARED_STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 # the strategies whose causal target is the steady loss-optimal flux (optimal falls back to it)
 LOSS_OPTIMAL = ('min_loss', 'optimal')
 TWO_PI = 2.0 * math.pi
