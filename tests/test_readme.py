@@ -30,8 +30,12 @@ def _read(*path: str) -> str:
         return f.read()
 
 
+#: pages whose shell commands are checked like the README's (the command catalogue)
+COMMAND_PAGES = ('README.md', os.path.join('docs', 'commands.md'))
+
+
 def _code_lines(text: str, lang: str = 'bash'):
-    """The lines of the README's ``lang`` code blocks, continuation lines joined, comments cut."""
+    """The lines of a page's ``lang`` code blocks, continuation lines joined, comments cut."""
     for block in re.findall(rf'```{lang}\n(.*?)```', text, re.S):
         for line in block.replace('\\\n', ' ').splitlines():
             line = line.split(' # ')[0].strip()
@@ -77,11 +81,12 @@ def test_first_screen_says_where_the_demo_files_land_and_what_to_read_next():
     assert re.search(r'\]\(docs/[\w.-]+\.md\)', nxt[1]), 'the reading list links no docs/ page'
 
 
-def test_every_make_target_the_readme_shows_exists():
+@pytest.mark.parametrize('page', COMMAND_PAGES)
+def test_every_make_target_shown_exists(page):
     targets = set(re.findall(r'^([\w-]+):', _read('Makefile'), re.M))
-    shown = set(re.findall(r'`make ([\w-]+)`', _read('README.md')))
-    shown |= {line.split()[1] for line in _code_lines(_read('README.md')) if line.startswith('make ')}
-    assert shown and shown <= targets, f'README shows make targets the Makefile lacks: {shown - targets}'
+    shown = set(re.findall(r'`make ([\w-]+)`', _read(page)))
+    shown |= {line.split()[1] for line in _code_lines(_read(page)) if line.startswith('make ')}
+    assert shown and shown <= targets, f'{page} shows make targets the Makefile lacks: {shown - targets}'
 
 
 def _ros2_run_path(package: str, executable: str) -> str:
@@ -89,10 +94,11 @@ def _ros2_run_path(package: str, executable: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, executable)
 
 
-def test_every_ros2_run_in_the_readme_runs_with_the_options_shown():
+@pytest.mark.parametrize('page', COMMAND_PAGES)
+def test_every_ros2_run_shown_runs_with_the_options_shown(page):
     """Each ``ros2 run PKG EXE ...`` line: the executable is where ``ros2 run`` looks, and every
     long option shown is one its ``--help`` lists (a renamed option fails here)."""
-    runs = [shlex.split(line) for line in _code_lines(_read('README.md')) if line.startswith('ros2 run ')]
+    runs = [shlex.split(line) for line in _code_lines(_read(page)) if line.startswith('ros2 run ')]
     assert len(runs) >= 5
     helps = {}
     for argv in runs:
@@ -105,21 +111,22 @@ def test_every_ros2_run_in_the_readme_runs_with_the_options_shown():
             helps[package, exe] = proc.stdout
         for opt in (a for a in argv[4:] if a.startswith('--') and a != '--help'):
             assert re.search(rf'{re.escape(opt)}\b', helps[package, exe]), \
-                f'ros2 run {package} {exe}: --help does not list {opt}'
+                f'{page}: ros2 run {package} {exe}: --help does not list {opt}'
 
 
-def test_every_ros2_launch_argument_in_the_readme_is_declared():
+@pytest.mark.parametrize('page', COMMAND_PAGES)
+def test_every_ros2_launch_argument_shown_is_declared(page):
     src = _read('src', 'im_bringup', 'launch', 'drive.launch.py')
     args = next(n for n in ast.walk(ast.parse(src)) if isinstance(n, ast.Assign)
                 and getattr(n.targets[0], 'id', '') == 'ARGUMENTS')
     declared = {elt.elts[0].value for elt in args.value.elts}
-    launches = [shlex.split(line) for line in _code_lines(_read('README.md'))
+    launches = [shlex.split(line) for line in _code_lines(_read(page))
                 if line.startswith('ros2 launch ')]
     assert launches
     for argv in launches:
         assert argv[2:4] == ['im_bringup', 'drive.launch.py'], argv
         used = {a.split(':=')[0] for a in argv[4:] if ':=' in a}
-        assert used <= declared, f'ros2 launch: undeclared arguments {used - declared}'
+        assert used <= declared, f'{page}: ros2 launch: undeclared arguments {used - declared}'
 
 
 def test_readme_ros2_stand_in_runs_an_executable(tmp_path):
