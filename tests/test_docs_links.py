@@ -48,7 +48,8 @@ def broken_links(path: str, root: str = ROOT) -> List[str]:
         if re.match(r'^[a-z][a-z0-9+.-]*:', target, re.I):      # http:, https:, mailto:
             continue
         file_part, _, anchor = target.partition('#')
-        dest = os.path.normpath(os.path.join(os.path.dirname(path), file_part)) if file_part else path
+        dest = (os.path.normpath(os.path.join(os.path.dirname(path), file_part)) if file_part
+                else path)
         dest_rel = os.path.relpath(dest, root)
         if not os.path.exists(dest):
             if dest_rel not in NOT_YET_WRITTEN:
@@ -62,7 +63,8 @@ def broken_links(path: str, root: str = ROOT) -> List[str]:
 
 
 def _pages() -> List[str]:
-    return [os.path.join(ROOT, 'README.md')] + sorted(glob.glob(os.path.join(ROOT, 'docs', '*.md')))
+    return ([os.path.join(ROOT, 'README.md')]
+            + sorted(glob.glob(os.path.join(ROOT, 'docs', '*.md'))))
 
 
 def test_every_relative_link_resolves():
@@ -82,7 +84,8 @@ def test_a_broken_file_or_anchor_is_named(tmp_path):
     """The checker itself: a missing page and a missing heading are each reported by name, a good
     link and an external one are not."""
     (tmp_path / 'docs').mkdir()
-    (tmp_path / 'docs' / 'a.md').write_text('# Page A\n\n## Run the demo (2 s)\n\n## Run the demo (2 s)\n')
+    (tmp_path / 'docs' / 'a.md').write_text(
+        '# Page A\n\n## Run the demo (2 s)\n\n## Run the demo (2 s)\n')
     readme = tmp_path / 'README.md'
     readme.write_text('[ok](docs/a.md#run-the-demo-2-s) [ok2](docs/a.md#run-the-demo-2-s-1) '
                       '[web](https://example.org/x.md) `[code](nowhere.md)`\n'

@@ -63,19 +63,21 @@ def test_readme_starts_with_the_two_commands_and_ci_runs_the_test_one():
 
 def test_readme_is_short():
     n = len(_read('README.md').splitlines())
-    assert n <= MAX_README_LINES, f'README.md has {n} lines (at most {MAX_README_LINES}): move detail to docs/'
+    assert n <= MAX_README_LINES, \
+        f'README.md has {n} lines (at most {MAX_README_LINES}): move detail to docs/'
 
 
 def test_first_screen_says_where_the_demo_files_land_and_what_to_read_next():
-    """The paths on the first screen are the ones the demo recipe writes: the recording, the summary
-    next to it (scenario's default) and the report directory."""
+    """The paths on the first screen are the ones the demo recipe writes: the recording, the
+    summary next to it (scenario's default) and the report directory."""
     recipe = _makefile_recipe('demo')
     record = re.search(r'--record (\S+)', recipe).group(1)
     report = re.search(r'--report (\S+)', recipe).group(1)
     summary = os.path.splitext(record)[0] + '.json'
     screen = '\n'.join(_read('README.md').splitlines()[:FIRST_SCREEN_LINES])
     for path in (record, summary, f'{report}/report.md'):
-        assert f'`{path}`' in screen, f'the first screen does not say where make demo writes {path}'
+        assert f'`{path}`' in screen, \
+            f'the first screen does not say where make demo writes {path}'
     nxt = screen.split('What to read next', 1)
     assert len(nxt) == 2, 'the first screen has no "What to read next" list'
     assert re.search(r'\]\(docs/[\w.-]+\.md\)', nxt[1]), 'the reading list links no docs/ page'
@@ -86,7 +88,8 @@ def test_every_make_target_shown_exists(page):
     targets = set(re.findall(r'^([\w-]+):', _read('Makefile'), re.M))
     shown = set(re.findall(r'`make ([\w-]+)`', _read(page)))
     shown |= {line.split()[1] for line in _code_lines(_read(page)) if line.startswith('make ')}
-    assert shown and shown <= targets, f'{page} shows make targets the Makefile lacks: {shown - targets}'
+    assert shown and shown <= targets, \
+        f'{page} shows make targets the Makefile lacks: {shown - targets}'
 
 
 def _ros2_run_path(package: str, executable: str) -> str:
@@ -105,7 +108,8 @@ def test_every_ros2_run_shown_runs_with_the_options_shown(page):
         package, exe = argv[2], argv[3]
         if (package, exe) not in helps:
             path = _ros2_run_path(package, exe)
-            assert os.access(path, os.X_OK), f'ros2 run {package} {exe}: {path} is not an executable'
+            assert os.access(path, os.X_OK), \
+                f'ros2 run {package} {exe}: {path} is not an executable'
             proc = subprocess.run([path, '--help'], capture_output=True, text=True, timeout=120)
             assert proc.returncode == 0, f'ros2 run {package} {exe} --help: {proc.stderr[-1000:]}'
             helps[package, exe] = proc.stdout
@@ -131,7 +135,8 @@ def test_every_ros2_launch_argument_shown_is_declared(page):
 
 def test_readme_ros2_stand_in_runs_an_executable(tmp_path):
     """Without a ROS 2 install the README's ``ros2`` shell function is how a user types ``ros2
-    run``: pasted as shown, it runs the installed executable and refuses other verbs in one line."""
+    run``: pasted as shown, it runs the installed executable and refuses other verbs in one
+    line."""
     defs = [line for line in _code_lines(_read('README.md')) if line.startswith('ros2()')]
     assert len(defs) == 1, 'the README defines its ros2 stand-in once'
     script = tmp_path / 'shell.sh'
@@ -152,14 +157,17 @@ def _blocks():
 def test_results_and_headline_are_generated_from_the_committed_summary():
     """docs/results.md's status block and the README's headline are exactly what `make readme`
     renders from docs/data/reproduce_summary.json (the copy `make reproduce` refreshes)."""
-    from im_studies.readme_status import DEFAULT_SUMMARY, first_difference, load_summary, render_headline
+    from im_studies.readme_status import (DEFAULT_SUMMARY, first_difference, load_summary,
+                                          render_headline)
     from im_studies.readme_status import render as render_status
     runs = load_summary(os.path.join(ROOT, DEFAULT_SUMMARY))
     results, headline = _blocks()
     expected = render_status(runs)
-    assert results == expected, f'docs/results.md is stale ({first_difference(results, expected)}): run make readme'
+    assert results == expected, \
+        f'docs/results.md is stale ({first_difference(results, expected)}): run make readme'
     expected = render_headline(runs)
-    assert headline == expected, f'README headline is stale ({first_difference(headline, expected)}): run make readme'
+    assert headline == expected, \
+        f'README headline is stale ({first_difference(headline, expected)}): run make readme'
     assert 2 <= len([l_ for l_ in headline.splitlines() if l_.startswith('- ')]) <= 5
 
 
@@ -171,15 +179,17 @@ def test_results_block_follows_the_summary_and_names_a_missing_run(tmp_path):
     from im_studies.readme_status import SummaryError, load_summary, render_headline
     from im_studies.readme_status import render as render_status
     runs = load_summary(os.path.join(ROOT, 'docs', 'data', 'reproduce_summary.json'))
-    row = next(r for r in runs if (r['task'], r['strategy'], r['controller'], r['variation'],
-                                   r['rate_hz']) == ('position', 'min_loss', 'nominal', 'none', 1e4))
+    key = ('position', 'min_loss', 'nominal', 'none', 1e4)
+    row = next(r for r in runs
+               if (r['task'], r['strategy'], r['controller'], r['variation'], r['rate_hz']) == key)
     row['E_loss_J'] = 99.5
     assert '| position | min_loss (beyond the thesis) | ' in render_status(runs)
     assert '**99.50**' in render_status(runs)
     assert 'loses 99.50 J on the' in render_headline(runs)
     runs.remove(row)
     for renderer in (render_status, render_headline):
-        with pytest.raises(SummaryError, match='task=position strategy=min_loss controller=nominal'):
+        with pytest.raises(SummaryError,
+                           match='task=position strategy=min_loss controller=nominal'):
             renderer(runs)
     bad = tmp_path / 'summary.json'
     bad.write_text(json.dumps({'not': 'a list'}))

@@ -3,8 +3,8 @@
     python -m im_studies.docs [docs/parameters.md]      (make readme runs it)
 
 The tables sit between ``<!-- topics:begin -->`` / ``<!-- topics:end -->`` and
-``<!-- parameters:begin -->`` / ``<!-- parameters:end -->``; ``tests/test_readme.py`` fails when the
-page no longer matches what the nodes declare.
+``<!-- parameters:begin -->`` / ``<!-- parameters:end -->``; ``tests/test_readme.py`` fails when
+the page no longer matches what the nodes declare.
 """
 from __future__ import annotations
 
