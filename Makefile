@@ -44,14 +44,16 @@ bench: build
 	$(VPY) -m pip install --disable-pip-version-check -q -r benchmarks/requirements.txt
 	$(RUN) python benchmarks/run_all.py
 
-# Also refreshes the committed summary the README's results block is generated from (make readme).
+# Also refreshes the committed summary docs/results.md and the README's headline are generated from (make readme).
 reproduce: build
 	$(RUN) python -m im_studies.reproduce --out bags/reproduce
 	mkdir -p docs/data && cp bags/reproduce/summary.json docs/data/reproduce_summary.json
 
-# README results block (between the status markers) generated from docs/data/reproduce_summary.json.
+# The generated blocks: docs/results.md (status markers) and the README's headline (headline markers)
+# from docs/data/reproduce_summary.json; the topic and parameter tables of docs/parameters.md from the code.
 readme: build
-	$(RUN) python -m im_studies.readme_status --summary docs/data/reproduce_summary.json --write
+	$(RUN) python -m im_studies.readme_status --summary docs/data/reproduce_summary.json --results docs/results.md --readme README.md --write
+	$(RUN) python -m im_studies.docs docs/parameters.md
 
 # Chapter-3 study on the ROS-free loop (energy table, sampled-data limit, core-loss exponent).
 study: build

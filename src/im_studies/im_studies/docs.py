@@ -1,8 +1,10 @@
-"""Regenerate the README's topic and parameter tables from the code (``python -m im_studies.docs``).
+"""Regenerate the topic and parameter tables of docs/parameters.md from the code.
+
+    python -m im_studies.docs [docs/parameters.md]      (make readme runs it)
 
 The tables sit between ``<!-- topics:begin -->`` / ``<!-- topics:end -->`` and
-``<!-- parameters:begin -->`` / ``<!-- parameters:end -->``; ``tests/test_readme.py`` fails when the
-README no longer matches what the nodes declare.
+``<!-- parameters:begin -->`` / ``<!-- parameters:end -->``; ``tests/test_readme.py`` fails when
+the page no longer matches what the nodes declare.
 """
 from __future__ import annotations
 
@@ -10,6 +12,9 @@ import os
 import random
 import re
 import sys
+
+#: the page holding the generated tables
+DEFAULT_PAGE = os.path.join('docs', 'parameters.md')
 
 
 def parameter_tables() -> str:
@@ -46,15 +51,19 @@ def render(text: str) -> str:
 def replace_section(text: str, name: str, body: str) -> str:
     pattern = re.compile(rf'(<!-- {name}:begin -->\n)(.*?)(<!-- {name}:end -->)', re.S)
     if not pattern.search(text):
-        raise ValueError(f'README has no <!-- {name}:begin --> ... <!-- {name}:end --> section')
+        raise ValueError(f'no <!-- {name}:begin --> ... <!-- {name}:end --> section')
     return pattern.sub(lambda m: m.group(1) + body.rstrip('\n') + '\n' + m.group(3), text)
 
 
 def main(argv=None) -> int:
-    path = (argv or sys.argv[1:] or [os.path.join(os.getcwd(), 'README.md')])[0]
-    with open(path) as f:
-        text = f.read()
-    new = render(text)
+    path = (argv or sys.argv[1:] or [os.path.join(os.getcwd(), DEFAULT_PAGE)])[0]
+    try:
+        with open(path) as f:
+            text = f.read()
+        new = render(text)
+    except (OSError, ValueError) as exc:
+        print(f'error: {path}: {getattr(exc, "strerror", None) or exc}', file=sys.stderr)
+        return 2
     with open(path, 'w') as f:
         f.write(new)
     print(f'{path}: tables regenerated')

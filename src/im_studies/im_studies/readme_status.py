@@ -1,13 +1,17 @@
-"""The README's results block, generated from ``make reproduce``'s summary (never edited by hand).
+"""The results page and the README's headline, generated from ``make reproduce``'s summary.
 
-    python -m im_studies.readme_status [--summary FILE] [--readme README.md] [--write | --check]
+    python -m im_studies.readme_status [--summary FILE] [--results docs/results.md]
+                                       [--readme README.md] [--write | --check]
 
 Reads the summary (a list of runs, ``bags/reproduce/summary.json``; by default the committed copy
-``docs/data/reproduce_summary.json`` that the committed block was made from), renders the block
-between ``<!-- status:begin -->`` and ``<!-- status:end -->`` and prints it, writes it into the
-README (``--write``), or exits 1 naming the first differing line when the README's block differs
-(``--check``). Figures that do not come from the graph runs (the sampled-data limits of ``make
-study`` and the gains of ``design_gains``) are quoted with the command that measures them.
+``docs/data/reproduce_summary.json`` that the committed blocks were made from) and renders two
+blocks, never edited by hand: the results between ``<!-- status:begin -->`` and
+``<!-- status:end -->`` in ``docs/results.md``, and the few-line headline between
+``<!-- headline:begin -->`` and ``<!-- headline:end -->`` in ``README.md``. Without an option it
+prints both; ``--write`` writes them into their files; ``--check`` exits 1 naming the file and the
+first differing line when a committed block differs. Figures that do not come from the graph runs
+(the sampled-data limits of ``make study`` and the gains of ``design_gains``) are quoted with the
+command that measures them.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ import argparse
 import json
 import math
 import sys
+import textwrap
 from pathlib import Path
 from typing import List, Optional, Tuple
 
@@ -23,8 +28,9 @@ from im_common.cli import parse_args
 from im_studies import thesis
 from im_studies.reproduce import THESIS_STRATEGIES as STRATEGIES
 
-BEGIN, END = '<!-- status:begin -->', '<!-- status:end -->'
 DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'
+#: where each generated block lives (one generator, this module, for both)
+DEFAULT_RESULTS, DEFAULT_README = 'docs/results.md', 'README.md'
 STRATEGY_LABEL = {'min_energy': 'min_energy (eq. 3.19/3.25)', 'constant_flux': 'constant_flux (1.2 Wb)',
                   'min_loss': 'min_loss (beyond the thesis)',
                   'optimal': 'optimal (planned flux trajectory)'}
@@ -128,6 +134,14 @@ def _bound_lines(runs: List[dict]) -> List[str]:
     ]
 
 
+def _robust_deviation(runs: List[dict]) -> float:
+    """Largest relative loss difference of the certified 1 ms gains at 1 kHz from the 100 µs runs
+    (the six chapter-3 runs)."""
+    return max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
+                   / _run(runs, t, s)['E_loss_J'] - 1.0)
+               for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
+
+
 def render(runs: List[dict]) -> str:
     """The status block (without the marker lines), deterministic in the summary."""
     table, worst = _table(runs)
@@ -141,9 +155,7 @@ def render(runs: List[dict]) -> str:
         key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
         return ' / '.join(format(_run(runs, task, s_, controller, 'chapter4')[key], fmt)
                           for s_ in STRATEGIES)
-    robust_dev = max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
-                         / _run(runs, t, s)['E_loss_J'] - 1.0)
-                     for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
+    robust_dev = _robust_deviation(runs)
     lines = [
         '## What it reproduces (measured)',
         '',
@@ -206,19 +218,53 @@ def render(runs: List[dict]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def split_readme(text: str, path: str = 'README.md') -> Tuple[str, str, str]:
-    """(before and including BEGIN line, block, END line and after); ValueError names the problem."""
-    if text.count(BEGIN) != 1 or text.count(END) != 1:
-        raise ValueError(f'{path} must contain {BEGIN} and {END} exactly once each')
-    head, rest = text.split(BEGIN + '\n', 1)
-    block, tail = rest.split(END, 1)
-    return head + BEGIN + '\n', block, END + tail
+def render_headline(runs: List[dict]) -> str:
+    """The README's results headline (without the marker lines): a few figures of the results
+    page, from the same summary."""
+    _, worst = _table(runs)
+    bp, bs = _bound(runs, 'position'), _bound(runs, 'speed')
+    loss = {(t, s_): _run(runs, t, s_)['E_loss_J'] for t in ('position', 'speed')
+            for s_ in ('min_loss', 'constant_flux')}
+    drift = {c: _run(runs, 'position', 'min_energy', c, 'chapter4')['pos_err_rms_rad']
+             for c in ('nominal', 'adaptive')}
+    robust_dev = _robust_deviation(runs)
+    intro = ('From `make reproduce` (the four-node graph in lock-step, T_s = 100 µs, the thesis\'s'
+             ' motor, loads and gains; every figure and its explanation in'
+             ' [docs/results.md](docs/results.md)):')
+    bullets = [
+        f"**Losses:** the `min_loss` flux strategy loses {loss['position', 'min_loss']:.2f} J on the"
+        f" position task and {loss['speed', 'min_loss']:.2f} J on the speed task, against"
+        f" {loss['position', 'constant_flux']:.2f} J and {loss['speed', 'constant_flux']:.2f} J at"
+        f" constant flux; no flux trajectory can lose less than"
+        f" {bp['E_loss_bound_J']['optimal']:.2f} J / {bs['E_loss_bound_J']['optimal']:.2f} J.",
+        f"**Drift:** under the chapter-4 parameter drift the adaptive controller holds the position"
+        f" RMS error at {drift['adaptive']:.4f} rad (nominal controller {drift['nominal']:.3f} rad;"
+        f" min_energy strategy).",
+        f'**Sampled gains:** with the certified 1 ms gains all six chapter-3 runs at 1 kHz have'
+        f' losses within {100 * robust_dev:.1f} % of the 100 µs runs.',
+        f'**Energy books** close to ≤ {_sci(worst)} of E_in on every run.',
+    ]
+    lines = [textwrap.fill(intro, 99), '',
+             *(textwrap.fill(b_, 99, initial_indent='- ', subsequent_indent='  ')
+               for b_ in bullets)]
+    return '\n'.join(lines) + '\n'
+
+
+def split_block(text: str, name: str, path: str) -> Tuple[str, str, str]:
+    """(before and including the begin line, block, end line and after) of the block ``name``;
+    ValueError names the file and the markers."""
+    begin, end = f'<!-- {name}:begin -->', f'<!-- {name}:end -->'
+    if text.count(begin) != 1 or text.count(end) != 1:
+        raise ValueError(f'{path} must contain {begin} and {end} exactly once each')
+    head, rest = text.split(begin + '\n', 1)
+    block, tail = rest.split(end, 1)
+    return head + begin + '\n', block, end + tail
 
 
 def first_difference(a: str, b: str) -> Optional[str]:
     for n, (x, y) in enumerate(zip(a.splitlines(), b.splitlines()), 1):
         if x != y:
-            return f'line {n} of the block: README has {x!r}, generated {y!r}'
+            return f'line {n} of the block: the file has {x!r}, generated {y!r}'
     if a != b:
         return 'the blocks differ in length'
     return None
@@ -226,34 +272,43 @@ def first_difference(a: str, b: str) -> Optional[str]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='readme_status', description=__doc__.split('\n\n')[0])
-    ap.add_argument('--summary', default=DEFAULT_SUMMARY, help=f'summary JSON (default {DEFAULT_SUMMARY})')
-    ap.add_argument('--readme', default='README.md')
+    ap.add_argument('--summary', default=DEFAULT_SUMMARY,
+                    help=f'summary JSON (default {DEFAULT_SUMMARY})')
+    ap.add_argument('--results', default=DEFAULT_RESULTS,
+                    help=f'page holding the status block (default {DEFAULT_RESULTS})')
+    ap.add_argument('--readme', default=DEFAULT_README,
+                    help=f'file holding the headline block (default {DEFAULT_README})')
     mode = ap.add_mutually_exclusive_group()
-    mode.add_argument('--write', action='store_true', help='replace the README block')
-    mode.add_argument('--check', action='store_true', help='exit 1 if the README block differs')
+    mode.add_argument('--write', action='store_true', help='replace both blocks in their files')
+    mode.add_argument('--check', action='store_true', help='exit 1 if a committed block differs')
     args = parse_args(ap, argv)
     try:
         try:
-            block = render(load_summary(args.summary))
+            runs = load_summary(args.summary)
+            blocks = [(args.results, 'status', render(runs)),
+                      (args.readme, 'headline', render_headline(runs))]
         except KeyError as exc:
             raise SummaryError(f'summary {args.summary}: a run lacks the figure {exc} '
                                f'(made by an older make reproduce?)') from None
         if not (args.write or args.check):
-            sys.stdout.write(block)
+            sys.stdout.write('\n'.join(block for _, _, block in blocks))
             return 0
-        text = Path(args.readme).read_text()
-        head, old, tail = split_readme(text, args.readme)
+        parts = [(path, name, block, split_block(Path(path).read_text(), name, path))
+                 for path, name, block in blocks]
     except (SummaryError, ValueError, OSError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     if args.check:
-        diff = first_difference(old, block)
-        if diff:
-            print(f'{args.readme} status block is stale ({diff}); run make readme', file=sys.stderr)
-            return 1
-        return 0
-    Path(args.readme).write_text(head + block + tail)
-    print(f'wrote the status block of {args.readme} from {args.summary}')
+        stale = 0
+        for path, name, block, (_, old, _) in parts:
+            diff = first_difference(old, block)
+            if diff:
+                print(f'{path} {name} block is stale ({diff}); run make readme', file=sys.stderr)
+                stale = 1
+        return stale
+    for path, name, block, (head, _, tail) in parts:
+        Path(path).write_text(head + block + tail)
+        print(f'wrote the {name} block of {path} from {args.summary}')
     return 0
 
 
