@@ -344,7 +344,7 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
             sub.callback(Signer(os.urandom(32), 'plantrun').sign(T.MEAS_CURRENT,
                                                                   rogue.fill(0, 100.0, 0.0)))
         assert node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX
-        assert node._early == []
+        assert node.signing.early == []
         ours = Signer(key, 'plantrun').sign(T.MEAS_CURRENT, rogue.fill(0, 1.0, 0.0))
         sub.callback(ours)                                   # verifies: taken by the gate
         assert node.gate.pending and node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX

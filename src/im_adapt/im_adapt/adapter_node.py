@@ -66,34 +66,30 @@ class AdapterNode(LockstepNode):
         if self.k_done < 0:
             self.publish_estimate(0)
 
-    def ready(self, inputs) -> None:
-        while inputs is not None and not self.done:
-            self.mark_started()
-            k = self.gate.expected // self.period
-            if self._enable_next is not None:
-                self.enable, self._enable_next = self._enable_next, None
-                self.status(PARAMETERS, enable=self.enable)
-            if self.enable:
-                i_a, i_b = inputs[T.MEAS_CURRENT]
-                v_a, v_b = inputs[T.CMD_VOLTAGE]
-                f_a, f_b = inputs[T.OBS_FLUX]
-                try:
-                    self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[self.shaft][1],
-                                    f_a, f_b)
-                except (ValueError, ArithmeticError) as exc:
-                    self.fail(f'adapter failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
-                    return
-            self.k_done = k
-            self.publish_estimate(k + 1)
-            if self.last_step is not None and k + 1 >= self.last_step:
-                self.reached_last_step()
+    def step(self, inputs: dict) -> None:
+        k = self.gate.expected // self.period
+        if self._enable_next is not None:
+            self.enable, self._enable_next = self._enable_next, None
+            self.status(PARAMETERS, enable=self.enable)
+        if self.enable:
+            i_a, i_b = inputs[T.MEAS_CURRENT]
+            v_a, v_b = inputs[T.CMD_VOLTAGE]
+            f_a, f_b = inputs[T.OBS_FLUX]
+            try:
+                self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[self.shaft][1],
+                                f_a, f_b)
+            except (ValueError, ArithmeticError) as exc:
+                self.fail(f'adapter failed at step {k} (t = {k * self.T_s:.9f} s): {exc}')
                 return
-            inputs = self.gate.advance()
+        self.k_done = k
+        self.publish_estimate(k + 1)
+        if self.last_step is not None and k + 1 >= self.last_step:
+            self.reached_last_step()
 
     def end_run(self, reason: str, notify: bool = False) -> None:
         if not self.done and self.gate.gaps:
-            ranges = ', '.join(f'{a / 1e9:.4f}-{b / 1e9:.4f} s' for a, b in self.gate.gap_ranges[:5])
-            self.get_logger().warning(f'{self.gate.gaps} steps skipped (inputs lost): {ranges}')
+            self.get_logger().warning(f'{self.gate.gaps} steps skipped (inputs lost): '
+                                      f'{self.gate.gap_text()}')
         super().end_run(reason, notify)
 
     def _on_set_parameters(self, parameters):

@@ -124,21 +124,17 @@ def make_node(com, T_s: float, **kwargs):
             self.gate_input(T.MEAS_SHAFT, shaft_in)
             self.start_protocol(5.0, 30.0)
 
-        def ready(self, inputs) -> None:
-            while inputs is not None and not self.done:
-                self.mark_started()
-                ns = self.gate.expected
-                i_a, i_b = inputs[T.MEAS_CURRENT]
-                _theta, omega = inputs[T.MEAS_SHAFT]
-                cmd = self.com.step(i_a, i_b, omega)
-                if cmd is None:           # over: zero volts for this step, then end the run
-                    self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE,
-                                                   self.out_cmd.fill(ns, 0.0, 0.0)))
-                    self.status(FINISHED, reason='commissioning tests done')
-                    self.finish()
-                    return
-                self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE, self.out_cmd.fill(ns, *cmd)))
-                inputs = self.gate.advance()
+        def step(self, inputs) -> None:
+            ns = self.gate.expected
+            i_a, i_b = inputs[T.MEAS_CURRENT]
+            _theta, omega = inputs[T.MEAS_SHAFT]
+            cmd = self.com.step(i_a, i_b, omega)
+            if cmd is None:           # over: zero volts for this step, then end the run
+                self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE, self.out_cmd.fill(ns, 0.0, 0.0)))
+                self.status(FINISHED, reason='commissioning tests done')
+                self.finish()
+                return
+            self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE, self.out_cmd.fill(ns, *cmd)))
 
     return CommissionNode()
 

@@ -205,6 +205,18 @@ class Signer:
         return hmac.compare_digest(self.tag_bytes(topic, payload).encode(), tag.encode())
 
 
+def status_payload(msg) -> bytes:
+    """What a status event's tag covers (a ``diagnostic_msgs/DiagnosticArray``): its stamp and
+    every field of every status, encoded canonically (rclpy's serialization leaves padding bytes
+    undefined, so it cannot be signed)."""
+    import json
+    st = msg.header.stamp
+    return json.dumps([st.sec, st.nanosec, [
+        [int.from_bytes(s.level, 'little') if isinstance(s.level, bytes) else int(s.level),
+         s.name, s.message, s.hardware_id, [[kv.key, kv.value] for kv in s.values]]
+        for s in msg.status]], separators=(',', ':')).encode()
+
+
 def progress_payload(node: str, stamp_ns: int) -> bytes:
     """What a lossless follower's acknowledgement tag covers: its name and the acked stamp."""
     return f'{node}\0{int(stamp_ns)}'.encode()

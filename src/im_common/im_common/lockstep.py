@@ -7,29 +7,20 @@ Step protocol (``docs/architecture.md``): step k is
 Two topic hops per step on the critical path. Every node computes from inputs identified by their
 stamps, never by arrival order, so the same run gives the same numbers whatever the scheduling.
 
-Run protocol (``/im/status``, one ``diagnostic_msgs/DiagnosticArray`` per event):
-- *startup*: each node publishes ``waiting`` and, once every one of its inputs has a publisher in
-  the graph, ``ready``. The plant (time master) publishes step 0 only when every node of its
-  ``wait_for`` list is ready, logging who is missing while it waits.
-- *running*: a node on the critical path (``exact`` gate) that waits longer than
-  ``input_timeout`` for an input reports the topic and stamp and stops with exit code 1. A node off
-  the critical path (``follow`` gate: the adapter when nobody uses its estimates, any node when the
-  plant runs in ``free_run``) never dies from being late: it takes what arrives, skips the steps it
-  lost, and counts them.
-- *lossless followers* (the recorder) announce themselves; the plant then stays within
-  ``follower_window`` steps of the last step they acknowledged on ``/im/progress``, so their
-  history can never overflow.
-- *end*: the plant publishes ``finished`` after its last step; every other node waits for it after
-  its own last step, so no node exits while its last message is still needed. Before a node exits
-  it waits until its reliable publishers' data has been acknowledged.
-- *stop*: SIGINT/SIGTERM/SIGHUP make a node publish ``stopping`` and exit 0. A node whose input
-  provider stops or fails ends its part of the run cleanly (``stopped``, exit 0); the plant's
-  ``stopped``/``failed``/``finished`` ends every node.
+The node is a composition of small parts, each in its own module and unit-tested without ROS:
+- :class:`im_common.step_gate.StepGate`: a step's inputs collected by stamp, when a step is
+  complete, the steps a follower lost;
+- :class:`im_common.run_protocol.RunProtocol`: which run the node follows, which events concern
+  it, when its part of the run is over (the protocol itself is described there);
+- :class:`im_common.signing.NodeSigning`: the tags of its messages and events (keys and tags:
+  :mod:`im_common.auth`), and the messages kept for a run not adopted yet.
+:class:`LockstepNode` wires them to rclpy (publishers, subscriptions, the watchdog timer, the log)
+and runs the step loop once for every node (:meth:`LockstepNode.ready`): a node shell declares its
+inputs and computes one step (:meth:`LockstepNode.step`).
 """
 from __future__ import annotations
 
 import difflib
-import math
 import sys
 import time
 from typing import Callable, Dict, List, Optional, Sequence
@@ -45,14 +36,16 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from . import auth, realtime
 from .conversions import NS_PER_S
 from .params import parameter_error
+from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, NOT_STATES,  # noqa: F401
+                           PARAMETERS, READY, RUNNING, STOPPED, STOPPING, WAITING, WARNING,
+                           RunProtocol, is_master, watchdog_limit)
+from .signing import NodeSigning, allowed_publishers, foreign_publishers
+from .step_gate import LOCKSTEP_DEPTH, StepGate, finite
 from .stopping import StopSignals
 
 #: Reader history of /im/status (events of every node on the domain while this one starts).
 STATUS_READER_DEPTH = 1000
 
-#: Bound of the lock-step protocol's windows: a lossless follower stays within half of it
-#: (``follower_window``), a node keeps that many early or pending steps.
-LOCKSTEP_DEPTH = 100
 #: History of the lock-step topics (publishers and readers). Deeper is not safer: a reliable
 #: writer resends its whole backlog to a reader that lags, from the loop's real-time threads in
 #: free_run. Tried with 1000: two free_run graphs on one domain under heavy machine load froze in
@@ -61,16 +54,8 @@ LOCKSTEP_DEPTH = 100
 #: every reader within ``LOCKSTEP_DEPTH // 2`` steps.
 LOCKSTEP_HISTORY = LOCKSTEP_DEPTH
 
-# Run states published on /im/status.
-WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
-PARAMETERS, WARNING = 'parameters', 'warning'
-#: Events for people and the recording, not states: they never change a node's state as its
-#: peers see it (a warning after 'ready' does not undo it).
-NOT_STATES = (PARAMETERS, WARNING)
-FINISHED, STOPPING, STOPPED, FAILED = 'finished', 'stopping', 'stopped', 'failed'
 #: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
 STOP_FLUSH_S = 3.0
-END_STATES = (FINISHED, STOPPED, FAILED)
 
 
 def lockstep_qos(depth: int = LOCKSTEP_HISTORY) -> QoSProfile:
@@ -95,95 +80,6 @@ def status_qos(depth: int = 20) -> QoSProfile:
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-class StepGate:
-    """Collects the inputs of step k by stamp; ``put`` returns them once all have arrived.
-
-    ``follow=False`` (*exact*): steps are taken strictly in order; inputs stamped before the
-    expected step (replays of transient-local history) are ignored, inputs for later steps wait in
-    ``pending`` until their step comes.
-
-    ``follow=True`` (*follow*): as above, but when a later step is complete while the expected one
-    is not, the expected one can never complete — each publisher delivers its samples in order, so
-    every sample of the earlier step that was ever going to arrive has arrived — and the gate
-    jumps to the complete step. The steps jumped over are counted in ``gaps`` and their stamp
-    ranges kept (the first ``MAX_GAP_RANGES``). ``pending`` is bounded to ``max_pending`` steps.
-    """
-
-    MAX_GAP_RANGES = 100
-
-    __slots__ = ('required', 'n', 'period', 'expected', 'pending', 'since', 'follow', 'gaps',
-                 'gap_ranges', 'max_pending')
-
-    def __init__(self, required: Sequence[str], period_ns: int, first_ns: int = 0,
-                 follow: bool = False, max_pending: int = 4 * LOCKSTEP_DEPTH):
-        self.required = tuple(required)
-        self.n = len(self.required)
-        self.period = int(period_ns)
-        self.expected = int(first_ns)
-        self.pending: Dict[int, dict] = {}
-        self.since = time.monotonic()
-        self.follow = follow
-        self.gaps = 0
-        self.gap_ranges: List[tuple] = []
-        self.max_pending = max_pending
-
-    def put(self, topic: str, ns: int, value) -> Optional[dict]:
-        if ns < self.expected:
-            return None
-        pending = self.pending
-        slot = pending.get(ns)
-        if slot is None:
-            slot = pending[ns] = {}
-            if self.follow and len(pending) > self.max_pending:
-                self._drop_oldest()
-        slot[topic] = value
-        if len(slot) == self.n:
-            if ns == self.expected:
-                del pending[ns]
-                return slot
-            if self.follow:
-                self._skip_to(ns)
-                del pending[ns]
-                return slot
-        return None
-
-    def _skip_to(self, ns: int) -> None:
-        lost = (ns - self.expected) // self.period
-        if lost > 0:
-            self.gaps += lost
-            if len(self.gap_ranges) < self.MAX_GAP_RANGES:
-                self.gap_ranges.append((self.expected, ns - self.period))
-        for old in [t for t in self.pending if t < ns]:
-            del self.pending[old]
-        self.expected = ns
-
-    def _drop_oldest(self) -> None:
-        oldest = min(self.pending)
-        del self.pending[oldest]
-        if oldest == self.expected:
-            self._skip_to(min(self.pending) if self.pending else oldest + self.period)
-
-    def advance(self) -> Optional[dict]:
-        """Move to the next step; return its inputs if they are already complete."""
-        self.expected += self.period
-        self.since = time.monotonic()
-        slot = self.pending.get(self.expected)
-        if slot is not None and len(slot) == self.n:
-            del self.pending[self.expected]
-            return slot
-        if self.follow:     # a later complete step may already be waiting
-            done = [t for t, s in self.pending.items() if len(s) == self.n]
-            if done:
-                ns = min(done)
-                self._skip_to(ns)
-                return self.pending.pop(ns)
-        return None
-
-    def missing(self) -> list:
-        have = self.pending.get(self.expected, {})
-        return [t for t in self.required if t not in have]
 
 
 def describe(description: str, lo=None, hi=None, read_only: bool = False, integer: bool = False,
@@ -227,10 +123,12 @@ def stamp_text(ns: int) -> str:
 class LockstepNode(Node):
     """Base of the drive nodes: parameters with descriptors, the run protocol, the watchdog.
 
-    A subclass declares its gate inputs with :meth:`gate_input`, implements :meth:`ready` (called
-    with each complete step's inputs) and calls :meth:`start_protocol` at the end of its
-    ``__init__``. ``critical`` nodes (the default) use an exact gate and a watchdog in lock-step;
-    ``critical = False`` nodes follow.
+    A subclass sets ``self.gate`` (a :class:`StepGate`), declares its gate inputs with
+    :meth:`gate_input`, implements :meth:`step` (one complete step's computation) and calls
+    :meth:`start_protocol` at the end of its ``__init__``. ``critical`` nodes (the default) use an
+    exact gate and a watchdog in lock-step; ``critical = False`` nodes follow. The parts it
+    composes: ``self.gate``, ``self.protocol`` (:class:`RunProtocol`) and ``self.signing``
+    (:class:`NodeSigning`).
     """
 
     critical = True
@@ -250,11 +148,8 @@ class LockstepNode(Node):
         self.period = 0
         self.last_step: Optional[int] = None
         self.inputs: List[str] = []
-        self.providers: Dict[str, str] = {}        # publisher node name -> one topic it provides
-        self.peers: Dict[str, tuple] = {}          # node name -> (state, values)
+        self.protocol = RunProtocol()
         self.free_run = False
-        self.master_state = ''                      # last state of the time master (plant)
-        self.run_id = ''                            # the time master's run this node follows
         self._foreign_said = False
         self._publishers_checked = 0.0
         self._refused_asked = 0.0
@@ -267,10 +162,6 @@ class LockstepNode(Node):
         self.on_stop: Optional[Callable[['LockstepNode'], None]] = None   # set by a graph
         self.own_process = False      # set by node_main: real-time scheduling is this process's
         self.scheduling = 'normal'
-        self._run_locked = False      # the followed run is running: no other is adopted
-        self._masters: Dict[str, str] = {}          # run id -> last state of its time master
-        self._early: List[tuple] = []               # (topic, data, handler) before the run
-        self._candidates: Dict[str, auth.Signer] = {}   # run id -> signer (runs not followed)
         self.refused_by_topic: Dict[str, int] = {}
         self.foreign: Dict[str, set] = {}           # topic -> foreign publishers seen on it
         self._foreign_status_said: set = set()
@@ -289,12 +180,38 @@ class LockstepNode(Node):
         if graph_key is None:
             path = key_file or auth.default_key_file()
             graph_key = auth.read_key_file(path, create=not key_file)
-        self.signer = auth.Signer(graph_key)
-        self.status_signer = auth.Signer(graph_key)
+        self.signing = NodeSigning(graph_key, _status_topic(), self.EARLY_MAX,
+                                   self.EARLY_KEEP_NEWEST)
+        self.signer = self.signing.signer               # the followed run's (set_run in place)
+        self.status_signer = self.signing.status_signer
         from diagnostic_msgs.msg import DiagnosticArray
         self._status_pub = self.create_publisher(DiagnosticArray, _status_topic(), status_qos())
         self.create_subscription(DiagnosticArray, _status_topic(), self._on_status,
                                  status_qos(STATUS_READER_DEPTH))
+
+    @property
+    def run_id(self) -> str:
+        """The time master's run this node follows ('' until it has seen one)."""
+        return self.protocol.run_id
+
+    @run_id.setter
+    def run_id(self, run_id: str) -> None:
+        self.protocol.run_id = run_id
+
+    @property
+    def peers(self) -> Dict[str, tuple]:
+        """Node name -> (state, values) of its last event in the run followed."""
+        return self.protocol.peers
+
+    @property
+    def providers(self) -> Dict[str, str]:
+        """Publisher node name -> one topic of this node's inputs it provides."""
+        return self.protocol.providers
+
+    @property
+    def master_state(self) -> str:
+        """The last state of the time master (plant) of the run followed."""
+        return self.protocol.master_state
 
     # Parameters -----------------------------------------------------------------------
     def param(self, name: str, default, description: str, lo=None, hi=None, read_only: bool = True,
@@ -340,15 +257,11 @@ class LockstepNode(Node):
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), NS_PER_S)
         st = DiagnosticStatus(level=bytes([level]), name=self.get_name(), message=state,
                               hardware_id='im_drive')
-        base = {'role': 'critical' if self.critical else 'follower',
-                'T_s_ns': self.period, 'step': ns // self.period if self.period else 0}
-        if self.time_master:
-            base['time_master'] = 'true'
-        base['run_id'] = self.run_id
-        base.update(values)
+        base = self.protocol.event_values(self.critical, self.time_master, self.period, ns,
+                                          values)
         st.values = [KeyValue(key=str(k), value=str(v)) for k, v in base.items()]
         msg.status = [st]
-        msg.header.frame_id = self._status_tag(msg)
+        msg.header.frame_id = self.signing.status_tag(msg)
         try:
             self._status_pub.publish(msg)
         except Exception as exc:  # noqa: BLE001 - a closed context during shutdown: log, go on
@@ -359,29 +272,15 @@ class LockstepNode(Node):
     def current_ns(self) -> int:
         return self.gate.expected if self.gate is not None else 0
 
-    def _status_tag(self, msg) -> str:
-        """The tag of a status event, over its content (:func:`_unsigned`)."""
-        return self.status_signer.tag_bytes(_status_topic(), _unsigned(msg))
-
     def _on_status(self, msg) -> None:
-        tag = msg.header.frame_id
-        if not self.status_signer.check_bytes(_status_topic(), _unsigned(msg), tag):
+        if not self.signing.status_verifies(msg):
             self._foreign_status(msg)
             return
+        own = self.get_name()
         for st in msg.status:
-            name = st.name
             values = {kv.key: kv.value for kv in st.values}
-            if name == self.get_name() and values.get('run_id', '') == self.run_id:
-                continue                                   # this node's own event
-            if st.message in NOT_STATES:
-                continue
-            master = values.get('time_master') == 'true'
-            if not master and values.get('run_id') and self.run_id \
-                    and values['run_id'] != self.run_id:
-                continue                                   # a node of another run (same key)
-            if not master:
-                self.peers[name] = (st.message, values)
-            self.on_peer_status(name, st.message, values)
+            if self.protocol.accept(own, st.name, st.message, values):
+                self.on_peer_status(st.name, st.message, values)
 
     def _foreign_status(self, msg) -> None:
         """A run-protocol event not signed by this graph: never acted on, reported once per
@@ -401,8 +300,8 @@ class LockstepNode(Node):
         """Follow the time master's run ``run_id``: the lock-step messages of that run verify."""
         if run_id == self.run_id:
             return
-        self.run_id = run_id
-        self.signer.set_run(run_id)
+        self.protocol.run_id = run_id
+        self.signing.set_run(run_id)
         if run_id:
             self.on_run_adopted()
             self._drain_early()
@@ -433,24 +332,24 @@ class LockstepNode(Node):
     def follow_master(self, state: str, run: str) -> bool:
         """A time master's event: choose the run to follow (the one running, else the latest
         waiting to start) and tell whether this event belongs to it."""
-        if run and not self._run_locked:
-            self._masters[run] = state
-            live = [r for r, st in self._masters.items() if st not in END_STATES]
-            running = [r for r in live if self._masters[r] == RUNNING]
-            if running:                         # follow the run that started
-                self.adopt_run(running[0])
-                self._run_locked = True
-                self._drain_early()             # what does not verify now is refused
-            elif live and self.run_id not in live:   # the latest time master waiting to start
-                self.adopt_run(live[-1])
-            elif not live and not self.run_id:
-                self.adopt_run(run)             # its end is news for this node too
+        adopt, lock = self.protocol.master_event(state, run)
+        if adopt is not None:
+            self.adopt_run(adopt)
+        if lock:
+            self.lock_run()
         return bool(run) and run == self.run_id
+
+    def lock_run(self) -> None:
+        """The followed run is final: what was kept for another run and does not verify for this
+        one is refused now."""
+        self.protocol.locked = True
+        self._drain_early()
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         """React to another node's event: the time master's end ends this node; a provider that
         stops or fails ends this node's part of the run."""
-        if values.get('time_master') == 'true' and not self.time_master:
+        master = is_master(values)
+        if master and not self.time_master:
             run = values.get('run_id', '')
             if not self.follow_master(state, run):
                 if self.run_id and run != self.run_id and not self._foreign_said:
@@ -459,7 +358,7 @@ class LockstepNode(Node):
                         f"ignoring '{name}' of another run ({run}) on this ROS domain; this "
                         f"node follows run {self.run_id}")
                 return
-            self.master_state = state
+            self.protocol.master_state = state
             if state == RUNNING:
                 self.free_run = values.get('mode') == 'free_run'
                 if self.free_run and self.gate is not None:
@@ -468,16 +367,11 @@ class LockstepNode(Node):
                     self.enter_realtime()
         if self.done:
             return
-        if values.get('time_master') == 'true' and state in END_STATES:
-            following = not self.critical or (self.gate is not None and self.gate.follow)
-            if state != FINISHED or self.state == FINISHING or following:
-                self.end_run(f"run ended by {name}: {state}"
-                             + (f" ({values['reason']})" if values.get('reason') else ''))
-            return
-        if state in (STOPPING, FAILED, STOPPED) and name in self.providers and self.critical:
-            self.end_run(f"input provider '{name}' {state}"
-                         + (f" ({values['reason']})" if values.get('reason') else ''),
-                         notify=True)
+        following = not self.critical or (self.gate is not None and self.gate.follow)
+        end = self.protocol.end_of_part(name, state, values, self.state, following,
+                                        self.critical)
+        if end is not None:
+            self.end_run(*end)
 
     def end_run(self, reason: str, notify: bool = False) -> None:
         """This node's part of the run is over (not a failure of this node)."""
@@ -517,31 +411,13 @@ class LockstepNode(Node):
 
     # Who may publish ------------------------------------------------------------------------
     def _allowed_publishers(self, text: str) -> Dict[str, set]:
-        """topic -> allowed publisher nodes ('/ns/name'): the topic table's publisher in this
-        node's namespace, plus the ``allowed_publishers`` items."""
-        from .topics import TOPICS
-        ns = self.get_namespace().rstrip('/')
-        allowed = {t.name: {f'{ns}/{t.publisher}'} for t in TOPICS if ' ' not in t.publisher}
-        for item in text.split():
-            topic, sep, node = item.partition('=')
-            if not sep or not topic.startswith('/') or not node:
-                raise ValueError(f"invalid parameter 'allowed_publishers' item {item!r}: "
-                                 f"expected /topic=node")
-            allowed.setdefault(topic, set()).add(node if node.startswith('/')
-                                                 else f'{ns}/{node}')
-        return allowed
+        """topic -> allowed publisher nodes ('/ns/name') (:func:`signing.allowed_publishers`)."""
+        return allowed_publishers(self.get_namespace(), text)
 
     def foreign_publishers(self, topic: str) -> List[str]:
         """Publishers of ``topic`` (graph API) that are not allowed on it, as '/ns/name'."""
-        allowed = self.allowed.get(topic)
-        out = []
-        for i in self.get_publishers_info_by_topic(topic):
-            if i.node_name == '_NODE_NAME_UNKNOWN_':
-                continue            # a participant whose node is not discovered yet: next time
-            full = f'{i.node_namespace.rstrip("/")}/{i.node_name}'
-            if allowed is not None and full not in allowed and full not in out:
-                out.append(full)
-        return out
+        return foreign_publishers(self.allowed.get(topic),
+                                  self.get_publishers_info_by_topic(topic))
 
     def check_publishers(self, now: Optional[float] = None) -> None:
         """About every second (and before the first step): a publisher of an input (or of /clock)
@@ -578,36 +454,23 @@ class LockstepNode(Node):
     def unsigned_input(self, topic: str, data: bytes, handler: Callable) -> None:
         """``data`` does not verify for the run this node follows now: before that run is running
         it may belong to the run this node is about to follow (kept, bounded, and handed to
-        ``handler`` again when the run is adopted or starts); afterwards it is refused."""
-        if not self._run_locked and not self.time_master and (
-                self.EARLY_KEEP_NEWEST or len(self._early) < self.EARLY_MAX):
-            # keep it only if it may be of a run this node could still follow: before any time
-            # master was seen, anything (bounded); afterwards only what verifies for one of them
-            # (a flood of foreign messages cannot push the graph's own out of this buffer)
-            others = [r for r, st in self._masters.items()
-                      if st not in END_STATES and r != self.run_id]
-            if not self._masters or any(self._signer_for(r).verify(topic, data) for r in others):
-                self._early.append((topic, data, handler))
-                if len(self._early) > self.EARLY_MAX:
-                    old_topic, old_data, _ = self._early.pop(0)
-                    self.refuse_unsigned(old_topic, old_data)
-                return
-        self.refuse_unsigned(topic, data)
-
-    def _signer_for(self, run_id: str) -> auth.Signer:
-        signer = self._candidates.get(run_id)
-        if signer is None:
-            signer = self._candidates[run_id] = auth.Signer(self.signer.key, run_id)
-        return signer
+        ``handler`` again when the run is adopted or starts: :meth:`NodeSigning.keep_early`);
+        afterwards it is refused."""
+        p = self.protocol
+        refused = (topic, data)
+        if not p.locked and not self.time_master:
+            refused = self.signing.keep_early(topic, data, handler,
+                                              p.other_live_runs() if p.masters else None)
+        if refused is not None:
+            self.refuse_unsigned(*refused)
 
     def _drain_early(self) -> None:
-        early, self._early = self._early, []
-        for _topic, data, handler in early:
+        for _topic, data, handler in self.signing.take_early():
             handler(data)
 
     def sign(self, topic: str, data: bytes) -> bytes:
         """A lock-step message of this node, tagged for the run it follows."""
-        return self.signer.sign(topic, data)
+        return self.signing.sign(topic, data)
 
     def refuse_unsigned(self, topic: str, data: bytes) -> None:
         """A message without this graph's tag for this run: refused, counted, its topic's
@@ -651,10 +514,10 @@ class LockstepNode(Node):
         else:
             missing_master = False
         if not missing and not missing_master and self.ready_to_start():
-            self.providers = {}
+            providers = self.protocol.providers = {}
             for t in self.inputs:
                 for n in sorted({i.node_name for i in self.get_publishers_info_by_topic(t)}):
-                    self.providers.setdefault(n, t)
+                    providers.setdefault(n, t)
             self.check_publishers(now=time.monotonic() + 1.0)
             self.on_ready()
             return
@@ -691,17 +554,15 @@ class LockstepNode(Node):
         g = self.gate
         if g is None or g.follow or self.state != RUNNING and self.state != READY:
             return
-        limit = self._timeout if self.state == RUNNING else max(self._timeout,
-                                                                 self._startup_timeout)
-        if not self.time_master:        # the time master diagnoses a stalled run first
-            limit = 1.5 * limit + 1.0
+        limit = watchdog_limit(self.state, self._timeout, self._startup_timeout,
+                               self.time_master)
         if time.monotonic() - g.since > limit:
             missing = g.missing()
             gone = [t for t in missing if self.count_publishers(t) == 0]
             hint = (f' ({", ".join(gone)} no longer has a publisher)' if gone else '')
             hint += self.crosstalk_hint()
             self.fail(f"no {', '.join(missing)} stamped {stamp_text(g.expected)} "
-                      f"(step {g.expected // g.period}) within {limit:.1f} s of wall time"
+                      f"(step {g.step()}) within {limit:.1f} s of wall time"
                       f"{hint}; stopping")
 
     def crosstalk_hint(self) -> str:
@@ -740,7 +601,7 @@ class LockstepNode(Node):
             except (ValueError, KeyError, IndexError) as exc:
                 self.refuse(topic, None, f'cannot decode: {exc}')
                 return
-            if not _finite(value):
+            if not finite(value):
                 held = last_good.get(topic)
                 self.refuse(topic, ns, f'non-finite value {value!r}; '
                             + ('holding the previous one' if held is not None
@@ -763,7 +624,28 @@ class LockstepNode(Node):
             self.get_logger().error(f'refused {topic}{where}: {reason} (refused so far: '
                                     f'{self.refused})')
 
-    def ready(self, inputs) -> None:  # pragma: no cover - each node defines it
+    def ready(self, inputs) -> None:
+        """The step loop, the one of every node: compute the complete step ``inputs`` (its
+        stamp is ``self.gate.expected``), then every following step whose inputs are already
+        there, until one is incomplete, the node held a step back (:meth:`hold_step`), reached its
+        last step, or is done."""
+        gate = self.gate
+        while inputs is not None and not self.done:
+            if self.hold_step(inputs):
+                return
+            self.mark_started()
+            self.step(inputs)
+            if self.done or self.state != RUNNING:
+                return
+            inputs = gate.advance()
+
+    def hold_step(self, inputs) -> bool:
+        """Hook: True keeps the complete step ``inputs`` for later (the node resumes it by
+        calling :meth:`ready` again); the plant holds while a lossless follower lags."""
+        return False
+
+    def step(self, inputs: dict) -> None:  # pragma: no cover - each node defines it
+        """Compute the step stamped ``self.gate.expected`` from its inputs (topic -> value)."""
         raise NotImplementedError
 
     def mark_started(self) -> None:
@@ -815,23 +697,7 @@ class LockstepNode(Node):
                 return
 
 
-def _finite(value, _isfinite=math.isfinite) -> bool:
-    """Every number in a decoded input (a tuple of floats or a dict of them) is finite."""
-    return all(map(_isfinite, value.values() if isinstance(value, dict) else value))
-
-
 _U32x2 = __import__('struct').Struct('<iI')
-
-
-def _unsigned(msg) -> bytes:
-    """What a status event's tag covers: its stamp and every field of every status, encoded
-    canonically (rclpy's serialization leaves padding bytes undefined, so it cannot be signed)."""
-    import json
-    st = msg.header.stamp
-    return json.dumps([st.sec, st.nanosec, [
-        [int.from_bytes(s.level, 'little') if isinstance(s.level, bytes) else int(s.level),
-         s.name, s.message, s.hardware_id, [[kv.key, kv.value] for kv in s.values]]
-        for s in msg.status]], separators=(',', ':')).encode()
 
 
 def _status_topic() -> str:

@@ -164,14 +164,6 @@ class ControllerNode(LockstepNode):
                 return
         self.get_logger().error(f'rejected {T.SETPOINT}: no position, velocity or effort value')
 
-    def ready(self, inputs) -> None:
-        while inputs is not None and not self.done:
-            self.mark_started()
-            self.step(inputs)
-            if self.done or self.state == 'finishing':
-                return
-            inputs = self.gate.advance()
-
     def step(self, inputs: dict) -> None:
         ns = self.gate.expected
         k = ns // self.period

@@ -72,14 +72,6 @@ class ObserverNode(LockstepNode):
         if self.k_done < 0:
             self.publish_estimate(0)
 
-    def ready(self, inputs) -> None:
-        while inputs is not None and not self.done:
-            self.mark_started()
-            self.step(inputs)
-            if self.done or self.state == 'finishing':
-                return
-            inputs = self.gate.advance()
-
     def step(self, inputs: dict) -> None:
         k = self.gate.expected // self.period
         try:

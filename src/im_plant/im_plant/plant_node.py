@@ -280,7 +280,7 @@ class PlantNode(LockstepNode):
     def _resume(self) -> None:
         if self._parked is not None and not self.done:
             ready, self._parked = self._parked, None
-            self._run(ready)
+            self.ready(ready)
         elif self.state == 'draining':
             self._try_finish()
 
@@ -318,20 +318,20 @@ class PlantNode(LockstepNode):
         if self.mode == 'free_run':
             self._free_command(ns, vx, vy)
             return
-        self._run(self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy)))
+        self.ready(self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy)))
 
-    def _run(self, ready) -> None:
-        while ready is not None and not self.done:
-            if self.followers and self._follower_lag((self.sim.k + 1) * self.period):
-                self._parked = ready
-                return
-            if self.wall_start is None:
-                self.wall_start = time.perf_counter()
-            self.mark_started()
-            self.advance(*ready[T.CMD_VOLTAGE])
-            if self.state != RUNNING:
-                return
-            ready = self.gate.advance()
+    def hold_step(self, inputs) -> bool:
+        """A lossless follower more than ``follower_window`` steps behind: park the step until
+        it acknowledges (:meth:`_resume`)."""
+        if self.followers and self._follower_lag((self.sim.k + 1) * self.period):
+            self._parked = inputs
+            return True
+        return False
+
+    def step(self, inputs: dict) -> None:
+        if self.wall_start is None:
+            self.wall_start = time.perf_counter()
+        self.advance(*inputs[T.CMD_VOLTAGE])
 
     # Free run ----------------------------------------------------------------------------
     def _free_command(self, ns: int, vx: float, vy: float) -> None:

@@ -40,7 +40,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from im_common import cdr, realtime
 from im_common import topics as T
 from im_common.lockstep import (END_STATES, FINISHED, READY, RUNNING, WARNING, LockstepNode,
-                                _unsigned, stamp_text)
+                                stamp_text)
 from .bag import BagError, BagWriter, offered_qos_yaml
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
@@ -378,8 +378,7 @@ class RecorderNode(LockstepNode):
             from rclpy.serialization import serialize_message
 
             def cb(msg) -> None:
-                if topic == T.STATUS and not self.status_signer.check_bytes(
-                        T.STATUS, _unsigned(msg), msg.header.frame_id):
+                if topic == T.STATUS and not self.signing.status_verifies(msg):
                     self._refused(topic, serialize_message(msg))
                     return
                 data = serialize_message(msg)
@@ -417,8 +416,7 @@ class RecorderNode(LockstepNode):
     def flush_unverified(self) -> None:
         """At the end: messages kept until their run was known are recorded if they verify now,
         else kept as refused (no run of this graph was seen: a playback, another graph)."""
-        self._run_locked = True
-        self._drain_early()
+        self.lock_run()
 
     def _write(self, write, topic, data, t, counts, track) -> None:
         try:

@@ -1,0 +1,129 @@
+"""The step gate: which inputs of a lock-step node make up step k, and when that step is
+complete.
+
+ROS-free (plain Python, unit-tested without rclpy in ``tests/test_lockstep_parts.py``). A node
+(:class:`im_common.lockstep.LockstepNode`) feeds every decoded input into its gate by topic and
+stamp (:meth:`StepGate.put`); the gate hands back a step's inputs once every one of them has
+arrived, the node computes that step and asks the gate for the next one (:meth:`StepGate.advance`).
+Inputs are identified by their stamps, never by arrival order, so the same run gives the same
+numbers whatever the scheduling (``docs/architecture.md``, *Gates*).
+
+The gate also keeps the bookkeeping the watchdog and the end-of-run report need: the stamp it
+waits for (``expected``), since when (``since``), the inputs still missing for it
+(:meth:`StepGate.missing`), and, for a *follow* gate, the steps it jumped over (``gaps``,
+``gap_ranges``).
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Dict, List, Optional, Sequence
+
+#: Bound of the lock-step protocol's windows: a lossless follower stays within half of it
+#: (``follower_window``), a node keeps that many early or pending steps.
+LOCKSTEP_DEPTH = 100
+
+
+class StepGate:
+    """Collects the inputs of step k by stamp; ``put`` returns them once all have arrived.
+
+    ``follow=False`` (*exact*): steps are taken strictly in order; inputs stamped before the
+    expected step (replays of transient-local history) are ignored, inputs for later steps wait in
+    ``pending`` until their step comes.
+
+    ``follow=True`` (*follow*): as above, but when a later step is complete while the expected one
+    is not, the expected one can never complete — each publisher delivers its samples in order, so
+    every sample of the earlier step that was ever going to arrive has arrived — and the gate
+    jumps to the complete step. The steps jumped over are counted in ``gaps`` and their stamp
+    ranges kept (the first ``MAX_GAP_RANGES``). ``pending`` is bounded to ``max_pending`` steps.
+    """
+
+    MAX_GAP_RANGES = 100
+
+    __slots__ = ('required', 'n', 'period', 'expected', 'pending', 'since', 'follow', 'gaps',
+                 'gap_ranges', 'max_pending')
+
+    def __init__(self, required: Sequence[str], period_ns: int, first_ns: int = 0,
+                 follow: bool = False, max_pending: int = 4 * LOCKSTEP_DEPTH):
+        self.required = tuple(required)
+        self.n = len(self.required)
+        self.period = int(period_ns)
+        self.expected = int(first_ns)
+        self.pending: Dict[int, dict] = {}
+        self.since = time.monotonic()
+        self.follow = follow
+        self.gaps = 0
+        self.gap_ranges: List[tuple] = []
+        self.max_pending = max_pending
+
+    def put(self, topic: str, ns: int, value) -> Optional[dict]:
+        """Take ``topic``'s value stamped ``ns``; return the expected step's inputs (topic ->
+        value) if this completes it (a follow gate: or a later step, jumping to it), else None."""
+        if ns < self.expected:
+            return None
+        pending = self.pending
+        slot = pending.get(ns)
+        if slot is None:
+            slot = pending[ns] = {}
+            if self.follow and len(pending) > self.max_pending:
+                self._drop_oldest()
+        slot[topic] = value
+        if len(slot) == self.n:
+            if ns == self.expected:
+                del pending[ns]
+                return slot
+            if self.follow:
+                self._skip_to(ns)
+                del pending[ns]
+                return slot
+        return None
+
+    def _skip_to(self, ns: int) -> None:
+        lost = (ns - self.expected) // self.period
+        if lost > 0:
+            self.gaps += lost
+            if len(self.gap_ranges) < self.MAX_GAP_RANGES:
+                self.gap_ranges.append((self.expected, ns - self.period))
+        for old in [t for t in self.pending if t < ns]:
+            del self.pending[old]
+        self.expected = ns
+
+    def _drop_oldest(self) -> None:
+        oldest = min(self.pending)
+        del self.pending[oldest]
+        if oldest == self.expected:
+            self._skip_to(min(self.pending) if self.pending else oldest + self.period)
+
+    def advance(self) -> Optional[dict]:
+        """Move to the next step; return its inputs if they are already complete."""
+        self.expected += self.period
+        self.since = time.monotonic()
+        slot = self.pending.get(self.expected)
+        if slot is not None and len(slot) == self.n:
+            del self.pending[self.expected]
+            return slot
+        if self.follow:     # a later complete step may already be waiting
+            done = [t for t, s in self.pending.items() if len(s) == self.n]
+            if done:
+                ns = min(done)
+                self._skip_to(ns)
+                return self.pending.pop(ns)
+        return None
+
+    def missing(self) -> list:
+        """The required topics that have not brought the expected step yet."""
+        have = self.pending.get(self.expected, {})
+        return [t for t in self.required if t not in have]
+
+    def step(self) -> int:
+        """The number of the step the gate waits for."""
+        return self.expected // self.period
+
+    def gap_text(self, n: int = 5) -> str:
+        """The first ``n`` stamp ranges jumped over, as ``a-b s`` items (for the end report)."""
+        return ', '.join(f'{a / 1e9:.4f}-{b / 1e9:.4f} s' for a, b in self.gap_ranges[:n])
+
+
+def finite(value, _isfinite=math.isfinite) -> bool:
+    """Every number in a decoded input (a tuple of floats or a dict of them) is finite."""
+    return all(map(_isfinite, value.values() if isinstance(value, dict) else value))

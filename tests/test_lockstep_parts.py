@@ -1,0 +1,229 @@
+"""The parts LockstepNode is composed of, each on its own and without ROS: the step gate
+(im_common.step_gate), the run protocol's decisions (im_common.run_protocol) and the node's message
+signing (im_common.signing); and the one step loop every node shell shares."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from im_common import topics as T
+from im_common.auth import Signer
+from im_common.conversions import Vector3Out
+from im_common.run_protocol import (FAILED, FINISHED, FINISHING, READY, RUNNING, STOPPING,
+                                    WAITING, WARNING, RunProtocol, watchdog_limit)
+from im_common.signing import NodeSigning, allowed_publishers, foreign_publishers
+from im_common.step_gate import StepGate, finite
+
+P = 100_000          # T_s = 1e-4 s in ns
+A, B = '/a', '/b'
+
+
+def test_the_parts_import_without_ros():
+    code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing; '
+            "sys.exit(1 if 'rclpy' in sys.modules else 0)")
+    assert subprocess.run([sys.executable, '-c', code]).returncode == 0
+
+
+# Step gate --------------------------------------------------------------------------------
+def test_an_exact_gate_hands_over_a_step_once_every_input_of_it_is_there():
+    g = StepGate([A, B], P)
+    assert g.put(A, 0, 1.0) is None and g.missing() == [B]
+    assert g.put(A, P, 2.0) is None                # the next step waits, whatever the order
+    assert g.put(B, P, 20.0) is None
+    assert g.put(B, 0, 10.0) == {A: 1.0, B: 10.0}
+    assert g.advance() == {A: 2.0, B: 20.0}        # already complete
+    assert g.step() == 1
+    assert g.advance() is None and g.step() == 2 and g.missing() == [A, B]
+    assert g.put(A, P, 99.0) is None               # a replay of an earlier step: ignored
+    assert g.pending == {}
+
+
+def test_an_exact_gate_never_skips_a_step():
+    g = StepGate([A], P)
+    assert g.put(A, 2 * P, 3.0) is None            # step 0 still missing
+    assert g.put(A, 3 * P, 4.0) is None
+    assert g.expected == 0 and g.gaps == 0 and sorted(g.pending) == [2 * P, 3 * P]
+
+
+def test_a_follow_gate_jumps_to_a_complete_later_step_and_counts_what_it_lost():
+    g = StepGate([A, B], P, follow=True)
+    g.put(A, 0, 1.0)                               # step 0 never completes (B lost)
+    g.put(A, 3 * P, 4.0)
+    assert g.put(B, 3 * P, 40.0) == {A: 4.0, B: 40.0}
+    assert g.expected == 3 * P and g.gaps == 3 and g.gap_ranges == [(0, 2 * P)]
+    assert g.pending == {}                         # the incomplete step 0 is gone
+    assert g.gap_text() == '0.0000-0.0002 s'
+    assert g.advance() is None and g.expected == 4 * P
+    g.put(B, 4 * P, 50.0)
+    assert g.put(A, 6 * P, 7.0) is None
+    assert g.put(B, 6 * P, 70.0) == {A: 7.0, B: 70.0}
+    assert g.expected == 6 * P and g.gaps == 5 and g.gap_ranges == [(0, 2 * P), (4 * P, 5 * P)]
+
+
+def test_a_follow_gate_keeps_a_bounded_number_of_pending_steps():
+    g = StepGate([A, B], P, follow=True, max_pending=3)
+    for k in range(10):
+        g.put(A, k * P, float(k))                  # B never comes
+    assert len(g.pending) == 3 and min(g.pending) == 7 * P
+    assert g.expected == 7 * P and g.gaps == 7
+
+
+def test_finite_looks_at_every_number_of_a_decoded_input():
+    assert finite((1.0, 2.0)) and finite({'R_r': 1.0})
+    assert not finite((1.0, float('nan'))) and not finite({'R_r': float('inf')})
+
+
+# Run protocol -------------------------------------------------------------------------------
+def test_a_node_follows_the_latest_waiting_run_and_locks_on_the_one_that_runs():
+    p = RunProtocol()
+    assert p.master_event(WAITING, 'run1') == ('run1', False)
+    p.run_id = 'run1'
+    assert p.master_event(WAITING, 'run1') == (None, False)
+    assert p.master_event(WAITING, 'run2') == (None, False)    # it follows a live run already
+    assert p.other_live_runs() == ['run2']
+    assert p.master_event(RUNNING, 'run2') == ('run2', True)   # run2 started first
+    p.run_id, p.locked = 'run2', True
+    assert p.master_event(RUNNING, 'run1') == (None, False)    # final once running
+    assert p.masters == {'run1': WAITING, 'run2': RUNNING}
+
+
+def test_a_run_that_ended_is_adopted_only_by_a_node_following_none():
+    p = RunProtocol()
+    assert p.master_event(FINISHED, 'old') == ('old', False)
+    assert p.master_event(WAITING, '') == (None, False)        # no run id: not a run
+
+
+def test_events_that_do_not_concern_a_node_are_dropped_and_peers_remembered():
+    p = RunProtocol('run1')
+    ours = {'run_id': 'run1'}
+    assert not p.accept('observer', 'observer', READY, ours)           # its own
+    assert not p.accept('observer', 'controller', WARNING, ours)       # not a state
+    assert not p.accept('observer', 'controller', READY, {'run_id': 'run2'})
+    assert p.accept('observer', 'controller', READY, ours)
+    assert p.accept('observer', 'plant', RUNNING, {'run_id': 'run2', 'time_master': 'true'})
+    assert p.peers == {'controller': (READY, ours)}                    # masters are not peers
+
+
+def test_which_events_end_a_nodes_part_of_the_run():
+    p = RunProtocol('run1')
+    p.providers = {'plant': T.MEAS_CURRENT}
+    plant = {'time_master': 'true', 'run_id': 'run1'}
+    # an exact node still computing its steps waits for them; when finishing or following, ends
+    assert p.end_of_part('plant', FINISHED, plant, RUNNING, False, True) is None
+    assert p.end_of_part('plant', FINISHED, plant, FINISHING, False, True) == (
+        'run ended by plant: finished', False)
+    assert p.end_of_part('plant', FINISHED, plant, RUNNING, True, False) is not None
+    assert p.end_of_part('plant', FAILED, dict(plant, reason='trip'), RUNNING, False, True) == (
+        'run ended by plant: failed (trip)', False)
+    # a provider stopping ends a critical reader, which says so; a follower goes on
+    assert p.end_of_part('plant', STOPPING, {}, RUNNING, False, True) == (
+        "input provider 'plant' stopping", True)
+    assert p.end_of_part('plant', STOPPING, {}, RUNNING, True, False) is None
+    assert p.end_of_part('adapter', STOPPING, {}, RUNNING, False, True) is None
+
+
+def test_the_time_master_diagnoses_a_stalled_run_before_the_others():
+    assert watchdog_limit(RUNNING, 5.0, 30.0, True) == 5.0
+    assert watchdog_limit(READY, 5.0, 30.0, True) == 30.0
+    assert watchdog_limit(RUNNING, 5.0, 30.0, False) == 8.5
+
+
+def test_an_event_says_role_period_step_and_run():
+    p = RunProtocol('abcd')
+    assert p.event_values(True, True, P, 7 * P, {'mode': 'lockstep'}) == {
+        'role': 'critical', 'T_s_ns': P, 'step': 7, 'time_master': 'true', 'run_id': 'abcd',
+        'mode': 'lockstep'}
+    assert p.event_values(False, False, 0, 5, {})['step'] == 0
+
+
+# Message signing ----------------------------------------------------------------------------
+def _msg(k=0, value=1.0):
+    return Vector3Out(Signer.frame('alphabeta')).fill(k * P, value, 0.0)
+
+
+def test_a_node_signs_and_verifies_for_the_run_it_follows():
+    key = os.urandom(32)
+    s, other = NodeSigning(key, T.STATUS, 8), NodeSigning(key, T.STATUS, 8)
+    s.set_run('run1')
+    data = s.sign(T.CMD_VOLTAGE, _msg())
+    assert not other.verify(T.CMD_VOLTAGE, data)            # follows no run yet
+    other.set_run('run1')
+    assert other.verify(T.CMD_VOLTAGE, data) and not other.verify(T.OBS_FLUX, data)
+    assert not NodeSigning(os.urandom(32), T.STATUS, 8).signer_for('run1').verify(
+        T.CMD_VOLTAGE, data)
+
+
+def test_status_events_are_signed_over_their_content():
+    s = NodeSigning(os.urandom(32), T.STATUS, 8)
+    kv = SimpleNamespace(key='run_id', value='run1')
+    msg = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=1, nanosec=2),
+                                                 frame_id=''),
+                          status=[SimpleNamespace(level=b'\x00', name='plant', message=RUNNING,
+                                                  hardware_id='im_drive', values=[kv])])
+    msg.header.frame_id = s.status_tag(msg)
+    assert s.status_verifies(msg)
+    kv.value = 'run2'
+    assert not s.status_verifies(msg)
+    assert not NodeSigning(os.urandom(32), T.STATUS, 8).status_verifies(msg)
+
+
+def _handler(data):
+    raise AssertionError('only called when the kept messages are drained')
+
+
+def test_messages_of_a_run_not_adopted_yet_are_kept_only_if_they_may_be_of_it():
+    key = os.urandom(32)
+    s = NodeSigning(key, T.STATUS, 3)
+    ours = NodeSigning(key, T.STATUS, 3)
+    ours.set_run('next')
+    foreign = NodeSigning(os.urandom(32), T.STATUS, 3)
+    foreign.set_run('next')
+    mine = ours.sign(T.MEAS_CURRENT, _msg())
+    rogue = foreign.sign(T.MEAS_CURRENT, _msg())
+    assert s.keep_early(T.MEAS_CURRENT, rogue, _handler, None) is None      # no time master yet
+    assert s.keep_early(T.MEAS_CURRENT, rogue, _handler, ['next']) == (T.MEAS_CURRENT, rogue)
+    assert s.keep_early(T.MEAS_CURRENT, mine, _handler, ['next']) is None
+    assert [d for _t, d, _h in s.take_early()] == [rogue, mine] and s.early == []
+
+
+@pytest.mark.parametrize('keep_newest', [False, True])
+def test_the_early_buffer_is_bounded(keep_newest):
+    s = NodeSigning(os.urandom(32), T.STATUS, 2, keep_newest=keep_newest)
+    msgs = [_msg(k) for k in range(3)]
+    assert s.keep_early(T.MEAS_CURRENT, msgs[0], _handler, None) is None
+    assert s.keep_early(T.MEAS_CURRENT, msgs[1], _handler, None) is None
+    refused = s.keep_early(T.MEAS_CURRENT, msgs[2], _handler, None)
+    # a follower needs the first steps of its run; the recorder the newest (no gap after them)
+    assert refused == (T.MEAS_CURRENT, msgs[0] if keep_newest else msgs[2])
+    assert [d for _t, d, _h in s.early] == (msgs[1:] if keep_newest else msgs[:2])
+
+
+def test_who_may_publish_on_a_nodes_inputs():
+    allowed = allowed_publishers('/drive/', '/im/command/voltage=ctl2 /im/setpoint=/ops/panel')
+    assert allowed[T.CMD_VOLTAGE] == {'/drive/controller', '/drive/ctl2'}
+    assert allowed[T.SETPOINT] == {'/drive/user', '/ops/panel'}    # the table names 'user'
+    with pytest.raises(ValueError, match="'allowed_publishers' item 'controller'"):
+        allowed_publishers('/', 'controller')
+    pub = lambda ns, name: SimpleNamespace(node_namespace=ns, node_name=name)  # noqa: E731
+    infos = [pub('/drive', 'controller'), pub('/', 'rogue'), pub('/', 'rogue'),
+             pub('/', '_NODE_NAME_UNKNOWN_'), pub('/drive', 'ctl2')]
+    assert foreign_publishers(allowed[T.CMD_VOLTAGE], infos) == ['/rogue']
+    assert foreign_publishers(None, infos) == []
+
+
+# The step loop -------------------------------------------------------------------------------
+def test_the_step_loop_has_one_home():
+    """Every node shell computes one step (``step``); none copies the loop that takes complete
+    steps from its gate (``LockstepNode.ready``)."""
+    from im_adapt.adapter_node import AdapterNode
+    from im_common.lockstep import LockstepNode
+    from im_controller.controller_node import ControllerNode
+    from im_observer.observer_node import ObserverNode
+    from im_plant.plant_node import PlantNode
+    for cls in (AdapterNode, ControllerNode, ObserverNode, PlantNode):
+        assert 'ready' not in vars(cls) and 'step' in vars(cls), cls.__name__
+    assert 'ready' in vars(LockstepNode)
