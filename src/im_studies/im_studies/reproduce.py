@@ -147,8 +147,8 @@ def run_one(item) -> dict:
 
 def run_all(specs: List[dict], out_dir: str, record: bool = False,
             workers: Optional[int] = None) -> List[dict]:
-    """Every spec through the graph on the campaign pool (im_studies.campaign), in order."""
-    from im_studies.campaign import pool_map
+    """Every spec through the graph on the campaign pool (im_studies.campaign_pool), in order."""
+    from im_studies.campaign_pool import pool_map
     return pool_map(run_one, [(n, spec, out_dir, record) for n, spec in enumerate(specs)],
                     workers=workers, label='reproduce')
 

@@ -79,7 +79,7 @@ def study(progress: bool = True) -> dict:
     plan = [(task, strategy, T, None if which == 'thesis' else designs[T])
             for T in (1e-4, 1e-3) for which in ('thesis', 'certified')
             for task in TASKS for strategy in STRATEGIES]
-    from im_studies.campaign import pool_map
+    from im_studies.campaign_pool import pool_map
     rows = pool_map(_run_item, plan, label='robust_study', progress=progress)
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
             'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',

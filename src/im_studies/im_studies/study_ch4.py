@@ -196,7 +196,7 @@ def comparison(tasks=TASKS, strategies=STRATEGIES, controllers=CONTROLLERS + (TR
                variations=('chapter4', 'none'), T_s: float = 1e-4,
                workers: Optional[int] = None) -> List[dict]:
     """Every (variation, task, strategy, controller) case on the campaign pool, in order."""
-    from im_studies.campaign import pool_map
+    from im_studies.campaign_pool import pool_map
     cases = [(task, strategy, controller, variation, T_s) for variation in variations
              for task in tasks for strategy in strategies for controller in controllers]
     return pool_map(_case, cases, workers=workers, label='compare')

@@ -178,7 +178,7 @@ def _drift_case(args) -> dict:
 
 def run_drift(motors: dict, workers=None) -> list:
     """Every motor × task × strategy × :data:`DRIFT_CONTROLLERS` under :func:`drift_schedule`."""
-    from .campaign import pool_map
+    from .campaign_pool import pool_map
     cases = [(m, name, task, strategy, c) for name, m in motors.items()
              for task in ('position', 'speed') for strategy in STRATEGIES for c in DRIFT_CONTROLLERS]
     return pool_map(_drift_case, cases, workers=workers, label='motors drift')
