@@ -13,6 +13,8 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from im_bringup.config import ADAPTATION
+
 from .campaign_pool import one_line
 
 SPEC_KEYS = ('name', 'seed', 'draws', 'motor', 'box', 'sigma_min', 'tasks', 'strategies',
@@ -23,8 +25,9 @@ SPEC_KEYS = ('name', 'seed', 'draws', 'motor', 'box', 'sigma_min', 'tasks', 'str
 DRAWN = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: what the stability map may be drawn over: a drawn parameter, σ or σL_s
 MAP_AXES = DRAWN + ('sigma', 'sigma_L_s')
-#: controllers a campaign runs: the nominal one, or with the adapter's improved or thesis law
-CAMPAIGN_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis', 'adaptive_thesis_pair')
+#: controllers a campaign (and the chapter-4 study) runs: the nominal one and every adaptive one
+#: (im_bringup.config.ADAPTATION: the adapter's law and feed); robust has its own study
+NOMINAL_AND_ADAPTIVE = ('nominal',) + tuple(ADAPTATION)
 STATUSES = ('ok', 'tripped', 'diverged', 'failed')
 UNSTABLE = ('tripped', 'diverged')
 FIGURES = ('pos_err_max_rad', 'pos_err_rms_rad', 'speed_err_max_rad_s', 'speed_err_rms_rad_s',
@@ -162,7 +165,8 @@ def _files(spec: dict, key: str, where: str, base: Path) -> List[str]:
 
 def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) -> dict:
     """The spec with every default filled in and every value checked (SpecError, one line)."""
-    from im_bringup.config import STRATEGIES, TASKS
+    from im_controller.control_law import MODES
+    from im_controller.flux import STRATEGIES
     base = Path(base or '.')
     if not isinstance(raw, dict):
         raise SpecError(f'{where}: a campaign spec is a mapping of {", ".join(SPEC_KEYS)}')
@@ -192,9 +196,9 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
     if isinstance(s, bool) or not isinstance(s, (int, float)) or not 0 < s < 1:
         raise SpecError(f'{where}: sigma_min = {s!r} must be in (0, 1)')
     spec['sigma_min'] = float(s)
-    for key, allowed, default in (('tasks', TASKS, ['position']),
+    for key, allowed, default in (('tasks', MODES, ['position']),
                                   ('strategies', STRATEGIES, ['min_energy']),
-                                  ('controllers', CAMPAIGN_CONTROLLERS, ['nominal'])):
+                                  ('controllers', NOMINAL_AND_ADAPTIVE, ['nominal'])):
         v = raw.get(key, default)
         v = [v] if isinstance(v, str) else v
         if not isinstance(v, list) or not v:
@@ -337,7 +341,6 @@ def adapter_for(job: dict, spec: dict):
         return None
     from im_adapt.adaptation import AdaptationGains
     from im_adapt.hook import LockstepAdapter
-    from im_bringup.config import ADAPTATION
     return LockstepAdapter.build(base_motor(spec),
                                  AdaptationGains(**ADAPTATION[job['controller']]))
 

@@ -21,7 +21,8 @@ from typing import List, Optional, Tuple
 from im_common.cli import parse_args
 
 from im_studies import thesis
-from im_studies.reproduce import THESIS_STRATEGIES as STRATEGIES
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES as STRATEGIES
 
 BEGIN, END = '<!-- status:begin -->', '<!-- status:end -->'
 DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'
@@ -87,7 +88,7 @@ def _table(runs: List[dict]) -> Tuple[List[str], float]:
             'max tracking error |',
             '| --- | --- | ---: | ---: | ---: | --- |']
     worst = 0.0
-    for task in ('position', 'speed'):
+    for task in THESIS_TASKS:
         bound = _bound(runs, task)
         for strategy in STRATEGIES + ('optimal',):
             r = _run(runs, task, strategy)
@@ -143,7 +144,7 @@ def render(runs: List[dict]) -> str:
                           for s_ in STRATEGIES)
     robust_dev = max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
                          / _run(runs, t, s)['E_loss_J'] - 1.0)
-                     for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
+                     for t in THESIS_TASKS for s in STRATEGIES)
     lines = [
         '## What it reproduces (measured)',
         '',
