@@ -4,6 +4,7 @@ failure rows, the Parquet file."""
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -87,6 +88,26 @@ def test_a_gains_file_for_another_period_is_refused(tmp_path):
     with pytest.raises(SpecError, match=r'gain_period = 0.001 s but gain set .c. runs at '
                                         r'T_s = 0.0001 s'):
         gain_arguments(read_spec(path))
+
+
+def test_a_spec_or_gains_file_that_is_not_yaml_is_one_line_naming_the_file_and_where(tmp_path):
+    """The spec and the gains files it names are read by im_common.yamlio, the reader of every
+    parameters file: the same line, naming the file and the line and column of the fault."""
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('name: x\ndraws: [1, 2\nseed: 3\n')
+    with pytest.raises(SpecError) as e:
+        read_spec(str(broken))
+    assert re.fullmatch(rf'campaign spec {re.escape(str(broken))} is not valid YAML '
+                        r'\(line \d+, column \d+\): [^\n]+', str(e.value)), str(e.value)
+    path = write_spec(tmp_path, gain_sets=[{'name': 'g', 'gains': str(broken), 'T_s': 1e-3}])
+    with pytest.raises(SpecError) as e:
+        gain_arguments(read_spec(path))
+    assert re.fullmatch(rf'parameters file {re.escape(str(broken))} is not valid YAML '
+                        r'\(line \d+, column \d+\): [^\n]+', str(e.value)), str(e.value)
+    missing = tmp_path / 'missing.yaml'
+    with pytest.raises(SpecError) as e:
+        read_spec(str(missing))
+    assert str(e.value) == f'cannot read campaign spec {missing}: No such file or directory'
 
 
 def test_draws_are_reproducible_inside_the_box_and_above_sigma_min(tmp_path):

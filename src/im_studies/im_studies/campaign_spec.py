@@ -236,10 +236,10 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
 
 def read_spec(path: str) -> dict:
     """Read and normalize a spec file (SpecError naming the file on any problem)."""
-    from im_common.params import read_yaml_file
+    from im_common.yamlio import YamlFileError, read_yaml_file
     try:
         raw = read_yaml_file(path, 'campaign spec')
-    except ValueError as exc:
+    except YamlFileError as exc:
         raise SpecError(str(exc)) from None
     return normalize_spec(raw, where=str(path), base=Path(path).resolve().parent)
 
@@ -304,11 +304,12 @@ def gain_arguments(spec: dict) -> Dict[str, dict]:
         elif g['gains'] == 'certified':
             out[g['name']] = design_for_scenario(g['T_s'])
         else:
-            from im_bringup.scenario import merge_yaml
+            from im_common.yamlio import ParametersFileError, load_parameters_file
             params: dict = {'controller': {}, 'observer': {}}
             try:
-                merge_yaml(params, g['gains'])
-            except ValueError as exc:
+                for node, values in load_parameters_file(g['gains'], nodes=params).items():
+                    params[node].update(values)
+            except ParametersFileError as exc:
                 raise SpecError(str(exc)) from None
             for n, p in params.items():
                 period = p.get('gain_period')
