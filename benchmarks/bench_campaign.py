@@ -63,10 +63,10 @@ def _rss_mb(pid: int) -> float:
 
 def _engine(name: str, n_noop: int, spec_path: str) -> dict:
     """Runs in a child interpreter: one engine's figures."""
-    from im_studies import campaign as cp
-    spec = cp.read_spec(spec_path)
-    jobs = cp.jobs(spec)
-    gains = cp.gain_arguments(spec)
+    from im_studies import campaign_pool, campaign_spec
+    spec = campaign_spec.read_spec(spec_path)
+    jobs = campaign_spec.jobs(spec)
+    gains = campaign_spec.gain_arguments(spec)
     workers = os.cpu_count() or 1
     t0 = time.perf_counter()
     if name == 'process_pool':
@@ -78,19 +78,19 @@ def _engine(name: str, n_noop: int, spec_path: str) -> dict:
         list(ex.map(_noop, range(n_noop), chunksize=1))
         per_task = (time.perf_counter() - t0) / n_noop
         t0 = time.perf_counter()
-        list(ex.map(cp.run_job, jobs, [spec] * len(jobs), [gains] * len(jobs)))
+        list(ex.map(campaign_spec.run_job, jobs, [spec] * len(jobs), [gains] * len(jobs)))
         runs = time.perf_counter() - t0
         mem = _rss_mb(os.getpid())
         ex.shutdown()
     elif name == 'dask':
-        with cp.Pool(workers) as pool:
+        with campaign_pool.Pool(workers) as pool:
             pool.client.submit(_noop, 1, pure=False).result()
             start = time.perf_counter() - t0
             t0 = time.perf_counter()
             pool.client.gather(pool.client.map(_noop, range(n_noop), pure=False))
             per_task = (time.perf_counter() - t0) / n_noop
             t0 = time.perf_counter()
-            for _ in pool.map(cp.run_job, jobs, spec, gains):
+            for _ in pool.map(campaign_spec.run_job, jobs, spec, gains):
                 pass
             runs = time.perf_counter() - t0
             mem = _rss_mb(os.getpid())
@@ -104,7 +104,7 @@ def _engine(name: str, n_noop: int, spec_path: str) -> dict:
         t0 = time.perf_counter()
         ray.get([noop.remote(i) for i in range(n_noop)])
         per_task = (time.perf_counter() - t0) / n_noop
-        run = ray.remote(cp.run_job)
+        run = ray.remote(campaign_spec.run_job)
         s_ref, g_ref = ray.put(spec), ray.put(gains)
         t0 = time.perf_counter()
         ray.get([run.remote(j, s_ref, g_ref) for j in jobs])
@@ -133,9 +133,10 @@ def _child(name: str, n_noop: int, spec_path: str) -> dict:
 
 
 def _campaign_wall(spec_path: str, workers: int, out: str) -> float:
-    from im_studies import campaign as cp
-    s = cp.run_campaign(cp.read_spec(spec_path), out, spec_path, workers=workers,
-                        progress=False)
+    from im_studies.campaign import run_campaign
+    from im_studies.campaign_spec import read_spec
+    s = run_campaign(read_spec(spec_path), out, spec_path, workers=workers,
+                     progress=False)
     return s['wall_s']
 
 

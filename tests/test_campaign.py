@@ -1,8 +1,10 @@
-"""Campaigns (im_studies.campaign, docs/campaign.md): specs, draws, the Dask pool (a real local
-cluster), determinism over worker counts, resume after a kill, failure rows, the Parquet file."""
+"""Campaigns (im_studies.campaign and its campaign_* modules, docs/campaign.md): specs, draws,
+the Dask pool (a real local cluster), determinism over worker counts, resume after a kill,
+failure rows, the Parquet file."""
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -11,7 +13,12 @@ import time
 import pytest
 import yaml
 
-from im_studies import campaign as cp
+from im_studies.campaign import run_campaign
+from im_studies.campaign_journal import JOURNAL, read_journal
+from im_studies.campaign_pool import pool_map
+from im_studies.campaign_report import read_rows
+from im_studies.campaign_spec import (DRAWN, SpecError, draw, gain_arguments, jobs, read_spec,
+                                      run_job)
 
 GAINS_1MS = os.path.join(os.path.dirname(__file__), '..', 'src', 'im_bringup', 'config',
                          'gains_1ms.yaml')
@@ -61,8 +68,8 @@ def same_rows(a, b):
 ])
 def test_a_bad_spec_is_one_line_naming_the_key(tmp_path, over, needle):
     path = write_spec(tmp_path, **over)
-    with pytest.raises(cp.SpecError) as e:
-        cp.read_spec(path)
+    with pytest.raises(SpecError) as e:
+        read_spec(path)
     msg = str(e.value)
     assert needle in msg and path in msg and '\n' not in msg
 
@@ -78,17 +85,37 @@ def test_the_cli_refuses_a_bad_spec_without_a_traceback(tmp_path):
 def test_a_gains_file_for_another_period_is_refused(tmp_path):
     path = write_spec(tmp_path, gain_sets=[{'name': 'c', 'gains': os.path.abspath(GAINS_1MS),
                                             'T_s': 1e-4}])
-    with pytest.raises(cp.SpecError, match=r'gain_period = 0.001 s but gain set .c. runs at '
-                                           r'T_s = 0.0001 s'):
-        cp.gain_arguments(cp.read_spec(path))
+    with pytest.raises(SpecError, match=r'gain_period = 0.001 s but gain set .c. runs at '
+                                        r'T_s = 0.0001 s'):
+        gain_arguments(read_spec(path))
+
+
+def test_a_spec_or_gains_file_that_is_not_yaml_is_one_line_naming_the_file_and_where(tmp_path):
+    """The spec and the gains files it names are read by im_common.yamlio, the reader of every
+    parameters file: the same line, naming the file and the line and column of the fault."""
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('name: x\ndraws: [1, 2\nseed: 3\n')
+    with pytest.raises(SpecError) as e:
+        read_spec(str(broken))
+    assert re.fullmatch(rf'campaign spec {re.escape(str(broken))} is not valid YAML '
+                        r'\(line \d+, column \d+\): [^\n]+', str(e.value)), str(e.value)
+    path = write_spec(tmp_path, gain_sets=[{'name': 'g', 'gains': str(broken), 'T_s': 1e-3}])
+    with pytest.raises(SpecError) as e:
+        gain_arguments(read_spec(path))
+    assert re.fullmatch(rf'parameters file {re.escape(str(broken))} is not valid YAML '
+                        r'\(line \d+, column \d+\): [^\n]+', str(e.value)), str(e.value)
+    missing = tmp_path / 'missing.yaml'
+    with pytest.raises(SpecError) as e:
+        read_spec(str(missing))
+    assert str(e.value) == f'cannot read campaign spec {missing}: No such file or directory'
 
 
 def test_draws_are_reproducible_inside_the_box_and_above_sigma_min(tmp_path):
-    spec = cp.read_spec(write_spec(tmp_path, draws=300))
+    spec = read_spec(write_spec(tmp_path, draws=300))
     box = spec['box']
     assert set(box) == {'R_r', 'L_s', 'L_r', 'L_sr'}        # the default: chapter-4 box
-    draws = [cp.draw(spec, d) for d in range(300)]
-    assert draws == [cp.draw(spec, d) for d in range(300)]
+    draws = [draw(spec, d) for d in range(300)]
+    assert draws == [draw(spec, d) for d in range(300)]
     for v in draws:
         for k, dist in box.items():
             assert dist['lo'] <= v[k] <= dist['hi']
@@ -96,14 +123,14 @@ def test_draws_are_reproducible_inside_the_box_and_above_sigma_min(tmp_path):
     # uniform over the box: the mean of R_r sits mid-range (4 sigma of 300 draws ~ 0.056 ohm)
     r = [v['R_r'] for v in draws]
     assert abs(sum(r) / len(r) - 0.84) < 0.056
-    other = cp.read_spec(write_spec(tmp_path, draws=3, seed=8))
-    assert cp.draw(other, 0) != draws[0]
+    other = read_spec(write_spec(tmp_path, draws=3, seed=8))
+    assert draw(other, 0) != draws[0]
 
 
 def test_a_normal_distribution_is_truncated_to_its_range(tmp_path):
-    spec = cp.read_spec(write_spec(tmp_path, box={'R_r': {'normal': [0.84, 0.2],
-                                                          'within': [0.7, 1.0]}}))
-    vals = [cp.draw(spec, d)['R_r'] for d in range(200)]
+    spec = read_spec(write_spec(tmp_path, box={'R_r': {'normal': [0.84, 0.2],
+                                                       'within': [0.7, 1.0]}}))
+    vals = [draw(spec, d)['R_r'] for d in range(200)]
     assert min(vals) >= 0.7 and max(vals) <= 1.0 and len(set(vals)) == 200
 
 
@@ -111,11 +138,11 @@ def test_a_normal_distribution_is_truncated_to_its_range(tmp_path):
 def test_a_row_is_the_offline_loop_of_that_motor(tmp_path):
     from im_bringup.offline import Scenario, gain_arguments_from_parameters, simulate
     from im_common.params import THESIS_MOTOR
-    spec = cp.read_spec(write_spec(tmp_path))
-    gains = cp.gain_arguments(spec)
-    job = cp.jobs(spec)[0]                               # draw 0, certified gains
-    row = cp.run_job(job, spec, gains)
-    motor = THESIS_MOTOR.with_values(**{k: job[k] for k in cp.DRAWN})
+    spec = read_spec(write_spec(tmp_path))
+    gains = gain_arguments(spec)
+    job = jobs(spec)[0]                               # draw 0, certified gains
+    row = run_job(job, spec, gains)
+    motor = THESIS_MOTOR.with_values(**{k: job[k] for k in DRAWN})
     ref = simulate(Scenario(task='position', T_s=1e-3, duration=0.5, motor=motor,
                             estimates=THESIS_MOTOR,
                             **gain_arguments_from_parameters(gains['certified']))).summary
@@ -123,15 +150,15 @@ def test_a_row_is_the_offline_loop_of_that_motor(tmp_path):
     for k in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V'):
         assert row[k] == ref[k]
     # the certified gains are not the thesis's: the same motor gives another run
-    assert cp.run_job(cp.jobs(spec)[1], spec, gains)['E_in_J'] != row['E_in_J']
+    assert run_job(jobs(spec)[1], spec, gains)['E_in_J'] != row['E_in_J']
 
 
 def test_a_row_through_the_graph_equals_the_offline_row(tmp_path):
-    spec = cp.read_spec(write_spec(tmp_path, duration=0.05, mode='offline'))
-    gains = cp.gain_arguments(spec)
-    job = cp.jobs(spec)[0]
-    off = cp.run_job(job, spec, gains)
-    graph = cp.run_job(job, dict(spec, mode='graph'), gains)
+    spec = read_spec(write_spec(tmp_path, duration=0.05, mode='offline'))
+    gains = gain_arguments(spec)
+    job = jobs(spec)[0]
+    off = run_job(job, spec, gains)
+    graph = run_job(job, dict(spec, mode='graph'), gains)
     assert graph['status'] == off['status'] == 'ok', graph['error']
     for k in ('E_in_J', 'E_copper_J', 'pos_err_max_rad', 'i_max_A'):
         assert graph[k] == pytest.approx(off[k], rel=1e-9, abs=1e-12), k
@@ -141,18 +168,18 @@ def test_adaptive_rows_adapt_to_the_drawn_motor(tmp_path):
     """controllers: [nominal, adaptive]: on a motor whose R_r is 40 % below the nominal model's,
     the adapter (starting from the nominal motor) cuts the position error; the rows say which
     controller ran, and the graph gives the offline row."""
-    spec = cp.read_spec(write_spec(tmp_path, draws=1, duration=1.0, box={'R_r': 0.5},
-                                   controllers=['nominal', 'adaptive'],
-                                   gain_sets=[{'name': 'thesis', 'gains': 'thesis',
-                                               'T_s': 1e-4}]))
-    gains = cp.gain_arguments(spec)
-    nominal, adaptive = (cp.run_job(j, spec, gains) for j in cp.jobs(spec))
+    spec = read_spec(write_spec(tmp_path, draws=1, duration=1.0, box={'R_r': 0.5},
+                                controllers=['nominal', 'adaptive'],
+                                gain_sets=[{'name': 'thesis', 'gains': 'thesis',
+                                            'T_s': 1e-4}]))
+    gains = gain_arguments(spec)
+    nominal, adaptive = (run_job(j, spec, gains) for j in jobs(spec))
     assert (nominal['controller'], adaptive['controller']) == ('nominal', 'adaptive')
     assert nominal['status'] == adaptive['status'] == 'ok'
     assert adaptive['pos_err_rms_rad'] < 0.5 * nominal['pos_err_rms_rad']
     short = dict(spec, duration=0.05)
-    off = cp.run_job(cp.jobs(short)[1], short, gains)
-    graph = cp.run_job(cp.jobs(short)[1], dict(short, mode='graph'), gains)
+    off = run_job(jobs(short)[1], short, gains)
+    graph = run_job(jobs(short)[1], dict(short, mode='graph'), gains)
     assert graph['status'] == 'ok', graph['error']
     for k in ('E_in_J', 'pos_err_max_rad'):
         assert graph[k] == pytest.approx(off[k], rel=1e-9, abs=1e-12), k
@@ -164,11 +191,11 @@ def test_unstable_and_failed_runs_are_rows(tmp_path):
     prof = tmp_path / 'p.yaml'
     prof.write_text(yaml.safe_dump({'setpoints': [{'t': 0.0, 'position': -1.5},
                                                   {'t': 0.05, 'position': -1.4}]}))
-    spec = cp.read_spec(write_spec(tmp_path, draws=1, tasks=['position', 'speed'],
-                                   profiles=['task', str(prof)]))
-    gains = cp.gain_arguments(spec)
+    spec = read_spec(write_spec(tmp_path, draws=1, tasks=['position', 'speed'],
+                                profiles=['task', str(prof)]))
+    gains = gain_arguments(spec)
     rows = {(r['task'], r['gain_set'], r['profile']): r for r in
-            (cp.run_job(j, spec, gains) for j in cp.jobs(spec))}
+            (run_job(j, spec, gains) for j in jobs(spec))}
     assert rows[('position', 'certified', 'task')]['status'] == 'ok'
     assert rows[('position', 'certified', str(prof))]['status'] == 'ok'
     t = rows[('position', 'thesis', 'task')]
@@ -181,12 +208,12 @@ def test_unstable_and_failed_runs_are_rows(tmp_path):
 # ----------------------------------------------------------------------------------- pool
 def test_same_rows_on_one_and_two_workers_of_a_real_dask_cluster(tmp_path):
     path = write_spec(tmp_path, draws=4)
-    spec = cp.read_spec(path)
-    one = cp.run_campaign(spec, str(tmp_path / 'one'), path, workers=1, progress=False)
-    two = cp.run_campaign(spec, str(tmp_path / 'two'), path, workers=2, progress=False)
+    spec = read_spec(path)
+    one = run_campaign(spec, str(tmp_path / 'one'), path, workers=1, progress=False)
+    two = run_campaign(spec, str(tmp_path / 'two'), path, workers=2, progress=False)
     assert (one['engine'], one['workers'], two['workers']) == ('dask', 1, 2)
-    rows1 = cp.read_rows(tmp_path / 'one' / 'runs.parquet')
-    rows2 = cp.read_rows(tmp_path / 'two' / 'runs.parquet')
+    rows1 = read_rows(tmp_path / 'one' / 'runs.parquet')
+    rows2 = read_rows(tmp_path / 'two' / 'runs.parquet')
     assert [r['index'] for r in rows1] == list(range(8))
     same_rows(rows1, rows2)
     # the thesis's gains at 1 kHz trip for every motor; the certified ones for none
@@ -197,8 +224,8 @@ def test_same_rows_on_one_and_two_workers_of_a_real_dask_cluster(tmp_path):
 def test_the_parquet_file_carries_spec_seed_and_versions(tmp_path):
     import pyarrow.parquet as pq
     path = write_spec(tmp_path, draws=1)
-    spec = cp.read_spec(path)
-    s = cp.run_campaign(spec, str(tmp_path / 'c'), path, workers=1, progress=False)
+    spec = read_spec(path)
+    s = run_campaign(spec, str(tmp_path / 'c'), path, workers=1, progress=False)
     meta = pq.read_schema(tmp_path / 'c' / 'runs.parquet').metadata
     assert json.loads(meta[b'spec']) == spec and json.loads(meta[b'seed']) == 7
     versions = json.loads(meta[b'versions'])
@@ -212,21 +239,21 @@ def test_the_parquet_file_carries_spec_seed_and_versions(tmp_path):
 
 def test_another_spec_is_refused_in_the_same_folder_unless_forced(tmp_path):
     path = write_spec(tmp_path, draws=1)
-    cp.run_campaign(cp.read_spec(path), str(tmp_path / 'c'), path, workers=1, progress=False)
+    run_campaign(read_spec(path), str(tmp_path / 'c'), path, workers=1, progress=False)
     other = write_spec(tmp_path, draws=1, seed=99)
     with pytest.raises(FileExistsError, match='holds another campaign'):
-        cp.run_campaign(cp.read_spec(other), str(tmp_path / 'c'), other, workers=1,
-                        progress=False)
-    s = cp.run_campaign(cp.read_spec(other), str(tmp_path / 'c'), other, workers=1,
-                        force=True, progress=False)
+        run_campaign(read_spec(other), str(tmp_path / 'c'), other, workers=1,
+                     progress=False)
+    s = run_campaign(read_spec(other), str(tmp_path / 'c'), other, workers=1,
+                     force=True, progress=False)
     assert s['seed'] == 99 and s['runs'] == 2
 
 
 def test_a_torn_last_journal_line_is_cut_and_that_run_only_is_redone(tmp_path):
-    j = tmp_path / cp.JOURNAL
+    j = tmp_path / JOURNAL
     j.write_text(json.dumps({'index': 0, 'x': 1}) + '\n' + json.dumps({'index': 1}) + '\n'
                  + '{"index": 2, "x"')
-    rows = cp.read_journal(j)
+    rows = read_journal(j)
     assert sorted(rows) == [0, 1]
     assert j.read_text().endswith('{"index": 1}\n')
 
@@ -238,7 +265,7 @@ def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
            '2', '--no-progress']
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          start_new_session=True)
-    journal = out / cp.JOURNAL
+    journal = out / JOURNAL
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and p.poll() is None:
         if journal.exists() and journal.read_text().count('\n') >= 3:
@@ -247,7 +274,7 @@ def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
     assert p.poll() is None, 'the campaign ended before it could be killed'
     os.killpg(p.pid, signal.SIGKILL)                  # the campaign and its Dask workers
     p.wait(timeout=30)
-    before = cp.read_journal(journal)
+    before = read_journal(journal)
     assert 3 <= len(before) < 12
     p2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert p2.returncode == 0, p2.stderr
@@ -257,11 +284,11 @@ def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
     lines = [json.loads(x) for x in journal.read_text().splitlines()]
     assert sorted(r['index'] for r in lines) == list(range(12))     # each run exactly once
     # and the resumed rows equal a campaign run in one go
-    whole = cp.run_campaign(cp.read_spec(path), str(tmp_path / 'whole'), path, workers=2,
-                            progress=False)
+    whole = run_campaign(read_spec(path), str(tmp_path / 'whole'), path, workers=2,
+                         progress=False)
     assert whole['runs'] == 12
-    same_rows(cp.read_rows(out / 'runs.parquet'), cp.read_rows(tmp_path / 'whole' / 'runs.parquet'))
+    same_rows(read_rows(out / 'runs.parquet'), read_rows(tmp_path / 'whole' / 'runs.parquet'))
 
 
 def test_pool_map_returns_results_in_order():
-    assert cp.pool_map(math.sqrt, [4.0, 9.0, 16.0], workers=2, progress=False) == [2.0, 3.0, 4.0]
+    assert pool_map(math.sqrt, [4.0, 9.0, 16.0], workers=2, progress=False) == [2.0, 3.0, 4.0]

@@ -9,9 +9,9 @@ from __future__ import annotations
 import math
 from typing import Dict, Optional, Sequence
 
+from im_controller.control_law import MODES as TASKS  # the one home of the task names
 from im_controller.flux import STRATEGIES  # the one home of the flux-strategy names
 
-TASKS = ('position', 'speed', 'torque')
 CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
 # the adaptive controllers: the adapter's law and what the controller and observer take from it
 # (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)

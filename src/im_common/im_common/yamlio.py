@@ -8,7 +8,8 @@ A value YAML cannot carry (NaN/inf in a parameter, an object) is rejected naming
 --params-file``/``--gains``, the launch file, a node executable before ``rclpy.init`` — so a file
 that cannot be read, is not YAML or is not laid out as a parameters file gets the same one line
 everywhere (:class:`ParametersFileError`). The values themselves are checked by the nodes
-(``im_common.lockstep.build_node``), also on every path.
+(``im_common.lockstep.build_node``), also on every path. :func:`read_yaml_file` reads any other
+YAML file (a campaign spec) with the same lines (:class:`YamlFileError`).
 """
 from __future__ import annotations
 
@@ -58,7 +59,12 @@ def parameters_yaml(nodes: Mapping[str, Mapping[str, object]], header: Optional[
     return text
 
 
-class ParametersFileError(ValueError):
+class YamlFileError(ValueError):
+    """A YAML file that cannot be read or parsed; the message is one line naming the file (and
+    the line and column of a syntax error)."""
+
+
+class ParametersFileError(YamlFileError):
     """A parameters file that cannot be used; the message is one line naming the file."""
 
 
@@ -78,6 +84,26 @@ def _loader():
     return Loader
 
 
+def _read(path: str, what: str, error: type, loader):
+    try:
+        with open(path) as f:
+            return yaml.load(f, Loader=loader)
+    except OSError as exc:
+        raise error(f'cannot read {what} {path}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+        problem = getattr(exc, 'problem', None) or type(exc).__name__
+        raise error(f'{what} {path} is not valid YAML{where}: {problem}') from None
+
+
+def read_yaml_file(path: str, what: str = 'YAML file'):
+    """The YAML document in ``path`` (safe loading); a file that cannot be read or parsed is one
+    :class:`YamlFileError` naming ``what`` (e.g. 'campaign spec'), the file and, for a syntax
+    error, its line and column: the lines :func:`load_parameters_file` gives."""
+    return _read(path, what, YamlFileError, yaml.SafeLoader)
+
+
 def node_name(key) -> str:
     """The node a parameters-file section is for: ``/ns/controller`` -> ``controller``."""
     return str(key).strip('/').split('/')[-1]
@@ -89,17 +115,7 @@ def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Di
     for a node not in ``nodes`` is refused naming the nearest one. Every problem is one
     :class:`ParametersFileError` naming the file."""
     import difflib
-    try:
-        with open(path) as f:
-            doc = yaml.load(f, Loader=_loader())
-    except OSError as exc:
-        raise ParametersFileError(f'cannot read parameters file {path}: {exc.strerror}') from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
-        what = getattr(exc, 'problem', None) or type(exc).__name__
-        raise ParametersFileError(f'parameters file {path} is not valid YAML{where}: {what}') \
-            from None
+    doc = _read(path, 'parameters file', ParametersFileError, _loader())
     if doc is None:
         doc = {}
     if not isinstance(doc, dict):

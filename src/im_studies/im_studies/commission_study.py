@@ -3,7 +3,7 @@
     python -m im_studies.commission_study [--draws 20] [--noise 0.05] [--out bags/commission]
 
 Commissions every shipped motor and the first ``draws`` motors of the campaign's parameter box
-(``config/campaign.yaml``, :func:`im_studies.campaign.draw`) with σ < 0.15, each on a
+(``config/campaign.yaml``, :func:`im_studies.campaign_spec.draw`) with σ < 0.15, each on a
 :class:`~im_common.plant_sim.PlantSimulator` running the true motor with current noise
 ``noise`` [A] and the drive's limits as its protection; then runs the min_loss speed task
 (offline loop) with the identified motor as the controller's and observer's model and with the
@@ -66,13 +66,13 @@ def speed_error(motor, estimates) -> dict:
 def motors(draws: int):
     """(name, MotorParams): the shipped motors, then box motors with σ < SIGMA_MAX."""
     from im_common.params import load_motor_file, shipped_motors_dir
-    from .campaign import DRAWN, _base_motor, draw, read_spec
+    from .campaign_spec import DRAWN, base_motor, draw, read_spec
     d = shipped_motors_dir()
     out = [(f[:-5], load_motor_file(os.path.join(d, f))) for f in sorted(os.listdir(d))
            if f.endswith('.yaml')]
     spec = read_spec(str(Path(__file__).resolve().parent.parent / 'config' / 'campaign.yaml')
                      if not _installed_spec() else _installed_spec())
-    base = _base_motor(spec)
+    base = base_motor(spec)
     if not base.rated_current:          # the thesis motor's ratings (its shipped file)
         thesis = load_motor_file(os.path.join(d, 'thesis.yaml'))
         base = base.with_values(**{x: getattr(thesis, x) for x in

@@ -26,7 +26,8 @@ from typing import List, Optional, Tuple
 from im_common.cli import parse_args
 
 from im_studies import thesis
-from im_studies.reproduce import THESIS_STRATEGIES as STRATEGIES
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES as STRATEGIES
 
 DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'
 #: where each generated block lives (one generator, this module, for both)
@@ -93,7 +94,7 @@ def _table(runs: List[dict]) -> Tuple[List[str], float]:
             'max tracking error |',
             '| --- | --- | ---: | ---: | ---: | --- |']
     worst = 0.0
-    for task in ('position', 'speed'):
+    for task in THESIS_TASKS:
         bound = _bound(runs, task)
         for strategy in STRATEGIES + ('optimal',):
             r = _run(runs, task, strategy)
@@ -139,7 +140,7 @@ def _robust_deviation(runs: List[dict]) -> float:
     (the six chapter-3 runs)."""
     return max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
                    / _run(runs, t, s)['E_loss_J'] - 1.0)
-               for t in ('position', 'speed') for s in ('min_energy', 'constant_flux', 'min_loss'))
+               for t in THESIS_TASKS for s in STRATEGIES)
 
 
 def render(runs: List[dict]) -> str:
@@ -223,7 +224,7 @@ def render_headline(runs: List[dict]) -> str:
     page, from the same summary."""
     _, worst = _table(runs)
     bp, bs = _bound(runs, 'position'), _bound(runs, 'speed')
-    loss = {(t, s_): _run(runs, t, s_)['E_loss_J'] for t in ('position', 'speed')
+    loss = {(t, s_): _run(runs, t, s_)['E_loss_J'] for t in THESIS_TASKS
             for s_ in ('min_loss', 'constant_flux')}
     drift = {c: _run(runs, 'position', 'min_energy', c, 'chapter4')['pos_err_rms_rad']
              for c in ('nominal', 'adaptive')}

@@ -23,6 +23,8 @@ import sys
 from typing import List, Optional
 
 from im_common.cli import parse_args
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES
 
 from im_studies import thesis
 
@@ -32,19 +34,15 @@ CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', '
             'torque_err_max_Nm', 'V_max_V', 'i_max_A', 'steps', 'wall_s')
 
 
-THESIS_STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
-TASK_NAMES = ('position', 'speed')
-
-
 def chapter3_runs(T_s: float = 1e-4) -> List[dict]:
     return [dict(task=task, strategy=strategy, controller='nominal', variation='none', T_s=T_s)
-            for task in TASK_NAMES for strategy in THESIS_STRATEGIES]
+            for task in THESIS_TASKS for strategy in COMPARED_STRATEGIES]
 
 
 def optimal_runs(T_s: float = 1e-4) -> List[dict]:
     """The chapter-3 tasks with the loss-optimal flux trajectory (nominal controller)."""
     return [dict(task=task, strategy='optimal', controller='nominal', variation='none', T_s=T_s)
-            for task in TASK_NAMES]
+            for task in THESIS_TASKS]
 
 
 def start_flux(task: str, strategy: str) -> float:
@@ -92,7 +90,7 @@ def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
     run's own start flux (one bound per distinct start), the grid refinement check (the same
     bounds at step/2) and each strategy's ratios (losses / total bound, copper / copper bound)."""
     rows = []
-    for task in TASK_NAMES:
+    for task in THESIS_TASKS:
         runs = [r for r in results if r.get('task') == task and r.get('controller') == 'nominal'
                 and r.get('variation', 'none') == 'none' and r.get('rate_hz') == 1e4]
         if not runs:
@@ -147,8 +145,8 @@ def run_one(item) -> dict:
 
 def run_all(specs: List[dict], out_dir: str, record: bool = False,
             workers: Optional[int] = None) -> List[dict]:
-    """Every spec through the graph on the campaign pool (im_studies.campaign), in order."""
-    from im_studies.campaign import pool_map
+    """Every spec through the graph on the campaign pool (im_studies.campaign_pool), in order."""
+    from im_studies.campaign_pool import pool_map
     return pool_map(run_one, [(n, spec, out_dir, record) for n, spec in enumerate(specs)],
                     workers=workers, label='reproduce')
 
@@ -243,8 +241,8 @@ def chapter4_runs() -> List[dict]:
     """Nominal vs the thesis's adaptation law vs the improved law under the chapter-4 profile."""
     return [dict(task=task, strategy=strategy, controller=controller, variation='chapter4',
                  T_s=1e-4)
-            for task in TASK_NAMES
-            for strategy in THESIS_STRATEGIES
+            for task in THESIS_TASKS
+            for strategy in COMPARED_STRATEGIES
             for controller in ('nominal', 'adaptive_thesis', 'adaptive')]
 
 
@@ -252,11 +250,11 @@ def robust_runs() -> List[dict]:
     """The chapter-3 tasks at 1 kHz with certified robust gains (and with the thesis's)."""
     from im_controller.design_gains import design_for_scenario
     runs = [dict(task=task, strategy='min_energy', controller='nominal', variation='none', T_s=1e-3)
-            for task in ('position', 'speed')]          # the thesis's gains at 1 kHz
+            for task in THESIS_TASKS]          # the thesis's gains at 1 kHz
     for T_s in (1e-3, 1e-4):
         gains = design_for_scenario(T_s)
-        for task in ('position', 'speed'):
-            for strategy in ('min_energy', 'constant_flux', 'min_loss'):
+        for task in THESIS_TASKS:
+            for strategy in COMPARED_STRATEGIES:
                 runs.append(dict(task=task, strategy=strategy, controller='robust',
                                  variation='none', T_s=T_s, parameters=gains))
     return runs

@@ -28,9 +28,9 @@ from typing import List, Optional
 import numpy as np
 
 from im_common.cli import logger, parse_args
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES
 
-TASKS = ('position', 'speed')
-STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 KEYS = ('E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'pos_err_max_rad', 'speed_err_max_rad_s',
         'torque_err_max_Nm', 'i_max_A', 'balance_relative', 'wall_s')
 LOSS_TOLERANCE = 0.05
@@ -78,8 +78,8 @@ def study(progress: bool = True) -> dict:
     designs = {T: gains_for(T, progress) for T in (1e-3, 1e-4)}
     plan = [(task, strategy, T, None if which == 'thesis' else designs[T])
             for T in (1e-4, 1e-3) for which in ('thesis', 'certified')
-            for task in TASKS for strategy in STRATEGIES]
-    from im_studies.campaign import pool_map
+            for task in THESIS_TASKS for strategy in COMPARED_STRATEGIES]
+    from im_studies.campaign_pool import pool_map
     rows = pool_map(_run_item, plan, label='robust_study', progress=progress)
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
             'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',
@@ -97,8 +97,8 @@ def compare(rows: List[dict]) -> List[dict]:
     """Per task/strategy: 1 ms certified vs 100 µs thesis (losses within 5 %), 100 µs certified vs
     100 µs thesis (no worse), and how the thesis's gains fail at 1 ms."""
     out = []
-    for task in TASKS:
-        for strategy in STRATEGIES:
+    for task in THESIS_TASKS:
+        for strategy in COMPARED_STRATEGIES:
             ref = _find(rows, task, strategy, 1e-4, 'thesis')
             c1 = _find(rows, task, strategy, 1e-3, 'certified')
             c01 = _find(rows, task, strategy, 1e-4, 'certified')

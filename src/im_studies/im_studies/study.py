@@ -27,13 +27,12 @@ import time
 from im_common.cli import logger, parse_args
 
 from im_common.params import THESIS_MOTOR
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.gain_design.motor import thesis_gain_stability_limit
 
 from . import thesis
 from im_bringup.offline import Scenario, simulate
-
-STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
-TASKS = ('position', 'speed')
 
 
 _log = logger()
@@ -41,8 +40,8 @@ _log = logger()
 
 def energy_table(T_s: float, exponent: float, quick: bool, progress: bool) -> list:
     rows = []
-    for task in TASKS:
-        for strategy in STRATEGIES:
+    for task in THESIS_TASKS:
+        for strategy in COMPARED_STRATEGIES:
             duration = (0.8 if task == 'position' else 0.5) if quick else None
             r = simulate(Scenario(task=task, strategy=strategy, T_s=T_s, duration=duration,
                                   core_loss_exponent=exponent), progress=progress, timing=True)
@@ -148,7 +147,7 @@ def sampling_limit(task: str, strategy: str, lo: float = 1e-4, hi: float = 2e-3,
 def sweep_min_loss(progress: bool) -> list:
     out = []
     T_r = THESIS_MOTOR.T_r
-    for task in TASKS:
+    for task in THESIS_TASKS:
         for tc in ((0.05, 1e-3), (T_r, 1e-3), (0.2, 1e-3)):
             for lead in (0.0, 0.03, 0.06, 0.1):
                 s = simulate(Scenario(task=task, strategy='min_loss', controller_options={
@@ -197,7 +196,7 @@ def main(argv=None) -> int:
         print_energy_table(rows1, 'Same with core loss (k_h + k_e f_e) f_e phi_m (exponent 1, as printed)')
         order = {}
         for rows, ex in ((rows2, 2), (rows1, 1)):
-            for task in TASKS:
+            for task in THESIS_TASKS:
                 ranked = sorted((s for s in rows if s['task'] == task), key=lambda s: s['E_loss_J'])
                 order[f'{task}_exp{ex}'] = [s['strategy'] for s in ranked]
         result['loss_ranking'] = order
@@ -205,8 +204,8 @@ def main(argv=None) -> int:
     if not args.no_limit:
         est = current_loop_estimate(40.0)
         limits = []
-        for task in TASKS:
-            for strategy in STRATEGIES:
+        for task in THESIS_TASKS:
+            for strategy in COMPARED_STRATEGIES:
                 _log(f'T_s stability limit: {task}/{strategy}')
                 limits.append(sampling_limit(task, strategy))
         result['sampling_limit'] = {'scalar_current_loop_estimate_s': est, 'runs': limits}

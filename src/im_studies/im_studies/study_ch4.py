@@ -30,14 +30,15 @@ from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
 from im_common.params import (THESIS_MOTOR, InvalidParameter, ParameterSchedule,
                               constant, ramp, sinusoid)
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES
 
 from im_bringup import offline
 from im_bringup.offline import CHAPTER4_ESTIMATES, Scenario, simulate
 
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair')
+from .campaign_spec import NOMINAL_AND_ADAPTIVE
+
 TRUTH_FED = 'truth_fed'   # not a controller: the truth's R_s, L_σ, L_M, R_R handed to the model
-STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
-TASKS = ('position', 'speed')
 SENS_KEYS = ('pos_err_rms_rad', 'pos_err_max_rad', 'speed_err_rms_rad_s', 'speed_err_max_rad_s',
              'torque_err_rms_Nm', 'torque_err_max_Nm', 'E_in_J', 'E_loss_J')
 
@@ -163,7 +164,7 @@ def run_case(task: str, strategy: str, controller: str, variation: str,
     return out
 
 
-def sensitivity(tasks=TASKS, strategy: str = 'min_energy', T_s: float = 1e-4) -> List[dict]:
+def sensitivity(tasks=THESIS_TASKS, strategy: str = 'min_energy', T_s: float = 1e-4) -> List[dict]:
     rows = []
     for task in tasks:
         base = run_case(task, strategy, 'nominal', 'none', T_s=T_s)
@@ -192,11 +193,12 @@ def _case(args) -> dict:
     return run_case(task, strategy, controller, variation, T_s=T_s)
 
 
-def comparison(tasks=TASKS, strategies=STRATEGIES, controllers=CONTROLLERS + (TRUTH_FED,),
+def comparison(tasks=THESIS_TASKS, strategies=COMPARED_STRATEGIES,
+               controllers=NOMINAL_AND_ADAPTIVE + (TRUTH_FED,),
                variations=('chapter4', 'none'), T_s: float = 1e-4,
                workers: Optional[int] = None) -> List[dict]:
     """Every (variation, task, strategy, controller) case on the campaign pool, in order."""
-    from im_studies.campaign import pool_map
+    from im_studies.campaign_pool import pool_map
     cases = [(task, strategy, controller, variation, T_s) for variation in variations
              for task in tasks for strategy in strategies for controller in controllers]
     return pool_map(_case, cases, workers=workers, label='compare')
@@ -215,8 +217,8 @@ def _find(rows, **kw):
 def targets(rows: List[dict]) -> List[dict]:
     """Issue-5 targets for the improved law, per task and strategy (measured, pass/fail)."""
     out = []
-    for task in TASKS:
-        for strategy in STRATEGIES:
+    for task in THESIS_TASKS:
+        for strategy in COMPARED_STRATEGIES:
             nom = _find(rows, task=task, strategy=strategy, controller='nominal', variation='chapter4')
             ada = _find(rows, task=task, strategy=strategy, controller='adaptive', variation='chapter4')
             ada_n = _find(rows, task=task, strategy=strategy, controller='adaptive', variation='none')
@@ -324,8 +326,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--out', required=True, help='output directory (JSON + Markdown)')
     ap.add_argument('--part', choices=('all', 'sensitivity', 'compare'), default='all')
-    ap.add_argument('--tasks', default=','.join(TASKS))
-    ap.add_argument('--strategies', default=','.join(STRATEGIES))
+    ap.add_argument('--tasks', default=','.join(THESIS_TASKS))
+    ap.add_argument('--strategies', default=','.join(COMPARED_STRATEGIES))
     ap.add_argument('--T-s', type=float, default=1e-4, dest='T_s')
     args = parse_args(ap, argv)
     tasks = tuple(x for x in args.tasks.split(',') if x)

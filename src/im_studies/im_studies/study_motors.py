@@ -46,13 +46,14 @@ from im_common.loads import ConstantLoad, LinearLoad
 from im_common.model import torque
 from im_common.params import (MotorParams, ParameterSchedule, THESIS_MOTOR, load_motor_file, ramp,
                               shipped_motors_dir, sinusoid)
-from im_controller.control_law import DEFAULT_GAINS, DEFAULT_VOLTAGE_MARGIN, ControllerConfig
+from im_controller.control_law import (DEFAULT_GAINS, DEFAULT_VOLTAGE_MARGIN, THESIS_TASKS,
+                                       ControllerConfig)
+from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import from_setpoints
 
 from im_bringup.offline import Scenario, simulate
 from .study_ch4 import TRUTH_FED
 
-STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 OVERLOAD = 2.0
 
 
@@ -120,8 +121,8 @@ def scaled_scenario(motor: MotorParams, task: str, strategy: str) -> Scenario:
 
 def run_motor(motor: MotorParams, name: str, record_every: int = 10) -> list:
     rows = []
-    for task in ('position', 'speed'):
-        for strategy in STRATEGIES:
+    for task in THESIS_TASKS:
+        for strategy in COMPARED_STRATEGIES:
             r = simulate(scaled_scenario(motor, task, strategy), record_every=record_every)
             tr, s = r.trace, r.summary
             v = np.hypot(tr['v_alpha'], tr['v_beta'])
@@ -178,9 +179,10 @@ def _drift_case(args) -> dict:
 
 def run_drift(motors: dict, workers=None) -> list:
     """Every motor × task × strategy × :data:`DRIFT_CONTROLLERS` under :func:`drift_schedule`."""
-    from .campaign import pool_map
+    from .campaign_pool import pool_map
     cases = [(m, name, task, strategy, c) for name, m in motors.items()
-             for task in ('position', 'speed') for strategy in STRATEGIES for c in DRIFT_CONTROLLERS]
+             for task in THESIS_TASKS for strategy in COMPARED_STRATEGIES
+             for c in DRIFT_CONTROLLERS]
     return pool_map(_drift_case, cases, workers=workers, label='motors drift')
 
 

@@ -14,10 +14,11 @@ import numpy as np
 
 from im_common.loads import ConstantLoad
 from im_common.params import load_motor_file, shipped_motors_dir
+from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 
 from im_bringup.offline import Scenario, simulate
-from .study_motors import STRATEGIES, reversal_time, scaled_options
+from .study_motors import reversal_time, scaled_options
 
 #: the measured speed's noise in the sensorless runs [rad/s]: useless to a speed controller
 USELESS_SPEED_NOISE = 50.0
@@ -63,7 +64,7 @@ def _row(label: str, motor: str, strategy: str, sensored, sensorless) -> dict:
             'loss_change': sensorless.summary['E_loss_J'] / sensored.summary['E_loss_J'] - 1.0}
 
 
-def run(strategies=STRATEGIES, motors=MOTORS) -> list:
+def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
     rows = []
     for st in strategies:
         a = simulate(Scenario(task='speed', strategy=st))
@@ -94,10 +95,10 @@ def table(rows: list) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--json', help='write the rows to this file')
-    ap.add_argument('--strategy', action='append', choices=STRATEGIES)
+    ap.add_argument('--strategy', action='append', choices=COMPARED_STRATEGIES)
     ap.add_argument('--motor', action='append', choices=MOTORS)
     a = ap.parse_args(argv)
-    rows = run(a.strategy or STRATEGIES, a.motor or MOTORS)
+    rows = run(a.strategy or COMPARED_STRATEGIES, a.motor or MOTORS)
     print(table(rows))
     if a.json:
         with open(a.json, 'w') as f:

@@ -1,0 +1,99 @@
+"""The campaign's Dask pool: a local cluster of every core or an existing scheduler
+(docs/campaign.md). The campaign runs its jobs on it and the studies and ``make reproduce`` map
+their cases over it with :func:`pool_map`."""
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable, Optional, Sequence
+
+from im_common.cli import logger
+
+_log = logger('campaign')
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line (its type and text), for a row or an error message."""
+    text = ' '.join(str(exc).split())
+    return f'{type(exc).__name__}: {text}'[:300]
+
+
+@dataclass
+class Pool:
+    """A Dask client on a local cluster of ``workers`` single-threaded processes, or on an
+    existing scheduler at ``address``. ``map`` yields (index, result) as they finish."""
+    workers: Optional[int] = None
+    address: Optional[str] = None
+
+    def __enter__(self):
+        import logging
+        from distributed import Client, LocalCluster
+        for name in ('distributed', 'distributed.scheduler', 'distributed.worker',
+                     'distributed.nanny', 'distributed.core', 'distributed.http.proxy'):
+            logging.getLogger(name).setLevel(logging.ERROR)
+        t0 = time.perf_counter()
+        if self.address:
+            try:
+                self.client = Client(self.address, timeout='10s')
+            except (OSError, TimeoutError) as exc:
+                raise ConnectionError(f'--address {self.address}: no Dask scheduler there '
+                                      f'({one_line(exc)})') from None
+            self.cluster = None
+        else:
+            n = self.workers or os.cpu_count() or 1
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                        dashboard_address=':0', silence_logs=logging.ERROR)
+            self.client = Client(self.cluster)
+        self.n_workers = len(self.client.scheduler_info().get('workers', {})) or 1
+        self.startup_s = time.perf_counter() - t0
+        return self
+
+    def __exit__(self, *exc):
+        with contextlib.suppress(Exception):
+            self.client.close()
+        if self.cluster is not None:
+            with contextlib.suppress(Exception):
+                self.cluster.close()
+
+    def map(self, fn: Callable, items: Sequence, *args) -> Iterable:
+        from distributed import as_completed
+        shared = [self.client.scatter(a, broadcast=True) for a in args]
+        futures = {self.client.submit(fn, item, *shared, pure=False): i
+                   for i, item in enumerate(items)}
+        try:
+            for fut in as_completed(futures):
+                yield futures[fut], fut.result()
+        finally:
+            for fut in futures:
+                fut.cancel()
+
+
+def _call(item, fn):
+    return fn(item)
+
+
+def pool_map(fn: Callable, items: Sequence, workers: Optional[int] = None,
+             address: Optional[str] = None, label: str = '', progress: bool = True) -> list:
+    """``[fn(x) for x in items]`` on the campaign pool, in order (``make reproduce``, studies).
+    ``fn`` must be importable by the workers (a module-level function)."""
+    results: list = [None] * len(items)
+    if not items:
+        return results
+    with Pool(workers, address) as pool:
+        t0 = time.perf_counter()
+        for done, (i, r) in enumerate(pool.map(_call, items, fn), 1):
+            results[i] = r
+            if progress:
+                log_progress(label or 'pool', done, len(items), 0, time.perf_counter() - t0)
+    return results
+
+
+def log_progress(label: str, done: int, total: int, failed: int, elapsed: float) -> None:
+    rate = done / elapsed if elapsed > 0 else 0.0
+    eta = (total - done) / rate if rate > 0 else float('nan')
+    eta_s = f'{int(eta // 60)}m{int(eta % 60):02d}s' if math.isfinite(eta) else '?'
+    _log(f'{label}: {done}/{total} runs, {rate:.2f} runs/s, ETA {eta_s}'
+         + (f', {failed} failed' if failed else ''))
