@@ -307,10 +307,10 @@ def estimate_arguments(estimates: Mapping) -> Dict[str, float]:
 MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
 
 # Ratings as drive defaults ---------------------------------------------------------------
-#: the plant's over-current trip as a multiple of the rated current: drives trip in hardware
-#: well above their 150 % overload rating; 2× leaves the controller's own limit (1× rated, of
-#: which ``current_margin`` is used in steady state) room for its transients
-CURRENT_TRIP_MARGIN = 2.0
+#: the plant's over-current trip as a multiple of the rated current: a protection above any
+#: limit a controller is given on purpose (the rating-scaled studies run at 2× rated current,
+#: im_studies.study_motors.OVERLOAD) with room for its transients
+CURRENT_TRIP_MARGIN = 3.0
 #: the plant's over-speed trip as a multiple of the rated speed (field weakening runs above
 #: rated speed; twice it is where a general-purpose motor's mechanical limit usually lies)
 SPEED_TRIP_MARGIN = 2.0
@@ -376,6 +376,30 @@ def default_limits(motor: MotorParams) -> Dict[str, Tuple[float, str]]:
         out['phi_max'] = (phi, why)
         out['phi_min'] = (FLUX_MIN_SHARE * phi, f'{FLUX_MIN_SHARE:.4g} x {why}')
     return out
+
+
+#: a limit or level left at RATED takes the motor's rating (:func:`default_limits`), or, for a
+#: motor without that rating, the value it had before ratings were defaults (``fallback``)
+RATED = 'rated'
+
+
+def resolve_rated(owner, names: Mapping[str, object], motor: MotorParams,
+                  previous: Optional[Mapping[str, Tuple[float, str]]] = None
+                  ) -> Dict[str, Tuple[float, str]]:
+    """Set each attribute of ``owner`` named in ``names`` ({name: fallback}) that is
+    :data:`RATED` from ``motor``'s ratings, else to its fallback. Returns ``{name: (value,
+    why)}`` of those the ratings set, with the entries of ``previous`` still in force (a
+    configuration copied with ``dataclasses.replace`` keeps saying where its limits came from)."""
+    limits = default_limits(motor)
+    used = {k: x for k, x in (previous or {}).items() if getattr(owner, k, None) == x[0]}
+    for name, fallback in names.items():
+        if isinstance(getattr(owner, name), str) and getattr(owner, name) == RATED:
+            if name in limits:
+                object.__setattr__(owner, name, limits[name][0])
+                used[name] = limits[name]
+            else:
+                object.__setattr__(owner, name, fallback)
+    return used
 
 
 def describe_defaults(used: Mapping[str, Tuple[float, str]]) -> str:
