@@ -13,7 +13,10 @@ On a trip (or a command above the rating) it latches ``trip = (t, reason)`` and 
 voltage from then on (all lower
 switches on: the stator is short-circuited through the inverter, the machine's stored magnetic
 energy decays through its resistances and the shaft coasts against its load). A non-finite
-state is not kept: the period is integrated again from the last finite state with zero voltage. The model is integrated with fixed-step RK4 sub-steps in
+state is not kept: the period is integrated again from the last finite state with zero voltage.
+Left at ``RATED`` (their default), ``v_limit`` and the trips come from the motor's ratings
+(:func:`im_common.params.default_limits`; none for a motor without them; ``from_ratings`` says
+which). The model is integrated with fixed-step RK4 sub-steps in
 each period (at most ``max_substep`` long), together with the energy integrals, so the energy books
 are part of the integration and not computed after the fact.
 """
