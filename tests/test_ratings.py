@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 
-from im_common.params import (CURRENT_TRIP_MARGIN, SPEED_TRIP_MARGIN, THESIS_MOTOR, InvalidParameter,
-                              MotorParams, clarke, default_limits, describe_defaults,
-                              load_motor_file, rated_flux, shipped_motors_dir, vector_magnitude)
+from im_common.params import (CURRENT_TRIP_MARGIN, SPEED_TRIP_MARGIN, THESIS_MOTOR,
+                              InvalidParameter, MotorParams, clarke, default_limits,
+                              describe_defaults, load_motor_file, rated_flux, shipped_motors_dir, vector_magnitude)
 from im_common.plant_sim import PlantSimulator
 from im_common.steady_state import params_steady_state
 from im_controller.control_law import ControllerConfig
@@ -70,7 +70,8 @@ def test_the_ratings_are_the_drives_defaults_and_an_explicit_value_overrides():
     assert 0.5 < phi_n < 0.6                        # not the thesis's 1.2 Wb on every motor
     assert set(cfg.from_ratings) == {'v_limit', 'current_limit', 'phi_d', 'phi_min', 'phi_max'}
     line = describe_defaults(cfg.from_ratings)
-    assert "from the motor's ratings" in line and 'current_limit = 8.66 (rated current 5 A RMS' in line
+    assert "from the motor's ratings" in line
+    assert 'current_limit = 8.66 (rated current 5 A RMS' in line
     # explicit values win, None is "no limit" even on a rated motor, and say nothing of ratings
     own = ControllerConfig(params=RATED, v_limit=300.0, current_limit=None, phi_d=0.5)
     assert (own.v_limit, own.current_limit, own.phi_d) == (300.0, None, 0.5)

@@ -57,8 +57,8 @@ from typing import Callable, Dict, Mapping, Optional, Tuple
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: the nameplate fields of a motor file (0: not given); converted once by MotorParams' properties
-RATING_NAMES = ('rated_voltage_rms_line', 'rated_current_rms', 'rated_frequency', 'rated_speed_rpm',
-                'rated_power', 'rated_flux')
+RATING_NAMES = ('rated_voltage_rms_line', 'rated_current_rms', 'rated_frequency',
+                'rated_speed_rpm', 'rated_power', 'rated_flux')
 #: the model-frame ratings the motor files once held, and the nameplate field each now comes from
 LEGACY_RATINGS = {'rated_voltage': 'rated_voltage_rms_line (line-to-line RMS [V], equal to the '
                                    'old vector magnitude)',
@@ -338,7 +338,7 @@ def rated_flux(motor: MotorParams) -> Optional[float]:
     :func:`rated_rotor_flux` from the rated voltage, frequency and speed, else None."""
     if motor.rated_flux > 0:
         return motor.rated_flux
-    if motor.rated_voltage_rms_line > 0 and motor.rated_frequency > 0 and motor.rated_speed_rpm > 0:
+    if min(motor.rated_voltage_rms_line, motor.rated_frequency, motor.rated_speed_rpm) > 0:
         return rated_rotor_flux(motor.R_s, motor.L_sigma, motor.L_M, motor.R_R, motor.theta,
                                 motor.rated_voltage, motor.rated_frequency,
                                 motor.rated_speed_rpm, motor.pole_pairs)

@@ -25,8 +25,10 @@ SENTINEL_DEFAULTS = {'k_p': 'per-mode default', 'k_v': 'per-mode default',
 # Parameters whose -1 (the default) stands for the motor model's rating
 # (:func:`im_common.params.default_limits`); without that rating, the value before ratings were
 # defaults: no limit, or the thesis's flux level (``ControllerConfig``'s default).
-RATING_DEFAULTS = {'v_limit': 'rated voltage, else none', 'current_limit': 'rated current, else none',
-                   'phi_d': 'rated flux, else 1.2 Wb', 'phi_min': 'share of the rated flux, else 0.2 Wb',
+RATING_DEFAULTS = {'v_limit': 'rated voltage, else none',
+                   'current_limit': 'rated current, else none',
+                   'phi_d': 'rated flux, else 1.2 Wb',
+                   'phi_min': 'share of the rated flux, else 0.2 Wb',
                    'phi_max': 'rated flux, else 1.2 Wb'}
 SENTINEL_DEFAULTS.update({k: f'from the motor: {why}' for k, why in RATING_DEFAULTS.items()})
 _OWN_SENTINELS = ('k_p', 'k_v', 'flux_preview')
