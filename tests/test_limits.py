@@ -9,7 +9,7 @@ import pytest
 
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import load_file
-from im_common.params import InvalidParameter, THESIS_MOTOR, load_motor_file
+from im_common.params import RATING_NAMES, InvalidParameter, THESIS_MOTOR, load_motor_file
 from im_common.plant_sim import PlantSimulator
 from im_controller.profiles import from_setpoints
 
@@ -71,7 +71,7 @@ def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit
     assert scaled_scenario(m, 'speed', 'min_loss').profile.setpoints[1] == (
         0.2, -0.9 * m.rated_speed, pytest.approx(T, rel=1e-12))
     with pytest.raises(ValueError, match='current limit'):
-        peak_torque(m.with_values(rated_current=0.4 * i_d))
+        peak_torque(m.with_values(rated_current_rms=0.4 * i_d / math.sqrt(3.0)))
 
 
 @pytest.mark.parametrize('motor_file', MOTOR_FILES, ids=lambda p: os.path.basename(p)[:-5])
@@ -121,7 +121,7 @@ def test_shipped_motor_files_load_and_state_their_source():
     names = {os.path.basename(p) for p in MOTOR_FILES}
     assert {'thesis.yaml', 'krause_3hp.yaml', 'krause_50hp.yaml'} <= names
     assert load_motor_file(os.path.join(MOTOR_DIR, 'thesis.yaml')).with_values(
-        rated_voltage=0.0, rated_current=0.0, rated_speed=0.0, rated_torque=0.0) == THESIS_MOTOR
+        **dict.fromkeys(RATING_NAMES, 0.0)) == THESIS_MOTOR
     for p in MOTOR_FILES:
         m = load_motor_file(p)
         assert m.rated_voltage > 0 and m.rated_current > 0 and m.rated_speed > 0
@@ -139,7 +139,9 @@ GOOD = {'R_s': '0.687', 'R_r': '0.842', 'L_s': '0.08397', 'L_r': '0.08528', 'L_s
     ({'R_s': '-0.5'}, 'R_s'),                                 # invalid
     ({'R_s': 'abc'}, 'R_s'),                                  # malformed
     ({'L_sr': '0.09'}, 'L_sr'),                               # sigma <= 0
-    ({'rated_speed': '-1.0'}, 'rated_speed'),
+    ({'rated_speed_rpm': '-1.0'}, 'rated_speed_rpm'),
+    ({'rated_speed_rpm': '1900.0', 'rated_frequency': '60.0'}, 'synchronous speed 60 f/v = 1800'),
+    ({'rated_current': '8.487'}, 'rated_current_rms (line current RMS'),   # the old vector key
 ])
 def test_bad_motor_files_name_file_and_field(tmp_path, change, where):
     values = dict(GOOD, **change)

@@ -30,7 +30,8 @@ def test_motor_profile_and_load_reach_every_node(files):
                         limits={'current_limit': 20.0}, protection={'current_trip': 60.0})
     m = load_motor_file(MOTOR)
     for node in ('plant', 'controller', 'observer', 'adapter'):
-        assert p[node]['L_sr'] == m.L_sr and p[node]['rated_current'] == m.rated_current, node
+        assert p[node]['L_sr'] == m.L_sr, node
+        assert p[node]['rated_current_rms'] == m.rated_current_rms, node
     c = p['controller']
     assert c['profile'] == 'setpoint' and c['setpoints'] == [0.0, 100.0, 0.0, 0.01, 120.0, 0.03]
     assert c['load'] == 'linear' and c['load_c1'] == 0.5 and c['current_limit'] == 20.0

@@ -31,7 +31,8 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from im_common.params import IDENTIFIABLE_NAMES, InvalidParameter, MotorParams, check_real
+from im_common.params import (IDENTIFIABLE_NAMES, RATING_NAMES, InvalidParameter, MotorParams,
+                              check_real, rated_rotor_flux)
 
 #: the standstill excitation after the probe: (level as a fraction of the test voltage, seconds)
 EXCITATION = ((1.0, 0.5), (-1.0, 0.5), (0.5, 0.02), (-0.5, 0.01), (1.0, 0.005), (-1.0, 0.005),
@@ -71,13 +72,21 @@ class Nameplate:
         """The whole number of pole pairs whose synchronous speed is just above the rated one."""
         return max(1, int(math.floor(60.0 * self.frequency / self.speed)))
 
+    def motor_fields(self) -> Dict[str, float]:
+        """The motor file's nameplate fields (im_common.params.RATING_NAMES)."""
+        return {'rated_voltage_rms_line': self.voltage, 'rated_current_rms': self.current,
+                'rated_frequency': self.frequency, 'rated_speed_rpm': self.speed,
+                'rated_power': self.power}
+
     def ratings(self) -> Dict[str, float]:
-        """The motor file's rating fields in the model's power-invariant αβ frame
-        (docs/limits.md): voltage-vector magnitude = line-to-line RMS voltage, current-vector
-        magnitude = √3 × line current."""
-        w = 2.0 * math.pi * self.speed / 60.0
-        return {'rated_voltage': self.voltage, 'rated_current': math.sqrt(3.0) * self.current,
-                'rated_speed': w, 'rated_torque': self.power / w}
+        """:meth:`motor_fields` and their model-frame magnitudes (the commissioning tests'
+        limits): ``rated_voltage`` = line-to-line RMS, ``rated_current`` = √3 × line current,
+        ``rated_speed`` [rad/s], ``rated_torque`` — converted by MotorParams, their one home
+        (docs/limits.md). :meth:`Identification.motor` keeps the nameplate fields."""
+        m = MotorParams(pole_pairs=self.pole_pairs, **self.motor_fields())
+        return dict(self.motor_fields(), rated_voltage=m.rated_voltage,
+                    rated_current=m.rated_current, rated_speed=m.rated_speed,
+                    rated_torque=m.rated_torque)
 
 
 def nameplate_from_dict(doc, source: str = 'nameplate') -> Nameplate:
@@ -162,7 +171,7 @@ class Identified:
         return MotorParams(R_s=v['R_s'], R_r=v['R_R'] * L / v['L_M'], L_s=L, L_r=L,
                            L_sr=math.sqrt(v['L_M'] * L), J=v['J'], b=max(v['b'], 0.0),
                            pole_pairs=int(v['pole_pairs']), k_e=0.0, k_h=0.0,
-                           **(ratings or {}))
+                           **{k: x for k, x in (ratings or {}).items() if k in RATING_NAMES})
 
 
 def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
@@ -561,15 +570,9 @@ def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float
     """The rotor flux |φ_r| at the nameplate's rated voltage, frequency and speed, in the gauge
     θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e
     at the rated slip (docs/commissioning.md §4)."""
-    we = 2.0 * math.pi * plate.frequency
-    vp = plate.pole_pairs
-    slip = 1.0 - plate.speed / (60.0 * plate.frequency / vp)
-    R_s, L_s, L_M, R_R = (ident[n] for n in IDENTIFIABLE_NAMES)
-    z_m = 1.0 / (1.0 / (1j * we * L_M) + slip / R_R)
-    z = R_s + 1j * we * L_s + z_m
-    V = plate.voltage                  # the voltage-vector magnitude (power-invariant frame)
-    psi_R = abs(V / z * z_m) / we
-    return psi_R / theta
+    R_s, L_sigma, L_M, R_R = (ident[n] for n in IDENTIFIABLE_NAMES)
+    return rated_rotor_flux(R_s, L_sigma, L_M, R_R, theta, plate.voltage, plate.frequency,
+                            plate.speed, plate.pole_pairs)
 
 
 def simulate_commissioning(plant, com: Commissioning, max_steps: int = 10 ** 7) -> Commissioning:

@@ -13,10 +13,13 @@ _MOTOR_DOC = {
     'b': ('viscous friction [N m s]', 0.0, 100.0),
     'k_e': ('eddy-current core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
     'k_h': ('hysteresis core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
-    'rated_voltage': ('rated stator-voltage vector magnitude [V] (0: not given)', 0.0, 1e5),
-    'rated_current': ('rated stator-current vector magnitude [A] (0: not given)', 0.0, 1e5),
-    'rated_speed': ('rated (base) shaft speed [rad/s] (0: not given)', 0.0, 1e5),
-    'rated_torque': ('rated shaft torque [N m] (0: not given)', 0.0, 1e7),
+    'rated_voltage_rms_line': ('nameplate voltage, line-to-line RMS [V] (0: not given)', 0.0, 1e5),
+    'rated_current_rms': ('nameplate current, line RMS [A] (0: not given)', 0.0, 1e5),
+    'rated_frequency': ('nameplate frequency [Hz] (0: not given)', 0.0, 1e4),
+    'rated_speed_rpm': ('nameplate shaft speed [rpm] (0: not given)', 0.0, 1e6),
+    'rated_power': ('nameplate shaft power [W] (0: not given)', 0.0, 1e9),
+    'rated_flux': ('rated rotor flux [Wb] (0: from rated voltage, frequency and speed)', 0.0,
+                   100.0),
 }
 
 

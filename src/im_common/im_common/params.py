@@ -16,11 +16,28 @@ b         0.010       N·m·s    viscous friction
 pole_pairs 2          —        pole pairs ``v`` of the thesis (60 Hz, 1750 rpm)
 k_e       0.012       W·s/Wb²  eddy-current core-loss coefficient (eq. 3.34)
 k_h       0.012       W·s/Wb²  hysteresis core-loss coefficient (eq. 3.34)
-rated_voltage  0      V        stator-voltage vector magnitude the inverter can apply (0: not given)
-rated_current  0      A        stator-current vector magnitude (continuous rating; 0: not given)
-rated_speed    0      rad/s    mechanical base speed (0: not given)
-rated_torque   0      N·m      shaft torque at rated load (0: not given)
+rated_voltage_rms_line 0 V     nameplate voltage: line-to-line RMS (0: not given)
+rated_current_rms 0   A        nameplate current: line current RMS, continuous (0: not given)
+rated_frequency 0     Hz       nameplate supply frequency (0: not given)
+rated_speed_rpm 0     rpm      nameplate (full-load) shaft speed (0: not given)
+rated_power    0      W        nameplate shaft output power (0: not given)
+rated_flux     0      Wb       rated rotor flux |φ_r| if known (0: derived, :func:`rated_flux`)
 ========  ==========  =======  =====================================================
+
+Ratings are written as on the nameplate and converted once, here, to the model's
+power-invariant αβ frame (:func:`clarke`; docs/limits.md "Ratings"): a balanced three-phase
+set of phase RMS value X is the rotating vector of magnitude √3·X, so
+
+* voltage-vector magnitude :attr:`MotorParams.rated_voltage` = √3 · V_LL/√3 = V_LL (the
+  equivalent star's phase voltage is V_LL/√3, whether the motor is wired star or delta);
+* current-vector magnitude :attr:`MotorParams.rated_current` = √3 · I_line (the equivalent
+  star's phase current is the line current);
+* :attr:`MotorParams.rated_speed` = 2π n/60 [rad/s], :attr:`MotorParams.rated_torque` =
+  P/rated_speed [N·m].
+
+Given ratings are the drive's defaults (:func:`default_limits`): the controller's v_limit and
+current_limit, the plant's inverter limit and trips, and the flux levels; an explicit parameter
+always overrides, and a motor without ratings (:data:`THESIS_MOTOR`) runs as the thesis did.
 
 A motor of one's own is a ROS 2 parameters file (``/**:`` + ``ros__parameters:`` with the names
 above) read by :func:`load_motor_file`; the same file given to the nodes with ``--params-file``
@@ -39,7 +56,16 @@ from dataclasses import dataclass, fields, replace
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
-RATING_NAMES = ('rated_voltage', 'rated_current', 'rated_speed', 'rated_torque')
+#: the nameplate fields of a motor file (0: not given); converted once by MotorParams' properties
+RATING_NAMES = ('rated_voltage_rms_line', 'rated_current_rms', 'rated_frequency',
+                'rated_speed_rpm', 'rated_power', 'rated_flux')
+#: the model-frame ratings the motor files once held, and the nameplate field each now comes from
+LEGACY_RATINGS = {'rated_voltage': 'rated_voltage_rms_line (line-to-line RMS [V], equal to the '
+                                   'old vector magnitude)',
+                  'rated_current': 'rated_current_rms (line current RMS [A] = the old vector '
+                                   'magnitude / sqrt(3))',
+                  'rated_speed': 'rated_speed_rpm (rpm = the old rad/s x 60/(2 pi))',
+                  'rated_torque': 'rated_power (shaft power [W] = the old torque x rated speed)'}
 INDUCTANCE_NAMES = ('L_s', 'L_r', 'L_sr')
 
 
@@ -109,6 +135,24 @@ def leakage_factor(L_s: float, L_r: float, L_sr: float) -> float:
     return 1.0 - L_sr * L_sr / (L_s * L_r)
 
 
+SQRT3 = math.sqrt(3.0)
+
+
+def clarke(x_a: float, x_b: float, x_c: float) -> Tuple[float, float]:
+    """The power-invariant Clarke transform of the model (seed 000 eq. 1.111-1.112):
+    (x_α, x_β) = √(2/3)·(x_a − x_b/2 − x_c/2, (√3/2)(x_b − x_c)). Power-invariant:
+    v_a i_a + v_b i_b + v_c i_c = v_α i_α + v_β i_β for a set without zero sequence."""
+    k = math.sqrt(2.0 / 3.0)
+    return k * (x_a - 0.5 * x_b - 0.5 * x_c), k * 0.5 * SQRT3 * (x_b - x_c)
+
+
+def vector_magnitude(rms_phase: float) -> float:
+    """The αβ-vector magnitude of a balanced three-phase set whose phase RMS value is
+    ``rms_phase``: x_k = √2 X cos(ωt − 2πk/3) gives |x_αβ| = √(2/3)·(3/2)·√2 X = √3 X
+    (:func:`clarke`; tests/test_ratings.py checks it on sampled waveforms)."""
+    return SQRT3 * rms_phase
+
+
 @dataclass(frozen=True)
 class MotorParams:
     """Parameters of the squirrel-cage induction motor and its shaft (SI units, see module table)."""
@@ -123,10 +167,12 @@ class MotorParams:
     pole_pairs: int = 2
     k_e: float = 0.012
     k_h: float = 0.012
-    rated_voltage: float = 0.0
-    rated_current: float = 0.0
-    rated_speed: float = 0.0
-    rated_torque: float = 0.0
+    rated_voltage_rms_line: float = 0.0
+    rated_current_rms: float = 0.0
+    rated_frequency: float = 0.0
+    rated_speed_rpm: float = 0.0
+    rated_power: float = 0.0
+    rated_flux: float = 0.0
 
     def __post_init__(self):
         for name in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'J'):
@@ -145,6 +191,37 @@ class MotorParams:
                 'L_sr', self.L_sr,
                 f'leakage factor sigma = 1 - L_sr^2/(L_s*L_r) = {sigma:.4g} must be > 0 '
                 f'(L_sr^2 must be below L_s*L_r = {self.L_s * self.L_r:.6g})')
+        if self.rated_frequency > 0 and self.rated_speed_rpm > 0:
+            sync = 60.0 * self.rated_frequency / self.pole_pairs
+            if not self.rated_speed_rpm < sync:
+                raise InvalidParameter(
+                    'rated_speed_rpm', self.rated_speed_rpm,
+                    f'must be below the synchronous speed 60 f/v = {sync:g} rpm of '
+                    f'{self.rated_frequency:g} Hz and {self.pole_pairs} pole pairs (an induction '
+                    f'motor runs below it)')
+
+    # Ratings in the model's power-invariant frame (module doc; 0: not given) ---------------
+    @property
+    def rated_voltage(self) -> float:
+        """Voltage-vector magnitude at the rated voltage [V]: √3 × the phase voltage V_LL/√3 of
+        the equivalent star (:func:`vector_magnitude`), i.e. the line-to-line RMS voltage."""
+        return self.rated_voltage_rms_line
+
+    @property
+    def rated_current(self) -> float:
+        """Current-vector magnitude at the rated current [A]: √3 × the line current RMS."""
+        return vector_magnitude(self.rated_current_rms)
+
+    @property
+    def rated_speed(self) -> float:
+        """Rated shaft speed [rad/s]."""
+        return 2.0 * math.pi * self.rated_speed_rpm / 60.0
+
+    @property
+    def rated_torque(self) -> float:
+        """Shaft torque at rated power and speed [N·m] (0 unless both are given)."""
+        w = self.rated_speed
+        return self.rated_power / w if w > 0 else 0.0
 
     # Derived quantities -------------------------------------------------------------------
     @property
@@ -228,6 +305,108 @@ def estimate_arguments(estimates: Mapping) -> Dict[str, float]:
     names = IDENTIFIABLE_NAMES if 'L_sigma' in estimates else THESIS_ESTIMATE_NAMES
     return {n: estimates[n] for n in names if estimates.get(n) is not None}
 MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
+
+# Ratings as drive defaults ---------------------------------------------------------------
+#: the plant's over-current trip as a multiple of the rated current: a protection above any
+#: limit a controller is given on purpose (the rating-scaled studies run at 2× rated current,
+#: im_studies.study_motors.OVERLOAD) with room for its transients
+CURRENT_TRIP_MARGIN = 3.0
+#: the plant's over-speed trip as a multiple of the rated speed (field weakening runs above
+#: rated speed; twice it is where a general-purpose motor's mechanical limit usually lies)
+SPEED_TRIP_MARGIN = 2.0
+#: φ_min/φ_max of the thesis (0.2/1.2 Wb), kept when the flux levels scale to the rated flux
+FLUX_MIN_SHARE = 0.2 / 1.2
+
+
+def rated_rotor_flux(R_s: float, L_sigma: float, L_M: float, R_R: float, theta: float,
+                     voltage: float, frequency: float, speed_rpm: float, pole_pairs: int) -> float:
+    """The rotor flux |φ_r| at rated voltage (vector magnitude, = V_LL), frequency and speed.
+
+    The inverse-Γ equivalent circuit at ω_e = 2πf and the rated slip s = 1 − n v/(60 f):
+    Z_M = jω_e L_M ∥ R_R/s, the magnetizing-branch voltage V_M = V·Z_M/(R_s + jω_e L_σ + Z_M),
+    ψ_R = |V_M|/ω_e, and φ_r = ψ_R/θ in the motor's gauge θ = L_sr/L_r (docs/commissioning.md §4:
+    the flux the motor carries at its rated operating point)."""
+    we = 2.0 * math.pi * frequency
+    slip = 1.0 - speed_rpm * pole_pairs / (60.0 * frequency)
+    z_m = 1.0 / (1.0 / (1j * we * L_M) + slip / R_R)
+    v_m = voltage * z_m / (R_s + 1j * we * L_sigma + z_m)
+    return abs(v_m) / we / theta
+
+
+def rated_flux(motor: MotorParams) -> Optional[float]:
+    """The motor's rated rotor flux [Wb]: ``rated_flux`` when the file states it, else
+    :func:`rated_rotor_flux` from the rated voltage, frequency and speed, else None."""
+    if motor.rated_flux > 0:
+        return motor.rated_flux
+    if min(motor.rated_voltage_rms_line, motor.rated_frequency, motor.rated_speed_rpm) > 0:
+        return rated_rotor_flux(motor.R_s, motor.L_sigma, motor.L_M, motor.R_R, motor.theta,
+                                motor.rated_voltage, motor.rated_frequency,
+                                motor.rated_speed_rpm, motor.pole_pairs)
+    return None
+
+
+def default_limits(motor: MotorParams) -> Dict[str, Tuple[float, str]]:
+    """The defaults a motor's ratings give the drive: ``{parameter: (value, why)}`` for the
+    parameters a rating exists for (an unrated motor gives {} — the run is the thesis's).
+
+    Controller: ``v_limit`` = rated voltage-vector magnitude, ``current_limit`` = rated
+    current-vector magnitude, ``phi_d`` = ``phi_max`` = the rated flux and ``phi_min`` =
+    :data:`FLUX_MIN_SHARE` of it. Plant: ``v_limit`` (the inverter), ``current_trip`` =
+    :data:`CURRENT_TRIP_MARGIN` × rated current, ``speed_trip`` = :data:`SPEED_TRIP_MARGIN` ×
+    rated speed. The one home of these defaults: the nodes (for parameters left at -1) and the
+    ROS-free loop call it; an explicit parameter always overrides."""
+    out: Dict[str, Tuple[float, str]] = {}
+    if motor.rated_voltage_rms_line > 0:
+        out['v_limit'] = (motor.rated_voltage,
+                          f'rated voltage {motor.rated_voltage_rms_line:g} V line-to-line RMS')
+    if motor.rated_current_rms > 0:
+        i = motor.rated_current
+        out['current_limit'] = (i, f'rated current {motor.rated_current_rms:g} A RMS '
+                                   f'(vector magnitude sqrt(3) x {motor.rated_current_rms:g})')
+        out['current_trip'] = (CURRENT_TRIP_MARGIN * i,
+                               f'{CURRENT_TRIP_MARGIN:g} x rated current {i:.4g} A')
+    if motor.rated_speed_rpm > 0:
+        out['speed_trip'] = (SPEED_TRIP_MARGIN * motor.rated_speed,
+                             f'{SPEED_TRIP_MARGIN:g} x rated speed {motor.rated_speed_rpm:g} rpm')
+    phi = rated_flux(motor)
+    if phi is not None:
+        why = ('stated rated_flux' if motor.rated_flux > 0 else
+               'rated flux at rated voltage, frequency and speed')
+        out['phi_d'] = (phi, why)
+        out['phi_max'] = (phi, why)
+        out['phi_min'] = (FLUX_MIN_SHARE * phi, f'{FLUX_MIN_SHARE:.4g} x {why}')
+    return out
+
+
+#: a limit or level left at RATED takes the motor's rating (:func:`default_limits`), or, for a
+#: motor without that rating, the value it had before ratings were defaults (``fallback``)
+RATED = 'rated'
+
+
+def resolve_rated(owner, names: Mapping[str, object], motor: MotorParams,
+                  previous: Optional[Mapping[str, Tuple[float, str]]] = None
+                  ) -> Dict[str, Tuple[float, str]]:
+    """Set each attribute of ``owner`` named in ``names`` ({name: fallback}) that is
+    :data:`RATED` from ``motor``'s ratings, else to its fallback. Returns ``{name: (value,
+    why)}`` of those the ratings set, with the entries of ``previous`` still in force (a
+    configuration copied with ``dataclasses.replace`` keeps saying where its limits came from)."""
+    limits = default_limits(motor)
+    used = {k: x for k, x in (previous or {}).items() if getattr(owner, k, None) == x[0]}
+    for name, fallback in names.items():
+        if isinstance(getattr(owner, name), str) and getattr(owner, name) == RATED:
+            if name in limits:
+                object.__setattr__(owner, name, limits[name][0])
+                used[name] = limits[name]
+            else:
+                object.__setattr__(owner, name, fallback)
+    return used
+
+
+def describe_defaults(used: Mapping[str, Tuple[float, str]]) -> str:
+    """One line naming each default taken from the ratings, e.g. for the node logs:
+    ``from the motor's ratings: current_limit = 8.66 (rated current 5 A RMS ...)``."""
+    return "from the motor's ratings: " + '; '.join(
+        f'{k} = {v:.4g} ({why})' for k, (v, why) in used.items())
 REQUIRED_MOTOR_FIELDS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'pole_pairs', 'J', 'b')
 
 
@@ -238,6 +417,10 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
     if not isinstance(values, Mapping):
         raise InvalidParameter(f'{source}', values, 'must be a mapping of motor parameters')
     for key in values:
+        if key in LEGACY_RATINGS:
+            raise InvalidParameter(f'{source}: {key}', values[key],
+                                   f'ratings are nameplate values now: write '
+                                   f'{LEGACY_RATINGS[key]}')
         if key not in MOTOR_FIELDS:
             near = difflib.get_close_matches(str(key), MOTOR_FIELDS, n=1)
             hint = f"; did you mean '{near[0]}'?" if near else f" (known: {', '.join(MOTOR_FIELDS)})"

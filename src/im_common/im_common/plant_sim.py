@@ -13,7 +13,10 @@ On a trip (or a command above the rating) it latches ``trip = (t, reason)`` and 
 voltage from then on (all lower
 switches on: the stator is short-circuited through the inverter, the machine's stored magnetic
 energy decays through its resistances and the shaft coasts against its load). A non-finite
-state is not kept: the period is integrated again from the last finite state with zero voltage. The model is integrated with fixed-step RK4 sub-steps in
+state is not kept: the period is integrated again from the last finite state with zero voltage.
+Left at ``RATED`` (their default), ``v_limit`` and the trips come from the motor's ratings
+(:func:`im_common.params.default_limits`; none for a motor without them; ``from_ratings`` says
+which). The model is integrated with fixed-step RK4 sub-steps in
 each period (at most ``max_substep`` long), together with the energy integrals, so the energy books
 are part of the integration and not computed after the fact.
 """
@@ -26,11 +29,21 @@ from typing import Optional, Sequence
 from .loads import Load
 from .model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, N_AUG, MotorModel,
                     W_LOAD, currents, rk4_step)
-from .params import InvalidParameter, MotorParams, ParameterSchedule, THESIS_MOTOR
+from .params import (RATED, InvalidParameter, MotorParams, ParameterSchedule, THESIS_MOTOR,
+                     resolve_rated)
 
 # The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
 # inverter (≈ 1 kV), above every shipped motor's needs; a larger command trips the plant.
 DEFAULT_INVERTER_RATING = 1000.0
+#: the plant's limits a motor's ratings set when left at RATED, and their value without a rating
+RATED_PROTECTION = {'v_limit': None, 'current_trip': None, 'speed_trip': None}
+
+
+@dataclass
+class _Protection:
+    v_limit: object
+    current_trip: object
+    speed_trip: object
 
 
 @dataclass(frozen=True)
@@ -70,12 +83,17 @@ class PlantSimulator:
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
                  load: Optional[Load] = None, T_s: float = 1e-4, max_substep: float = 1e-4,
-                 v_limit: Optional[float] = None, current_noise_std: float = 0.0,
+                 v_limit: Optional[float] = RATED, current_noise_std: float = 0.0,
                  speed_noise_std: float = 0.0, noise_seed: int = 0, theta0: float = 0.0,
                  omega0: float = 0.0, x0: Optional[Sequence[float]] = None,
                  core_loss_exponent: float = 2.0, inverter_rating: float = DEFAULT_INVERTER_RATING,
-                 current_trip: Optional[float] = None, speed_trip: Optional[float] = None,
+                 current_trip: Optional[float] = RATED, speed_trip: Optional[float] = RATED,
                  locked_rotor: bool = False):
+        self.model = MotorModel(schedule, load, core_loss_exponent, locked=locked_rotor)
+        # left at RATED: the motor's rating (im_common.params.default_limits), else none
+        lim = _Protection(v_limit, current_trip, speed_trip)
+        self.from_ratings = resolve_rated(lim, RATED_PROTECTION, self.model.schedule.base)
+        v_limit, current_trip, speed_trip = lim.v_limit, lim.current_trip, lim.speed_trip
         if not (math.isfinite(T_s) and T_s > 0):
             raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
         if not (math.isfinite(max_substep) and max_substep > 0):
@@ -93,7 +111,6 @@ class PlantSimulator:
                 raise InvalidParameter(name, val, 'must be >= 0')
         if locked_rotor and (omega0 != 0.0 or (x0 is not None and x0[5] != 0.0)):
             raise InvalidParameter('omega0', omega0, 'must be 0 with a locked rotor')
-        self.model = MotorModel(schedule, load, core_loss_exponent, locked=locked_rotor)
         self.schedule = self.model.schedule
         self.params = self.model.params
         self.load = self.model.load

@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from im_common.loads import LOAD_KINDS, make_load
-from im_common.params import (InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
-                              estimate_arguments)
+from im_common.params import (RATED, InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
+                              estimate_arguments, resolve_rated)
 
 from .flux import LOSS_OPTIMAL, STRATEGIES, FluxStrategy, LowPass2
 from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
@@ -58,6 +58,10 @@ DEFAULT_VOLTAGE_MARGIN = 0.85
 # demanded torque exceeds this share of the limit; the rest is headroom for the flux rise
 # (T_r dφ*/dt on the d axis) and the PD correction (docs/limits.md).
 DEFAULT_CURRENT_MARGIN = 0.9
+# Fields whose default RATED takes the motor model's rating (im_common.params.default_limits),
+# and their value for a motor without that rating (the thesis's; ``from_ratings`` says which).
+RATED_FIELDS = {'v_limit': None, 'current_limit': None, 'phi_d': 1.2, 'phi_min': 0.2,
+                'phi_max': 1.2}
 # |i_q*| ≤ MAGNETIZING_RATIO · i_d*/√σ: the torque a partly magnetized machine is asked for
 MAGNETIZING_RATIO = 2.0
 # Reconfigurable while running (ros2 param set on the controller node): gains, strategy, flux
@@ -86,7 +90,9 @@ class ControllerConfig:
     strategy        'min_energy' (eq. 3.19/3.25) | 'constant_flux' (φ_d) | 'min_loss' |
                     'optimal' (the loss-optimal flux trajectory planned over a reference known
                     ahead, docs/controller.md §10; else min_loss, and ``plan_note`` says so)
-    phi_d, phi_min, phi_max   [Wb] constant-flux level and the strategy bounds (§3.4.6)
+    phi_d, phi_min, phi_max   [Wb] constant-flux level and the strategy bounds (§3.4.6);
+                    RATED (default) → the model's rated flux, φ_min = 1/6 of it
+                    (im_common.params.default_limits), else the thesis's 1.2, 0.2, 1.2 Wb
     k1              [V/A] > 0, current gain K₁ = k₁ I (§3.4.6 "k1 = −40", sign see module doc)
     k_p, k_v        [N·m/rad], [N·m·s/rad] PD gains of eq. 3.1; None → per-mode defaults
                     (position 10, 1; speed 1, 3; torque unused)
@@ -94,7 +100,8 @@ class ControllerConfig:
     load            'pendulum' | 'linear' | 'constant' | 'none' | None (per-mode default)
     load_mgl, load_c1, load_c2, load_tau   load-model coefficients (τ = mgl cos θ, c1 + c2 ω, τ)
     params          nominal motor parameters (the controller's estimates)
-    v_limit         [V] magnitude limit of the voltage vector, or None
+    v_limit         [V] magnitude limit of the voltage vector, or None; RATED (default) → the
+                    model's rated voltage (line-to-line RMS), None without one
     current_gain    2×2 K₁ (ΔV = −K₁ (i − i*)) overriding k1·I, or None
     flux_coupling   'cancel' | 'thesis' | 'none' (see module doc)
     T_s             [s] control period (hold compensation and the first step)
@@ -113,7 +120,8 @@ class ControllerConfig:
                     'setpoint'): a profile file reaches the node through its parameters;
                     duration None → ``setpoint_duration``
     torque_limit    [N·m] |τ*| bound, or None
-    current_limit   [A] stator-current magnitude the torque demand may ask for, or None
+    current_limit   [A] stator-current magnitude the torque demand may ask for, or None;
+                    RATED (default) → the model's rated current (√3 × line RMS), None without one
     speed_limit     [rad/s] beyond it no torque pushes the shaft further, or None
     field_weakening cap the flux target above base speed (needs v_limit)
     voltage_margin  share of v_limit the steady voltage may use under field weakening
@@ -129,9 +137,9 @@ class ControllerConfig:
     mode: str = 'position'
     profile: str = 'thesis'
     strategy: str = 'min_energy'
-    phi_d: float = 1.2
-    phi_min: float = 0.2
-    phi_max: float = 1.2
+    phi_d: float = RATED
+    phi_min: float = RATED
+    phi_max: float = RATED
     k1: float = 40.0
     k_p: Optional[float] = None
     k_v: Optional[float] = None
@@ -142,7 +150,7 @@ class ControllerConfig:
     load_c2: float = 0.001
     load_tau: float = 0.0
     params: MotorParams = field(default_factory=lambda: THESIS_MOTOR)
-    v_limit: Optional[float] = None
+    v_limit: Optional[float] = RATED
     current_gain: Optional[list] = None
     flux_coupling: str = 'cancel'
     T_s: float = 1e-4
@@ -154,13 +162,15 @@ class ControllerConfig:
     flux_preview: Optional[float] = None
     setpoints: tuple = ()
     torque_limit: Optional[float] = None
-    current_limit: Optional[float] = None
+    current_limit: Optional[float] = RATED
     speed_limit: Optional[float] = None
     field_weakening: bool = True
     voltage_margin: float = DEFAULT_VOLTAGE_MARGIN
     current_margin: float = DEFAULT_CURRENT_MARGIN
     magnetizing_floor: Optional[float] = None
     horizon: Optional[float] = None
+    #: {field: (value, why)} of the fields the motor model's ratings set (RATED_FIELDS)
+    from_ratings: Optional[dict] = field(default=None, compare=False)
 
     def __post_init__(self):
         for name, allowed in (('mode', MODES), ('profile', PROFILES), ('strategy', STRATEGIES),
@@ -173,6 +183,7 @@ class ControllerConfig:
                                    "mode 'torque' needs profile 'setpoint'")
         if not isinstance(self.params, MotorParams):
             raise InvalidParameter('params', self.params, 'must be a MotorParams')
+        self.from_ratings = resolve_rated(self, RATED_FIELDS, self.params, self.from_ratings)
         self.phi_d = _real('phi_d', self.phi_d, 0.0, lo_open=True)
         self.phi_min = _real('phi_min', self.phi_min, 0.0, lo_open=True)
         self.phi_max = _real('phi_max', self.phi_max, 0.0, lo_open=True)

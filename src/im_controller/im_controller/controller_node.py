@@ -37,6 +37,7 @@ from im_controller.control_law import DriveController
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_controller.parameters import (LIVE_PARAMETERS, SENTINEL_DEFAULTS, config_from_parameters,
                                       declare_controller, live_changes)
+from im_common.params import describe_defaults
 
 
 class ControllerNode(LockstepNode):
@@ -59,6 +60,8 @@ class ControllerNode(LockstepNode):
             raise ValueError(f"invalid parameter 'sensorless' = True: {POSITION_NEEDS_SENSOR}")
         self.shaft = T.OBS_SPEED if self.sensorless else T.MEAS_SHAFT
         cfg = config_from_parameters(params, values, self.T_s)
+        if cfg.from_ratings:
+            self.get_logger().info(describe_defaults(cfg.from_ratings))
         # the run's end is the optimal strategy's planning horizon (0: open-ended)
         self.ctl = DriveController(replace(cfg, horizon=self.duration if self.duration > 0 else None))
         self._plan_note = ''

@@ -7,6 +7,7 @@ range check at declaration, or by ``ControllerConfig`` validation).
 from __future__ import annotations
 
 from im_common.loads import LOAD_KINDS
+from im_common.params import RATED
 
 from .control_law import (DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN, FLUX_COUPLINGS,
                           LIVE_FIELDS, MODES, PROFILES, STRATEGIES, ControllerConfig)
@@ -21,6 +22,16 @@ LIVE_PARAMETERS = LIVE_FIELDS
 # negative value is refused by name, never quietly read as the sentinel.
 SENTINEL_DEFAULTS = {'k_p': 'per-mode default', 'k_v': 'per-mode default',
                      'flux_preview': 'strategy default'}
+# Parameters whose -1 (the default) stands for the motor model's rating
+# (:func:`im_common.params.default_limits`); without that rating, the value before ratings were
+# defaults: no limit, or the thesis's flux level (``ControllerConfig``'s default).
+RATING_DEFAULTS = {'v_limit': 'rated voltage, else none',
+                   'current_limit': 'rated current, else none',
+                   'phi_d': 'rated flux, else 1.2 Wb',
+                   'phi_min': 'share of the rated flux, else 0.2 Wb',
+                   'phi_max': 'rated flux, else 1.2 Wb'}
+SENTINEL_DEFAULTS.update({k: f'from the motor: {why}' for k, why in RATING_DEFAULTS.items()})
+_OWN_SENTINELS = ('k_p', 'k_v', 'flux_preview')
 
 
 def declare_controller(node) -> dict:
@@ -34,9 +45,12 @@ def declare_controller(node) -> dict:
                      'reference source: the thesis trajectories (seed 000 §3.4.4) or setpoints '
                      'from /im/setpoint turned into smooth references', choices=PROFILES)
     v['strategy'] = p('strategy', 'min_energy', 'flux strategy', choices=STRATEGIES)
-    v['phi_d'] = p('phi_d', 1.2, 'constant-flux level [Wb]', 1e-3, 10.0)
-    v['phi_min'] = p('phi_min', 0.2, 'lower flux bound of min_energy / min_loss [Wb]', 1e-3, 10.0)
-    v['phi_max'] = p('phi_max', 1.2, 'upper flux bound (saturation) [Wb]', 1e-3, 10.0)
+    v['phi_d'] = p('phi_d', -1.0, 'constant-flux level [Wb] (-1: the motor\'s rated flux, '
+                   'else the thesis\'s 1.2)', -1.0, 10.0)
+    v['phi_min'] = p('phi_min', -1.0, 'lower flux bound of min_energy / min_loss [Wb] (-1: 1/6 '
+                     'of the rated flux, else 0.2)', -1.0, 10.0)
+    v['phi_max'] = p('phi_max', -1.0, 'upper flux bound (saturation) [Wb] (-1: the rated flux, '
+                     'else 1.2)', -1.0, 10.0)
     v['k1'] = p('k1', 40.0, 'current feedback gain K1 = k1 I [V/A] (Delta V = -K1 (i - i*))',
                 1e-6, 1e6)
     v['k_p'] = p('k_p', -1.0, 'PD position gain of eq. 3.1 [N m/rad] (-1: per-mode default, '
@@ -49,8 +63,8 @@ def declare_controller(node) -> dict:
     v['load_c1'] = p('load_c1', 1.0, 'linear load model c1 [N m]', -1e4, 1e4)
     v['load_c2'] = p('load_c2', 0.001, 'linear load model c2 [N m s]', -1e3, 1e3)
     v['load_tau'] = p('load_tau', 0.0, 'constant load model [N m]', -1e4, 1e4)
-    v['v_limit'] = p('v_limit', 0.0, 'voltage-vector limit with anti-windup [V] (0: none)',
-                     0.0, 1e5)
+    v['v_limit'] = p('v_limit', -1.0, 'voltage-vector limit with anti-windup [V] (0: none; -1: '
+                     'the motor\'s rated voltage, none without one)', -1.0, 1e5)
     v['current_gain'] = p('current_gain', [0.0],
                           'full 2x2 current gain K1, row-major, from design_gains ([0.0]: k1 I)')
     v['gain_period'] = p('gain_period', 0.0, 'period current_gain was designed for [s]', 0.0, 1.0)
@@ -73,9 +87,9 @@ def declare_controller(node) -> dict:
                        "t [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none "
                        "(im_controller.profiles writes them from a profile file)")
     v['torque_limit'] = p('torque_limit', 0.0, 'bound on |tau*| [N m] (0: none)', 0.0, 1e7)
-    v['current_limit'] = p('current_limit', 0.0,
-                           'stator-current magnitude the torque demand may ask for [A] (0: none)',
-                           0.0, 1e6)
+    v['current_limit'] = p('current_limit', -1.0,
+                           'stator-current magnitude the torque demand may ask for [A] (0: none; '
+                           '-1: the motor\'s rated current, none without one)', -1.0, 1e6)
     v['speed_limit'] = p('speed_limit', 0.0,
                          'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0, 1e5)
     v['field_weakening'] = p('field_weakening', True,
@@ -101,14 +115,20 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
         v['current_gain'] = [gain[0:2], gain[2:4]]
     elif gain != [0.0]:
         raise ValueError(f"invalid parameter 'current_gain' = {gain!r}: 4 numbers (row-major 2x2)")
-    for key in SENTINEL_DEFAULTS:
+    for key in _OWN_SENTINELS:
         if v[key] == -1.0:
             v[key] = None
         elif v[key] < 0:
             raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
                              f"the {SENTINEL_DEFAULTS[key]}")
+    for key in RATING_DEFAULTS:
+        if v[key] == -1.0:
+            v[key] = RATED                  # ControllerConfig takes the motor model's rating
+        elif v[key] < 0:
+            raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
+                             f"the {SENTINEL_DEFAULTS[key]}")
     for key in ('v_limit', 'torque_limit', 'current_limit', 'speed_limit'):
-        v[key] = v[key] or None
+        v[key] = None if v[key] == 0 else v[key]
     v['setpoints'] = setpoints_from_parameters(v['setpoints'])
     return ControllerConfig(params=params, T_s=T_s, **v)
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 from im_common.loads import LOAD_KINDS, make_load
 from im_common.model import stator_flux
 from im_common.node_params import declare_motor
-from im_common.params import ELECTRICAL_NAMES, SCHEDULES, MotorParams, ParameterSchedule, Variation
+from im_common.params import (ELECTRICAL_NAMES, SCHEDULES, MotorParams, ParameterSchedule,
+                              RATED, Variation)
 from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
 
 STEPPING_MODES = ('lockstep', 'free_run')
@@ -48,16 +49,17 @@ def declare_plant(node) -> dict:
     v['initial_current'] = p('initial_current', [0.0, 0.0],
                              'initial stator current [i_alpha, i_beta] [A]')
     v['initial_flux'] = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
-    v['v_limit'] = p('v_limit', 0.0, 'inverter voltage-vector limit [V] (0: no limit)', 0.0, 1e5)
+    v['v_limit'] = p('v_limit', -1.0, 'inverter voltage-vector limit [V] (0: no limit; -1: the '
+                     'motor\'s rated voltage, no limit without one)', -1.0, 1e5)
     v['inverter_rating'] = p('inverter_rating', DEFAULT_INVERTER_RATING,
                              'the inverter\'s own voltage-vector limit [V]: a larger command trips '
                              'the plant to zero voltage (trip in the truth)', 1.0, 1e6)
-    v['current_trip'] = p('current_trip', 0.0,
-                          'protection: trip to zero voltage when |i_s| exceeds this [A] (0: off)',
-                          0.0, 1e6)
-    v['speed_trip'] = p('speed_trip', 0.0,
+    v['current_trip'] = p('current_trip', -1.0,
+                          'protection: trip to zero voltage when |i_s| exceeds this [A] (0: off; '
+                          '-1: 2 x the motor\'s rated current, off without one)', -1.0, 1e6)
+    v['speed_trip'] = p('speed_trip', -1.0,
                         'protection: trip to zero voltage when |omega_r| exceeds this [rad/s] '
-                        '(0: off)', 0.0, 1e6)
+                        '(0: off; -1: 2 x the motor\'s rated speed, off without one)', -1.0, 1e6)
     v['current_noise_std'] = p('current_noise_std', 0.0, 'std of current measurement noise [A]',
                                0.0, 1e3)
     v['speed_noise_std'] = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]',
@@ -74,11 +76,24 @@ def declare_plant(node) -> dict:
     return v
 
 
+#: plant parameters whose -1 (the default) stands for the motor's rating
+#: (:func:`im_common.params.default_limits`; off without one)
+PROTECTION_FROM_RATINGS = ('v_limit', 'current_trip', 'speed_trip')
+
+
 def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -> PlantSimulator:
     """The plant simulator from declared parameter values (0 = off for limits and trips);
     ``duration`` > 0 validates the parameter schedule over the run."""
-    v = values
-    motor: MotorParams = v['motor']
+    motor: MotorParams = values['motor']
+    v = dict(values)
+    for key in PROTECTION_FROM_RATINGS:
+        if v[key] == -1.0:
+            v[key] = RATED                  # PlantSimulator takes the motor's rating
+        elif v[key] < 0:
+            raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
+                             f"the motor's rating")
+        elif v[key] == 0:
+            v[key] = None
     if v['variation'] == 'custom':
         schedule = ParameterSchedule(motor, {v['variation_parameter']: Variation(
             v['variation_kind'], v['variation_offset'], slope=v['variation_slope'],
@@ -98,11 +113,11 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
         x0 = (psi[0], psi[1], f0[0], f0[1], v['theta0'], v['omega0'])
     load = make_load(v['load'], v['load_mgl'], v['load_c1'], v['load_c2'], v['load_tau'])
     return PlantSimulator(schedule, load, T_s, max_substep=v['max_substep'],
-                          v_limit=v['v_limit'] or None,
+                          v_limit=v['v_limit'],
                           current_noise_std=v['current_noise_std'],
                           speed_noise_std=v['speed_noise_std'], noise_seed=v['noise_seed'],
                           theta0=v['theta0'], omega0=v['omega0'], x0=x0,
                           inverter_rating=v['inverter_rating'],
-                          current_trip=v['current_trip'] or None,
-                          speed_trip=v['speed_trip'] or None,
+                          current_trip=v['current_trip'],
+                          speed_trip=v['speed_trip'],
                           locked_rotor=v['locked_rotor'])

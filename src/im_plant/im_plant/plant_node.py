@@ -33,6 +33,7 @@ from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, READY, RUN
                                 stamp_text)
 from im_common.node_params import declare_run
 from im_common.timing import LatencyHistogram
+from im_common.params import describe_defaults
 from im_plant.parameters import declare_plant, simulator_from_parameters
 
 
@@ -49,6 +50,8 @@ class PlantNode(LockstepNode):
         self.clock_every = values['clock_decimation']
         self.truth_every = values['truth_decimation']
         self.sim = simulator_from_parameters(values, self.T_s, self.duration)
+        if self.sim.from_ratings:
+            self.get_logger().info(describe_defaults(self.sim.from_ratings))
         self.period = period_ns(self.T_s)
         self.last_step = (round(self.duration / self.T_s) if self.duration > 0 else None)
         self.wait_for = self.param(

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 from pathlib import Path
 
@@ -26,11 +25,11 @@ THESIS_PLATE = {'voltage': 220.0, 'current': 4.9, 'frequency': 60.0, 'speed': 17
 
 
 def plate_of(motor):
-    """The nameplate a motor file's ratings stand for (60 Hz; the rated speed in rpm)."""
+    """The nameplate a motor file's ratings are (its nameplate fields)."""
     from im_adapt.commissioning import Nameplate
-    return Nameplate(voltage=motor.rated_voltage, current=motor.rated_current / math.sqrt(3.0),
-                     frequency=60.0, speed=motor.rated_speed * 60.0 / (2.0 * math.pi),
-                     power=motor.rated_torque * motor.rated_speed)
+    return Nameplate(voltage=motor.rated_voltage_rms_line, current=motor.rated_current_rms,
+                     frequency=motor.rated_frequency, speed=motor.rated_speed_rpm,
+                     power=motor.rated_power)
 
 
 def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = False,
@@ -65,7 +64,7 @@ def speed_error(motor, estimates) -> dict:
 
 def motors(draws: int):
     """(name, MotorParams): the shipped motors, then box motors with σ < SIGMA_MAX."""
-    from im_common.params import load_motor_file, shipped_motors_dir
+    from im_common.params import RATING_NAMES, load_motor_file, shipped_motors_dir
     from .campaign_spec import DRAWN, base_motor, draw, read_spec
     d = shipped_motors_dir()
     out = [(f[:-5], load_motor_file(os.path.join(d, f))) for f in sorted(os.listdir(d))
@@ -75,9 +74,7 @@ def motors(draws: int):
     base = base_motor(spec)
     if not base.rated_current:          # the thesis motor's ratings (its shipped file)
         thesis = load_motor_file(os.path.join(d, 'thesis.yaml'))
-        base = base.with_values(**{x: getattr(thesis, x) for x in
-                                   ('rated_voltage', 'rated_current', 'rated_speed',
-                                    'rated_torque')})
+        base = base.with_values(**{x: getattr(thesis, x) for x in RATING_NAMES})
     k, n = 0, 0
     while n < draws:
         vals = draw(spec, k)
