@@ -73,7 +73,7 @@ def test_recorder_node_records_what_was_published(tmp_path):
         rogue.header.stamp.sec = 2
         rogue.vector.x = 50.0
         p_cur.publish(rogue)
-        while (sum(rec.counts.values()) < len(sent) or not (rec.unsigned or rec._early)) \
+        while (sum(rec.counts.values()) < len(sent) or not (rec.unsigned or rec.signing.early)) \
                 and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
         rec.flush_unverified()          # the run never started: what did not verify is refused
@@ -115,7 +115,7 @@ def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path)
     rec = None
     try:
         rec = RecorderNode(writer, parse_topics(['/im/measured/current']), context=ctx)
-        rec.EARLY_MAX = 10
+        rec.signing.early_max = 10      # the node's bound on what it cannot verify yet
         sign = Signer(rec.signer.key, 'run1').sign
         out = Vector3Out(Signer.frame('alphabeta'))
         sent = [sign('/im/measured/current', out.fill(k * 100_000, 1.0, 0.0)) for k in range(25)]
