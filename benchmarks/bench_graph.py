@@ -1,4 +1,5 @@
-"""Lock-step throughput of the drive graph, next to its yardsticks measured in the same run.
+"""
+Lock-step throughput of the drive graph, next to its yardsticks measured in the same run.
 
 * in one process (DriveGraph, EventsExecutor): steps/s of the full graph, with and without the
   adapter on the critical path, with and without in-process MCAP recording;

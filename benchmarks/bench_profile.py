@@ -1,4 +1,5 @@
-"""Where a lock-step step of the in-process graph spends its time (cProfile, no ROS-side tools).
+"""
+Where a lock-step step of the in-process graph spends its time (cProfile, no ROS-side tools).
 
 The issue's scenario (position task, min_loss, nominal controller, the summary tap that
 ``scenario`` folds every message into) runs once unprofiled (steps/s) and once under cProfile.

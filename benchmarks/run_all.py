@@ -1,4 +1,5 @@
-"""Run every benchmark in this folder, print one table, write <out>/<name>.json and summary.json.
+"""
+Run every benchmark in this folder, print one table, write <out>/<name>.json and summary.json.
 
 Benchmarks are files ``bench_*.py`` exposing ``run(quick=False) -> dict``. ``--quick`` shortens
 them to seconds (tests/test_benchmarks.py runs every one that way, so none can break unseen); the
@@ -51,8 +52,12 @@ def machine() -> dict:
 
 
 def strict(obj):
-    """``obj`` with every non-finite float as its name ('inf', 'nan'): the JSON stays standard
-    (a latency quantile beyond the histogram's last bin is 'inf', not the non-JSON Infinity)."""
+    """
+    ``obj`` with every non-finite float as its name ('inf', 'nan').
+
+    The JSON stays standard (a latency quantile beyond the histogram's last bin is 'inf', not
+    the non-JSON Infinity).
+    """
     if isinstance(obj, float) and not math.isfinite(obj):
         return repr(obj)
     if isinstance(obj, dict):
@@ -74,7 +79,7 @@ def run_one(name: str, quick: bool, info: dict) -> dict:
 
 
 def summary(results: dict, info: dict, quick: bool) -> dict:
-    """The ratios measured in this run (a ratio whose benchmark did not run is left out)."""
+    """Return the ratios measured in this run (a ratio whose benchmark did not run is left out)."""
     out = {'date': datetime.datetime.now().isoformat(timespec='seconds'), 'quick': quick,
            'machine': info, 'benchmarks': sorted(results)}     # those that completed
     for key, (bench, fig) in RATIOS.items():

@@ -26,7 +26,8 @@ def graph_key_file(tmp_path_factory):
 
 @pytest.fixture
 def ros_context():
-    """An initialized rclpy ``Context`` on a random DDS domain in 150-229, shut down afterwards.
+    """
+    Return an initialized rclpy ``Context`` on a random DDS domain in 150-229, shut down afterwards.
 
     Every in-process ROS test takes its context from here instead of calling ``rclpy.init``
     itself, so no test shares the global context or a domain with another run on the machine.

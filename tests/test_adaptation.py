@@ -1,4 +1,5 @@
-"""Tests of the chapter-4 parameter adaptation (im_adapt.adaptation), open loop.
+"""
+Tests of the chapter-4 parameter adaptation (im_adapt.adaptation), open loop.
 
 The plant is driven by a sinusoidal V/f voltage (20 Hz, ~0.8 Wb, 0.2 s frequency ramp) against a
 load; the adapter gets the measured currents, the applied voltage, the speed and — standing in for
@@ -8,13 +9,12 @@ identifiable combinations are what two terminal-equivalent motors share.
 """
 import math
 
-import numpy as np
-import pytest
-
 from im_adapt.adaptation import AdaptationGains, ParameterAdapter
 from im_common.loads import LinearLoad
-from im_common.params import THESIS_MOTOR, InvalidParameter, ParameterSchedule, chapter4_schedule
+from im_common.params import chapter4_schedule, InvalidParameter, ParameterSchedule, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
+import numpy as np
+import pytest
 
 P = THESIS_MOTOR
 T_S = 1e-4
@@ -34,7 +34,8 @@ def _vf_voltage(k, state):
 
 def _run(schedule, adapter_factory, t_end, t_start=0.0, load=None, current_offset=0.0,
          every=1, on_step=None, voltage=_vf_voltage):
-    """Drive the plant open loop; create the adapter at t_start and step it to t_end.
+    """
+    Drive the plant open loop; create the adapter at t_start and step it to t_end.
 
     Returns (rows, adapter, sim) with rows = [t, R_r^, θ^, L_M^, R_R^, R_r, θ, L_M, R_R] sampled
     every ``every`` adapter steps (estimates are those the adapter publishes for t_k+1).
@@ -74,7 +75,8 @@ def test_improved_law_holds_correct_estimates_through_the_start():
 
 
 def test_thesis_law_holds_correct_estimates_in_steady_state():
-    """The thesis law, started once the drive has settled, keeps correct estimates.
+    """
+    The thesis law, started once the drive has settled, keeps correct estimates.
 
     (Through the start-up it does not: eq. 4.8 leaves out dW/dt, so P̂_r is wrong while the
     magnetic energy changes — see docs/adaptation.md.)
@@ -216,9 +218,12 @@ def test_inconsistent_bounds_raise_naming_the_parameter():
 
 
 def test_identifiable_combinations_are_what_terminal_equivalent_motors_share():
-    """Scale the rotor by k (L_sr→kL_sr, L_r→k²L_r, R_r→k²R_r): same R_s, σL_s, L_M, R_R, same
-    terminal currents; the improved law returns the same L_M and R_R for both, so it cannot (and
-    does not pretend to) tell R_r and θ apart."""
+    """
+    Scale the rotor by k (L_sr→kL_sr, L_r→k²L_r, R_r→k²R_r).
+
+    Same R_s, σL_s, L_M, R_R, same terminal currents; the improved law returns the same L_M and
+    R_R for both, so it cannot (and does not pretend to) tell R_r and θ apart.
+    """
     k = 1.2
     B = P.with_values(L_sr=k * P.L_sr, L_r=k * k * P.L_r, R_r=k * k * P.R_r)
     assert B.L_M == pytest.approx(P.L_M) and B.R_R == pytest.approx(P.R_R)
@@ -242,8 +247,12 @@ def test_identifiable_combinations_are_what_terminal_equivalent_motors_share():
 
 
 def test_voltage_model_flux_without_drift_under_a_current_offset():
-    """A 0.2 A offset on i_α: the pure integral (flux_corner = 0) drifts by R_s·0.2 A per second;
-    the blended estimator stays near the true stator flux."""
+    """
+    A 0.2 A offset on i_α.
+
+    The pure integral (flux_corner = 0) drifts by R_s·0.2 A per second; the blended estimator
+    stays near the true stator flux.
+    """
     errs = {}
     for corner in (0.0, 5.0):
         g = AdaptationGains(flux_corner=corner, freeze=True)
@@ -288,8 +297,11 @@ def test_decimation_updates_every_n_steps():
 
 
 def test_improved_law_tracks_the_chapter4_profile_open_loop():
-    """R_r ramp and L_sr, L_r sinusoids (§4.3) from the chapter-4 initial estimates: L̂_M, R̂_R
-    within 5 % RMS of L_M, R_R over the second second of a loaded V/f run."""
+    """
+    R_r ramp and L_sr, L_r sinusoids (§4.3) from the chapter-4 initial estimates.
+
+    L̂_M, R̂_R within 5 % RMS of L_M, R_R over the second second of a loaded V/f run.
+    """
     rows, ad, _ = _run(chapter4_schedule(),
                        lambda: ParameterAdapter(CH4_EST, AdaptationGains(), 0.842, 0.952941),
                        t_end=2.0, every=10)

@@ -1,25 +1,27 @@
-"""BagWriter / readers: round trip through our reader, mcap and rosbags; overwrite refusal;
-interrupted writers; truncated and corrupt files."""
+"""
+BagWriter / readers.
+
+Round trip through our reader, mcap and rosbags; overwrite refusal; interrupted writers; truncated
+and corrupt files.
+"""
 import math
 import os
+from pathlib import Path
 import random
 import signal
 import struct
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
-
-import pytest
 
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
-
 from im_common import cdr
 from im_recording.bag import BagError, BagWriter, info, iter_raw, read_messages
-from im_recording.run import load_run
 from im_recording.msgdefs import full_definition, type_hash
+from im_recording.run import load_run
+import pytest
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -224,7 +226,7 @@ def test_close_from_signal_handler_mid_loop_keeps_every_message(tmp_path):
     assert 778 <= len(stamps) <= written
 
 
-_CHILD = textwrap.dedent('''
+_CHILD = textwrap.dedent("""
     import signal, sys
     from im_recording.bag import BagWriter
     w = BagWriter(sys.argv[1], chunk_size=4096)
@@ -238,7 +240,7 @@ _CHILD = textwrap.dedent('''
         k += 1
         if k == 2000:
             print('ready', flush=True)
-''')
+""")
 
 
 def _child(path):

@@ -2,22 +2,19 @@
 import random
 import time
 
+from geometry_msgs.msg import Vector3Stamped
+from im_common.auth import Signer
+from im_common.conversions import JointStateOut, Vector3Out
+from im_recording.bag import BagWriter, info, read_messages
+from im_recording.record_node import parse_topics, RecorderNode
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
-from geometry_msgs.msg import Vector3Stamped
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-
-from rclpy.serialization import deserialize_message
-
-from im_recording.bag import BagWriter, info, read_messages
-from im_common.auth import Signer
-from im_common.conversions import JointStateOut, Vector3Out
-from im_recording.record_node import RecorderNode, parse_topics
 
 
 def test_parse_topics():
@@ -209,10 +206,13 @@ def test_missing_steps_are_counted_before_the_first_between_and_after_the_last(t
 
 
 def test_a_topic_with_nothing_yet_holds_the_plant_back(tmp_path):
-    """The acknowledgement on /im/progress is the last step received on *every* lock-step
-    topic: while the commands have not reached the recorder, it acknowledges nothing (the plant
-    stays within follower_window steps of step 0 and the commands stay in their publisher's
-    history); once they arrive it acknowledges the least of the topics' last steps."""
+    """
+    The acknowledgement on /im/progress is the last step received on *every* lock-step topic.
+
+    While the commands have not reached the recorder, it acknowledges nothing (the plant stays
+    within follower_window steps of step 0 and the commands stay in their publisher's history);
+    once they arrive it acknowledges the least of the topics' last steps.
+    """
     r = _Run(tmp_path)
     try:
         deadline = time.monotonic() + 10

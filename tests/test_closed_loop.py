@@ -1,12 +1,14 @@
-"""Offline closed loop (plant + controller + observer in lock-step order): every strategy tracks,
-the energy books close, and the figures obey the physics of the tasks."""
+"""
+Offline closed loop (plant + controller + observer in lock-step order).
+
+Every strategy tracks, the energy books close, and the figures obey the physics of the tasks.
+"""
 import math
 
+from im_bringup.offline import Scenario, simulate
+from im_common.params import InvalidParameter
 import numpy as np
 import pytest
-
-from im_common.params import InvalidParameter
-from im_bringup.offline import Scenario, simulate
 
 
 def _check_tracking_and_books(s, k_p):

@@ -2,10 +2,9 @@
 import argparse
 import math
 
+from im_common import cli, yamlio
 import numpy as np
 import pytest
-
-from im_common import cli, yamlio
 
 
 def test_parameter_yaml_round_trips_exactly():

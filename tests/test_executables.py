@@ -1,4 +1,5 @@
-"""Every executable resolves through the ament index exactly as ``ros2 run`` does, and starts.
+"""
+Every executable resolves through the ament index exactly as ``ros2 run`` does, and starts.
 
 ``ros2 run PKG EXE`` looks up ``get_package_prefix(PKG)/lib/PKG/EXE``; the workspace must have been
 built with ``colcon build`` (``make test`` does it) and sourced (``install/setup.bash``).
@@ -33,7 +34,7 @@ def ros2_run_path(package: str, executable: str) -> str:
     except PackageNotFoundError:
         pytest.fail(f"package '{package}' is not in the ament index (AMENT_PREFIX_PATH="
                     f"{os.environ.get('AMENT_PREFIX_PATH')!r}); run `make build` and source "
-                    f"install/setup.bash")
+                    f'install/setup.bash')
     return os.path.join(prefix, 'lib', package, executable)
 
 

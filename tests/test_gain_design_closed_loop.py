@@ -1,16 +1,16 @@
-"""Certified drive gains in the offline closed loop (the whole-system part of design_gains' tests).
+"""
+Certified drive gains in the offline closed loop (the whole-system part of design_gains' tests).
 
 Lives in tests/ because it runs :func:`im_bringup.offline.simulate`: im_controller may not import
 im_bringup (docs/architecture.md). Physics asserted: at 1 ms the thesis's gains diverge and the
 certified ones keep currents and speed error bounded with a closed energy balance; at 100 µs the
 certified path (which keeps the thesis's gains) is no worse than the thesis.
 """
-import numpy as np
-import pytest
-
 from im_bringup.offline import Scenario, simulate
 from im_controller import design_gains
 from im_controller.gain_design import drive
+import numpy as np
+import pytest
 
 SMALL_OBS = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 1}
 

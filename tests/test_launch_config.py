@@ -4,11 +4,10 @@ mapping's output (no drift)."""
 import ast
 import os
 
-import pytest
-import yaml
-
 from im_bringup.config import node_parameters
 from im_bringup.processes import graph_processes, params_file_text
+import pytest
+import yaml
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SHIPPED = os.path.join(HERE, '..', 'src', 'im_bringup', 'config', 'drive.yaml')

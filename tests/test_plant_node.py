@@ -1,21 +1,23 @@
-"""The plant node in lock-step: it advances only on a command stamped t_k, refuses bad input,
-reports a missing command by topic and stamp, and never lets its state become NaN."""
+"""
+The plant node in lock-step.
+
+It advances only on a command stamped t_k, refuses bad input, reports a missing command by topic
+and stamp, and never lets its state become NaN.
+"""
 import math
 
-import numpy as np
-
-import pytest
-import rclpy
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-
 from im_common import topics as T
 from im_common.auth import Signer
-from im_common.conversions import Vector3Out, stamp_ns
+from im_common.conversions import stamp_ns, Vector3Out
 from im_common.lockstep import lockstep_qos, make_executor
 from im_common.params import InvalidParameter
 from im_plant.plant_node import PlantNode
+import numpy as np
+import pytest
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 
 @pytest.fixture
@@ -24,15 +26,20 @@ def ctx(ros_context):
 
 
 def make_plant(ctx, **overrides):
-    """A plant alone with a stand-in controller: it waits for no other node before step 0."""
+    """
+    Return a plant alone with a stand-in controller: it waits for no other node before step 0.
+    """
     params = [Parameter('wait_for', value='')]
     params += [Parameter(k, value=v) for k, v in overrides.items()]
     return PlantNode(context=ctx, parameter_overrides=params)
 
 
 def _commander(ctx, voltage, plant):
-    """A stand-in controller of the plant's graph (it signs with the plant's key and run):
-    answers each measurement with voltage(ns) stamped like it."""
+    """
+    Return a stand-in controller of the plant's graph (it signs with the plant's key and run).
+
+    Answers each measurement with voltage(ns) stamped like it.
+    """
     node = Node('controller', context=ctx)
     pub = node.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, lockstep_qos())
     out = Vector3Out(Signer.frame('alphabeta'))
@@ -101,9 +108,13 @@ def test_non_finite_command_rejected_state_stays_finite(ctx):
 
 
 def test_of_two_running_plants_of_one_key_the_later_yields(ctx):
-    """Discovery is asynchronous: a plant can reach step 0 before it sees another plant of the
-    same key already running on the domain. When the two see each other, the one that started
-    later fails naming the other and the domain; the earlier run goes on."""
+    """
+    Discovery is asynchronous.
+
+    A plant can reach step 0 before it sees another plant of the same key already running on
+    the domain. When the two see each other, the one that started later fails naming the other
+    and the domain; the earlier run goes on.
+    """
     from im_common.lockstep import RUNNING
     plant = make_plant(ctx, duration=5.0)
     cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0), plant)
@@ -219,10 +230,13 @@ def _graph_summary(task, duration, plant=None, controller_hook=None, **config):
 
 
 def test_a_one_step_voltage_spike_is_in_the_summary():
-    """Issue 23: V_max_V came from the decimated /im/truth/voltage and missed a 314 V spike. A
-    command of 314 V at one step between two truth samples (step 1234; truth every 10 steps) is
-    applied by the plant for that period, and the summary's peak is exactly it; the true current
-    peak is the every-step one too."""
+    """
+    Issue 23: V_max_V came from the decimated /im/truth/voltage and missed a 314 V spike.
+
+    A command of 314 V at one step between two truth samples (step 1234; truth every 10 steps)
+    is applied by the plant for that period, and the summary's peak is exactly it; the true
+    current peak is the every-step one too.
+    """
     spike_ns = 1234 * 100_000
 
     def hook(node):

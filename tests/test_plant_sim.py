@@ -1,4 +1,5 @@
-"""Tests of the stepped plant: energy books, core-loss accounting, determinism, inverter limit, input checks.
+"""
+Tests of the stepped plant: energy books, core-loss accounting, determinism, inverter limit, input checks.
 
 The energy balance checked here is the exact identity of the model (see im_common.model):
 
@@ -9,13 +10,12 @@ error: it must be small *and* shrink as h⁴ when the sub-step is halved.
 """
 import math
 
+from im_common.loads import LinearLoad, NoLoad, PendulumLoad
+from im_common.params import chapter4_schedule, InvalidParameter, THESIS_MOTOR
+from im_common.plant_sim import energy_summary, PlantSimulator
+from im_common.steady_state import params_steady_state
 import numpy as np
 import pytest
-
-from im_common.loads import LinearLoad, NoLoad, PendulumLoad
-from im_common.params import THESIS_MOTOR, InvalidParameter, chapter4_schedule
-from im_common.plant_sim import PlantSimulator, energy_summary
-from im_common.steady_state import params_steady_state
 
 P = THESIS_MOTOR
 T_S = 1e-4

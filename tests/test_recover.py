@@ -1,6 +1,10 @@
-"""``recover`` (issue 23): every record boundary validated, a damaged chunk costs exactly that
-chunk, the loss is reported exactly and never called complete, the input is never touched, and
-an output that cannot be written leaves nothing behind."""
+"""
+``recover`` (issue 23).
+
+Every record boundary validated, a damaged chunk costs exactly that chunk, the loss is reported
+exactly and never called complete, the input is never touched, and an output that cannot be written
+leaves nothing behind.
+"""
 import errno
 import os
 
@@ -23,8 +27,12 @@ def _all(path):
 
 
 def _many_chunks(path, steps=1300, chunk=1024, compression='zstd'):
-    """A recording in a few hundred small chunks; every message has its own stamp, so a chunk's
-    messages are exactly those stamped within its [start, end]."""
+    """
+    Return a recording in a few hundred small chunks.
+
+    Every message has its own stamp, so a chunk's messages are exactly those stamped within its
+    [start, end].
+    """
     with BagWriter(path, chunk_size=chunk, compression=compression,
                    metadata={'scenario': {'task': 'speed'}}) as w:
         for k in range(steps):

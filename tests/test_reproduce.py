@@ -23,8 +23,12 @@ def test_summary_rows_carry_the_chapter3_and_chapter4_keys(tmp_path):
 
 
 def test_bound_rows_give_each_run_its_own_start_and_ratio():
-    """Per task one bound row: the convex lower bound from each run's own start flux (position:
-    demagnetized; speed: the strategy's steady flux), refined to < 1e-5, and the run's ratios."""
+    """
+    Per task one bound row.
+
+    The convex lower bound from each run's own start flux (position: demagnetized; speed: the
+    strategy's steady flux), refined to < 1e-5, and the run's ratios.
+    """
     import pytest
     from im_studies.reproduce import bound_markdown, bound_rows, loss_bound
     runs = [dict(task=t, strategy=s, controller='nominal', variation='none', rate_hz=1e4,

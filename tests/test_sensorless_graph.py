@@ -1,11 +1,13 @@
-"""Speed-sensorless mode through the ROS graph (issue 26 item 1, docs/sensorless.md): in one
-process the graph equals the ROS-free loop, the nodes do not subscribe to the measured shaft,
-and a measured speed full of noise changes nothing; the same as separate processes."""
-import numpy as np
-import pytest
+"""
+Speed-sensorless mode through the ROS graph (issue 26 item 1, docs/sensorless.md).
 
+In one process the graph equals the ROS-free loop, the nodes do not subscribe to the measured
+shaft, and a measured speed full of noise changes nothing; the same as separate processes.
+"""
 from im_bringup.testing import assert_samples_match, run_graph
 from im_common import topics as T
+import numpy as np
+import pytest
 
 NOISE = {'plant': {'speed_noise_std': 50.0}}
 

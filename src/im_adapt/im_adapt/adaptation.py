@@ -1,4 +1,5 @@
-"""Online adaptation of the rotor resistance and of θ = L_sr/L_r (seed 000 §4.2.2-4.2.3).
+"""
+Online adaptation of the rotor resistance and of θ = L_sr/L_r (seed 000 §4.2.2-4.2.3).
 
 ROS-free. :class:`ParameterAdapter` is stepped once per control period with the step's data
 (V_k held over [t_k, t_k+1], measured i_k and ω_k, the observer's rotor flux φ̂_k) and produces the
@@ -66,11 +67,11 @@ Projection
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields, replace
+import math
 from typing import Optional
 
-from im_common.params import InvalidParameter, MotorParams, check_real
+from im_common.params import check_real, InvalidParameter, MotorParams
 
 LAWS = ('thesis', 'improved')
 #: what the controller and observer take from the adapter (docs/adaptation.md §7):
@@ -84,7 +85,8 @@ TWO_PI = 2.0 * math.pi
 
 @dataclass(frozen=True)
 class AdaptationGains:
-    """Gains, bounds and filter corners of the adaptation (SI units).
+    """
+    Gains, bounds and filter corners of the adaptation (SI units).
 
     ``None`` bounds are derived from the motor parameters given to :class:`ParameterAdapter`
     (see :meth:`resolve`). Invalid values raise :class:`InvalidParameter` naming the field.
@@ -196,7 +198,8 @@ class AdaptationGains:
         return min(self.theta_max, (1.0 - self.sigma_min) * L_s_hat / L_sr_hat)
 
     def resolve(self, params: MotorParams, theta0: Optional[float] = None) -> 'AdaptationGains':
-        """A copy with every ``None`` bound derived from the nominal ``params``; checks consistency.
+        """
+        Return a copy with every ``None`` bound derived from the nominal ``params``; checks consistency.
 
         Raises :class:`InvalidParameter` naming ``sigma_min``/``theta_min`` if the σ̂ bound leaves
         no room for θ̂.
@@ -261,7 +264,8 @@ def _solve_sym3(R, e):
 
 
 class ParameterAdapter:
-    """Online estimates of R_r and θ = L_sr/L_r (and of the identifiable L_M, R_R).
+    """
+    Online estimates of R_r and θ = L_sr/L_r (and of the identifiable L_M, R_R).
 
     Parameters
     ----------
@@ -329,17 +333,18 @@ class ParameterAdapter:
 
     @property
     def stator_flux(self) -> tuple:
-        """The voltage-model stator flux ψ̂_s(t_k) (α, β) [Wb] after the last update."""
+        """Return the voltage-model stator flux ψ̂_s(t_k) (α, β) [Wb] after the last update."""
         return self._psi.real, self._psi.imag
 
     @property
     def sigma_hat(self) -> float:
-        """The controller's model leakage factor σ̂ = 1 − θ̂ L̂_sr / L̂_s."""
+        """Return the controller's model leakage factor σ̂ = 1 − θ̂ L̂_sr / L̂_s."""
         return 1.0 - self.theta * self.L_sr / self.L_s
 
     # ------------------------------------------------------------------------------------
     def estimates(self) -> dict:
-        """The estimates handed to the controller and observer (topic ``/im/adapter/estimate``).
+        """
+        Return the estimates handed to the controller and observer (topic ``/im/adapter/estimate``).
 
         {'R_r', 'theta', 'L_M', 'R_R'}: the controller and observer take the pair (R̂_r, θ̂) of
         eq. 4.10-4.13 with their L̂_s, L̂_sr, R̂_s fixed; L_M and R_R are the identifiable image
@@ -355,7 +360,8 @@ class ParameterAdapter:
 
     # ------------------------------------------------------------------------------------
     def update(self, T_s, v_a, v_b, i_a, i_b, omega_r, phi_hat_a, phi_hat_b) -> None:
-        """One control period: data of step k in, estimates p̂_k+1 out (see :meth:`estimates`).
+        """
+        One control period: data of step k in, estimates p̂_k+1 out (see :meth:`estimates`).
 
         Parameters are V_k (held over the period), the measured i_k and ω_k and the observer's
         rotor flux φ̂_k (rotor scaling, as the observer of eq. 4.13 carries it).
@@ -406,9 +412,13 @@ class ParameterAdapter:
             self._thesis_step(T_s, V_prev, i, i_prev, omega_r, phi_hat_a, phi_hat_b)
 
     def _corner(self) -> float:
-        """ω_c of the flux blend: the improved law's follows the stator frequency
-        (``flux_corner_ratio``; ∞ while the model flux is below ``phi_floor`` gives the upper
-        bound), the thesis law's is fixed."""
+        """
+        ω_c of the flux blend.
+
+        The improved law's follows the stator frequency (``flux_corner_ratio``; ∞ while the
+        model flux is below ``phi_floor`` gives the upper bound), the thesis law's is
+        fixed.
+        """
         g = self.gains
         if not self.improved or g.flux_corner_ratio <= 0.0 or g.flux_corner <= 0.0:
             return g.flux_corner
@@ -572,9 +582,13 @@ class ParameterAdapter:
         self._publish_pair(R_R, self._c)
 
     def _publish_pair(self, R_R, c):
-        """θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected: R̂_r θ̂² = R̂_R holds even when θ̂ is at
-        its σ̂ bound (the rotor resistance seen from the terminals, which the closed loop needs
-        most; see docs/adaptation.md), while L̂_sr θ̂ = L̂_M only inside the bounds."""
+        """
+        θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected.
+
+        R̂_r θ̂² = R̂_R holds even when θ̂ is at its σ̂ bound (the rotor resistance seen
+        from the terminals, which the closed loop needs most; see docs/adaptation.md),
+        while L̂_sr θ̂ = L̂_M only inside the bounds.
+        """
         th = _clip(self.L_M / self.L_sr, self.theta_lo, self.theta_hi)
         self.theta = th
         self.R_r = _clip(R_R / (th * th), self.R_r_lo, self.R_r_hi)

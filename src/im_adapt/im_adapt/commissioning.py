@@ -1,4 +1,5 @@
-"""Self-commissioning: the motor's parameters measured by the drive itself (docs/commissioning.md).
+"""
+Self-commissioning: the motor's parameters measured by the drive itself (docs/commissioning.md).
 
 ROS-free. :class:`Commissioning` is a test controller stepped once per period with what the drive
 measures (stator current, shaft speed) and returning the voltage to apply; when it is done,
@@ -25,13 +26,12 @@ that does not turn) raises :class:`NotInformative` with one line saying which an
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Dict, List, Optional, Tuple
 
+from im_common.params import check_real, IDENTIFIABLE_NAMES, InvalidParameter, MotorParams
 import numpy as np
-
-from im_common.params import IDENTIFIABLE_NAMES, InvalidParameter, MotorParams, check_real
 
 #: the standstill excitation after the probe: (level as a fraction of the test voltage, seconds)
 EXCITATION = ((1.0, 0.5), (-1.0, 0.5), (0.5, 0.02), (-0.5, 0.01), (1.0, 0.005), (-1.0, 0.005),
@@ -49,8 +49,12 @@ class NotInformative(ValueError):
 
 @dataclass(frozen=True)
 class Nameplate:
-    """A motor's nameplate: rated line-to-line voltage [V RMS], line current [A RMS], frequency
-    [Hz], speed [rpm] and shaft power [W]."""
+    """
+    A motor's nameplate.
+
+    Rated line-to-line voltage [V RMS], line current [A RMS], frequency [Hz], speed [rpm] and
+    shaft power [W].
+    """
 
     voltage: float
     current: float
@@ -68,21 +72,29 @@ class Nameplate:
 
     @property
     def pole_pairs(self) -> int:
-        """The whole number of pole pairs whose synchronous speed is just above the rated one."""
+        """
+        Return the whole number of pole pairs whose synchronous speed is just above the rated one.
+        """
         return max(1, int(math.floor(60.0 * self.frequency / self.speed)))
 
     def ratings(self) -> Dict[str, float]:
-        """The motor file's rating fields in the model's power-invariant αβ frame
-        (docs/limits.md): voltage-vector magnitude = line-to-line RMS voltage, current-vector
-        magnitude = √3 × line current."""
+        """
+        Return the motor file's rating fields in the model's power-invariant αβ frame (docs/limits.md).
+
+        Voltage-vector magnitude = line-to-line RMS voltage, current-vector magnitude = √3
+        × line current.
+        """
         w = 2.0 * math.pi * self.speed / 60.0
         return {'rated_voltage': self.voltage, 'rated_current': math.sqrt(3.0) * self.current,
                 'rated_speed': w, 'rated_torque': self.power / w}
 
 
 def nameplate_from_dict(doc, source: str = 'nameplate') -> Nameplate:
-    """A :class:`Nameplate` from ``{voltage, current, frequency, speed, power}``; one-line errors
-    naming ``source`` and the field."""
+    """
+    Return a :class:`Nameplate` from ``{voltage, current, frequency, speed, power}``.
+
+    One-line errors naming ``source`` and the field.
+    """
     keys = ('voltage', 'current', 'frequency', 'speed', 'power')
     if not isinstance(doc, dict):
         raise InvalidParameter(source, doc, f'must be a mapping with {", ".join(keys)}')
@@ -152,7 +164,7 @@ class Identified:
     rms_residual: Dict[str, float] = field(default_factory=dict)
 
     def motor(self, ratings: Optional[Dict[str, float]] = None) -> MotorParams:
-        """The identified motor in the equal-self-inductance gauge L_s = L_r (equal stator and
+        """Return the identified motor in the equal-self-inductance gauge L_s = L_r (equal stator and
         rotor leakage, the gauge of Krause's T-circuit): L_s = L_r = σL_s + L_M,
         L_sr = √(L_M L_s), R_r = R_R L_s / L_M. Terminal-equivalent to every gauge
         (MotorParams.with_identifiable); k_e = k_h = 0 (the core loss does not act on the
@@ -167,10 +179,12 @@ class Identified:
 
 def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
                    ) -> Tuple[Dict[str, float], Dict[str, float], float, np.ndarray]:
-    """Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
+    """
+    Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
 
     Returns (values, standard deviations, RMS residual [A], final state (i, ψ_R)). The start
-    comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2)."""
+    comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2).
+    """
     from scipy.optimize import least_squares
     v = np.asarray(v, dtype=float)
     i = np.asarray(i, dtype=float)
@@ -203,8 +217,11 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
 
 
 def _physical_start(v, i, T_s, R_s0):
-    """A start from the probe alone: σL_s from the largest current slope after a voltage step,
-    L_M = 10 σL_s, R_R = R_s."""
+    """
+    Return a start from the probe alone.
+
+    σL_s from the largest current slope after a voltage step, L_M = 10 σL_s, R_R = R_s.
+    """
     di = np.abs(np.diff(i))
     dv = np.abs(np.diff(v))
     k = int(np.argmax(dv))
@@ -262,7 +279,8 @@ def fit_mechanics(omega: np.ndarray, tau: np.ndarray, T_s: float, window: int
 
 
 class Commissioning:
-    """The commissioning test sequence, one period at a time (module docstring).
+    """
+    The commissioning test sequence, one period at a time (module docstring).
 
     ``step(i_a, i_b, omega)`` takes the measurement at t_k and returns the voltage (v_α, v_β)
     to hold over [t_k, t_k+1], or None when the tests are over; then :meth:`result`.
@@ -324,7 +342,9 @@ class Commissioning:
         return None
 
     def step(self, i_a: float, i_b: float, omega: float = 0.0):
-        """The measurement at t_k → the voltage over [t_k, t_k+1] (None: the tests are over)."""
+        """
+        Return the measurement at t_k → the voltage over [t_k, t_k+1] (None: the tests are over).
+        """
         if self.done:
             return None
         self.log_i.append((i_a, i_b))
@@ -490,8 +510,12 @@ class Commissioning:
 
     # ---------------------------------------------------------------------------- results
     def result(self) -> Identified:
-        """The identified parameters; :class:`NotInformative` when the tests ended early or
-        the data cannot determine a parameter."""
+        """
+        Return the identified parameters.
+
+        :class:`NotInformative` when the tests ended early or the data cannot determine a
+        parameter.
+        """
         if self.failure:
             raise NotInformative(self.failure)
         if not self.done or self.electrical is None:
@@ -558,7 +582,7 @@ class Commissioning:
 
 
 def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float:
-    """The rotor flux |φ_r| at the nameplate's rated voltage, frequency and speed, in the gauge
+    """Return the rotor flux |φ_r| at the nameplate's rated voltage, frequency and speed, in the gauge
     θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e
     at the rated slip (docs/commissioning.md §4)."""
     we = 2.0 * math.pi * plate.frequency

@@ -1,4 +1,5 @@
-"""The adapter as a hook of the offline closed loop (``im_bringup.offline.simulate(adapter=...)``).
+"""
+The adapter as a hook of the offline closed loop (``im_bringup.offline.simulate(adapter=...)``).
 
 ROS-free. :class:`LockstepAdapter` gives a :class:`~im_adapt.adaptation.ParameterAdapter` the
 ``step(T_s, t, v_alpha, v_beta, meas, x_hat) -> dict`` interface of the offline loop and records
@@ -17,7 +18,8 @@ from .adaptation import AdaptationGains, ParameterAdapter
 
 
 class LockstepAdapter:
-    """Offline-loop hook around :class:`ParameterAdapter`.
+    """
+    Offline-loop hook around :class:`ParameterAdapter`.
 
     Parameters
     ----------

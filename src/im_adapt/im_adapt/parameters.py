@@ -1,12 +1,15 @@
-"""The adapter node's parameters: every adaptation gain declared with a description and a range,
-the same way as the other nodes (``node.param(name, default, description, lo, hi)``; see
-``im_controller/parameters.py``). Nothing here imports rclpy: a stand-in with ``param`` works too.
+"""
+The adapter node's parameters.
+
+Every adaptation gain declared with a description and a range, the same way as the other nodes
+(``node.param(name, default, description, lo, hi)``; see ``im_controller/parameters.py``). Nothing
+here imports rclpy: a stand-in with ``param`` works too.
 """
 from __future__ import annotations
 
 from im_common.params import MotorParams
 
-from .adaptation import FEED_DEFAULT, FEEDS, LAWS, AdaptationGains, ParameterAdapter
+from .adaptation import AdaptationGains, FEED_DEFAULT, FEEDS, LAWS, ParameterAdapter
 
 _DOC = {
     'gamma_t': 'thesis law: gain gamma_t of eq. 4.4 for theta [1/(N m A s)]',

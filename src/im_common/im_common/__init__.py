@@ -1,1 +1,3 @@
-"""Shared motor model, parameters, frames, topics, message conversions and the lock-step helper (ROS-free math plus thin ROS helpers)."""
+"""
+Shared motor model, parameters, frames, topics, message conversions and the lock-step helper (ROS-free math plus thin ROS helpers).
+"""

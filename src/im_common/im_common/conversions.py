@@ -1,4 +1,5 @@
-"""Message conversions: exact integer-nanosecond stamps and filling of reusable messages.
+"""
+Message conversions: exact integer-nanosecond stamps and filling of reusable messages.
 
 Stamps are simulated time t_k = k·T_s carried as integer nanoseconds, so a stamp identifies a
 step exactly (no float comparison anywhere in the lock-step protocol). Lock-step messages are
@@ -16,10 +17,10 @@ NS_PER_S = 1_000_000_000
 
 
 def period_ns(T_s: float) -> int:
-    """The control period in integer nanoseconds; refuses periods that are not whole ns."""
+    """Return the control period in integer nanoseconds; refuses periods that are not whole ns."""
     ns = round(T_s * NS_PER_S)
     if ns <= 0 or abs(ns - T_s * NS_PER_S) > 1e-3:
-        raise ValueError(f"T_s = {T_s!r} s must be a positive whole number of nanoseconds")
+        raise ValueError(f'T_s = {T_s!r} s must be a positive whole number of nanoseconds')
     return int(ns)
 
 
@@ -35,7 +36,8 @@ def set_stamp(stamp, ns: int) -> None:
 
 
 class Vector3Out:
-    """Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.
+    """
+    Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.
 
     The lock-step topics travel as exact CDR made with ``struct`` (:mod:`im_common.cdr`), which
     costs a fraction of building and serializing a message object; subscribers that ask for
@@ -53,8 +55,12 @@ class Vector3Out:
 
 
 class JointStateOut:
-    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``
-    (one packer per combination of sequence lengths, :func:`im_common.cdr.joint_state_packer`)."""
+    """
+    Serialized JointState with fixed names.
+
+    ``fill(ns, position, velocity=(), effort=())`` (one packer per combination of sequence
+    lengths, :func:`im_common.cdr.joint_state_packer`).
+    """
 
     __slots__ = ('names', 'frame_id', '_packers')
 
@@ -87,7 +93,7 @@ def named_values(names, values, wanted: Sequence[str]) -> dict:
 
 
 def clock_bytes(ns: int) -> bytes:
-    """Serialized rosgraph_msgs/Clock at ``ns``."""
+    """Return the serialized rosgraph_msgs/Clock at ``ns``."""
     sec, nsec = divmod(ns, NS_PER_S)
     return pack_clock(sec, nsec)
 
@@ -139,9 +145,12 @@ def shaft_in(data: bytes, _unpack=__import__('struct').Struct('<iI').unpack_from
 
 
 def estimates_in(data: bytes):
-    """(stamp_ns, model estimates) of the adapter's estimate JointState: {'R_r', 'theta'} from
-    the thesis pair, the inverse-Γ set {'L_sigma', 'L_M', 'R_R'} when the message carries
-    L_sigma (:func:`im_common.params.estimate_arguments`)."""
+    """
+    (stamp_ns, model estimates) of the adapter's estimate JointState.
+
+    {'R_r', 'theta'} from the thesis pair, the inverse-Γ set {'L_sigma', 'L_M', 'R_R'} when the
+    message carries L_sigma (:func:`im_common.params.estimate_arguments`).
+    """
     from .params import estimate_arguments
     from .topics import ESTIMATE_NAMES
     sec, nsec, names, pos, _, _ = decode_joint_state(data)

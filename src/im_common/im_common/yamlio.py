@@ -1,4 +1,5 @@
-"""The one writer and the one reader of ROS parameter YAML (``node: {ros__parameters: {...}}``).
+"""
+The one writer and the one reader of ROS parameter YAML (``node: {ros__parameters: {...}}``).
 
 Values are plain Python (numbers, strings, bools, lists of numbers); numpy scalars and arrays are
 converted. Floats are written with ``repr`` precision so a file read back gives the same numbers.
@@ -63,7 +64,7 @@ class ParametersFileError(ValueError):
 
 
 def _loader():
-    """A safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
+    """Return a safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
     ``!!python/tuple``)."""
     class Loader(yaml.SafeLoader):
         pass
@@ -79,7 +80,7 @@ def _loader():
 
 
 def node_name(key) -> str:
-    """The node a parameters-file section is for: ``/ns/controller`` -> ``controller``."""
+    """Return the node a parameters-file section is for: ``/ns/controller`` -> ``controller``."""
     return str(key).strip('/').split('/')[-1]
 
 
@@ -111,7 +112,7 @@ def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Di
     for key, body in doc.items():
         values = (body or {}).get('ros__parameters', {}) if isinstance(body, dict) else None
         if not isinstance(values, dict):
-            raise ParametersFileError(f"parameters file {path} is not a ROS 2 parameters file: "
+            raise ParametersFileError(f'parameters file {path} is not a ROS 2 parameters file: '
                                       f"node '{key}' needs a 'ros__parameters' mapping")
         name = str(key)
         if known is not None:

@@ -1,4 +1,5 @@
-"""``ros2 run im_controller design_gains``: certified sampled gains for the controller and observer.
+"""
+``ros2 run im_controller design_gains``: certified sampled gains for the controller and observer.
 
 Designs, at the node period T_s, the gains the nodes actually use (``im_controller.gain_design.drive``; derivation
 in docs/robust.md, "Drive gains at the node period"):
@@ -40,8 +41,8 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import sys
 from pathlib import Path
+import sys
 from typing import List, Optional
 
 from im_common.cli import parse_args
@@ -137,7 +138,8 @@ def _design_cached(T_s: float):
 
 
 def design_for_scenario(T_s: float) -> dict:
-    """Certified node parameter overrides at the node period T_s (default design settings).
+    """
+    Certified node parameter overrides at the node period T_s (default design settings).
 
     Returns ``{'controller': {'current_gain': [4], 'gain_period': T_s, 'flux_coupling': ...},
     'observer': {...}}`` with observer ``{'k_e_injection': 0.0}`` (thesis structure, 100 µs) or
@@ -148,7 +150,7 @@ def design_for_scenario(T_s: float) -> dict:
 
 
 def format_yaml(params: dict, summary: dict) -> str:
-    """The parameter file: what was certified as comments, then the node overrides."""
+    """Return the parameter file: what was certified as comments, then the node overrides."""
     cur = summary['current']
     notes = [HEADER.rstrip('\n'),
              f'current error subsystem ({cur["source"]}): certified decay '

@@ -1,5 +1,7 @@
-"""The loss-optimal rotor-flux trajectory for a torque known ahead: a convex program
-(docs/controller.md §10, "Loss-optimal flux trajectory").
+"""
+The loss-optimal rotor-flux trajectory for a torque known ahead.
+
+A convex program (docs/controller.md §10, "Loss-optimal flux trajectory").
 
 In the rotor-flux frame (d along φ_r, magnitude φ ≥ 0) a torque τ(t) delivered exactly fixes the
 q-currents, and the flux trajectory fixes the d-currents:
@@ -28,9 +30,9 @@ spline through the nodes' √y).
 from __future__ import annotations
 
 import bisect
+from dataclasses import dataclass, field
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -48,7 +50,7 @@ class PlanError(RuntimeError):
 
 
 def loss_constants(c: ModelCoefficients, k_e: float = 0.0, k_h: float = 0.0) -> dict:
-    """The coefficients of the loss rate in y = φ² (module docstring)."""
+    """Return the coefficients of the loss rate in y = φ² (module docstring)."""
     th = c.theta
     return {'A': c.R_s / (c.L_sr * c.L_sr),
             'C': (c.R_s * c.L_r * c.L_r / (c.L_sr * c.L_sr) + c.R_r) / (c.v * c.v),
@@ -73,7 +75,7 @@ def loss_rates(c: ModelCoefficients, y, ydot, tau, omega, k_e: float = 0.0, k_h:
 
 def static_loss_optimal_flux(c: ModelCoefficients, tau: float, omega: float, k_e: float = 0.0,
                              k_h: float = 0.0) -> float:
-    """The flux minimizing the steady loss p(y, 0) at a constant τ, ω (the closed form of
+    """Return the flux minimizing the steady loss p(y, 0) at a constant τ, ω (the closed form of
     dp/dy = 0 on the side where v ω y + R_r τ/v has the sign of ω, exponent 2):
 
         y² = (C τ² + T_e c²)/(A + T_e v²ω² + T_h v|ω|),   c = R_r τ/v,
@@ -113,9 +115,13 @@ class FluxPlan:
         return np.sqrt(np.maximum(self.y, 0.0))
 
     def sample(self, t: float):
-        """(φ, φ̇, φ̈) of the plan at t: a C² cubic spline through the nodes' φ (natural ends),
-        evaluated in plain Python (a few µs per call); before the first node the first value,
-        beyond the last node the last value, both with zero rates."""
+        """
+        (φ, φ̇, φ̈) of the plan at t.
+
+        A C² cubic spline through the nodes' φ (natural ends), evaluated in plain Python (a
+        few µs per call); before the first node the first value, beyond the last node the
+        last value, both with zero rates.
+        """
         if self._spline is None:
             from scipy.interpolate import CubicSpline
             sp = CubicSpline(self.t, self.phi, bc_type='natural')
@@ -172,9 +178,13 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
 
 
 def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: bool) -> FluxPlan:
-    """One second-order-cone program of :func:`plan_flux`. ``exact``: the torque is delivered
-    exactly; else it is a variable between 0 and the demand (same sign) whose shortfall costs
-    1000 × the least steady copper loss per N·m (2√(AC)), so every achievable torque is delivered."""
+    """
+    One second-order-cone program of :func:`plan_flux`.
+
+    ``exact``: the torque is delivered exactly; else it is a variable between 0 and the demand
+    (same sign) whose shortfall costs 1000 × the least steady copper loss per N·m (2√(AC)), so
+    every achievable torque is delivered.
+    """
     import warnings
     import cvxpy as cp
     n = len(h)

@@ -1,4 +1,5 @@
-"""ROS parameters of the controller node ↔ :class:`im_controller.control_law.ControllerConfig`.
+"""
+ROS parameters of the controller node ↔ :class:`im_controller.control_law.ControllerConfig`.
 
 Every field of the configuration is a declared parameter with a description and a range; the
 node builds the configuration from them, so an invalid value is refused with its name (by the
@@ -8,8 +9,8 @@ from __future__ import annotations
 
 from im_common.loads import LOAD_KINDS
 
-from .control_law import (DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN, FLUX_COUPLINGS,
-                          LIVE_FIELDS, MODES, PROFILES, STRATEGIES, ControllerConfig)
+from .control_law import (ControllerConfig, DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN,
+                          FLUX_COUPLINGS, LIVE_FIELDS, MODES, PROFILES, STRATEGIES)
 from .profiles import from_parameters as setpoints_from_parameters
 
 # Parameters that make sense to change while the node runs (``ros2 param set``): gains, strategy,
@@ -70,8 +71,8 @@ def declare_controller(node) -> dict:
                                'duration of the smooth transition to a new setpoint [s]', 1e-3, 100.0)
     v['setpoints'] = p('setpoints', [0.0],
                        "profile 'setpoint': setpoints the controller applies itself, flat triples "
-                       "t [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none "
-                       "(im_controller.profiles writes them from a profile file)")
+                       't [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none '
+                       '(im_controller.profiles writes them from a profile file)')
     v['torque_limit'] = p('torque_limit', 0.0, 'bound on |tau*| [N m] (0: none)', 0.0, 1e7)
     v['current_limit'] = p('current_limit', 0.0,
                            'stator-current magnitude the torque demand may ask for [A] (0: none)',
@@ -90,14 +91,16 @@ def declare_controller(node) -> dict:
 
 
 def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig:
-    """The controller configuration from declared parameter values (-1 / 0 / [0.0]: defaults)."""
+    """
+    Return the controller configuration from declared parameter values (-1 / 0 / [0.0]: defaults).
+    """
     v = dict(values)
     gain = list(v.pop('current_gain'))
     gain_period = v.pop('gain_period')
     if len(gain) == 4:
         if abs(gain_period - T_s) > 1e-12:
             raise ValueError(f"invalid parameter 'gain_period' = {gain_period!r}: current_gain "
-                             f"was designed for another period than T_s = {T_s}")
+                             f'was designed for another period than T_s = {T_s}')
         v['current_gain'] = [gain[0:2], gain[2:4]]
     elif gain != [0.0]:
         raise ValueError(f"invalid parameter 'current_gain' = {gain!r}: 4 numbers (row-major 2x2)")
@@ -106,7 +109,7 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
             v[key] = None
         elif v[key] < 0:
             raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
-                             f"the {SENTINEL_DEFAULTS[key]}")
+                             f'the {SENTINEL_DEFAULTS[key]}')
     for key in ('v_limit', 'torque_limit', 'current_limit', 'speed_limit'):
         v[key] = v[key] or None
     v['setpoints'] = setpoints_from_parameters(v['setpoints'])
@@ -114,7 +117,7 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
 
 
 def live_changes(params, values: dict, changes: dict, T_s: float) -> dict:
-    """The :meth:`DriveController.reconfigure` changes for new values of live parameters (the
+    """Return the :meth:`DriveController.reconfigure` changes for new values of live parameters (the
     node's parameter callback): the same conversions as :func:`config_from_parameters`."""
     bad = [k for k in changes if k not in LIVE_PARAMETERS]
     if bad:

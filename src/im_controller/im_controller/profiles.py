@@ -1,4 +1,5 @@
-"""Profiles of one's own: setpoint lists (YAML) and sampled trajectories (CSV) for the controller.
+"""
+Profiles of one's own: setpoint lists (YAML) and sampled trajectories (CSV) for the controller.
 
 A profile is what ``/im/setpoint`` would carry, known in advance, so the controller applies it
 itself (``ControllerConfig.setpoints``) and a run is reproducible without a publisher:
@@ -25,8 +26,8 @@ there; position: the shaft starts there).
 from __future__ import annotations
 
 import csv
-import math
 from dataclasses import dataclass
+import math
 from typing import Optional, Sequence, Tuple
 
 from im_common.params import InvalidParameter, read_yaml_file
@@ -38,7 +39,9 @@ MODE_KIND = {mode: kind for kind, mode in KINDS.items()}
 
 @dataclass(frozen=True)
 class Profile:
-    """``mode`` ('position' | 'speed' | 'torque') and ``setpoints`` ((t, value, duration|None), ...)."""
+    """
+    ``mode`` ('position' | 'speed' | 'torque') and ``setpoints`` ((t, value, duration|None), ...).
+    """
 
     mode: str
     setpoints: Tuple[Tuple[float, float, Optional[float]], ...]
@@ -46,7 +49,7 @@ class Profile:
 
     @property
     def start_value(self) -> Optional[float]:
-        """The value at t = 0 if the profile sets one there (else None)."""
+        """Return the value at t = 0 if the profile sets one there (else None)."""
         if self.setpoints and self.setpoints[0][0] == 0.0:
             return self.setpoints[0][1]
         return None
@@ -57,7 +60,7 @@ class Profile:
         return t + (d or 0.0)
 
     def as_parameters(self) -> dict:
-        """The controller node's parameters for this profile (flat (t, value, duration) triples;
+        """Return the controller node's parameters for this profile (flat (t, value, duration) triples;
         duration 0 = the node's ``setpoint_duration``)."""
         flat = []
         for t, value, d in self.setpoints:
@@ -79,7 +82,7 @@ def _check_times(source: str, times: Sequence[float]) -> None:
 
 
 def from_setpoints(entries, source: str = 'profile') -> Profile:
-    """A profile from ``[{t: ..., velocity: ...}, ...]`` (see module doc)."""
+    """Return a profile from ``[{t: ..., velocity: ...}, ...]`` (see module doc)."""
     if not isinstance(entries, list) or not entries:
         raise InvalidParameter(f'{source}: setpoints', entries, 'must be a non-empty list')
     kind = None
@@ -116,7 +119,9 @@ def from_setpoints(entries, source: str = 'profile') -> Profile:
 
 
 def from_samples(kind: str, samples: Sequence[Tuple[float, float]], source: str = 'profile') -> Profile:
-    """A sampled trajectory: the reference reaches each value at its time (see module doc)."""
+    """
+    Return a sampled trajectory: the reference reaches each value at its time (see module doc).
+    """
     if kind not in KINDS:
         raise InvalidParameter(f'{source}: kind', kind, f"must be one of {', '.join(KINDS)}")
     if len(samples) < 1:

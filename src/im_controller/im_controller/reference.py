@@ -1,4 +1,5 @@
-"""State reference model and voltage feedforward (seed 000 eq. 3.13, 3.21-3.22, 3.26, 3.29; 4.10-4.12).
+"""
+State reference model and voltage feedforward (seed 000 eq. 3.13, 3.21-3.22, 3.26, 3.29; 4.10-4.12).
 
 The reference is written in the rotor-flux frame (dq, angle ρ) in terms of the torque τ* and the
 rotor-flux magnitude φ* with their time derivatives, which is eq. 3.13 after the substitution
@@ -32,8 +33,8 @@ at the actual speed, so a motor started on the reference and fed V* stays on it 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Optional
 
 from im_common.params import IDENTIFIABLE_NAMES, MotorParams, THESIS_MOTOR
@@ -41,7 +42,8 @@ from im_common.params import IDENTIFIABLE_NAMES, MotorParams, THESIS_MOTOR
 
 @dataclass(frozen=True)
 class ModelCoefficients:
-    """Electrical coefficients of the (i_s, φ_r) model used by the controller (nominal or estimated).
+    """
+    Electrical coefficients of the (i_s, φ_r) model used by the controller (nominal or estimated).
 
     With the chapter-4 estimates (R̂_r, θ̂ = L̂_sr/L̂_r) and fixed R̂_s, L̂_s, L̂_sr, use
     :meth:`from_params` with ``R_r`` and ``theta``: then L̂_r = L̂_sr/θ̂, σ̂L̂_s = L̂_s − L̂_sr θ̂ and
@@ -61,7 +63,7 @@ class ModelCoefficients:
     @classmethod
     def from_params(cls, params: MotorParams = THESIS_MOTOR, R_r: Optional[float] = None,
                     theta: Optional[float] = None, **identifiable) -> 'ModelCoefficients':
-        """The coefficients of ``params`` with adapted estimates, in one of two parametrizations:
+        """Return the coefficients of ``params`` with adapted estimates, in one of two parametrizations:
 
         * ``R_r``, ``theta`` — the thesis's (eq. 4.10-4.12): L̂_s, L̂_sr stay, L̂_r = L̂_sr/θ̂;
         * ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``) — the inverse-Γ parameters the
@@ -125,7 +127,8 @@ class ModelCoefficients:
 
 def dq_reference(c: ModelCoefficients, tau: float, dtau: float, phi: float, dphi: float,
                  ddphi: float):
-    """Eq. 3.13 in flux form. Returns (i_ds, i_qs, di_ds, di_qs, i_dr, i_qr, omega_sl).
+    """
+    Eq. 3.13 in flux form. Returns (i_ds, i_qs, di_ds, di_qs, i_dr, i_qr, omega_sl).
 
     ``phi`` must be > 0 (the flux strategies keep it ≥ φ_min).
     """
@@ -165,7 +168,8 @@ def torque_alpha_beta(c: ModelCoefficients, i_a: float, i_b: float, phi_a: float
 
 
 def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float, rho: float = 0.0) -> dict:
-    """The constant-torque, constant-flux operating point of the reference model.
+    """
+    Return the constant-torque, constant-flux operating point of the reference model.
 
     Returns the αβ state at angle ρ, the dq currents, the slip and the stator voltage — used to
     start a run on the reference (speed task) and by tests.
@@ -182,7 +186,8 @@ def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float, r
 
 def steady_losses(c: ModelCoefficients, tau: float, phi: float, omega_r: float,
                   k_e: float = 0.0, k_h: float = 0.0, core_exponent: float = 2.0) -> float:
-    """Steady-state copper + core loss [W] at torque τ and rotor flux φ (eq. 3.34-3.38).
+    """
+    Steady-state copper + core loss [W] at torque τ and rotor flux φ (eq. 3.34-3.38).
 
     Copper: R_s(i_ds² + i_qs²) + R_r i_qr²; core: (k_h + k_e f_e) f_e (θφ)^m with
     f_e = |v ω_r + ω_sl|/(2π) the rotation rate of the flux and θφ the air-gap flux of (3.38).

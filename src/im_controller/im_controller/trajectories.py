@@ -1,4 +1,5 @@
-"""Reference trajectories for the shaft, with analytic derivatives (seed 000 §3.4.4).
+"""
+Reference trajectories for the shaft, with analytic derivatives (seed 000 §3.4.4).
 
 Every trajectory answers ``sample(t) -> (p, v, a, j)``: position θ* [rad], velocity ω* [rad/s],
 acceleration [rad/s²] and jerk [rad/s³] at time t. The controller needs p, v, a for the mechanical
@@ -47,7 +48,8 @@ def cubed_gaussian_step(s: float, k: float = 10.0) -> Tuple[float, float, float,
 
 
 def cubed_gaussian_step_integral(s: float, k: float = 10.0) -> float:
-    """F(s) = ∫₀ˢ (1 − e^{−k x²})³ dx (0 for s ≤ 0), closed form with erf.
+    """
+    F(s) = ∫₀ˢ (1 − e^{−k x²})³ dx (0 for s ≤ 0), closed form with erf.
 
     (1 − u)³ = 1 − 3u + 3u² − u³ and ∫₀ˢ e^{−n k x²} dx = ½ √(π/(n k)) erf(√(n k) s).
     """
@@ -89,8 +91,11 @@ class ThesisPositionProfile(Trajectory):
 
 
 class ThesisSpeedProfile(Trajectory):
-    """ω* = ω₀ + A (1 − e^{−k(t−t₀)²})³ for t ≥ t₀ (ω₀ = 135, A = 45, t₀ = 0.2, k = 10);
-    θ* = θ₀ + ω₀ t + A ∫ f, exact."""
+    """
+    ω* = ω₀ + A (1 − e^{−k(t−t₀)²})³ for t ≥ t₀ (ω₀ = 135, A = 45, t₀ = 0.2, k = 10).
+
+    θ* = θ₀ + ω₀ t + A ∫ f, exact.
+    """
 
     def __init__(self, omega0: float = 135.0, amplitude: float = 45.0, t0: float = 0.2,
                  k: float = 10.0, theta0: float = 0.0):
@@ -110,7 +115,8 @@ class ThesisSpeedProfile(Trajectory):
 
 
 class Quintic:
-    """A quintic polynomial p(τ), τ = t − t₀ ∈ [0, T], joining (p₀, v₀, a₀) to (p₁, 0, 0).
+    """
+    A quintic polynomial p(τ), τ = t − t₀ ∈ [0, T], joining (p₀, v₀, a₀) to (p₁, 0, 0).
 
     Before t₀ it returns the start state extrapolated as a constant-acceleration arc is *not*
     wanted, so t < t₀ is clamped to t₀; after t₀ + T it holds p₁. ``integral(t)`` is ∫_{t₀}^{t} p.

@@ -1,20 +1,21 @@
-"""Trajectories, reference model (eq. 3.13/3.26), flux strategies and the model inverse (eq. 3.29)."""
+"""
+Trajectories, reference model (eq. 3.13/3.26), flux strategies and the model inverse (eq. 3.29).
+"""
 import math
 import random
-
-import numpy as np
-import pytest
 
 from im_common.loads import NoLoad
 from im_common.model import stator_flux
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController
-from im_controller.flux import LowPass2, flux_min_energy, flux_min_loss
-from im_controller.reference import (ModelCoefficients, dq_reference, reference_alpha_beta,
+from im_controller.flux import flux_min_energy, flux_min_loss, LowPass2
+from im_controller.reference import (dq_reference, ModelCoefficients, reference_alpha_beta,
                                      steady_losses, steady_state, torque_alpha_beta)
-from im_controller.trajectories import (Quintic, ThesisPositionProfile, ThesisSpeedProfile,
-                                        cubed_gaussian_step_integral)
+from im_controller.trajectories import (cubed_gaussian_step_integral, Quintic,
+                                        ThesisPositionProfile, ThesisSpeedProfile)
+import numpy as np
+import pytest
 
 C = ModelCoefficients.from_params(THESIS_MOTOR)
 
@@ -130,7 +131,9 @@ def test_filter_is_exact_for_held_input():
 @pytest.mark.parametrize('strategy,hold', [('constant_flux', True), ('min_loss', True),
                                            ('constant_flux', False)])
 def test_feedforward_open_loop_reproduces_the_reference(strategy, hold):
-    """Plant started on the reference and driven by V* alone follows the reference (model inverse)."""
+    """
+    Plant started on the reference and driven by V* alone follows the reference (model inverse).
+    """
     omega0 = 100.0
     params = THESIS_MOTOR.with_values(J=1e5)   # constant speed: the test is about the electrical inverse
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy=strategy, phi_d=0.8,

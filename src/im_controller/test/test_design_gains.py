@@ -1,4 +1,5 @@
-"""design_gains: certified drive gains at the node period (im_controller.gain_design.drive) and the CLI.
+"""
+design_gains: certified drive gains at the node period (im_controller.gain_design.drive) and the CLI.
 
 Physics asserted: the certified current gain makes every sampled current-error model contract, the
 thesis's 40 V/A at 1 ms does not (sampled pole a − b·k1 leaves the unit circle), and the offline
@@ -9,11 +10,10 @@ import json
 import math
 import re
 
-import numpy as np
-import pytest
-
 from im_controller import design_gains
 from im_controller.gain_design import drive
+import numpy as np
+import pytest
 
 SMALL_OBS = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 1}
 

@@ -1,10 +1,9 @@
 """Drive application: sampled motor models, gridding, designs, the thesis's gains."""
-import numpy as np
-import pytest
-
 from im_common.model import eq112_matrices
 from im_common.params import THESIS_MOTOR as M
 from im_controller.gain_design import motor
+import numpy as np
+import pytest
 
 SMALL = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 3}
 
@@ -64,9 +63,13 @@ def test_observer_dual_gain_maps_back():
 
 
 def test_thesis_gain_limit_over_the_box_is_the_scalar_current_loop_closed_form():
-    """The 210 µs the README quotes: the 4-state sampled current loop with K = 40 I loses stability
-    where the scalar current-error loop does, T_s = −(σL_s/R_eq) ln(1 − 2R_eq/(R_eq + k₁)), at the
-    stiffest admissible point of the box (σ = σ_min); the nominal motor tolerates more (≈ 318 µs)."""
+    """
+    The 210 µs the README quotes.
+
+    The 4-state sampled current loop with K = 40 I loses stability where the scalar
+    current-error loop does, T_s = −(σL_s/R_eq) ln(1 − 2R_eq/(R_eq + k₁)), at the stiffest
+    admissible point of the box (σ = σ_min); the nominal motor tolerates more (≈ 318 µs).
+    """
     pts = {'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 3}
     r = motor.thesis_gain_stability_limit(points=pts, T_min=1e-4, T_max=1e-3, samples=6,
                                           refine_steps=10)

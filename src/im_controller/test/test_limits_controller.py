@@ -1,16 +1,19 @@
-"""Limits of the control law (issue 10): smooth magnetizing floor, torque/current/speed bounds,
-field weakening, the anti-windup that cannot latch, live reconfiguration, profiles."""
-import math
+"""
+Limits of the control law (issue 10).
 
-import pytest
+Smooth magnetizing floor, torque/current/speed bounds, field weakening, the anti-windup that cannot
+latch, live reconfiguration, profiles.
+"""
+import math
 
 from im_common.loads import NoLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, smooth_floor
-from im_controller.parameters import LIVE_PARAMETERS, live_changes
+from im_controller.parameters import live_changes, LIVE_PARAMETERS
 from im_controller.profiles import from_parameters, from_samples, from_setpoints, load_profile
 from im_observer.observer import RotorFluxObserver
+import pytest
 
 
 def test_smooth_floor_is_c2_and_exact_above_three_eps():
@@ -51,8 +54,11 @@ def _loop(cfg, n, setpoints=(), plant_kw=None, x0=None):
 
 
 def test_torque_mode_start_up_magnetizes_without_a_spike():
-    """Torque mode from a demagnetized machine (issue 10, item 2): the start-up voltage stays
-    below the voltage the run needs once the torque is applied."""
+    """
+    Torque mode from a demagnetized machine (issue 10, item 2).
+
+    The start-up voltage stays below the voltage the run needs once the torque is applied.
+    """
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy='constant_flux')
     out, _ = _loop(cfg, 4000, setpoints=[('torque', 5.0, 0.2)])
     v_start = max(r[1] for r in out if r[0] < 0.2)
@@ -64,8 +70,12 @@ def test_torque_mode_start_up_magnetizes_without_a_spike():
 
 
 def test_a_torque_demand_on_a_demagnetized_machine_waits_for_the_flux():
-    """Torque asked for at t = 0: the torque reference grows with the flux (|i_q*| ≤ 2 i_d*/√σ
-    with zero torque at the floor flux), so the first steps need no voltage step."""
+    """
+    Torque asked for at t = 0.
+
+    The torque reference grows with the flux (|i_q*| ≤ 2 i_d*/√σ with zero torque at the floor
+    flux), so the first steps need no voltage step.
+    """
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy='constant_flux',
                            setpoint_duration=0.01)
     out, _ = _loop(cfg, 3000, setpoints=[('torque', 5.0, 0.0)])
@@ -178,9 +188,12 @@ def test_field_weakening_caps_the_flux_inversely_with_speed():
 
 
 def test_voltage_saturation_does_not_freeze_the_torque_filter():
-    """The latch of issue 10: one unsaturated step between saturated ones froze the PD filter's
-    input. Now the filter takes every input: after a saturated stretch its state follows the
-    latest PD demand, not one from the past."""
+    """
+    The latch of issue 10: one unsaturated step between saturated ones froze the PD filter's input.
+
+    Now the filter takes every input: after a saturated stretch its state follows the latest PD
+    demand, not one from the past.
+    """
     cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux', v_limit=50.0)
     ctl = DriveController(cfg)
     from im_controller.control_law import steady_operating_point
@@ -200,9 +213,13 @@ def test_voltage_saturation_does_not_freeze_the_torque_filter():
 
 
 def test_reconfigure_keeps_state_and_is_continuous():
-    """Mid-run changes of a gain and of a flux level: the run state is kept and the command
-    moves only by what the change implies — ΔK·|i − i*| for k₁; for φ_min the flux filter's
-    acceleration change p₁p₂Δφ_tgt through d i_d*/dt = (T_r/L_sr) d²φ*/dt² into σL_s di/dt."""
+    """
+    Mid-run changes of a gain and of a flux level.
+
+    The run state is kept and the command moves only by what the change implies — ΔK·|i − i*|
+    for k₁; for φ_min the flux filter's acceleration change p₁p₂Δφ_tgt through d i_d*/dt =
+    (T_r/L_sr) d²φ*/dt² into σL_s di/dt.
+    """
     from im_common.loads import PendulumLoad
     cfg = ControllerConfig(mode='position', profile='thesis', strategy='min_energy')
     T_s = cfg.T_s

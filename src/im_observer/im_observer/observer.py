@@ -1,4 +1,5 @@
-"""Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27-3.28, 4.13).
+"""
+Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27-3.28, 4.13).
 
 Plant, electrical part (eq. 1.112 / the first four rows of eq. 1.126), x = (i_s, φ_r) in αβ; the
 coefficients come from :func:`im_common.model.eq112_coefficients`, the one home of the model:
@@ -46,8 +47,8 @@ import math
 from typing import Optional, Sequence, Tuple
 
 from im_common.model import eq112_coefficients
-from im_common.params import (IDENTIFIABLE_NAMES, InvalidParameter, MotorParams, THESIS_MOTOR,
-                              check_real)
+from im_common.params import (check_real, IDENTIFIABLE_NAMES, InvalidParameter, MotorParams,
+                              THESIS_MOTOR)
 
 
 _finite = check_real
@@ -166,7 +167,9 @@ class RotorFluxObserver:
     # ------------------------------------------------------------------------------------------
     def step(self, T_s: float, v_alpha: float, v_beta: float, i_alpha: float, i_beta: float,
              omega_r: float) -> Tuple[float, float, float, float]:
-        """Advance the estimate from t_k to t_k + T_s; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k + T_s."""
+        """
+        Advance the estimate from t_k to t_k + T_s; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k + T_s.
+        """
         if not (T_s > 0.0 and math.isfinite(T_s)):
             raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
         for name, val in (('v_alpha', v_alpha), ('v_beta', v_beta), ('i_alpha', i_alpha),

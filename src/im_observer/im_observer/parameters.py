@@ -5,8 +5,12 @@ from __future__ import annotations
 
 
 def declare_observer(node) -> dict:
-    """Declare the observer's own parameters on ``node``; return their values by name (checked:
-    a gain of the wrong size is refused, naming the parameter)."""
+    """
+    Declare the observer's own parameters on ``node``.
+
+    Return their values by name (checked: a gain of the wrong size is refused, naming the
+    parameter).
+    """
     p = node.param
     v = {
         'k_e_injection': p('k_e_injection', 0.0, 'current-error injection gain k_e of eq. 3.27 '
@@ -35,11 +39,11 @@ def declare_observer(node) -> dict:
         v['injection_gain'] = None
     elif len(gain) != 8:
         raise ValueError(f"invalid parameter 'injection_gain' = {gain!r}: 8 numbers (row-major "
-                         f"4x2), or [0.0] for none")
+                         f'4x2), or [0.0] for none')
     return v
 
 
 def check_gain_period(values: dict, T_s: float) -> None:
     if values['injection_gain'] is not None and abs(values['gain_period'] - T_s) > 1e-12:
         raise ValueError(f"invalid parameter 'gain_period' = {values['gain_period']!r}: the "
-                         f"injection gain was designed for another period than T_s = {T_s}")
+                         f'injection gain was designed for another period than T_s = {T_s}')

@@ -1,5 +1,8 @@
-"""Speed-adaptive full-order observer: the rotor flux *and* the shaft speed from the stator
-voltage and current only (speed-sensorless mode; derivation and limits in docs/sensorless.md).
+"""
+Speed-adaptive full-order observer.
+
+The rotor flux *and* the shaft speed from the stator voltage and current only (speed-sensorless
+mode; derivation and limits in docs/sensorless.md).
 
 The flux part is :class:`im_observer.observer.RotorFluxObserver` (the plant copy of eq. 1.112 with
 the current-error injections, the one home of those equations) driven by the *estimated* speed
@@ -41,7 +44,7 @@ import math
 from typing import Optional, Sequence
 
 from im_common.model import eq112_coefficients
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
+from im_common.params import check_real, InvalidParameter, MotorParams, THESIS_MOTOR
 
 from .observer import RotorFluxObserver
 
@@ -69,12 +72,14 @@ def error_gain(params: MotorParams, k_e: Optional[float] = None) -> float:
 
 
 def adaptation_gains(params: MotorParams, bandwidth: float, k_e: Optional[float] = None):
-    """(k_p, k_i) of the speed adaptation for a speed-estimate bandwidth α_ω [rad/s].
+    """
+    (k_p, k_i) of the speed adaptation for a speed-estimate bandwidth α_ω [rad/s].
 
     With the current error's own lag, ε = g γ'/(s + γ') ω̃ (γ' = γ + k_e/σL_s), and k_p = 0,
     k_i = α_ω/g the loop's characteristic polynomial is s² + γ' s + γ' α_ω: poles ≈ −α_ω and
     −(γ' − α_ω), real for α_ω ≤ γ'/4. A proportional part would only speed up the fast pole
-    (and feed the current noise straight into ω̂), so k_p = 0."""
+    (and feed the current noise straight into ω̂), so k_p = 0.
+    """
     g = error_gain(params, k_e)
     return 0.0, bandwidth / g
 
@@ -139,8 +144,11 @@ class SpeedAdaptiveObserver:
         return (ea * pb - eb * pa - eta * (ea * pa + eb * pb)) / den
 
     def step(self, T_s: float, v_alpha: float, v_beta: float, i_alpha: float, i_beta: float):
-        """Advance from t_k to t_k + T_s with V_k, i_k; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k+1.
-        ``omega_hat`` / ``theta_hat`` are updated (ω̂_k, θ̂_k+1)."""
+        """
+        Advance from t_k to t_k + T_s with V_k, i_k; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k+1.
+
+        ``omega_hat`` / ``theta_hat`` are updated (ω̂_k, θ̂_k+1).
+        """
         for name, val in (('i_alpha', i_alpha), ('i_beta', i_beta)):
             if not math.isfinite(val):
                 raise ValueError(f"observer input '{name}' is not finite ({val!r})")

@@ -1,12 +1,13 @@
-"""Observer (seed 000 eq. 3.27-3.28): error energy ½ x̄ᵀ D x̄ never increases with exact parameters."""
+"""
+Observer (seed 000 eq. 3.27-3.28): error energy ½ x̄ᵀ D x̄ never increases with exact parameters.
+"""
 import math
-
-import pytest
 
 from im_common.loads import NoLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_observer.observer import RotorFluxObserver
+import pytest
 
 
 def _run(T_s, n, skew=True, omega=150.0, flux_error=0.5, injection_gain=None, k_e=None):

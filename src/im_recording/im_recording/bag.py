@@ -1,4 +1,5 @@
-"""Runs recorded to MCAP (ROS 2 profile) and read back.
+"""
+Runs recorded to MCAP (ROS 2 profile) and read back.
 
 Writing
 -------
@@ -34,16 +35,17 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+from dataclasses import dataclass, field
 import os
+from pathlib import Path
 import signal
 import struct
+from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 import weakref
 import zlib
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 
 from im_common import cdr
+
 from .msgdefs import full_definition, ros_distro, type_hash
 
 MAGIC = b'\x89MCAP0\r\n'
@@ -110,8 +112,11 @@ def _record(op: int, body: bytes) -> bytes:
 
 
 def _time(ns: int) -> dict:
-    """An ``rmw_time_t`` as rosbag2 writes it (``sec``, ``nsec``); a negative or infinite
-    duration is ``RMW_DURATION_INFINITE``."""
+    """
+    Return an ``rmw_time_t`` as rosbag2 writes it (``sec``, ``nsec``).
+
+    A negative or infinite duration is ``RMW_DURATION_INFINITE``.
+    """
     ns = int(ns)
     if ns < 0 or ns >= INFINITE_NS:
         return dict(INFINITE)
@@ -134,17 +139,25 @@ def qos_profile_dict(profile) -> dict:
 
 
 def offered_qos_yaml(profiles: Iterable) -> str:
-    """The ``offered_qos_profiles`` channel metadata: a YAML *list* with one entry per publisher
-    (``rclpy.qos.QoSProfile`` objects or :func:`qos_profile_dict` dicts), as rosbag2's recorder
-    writes the profiles the publishers offer (``get_publishers_info_by_topic``)."""
+    """
+    Return the ``offered_qos_profiles`` channel metadata.
+
+    A YAML *list* with one entry per publisher (``rclpy.qos.QoSProfile`` objects or
+    :func:`qos_profile_dict` dicts), as rosbag2's recorder writes the profiles the publishers
+    offer (``get_publishers_info_by_topic``).
+    """
     import yaml
     items = [p if isinstance(p, dict) else qos_profile_dict(p) for p in profiles]
     return yaml.safe_dump(items, sort_keys=False, default_flow_style=False) if items else ''
 
 
 def parse_qos_yaml(text: Optional[str], topic: str = '?') -> list:
-    """The list of profiles in an ``offered_qos_profiles`` string ('' is no profile); anything
-    but a YAML list of mappings is a ValueError naming the topic (rosbag2 would throw)."""
+    """
+    Return the list of profiles in an ``offered_qos_profiles`` string ('' is no profile).
+
+    Anything but a YAML list of mappings is a ValueError naming the topic (rosbag2 would
+    throw).
+    """
     import yaml
     if not text:
         return []
@@ -172,9 +185,12 @@ DEFAULT_QOS = qos_yaml()
 
 
 def parameters_metadata(values: Mapping[str, object]) -> Dict[str, str]:
-    """A node's parameters as a ``parameters/<node>`` metadata record: name -> ``repr`` of the
-    value, arrays as lists (the same text whether the values come from the node itself or over
-    its parameter services)."""
+    """
+    Return a node's parameters as a ``parameters/<node>`` metadata record.
+
+    Name -> ``repr`` of the value, arrays as lists (the same text whether the values come from
+    the node itself or over its parameter services).
+    """
     def norm(v):
         if isinstance(v, (list, tuple)) or type(v).__name__ == 'array' or hasattr(v, 'tolist'):
             return [norm(x) for x in (v.tolist() if hasattr(v, 'tolist') else v)]
@@ -247,10 +263,14 @@ def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'o
 
 
 def check_writable(out, what: str = 'output') -> None:
-    """Refuse, before any work, an output that cannot be created: a file is created and removed
-    in its directory (or, where that does not exist yet, in the nearest existing one, whose
-    subdirectories the writer creates). A read-only file system, a directory without write
-    permission or a path through a file is one :class:`OSError` line naming the output."""
+    """
+    Refuse, before any work, an output that cannot be created.
+
+    A file is created and removed in its directory (or, where that does not exist yet, in the
+    nearest existing one, whose subdirectories the writer creates). A read-only file system, a
+    directory without write permission or a path through a file is one :class:`OSError` line
+    naming the output.
+    """
     import tempfile
     o = Path(out)
     d = o.parent if str(o.parent) else Path('.')
@@ -290,16 +310,23 @@ PART_SUFFIX = '.part'
 
 
 def partial_path(path) -> Path:
-    """Where :class:`BagWriter` writes ``path`` until it is closed (``run.mcap.part``); a killed
-    writer leaves its data there, and ``recover run.mcap`` finds it."""
+    """
+    Where :class:`BagWriter` writes ``path`` until it is closed (``run.mcap.part``).
+
+    A killed writer leaves its data there, and ``recover run.mcap`` finds it.
+    """
     p = Path(path)
     return p.with_name(p.name + PART_SUFFIX)
 
 
 class _Output:
-    """The writer's file: an OS error on a write or flush (disk full, I/O error, a file system
-    gone read-only) becomes one :class:`BagError` naming the ``.part`` and the cause, and the
-    writer stops there — what reached the file stays for ``recover``."""
+    """
+    The writer's file.
+
+    An OS error on a write or flush (disk full, I/O error, a file system gone read-only)
+    becomes one :class:`BagError` naming the ``.part`` and the cause, and the writer stops
+    there — what reached the file stays for ``recover``.
+    """
 
     def __init__(self, f, failed):
         self._f = f
@@ -328,7 +355,8 @@ class _Output:
 
 
 class BagWriter:
-    """MCAP writer for ROS 2 runs (context manager).
+    """
+    MCAP writer for ROS 2 runs (context manager).
 
     Parameters
     ----------
@@ -437,8 +465,11 @@ class BagWriter:
         return self._closed
 
     def discard(self) -> None:
-        """Abandon a file nothing was written to yet (its ``.part``); an existing ``path`` is
-        left as it was."""
+        """
+        Abandon a file nothing was written to yet (its ``.part``).
+
+        An existing ``path`` is left as it was.
+        """
         if not self._closed:
             self._closed = True
             self._f.close()
@@ -446,8 +477,12 @@ class BagWriter:
 
     # -- low level ------------------------------------------------------------------------
     def _write_failed(self, exc: OSError) -> None:
-        """The file cannot be written: stop here (no later write or close touches it), keep the
-        ``.part`` for ``recover``, raise one :class:`BagError` (also kept in :attr:`failed`)."""
+        """
+        Return the file cannot be written.
+
+        Stop here (no later write or close touches it), keep the ``.part`` for ``recover``,
+        raise one :class:`BagError` (also kept in :attr:`failed`).
+        """
         self.failed = BagError(self.part, f'cannot write the recording '
                                           f'({exc.strerror or exc}); what was written is kept: '
                                           f'`ros2 run im_recording recover {self.path}`')
@@ -466,7 +501,8 @@ class BagWriter:
 
     # -- declarations ---------------------------------------------------------------------
     def add_topic(self, topic: str, type_name: str, qos: Optional[str] = None) -> int:
-        """Declare a topic (idempotent for the same type); returns its channel id.
+        """
+        Declare a topic (idempotent for the same type); returns its channel id.
 
         ``qos`` is the ``offered_qos_profiles`` YAML list, one profile per publisher
         (:func:`offered_qos_yaml`; default: one reliable, volatile, keep_last 10 profile); a
@@ -508,7 +544,7 @@ class BagWriter:
         return cid
 
     def expect_topic(self, topic: str, type_name: str) -> None:
-        """A topic to declare on its first message (its publishers known by then) or by
+        """Return a topic to declare on its first message (its publishers known by then) or by
         :meth:`declare_expected`."""
         cdr.message_class(type_name)            # fails early on unknown types
         self._expected[topic] = type_name
@@ -531,7 +567,7 @@ class BagWriter:
         return self._chan[topic]
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        """A named Metadata record (string -> string), written to the file at once."""
+        """Return a named Metadata record (string -> string), written to the file at once."""
         if self._closed:
             raise BagError(self.path, f'cannot add metadata {name!r}: the bag is closed')
         rec = _record(OP_METADATA, _s(name) + _map_str({str(k): str(v) for k, v in data.items()}))
@@ -692,9 +728,12 @@ class BagWriter:
         return yaml.safe_dump(md, sort_keys=False, default_flow_style=False)
 
     def close(self) -> None:
-        """Finish the file: last chunk, summary, footer. Idempotent; safe to call from a signal
-        handler that interrupted :meth:`write` (an incomplete last message is dropped) or from
-        ``atexit``."""
+        """
+        Finish the file: last chunk, summary, footer.
+
+        Idempotent; safe to call from a signal handler that interrupted :meth:`write` (an
+        incomplete last message is dropped) or from ``atexit``.
+        """
         if self._closed:
             return
         if self._flushing:          # re-entered from a signal handler during a chunk flush
@@ -801,7 +840,7 @@ def _open_checked(path):
 
 
 def _check_summary_crc(p: Path) -> None:
-    """The footer's summary CRC (summary start .. footer's own fields) must match."""
+    """Return the footer's summary CRC (summary start .. footer's own fields) must match."""
     size = p.stat().st_size
     with open(p, 'rb') as f:
         f.seek(size - 8 - 29)
@@ -824,7 +863,7 @@ def _check_summary_crc(p: Path) -> None:
 
 
 def check_data_crc(path) -> None:
-    """The Data End record's CRC over the whole data section (BagError on a mismatch)."""
+    """Return the Data End record's CRC over the whole data section (BagError on a mismatch)."""
     p = _open_checked(path)
     size = p.stat().st_size
     with open(p, 'rb') as f:

@@ -1,4 +1,5 @@
-"""Message definitions and type hashes for MCAP schemas and channels.
+"""
+Message definitions and type hashes for MCAP schemas and channels.
 
 :func:`full_definition` is the ``ros2msg`` schema text byte for byte as rosbag2 Jazzy's recorder
 writes it (``rosbag2_cpp::LocalMessageDefinitionSource::get_full_text``): the type's installed
@@ -78,7 +79,7 @@ def _msg_text(type_name: str) -> str:
 
 
 def dependencies(text: str, package: str) -> list:
-    """The non-primitive field types of a ``.msg`` text as ``pkg/Type``, sorted."""
+    """Return the non-primitive field types of a ``.msg`` text as ``pkg/Type``, sorted."""
     out = set()
     for m in _FIELD_TYPE.finditer(text):
         t = m.group(1)

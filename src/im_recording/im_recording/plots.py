@@ -1,4 +1,5 @@
-"""PNG figures of recorded runs in the style of seed 000 (Figures 3.4-3.13 and 4.7-4.15).
+"""
+PNG figures of recorded runs in the style of seed 000 (Figures 3.4-3.13 and 4.7-4.15).
 
 Each function takes a list of :class:`~im_recording.run.Run` (one run, or several overlaid for a
 comparison), writes one PNG and returns its path, or None when the runs lack the data. matplotlib

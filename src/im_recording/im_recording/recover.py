@@ -1,4 +1,5 @@
-"""Salvage a recording cut short by a hard kill or damaged on disk.
+"""
+Salvage a recording cut short by a hard kill or damaged on disk.
 
 ``ros2 run im_recording recover bags/broken.mcap [-o fixed.mcap] [--force]``
 
@@ -35,19 +36,19 @@ from __future__ import annotations
 
 import argparse
 import bisect
+from dataclasses import dataclass, field
 import os
+from pathlib import Path
 import re
 import struct
 import sys
-import zlib
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Dict, List, Optional, Tuple
+import zlib
 
-from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK,
-                  OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER, OP_MESSAGE,
-                  OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS,
-                  OP_SUMMARY_OFFSET, BagError, BagWriter, check_output, partial_path)
+from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, BagError, BagWriter, check_output,
+                  MAGIC, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER,
+                  OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA,
+                  OP_STATISTICS, OP_SUMMARY_OFFSET, partial_path)
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
 
@@ -174,8 +175,11 @@ def parse_attachment(b) -> None:
 
 
 def chunk_header(b) -> Tuple[int, int, int, int, str, int]:
-    """(start, end, uncompressed size, CRC, compression, offset of the records) of a Chunk body;
-    Damage unless its fields are consistent with each other and with the record's length."""
+    """
+    (start, end, uncompressed size, CRC, compression, offset of the records) of a Chunk body.
+
+    Damage unless its fields are consistent with each other and with the record's length.
+    """
     _need(b, 0, _CHUNK_HEAD.size)
     t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(b, 0)
     comp, p = _str(b, _CHUNK_HEAD.size)
@@ -220,9 +224,12 @@ def _inflate(comp: str, raw, usize: int) -> bytes:
 
 
 def chunk_records(b):
-    """Validate a whole Chunk body and everything in it. Returns (uncompressed records,
-    messages as [(channel, log time, data start, data end)], declarations as [(number of messages
-    before it, opcode, parsed Schema or Channel)])."""
+    """
+    Validate a whole Chunk body and everything in it.
+
+    Returns (uncompressed records, messages as [(channel, log time, data start, data end)],
+    declarations as [(number of messages before it, opcode, parsed Schema or Channel)]).
+    """
     _t0, _t1, usize, crc, comp, p = chunk_header(b)
     inner = _inflate(comp, memoryview(b)[p:], usize)
     if len(inner) != usize:
@@ -291,7 +298,7 @@ class Lost:
                 self.messages = sum(self.index[o][0] for o in self.chunk_mi)
         elif self.indexed:
             self.messages = 0
-            self.source = 'no chunk in them per the file\'s chunk index'
+            self.source = "no chunk in them per the file's chunk index"
         elif self.header is not None and self.index and min(self.index) == self.header[2]:
             # the damaged chunk's own header, and its message index right after it
             self.t0, self.t1 = self.header[0], self.header[1]
@@ -411,8 +418,12 @@ class _Scan:
         return (start, ostart or fstart, fstart)
 
     def _end_ok(self, pos: int, crc: Optional[int]) -> bool:
-        """A Data End record at ``pos`` validates: the end of the file or the summary follows
-        it, or its data-section CRC matches ``crc`` (the CRC of everything before it)."""
+        """
+        Return a Data End record at ``pos`` validates.
+
+        The end of the file or the summary follows it, or its data-section CRC matches
+        ``crc`` (the CRC of everything before it).
+        """
         end = pos + 13
         if end == self.size:
             return True
@@ -443,7 +454,7 @@ class _Scan:
         return ok
 
     def _starts_here(self, pos: int) -> bool:
-        """Records that parse exactly, from ``pos`` on, ending in one that carries a check (a
+        """Return the records that parse exactly, from ``pos`` on, ending in one that carries a check (a
         Chunk or Attachment whose CRC matches, a Data End that validates) or at the end of the
         file. A run found to fail is remembered, so no offset is walked twice."""
         seen: List[int] = []
@@ -490,9 +501,12 @@ class _Scan:
         return None
 
     def _resync(self, start: int) -> Optional[int]:
-        """The first offset >= ``start`` where :meth:`_starts_here`; None if there is none.
+        """
+        Return the first offset >= ``start`` where :meth:`_starts_here`; None if there is none.
+
         One regular-expression pass over the bytes (read in windows growing from 64 KiB to
-        1 MiB); only offsets shaped like a record header are tried."""
+        1 MiB); only offsets shaped like a record header are tried.
+        """
         pos, win_size = start, 1 << 16
         while pos < self.size:
             win = self.src.read(pos, win_size + 8)
@@ -570,8 +584,12 @@ class _Scan:
         self.ending = f'the file ends at byte {size} after its last record'
 
     def _declare_from_summary(self) -> None:
-        """An intact summary repeats every Schema and Channel: declare them first, so a channel
-        whose record in the data section is damaged still has its messages copied."""
+        """
+        Return an intact summary repeats every Schema and Channel.
+
+        Declare them first, so a channel whose record in the data section is damaged still
+        has its messages copied.
+        """
         if self.summary is None:
             return
         p, end = self.summary[0], self.summary[1]
@@ -588,7 +606,7 @@ class _Scan:
             p += 9 + length
 
     def _torn_index(self, pos: int, length: int) -> bool:
-        """The record at ``pos`` is the Message Index of the intact chunk before it, cut by the
+        """Return the record at ``pos`` is the Message Index of the intact chunk before it, cut by the
         end of the file (its fields agree with its length and nothing validates after it)."""
         if self.open_loss is not None or self.last_op not in (OP_CHUNK, OP_MESSAGE_INDEX):
             return False
@@ -598,8 +616,12 @@ class _Scan:
         return self._resync(pos + 1) is None
 
     def _record(self, pos: int, op: int, length: int, end: int):
-        """Take the record at ``pos``; (None, None) if it validated, else (why, where the next
-        record would start if only this one is bad)."""
+        """
+        Take the record at ``pos``.
+
+        (None, None) if it validated, else (why, where the next record would start if only
+        this one is bad).
+        """
         if end > self.size:
             if op == OP_MESSAGE_INDEX and self._torn_index(pos, length):
                 # the index of the intact chunk before it, cut by the end of the file: the
@@ -678,15 +700,19 @@ class _Scan:
             self.attachments += 1
 
     def _indexes_last_chunk(self, cid: int, n: int, t0, t1) -> bool:
-        """A Message Index read after damage that describes the intact chunk before the damage
+        """Return a Message Index read after damage that describes the intact chunk before the damage
         (same channel, count and stamps), not a lost one."""
         stamps = [m[1] for m in self.last_chunk if m[0] == cid]
         return bool(stamps) and (len(stamps), min(stamps), max(stamps)) == (n, t0, t1)
 
     # -- after the pass: what the damaged bytes held ------------------------------------------
     def settle(self) -> Optional[int]:
-        """Fill in each loss's time range and message count; return the file's own message
-        count (its Statistics record) when its summary is intact."""
+        """
+        Fill in each loss's time range and message count.
+
+        Return the file's own message count (its Statistics record) when its summary is
+        intact.
+        """
         total, indexed = None, False
         if self.summary is not None and self.summary[0] < self.summary[1]:
             starts = [x.start for x in self.lost]
@@ -737,8 +763,11 @@ _OP_NAMES = {OP_SCHEMA: 'schema', OP_CHANNEL: 'channel', OP_MESSAGE: 'message',
 # Writing
 # ------------------------------------------------------------------------------------------
 class _Out:
-    """Streams what the scan hands over into a :class:`BagWriter` on a temporary file next to
-    ``out``; :meth:`finish` renames it into place, :meth:`abort` removes it."""
+    """
+    Streams what the scan hands over into a :class:`BagWriter` on a temporary file next to ``out``.
+
+    :meth:`finish` renames it into place, :meth:`abort` removes it.
+    """
 
     def __init__(self, out: Path, force: bool):
         self.out, self.force = out, force
@@ -792,7 +821,9 @@ class _Out:
             self.t_last = t
 
     def chunk(self, inner: bytes, msgs, decls) -> None:
-        """A validated chunk's messages, with any Schema/Channel it declares in their place."""
+        """
+        Return a validated chunk's messages, with any Schema/Channel it declares in their place.
+        """
         view = memoryview(inner)
         k = 0
         for at, op, rec in decls:
@@ -845,7 +876,7 @@ class _Out:
 
 
 def source_of(path) -> Path:
-    """The file to salvage: ``path``, or the ``<path>.part`` a killed writer left."""
+    """Return the file to salvage: ``path``, or the ``<path>.part`` a killed writer left."""
     p = Path(path)
     if not p.exists() and partial_path(p).exists():
         return partial_path(p)
@@ -861,8 +892,11 @@ def default_output(path) -> Path:
 
 
 def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
-    """Rewrite the intact records of ``path`` into ``out``; returns counts, paths and what was
-    lost (``lost``: one line each; ``lost_ranges``: the same as dicts).
+    """
+    Rewrite the intact records of ``path`` into ``out``.
+
+    Returns counts, paths and what was lost (``lost``: one line each; ``lost_ranges``: the same
+    as dicts).
 
     ``path`` may name a recording whose writer was killed: its data is then in ``<path>.part``
     (see :class:`~im_recording.bag.BagWriter`), which is read instead.

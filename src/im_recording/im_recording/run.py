@@ -1,4 +1,5 @@
-"""A recording turned into analysis arrays: :func:`load_run` -> :class:`Run`.
+"""
+A recording turned into analysis arrays: :func:`load_run` -> :class:`Run`.
 
 The trace follows the :mod:`im_common.metrics` format: equal-length 1-D arrays sampled at the
 control instants t_k (the stamps of ``/im/measured/current``), every topic aligned on its header
@@ -40,10 +41,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
-import numpy as np
-
 from im_common import cdr
 from im_common import topics as T
+import numpy as np
 
 REEST_FLUX, REEST_CURRENT = T.REEST_FLUX, T.REEST_CURRENT
 
@@ -204,8 +204,11 @@ def _decode_js(topic: str, payloads: List[bytes]):
 
 
 def decode_topic(topic: str, payloads: List[bytes]):
-    """(stamps ns, {trace key: values}) of one topic's payloads, in their order; None for a topic
-    the trace does not use."""
+    """
+    (stamps ns, {trace key: values}) of one topic's payloads, in their order.
+
+    None for a topic the trace does not use.
+    """
     if topic in V3_KEYS:
         st, x, y, z = _decode_v3(payloads)
         kx, ky, kz = V3_KEYS[topic]
@@ -310,9 +313,13 @@ class TraceStream:
 
 
 class TraceKeeper:
-    """Sink of a :class:`TraceStream` that keeps the aligned rows: all of them, or (``limit``)
-    at most about 2·limit, thinned to every S-th control instant where S is a multiple of every
-    topic's own publishing period (so decimated topics keep their samples)."""
+    """
+    Sink of a :class:`TraceStream` that keeps the aligned rows.
+
+    All of them, or (``limit``) at most about 2·limit, thinned to every S-th control instant
+    where S is a multiple of every topic's own publishing period (so decimated topics keep
+    their samples).
+    """
 
     def __init__(self, limit: Optional[int] = None):
         self.limit = limit
@@ -475,10 +482,13 @@ class _Acc:
 
 
 class RunningFigures:
-    """Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`): the tracking,
-    peak and estimate figures of :func:`im_recording.report.figures_of_merit` from running maxima,
-    sums of squares and the last ``last_window`` seconds only, plus the lock-step topics'
-    missing control instants (:meth:`gaps`)."""
+    """
+    Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`).
+
+    The tracking, peak and estimate figures of :func:`im_recording.report.figures_of_merit`
+    from running maxima, sums of squares and the last ``last_window`` seconds only, plus the
+    lock-step topics' missing control instants (:meth:`gaps`).
+    """
 
     def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20):
         self.window = float(last_window)
@@ -549,7 +559,9 @@ class RunningFigures:
         self._open[topic] = bool(absent[-1])
 
     def gaps(self) -> Dict[str, dict]:
-        """Lock-step topics with control instants that have no message: count and ranges [s].
+        """
+        Lock-step topics with control instants that have no message: count and ranges [s].
+
         The run's last instant is not a gap: the plant's final measurement is answered by no one.
         """
         out = {}
@@ -617,7 +629,7 @@ def build_trace(raw: Dict[str, List[bytes]]) -> Tuple[Dict[str, np.ndarray], Dic
 
 
 def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
-    """The energy books over the recorded window (see module doc)."""
+    """Return the energy books over the recorded window (see module doc)."""
     out: Dict[str, float] = {}
     en = series.get(T.TRUTH_ENERGY)
     if en is not None and len(en['t_ns']):
@@ -652,9 +664,13 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
 
 
 class RunEvents:
-    """The /im/status events that end a node's part of the run — ``finished``, ``stopped``,
-    ``failed`` — as dicts (node, state, t [s], reason, time_master), in recorded order: how the
-    run ended, whoever recorded it (the in-process graph's tap or the recorder node)."""
+    """
+    The /im/status events that end a node's part of the run.
+
+    ``finished``, ``stopped``, ``failed`` — as dicts (node, state, t [s], reason, time_master),
+    in recorded order: how the run ended, whoever recorded it (the in-process graph's tap or
+    the recorder node).
+    """
 
     ENDS = ('finished', 'stopped', 'failed')
 
@@ -681,13 +697,13 @@ class RunEvents:
 
 
 def lockstep_topics() -> Tuple[str, ...]:
-    """The topics every control instant must have (``critical`` rows of the topic table)."""
+    """Return the topics every control instant must have (``critical`` rows of the topic table)."""
     return tuple(t.name for t in T.TOPICS if t.critical)
 
 
 def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full',
                limit: int = 10000, types: Optional[dict] = None) -> Run:
-    """A :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
+    """Return a :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
     ``trace='full'`` (every row kept); ``'decimated'`` keeps about ``limit``-``2·limit`` rows for
     the plots, None none. The figures always cover every control instant."""
     books, figs = TruthBooks(), RunningFigures(lockstep_topics=lockstep_topics())
@@ -709,7 +725,8 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
 
 
 def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
-    """Read a recording into a :class:`Run`; :class:`~im_recording.bag.BagError` if unreadable.
+    """
+    Read a recording into a :class:`Run`; :class:`~im_recording.bag.BagError` if unreadable.
 
     ``trace``: 'full' (every control instant), 'decimated' (about ``limit`` rows, what the
     report's plots need) or None; the figures cover the whole run either way. Every CRC is

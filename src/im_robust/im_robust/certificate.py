@@ -1,4 +1,5 @@
-"""Independent certificates for a static output-feedback gain.
+"""
+Independent certificates for a static output-feedback gain.
 
 A gain G is *certified* for an uncertain system when a single P = P' ≻ 0 satisfies, in the original
 coordinates and with the thesis's sign convention A_cl = A − B G C (seed 001 eq. 3.3-3.4),
@@ -28,7 +29,8 @@ from .polytope import Model, UncertainSystem
 
 @dataclass
 class Certificate:
-    """Outcome of :func:`certify`.
+    """
+    Outcome of :func:`certify`.
 
     ``margin`` is α_c − α (continuous, 1/s) or ρ − ρ_c (discrete); ``rate`` is α_c or ρ_c.
     ``grid_margin`` is the same quantity over the dense grid with the same P, and
@@ -92,7 +94,8 @@ def _margin(rate: float, discrete: bool, alpha: float, rho: float) -> float:
 
 def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: float = 0.0,
                  rho: float = 1.0, solver: str = 'CLARABEL') -> Optional[np.ndarray]:
-    """A common P for the closed loops at the required rate, or None (fresh SDP, G only).
+    """
+    Return a common P for the closed loops at the required rate, or None (fresh SDP, G only).
 
     Minimizes the condition number bound s of I ⪯ P ⪯ s I subject to the Lyapunov inequalities with
     a unit margin (the problem is homogeneous in P, so the margin only fixes the scale).
@@ -123,7 +126,8 @@ def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: floa
 def certify(system: UncertainSystem, G, *, alpha: float = 0.0, rho: float = 1.0,
             P: Optional[np.ndarray] = None, grid_models: Optional[Sequence[Model]] = None,
             tol: float = 1e-9, max_condition: float = 1e12) -> Certificate:
-    """Check G on every vertex model with a common P, then on ``grid_models`` with the same P.
+    """
+    Check G on every vertex model with a common P, then on ``grid_models`` with the same P.
 
     Parameters
     ----------

@@ -1,4 +1,5 @@
-"""Command line: reproduce seed 001 §4.2.
+"""
+Command line: reproduce seed 001 §4.2.
 
     python -m im_robust.cli examples --out bags/robust
     ros2 run im_robust robust_examples examples --out bags/robust
@@ -11,16 +12,15 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 from typing import List, Optional
 
+from im_common.cli import logger, parse_args
 import numpy as np
 
-from im_common.cli import logger, parse_args
-
-from .examples import EXAMPLES, check_printed_solution, thesis_gain_decay
+from .examples import check_printed_solution, EXAMPLES, thesis_gain_decay
 from .refine import reduce_gain_norm
 from .synthesis import synthesize
 
@@ -103,7 +103,7 @@ def run_examples(out: Path, keys: Optional[List[str]] = None, refine: bool = Tru
         if refine and rate_th is not None:
             kw = ({'rho': rate_th} if ex.system.discrete else {'alpha': rate_th})
             t0 = time.perf_counter()
-            _log(f'example {key}: synthesis and norm reduction at the printed gain\'s certified '
+            _log(f"example {key}: synthesis and norm reduction at the printed gain's certified "
                  f'rate {rate_th:.6g} ...')
             start = synthesize(ex.system, D=ex.D, solver='clarabel', grid_models=grid, margin=1e-6,
                                normalization='output', **kw)
@@ -150,7 +150,7 @@ def render_markdown(rows: List[dict], checks: dict) -> str:
                      f"{r['thesis_iterations']} | {'yes' if r['certified'] else 'no'} | "
                      f"{_fmt(r['margin'], '.4g')} | {_fmt(r['best_rate'], '.4g')} | {r['wall_s']:.2f} | "
                      f"{r['note']} |")
-    lines += ['', '## The thesis\'s printed W_o against its own constraints (ε = 1)', '',
+    lines += ['', "## The thesis's printed W_o against its own constraints (ε = 1)", '',
               '| ex. | max λ(Θ_l) (≤ −1) | λ_min(W₁) (≥ 1) | λ_min(W) (≥ 0) | f(W_o) | '
               'G from W_o − printed G | printed G certified | printed G best rate |',
               '|---|---|---|---|---|---|---|---|']

@@ -1,4 +1,5 @@
-"""The thesis's own solver: a cutting-plane method with one LP per iteration (seed 001 §4.1).
+"""
+The thesis's own solver: a cutting-plane method with one LP per iteration (seed 001 §4.1).
 
 Problem (4.2): minimize t over (t, ω) in C_f = {W_o(ω) ∈ C, λ_max(W₃) ≤ t}. Every constraint of
 (3.33) is "an extreme eigenvalue of an affine matrix function of ω has a sign", so at a point that
@@ -31,9 +32,9 @@ the epigraph cut when λ_max(W₃) > t; ``'all'`` adds one per violated family a
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -59,7 +60,8 @@ def _quad(M: np.ndarray, v: np.ndarray) -> np.ndarray:
 def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6, max_iterations: int = 20000,
                         cuts: str = 'deepest', progress: bool = False,
                         progress_every: int = 200) -> CuttingPlaneResult:
-    """Kelley cutting-plane solution of (3.33) for a :class:`~im_robust.synthesis.Problem`.
+    """
+    Kelley cutting-plane solution of (3.33) for a :class:`~im_robust.synthesis.Problem`.
 
     Parameters
     ----------

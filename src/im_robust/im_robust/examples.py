@@ -1,4 +1,5 @@
-"""The three worked examples of seed 001 §4.2, with what the thesis printed for them.
+"""
+The three worked examples of seed 001 §4.2, with what the thesis printed for them.
 
 Each example gives the uncertain system (vertex models, C, time domain), the D the thesis chose,
 a parameter family for dense-grid certification, and the thesis's printed W_o, G, ‖G‖ and
@@ -13,7 +14,7 @@ from typing import Dict, Optional
 import numpy as np
 
 from .polytope import UncertainSystem
-from .structure import StructuredW, apply_map
+from .structure import apply_map, StructuredW
 from .synthesis import build_problem
 
 
@@ -45,7 +46,8 @@ def _aircraft_A(q: float, a23: float = AIRCRAFT_A23_PRINTED) -> np.ndarray:
 
 
 def example1(a23: float = AIRCRAFT_A23_PRINTED) -> ThesisExample:
-    """§4.2.1: aircraft (Galimidi & Barmish), continuous, A uncertain, q ∈ [−1.5, 1.5] (eq. 4.10-4.19).
+    """
+    §4.2.1: aircraft (Galimidi & Barmish), continuous, A uncertain, q ∈ [−1.5, 1.5] (eq. 4.10-4.19).
 
     ``a23`` is the (2, 3) entry of A: 0.35 as printed, or 0.035 (the reading under which the
     printed W_o is feasible; key ``'1-a23'``).
@@ -81,7 +83,8 @@ def _heli_B(p3: float) -> np.ndarray:
 
 
 def example2() -> ThesisExample:
-    """§4.2.2: helicopter (Keel, Bhattacharyya & Howze), continuous, A and B uncertain (eq. 4.20-4.28).
+    """
+    §4.2.2: helicopter (Keel, Bhattacharyya & Howze), continuous, A and B uncertain (eq. 4.20-4.28).
 
     p1 = 0.3681 ± 20·0.05, p2 = 1.42 ± 20·0.01, p3 = 3.5446 ± 20·0.04 (eq. 4.23): D_A has 4 vertices
     (p1, p2), D_B has 2 (p3), so L = 8 vertex models.
@@ -131,7 +134,8 @@ EXAMPLES = {'1': example1, '1-a23': lambda: example1(AIRCRAFT_A23_TYPO_READING),
 
 
 def check_printed_solution(ex: ThesisExample, margin: float = 1.0) -> Dict[str, object]:
-    """Evaluate the thesis's printed W_o against its own constraints (3.33).
+    """
+    Evaluate the thesis's printed W_o against its own constraints (3.33).
 
     Returns the largest eigenvalue of each Θ_l (must be ≤ −ε), λ_min(W₁) (must be ≥ 1), λ_min(W)
     (must be ≥ 0), the structure violation, f(W_o) = λ_max(W₃), the G implied by W_o (eq. 3.35)

@@ -1,4 +1,5 @@
-"""Polytopic uncertain linear systems and the augmented system of seed 001 (eq. 2.7, 2.9).
+"""
+Polytopic uncertain linear systems and the augmented system of seed 001 (eq. 2.7, 2.9).
 
 Sign convention used everywhere in this package (seed 001 eq. 3.3-3.4):
 
@@ -36,7 +37,8 @@ def _as_matrix(x, name: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class UncertainSystem:
-    """Polytopic uncertain system x' = A x + B u (or x⁺ = A x + B u), y = C x.
+    """
+    Polytopic uncertain system x' = A x + B u (or x⁺ = A x + B u), y = C x.
 
     Parameters
     ----------
@@ -141,7 +143,7 @@ class UncertainSystem:
 
 
 def augmented(A: np.ndarray, B: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """The augmented pair of eq. 2.7: F = [[A, −B], [0, 0]], E = [0; I] (p = n + m)."""
+    """Return the augmented pair of eq. 2.7: F = [[A, −B], [0, 0]], E = [0; I] (p = n + m)."""
     n, m = B.shape
     F = np.zeros((n + m, n + m))
     F[:n, :n] = A
@@ -153,7 +155,8 @@ def augmented(A: np.ndarray, B: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
 
 def with_decay(models: Sequence[Model], discrete: bool, alpha: float = 0.0,
                rho: float = 1.0) -> List[Model]:
-    """Vertex models whose quadratic stability means a guaranteed decay rate.
+    """
+    Vertex models whose quadratic stability means a guaranteed decay rate.
 
     Continuous time: (A + αI, B) stable  ⇔  Re λ(A − BGC) < −α (and V = x'Px decays as e^{−2αt}).
     Discrete time:  (A/ρ, B/ρ) stable  ⇔  |λ(A − BGC)| < ρ (and V decays as ρ^{2k}).

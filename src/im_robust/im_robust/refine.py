@@ -1,4 +1,5 @@
-"""Gain-norm reduction at a fixed guaranteed decay rate (an addition to seed 001, not in it).
+"""
+Gain-norm reduction at a fixed guaranteed decay rate (an addition to seed 001, not in it).
 
 The thesis minimizes the *bound* λ_max(W₃) ≥ ‖G‖², not ‖G‖ itself, and the bound is loose when
 W1y ≫ I. Minimizing ‖G‖ over quadratically stabilizing gains is not convex (it is bilinear in G
@@ -15,8 +16,8 @@ it finds *a* smaller certified gain, not the smallest one.
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
+import sys
 from typing import List, Optional
 
 import numpy as np
@@ -47,7 +48,8 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
                      iterations: int = 25, kappa: float = 1e4, min_margin: float = 1e-4,
                      grid_models=None, rel_tol: float = 1e-4,
                      progress: bool = False) -> Optional[RefineResult]:
-    """Alternate P- and G-steps from a certified G0; return the smallest certified gain found.
+    """
+    Alternate P- and G-steps from a certified G0; return the smallest certified gain found.
 
     Returns None when G0 itself cannot be certified at the requested rate.
     """

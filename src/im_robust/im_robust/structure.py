@@ -1,4 +1,5 @@
-"""The structured matrix W_o of seed 001 eq. 3.31 and the linear maps of the cone (2.59).
+"""
+The structured matrix W_o of seed 001 eq. 3.31 and the linear maps of the cone (2.59).
 
 In the coordinates x̃ = T x, T = [C; D] (eq. 3.7, 3.26), the state splits into the r outputs
 (index set y) and the n − r complementary coordinates (index set d); the augmented variable adds
@@ -30,7 +31,7 @@ from typing import List, Sequence, Tuple
 
 import numpy as np
 
-from .polytope import Model, augmented
+from .polytope import augmented, Model
 
 
 class StructuredW:
@@ -91,7 +92,9 @@ class StructuredW:
         return maps
 
     def w1_map(self, block: str = 'all') -> np.ndarray:
-        """W₁ (``'all'``, the thesis's F₀ normalization, eq. 2.23/2.30) or only W1y (``'output'``)."""
+        """
+        W₁ (``'all'``, the thesis's F₀ normalization, eq. 2.23/2.30) or only W1y (``'output'``).
+        """
         k = self.n if block == 'all' else self.r
         return self.basis[:, :k, :k]
 

@@ -1,4 +1,5 @@
-"""Robust static output-feedback synthesis by convex programming (seed 001 ch. 2-3).
+"""
+Robust static output-feedback synthesis by convex programming (seed 001 ch. 2-3).
 
 The problem solved is (3.33)/(4.1): in the coordinates x̃ = T x with T = [C; D],
 
@@ -24,23 +25,24 @@ gain (``G is None``) and says why.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
 from .certificate import Certificate, certify
-from .polytope import Model, UncertainSystem, complete_basis, with_decay
-from .structure import StructuredW, apply_map
+from .polytope import complete_basis, Model, UncertainSystem, with_decay
+from .structure import apply_map, StructuredW
 
 SOLVERS = ('clarabel', 'scs', 'cutting-plane')
 
 
 @dataclass
 class SynthesisResult:
-    """Outcome of a synthesis.
+    """
+    Outcome of a synthesis.
 
     status : ``'certified'`` (G is set and certified), ``'infeasible'`` (the solver proved the convex
     problem infeasible — for the cutting plane: within its box bounds), ``'uncertified'`` (the solver
@@ -156,7 +158,8 @@ def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alp
                grid_models: Optional[Sequence[Model]] = None, certify_alpha: Optional[float] = None,
                certify_rho: Optional[float] = None, progress: bool = False,
                **cutting_plane_options) -> SynthesisResult:
-    """Solve (3.33) and certify the gain.
+    """
+    Solve (3.33) and certify the gain.
 
     Parameters
     ----------

@@ -1,4 +1,5 @@
-"""Drive gains at the node period, posed the way the controller and observer use them.
+"""
+Drive gains at the node period, posed the way the controller and observer use them.
 
 The 4-state designs of :mod:`im_controller.gain_design.motor` ask one static gain to make the whole (i, φ_r) ZOH
 model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms that is
@@ -41,23 +42,21 @@ Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_controll
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence
-
-import numpy as np
 
 from im_common.cli import gated_logger
 from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
-
 from im_robust.certificate import Certificate, certify
-from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
-                    parameter_grid, zoh,
-                    sampled_models)
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
+import numpy as np
+
+from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, parameter_grid, sampled_models, Scaling,
+                    THESIS_K1, zoh)
 
 #: parameter grid of the (R_eq, σL_s) vertex models and of the dense certificate grid
 SUBSYSTEM_VERTEX_POINTS = {'R_r': 2, 'L_s': 3, 'L_r': 3, 'L_sr': 5, 'omega_r': 1}
@@ -96,8 +95,12 @@ def subsystem_ab(pts: np.ndarray, T_s: float):
 
 def current_error_system(pts: np.ndarray, T_s: float, *, injection: str = 'voltage',
                          motor: MotorParams = THESIS_MOTOR, name: str = '') -> UncertainSystem:
-    """Per-unit 2×2 models of the current error: (a I, b̃ I) for a voltage gain, (a I, I) for the
-    observer's direct current-error injection. State feedback (C = I)."""
+    """
+    Per-unit 2×2 models of the current error.
+
+    (a I, b̃ I) for a voltage gain, (a I, I) for the observer's direct current-error injection.
+    State feedback (C = I).
+    """
     sc = Scaling.for_motor(motor)
     a, b = subsystem_ab(pts, T_s)
     if injection == 'voltage':
@@ -195,7 +198,8 @@ def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate:
                           sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                           vertex_points=None, certify_points=None, design_reserve: float = 0.02,
                           progress: bool = False) -> LoopDesign:
-    """Certified 2×2 gain of the current-error subsystem at T_s.
+    """
+    Certified 2×2 gain of the current-error subsystem at T_s.
 
     ``decay_rate`` None: ``rate_fraction`` × the largest feasible rate (bisection). The synthesis is
     asked for (1 + ``design_reserve``)·α at the vertex models and the certificate checks α at the
@@ -247,7 +251,9 @@ def _subsystem_models(T_s, sigma_min, motor, vertex_points, certify_points):
 def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
                          sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                          vertex_points=None, certify_points=None) -> Certificate:
-    """The library's certificate for a given current gain K [V/A] on the subsystem at T_s."""
+    """
+    Return the library's certificate for a given current gain K [V/A] on the subsystem at T_s.
+    """
     sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
                                                 certify_points)
     G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
@@ -259,7 +265,8 @@ def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
                           sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                           vertex_points=None, certify_points=None,
                           progress: bool = False) -> Optional[LoopDesign]:
-    """The thesis's current gain K = k I, certified as it is on the current-error subsystem.
+    """
+    Return the thesis's current gain K = k I, certified as it is on the current-error subsystem.
 
     The largest rate α_k for which a common P exists at the vertex models is found by bisection
     (:func:`im_robust.certificate.best_rate`); K is then certified at ``rate_fraction``·α_k on the
@@ -307,8 +314,12 @@ def _observer_system(A_d: np.ndarray, sc: Scaling, name: str) -> UncertainSystem
 
 @dataclass
 class ObserverCertificate:
-    """Certificate of x̂⁺ = A_d x̂ + B_d V + L (i − î): scope 'box' (one P for every parameter
-    point and speed) or 'frozen-parameter' (one P per parameter point, common to every speed)."""
+    """
+    Certificate of x̂⁺ = A_d x̂ + B_d V + L (i − î).
+
+    Scope 'box' (one P for every parameter point and speed) or 'frozen-parameter' (one P per
+    parameter point, common to every speed).
+    """
 
     certified: bool
     scope: str
@@ -344,7 +355,8 @@ def certify_observer_gain(L, T_s: float, *, omega_max: float = 200.0,
                           param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
                           omega_dense: int = OBSERVER_OMEGA_DENSE,
                           progress: bool = False) -> ObserverCertificate:
-    """Certify the 4-state observer error e⁺ = (A_d(p, ω) − L C) e with the library's certificate.
+    """
+    Certify the 4-state observer error e⁺ = (A_d(p, ω) − L C) e with the library's certificate.
 
     First box-wide (vertex models: parameter grid × ``omega_vertices`` speeds, dense check:
     ``omega_dense`` speeds at the same parameter points); if no common P exists, per frozen
@@ -409,7 +421,7 @@ THESIS_OBSERVER_SPEED_STEP = 20.0
 def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
                               motor: MotorParams = THESIS_MOTOR, max_substep: float = 1e-4,
                               skew_injection: bool = True) -> np.ndarray:
-    """The observer's own one-period error map M (SI, 4×4), built column by column from
+    """Return the observer's own one-period error map M (SI, 4×4), built column by column from
     :class:`im_observer.observer.RotorFluxObserver` (thesis structure, ``k_e`` fixed, skew
     injection on) with model parameters ``point`` = (R_r, L_s, L_r, L_sr) and R_s of ``motor``.
 
@@ -449,7 +461,8 @@ def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k
 
 @dataclass
 class ThesisObserverCertificate:
-    """Certificate of the sampled thesis-structure observer (k_e, skew injection) at T_s.
+    """
+    Certificate of the sampled thesis-structure observer (k_e, skew injection) at T_s.
 
     Scope 'frozen-parameter, speed-dependent P': at each parameter point one
     P(ω) = P₀ + (ω/ω_max) P₁ ≻ 0 with ‖M(ω)‖ contracting from P(ω) to P(ω') by ρ for every
@@ -622,7 +635,8 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
 # ---------------------------------------------------------------------------------------------
 def held_coupling_residual(T_s: float, k: float, *, omega_max: float = 200.0,
                            motor: MotorParams = THESIS_MOTOR) -> Dict[str, float]:
-    """Damping of the flux-error mode lost to the *held* cancellation term v ω θ 𝒥 (φ̂ − φ*)_k.
+    """
+    Damping of the flux-error mode lost to the *held* cancellation term v ω θ 𝒥 (φ̂ − φ*)_k.
 
     The plant's coupling −v ω θ 𝒥 f(t) rotates with the field (ρ̇ = v ω + ω_sl); the controller
     holds its sample over the period, so the residual averages to v ω θ ρ̇ (T_s/2) f — in phase
@@ -653,9 +667,13 @@ def choose_flux_coupling(T_s: float, k: float, *, omega_max: float = 200.0,
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class DriveGains:
-    """Both gains at T_s. ``observer_structure`` 'thesis': the observer keeps k_e (1/σ̂) and the
-    skew injection, certified by ``thesis_observer``; 'discrete': the injection L = [ℓ I; 0]
-    of ``observer_current``, certified by ``observer``."""
+    """
+    Both gains at T_s.
+
+    ``observer_structure`` 'thesis': the observer keeps k_e (1/σ̂) and the skew injection,
+    certified by ``thesis_observer``; 'discrete': the injection L = [ℓ I; 0] of
+    ``observer_current``, certified by ``observer``.
+    """
 
     T_s: float
     omega_max: float
@@ -681,7 +699,7 @@ class DriveGains:
 
     @property
     def k_e(self) -> Optional[float]:
-        """The thesis-structure observer's k_e (None with the discrete injection)."""
+        """Return the thesis-structure observer's k_e (None with the discrete injection)."""
         t = self.thesis_observer
         return t.k_e if self.observer_structure == 'thesis' and t is not None else None
 
@@ -717,7 +735,7 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
                        current_policy: str = 'thesis-if-certified',
                        observer_structure: str = 'auto',
                        progress: bool = False) -> DriveGains:
-    """Current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
+    """Return the current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
     flux-coupling choice at T_s.
 
     ``current_policy`` 'thesis-if-certified' (default, ``decay_rate`` None): keep the thesis's
@@ -733,10 +751,10 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
         raise ValueError(f'omega_max = {omega_max!r} must be >= 0 rad/s')
     if current_policy not in ('thesis-if-certified', 'synthesis'):
         raise ValueError(f"current_policy must be 'thesis-if-certified' or 'synthesis', "
-                         f"got {current_policy!r}")
+                         f'got {current_policy!r}')
     if observer_structure not in ('auto', 'thesis', 'discrete'):
         raise ValueError(f"observer_structure must be 'auto', 'thesis' or 'discrete', "
-                         f"got {observer_structure!r}")
+                         f'got {observer_structure!r}')
     kw = dict(sigma_min=sigma_min, motor=motor, vertex_points=vertex_points,
               certify_points=certify_points, rate_fraction=rate_fraction, progress=progress)
     cur = None

@@ -1,4 +1,5 @@
-"""Robust sampled gains for the induction-motor drive (seed 001 applied to seed 000).
+"""
+Robust sampled gains for the induction-motor drive (seed 001 applied to seed 000).
 
 Model. Seed 000 eq. 1.112, state x = [i_α, i_β, φ_rα, φ_rβ] (A, A, Wb, Wb), input V_αβ (V), the
 mechanical speed ω_r (rad/s) a parameter, electrical speed v·ω_r:
@@ -44,20 +45,18 @@ so for the current loop α is bounded by min R_r/L_r = 0.42/0.116 ≈ 3.6 1/s wh
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
-
-import numpy as np
-from scipy.linalg import expm
 
 from im_common.cli import gated_logger
 from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
-
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
+import numpy as np
+from scipy.linalg import expm
 
 DEFAULT_BOX: Dict[str, Tuple[float, float]] = {
     'R_r': (0.42, 1.26), 'L_s': (0.084, 0.116), 'L_r': (0.084, 0.116), 'L_sr': (0.081, 0.113)}
@@ -80,7 +79,8 @@ def zoh(A: np.ndarray, B: np.ndarray, T_s: float) -> Tuple[np.ndarray, np.ndarra
 def parameter_grid(points: Dict[str, int] | int, omega_max: float,
                    box: Optional[Dict[str, Tuple[float, float]]] = None,
                    sigma_min: float = DEFAULT_SIGMA_MIN) -> np.ndarray:
-    """Rows (R_r, L_s, L_r, L_sr, ω_r) of a regular grid of the box ∩ {σ ≥ σ_min}.
+    """
+    Rows (R_r, L_s, L_r, L_sr, ω_r) of a regular grid of the box ∩ {σ ≥ σ_min}.
 
     ``points`` is a count per name of :data:`PARAM_NAMES` (or one count for all); a count of 1 takes
     the middle of the interval. Grid values of L_sr beyond the σ = σ_min surface are moved onto it
@@ -146,7 +146,9 @@ class Scaling:
 
 def current_loop_system(A_d: np.ndarray, B_d: np.ndarray, scaling: Scaling,
                         name: str = 'current loop') -> UncertainSystem:
-    """Per-unit (Ã, B̃, C̃) of the current loop: Ã = S⁻¹ A_d S, B̃ = S⁻¹ B_d S_u, C̃ = S_y⁻¹ C S."""
+    """
+    Per-unit (Ã, B̃, C̃) of the current loop: Ã = S⁻¹ A_d S, B̃ = S⁻¹ B_d S_u, C̃ = S_y⁻¹ C S.
+    """
     S, Si = scaling.S, np.linalg.inv(scaling.S)
     models = [(Si @ A @ S, Si @ B @ scaling.S_u) for A, B in zip(A_d, B_d)]
     C = np.linalg.inv(scaling.S_y) @ C_CURRENT @ S
@@ -206,7 +208,8 @@ DEFAULT_CERTIFY_POINTS = {'R_r': 5, 'L_s': 5, 'L_r': 5, 'L_sr': 5, 'omega_r': 41
 
 
 def _current_D_candidates() -> List[np.ndarray]:
-    """Choices of D for T = [C; D] tried in turn (step 4 of §3.3: redefine D when C is empty).
+    """
+    Choices of D for T = [C; D] tried in turn (step 4 of §3.3: redefine D when C is empty).
 
     Per-unit coordinates: [0 I] (rotor flux), then rotor-current-like and stator-flux-like mixes.
     """
@@ -221,7 +224,8 @@ def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_ra
                         motor: MotorParams = THESIS_MOTOR, sigma_min: float = DEFAULT_SIGMA_MIN,
                         vertex_points=None, certify_points=None, margin: float = 1e-6,
                         design_extra_rate: float = 1.0, progress: bool = False) -> GainDesign:
-    """Robust 2×2 current gain K (ΔV = −K(i − i*)) at the period T_s with |λ| < exp(−α T_s).
+    """
+    Robust 2×2 current gain K (ΔV = −K(i − i*)) at the period T_s with |λ| < exp(−α T_s).
 
     Solves seed 001 (3.33) with ``normalization='output'`` and a small ε (``margin``; the rate is the
     margin that matters here) in per-unit coordinates, trying the D of
@@ -299,7 +303,8 @@ def design_observer_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_r
 # The thesis's continuous gains, sampled
 # ---------------------------------------------------------------------------------------------
 def thesis_continuous_gains(motor: MotorParams = THESIS_MOTOR) -> Tuple[np.ndarray, np.ndarray]:
-    """K_c = k1·I (V/A) and the observer injection L_c (1/s on the current error), seed 000.
+    """
+    K_c = k1·I (V/A) and the observer injection L_c (1/s on the current error), seed 000.
 
     The observer (eq. 3.27) is D x̂' + (C + R) x̂ = M V + F (x − x̂) with F = diag(k_e I₂, 0) and
     D = diag(σL_s I₂, (1/L_r) I₂); in explicit form the injection is D⁻¹F = [k_e/(σ L_s) I₂; 0] with
@@ -324,7 +329,9 @@ def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
 
 def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
                           points=None, sigma_min: float = DEFAULT_SIGMA_MIN) -> Dict[str, float]:
-    """Worst spectral radius of the sampled current loop and observer error with the thesis's gains."""
+    """
+    Worst spectral radius of the sampled current loop and observer error with the thesis's gains.
+    """
     grid = parameter_grid(points or DEFAULT_CERTIFY_POINTS, omega_max, sigma_min=sigma_min)
     A_d, B_d = sampled_models(grid, T_s, motor)
     K, L = thesis_gains_sampled(T_s, motor)
@@ -337,7 +344,8 @@ def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0, motor: MotorP
 def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
                                 T_min: float = 1e-5, T_max: float = 2e-3, samples: int = 60,
                                 points=None, refine_steps: int = 12) -> Dict[str, object]:
-    """Largest T_s at which the thesis's gains (K = 40 I, k_e = 1/σ) keep every model stable.
+    """
+    Largest T_s at which the thesis's gains (K = 40 I, k_e = 1/σ) keep every model stable.
 
     Grid search over log-spaced T_s in [T_min, T_max], then bisection between the last stable and
     the first unstable sample, separately for the current loop and the observer. "Stable" means
