@@ -138,8 +138,12 @@ def decode_qos_string(text: str, where: str) -> list:
 
 
 def decode_bag_metadata(text: str) -> dict:
-    """``YAML::convert<BagMetadata>::decode`` on ``YAML::Load(text)``: the decoded fields, or
-    :class:`Rosbag2Error` where rosbag2 throws."""
+    """
+    Decode a metadata record as rosbag2 does.
+
+    ``YAML::convert<BagMetadata>::decode`` on ``YAML::Load(text)``: the decoded fields, or
+    :class:`Rosbag2Error` where rosbag2 throws.
+    """
     try:
         node = yaml.load(text, Loader=yaml.BaseLoader)
     except yaml.YAMLError as exc:

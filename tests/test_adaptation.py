@@ -104,11 +104,15 @@ def test_improved_law_converges_after_rotor_resistance_step():
 
 @pytest.mark.parametrize('feed', ['thesis_pair', 'inverse_gamma'])
 def test_estimates_hold_when_excitation_vanishes(feed):
-    """The drive adapts R_R (truth 30 % above the model) for 1 s, then the inverter applies the
-    zero vector: the short-circuited motor brakes hard (the speed swings from 61 to -50 rad/s),
-    its currents and flux decay to nothing. Through the decay the estimates keep using what
-    information is left and stay on the truth; once nothing carries information they hold
-    exactly (the information floor, docs/adaptation.md §4, §8), neither drifting nor winding up."""
+    """
+    Check that the estimates hold through a short-circuit braking.
+
+    The drive adapts R_R (truth 30 % above the model) for 1 s, then the inverter applies the zero
+    vector: the short-circuited motor brakes hard (the speed swings from 61 to -50 rad/s), its
+    currents and flux decay to nothing. Through the decay the estimates keep using what information
+    is left and stay on the truth; once nothing carries information they hold exactly (the
+    information floor, docs/adaptation.md §4, §8), neither drifting nor winding up.
+    """
     true = P.with_values(R_r=1.3 * P.R_r)
 
     def supply_then_zero_vector(k, state):
@@ -320,11 +324,15 @@ def test_schedule_without_variation_is_constant():
 
 
 def test_flux_corner_follows_the_stator_frequency_at_low_speed():
-    """A 0.5 Hz supply (ω_e = π rad/s, below the 5 rad/s corner) and a rotor resistance rising
-    like chapter 4's (0.42 Ω/s). The improved law's corner follows the stator frequency
-    (κ|ω_e| = 1.26 rad/s), so the voltage model carries the rotor equation and R̂_R follows the
-    ramp closely; a corner fixed at 5 rad/s hands the regression mostly its own current model,
-    whose flux obeys the old estimates, and R̂_R lags more (docs/adaptation.md §2)."""
+    """
+    Check the improved law's corner at a very low supply frequency.
+
+    A 0.5 Hz supply (ω_e = π rad/s, below the 5 rad/s corner) and a rotor resistance rising like
+    chapter 4's (0.42 Ω/s). The improved law's corner follows the stator frequency (κ|ω_e| = 1.26
+    rad/s), so the voltage model carries the rotor equation and R̂_R follows the ramp closely; a
+    corner fixed at 5 rad/s hands the regression mostly its own current model, whose flux obeys the
+    old estimates, and R̂_R lags more (docs/adaptation.md §2).
+    """
     from im_common.params import ramp
     f = 0.5
 

@@ -100,12 +100,16 @@ def test_recorder_node_records_what_was_published(tmp_path):
 
 
 def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path):
-    """A recorder that joins a running graph may see the lock-step topics before the plant's
-    status (discovery under load took 2 s; 27 000 messages): it keeps a bounded window of what it
-    cannot verify yet, and when that is full the oldest goes to /im/refused, not the newest — so
-    what it keeps reaches up to the moment it learns the run, and the recording has no gap
-    between the kept window and what follows (a fresh-clone make test once recorded 0.725 s,
-    then nothing until 0.94 s)."""
+    """
+    Check that a late recorder keeps the newest unverified messages.
+
+    A recorder that joins a running graph may see the lock-step topics before the plant's status
+    (discovery under load took 2 s; 27 000 messages): it keeps a bounded window of what it cannot
+    verify yet, and when that is full the oldest goes to /im/refused, not the newest — so what it
+    keeps reaches up to the moment it learns the run, and the recording has no gap between the kept
+    window and what follows (a fresh-clone make test once recorded 0.725 s, then nothing until 0.94
+    s).
+    """
     ctx = Context()
     rclpy.init(context=ctx, domain_id=random.randint(150, 229))
     writer = BagWriter(tmp_path / 'late.mcap')
@@ -135,8 +139,12 @@ LOCK = ['/im/measured/current', '/im/measured/shaft', '/im/command/voltage', '/i
 
 
 class _Run:
-    """A recorder on a private context, fed the signed messages of run 'run1' directly (what
-    its subscriptions would hand it), and a listener of its acknowledgements on /im/progress."""
+    """
+    Return a recorder fed signed messages directly, and a listener.
+
+    A recorder on a private context, fed the signed messages of run 'run1' directly (what its
+    subscriptions would hand it), and a listener of its acknowledgements on /im/progress.
+    """
 
     def __init__(self, tmp_path):
         self.ctx = Context()
@@ -182,9 +190,13 @@ class _Run:
 
 
 def test_missing_steps_are_counted_before_the_first_between_and_after_the_last(tmp_path):
-    """A recording from the start of a run that got the commands only from step 10 on (its
-    reader matched the controller late), lost steps 20-22 of the flux and the last two of the
-    shaft: the bag's metadata counts each of them, on its topic, with its range."""
+    """
+    Check that the bag metadata counts the steps each topic lacks.
+
+    A recording from the start of a run that got the commands only from step 10 on (its reader
+    matched the controller late), lost steps 20-22 of the flux and the last two of the shaft: the
+    bag's metadata counts each of them, on its topic, with its range.
+    """
     r = _Run(tmp_path)
     try:
         r.plant('running', 0, mode='lockstep', followers='recorder')

@@ -1,6 +1,10 @@
-"""The hot-path codecs (one struct call per message) give exactly what the general CDR code
-gives, for every frame-id length (its padding) and sequence-length combination, and a truncated
-payload is a CdrError naming the type, as before."""
+"""
+The hot-path codecs give exactly what the general CDR code gives.
+
+The hot-path codecs (one struct call per message) give exactly what the general CDR code gives, for
+every frame-id length (its padding) and sequence-length combination, and a truncated payload is a
+CdrError naming the type, as before.
+"""
 from __future__ import annotations
 
 from im_common import topics as T

@@ -48,8 +48,12 @@ def test_executable_resolves_and_starts(package, executable):
 
 
 def test_plant_process_loads_the_thesis_yaml_and_reports_a_missing_controller():
-    """`ros2 run im_plant plant --ros-args --params-file .../thesis_motor.yaml` starts with the
-    shipped parameters; with no controller it says who it waited for and exits 1."""
+    """
+    Check that the installed plant starts with the shipped parameters.
+
+    `ros2 run im_plant plant --ros-args --params-file .../thesis_motor.yaml` starts with the
+    shipped parameters; with no controller it says who it waited for and exits 1.
+    """
     import random
     from ament_index_python.packages import get_package_share_directory
     yml = os.path.join(get_package_share_directory('im_plant'), 'config', 'thesis_motor.yaml')

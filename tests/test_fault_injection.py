@@ -213,8 +213,12 @@ def test_sigterm_during_reestimate_leaves_a_complete_output(tmp_path):
 
 
 def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
-    """The live summary (streamed while the run went) and the report of the bag it recorded are
-    the same numbers."""
+    """
+    Check that the live summary equals the report of the recorded bag.
+
+    The live summary (streamed while the run went) and the report of the bag it recorded are the
+    same numbers.
+    """
     import json
     summary = json.loads(short_bag.with_suffix('.json').read_text())
     r = run_tool('report', short_bag, '--no-plots', '--out', tmp_path / 'rep')
@@ -406,8 +410,12 @@ def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, pro
 
 
 def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(tmp_path):
-    """A configuration only the node's own process sees (here a parameter given to the
-    controller on its command line) still ends every process at once, with the node's line."""
+    """
+    Check that a node's own configuration error ends every process.
+
+    A configuration only the node's own process sees (here a parameter given to the controller on
+    its command line) still ends every process at once, with the node's line.
+    """
     from im_bringup.processes import failure_line, graph_processes, run_processes
     procs = graph_processes('speed', duration=0.02)
     for p in procs:

@@ -192,8 +192,12 @@ def test_a_node_at_another_period_is_refused_by_name():
 
 
 def test_non_finite_command_is_refused_and_held_by_the_observer(ros_context):
-    """A NaN on /im/command/voltage (the plant rejects and holds it) must not kill the observer
-    either: refused, logged with its stamp, counted, the previous command held."""
+    """
+    Check that a NaN command does not kill the observer.
+
+    A NaN on /im/command/voltage (the plant rejects and holds it) must not kill the observer
+    either: refused, logged with its stamp, counted, the previous command held.
+    """
     from im_common import topics as T
     from im_common.auth import Signer
     from im_common.conversions import JointStateOut, Vector3Out

@@ -1,6 +1,10 @@
-"""The launch file and the project's own process supervisor start the same graph (one description,
+"""
+The launch file and the process supervisor start the same graph.
+
+The launch file and the project's own process supervisor start the same graph (one description,
 :func:`im_bringup.processes.graph_processes`), and the shipped example YAML is the scenario
-mapping's output (no drift)."""
+mapping's output (no drift).
+"""
 import ast
 import os
 

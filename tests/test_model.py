@@ -40,7 +40,9 @@ def _sampled_sinusoid(k, T_s=T_S, V_hat=V_HAT, omega_e=OMEGA_E):
 # ---------------------------------------------------------------------------------------------
 def _run_and_sample(sim, n_steps, n_tail):
     """
-    Step n_steps with the ZOH sinusoid; return (t, i_s, tau_m, omega) of the last n_tail steps.
+    Step n_steps with the ZOH sinusoid.
+
+    Return (t, i_s, tau_m, omega) of the last n_tail steps.
     """
     ts, i_s, tau, om = [], [], [], []
     for k in range(n_steps):

@@ -73,9 +73,13 @@ def test_the_plan_uses_the_current_limit_and_the_run_keeps_to_it():
 @pytest.mark.parametrize('motor_file', sorted(glob.glob(os.path.join(
     ROOT, 'src', 'im_common', 'config', 'motors', '*.yaml'))))
 def test_every_shipped_motor_plans_within_its_limits(motor_file):
-    """The rating-scaled tasks of make motors (current, voltage limits; a load on the
-    demagnetized start, so part of the torque is beyond any current at t = 0): the plan is made
-    and followed, the losses are below min_loss's and the tracking no worse than twice its."""
+    """
+    Check ``optimal`` on the rating-scaled tasks of make motors.
+
+    The rating-scaled tasks of make motors (current, voltage limits; a load on the demagnetized
+    start, so part of the torque is beyond any current at t = 0): the plan is made and followed,
+    the losses are below min_loss's and the tracking no worse than twice its.
+    """
     from im_studies.study_motors import scaled_scenario
     motor = load_motor_file(motor_file)
     for task in ('position', 'speed'):

@@ -1,5 +1,7 @@
 """
-Motor parameters: validation (the message names the parameter), schedules, derived quantities.
+Motor parameters: validation, schedules, derived quantities.
+
+A validation message names the parameter.
 """
 import math
 
@@ -174,7 +176,9 @@ def test_derived_quantities(p):
 
 def test_thesis_motor_values_are_the_design_table():
     """
-    The defaults are the thesis motor of seed 000 §3.4.1 as listed in the README's parameter table.
+    Check that the defaults are the thesis motor of seed 000 §3.4.1.
+
+    As listed in the README's parameter table.
     """
     p = THESIS_MOTOR
     assert (p.R_s, p.R_r, p.L_s, p.L_r, p.L_sr) == (0.687, 0.842, 0.08397, 0.08528, 0.08136)
@@ -236,8 +240,12 @@ def test_parameter_error_accepts_the_declared_type(value, default):
 
 
 def test_motor_file_integer_for_a_real_is_refused_as_the_nodes_refuse_it(tmp_path):
-    """A motor file read by ``scenario --motor`` and the same file given to a node with
-    ``--params-file`` obey one rule: ``J: 1`` is an integer where a real number is declared."""
+    """
+    Check that a motor file obeys one rule on every path.
+
+    A motor file read by ``scenario --motor`` and the same file given to a node with
+    ``--params-file`` obey one rule: ``J: 1`` is an integer where a real number is declared.
+    """
     from im_common.params import load_motor_file
     p = tmp_path / 'm.yaml'
     p.write_text('/**:\n  ros__parameters:\n    R_s: 0.687\n    R_r: 0.842\n    L_s: 0.08397\n'

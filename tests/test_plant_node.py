@@ -27,7 +27,9 @@ def ctx(ros_context):
 
 def make_plant(ctx, **overrides):
     """
-    Return a plant alone with a stand-in controller: it waits for no other node before step 0.
+    Return a plant alone with a stand-in controller.
+
+    It waits for no other node before step 0.
     """
     params = [Parameter('wait_for', value='')]
     params += [Parameter(k, value=v) for k, v in overrides.items()]
@@ -179,10 +181,14 @@ def test_shaft_decoder_fast_path_equals_the_general_decoder():
 
 
 def test_a_peers_warning_does_not_undo_its_ready(ctx):
-    """A follower that is ready and then warns (a foreign graph's messages refused, real-time
-    scheduling refused, new parameters) is still ready: the warning and parameters events are
-    not states. Two graphs on one domain made the controller warn after 'ready' and the plant
-    waited for it until its startup timeout."""
+    """
+    Check that a follower that warns after 'ready' is still ready.
+
+    A follower that is ready and then warns (a foreign graph's messages refused, real-time
+    scheduling refused, new parameters) is still ready: the warning and parameters events are not
+    states. Two graphs on one domain made the controller warn after 'ready' and the plant waited
+    for it until its startup timeout.
+    """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from im_common.lockstep import PARAMETERS, READY, WARNING, _status_topic, _unsigned
     plant = make_plant(ctx, wait_for='controller', duration=0.01)
@@ -208,8 +214,12 @@ def test_a_peers_warning_does_not_undo_its_ready(ctx):
 
 
 def _graph_summary(task, duration, plant=None, controller_hook=None, **config):
-    """One in-process graph run's summary (the figures ``scenario`` prints and writes), with
-    optional plant parameters and a hook given the controller node before the run."""
+    """
+    Run one in-process graph and return its summary.
+
+    One in-process graph run's summary (the figures ``scenario`` prints and writes), with optional
+    plant parameters and a hook given the controller node before the run.
+    """
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
@@ -256,12 +266,16 @@ def test_a_one_step_voltage_spike_is_in_the_summary():
 
 
 def test_tracking_errors_come_from_the_true_shaft_not_the_noisy_measurement():
-    """Issue 23: with speed measurement noise the summary's speed error was the noise's (0.20
-    rad/s where the true error was 0.009). The plant publishes the true shaft on /im/truth/shaft
-    and every tracking figure uses it: with σ = 0.05 rad/s of noise the summary's speed error is
-    |ω_true − ω*| over the reference instants, exactly, not the measured one (≈ 3σ). (It is not
-    the noise-free run's: the controller's PD acts on the noisy speed, so the shaft really does
-    move more — 0.016 against 0.0009 rad/s here.)"""
+    """
+    Check that the summary's speed error is the true one under measurement noise.
+
+    Issue 23: with speed measurement noise the summary's speed error was the noise's (0.20 rad/s
+    where the true error was 0.009). The plant publishes the true shaft on /im/truth/shaft and
+    every tracking figure uses it: with σ = 0.05 rad/s of noise the summary's speed error is
+    |ω_true − ω*| over the reference instants, exactly, not the measured one (≈ 3σ). (It is not the
+    noise-free run's: the controller's PD acts on the noisy speed, so the shaft really does move
+    more — 0.016 against 0.0009 rad/s here.)
+    """
     s, tr = _graph_summary('speed', 0.3, plant={'speed_noise_std': 0.05, 'noise_seed': 3})
     assert s['ok'], s['failures']
     true_err = np.nanmax(np.abs(tr['omega_true'] - tr['omega_ref']))

@@ -1,5 +1,7 @@
 """
-Tests of the stepped plant: energy books, core-loss accounting, determinism, inverter limit, input checks.
+Tests of the stepped plant.
+
+Energy books, core-loss accounting, determinism, inverter limit, input checks.
 
 The energy balance checked here is the exact identity of the model (see im_common.model):
 

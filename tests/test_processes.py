@@ -383,12 +383,16 @@ def _gains_1ms():
 
 @pytest.mark.parametrize('mode', ['lockstep', 'free_run'])
 def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode):
-    """Two launches (each its own key, the same node names) on one ROS_DOMAIN_ID, the second
-    started while the first runs: both finish (exit 0), each records every step of its run, and
-    in lock-step each computes exactly what it computes alone. Before, each node asked the graph
-    API for every message of the other graph it refused, fell behind the other graph's flood, its
+    """
+    Check two launches on one ROS_DOMAIN_ID, the second started during the first.
+
+    Two launches (each its own key, the same node names) on one ROS_DOMAIN_ID, the second started
+    while the first runs: both finish (exit 0), each records every step of its run, and in
+    lock-step each computes exactly what it computes alone. Before, each node asked the graph API
+    for every message of the other graph it refused, fell behind the other graph's flood, its
     reader history lost its own graph's step and that plant stopped ("no /im/command/voltage
-    stamped 0.468 s ... within 5.0 s")."""
+    stamped 0.468 s ... within 5.0 s").
+    """
     from im_recording.run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph

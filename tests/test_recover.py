@@ -79,9 +79,13 @@ def test_corrupting_each_chunk_in_turn_loses_exactly_that_chunk(tmp_path):
 
 
 def _index_holding_a_data_end_pattern(path):
-    """Chunks whose Message Index records contain ``0f 04 00 00 00 00 00 00 00`` (the bytes of
-    a Data End record): a message at chunk offset 1039 (0x40f) followed in the index by a stamp
-    that is a multiple of 256."""
+    """
+    Build chunks whose Message Index records contain a Data End record's bytes.
+
+    Chunks whose Message Index records contain ``0f 04 00 00 00 00 00 00 00`` (the bytes of a Data
+    End record): a message at chunk offset 1039 (0x40f) followed in the index by a stamp that is a
+    multiple of 256.
+    """
     name = 'r'
     while len(cdr.pack_joint_state(0, 0, (name,), (1.0,), (1.0,))) + 31 < 1039:
         name += 'r'

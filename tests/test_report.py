@@ -165,8 +165,12 @@ def _varied_bag(path, steps=2000, refused=0):
 
 
 def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch):
-    """The running figures, folded batch by batch, are im_common.metrics' definitions on the
-    whole trace (and the estimate errors computed directly), to rounding."""
+    """
+    Check the running figures against the definitions on the whole trace.
+
+    The running figures, folded batch by batch, are im_common.metrics' definitions on the whole
+    trace (and the estimate errors computed directly), to rounding.
+    """
     from im_common.metrics import tracking_figures
 
     from im_recording import run as R
@@ -231,9 +235,13 @@ def _recorder_bag(path, end_state: str, reason: str, steps: int = 76, T_s: float
 
 @pytest.mark.parametrize('state', ['failed', 'stopped'])
 def test_a_run_that_ended_before_its_duration_is_partial_with_the_reason(tmp_path, state):
-    """Issue 23: a multi-process run whose plant exited 1 at 0.76 s of 10 s was reported
-    `partial: false` with no incomplete-runs section. A failed or stopped end (the nodes' own
-    /im/status events, the recorder's run_end) makes it partial, and the report says why."""
+    """
+    Check that a run with a failed or stopped end is reported partial.
+
+    Issue 23: a multi-process run whose plant exited 1 at 0.76 s of 10 s was reported `partial:
+    false` with no incomplete-runs section. A failed or stopped end (the nodes' own /im/status
+    events, the recorder's run_end) makes it partial, and the report says why.
+    """
     reason = 'protection trip at t = 0.760000000 s: |i_s| = 61.2 A above current_trip 60 A'
     bag = tmp_path / 'failed.mcap'
     _recorder_bag(bag, state, reason)

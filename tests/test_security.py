@@ -173,9 +173,13 @@ def test_a_rogue_changes_nothing_in_free_run():
 
 
 def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
-    """The graph as separate processes (as the launch file starts it) with the rogue as another
-    process: same numbers as the in-process graph, every process exits 0, the plant's log and
-    the recording name the rogue, the bag holds only the graph's own lock-step messages."""
+    """
+    Check the graph as separate processes with a rogue process beside it.
+
+    The graph as separate processes (as the launch file starts it) with the rogue as another
+    process: same numbers as the in-process graph, every process exits 0, the plant's log and the
+    recording name the rogue, the bag holds only the graph's own lock-step messages.
+    """
     import random
     from collections import Counter
 
@@ -230,8 +234,12 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
 
 # --- SROS2 ------------------------------------------------------------------------------------
 def test_the_shipped_sros2_policy_is_generated_from_the_nodes_and_matches_the_topic_table():
-    """The policy grants each node exactly what it publishes, subscribes and answers (read off
-    the nodes), and every topic of the table is published only by its owner's enclave."""
+    """
+    Check that the policy grants each node exactly what it uses.
+
+    The policy grants each node exactly what it publishes, subscribes and answers (read off the
+    nodes), and every topic of the table is published only by its owner's enclave.
+    """
     from im_bringup import sros2_policy as P
     repo = os.path.dirname(HERE)
     with open(os.path.join(repo, P.SHIPPED)) as f:
@@ -273,7 +281,9 @@ print(' '.join(sorted(seen)), flush=True)
 @pytest.fixture
 def other_host():
     """
-    Return a network namespace joined to this host by a veth pair: another machine on the subnet.
+    Return a network namespace joined to this host by a veth pair.
+
+    It stands for another machine on the subnet.
     """
     import uuid
     name = 'im' + uuid.uuid4().hex[:8]
@@ -308,9 +318,13 @@ def _seen_from(host, env, seconds=5.0):
 
 def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(tmp_path,
                                                                                 other_host):
-    """Started as the tools start it, the graph cannot be discovered from another machine of the
-    subnet; started with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (on purpose) it can — the
-    control that shows the other host would see it."""
+    """
+    Check that the graph cannot be discovered from another machine.
+
+    Started as the tools start it, the graph cannot be discovered from another machine of the
+    subnet; started with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (on purpose) it can — the control
+    that shows the other host would see it.
+    """
     import random
     from im_bringup.processes import GraphProcesses, graph_processes
     for opened in (False, True):
@@ -364,9 +378,13 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
 
 
 def test_a_message_seen_before_verifies_only_for_its_key_topic_and_run():
-    """A process hashes each message once (im_common.auth keeps the last one signed or verified
-    per key, run and topic): what it saw stays valid only for exactly those, and a copy changed
-    in any byte is hashed and refused."""
+    """
+    Check that a message hashed once stays valid only for its key, run and topic.
+
+    A process hashes each message once (im_common.auth keeps the last one signed or verified per
+    key, run and topic): what it saw stays valid only for exactly those, and a copy changed in any
+    byte is hashed and refused.
+    """
     key = os.urandom(32)
     data = Signer(key, 'run1').sign(T.CMD_VOLTAGE, _msg())
     other = Signer(key, 'run1')                      # another node of the same process

@@ -14,16 +14,24 @@ import pytest
 
 
 def _slowest_pole_at_speed(obs):
-    """Largest real part of the linearized observer + adaptation at 50-150 rad/s, motoring and
-    regenerating, at the thesis's flux and at a third of it."""
+    """
+    Return the largest real part of the linearized poles over the operating points.
+
+    Largest real part of the linearized observer + adaptation at 50-150 rad/s, motoring and
+    regenerating, at the thesis's flux and at a third of it.
+    """
     return max(max(linearized_poles(obs, w, tau, phi).real)
                for w in (50.0, 100.0, 150.0) for tau in (-6.0, -1.0, 1.0, 6.0) for phi in (1.2, 0.4))
 
 
 def test_flux_row_gain_makes_the_speed_estimate_fast_at_speed():
-    """Without a flux-row gain a slow pole (≈ −10 /s, the speed error traded against the
-    flux-angle error through the rotor time constant) sets how fast ω̂ follows an acceleration;
-    the gain moves it beyond −100 /s."""
+    """
+    Check that the flux-row gain speeds up the slow pole.
+
+    Without a flux-row gain a slow pole (≈ −10 /s, the speed error traded against the flux-angle
+    error through the rotor time constant) sets how fast ω̂ follows an acceleration; the gain moves
+    it beyond −100 /s.
+    """
     plain = _slowest_pole_at_speed(SpeedAdaptiveObserver(THESIS_MOTOR, flux_gain=(0.0, 0.0, 0.0)))
     designed = _slowest_pole_at_speed(SpeedAdaptiveObserver(THESIS_MOTOR))
     assert plain > -20.0
@@ -110,8 +118,12 @@ def test_thesis_speed_task_sensorless_with_a_useless_speed_measurement(strategy)
 
 @pytest.mark.parametrize('motor', ['thesis', 'krause_3hp', 'krause_50hp'])
 def test_reversal_through_zero_speed_under_load_on_every_shipped_motor(motor):
-    """±100 rad/s against a constant 1 N·m (regenerating on the way down, plugging through zero),
-    the motor's rating-scaled controller (study_motors); the end within 1 rad/s of the reference."""
+    """
+    Check a sensorless speed reversal under load.
+
+    ±100 rad/s against a constant 1 N·m (regenerating on the way down, plugging through zero), the
+    motor's rating-scaled controller (study_motors); the end within 1 rad/s of the reference.
+    """
     r = simulate(sensorless_reversal(motor), record_every=10)
     tr = r.trace
     assert r.summary['trip'] is None

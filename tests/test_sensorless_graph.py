@@ -46,9 +46,13 @@ def test_position_task_is_refused_in_sensorless_mode():
 
 
 def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_speed(tmp_path):
-    """Every node its own process (as the launch file starts them, ``sensorless:=true``), the
-    plant's measured speed made useless: every process exits 0, the recording holds the speed
-    estimate at every step, and the numbers equal the in-process run without any noise."""
+    """
+    Check the sensorless graph with every node its own process.
+
+    Every node its own process (as the launch file starts them, ``sensorless:=true``), the plant's
+    measured speed made useless: every process exits 0, the recording holds the speed estimate at
+    every step, and the numbers equal the in-process run without any noise.
+    """
     import random
 
     from im_recording.bag import iter_raw

@@ -25,10 +25,10 @@ Voltage-model stator flux (eq. 4.3) without drift
 
     i.e. ψ̂ = s/(s+ω_c)·∫(V − R̂_s i) + ω_c/(s+ω_c)·ψ_cm: the voltage model above ω_c, the current
     model below it, no integrator left open. ``flux_corner = 0`` gives the thesis's pure integral.
-    The current-model ψ_cm is L̂_σ i + θ̂ φ̂_r from the observer (law 'thesis') or the adapter's own
-    current model with its own L̂_M, R̂_R (law 'improved'). The corner follows the stator frequency
-    ω_e (the rotation rate of that model's rotor flux): ω_c = clip(κ|ω_e|, ω_c,min, ω_c,max), so a
-    drive holding torque at a few rad/s still has the voltage model's information
+    The current-model ψ_cm is L̂_σ i + θ̂ φ̂_r from the observer (law 'thesis') or the adapter's
+    own current model with its own L̂_M, R̂_R (law 'improved'). The corner follows the stator
+    frequency ω_e (the rotation rate of that model's rotor flux): ω_c = clip(κ|ω_e|, ω_c,min,
+    ω_c,max), so a drive holding torque at a few rad/s still has the voltage model's information
     (``flux_corner_ratio`` κ = 0.4, ``flux_corner_min`` 0.5, ``flux_corner`` 5 rad/s).
 
 law = 'thesis' (eq. 4.1-4.9, typos corrected)
@@ -50,12 +50,12 @@ law = 'improved'
     Both sides are filtered by H(s) = ω_f/(s+ω_f) (Tustin; H[dx/dt] = ω_f (x − Hx), exact in the
     discrete filter), giving two real equations per period in (L_σ, R_R, c), linear in R_R and c
     and solved Gauss-Newton style in L_σ. Recursive least squares in information form with
-    exponential forgetting (``memory`` for R_R and c, ``leakage_memory`` for L_σ) and a floor on the
-    information matrix (``didt_floor``, ``i_floor``, ``phi_floor``) so that unexcited directions hold
-    their value instead of winding up. The torque model (4.1) is the quadrature row of this
-    equation and the rotor-loss model (4.5) its inner product with the rotor current, so the
-    thesis's two reference models are both inside it. The controller-facing pair is
-    θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂ hits
+    exponential forgetting (``memory`` for R_R and c, ``leakage_memory`` for L_σ) and a floor on
+    the information matrix (``didt_floor``, ``i_floor``, ``phi_floor``) so that unexcited
+    directions hold their value instead of winding up. The torque model (4.1) is the quadrature row
+    of this equation and the rotor-loss model (4.5) its inner product with the rotor current, so
+    the thesis's two reference models are both inside it. The controller-facing pair is θ̂ =
+    L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂ hits
     its bound R̂_r still keeps R̂_r θ̂² = R̂_R (not the rotor time constant R̂_R/L̂_M): in closed
     loop the terminal rotor resistance is what the controller and observer need most.
 
@@ -199,7 +199,9 @@ class AdaptationGains:
 
     def resolve(self, params: MotorParams, theta0: Optional[float] = None) -> 'AdaptationGains':
         """
-        Return a copy with every ``None`` bound derived from the nominal ``params``; checks consistency.
+        Return a copy with every ``None`` bound derived from ``params``.
+
+        The bounds are checked for consistency.
 
         Raises :class:`InvalidParameter` naming ``sigma_min``/``theta_min`` if the σ̂ bound leaves
         no room for θ̂.
@@ -344,13 +346,15 @@ class ParameterAdapter:
     # ------------------------------------------------------------------------------------
     def estimates(self) -> dict:
         """
-        Return the estimates handed to the controller and observer (topic ``/im/adapter/estimate``).
+        Return the estimates handed to the controller and observer.
 
-        {'R_r', 'theta', 'L_M', 'R_R'}: the controller and observer take the pair (R̂_r, θ̂) of
-        eq. 4.10-4.13 with their L̂_s, L̂_sr, R̂_s fixed; L_M and R_R are the identifiable image
-        (law 'thesis': L_M = L̂_sr θ̂, R_R = R̂_r θ̂²; law 'improved': the least-squares estimates).
-        Law 'improved' with ``feed='inverse_gamma'`` adds 'L_sigma': the controller and observer
-        then take the inverse-Γ set (L̂_σ, L̂_M, R̂_R) whole (every coefficient follows it,
+        Published on ``/im/adapter/estimate``.
+
+        {'R_r', 'theta', 'L_M', 'R_R'}: the controller and observer take the pair (R̂_r, θ̂) of eq.
+        4.10-4.13 with their L̂_s, L̂_sr, R̂_s fixed; L_M and R_R are the identifiable image (law
+        'thesis': L_M = L̂_sr θ̂, R_R = R̂_r θ̂²; law 'improved': the least-squares estimates). Law
+        'improved' with ``feed='inverse_gamma'`` adds 'L_sigma': the controller and observer then
+        take the inverse-Γ set (L̂_σ, L̂_M, R̂_R) whole (every coefficient follows it,
         docs/adaptation.md §7).
         """
         e = {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}

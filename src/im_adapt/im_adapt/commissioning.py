@@ -72,14 +72,14 @@ class Nameplate:
 
     @property
     def pole_pairs(self) -> int:
-        """
-        Return the whole number of pole pairs whose synchronous speed is just above the rated one.
-        """
+        """Return the pole-pair count whose synchronous speed is just above the rated speed."""
         return max(1, int(math.floor(60.0 * self.frequency / self.speed)))
 
     def ratings(self) -> Dict[str, float]:
         """
-        Return the motor file's rating fields in the model's power-invariant αβ frame (docs/limits.md).
+        Return the motor file's rating fields in the model's power-invariant αβ frame.
+
+        See docs/limits.md.
 
         Voltage-vector magnitude = line-to-line RMS voltage, current-vector magnitude = √3
         × line current.
@@ -122,11 +122,15 @@ def _zoh(A: np.ndarray, B: np.ndarray, T_s: float):
 
 
 def standstill_response(ident: np.ndarray, v: np.ndarray, T_s: float, x0=(0.0, 0.0)):
-    """Stator current i_k and magnetizing flux ψ_R,k at t_k of the inverse-Γ model at standstill
-    (one axis) for the voltages v_k held over [t_k, t_k+1], from the state ``x0`` = (i, ψ_R).
+    """
+    Simulate the standstill test on the inverse-Γ model (one axis).
+
+    Stator current i_k and magnetizing flux ψ_R,k at t_k of the inverse-Γ model at standstill (one
+    axis) for the voltages v_k held over [t_k, t_k+1], from the state ``x0`` = (i, ψ_R).
 
     ``ident`` = (R_s, L_σ, L_M, R_R); states i, ψ_R with L_σ di/dt = v − R_s i − dψ_R/dt,
-    dψ_R/dt = R_R i − (R_R/L_M) ψ_R (docs/commissioning.md §2)."""
+    dψ_R/dt = R_R i − (R_R/L_M) ψ_R (docs/commissioning.md §2).
+    """
     from scipy.signal import lfilter
     R_s, L_s, L_M, R_R = (float(x) for x in ident)
     A = np.array([[-(R_s + R_R) / L_s, R_R / (L_s * L_M)], [R_R, -R_R / L_M]])
@@ -164,11 +168,14 @@ class Identified:
     rms_residual: Dict[str, float] = field(default_factory=dict)
 
     def motor(self, ratings: Optional[Dict[str, float]] = None) -> MotorParams:
-        """Return the identified motor in the equal-self-inductance gauge L_s = L_r (equal stator and
-        rotor leakage, the gauge of Krause's T-circuit): L_s = L_r = σL_s + L_M,
-        L_sr = √(L_M L_s), R_r = R_R L_s / L_M. Terminal-equivalent to every gauge
-        (MotorParams.with_identifiable); k_e = k_h = 0 (the core loss does not act on the
-        terminals: docs/commissioning.md §5)."""
+        """
+        Return the identified motor in the equal-self-inductance gauge.
+
+        The gauge is L_s = L_r (equal stator and
+        rotor leakage, the gauge of Krause's T-circuit): L_s = L_r = σL_s + L_M, L_sr = √(L_M L_s),
+        R_r = R_R L_s / L_M. Terminal-equivalent to every gauge (MotorParams.with_identifiable);
+        k_e = k_h = 0 (the core loss does not act on the terminals: docs/commissioning.md §5).
+        """
         v = self.values
         L = v['L_sigma'] + v['L_M']
         return MotorParams(R_s=v['R_s'], R_r=v['R_R'] * L / v['L_M'], L_s=L, L_r=L,
@@ -232,10 +239,13 @@ def _physical_start(v, i, T_s, R_s0):
 
 
 def _arx_start(v, i, T_s, R_s0):
-    """(R_s, L_σ, L_M, R_R) from a second-order ARX fit, mapped through the continuous form
-    Y(s) = (1/L_σ)(s + z)/((s + p1)(s + p2)), z = R_R/L_M, p1 p2 = R_s z/L_σ,
-    p1 + p2 = (R_s + R_R)/L_σ + z. Falls back to the probe's start when the fit is not a
-    passive RL network."""
+    """
+    Start the standstill fit from a second-order ARX model.
+
+    (R_s, L_σ, L_M, R_R) from a second-order ARX fit, mapped through the continuous form Y(s) =
+    (1/L_σ)(s + z)/((s + p1)(s + p2)), z = R_R/L_M, p1 p2 = R_s z/L_σ, p1 + p2 = (R_s + R_R)/L_σ +
+    z. Falls back to the probe's start when the fit is not a passive RL network.
+    """
     Phi = np.column_stack([i[1:-1], i[:-2], v[1:-1], v[:-2]])
     y = i[2:]
     try:
@@ -259,9 +269,13 @@ def _arx_start(v, i, T_s, R_s0):
 
 def fit_mechanics(omega: np.ndarray, tau: np.ndarray, T_s: float, window: int
                   ) -> Tuple[float, float, float, float, float]:
-    """J, b and their standard deviations (and the RMS residual [N·m·s]) from
-    J (ω_end − ω_start) + b ∫ω dt = ∫τ̂ dt over consecutive windows of ``window`` steps
-    (no load on the shaft). ``tau[k]`` acts over [t_k, t_k+1]."""
+    """
+    Fit the inertia J and friction b from the no-load speed run.
+
+    J, b and their standard deviations (and the RMS residual [N·m·s]) from J (ω_end − ω_start) + b
+    ∫ω dt = ∫τ̂ dt over consecutive windows of ``window`` steps (no load on the shaft). ``tau[k]``
+    acts over [t_k, t_k+1].
+    """
     n = (len(omega) - 1) // window
     rows, rhs = [], []
     for w in range(n):
@@ -343,7 +357,7 @@ class Commissioning:
 
     def step(self, i_a: float, i_b: float, omega: float = 0.0):
         """
-        Return the measurement at t_k → the voltage over [t_k, t_k+1] (None: the tests are over).
+        Map the measurement at t_k to the voltage over [t_k, t_k+1] (None: the tests are over).
         """
         if self.done:
             return None
@@ -582,9 +596,12 @@ class Commissioning:
 
 
 def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float:
-    """Return the rotor flux |φ_r| at the nameplate's rated voltage, frequency and speed, in the gauge
-    θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e
-    at the rated slip (docs/commissioning.md §4)."""
+    """
+    Return the rated rotor flux |φ_r| of the nameplate.
+
+    At the nameplate's rated voltage, frequency and speed, in the gauge θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e at the
+    rated slip (docs/commissioning.md §4).
+    """
     we = 2.0 * math.pi * plate.frequency
     vp = plate.pole_pairs
     slip = 1.0 - plate.speed / (60.0 * plate.frequency / vp)
@@ -597,8 +614,11 @@ def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float
 
 
 def simulate_commissioning(plant, com: Commissioning, max_steps: int = 10 ** 7) -> Commissioning:
-    """Run ``com`` on a ROS-free :class:`~im_common.plant_sim.PlantSimulator` (the same order
-    as the lock-step graph: measure t_k, command, integrate)."""
+    """
+    Run ``com`` on a ROS-free :class:`~im_common.plant_sim.PlantSimulator`.
+
+    The order is that of the lock-step graph: measure t_k, command, integrate.
+    """
     for _ in range(max_steps):
         m = plant.measure()
         cmd = com.step(m.i_alpha, m.i_beta, m.omega_r)

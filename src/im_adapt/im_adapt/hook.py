@@ -5,10 +5,10 @@ ROS-free. :class:`LockstepAdapter` gives a :class:`~im_adapt.adaptation.Paramete
 ``step(T_s, t, v_alpha, v_beta, meas, x_hat) -> dict`` interface of the offline loop and records
 the estimates for analysis.
 
-Lock-step order (docs/architecture.md, "Lock-step protocol"): at step k the adapter uses V_k, i_k, ω_k and the observer's x̂_k
-and produces p̂_k+1, used by the controller and the observer at step k+1 — what the adapter node
-does with the topics stamped t_k. The offline loop hands the hook x̂_k (the observer's state
-before its own step k).
+Lock-step order (docs/architecture.md, "Lock-step protocol"): at step k the adapter uses V_k, i_k,
+ω_k and the observer's x̂_k and produces p̂_k+1, used by the controller and the observer at step
+k+1 — what the adapter node does with the topics stamped t_k. The offline loop hands the hook x̂_k
+(the observer's state before its own step k).
 """
 from __future__ import annotations
 

@@ -53,8 +53,12 @@ _RANGES = {
 
 
 def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> ParameterAdapter:
-    """Declare the adaptation gains on ``node`` (``node.param(name, default, description, lo, hi)``)
-    and return the adapter. Invalid values raise :class:`InvalidParameter` naming the parameter."""
+    """
+    Declare the adaptation gains on ``node`` and return the adapter.
+
+    Each is declared with ``node.param(name, default, description, lo, hi)``. Invalid values raise
+    :class:`InvalidParameter` naming the parameter.
+    """
     d = AdaptationGains()
     values = {
         'law': node.param('law', d.law, 'adaptation law', choices=list(LAWS)),

@@ -282,10 +282,14 @@ def pack_joint_state(sec: int, nanosec: int, names, position=(), velocity=(), ef
 
 def joint_state_packer(names, n_position: int, n_velocity: int, n_effort: int,
                        frame_id: str = ''):
-    """``pack(sec, nanosec, position, velocity, effort) -> bytes`` for JointStates of fixed names,
+    """
+    Make a one-call packer of JointStates with fixed names, frame id and sequence lengths.
+
+    ``pack(sec, nanosec, position, velocity, effort) -> bytes`` for JointStates of fixed names,
     frame id and sequence lengths: one ``struct`` call instead of :func:`pack_joint_state`'s
-    piecewise build (the graph publishes the plant's shaft and the adapter's estimates every
-    step). Its layout is checked against :func:`pack_joint_state` when it is made."""
+    piecewise build (the graph publishes the plant's shaft and the adapter's estimates every step).
+    Its layout is checked against :func:`pack_joint_state` when it is made.
+    """
     fb = frame_id.encode('utf-8')
     head = bytearray(ENCAPSULATION + bytes(8))
     head += _U32.pack(len(fb) + 1) + fb + b'\x00'

@@ -43,7 +43,9 @@ def logger(prefix: Optional[str] = None, stream=None) -> Callable[[str], None]:
 
 def gated_logger(prefix: Optional[str] = None, stream=None) -> Callable[[bool, str], None]:
     """
-    Like :func:`logger`, called as ``log(enabled, msg)`` by functions with a ``progress`` flag.
+    Return a logger called as ``log(enabled, msg)``, like :func:`logger`.
+
+    For functions with a ``progress`` flag.
     """
     log = logger(prefix, stream)
 

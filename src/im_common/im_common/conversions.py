@@ -101,8 +101,12 @@ def clock_bytes(ns: int) -> bytes:
 # Extractors for LockstepNode.gate_input: serialized message -> (stamp_ns, value).
 def xy_in(data: bytes, _head=__import__('struct').Struct('<iII').unpack_from,
           _xyz=__import__('struct').Struct('<ddd').unpack_from):
-    """(stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair (the layout of
-    :func:`im_common.cdr.decode_vector3_stamped`, inlined: every node decodes several per step)."""
+    """
+    Decode a Vector3Stamped carrying an αβ pair.
+
+    (stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair (the layout of
+    :func:`im_common.cdr.decode_vector3_stamped`, inlined: every node decodes several per step).
+    """
     try:
         sec, nsec, n = _head(data, 4)
         pos = 16 + n
@@ -114,10 +118,14 @@ def xy_in(data: bytes, _head=__import__('struct').Struct('<iII').unpack_from,
 
 
 def _shaft_layout():
-    """Byte layout of the plant's shaft JointState (name ['rotor'], one position, one velocity,
-    no effort, a tagged frame id of fixed length, :mod:`im_common.auth`): its length, the
-    frame-id length field, where the names start, the bytes from there to the values, and the
-    offsets of the two doubles — found by packing a sample, so it follows cdr.pack_joint_state."""
+    """
+    Return the byte layout of the plant's shaft JointState.
+
+    Byte layout of the plant's shaft JointState (name ['rotor'], one position, one velocity, no
+    effort, a tagged frame id of fixed length, :mod:`im_common.auth`): its length, the frame-id
+    length field, where the names start, the bytes from there to the values, and the offsets of the
+    two doubles — found by packing a sample, so it follows cdr.pack_joint_state.
+    """
     import struct
     from .auth import Signer
     a = pack_joint_state(0, 0, ('rotor',), (1.5,), (2.5,), (), Signer.frame(''))
@@ -134,8 +142,12 @@ _SHAFT_MID_END = _SHAFT_NAMES + len(_SHAFT_MIDDLE)
 
 def shaft_in(data: bytes, _unpack=__import__('struct').Struct('<iI').unpack_from,
              _d=__import__('struct').Struct('<d').unpack_from):
-    """(stamp_ns, (theta_r, omega_r)) of the measured-shaft JointState (fixed-layout fast path for
-    the plant's own message; anything else goes through the general decoder)."""
+    """
+    Decode the measured-shaft JointState.
+
+    (stamp_ns, (theta_r, omega_r)) of the measured-shaft JointState (fixed-layout fast path for the
+    plant's own message; anything else goes through the general decoder).
+    """
     if len(data) == _SHAFT_LEN and data[12:16] == _SHAFT_FRAME_LEN \
             and data[_SHAFT_NAMES:_SHAFT_MID_END] == _SHAFT_MIDDLE:
         sec, nsec = _unpack(data, 4)

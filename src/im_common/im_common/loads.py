@@ -118,7 +118,9 @@ LOAD_FIELDS = {'none': (), 'constant': ('tau',), 'pendulum': ('mgl',), 'linear':
 
 def load_from_dict(doc, source: str = 'load') -> Load:
     """
-    Return a load from a description ``{kind: linear, c1: 1.0, c2: 0.001}`` (YAML ``--load`` files).
+    Return a load from a description ``{kind: linear, c1: 1.0, c2: 0.001}``.
+
+    The form of YAML ``--load`` files.
 
     Every error is one line naming ``source`` and the field.
     """
@@ -147,8 +149,12 @@ def load_file(path: str) -> Load:
 
 
 def load_parameters(load: Load) -> dict:
-    """Return the node parameters (``load``, ``load_mgl``, ``load_c1``, ``load_c2``, ``load_tau``) that
-    rebuild ``load`` with :func:`make_load` — plant and controller read the same ones."""
+    """
+    Return the node parameters that rebuild ``load``.
+
+    They are (``load``, ``load_mgl``, ``load_c1``, ``load_c2``, ``load_tau``)
+    that rebuild ``load`` with :func:`make_load` — plant and controller read the same ones.
+    """
     d = load.describe()
     out = {'load': d['kind']}
     for key in LOAD_FIELDS[d['kind']]:

@@ -33,8 +33,12 @@ def _finite(x) -> np.ndarray:
 
 
 def _maxabs(x) -> float:
-    """Largest magnitude over the samples that exist (NaN marks an instant a decimated topic
-    was not sampled at)."""
+    """
+    Return the largest magnitude over the samples that exist.
+
+    Largest magnitude over the samples that exist (NaN marks an instant a decimated topic was not
+    sampled at).
+    """
     x = _finite(x)
     return float(np.max(np.abs(x))) if len(x) else float('nan')
 

@@ -80,8 +80,8 @@ def eq112_coefficients(R_s, R_r, L_s, L_r, L_sr) -> Eq112:
     """
     γ, K, 1/T_r of eq. 1.113 for the (i_s, φ_r) form of the electrical model (constant L).
 
-    With i_r = (φ_r − L_sr i_s)/L_r the flux-linkage equations above become, with 𝒥 = [[0, −1], [1, 0]]
-    and ω_e = v ω_r,
+    With i_r = (φ_r − L_sr i_s)/L_r the flux-linkage equations above become, with 𝒥 = [[0, −1], [1,
+    0]] and ω_e = v ω_r,
 
         di_s/dt = −γ i_s + (K/T_r) φ_r − ω_e K 𝒥 φ_r + V/(σL_s)
         dφ_r/dt = (L_sr/T_r) i_s − φ_r/T_r + ω_e 𝒥 φ_r

@@ -38,7 +38,9 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -
 
 def declare_run(node):
     """
-    T_s (read-only), duration, timeouts. Returns (T_s, duration, input_timeout, startup_timeout).
+    Declare T_s (read-only), duration and the timeouts.
+
+    Returns (T_s, duration, input_timeout, startup_timeout).
     """
     T_s = node.param('T_s', 1e-4, 'control period T_s [s] (whole nanoseconds)', 1e-6, 0.1)
     duration = node.param('duration', 0.0,

@@ -56,9 +56,7 @@ class PhasorSteadyState:
 def phasor_steady_state(R_s: float, R_r: float, L_s: float, L_r: float, L_sr: float,
                         pole_pairs: int, V_hat: complex, omega_e: float,
                         omega_r: float) -> PhasorSteadyState:
-    """
-    Solve the equivalent circuit for a supply ``V_hat·e^{jω_e t}`` at constant shaft speed ω_r.
-    """
+    """Solve the equivalent circuit for a supply ``V_hat·e^{jω_e t}`` at constant speed ω_r."""
     w_sl = omega_e - pole_pairs * omega_r
     M = np.array([[R_s + 1j * omega_e * L_s, 1j * omega_e * L_sr],
                   [1j * w_sl * L_sr, R_r + 1j * w_sl * L_r]], dtype=complex)

@@ -36,7 +36,9 @@ class LatencyHistogram:
 
     def quantile(self, q: float) -> float:
         """
-        Upper edge [s] of the bin holding the q-quantile (inf for the open bin, nan if empty).
+        Return the upper edge [s] of the bin holding the q-quantile.
+
+        inf for the open bin, nan if empty.
         """
         if self.n == 0:
             return float('nan')

@@ -64,8 +64,11 @@ class ParametersFileError(ValueError):
 
 
 def _loader():
-    """Return a safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
-    ``!!python/tuple``)."""
+    """
+    Return a safe YAML loader that, like rcl's parser, ignores tags.
+
+    ``launch_ros`` writes lists as ``!!python/tuple``.
+    """
     class Loader(yaml.SafeLoader):
         pass
 
@@ -85,10 +88,14 @@ def node_name(key) -> str:
 
 
 def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Dict[str, dict]:
-    """``{node: {param: value}}`` of a ROS 2 parameters file (section names as written, e.g.
-    ``/**`` or ``/controller``); with ``nodes``, sections are keyed by node name and a section
-    for a node not in ``nodes`` is refused naming the nearest one. Every problem is one
-    :class:`ParametersFileError` naming the file."""
+    """
+    Read a ROS 2 parameters file as ``{node: {param: value}}``.
+
+    ``{node: {param: value}}`` of a ROS 2 parameters file (section names as written, e.g. ``/**``
+    or ``/controller``); with ``nodes``, sections are keyed by node name and a section for a node
+    not in ``nodes`` is refused naming the nearest one. Every problem is one
+    :class:`ParametersFileError` naming the file.
+    """
     import difflib
     try:
         with open(path) as f:

@@ -1,8 +1,9 @@
 """
 ``ros2 run im_controller design_gains``: certified sampled gains for the controller and observer.
 
-Designs, at the node period T_s, the gains the nodes actually use (``im_controller.gain_design.drive``; derivation
-in docs/robust.md, "Drive gains at the node period"):
+Designs, at the node period T_s, the gains the nodes actually use
+(``im_controller.gain_design.drive``; derivation in docs/robust.md, "Drive gains at the node
+period"):
 
 - controller: the 2×2 current gain K of ΔV = −K (i − i*), designed on the ZOH-sampled
   stator-current error subsystem σL_s de/dt = −R_eq e + ΔV over every (R_eq, σL_s) of the

@@ -75,13 +75,17 @@ def loss_rates(c: ModelCoefficients, y, ydot, tau, omega, k_e: float = 0.0, k_h:
 
 def static_loss_optimal_flux(c: ModelCoefficients, tau: float, omega: float, k_e: float = 0.0,
                              k_h: float = 0.0) -> float:
-    """Return the flux minimizing the steady loss p(y, 0) at a constant τ, ω (the closed form of
-    dp/dy = 0 on the side where v ω y + R_r τ/v has the sign of ω, exponent 2):
+    """
+    Return the flux minimizing the steady loss at a constant τ, ω.
+
+    It minimizes p(y, 0) (the closed form of dp/dy
+    = 0 on the side where v ω y + R_r τ/v has the sign of ω, exponent 2):
 
         y² = (C τ² + T_e c²)/(A + T_e v²ω² + T_h v|ω|),   c = R_r τ/v,
 
     exact (∂f_e/∂φ included) whenever the rotation v ω y + c keeps ω's sign at that y (always
-    when τ and ω have the same sign, or ω = 0)."""
+    when τ and ω have the same sign, or ω = 0).
+    """
     k = loss_constants(c, k_e, k_h)
     cc = c.R_r * tau / c.v
     vw = c.v * omega
@@ -146,13 +150,16 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
               omega_mid: Sequence[float], phi0: float, *, k_e: float = 0.0, k_h: float = 0.0,
               phi_end: Optional[float] = None, phi_cap: Optional[Sequence[float]] = None,
               i_max: Optional[float] = None) -> FluxPlan:
-    """Minimize the losses (copper, plus the core loss when k_e or k_h > 0) over every flux
-    trajectory on the grid ``t`` (N+1 nodes) that delivers the torques ``tau_mid`` at the speeds
-    ``omega_mid`` (N interval midpoints), from φ(t_0) = ``phi0``; the end flux is free unless
-    ``phi_end``. ``phi_cap`` (a number or N+1 node values) bounds φ; ``i_max`` bounds the
-    stator current. Where the limits make the exact torque impossible, the program is re-solved
-    delivering as much of it as they allow (``torque_shortfall``). Raises :class:`PlanError`
-    when no solution is found."""
+    """
+    Plan the loss-optimal flux trajectory for given torques and speeds on a grid.
+
+    Minimize the losses (copper, plus the core loss when k_e or k_h > 0) over every flux trajectory
+    on the grid ``t`` (N+1 nodes) that delivers the torques ``tau_mid`` at the speeds ``omega_mid``
+    (N interval midpoints), from φ(t_0) = ``phi0``; the end flux is free unless ``phi_end``.
+    ``phi_cap`` (a number or N+1 node values) bounds φ; ``i_max`` bounds the stator current. Where
+    the limits make the exact torque impossible, the program is re-solved delivering as much of it
+    as they allow (``torque_shortfall``). Raises :class:`PlanError` when no solution is found.
+    """
     t = np.asarray(t, float)
     tau = np.asarray(tau_mid, float)
     om = np.asarray(omega_mid, float)
@@ -266,8 +273,12 @@ def grid(t0: float, t1: float, step: float) -> np.ndarray:
 
 def plan_along(c: ModelCoefficients, path: Callable[[float], tuple], t0: float, t1: float,
                phi0: float, step: float = 1e-3, **kwargs) -> FluxPlan:
-    """:func:`plan_flux` for a path ``path(t) -> (τ, ω)`` sampled at the midpoints of a grid of
-    ``step`` from t0 to t1."""
+    """
+    Plan the flux along a path of torque and speed.
+
+    :func:`plan_flux` for a path ``path(t) -> (τ, ω)`` sampled at the midpoints of a grid of
+    ``step`` from t0 to t1.
+    """
     t = grid(t0, t1, step)
     mid = 0.5 * (t[:-1] + t[1:])
     tau, om = np.array([path(x) for x in mid], float).T

@@ -25,8 +25,12 @@ SENTINEL_DEFAULTS = {'k_p': 'per-mode default', 'k_v': 'per-mode default',
 
 
 def declare_controller(node) -> dict:
-    """Declare the controller's parameters on ``node``; return their values by name (the
-    :data:`LIVE_PARAMETERS` writable while running, the rest read-only)."""
+    """
+    Declare the controller's parameters on ``node``; return their values by name.
+
+    Declare the controller's parameters on ``node``; return their values by name (the
+    :data:`LIVE_PARAMETERS` writable while running, the rest read-only).
+    """
     def p(name, *args, **kwargs):
         return node.param(name, *args, read_only=name not in LIVE_PARAMETERS, **kwargs)
     v = {}
@@ -92,7 +96,9 @@ def declare_controller(node) -> dict:
 
 def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig:
     """
-    Return the controller configuration from declared parameter values (-1 / 0 / [0.0]: defaults).
+    Return the controller configuration from declared parameter values.
+
+    -1 / 0 / [0.0] mean the defaults.
     """
     v = dict(values)
     gain = list(v.pop('current_gain'))
@@ -117,8 +123,12 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
 
 
 def live_changes(params, values: dict, changes: dict, T_s: float) -> dict:
-    """Return the :meth:`DriveController.reconfigure` changes for new values of live parameters (the
-    node's parameter callback): the same conversions as :func:`config_from_parameters`."""
+    """
+    Return the :meth:`DriveController.reconfigure` changes for new values of live parameters.
+
+    Called by the node's parameter callback; the same conversions as
+    :func:`config_from_parameters`.
+    """
     bad = [k for k in changes if k not in LIVE_PARAMETERS]
     if bad:
         raise ValueError(f"parameter '{bad[0]}' is read-only while running "

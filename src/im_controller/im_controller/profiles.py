@@ -40,6 +40,8 @@ MODE_KIND = {mode: kind for kind, mode in KINDS.items()}
 @dataclass(frozen=True)
 class Profile:
     """
+    Describe a setpoint profile.
+
     ``mode`` ('position' | 'speed' | 'torque') and ``setpoints`` ((t, value, duration|None), ...).
     """
 
@@ -60,8 +62,12 @@ class Profile:
         return t + (d or 0.0)
 
     def as_parameters(self) -> dict:
-        """Return the controller node's parameters for this profile (flat (t, value, duration) triples;
-        duration 0 = the node's ``setpoint_duration``)."""
+        """
+        Return the controller node's parameters for this profile.
+
+        Flat (t, value, duration)
+        triples; duration 0 = the node's ``setpoint_duration``).
+        """
         flat = []
         for t, value, d in self.setpoints:
             flat += [float(t), float(value), float(d or 0.0)]
@@ -120,7 +126,9 @@ def from_setpoints(entries, source: str = 'profile') -> Profile:
 
 def from_samples(kind: str, samples: Sequence[Tuple[float, float]], source: str = 'profile') -> Profile:
     """
-    Return a sampled trajectory: the reference reaches each value at its time (see module doc).
+    Return a sampled trajectory.
+
+    The reference reaches each value at its time (see module doc).
     """
     if kind not in KINDS:
         raise InvalidParameter(f'{source}: kind', kind, f"must be one of {', '.join(KINDS)}")
@@ -180,8 +188,12 @@ def _load_csv(path: str) -> Profile:
 
 
 def from_parameters(flat: Sequence[float]) -> tuple:
-    """``ControllerConfig.setpoints`` from the node parameter ``setpoints`` (flat triples
-    t, value, duration; duration 0 = default; [0.0] = no profile)."""
+    """
+    Read ``ControllerConfig.setpoints`` from the node parameter ``setpoints``.
+
+    ``ControllerConfig.setpoints`` from the node parameter ``setpoints`` (flat triples t, value,
+    duration; duration 0 = default; [0.0] = no profile).
+    """
     flat = list(flat)
     if flat == [0.0] or not flat:
         return ()

@@ -1,5 +1,7 @@
 """
-State reference model and voltage feedforward (seed 000 eq. 3.13, 3.21-3.22, 3.26, 3.29; 4.10-4.12).
+State reference model and voltage feedforward.
+
+Seed 000 eq. 3.13, 3.21-3.22, 3.26, 3.29; 4.10-4.12.
 
 The reference is written in the rotor-flux frame (dq, angle ρ) in terms of the torque τ* and the
 rotor-flux magnitude φ* with their time derivatives, which is eq. 3.13 after the substitution
@@ -10,10 +12,11 @@ rotor-flux magnitude φ* with their time derivatives, which is eq. 3.13 after th
     ω_sl  = R_r τ*/(v φ*²)                 (electrical slip angular frequency, rad/s)
     dρ/dt = v ω_r + ω_sl
 
-These satisfy the constraints (3.7) torque = τ*, (3.8) φ_q = 0 and the rotor equations (3.11)-(3.12).
-The slip of (3.13)/(3.19)/(3.22) is the *electrical* slip angular frequency: with it (3.12) reads
-φ_d ω_sl + R_r i_qr = 0. (The printed (3.12) multiplies ω_sl by v, which contradicts (3.13) for
-v ≠ 1; ω_sl^0 = R_r/(L_r√σ) of (3.19) minimizes the magnetic energy only as an electrical slip.)
+These satisfy the constraints (3.7) torque = τ*, (3.8) φ_q = 0 and the rotor equations
+(3.11)-(3.12). The slip of (3.13)/(3.19)/(3.22) is the *electrical* slip angular frequency: with it
+(3.12) reads φ_d ω_sl + R_r i_qr = 0. (The printed (3.12) multiplies ω_sl by v, which contradicts
+(3.13) for v ≠ 1; ω_sl^0 = R_r/(L_r√σ) of (3.19) minimizes the magnetic energy only as an
+electrical slip.)
 
 In αβ (eq. 3.26, stator currents and rotor fluxes): i* = e^{𝒥ρ}(i_ds*, i_qs*), φ* = e^{𝒥ρ}(φ*, 0).
 
@@ -46,9 +49,10 @@ class ModelCoefficients:
     Electrical coefficients of the (i_s, φ_r) model used by the controller (nominal or estimated).
 
     With the chapter-4 estimates (R̂_r, θ̂ = L̂_sr/L̂_r) and fixed R̂_s, L̂_s, L̂_sr, use
-    :meth:`from_params` with ``R_r`` and ``theta``: then L̂_r = L̂_sr/θ̂, σ̂L̂_s = L̂_s − L̂_sr θ̂ and
-    R̂_eq = R̂_s + R̂_r θ̂², exactly the entries of D̂, R̂ in eq. 4.12. With the inverse-Γ estimates
-    (L̂_M, R̂_R, L̂_σ, R̂_s) every coefficient follows them (``from_params(params, L_M=...)``).
+    :meth:`from_params` with ``R_r`` and ``theta``: then L̂_r = L̂_sr/θ̂, σ̂L̂_s = L̂_s − L̂_sr θ̂
+    and R̂_eq = R̂_s + R̂_r θ̂², exactly the entries of D̂, R̂ in eq. 4.12. With the inverse-Γ
+    estimates (L̂_M, R̂_R, L̂_σ, R̂_s) every coefficient follows them (``from_params(params,
+    L_M=...)``).
     """
 
     R_s: float
@@ -63,7 +67,11 @@ class ModelCoefficients:
     @classmethod
     def from_params(cls, params: MotorParams = THESIS_MOTOR, R_r: Optional[float] = None,
                     theta: Optional[float] = None, **identifiable) -> 'ModelCoefficients':
-        """Return the coefficients of ``params`` with adapted estimates, in one of two parametrizations:
+        """
+        Return the coefficients of ``params`` with adapted estimates.
+
+        The estimates come in one of two
+        parametrizations:
 
         * ``R_r``, ``theta`` — the thesis's (eq. 4.10-4.12): L̂_s, L̂_sr stay, L̂_r = L̂_sr/θ̂;
         * ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``) — the inverse-Γ parameters the

@@ -1,5 +1,7 @@
 """
-Trajectories, reference model (eq. 3.13/3.26), flux strategies and the model inverse (eq. 3.29).
+Trajectories, reference model, flux strategies and the model inverse.
+
+Seed 000 eq. 3.13/3.26 and eq. 3.29.
 """
 import math
 import random
@@ -132,7 +134,9 @@ def test_filter_is_exact_for_held_input():
                                            ('constant_flux', False)])
 def test_feedforward_open_loop_reproduces_the_reference(strategy, hold):
     """
-    Plant started on the reference and driven by V* alone follows the reference (model inverse).
+    Check that a plant started on the reference and driven by V* alone follows it.
+
+    The model inverse.
     """
     omega0 = 100.0
     params = THESIS_MOTOR.with_values(J=1e5)   # constant speed: the test is about the electrical inverse

@@ -1,5 +1,7 @@
 """
-design_gains: certified drive gains at the node period (im_controller.gain_design.drive) and the CLI.
+design_gains: certified drive gains at the node period, and the CLI.
+
+See im_controller.gain_design.drive.
 
 Physics asserted: the certified current gain makes every sampled current-error model contract, the
 thesis's 40 V/A at 1 ms does not (sampled pole a − b·k1 leaves the unit circle), and the offline
@@ -97,8 +99,12 @@ def gains_100us():
 
 
 def test_thesis_observer_error_map_is_the_observers_own():
-    """M built column by column propagates the difference of two observers fed the same data,
-    and differs from the exact held-injection ZOH map only at RK4 order (one 100 µs sub-step)."""
+    """
+    Check the observer's one-period error map M against two observers and the exact map.
+
+    M built column by column propagates the difference of two observers fed the same data, and
+    differs from the exact held-injection ZOH map only at RK4 order (one 100 µs sub-step).
+    """
     from im_common.params import THESIS_MOTOR
     from im_observer.observer import RotorFluxObserver
     m = THESIS_MOTOR

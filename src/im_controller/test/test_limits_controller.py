@@ -113,9 +113,13 @@ def test_current_limit_bounds_the_reference_current():
 
 
 def test_the_fluxes_within_a_current_limit_are_the_roots_of_a_quadratic():
-    """Closed form: at either end of the range the steady currents of τ are exactly i_max,
-    inside it they are below, outside above; beyond any flux's reach the range is the single
-    flux of most torque per ampere, i_d = i_q."""
+    """
+    Check the flux range under a current limit against its closed form.
+
+    Closed form: at either end of the range the steady currents of τ are exactly i_max, inside it
+    they are below, outside above; beyond any flux's reach the range is the single flux of most
+    torque per ampere, i_d = i_q.
+    """
     from im_controller.flux import flux_range_within_current
     c = DriveController(ControllerConfig()).coefficients
 
@@ -139,8 +143,12 @@ def test_the_fluxes_within_a_current_limit_are_the_roots_of_a_quadratic():
 ])
 def test_under_a_current_limit_the_optimizing_strategies_choose_a_flux_that_fits(
         strategy, tau, limit, side):
-    """Under a current limit the flux target of min_energy / min_loss is the nearest to its own
-    optimum whose steady current for τ fits in 0.9 × the limit; constant flux keeps φ_d."""
+    """
+    Check each strategy's flux target under a current limit.
+
+    Under a current limit the flux target of min_energy / min_loss is the nearest to its own
+    optimum whose steady current for τ fits in 0.9 × the limit; constant flux keeps φ_d.
+    """
     from im_controller.flux import FluxStrategy, flux_range_within_current
     c = DriveController(ControllerConfig()).coefficients
     own = FluxStrategy(strategy).target(c, tau, 0.0)

@@ -21,15 +21,17 @@ The first injection is the thesis's F = diag(K_e, 0), K_e = k_e I (default k_e =
 The second injects the current error into the flux rows with exactly the gain that makes the
 error matrix skew apart from R_αβ + F: with x̄ = x − x̂,
 
-    D dx̄/dt + [𝒞̃(ω) + R_αβ + F] x̄ = 0,  𝒞̃(ω) = (vω/L_r)[[0, L_sr 𝒥], [L_sr 𝒥, −𝒥]] = −𝒞̃ᵀ   (eq. 3.28)
+    D dx̄/dt + [𝒞̃(ω) + R_αβ + F] x̄ = 0,  𝒞̃(ω) = (vω/L_r)[[0, L_sr 𝒥], [L_sr 𝒥, −𝒥]] = −𝒞̃ᵀ
+    (eq. 3.28)
 
 so V = ½ x̄ᵀ D x̄ obeys dV/dt = −x̄ᵀ (R_αβ + F) x̄ < 0 for every speed. Without the second
 injection (``skew_injection=False``, the literal F of the thesis) the error still converges in
 practice but V is not monotone at speed (see docs/controller.md and the tests).
 
-Estimates (eq. 4.13): ``set_estimates(R_r, theta)`` replaces R̂_r and θ̂ = L̂_sr/L̂_r (L̂_r = L̂_sr/θ̂,
-L̂_s, L̂_sr, R̂_s fixed); ``set_estimates(L_M=..., R_R=..., L_sigma=...[, R_s=...])`` replaces the
-inverse-Γ parameters, so every coefficient follows the identified motor (docs/adaptation.md §7).
+Estimates (eq. 4.13): ``set_estimates(R_r, theta)`` replaces R̂_r and θ̂ = L̂_sr/L̂_r (L̂_r =
+L̂_sr/θ̂, L̂_s, L̂_sr, R̂_s fixed); ``set_estimates(L_M=..., R_R=..., L_sigma=...[, R_s=...])``
+replaces the inverse-Γ parameters, so every coefficient follows the identified motor
+(docs/adaptation.md §7).
 
 Sampling: each ``step`` integrates [t_k, t_k + T_s] with V held (ZOH) and the measured current and
 speed held at their t_k values, by classical RK4 in sub-steps of at most ``max_substep``.
@@ -116,13 +118,17 @@ class RotorFluxObserver:
 
     def set_estimates(self, R_r: Optional[float] = None, theta: Optional[float] = None,
                       **identifiable) -> None:
-        """Use adapted estimates from now on, in one of two parametrizations:
+        """
+        Use adapted estimates from now on.
+
+        Use adapted estimates from now on, in one of two parametrizations:
 
         * ``R_r`` and/or ``theta`` = L̂_sr/L̂_r (eq. 4.13; L̂_s, L̂_sr, R̂_s fixed);
         * the inverse-Γ set ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``): every
           coefficient follows them, in the rotor gauge of the nominal model (θ = L_sr/L_r of
           ``params``, :meth:`MotorParams.with_identifiable`; docs/adaptation.md §7).
-        Errors (InvalidParameter) name the estimate."""
+        Errors (InvalidParameter) name the estimate.
+        """
         if identifiable:
             unknown = set(identifiable) - set(IDENTIFIABLE_NAMES)
             if unknown:
@@ -168,7 +174,9 @@ class RotorFluxObserver:
     def step(self, T_s: float, v_alpha: float, v_beta: float, i_alpha: float, i_beta: float,
              omega_r: float) -> Tuple[float, float, float, float]:
         """
-        Advance the estimate from t_k to t_k + T_s; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k + T_s.
+        Advance the estimate from t_k to t_k + T_s.
+
+        Returns (î_α, î_β, φ̂_α, φ̂_β) at t_k + T_s.
         """
         if not (T_s > 0.0 and math.isfinite(T_s)):
             raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')

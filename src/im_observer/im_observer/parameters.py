@@ -1,6 +1,9 @@
-"""The observer node's parameters, declared the same way as the other nodes'
-(``node.param(name, default, description, lo, hi)``; see ``im_controller/parameters.py``).
-Nothing here imports rclpy."""
+"""
+The observer node's parameters.
+
+The observer node's parameters, declared the same way as the other nodes' (``node.param(name,
+default, description, lo, hi)``; see ``im_controller/parameters.py``). Nothing here imports rclpy.
+"""
 from __future__ import annotations
 
 

@@ -27,8 +27,8 @@ destabilize regeneration.
 
 Optional low-speed rotation of the error (``error_rotation`` η₀, default 0: off):
 
-    ε = [e_⊥ − η(ω̂) e_∥] / max(|φ̂|², φ_f²),   e_⊥ = e_α φ̂_β − e_β φ̂_α,  e_∥ = e_α φ̂_α + e_β φ̂_β
-    η(ω̂) = −η₀ sign(ω̂) max(0, 1 − |v ω̂|/ω_λ)
+    ε = [e_⊥ − η(ω̂) e_∥] / max(|φ̂|², φ_f²),   e_⊥ = e_α φ̂_β − e_β φ̂_α,  e_∥ = e_α φ̂_α + e_β
+    φ̂_β η(ω̂) = −η₀ sign(ω̂) max(0, 1 − |v ω̂|/ω_λ)
 
 (without the flux-row gain η₀ = 0.3 reduced the regenerating-mode instability; with it, it does
 not help).
@@ -169,12 +169,16 @@ class SpeedAdaptiveObserver:
         return state
 
     def flux_row_gain(self, omega_hat: float):
-        """(Re G, Im G) [Ω] of the flux-row injection dφ̂/dt += G e (complex, e = e_α + j e_β):
+        """
+        Return the flux-row injection gain G.
+
+        (Re G, Im G) [Ω] of the flux-row injection dφ̂/dt += G e (complex, e = e_α + j e_β):
 
             G = −(γ′/K) h [c₀ + (c₁ − j c₂ sign ω̂) / (v|ω̂|)],  h = clip((v|ω̂| − w₀)/(w₁ − w₀), 0, 1)
 
         (docs/sensorless.md §3: fitted to the gains that minimize the slowest linearized pole
-        point by point; zero below w₀ where it would destabilize low-speed regeneration)."""
+        point by point; zero below w₀ where it would destabilize low-speed regeneration).
+        """
         c0, c1, c2 = self.flux_gain
         w0, w1 = self.flux_gain_band
         w_e = abs(self.flux.v * omega_hat)
@@ -196,8 +200,13 @@ class SpeedAdaptiveObserver:
 
 
 def operating_point(params: MotorParams, omega_r: float, torque: float, phi: float) -> dict:
-    """Steady state of the motor at shaft speed ω_r, torque τ and rotor flux |φ_r| = φ, in the
-    synchronous frame with φ_r on the d axis: currents, stator frequency ω_s = vω_r + ω_sl, voltage."""
+    """
+    Return the motor's steady state at speed ω_r, torque τ and rotor flux φ.
+
+    Steady state of the motor at shaft speed ω_r, torque τ and rotor flux |φ_r| = φ, in the
+    synchronous frame with φ_r on the d axis: currents, stator frequency ω_s = vω_r + ω_sl,
+    voltage.
+    """
     p = params
     k = p.L_sr / p.L_r
     i_d = phi / p.L_sr
@@ -215,10 +224,14 @@ def operating_point(params: MotorParams, omega_r: float, torque: float, phi: flo
 
 def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: float,
                      phi: float, params: Optional[MotorParams] = None):
-    """Poles (numpy array) of the observer + speed adaptation linearized about the steady state
-    (ω_r, τ, φ) of the motor ``params`` (default: the observer's own model), continuous time, in
-    the synchronous frame. States (î_d, î_q, φ̂_d, φ̂_q, ∫): the true state is the equilibrium
-    only when the models agree. Local stability ⇔ every real part < 0 (docs/sensorless.md §3)."""
+    """
+    Return the poles of the observer and speed adaptation, linearized.
+
+    Poles (numpy array) of the observer + speed adaptation linearized about the steady state (ω_r,
+    τ, φ) of the motor ``params`` (default: the observer's own model), continuous time, in the
+    synchronous frame. States (î_d, î_q, φ̂_d, φ̂_q, ∫): the true state is the equilibrium only
+    when the models agree. Local stability ⇔ every real part < 0 (docs/sensorless.md §3).
+    """
     import numpy as np
     obs = observer
     p = params if params is not None else obs.params

@@ -1,5 +1,7 @@
 """
-Observer (seed 000 eq. 3.27-3.28): error energy ½ x̄ᵀ D x̄ never increases with exact parameters.
+Observer (seed 000 eq. 3.27-3.28): the error energy never increases.
+
+With exact parameters, ½ x̄ᵀ D x̄ is non-increasing.
 """
 import math
 

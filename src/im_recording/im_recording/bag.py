@@ -124,10 +124,14 @@ def _time(ns: int) -> dict:
 
 
 def qos_profile_dict(profile) -> dict:
-    """One QoS profile (an ``rclpy.qos.QoSProfile``, e.g. a ``TopicEndpointInfo.qos_profile``) as
+    """
+    Encode one QoS profile as rosbag2 Jazzy does for metadata version 9.
+
+    One QoS profile (an ``rclpy.qos.QoSProfile``, e.g. a ``TopicEndpointInfo.qos_profile``) as
     rosbag2 Jazzy encodes it for metadata version 9: policies as their ``rmw`` names
-    (``keep_last``, ``reliable``, ``transient_local``, ``unknown``, ...), durations as
-    ``{sec, nsec}``."""
+    (``keep_last``, ``reliable``, ``transient_local``, ``unknown``, ...), durations as ``{sec,
+    nsec}``.
+    """
     return {'history': profile.history.name.lower(), 'depth': int(profile.depth),
             'reliability': profile.reliability.name.lower(),
             'durability': profile.durability.name.lower(),
@@ -246,8 +250,12 @@ def _same_file(a: Path, b: Path) -> bool:
 
 
 def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'output') -> Path:
-    """Refuse an output that is one of ``inputs`` (same real path or inode; even with
-    ``force``) or that exists (without ``force``). :class:`FileExistsError`, one line."""
+    """
+    Refuse an output that is one of the inputs or that exists.
+
+    Refuse an output that is one of ``inputs`` (same real path or inode; even with ``force``) or
+    that exists (without ``force``). :class:`FileExistsError`, one line.
+    """
     o = Path(out)
     for i in inputs:
         if i is not None and _same_file(o, Path(i)):
@@ -544,8 +552,11 @@ class BagWriter:
         return cid
 
     def expect_topic(self, topic: str, type_name: str) -> None:
-        """Return a topic to declare on its first message (its publishers known by then) or by
-        :meth:`declare_expected`."""
+        """
+        Return a topic to declare on its first message.
+
+        Its publishers are known by then; or declared by :meth:`declare_expected`.
+        """
         cdr.message_class(type_name)            # fails early on unknown types
         self._expected[topic] = type_name
 
@@ -603,8 +614,12 @@ class BagWriter:
             self._flush_chunk()
 
     def write_vector3(self, topic: str, stamp_ns: int, x: float, y: float, z: float = 0.0) -> None:
-        """Fast path: a ``Vector3Stamped`` (frame_id '') stamped ``stamp_ns`` without a message
-        object. The topic must be (or default to) a Vector3Stamped topic."""
+        """
+        Write a Vector3Stamped without a message object (fast path).
+
+        Fast path: a ``Vector3Stamped`` (frame_id '') stamped ``stamp_ns`` without a message
+        object. The topic must be (or default to) a Vector3Stamped topic.
+        """
         s, ns = divmod(stamp_ns, 1_000_000_000)
         self.write_serialized(topic, cdr.pack_vector3_stamped(s, ns, x, y, z), stamp_ns)
 
@@ -698,12 +713,16 @@ class BagWriter:
         return sum(self._counts.values()) + len(self._ix)
 
     def _rosbag2_metadata(self) -> str:
-        """rosbag2's ``BagMetadata`` (version 9) as ``YAML::convert<BagMetadata>::encode`` lays
-        it out: the *bare* mapping (``version`` at the top; the ``rosbag2_bagfile_information:``
+        """
+        Return rosbag2's ``BagMetadata`` record (version 9).
+
+        rosbag2's ``BagMetadata`` (version 9) as ``YAML::convert<BagMetadata>::encode`` lays it
+        out: the *bare* mapping (``version`` at the top; the ``rosbag2_bagfile_information:``
         wrapper belongs to ``metadata.yaml`` files, not to this record) and each topic's
-        ``offered_qos_profiles`` as a YAML list. rosbag2's ``read_metadata()`` decodes it
-        without catching, so a wrong layout aborts ``ros2 bag info``/``play``
-        (``tests/test_rosbag2_compat.py`` applies its rules)."""
+        ``offered_qos_profiles`` as a YAML list. rosbag2's ``read_metadata()`` decodes it without
+        catching, so a wrong layout aborts ``ros2 bag info``/``play``
+        (``tests/test_rosbag2_compat.py`` applies its rules).
+        """
         import yaml
         start = self._t_min or 0
         dur = (self._t_max - self._t_min) if self._t_min is not None else 0

@@ -54,8 +54,12 @@ def _prefixes():
 
 @functools.lru_cache(maxsize=None)
 def msg_file(type_name: str) -> str:
-    """Path of the installed ``.msg`` file of ``pkg/msg/Type`` (ValueError naming the type and
-    where it was looked for)."""
+    """
+    Return the path of the installed ``.msg`` file of ``pkg/msg/Type``.
+
+    Path of the installed ``.msg`` file of ``pkg/msg/Type`` (ValueError naming the type and where
+    it was looked for).
+    """
     m = _TYPENAME.match(type_name)
     if m is None:
         raise ValueError(f'{type_name}: not a message type name (pkg/msg/Type); cannot write '

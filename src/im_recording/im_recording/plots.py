@@ -45,8 +45,12 @@ def _has(run, *keys) -> bool:
 
 
 def _dec(run, *keys):
-    """Time and the given series at the instants where all of them were sampled (decimated
-    topics are NaN in between), thinned to at most MAX_POINTS samples."""
+    """
+    Return the series at the instants where all of them were sampled.
+
+    Time and the given series at the instants where all of them were sampled (decimated topics are
+    NaN in between), thinned to at most MAX_POINTS samples.
+    """
     tr = run.trace
     ok = np.ones(len(tr['t']), bool)
     for k in keys:

@@ -384,8 +384,12 @@ class _Scan:
 
     # -- footer / summary ------------------------------------------------------------------
     def _footer(self) -> Optional[Tuple[int, int, int]]:
-        """(summary start, summary end, footer start) when the file ends in a valid footer and
-        its summary (CRC checked where it has one) parses; None otherwise."""
+        """
+        Locate a valid footer and its summary.
+
+        (summary start, summary end, footer start) when the file ends in a valid footer and its
+        summary (CRC checked where it has one) parses; None otherwise.
+        """
         size = self.size
         fstart = size - 8 - 29
         if fstart < 8 or self.src.read(size - 8, 8) != MAGIC:
@@ -454,9 +458,13 @@ class _Scan:
         return ok
 
     def _starts_here(self, pos: int) -> bool:
-        """Return the records that parse exactly, from ``pos`` on, ending in one that carries a check (a
-        Chunk or Attachment whose CRC matches, a Data End that validates) or at the end of the
-        file. A run found to fail is remembered, so no offset is walked twice."""
+        """
+        Return the records that parse exactly from ``pos`` on.
+
+        The run ends in one that carries a check (a Chunk or Attachment whose CRC matches, a Data
+        End that validates) or at the end of the file. A run found to fail is remembered, so no
+        offset is walked twice.
+        """
         seen: List[int] = []
         ok = self._walk(pos, seen)
         if ok is None:              # too long a run to judge: nothing learnt about its offsets
@@ -606,8 +614,12 @@ class _Scan:
             p += 9 + length
 
     def _torn_index(self, pos: int, length: int) -> bool:
-        """Return the record at ``pos`` is the Message Index of the intact chunk before it, cut by the
-        end of the file (its fields agree with its length and nothing validates after it)."""
+        """
+        Tell whether the record at ``pos`` is a Message Index cut by the end of the file.
+
+        It must belong to the intact chunk before it: its fields agree with its length and nothing
+        validates after it.
+        """
         if self.open_loss is not None or self.last_op not in (OP_CHUNK, OP_MESSAGE_INDEX):
             return False
         head = self.src.read(pos + 9, 6)
@@ -700,8 +712,11 @@ class _Scan:
             self.attachments += 1
 
     def _indexes_last_chunk(self, cid: int, n: int, t0, t1) -> bool:
-        """Return a Message Index read after damage that describes the intact chunk before the damage
-        (same channel, count and stamps), not a lost one."""
+        """
+        Tell whether a Message Index read after damage describes the intact chunk before it.
+
+        Same channel, count and stamps, not a lost chunk.
+        """
         stamps = [m[1] for m in self.last_chunk if m[0] == cid]
         return bool(stamps) and (len(stamps), min(stamps), max(stamps)) == (n, t0, t1)
 
@@ -822,7 +837,9 @@ class _Out:
 
     def chunk(self, inner: bytes, msgs, decls) -> None:
         """
-        Return a validated chunk's messages, with any Schema/Channel it declares in their place.
+        Return a validated chunk's messages.
+
+        Any Schema/Channel it declares comes in its place.
         """
         view = memoryview(inner)
         k = 0

@@ -98,8 +98,12 @@ def _series(path) -> Dict[str, Dict[int, tuple]]:
 
 def reestimate_series(path, config: dict, stop=None
                       ) -> List[Tuple[int, Tuple[float, float, float, float]]]:
-    """[(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k (up to
-    the step at which ``stop()`` turned true, if given)."""
+    """
+    Re-run the observer on the recorded inputs.
+
+    [(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k (up to the step
+    at which ``stop()`` turned true, if given).
+    """
     from im_observer.observer import RotorFluxObserver
     s = _series(path)
     steps = sorted(set(s[MEAS_CURRENT]) & set(s[MEAS_SHAFT]) & set(s[CMD_VOLTAGE]))

@@ -115,8 +115,12 @@ class Run:
 
     @property
     def refused(self) -> Dict[str, int]:
-        """Messages not signed by the recorded graph (a rogue publisher, another graph), per topic
-        they came on, as the recorder kept them on ``/im/refused<topic>``."""
+        """
+        Count the messages not signed by the recorded graph, per topic.
+
+        Messages not signed by the recorded graph (a rogue publisher, another graph), per topic
+        they came on, as the recorder kept them on ``/im/refused<topic>``.
+        """
         n = len(T.REFUSED_PREFIX)
         return {t[n:]: c for t, c in sorted(self.counts.items())
                 if t.startswith(T.REFUSED_PREFIX + '/') and c}
@@ -222,11 +226,14 @@ def decode_topic(topic: str, payloads: List[bytes]):
 
 
 class TraceStream:
-    """:func:`build_trace` in bounded memory: payloads go in with :meth:`add`, and every
-    ``batch`` messages the rows older than the newest ``margin`` master stamps are aligned and
-    handed to ``sinks`` (objects with ``rows(chunk)`` and ``series(series_chunk)``), then
-    dropped. A message stamped before rows already handed on cannot be aligned any more: it is
-    counted in :attr:`late` (the caller reports it), never silently merged.
+    """
+    Align a trace in bounded memory.
+
+    :func:`build_trace` in bounded memory: payloads go in with :meth:`add`, and every ``batch``
+    messages the rows older than the newest ``margin`` master stamps are aligned and handed to
+    ``sinks`` (objects with ``rows(chunk)`` and ``series(series_chunk)``), then dropped. A message
+    stamped before rows already handed on cannot be aligned any more: it is counted in :attr:`late`
+    (the caller reports it), never silently merged.
     """
 
     def __init__(self, sinks=(), batch: int = 40000, margin: int = 256):
@@ -384,8 +391,12 @@ class TraceKeeper:
 
 
 class TruthBooks:
-    """Sink of a :class:`TraceStream` keeping the first and last energy sample and the last
-    parameter sample: all :func:`truth_final_from` needs."""
+    """
+    Keep what :func:`truth_final_from` needs from a trace stream.
+
+    Sink of a :class:`TraceStream` keeping the first and last energy sample and the last parameter
+    sample: all :func:`truth_final_from` needs.
+    """
 
     def __init__(self):
         self.first: Optional[tuple] = None
@@ -703,9 +714,13 @@ def lockstep_topics() -> Tuple[str, ...]:
 
 def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full',
                limit: int = 10000, types: Optional[dict] = None) -> Run:
-    """Return a :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
+    """
+    Analyse a run from its ``(topic, payload)`` pairs.
+
+    Return a :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
     ``trace='full'`` (every row kept); ``'decimated'`` keeps about ``limit``-``2·limit`` rows for
-    the plots, None none. The figures always cover every control instant."""
+    the plots, None none. The figures always cover every control instant.
+    """
     books, figs = TruthBooks(), RunningFigures(lockstep_topics=lockstep_topics())
     sinks = [books, figs]
     keeper = None

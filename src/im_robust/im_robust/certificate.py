@@ -7,12 +7,12 @@ coordinates and with the thesis's sign convention A_cl = A − B G C (seed 001 e
     continuous:  A_cl' P + P A_cl ⪯ −2 α_c P   with α_c > α   at every vertex model
     discrete:    A_cl' P A_cl     ⪯  ρ_c² P    with ρ_c < ρ   at every vertex model
 
-checked with numpy eigenvalues (not by trusting a solver's status). α_c is the guaranteed decay rate
-of V = x'Px (1/s), ρ_c the guaranteed contraction per step. By convexity (eq. 2.22 and Lemma 2.3.1),
-this holds on the convex hull of the vertex models. The same P is then checked on a dense grid of the
-uncertain parameters, together with the eigenvalues of every grid model: for models that are not
-affine in the parameters (a sampled motor model) the grid check is what ties the vertices to the
-physical parameter box — it is evidence, not proof, between grid points.
+checked with numpy eigenvalues (not by trusting a solver's status). α_c is the guaranteed decay
+rate of V = x'Px (1/s), ρ_c the guaranteed contraction per step. By convexity (eq. 2.22 and Lemma
+2.3.1), this holds on the convex hull of the vertex models. The same P is then checked on a dense
+grid of the uncertain parameters, together with the eigenvalues of every grid model: for models
+that are not affine in the parameters (a sampled motor model) the grid check is what ties the
+vertices to the physical parameter box — it is evidence, not proof, between grid points.
 
 P comes from the synthesis (P = W₁⁻¹) when that passes; otherwise from a fresh analysis SDP that
 only sees G and the vertex models.

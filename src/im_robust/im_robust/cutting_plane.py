@@ -6,10 +6,10 @@ Problem (4.2): minimize t over (t, ω) in C_f = {W_o(ω) ∈ C, λ_max(W₃) ≤
 violates it the eigenvector v gives a linear inequality that the point violates and every feasible
 point satisfies (the separating hyperplane of Theorem 2.2.3, eq. 2.25-2.29 and 2.60-2.61):
 
-    Θ_l:        v' Θ_l(W(ω)) v ≤ −ε          (v: top eigenvector of Θ_l)
-    W₁ ⪰ I:     v' W₁(ω) v ≥ 1               (v: bottom eigenvector of W₁)
-    W ⪰ 0:      v' W(ω) v ≥ 0                (v: bottom eigenvector of W)
-    epigraph:   v' W₃(ω) v ≤ t               (v: top eigenvector of W₃) — the (Z^k, γ^k) cut of (4.3)
+    Θ_l:        v' Θ_l(W(ω)) v ≤ −ε          (v: top eigenvector of Θ_l) W₁ ⪰ I:     v' W₁(ω) v ≥ 1
+    (v: bottom eigenvector of W₁) W ⪰ 0:      v' W(ω) v ≥ 0                (v: bottom eigenvector
+    of W) epigraph:   v' W₃(ω) v ≤ t               (v: top eigenvector of W₃) — the (Z^k, γ^k) cut
+    of (4.3)
 
 Each iteration solves the LP over the cuts collected so far (HiGHS through scipy.optimize.linprog
 instead of the thesis's dual simplex with warm start, eq. 4.5-4.8), then adds cuts at its solution.
@@ -27,8 +27,9 @@ t ∈ [0, bound]. The box is part of the problem actually solved:
   iterations are needed, and HiGHS's absolute tolerances (1e-7) act on numbers of size ``bound``.
 
 The iteration count therefore depends on ``bound``, on the tolerances and on which cuts are added
-(``cuts='deepest'`` adds the single most violated constraint cut, as the thesis's ρ* = max ρ_l, plus
-the epigraph cut when λ_max(W₃) > t; ``'all'`` adds one per violated family and vertex) — compare counts with the thesis's 211/103/77 with that in mind.
+(``cuts='deepest'`` adds the single most violated constraint cut, as the thesis's ρ* = max ρ_l,
+plus the epigraph cut when λ_max(W₃) > t; ``'all'`` adds one per violated family and vertex) —
+compare counts with the thesis's 211/103/77 with that in mind.
 """
 from __future__ import annotations
 

@@ -47,7 +47,9 @@ def _aircraft_A(q: float, a23: float = AIRCRAFT_A23_PRINTED) -> np.ndarray:
 
 def example1(a23: float = AIRCRAFT_A23_PRINTED) -> ThesisExample:
     """
-    §4.2.1: aircraft (Galimidi & Barmish), continuous, A uncertain, q ∈ [−1.5, 1.5] (eq. 4.10-4.19).
+    §4.2.1: aircraft (Galimidi & Barmish), continuous, A uncertain.
+
+    q ∈ [−1.5, 1.5] (eq. 4.10-4.19).
 
     ``a23`` is the (2, 3) entry of A: 0.35 as printed, or 0.035 (the reading under which the
     printed W_o is feasible; key ``'1-a23'``).
@@ -84,10 +86,12 @@ def _heli_B(p3: float) -> np.ndarray:
 
 def example2() -> ThesisExample:
     """
-    §4.2.2: helicopter (Keel, Bhattacharyya & Howze), continuous, A and B uncertain (eq. 4.20-4.28).
+    §4.2.2: helicopter (Keel, Bhattacharyya & Howze), continuous.
 
-    p1 = 0.3681 ± 20·0.05, p2 = 1.42 ± 20·0.01, p3 = 3.5446 ± 20·0.04 (eq. 4.23): D_A has 4 vertices
-    (p1, p2), D_B has 2 (p3), so L = 8 vertex models.
+    A and B uncertain (eq. 4.20-4.28).
+
+    p1 = 0.3681 ± 20·0.05, p2 = 1.42 ± 20·0.01, p3 = 3.5446 ± 20·0.04 (eq. 4.23): D_A has 4
+    vertices (p1, p2), D_B has 2 (p3), so L = 8 vertex models.
     """
     r1, r2, r3 = 20 * 0.05, 20 * 0.01, 20 * 0.04
     As = [_heli_A(0.3681 + s1 * r1, 1.42 + s2 * r2) for s1 in (-1, 1) for s2 in (-1, 1)]

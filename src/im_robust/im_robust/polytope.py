@@ -9,10 +9,10 @@ so a *positive* G adds damping when B and C have the usual signs. State feedback
 case C = I (then G = K, eq. 2.5-2.6).
 
 A model set is a list of vertex models ``(A_l, B_l)``. The uncertain system is the convex hull of
-the augmented matrices F_l = [[A_l, −B_l], [0, 0]] (eq. 2.9), so both ways of the thesis are covered:
-``UncertainSystem.product`` builds all N·M pairs of independent vertex sets D_A × D_B (eq. 1.25-1.26),
-while a list of coupled pairs (A and B evaluated at the same parameter point, as for a sampled motor
-model) is passed directly.
+the augmented matrices F_l = [[A_l, −B_l], [0, 0]] (eq. 2.9), so both ways of the thesis are
+covered: ``UncertainSystem.product`` builds all N·M pairs of independent vertex sets D_A × D_B (eq.
+1.25-1.26), while a list of coupled pairs (A and B evaluated at the same parameter point, as for a
+sampled motor model) is passed directly.
 """
 from __future__ import annotations
 

@@ -6,8 +6,8 @@ W1y ≫ I. Minimizing ‖G‖ over quadratically stabilizing gains is not convex
 and P), but each half is: for fixed P, the Lyapunov inequalities are affine in G; for fixed G they
 are affine in P. This module alternates
 
-    P-step:  maximize δ over I ⪯ P ⪯ κ I  with the vertex inequalities at rate α (or ρ) and margin δ
-    G-step:  minimize ‖G‖ with that P fixed and margin δ_min
+    P-step:  maximize δ over I ⪯ P ⪯ κ I  with the vertex inequalities at rate α (or ρ) and margin
+    δ G-step:  minimize ‖G‖ with that P fixed and margin δ_min
 
 starting from a certified gain. The current G stays feasible in the next G-step as long as the
 P-step margin is at least δ_min, so ‖G‖ never increases; every iterate is re-certified by

@@ -1,9 +1,9 @@
 """
 The structured matrix W_o of seed 001 eq. 3.31 and the linear maps of the cone (2.59).
 
-In the coordinates x̃ = T x, T = [C; D] (eq. 3.7, 3.26), the state splits into the r outputs
-(index set y) and the n − r complementary coordinates (index set d); the augmented variable adds
-the m inputs (index set u). The equality constraints C W₁ D' = 0 and W₂' D' = 0 (eq. 3.9, 3.29-3.30)
+In the coordinates x̃ = T x, T = [C; D] (eq. 3.7, 3.26), the state splits into the r outputs (index
+set y) and the n − r complementary coordinates (index set d); the augmented variable adds the m
+inputs (index set u). The equality constraints C W₁ D' = 0 and W₂' D' = 0 (eq. 3.9, 3.29-3.30)
 become the zero pattern
 
           y     d     u
@@ -93,6 +93,8 @@ class StructuredW:
 
     def w1_map(self, block: str = 'all') -> np.ndarray:
         """
+        Return the normalized variables.
+
         W₁ (``'all'``, the thesis's F₀ normalization, eq. 2.23/2.30) or only W1y (``'output'``).
         """
         k = self.n if block == 'all' else self.r

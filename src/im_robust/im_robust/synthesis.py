@@ -44,10 +44,10 @@ class SynthesisResult:
     """
     Outcome of a synthesis.
 
-    status : ``'certified'`` (G is set and certified), ``'infeasible'`` (the solver proved the convex
-    problem infeasible — for the cutting plane: within its box bounds), ``'uncertified'`` (the solver
-    returned a point but the gain failed the independent check; G is None and the candidate is kept
-    in ``rejected_G``) or ``'failed'`` (solver error, iteration limit).
+    status : ``'certified'`` (G is set and certified), ``'infeasible'`` (the solver proved the
+    convex problem infeasible — for the cutting plane: within its box bounds), ``'uncertified'``
+    (the solver returned a point but the gain failed the independent check; G is None and the
+    candidate is kept in ``rejected_G``) or ``'failed'`` (solver error, iteration limit).
     """
 
     status: str

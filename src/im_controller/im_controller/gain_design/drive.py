@@ -1,12 +1,12 @@
 """
 Drive gains at the node period, posed the way the controller and observer use them.
 
-The 4-state designs of :mod:`im_controller.gain_design.motor` ask one static gain to make the whole (i, φ_r) ZOH
-model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms that is
-infeasible (no common Lyapunov function, flux modes fixed by T_r). The controller does not need
-it: it feeds forward the back-EMF and flux terms (seed 000 eq. 3.29), so the current gain only
-has to stabilize the *stator-current error* subsystem. This module designs and certifies that
-(see docs/robust.md, "Drive gains at the node period"):
+The 4-state designs of :mod:`im_controller.gain_design.motor` ask one static gain to make the whole
+(i, φ_r) ZOH model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms
+that is infeasible (no common Lyapunov function, flux modes fixed by T_r). The controller does not
+need it: it feeds forward the back-EMF and flux terms (seed 000 eq. 3.29), so the current gain only
+has to stabilize the *stator-current error* subsystem. This module designs and certifies that (see
+docs/robust.md, "Drive gains at the node period"):
 
 Current loop. With V = V* + ΔV, ΔV_k = −K e_k, e = i − i*, the current error obeys
 
@@ -38,7 +38,8 @@ the period there is no common P over the speeds, so the certificate is per froze
 with an affine speed-dependent P(ω), valid for a bounded speed change per period. Where they do
 not certify (1 ms), the synthesis above is used.
 
-Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_controller.gain_design.motor.Scaling`).
+Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb
+(:class:`im_controller.gain_design.motor.Scaling`).
 """
 from __future__ import annotations
 
@@ -179,8 +180,12 @@ def _feasible(system: UncertainSystem, rho: float) -> bool:
 
 
 def best_feasible_rate(system: UncertainSystem, T_s: float, *, iterations: int = 11) -> float:
-    """Largest α [1/s] (bisection on ρ = exp(−α T_s)) for which (3.33) yields a certified gain on
-    the vertex models; 0 if even ρ = 1 fails."""
+    """
+    Return the largest decay rate α for which a certified current gain exists.
+
+    Largest α [1/s] (bisection on ρ = exp(−α T_s)) for which (3.33) yields a certified gain on the
+    vertex models; 0 if even ρ = 1 fails.
+    """
     if not _feasible(system, 1.0):
         return 0.0
     lo, hi = 0.0, 1.0     # ρ: infeasible ≤ lo, feasible ≥ hi
@@ -201,9 +206,10 @@ def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate:
     """
     Certified 2×2 gain of the current-error subsystem at T_s.
 
-    ``decay_rate`` None: ``rate_fraction`` × the largest feasible rate (bisection). The synthesis is
-    asked for (1 + ``design_reserve``)·α at the vertex models and the certificate checks α at the
-    vertices and on the dense grid (the sampled (a, b) curve bulges out of the hull of its samples).
+    ``decay_rate`` None: ``rate_fraction`` × the largest feasible rate (bisection). The synthesis
+    is asked for (1 + ``design_reserve``)·α at the vertex models and the certificate checks α at
+    the vertices and on the dense grid (the sampled (a, b) curve bulges out of the hull of its
+    samples).
     """
     if not (math.isfinite(T_s) and T_s > 0):
         raise ValueError(f'T_s = {T_s!r} must be a positive period in seconds')
@@ -238,8 +244,12 @@ def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate:
 
 
 def _subsystem_models(T_s, sigma_min, motor, vertex_points, certify_points):
-    """(scaling, vertex points, dense points, vertex system, dense certification models) of the
-    current-error subsystem."""
+    """
+    Set up the current-error subsystem for the gain design.
+
+    (scaling, vertex points, dense points, vertex system, dense certification models) of the
+    current-error subsystem.
+    """
     sc = Scaling.for_motor(motor)
     vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
     cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
@@ -251,9 +261,7 @@ def _subsystem_models(T_s, sigma_min, motor, vertex_points, certify_points):
 def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
                          sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                          vertex_points=None, certify_points=None) -> Certificate:
-    """
-    Return the library's certificate for a given current gain K [V/A] on the subsystem at T_s.
-    """
+    """Return the library's certificate for a current gain K [V/A] on the subsystem at T_s."""
     sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
                                                 certify_points)
     G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
@@ -341,8 +349,12 @@ class ObserverCertificate:
 
 def _certify_strict(system: UncertainSystem, G, rho: float, decay_rate: float, T_s: float,
                     dense) -> Certificate:
-    """certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin
-    is not left at the LMI's numerical floor; certify() falls back to its own P if that fails."""
+    """
+    Certify with a P that leaves margin above the LMI's numerical floor.
+
+    certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin is not
+    left at the LMI's numerical floor; certify() falls back to its own P if that fails.
+    """
     from im_robust.certificate import analysis_lmi
     strict = math.exp(-1.5 * decay_rate * T_s) if decay_rate > 0 else rho
     P = analysis_lmi(system.closed_loops(G), True, rho=strict)
@@ -421,7 +433,10 @@ THESIS_OBSERVER_SPEED_STEP = 20.0
 def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
                               motor: MotorParams = THESIS_MOTOR, max_substep: float = 1e-4,
                               skew_injection: bool = True) -> np.ndarray:
-    """Return the observer's own one-period error map M (SI, 4×4), built column by column from
+    """
+    Return the observer's own one-period error map M.
+
+    M (SI, 4×4) is built column by column from
     :class:`im_observer.observer.RotorFluxObserver` (thesis structure, ``k_e`` fixed, skew
     injection on) with model parameters ``point`` = (R_r, L_s, L_r, L_sr) and R_s of ``motor``.
 
@@ -447,9 +462,13 @@ def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float
 
 def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
                            motor: MotorParams = THESIS_MOTOR):
-    """(M_zoh, A_d): the same held-injection map with the period integrated exactly,
-    M_zoh = A_d − Γ_d H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction
-    were the plant's exact ZOH flow."""
+    """
+    Return the held-injection error map with the period integrated exactly.
+
+    (M_zoh, A_d): the same held-injection map with the period integrated exactly, M_zoh = A_d − Γ_d
+    H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction were the plant's
+    exact ZOH flow.
+    """
     R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
     A, _ = eq112_matrices(motor.R_s, R_r, L_s, L_r, L_sr, motor.pole_pairs, float(omega_r))
     sLs = L_s - L_sr ** 2 / L_r
@@ -495,9 +514,13 @@ class ThesisObserverCertificate:
 
 def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: float, step: float,
                        rho: float):
-    """(P₀, P₁) of P(ω) = P₀ + (ω/ω_max)P₁ with P(±ω_max) ⪰ I and, at every (M, ω),
-    Mᵀ P(ω') M ⪯ ρ² P(ω) for ω' = ω ± step (clipped to the range); None if the SDP fails.
-    For fixed ω the inequality is affine in ω', so the two ends cover every |ω' − ω| ≤ step."""
+    """
+    Find a speed-scheduled Lyapunov matrix P(ω) for the observer error maps.
+
+    (P₀, P₁) of P(ω) = P₀ + (ω/ω_max)P₁ with P(±ω_max) ⪰ I and, at every (M, ω), Mᵀ P(ω') M ⪯ ρ²
+    P(ω) for ω' = ω ± step (clipped to the range); None if the SDP fails. For fixed ω the
+    inequality is affine in ω', so the two ends cover every |ω' − ω| ≤ step.
+    """
     import cvxpy as cp
     n = 4
     P0 = cp.Variable((n, n), symmetric=True)
@@ -523,8 +546,12 @@ def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: floa
 
 
 def _speed_dependent_rate(P0, P1, Ms, ws, omega_max: float, step: float):
-    """(worst ρ_c, worst cond P) of e ↦ M e from P(ω) to P(ω'), ω' ∈ {ω − step, ω, ω + step}
-    clipped, with numpy eigenvalues; (inf, inf) if some P(ω) is not positive definite."""
+    """
+    Check a speed-scheduled P(ω) numerically.
+
+    (worst ρ_c, worst cond P) of e ↦ M e from P(ω) to P(ω'), ω' ∈ {ω − step, ω, ω + step} clipped,
+    with numpy eigenvalues; (inf, inf) if some P(ω) is not positive definite.
+    """
     worst, cond = 0.0, 0.0
     for M, w in zip(Ms, ws):
         lam, V = np.linalg.eigh(P0 + (w / omega_max) * P1)
@@ -545,8 +572,11 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
                             param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
                             omega_dense: int = OBSERVER_OMEGA_DENSE, max_substep: float = 1e-4,
                             progress: bool = False) -> ThesisObserverCertificate:
-    """Certify the observer in the thesis's structure (``k_e`` fixed, default 1/σ̂ of ``motor``
-    — what the node uses with k_e_injection = 0 — plus the speed-scheduled skew injection).
+    """
+    Certify the observer in the thesis's structure.
+
+    Certify the observer in the thesis's structure (``k_e`` fixed, default 1/σ̂ of ``motor`` — what
+    the node uses with k_e_injection = 0 — plus the speed-scheduled skew injection).
 
     Error map: the observer's own M(p, ω) (:func:`thesis_observer_error_map`, RK4 sub-steps) at
     each parameter point (observer model = plant, as in :func:`certify_observer_gain`). With the
@@ -735,7 +765,10 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
                        current_policy: str = 'thesis-if-certified',
                        observer_structure: str = 'auto',
                        progress: bool = False) -> DriveGains:
-    """Return the current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
+    """
+    Return the gains for T_s.
+
+    The current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
     flux-coupling choice at T_s.
 
     ``current_policy`` 'thesis-if-certified' (default, ``decay_rate`` None): keep the thesis's

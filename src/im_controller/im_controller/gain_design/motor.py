@@ -12,13 +12,13 @@ sampled with a zero-order hold at the node period T_s: [A_d B_d; 0 I] = exp([A B
 
 Uncertainty. R_r ∈ [0.42, 1.26] Ω, L_s, L_r ∈ [0.084, 0.116] H, L_sr ∈ [0.081, 0.113] H, ω_r ∈
 [−ω_max, ω_max], R_s at its nominal value; only combinations with σ = 1 − L_sr²/(L_s L_r) ≥ σ_min.
-σ_min must be positive: as σ → 0 the current time constant σL_s/R_eq → 0, the sampled current
-mode becomes a one-step delay with gain 1/R_eq, and a current gain K is stable only for
-K < R_eq ≈ 0.9-1.8 Ω whatever T_s. The default σ_min = 0.05 keeps every point of the chapter-4
-variation profile (σ ∈ [0.051, 0.070]). The set is not a polytope (σ ≥ σ_min is a quadric cut) and A_d, B_d are not affine in the
-parameters (exp of a matrix affine in R_r, ω_r and rational in the inductances). The synthesis
-therefore uses *sampled* vertex models: (A_d, B_d) at a grid of the parameters (``vertex_points``).
-What the certificate then guarantees:
+σ_min must be positive: as σ → 0 the current time constant σL_s/R_eq → 0, the sampled current mode
+becomes a one-step delay with gain 1/R_eq, and a current gain K is stable only for K < R_eq ≈
+0.9-1.8 Ω whatever T_s. The default σ_min = 0.05 keeps every point of the chapter-4 variation
+profile (σ ∈ [0.051, 0.070]). The set is not a polytope (σ ≥ σ_min is a quadric cut) and A_d, B_d
+are not affine in the parameters (exp of a matrix affine in R_r, ω_r and rational in the
+inductances). The synthesis therefore uses *sampled* vertex models: (A_d, B_d) at a grid of the
+parameters (``vertex_points``). What the certificate then guarantees:
 
 - exactly: quadratic stability (with the stated rate) of every model in the convex hull of the
   sampled (A_d, B_d) pairs — including arbitrarily fast variation among them;
@@ -82,10 +82,10 @@ def parameter_grid(points: Dict[str, int] | int, omega_max: float,
     """
     Rows (R_r, L_s, L_r, L_sr, ω_r) of a regular grid of the box ∩ {σ ≥ σ_min}.
 
-    ``points`` is a count per name of :data:`PARAM_NAMES` (or one count for all); a count of 1 takes
-    the middle of the interval. Grid values of L_sr beyond the σ = σ_min surface are moved onto it
-    (L_sr = √((1 − σ_min) L_s L_r)), so the grid covers the stiffest admissible models instead of
-    dropping them; duplicate rows are removed.
+    ``points`` is a count per name of :data:`PARAM_NAMES` (or one count for all); a count of 1
+    takes the middle of the interval. Grid values of L_sr beyond the σ = σ_min surface are moved
+    onto it (L_sr = √((1 − σ_min) L_s L_r)), so the grid covers the stiffest admissible models
+    instead of dropping them; duplicate rows are removed.
     """
     if not 0.0 < sigma_min < 1.0:
         raise ValueError(f'sigma_min = {sigma_min} must be in (0, 1): sigma -> 0 is a motor '
@@ -147,7 +147,9 @@ class Scaling:
 def current_loop_system(A_d: np.ndarray, B_d: np.ndarray, scaling: Scaling,
                         name: str = 'current loop') -> UncertainSystem:
     """
-    Per-unit (Ã, B̃, C̃) of the current loop: Ã = S⁻¹ A_d S, B̃ = S⁻¹ B_d S_u, C̃ = S_y⁻¹ C S.
+    Return the per-unit (Ã, B̃, C̃) of the current loop.
+
+    Ã = S⁻¹ A_d S, B̃ = S⁻¹ B_d S_u, C̃ = S_y⁻¹ C S.
     """
     S, Si = scaling.S, np.linalg.inv(scaling.S)
     models = [(Si @ A @ S, Si @ B @ scaling.S_u) for A, B in zip(A_d, B_d)]
@@ -227,8 +229,8 @@ def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_ra
     """
     Robust 2×2 current gain K (ΔV = −K(i − i*)) at the period T_s with |λ| < exp(−α T_s).
 
-    Solves seed 001 (3.33) with ``normalization='output'`` and a small ε (``margin``; the rate is the
-    margin that matters here) in per-unit coordinates, trying the D of
+    Solves seed 001 (3.33) with ``normalization='output'`` and a small ε (``margin``; the rate is
+    the margin that matters here) in per-unit coordinates, trying the D of
     :func:`_current_D_candidates` in turn. The synthesis asks for α + ``design_extra_rate`` at the
     vertex models and the certificate checks α on the dense grid: without that reserve the
     minimum-norm solution sits on the boundary at the vertices and the dense-grid models just
@@ -306,8 +308,8 @@ def thesis_continuous_gains(motor: MotorParams = THESIS_MOTOR) -> Tuple[np.ndarr
     """
     K_c = k1·I (V/A) and the observer injection L_c (1/s on the current error), seed 000.
 
-    The observer (eq. 3.27) is D x̂' + (C + R) x̂ = M V + F (x − x̂) with F = diag(k_e I₂, 0) and
-    D = diag(σL_s I₂, (1/L_r) I₂); in explicit form the injection is D⁻¹F = [k_e/(σ L_s) I₂; 0] with
+    The observer (eq. 3.27) is D x̂' + (C + R) x̂ = M V + F (x − x̂) with F = diag(k_e I₂, 0) and D
+    = diag(σL_s I₂, (1/L_r) I₂); in explicit form the injection is D⁻¹F = [k_e/(σ L_s) I₂; 0] with
     k_e = 1/σ (§3.4.6), evaluated with the observer's nominal σ̂, L̂_s.
     """
     K_c = THESIS_K1 * np.eye(2)
@@ -318,8 +320,12 @@ def thesis_continuous_gains(motor: MotorParams = THESIS_MOTOR) -> Tuple[np.ndarr
 
 def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
                          ) -> Tuple[np.ndarray, np.ndarray]:
-    """K (unchanged: a static voltage gain) and L = Γ L_c with Γ = ∫₀^{T_s} e^{Aτ} dτ of the nominal
-    model at ω_r = 0 (the injection held over the period like the voltage)."""
+    """
+    Return K and the discrete observer injection L of a continuous one.
+
+    K (unchanged: a static voltage gain) and L = Γ L_c with Γ = ∫₀^{T_s} e^{Aτ} dτ of the nominal
+    model at ω_r = 0 (the injection held over the period like the voltage).
+    """
     K_c, L_c = thesis_continuous_gains(motor)
     A, _ = eq112_matrices(motor.R_s, motor.R_r, motor.L_s, motor.L_r, motor.L_sr,
                           motor.pole_pairs, 0.0)
@@ -330,7 +336,9 @@ def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
 def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
                           points=None, sigma_min: float = DEFAULT_SIGMA_MIN) -> Dict[str, float]:
     """
-    Worst spectral radius of the sampled current loop and observer error with the thesis's gains.
+    Return the worst spectral radius of the sampled loop with the thesis's gains.
+
+    Of the current loop and of the observer error.
     """
     grid = parameter_grid(points or DEFAULT_CERTIFY_POINTS, omega_max, sigma_min=sigma_min)
     A_d, B_d = sampled_models(grid, T_s, motor)
