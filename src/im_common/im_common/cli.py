@@ -1,4 +1,4 @@
-"""
+r"""
 Command-line helpers shared by every executable: one way to parse arguments, log, show progress.
 
 - :func:`parse_args` strips the ROS arguments (``--ros-args ... --``) that ``ros2 run`` / launch
@@ -62,8 +62,8 @@ def progress(k: int, n: int, label: str, log: Optional[Callable[[str], None]] = 
 
 
 def status_line(text: str, *, done: bool = False, stream=None) -> None:
-    """
-    Rewrite the one-line status of a long run in place on stderr (``\\r``); ``done`` ends it.
+    r"""
+    Rewrite the one-line status of a long run in place on stderr (``\r``); ``done`` ends it.
 
     For loops that report how far they are (``status_line(f'{label}: {pct:5.1f} %')``) and their
     final line (``status_line(f'{label}: done in {s:.1f} s', done=True)``).

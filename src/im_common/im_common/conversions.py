@@ -32,9 +32,6 @@ def set_stamp(stamp, ns: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
 
 
-
-
-
 class Vector3Out:
     """
     Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.
@@ -78,7 +75,6 @@ class JointStateOut:
         if pack is None:
             pack = self._packers[key] = joint_state_packer(self.names, *key, self.frame_id)
         return pack(sec, nsec, position, velocity, effort)
-
 
 
 def named_values(names, values, wanted: Sequence[str]) -> dict:

@@ -135,8 +135,9 @@ def load_from_dict(doc, source: str = 'load') -> Load:
         if key == 'kind':
             continue
         if key not in allowed:
+            fields = ', '.join(allowed) or 'none'
             raise InvalidParameter(f'{source}: {key}', val,
-                                   f"unknown for a {kind} load (fields: {', '.join(allowed) or 'none'})")
+                                   f'unknown for a {kind} load (fields: {fields})')
         if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
             raise InvalidParameter(f'{source}: {key}', val, 'must be a finite number')
         values[key] = float(val)

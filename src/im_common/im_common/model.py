@@ -50,7 +50,7 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
 
 
 def currents(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
-    """Stator and rotor currents (i_sα, i_sβ, i_rα, i_rβ) from the flux linkages."""
+    """Return the stator and rotor currents of the flux linkages: (i_sα, i_sβ, i_rα, i_rβ)."""
     det = L_s * L_r - L_sr * L_sr
     i_sa = (L_r * psi_sa - L_sr * phi_ra) / det
     i_sb = (L_r * psi_sb - L_sr * phi_rb) / det
@@ -134,6 +134,7 @@ class MotorModel:
         Exponent of the air-gap flux in the core-loss model (2: the units of k_e, k_h).
     locked : bool
         The shaft is held (a locked-rotor test): dω_r/dt = 0 whatever the torque.
+
     """
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 import numpy as np
 
 
-
 @dataclass(frozen=True)
 class PhasorSteadyState:
     """Steady state of the equivalent circuit (complex phasors at t = 0; SI units)."""

@@ -15,7 +15,7 @@ from typing import Dict, Tuple
 @dataclass(frozen=True)
 class TopicSpec:
     name: str
-    type: str           # ROS type name, e.g. 'geometry_msgs/msg/Vector3Stamped'
+    type: str  # noqa: A003 - ROS type name, e.g. 'geometry_msgs/msg/Vector3Stamped'
     publisher: str      # node that publishes it
     layout: str         # how the fields are used
     critical: bool = False   # on the lock-step critical path
@@ -94,7 +94,8 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(TRUTH_VOLTAGE, V3, 'plant', 'voltage applied by the inverter (after its limit) [V]'),
     TopicSpec(TRUTH_FLUX, V3, 'plant', 'true rotor flux phi_r_alpha, phi_r_beta [Wb]'),
     TopicSpec(TRUTH_TORQUE, V3, 'plant',
-              'x = electromagnetic torque tau_m, y = load torque tau_L, z = friction b*omega [N m]'),
+              'x = electromagnetic torque tau_m, y = load torque tau_L, '
+              'z = friction b*omega [N m]'),
     TopicSpec(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     TopicSpec(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
     TopicSpec(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),

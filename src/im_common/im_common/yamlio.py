@@ -30,7 +30,8 @@ def _plain(node: str, name: str, value):
         if not math.isfinite(value):
             raise ValueError(f'parameter {node}.{name} = {value!r} is not finite')
         return value
-    raise ValueError(f'parameter {node}.{name} has type {type(value).__name__}, not a ROS parameter type')
+    raise ValueError(f'parameter {node}.{name} has type '
+                     f'{type(value).__name__}, not a ROS parameter type')
 
 
 class _Dumper(yaml.SafeDumper):
@@ -46,7 +47,8 @@ def _list_flow(dumper, data):
 _Dumper.add_representer(list, _list_flow)
 
 
-def parameters_yaml(nodes: Mapping[str, Mapping[str, object]], header: Optional[str] = None) -> str:
+def parameters_yaml(nodes: Mapping[str, Mapping[str, object]],
+                    header: Optional[str] = None) -> str:
     """YAML text for ``{node: {param: value}}``; ``header`` (comment lines) goes first."""
     doc: Dict[str, dict] = {}
     for node, params in nodes.items():
