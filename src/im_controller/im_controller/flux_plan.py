@@ -89,7 +89,8 @@ def static_loss_optimal_flux(c: ModelCoefficients, tau: float, omega: float, k_e
     k = loss_constants(c, k_e, k_h)
     cc = c.R_r * tau / c.v
     vw = c.v * omega
-    y2 = (k['C'] * tau * tau + k['Te'] * cc * cc) / (k['A'] + k['Te'] * vw * vw + k['Th'] * abs(vw))
+    y2 = ((k['C'] * tau * tau + k['Te'] * cc * cc)
+          / (k['A'] + k['Te'] * vw * vw + k['Th'] * abs(vw)))
     if omega == 0.0:   # p = (A y² + Cτ² + T_e c²)/y + T_h |c|: the hysteresis part is constant
         y2 = (k['C'] * tau * tau + k['Te'] * cc * cc) / k['A']
     return math.sqrt(math.sqrt(y2))

@@ -72,7 +72,8 @@ def declare_controller(node) -> dict:
                                 'flux exponent of the core-loss model min_loss minimizes (1 or 2)',
                                 1.0, 2.0)
     v['setpoint_duration'] = p('setpoint_duration', 0.5,
-                               'duration of the smooth transition to a new setpoint [s]', 1e-3, 100.0)
+                               'duration of the smooth transition to a new setpoint [s]', 1e-3,
+                               100.0)
     v['setpoints'] = p('setpoints', [0.0],
                        "profile 'setpoint': setpoints the controller applies itself, flat triples "
                        't [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none '
@@ -82,7 +83,8 @@ def declare_controller(node) -> dict:
                            'stator-current magnitude the torque demand may ask for [A] (0: none)',
                            0.0, 1e6)
     v['speed_limit'] = p('speed_limit', 0.0,
-                         'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0, 1e5)
+                         'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0,
+                         1e5)
     v['field_weakening'] = p('field_weakening', True,
                              'cap the flux above base speed so the steady voltage fits v_limit')
     v['voltage_margin'] = p('voltage_margin', DEFAULT_VOLTAGE_MARGIN,
@@ -134,7 +136,8 @@ def live_changes(params, values: dict, changes: dict, T_s: float) -> dict:
         raise ValueError(f"parameter '{bad[0]}' is read-only while running "
                          f"(live: {', '.join(LIVE_PARAMETERS)})")
     merged = dict(values, **changes)
-    if 'current_gain' in changes and 'gain_period' not in changes and len(changes['current_gain']) == 4:
+    if ('current_gain' in changes and 'gain_period' not in changes
+            and len(changes['current_gain']) == 4):
         merged['gain_period'] = T_s
     cfg = config_from_parameters(params, merged, T_s)
     out = {}

@@ -95,7 +95,8 @@ def from_setpoints(entries, source: str = 'profile') -> Profile:
     out = []
     for k, e in enumerate(entries):
         if not isinstance(e, dict):
-            raise InvalidParameter(f'{source}: setpoints[{k}]', e, 'must be a mapping {t: ..., velocity: ...}')
+            raise InvalidParameter(f'{source}: setpoints[{k}]', e,
+                                   'must be a mapping {t: ..., velocity: ...}')
         unknown = [key for key in e if key not in ('t', 'duration', *KINDS)]
         if unknown:
             raise InvalidParameter(f'{source}: setpoints[{k}].{unknown[0]}', e[unknown[0]],
@@ -124,7 +125,8 @@ def from_setpoints(entries, source: str = 'profile') -> Profile:
     return Profile(KINDS[kind], tuple(out), source)
 
 
-def from_samples(kind: str, samples: Sequence[Tuple[float, float]], source: str = 'profile') -> Profile:
+def from_samples(kind: str, samples: Sequence[Tuple[float, float]],
+                 source: str = 'profile') -> Profile:
     """
     Return a sampled trajectory.
 
@@ -157,7 +159,8 @@ def load_profile(path: str) -> Profile:
                                'is missing (expected setpoints: [{t: 0.0, velocity: 100.0}, ...])')
     extra = [k for k in doc if k != 'setpoints']
     if extra:
-        raise InvalidParameter(f'{path}: {extra[0]}', doc[extra[0]], 'unknown key (only setpoints)')
+        raise InvalidParameter(f'{path}: {extra[0]}', doc[extra[0]],
+                               'unknown key (only setpoints)')
     return from_setpoints(doc['setpoints'], source=path)
 
 
@@ -168,7 +171,8 @@ def _load_csv(path: str) -> Profile:
     except OSError as exc:
         raise InvalidParameter('profile file', path, f'cannot be read ({exc.strerror})') from None
     if not rows:
-        raise InvalidParameter(f'{path}', 'empty', f"needs a header t,<{'|'.join(KINDS)}> and rows")
+        raise InvalidParameter(f'{path}', 'empty',
+                               f"needs a header t,<{'|'.join(KINDS)}> and rows")
     header = [h.strip() for h in rows[0]]
     if len(header) != 2 or header[0] != 't' or header[1] not in KINDS:
         raise InvalidParameter(f'{path}: header', ','.join(header),
@@ -176,11 +180,13 @@ def _load_csv(path: str) -> Profile:
     samples = []
     for k, r in enumerate(rows[1:], start=2):
         if len(r) != 2:
-            raise InvalidParameter(f'{path}: line {k}', ','.join(r), 'must be two numbers t, value')
+            raise InvalidParameter(f'{path}: line {k}', ','.join(r),
+                                   'must be two numbers t, value')
         try:
             t, value = float(r[0]), float(r[1])
         except ValueError:
-            raise InvalidParameter(f'{path}: line {k}', ','.join(r), 'must be two numbers t, value') from None
+            raise InvalidParameter(f'{path}: line {k}', ','.join(r),
+                                   'must be two numbers t, value') from None
         if not (math.isfinite(t) and math.isfinite(value)):
             raise InvalidParameter(f'{path}: line {k}', ','.join(r), 'must be finite')
         samples.append((t, value))

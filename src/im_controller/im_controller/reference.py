@@ -99,7 +99,8 @@ class ModelCoefficients:
             raise ValueError(f"estimate 'theta' = {theta!r} must be positive and finite")
         if params.L_s * Lr - params.L_sr ** 2 <= 0.0:
             raise ValueError(f"estimate 'theta' = {theta!r} makes sigma = 1 - L_sr*theta/L_s <= 0")
-        return cls(params.R_s, Rr, params.L_s, Lr, params.L_sr, params.pole_pairs, params.J, params.b)
+        return cls(params.R_s, Rr, params.L_s, Lr, params.L_sr, params.pole_pairs, params.J,
+                   params.b)
 
     @property
     def theta(self) -> float:
@@ -170,12 +171,14 @@ def reference_alpha_beta(c: ModelCoefficients, rho: float, i_ds: float, i_qs: fl
     return (cr * i_ds - sr * i_qs, sr * i_ds + cr * i_qs, cr * phi, sr * phi)
 
 
-def torque_alpha_beta(c: ModelCoefficients, i_a: float, i_b: float, phi_a: float, phi_b: float) -> float:
+def torque_alpha_beta(c: ModelCoefficients, i_a: float, i_b: float, phi_a: float,
+                      phi_b: float) -> float:
     """τ = v (L_sr/L_r)(i_β φ_α − i_α φ_β) (eq. 3.3)."""
     return c.v * c.theta * (i_b * phi_a - i_a * phi_b)
 
 
-def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float, rho: float = 0.0) -> dict:
+def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float,
+                 rho: float = 0.0) -> dict:
     """
     Return the constant-torque, constant-flux operating point of the reference model.
 

@@ -78,7 +78,8 @@ class ThesisPositionProfile(Trajectory):
 
     def __init__(self, theta0: float = -0.5 * math.pi, amplitude: float = 1.2 * math.pi,
                  t0: float = 0.4, k: float = 10.0):
-        self.theta0, self.amplitude, self.t0, self.k = float(theta0), float(amplitude), float(t0), float(k)
+        self.theta0, self.amplitude = float(theta0), float(amplitude)
+        self.t0, self.k = float(t0), float(k)
 
     def sample(self, t: float) -> Sample:
         f, f1, f2, f3 = cubed_gaussian_step(t - self.t0, self.k)
@@ -99,7 +100,8 @@ class ThesisSpeedProfile(Trajectory):
 
     def __init__(self, omega0: float = 135.0, amplitude: float = 45.0, t0: float = 0.2,
                  k: float = 10.0, theta0: float = 0.0):
-        self.omega0, self.amplitude, self.t0, self.k = float(omega0), float(amplitude), float(t0), float(k)
+        self.omega0, self.amplitude = float(omega0), float(amplitude)
+        self.t0, self.k = float(t0), float(k)
         self.theta0 = float(theta0)
 
     def sample(self, t: float) -> Sample:
@@ -159,7 +161,8 @@ class Quintic:
         if tau >= self.T:
             return self._area_T + self.p1 * (tau - self.T)
         c0, c1, c2, c3, c4, c5 = self.c
-        return tau * (c0 + tau * (c1 / 2 + tau * (c2 / 3 + tau * (c3 / 4 + tau * (c4 / 5 + tau * c5 / 6)))))
+        inner = c3 / 4 + tau * (c4 / 5 + tau * c5 / 6)
+        return tau * (c0 + tau * (c1 / 2 + tau * (c2 / 3 + tau * inner)))
 
 
 class SetpointPosition(Trajectory):
@@ -168,7 +171,7 @@ class SetpointPosition(Trajectory):
     def __init__(self, theta0: float = 0.0):
         self._seg = Quintic(0.0, 1.0, theta0, 0.0, 0.0, theta0)
 
-    def set(self, value: float, t: float, duration: float) -> None:
+    def set(self, value: float, t: float, duration: float) -> None:  # noqa: A003
         p, v, a, _ = self.sample(t)
         self._seg = Quintic(t, duration, p, v, a, value)
 
@@ -187,7 +190,7 @@ class SetpointSpeed(Trajectory):
         self._theta_start = float(theta0)
         self._t_start = 0.0
 
-    def set(self, value: float, t: float, duration: float) -> None:
+    def set(self, value: float, t: float, duration: float) -> None:  # noqa: A003
         theta, w, a, j = self.sample(t)
         self._theta_start = theta
         self._t_start = t
@@ -212,7 +215,7 @@ class SetpointTorque:
     def __init__(self, tau0: float = 0.0):
         self._seg = Quintic(0.0, 1.0, tau0, 0.0, 0.0, tau0)
 
-    def set(self, value: float, t: float, duration: float) -> None:
+    def set(self, value: float, t: float, duration: float) -> None:  # noqa: A003
         p, v, a, _ = self._seg.sample(t)
         self._seg = Quintic(t, duration, p, v, a, value)
 

@@ -45,7 +45,7 @@ def test_a_constant_torque_held_long_is_planned_at_the_static_optimum(core):
     form).
     """
     tau, omega = 5.0, 100.0
-    k = dict(k_e=M.k_e, k_h=M.k_h) if core else {}
+    k = {'k_e': M.k_e, 'k_h': M.k_h} if core else {}
     plan = plan_along(C, lambda t: (tau, omega), 0.0, 4.0, 1.0, 2e-3, **k)
     expect = static_loss_optimal_flux(C, tau, omega, **k)
     phi_mid = plan.sample(2.0)[0]

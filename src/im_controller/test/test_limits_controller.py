@@ -106,7 +106,8 @@ def test_current_limit_bounds_the_reference_current():
     ctl.compute(0.0, op['i_alpha'], op['i_beta'], 0.0, 0.0, op['phi_alpha'], op['phi_beta'])
     ctl.set_setpoint('torque', 100.0, 0.0)
     for k in range(1, 200):
-        ctl.compute(k * 1e-4, op['i_alpha'], op['i_beta'], 0.0, 0.0, op['phi_alpha'], op['phi_beta'])
+        ctl.compute(k * 1e-4, op['i_alpha'], op['i_beta'], 0.0, 0.0, op['phi_alpha'],
+                    op['phi_beta'])
     r = ctl.reference
     assert math.hypot(r['i_d_ref'], r['i_q_ref']) == pytest.approx(20.0, rel=1e-6)
     assert r['torque_limited']
@@ -185,14 +186,16 @@ def test_speed_limit_stops_pushing_beyond_it():
 
 
 def test_field_weakening_caps_the_flux_inversely_with_speed():
-    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux', v_limit=311.0)
+    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux',
+                           v_limit=311.0)
     ctl = DriveController(cfg)
     c = ctl.coefficients
     base = 0.85 * 311.0 * c.L_sr / (c.L_s * 1.2 * c.v)     # speed where the cap reaches φ_d
     assert ctl.flux_cap(0.5 * base) > 1.2
     assert ctl.flux_cap(2 * base) == pytest.approx(ctl.flux_cap(base) / 2)
     assert DriveController(ControllerConfig(v_limit=None)).flux_cap(1e4) == math.inf
-    assert DriveController(ControllerConfig(v_limit=311.0, field_weakening=False)).flux_cap(1e4) == math.inf
+    assert DriveController(ControllerConfig(v_limit=311.0,
+                                            field_weakening=False)).flux_cap(1e4) == math.inf
 
 
 def test_voltage_saturation_does_not_freeze_the_torque_filter():
@@ -202,7 +205,8 @@ def test_voltage_saturation_does_not_freeze_the_torque_filter():
     Now the filter takes every input: after a saturated stretch its state follows the latest PD
     demand, not one from the past.
     """
-    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux', v_limit=50.0)
+    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux',
+                           v_limit=50.0)
     ctl = DriveController(cfg)
     from im_controller.control_law import steady_operating_point
     op = steady_operating_point(ControllerConfig(mode='speed', profile='setpoint',
@@ -241,7 +245,8 @@ def test_reconfigure_keeps_state_and_is_continuous():
     for k in range(5600):
         if k in (5000, 5500):
             ref = dict(ctl.reference)
-            err = math.hypot(m_prev.i_alpha - ref['i_alpha_ref'], m_prev.i_beta - ref['i_beta_ref'])
+            err = math.hypot(m_prev.i_alpha - ref['i_alpha_ref'],
+                             m_prev.i_beta - ref['i_beta_ref'])
             if k == 5000:
                 ctl.reconfigure({'k1': 60.0})
                 bounds[k] = 20.0 * err
@@ -299,7 +304,8 @@ def test_live_parameters_convert_like_the_node():
 
 def test_profiles_yaml_csv_and_parameters(tmp_path):
     p = tmp_path / 'p.yaml'
-    p.write_text('setpoints:\n  - {t: 0.0, velocity: 100.0}\n  - {t: 0.2, velocity: 180.0, duration: 0.3}\n')
+    p.write_text('setpoints:\n  - {t: 0.0, velocity: 100.0}\n'
+                 '  - {t: 0.2, velocity: 180.0, duration: 0.3}\n')
     prof = load_profile(str(p))
     assert prof.mode == 'speed' and prof.start_value == 100.0
     assert prof.setpoints == ((0.0, 100.0, None), (0.2, 180.0, 0.3))
@@ -317,13 +323,15 @@ def test_profiles_yaml_csv_and_parameters(tmp_path):
         ctl.compute(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         if k in (5000, 10000):
             seen[k] = ctl.reference['theta_ref']
-    assert seen[5000] == pytest.approx(1.0, abs=1e-9) and seen[10000] == pytest.approx(0.5, abs=1e-9)
+    assert seen[5000] == pytest.approx(1.0, abs=1e-9)
+    assert seen[10000] == pytest.approx(0.5, abs=1e-9)
 
 
 @pytest.mark.parametrize('text, where', [
     ('setpoints: []\n', 'setpoints'),
     ('setpoints:\n  - {t: 0.0, speed: 1.0}\n', 'setpoints[0].speed'),
-    ('setpoints:\n  - {t: 0.0, velocity: 1.0}\n  - {t: 0.1, position: 1.0}\n', 'setpoints[1].position'),
+    ('setpoints:\n  - {t: 0.0, velocity: 1.0}\n  - {t: 0.1, position: 1.0}\n',
+     'setpoints[1].position'),
     ('setpoints:\n  - {t: 0.5, velocity: 1.0}\n  - {t: 0.1, velocity: 1.0}\n', 'entry 1 t'),
     ('setpoints:\n  - {velocity: 1.0}\n', 'setpoints[0].t'),
     ('setpoints:\n  - {t: 0.0, velocity: .nan}\n', 'setpoints[0].velocity'),

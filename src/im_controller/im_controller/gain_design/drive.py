@@ -110,7 +110,7 @@ def current_error_system(pts: np.ndarray, T_s: float, *, injection: str = 'volta
         b = np.ones_like(a)
     else:
         raise ValueError(f"injection must be 'voltage' or 'direct', got {injection!r}")
-    I = np.eye(2)
+    I = np.eye(2)  # noqa: E741 (the identity matrix, as in the equations)
     return UncertainSystem([(ak * I, bk * I) for ak, bk in zip(a, b)], None, discrete=True,
                            name=name or f'current error ({injection}) T_s={T_s:g}')
 
@@ -198,7 +198,8 @@ def best_feasible_rate(system: UncertainSystem, T_s: float, *, iterations: int =
     return -math.log(hi) / T_s
 
 
-def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate: Optional[float] = None,
+def design_subsystem_gain(T_s: float, *, injection: str = 'voltage',
+                          decay_rate: Optional[float] = None,
                           rate_fraction: float = DEFAULT_RATE_FRACTION,
                           sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                           vertex_points=None, certify_points=None, design_reserve: float = 0.02,
@@ -526,7 +527,7 @@ def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: floa
     P0 = cp.Variable((n, n), symmetric=True)
     P1 = cp.Variable((n, n), symmetric=True)
     s = cp.Variable()
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
 
     def P(w):
         return P0 + (w / omega_max) * P1
@@ -561,14 +562,16 @@ def _speed_dependent_rate(P0, P1, Ms, ws, omega_max: float, step: float):
         Pih = (V / np.sqrt(lam)) @ V.T
         for wp in (max(-omega_max, w - step), w, min(omega_max, w + step)):
             Q = P0 + (wp / omega_max) * P1
-            worst = max(worst, math.sqrt(max(0.0, np.linalg.eigvalsh(Pih @ M.T @ Q @ M @ Pih).max())))
+            worst = max(worst,
+                        math.sqrt(max(0.0, np.linalg.eigvalsh(Pih @ M.T @ Q @ M @ Pih).max())))
     return worst, cond
 
 
 def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_max: float = 200.0,
                             speed_step: float = THESIS_OBSERVER_SPEED_STEP,
                             decay_rate: float = DEFAULT_OBSERVER_RATE,
-                            sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                            sigma_min: float = DEFAULT_SIGMA_MIN,
+                            motor: MotorParams = THESIS_MOTOR,
                             param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
                             omega_dense: int = OBSERVER_OMEGA_DENSE, max_substep: float = 1e-4,
                             progress: bool = False) -> ThesisObserverCertificate:
@@ -580,10 +583,10 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
 
     Error map: the observer's own M(p, ω) (:func:`thesis_observer_error_map`, RK4 sub-steps) at
     each parameter point (observer model = plant, as in :func:`certify_observer_gain`). With the
-    plant integrated exactly, e⁺ = M e + d with d = (A_d − Φ)x + (B_d − ΓB)V, the model's one-period
-    integration error (RK4: O((‖A‖T_s/n)⁵) per sub-step), an input to the certified map, reported
-    as ``model_residual``. The exact held-injection map M_zoh (:func:`held_injection_zoh_map`) is
-    checked with the same P on the dense speeds too.
+    plant integrated exactly, e⁺ = M e + d with d = (A_d − Φ)x + (B_d − ΓB)V, the model's
+    one-period integration error (RK4: O((‖A‖T_s/n)⁵) per sub-step), an input to the certified map,
+    reported as ``model_residual``. The exact held-injection map M_zoh
+    (:func:`held_injection_zoh_map`) is checked with the same P on the dense speeds too.
 
     Steps: (1) spectral radius of every map (stop if ≥ ρ); (2) a common P over the speed range at
     the nominal point (reported; the held skew injection defeats it); (3) per parameter point the
@@ -628,12 +631,14 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
     spec = float(max(np.abs(np.linalg.eigvals(M)).max() for r in Md + Mz for M in r))
 
     def result(ok, scope, rv, rd, common, cond, reason=''):
-        return ThesisObserverCertificate(ok, T_s, k_e, omega_max, speed_step, decay_rate, scope, rv,
+        return ThesisObserverCertificate(ok, T_s, k_e, omega_max, speed_step, decay_rate, scope,
+                                         rv,
                                          rd, spec, common, diff, resid, cond, len(pts), n_models,
                                          reason, time.perf_counter() - t0)
     if not spec < rho:
         return result(False, 'eigenvalues', None, None, None, None,
-                      f'spectral radius {spec:.6g} >= rho = {rho:.8f}: the sampled thesis-structure '
+                      f'spectral radius {spec:.6g} >= rho = '
+                      f'{rho:.8f}: the sampled thesis-structure '
                       f'error map is not stable on the grid (T_s = {T_s:g} s, k_e = {k_e:.4g})')
     nominal = len(pts) - 1
     common = analysis_lmi(Mv[nominal], True, rho=1.0) is not None
@@ -729,7 +734,7 @@ class DriveGains:
 
     @property
     def k_e(self) -> Optional[float]:
-        """Return the thesis-structure observer's k_e (None with the discrete injection)."""
+        """Return the thesis-structure observer's gain (None with the discrete injection)."""
         t = self.thesis_observer
         return t.k_e if self.observer_structure == 'thesis' and t is not None else None
 
@@ -788,8 +793,8 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
     if observer_structure not in ('auto', 'thesis', 'discrete'):
         raise ValueError(f"observer_structure must be 'auto', 'thesis' or 'discrete', "
                          f'got {observer_structure!r}')
-    kw = dict(sigma_min=sigma_min, motor=motor, vertex_points=vertex_points,
-              certify_points=certify_points, rate_fraction=rate_fraction, progress=progress)
+    kw = {'sigma_min': sigma_min, 'motor': motor, 'vertex_points': vertex_points,
+          'certify_points': certify_points, 'rate_fraction': rate_fraction, 'progress': progress}
     cur = None
     if current_policy == 'thesis-if-certified' and decay_rate is None:
         cur = thesis_current_design(T_s, **kw)
@@ -816,7 +821,10 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
                                         decay_rate=observer_decay_rate, sigma_min=sigma_min,
                                         motor=motor, param_points=observer_param_points,
                                         progress=progress)
-    k = float(np.linalg.eigvalsh(0.5 * (cur.gain + cur.gain.T)).min()) if cur.certified else THESIS_K1
+    if cur.certified:
+        k = float(np.linalg.eigvalsh(0.5 * (cur.gain + cur.gain.T)).min())
+    else:
+        k = THESIS_K1
     return DriveGains(T_s, omega_max, sigma_min, cur, obs_cur, obs,
                       choose_flux_coupling(T_s, k, omega_max=omega_max, motor=motor),
                       held_coupling_residual(T_s, k, omega_max=omega_max, motor=motor),

@@ -30,9 +30,10 @@ Loops designed here (sign conventions of the YAML the nodes read):
 - current loop: ΔV_k = −K (i_k − i*_k) with a 2×2 K on the measured currents only — static output
   feedback with C = [I₂ 0] (seed 001 ch. 3, G = K); closed loop A_d − B_d K C.
 - observer: x̂_{k+1} = A_d x̂_k + B_d V_k + L (i_k − C x̂_k), 4×2 L; error e = x − x̂ obeys
-  e_{k+1} = (A_d − L C) e_k when the observer's model equals the plant's. Designed as the dual state
-  feedback problem (A_d', C') with G = L' (seed 001 ch. 2; quadratic stability of A' and A with a
-  common P are equivalent: ‖P^{½} A P^{−½}‖ = ‖P^{−½} A' P^{½}‖ with the roles of P and P⁻¹ swapped).
+  e_{k+1} = (A_d − L C) e_k when the observer's model equals the plant's. Designed as the dual
+  state feedback problem (A_d', C') with G = L' (seed 001 ch. 2; quadratic stability of A' and A
+  with a common P are equivalent: ‖P^{½} A P^{−½}‖ = ‖P^{−½} A' P^{½}‖ with the roles of P and
+  P⁻¹ swapped).
 
 Scaling. In SI units the sampled model mixes entries of size 1e-4 to 1e2 (flux→current coupling
 v ω_r K T_s ≈ 60 at 1 ms). The synthesis runs in per-unit coordinates: φ_b = 1 Wb,
@@ -47,7 +48,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-import time
 from typing import Dict, List, Optional, Tuple
 
 from im_common.cli import gated_logger
@@ -89,7 +89,8 @@ def parameter_grid(points: Dict[str, int] | int, omega_max: float,
     """
     if not 0.0 < sigma_min < 1.0:
         raise ValueError(f'sigma_min = {sigma_min} must be in (0, 1): sigma -> 0 is a motor '
-                         f'without leakage, whose sampled current loop tolerates no gain above R_eq')
+                         f'without leakage, whose sampled current '
+                         f'loop tolerates no gain above R_eq')
     box = dict(DEFAULT_BOX if box is None else box)
     box['omega_r'] = (-abs(omega_max), abs(omega_max))
     counts = {k: points for k in PARAM_NAMES} if isinstance(points, int) else dict(points)
@@ -215,7 +216,7 @@ def _current_D_candidates() -> List[np.ndarray]:
 
     Per-unit coordinates: [0 I] (rotor flux), then rotor-current-like and stator-flux-like mixes.
     """
-    Z, I = np.zeros((2, 2)), np.eye(2)
+    Z, I = np.zeros((2, 2)), np.eye(2)  # noqa: E741 (the identity matrix, as in the equations)
     return [np.hstack([Z, I]), np.hstack([-I, I]), np.hstack([I, I]), np.hstack([-0.5 * I, I])]
 
 
@@ -333,7 +334,8 @@ def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
     return K_c, Gamma_L
 
 
-def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
+def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0,
+                          motor: MotorParams = THESIS_MOTOR,
                           points=None, sigma_min: float = DEFAULT_SIGMA_MIN) -> Dict[str, float]:
     """
     Return the worst spectral radius of the sampled loop with the thesis's gains.
@@ -376,7 +378,8 @@ def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams 
         lo, hi = float(grid_T[k - 1]), float(grid_T[k])
         for _ in range(refine_steps):
             mid = math.sqrt(lo * hi)
-            if thesis_gain_stability(mid, omega_max=omega_max, motor=motor, points=points)[key] < 1.0:
+            if thesis_gain_stability(mid, omega_max=omega_max, motor=motor,
+                                     points=points)[key] < 1.0:
                 lo = mid
             else:
                 hi = mid
