@@ -76,22 +76,28 @@ class RotorFluxObserver:
             raise InvalidParameter('max_substep', max_substep, 'must be > 0 s')
         self.max_substep = ms
         if len(x0) != 4:
-            raise InvalidParameter('x0', x0, 'must have 4 elements (i_alpha, i_beta, phi_alpha, phi_beta)')
+            raise InvalidParameter('x0', x0,
+                                   'must have 4 elements (i_alpha, i_beta, phi_alpha, phi_beta)')
         self.state: Tuple[float, float, float, float] = tuple(_finite('x0', v) for v in x0)
         self.skew_injection = bool(skew_injection)
         self.L = None
         self.gain_period = None
         if injection_gain is not None:
-            rows = [list(r) for r in injection_gain] if not isinstance(injection_gain[0], (int, float)) \
-                else [list(injection_gain[2 * i:2 * i + 2]) for i in range(len(injection_gain) // 2)]
+            if not isinstance(injection_gain[0], (int, float)):
+                rows = [list(r) for r in injection_gain]
+            else:
+                rows = [list(injection_gain[2 * i:2 * i + 2])
+                        for i in range(len(injection_gain) // 2)]
             if len(rows) != 4 or any(len(r) != 2 for r in rows):
                 raise InvalidParameter('injection_gain', injection_gain,
-                                       'must be 4x2 (a list of 4 rows of 2, or 8 numbers row-major)')
+                                       'must be 4x2 (a list of 4 rows '
+                                       'of 2, or 8 numbers row-major)')
             self.L = tuple(tuple(_finite('injection_gain', v) for v in r) for r in rows)
             gp = _finite('gain_period', gain_period) if gain_period is not None else None
             if gp is None or gp <= 0.0:
                 raise InvalidParameter('gain_period', gain_period,
-                                       'a discrete injection_gain needs the period it was designed for (> 0 s)')
+                                       'a discrete injection_gain needs the '
+                                       'period it was designed for (> 0 s)')
             self.gain_period = gp
         self.R_s = params.R_s
         self.L_s = params.L_s
@@ -108,7 +114,8 @@ class RotorFluxObserver:
         if not self.L_s - self.L_sr * th > 0.0:
             raise InvalidParameter('theta', th, 'estimate makes sigma*L_s = L_s - L_sr*theta <= 0')
         self.L_r = L_r
-        # the plant copy: eq. 1.112 at the estimates, from the model (the one home of the equations)
+        # the plant copy: eq. 1.112 at the estimates, from the model (the one home of the
+        # equations)
         self._c = eq112_coefficients(self.R_s, self._R_r, self.L_s, L_r, self.L_sr)
         self._inv_sLs = self._c.inv_sigma_Ls
 
@@ -157,7 +164,8 @@ class RotorFluxObserver:
                 raise InvalidParameter('theta', theta, 'estimate must be > 0')
             if self.L_s - self.L_sr * t <= 0.0:
                 raise InvalidParameter('theta', theta,
-                                       f'estimate must be below L_s/L_sr = {self.L_s / self.L_sr:.6g}')
+                                       f'estimate must be below L_s/L_sr '
+                                       f'= {self.L_s / self.L_sr:.6g}')
             self._theta = t
         self._update()
 
@@ -186,7 +194,8 @@ class RotorFluxObserver:
                 raise ValueError(f"observer input '{name}' is not finite ({val!r})")
         discrete = self.L is not None
         if discrete and abs(T_s - self.gain_period) > 1e-9 * self.gain_period:
-            raise ValueError(f'injection_gain was designed for gain_period = {self.gain_period!r} s '
+            raise ValueError(f'injection_gain was designed for '
+                             f'gain_period = {self.gain_period!r} s '
                              f'but step() was called with T_s = {T_s!r} s')
         n = int(math.ceil(T_s / self.max_substep - 1e-9))
         if n < 1:
@@ -240,7 +249,8 @@ class RotorFluxObserver:
             ib += L[1][0] * e_a0 + L[1][1] * e_b0
             pa += L[2][0] * e_a0 + L[2][1] * e_b0
             pb += L[3][0] * e_a0 + L[3][1] * e_b0
-        if not (math.isfinite(ia) and math.isfinite(ib) and math.isfinite(pa) and math.isfinite(pb)):
+        if not (math.isfinite(ia) and math.isfinite(ib)
+                and math.isfinite(pa) and math.isfinite(pb)):
             raise FloatingPointError('observer state became non-finite')
         self.state = (ia, ib, pa, pb)
         return self.state

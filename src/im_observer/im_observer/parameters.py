@@ -22,9 +22,11 @@ def declare_observer(node) -> dict:
                                  'row-major, from design_gains ([0.0]: unused)')),
         'gain_period': p('gain_period', 0.0, 'period the injection_gain was designed for [s]',
                          0.0, 1.0),
-        'use_adapter': p('use_adapter', False, 'wait for and use the adapter estimates (eq. 4.13)'),
+        'use_adapter': p('use_adapter', False,
+                         'wait for and use the adapter estimates (eq. 4.13)'),
         'initial_state': list(p('initial_state', [0.0, 0.0, 0.0, 0.0],
-                                'initial estimate [i_alpha, i_beta, phi_alpha, phi_beta] [A, Wb]')),
+                                'initial estimate [i_alpha, i_beta, phi_alpha, phi_beta] '
+                                '[A, Wb]')),
         'sensorless': p('sensorless', False, 'estimate the speed from V and i and publish it '
                         '(speed-adaptive observer, docs/sensorless.md); the measured shaft is not '
                         'subscribed'),

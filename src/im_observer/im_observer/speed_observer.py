@@ -55,7 +55,8 @@ POSITION_NEEDS_SENSOR = ('the position task needs the measured shaft position; a
 DEFAULT_SPEED_BANDWIDTH = 600.0
 #: default floor of |φ̂| in the adaptation's normalization [Wb] (a quarter of the default phi_min)
 DEFAULT_FLUX_FLOOR = 0.05
-#: low-speed rotation of the adaptation error (η₀) and the electrical frequency where it ends [rad/s]
+# : low-speed rotation of the adaptation error (η₀) and the electrical frequency where it ends
+# [rad/s]
 DEFAULT_ERROR_ROTATION = 0.0
 #: flux-row gain (c₀, c₁ [rad/s], c₂ [rad/s]) and the electrical-speed band (w₀, w₁) [rad/s]
 #: over which it fades in (SpeedAdaptiveObserver.flux_row_gain)
@@ -65,7 +66,7 @@ DEFAULT_ROTATION_FREQUENCY = 200.0
 
 
 def error_gain(params: MotorParams, k_e: Optional[float] = None) -> float:
-    """g = ∂ε/∂ω̃ in the quasi-static limit: v K / (γ + k_e/σL_s) [dimensionless·s/rad·rad/s]."""
+    """Return g = ∂ε/∂ω̃ in the quasi-static limit: v K / (γ + k_e/σL_s)."""
     c = eq112_coefficients(params.R_s, params.R_r, params.L_s, params.L_r, params.L_sr)
     ke = 1.0 / params.sigma if k_e is None else k_e
     return params.pole_pairs * c.K / (c.gamma + ke * c.inv_sigma_Ls)
@@ -174,7 +175,8 @@ class SpeedAdaptiveObserver:
 
         (Re G, Im G) [Ω] of the flux-row injection dφ̂/dt += G e (complex, e = e_α + j e_β):
 
-            G = −(γ′/K) h [c₀ + (c₁ − j c₂ sign ω̂) / (v|ω̂|)],  h = clip((v|ω̂| − w₀)/(w₁ − w₀), 0, 1)
+            G = −(γ′/K) h [c₀ + (c₁ − j c₂ sign ω̂) / (v|ω̂|)],  h = clip((v|ω̂| − w₀)/(w₁ − w₀),
+            0, 1)
 
         (docs/sensorless.md §3: fitted to the gains that minimize the slowest linearized pole
         point by point; zero below w₀ where it would destabilize low-speed regeneration).
@@ -259,8 +261,10 @@ def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: 
             - we * c.K * pa - w_s * ia
         sk = we * c.L_sr if fo.skew_injection else 0.0
         gr, gi = obs.flux_row_gain(w)
-        dpa = -we * pb + c.L_sr * c.inv_Tr * ia - c.inv_Tr * pa - sk * eb + w_s * pb + gr * ea - gi * eb
-        dpb = we * pa + c.L_sr * c.inv_Tr * ib - c.inv_Tr * pb + sk * ea - w_s * pa + gr * eb + gi * ea
+        dpa = (-we * pb + c.L_sr * c.inv_Tr * ia - c.inv_Tr * pa - sk * eb + w_s * pb
+               + gr * ea - gi * eb)
+        dpb = (we * pa + c.L_sr * c.inv_Tr * ib - c.inv_Tr * pb + sk * ea - w_s * pa
+               + gr * eb + gi * ea)
         return np.array([dia, dib, dpa, dpb, obs.k_i * eps])
 
     z0 = np.array([i_m[0], i_m[1], phi, 0.0, omega_r])
