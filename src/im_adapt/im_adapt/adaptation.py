@@ -174,7 +174,8 @@ class AdaptationGains:
             raise InvalidParameter('decimation', d, 'must be a whole number >= 1')
         for name in ('gamma_t', 'gamma_r', 'flux_corner', 'flux_corner_ratio', 'flux_corner_min'):
             _finite(name, getattr(self, name), lo=0.0)
-        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor', 'phi_floor', 'didt_floor',
+        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor',
+                     'phi_floor', 'didt_floor',
                      'theta_min', 'theta_max'):
             _finite(name, getattr(self, name), lo=0.0, strict=True)
         _finite('sigma_min', self.sigma_min, lo=0.0, strict=True)
@@ -280,6 +281,7 @@ class ParameterAdapter:
     Notes
     -----
     ``update`` is scalar Python on complex numbers (αβ pairs as α + jβ); one call per period.
+
     """
 
     def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float):
@@ -383,7 +385,8 @@ class ParameterAdapter:
                 self._psi = self.L_sigma * i + self._phi_cm
             else:
                 self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
-                self._psi = (self.L_s - self.L_sr * self.theta) * i + self.theta * self._phi_obs_prev
+                self._psi = ((self.L_s - self.L_sr * self.theta) * i
+                             + self.theta * self._phi_obs_prev)
             self._i_prev = i
             self._v_prev = V
             if self.improved:
@@ -444,7 +447,8 @@ class ParameterAdapter:
         P_ref = self.R_r * ir2
         # Input and stator copper power over the period just integrated: V_k-1 was held while
         # the current went from i_k-1 to i_k (sampling V_k·i_k instead is off by ~|V||i|ω_e T_s/2).
-        P_hat = (0.5 * (V_prev.real * (i.real + i_prev.real) + V_prev.imag * (i.imag + i_prev.imag))
+        P_hat = (0.5 * (V_prev.real * (i.real + i_prev.real)
+                        + V_prev.imag * (i.imag + i_prev.imag))
                  - 0.5 * self.R_s * (i.real * i.real + i.imag * i.imag
                                      + i_prev.real * i_prev.real + i_prev.imag * i_prev.imag)
                  - tau_hat * omega_r)
@@ -488,7 +492,7 @@ class ParameterAdapter:
         N = self.N
         self._lamN = tuple(math.sqrt(lam[a] * lam[b]) ** N
                            for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-        self._share = tuple((1.0 - l ** N) / (1.0 - l) for l in lam)
+        self._share = tuple((1.0 - lk ** N) / (1.0 - lk) for lk in lam)
         # Information floor per period (one equation per parameter with the floor's regressor).
         self._floor = (g.didt_floor ** 2, g.i_floor ** 2, g.phi_floor ** 2)
         if self._R is None:
@@ -519,7 +523,8 @@ class ParameterAdapter:
         Hi = self._Hi = fa * self._Hi + fb * (i_r + ui)
         Hpsi = self._Hpsi = fa * self._Hpsi + fb * (psi_r + upsi)
         self._u_prev = (i_r, psi_r)
-        # H[dψ/dt] = L_σ H[di/dt] + R_R H[i] − c H[ψ − L_σ i] (rotor frame; H[dx/dt] = ω_f(x − Hx)):
+        # H[dψ/dt] = L_σ H[di/dt] + R_R H[i] − c H[ψ − L_σ i] (rotor frame; H[dx/dt] = ω_f(x −
+        # Hx)):
         # residual at the current estimates and its gradient in (L_σ, R_R, c) (Gauss-Newton;
         # linear in R_R and c).
         wf = self._wf

@@ -100,7 +100,8 @@ def nameplate_from_dict(doc, source: str = 'nameplate') -> Nameplate:
         raise InvalidParameter(source, doc, f'must be a mapping with {", ".join(keys)}')
     for k in doc:
         if k not in keys:
-            raise InvalidParameter(f'{source}: {k}', doc[k], f'unknown (fields: {", ".join(keys)})')
+            raise InvalidParameter(f'{source}: {k}', doc[k],
+                                   f'unknown (fields: {", ".join(keys)})')
     for k in keys:
         if k not in doc:
             raise InvalidParameter(f'{source}: {k}', None, 'is missing')
@@ -232,8 +233,8 @@ def _physical_start(v, i, T_s, R_s0):
     di = np.abs(np.diff(i))
     dv = np.abs(np.diff(v))
     k = int(np.argmax(dv))
-    L_s = abs(v[k + 1] - v[k]) * T_s / max(abs(i[k + 2] - i[k + 1]) if k + 2 < len(i) else di.max(),
-                                           1e-12)
+    slope = abs(i[k + 2] - i[k + 1]) if k + 2 < len(i) else di.max()
+    L_s = abs(v[k + 1] - v[k]) * T_s / max(slope, 1e-12)
     L_s = min(max(L_s, 1e-6), 10.0)
     return np.array([R_s0, L_s, 10.0 * L_s, R_s0])
 
@@ -307,6 +308,7 @@ class Commissioning:
     test_speed : top speed of the speed test [rad/s] (the nameplate's: half the rated speed)
     locked : the rotor is locked: the standstill tests only; J and b must come from elsewhere
     flux : magnetizing flux of the speed test [Wb] (None: 0.4·i_max·L_M, capped)
+
     """
 
     def __init__(self, T_s: float, i_max: float, v_max: float, pole_pairs: Optional[int] = None,
@@ -321,8 +323,8 @@ class Commissioning:
             raise InvalidParameter('test speed', None,
                                    'the speed test needs a top speed (a nameplate, or a test '
                                    'speed) unless the rotor is locked')
-        self.test_speed = None if test_speed is None else check_real('test speed', test_speed,
-                                                                       0.0, lo_open=True)
+        self.test_speed = (None if test_speed is None
+                           else check_real('test speed', test_speed, 0.0, lo_open=True))
         self.flux = flux
         self.k = 0
         self.phase = 'probe'
@@ -356,9 +358,7 @@ class Commissioning:
         return None
 
     def step(self, i_a: float, i_b: float, omega: float = 0.0):
-        """
-        Map the measurement at t_k to the voltage over [t_k, t_k+1] (None: the tests are over).
-        """
+        """Map the measurement at t_k to the voltage over [t_k, t_k+1] (None: tests over)."""
         if self.done:
             return None
         self.log_i.append((i_a, i_b))
@@ -599,8 +599,9 @@ def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float
     """
     Return the rated rotor flux |φ_r| of the nameplate.
 
-    At the nameplate's rated voltage, frequency and speed, in the gauge θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e at the
-    rated slip (docs/commissioning.md §4).
+    At the nameplate's rated voltage, frequency and speed, in the gauge θ = L_sr/L_r (φ_r = ψ_R/θ):
+    the inverse-Γ circuit's magnetizing branch voltage over ω_e at the rated slip
+    (docs/commissioning.md §4).
     """
     we = 2.0 * math.pi * plate.frequency
     vp = plate.pole_pairs

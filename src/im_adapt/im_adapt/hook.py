@@ -26,6 +26,7 @@ class LockstepAdapter:
     adapter : ParameterAdapter
     record_every : int
         Keep one estimate sample every this many steps (0: keep none).
+
     """
 
     def __init__(self, adapter: ParameterAdapter, record_every: int = 10):
@@ -45,7 +46,7 @@ class LockstepAdapter:
         return cls(ad, record_every)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
-        """Data of step k (with the observer's x̂_k) in, p̂_k+1 out."""
+        """Update the adapter with the data of step k (and the observer's x̂_k); return p̂_k+1."""
         self.adapter.update(T_s, v_alpha, v_beta, meas.i_alpha, meas.i_beta, meas.omega_r,
                             x_hat[2], x_hat[3])
         est = self.adapter.estimates()
