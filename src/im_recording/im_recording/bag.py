@@ -12,7 +12,8 @@ Foxglove, PlotJuggler and ``rosbags`` open:
   (``RIHS01_...``);
 * messages in chunks (zstd, lz4 or none), each followed by its Message Index records; a summary
   section with Schemas, Channels, Chunk Indexes, Metadata Indexes and Statistics, Summary Offsets,
-  CRCs; a ``rosbag2`` Metadata record with ``serialized_metadata`` as ``ros2 bag record`` writes it;
+  CRCs; a ``rosbag2`` Metadata record with ``serialized_metadata`` as ``ros2 bag record`` writes
+  it;
 * run metadata (scenario, parameters, versions, git revision) as named Metadata records.
 
 Every message's log time and publish time is its stamp in simulated time (integer ns).
@@ -28,8 +29,8 @@ Reading
 -------
 :func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
 :func:`im_recording.run.load_run` turns a recording into a :class:`~im_recording.run.Run` (trace
-arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
-truncated or missing file raises :class:`BagError` naming the file and what is wrong.
+arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any
+unreadable, truncated or missing file raises :class:`BagError` naming the file and what is wrong.
 """
 from __future__ import annotations
 
@@ -259,7 +260,8 @@ def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'o
     o = Path(out)
     for i in inputs:
         if i is not None and _same_file(o, Path(i)):
-            raise FileExistsError(f'{o}: the {what} is also an input ({i}); refusing to write over '
+            raise FileExistsError(f'{o}: the {what} is also an input '
+                                  f'({i}); refusing to write over '
                                   'it (even with --force); choose another file')
     if o.is_dir():
         raise FileExistsError(f'{o}: the {what} is a directory, not a file')
@@ -390,6 +392,7 @@ class BagWriter:
         Where a topic declared without ``qos`` (by :meth:`add_topic`, on its first message, or
         by :meth:`declare_expected`) takes its profiles from; a recorder sets it to the
         publishers the ROS graph lists. None: :data:`DEFAULT_QOS`.
+
     """
 
     def __init__(self, path, force: bool = False,
@@ -646,7 +649,8 @@ class BagWriter:
             # A signal handler may have interrupted write() between its two appends; keep only
             # complete messages.
             last_off = ix[-1][2]
-            (length,) = _U64.unpack_from(buf, last_off + 1) if len(buf) >= last_off + 9 else (None,)
+            (length,) = _U64.unpack_from(buf,
+                                         last_off + 1) if len(buf) >= last_off + 9 else (None,)
             if length is None or last_off + 9 + length > len(buf):
                 ix.pop()
                 del buf[last_off:]
@@ -840,7 +844,8 @@ def _open_checked(path):
     if not p.exists():
         if partial_path(p).exists():
             raise BagError(p, f'no such file, but an interrupted (truncated) recording is at '
-                           f'{partial_path(p)}; salvage it with `ros2 run im_recording recover {p}`')
+                           f'{partial_path(p)}; salvage it with '
+                           f'`ros2 run im_recording recover {p}`')
         raise BagError(p, 'no such file')
     if p.is_dir():
         raise BagError(p, 'is a directory; expected an .mcap file')
@@ -877,7 +882,8 @@ def _check_summary_crc(p: Path) -> None:
     got = zlib.crc32(body)
     if got != crc:
         raise BagError(p, f'summary section CRC mismatch (stored {crc:#010x}, computed '
-                          f'{got:#010x}): the index is damaged; `ros2 run im_recording recover {p}` '
+                          f'{got:#010x}): the index is damaged; '
+                          f'`ros2 run im_recording recover {p}` '
                           'rebuilds it from the data')
 
 
@@ -999,7 +1005,8 @@ def _chunk_messages(p, f, ci, chans):
             cid, _, log_time, _ = struct.unpack_from('<HIQQ', data, pos + 9)
             c = chans.get(cid)
             if c is not None:
-                out.append((log_time, seq, c[0], c[1], data[pos + 9 + _MSG_FIXED:pos + 9 + length]))
+                out.append((log_time, seq, c[0], c[1],
+                            data[pos + 9 + _MSG_FIXED:pos + 9 + length]))
                 seq += 1
         pos += 9 + length
     out.sort(key=lambda e: (e[0], e[1]))
@@ -1011,7 +1018,8 @@ def _iter_raw_mcap(p, chans):
     from mcap.reader import make_reader
     try:
         with open(p, 'rb') as f:
-            for sch, ch, m in make_reader(f, validate_crcs=True).iter_messages(log_time_order=True):
+            for sch, ch, m in make_reader(f,
+                                          validate_crcs=True).iter_messages(log_time_order=True):
                 if m.channel_id in chans:
                     topic, tname = chans[m.channel_id]
                     yield topic, tname, m.log_time, m.data

@@ -1,4 +1,4 @@
-"""
+r"""
 Message definitions and type hashes for MCAP schemas and channels.
 
 :func:`full_definition` is the ``ros2msg`` schema text byte for byte as rosbag2 Jazzy's recorder

@@ -113,7 +113,7 @@ def _ref_real(ax, runs, ref_key, real_key, ylabel, ref_name, real_name, scale=1.
 
 
 def plot_tracking(runs: Sequence, out_dir, kind: str) -> Optional[str]:
-    """(a) position or speed, reference and real; (b) torque, reference and real."""
+    """Plot (a) position or speed, reference and real; (b) torque, reference and real."""
     key, ref, unit, name = {
         'position': ('theta_r', 'theta_ref', 'rad', 'θ'),
         'speed': ('omega_r', 'omega_ref', 'rad/s', 'ω'),

@@ -268,6 +268,7 @@ def chunk_records(b):
 @dataclass
 class Lost:
     """Bytes ``start``..``end`` skipped as damaged, and what is known of the messages in them."""
+
     start: int
     end: int
     why: str
@@ -343,6 +344,7 @@ class Lost:
 # Reading
 # ------------------------------------------------------------------------------------------
 class _Source:
+
     def __init__(self, path: Path):
         self.path = path
         try:
@@ -356,7 +358,8 @@ class _Source:
             self.f.seek(off)
             return self.f.read(n)
         except OSError as exc:
-            raise BagError(self.path, f'cannot read at byte {off}: {exc.strerror or exc}') from None
+            raise BagError(self.path,
+                           f'cannot read at byte {off}: {exc.strerror or exc}') from None
 
     def close(self) -> None:
         self.f.close()
@@ -662,10 +665,13 @@ class _Scan:
             if self.crc is not None and stored and stored != self.crc:
                 self.crc_mismatch = True
             self.complete = True
-            self.ending = ('the file was complete (data end, then ' + (
-                'a valid summary and footer)' if self.summary is not None
-                and self.summary[0] == pos + 13 else 'the end of the file)' if pos + 13 == self.size
-                else 'a damaged summary, but the data CRC matches)'))
+            if self.summary is not None and self.summary[0] == pos + 13:
+                then = 'a valid summary and footer)'
+            elif pos + 13 == self.size:
+                then = 'the end of the file)'
+            else:
+                then = 'a damaged summary, but the data CRC matches)'
+            self.ending = 'the file was complete (data end, then ' + then
             return None, None
         elif op not in _DATA_OPS:
             return f'opcode {op} does not belong in the data section', guess

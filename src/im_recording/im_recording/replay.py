@@ -113,7 +113,7 @@ def reestimate_series(path, config: dict, stop=None
     kw = {k: config[k] for k in ('k_e', 'max_substep', 'injection_gain', 'gain_period', 'x0')}
     obs = RotorFluxObserver(config['params'], **kw)
     grid = sorted(s[MEAS_CURRENT])
-    nxt = {a: b for a, b in zip(grid, grid[1:])}
+    nxt = dict(zip(grid, grid[1:]))
     period = int(np.median(np.diff(grid))) if len(grid) > 1 else None
     out = []
     for t in steps:

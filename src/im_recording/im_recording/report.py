@@ -247,7 +247,8 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
         if r['status']['refused']]
     if refused:
         md += ['', '## Refused messages', '',
-               'Messages not signed by the recorded graph (a rogue publisher, another graph on the '
+               'Messages not signed by the recorded graph '
+               '(a rogue publisher, another graph on the '
                'domain): refused by the nodes, kept apart by the recorder, in no figure.', '']
         md += refused
     from .bag import write_atomic

@@ -160,7 +160,7 @@ def _decode_v3(payloads: List[bytes]):
 
 
 def _align(master: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """values sampled at ``stamps`` picked at ``master`` (NaN where absent; last one wins)."""
+    """Pick the values sampled at ``stamps`` at ``master`` (NaN where absent; last one wins)."""
     out = np.full(master.shape, np.nan)
     if len(stamps) == 0:
         return out
@@ -425,8 +425,8 @@ class TruthBooks:
         series = {}
         if self.first is not None:
             keys = [k for k in self.last[1] if k in self.first[1]]
-            series[T.TRUTH_ENERGY] = {k: np.array([self.first[1][k], self.last[1][k]])
-                                          for k in keys}
+            first, last = self.first[1], self.last[1]
+            series[T.TRUTH_ENERGY] = {k: np.array([first[k], last[k]]) for k in keys}
         if self.par is not None:
             series[T.TRUTH_PARAMS] = {k: np.array([v]) for k, v in self.par[1].items()}
         return truth_final_from(series)
@@ -453,7 +453,8 @@ def _norm(a):
 TRACKING = (
     ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_true'),
      _diff('theta_true', 'theta_ref')),
-    ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_r'), _diff('theta_r', 'theta_ref')),
+    ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_r'),
+     _diff('theta_r', 'theta_ref')),
     ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_true'),
      _diff('omega_true', 'omega_ref')),
     ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_r'),
@@ -485,7 +486,7 @@ class _Acc:
             self.ss += float(np.sum(np.square(e)))
             self.n += len(e)
 
-    def max(self) -> float:
+    def max(self) -> float:  # noqa: A003
         return self.mx if self.n else float('nan')
 
     def rms(self) -> float:
@@ -512,9 +513,9 @@ class RunningFigures:
         self.t_last: Optional[float] = None
         self.steps = 0
         self.lockstep = tuple(lockstep_topics)
-        self.missing = {t: 0 for t in self.lockstep}
+        self.missing = dict.fromkeys(self.lockstep, 0)
         self.ranges: Dict[str, List[list]] = {t: [] for t in self.lockstep}
-        self._open: Dict[str, bool] = {t: False for t in self.lockstep}
+        self._open: Dict[str, bool] = dict.fromkeys(self.lockstep, False)
         self.max_ranges = max_ranges
 
     def series(self, sent) -> None:

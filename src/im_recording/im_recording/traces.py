@@ -29,8 +29,8 @@ class Tap:
     """
 
     def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000):
-        from im_recording.run import (RunningFigures, TraceKeeper, TraceStream, TruthBooks,
-                                    lockstep_topics)
+        from im_recording.run import (lockstep_topics, RunningFigures, TraceKeeper, TraceStream,
+                                      TruthBooks)
         self.writer = writer
         self.error: Optional[str] = None    # why the writer stopped (its file cannot be written)
         self.on_error = None                # called with that line (a graph ends its run)
