@@ -56,7 +56,8 @@ class Certificate:
                 'P_condition': None if self.P is None else float(np.linalg.cond(self.P)),
                 'grid_points': int(self.grid_points),
                 'grid_margin': None if self.grid_margin is None else float(self.grid_margin),
-                'grid_worst_eig': None if self.grid_worst_eig is None else float(self.grid_worst_eig),
+                'grid_worst_eig': (None if self.grid_worst_eig is None
+                                   else float(self.grid_worst_eig)),
                 'reason': self.reason}
 
 
@@ -67,7 +68,8 @@ def _sym_sqrt_and_inv(P: np.ndarray):
     return (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T
 
 
-def lyapunov_rates(closed_loops: Sequence[np.ndarray], P: np.ndarray, discrete: bool) -> np.ndarray:
+def lyapunov_rates(closed_loops: Sequence[np.ndarray], P: np.ndarray,
+                   discrete: bool) -> np.ndarray:
     """Per-model α_c (continuous) or ρ_c (discrete) for the quadratic function x'Px."""
     Ph, Pih = _sym_sqrt_and_inv(P)
     if Ph is None:
@@ -104,7 +106,7 @@ def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: floa
     n = closed_loops[0].shape[0]
     P = cp.Variable((n, n), symmetric=True)
     s = cp.Variable()
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
     cons = [P >> I, P << s * I]
     for Acl in closed_loops:
         if discrete:
@@ -132,16 +134,21 @@ def certify(system: UncertainSystem, G, *, alpha: float = 0.0, rho: float = 1.0,
     Parameters
     ----------
     system : UncertainSystem
+        Vertex models, output matrix C, time domain.
     G : (m, r) array
         Gain of u = −G y.
     alpha, rho : float
         Required decay rate (continuous, 1/s) or contraction bound (discrete).
     P : array, optional
-        Candidate Lyapunov matrix (e.g. from the synthesis); if it fails, a fresh analysis SDP is tried.
+        Candidate Lyapunov matrix (e.g. from the synthesis); if it fails, a fresh analysis SDP is
+        tried.
     grid_models : sequence of (A, B), optional
         Dense-grid models checked with the same P and by their eigenvalues.
     tol : float
         Required strict margin (relative to 1 for discrete; in 1/s for continuous).
+    max_condition : float
+        Largest condition number of P accepted.
+
     """
     G = np.atleast_2d(np.asarray(G, dtype=float))
     if G.shape != (system.m, system.r):
@@ -222,7 +229,10 @@ def best_rate(system: UncertainSystem, G, *, lo: float | None = None, hi: float 
     lo_ = lo or 0.0
     if not ok(lo_):
         return np.nan
-    hi_ = hi if hi is not None else max(1.0, 2.0 * max(np.abs(np.linalg.eigvals(L)).max() for L in loops))
+    if hi is not None:
+        hi_ = hi
+    else:
+        hi_ = max(1.0, 2.0 * max(np.abs(np.linalg.eigvals(L)).max() for L in loops))
     for _ in range(iterations):
         mid = 0.5 * (lo_ + hi_)
         if ok(mid):

@@ -58,7 +58,8 @@ def _quad(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum('i,kij,j->k', v, M, v)
 
 
-def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6, max_iterations: int = 20000,
+def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6,
+                        max_iterations: int = 20000,
                         cuts: str = 'deepest', progress: bool = False,
                         progress_every: int = 200) -> CuttingPlaneResult:
     """
@@ -66,12 +67,22 @@ def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6, max_iter
 
     Parameters
     ----------
+    prob : Problem
+        The problem built by :func:`im_robust.synthesis.build_problem`.
     bound : float
         Box on every free entry of W_o and on t (see module notes).
     tol : float
         Stop when every constraint is violated by at most ``tol``·max(1, ε) and the epigraph gap
         λ_max(W₃) − t is at most ``tol``·max(1, t).
-    cuts : ``'deepest'`` (thesis) or ``'all'``.
+    max_iterations : int
+        Iterations before giving up (status ``'max_iterations'``).
+    cuts : str
+        ``'deepest'`` (thesis) or ``'all'``.
+    progress : bool
+        Print iteration progress on stderr, every ``progress_every`` iterations.
+    progress_every : int
+        Iterations between two progress lines.
+
     """
     if cuts not in ('deepest', 'all'):
         raise ValueError("cuts must be 'deepest' or 'all'")
@@ -80,7 +91,8 @@ def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6, max_iter
     nvar = q + 1                      # ω, then t
     c = np.zeros(nvar)
     c[-1] = 1.0
-    bounds = [(-bound, bound)] * st.n_offdiag + [(0.0, bound)] * (q - st.n_offdiag) + [(0.0, bound)]
+    bounds = ([(-bound, bound)] * st.n_offdiag + [(0.0, bound)] * (q - st.n_offdiag)
+              + [(0.0, bound)])
     rows: List[np.ndarray] = []
     rhs: List[float] = []
 

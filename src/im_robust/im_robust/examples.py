@@ -59,14 +59,17 @@ def example1(a23: float = AIRCRAFT_A23_PRINTED) -> ThesisExample:
     typo = a23 != AIRCRAFT_A23_PRINTED
     sysm = UncertainSystem.product([_aircraft_A(-1.5, a23), _aircraft_A(1.5, a23)], [B], C,
                                    discrete=False,
-                                   name=f'example 1 (aircraft{", a23 = %g" % a23 if typo else ""})',
-                                   family=lambda p: (_aircraft_A(p[0], a23), B), bounds=[(-1.5, 1.5)])
+                                   name=('example 1 (aircraft'
+                                         + (f', a23 = {a23:g}' if typo else '') + ')'),
+                                   family=lambda p: (_aircraft_A(p[0], a23), B),
+                                   bounds=[(-1.5, 1.5)])
     W = np.array([[765.5, -692.0, 0, 0, -767.2],
                   [-692.0, 7054.1, 0, 0, -3301.7],
                   [0, 0, 195.4, 57.7, 0],
                   [0, 0, 57.7, 59.7, 0],
                   [-767.2, -3301.7, 0, 0, 3251.7]])
-    key, title = ('1-a23', f'§4.2.1 aircraft with a23 = {a23:g} (typo reading of the printed 0.35)') \
+    key, title = ('1-a23',
+                  f'§4.2.1 aircraft with a23 = {a23:g} (typo reading of the printed 0.35)') \
         if typo else ('1', '§4.2.1 continuous, A uncertain (aircraft, a23 = 0.35 as printed)')
     return ThesisExample(key, title, sysm,
                          np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]]), W,

@@ -55,6 +55,7 @@ class UncertainSystem:
         uncertain parameters (it is not used by the synthesis).
     bounds : sequence of (low, high), optional
         Box of the uncertain parameters passed to ``family``.
+
     """
 
     models: Tuple[Model, ...]

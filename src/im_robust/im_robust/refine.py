@@ -37,7 +37,7 @@ class RefineResult:
 
 def _lyap_blocks(cp, Acl, P, discrete, alpha, rho, margin):
     n = Acl.shape[0]
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
     if discrete:
         return cp.bmat([[rho * rho * P - margin * I, Acl.T @ P], [P @ Acl, P]]) >> 0
     Aa = Acl + alpha * I
@@ -61,7 +61,7 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
     best = RefineResult(G.copy(), float(np.linalg.norm(G, 2)), best_cert, 0,
                         [float(np.linalg.norm(G, 2))])
     n = system.n
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
     for k in range(1, iterations + 1):
         P = cp.Variable((n, n), symmetric=True)
         delta = cp.Variable()
@@ -75,7 +75,8 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
         Gv = cp.Variable(G.shape)
         g = cp.Variable()
         cons = [cp.sigma_max(Gv) <= g]
-        cons += [_lyap_blocks(cp, A - B @ Gv @ system.C, Pv, system.discrete, alpha, rho, min_margin)
+        cons += [_lyap_blocks(cp, A - B @ Gv @ system.C, Pv, system.discrete, alpha, rho,
+                              min_margin)
                  for A, B in system.models]
         cp.Problem(cp.Minimize(g), cons).solve(solver='CLARABEL')
         if Gv.value is None:

@@ -76,7 +76,8 @@ class StructuredW:
         mask = ~self.free_mask
         return float(np.abs(W[mask]).max()) if mask.any() else 0.0
 
-    # Linear maps: each returns an array of shape (q, k, k) with M(ω) = Σ_k ω_k M_k ----------------
+    # Linear maps: each returns an array of shape (q, k, k) with M(ω) = Σ_k ω_k M_k
+    # ----------------
     def theta_maps(self, models: Sequence[Model], discrete: bool) -> List[np.ndarray]:
         """Θ_l restricted to E'z = 0 (the leading n × n block), one (q, n, n) array per vertex."""
         n = self.n

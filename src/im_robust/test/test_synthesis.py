@@ -141,7 +141,8 @@ def test_example1_printed_W_is_feasible_only_with_a23_read_as_0_035():
     assert min(printed['theta_max_eig']) > 100.0 and not printed['theta_ok']
     assert typo['theta_ok'] and max(abs(v + 1.0) for v in typo['theta_max_eig']) < 0.01
     assert typo['lambda_min_W'] == printed['lambda_min_W'] and abs(typo['lambda_min_W']) < 0.05
-    assert typo['G_mismatch'] < 1e-4                  # the printed G is the one the printed W gives
+    # the printed G is the one the printed W gives
+    assert typo['G_mismatch'] < 1e-4
     ex = example1(AIRCRAFT_A23_TYPO_READING)
     assert ex.key == '1-a23' and certify(ex.system, ex.G_printed).certified
 
