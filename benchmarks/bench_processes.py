@@ -171,7 +171,8 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
             extra.setdefault(node, {})['rt_priority'] = 0
     _run_graph_processes(graph_processes('position', 'min_energy', T_s=1e-3, duration=duration,
                                          mode='free_run', record=bag, extra=extra), 'free',
-                         plant_may_fail=True)      # a trip is a result: the loop lost its deadlines
+                         # a trip is a result: the loop lost its deadlines
+                         plant_may_fail=True)
     end, tripped = None, 0
     for _, _, _, raw in iter_raw(bag, [T.STATUS]):
         st = deserialize_message(bytes(raw), DiagnosticArray).status[0]
@@ -230,9 +231,9 @@ def recorded_fraction(bag: str, end: dict) -> dict:
 def free_run_record(duration: float, busy: bool) -> dict:
     """One free_run run at 1 kHz with the recorder: recorded fractions and deadlines."""
     r = free_run(duration, busy=busy)
-    return {k: r[f'free_run_1kHz_{k}'] for k in ('steps', 'tripped', 'missed_fraction',
-                                                  'recorded_steps_fraction',
-                                                  'recorded_commands_fraction', 'realtime')}
+    keys = ('steps', 'tripped', 'missed_fraction', 'recorded_steps_fraction',
+            'recorded_commands_fraction', 'realtime')
+    return {k: r[f'free_run_1kHz_{k}'] for k in keys}
 
 
 def run(quick: bool = False) -> dict:

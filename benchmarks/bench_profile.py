@@ -55,8 +55,8 @@ def category(func) -> str:
         return 'publish' if base == 'publisher.py' else 'other'
     if base in ('traces.py', 'run.py', 'bag.py', 'report.py') or name == 'tapped':
         return 'tap'
-    if any(f'{os.sep}{p}{os.sep}' in path for p in ('im_plant', 'im_controller', 'im_observer',
-                                                     'im_adapt', 'im_common')):
+    computing = ('im_plant', 'im_controller', 'im_observer', 'im_adapt', 'im_common')
+    if any(f'{os.sep}{p}{os.sep}' in path for p in computing):
         return 'compute'
     return 'other'
 

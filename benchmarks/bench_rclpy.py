@@ -61,7 +61,10 @@ def ping_pong(executor_kind: str, n: int = 5000, limit_s: float = 60.0) -> float
                 pa.publish(m)
         b.create_subscription(Vector3Stamped, '/bench/ping', lambda m: pb.publish(m), q)
         a.create_subscription(Vector3Stamped, '/bench/pong', on_pong, q)
-        ex = make_executor(ctx) if executor_kind == 'events' else SingleThreadedExecutor(context=ctx)
+        if executor_kind == 'events':
+            ex = make_executor(ctx)
+        else:
+            ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(a)
         ex.add_node(b)
         while pa.get_subscription_count() < 1 or pb.get_subscription_count() < 1:
@@ -118,7 +121,9 @@ class _Bare(Node):
 def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = False,
               limit_s: float = 120.0, decimation: int = 10) -> float:
     """
-    Steps per second of the drive's message pattern with no computation (EventsExecutor).
+    Measure the steps per second of the drive's message pattern with no computation.
+
+    With the EventsExecutor.
 
     Four nodes exchange what the graph exchanges per step: plant → current + shaft, controller →
     voltage, observer → flux, adapter → estimates. With ``adapter_on_path`` the controller waits
@@ -186,9 +191,10 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
         V3, JS = Vector3Stamped, JointState
         nodes = [
             _Bare('plant', ctx, [T.CMD_VOLTAGE],
-                  [(T.MEAS_CURRENT, V3), (T.MEAS_SHAFT, JS), (T.CLOCK, Clock), (T.TRUTH_VOLTAGE, V3),
-                   (T.TRUTH_FLUX, V3), (T.TRUTH_TORQUE, V3), (T.TRUTH_PARAMS, JS),
-                   (T.TRUTH_POWER, JS), (T.TRUTH_ENERGY, JS)], period, plant_step, signer),
+                  [(T.MEAS_CURRENT, V3), (T.MEAS_SHAFT, JS), (T.CLOCK, Clock),
+                   (T.TRUTH_VOLTAGE, V3), (T.TRUTH_FLUX, V3), (T.TRUTH_TORQUE, V3),
+                   (T.TRUTH_PARAMS, JS), (T.TRUTH_POWER, JS), (T.TRUTH_ENERGY, JS)],
+                  period, plant_step, signer),
             _Bare('controller', ctx, ctl_req,
                   [(T.CMD_VOLTAGE, V3), (T.REF_SHAFT, JS), (T.REF_CURRENT, V3), (T.REF_FLUX, V3)],
                   period, ctl_step, signer),
@@ -203,7 +209,8 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
         for n in nodes:
             ex.add_node(n)
         t0 = time.perf_counter()
-        # Step 0: initial estimates and measurement (transient-local QoS delivers them to late joiners).
+        # Step 0: initial estimates and measurement (transient-local QoS delivers them to late
+        # joiners).
         obs_publish(nodes[2], 0)
         ad_publish(nodes[3], 0)
         measure(nodes[0], 0)

@@ -19,7 +19,6 @@ import os
 import subprocess
 import sys
 import threading
-import time
 
 T_S = 1e-4
 WARMUP = 20_000

@@ -33,7 +33,8 @@ RATIOS = {
 
 
 def benchmark_names() -> list:
-    return sorted(f[6:-3] for f in os.listdir(HERE) if f.startswith('bench_') and f.endswith('.py'))
+    return sorted(f[6:-3] for f in os.listdir(HERE)
+                  if f.startswith('bench_') and f.endswith('.py'))
 
 
 def machine() -> dict:
@@ -129,7 +130,8 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(strict(summ), f, indent=2, allow_nan=False)
     print(f"\nmachine: {info['cpu_model']} ({info['cpus']} cpus), Python {info['python']}, "
-          f"load {info['load_1min_at_start']:.2f} at start" + (' (quick run)' if args.quick else ''))
+          f"load {info['load_1min_at_start']:.2f} at start"
+          + (' (quick run)' if args.quick else ''))
     print(f"{'benchmark':10s} {'figure':52s} {'value':>14s}")
     for name, k, v in rows:
         print(f'{name:10s} {k:52s} ' + (f'{v:14.6g}' if not isinstance(v, str) else v))

@@ -31,6 +31,7 @@ ROGUE_VOLTAGE = 50.0
 
 
 class RogueNode(Node):
+
     def __init__(self, **kwargs):
         super().__init__('rogue', **kwargs)
         self.answered = 0

@@ -202,7 +202,7 @@ def decode_bag_metadata(text: str) -> dict:
 
 def read_metadata(path) -> dict:
     """
-    Return what ``MCAPStorage::read_metadata()`` reads from the file at ``path``.
+    Read the metadata of the file at ``path`` as rosbag2's ``MCAPStorage`` reads it.
 
     The decoded ``rosbag2`` record, plus per channel its topic, schema name and decoded offered
     QoS.

@@ -346,8 +346,9 @@ def test_flux_corner_follows_the_stator_frequency_at_low_speed():
     true = ParameterSchedule(P, {'R_r': ramp(P.R_r, 0.42)}, name='R_r ramp')
     err = {}
     for ratio in (0.4, 0.0):
-        rows, ad, _ = _run(true, lambda: ParameterAdapter(P, AdaptationGains(flux_corner_ratio=ratio),
-                                                          P.R_r, P.theta),
+        rows, ad, _ = _run(true,
+                           lambda: ParameterAdapter(P, AdaptationGains(
+                               flux_corner_ratio=ratio), P.R_r, P.theta),
                            t_end=1.5, every=10, voltage=slow)
         late = rows[rows[:, 0] > 1.0]
         err[ratio] = float(np.sqrt(np.mean(((late[:, 4] - late[:, 8]) / late[:, 8]) ** 2)))

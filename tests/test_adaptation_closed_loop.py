@@ -26,7 +26,8 @@ def test_result_carries_the_summary_and_the_estimates(position_runs):
         for k in KEYS:
             assert k in r, k
     nom = position_runs['nominal']
-    assert nom['R_r_hat_final'] == 0.842 and nom['R_r_true_final'] == pytest.approx(0.42 * 2 + 0.42)
+    assert nom['R_r_hat_final'] == 0.842
+    assert nom['R_r_true_final'] == pytest.approx(0.42 * 2 + 0.42)
 
 
 def test_improved_law_halves_the_position_error_under_the_chapter4_profile(position_runs):

@@ -58,7 +58,8 @@ def _sample_messages(n=300):
     for j, fid in enumerate(['a', 'ab', 'abc', 'abcd', 'abcde', 'map', 'base_link']):
         t = (n + j) * 100_000
         out.append(('/im/measured/current', _v3(t, j, -j, 0.5, fid), t))
-        out.append(('/im/measured/shaft', _js(t, ['r' * j], [], [float(j)], [1.0, 2.0][:j % 3]), t))
+        shaft = _js(t, ['r' * j], [], [float(j)], [1.0, 2.0][:j % 3])
+        out.append(('/im/measured/shaft', shaft, t))
     return out
 
 
@@ -441,5 +442,5 @@ def test_outputs_are_never_inputs_and_never_overwritten_silently(tmp_path):
     os.symlink(a, link)
     with pytest.raises(FileExistsError, match='also an input'):
         check_output(link, [a], force=True)
-    assert a.read_text() == 'one' and sorted(p.name for p in tmp_path.iterdir()) == ['a.json',
-                                                                                    'link.json']
+    assert a.read_text() == 'one'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['a.json', 'link.json']

@@ -49,8 +49,8 @@ def test_recorder_node_records_what_was_published(tmp_path):
         # the talker is the graph's plant: it signs the lock-step topics for its run
         rec.adopt_run('run1')
         sign = Signer(rec.signer.key, 'run1').sign
-        v3, shaft = Vector3Out(Signer.frame('alphabeta')), JointStateOut(['rotor'],
-                                                                          Signer.frame(''))
+        v3 = Vector3Out(Signer.frame('alphabeta'))
+        shaft = JointStateOut(['rotor'], Signer.frame(''))
         sent = []
         for k in range(50):
             t = 2 * 10**9 + k * 100_000
@@ -86,9 +86,12 @@ def test_recorder_node_records_what_was_published(tmp_path):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as ar:
-        assert sum(1 for c, _, raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 1
+        assert sum(1 for c, _,
+                   raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 1
     key = lambda e: (e[1], e[0])  # noqa: E731
-    assert sorted([(tp, t) for tp, t, _ in got if not tp.startswith('/im/refused')]) == sorted([(tp, t) for tp, t, _ in sent])
+    assert sorted([(tp, t) for tp, t,
+                   _ in got if not tp.startswith('/im/refused')]) == sorted([(tp, t) for tp, t,
+                                                                             _ in sent])
     by = {(tp, t): m for tp, t, m in got if not tp.startswith('/im/refused')}
     for tp, t, m in sorted(sent, key=key):
         assert by[(tp, t)] == m

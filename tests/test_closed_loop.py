@@ -68,7 +68,8 @@ def test_runs_are_deterministic():
 
 def test_bad_scenario_names_the_field():
     for kwargs, name in [({'task': 'torque'}, 'task'), ({'T_s': -1e-4}, 'T_s'),
-                         ({'variation': 'hot'}, 'variation'), ({'controller': 'fuzzy'}, 'controller'),
+                         ({'variation': 'hot'}, 'variation'),
+                         ({'controller': 'fuzzy'}, 'controller'),
                          ({'start': 'fly'}, 'start'), ({'duration': 0.0}, 'duration')]:
         with pytest.raises(InvalidParameter, match=name):
             Scenario(**kwargs)

@@ -44,9 +44,8 @@ def test_offline_100us_certified_no_worse_than_thesis(gains_100us):
     p = design_gains.node_overrides(gains_100us)
     K = np.array(p['controller']['current_gain']).reshape(2, 2).tolist()
     k_e = p['observer']['k_e_injection'] or None
-    base = dict(task='speed', strategy='min_energy', T_s=1e-4, duration=0.15)
+    base = {'task': 'speed', 'strategy': 'min_energy', 'T_s': 1e-4, 'duration': 0.15}
     ref = simulate(Scenario(**base)).summary
-    cert = simulate(Scenario(**base, current_gain=K, k_e=k_e,
-                             controller_options={'flux_coupling': p['controller']['flux_coupling']})
-                    ).summary
+    coupling = {'flux_coupling': p['controller']['flux_coupling']}
+    cert = simulate(Scenario(**base, current_gain=K, k_e=k_e, controller_options=coupling)).summary
     assert cert['speed_err_max_rad_s'] <= ref['speed_err_max_rad_s'] * (1.0 + 1e-9)

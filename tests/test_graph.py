@@ -127,7 +127,7 @@ def test_adapter_enable_switches_at_run_time():
 
 def test_speed_setpoint_from_the_topic_is_reached_smoothly():
     """
-    profile 'setpoint'.
+    Check the 'setpoint' profile.
 
     A JointState on /im/setpoint (velocity) becomes a smooth reference that the drive follows;
     the plant ends at the new speed.

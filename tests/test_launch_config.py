@@ -61,5 +61,5 @@ def test_graph_processes_starts_what_the_run_needs():
 
 def test_params_file_is_what_launch_ros_writes():
     text = params_file_text({'T_s': 0.001, 'mode': 'free_run'})
-    assert yaml.safe_load(text) == {'/**': {'ros__parameters': {'T_s': 0.001,
-                                                                 'mode': 'free_run'}}}
+    expected = {'T_s': 0.001, 'mode': 'free_run'}
+    assert yaml.safe_load(text) == {'/**': {'ros__parameters': expected}}

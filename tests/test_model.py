@@ -66,7 +66,8 @@ def _expected_samples(ss, params, ts):
     """
     dI = zoh_sample_flux_offset(ss.V_s, ss.omega_e, T_S) / (params.sigma * params.L_s)
     I_k = (ss.I_s + dI) * np.exp(1j * ss.omega_e * ts)
-    tau_k = params.pole_pairs * params.L_sr / params.L_r * np.imag(np.conj(ss.Phi_r) * (ss.I_s + dI))
+    tau_k = (params.pole_pairs * params.L_sr / params.L_r
+             * np.imag(np.conj(ss.Phi_r) * (ss.I_s + dI)))
     v = ss.V_s * np.exp(1j * ss.omega_e * ts)
     pf_k = np.real(v * np.conj(I_k)) / (np.abs(v) * np.abs(I_k))
     return I_k, tau_k, pf_k
@@ -205,7 +206,8 @@ def test_rhs_equals_eq112_at_random_states():
             np.testing.assert_allclose(np.r_[di_s, d[2:4]], expected, rtol=1e-10,
                                        atol=1e-10 * np.max(np.abs(expected)))
             # eq. 1.111 and 1.127
-            tau = params.pole_pairs * params.L_sr / params.L_r * (i_s[1] * phi[0] - i_s[0] * phi[1])
+            tau = (params.pole_pairs * params.L_sr / params.L_r
+                   * (i_s[1] * phi[0] - i_s[0] * phi[1]))
             np.testing.assert_allclose(torque(i_s[0], i_s[1], phi[0], phi[1], params.L_r,
                                               params.L_sr, params.pole_pairs), tau, rtol=1e-12)
             d_omega = (tau - params.b * omega - load.torque(0.3, theta, omega)) / params.J

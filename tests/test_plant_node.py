@@ -163,8 +163,10 @@ def test_custom_variation_that_breaks_sigma_is_refused(ctx):
     with pytest.raises(InvalidParameter) as err:
         PlantNode(context=ctx, parameter_overrides=[
             Parameter('duration', value=1.0), Parameter('variation', value='custom'),
-            Parameter('variation_parameter', value='L_sr'), Parameter('variation_kind', value='ramp'),
-            Parameter('variation_offset', value=0.08136), Parameter('variation_slope', value=0.01)])
+            Parameter('variation_parameter', value='L_sr'),
+            Parameter('variation_kind', value='ramp'),
+            Parameter('variation_offset', value=0.08136),
+            Parameter('variation_slope', value=0.01)])
     assert 'L_sr' in str(err.value) and 't = ' in str(err.value)
 
 

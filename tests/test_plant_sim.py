@@ -169,8 +169,8 @@ def test_noiseless_measurement_is_the_truth_and_time_is_exact():
         v = V_HAT * np.exp(1j * OMEGA_E * k * T_S)
         sim.step(v.real, v.imag)
     m, tr = sim.measure(), sim.truth()
-    assert (m.i_alpha, m.i_beta, m.theta_r, m.omega_r) == (tr['i_alpha'], tr['i_beta'],
-                                                          tr['theta_r'], tr['omega_r'])
+    assert ((m.i_alpha, m.i_beta, m.theta_r, m.omega_r)
+            == (tr['i_alpha'], tr['i_beta'], tr['theta_r'], tr['omega_r']))
     assert m.t == 1234 * T_S
 
 

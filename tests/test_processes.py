@@ -102,7 +102,7 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
                                 domain) as g:
                 codes = g.start().wait(120)
                 no_traceback(g)
-                assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+                assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
             c = counts(bag)
             for topic in LOCKSTEP:
                 expected = 2000 if topic == T.CMD_VOLTAGE else 2001      # steps 0..2000
@@ -141,7 +141,7 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
             g.send(signal.SIGINT)
         codes = g.wait(30)
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
         if target == 'controller':
             assert 'controller stopping (SIGINT)' in g.log('plant')
     from rosbags.highlevel import AnyReader
@@ -159,7 +159,7 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
         end = plant_end(bag)
         assert end and end[0] == 'stopped', [(m.status[0].name, m.status[0].message)
                                              for _, m in _statuses(bag)]
-        assert missing_in_bag(bag) == {t: 0 for t in LOCKSTEP}
+        assert missing_in_bag(bag) == dict.fromkeys(LOCKSTEP, 0)
 
 
 def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
@@ -201,7 +201,7 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
         g.start_one('recorder')
         codes = g.wait(120)
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
     joined = re.search(r"lossless follower 'recorder' joined at step (\d+)", g.log('plant'))
     assert joined, g.log('plant')[-2000:]
     n_join = int(joined.group(1))
@@ -219,8 +219,8 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
     for topic, k_last in last.items():
         have = {t // 100_000 for _, _, t, _ in iter_raw(bag, [topic])}
         lacks += len(set(range(min(first[topic], start), k_last + 1)) - have)
-    assert int(meta['missing_steps']) == lacks, {k: v for k, v in meta.items()
-                                                  if k.startswith(('missing', 'last'))}
+    counts = {k: v for k, v in meta.items() if k.startswith(('missing', 'last'))}
+    assert int(meta['missing_steps']) == lacks, counts
 
 
 def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
@@ -309,7 +309,7 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
             assert not bad.successful and 'k1' in bad.reason
             assert set_(30.0).successful
             codes = g.wait(120)
-            assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
             no_traceback(g)
         node.destroy_node()
     finally:
@@ -340,7 +340,7 @@ def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
         assert all(g.popen[n].poll() is None for n in ('plant', 'controller', 'observer'))
         codes = g.stop()
         no_traceback(g)
-        assert codes == {n: 0 for n in ('plant', 'controller', 'observer')} | {'plant2': 1}
+        assert codes == dict.fromkeys(('plant', 'controller', 'observer'), 0) | {'plant2': 1}
 
 
 def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_path, domain):
@@ -364,7 +364,7 @@ def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_pat
     with GraphProcesses(a + b, str(tmp_path), domain) as g:
         codes = g.start().wait(180)
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
     assert 'not signed by this graph' in g.log('controller') + g.log('observer')
     live = run_graph(task='position', strategy='min_energy', duration=0.1)
     for bag in bags:
@@ -396,8 +396,8 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
     from im_recording.run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
-    kw = (dict(duration=1.0) if mode == 'lockstep' else
-          dict(duration=2.0, T_s=1e-3, mode='free_run', extra=_gains_1ms()))
+    kw = ({'duration': 1.0} if mode == 'lockstep' else
+          {'duration': 2.0, 'T_s': 1e-3, 'mode': 'free_run', 'extra': _gains_1ms()})
     bags = [tmp_path / 'a.mcap', tmp_path / 'b.mcap']
     a = graph_processes('position', 'min_energy', record=bags[0], **kw)
     b = graph_processes('position', 'min_energy', record=bags[1], **kw)
@@ -415,7 +415,7 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
         codes = [ga.wait(300), gb.wait(300)]
         for g, c in zip((ga, gb), codes):
             no_traceback(g)
-            assert c == {n: 0 for n in c}, {n: g.log(n)[-1500:] for n in c}
+            assert c == dict.fromkeys(c, 0), {n: g.log(n)[-1500:] for n in c}
             assert 'reached duration' in g.log('plant')
     assert 'not signed by this graph' in ''.join(g.log(n) for g in (ga, gb)
                                                  for n in ('controller', 'observer', 'plant'))

@@ -148,7 +148,8 @@ def test_a_torn_tail_reports_its_chunk_header_range(tmp_path, capsys):
     assert f'{t0 * 1e-9:.9f} .. {t1 * 1e-9:.9f} s' in cap.err and 'torn' in cap.err
     assert _all(tmp_path / 'torn.mcap') == [m for m in _all(src) if m[1] < t0]
     assert part.read_bytes() == before                         # the input is never modified
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut.mcap', 'torn.mcap', 'torn.mcap.part']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut.mcap', 'torn.mcap',
+                                                          'torn.mcap.part']
 
 
 def test_recover_part_onto_its_final_name_keeps_the_input(tmp_path, capsys):

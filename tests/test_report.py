@@ -52,7 +52,7 @@ def test_report_numbers_files_and_cli(two_bags, tmp_path, capsys):
     assert f"{ta['E_in']:.2f}" in md and 'energy drawn E_in' in md
     js = json.loads((out / 'report.json').read_text())
     assert js['runs'][0]['figures']['E_in_J'] == pytest.approx(ta['E_in'])
-    pngs = [p for p in res['figures']]
+    pngs = list(res['figures'])
     names = {p.split('/')[-1] for p in pngs}
     assert {'speed.png', 'energy.png', 'currents_dq.png', 'flux_dq.png'} <= names
     for p in pngs:

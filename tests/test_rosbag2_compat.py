@@ -76,7 +76,8 @@ ros_distro: jazzy
 @pytest.mark.parametrize('broken, error', [
     ('rosbag2_bagfile_information:\n' + ''.join('  ' + line + '\n' for line in GOOD.splitlines()),
      'first invalid key: "version"'),
-    (GOOD.replace('    offered_qos_profiles:\n', "    offered_qos_profiles: '- {history: keep_last}'\n"
+    (GOOD.replace('    offered_qos_profiles:\n',
+                  "    offered_qos_profiles: '- {history: keep_last}'\n"
                   '    x:\n'), 'sequence expected'),
     (GOOD.replace('ros_distro: jazzy\n', ''), 'first invalid key: "ros_distro"'),
     (GOOD.replace('message_count: 1\ncompression', 'message_count: -1\ncompression'),
@@ -91,11 +92,11 @@ def test_the_decoder_refuses_what_rosbag2_cannot_read(broken, error):
 
 
 def test_schema_text_is_rosbag2s_local_message_definition():
-    """
-    rosbag2's recorder.
+    r"""
+    Check the schema text against rosbag2's recorder.
 
     The .msg file as installed (comments, blank lines), then each dependency depth first in
-    sorted order, after '\\n', 80 '=' and 'MSG: pkg/Type' (a same-package field type qualified
+    sorted order, after '\n', 80 '=' and 'MSG: pkg/Type' (a same-package field type qualified
     with its package).
     """
     text = full_definition('diagnostic_msgs/msg/DiagnosticArray')

@@ -203,7 +203,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
                                             record=bag),
                             str(tmp_path / 'g'), env) as g:
             codes = g.start().wait(120)
-            assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
             plant_log = g.log('plant')
             assert 'foreign publisher /rogue on /im/command/voltage' in plant_log
             assert 'refused' in plant_log and 'Traceback' not in plant_log
@@ -316,8 +316,8 @@ def _seen_from(host, env, seconds=5.0):
                           env=dict(os.environ, **env)).stdout.split()
 
 
-def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(tmp_path,
-                                                                                other_host):
+def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(
+        tmp_path, other_host):
     """
     Check that the graph cannot be discovered from another machine.
 
@@ -366,8 +366,8 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
         rogue = Vector3Out(Signer.frame('alphabeta'))
         for k in range(3 * node.EARLY_MAX):
             sub.callback(rogue.fill(0, 100.0, 0.0))           # unsigned
-            sub.callback(Signer(os.urandom(32), 'plantrun').sign(T.MEAS_CURRENT,
-                                                                  rogue.fill(0, 100.0, 0.0)))
+            foreign = Signer(os.urandom(32), 'plantrun')
+            sub.callback(foreign.sign(T.MEAS_CURRENT, rogue.fill(0, 100.0, 0.0)))
         assert node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX
         assert node._early == []
         ours = Signer(key, 'plantrun').sign(T.MEAS_CURRENT, rogue.fill(0, 1.0, 0.0))

@@ -3,7 +3,6 @@ Speed-sensorless mode (issue 26 item 1, docs/sensorless.md).
 
 The speed-adaptive observer's physics and the offline loop's sensorless option.
 """
-import math
 
 from im_bringup.offline import build, Scenario, simulate
 from im_common.params import InvalidParameter, THESIS_MOTOR
@@ -21,7 +20,8 @@ def _slowest_pole_at_speed(obs):
     regenerating, at the thesis's flux and at a third of it.
     """
     return max(max(linearized_poles(obs, w, tau, phi).real)
-               for w in (50.0, 100.0, 150.0) for tau in (-6.0, -1.0, 1.0, 6.0) for phi in (1.2, 0.4))
+               for w in (50.0, 100.0, 150.0) for tau in (-6.0, -1.0, 1.0, 6.0)
+               for phi in (1.2, 0.4))
 
 
 def test_flux_row_gain_makes_the_speed_estimate_fast_at_speed():

@@ -65,7 +65,7 @@ def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_
                                         extra=NOISE, sensorless=True),
                         str(tmp_path / 'logs'), domain) as g:
         codes = g.start().wait(300)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
     n_speed = sum(1 for t, *_ in iter_raw(bag) if t == T.OBS_SPEED)
     assert n_speed == 201                                   # steps 0..200
     quiet = run_graph(task='speed', strategy='min_energy', duration=0.02, sensorless=True)
