@@ -1,7 +1,7 @@
 """
 The four-node graph in lock-step.
 
-deterministic, identical to the ROS-free loop, and it stops cleanly with a clear report when a node
+Deterministic, identical to the ROS-free loop, and it stops cleanly with a clear report when a node
 is missing.
 """
 import math

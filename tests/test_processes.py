@@ -50,7 +50,7 @@ def plant_end(bag):
 
 def missing_in_bag(bag, period=100_000):
     """
-    Per lock-step topic.
+    Count the steps each lock-step topic lacks in the bag.
 
     How many steps of the run the bag lacks, from step 0 to the plant's final step (the command
     of the final step is never computed; after a stop only the measurements of the final step

@@ -103,7 +103,7 @@ def _speed_task(strategy, sensorless):
 @pytest.mark.parametrize('strategy', ['min_energy', 'constant_flux', 'min_loss'])
 def test_thesis_speed_task_sensorless_with_a_useless_speed_measurement(strategy):
     """
-    Issue 26's target.
+    Check issue 26's target for the sensorless drive.
 
     The measured speed made useless (σ = 50 rad/s), the sensorless drive tracks within 1 rad/s
     and loses within 2 % of the sensored one's energy.

@@ -1,5 +1,5 @@
 """
-im_adapt.parameters.declare_law.
+im_adapt.parameters.declare_law: the adaptation gains as declared node parameters.
 
 Every gain is a declared parameter with a description and a range, overrides reach the adapter, and
 bad values are refused naming the parameter (ROS-free stand-in and the real node).
