@@ -18,6 +18,7 @@ import fnmatch
 from pathlib import Path
 import subprocess
 import sys
+import warnings
 
 import pydocstyle
 from pydocstyle.violations import ErrorRegistry
@@ -75,6 +76,7 @@ def _split(findings):
     if pending:
         print(f'{len(pending)} findings in files still PENDING (not failed):')
         print('\n'.join(pending))
+        warnings.warn(f'{len(pending)} lint findings in the PENDING files (printed with -rP)')
     return failing, pending
 
 
