@@ -1,6 +1,9 @@
-"""Cost of the graph's message tags (docs/security.md): signing and checking one lock-step message,
-against packing it, and per step of the graph (5 signed: plant 2, controller, observer, adapter 1
-each; 11 checked: plant 1, controller 3, observer 3, adapter 4; a recorder checks 5 more).
+"""
+Cost of the graph's message tags (docs/security.md).
+
+Signing and checking one lock-step message, against packing it, and per step of the graph (5
+signed: plant 2, controller, observer, adapter 1 each; 11 checked: plant 1, controller 3, observer
+3, adapter 4; a recorder checks 5 more).
 
 ``hmac`` over SHA-256 is the standard library's other keyed MAC; BLAKE2s with a key is a MAC by
 construction and the faster of the two here (both rows below), so the stack uses it.

@@ -1,4 +1,5 @@
-"""Micro-benchmark of the recorder's per-message cost: ``python benchmarks/bench_bag.py``.
+"""
+Micro-benchmark of the recorder's per-message cost: ``python benchmarks/bench_bag.py``.
 
 Writes N steps of the lock-step loop's messages (Vector3Stamped and JointState) through each
 write path of :class:`~im_recording.bag.BagWriter` into a temporary file and prints µs per message
@@ -96,7 +97,7 @@ def _bench_serialize(n: int) -> float:
 
 
 def _messages(n_steps: int):
-    """The lock-step loop's serialized messages, one list for every writer and reader."""
+    """Return the lock-step loop's serialized messages, one list for every writer and reader."""
     from im_common import cdr
     v3 = ('/im/measured/current', '/im/command/voltage', '/im/observer/flux', '/im/truth/flux',
           '/im/truth/torque')
@@ -112,9 +113,12 @@ def _messages(n_steps: int):
 
 
 def _bench_own_vs_library(n_steps: int, tmp: str) -> dict:
-    """The project's MCAP writer and reader against the ``mcap`` library's on the same serialized
-    messages (zstd, 1 MiB chunks): µs per message, writing including the close, reading every
-    message back with its payload."""
+    """
+    Time the project's MCAP writer and reader against the ``mcap`` library's.
+
+    On the same serialized messages (zstd, 1 MiB chunks): µs per message, writing including the
+    close, reading every message back with its payload.
+    """
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
     from im_recording.bag import BagWriter, iter_raw
@@ -161,8 +165,12 @@ def _bench_own_vs_library(n_steps: int, tmp: str) -> dict:
 
 
 def _synthetic(path: str, n_steps: int, damage: bool = True) -> int:
-    """A recording of ``n_steps`` lock-step steps (written as it goes: no list in memory), with
-    4 KiB zeroed in the middle of its middle chunk if ``damage``; returns its message count."""
+    """
+    Write a recording of ``n_steps`` lock-step steps; return its message count.
+
+    Written as it goes (no list in memory), with 4 KiB zeroed in the middle of its middle chunk if
+    ``damage``.
+    """
     from im_common import cdr
     from im_recording.bag import BagWriter
     v3 = ('/im/measured/current', '/im/command/voltage', '/im/observer/flux', '/im/truth/flux',

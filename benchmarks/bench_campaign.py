@@ -1,4 +1,5 @@
-"""Campaign engine and scaling (docs/campaign.md).
+"""
+Campaign engine and scaling (docs/campaign.md).
 
 1. Engines on this machine, each in a fresh interpreter with as many workers as cores: the
    standard library's process pool (the floor: no scheduler), a Dask local cluster, a local Ray
@@ -62,7 +63,7 @@ def _rss_mb(pid: int) -> float:
 
 
 def _engine(name: str, n_noop: int, spec_path: str) -> dict:
-    """Runs in a child interpreter: one engine's figures."""
+    """Run in a child interpreter: one engine's figures."""
     from im_studies import campaign_pool, campaign_spec
     spec = campaign_spec.read_spec(spec_path)
     jobs = campaign_spec.jobs(spec)
@@ -141,9 +142,12 @@ def _campaign_wall(spec_path: str, workers: int, out: str) -> float:
 
 
 def run(quick: bool = False) -> dict:
-    """Full: every row (Ray must be installed: ``make bench`` installs it). ``quick`` (a smoke
-    test, seconds): 4 runs per engine, 100 empty tasks, campaigns of 4 runs; without Ray the Ray
-    row is skipped with its reason (``engine_ray_skipped``)."""
+    """
+    Full: every row (Ray must be installed: ``make bench`` installs it).
+
+    ``quick`` (a smoke test, seconds): 4 runs per engine, 100 empty tasks, campaigns of 4 runs;
+    without Ray the Ray row is skipped with its reason (``engine_ray_skipped``).
+    """
     res: dict = {}
     cores = os.cpu_count() or 1
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,4 +1,5 @@
-"""Lock-step throughput of the drive graph, next to its yardsticks measured in the same run.
+"""
+Lock-step throughput of the drive graph, next to its yardsticks measured in the same run.
 
 * in one process (DriveGraph, EventsExecutor): steps/s of the full graph, with and without the
   adapter on the critical path, with and without in-process MCAP recording;
@@ -62,7 +63,7 @@ def run(quick: bool = False) -> dict:
         'graph_in_process_adaptive_steps_per_s': lambda: in_process(d, controller='adaptive'),
         'graph_in_process_recording_steps_per_s': lambda: in_process(d, record=True),
     }
-    res = {k: 0.0 for k in figures}
+    res = dict.fromkeys(figures, 0.0)
     for _ in range(repeats):
         for k, f in figures.items():
             res[k] = max(res[k], f())

@@ -1,4 +1,5 @@
-"""Plant-kernel benchmark: RK4 steps per second and accuracy against solve_ivp (no ROS).
+"""
+Plant-kernel benchmark: RK4 steps per second and accuracy against solve_ivp (no ROS).
 
 1. Throughput: ``PlantSimulator.step`` at T_s = 100 µs (one RK4 sub-step) with a balanced
    220 V / 60 Hz supply and the speed task's linear load (τ_L = 1 + 0.001 ω), best of 3 runs of
@@ -22,14 +23,12 @@ import os
 import sys
 import time
 
+from im_common.loads import LinearLoad
+from im_common.model import eq112_matrices
+from im_common.params import chapter4_schedule, THESIS_MOTOR
+from im_common.plant_sim import PlantSimulator
 import numpy as np
-
 from scipy.integrate import solve_ivp
-
-from im_common.loads import LinearLoad  # noqa: E402
-from im_common.params import THESIS_MOTOR, chapter4_schedule  # noqa: E402
-from im_common.plant_sim import PlantSimulator  # noqa: E402
-from im_common.model import eq112_matrices  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 T_S = 1e-4
@@ -78,7 +77,8 @@ def _reference(params, load, T_s: float, n_steps: int) -> np.ndarray:
 
 
 def error_vs_solve_ivp(T_s: float = T_S, duration: float = 0.2) -> dict:
-    """Relative error of the RK4 plant against the DOP853 reference over a start transient.
+    """
+    Relative error of the RK4 plant against the DOP853 reference over a start transient.
 
     One RK4 step per period (max_substep = T_s), so the RK4 step h equals T_s.
     """

@@ -1,4 +1,5 @@
-"""The graph as separate processes (how users run it), next to its yardstick in the same run.
+"""
+The graph as separate processes (how users run it), next to its yardstick in the same run.
 
 1. Two-process rclpy ping-pong (EventsExecutor on both sides, lock-step QoS, serialized
    Vector3Stamped): round trips/s — the fastest a two-hop-per-step loop across processes can go.
@@ -120,7 +121,7 @@ def lockstep_processes(duration: float, record: bool) -> float:
         shutil.rmtree(tmp, ignore_errors=True)
     m = re.search(r'\((\d+) steps/s\)', log)
     if m is None:
-        raise RuntimeError(f'lockstep: no steps/s in the plant\'s log: {log[-500:]}')
+        raise RuntimeError(f"lockstep: no steps/s in the plant's log: {log[-500:]}")
     return float(m.group(1))
 
 
@@ -133,9 +134,13 @@ def _gains():
 
 
 def free_run(duration: float, realtime: bool = True, busy: bool = False) -> dict:
-    """free_run at 1 kHz; ``realtime``: the nodes' default SCHED_FIFO (rt_priority 50) — the
-    scheduling each node got is in the plant's final status — else ordinary scheduling;
-    ``busy``: a CPU-bound process beside the graph."""
+    """
+    free_run at 1 kHz; ``realtime``.
+
+    The nodes' default SCHED_FIFO (rt_priority 50) — the scheduling each node got is in the
+    plant's final status — else ordinary scheduling; ``busy``: a CPU-bound process beside the
+    graph.
+    """
     if busy:
         hog = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
         try:
@@ -166,7 +171,8 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
             extra.setdefault(node, {})['rt_priority'] = 0
     _run_graph_processes(graph_processes('position', 'min_energy', T_s=1e-3, duration=duration,
                                          mode='free_run', record=bag, extra=extra), 'free',
-                         plant_may_fail=True)      # a trip is a result: the loop lost its deadlines
+                         # a trip is a result: the loop lost its deadlines
+                         plant_may_fail=True)
     end, tripped = None, 0
     for _, _, _, raw in iter_raw(bag, [T.STATUS]):
         st = deserialize_message(bytes(raw), DiagnosticArray).status[0]
@@ -199,10 +205,14 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
 
 
 def recorded_fraction(bag: str, end: dict) -> dict:
-    """What a free_run bag holds of its run: ``steps`` = the fraction of the steps 0..N the plant
-    integrated (its final event's ``steps``) whose measured current *and* shaft are in the bag;
-    ``commands`` = recorded commands / commands the plant received (its latency samples, on time
-    or late); ``missing_meta`` = the recorder's own count of missing lock-step steps."""
+    """
+    Return what a free_run bag holds of its run.
+
+    ``steps`` = the fraction of the steps 0..N the plant integrated (its final event's
+    ``steps``) whose measured current *and* shaft are in the bag; ``commands`` = recorded
+    commands / commands the plant received (its latency samples, on time or late);
+    ``missing_meta`` = the recorder's own count of missing lock-step steps.
+    """
     from im_recording.bag import info, iter_raw
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
@@ -221,15 +231,19 @@ def recorded_fraction(bag: str, end: dict) -> dict:
 def free_run_record(duration: float, busy: bool) -> dict:
     """One free_run run at 1 kHz with the recorder: recorded fractions and deadlines."""
     r = free_run(duration, busy=busy)
-    return {k: r[f'free_run_1kHz_{k}'] for k in ('steps', 'tripped', 'missed_fraction',
-                                                  'recorded_steps_fraction',
-                                                  'recorded_commands_fraction', 'realtime')}
+    keys = ('steps', 'tripped', 'missed_fraction', 'recorded_steps_fraction',
+            'recorded_commands_fraction', 'realtime')
+    return {k: r[f'free_run_1kHz_{k}'] for k in keys}
 
 
 def run(quick: bool = False) -> dict:
-    """Full: every row. ``quick`` (a smoke test of every path, seconds): 500 round trips, one
-    0.2 s lock-step run without and one with the recorder, one 0.5 s free_run (real-time if
-    allowed; the position error it is compared by is still zero before 0.2 s)."""
+    """
+    Full: every row.
+
+    ``quick`` (a smoke test of every path, seconds): 500 round trips, one 0.2 s lock-step run
+    without and one with the recorder, one 0.5 s free_run (real-time if allowed; the position
+    error it is compared by is still zero before 0.2 s).
+    """
     d = 0.2 if quick else 2.0
     res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(
         500 if quick else 10000)}

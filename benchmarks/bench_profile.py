@@ -1,4 +1,5 @@
-"""Where a lock-step step of the in-process graph spends its time (cProfile, no ROS-side tools).
+"""
+Where a lock-step step of the in-process graph spends its time (cProfile, no ROS-side tools).
 
 The issue's scenario (position task, min_loss, nominal controller, the summary tap that
 ``scenario`` folds every message into) runs once unprofiled (steps/s) and once under cProfile.
@@ -54,8 +55,8 @@ def category(func) -> str:
         return 'publish' if base == 'publisher.py' else 'other'
     if base in ('traces.py', 'run.py', 'bag.py', 'report.py') or name == 'tapped':
         return 'tap'
-    if any(f'{os.sep}{p}{os.sep}' in path for p in ('im_plant', 'im_controller', 'im_observer',
-                                                     'im_adapt', 'im_common')):
+    computing = ('im_plant', 'im_controller', 'im_observer', 'im_adapt', 'im_common')
+    if any(f'{os.sep}{p}{os.sep}' in path for p in computing):
         return 'compute'
     return 'other'
 

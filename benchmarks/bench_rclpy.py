@@ -1,4 +1,5 @@
-"""Yardsticks for the lock-step loop: raw rclpy round trips and a bare four-node protocol loop.
+"""
+Yardsticks for the lock-step loop: raw rclpy round trips and a bare four-node protocol loop.
 
 1. Ping-pong: two nodes in one process bounce a Vector3Stamped, SingleThreadedExecutor vs
    ``rclpy.experimental.EventsExecutor`` (round trips/s).
@@ -17,19 +18,18 @@ import os
 import random
 import time
 
-import rclpy
 from geometry_msgs.msg import Vector3Stamped
+from im_common import topics as T
+from im_common.auth import Signer
+from im_common.conversions import (clock_bytes, estimates_in, JointStateOut, shaft_in, Vector3Out,
+                                   xy_in)
+from im_common.lockstep import lockstep_qos, make_executor, StepGate
+import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-
-from im_common import topics as T
-from im_common.auth import Signer
-from im_common.conversions import (JointStateOut, Vector3Out, clock_bytes, estimates_in, shaft_in,
-                                   xy_in)
-from im_common.lockstep import StepGate, lockstep_qos, make_executor
 
 
 def _context():
@@ -61,7 +61,10 @@ def ping_pong(executor_kind: str, n: int = 5000, limit_s: float = 60.0) -> float
                 pa.publish(m)
         b.create_subscription(Vector3Stamped, '/bench/ping', lambda m: pb.publish(m), q)
         a.create_subscription(Vector3Stamped, '/bench/pong', on_pong, q)
-        ex = make_executor(ctx) if executor_kind == 'events' else SingleThreadedExecutor(context=ctx)
+        if executor_kind == 'events':
+            ex = make_executor(ctx)
+        else:
+            ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(a)
         ex.add_node(b)
         while pa.get_subscription_count() < 1 or pb.get_subscription_count() < 1:
@@ -79,9 +82,13 @@ def ping_pong(executor_kind: str, n: int = 5000, limit_s: float = 60.0) -> float
 
 
 class _Bare(Node):
-    """A node of the bare loop: gated serialized inputs, serialized outputs, no computation —
-    the same mechanism as the drive nodes (im_common.lockstep.LockstepNode.gate_input), with
-    the inputs' tags checked when ``signer`` is given."""
+    """
+    A node of the bare loop.
+
+    Gated serialized inputs, serialized outputs, no computation — the same mechanism as the
+    drive nodes (im_common.lockstep.LockstepNode.gate_input), with the inputs' tags checked
+    when ``signer`` is given.
+    """
 
     def __init__(self, name, ctx, required, outputs, period, on_step, signer=None):
         super().__init__(name, context=ctx)
@@ -113,7 +120,10 @@ class _Bare(Node):
 
 def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = False,
               limit_s: float = 120.0, decimation: int = 10) -> float:
-    """Steps per second of the drive's message pattern with no computation (EventsExecutor).
+    """
+    Measure the steps per second of the drive's message pattern with no computation.
+
+    With the EventsExecutor.
 
     Four nodes exchange what the graph exchanges per step: plant → current + shaft, controller →
     voltage, observer → flux, adapter → estimates. With ``adapter_on_path`` the controller waits
@@ -181,9 +191,10 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
         V3, JS = Vector3Stamped, JointState
         nodes = [
             _Bare('plant', ctx, [T.CMD_VOLTAGE],
-                  [(T.MEAS_CURRENT, V3), (T.MEAS_SHAFT, JS), (T.CLOCK, Clock), (T.TRUTH_VOLTAGE, V3),
-                   (T.TRUTH_FLUX, V3), (T.TRUTH_TORQUE, V3), (T.TRUTH_PARAMS, JS),
-                   (T.TRUTH_POWER, JS), (T.TRUTH_ENERGY, JS)], period, plant_step, signer),
+                  [(T.MEAS_CURRENT, V3), (T.MEAS_SHAFT, JS), (T.CLOCK, Clock),
+                   (T.TRUTH_VOLTAGE, V3), (T.TRUTH_FLUX, V3), (T.TRUTH_TORQUE, V3),
+                   (T.TRUTH_PARAMS, JS), (T.TRUTH_POWER, JS), (T.TRUTH_ENERGY, JS)],
+                  period, plant_step, signer),
             _Bare('controller', ctx, ctl_req,
                   [(T.CMD_VOLTAGE, V3), (T.REF_SHAFT, JS), (T.REF_CURRENT, V3), (T.REF_FLUX, V3)],
                   period, ctl_step, signer),
@@ -198,7 +209,8 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
         for n in nodes:
             ex.add_node(n)
         t0 = time.perf_counter()
-        # Step 0: initial estimates and measurement (transient-local QoS delivers them to late joiners).
+        # Step 0: initial estimates and measurement (transient-local QoS delivers them to late
+        # joiners).
         obs_publish(nodes[2], 0)
         ad_publish(nodes[3], 0)
         measure(nodes[0], 0)

@@ -1,4 +1,5 @@
-"""Memory of a long in-process run (issue 11): RSS over simulated time, and max RSS vs length.
+"""
+Memory of a long in-process run (issue 11): RSS over simulated time, and max RSS vs length.
 
 Each run is a fresh child process doing what ``scenario`` does without ``--record`` (DriveGraph,
 the publisher tap folding every message into the running figures, the summary at the end). The
@@ -18,7 +19,6 @@ import os
 import subprocess
 import sys
 import threading
-import time
 
 T_S = 1e-4
 WARMUP = 20_000

@@ -1,4 +1,5 @@
-"""Run every benchmark in this folder, print one table, write <out>/<name>.json and summary.json.
+"""
+Run every benchmark in this folder, print one table, write <out>/<name>.json and summary.json.
 
 Benchmarks are files ``bench_*.py`` exposing ``run(quick=False) -> dict``. ``--quick`` shortens
 them to seconds (tests/test_benchmarks.py runs every one that way, so none can break unseen); the
@@ -32,7 +33,8 @@ RATIOS = {
 
 
 def benchmark_names() -> list:
-    return sorted(f[6:-3] for f in os.listdir(HERE) if f.startswith('bench_') and f.endswith('.py'))
+    return sorted(f[6:-3] for f in os.listdir(HERE)
+                  if f.startswith('bench_') and f.endswith('.py'))
 
 
 def machine() -> dict:
@@ -51,8 +53,12 @@ def machine() -> dict:
 
 
 def strict(obj):
-    """``obj`` with every non-finite float as its name ('inf', 'nan'): the JSON stays standard
-    (a latency quantile beyond the histogram's last bin is 'inf', not the non-JSON Infinity)."""
+    """
+    ``obj`` with every non-finite float as its name ('inf', 'nan').
+
+    The JSON stays standard (a latency quantile beyond the histogram's last bin is 'inf', not
+    the non-JSON Infinity).
+    """
     if isinstance(obj, float) and not math.isfinite(obj):
         return repr(obj)
     if isinstance(obj, dict):
@@ -74,7 +80,7 @@ def run_one(name: str, quick: bool, info: dict) -> dict:
 
 
 def summary(results: dict, info: dict, quick: bool) -> dict:
-    """The ratios measured in this run (a ratio whose benchmark did not run is left out)."""
+    """Return the ratios measured in this run (a ratio whose benchmark did not run is left out)."""
     out = {'date': datetime.datetime.now().isoformat(timespec='seconds'), 'quick': quick,
            'machine': info, 'benchmarks': sorted(results)}     # those that completed
     for key, (bench, fig) in RATIOS.items():
@@ -124,7 +130,8 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(strict(summ), f, indent=2, allow_nan=False)
     print(f"\nmachine: {info['cpu_model']} ({info['cpus']} cpus), Python {info['python']}, "
-          f"load {info['load_1min_at_start']:.2f} at start" + (' (quick run)' if args.quick else ''))
+          f"load {info['load_1min_at_start']:.2f} at start"
+          + (' (quick run)' if args.quick else ''))
     print(f"{'benchmark':10s} {'figure':52s} {'value':>14s}")
     for name, k, v in rows:
         print(f'{name:10s} {k:52s} ' + (f'{v:14.6g}' if not isinstance(v, str) else v))

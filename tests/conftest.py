@@ -10,8 +10,12 @@ TEST_DOMAINS = (150, 229)
 
 @pytest.fixture(scope='session', autouse=True)
 def graph_key_file(tmp_path_factory):
-    """Nodes built without a key of their own (``ros2 run`` style) share this session's key file
-    instead of the user's ``~/.ros/im_drive/graph.key``."""
+    """
+    Share one key file among the nodes built without a key of their own.
+
+    Nodes built without a key of their own (``ros2 run`` style) share this session's key file
+    instead of the user's ``~/.ros/im_drive/graph.key``.
+    """
     import os
     from im_common import auth
     path = str(tmp_path_factory.mktemp('key') / 'graph.key')
@@ -26,7 +30,10 @@ def graph_key_file(tmp_path_factory):
 
 @pytest.fixture
 def ros_context():
-    """An initialized rclpy ``Context`` on a random DDS domain in 150-229, shut down afterwards.
+    """
+    Return an initialized rclpy ``Context`` on a random DDS domain.
+
+    The domain is in 150-229; the context is shut down afterwards.
 
     Every in-process ROS test takes its context from here instead of calling ``rclpy.init``
     itself, so no test shares the global context or a domain with another run on the machine.

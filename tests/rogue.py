@@ -1,4 +1,5 @@
-"""A foreign node on the drive graph's ROS domain that tries to steer the run.
+"""
+A foreign node on the drive graph's ROS domain that tries to steer the run.
 
 It answers every measured current stamped t_k, on RELIABLE + TRANSIENT_LOCAL publishers, with a
 50 V command of the same stamp, a fake flux estimate, fake adapter estimates, a fake measurement
@@ -11,17 +12,16 @@ import signal
 import sys
 import threading
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
+from im_common import topics as T
+import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-
-from im_common import topics as T
 
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -31,6 +31,7 @@ ROGUE_VOLTAGE = 50.0
 
 
 class RogueNode(Node):
+
     def __init__(self, **kwargs):
         super().__init__('rogue', **kwargs)
         self.answered = 0

@@ -1,4 +1,5 @@
-"""A strict decoder of an MCAP file's rosbag2 metadata, applying rosbag2 Jazzy's own rules.
+"""
+A strict decoder of an MCAP file's rosbag2 metadata, applying rosbag2 Jazzy's own rules.
 
 ``ros2 bag info`` and ``ros2 bag play`` open an MCAP file through rosbag2_storage_mcap's
 ``MCAPStorage::read_metadata()``: it loads the ``serialized_metadata`` of the ``rosbag2``
@@ -105,8 +106,11 @@ def _policy(node, key, where, names, v8):
 
 
 def decode_qos(node, where: str) -> dict:
-    """One profile, as ``convert<rclcpp::QoS>::decode`` reads it; ``format`` 8 or 9 says which
-    layout it was detected as."""
+    """
+    One profile, as ``convert<rclcpp::QoS>::decode`` reads it.
+
+    ``format`` 8 or 9 says which layout it was detected as.
+    """
     h = _get(node, 'history', where)
     v8 = isinstance(h, str) and bool(_INT.match(h)) and 0 <= int(h) <= 3
     out = {'format': 8 if v8 else 9,
@@ -134,8 +138,12 @@ def decode_qos_string(text: str, where: str) -> list:
 
 
 def decode_bag_metadata(text: str) -> dict:
-    """``YAML::convert<BagMetadata>::decode`` on ``YAML::Load(text)``: the decoded fields, or
-    :class:`Rosbag2Error` where rosbag2 throws."""
+    """
+    Decode a metadata record as rosbag2 does.
+
+    ``YAML::convert<BagMetadata>::decode`` on ``YAML::Load(text)``: the decoded fields, or
+    :class:`Rosbag2Error` where rosbag2 throws.
+    """
     try:
         node = yaml.load(text, Loader=yaml.BaseLoader)
     except yaml.YAMLError as exc:
@@ -193,8 +201,12 @@ def decode_bag_metadata(text: str) -> dict:
 
 
 def read_metadata(path) -> dict:
-    """What ``MCAPStorage::read_metadata()`` reads from the file at ``path``: the decoded
-    ``rosbag2`` record, plus per channel its topic, schema name and decoded offered QoS."""
+    """
+    Read the metadata of the file at ``path`` as rosbag2's ``MCAPStorage`` reads it.
+
+    The decoded ``rosbag2`` record, plus per channel its topic, schema name and decoded offered
+    QoS.
+    """
     from mcap.reader import make_reader
     with open(path, 'rb') as f:
         reader = make_reader(f)

@@ -1,4 +1,5 @@
-"""Tests of the chapter-4 parameter adaptation (im_adapt.adaptation), open loop.
+"""
+Tests of the chapter-4 parameter adaptation (im_adapt.adaptation), open loop.
 
 The plant is driven by a sinusoidal V/f voltage (20 Hz, ~0.8 Wb, 0.2 s frequency ramp) against a
 load; the adapter gets the measured currents, the applied voltage, the speed and — standing in for
@@ -8,13 +9,12 @@ identifiable combinations are what two terminal-equivalent motors share.
 """
 import math
 
-import numpy as np
-import pytest
-
 from im_adapt.adaptation import AdaptationGains, ParameterAdapter
 from im_common.loads import LinearLoad
-from im_common.params import THESIS_MOTOR, InvalidParameter, ParameterSchedule, chapter4_schedule
+from im_common.params import chapter4_schedule, InvalidParameter, ParameterSchedule, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
+import numpy as np
+import pytest
 
 P = THESIS_MOTOR
 T_S = 1e-4
@@ -34,7 +34,8 @@ def _vf_voltage(k, state):
 
 def _run(schedule, adapter_factory, t_end, t_start=0.0, load=None, current_offset=0.0,
          every=1, on_step=None, voltage=_vf_voltage):
-    """Drive the plant open loop; create the adapter at t_start and step it to t_end.
+    """
+    Drive the plant open loop; create the adapter at t_start and step it to t_end.
 
     Returns (rows, adapter, sim) with rows = [t, R_r^, θ^, L_M^, R_R^, R_r, θ, L_M, R_R] sampled
     every ``every`` adapter steps (estimates are those the adapter publishes for t_k+1).
@@ -74,7 +75,8 @@ def test_improved_law_holds_correct_estimates_through_the_start():
 
 
 def test_thesis_law_holds_correct_estimates_in_steady_state():
-    """The thesis law, started once the drive has settled, keeps correct estimates.
+    """
+    The thesis law, started once the drive has settled, keeps correct estimates.
 
     (Through the start-up it does not: eq. 4.8 leaves out dW/dt, so P̂_r is wrong while the
     magnetic energy changes — see docs/adaptation.md.)
@@ -102,11 +104,15 @@ def test_improved_law_converges_after_rotor_resistance_step():
 
 @pytest.mark.parametrize('feed', ['thesis_pair', 'inverse_gamma'])
 def test_estimates_hold_when_excitation_vanishes(feed):
-    """The drive adapts R_R (truth 30 % above the model) for 1 s, then the inverter applies the
-    zero vector: the short-circuited motor brakes hard (the speed swings from 61 to -50 rad/s),
-    its currents and flux decay to nothing. Through the decay the estimates keep using what
-    information is left and stay on the truth; once nothing carries information they hold
-    exactly (the information floor, docs/adaptation.md §4, §8), neither drifting nor winding up."""
+    """
+    Check that the estimates hold through a short-circuit braking.
+
+    The drive adapts R_R (truth 30 % above the model) for 1 s, then the inverter applies the zero
+    vector: the short-circuited motor brakes hard (the speed swings from 61 to -50 rad/s), its
+    currents and flux decay to nothing. Through the decay the estimates keep using what information
+    is left and stay on the truth; once nothing carries information they hold exactly (the
+    information floor, docs/adaptation.md §4, §8), neither drifting nor winding up.
+    """
     true = P.with_values(R_r=1.3 * P.R_r)
 
     def supply_then_zero_vector(k, state):
@@ -216,9 +222,12 @@ def test_inconsistent_bounds_raise_naming_the_parameter():
 
 
 def test_identifiable_combinations_are_what_terminal_equivalent_motors_share():
-    """Scale the rotor by k (L_sr→kL_sr, L_r→k²L_r, R_r→k²R_r): same R_s, σL_s, L_M, R_R, same
-    terminal currents; the improved law returns the same L_M and R_R for both, so it cannot (and
-    does not pretend to) tell R_r and θ apart."""
+    """
+    Scale the rotor by k (L_sr→kL_sr, L_r→k²L_r, R_r→k²R_r).
+
+    Same R_s, σL_s, L_M, R_R, same terminal currents; the improved law returns the same L_M and
+    R_R for both, so it cannot (and does not pretend to) tell R_r and θ apart.
+    """
     k = 1.2
     B = P.with_values(L_sr=k * P.L_sr, L_r=k * k * P.L_r, R_r=k * k * P.R_r)
     assert B.L_M == pytest.approx(P.L_M) and B.R_R == pytest.approx(P.R_R)
@@ -242,8 +251,12 @@ def test_identifiable_combinations_are_what_terminal_equivalent_motors_share():
 
 
 def test_voltage_model_flux_without_drift_under_a_current_offset():
-    """A 0.2 A offset on i_α: the pure integral (flux_corner = 0) drifts by R_s·0.2 A per second;
-    the blended estimator stays near the true stator flux."""
+    """
+    A 0.2 A offset on i_α.
+
+    The pure integral (flux_corner = 0) drifts by R_s·0.2 A per second; the blended estimator
+    stays near the true stator flux.
+    """
     errs = {}
     for corner in (0.0, 5.0):
         g = AdaptationGains(flux_corner=corner, freeze=True)
@@ -288,8 +301,11 @@ def test_decimation_updates_every_n_steps():
 
 
 def test_improved_law_tracks_the_chapter4_profile_open_loop():
-    """R_r ramp and L_sr, L_r sinusoids (§4.3) from the chapter-4 initial estimates: L̂_M, R̂_R
-    within 5 % RMS of L_M, R_R over the second second of a loaded V/f run."""
+    """
+    R_r ramp and L_sr, L_r sinusoids (§4.3) from the chapter-4 initial estimates.
+
+    L̂_M, R̂_R within 5 % RMS of L_M, R_R over the second second of a loaded V/f run.
+    """
     rows, ad, _ = _run(chapter4_schedule(),
                        lambda: ParameterAdapter(CH4_EST, AdaptationGains(), 0.842, 0.952941),
                        t_end=2.0, every=10)
@@ -308,11 +324,15 @@ def test_schedule_without_variation_is_constant():
 
 
 def test_flux_corner_follows_the_stator_frequency_at_low_speed():
-    """A 0.5 Hz supply (ω_e = π rad/s, below the 5 rad/s corner) and a rotor resistance rising
-    like chapter 4's (0.42 Ω/s). The improved law's corner follows the stator frequency
-    (κ|ω_e| = 1.26 rad/s), so the voltage model carries the rotor equation and R̂_R follows the
-    ramp closely; a corner fixed at 5 rad/s hands the regression mostly its own current model,
-    whose flux obeys the old estimates, and R̂_R lags more (docs/adaptation.md §2)."""
+    """
+    Check the improved law's corner at a very low supply frequency.
+
+    A 0.5 Hz supply (ω_e = π rad/s, below the 5 rad/s corner) and a rotor resistance rising like
+    chapter 4's (0.42 Ω/s). The improved law's corner follows the stator frequency (κ|ω_e| = 1.26
+    rad/s), so the voltage model carries the rotor equation and R̂_R follows the ramp closely; a
+    corner fixed at 5 rad/s hands the regression mostly its own current model, whose flux obeys the
+    old estimates, and R̂_R lags more (docs/adaptation.md §2).
+    """
     from im_common.params import ramp
     f = 0.5
 
@@ -326,8 +346,9 @@ def test_flux_corner_follows_the_stator_frequency_at_low_speed():
     true = ParameterSchedule(P, {'R_r': ramp(P.R_r, 0.42)}, name='R_r ramp')
     err = {}
     for ratio in (0.4, 0.0):
-        rows, ad, _ = _run(true, lambda: ParameterAdapter(P, AdaptationGains(flux_corner_ratio=ratio),
-                                                          P.R_r, P.theta),
+        rows, ad, _ = _run(true,
+                           lambda: ParameterAdapter(P, AdaptationGains(
+                               flux_corner_ratio=ratio), P.R_r, P.theta),
                            t_end=1.5, every=10, voltage=slow)
         late = rows[rows[:, 0] > 1.0]
         err[ratio] = float(np.sqrt(np.mean(((late[:, 4] - late[:, 8]) / late[:, 8]) ** 2)))

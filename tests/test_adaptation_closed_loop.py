@@ -1,4 +1,5 @@
-"""The adapter in the offline closed loop (offline.simulate + LockstepAdapter), chapter-4 profile.
+"""
+The adapter in the offline closed loop (offline.simulate + LockstepAdapter), chapter-4 profile.
 
 Physical claims, not golden numbers: under the §4.3 variation the improved law at least halves the
 nominal controller's position error (min-energy strategy) and its identifiable estimates follow the
@@ -6,9 +7,8 @@ truth; with nominal parameters it leaves the drive as the nominal controller run
 """
 import math
 
+from im_studies.study_ch4 import run_case
 import pytest
-
-from im_studies.study_ch4 import run_case  # noqa: E402
 
 KEYS = ('variation', 'controller', 'R_r_hat_final', 'R_r_true_final', 'theta_hat_final',
         'theta_true_final', 'L_M_hat_final', 'L_M_true_final', 'R_R_hat_final', 'R_R_true_final',
@@ -26,7 +26,8 @@ def test_result_carries_the_summary_and_the_estimates(position_runs):
         for k in KEYS:
             assert k in r, k
     nom = position_runs['nominal']
-    assert nom['R_r_hat_final'] == 0.842 and nom['R_r_true_final'] == pytest.approx(0.42 * 2 + 0.42)
+    assert nom['R_r_hat_final'] == 0.842
+    assert nom['R_r_true_final'] == pytest.approx(0.42 * 2 + 0.42)
 
 
 def test_improved_law_halves_the_position_error_under_the_chapter4_profile(position_runs):
@@ -50,10 +51,14 @@ def test_improved_law_leaves_a_nominal_drive_alone():
 
 @pytest.mark.parametrize('strategy', ['constant_flux', 'min_loss'])
 def test_the_truth_fed_bound_and_the_inverse_gamma_feed(strategy):
-    """Chapter-4 drift, position task. Fed the truth's R_s, L_σ, L_M, R_R at every step, the
-    controller's error is a small fraction of the nominal one (what is left is the drift's own
-    speed); the adapter's inverse-Γ feed reaches every coefficient and
-    beats the thesis-pair feed, whose fixed L̂_s, L̂_sr no (R̂_r, θ̂) can correct (docs/adaptation.md §6)."""
+    """
+    Chapter-4 drift, position task.
+
+    Fed the truth's R_s, L_σ, L_M, R_R at every step, the controller's error is a small
+    fraction of the nominal one (what is left is the drift's own speed); the adapter's
+    inverse-Γ feed reaches every coefficient and beats the thesis-pair feed, whose fixed L̂_s,
+    L̂_sr no (R̂_r, θ̂) can correct (docs/adaptation.md §6).
+    """
     runs = {c: run_case('position', strategy, c, 'chapter4')
             for c in ('nominal', 'truth_fed', 'adaptive_thesis_pair', 'adaptive')}
     nominal = runs['nominal']['pos_err_rms_rad']

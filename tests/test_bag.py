@@ -1,25 +1,27 @@
-"""BagWriter / readers: round trip through our reader, mcap and rosbags; overwrite refusal;
-interrupted writers; truncated and corrupt files."""
+"""
+BagWriter / readers.
+
+Round trip through our reader, mcap and rosbags; overwrite refusal; interrupted writers; truncated
+and corrupt files.
+"""
 import math
 import os
+from pathlib import Path
 import random
 import signal
 import struct
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
-
-import pytest
 
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
-
 from im_common import cdr
 from im_recording.bag import BagError, BagWriter, info, iter_raw, read_messages
-from im_recording.run import load_run
 from im_recording.msgdefs import full_definition, type_hash
+from im_recording.run import load_run
+import pytest
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -56,7 +58,8 @@ def _sample_messages(n=300):
     for j, fid in enumerate(['a', 'ab', 'abc', 'abcd', 'abcde', 'map', 'base_link']):
         t = (n + j) * 100_000
         out.append(('/im/measured/current', _v3(t, j, -j, 0.5, fid), t))
-        out.append(('/im/measured/shaft', _js(t, ['r' * j], [], [float(j)], [1.0, 2.0][:j % 3]), t))
+        shaft = _js(t, ['r' * j], [], [float(j)], [1.0, 2.0][:j % 3])
+        out.append(('/im/measured/shaft', shaft, t))
     return out
 
 
@@ -224,7 +227,7 @@ def test_close_from_signal_handler_mid_loop_keeps_every_message(tmp_path):
     assert 778 <= len(stamps) <= written
 
 
-_CHILD = textwrap.dedent('''
+_CHILD = textwrap.dedent("""
     import signal, sys
     from im_recording.bag import BagWriter
     w = BagWriter(sys.argv[1], chunk_size=4096)
@@ -238,7 +241,7 @@ _CHILD = textwrap.dedent('''
         k += 1
         if k == 2000:
             print('ready', flush=True)
-''')
+""")
 
 
 def _child(path):
@@ -439,5 +442,5 @@ def test_outputs_are_never_inputs_and_never_overwritten_silently(tmp_path):
     os.symlink(a, link)
     with pytest.raises(FileExistsError, match='also an input'):
         check_output(link, [a], force=True)
-    assert a.read_text() == 'one' and sorted(p.name for p in tmp_path.iterdir()) == ['a.json',
-                                                                                    'link.json']
+    assert a.read_text() == 'one'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['a.json', 'link.json']

@@ -2,22 +2,19 @@
 import random
 import time
 
+from geometry_msgs.msg import Vector3Stamped
+from im_common.auth import Signer
+from im_common.conversions import JointStateOut, Vector3Out
+from im_recording.bag import BagWriter, info, read_messages
+from im_recording.record_node import parse_topics, RecorderNode
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
-from geometry_msgs.msg import Vector3Stamped
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-
-from rclpy.serialization import deserialize_message
-
-from im_recording.bag import BagWriter, info, read_messages
-from im_common.auth import Signer
-from im_common.conversions import JointStateOut, Vector3Out
-from im_recording.record_node import RecorderNode, parse_topics
 
 
 def test_parse_topics():
@@ -52,8 +49,8 @@ def test_recorder_node_records_what_was_published(tmp_path):
         # the talker is the graph's plant: it signs the lock-step topics for its run
         rec.adopt_run('run1')
         sign = Signer(rec.signer.key, 'run1').sign
-        v3, shaft = Vector3Out(Signer.frame('alphabeta')), JointStateOut(['rotor'],
-                                                                          Signer.frame(''))
+        v3 = Vector3Out(Signer.frame('alphabeta'))
+        shaft = JointStateOut(['rotor'], Signer.frame(''))
         sent = []
         for k in range(50):
             t = 2 * 10**9 + k * 100_000
@@ -89,9 +86,12 @@ def test_recorder_node_records_what_was_published(tmp_path):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as ar:
-        assert sum(1 for c, _, raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 1
+        assert sum(1 for c, _,
+                   raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 1
     key = lambda e: (e[1], e[0])  # noqa: E731
-    assert sorted([(tp, t) for tp, t, _ in got if not tp.startswith('/im/refused')]) == sorted([(tp, t) for tp, t, _ in sent])
+    assert sorted([(tp, t) for tp, t,
+                   _ in got if not tp.startswith('/im/refused')]) == sorted([(tp, t) for tp, t,
+                                                                             _ in sent])
     by = {(tp, t): m for tp, t, m in got if not tp.startswith('/im/refused')}
     for tp, t, m in sorted(sent, key=key):
         assert by[(tp, t)] == m
@@ -103,12 +103,16 @@ def test_recorder_node_records_what_was_published(tmp_path):
 
 
 def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path):
-    """A recorder that joins a running graph may see the lock-step topics before the plant's
-    status (discovery under load took 2 s; 27 000 messages): it keeps a bounded window of what it
-    cannot verify yet, and when that is full the oldest goes to /im/refused, not the newest — so
-    what it keeps reaches up to the moment it learns the run, and the recording has no gap
-    between the kept window and what follows (a fresh-clone make test once recorded 0.725 s,
-    then nothing until 0.94 s)."""
+    """
+    Check that a late recorder keeps the newest unverified messages.
+
+    A recorder that joins a running graph may see the lock-step topics before the plant's status
+    (discovery under load took 2 s; 27 000 messages): it keeps a bounded window of what it cannot
+    verify yet, and when that is full the oldest goes to /im/refused, not the newest — so what it
+    keeps reaches up to the moment it learns the run, and the recording has no gap between the kept
+    window and what follows (a fresh-clone make test once recorded 0.725 s, then nothing until 0.94
+    s).
+    """
     ctx = Context()
     rclpy.init(context=ctx, domain_id=random.randint(150, 229))
     writer = BagWriter(tmp_path / 'late.mcap')
@@ -138,8 +142,12 @@ LOCK = ['/im/measured/current', '/im/measured/shaft', '/im/command/voltage', '/i
 
 
 class _Run:
-    """A recorder on a private context, fed the signed messages of run 'run1' directly (what
-    its subscriptions would hand it), and a listener of its acknowledgements on /im/progress."""
+    """
+    Return a recorder fed signed messages directly, and a listener.
+
+    A recorder on a private context, fed the signed messages of run 'run1' directly (what its
+    subscriptions would hand it), and a listener of its acknowledgements on /im/progress.
+    """
 
     def __init__(self, tmp_path):
         self.ctx = Context()
@@ -185,9 +193,13 @@ class _Run:
 
 
 def test_missing_steps_are_counted_before_the_first_between_and_after_the_last(tmp_path):
-    """A recording from the start of a run that got the commands only from step 10 on (its
-    reader matched the controller late), lost steps 20-22 of the flux and the last two of the
-    shaft: the bag's metadata counts each of them, on its topic, with its range."""
+    """
+    Check that the bag metadata counts the steps each topic lacks.
+
+    A recording from the start of a run that got the commands only from step 10 on (its reader
+    matched the controller late), lost steps 20-22 of the flux and the last two of the shaft: the
+    bag's metadata counts each of them, on its topic, with its range.
+    """
     r = _Run(tmp_path)
     try:
         r.plant('running', 0, mode='lockstep', followers='recorder')
@@ -209,10 +221,13 @@ def test_missing_steps_are_counted_before_the_first_between_and_after_the_last(t
 
 
 def test_a_topic_with_nothing_yet_holds_the_plant_back(tmp_path):
-    """The acknowledgement on /im/progress is the last step received on *every* lock-step
-    topic: while the commands have not reached the recorder, it acknowledges nothing (the plant
-    stays within follower_window steps of step 0 and the commands stay in their publisher's
-    history); once they arrive it acknowledges the least of the topics' last steps."""
+    """
+    The acknowledgement on /im/progress is the last step received on *every* lock-step topic.
+
+    While the commands have not reached the recorder, it acknowledges nothing (the plant stays
+    within follower_window steps of step 0 and the commands stay in their publisher's history);
+    once they arrive it acknowledges the least of the topics' last steps.
+    """
     r = _Run(tmp_path)
     try:
         deadline = time.monotonic() + 10

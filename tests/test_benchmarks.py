@@ -1,7 +1,11 @@
-"""Every benchmark runs (quick mode, seconds) and writes well-formed JSON with its figures, so a
+"""
+Every benchmark runs and writes well-formed JSON.
+
+Every benchmark runs (quick mode, seconds) and writes well-formed JSON with its figures, so a
 benchmark can never break unseen (issue 25: ``make bench`` failed on a stand-in that drifted from
 the adapter's estimate names). No timing is asserted here: speed targets live in the benchmarks'
-own output (``benchmarks/results/summary.json``)."""
+own output (``benchmarks/results/summary.json``).
+"""
 from __future__ import annotations
 
 import importlib.util

@@ -1,12 +1,14 @@
-"""Offline closed loop (plant + controller + observer in lock-step order): every strategy tracks,
-the energy books close, and the figures obey the physics of the tasks."""
+"""
+Offline closed loop (plant + controller + observer in lock-step order).
+
+Every strategy tracks, the energy books close, and the figures obey the physics of the tasks.
+"""
 import math
 
+from im_bringup.offline import Scenario, simulate
+from im_common.params import InvalidParameter
 import numpy as np
 import pytest
-
-from im_common.params import InvalidParameter
-from im_bringup.offline import Scenario, simulate
 
 
 def _check_tracking_and_books(s, k_p):
@@ -66,7 +68,8 @@ def test_runs_are_deterministic():
 
 def test_bad_scenario_names_the_field():
     for kwargs, name in [({'task': 'torque'}, 'task'), ({'T_s': -1e-4}, 'T_s'),
-                         ({'variation': 'hot'}, 'variation'), ({'controller': 'fuzzy'}, 'controller'),
+                         ({'variation': 'hot'}, 'variation'),
+                         ({'controller': 'fuzzy'}, 'controller'),
                          ({'start': 'fly'}, 'start'), ({'duration': 0.0}, 'duration')]:
         with pytest.raises(InvalidParameter, match=name):
             Scenario(**kwargs)

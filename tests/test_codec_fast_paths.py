@@ -1,14 +1,17 @@
-"""The hot-path codecs (one struct call per message) give exactly what the general CDR code
-gives, for every frame-id length (its padding) and sequence-length combination, and a truncated
-payload is a CdrError naming the type, as before."""
-from __future__ import annotations
+"""
+The hot-path codecs give exactly what the general CDR code gives.
 
-import pytest
+The hot-path codecs (one struct call per message) give exactly what the general CDR code gives, for
+every frame-id length (its padding) and sequence-length combination, and a truncated payload is a
+CdrError naming the type, as before.
+"""
+from __future__ import annotations
 
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.cdr import CdrError, decode_vector3_stamped, pack_joint_state
 from im_common.conversions import JointStateOut, Vector3Out, xy_in
+import pytest
 
 FRAMES = ['', 'a', 'ab', 'abc', 'abcdefg', 'abcdefgh', 'alphabeta', Signer.frame('alphabeta'),
           Signer.frame('')]

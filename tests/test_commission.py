@@ -1,17 +1,19 @@
-"""Self-commissioning (docs/commissioning.md): the drive measures its motor through its own
-signals. The identification runs on the ROS-free plant with a motor it is never shown; the
-tool runs end to end through the lock-step graph (the plant in its own process's executor, the
-tool as the node ``commission``)."""
+"""
+Self-commissioning (docs/commissioning.md): the drive measures its motor through its own signals.
+
+The identification runs on the ROS-free plant with a motor it is never shown; the tool runs end to
+end through the lock-step graph (the plant in its own process's executor, the tool as the node
+``commission``).
+"""
 import math
 import os
 import subprocess
 
-import pytest
-
-from im_adapt.commissioning import (Commissioning, NotInformative, nameplate_from_dict,
-                                    rated_flux, simulate_commissioning)
+from im_adapt.commissioning import (Commissioning, nameplate_from_dict, NotInformative, rated_flux,
+                                    simulate_commissioning)
 from im_common.params import load_motor_file, shipped_motors_dir
 from im_common.plant_sim import PlantSimulator
+import pytest
 
 MOTORS = sorted(f[:-5] for f in os.listdir(shipped_motors_dir()) if f.endswith('.yaml'))
 THESIS_PLATE = {'voltage': 220.0, 'current': 4.9, 'frequency': 60.0, 'speed': 1750.0,
@@ -23,8 +25,12 @@ def _motor(name):
 
 
 def _commission(m, locked_plant=False, locked_test=False, noise=0.05):
-    """Commission ``m`` on the ROS-free plant; the drive's limits (its ratings) are the plant's
-    protection, so a test exceeding them trips the plant and fails."""
+    """
+    Commission ``m`` on the ROS-free plant.
+
+    The drive's limits (its ratings) are the plant's protection, so a test exceeding them trips
+    the plant and fails.
+    """
     plant = PlantSimulator(m, T_s=1e-4, current_trip=m.rated_current, v_limit=m.rated_voltage,
                            current_noise_std=noise * m.rated_current / 8.487,
                            locked_rotor=locked_plant)

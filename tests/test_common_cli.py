@@ -2,10 +2,9 @@
 import argparse
 import math
 
+from im_common import cli, yamlio
 import numpy as np
 import pytest
-
-from im_common import cli, yamlio
 
 
 def test_parameter_yaml_round_trips_exactly():
@@ -58,9 +57,13 @@ BAD_PARAMS_FILES = {
 
 @pytest.mark.parametrize('case', sorted(BAD_PARAMS_FILES))
 def test_every_reader_of_a_parameters_file_says_the_same_line(tmp_path, case):
-    """scenario (merge_yaml), the launch file (load_params_yaml) and a node executable
-    (init_args_error, before rclpy.init) read a parameters file through one function: one
-    message, naming the file."""
+    """
+    Check that every path reads a parameters file through one function.
+
+    scenario (merge_yaml), the launch file (load_params_yaml) and a node executable
+    (init_args_error, before rclpy.init) read a parameters file through one function: one message,
+    naming the file.
+    """
     from im_bringup.config import node_parameters
     from im_bringup.processes import load_params_yaml
     from im_bringup.scenario import merge_yaml

@@ -1,4 +1,5 @@
-"""Every executable resolves through the ament index exactly as ``ros2 run`` does, and starts.
+"""
+Every executable resolves through the ament index exactly as ``ros2 run`` does, and starts.
 
 ``ros2 run PKG EXE`` looks up ``get_package_prefix(PKG)/lib/PKG/EXE``; the workspace must have been
 built with ``colcon build`` (``make test`` does it) and sourced (``install/setup.bash``).
@@ -33,7 +34,7 @@ def ros2_run_path(package: str, executable: str) -> str:
     except PackageNotFoundError:
         pytest.fail(f"package '{package}' is not in the ament index (AMENT_PREFIX_PATH="
                     f"{os.environ.get('AMENT_PREFIX_PATH')!r}); run `make build` and source "
-                    f"install/setup.bash")
+                    f'install/setup.bash')
     return os.path.join(prefix, 'lib', package, executable)
 
 
@@ -47,8 +48,12 @@ def test_executable_resolves_and_starts(package, executable):
 
 
 def test_plant_process_loads_the_thesis_yaml_and_reports_a_missing_controller():
-    """`ros2 run im_plant plant --ros-args --params-file .../thesis_motor.yaml` starts with the
-    shipped parameters; with no controller it says who it waited for and exits 1."""
+    """
+    Check that the installed plant starts with the shipped parameters.
+
+    `ros2 run im_plant plant --ros-args --params-file .../thesis_motor.yaml` starts with the
+    shipped parameters; with no controller it says who it waited for and exits 1.
+    """
     import random
     from ament_index_python.packages import get_package_share_directory
     yml = os.path.join(get_package_share_directory('im_plant'), 'config', 'thesis_motor.yaml')

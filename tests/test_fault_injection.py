@@ -1,19 +1,20 @@
-"""Fault injection on the installed tools (issue 11): signals and kills mid-run, outputs that
-would overwrite data, corrupt files, bad YAML. Each test runs the executables exactly as
-``ros2 run`` resolves them (the ament index; build and source the workspace first) and checks
-what a user would see: the exit code, one line on stderr without a traceback, and files that are
-complete, readable by ``rosbags``, or untouched.
+"""
+Fault injection on the installed tools (issue 11).
+
+Signals and kills mid-run, outputs that would overwrite data, corrupt files, bad YAML. Each test
+runs the executables exactly as ``ros2 run`` resolves them (the ament index; build and source the
+workspace first) and checks what a user would see: the exit code, one line on stderr without a
+traceback, and files that are complete, readable by ``rosbags``, or untouched.
 """
 import os
+from pathlib import Path
 import signal
 import subprocess
 import time
-from pathlib import Path
-
-import pytest
 
 from im_recording.bag import BagError, info, iter_raw, partial_path
 from im_recording.run import load_run
+import pytest
 
 
 #: the package of each executable the tests start
@@ -212,8 +213,12 @@ def test_sigterm_during_reestimate_leaves_a_complete_output(tmp_path):
 
 
 def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
-    """The live summary (streamed while the run went) and the report of the bag it recorded are
-    the same numbers."""
+    """
+    Check that the live summary equals the report of the recorded bag.
+
+    The live summary (streamed while the run went) and the report of the bag it recorded are the
+    same numbers.
+    """
     import json
     summary = json.loads(short_bag.with_suffix('.json').read_text())
     r = run_tool('report', short_bag, '--no-plots', '--out', tmp_path / 'rep')
@@ -249,7 +254,7 @@ def test_report_refuses_to_replace_a_report_or_write_into_a_bag(short_bag, tmp_p
 #: Loaded by every Python process started with ``env=enospc_env(...)`` (the scenario, and with
 #: --processes the recorder it starts): the MCAP being recorded (``*.mcap.part``) takes
 #: ``IM_TEST_ENOSPC_BYTES`` bytes, then its writes fail with ENOSPC — a disk filling up.
-ENOSPC_SITECUSTOMIZE = '''
+ENOSPC_SITECUSTOMIZE = """
 import builtins, errno, io, os
 _LIMIT = int(os.environ['IM_TEST_ENOSPC_BYTES'])
 _open = builtins.open
@@ -286,7 +291,7 @@ def _open_full(file, mode='r', *a, **k):
 
 
 builtins.open = _open_full
-'''
+"""
 
 
 def enospc_env(tmp_path, limit: int) -> dict:
@@ -336,8 +341,12 @@ def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_pat
 
 
 def _read_only(directory: Path, argv: list) -> list:
-    """``argv`` run with ``directory`` read-only: a read-only bind mount in a mount namespace of
-    its own as root (root writes through permission bits), mode 0555 otherwise."""
+    """
+    ``argv`` run with ``directory`` read-only.
+
+    A read-only bind mount in a mount namespace of its own as root (root writes through
+    permission bits), mode 0555 otherwise.
+    """
     if os.geteuid() != 0:
         directory.chmod(0o555)
         return argv
@@ -401,8 +410,12 @@ def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, pro
 
 
 def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(tmp_path):
-    """A configuration only the node's own process sees (here a parameter given to the
-    controller on its command line) still ends every process at once, with the node's line."""
+    """
+    Check that a node's own configuration error ends every process.
+
+    A configuration only the node's own process sees (here a parameter given to the controller on
+    its command line) still ends every process at once, with the node's line.
+    """
     from im_bringup.processes import failure_line, graph_processes, run_processes
     procs = graph_processes('speed', duration=0.02)
     for p in procs:

@@ -1,16 +1,16 @@
-"""Certified drive gains in the offline closed loop (the whole-system part of design_gains' tests).
+"""
+Certified drive gains in the offline closed loop (the whole-system part of design_gains' tests).
 
 Lives in tests/ because it runs :func:`im_bringup.offline.simulate`: im_controller may not import
 im_bringup (docs/architecture.md). Physics asserted: at 1 ms the thesis's gains diverge and the
 certified ones keep currents and speed error bounded with a closed energy balance; at 100 µs the
 certified path (which keeps the thesis's gains) is no worse than the thesis.
 """
-import numpy as np
-import pytest
-
 from im_bringup.offline import Scenario, simulate
 from im_controller import design_gains
 from im_controller.gain_design import drive
+import numpy as np
+import pytest
 
 SMALL_OBS = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 1}
 
@@ -44,9 +44,8 @@ def test_offline_100us_certified_no_worse_than_thesis(gains_100us):
     p = design_gains.node_overrides(gains_100us)
     K = np.array(p['controller']['current_gain']).reshape(2, 2).tolist()
     k_e = p['observer']['k_e_injection'] or None
-    base = dict(task='speed', strategy='min_energy', T_s=1e-4, duration=0.15)
+    base = {'task': 'speed', 'strategy': 'min_energy', 'T_s': 1e-4, 'duration': 0.15}
     ref = simulate(Scenario(**base)).summary
-    cert = simulate(Scenario(**base, current_gain=K, k_e=k_e,
-                             controller_options={'flux_coupling': p['controller']['flux_coupling']})
-                    ).summary
+    coupling = {'flux_coupling': p['controller']['flux_coupling']}
+    cert = simulate(Scenario(**base, current_gain=K, k_e=k_e, controller_options=coupling)).summary
     assert cert['speed_err_max_rad_s'] <= ref['speed_err_max_rad_s'] * (1.0 + 1e-9)

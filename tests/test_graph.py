@@ -1,11 +1,14 @@
-"""The four-node graph in lock-step: deterministic, identical to the ROS-free loop, and it stops
-cleanly with a clear report when a node is missing."""
+"""
+The four-node graph in lock-step.
+
+Deterministic, identical to the ROS-free loop, and it stops cleanly with a clear report when a node
+is missing.
+"""
 import math
 
+from im_bringup.testing import assert_samples_match, run_graph
 import numpy as np
 import pytest
-
-from im_bringup.testing import assert_samples_match, run_graph
 
 
 def test_same_run_twice_gives_identical_numbers():
@@ -26,8 +29,11 @@ def test_same_run_twice_gives_identical_numbers():
     ('position', 'min_loss', 'adaptive', 'chapter4'),   # L_sigma on the topic
 ])
 def test_graph_equals_the_ros_free_loop(task, strategy, controller, variation):
-    """Stamps, not arrival order, decide what each node computes: the graph reproduces the
-    offline loop (same classes, same step order, same initial state)."""
+    """
+    Stamps, not arrival order, decide what each node computes.
+
+    The graph reproduces the offline loop (same classes, same step order, same initial state).
+    """
     from im_bringup.offline import Scenario, simulate
     from im_common.params import CHAPTER4_ESTIMATES, THESIS_MOTOR
     g = run_graph(task=task, strategy=strategy, controller=controller, variation=variation,
@@ -71,8 +77,12 @@ def test_each_strategy_tracks_through_the_graph(drive_graph, strategy):
 
 
 def test_a_diverging_run_stops_cleanly_and_says_where():
-    """The thesis's current gain (40 V/A) is unstable at T_s = 1 ms: the graph must stop with
-    the plant's report (time of the non-finite state), not hang or raise out of the executor."""
+    """
+    The thesis's current gain (40 V/A) is unstable at T_s = 1 ms.
+
+    The graph must stop with the plant's report (time of the non-finite state), not hang or
+    raise out of the executor.
+    """
     res = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=0.1)
     assert not res.summary['ok']
     assert 'protection trip' in res.summary['failures']['plant']
@@ -81,8 +91,12 @@ def test_a_diverging_run_stops_cleanly_and_says_where():
 
 
 def test_adapter_enable_switches_at_run_time():
-    """`ros2 param set /adapter enable true`: validated in the callback, applied at the next
-    step (not inside the callback), announced on /im/status; a non-boolean is refused."""
+    """
+    `ros2 param set /adapter enable true`.
+
+    Validated in the callback, applied at the next step (not inside the callback), announced on
+    /im/status; a non-boolean is refused.
+    """
     import random
 
     import rclpy
@@ -112,8 +126,12 @@ def test_adapter_enable_switches_at_run_time():
 
 
 def test_speed_setpoint_from_the_topic_is_reached_smoothly():
-    """profile 'setpoint': a JointState on /im/setpoint (velocity) becomes a smooth reference
-    that the drive follows; the plant ends at the new speed."""
+    """
+    Check the 'setpoint' profile.
+
+    A JointState on /im/setpoint (velocity) becomes a smooth reference that the drive follows;
+    the plant ends at the new speed.
+    """
     import rclpy.node
     from sensor_msgs.msg import JointState
 
@@ -162,8 +180,11 @@ def test_scenario_recording_carries_run_metadata_and_matches_its_summary(tmp_pat
 
 
 def test_a_node_at_another_period_is_refused_by_name():
-    """Different T_s per node would deadlock at step 1: the plant refuses to start and names the
-    node and both periods."""
+    """
+    Different T_s per node would deadlock at step 1.
+
+    The plant refuses to start and names the node and both periods.
+    """
     res = run_graph(task='position', duration=0.05, parameters={'observer': {'T_s': 2e-4}})
     assert not res.summary['ok']
     msg = res.summary['failures']['plant']
@@ -171,8 +192,12 @@ def test_a_node_at_another_period_is_refused_by_name():
 
 
 def test_non_finite_command_is_refused_and_held_by_the_observer(ros_context):
-    """A NaN on /im/command/voltage (the plant rejects and holds it) must not kill the observer
-    either: refused, logged with its stamp, counted, the previous command held."""
+    """
+    Check that a NaN command does not kill the observer.
+
+    A NaN on /im/command/voltage (the plant rejects and holds it) must not kill the observer
+    either: refused, logged with its stamp, counted, the previous command held.
+    """
     from im_common import topics as T
     from im_common.auth import Signer
     from im_common.conversions import JointStateOut, Vector3Out

@@ -1,26 +1,28 @@
-"""The inverse-Γ parametrization (docs/adaptation.md §1, §7): R_s, L_σ = σL_s, L_M, R_R are what
-the terminals determine; a model handed them in its own rotor gauge θ is terminal-equivalent to
-the motor. Checked on the closed forms (round trip, gauge), on the observer (fed the truth, it
-tracks the true magnetizing flux in its gauge) and on the closed loop (the truth-fed bound).
+"""
+The inverse-Γ parametrization (docs/adaptation.md §1, §7).
+
+R_s, L_σ = σL_s, L_M, R_R are what the terminals determine; a model handed them in its own rotor
+gauge θ is terminal-equivalent to the motor. Checked on the closed forms (round trip, gauge), on
+the observer (fed the truth, it tracks the true magnetizing flux in its gauge) and on the closed
+loop (the truth-fed bound).
 """
 import math
 
-import numpy as np
-import pytest
-
 from im_adapt.adaptation import AdaptationGains, ParameterAdapter
-from im_common.params import (CHAPTER4_ESTIMATES, IDENTIFIABLE_NAMES, THESIS_MOTOR,
-                              InvalidParameter, estimate_arguments)
-from im_common.plant_sim import PlantSimulator
 from im_common.loads import LinearLoad
+from im_common.params import (CHAPTER4_ESTIMATES, estimate_arguments, IDENTIFIABLE_NAMES,
+                              InvalidParameter, THESIS_MOTOR)
+from im_common.plant_sim import PlantSimulator
 from im_controller.reference import ModelCoefficients
 from im_observer.observer import RotorFluxObserver
+import numpy as np
+import pytest
 
 P = THESIS_MOTOR
 
 
 def _rescaled(m, k):
-    """The same motor seen in another rotor gauge: L_sr→k L_sr, L_r→k² L_r, R_r→k² R_r."""
+    """Return the same motor seen in another rotor gauge: L_sr→k L_sr, L_r→k² L_r, R_r→k² R_r."""
     return m.with_values(L_sr=k * m.L_sr, L_r=k * k * m.L_r, R_r=k * k * m.R_r)
 
 
@@ -86,9 +88,13 @@ def test_model_coefficients_follow_the_inverse_gamma_estimates():
 
 
 def test_observer_fed_the_true_identifiable_parameters_tracks_the_magnetizing_flux():
-    """A V/f-driven motor unlike the observer's model: fed the truth's (R_s, L_σ, L_M, R_R), the
-    observer's flux in its own gauge is the true φ_M = θ φ_r divided by its θ; left with its
-    nominal model it is off by more than ten times as much."""
+    """
+    A V/f-driven motor unlike the observer's model.
+
+    Fed the truth's (R_s, L_σ, L_M, R_R), the observer's flux in its own gauge is the true φ_M
+    = θ φ_r divided by its θ; left with its nominal model it is off by more than ten times as
+    much.
+    """
     truth = _rescaled(CHAPTER4_ESTIMATES, 1.08)        # another gauge and other values than P
     T_s = 1e-4
     runs = {}

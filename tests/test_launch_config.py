@@ -1,14 +1,17 @@
-"""The launch file and the project's own process supervisor start the same graph (one description,
+"""
+The launch file and the process supervisor start the same graph.
+
+The launch file and the project's own process supervisor start the same graph (one description,
 :func:`im_bringup.processes.graph_processes`), and the shipped example YAML is the scenario
-mapping's output (no drift)."""
+mapping's output (no drift).
+"""
 import ast
 import os
 
-import pytest
-import yaml
-
 from im_bringup.config import node_parameters
 from im_bringup.processes import graph_processes, params_file_text
+import pytest
+import yaml
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SHIPPED = os.path.join(HERE, '..', 'src', 'im_bringup', 'config', 'drive.yaml')
@@ -58,5 +61,5 @@ def test_graph_processes_starts_what_the_run_needs():
 
 def test_params_file_is_what_launch_ros_writes():
     text = params_file_text({'T_s': 0.001, 'mode': 'free_run'})
-    assert yaml.safe_load(text) == {'/**': {'ros__parameters': {'T_s': 0.001,
-                                                                 'mode': 'free_run'}}}
+    expected = {'T_s': 0.001, 'mode': 'free_run'}
+    assert yaml.safe_load(text) == {'/**': {'ros__parameters': expected}}

@@ -1,21 +1,21 @@
-"""Physics tests of the motor model (seed 000 eq. 1.111-1.113, 1.127) against closed forms.
+"""
+Physics tests of the motor model (seed 000 eq. 1.111-1.113, 1.127) against closed forms.
 
 Every expected value is computed here from a formula (equivalent circuit, eq. 1.112 matrices,
 matrix exponential, an independent solve_ivp integration), never copied from a previous run.
 """
 import math
 
-import numpy as np
-import pytest
-from scipy.integrate import solve_ivp
-from scipy.linalg import expm
-
 from im_common.loads import LinearLoad, NoLoad
-from im_common.model import MotorModel, currents, eq112_matrices, stator_flux, torque
+from im_common.model import currents, eq112_matrices, MotorModel, stator_flux, torque
 from im_common.params import THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_common.steady_state import (params_steady_state, zoh_gain,
                                     zoh_sample_flux_offset)
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.linalg import expm
 
 P = THESIS_MOTOR
 T_S = 1e-4
@@ -39,7 +39,11 @@ def _sampled_sinusoid(k, T_s=T_S, V_hat=V_HAT, omega_e=OMEGA_E):
 # 1. Phasor steady state under a balanced sinusoidal supply
 # ---------------------------------------------------------------------------------------------
 def _run_and_sample(sim, n_steps, n_tail):
-    """Step n_steps with the ZOH sinusoid; return (t, i_s, tau_m, omega) of the last n_tail steps."""
+    """
+    Step n_steps with the ZOH sinusoid.
+
+    Return (t, i_s, tau_m, omega) of the last n_tail steps.
+    """
     ts, i_s, tau, om = [], [], [], []
     for k in range(n_steps):
         if k >= n_steps - n_tail:
@@ -53,7 +57,8 @@ def _run_and_sample(sim, n_steps, n_tail):
 
 
 def _expected_samples(ss, params, ts):
-    """Stator current, torque and power factor the samples at t_k should show.
+    """
+    Stator current, torque and power factor the samples at t_k should show.
 
     The circuit phasor I_s plus the zero-order-hold ripple offset at the sampling instant,
     δI = jω_e V̂ T_s²/(12 σL_s) (derived in :func:`zoh_sample_flux_offset`; ≈ 1e-3 of |I_s| near
@@ -61,7 +66,8 @@ def _expected_samples(ss, params, ts):
     """
     dI = zoh_sample_flux_offset(ss.V_s, ss.omega_e, T_S) / (params.sigma * params.L_s)
     I_k = (ss.I_s + dI) * np.exp(1j * ss.omega_e * ts)
-    tau_k = params.pole_pairs * params.L_sr / params.L_r * np.imag(np.conj(ss.Phi_r) * (ss.I_s + dI))
+    tau_k = (params.pole_pairs * params.L_sr / params.L_r
+             * np.imag(np.conj(ss.Phi_r) * (ss.I_s + dI)))
     v = ss.V_s * np.exp(1j * ss.omega_e * ts)
     pf_k = np.real(v * np.conj(I_k)) / (np.abs(v) * np.abs(I_k))
     return I_k, tau_k, pf_k
@@ -200,7 +206,8 @@ def test_rhs_equals_eq112_at_random_states():
             np.testing.assert_allclose(np.r_[di_s, d[2:4]], expected, rtol=1e-10,
                                        atol=1e-10 * np.max(np.abs(expected)))
             # eq. 1.111 and 1.127
-            tau = params.pole_pairs * params.L_sr / params.L_r * (i_s[1] * phi[0] - i_s[0] * phi[1])
+            tau = (params.pole_pairs * params.L_sr / params.L_r
+                   * (i_s[1] * phi[0] - i_s[0] * phi[1]))
             np.testing.assert_allclose(torque(i_s[0], i_s[1], phi[0], phi[1], params.L_r,
                                               params.L_sr, params.pole_pairs), tau, rtol=1e-12)
             d_omega = (tau - params.b * omega - load.torque(0.3, theta, omega)) / params.J

@@ -1,21 +1,24 @@
-"""Strategy ``optimal`` in the closed loop (ROS-free, offline.simulate): it reaches the convex lower
-bound of make reproduce on both thesis tasks with min_loss's tracking, no strategy beats the
-bound, and it plans within the drive's limits, on every shipped motor, with the adapter's
-estimates, and falls back to min_loss (saying so) where the reference is not known ahead."""
+"""
+Strategy ``optimal`` in the closed loop (ROS-free, offline.simulate).
+
+It reaches the convex lower bound of make reproduce on both thesis tasks with min_loss's tracking,
+no strategy beats the bound, and it plans within the drive's limits, on every shipped motor, with
+the adapter's estimates, and falls back to min_loss (saying so) where the reference is not known
+ahead.
+"""
 import glob
 import math
 import os
 
-import numpy as np
-import pytest
-
-from im_bringup.offline import Scenario, build, simulate
-from im_studies.reproduce import loss_bound, start_flux
+from im_bringup.offline import build, Scenario, simulate
+from im_common.params import load_motor_file, THESIS_MOTOR
 from im_controller.control_law import ControllerConfig, DriveController
 from im_controller.flux import FluxStrategy
 from im_controller.flux_plan import plan_flux
 from im_controller.reference import ModelCoefficients
-from im_common.params import THESIS_MOTOR, load_motor_file
+from im_studies.reproduce import loss_bound, start_flux
+import numpy as np
+import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss', 'optimal')
@@ -49,9 +52,12 @@ def test_no_strategy_beats_the_bound_and_optimal_reaches_it(thesis_runs, task):
 
 
 def test_the_plan_uses_the_current_limit_and_the_run_keeps_to_it():
-    """φ_max 0.7 Wb, current limit 11.5 A (the unconstrained plan peaks at 12.1 A): the plan
-    binds at current_margin × limit, the run tracks to 0.1 mrad; min_loss, causal, loses the
-    pendulum by far more under the same limit."""
+    """
+    φ_max 0.7 Wb, current limit 11.5 A (the unconstrained plan peaks at 12.1 A).
+
+    The plan binds at current_margin × limit, the run tracks to 0.1 mrad; min_loss, causal,
+    loses the pendulum by far more under the same limit.
+    """
     opts = {'phi_max': 0.7, 'current_limit': 11.5}
     plant, ctl, _ = build(Scenario(task='position', strategy='optimal', controller_options=opts))
     ctl.compute(0.0, 0.0, 0.0, -0.5 * math.pi, 0.0, 0.0, 0.0)
@@ -61,15 +67,20 @@ def test_the_plan_uses_the_current_limit_and_the_run_keeps_to_it():
     tr = runs['optimal'].trace
     assert np.hypot(tr['i_alpha'], tr['i_beta']).max() <= 0.9 * 11.5 * 1.01
     assert runs['optimal'].summary['pos_err_max_rad'] <= 1e-4
-    assert runs['min_loss'].summary['pos_err_max_rad'] > 10 * runs['optimal'].summary['pos_err_max_rad']
+    worst = {s: runs[s].summary['pos_err_max_rad'] for s in ('min_loss', 'optimal')}
+    assert worst['min_loss'] > 10 * worst['optimal']
 
 
 @pytest.mark.parametrize('motor_file', sorted(glob.glob(os.path.join(
     ROOT, 'src', 'im_common', 'config', 'motors', '*.yaml'))))
 def test_every_shipped_motor_plans_within_its_limits(motor_file):
-    """The rating-scaled tasks of make motors (current, voltage limits; a load on the
-    demagnetized start, so part of the torque is beyond any current at t = 0): the plan is made
-    and followed, the losses are below min_loss's and the tracking no worse than twice its."""
+    """
+    Check ``optimal`` on the rating-scaled tasks of make motors.
+
+    The rating-scaled tasks of make motors (current, voltage limits; a load on the demagnetized
+    start, so part of the torque is beyond any current at t = 0): the plan is made and followed,
+    the losses are below min_loss's and the tracking no worse than twice its.
+    """
     from im_studies.study_motors import scaled_scenario
     motor = load_motor_file(motor_file)
     for task in ('position', 'speed'):
@@ -89,8 +100,11 @@ def test_every_shipped_motor_plans_within_its_limits(motor_file):
 
 
 def test_the_plan_uses_the_controllers_estimates():
-    """Estimates at the first step (the adapter's): the plan is the program solved with those
-    coefficients, not with the nominal ones."""
+    """
+    Estimates at the first step (the adapter's).
+
+    The plan is the program solved with those coefficients, not with the nominal ones.
+    """
     est = {'R_r': 1.1, 'theta': 0.9}
     ctl = DriveController(ControllerConfig(mode='position', strategy='optimal', horizon=2.0))
     ctl.compute(0.0, 0.0, 0.0, -0.5 * math.pi, 0.0, 0.0, 0.0, est)
@@ -120,7 +134,7 @@ def test_the_adaptive_controller_runs_optimal_under_the_chapter4_drift():
 
 
 def test_live_setpoints_fall_back_to_min_loss_and_say_so():
-    cfg = dict(mode='position', profile='setpoint', horizon=2.0)
+    cfg = {'mode': 'position', 'profile': 'setpoint', 'horizon': 2.0}
     live = DriveController(ControllerConfig(strategy='optimal', **cfg))
     ref = DriveController(ControllerConfig(strategy='min_loss', **cfg))
     for ctl in (live, ref):

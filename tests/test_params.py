@@ -1,12 +1,15 @@
-"""Motor parameters: validation (the message names the parameter), schedules, derived quantities."""
+"""
+Motor parameters: validation, schedules, derived quantities.
+
+A validation message names the parameter.
+"""
 import math
 
-import pytest
-
 from im_common.loads import make_load
-from im_common.params import (THESIS_MOTOR, InvalidParameter, MotorParams, ParameterSchedule,
-                              chapter4_schedule, constant, ramp, single_variation_schedule,
-                              sinusoid)
+from im_common.params import (chapter4_schedule, constant, InvalidParameter, MotorParams,
+                              ParameterSchedule, ramp, single_variation_schedule, sinusoid,
+                              THESIS_MOTOR)
+import pytest
 
 POSITIVE = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'J')
 NON_NEGATIVE = ('b', 'k_e', 'k_h')
@@ -172,7 +175,11 @@ def test_derived_quantities(p):
 
 
 def test_thesis_motor_values_are_the_design_table():
-    """The defaults are the thesis motor of seed 000 §3.4.1 as listed in the README's parameter table."""
+    """
+    Check that the defaults are the thesis motor of seed 000 §3.4.1.
+
+    As listed in the README's parameter table.
+    """
     p = THESIS_MOTOR
     assert (p.R_s, p.R_r, p.L_s, p.L_r, p.L_sr) == (0.687, 0.842, 0.08397, 0.08528, 0.08136)
     assert (p.J, p.b, p.pole_pairs, p.k_e, p.k_h) == (0.030, 0.010, 2, 0.012, 0.012)
@@ -233,8 +240,12 @@ def test_parameter_error_accepts_the_declared_type(value, default):
 
 
 def test_motor_file_integer_for_a_real_is_refused_as_the_nodes_refuse_it(tmp_path):
-    """A motor file read by ``scenario --motor`` and the same file given to a node with
-    ``--params-file`` obey one rule: ``J: 1`` is an integer where a real number is declared."""
+    """
+    Check that a motor file obeys one rule on every path.
+
+    A motor file read by ``scenario --motor`` and the same file given to a node with
+    ``--params-file`` obey one rule: ``J: 1`` is an integer where a real number is declared.
+    """
     from im_common.params import load_motor_file
     p = tmp_path / 'm.yaml'
     p.write_text('/**:\n  ros__parameters:\n    R_s: 0.687\n    R_r: 0.842\n    L_s: 0.08397\n'

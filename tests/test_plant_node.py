@@ -1,21 +1,23 @@
-"""The plant node in lock-step: it advances only on a command stamped t_k, refuses bad input,
-reports a missing command by topic and stamp, and never lets its state become NaN."""
+"""
+The plant node in lock-step.
+
+It advances only on a command stamped t_k, refuses bad input, reports a missing command by topic
+and stamp, and never lets its state become NaN.
+"""
 import math
 
-import numpy as np
-
-import pytest
-import rclpy
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-
 from im_common import topics as T
 from im_common.auth import Signer
-from im_common.conversions import Vector3Out, stamp_ns
+from im_common.conversions import stamp_ns, Vector3Out
 from im_common.lockstep import lockstep_qos, make_executor
 from im_common.params import InvalidParameter
 from im_plant.plant_node import PlantNode
+import numpy as np
+import pytest
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 
 @pytest.fixture
@@ -24,15 +26,22 @@ def ctx(ros_context):
 
 
 def make_plant(ctx, **overrides):
-    """A plant alone with a stand-in controller: it waits for no other node before step 0."""
+    """
+    Return a plant alone with a stand-in controller.
+
+    It waits for no other node before step 0.
+    """
     params = [Parameter('wait_for', value='')]
     params += [Parameter(k, value=v) for k, v in overrides.items()]
     return PlantNode(context=ctx, parameter_overrides=params)
 
 
 def _commander(ctx, voltage, plant):
-    """A stand-in controller of the plant's graph (it signs with the plant's key and run):
-    answers each measurement with voltage(ns) stamped like it."""
+    """
+    Return a stand-in controller of the plant's graph (it signs with the plant's key and run).
+
+    Answers each measurement with voltage(ns) stamped like it.
+    """
     node = Node('controller', context=ctx)
     pub = node.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, lockstep_qos())
     out = Vector3Out(Signer.frame('alphabeta'))
@@ -101,9 +110,13 @@ def test_non_finite_command_rejected_state_stays_finite(ctx):
 
 
 def test_of_two_running_plants_of_one_key_the_later_yields(ctx):
-    """Discovery is asynchronous: a plant can reach step 0 before it sees another plant of the
-    same key already running on the domain. When the two see each other, the one that started
-    later fails naming the other and the domain; the earlier run goes on."""
+    """
+    Discovery is asynchronous.
+
+    A plant can reach step 0 before it sees another plant of the same key already running on
+    the domain. When the two see each other, the one that started later fails naming the other
+    and the domain; the earlier run goes on.
+    """
     from im_common.lockstep import RUNNING
     plant = make_plant(ctx, duration=5.0)
     cmd, _ = _commander(ctx, lambda ns: (10.0, 0.0), plant)
@@ -150,8 +163,10 @@ def test_custom_variation_that_breaks_sigma_is_refused(ctx):
     with pytest.raises(InvalidParameter) as err:
         PlantNode(context=ctx, parameter_overrides=[
             Parameter('duration', value=1.0), Parameter('variation', value='custom'),
-            Parameter('variation_parameter', value='L_sr'), Parameter('variation_kind', value='ramp'),
-            Parameter('variation_offset', value=0.08136), Parameter('variation_slope', value=0.01)])
+            Parameter('variation_parameter', value='L_sr'),
+            Parameter('variation_kind', value='ramp'),
+            Parameter('variation_offset', value=0.08136),
+            Parameter('variation_slope', value=0.01)])
     assert 'L_sr' in str(err.value) and 't = ' in str(err.value)
 
 
@@ -168,10 +183,14 @@ def test_shaft_decoder_fast_path_equals_the_general_decoder():
 
 
 def test_a_peers_warning_does_not_undo_its_ready(ctx):
-    """A follower that is ready and then warns (a foreign graph's messages refused, real-time
-    scheduling refused, new parameters) is still ready: the warning and parameters events are
-    not states. Two graphs on one domain made the controller warn after 'ready' and the plant
-    waited for it until its startup timeout."""
+    """
+    Check that a follower that warns after 'ready' is still ready.
+
+    A follower that is ready and then warns (a foreign graph's messages refused, real-time
+    scheduling refused, new parameters) is still ready: the warning and parameters events are not
+    states. Two graphs on one domain made the controller warn after 'ready' and the plant waited
+    for it until its startup timeout.
+    """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from im_common.lockstep import PARAMETERS, READY, WARNING, _status_topic, _unsigned
     plant = make_plant(ctx, wait_for='controller', duration=0.01)
@@ -197,8 +216,12 @@ def test_a_peers_warning_does_not_undo_its_ready(ctx):
 
 
 def _graph_summary(task, duration, plant=None, controller_hook=None, **config):
-    """One in-process graph run's summary (the figures ``scenario`` prints and writes), with
-    optional plant parameters and a hook given the controller node before the run."""
+    """
+    Run one in-process graph and return its summary.
+
+    One in-process graph run's summary (the figures ``scenario`` prints and writes), with optional
+    plant parameters and a hook given the controller node before the run.
+    """
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.scenario import summarize
@@ -219,10 +242,13 @@ def _graph_summary(task, duration, plant=None, controller_hook=None, **config):
 
 
 def test_a_one_step_voltage_spike_is_in_the_summary():
-    """Issue 23: V_max_V came from the decimated /im/truth/voltage and missed a 314 V spike. A
-    command of 314 V at one step between two truth samples (step 1234; truth every 10 steps) is
-    applied by the plant for that period, and the summary's peak is exactly it; the true current
-    peak is the every-step one too."""
+    """
+    Issue 23: V_max_V came from the decimated /im/truth/voltage and missed a 314 V spike.
+
+    A command of 314 V at one step between two truth samples (step 1234; truth every 10 steps)
+    is applied by the plant for that period, and the summary's peak is exactly it; the true
+    current peak is the every-step one too.
+    """
     spike_ns = 1234 * 100_000
 
     def hook(node):
@@ -242,12 +268,16 @@ def test_a_one_step_voltage_spike_is_in_the_summary():
 
 
 def test_tracking_errors_come_from_the_true_shaft_not_the_noisy_measurement():
-    """Issue 23: with speed measurement noise the summary's speed error was the noise's (0.20
-    rad/s where the true error was 0.009). The plant publishes the true shaft on /im/truth/shaft
-    and every tracking figure uses it: with σ = 0.05 rad/s of noise the summary's speed error is
-    |ω_true − ω*| over the reference instants, exactly, not the measured one (≈ 3σ). (It is not
-    the noise-free run's: the controller's PD acts on the noisy speed, so the shaft really does
-    move more — 0.016 against 0.0009 rad/s here.)"""
+    """
+    Check that the summary's speed error is the true one under measurement noise.
+
+    Issue 23: with speed measurement noise the summary's speed error was the noise's (0.20 rad/s
+    where the true error was 0.009). The plant publishes the true shaft on /im/truth/shaft and
+    every tracking figure uses it: with σ = 0.05 rad/s of noise the summary's speed error is
+    |ω_true − ω*| over the reference instants, exactly, not the measured one (≈ 3σ). (It is not the
+    noise-free run's: the controller's PD acts on the noisy speed, so the shaft really does move
+    more — 0.016 against 0.0009 rad/s here.)
+    """
     s, tr = _graph_summary('speed', 0.3, plant={'speed_noise_std': 0.05, 'noise_seed': 3})
     assert s['ok'], s['failures']
     true_err = np.nanmax(np.abs(tr['omega_true'] - tr['omega_ref']))

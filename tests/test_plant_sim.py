@@ -1,4 +1,7 @@
-"""Tests of the stepped plant: energy books, core-loss accounting, determinism, inverter limit, input checks.
+"""
+Tests of the stepped plant.
+
+Energy books, core-loss accounting, determinism, inverter limit, input checks.
 
 The energy balance checked here is the exact identity of the model (see im_common.model):
 
@@ -9,13 +12,12 @@ error: it must be small *and* shrink as h⁴ when the sub-step is halved.
 """
 import math
 
+from im_common.loads import LinearLoad, NoLoad, PendulumLoad
+from im_common.params import chapter4_schedule, InvalidParameter, THESIS_MOTOR
+from im_common.plant_sim import energy_summary, PlantSimulator
+from im_common.steady_state import params_steady_state
 import numpy as np
 import pytest
-
-from im_common.loads import LinearLoad, NoLoad, PendulumLoad
-from im_common.params import THESIS_MOTOR, InvalidParameter, chapter4_schedule
-from im_common.plant_sim import PlantSimulator, energy_summary
-from im_common.steady_state import params_steady_state
 
 P = THESIS_MOTOR
 T_S = 1e-4
@@ -167,8 +169,8 @@ def test_noiseless_measurement_is_the_truth_and_time_is_exact():
         v = V_HAT * np.exp(1j * OMEGA_E * k * T_S)
         sim.step(v.real, v.imag)
     m, tr = sim.measure(), sim.truth()
-    assert (m.i_alpha, m.i_beta, m.theta_r, m.omega_r) == (tr['i_alpha'], tr['i_beta'],
-                                                          tr['theta_r'], tr['omega_r'])
+    assert ((m.i_alpha, m.i_beta, m.theta_r, m.omega_r)
+            == (tr['i_alpha'], tr['i_beta'], tr['theta_r'], tr['omega_r']))
     assert m.t == 1234 * T_S
 
 

@@ -1,6 +1,9 @@
-"""The graph as ROS users run it: every node its own process, started the way the launch file
-starts them (:mod:`im_bringup.processes`: the executables ``ros2 run`` finds, ``-r __node:=``,
-one ``/**`` parameters file per node), plus the recorder.
+"""
+The graph as ROS users run it.
+
+Every node its own process, started the way the launch file starts them
+(:mod:`im_bringup.processes`: the executables ``ros2 run`` finds, ``-r __node:=``, one ``/**``
+parameters file per node), plus the recorder.
 
 What users rely on: every process exits 0 at the end; the multi-process run computes the same
 numbers as the in-process graph (stamps decide, not scheduling); the recording holds every
@@ -9,19 +12,18 @@ ends every process cleanly with a readable recording; a killed node is reported 
 nothing hangs; a recorder that joins late records without a gap from where it joined; free_run
 closes the loop in wall-clock time; live parameters are validated, applied and recorded.
 """
+from collections import Counter
 import os
 import random
 import signal
 import subprocess
 import sys
 import time
-from collections import Counter
 
-import pytest
-
-from im_recording.bag import info, iter_raw
-from im_bringup.processes import GraphProcesses, graph_processes
+from im_bringup.processes import graph_processes, GraphProcesses
 from im_common import topics as T
+from im_recording.bag import info, iter_raw
+import pytest
 
 LOCKSTEP = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
 
@@ -47,9 +49,13 @@ def plant_end(bag):
 
 
 def missing_in_bag(bag, period=100_000):
-    """Per lock-step topic: how many steps of the run the bag lacks, from step 0 to the plant's
-    final step (the command of the final step is never computed; after a stop only the
-    measurements of the final step are sure to exist)."""
+    """
+    Count the steps each lock-step topic lacks in the bag.
+
+    How many steps of the run the bag lacks, from step 0 to the plant's final step (the command
+    of the final step is never computed; after a stop only the measurements of the final step
+    are sure to exist).
+    """
     state, step, _ = plant_end(bag)
     stamps = {t: set() for t in LOCKSTEP}
     for topic, _, t, _ in iter_raw(bag, list(LOCKSTEP)):
@@ -78,8 +84,12 @@ def wait_for_log(g, name, needle, timeout=60.0):
 
 
 def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path, domain):
-    """Three short runs in a row, one CPU-bound process beside them: every process exits 0 and
-    the bag holds every step on every lock-step topic; the numbers equal the in-process graph's."""
+    """
+    Three short runs in a row, one CPU-bound process beside them.
+
+    Every process exits 0 and the bag holds every step on every lock-step topic; the numbers
+    equal the in-process graph's.
+    """
     from im_recording.run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
@@ -92,7 +102,7 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
                                 domain) as g:
                 codes = g.start().wait(120)
                 no_traceback(g)
-                assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+                assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
             c = counts(bag)
             for topic in LOCKSTEP:
                 expected = 2000 if topic == T.CMD_VOLTAGE else 2001      # steps 0..2000
@@ -110,8 +120,12 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
 
 @pytest.mark.parametrize('target', ['all', 'controller', 'plant', 'recorder'])
 def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
-    """Ctrl-C on `ros2 launch` (SIGINT to all) or on one node: every process exits 0, no
-    traceback, and the recording is complete up to the stop (rosbags reads it)."""
+    """
+    Ctrl-C on `ros2 launch` (SIGINT to all) or on one node.
+
+    Every process exits 0, no traceback, and the recording is complete up to the stop (rosbags
+    reads it).
+    """
     bag = tmp_path / 'run.mcap'
     procs = graph_processes('position', 'min_energy', duration=30.0, record=bag)
     with GraphProcesses(procs, str(tmp_path), domain) as g:
@@ -127,7 +141,7 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
             g.send(signal.SIGINT)
         codes = g.wait(30)
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
         if target == 'controller':
             assert 'controller stopping (SIGINT)' in g.log('plant')
     from rosbags.highlevel import AnyReader
@@ -145,7 +159,7 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
         end = plant_end(bag)
         assert end and end[0] == 'stopped', [(m.status[0].name, m.status[0].message)
                                              for _, m in _statuses(bag)]
-        assert missing_in_bag(bag) == {t: 0 for t in LOCKSTEP}
+        assert missing_in_bag(bag) == dict.fromkeys(LOCKSTEP, 0)
 
 
 def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
@@ -165,11 +179,15 @@ def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
 
 
 def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, domain):
-    """A recorder started while the run goes on: from the step the plant took it on as a lossless
-    follower ("joined at step N" in the plant's log) every lock-step topic has every step to the
-    end. Before that it has what the publishers' history still held when it matched; a step that
-    was gone by then (on a loaded machine the plant may run more than the history ahead before it
-    sees the recorder) is counted in the metadata exactly as the bag lacks it."""
+    """
+    A recorder started while the run goes on.
+
+    From the step the plant took it on as a lossless follower ("joined at step N" in the
+    plant's log) every lock-step topic has every step to the end. Before that it has what the
+    publishers' history still held when it matched; a step that was gone by then (on a loaded
+    machine the plant may run more than the history ahead before it sees the recorder) is
+    counted in the metadata exactly as the bag lacks it.
+    """
     import re
     bag = tmp_path / 'late.mcap'
     procs = graph_processes('position', 'min_energy', duration=1.5)
@@ -183,7 +201,7 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
         g.start_one('recorder')
         codes = g.wait(120)
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
     joined = re.search(r"lossless follower 'recorder' joined at step (\d+)", g.log('plant'))
     assert joined, g.log('plant')[-2000:]
     n_join = int(joined.group(1))
@@ -201,16 +219,20 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
     for topic, k_last in last.items():
         have = {t // 100_000 for _, _, t, _ in iter_raw(bag, [topic])}
         lacks += len(set(range(min(first[topic], start), k_last + 1)) - have)
-    assert int(meta['missing_steps']) == lacks, {k: v for k, v in meta.items()
-                                                  if k.startswith(('missing', 'last'))}
+    counts = {k: v for k, v in meta.items() if k.startswith(('missing', 'last'))}
+    assert int(meta['missing_steps']) == lacks, counts
 
 
 def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
-    """free_run at 1 kHz with the certified 1 ms gains: the plant starts after discovery, runs on
-    the wall clock (never faster than real time), applies the commands that arrive by their
-    deadline and accounts for every step and every command's latency — in its final log line
-    whether the run reached its end or the protection tripped because this machine could not keep
-    the deadlines (how many it meets is a benchmark figure: benchmarks/bench_processes.py)."""
+    """
+    free_run at 1 kHz with the certified 1 ms gains.
+
+    The plant starts after discovery, runs on the wall clock (never faster than real time),
+    applies the commands that arrive by their deadline and accounts for every step and every
+    command's latency — in its final log line whether the run reached its end or the protection
+    tripped because this machine could not keep the deadlines (how many it meets is a benchmark
+    figure: benchmarks/bench_processes.py).
+    """
     import re
 
     from ament_index_python.packages import get_package_share_directory
@@ -252,8 +274,12 @@ def _statuses(bag):
 
 
 def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
-    """`ros2 param set /controller k1 ...` on a running controller process: an invalid value is
-    refused with a reason, a valid one is applied at a step boundary and recorded."""
+    """
+    `ros2 param set /controller k1 ...` on a running controller process.
+
+    An invalid value is refused with a reason, a valid one is applied at a step boundary and
+    recorded.
+    """
     import rclpy
     from rclpy.context import Context
     from rclpy.parameter import Parameter
@@ -283,7 +309,7 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
             assert not bad.successful and 'k1' in bad.reason
             assert set_(30.0).successful
             codes = g.wait(120)
-            assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
             no_traceback(g)
         node.destroy_node()
     finally:
@@ -294,9 +320,12 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
 
 
 def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
-    """Two graphs with the same key on one ROS_DOMAIN_ID (nodes started by hand share the user's
-    key): nodes could not tell which run to follow, so the second plant refuses to start and
-    says so; the first run is not disturbed."""
+    """
+    Two graphs with the same key on one ROS_DOMAIN_ID (nodes started by hand share the user's key).
+
+    Nodes could not tell which run to follow, so the second plant refuses to start and says so;
+    the first run is not disturbed.
+    """
     first = graph_processes('position', 'min_energy', duration=30.0)
     key = first[0].parameters['graph_key_file']
     second = graph_processes('position', 'min_energy', duration=30.0, key_file=key)[0]
@@ -311,12 +340,16 @@ def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
         assert all(g.popen[n].poll() is None for n in ('plant', 'controller', 'observer'))
         codes = g.stop()
         no_traceback(g)
-        assert codes == {n: 0 for n in ('plant', 'controller', 'observer')} | {'plant2': 1}
+        assert codes == dict.fromkeys(('plant', 'controller', 'observer'), 0) | {'plant2': 1}
 
 
 def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_path, domain):
-    """Each launch makes its own key: two graphs on one ROS_DOMAIN_ID refuse each other's
-    messages (and say so) and both compute exactly what they compute alone."""
+    """
+    Each launch makes its own key.
+
+    Two graphs on one ROS_DOMAIN_ID refuse each other's messages (and say so) and both compute
+    exactly what they compute alone.
+    """
     from im_recording.run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
@@ -331,7 +364,7 @@ def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_pat
     with GraphProcesses(a + b, str(tmp_path), domain) as g:
         codes = g.start().wait(180)
         no_traceback(g)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-1500:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
     assert 'not signed by this graph' in g.log('controller') + g.log('observer')
     live = run_graph(task='position', strategy='min_energy', duration=0.1)
     for bag in bags:
@@ -350,17 +383,21 @@ def _gains_1ms():
 
 @pytest.mark.parametrize('mode', ['lockstep', 'free_run'])
 def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode):
-    """Two launches (each its own key, the same node names) on one ROS_DOMAIN_ID, the second
-    started while the first runs: both finish (exit 0), each records every step of its run, and
-    in lock-step each computes exactly what it computes alone. Before, each node asked the graph
-    API for every message of the other graph it refused, fell behind the other graph's flood, its
+    """
+    Check two launches on one ROS_DOMAIN_ID, the second started during the first.
+
+    Two launches (each its own key, the same node names) on one ROS_DOMAIN_ID, the second started
+    while the first runs: both finish (exit 0), each records every step of its run, and in
+    lock-step each computes exactly what it computes alone. Before, each node asked the graph API
+    for every message of the other graph it refused, fell behind the other graph's flood, its
     reader history lost its own graph's step and that plant stopped ("no /im/command/voltage
-    stamped 0.468 s ... within 5.0 s")."""
+    stamped 0.468 s ... within 5.0 s").
+    """
     from im_recording.run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
-    kw = (dict(duration=1.0) if mode == 'lockstep' else
-          dict(duration=2.0, T_s=1e-3, mode='free_run', extra=_gains_1ms()))
+    kw = ({'duration': 1.0} if mode == 'lockstep' else
+          {'duration': 2.0, 'T_s': 1e-3, 'mode': 'free_run', 'extra': _gains_1ms()})
     bags = [tmp_path / 'a.mcap', tmp_path / 'b.mcap']
     a = graph_processes('position', 'min_energy', record=bags[0], **kw)
     b = graph_processes('position', 'min_energy', record=bags[1], **kw)
@@ -378,7 +415,7 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
         codes = [ga.wait(300), gb.wait(300)]
         for g, c in zip((ga, gb), codes):
             no_traceback(g)
-            assert c == {n: 0 for n in c}, {n: g.log(n)[-1500:] for n in c}
+            assert c == dict.fromkeys(c, 0), {n: g.log(n)[-1500:] for n in c}
             assert 'reached duration' in g.log('plant')
     assert 'not signed by this graph' in ''.join(g.log(n) for g in (ga, gb)
                                                  for n in ('controller', 'observer', 'plant'))
@@ -397,11 +434,14 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
 
 
 def test_free_run_recording_beside_a_busy_process_holds_every_step(tmp_path, domain):
-    """free_run at 1 kHz for 2 s with the recorder and a CPU-bound process beside the graph: the
-    plant cannot wait for the recorder, yet the bag holds the measurements of every step the
-    plant integrated and its final event, and the metadata's missing count is what the bag
+    """
+    free_run at 1 kHz for 2 s with the recorder and a CPU-bound process beside the graph.
+
+    The plant cannot wait for the recorder, yet the bag holds the measurements of every step
+    the plant integrated and its final event, and the metadata's missing count is what the bag
     lacks (before: the niced recorder was starved — 10 s runs lost 19-22 % of the steps and the
-    plant's `finished`)."""
+    plant's `finished`).
+    """
     bag = tmp_path / 'free.mcap'
     procs = graph_processes('position', 'min_energy', T_s=1e-3, duration=2.0, mode='free_run',
                             record=bag, extra=_gains_1ms())
@@ -422,8 +462,12 @@ def test_free_run_recording_beside_a_busy_process_holds_every_step(tmp_path, dom
 
 
 def test_scenario_runs_as_separate_processes(tmp_path):
-    """``scenario --processes``: the same numbers as the in-process scenario, from the
-    recorder's bag; every process exits 0; logs next to the recording."""
+    """
+    ``scenario --processes``.
+
+    The same numbers as the in-process scenario, from the recorder's bag; every process exits
+    0; logs next to the recording.
+    """
     import json
 
     from im_bringup.processes import executable_path

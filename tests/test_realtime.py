@@ -1,10 +1,13 @@
-"""Real-time scheduling for free_run (im_common/realtime.py): every thread of the process moves to
-SCHED_FIFO, or the refusal says what to grant; the process can go back. Run in a child process so
-the test runner's own scheduling never changes."""
+"""
+Real-time scheduling for free_run (im_common/realtime.py).
+
+Every thread of the process moves to SCHED_FIFO, or the refusal says what to grant; the process can
+go back. Run in a child process so the test runner's own scheduling never changes.
+"""
 import subprocess
 import sys
 
-_CHILD = '''
+_CHILD = """
 import os, threading, time
 from im_common import realtime
 stop = threading.Event()
@@ -19,7 +22,7 @@ print(ok, text, sorted(set(policies.values())), late, realtime.describe())
 realtime.leave()
 print(realtime.describe())
 stop.set(); t.join()
-'''
+"""
 
 
 def test_enter_moves_every_thread_or_says_what_to_grant():

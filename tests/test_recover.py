@@ -1,6 +1,10 @@
-"""``recover`` (issue 23): every record boundary validated, a damaged chunk costs exactly that
-chunk, the loss is reported exactly and never called complete, the input is never touched, and
-an output that cannot be written leaves nothing behind."""
+"""
+``recover`` (issue 23).
+
+Every record boundary validated, a damaged chunk costs exactly that chunk, the loss is reported
+exactly and never called complete, the input is never touched, and an output that cannot be written
+leaves nothing behind.
+"""
 import errno
 import os
 
@@ -23,8 +27,12 @@ def _all(path):
 
 
 def _many_chunks(path, steps=1300, chunk=1024, compression='zstd'):
-    """A recording in a few hundred small chunks; every message has its own stamp, so a chunk's
-    messages are exactly those stamped within its [start, end]."""
+    """
+    Return a recording in a few hundred small chunks.
+
+    Every message has its own stamp, so a chunk's messages are exactly those stamped within its
+    [start, end].
+    """
     with BagWriter(path, chunk_size=chunk, compression=compression,
                    metadata={'scenario': {'task': 'speed'}}) as w:
         for k in range(steps):
@@ -71,9 +79,13 @@ def test_corrupting_each_chunk_in_turn_loses_exactly_that_chunk(tmp_path):
 
 
 def _index_holding_a_data_end_pattern(path):
-    """Chunks whose Message Index records contain ``0f 04 00 00 00 00 00 00 00`` (the bytes of
-    a Data End record): a message at chunk offset 1039 (0x40f) followed in the index by a stamp
-    that is a multiple of 256."""
+    """
+    Build chunks whose Message Index records contain a Data End record's bytes.
+
+    Chunks whose Message Index records contain ``0f 04 00 00 00 00 00 00 00`` (the bytes of a Data
+    End record): a message at chunk offset 1039 (0x40f) followed in the index by a stamp that is a
+    multiple of 256.
+    """
     name = 'r'
     while len(cdr.pack_joint_state(0, 0, (name,), (1.0,), (1.0,))) + 31 < 1039:
         name += 'r'
@@ -136,7 +148,8 @@ def test_a_torn_tail_reports_its_chunk_header_range(tmp_path, capsys):
     assert f'{t0 * 1e-9:.9f} .. {t1 * 1e-9:.9f} s' in cap.err and 'torn' in cap.err
     assert _all(tmp_path / 'torn.mcap') == [m for m in _all(src) if m[1] < t0]
     assert part.read_bytes() == before                         # the input is never modified
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut.mcap', 'torn.mcap', 'torn.mcap.part']
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['cut.mcap', 'torn.mcap',
+                                                          'torn.mcap.part']
 
 
 def test_recover_part_onto_its_final_name_keeps_the_input(tmp_path, capsys):

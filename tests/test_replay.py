@@ -2,6 +2,12 @@
 import random
 import time
 
+from geometry_msgs.msg import Vector3Stamped
+from im_observer import observer
+from im_recording.bag import iter_raw, read_messages
+from im_recording.replay import main as replay_main, Player, reestimate
+from im_recording.run import load_run
+from im_recording.synth import make_synthetic_bag
 import numpy as np
 import pytest
 import rclpy
@@ -9,17 +15,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-from geometry_msgs.msg import Vector3Stamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-
-from im_recording.bag import iter_raw, read_messages
-from im_recording.replay import Player, main as replay_main, reestimate
-from im_recording.run import load_run
-from im_recording.synth import make_synthetic_bag
-
-from im_observer import observer  # noqa: E402
 
 
 @pytest.fixture(scope='module')

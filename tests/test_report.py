@@ -2,13 +2,12 @@
 import json
 import math
 
-import numpy as np
-import pytest
-
 from im_recording.bag import BagWriter
 from im_recording.report import main as report_main, write_report
 from im_recording.run import load_run
 from im_recording.synth import make_synthetic_bag
+import numpy as np
+import pytest
 
 
 @pytest.fixture(scope='module')
@@ -53,7 +52,7 @@ def test_report_numbers_files_and_cli(two_bags, tmp_path, capsys):
     assert f"{ta['E_in']:.2f}" in md and 'energy drawn E_in' in md
     js = json.loads((out / 'report.json').read_text())
     assert js['runs'][0]['figures']['E_in_J'] == pytest.approx(ta['E_in'])
-    pngs = [p for p in res['figures']]
+    pngs = list(res['figures'])
     names = {p.split('/')[-1] for p in pngs}
     assert {'speed.png', 'energy.png', 'currents_dq.png', 'flux_dq.png'} <= names
     for p in pngs:
@@ -112,8 +111,11 @@ def test_report_cli_bad_bag_is_one_line_exit_2(tmp_path, capsys):
 
 
 def test_plots_draw_decimated_topics_through_their_gaps():
-    """Topics published every N steps are NaN between samples on the per-step time base; a plot
-    must draw them from the samples that exist (else matplotlib draws nothing at all)."""
+    """
+    Topics published every N steps are NaN between samples on the per-step time base.
+
+    A plot must draw them from the samples that exist (else matplotlib draws nothing at all).
+    """
     import numpy as np
 
     from im_recording.plots import _dec
@@ -127,9 +129,13 @@ def test_plots_draw_decimated_topics_through_their_gaps():
 
 
 def _varied_bag(path, steps=2000, refused=0):
-    """Every trace kind: per-step and decimated topics, estimates drifting, a gap in one
-    lock-step topic (steps 1000-1009) and a NaN sample; ``refused`` commands of a rogue (50 V)
-    kept apart as the recorder keeps them."""
+    """
+    Every trace kind.
+
+    Per-step and decimated topics, estimates drifting, a gap in one lock-step topic (steps
+    1000-1009) and a NaN sample; ``refused`` commands of a rogue (50 V) kept apart as the
+    recorder keeps them.
+    """
     from im_common import topics as T
     with BagWriter(path, metadata={'scenario': {'task': 'position'}}) as w:
         if refused:
@@ -159,8 +165,12 @@ def _varied_bag(path, steps=2000, refused=0):
 
 
 def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch):
-    """The running figures, folded batch by batch, are im_common.metrics' definitions on the
-    whole trace (and the estimate errors computed directly), to rounding."""
+    """
+    Check the running figures against the definitions on the whole trace.
+
+    The running figures, folded batch by batch, are im_common.metrics' definitions on the whole
+    trace (and the estimate errors computed directly), to rounding.
+    """
     from im_common.metrics import tracking_figures
 
     from im_recording import run as R
@@ -191,7 +201,7 @@ def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch
 
 
 def _status(node: str, state: str, t_ns: int, **values) -> bytes:
-    """A run-protocol event as the nodes publish it on /im/status."""
+    """Return a run-protocol event as the nodes publish it on /im/status."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rclpy.serialization import serialize_message
     msg = DiagnosticArray()
@@ -202,9 +212,12 @@ def _status(node: str, state: str, t_ns: int, **values) -> bytes:
 
 
 def _recorder_bag(path, end_state: str, reason: str, steps: int = 76, T_s: float = 0.01):
-    """What the recorder node writes for a multi-process run: the lock-step topics, the nodes'
-    events on /im/status and its ``recording`` metadata — no scenario parameters (so no duration
-    to count steps against)."""
+    """
+    Return what the recorder node writes for a multi-process run.
+
+    The lock-step topics, the nodes' events on /im/status and its ``recording`` metadata — no
+    scenario parameters (so no duration to count steps against).
+    """
     from im_common import topics as T
     w = BagWriter(path)
     dt = int(round(T_s * 1e9))
@@ -222,9 +235,13 @@ def _recorder_bag(path, end_state: str, reason: str, steps: int = 76, T_s: float
 
 @pytest.mark.parametrize('state', ['failed', 'stopped'])
 def test_a_run_that_ended_before_its_duration_is_partial_with_the_reason(tmp_path, state):
-    """Issue 23: a multi-process run whose plant exited 1 at 0.76 s of 10 s was reported
-    `partial: false` with no incomplete-runs section. A failed or stopped end (the nodes' own
-    /im/status events, the recorder's run_end) makes it partial, and the report says why."""
+    """
+    Check that a run with a failed or stopped end is reported partial.
+
+    Issue 23: a multi-process run whose plant exited 1 at 0.76 s of 10 s was reported `partial:
+    false` with no incomplete-runs section. A failed or stopped end (the nodes' own /im/status
+    events, the recorder's run_end) makes it partial, and the report says why.
+    """
     reason = 'protection trip at t = 0.760000000 s: |i_s| = 61.2 A above current_trip 60 A'
     bag = tmp_path / 'failed.mcap'
     _recorder_bag(bag, state, reason)
@@ -242,8 +259,11 @@ def test_a_run_that_ended_before_its_duration_is_partial_with_the_reason(tmp_pat
 
 
 def test_refused_messages_are_counted_in_the_report_not_in_the_figures(tmp_path):
-    """A rogue's commands, kept by the recorder on /im/refused<topic>: the report counts them per
-    topic in their own section, and no figure changes."""
+    """
+    A rogue's commands, kept by the recorder on /im/refused<topic>.
+
+    The report counts them per topic in their own section, and no figure changes.
+    """
     from im_common import topics as T
     from im_recording.report import write_report
     clean, attacked = tmp_path / 'clean.mcap', tmp_path / 'attacked.mcap'

@@ -6,10 +6,10 @@ CH4_KEYS = ('variation', 'R_r_hat_final', 'R_r_true_final', 'theta_hat_final', '
 
 
 def test_summary_rows_carry_the_chapter3_and_chapter4_keys(tmp_path):
-    specs = [dict(task='position', strategy='min_loss', controller='nominal', T_s=1e-4,
-                  duration=0.02),
-             dict(task='speed', strategy='min_energy', controller='adaptive', variation='chapter4',
-                  T_s=1e-4, duration=0.02)]
+    specs = [{'task': 'position', 'strategy': 'min_loss', 'controller': 'nominal', 'T_s': 1e-4,
+              'duration': 0.02},
+             {'task': 'speed', 'strategy': 'min_energy', 'controller': 'adaptive',
+              'variation': 'chapter4', 'T_s': 1e-4, 'duration': 0.02}]
     rows = run_all(specs, str(tmp_path))
     for r in rows:
         missing = [k for k in CH3_KEYS + CH4_KEYS if k not in r]
@@ -23,17 +23,22 @@ def test_summary_rows_carry_the_chapter3_and_chapter4_keys(tmp_path):
 
 
 def test_bound_rows_give_each_run_its_own_start_and_ratio():
-    """Per task one bound row: the convex lower bound from each run's own start flux (position:
-    demagnetized; speed: the strategy's steady flux), refined to < 1e-5, and the run's ratios."""
+    """
+    Per task one bound row.
+
+    The convex lower bound from each run's own start flux (position: demagnetized; speed: the
+    strategy's steady flux), refined to < 1e-5, and the run's ratios.
+    """
     import pytest
     from im_studies.reproduce import bound_markdown, bound_rows, loss_bound
-    runs = [dict(task=t, strategy=s, controller='nominal', variation='none', rate_hz=1e4,
-                 E_loss_J=200.0, E_copper_J=150.0)
+    runs = [{'task': t, 'strategy': s, 'controller': 'nominal', 'variation': 'none',
+             'rate_hz': 1e4, 'E_loss_J': 200.0, 'E_copper_J': 150.0}
             for t in ('position', 'speed') for s in ('constant_flux', 'min_loss')]
-    runs.append(dict(task='speed', strategy='min_loss', controller='adaptive',
-                     variation='chapter4', rate_hz=1e4, E_loss_J=1.0, E_copper_J=1.0))
+    runs.append({'task': 'speed', 'strategy': 'min_loss', 'controller': 'adaptive',
+                 'variation': 'chapter4', 'rate_hz': 1e4, 'E_loss_J': 1.0, 'E_copper_J': 1.0})
     rows = bound_rows(runs)
-    assert [(r['task'], r['strategy']) for r in rows] == [('position', 'bound'), ('speed', 'bound')]
+    assert [(r['task'], r['strategy']) for r in rows] == [('position', 'bound'),
+                                                          ('speed', 'bound')]
     pos, spd = rows
     assert pos['start_flux_Wb'] == {'constant_flux': 0.0, 'min_loss': 0.0}
     assert spd['start_flux_Wb']['constant_flux'] == pytest.approx(1.2)       # φ_d

@@ -1,8 +1,7 @@
 """The ros_context fixture (tests/conftest.py): a private, initialized context on a test domain."""
+from conftest import TEST_DOMAINS
 import rclpy
 from rclpy.node import Node
-
-from conftest import TEST_DOMAINS
 
 
 def test_context_is_private_initialized_and_on_a_test_domain(ros_context):

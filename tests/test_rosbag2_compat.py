@@ -1,17 +1,20 @@
-"""Every bag the project writes opens in rosbag2 Jazzy: its ``rosbag2`` record and channel metadata
-decode by rosbag2's own rules (:mod:`rosbag2_rules`), its schemas are the text rosbag2's recorder
-writes, its channels carry the QoS the publishers offer, and both recording paths (in-process
-``scenario --record`` and ``scenario --processes --record``) write the same run metadata."""
+"""
+Every bag the project writes opens in rosbag2 Jazzy.
+
+Its ``rosbag2`` record and channel metadata decode by rosbag2's own rules (:mod:`rosbag2_rules`),
+its schemas are the text rosbag2's recorder writes, its channels carry the QoS the publishers
+offer, and both recording paths (in-process ``scenario --record`` and ``scenario --processes
+--record``) write the same run metadata.
+"""
 import os
 import subprocess
 
-import pytest
-
-from rosbag2_rules import Rosbag2Error, decode_bag_metadata, read_metadata
-from im_recording.bag import BagWriter, info
-from im_recording.msgdefs import SEPARATOR, full_definition, msg_file
 from im_bringup.processes import executable_path
 from im_common import topics as T
+from im_recording.bag import BagWriter, info
+from im_recording.msgdefs import full_definition, msg_file, SEPARATOR
+import pytest
+from rosbag2_rules import decode_bag_metadata, read_metadata, Rosbag2Error
 
 #: The topics whose publishers offer transient-local durability (lockstep_qos, status_qos).
 TRANSIENT_LOCAL = {T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX, T.ADAPT_ESTIMATE,
@@ -19,7 +22,7 @@ TRANSIENT_LOCAL = {T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX, T.AD
 
 
 def _check_against_channels(md):
-    """The record's topics are the file's channels, with the same types, QoS and counts."""
+    """Return the record's topics are the file's channels, with the same types, QoS and counts."""
     rec = {t['name']: t for t in md['topics_with_message_count']}
     assert set(rec) == set(md['channels'])
     for topic, ch in md['channels'].items():
@@ -73,8 +76,9 @@ ros_distro: jazzy
 @pytest.mark.parametrize('broken, error', [
     ('rosbag2_bagfile_information:\n' + ''.join('  ' + line + '\n' for line in GOOD.splitlines()),
      'first invalid key: "version"'),
-    (GOOD.replace("    offered_qos_profiles:\n", "    offered_qos_profiles: '- {history: keep_last}'\n"
-                  "    x:\n"), 'sequence expected'),
+    (GOOD.replace('    offered_qos_profiles:\n',
+                  "    offered_qos_profiles: '- {history: keep_last}'\n"
+                  '    x:\n'), 'sequence expected'),
     (GOOD.replace('ros_distro: jazzy\n', ''), 'first invalid key: "ros_distro"'),
     (GOOD.replace('message_count: 1\ncompression', 'message_count: -1\ncompression'),
      'unsigned integer expected'),
@@ -88,9 +92,13 @@ def test_the_decoder_refuses_what_rosbag2_cannot_read(broken, error):
 
 
 def test_schema_text_is_rosbag2s_local_message_definition():
-    """rosbag2's recorder: the .msg file as installed (comments, blank lines), then each
-    dependency depth first in sorted order, after '\\n', 80 '=' and 'MSG: pkg/Type' (a
-    same-package field type qualified with its package)."""
+    r"""
+    Check the schema text against rosbag2's recorder.
+
+    The .msg file as installed (comments, blank lines), then each dependency depth first in
+    sorted order, after '\n', 80 '=' and 'MSG: pkg/Type' (a same-package field type qualified
+    with its package).
+    """
     text = full_definition('diagnostic_msgs/msg/DiagnosticArray')
     parts = text.split('\n' + SEPARATOR)
     with open(msg_file('diagnostic_msgs/msg/DiagnosticArray'), newline='') as f:

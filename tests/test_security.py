@@ -1,7 +1,11 @@
-"""Who may command the motor (docs/security.md): a foreign node on the graph's ROS domain that
-publishes commands, estimates, measurements, a clock or run-protocol events never changes what the
-plant integrates — lock-step, free_run, in-process and as separate processes — and the refusal
-names it; the graph's key is private; the SROS2 policy matches the topic table."""
+"""
+Who may command the motor (docs/security.md).
+
+A foreign node on the graph's ROS domain that publishes commands, estimates, measurements, a clock
+or run-protocol events never changes what the plant integrates — lock-step, free_run, in-process
+and as separate processes — and the refusal names it; the graph's key is private; the SROS2 policy
+matches the topic table.
+"""
 import os
 import stat
 import struct
@@ -9,13 +13,12 @@ import subprocess
 import sys
 import time
 
-import numpy as np
-import pytest
-
 from im_common import auth
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, Vector3Out
+import numpy as np
+import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -104,7 +107,7 @@ def test_a_malformed_allow_list_item_is_refused_by_name():
     assert r.returncode == 2 and 'Traceback' not in r.stderr
     assert r.stderr.strip().splitlines() == [
         "plant: error: invalid parameter 'allowed_publishers' item 'im/command/voltage': "
-        "expected /topic=node"]
+        'expected /topic=node']
 
 
 # --- a rogue beside the graph ------------------------------------------------------------------
@@ -141,11 +144,14 @@ def test_a_rogue_changes_nothing_in_lockstep_and_is_named(controller):
 
 
 def test_a_rogue_changes_nothing_in_free_run():
-    """free_run in-process (wall-clock ticks): the rogue's commands are all refused; none is
-    applied (no step's applied voltage is the rogue's (50 V, 0 V)). free_run is not
-    deterministic: on a loaded machine commands miss their deadlines (the plant holds the last
-    one) and the controller itself may ask for more than the lock-step run's 25 V, so the
-    voltage's size is no test of the rogue."""
+    """
+    free_run in-process (wall-clock ticks).
+
+    The rogue's commands are all refused; none is applied (no step's applied voltage is the
+    rogue's (50 V, 0 V)). free_run is not deterministic: on a loaded machine commands miss
+    their deadlines (the plant holds the last one) and the controller itself may ask for more
+    than the lock-step run's 25 V, so the voltage's size is no test of the rogue.
+    """
     from im_bringup.processes import load_params_yaml
     from im_bringup.testing import run_graph
     from ament_index_python.packages import get_package_share_directory
@@ -167,9 +173,13 @@ def test_a_rogue_changes_nothing_in_free_run():
 
 
 def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
-    """The graph as separate processes (as the launch file starts it) with the rogue as another
-    process: same numbers as the in-process graph, every process exits 0, the plant's log and
-    the recording name the rogue, the bag holds only the graph's own lock-step messages."""
+    """
+    Check the graph as separate processes with a rogue process beside it.
+
+    The graph as separate processes (as the launch file starts it) with the rogue as another
+    process: same numbers as the in-process graph, every process exits 0, the plant's log and the
+    recording name the rogue, the bag holds only the graph's own lock-step messages.
+    """
     import random
     from collections import Counter
 
@@ -193,7 +203,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
                                             record=bag),
                             str(tmp_path / 'g'), env) as g:
             codes = g.start().wait(120)
-            assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
             plant_log = g.log('plant')
             assert 'foreign publisher /rogue on /im/command/voltage' in plant_log
             assert 'refused' in plant_log and 'Traceback' not in plant_log
@@ -215,7 +225,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     assert rep['runs'][0]['status']['refused'][T.CMD_VOLTAGE] == \
         c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]
     with open(rep['markdown']) as f:
-        assert f"on `{T.CMD_VOLTAGE}`" in f.read().split('## Refused messages')[1]
+        assert f'on `{T.CMD_VOLTAGE}`' in f.read().split('## Refused messages')[1]
     live = run_graph(task='position', strategy='min_energy', duration=DURATION)
     fig = figures_of_merit(load_run(str(bag)))
     for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V'):
@@ -224,8 +234,12 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
 
 # --- SROS2 ------------------------------------------------------------------------------------
 def test_the_shipped_sros2_policy_is_generated_from_the_nodes_and_matches_the_topic_table():
-    """The policy grants each node exactly what it publishes, subscribes and answers (read off
-    the nodes), and every topic of the table is published only by its owner's enclave."""
+    """
+    Check that the policy grants each node exactly what it uses.
+
+    The policy grants each node exactly what it publishes, subscribes and answers (read off the
+    nodes), and every topic of the table is published only by its owner's enclave.
+    """
     from im_bringup import sros2_policy as P
     repo = os.path.dirname(HERE)
     with open(os.path.join(repo, P.SHIPPED)) as f:
@@ -251,7 +265,7 @@ def test_the_shipped_sros2_policy_is_generated_from_the_nodes_and_matches_the_to
 
 
 # --- discovery range --------------------------------------------------------------------------
-_LISTER = '''
+_LISTER = """
 import sys, time, rclpy
 rclpy.init()
 n = rclpy.create_node('other_host')
@@ -261,12 +275,16 @@ while time.monotonic() < t_end:
     rclpy.spin_once(n, timeout_sec=0.1)
     seen |= set(n.get_node_names())
 print(' '.join(sorted(seen)), flush=True)
-'''
+"""
 
 
 @pytest.fixture
 def other_host():
-    """A network namespace joined to this host by a veth pair: another machine on the subnet."""
+    """
+    Return a network namespace joined to this host by a veth pair.
+
+    It stands for another machine on the subnet.
+    """
     import uuid
     name = 'im' + uuid.uuid4().hex[:8]
     veth = 'v' + name
@@ -298,11 +316,15 @@ def _seen_from(host, env, seconds=5.0):
                           env=dict(os.environ, **env)).stdout.split()
 
 
-def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(tmp_path,
-                                                                                other_host):
-    """Started as the tools start it, the graph cannot be discovered from another machine of the
-    subnet; started with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (on purpose) it can — the
-    control that shows the other host would see it."""
+def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(
+        tmp_path, other_host):
+    """
+    Check that the graph cannot be discovered from another machine.
+
+    Started as the tools start it, the graph cannot be discovered from another machine of the
+    subnet; started with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (on purpose) it can — the control
+    that shows the other host would see it.
+    """
     import random
     from im_bringup.processes import GraphProcesses, graph_processes
     for opened in (False, True):
@@ -330,8 +352,11 @@ def test_the_in_process_graph_is_invisible_from_another_host(other_host, monkeyp
 
 
 def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(ros_context):
-    """Before step 0 a node keeps messages that may belong to the run it is about to follow;
-    foreign ones are refused at once, so a flood cannot fill that buffer and starve step 0."""
+    """
+    Before step 0 a node keeps messages that may belong to the run it is about to follow.
+
+    Foreign ones are refused at once, so a flood cannot fill that buffer and starve step 0.
+    """
     from im_observer.observer_node import ObserverNode
     key = os.urandom(32)
     node = ObserverNode(context=ros_context, graph_key=key)
@@ -341,8 +366,8 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
         rogue = Vector3Out(Signer.frame('alphabeta'))
         for k in range(3 * node.EARLY_MAX):
             sub.callback(rogue.fill(0, 100.0, 0.0))           # unsigned
-            sub.callback(Signer(os.urandom(32), 'plantrun').sign(T.MEAS_CURRENT,
-                                                                  rogue.fill(0, 100.0, 0.0)))
+            foreign = Signer(os.urandom(32), 'plantrun')
+            sub.callback(foreign.sign(T.MEAS_CURRENT, rogue.fill(0, 100.0, 0.0)))
         assert node.refused_by_topic[T.MEAS_CURRENT] == 6 * node.EARLY_MAX
         assert node.signing.early == []
         ours = Signer(key, 'plantrun').sign(T.MEAS_CURRENT, rogue.fill(0, 1.0, 0.0))
@@ -353,9 +378,13 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
 
 
 def test_a_message_seen_before_verifies_only_for_its_key_topic_and_run():
-    """A process hashes each message once (im_common.auth keeps the last one signed or verified
-    per key, run and topic): what it saw stays valid only for exactly those, and a copy changed
-    in any byte is hashed and refused."""
+    """
+    Check that a message hashed once stays valid only for its key, run and topic.
+
+    A process hashes each message once (im_common.auth keeps the last one signed or verified per
+    key, run and topic): what it saw stays valid only for exactly those, and a copy changed in any
+    byte is hashed and refused.
+    """
     key = os.urandom(32)
     data = Signer(key, 'run1').sign(T.CMD_VOLTAGE, _msg())
     other = Signer(key, 'run1')                      # another node of the same process
@@ -373,12 +402,16 @@ def test_a_message_seen_before_verifies_only_for_its_key_topic_and_run():
 
 
 def test_another_graphs_flood_costs_a_running_node_only_the_tag_checks(ros_context, monkeypatch):
-    """Two launches on one domain: each node receives the other graph's lock-step messages, whose
-    publishers carry the allowed names (plant, controller, ...) so none is ever named foreign.
-    Each is refused by its tag; the graph API is asked at most 10 times a second, not once per
-    message — asked per message, a node fell behind the other graph's thousands of messages per
-    second, its reader history overflowed with them, its own graph's step was pushed out and its
-    plant stopped ("no /im/command/voltage stamped ... within 5.0 s")."""
+    """
+    Two launches on one domain.
+
+    Each node receives the other graph's lock-step messages, whose publishers carry the allowed
+    names (plant, controller, ...) so none is ever named foreign. Each is refused by its tag;
+    the graph API is asked at most 10 times a second, not once per message — asked per message,
+    a node fell behind the other graph's thousands of messages per second, its reader history
+    overflowed with them, its own graph's step was pushed out and its plant stopped ("no
+    /im/command/voltage stamped ... within 5.0 s").
+    """
     from im_observer.observer_node import ObserverNode
     node = ObserverNode(context=ros_context, graph_key=os.urandom(32))
     asked = []

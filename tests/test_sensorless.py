@@ -1,27 +1,37 @@
-"""Speed-sensorless mode (issue 26 item 1, docs/sensorless.md): the speed-adaptive observer's
-physics and the offline loop's sensorless option."""
-import math
+"""
+Speed-sensorless mode (issue 26 item 1, docs/sensorless.md).
 
+The speed-adaptive observer's physics and the offline loop's sensorless option.
+"""
+
+from im_bringup.offline import build, Scenario, simulate
+from im_common.params import InvalidParameter, THESIS_MOTOR
+from im_observer.speed_observer import linearized_poles, SpeedAdaptiveObserver
+from im_studies.study_sensorless import sensorless_reversal
 import numpy as np
 import pytest
 
-from im_bringup.offline import Scenario, build, simulate
-from im_studies.study_sensorless import sensorless_reversal
-from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_observer.speed_observer import SpeedAdaptiveObserver, linearized_poles
-
 
 def _slowest_pole_at_speed(obs):
-    """Largest real part of the linearized observer + adaptation at 50-150 rad/s, motoring and
-    regenerating, at the thesis's flux and at a third of it."""
+    """
+    Return the largest real part of the linearized poles over the operating points.
+
+    Largest real part of the linearized observer + adaptation at 50-150 rad/s, motoring and
+    regenerating, at the thesis's flux and at a third of it.
+    """
     return max(max(linearized_poles(obs, w, tau, phi).real)
-               for w in (50.0, 100.0, 150.0) for tau in (-6.0, -1.0, 1.0, 6.0) for phi in (1.2, 0.4))
+               for w in (50.0, 100.0, 150.0) for tau in (-6.0, -1.0, 1.0, 6.0)
+               for phi in (1.2, 0.4))
 
 
 def test_flux_row_gain_makes_the_speed_estimate_fast_at_speed():
-    """Without a flux-row gain a slow pole (≈ −10 /s, the speed error traded against the
-    flux-angle error through the rotor time constant) sets how fast ω̂ follows an acceleration;
-    the gain moves it beyond −100 /s."""
+    """
+    Check that the flux-row gain speeds up the slow pole.
+
+    Without a flux-row gain a slow pole (≈ −10 /s, the speed error traded against the flux-angle
+    error through the rotor time constant) sets how fast ω̂ follows an acceleration; the gain moves
+    it beyond −100 /s.
+    """
     plain = _slowest_pole_at_speed(SpeedAdaptiveObserver(THESIS_MOTOR, flux_gain=(0.0, 0.0, 0.0)))
     designed = _slowest_pole_at_speed(SpeedAdaptiveObserver(THESIS_MOTOR))
     assert plain > -20.0
@@ -29,8 +39,12 @@ def test_flux_row_gain_makes_the_speed_estimate_fast_at_speed():
 
 
 def test_linearized_observer_is_stable_when_motoring():
-    """Motoring (torque along the speed) is stable at every speed; near zero stator frequency
-    the slowest pole approaches 0 (the speed becomes unobservable there)."""
+    """
+    Motoring (torque along the speed) is stable at every speed.
+
+    Near zero stator frequency the slowest pole approaches 0 (the speed becomes unobservable
+    there).
+    """
     obs = SpeedAdaptiveObserver(THESIS_MOTOR)
     for w in (2.0, 10.0, 50.0, 135.0, 180.0):
         for tau in (0.5, 3.0, 12.0):
@@ -40,8 +54,12 @@ def test_linearized_observer_is_stable_when_motoring():
 
 
 def test_speed_estimate_converges_from_a_wrong_initial_speed_using_only_voltage_and_current():
-    """The sensored thesis speed task runs; beside it the observer starts at ω̂ = 100 rad/s while
-    the shaft turns at 135 rad/s, and sees only V and i."""
+    """
+    The sensored thesis speed task runs.
+
+    Beside it the observer starts at ω̂ = 100 rad/s while the shaft turns at 135 rad/s, and
+    sees only V and i.
+    """
     sc = Scenario(task='speed', strategy='constant_flux', duration=0.2)
     plant, ctl, obs = build(sc)
     so = SpeedAdaptiveObserver(sc.controller_config().params, x0=obs.state, omega0=100.0)
@@ -84,8 +102,12 @@ def _speed_task(strategy, sensorless):
 
 @pytest.mark.parametrize('strategy', ['min_energy', 'constant_flux', 'min_loss'])
 def test_thesis_speed_task_sensorless_with_a_useless_speed_measurement(strategy):
-    """Issue 26's target: the measured speed made useless (σ = 50 rad/s), the sensorless drive
-    tracks within 1 rad/s and loses within 2 % of the sensored one's energy."""
+    """
+    Check issue 26's target for the sensorless drive.
+
+    The measured speed made useless (σ = 50 rad/s), the sensorless drive tracks within 1 rad/s
+    and loses within 2 % of the sensored one's energy.
+    """
     sensored = _speed_task(strategy, False)
     sensorless = _speed_task(strategy, True)
     tr = sensorless.trace
@@ -96,8 +118,12 @@ def test_thesis_speed_task_sensorless_with_a_useless_speed_measurement(strategy)
 
 @pytest.mark.parametrize('motor', ['thesis', 'krause_3hp', 'krause_50hp'])
 def test_reversal_through_zero_speed_under_load_on_every_shipped_motor(motor):
-    """±100 rad/s against a constant 1 N·m (regenerating on the way down, plugging through zero),
-    the motor's rating-scaled controller (study_motors); the end within 1 rad/s of the reference."""
+    """
+    Check a sensorless speed reversal under load.
+
+    ±100 rad/s against a constant 1 N·m (regenerating on the way down, plugging through zero), the
+    motor's rating-scaled controller (study_motors); the end within 1 rad/s of the reference.
+    """
     r = simulate(sensorless_reversal(motor), record_every=10)
     tr = r.trace
     assert r.summary['trip'] is None
@@ -107,8 +133,12 @@ def test_reversal_through_zero_speed_under_load_on_every_shipped_motor(motor):
 
 
 def test_zero_stator_frequency_is_unobservable_and_the_drive_drifts_slowly_without_running_away():
-    """At ω_s = 0 (shaft at −ω_sl/v under a load) V = R_s i carries no speed: a linearized pole
-    sits at 0, and holding that speed the estimate drifts — bounded over the hold, no trip."""
+    """
+    At ω_s = 0 (shaft at −ω_sl/v under a load) V = R_s i carries no speed.
+
+    A linearized pole sits at 0, and holding that speed the estimate drifts — bounded over the
+    hold, no trip.
+    """
     from im_common.loads import ConstantLoad
     from im_controller.profiles import Profile
     p, tau, phi = THESIS_MOTOR, 2.0, 1.2

@@ -1,11 +1,13 @@
-"""Speed-sensorless mode through the ROS graph (issue 26 item 1, docs/sensorless.md): in one
-process the graph equals the ROS-free loop, the nodes do not subscribe to the measured shaft,
-and a measured speed full of noise changes nothing; the same as separate processes."""
-import numpy as np
-import pytest
+"""
+Speed-sensorless mode through the ROS graph (issue 26 item 1, docs/sensorless.md).
 
+In one process the graph equals the ROS-free loop, the nodes do not subscribe to the measured
+shaft, and a measured speed full of noise changes nothing; the same as separate processes.
+"""
 from im_bringup.testing import assert_samples_match, run_graph
 from im_common import topics as T
+import numpy as np
+import pytest
 
 NOISE = {'plant': {'speed_noise_std': 50.0}}
 
@@ -44,9 +46,13 @@ def test_position_task_is_refused_in_sensorless_mode():
 
 
 def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_speed(tmp_path):
-    """Every node its own process (as the launch file starts them, ``sensorless:=true``), the
-    plant's measured speed made useless: every process exits 0, the recording holds the speed
-    estimate at every step, and the numbers equal the in-process run without any noise."""
+    """
+    Check the sensorless graph with every node its own process.
+
+    Every node its own process (as the launch file starts them, ``sensorless:=true``), the plant's
+    measured speed made useless: every process exits 0, the recording holds the speed estimate at
+    every step, and the numbers equal the in-process run without any noise.
+    """
     import random
 
     from im_recording.bag import iter_raw
@@ -59,7 +65,7 @@ def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_
                                         extra=NOISE, sensorless=True),
                         str(tmp_path / 'logs'), domain) as g:
         codes = g.start().wait(300)
-        assert codes == {n: 0 for n in codes}, {n: g.log(n)[-2000:] for n in codes}
+        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
     n_speed = sum(1 for t, *_ in iter_raw(bag) if t == T.OBS_SPEED)
     assert n_speed == 201                                   # steps 0..200
     quiet = run_graph(task='speed', strategy='min_energy', duration=0.02, sensorless=True)

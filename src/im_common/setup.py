@@ -21,11 +21,11 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Shared motor model, parameters, frames, topics, message conversions and the lock-step helper (ROS-free math plus thin ROS helpers).',
+    description=('Shared motor model, parameters, frames, topics, message conversions '
+                 'and the lock-step helper (ROS-free math plus thin ROS helpers).'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            
         ],
     },
 )

@@ -18,7 +18,8 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27 / 4.13).',
+    description='Full-order nonlinear observer of stator currents '
+    'and rotor fluxes (seed 000 eq. 3.27 / 4.13).',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Recording of a drive run: the MCAP writer and reader, the lossless recorder node, replay, recover, run analysis, report and plots.',
+    description='Recording of a drive run: the MCAP writer and reader, the lossless '
+    'recorder node, replay, recover, run analysis, report and plots.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -18,7 +18,8 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Robust static output-feedback synthesis for polytopic linear systems (seed 001), ROS-free.',
+    description='Robust static output-feedback synthesis for '
+    'polytopic linear systems (seed 001), ROS-free.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -1,4 +1,5 @@
-"""Online adaptation of the rotor resistance and of θ = L_sr/L_r (seed 000 §4.2.2-4.2.3).
+"""
+Online adaptation of the rotor resistance and of θ = L_sr/L_r (seed 000 §4.2.2-4.2.3).
 
 ROS-free. :class:`ParameterAdapter` is stepped once per control period with the step's data
 (V_k held over [t_k, t_k+1], measured i_k and ω_k, the observer's rotor flux φ̂_k) and produces the
@@ -24,10 +25,10 @@ Voltage-model stator flux (eq. 4.3) without drift
 
     i.e. ψ̂ = s/(s+ω_c)·∫(V − R̂_s i) + ω_c/(s+ω_c)·ψ_cm: the voltage model above ω_c, the current
     model below it, no integrator left open. ``flux_corner = 0`` gives the thesis's pure integral.
-    The current-model ψ_cm is L̂_σ i + θ̂ φ̂_r from the observer (law 'thesis') or the adapter's own
-    current model with its own L̂_M, R̂_R (law 'improved'). The corner follows the stator frequency
-    ω_e (the rotation rate of that model's rotor flux): ω_c = clip(κ|ω_e|, ω_c,min, ω_c,max), so a
-    drive holding torque at a few rad/s still has the voltage model's information
+    The current-model ψ_cm is L̂_σ i + θ̂ φ̂_r from the observer (law 'thesis') or the adapter's
+    own current model with its own L̂_M, R̂_R (law 'improved'). The corner follows the stator
+    frequency ω_e (the rotation rate of that model's rotor flux): ω_c = clip(κ|ω_e|, ω_c,min,
+    ω_c,max), so a drive holding torque at a few rad/s still has the voltage model's information
     (``flux_corner_ratio`` κ = 0.4, ``flux_corner_min`` 0.5, ``flux_corner`` 5 rad/s).
 
 law = 'thesis' (eq. 4.1-4.9, typos corrected)
@@ -49,12 +50,12 @@ law = 'improved'
     Both sides are filtered by H(s) = ω_f/(s+ω_f) (Tustin; H[dx/dt] = ω_f (x − Hx), exact in the
     discrete filter), giving two real equations per period in (L_σ, R_R, c), linear in R_R and c
     and solved Gauss-Newton style in L_σ. Recursive least squares in information form with
-    exponential forgetting (``memory`` for R_R and c, ``leakage_memory`` for L_σ) and a floor on the
-    information matrix (``didt_floor``, ``i_floor``, ``phi_floor``) so that unexcited directions hold
-    their value instead of winding up. The torque model (4.1) is the quadrature row of this
-    equation and the rotor-loss model (4.5) its inner product with the rotor current, so the
-    thesis's two reference models are both inside it. The controller-facing pair is
-    θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂ hits
+    exponential forgetting (``memory`` for R_R and c, ``leakage_memory`` for L_σ) and a floor on
+    the information matrix (``didt_floor``, ``i_floor``, ``phi_floor``) so that unexcited
+    directions hold their value instead of winding up. The torque model (4.1) is the quadrature row
+    of this equation and the rotor-loss model (4.5) its inner product with the rotor current, so
+    the thesis's two reference models are both inside it. The controller-facing pair is θ̂ =
+    L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected so that σ̂ stays above ``sigma_min``; when θ̂ hits
     its bound R̂_r still keeps R̂_r θ̂² = R̂_R (not the rotor time constant R̂_R/L̂_M): in closed
     loop the terminal rotor resistance is what the controller and observer need most.
 
@@ -66,11 +67,11 @@ Projection
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields, replace
+import math
 from typing import Optional
 
-from im_common.params import InvalidParameter, MotorParams, check_real
+from im_common.params import check_real, InvalidParameter, MotorParams
 
 LAWS = ('thesis', 'improved')
 #: what the controller and observer take from the adapter (docs/adaptation.md §7):
@@ -84,7 +85,8 @@ TWO_PI = 2.0 * math.pi
 
 @dataclass(frozen=True)
 class AdaptationGains:
-    """Gains, bounds and filter corners of the adaptation (SI units).
+    """
+    Gains, bounds and filter corners of the adaptation (SI units).
 
     ``None`` bounds are derived from the motor parameters given to :class:`ParameterAdapter`
     (see :meth:`resolve`). Invalid values raise :class:`InvalidParameter` naming the field.
@@ -172,7 +174,8 @@ class AdaptationGains:
             raise InvalidParameter('decimation', d, 'must be a whole number >= 1')
         for name in ('gamma_t', 'gamma_r', 'flux_corner', 'flux_corner_ratio', 'flux_corner_min'):
             _finite(name, getattr(self, name), lo=0.0)
-        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor', 'phi_floor', 'didt_floor',
+        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor',
+                     'phi_floor', 'didt_floor',
                      'theta_min', 'theta_max'):
             _finite(name, getattr(self, name), lo=0.0, strict=True)
         _finite('sigma_min', self.sigma_min, lo=0.0, strict=True)
@@ -196,7 +199,10 @@ class AdaptationGains:
         return min(self.theta_max, (1.0 - self.sigma_min) * L_s_hat / L_sr_hat)
 
     def resolve(self, params: MotorParams, theta0: Optional[float] = None) -> 'AdaptationGains':
-        """A copy with every ``None`` bound derived from the nominal ``params``; checks consistency.
+        """
+        Return a copy with every ``None`` bound derived from ``params``.
+
+        The bounds are checked for consistency.
 
         Raises :class:`InvalidParameter` naming ``sigma_min``/``theta_min`` if the σ̂ bound leaves
         no room for θ̂.
@@ -261,7 +267,8 @@ def _solve_sym3(R, e):
 
 
 class ParameterAdapter:
-    """Online estimates of R_r and θ = L_sr/L_r (and of the identifiable L_M, R_R).
+    """
+    Online estimates of R_r and θ = L_sr/L_r (and of the identifiable L_M, R_R).
 
     Parameters
     ----------
@@ -274,6 +281,7 @@ class ParameterAdapter:
     Notes
     -----
     ``update`` is scalar Python on complex numbers (αβ pairs as α + jβ); one call per period.
+
     """
 
     def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float):
@@ -329,23 +337,26 @@ class ParameterAdapter:
 
     @property
     def stator_flux(self) -> tuple:
-        """The voltage-model stator flux ψ̂_s(t_k) (α, β) [Wb] after the last update."""
+        """Return the voltage-model stator flux ψ̂_s(t_k) (α, β) [Wb] after the last update."""
         return self._psi.real, self._psi.imag
 
     @property
     def sigma_hat(self) -> float:
-        """The controller's model leakage factor σ̂ = 1 − θ̂ L̂_sr / L̂_s."""
+        """Return the controller's model leakage factor σ̂ = 1 − θ̂ L̂_sr / L̂_s."""
         return 1.0 - self.theta * self.L_sr / self.L_s
 
     # ------------------------------------------------------------------------------------
     def estimates(self) -> dict:
-        """The estimates handed to the controller and observer (topic ``/im/adapter/estimate``).
+        """
+        Return the estimates handed to the controller and observer.
 
-        {'R_r', 'theta', 'L_M', 'R_R'}: the controller and observer take the pair (R̂_r, θ̂) of
-        eq. 4.10-4.13 with their L̂_s, L̂_sr, R̂_s fixed; L_M and R_R are the identifiable image
-        (law 'thesis': L_M = L̂_sr θ̂, R_R = R̂_r θ̂²; law 'improved': the least-squares estimates).
-        Law 'improved' with ``feed='inverse_gamma'`` adds 'L_sigma': the controller and observer
-        then take the inverse-Γ set (L̂_σ, L̂_M, R̂_R) whole (every coefficient follows it,
+        Published on ``/im/adapter/estimate``.
+
+        {'R_r', 'theta', 'L_M', 'R_R'}: the controller and observer take the pair (R̂_r, θ̂) of eq.
+        4.10-4.13 with their L̂_s, L̂_sr, R̂_s fixed; L_M and R_R are the identifiable image (law
+        'thesis': L_M = L̂_sr θ̂, R_R = R̂_r θ̂²; law 'improved': the least-squares estimates). Law
+        'improved' with ``feed='inverse_gamma'`` adds 'L_sigma': the controller and observer then
+        take the inverse-Γ set (L̂_σ, L̂_M, R̂_R) whole (every coefficient follows it,
         docs/adaptation.md §7).
         """
         e = {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
@@ -355,7 +366,8 @@ class ParameterAdapter:
 
     # ------------------------------------------------------------------------------------
     def update(self, T_s, v_a, v_b, i_a, i_b, omega_r, phi_hat_a, phi_hat_b) -> None:
-        """One control period: data of step k in, estimates p̂_k+1 out (see :meth:`estimates`).
+        """
+        One control period: data of step k in, estimates p̂_k+1 out (see :meth:`estimates`).
 
         Parameters are V_k (held over the period), the measured i_k and ω_k and the observer's
         rotor flux φ̂_k (rotor scaling, as the observer of eq. 4.13 carries it).
@@ -373,7 +385,8 @@ class ParameterAdapter:
                 self._psi = self.L_sigma * i + self._phi_cm
             else:
                 self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
-                self._psi = (self.L_s - self.L_sr * self.theta) * i + self.theta * self._phi_obs_prev
+                self._psi = ((self.L_s - self.L_sr * self.theta) * i
+                             + self.theta * self._phi_obs_prev)
             self._i_prev = i
             self._v_prev = V
             if self.improved:
@@ -406,9 +419,13 @@ class ParameterAdapter:
             self._thesis_step(T_s, V_prev, i, i_prev, omega_r, phi_hat_a, phi_hat_b)
 
     def _corner(self) -> float:
-        """ω_c of the flux blend: the improved law's follows the stator frequency
-        (``flux_corner_ratio``; ∞ while the model flux is below ``phi_floor`` gives the upper
-        bound), the thesis law's is fixed."""
+        """
+        ω_c of the flux blend.
+
+        The improved law's follows the stator frequency (``flux_corner_ratio``; ∞ while the
+        model flux is below ``phi_floor`` gives the upper bound), the thesis law's is
+        fixed.
+        """
         g = self.gains
         if not self.improved or g.flux_corner_ratio <= 0.0 or g.flux_corner <= 0.0:
             return g.flux_corner
@@ -430,7 +447,8 @@ class ParameterAdapter:
         P_ref = self.R_r * ir2
         # Input and stator copper power over the period just integrated: V_k-1 was held while
         # the current went from i_k-1 to i_k (sampling V_k·i_k instead is off by ~|V||i|ω_e T_s/2).
-        P_hat = (0.5 * (V_prev.real * (i.real + i_prev.real) + V_prev.imag * (i.imag + i_prev.imag))
+        P_hat = (0.5 * (V_prev.real * (i.real + i_prev.real)
+                        + V_prev.imag * (i.imag + i_prev.imag))
                  - 0.5 * self.R_s * (i.real * i.real + i.imag * i.imag
                                      + i_prev.real * i_prev.real + i_prev.imag * i_prev.imag)
                  - tau_hat * omega_r)
@@ -474,7 +492,7 @@ class ParameterAdapter:
         N = self.N
         self._lamN = tuple(math.sqrt(lam[a] * lam[b]) ** N
                            for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-        self._share = tuple((1.0 - l ** N) / (1.0 - l) for l in lam)
+        self._share = tuple((1.0 - lk ** N) / (1.0 - lk) for lk in lam)
         # Information floor per period (one equation per parameter with the floor's regressor).
         self._floor = (g.didt_floor ** 2, g.i_floor ** 2, g.phi_floor ** 2)
         if self._R is None:
@@ -505,7 +523,8 @@ class ParameterAdapter:
         Hi = self._Hi = fa * self._Hi + fb * (i_r + ui)
         Hpsi = self._Hpsi = fa * self._Hpsi + fb * (psi_r + upsi)
         self._u_prev = (i_r, psi_r)
-        # H[dψ/dt] = L_σ H[di/dt] + R_R H[i] − c H[ψ − L_σ i] (rotor frame; H[dx/dt] = ω_f(x − Hx)):
+        # H[dψ/dt] = L_σ H[di/dt] + R_R H[i] − c H[ψ − L_σ i] (rotor frame; H[dx/dt] = ω_f(x −
+        # Hx)):
         # residual at the current estimates and its gradient in (L_σ, R_R, c) (Gauss-Newton;
         # linear in R_R and c).
         wf = self._wf
@@ -572,9 +591,13 @@ class ParameterAdapter:
         self._publish_pair(R_R, self._c)
 
     def _publish_pair(self, R_R, c):
-        """θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected: R̂_r θ̂² = R̂_R holds even when θ̂ is at
-        its σ̂ bound (the rotor resistance seen from the terminals, which the closed loop needs
-        most; see docs/adaptation.md), while L̂_sr θ̂ = L̂_M only inside the bounds."""
+        """
+        θ̂ = L̂_M/L̂_sr and R̂_r = R̂_R/θ̂², projected.
+
+        R̂_r θ̂² = R̂_R holds even when θ̂ is at its σ̂ bound (the rotor resistance seen
+        from the terminals, which the closed loop needs most; see docs/adaptation.md),
+        while L̂_sr θ̂ = L̂_M only inside the bounds.
+        """
         th = _clip(self.L_M / self.L_sr, self.theta_lo, self.theta_hi)
         self.theta = th
         self.R_r = _clip(R_R / (th * th), self.R_r_lo, self.R_r_hi)

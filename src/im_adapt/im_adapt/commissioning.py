@@ -1,4 +1,5 @@
-"""Self-commissioning: the motor's parameters measured by the drive itself (docs/commissioning.md).
+"""
+Self-commissioning: the motor's parameters measured by the drive itself (docs/commissioning.md).
 
 ROS-free. :class:`Commissioning` is a test controller stepped once per period with what the drive
 measures (stator current, shaft speed) and returning the voltage to apply; when it is done,
@@ -25,14 +26,13 @@ that does not turn) raises :class:`NotInformative` with one line saying which an
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Dict, List, Optional, Tuple
 
+from im_common.params import (check_real, IDENTIFIABLE_NAMES, InvalidParameter, MotorParams,
+                              rated_rotor_flux, RATING_NAMES)
 import numpy as np
-
-from im_common.params import (IDENTIFIABLE_NAMES, RATING_NAMES, InvalidParameter, MotorParams,
-                              check_real, rated_rotor_flux)
 
 #: the standstill excitation after the probe: (level as a fraction of the test voltage, seconds)
 EXCITATION = ((1.0, 0.5), (-1.0, 0.5), (0.5, 0.02), (-0.5, 0.01), (1.0, 0.005), (-1.0, 0.005),
@@ -50,8 +50,12 @@ class NotInformative(ValueError):
 
 @dataclass(frozen=True)
 class Nameplate:
-    """A motor's nameplate: rated line-to-line voltage [V RMS], line current [A RMS], frequency
-    [Hz], speed [rpm] and shaft power [W]."""
+    """
+    A motor's nameplate.
+
+    Rated line-to-line voltage [V RMS], line current [A RMS], frequency [Hz], speed [rpm] and
+    shaft power [W].
+    """
 
     voltage: float
     current: float
@@ -69,20 +73,24 @@ class Nameplate:
 
     @property
     def pole_pairs(self) -> int:
-        """The whole number of pole pairs whose synchronous speed is just above the rated one."""
+        """Return the pole-pair count whose synchronous speed is just above the rated speed."""
         return max(1, int(math.floor(60.0 * self.frequency / self.speed)))
 
     def motor_fields(self) -> Dict[str, float]:
-        """The motor file's nameplate fields (im_common.params.RATING_NAMES)."""
+        """Return the motor file's nameplate fields (im_common.params.RATING_NAMES)."""
         return {'rated_voltage_rms_line': self.voltage, 'rated_current_rms': self.current,
                 'rated_frequency': self.frequency, 'rated_speed_rpm': self.speed,
                 'rated_power': self.power}
 
     def ratings(self) -> Dict[str, float]:
-        """:meth:`motor_fields` and their model-frame magnitudes (the commissioning tests'
-        limits): ``rated_voltage`` = line-to-line RMS, ``rated_current`` = √3 × line current,
-        ``rated_speed`` [rad/s], ``rated_torque`` — converted by MotorParams, their one home
-        (docs/limits.md). :meth:`Identification.motor` keeps the nameplate fields."""
+        """
+        Return :meth:`motor_fields` and their model-frame magnitudes.
+
+        These are the commissioning tests' limits: ``rated_voltage`` = line-to-line RMS,
+        ``rated_current`` = √3 × line current, ``rated_speed`` [rad/s], ``rated_torque`` —
+        converted by MotorParams, their one home (docs/limits.md). :meth:`Identification.motor`
+        keeps the nameplate fields.
+        """
         m = MotorParams(pole_pairs=self.pole_pairs, **self.motor_fields())
         return dict(self.motor_fields(), rated_voltage=m.rated_voltage,
                     rated_current=m.rated_current, rated_speed=m.rated_speed,
@@ -90,14 +98,18 @@ class Nameplate:
 
 
 def nameplate_from_dict(doc, source: str = 'nameplate') -> Nameplate:
-    """A :class:`Nameplate` from ``{voltage, current, frequency, speed, power}``; one-line errors
-    naming ``source`` and the field."""
+    """
+    Return a :class:`Nameplate` from ``{voltage, current, frequency, speed, power}``.
+
+    One-line errors naming ``source`` and the field.
+    """
     keys = ('voltage', 'current', 'frequency', 'speed', 'power')
     if not isinstance(doc, dict):
         raise InvalidParameter(source, doc, f'must be a mapping with {", ".join(keys)}')
     for k in doc:
         if k not in keys:
-            raise InvalidParameter(f'{source}: {k}', doc[k], f'unknown (fields: {", ".join(keys)})')
+            raise InvalidParameter(f'{source}: {k}', doc[k],
+                                   f'unknown (fields: {", ".join(keys)})')
     for k in keys:
         if k not in doc:
             raise InvalidParameter(f'{source}: {k}', None, 'is missing')
@@ -119,11 +131,15 @@ def _zoh(A: np.ndarray, B: np.ndarray, T_s: float):
 
 
 def standstill_response(ident: np.ndarray, v: np.ndarray, T_s: float, x0=(0.0, 0.0)):
-    """Stator current i_k and magnetizing flux ψ_R,k at t_k of the inverse-Γ model at standstill
-    (one axis) for the voltages v_k held over [t_k, t_k+1], from the state ``x0`` = (i, ψ_R).
+    """
+    Simulate the standstill test on the inverse-Γ model (one axis).
+
+    Stator current i_k and magnetizing flux ψ_R,k at t_k of the inverse-Γ model at standstill (one
+    axis) for the voltages v_k held over [t_k, t_k+1], from the state ``x0`` = (i, ψ_R).
 
     ``ident`` = (R_s, L_σ, L_M, R_R); states i, ψ_R with L_σ di/dt = v − R_s i − dψ_R/dt,
-    dψ_R/dt = R_R i − (R_R/L_M) ψ_R (docs/commissioning.md §2)."""
+    dψ_R/dt = R_R i − (R_R/L_M) ψ_R (docs/commissioning.md §2).
+    """
     from scipy.signal import lfilter
     R_s, L_s, L_M, R_R = (float(x) for x in ident)
     A = np.array([[-(R_s + R_R) / L_s, R_R / (L_s * L_M)], [R_R, -R_R / L_M]])
@@ -161,11 +177,14 @@ class Identified:
     rms_residual: Dict[str, float] = field(default_factory=dict)
 
     def motor(self, ratings: Optional[Dict[str, float]] = None) -> MotorParams:
-        """The identified motor in the equal-self-inductance gauge L_s = L_r (equal stator and
-        rotor leakage, the gauge of Krause's T-circuit): L_s = L_r = σL_s + L_M,
-        L_sr = √(L_M L_s), R_r = R_R L_s / L_M. Terminal-equivalent to every gauge
-        (MotorParams.with_identifiable); k_e = k_h = 0 (the core loss does not act on the
-        terminals: docs/commissioning.md §5)."""
+        """
+        Return the identified motor in the equal-self-inductance gauge.
+
+        The gauge is L_s = L_r (equal stator and
+        rotor leakage, the gauge of Krause's T-circuit): L_s = L_r = σL_s + L_M, L_sr = √(L_M L_s),
+        R_r = R_R L_s / L_M. Terminal-equivalent to every gauge (MotorParams.with_identifiable);
+        k_e = k_h = 0 (the core loss does not act on the terminals: docs/commissioning.md §5).
+        """
         v = self.values
         L = v['L_sigma'] + v['L_M']
         return MotorParams(R_s=v['R_s'], R_r=v['R_R'] * L / v['L_M'], L_s=L, L_r=L,
@@ -176,10 +195,12 @@ class Identified:
 
 def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
                    ) -> Tuple[Dict[str, float], Dict[str, float], float, np.ndarray]:
-    """Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
+    """
+    Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
 
     Returns (values, standard deviations, RMS residual [A], final state (i, ψ_R)). The start
-    comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2)."""
+    comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2).
+    """
     from scipy.optimize import least_squares
     v = np.asarray(v, dtype=float)
     i = np.asarray(i, dtype=float)
@@ -212,22 +233,28 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
 
 
 def _physical_start(v, i, T_s, R_s0):
-    """A start from the probe alone: σL_s from the largest current slope after a voltage step,
-    L_M = 10 σL_s, R_R = R_s."""
+    """
+    Return a start from the probe alone.
+
+    σL_s from the largest current slope after a voltage step, L_M = 10 σL_s, R_R = R_s.
+    """
     di = np.abs(np.diff(i))
     dv = np.abs(np.diff(v))
     k = int(np.argmax(dv))
-    L_s = abs(v[k + 1] - v[k]) * T_s / max(abs(i[k + 2] - i[k + 1]) if k + 2 < len(i) else di.max(),
-                                           1e-12)
+    slope = abs(i[k + 2] - i[k + 1]) if k + 2 < len(i) else di.max()
+    L_s = abs(v[k + 1] - v[k]) * T_s / max(slope, 1e-12)
     L_s = min(max(L_s, 1e-6), 10.0)
     return np.array([R_s0, L_s, 10.0 * L_s, R_s0])
 
 
 def _arx_start(v, i, T_s, R_s0):
-    """(R_s, L_σ, L_M, R_R) from a second-order ARX fit, mapped through the continuous form
-    Y(s) = (1/L_σ)(s + z)/((s + p1)(s + p2)), z = R_R/L_M, p1 p2 = R_s z/L_σ,
-    p1 + p2 = (R_s + R_R)/L_σ + z. Falls back to the probe's start when the fit is not a
-    passive RL network."""
+    """
+    Start the standstill fit from a second-order ARX model.
+
+    (R_s, L_σ, L_M, R_R) from a second-order ARX fit, mapped through the continuous form Y(s) =
+    (1/L_σ)(s + z)/((s + p1)(s + p2)), z = R_R/L_M, p1 p2 = R_s z/L_σ, p1 + p2 = (R_s + R_R)/L_σ +
+    z. Falls back to the probe's start when the fit is not a passive RL network.
+    """
     Phi = np.column_stack([i[1:-1], i[:-2], v[1:-1], v[:-2]])
     y = i[2:]
     try:
@@ -251,9 +278,13 @@ def _arx_start(v, i, T_s, R_s0):
 
 def fit_mechanics(omega: np.ndarray, tau: np.ndarray, T_s: float, window: int
                   ) -> Tuple[float, float, float, float, float]:
-    """J, b and their standard deviations (and the RMS residual [N·m·s]) from
-    J (ω_end − ω_start) + b ∫ω dt = ∫τ̂ dt over consecutive windows of ``window`` steps
-    (no load on the shaft). ``tau[k]`` acts over [t_k, t_k+1]."""
+    """
+    Fit the inertia J and friction b from the no-load speed run.
+
+    J, b and their standard deviations (and the RMS residual [N·m·s]) from J (ω_end − ω_start) + b
+    ∫ω dt = ∫τ̂ dt over consecutive windows of ``window`` steps (no load on the shaft). ``tau[k]``
+    acts over [t_k, t_k+1].
+    """
     n = (len(omega) - 1) // window
     rows, rhs = [], []
     for w in range(n):
@@ -271,7 +302,8 @@ def fit_mechanics(omega: np.ndarray, tau: np.ndarray, T_s: float, window: int
 
 
 class Commissioning:
-    """The commissioning test sequence, one period at a time (module docstring).
+    """
+    The commissioning test sequence, one period at a time (module docstring).
 
     ``step(i_a, i_b, omega)`` takes the measurement at t_k and returns the voltage (v_α, v_β)
     to hold over [t_k, t_k+1], or None when the tests are over; then :meth:`result`.
@@ -284,6 +316,7 @@ class Commissioning:
     test_speed : top speed of the speed test [rad/s] (the nameplate's: half the rated speed)
     locked : the rotor is locked: the standstill tests only; J and b must come from elsewhere
     flux : magnetizing flux of the speed test [Wb] (None: 0.4·i_max·L_M, capped)
+
     """
 
     def __init__(self, T_s: float, i_max: float, v_max: float, pole_pairs: Optional[int] = None,
@@ -298,8 +331,8 @@ class Commissioning:
             raise InvalidParameter('test speed', None,
                                    'the speed test needs a top speed (a nameplate, or a test '
                                    'speed) unless the rotor is locked')
-        self.test_speed = None if test_speed is None else check_real('test speed', test_speed,
-                                                                       0.0, lo_open=True)
+        self.test_speed = (None if test_speed is None
+                           else check_real('test speed', test_speed, 0.0, lo_open=True))
         self.flux = flux
         self.k = 0
         self.phase = 'probe'
@@ -333,7 +366,7 @@ class Commissioning:
         return None
 
     def step(self, i_a: float, i_b: float, omega: float = 0.0):
-        """The measurement at t_k → the voltage over [t_k, t_k+1] (None: the tests are over)."""
+        """Map the measurement at t_k to the voltage over [t_k, t_k+1] (None: tests over)."""
         if self.done:
             return None
         self.log_i.append((i_a, i_b))
@@ -499,8 +532,12 @@ class Commissioning:
 
     # ---------------------------------------------------------------------------- results
     def result(self) -> Identified:
-        """The identified parameters; :class:`NotInformative` when the tests ended early or
-        the data cannot determine a parameter."""
+        """
+        Return the identified parameters.
+
+        :class:`NotInformative` when the tests ended early or the data cannot determine a
+        parameter.
+        """
         if self.failure:
             raise NotInformative(self.failure)
         if not self.done or self.electrical is None:
@@ -567,17 +604,24 @@ class Commissioning:
 
 
 def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float:
-    """The rotor flux |φ_r| at the nameplate's rated voltage, frequency and speed, in the gauge
-    θ = L_sr/L_r (φ_r = ψ_R/θ): the inverse-Γ circuit's magnetizing branch voltage over ω_e
-    at the rated slip (docs/commissioning.md §4)."""
+    """
+    Return the rated rotor flux |φ_r| of the nameplate.
+
+    At the nameplate's rated voltage, frequency and speed, in the gauge θ = L_sr/L_r (φ_r = ψ_R/θ):
+    the inverse-Γ circuit's magnetizing branch voltage over ω_e at the rated slip
+    (docs/commissioning.md §4).
+    """
     R_s, L_sigma, L_M, R_R = (ident[n] for n in IDENTIFIABLE_NAMES)
     return rated_rotor_flux(R_s, L_sigma, L_M, R_R, theta, plate.voltage, plate.frequency,
                             plate.speed, plate.pole_pairs)
 
 
 def simulate_commissioning(plant, com: Commissioning, max_steps: int = 10 ** 7) -> Commissioning:
-    """Run ``com`` on a ROS-free :class:`~im_common.plant_sim.PlantSimulator` (the same order
-    as the lock-step graph: measure t_k, command, integrate)."""
+    """
+    Run ``com`` on a ROS-free :class:`~im_common.plant_sim.PlantSimulator`.
+
+    The order is that of the lock-step graph: measure t_k, command, integrate.
+    """
     for _ in range(max_steps):
         m = plant.measure()
         cmd = com.step(m.i_alpha, m.i_beta, m.omega_r)

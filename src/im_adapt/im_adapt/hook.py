@@ -1,13 +1,14 @@
-"""The adapter as a hook of the offline closed loop (``im_bringup.offline.simulate(adapter=...)``).
+"""
+The adapter as a hook of the offline closed loop (``im_bringup.offline.simulate(adapter=...)``).
 
 ROS-free. :class:`LockstepAdapter` gives a :class:`~im_adapt.adaptation.ParameterAdapter` the
 ``step(T_s, t, v_alpha, v_beta, meas, x_hat) -> dict`` interface of the offline loop and records
 the estimates for analysis.
 
-Lock-step order (docs/architecture.md, "Lock-step protocol"): at step k the adapter uses V_k, i_k, ω_k and the observer's x̂_k
-and produces p̂_k+1, used by the controller and the observer at step k+1 — what the adapter node
-does with the topics stamped t_k. The offline loop hands the hook x̂_k (the observer's state
-before its own step k).
+Lock-step order (docs/architecture.md, "Lock-step protocol"): at step k the adapter uses V_k, i_k,
+ω_k and the observer's x̂_k and produces p̂_k+1, used by the controller and the observer at step
+k+1 — what the adapter node does with the topics stamped t_k. The offline loop hands the hook x̂_k
+(the observer's state before its own step k).
 """
 from __future__ import annotations
 
@@ -17,13 +18,15 @@ from .adaptation import AdaptationGains, ParameterAdapter
 
 
 class LockstepAdapter:
-    """Offline-loop hook around :class:`ParameterAdapter`.
+    """
+    Offline-loop hook around :class:`ParameterAdapter`.
 
     Parameters
     ----------
     adapter : ParameterAdapter
     record_every : int
         Keep one estimate sample every this many steps (0: keep none).
+
     """
 
     def __init__(self, adapter: ParameterAdapter, record_every: int = 10):
@@ -43,7 +46,7 @@ class LockstepAdapter:
         return cls(ad, record_every)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
-        """Data of step k (with the observer's x̂_k) in, p̂_k+1 out."""
+        """Update the adapter with the data of step k (and the observer's x̂_k); return p̂_k+1."""
         self.adapter.update(T_s, v_alpha, v_beta, meas.i_alpha, meas.i_beta, meas.omega_r,
                             x_hat[2], x_hat[3])
         est = self.adapter.estimates()

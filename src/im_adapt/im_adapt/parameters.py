@@ -1,12 +1,15 @@
-"""The adapter node's parameters: every adaptation gain declared with a description and a range,
-the same way as the other nodes (``node.param(name, default, description, lo, hi)``; see
-``im_controller/parameters.py``). Nothing here imports rclpy: a stand-in with ``param`` works too.
+"""
+The adapter node's parameters.
+
+Every adaptation gain declared with a description and a range, the same way as the other nodes
+(``node.param(name, default, description, lo, hi)``; see ``im_controller/parameters.py``). Nothing
+here imports rclpy: a stand-in with ``param`` works too.
 """
 from __future__ import annotations
 
 from im_common.params import MotorParams
 
-from .adaptation import FEED_DEFAULT, FEEDS, LAWS, AdaptationGains, ParameterAdapter
+from .adaptation import AdaptationGains, FEED_DEFAULT, FEEDS, LAWS, ParameterAdapter
 
 _DOC = {
     'gamma_t': 'thesis law: gain gamma_t of eq. 4.4 for theta [1/(N m A s)]',
@@ -50,8 +53,12 @@ _RANGES = {
 
 
 def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> ParameterAdapter:
-    """Declare the adaptation gains on ``node`` (``node.param(name, default, description, lo, hi)``)
-    and return the adapter. Invalid values raise :class:`InvalidParameter` naming the parameter."""
+    """
+    Declare the adaptation gains on ``node`` and return the adapter.
+
+    Each is declared with ``node.param(name, default, description, lo, hi)``. Invalid values raise
+    :class:`InvalidParameter` naming the parameter.
+    """
     d = AdaptationGains()
     values = {
         'law': node.param('law', d.law, 'adaptation law', choices=list(LAWS)),

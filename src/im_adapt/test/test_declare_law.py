@@ -1,12 +1,15 @@
-"""im_adapt.parameters.declare_law: every gain is a declared parameter with a description and a range, overrides reach
-the adapter, and bad values are refused naming the parameter (ROS-free stand-in and the real node)."""
-import random
+"""
+im_adapt.parameters.declare_law: the adaptation gains as declared node parameters.
 
-import pytest
+Every gain is a declared parameter with a description and a range, overrides reach the adapter, and
+bad values are refused naming the parameter (ROS-free stand-in and the real node).
+"""
+import random
 
 from im_adapt.adaptation import AdaptationGains, ParameterAdapter
 from im_adapt.parameters import declare_law
-from im_common.params import THESIS_MOTOR, InvalidParameter
+from im_common.params import InvalidParameter, THESIS_MOTOR
+import pytest
 
 CH4 = THESIS_MOTOR.with_values(L_s=0.084, L_sr=0.081, L_r=0.081 / 0.952941)
 

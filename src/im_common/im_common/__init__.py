@@ -1,1 +1,5 @@
-"""Shared motor model, parameters, frames, topics, message conversions and the lock-step helper (ROS-free math plus thin ROS helpers)."""
+"""
+Shared motor model, parameters, frames, topics, message conversions, lock-step helper.
+
+ROS-free math plus thin ROS helpers.
+"""

@@ -1,4 +1,5 @@
-"""Exact-length CDR (XCDR1, little endian) encoding and decoding of ROS 2 messages.
+"""
+Exact-length CDR (XCDR1, little endian) encoding and decoding of ROS 2 messages.
 
 Why not only ``rclpy.serialization.serialize_message``? Two measured reasons (see
 ``docs/recording.md``):
@@ -34,7 +35,7 @@ class CdrError(ValueError):
 
 
 def message_class(type_name: str):
-    """The rclpy message class of ``pkg/msg/Type`` (or ``pkg/Type``)."""
+    """Return the rclpy message class of ``pkg/msg/Type`` (or ``pkg/Type``)."""
     parts = type_name.split('/')
     if len(parts) == 2:
         parts = [parts[0], 'msg', parts[1]]
@@ -55,7 +56,8 @@ def _pad(pos: int, align: int) -> int:
 # Generic codec, compiled from rosidl introspection
 # ------------------------------------------------------------------------------------------
 def _field_codec(slot) -> Tuple[Callable, Callable]:
-    """(encode(value, out: bytearray), decode(buf, pos) -> (value, pos)) for one slot type.
+    """
+    (encode(value, out: bytearray), decode(buf, pos) -> (value, pos)) for one slot type.
 
     Positions are offsets into the *whole* buffer; alignment is relative to offset 4.
     """
@@ -238,7 +240,7 @@ _names_cache: Dict[tuple, bytes] = {}
 
 
 def _names_block(names, start: int) -> bytes:
-    """Encoded ``string[] name`` starting at (aligned) payload offset ``start``."""
+    """Return the encoded ``string[] name`` starting at (aligned) payload offset ``start``."""
     key = (start & 3, tuple(names))
     blk = _names_cache.get(key)
     if blk is None:
@@ -280,10 +282,14 @@ def pack_joint_state(sec: int, nanosec: int, names, position=(), velocity=(), ef
 
 def joint_state_packer(names, n_position: int, n_velocity: int, n_effort: int,
                        frame_id: str = ''):
-    """``pack(sec, nanosec, position, velocity, effort) -> bytes`` for JointStates of fixed names,
+    """
+    Make a one-call packer of JointStates with fixed names, frame id and sequence lengths.
+
+    ``pack(sec, nanosec, position, velocity, effort) -> bytes`` for JointStates of fixed names,
     frame id and sequence lengths: one ``struct`` call instead of :func:`pack_joint_state`'s
-    piecewise build (the graph publishes the plant's shaft and the adapter's estimates every
-    step). Its layout is checked against :func:`pack_joint_state` when it is made."""
+    piecewise build (the graph publishes the plant's shaft and the adapter's estimates every step).
+    Its layout is checked against :func:`pack_joint_state` when it is made.
+    """
     fb = frame_id.encode('utf-8')
     head = bytearray(ENCAPSULATION + bytes(8))
     head += _U32.pack(len(fb) + 1) + fb + b'\x00'
@@ -368,7 +374,7 @@ _init_fast()
 
 
 def encoder_for(cls) -> Callable[[Any], bytes]:
-    """A function msg -> exact CDR bytes for messages of class ``cls``."""
+    """Return a function msg -> exact CDR bytes for messages of class ``cls``."""
     f = _ENCODERS.get(cls)
     if f is None:
         enc, _ = _message_codec(cls)

@@ -1,4 +1,5 @@
-"""Command-line helpers shared by every executable: one way to parse arguments, log, show progress.
+r"""
+Command-line helpers shared by every executable: one way to parse arguments, log, show progress.
 
 - :func:`parse_args` strips the ROS arguments (``--ros-args ... --``) that ``ros2 run`` / launch
   append, then parses with argparse. rclpy is always installed with the stack, so a broken rclpy
@@ -31,7 +32,7 @@ def parse_args(parser: argparse.ArgumentParser, argv: Optional[Sequence[str]] = 
 
 
 def logger(prefix: Optional[str] = None, stream=None) -> Callable[[str], None]:
-    """A function printing ``[prefix] msg`` (or ``msg``) as one flushed line on stderr."""
+    """Return a function printing ``[prefix] msg`` (or ``msg``) as one flushed line on stderr."""
     head = f'[{prefix}] ' if prefix else ''
 
     def log(msg: str) -> None:
@@ -41,7 +42,11 @@ def logger(prefix: Optional[str] = None, stream=None) -> Callable[[str], None]:
 
 
 def gated_logger(prefix: Optional[str] = None, stream=None) -> Callable[[bool, str], None]:
-    """Like :func:`logger`, called as ``log(enabled, msg)`` by functions with a ``progress`` flag."""
+    """
+    Return a logger called as ``log(enabled, msg)``, like :func:`logger`.
+
+    For functions with a ``progress`` flag.
+    """
     log = logger(prefix, stream)
 
     def gated(enabled: bool, msg: str) -> None:
@@ -57,7 +62,8 @@ def progress(k: int, n: int, label: str, log: Optional[Callable[[str], None]] = 
 
 
 def status_line(text: str, *, done: bool = False, stream=None) -> None:
-    """Rewrite the one-line status of a long run in place on stderr (``\\r``); ``done`` ends it.
+    r"""
+    Rewrite the one-line status of a long run in place on stderr (``\r``); ``done`` ends it.
 
     For loops that report how far they are (``status_line(f'{label}: {pct:5.1f} %')``) and their
     final line (``status_line(f'{label}: done in {s:.1f} s', done=True)``).

@@ -1,4 +1,5 @@
-"""Message conversions: exact integer-nanosecond stamps and filling of reusable messages.
+"""
+Message conversions: exact integer-nanosecond stamps and filling of reusable messages.
 
 Stamps are simulated time t_k = k·T_s carried as integer nanoseconds, so a stamp identifies a
 step exactly (no float comparison anywhere in the lock-step protocol). Lock-step messages are
@@ -16,10 +17,10 @@ NS_PER_S = 1_000_000_000
 
 
 def period_ns(T_s: float) -> int:
-    """The control period in integer nanoseconds; refuses periods that are not whole ns."""
+    """Return the control period in integer nanoseconds; refuses periods that are not whole ns."""
     ns = round(T_s * NS_PER_S)
     if ns <= 0 or abs(ns - T_s * NS_PER_S) > 1e-3:
-        raise ValueError(f"T_s = {T_s!r} s must be a positive whole number of nanoseconds")
+        raise ValueError(f'T_s = {T_s!r} s must be a positive whole number of nanoseconds')
     return int(ns)
 
 
@@ -31,11 +32,9 @@ def set_stamp(stamp, ns: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
 
 
-
-
-
 class Vector3Out:
-    """Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.
+    """
+    Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.
 
     The lock-step topics travel as exact CDR made with ``struct`` (:mod:`im_common.cdr`), which
     costs a fraction of building and serializing a message object; subscribers that ask for
@@ -53,8 +52,12 @@ class Vector3Out:
 
 
 class JointStateOut:
-    """Serialized JointState with fixed names: ``fill(ns, position, velocity=(), effort=())``
-    (one packer per combination of sequence lengths, :func:`im_common.cdr.joint_state_packer`)."""
+    """
+    Serialized JointState with fixed names.
+
+    ``fill(ns, position, velocity=(), effort=())`` (one packer per combination of sequence
+    lengths, :func:`im_common.cdr.joint_state_packer`).
+    """
 
     __slots__ = ('names', 'frame_id', '_packers')
 
@@ -74,7 +77,6 @@ class JointStateOut:
         return pack(sec, nsec, position, velocity, effort)
 
 
-
 def named_values(names, values, wanted: Sequence[str]) -> dict:
     """``{name: value}`` for ``wanted`` from a named-vector JointState's names and positions."""
     out = {}
@@ -87,7 +89,7 @@ def named_values(names, values, wanted: Sequence[str]) -> dict:
 
 
 def clock_bytes(ns: int) -> bytes:
-    """Serialized rosgraph_msgs/Clock at ``ns``."""
+    """Return the serialized rosgraph_msgs/Clock at ``ns``."""
     sec, nsec = divmod(ns, NS_PER_S)
     return pack_clock(sec, nsec)
 
@@ -95,8 +97,12 @@ def clock_bytes(ns: int) -> bytes:
 # Extractors for LockstepNode.gate_input: serialized message -> (stamp_ns, value).
 def xy_in(data: bytes, _head=__import__('struct').Struct('<iII').unpack_from,
           _xyz=__import__('struct').Struct('<ddd').unpack_from):
-    """(stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair (the layout of
-    :func:`im_common.cdr.decode_vector3_stamped`, inlined: every node decodes several per step)."""
+    """
+    Decode a Vector3Stamped carrying an αβ pair.
+
+    (stamp_ns, (x, y)) of a Vector3Stamped: an αβ pair (the layout of
+    :func:`im_common.cdr.decode_vector3_stamped`, inlined: every node decodes several per step).
+    """
     try:
         sec, nsec, n = _head(data, 4)
         pos = 16 + n
@@ -108,10 +114,14 @@ def xy_in(data: bytes, _head=__import__('struct').Struct('<iII').unpack_from,
 
 
 def _shaft_layout():
-    """Byte layout of the plant's shaft JointState (name ['rotor'], one position, one velocity,
-    no effort, a tagged frame id of fixed length, :mod:`im_common.auth`): its length, the
-    frame-id length field, where the names start, the bytes from there to the values, and the
-    offsets of the two doubles — found by packing a sample, so it follows cdr.pack_joint_state."""
+    """
+    Return the byte layout of the plant's shaft JointState.
+
+    Byte layout of the plant's shaft JointState (name ['rotor'], one position, one velocity, no
+    effort, a tagged frame id of fixed length, :mod:`im_common.auth`): its length, the frame-id
+    length field, where the names start, the bytes from there to the values, and the offsets of the
+    two doubles — found by packing a sample, so it follows cdr.pack_joint_state.
+    """
     import struct
     from .auth import Signer
     a = pack_joint_state(0, 0, ('rotor',), (1.5,), (2.5,), (), Signer.frame(''))
@@ -128,8 +138,12 @@ _SHAFT_MID_END = _SHAFT_NAMES + len(_SHAFT_MIDDLE)
 
 def shaft_in(data: bytes, _unpack=__import__('struct').Struct('<iI').unpack_from,
              _d=__import__('struct').Struct('<d').unpack_from):
-    """(stamp_ns, (theta_r, omega_r)) of the measured-shaft JointState (fixed-layout fast path for
-    the plant's own message; anything else goes through the general decoder)."""
+    """
+    Decode the measured-shaft JointState.
+
+    (stamp_ns, (theta_r, omega_r)) of the measured-shaft JointState (fixed-layout fast path for the
+    plant's own message; anything else goes through the general decoder).
+    """
     if len(data) == _SHAFT_LEN and data[12:16] == _SHAFT_FRAME_LEN \
             and data[_SHAFT_NAMES:_SHAFT_MID_END] == _SHAFT_MIDDLE:
         sec, nsec = _unpack(data, 4)
@@ -139,9 +153,12 @@ def shaft_in(data: bytes, _unpack=__import__('struct').Struct('<iI').unpack_from
 
 
 def estimates_in(data: bytes):
-    """(stamp_ns, model estimates) of the adapter's estimate JointState: {'R_r', 'theta'} from
-    the thesis pair, the inverse-Γ set {'L_sigma', 'L_M', 'R_R'} when the message carries
-    L_sigma (:func:`im_common.params.estimate_arguments`)."""
+    """
+    (stamp_ns, model estimates) of the adapter's estimate JointState.
+
+    {'R_r', 'theta'} from the thesis pair, the inverse-Γ set {'L_sigma', 'L_M', 'R_R'} when the
+    message carries L_sigma (:func:`im_common.params.estimate_arguments`).
+    """
     from .params import estimate_arguments
     from .topics import ESTIMATE_NAMES
     sec, nsec, names, pos, _, _ = decode_joint_state(data)

@@ -1,8 +1,8 @@
 """Shaft loads: torque opposing the motor, τ_L(t, θ, ω) [N·m] (seed 000 §3.4.5)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 
 from .params import InvalidParameter, read_yaml_file
 
@@ -16,8 +16,12 @@ class Load:
         raise NotImplementedError
 
     def rate(self, t: float, theta: float, omega: float, accel: float) -> float:
-        """dτ_L/dt along a motion (θ, ω, ω̇) — what a controller feeding the load model forward
-        needs for dτ*/dt without differentiating numerically."""
+        """
+        dτ_L/dt along a motion (θ, ω, ω̇).
+
+        What a controller feeding the load model forward needs for dτ*/dt without
+        differentiating numerically.
+        """
         return 0.0
 
     def describe(self) -> dict:
@@ -113,8 +117,13 @@ LOAD_FIELDS = {'none': (), 'constant': ('tau',), 'pendulum': ('mgl',), 'linear':
 
 
 def load_from_dict(doc, source: str = 'load') -> Load:
-    """A load from a description ``{kind: linear, c1: 1.0, c2: 0.001}`` (YAML ``--load`` files);
-    every error is one line naming ``source`` and the field."""
+    """
+    Return a load from a description ``{kind: linear, c1: 1.0, c2: 0.001}``.
+
+    The form of YAML ``--load`` files.
+
+    Every error is one line naming ``source`` and the field.
+    """
     if not isinstance(doc, dict):
         raise InvalidParameter(f'{source}', doc, 'must be a mapping with a kind')
     kind = doc.get('kind')
@@ -126,8 +135,9 @@ def load_from_dict(doc, source: str = 'load') -> Load:
         if key == 'kind':
             continue
         if key not in allowed:
+            fields = ', '.join(allowed) or 'none'
             raise InvalidParameter(f'{source}: {key}', val,
-                                   f"unknown for a {kind} load (fields: {', '.join(allowed) or 'none'})")
+                                   f'unknown for a {kind} load (fields: {fields})')
         if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
             raise InvalidParameter(f'{source}: {key}', val, 'must be a finite number')
         values[key] = float(val)
@@ -140,8 +150,12 @@ def load_file(path: str) -> Load:
 
 
 def load_parameters(load: Load) -> dict:
-    """The node parameters (``load``, ``load_mgl``, ``load_c1``, ``load_c2``, ``load_tau``) that
-    rebuild ``load`` with :func:`make_load` — plant and controller read the same ones."""
+    """
+    Return the node parameters that rebuild ``load``.
+
+    They are (``load``, ``load_mgl``, ``load_c1``, ``load_c2``, ``load_tau``)
+    that rebuild ``load`` with :func:`make_load` — plant and controller read the same ones.
+    """
     d = load.describe()
     out = {'load': d['kind']}
     for key in LOAD_FIELDS[d['kind']]:

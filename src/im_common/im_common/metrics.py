@@ -1,5 +1,8 @@
-"""Figures of merit of a run, from its traces: one definition for the offline loop, the graph and
-the report (seed 000 §3.4: energy drawn, losses, tracking errors).
+"""
+Figures of merit of a run, from its traces.
+
+One definition for the offline loop, the graph and the report (seed 000 §3.4: energy drawn, losses,
+tracking errors).
 
 A *trace* is a mapping of equal-length 1-D arrays sampled at the control instants t_k. Keys used
 (missing optional keys simply drop their figures; NaN samples — instants where a decimated topic
@@ -30,8 +33,12 @@ def _finite(x) -> np.ndarray:
 
 
 def _maxabs(x) -> float:
-    """Largest magnitude over the samples that exist (NaN marks an instant a decimated topic
-    was not sampled at)."""
+    """
+    Return the largest magnitude over the samples that exist.
+
+    Largest magnitude over the samples that exist (NaN marks an instant a decimated topic was not
+    sampled at).
+    """
     x = _finite(x)
     return float(np.max(np.abs(x))) if len(x) else float('nan')
 

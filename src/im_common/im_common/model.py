@@ -1,4 +1,5 @@
-"""The induction-motor model: the one home of the plant's equations.
+"""
+The induction-motor model: the one home of the plant's equations.
 
 Stationary αβ frame, power-invariant transformation (seed 000 eq. 1.111-1.112 / 1.126-1.127).
 The state is integrated in flux-linkage form so that time-varying inductances keep the energy
@@ -49,7 +50,7 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
 
 
 def currents(psi_sa, psi_sb, phi_ra, phi_rb, L_s, L_r, L_sr):
-    """Stator and rotor currents (i_sα, i_sβ, i_rα, i_rβ) from the flux linkages."""
+    """Return the stator and rotor currents of the flux linkages: (i_sα, i_sβ, i_rα, i_rβ)."""
     det = L_s * L_r - L_sr * L_sr
     i_sa = (L_r * psi_sa - L_sr * phi_ra) / det
     i_sb = (L_r * psi_sb - L_sr * phi_rb) / det
@@ -76,10 +77,11 @@ class Eq112(NamedTuple):
 
 
 def eq112_coefficients(R_s, R_r, L_s, L_r, L_sr) -> Eq112:
-    """γ, K, 1/T_r of eq. 1.113 for the (i_s, φ_r) form of the electrical model (constant L).
+    """
+    γ, K, 1/T_r of eq. 1.113 for the (i_s, φ_r) form of the electrical model (constant L).
 
-    With i_r = (φ_r − L_sr i_s)/L_r the flux-linkage equations above become, with 𝒥 = [[0, −1], [1, 0]]
-    and ω_e = v ω_r,
+    With i_r = (φ_r − L_sr i_s)/L_r the flux-linkage equations above become, with 𝒥 = [[0, −1], [1,
+    0]] and ω_e = v ω_r,
 
         di_s/dt = −γ i_s + (K/T_r) φ_r − ω_e K 𝒥 φ_r + V/(σL_s)
         dφ_r/dt = (L_sr/T_r) i_s − φ_r/T_r + ω_e 𝒥 φ_r
@@ -96,7 +98,8 @@ def eq112_coefficients(R_s, R_r, L_s, L_r, L_sr) -> Eq112:
 
 
 def eq112_matrices(R_s, R_r, L_s, L_r, L_sr, pole_pairs, omega_r):
-    """A(ω_r) (4×4) and B (4×2) of seed 000 eq. 1.112, numpy arrays.
+    """
+    A(ω_r) (4×4) and B (4×2) of seed 000 eq. 1.112, numpy arrays.
 
     State ``[i_sα, i_sβ, φ_rα, φ_rβ]``, input ``[V_sα, V_sβ]``; see :func:`eq112_coefficients`.
     """
@@ -118,7 +121,8 @@ def torque(i_sa, i_sb, phi_ra, phi_rb, L_r, L_sr, pole_pairs):
 
 
 class MotorModel:
-    """Right-hand side of the plant: ``rhs(t, x, v_alpha, v_beta)`` on the augmented state.
+    """
+    Right-hand side of the plant: ``rhs(t, x, v_alpha, v_beta)`` on the augmented state.
 
     Parameters
     ----------
@@ -130,6 +134,7 @@ class MotorModel:
         Exponent of the air-gap flux in the core-loss model (2: the units of k_e, k_h).
     locked : bool
         The shaft is held (a locked-rotor test): dω_r/dt = 0 whatever the torque.
+
     """
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
@@ -141,7 +146,7 @@ class MotorModel:
         self.params = schedule.base
         self.load = load if load is not None else NoLoad()
         if core_loss_exponent not in (1.0, 2.0):
-            raise ValueError("core_loss_exponent must be 1 or 2")
+            raise ValueError('core_loss_exponent must be 1 or 2')
         self.core_loss_exponent = float(core_loss_exponent)
         self.locked = bool(locked)
 

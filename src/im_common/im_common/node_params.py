@@ -1,7 +1,7 @@
 """Parameters several nodes declare the same way: the motor, the period, the run length."""
 from __future__ import annotations
 
-from .params import THESIS_MOTOR, MotorParams
+from .params import MotorParams, THESIS_MOTOR
 
 _MOTOR_DOC = {
     'R_s': ('stator resistance [ohm]', 1e-6, 100.0),
@@ -24,7 +24,9 @@ _MOTOR_DOC = {
 
 
 def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -> MotorParams:
-    """Declare the motor parameters on ``node`` (defaults: the thesis motor) and validate them.
+    """
+    Declare the motor parameters on ``node`` (defaults: the thesis motor) and validate them.
+
     A motor file (``--params-file motor.yaml`` with ``/**:``) sets them on every node at once.
 
     Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
@@ -38,7 +40,11 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -
 
 
 def declare_run(node):
-    """T_s (read-only), duration, timeouts. Returns (T_s, duration, input_timeout, startup_timeout)."""
+    """
+    Declare T_s (read-only), duration and the timeouts.
+
+    Returns (T_s, duration, input_timeout, startup_timeout).
+    """
     T_s = node.param('T_s', 1e-4, 'control period T_s [s] (whole nanoseconds)', 1e-6, 0.1)
     duration = node.param('duration', 0.0,
                           'simulated run length [s]; the node stops cleanly after it (0: no end)',

@@ -1,4 +1,5 @@
-"""Real-time scheduling for the fixed-rate (``free_run``) loop: SCHED_FIFO for a whole process.
+"""
+Real-time scheduling for the fixed-rate (``free_run``) loop: SCHED_FIFO for a whole process.
 
 A node on the critical path that runs as its own process in ``free_run`` moves every thread of its
 process (the executor, the plant's clock thread, the middleware's receive threads) to the
@@ -30,7 +31,7 @@ def _threads() -> List[int]:
 
 
 def describe() -> str:
-    """This thread's scheduling: ``fifo:50`` or ``normal``."""
+    """Return this thread's scheduling: ``fifo:50`` or ``normal``."""
     try:
         policy = os.sched_getscheduler(0)
         if policy == os.SCHED_FIFO:
@@ -41,9 +42,11 @@ def describe() -> str:
 
 
 def enter(priority: int = DEFAULT_PRIORITY) -> Tuple[bool, str]:
-    """Move every thread of this process to SCHED_FIFO at ``priority``.
+    """
+    Move every thread of this process to SCHED_FIFO at ``priority``.
 
-    Returns (True, 'fifo:P') or (False, reason) — the reason names what to grant."""
+    Returns (True, 'fifo:P') or (False, reason) — the reason names what to grant.
+    """
     if not 1 <= int(priority) <= 99:
         return False, f'real-time priority {priority} is outside 1..99'
     if not hasattr(os, 'sched_setscheduler'):
@@ -69,10 +72,13 @@ def enter(priority: int = DEFAULT_PRIORITY) -> Tuple[bool, str]:
 
 
 def quiet_gc() -> None:
-    """Shorter garbage-collection pauses in the loop: everything allocated before the run (modules,
-    the node, the middleware's objects) moves to the permanent generation, so a full collection
-    during the run only walks what the run itself allocated. Collection stays on: memory stays
-    bounded however long the run."""
+    """
+    Shorter garbage-collection pauses in the loop.
+
+    Everything allocated before the run (modules, the node, the middleware's objects) moves to
+    the permanent generation, so a full collection during the run only walks what the run
+    itself allocated. Collection stays on: memory stays bounded however long the run.
+    """
     import gc
     gc.collect()
     gc.freeze()

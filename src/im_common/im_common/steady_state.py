@@ -1,4 +1,5 @@
-"""Closed forms for the induction motor: the phasor steady state of the equivalent circuit.
+"""
+Closed forms for the induction motor: the phasor steady state of the equivalent circuit.
 
 Pure helpers (numpy only) used by the physics tests and benchmarks to check the plant against a
 formulation (phasors) that shares no code with :mod:`im_common.model`. The eq. 1.112 state
@@ -28,7 +29,6 @@ from dataclasses import dataclass
 import numpy as np
 
 
-
 @dataclass(frozen=True)
 class PhasorSteadyState:
     """Steady state of the equivalent circuit (complex phasors at t = 0; SI units)."""
@@ -46,7 +46,7 @@ class PhasorSteadyState:
     power_factor: float
 
     def state(self, t: float = 0.0):
-        """The plant state ``[ψ_sα, ψ_sβ, φ_rα, φ_rβ]`` at time t."""
+        """Return the plant state ``[ψ_sα, ψ_sβ, φ_rα, φ_rβ]`` at time t."""
         rot = np.exp(1j * self.omega_e * t)
         psi, phi = self.Psi_s * rot, self.Phi_r * rot
         return [psi.real, psi.imag, phi.real, phi.imag]
@@ -55,7 +55,7 @@ class PhasorSteadyState:
 def phasor_steady_state(R_s: float, R_r: float, L_s: float, L_r: float, L_sr: float,
                         pole_pairs: int, V_hat: complex, omega_e: float,
                         omega_r: float) -> PhasorSteadyState:
-    """Solve the equivalent circuit for a supply ``V_hat·e^{jω_e t}`` at constant shaft speed ω_r."""
+    """Solve the equivalent circuit for a supply ``V_hat·e^{jω_e t}`` at constant speed ω_r."""
     w_sl = omega_e - pole_pairs * omega_r
     M = np.array([[R_s + 1j * omega_e * L_s, 1j * omega_e * L_sr],
                   [1j * w_sl * L_sr, R_r + 1j * w_sl * L_r]], dtype=complex)
@@ -78,7 +78,8 @@ def params_steady_state(params, V_hat: complex, omega_e: float, omega_r: float
 
 
 def zoh_gain(omega_e: float, T_s: float) -> float:
-    """1/sinc(ω_e T_s/2): the gain that makes a zero-order-held sinusoid's fundamental exact.
+    """
+    1/sinc(ω_e T_s/2): the gain that makes a zero-order-held sinusoid's fundamental exact.
 
     A staircase holding ``g·V_hat·e^{jω_e(t_k + T_s/2)}`` over each [t_k, t_k + T_s) has the
     fundamental ``g·sinc(ω_e T_s/2)·V_hat·e^{jω_e t}``, so with this g it is exactly the continuous
@@ -89,7 +90,8 @@ def zoh_gain(omega_e: float, T_s: float) -> float:
 
 
 def zoh_sample_flux_offset(V_hat: complex, omega_e: float, T_s: float) -> complex:
-    """Offset of ψ_s at the sampling instants t_k caused by the zero-order hold (leading order).
+    """
+    Offset of ψ_s at the sampling instants t_k caused by the zero-order hold (leading order).
 
     With the hold of :func:`zoh_gain`, the held voltage minus the continuous one inside a step is,
     to first order in ω_e T_s, ``−jω_e V(t_mid)·(t − t_mid)`` (t_mid = t_k + T_s/2). Its zero-mean

@@ -1,4 +1,5 @@
-"""Stop signals, one way for every process of the stack: SIGINT, SIGTERM and SIGHUP.
+"""
+Stop signals, one way for every process of the stack: SIGINT, SIGTERM and SIGHUP.
 
 A node or tool asks to be told, instead of being interrupted wherever it happens to be::
 
@@ -40,7 +41,8 @@ def exit_code_for(signame: Optional[str]) -> int:
 
 
 class StopSignals:
-    """Context manager: SIGINT/SIGTERM/SIGHUP set :attr:`requested` (the signal's name).
+    """
+    Context manager: SIGINT/SIGTERM/SIGHUP set :attr:`requested` (the signal's name).
 
     The previous handlers are restored on exit. Outside the main thread (where Python cannot
     install handlers) it does nothing and :attr:`installed` is False.

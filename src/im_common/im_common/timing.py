@@ -1,4 +1,5 @@
-"""Latency accounting of the fixed-rate (``free_run``) loop: a histogram with fixed edges.
+"""
+Latency accounting of the fixed-rate (``free_run``) loop: a histogram with fixed edges.
 
 The plant adds one sample per step (measurement k published → command k received, wall clock);
 the histogram is reported at the end of the run (log, ``/im/status`` values, the report). Fixed
@@ -34,7 +35,11 @@ class LatencyHistogram:
             self.max = seconds
 
     def quantile(self, q: float) -> float:
-        """Upper edge [s] of the bin holding the q-quantile (inf for the open bin, nan if empty)."""
+        """
+        Return the upper edge [s] of the bin holding the q-quantile.
+
+        inf for the open bin, nan if empty.
+        """
         if self.n == 0:
             return float('nan')
         need = q * self.n
@@ -57,8 +62,12 @@ class LatencyHistogram:
                 f'({self.n} samples)')
 
     def as_values(self) -> Dict[str, str]:
-        """Flat key/values for a status message: ``latency_bins_us`` (edges) and
-        ``latency_counts`` as space-separated numbers, plus mean and max [s]."""
+        """
+        Flat key/values for a status message.
+
+        ``latency_bins_us`` (edges) and ``latency_counts`` as space-separated numbers, plus
+        mean and max [s].
+        """
         return {'latency_bins_us': ' '.join(str(e) for e in EDGES_US),
                 'latency_counts': ' '.join(str(c) for c in self.counts),
                 'latency_mean_s': f'{self.mean:.9g}', 'latency_max_s': f'{self.max:.9g}',

@@ -1,4 +1,5 @@
-"""Topic names, message types and field layouts of the stack: the one table every node uses.
+"""
+Topic names, message types and field layouts of the stack: the one table every node uses.
 
 αβ pairs travel as ``geometry_msgs/Vector3Stamped`` (x = α, y = β, z as noted). Named vectors of
 scalars (shaft state, parameter sets, powers, energies) travel as ``sensor_msgs/JointState`` with
@@ -14,7 +15,7 @@ from typing import Dict, Tuple
 @dataclass(frozen=True)
 class TopicSpec:
     name: str
-    type: str           # ROS type name, e.g. 'geometry_msgs/msg/Vector3Stamped'
+    type: str  # noqa: A003 - ROS type name, e.g. 'geometry_msgs/msg/Vector3Stamped'
     publisher: str      # node that publishes it
     layout: str         # how the fields are used
     critical: bool = False   # on the lock-step critical path
@@ -78,28 +79,29 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(OBS_CURRENT, V3, 'observer', 'stator-current estimate i_alpha, i_beta [A]'),
     TopicSpec(OBS_SPEED, JS, 'observer',
               "sensorless runs: speed estimate in place of the measured shaft: name ['rotor'], "
-              "position theta_hat = integral of omega_hat [rad] (relative), velocity omega_hat "
-              "[rad/s]", True),
+              'position theta_hat = integral of omega_hat [rad] (relative), velocity omega_hat '
+              '[rad/s]', True),
     TopicSpec(ADAPT_ESTIMATE, JS, 'adapter',
               "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma')] in position "
-              "[SI]", True),
+              '[SI]', True),
     TopicSpec(REF_SHAFT, JS, 'controller',
-              "reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]"),
+              'reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]'),
     TopicSpec(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),
     TopicSpec(REF_FLUX, V3, 'controller',
               'rotor-flux reference phi*_alpha, phi*_beta [Wb]; z = flux magnitude phi_d* [Wb]'),
     TopicSpec(SETPOINT, JS, 'user',
-              "setpoint: position [rad] or velocity [rad/s] or effort [N m] (one field set)"),
+              'setpoint: position [rad] or velocity [rad/s] or effort [N m] (one field set)'),
     TopicSpec(TRUTH_VOLTAGE, V3, 'plant', 'voltage applied by the inverter (after its limit) [V]'),
     TopicSpec(TRUTH_FLUX, V3, 'plant', 'true rotor flux phi_r_alpha, phi_r_beta [Wb]'),
     TopicSpec(TRUTH_TORQUE, V3, 'plant',
-              'x = electromagnetic torque tau_m, y = load torque tau_L, z = friction b*omega [N m]'),
+              'x = electromagnetic torque tau_m, y = load torque tau_L, '
+              'z = friction b*omega [N m]'),
     TopicSpec(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     TopicSpec(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
     TopicSpec(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
     TopicSpec(TRUTH_SHAFT, JS, 'plant',
               "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
-              "(without measurement noise)"),
+              '(without measurement noise)'),
     TopicSpec(TRUTH_PEAKS, JS, 'plant',
               f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
               'current magnitudes over every step since the previous sample'),
@@ -118,7 +120,7 @@ RECORDED_TOPICS: Tuple[str, ...] = tuple(t.name for t in TOPICS if t.recorded)
 
 
 def markdown_table() -> str:
-    """The README's topic table, generated from this module so the two cannot drift."""
+    """Return the README's topic table, generated from this module so the two cannot drift."""
     rows = ['| topic | type | publisher | content |', '| --- | --- | --- | --- |']
     for t in TOPICS:
         crit = ' (lock-step)' if t.critical else ''

@@ -1,5 +1,7 @@
-"""The loss-optimal rotor-flux trajectory for a torque known ahead: a convex program
-(docs/controller.md §10, "Loss-optimal flux trajectory").
+"""
+The loss-optimal rotor-flux trajectory for a torque known ahead.
+
+A convex program (docs/controller.md §10, "Loss-optimal flux trajectory").
 
 In the rotor-flux frame (d along φ_r, magnitude φ ≥ 0) a torque τ(t) delivered exactly fixes the
 q-currents, and the flux trajectory fixes the d-currents:
@@ -28,9 +30,9 @@ spline through the nodes' √y).
 from __future__ import annotations
 
 import bisect
+from dataclasses import dataclass, field
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Callable, Optional, Sequence
 
 import numpy as np
@@ -48,7 +50,7 @@ class PlanError(RuntimeError):
 
 
 def loss_constants(c: ModelCoefficients, k_e: float = 0.0, k_h: float = 0.0) -> dict:
-    """The coefficients of the loss rate in y = φ² (module docstring)."""
+    """Return the coefficients of the loss rate in y = φ² (module docstring)."""
     th = c.theta
     return {'A': c.R_s / (c.L_sr * c.L_sr),
             'C': (c.R_s * c.L_r * c.L_r / (c.L_sr * c.L_sr) + c.R_r) / (c.v * c.v),
@@ -73,17 +75,22 @@ def loss_rates(c: ModelCoefficients, y, ydot, tau, omega, k_e: float = 0.0, k_h:
 
 def static_loss_optimal_flux(c: ModelCoefficients, tau: float, omega: float, k_e: float = 0.0,
                              k_h: float = 0.0) -> float:
-    """The flux minimizing the steady loss p(y, 0) at a constant τ, ω (the closed form of
-    dp/dy = 0 on the side where v ω y + R_r τ/v has the sign of ω, exponent 2):
+    """
+    Return the flux minimizing the steady loss at a constant τ, ω.
+
+    It minimizes p(y, 0) (the closed form of dp/dy
+    = 0 on the side where v ω y + R_r τ/v has the sign of ω, exponent 2):
 
         y² = (C τ² + T_e c²)/(A + T_e v²ω² + T_h v|ω|),   c = R_r τ/v,
 
     exact (∂f_e/∂φ included) whenever the rotation v ω y + c keeps ω's sign at that y (always
-    when τ and ω have the same sign, or ω = 0)."""
+    when τ and ω have the same sign, or ω = 0).
+    """
     k = loss_constants(c, k_e, k_h)
     cc = c.R_r * tau / c.v
     vw = c.v * omega
-    y2 = (k['C'] * tau * tau + k['Te'] * cc * cc) / (k['A'] + k['Te'] * vw * vw + k['Th'] * abs(vw))
+    y2 = ((k['C'] * tau * tau + k['Te'] * cc * cc)
+          / (k['A'] + k['Te'] * vw * vw + k['Th'] * abs(vw)))
     if omega == 0.0:   # p = (A y² + Cτ² + T_e c²)/y + T_h |c|: the hysteresis part is constant
         y2 = (k['C'] * tau * tau + k['Te'] * cc * cc) / k['A']
     return math.sqrt(math.sqrt(y2))
@@ -113,9 +120,13 @@ class FluxPlan:
         return np.sqrt(np.maximum(self.y, 0.0))
 
     def sample(self, t: float):
-        """(φ, φ̇, φ̈) of the plan at t: a C² cubic spline through the nodes' φ (natural ends),
-        evaluated in plain Python (a few µs per call); before the first node the first value,
-        beyond the last node the last value, both with zero rates."""
+        """
+        (φ, φ̇, φ̈) of the plan at t.
+
+        A C² cubic spline through the nodes' φ (natural ends), evaluated in plain Python (a
+        few µs per call); before the first node the first value, beyond the last node the
+        last value, both with zero rates.
+        """
         if self._spline is None:
             from scipy.interpolate import CubicSpline
             sp = CubicSpline(self.t, self.phi, bc_type='natural')
@@ -140,13 +151,16 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
               omega_mid: Sequence[float], phi0: float, *, k_e: float = 0.0, k_h: float = 0.0,
               phi_end: Optional[float] = None, phi_cap: Optional[Sequence[float]] = None,
               i_max: Optional[float] = None) -> FluxPlan:
-    """Minimize the losses (copper, plus the core loss when k_e or k_h > 0) over every flux
-    trajectory on the grid ``t`` (N+1 nodes) that delivers the torques ``tau_mid`` at the speeds
-    ``omega_mid`` (N interval midpoints), from φ(t_0) = ``phi0``; the end flux is free unless
-    ``phi_end``. ``phi_cap`` (a number or N+1 node values) bounds φ; ``i_max`` bounds the
-    stator current. Where the limits make the exact torque impossible, the program is re-solved
-    delivering as much of it as they allow (``torque_shortfall``). Raises :class:`PlanError`
-    when no solution is found."""
+    """
+    Plan the loss-optimal flux trajectory for given torques and speeds on a grid.
+
+    Minimize the losses (copper, plus the core loss when k_e or k_h > 0) over every flux trajectory
+    on the grid ``t`` (N+1 nodes) that delivers the torques ``tau_mid`` at the speeds ``omega_mid``
+    (N interval midpoints), from φ(t_0) = ``phi0``; the end flux is free unless ``phi_end``.
+    ``phi_cap`` (a number or N+1 node values) bounds φ; ``i_max`` bounds the stator current. Where
+    the limits make the exact torque impossible, the program is re-solved delivering as much of it
+    as they allow (``torque_shortfall``). Raises :class:`PlanError` when no solution is found.
+    """
     t = np.asarray(t, float)
     tau = np.asarray(tau_mid, float)
     om = np.asarray(omega_mid, float)
@@ -172,9 +186,13 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
 
 
 def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: bool) -> FluxPlan:
-    """One second-order-cone program of :func:`plan_flux`. ``exact``: the torque is delivered
-    exactly; else it is a variable between 0 and the demand (same sign) whose shortfall costs
-    1000 × the least steady copper loss per N·m (2√(AC)), so every achievable torque is delivered."""
+    """
+    One second-order-cone program of :func:`plan_flux`.
+
+    ``exact``: the torque is delivered exactly; else it is a variable between 0 and the demand
+    (same sign) whose shortfall costs 1000 × the least steady copper loss per N·m (2√(AC)), so
+    every achievable torque is delivered.
+    """
     import warnings
     import cvxpy as cp
     n = len(h)
@@ -256,8 +274,12 @@ def grid(t0: float, t1: float, step: float) -> np.ndarray:
 
 def plan_along(c: ModelCoefficients, path: Callable[[float], tuple], t0: float, t1: float,
                phi0: float, step: float = 1e-3, **kwargs) -> FluxPlan:
-    """:func:`plan_flux` for a path ``path(t) -> (τ, ω)`` sampled at the midpoints of a grid of
-    ``step`` from t0 to t1."""
+    """
+    Plan the flux along a path of torque and speed.
+
+    :func:`plan_flux` for a path ``path(t) -> (τ, ω)`` sampled at the midpoints of a grid of
+    ``step`` from t0 to t1.
+    """
     t = grid(t0, t1, step)
     mid = 0.5 * (t[:-1] + t[1:])
     tau, om = np.array([path(x) for x in mid], float).T

@@ -1,4 +1,5 @@
-"""ROS parameters of the controller node ↔ :class:`im_controller.control_law.ControllerConfig`.
+"""
+ROS parameters of the controller node ↔ :class:`im_controller.control_law.ControllerConfig`.
 
 Every field of the configuration is a declared parameter with a description and a range; the
 node builds the configuration from them, so an invalid value is refused with its name (by the
@@ -9,8 +10,8 @@ from __future__ import annotations
 from im_common.loads import LOAD_KINDS
 from im_common.params import RATED
 
-from .control_law import (DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN, FLUX_COUPLINGS,
-                          LIVE_FIELDS, MODES, PROFILES, STRATEGIES, ControllerConfig)
+from .control_law import (ControllerConfig, DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN,
+                          FLUX_COUPLINGS, LIVE_FIELDS, MODES, PROFILES, STRATEGIES)
 from .profiles import from_parameters as setpoints_from_parameters
 
 # Parameters that make sense to change while the node runs (``ros2 param set``): gains, strategy,
@@ -35,8 +36,12 @@ _OWN_SENTINELS = ('k_p', 'k_v', 'flux_preview')
 
 
 def declare_controller(node) -> dict:
-    """Declare the controller's parameters on ``node``; return their values by name (the
-    :data:`LIVE_PARAMETERS` writable while running, the rest read-only)."""
+    """
+    Declare the controller's parameters on ``node``; return their values by name.
+
+    Declare the controller's parameters on ``node``; return their values by name (the
+    :data:`LIVE_PARAMETERS` writable while running, the rest read-only).
+    """
     def p(name, *args, **kwargs):
         return node.param(name, *args, read_only=name not in LIVE_PARAMETERS, **kwargs)
     v = {}
@@ -81,17 +86,19 @@ def declare_controller(node) -> dict:
                                 'flux exponent of the core-loss model min_loss minimizes (1 or 2)',
                                 1.0, 2.0)
     v['setpoint_duration'] = p('setpoint_duration', 0.5,
-                               'duration of the smooth transition to a new setpoint [s]', 1e-3, 100.0)
+                               'duration of the smooth transition to a new setpoint [s]', 1e-3,
+                               100.0)
     v['setpoints'] = p('setpoints', [0.0],
                        "profile 'setpoint': setpoints the controller applies itself, flat triples "
-                       "t [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none "
-                       "(im_controller.profiles writes them from a profile file)")
+                       't [s], value, transition duration [s] (0: setpoint_duration); [0.0]: none '
+                       '(im_controller.profiles writes them from a profile file)')
     v['torque_limit'] = p('torque_limit', 0.0, 'bound on |tau*| [N m] (0: none)', 0.0, 1e7)
     v['current_limit'] = p('current_limit', -1.0,
                            'stator-current magnitude the torque demand may ask for [A] (0: none; '
                            '-1: the motor\'s rated current, none without one)', -1.0, 1e6)
     v['speed_limit'] = p('speed_limit', 0.0,
-                         'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0, 1e5)
+                         'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0,
+                         1e5)
     v['field_weakening'] = p('field_weakening', True,
                              'cap the flux above base speed so the steady voltage fits v_limit')
     v['voltage_margin'] = p('voltage_margin', DEFAULT_VOLTAGE_MARGIN,
@@ -104,14 +111,18 @@ def declare_controller(node) -> dict:
 
 
 def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig:
-    """The controller configuration from declared parameter values (-1 / 0 / [0.0]: defaults)."""
+    """
+    Return the controller configuration from declared parameter values.
+
+    -1 / 0 / [0.0] mean the defaults.
+    """
     v = dict(values)
     gain = list(v.pop('current_gain'))
     gain_period = v.pop('gain_period')
     if len(gain) == 4:
         if abs(gain_period - T_s) > 1e-12:
             raise ValueError(f"invalid parameter 'gain_period' = {gain_period!r}: current_gain "
-                             f"was designed for another period than T_s = {T_s}")
+                             f'was designed for another period than T_s = {T_s}')
         v['current_gain'] = [gain[0:2], gain[2:4]]
     elif gain != [0.0]:
         raise ValueError(f"invalid parameter 'current_gain' = {gain!r}: 4 numbers (row-major 2x2)")
@@ -120,13 +131,13 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
             v[key] = None
         elif v[key] < 0:
             raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
-                             f"the {SENTINEL_DEFAULTS[key]}")
+                             f'the {SENTINEL_DEFAULTS[key]}')
     for key in RATING_DEFAULTS:
         if v[key] == -1.0:
             v[key] = RATED                  # ControllerConfig takes the motor model's rating
         elif v[key] < 0:
             raise ValueError(f"invalid parameter '{key}' = {v[key]!r}: must be >= 0, or -1 for "
-                             f"the {SENTINEL_DEFAULTS[key]}")
+                             f'the {SENTINEL_DEFAULTS[key]}')
     for key in ('v_limit', 'torque_limit', 'current_limit', 'speed_limit'):
         v[key] = None if v[key] == 0 else v[key]
     v['setpoints'] = setpoints_from_parameters(v['setpoints'])
@@ -134,14 +145,19 @@ def config_from_parameters(params, values: dict, T_s: float) -> ControllerConfig
 
 
 def live_changes(params, values: dict, changes: dict, T_s: float) -> dict:
-    """The :meth:`DriveController.reconfigure` changes for new values of live parameters (the
-    node's parameter callback): the same conversions as :func:`config_from_parameters`."""
+    """
+    Return the :meth:`DriveController.reconfigure` changes for new values of live parameters.
+
+    Called by the node's parameter callback; the same conversions as
+    :func:`config_from_parameters`.
+    """
     bad = [k for k in changes if k not in LIVE_PARAMETERS]
     if bad:
         raise ValueError(f"parameter '{bad[0]}' is read-only while running "
                          f"(live: {', '.join(LIVE_PARAMETERS)})")
     merged = dict(values, **changes)
-    if 'current_gain' in changes and 'gain_period' not in changes and len(changes['current_gain']) == 4:
+    if ('current_gain' in changes and 'gain_period' not in changes
+            and len(changes['current_gain']) == 4):
         merged['gain_period'] = T_s
     cfg = config_from_parameters(params, merged, T_s)
     out = {}

@@ -1,4 +1,5 @@
-"""Profiles of one's own: setpoint lists (YAML) and sampled trajectories (CSV) for the controller.
+"""
+Profiles of one's own: setpoint lists (YAML) and sampled trajectories (CSV) for the controller.
 
 A profile is what ``/im/setpoint`` would carry, known in advance, so the controller applies it
 itself (``ControllerConfig.setpoints``) and a run is reproducible without a publisher:
@@ -25,8 +26,8 @@ there; position: the shaft starts there).
 from __future__ import annotations
 
 import csv
-import math
 from dataclasses import dataclass
+import math
 from typing import Optional, Sequence, Tuple
 
 from im_common.params import InvalidParameter, read_yaml_file
@@ -38,7 +39,11 @@ MODE_KIND = {mode: kind for kind, mode in KINDS.items()}
 
 @dataclass(frozen=True)
 class Profile:
-    """``mode`` ('position' | 'speed' | 'torque') and ``setpoints`` ((t, value, duration|None), ...)."""
+    """
+    Describe a setpoint profile.
+
+    ``mode`` ('position' | 'speed' | 'torque') and ``setpoints`` ((t, value, duration|None), ...).
+    """
 
     mode: str
     setpoints: Tuple[Tuple[float, float, Optional[float]], ...]
@@ -46,7 +51,7 @@ class Profile:
 
     @property
     def start_value(self) -> Optional[float]:
-        """The value at t = 0 if the profile sets one there (else None)."""
+        """Return the value at t = 0 if the profile sets one there (else None)."""
         if self.setpoints and self.setpoints[0][0] == 0.0:
             return self.setpoints[0][1]
         return None
@@ -57,8 +62,12 @@ class Profile:
         return t + (d or 0.0)
 
     def as_parameters(self) -> dict:
-        """The controller node's parameters for this profile (flat (t, value, duration) triples;
-        duration 0 = the node's ``setpoint_duration``)."""
+        """
+        Return the controller node's parameters for this profile.
+
+        Flat (t, value, duration)
+        triples; duration 0 = the node's ``setpoint_duration``).
+        """
         flat = []
         for t, value, d in self.setpoints:
             flat += [float(t), float(value), float(d or 0.0)]
@@ -79,14 +88,15 @@ def _check_times(source: str, times: Sequence[float]) -> None:
 
 
 def from_setpoints(entries, source: str = 'profile') -> Profile:
-    """A profile from ``[{t: ..., velocity: ...}, ...]`` (see module doc)."""
+    """Return a profile from ``[{t: ..., velocity: ...}, ...]`` (see module doc)."""
     if not isinstance(entries, list) or not entries:
         raise InvalidParameter(f'{source}: setpoints', entries, 'must be a non-empty list')
     kind = None
     out = []
     for k, e in enumerate(entries):
         if not isinstance(e, dict):
-            raise InvalidParameter(f'{source}: setpoints[{k}]', e, 'must be a mapping {t: ..., velocity: ...}')
+            raise InvalidParameter(f'{source}: setpoints[{k}]', e,
+                                   'must be a mapping {t: ..., velocity: ...}')
         unknown = [key for key in e if key not in ('t', 'duration', *KINDS)]
         if unknown:
             raise InvalidParameter(f'{source}: setpoints[{k}].{unknown[0]}', e[unknown[0]],
@@ -115,8 +125,13 @@ def from_setpoints(entries, source: str = 'profile') -> Profile:
     return Profile(KINDS[kind], tuple(out), source)
 
 
-def from_samples(kind: str, samples: Sequence[Tuple[float, float]], source: str = 'profile') -> Profile:
-    """A sampled trajectory: the reference reaches each value at its time (see module doc)."""
+def from_samples(kind: str, samples: Sequence[Tuple[float, float]],
+                 source: str = 'profile') -> Profile:
+    """
+    Return a sampled trajectory.
+
+    The reference reaches each value at its time (see module doc).
+    """
     if kind not in KINDS:
         raise InvalidParameter(f'{source}: kind', kind, f"must be one of {', '.join(KINDS)}")
     if len(samples) < 1:
@@ -144,7 +159,8 @@ def load_profile(path: str) -> Profile:
                                'is missing (expected setpoints: [{t: 0.0, velocity: 100.0}, ...])')
     extra = [k for k in doc if k != 'setpoints']
     if extra:
-        raise InvalidParameter(f'{path}: {extra[0]}', doc[extra[0]], 'unknown key (only setpoints)')
+        raise InvalidParameter(f'{path}: {extra[0]}', doc[extra[0]],
+                               'unknown key (only setpoints)')
     return from_setpoints(doc['setpoints'], source=path)
 
 
@@ -155,7 +171,8 @@ def _load_csv(path: str) -> Profile:
     except OSError as exc:
         raise InvalidParameter('profile file', path, f'cannot be read ({exc.strerror})') from None
     if not rows:
-        raise InvalidParameter(f'{path}', 'empty', f"needs a header t,<{'|'.join(KINDS)}> and rows")
+        raise InvalidParameter(f'{path}', 'empty',
+                               f"needs a header t,<{'|'.join(KINDS)}> and rows")
     header = [h.strip() for h in rows[0]]
     if len(header) != 2 or header[0] != 't' or header[1] not in KINDS:
         raise InvalidParameter(f'{path}: header', ','.join(header),
@@ -163,11 +180,13 @@ def _load_csv(path: str) -> Profile:
     samples = []
     for k, r in enumerate(rows[1:], start=2):
         if len(r) != 2:
-            raise InvalidParameter(f'{path}: line {k}', ','.join(r), 'must be two numbers t, value')
+            raise InvalidParameter(f'{path}: line {k}', ','.join(r),
+                                   'must be two numbers t, value')
         try:
             t, value = float(r[0]), float(r[1])
         except ValueError:
-            raise InvalidParameter(f'{path}: line {k}', ','.join(r), 'must be two numbers t, value') from None
+            raise InvalidParameter(f'{path}: line {k}', ','.join(r),
+                                   'must be two numbers t, value') from None
         if not (math.isfinite(t) and math.isfinite(value)):
             raise InvalidParameter(f'{path}: line {k}', ','.join(r), 'must be finite')
         samples.append((t, value))
@@ -175,8 +194,12 @@ def _load_csv(path: str) -> Profile:
 
 
 def from_parameters(flat: Sequence[float]) -> tuple:
-    """``ControllerConfig.setpoints`` from the node parameter ``setpoints`` (flat triples
-    t, value, duration; duration 0 = default; [0.0] = no profile)."""
+    """
+    Read ``ControllerConfig.setpoints`` from the node parameter ``setpoints``.
+
+    ``ControllerConfig.setpoints`` from the node parameter ``setpoints`` (flat triples t, value,
+    duration; duration 0 = default; [0.0] = no profile).
+    """
     flat = list(flat)
     if flat == [0.0] or not flat:
         return ()

@@ -1,4 +1,7 @@
-"""State reference model and voltage feedforward (seed 000 eq. 3.13, 3.21-3.22, 3.26, 3.29; 4.10-4.12).
+"""
+State reference model and voltage feedforward.
+
+Seed 000 eq. 3.13, 3.21-3.22, 3.26, 3.29; 4.10-4.12.
 
 The reference is written in the rotor-flux frame (dq, angle ρ) in terms of the torque τ* and the
 rotor-flux magnitude φ* with their time derivatives, which is eq. 3.13 after the substitution
@@ -9,10 +12,11 @@ rotor-flux magnitude φ* with their time derivatives, which is eq. 3.13 after th
     ω_sl  = R_r τ*/(v φ*²)                 (electrical slip angular frequency, rad/s)
     dρ/dt = v ω_r + ω_sl
 
-These satisfy the constraints (3.7) torque = τ*, (3.8) φ_q = 0 and the rotor equations (3.11)-(3.12).
-The slip of (3.13)/(3.19)/(3.22) is the *electrical* slip angular frequency: with it (3.12) reads
-φ_d ω_sl + R_r i_qr = 0. (The printed (3.12) multiplies ω_sl by v, which contradicts (3.13) for
-v ≠ 1; ω_sl^0 = R_r/(L_r√σ) of (3.19) minimizes the magnetic energy only as an electrical slip.)
+These satisfy the constraints (3.7) torque = τ*, (3.8) φ_q = 0 and the rotor equations
+(3.11)-(3.12). The slip of (3.13)/(3.19)/(3.22) is the *electrical* slip angular frequency: with it
+(3.12) reads φ_d ω_sl + R_r i_qr = 0. (The printed (3.12) multiplies ω_sl by v, which contradicts
+(3.13) for v ≠ 1; ω_sl^0 = R_r/(L_r√σ) of (3.19) minimizes the magnetic energy only as an
+electrical slip.)
 
 In αβ (eq. 3.26, stator currents and rotor fluxes): i* = e^{𝒥ρ}(i_ds*, i_qs*), φ* = e^{𝒥ρ}(φ*, 0).
 
@@ -32,8 +36,8 @@ at the actual speed, so a motor started on the reference and fed V* stays on it 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Optional
 
 from im_common.params import IDENTIFIABLE_NAMES, MotorParams, THESIS_MOTOR
@@ -41,12 +45,14 @@ from im_common.params import IDENTIFIABLE_NAMES, MotorParams, THESIS_MOTOR
 
 @dataclass(frozen=True)
 class ModelCoefficients:
-    """Electrical coefficients of the (i_s, φ_r) model used by the controller (nominal or estimated).
+    """
+    Electrical coefficients of the (i_s, φ_r) model used by the controller (nominal or estimated).
 
     With the chapter-4 estimates (R̂_r, θ̂ = L̂_sr/L̂_r) and fixed R̂_s, L̂_s, L̂_sr, use
-    :meth:`from_params` with ``R_r`` and ``theta``: then L̂_r = L̂_sr/θ̂, σ̂L̂_s = L̂_s − L̂_sr θ̂ and
-    R̂_eq = R̂_s + R̂_r θ̂², exactly the entries of D̂, R̂ in eq. 4.12. With the inverse-Γ estimates
-    (L̂_M, R̂_R, L̂_σ, R̂_s) every coefficient follows them (``from_params(params, L_M=...)``).
+    :meth:`from_params` with ``R_r`` and ``theta``: then L̂_r = L̂_sr/θ̂, σ̂L̂_s = L̂_s − L̂_sr θ̂
+    and R̂_eq = R̂_s + R̂_r θ̂², exactly the entries of D̂, R̂ in eq. 4.12. With the inverse-Γ
+    estimates (L̂_M, R̂_R, L̂_σ, R̂_s) every coefficient follows them (``from_params(params,
+    L_M=...)``).
     """
 
     R_s: float
@@ -61,7 +67,11 @@ class ModelCoefficients:
     @classmethod
     def from_params(cls, params: MotorParams = THESIS_MOTOR, R_r: Optional[float] = None,
                     theta: Optional[float] = None, **identifiable) -> 'ModelCoefficients':
-        """The coefficients of ``params`` with adapted estimates, in one of two parametrizations:
+        """
+        Return the coefficients of ``params`` with adapted estimates.
+
+        The estimates come in one of two
+        parametrizations:
 
         * ``R_r``, ``theta`` — the thesis's (eq. 4.10-4.12): L̂_s, L̂_sr stay, L̂_r = L̂_sr/θ̂;
         * ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``) — the inverse-Γ parameters the
@@ -89,7 +99,8 @@ class ModelCoefficients:
             raise ValueError(f"estimate 'theta' = {theta!r} must be positive and finite")
         if params.L_s * Lr - params.L_sr ** 2 <= 0.0:
             raise ValueError(f"estimate 'theta' = {theta!r} makes sigma = 1 - L_sr*theta/L_s <= 0")
-        return cls(params.R_s, Rr, params.L_s, Lr, params.L_sr, params.pole_pairs, params.J, params.b)
+        return cls(params.R_s, Rr, params.L_s, Lr, params.L_sr, params.pole_pairs, params.J,
+                   params.b)
 
     @property
     def theta(self) -> float:
@@ -125,7 +136,8 @@ class ModelCoefficients:
 
 def dq_reference(c: ModelCoefficients, tau: float, dtau: float, phi: float, dphi: float,
                  ddphi: float):
-    """Eq. 3.13 in flux form. Returns (i_ds, i_qs, di_ds, di_qs, i_dr, i_qr, omega_sl).
+    """
+    Eq. 3.13 in flux form. Returns (i_ds, i_qs, di_ds, di_qs, i_dr, i_qr, omega_sl).
 
     ``phi`` must be > 0 (the flux strategies keep it ≥ φ_min).
     """
@@ -159,13 +171,16 @@ def reference_alpha_beta(c: ModelCoefficients, rho: float, i_ds: float, i_qs: fl
     return (cr * i_ds - sr * i_qs, sr * i_ds + cr * i_qs, cr * phi, sr * phi)
 
 
-def torque_alpha_beta(c: ModelCoefficients, i_a: float, i_b: float, phi_a: float, phi_b: float) -> float:
+def torque_alpha_beta(c: ModelCoefficients, i_a: float, i_b: float, phi_a: float,
+                      phi_b: float) -> float:
     """τ = v (L_sr/L_r)(i_β φ_α − i_α φ_β) (eq. 3.3)."""
     return c.v * c.theta * (i_b * phi_a - i_a * phi_b)
 
 
-def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float, rho: float = 0.0) -> dict:
-    """The constant-torque, constant-flux operating point of the reference model.
+def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float,
+                 rho: float = 0.0) -> dict:
+    """
+    Return the constant-torque, constant-flux operating point of the reference model.
 
     Returns the αβ state at angle ρ, the dq currents, the slip and the stator voltage — used to
     start a run on the reference (speed task) and by tests.
@@ -182,7 +197,8 @@ def steady_state(c: ModelCoefficients, tau: float, phi: float, omega_r: float, r
 
 def steady_losses(c: ModelCoefficients, tau: float, phi: float, omega_r: float,
                   k_e: float = 0.0, k_h: float = 0.0, core_exponent: float = 2.0) -> float:
-    """Steady-state copper + core loss [W] at torque τ and rotor flux φ (eq. 3.34-3.38).
+    """
+    Steady-state copper + core loss [W] at torque τ and rotor flux φ (eq. 3.34-3.38).
 
     Copper: R_s(i_ds² + i_qs²) + R_r i_qr²; core: (k_h + k_e f_e) f_e (θφ)^m with
     f_e = |v ω_r + ω_sl|/(2π) the rotation rate of the flux and θφ the air-gap flux of (3.38).

@@ -1,4 +1,5 @@
-"""Reference trajectories for the shaft, with analytic derivatives (seed 000 §3.4.4).
+"""
+Reference trajectories for the shaft, with analytic derivatives (seed 000 §3.4.4).
 
 Every trajectory answers ``sample(t) -> (p, v, a, j)``: position θ* [rad], velocity ω* [rad/s],
 acceleration [rad/s²] and jerk [rad/s³] at time t. The controller needs p, v, a for the mechanical
@@ -47,7 +48,8 @@ def cubed_gaussian_step(s: float, k: float = 10.0) -> Tuple[float, float, float,
 
 
 def cubed_gaussian_step_integral(s: float, k: float = 10.0) -> float:
-    """F(s) = ∫₀ˢ (1 − e^{−k x²})³ dx (0 for s ≤ 0), closed form with erf.
+    """
+    F(s) = ∫₀ˢ (1 − e^{−k x²})³ dx (0 for s ≤ 0), closed form with erf.
 
     (1 − u)³ = 1 − 3u + 3u² − u³ and ∫₀ˢ e^{−n k x²} dx = ½ √(π/(n k)) erf(√(n k) s).
     """
@@ -76,7 +78,8 @@ class ThesisPositionProfile(Trajectory):
 
     def __init__(self, theta0: float = -0.5 * math.pi, amplitude: float = 1.2 * math.pi,
                  t0: float = 0.4, k: float = 10.0):
-        self.theta0, self.amplitude, self.t0, self.k = float(theta0), float(amplitude), float(t0), float(k)
+        self.theta0, self.amplitude = float(theta0), float(amplitude)
+        self.t0, self.k = float(t0), float(k)
 
     def sample(self, t: float) -> Sample:
         f, f1, f2, f3 = cubed_gaussian_step(t - self.t0, self.k)
@@ -89,12 +92,16 @@ class ThesisPositionProfile(Trajectory):
 
 
 class ThesisSpeedProfile(Trajectory):
-    """ω* = ω₀ + A (1 − e^{−k(t−t₀)²})³ for t ≥ t₀ (ω₀ = 135, A = 45, t₀ = 0.2, k = 10);
-    θ* = θ₀ + ω₀ t + A ∫ f, exact."""
+    """
+    ω* = ω₀ + A (1 − e^{−k(t−t₀)²})³ for t ≥ t₀ (ω₀ = 135, A = 45, t₀ = 0.2, k = 10).
+
+    θ* = θ₀ + ω₀ t + A ∫ f, exact.
+    """
 
     def __init__(self, omega0: float = 135.0, amplitude: float = 45.0, t0: float = 0.2,
                  k: float = 10.0, theta0: float = 0.0):
-        self.omega0, self.amplitude, self.t0, self.k = float(omega0), float(amplitude), float(t0), float(k)
+        self.omega0, self.amplitude = float(omega0), float(amplitude)
+        self.t0, self.k = float(t0), float(k)
         self.theta0 = float(theta0)
 
     def sample(self, t: float) -> Sample:
@@ -110,7 +117,8 @@ class ThesisSpeedProfile(Trajectory):
 
 
 class Quintic:
-    """A quintic polynomial p(τ), τ = t − t₀ ∈ [0, T], joining (p₀, v₀, a₀) to (p₁, 0, 0).
+    """
+    A quintic polynomial p(τ), τ = t − t₀ ∈ [0, T], joining (p₀, v₀, a₀) to (p₁, 0, 0).
 
     Before t₀ it returns the start state extrapolated as a constant-acceleration arc is *not*
     wanted, so t < t₀ is clamped to t₀; after t₀ + T it holds p₁. ``integral(t)`` is ∫_{t₀}^{t} p.
@@ -153,7 +161,8 @@ class Quintic:
         if tau >= self.T:
             return self._area_T + self.p1 * (tau - self.T)
         c0, c1, c2, c3, c4, c5 = self.c
-        return tau * (c0 + tau * (c1 / 2 + tau * (c2 / 3 + tau * (c3 / 4 + tau * (c4 / 5 + tau * c5 / 6)))))
+        inner = c3 / 4 + tau * (c4 / 5 + tau * c5 / 6)
+        return tau * (c0 + tau * (c1 / 2 + tau * (c2 / 3 + tau * inner)))
 
 
 class SetpointPosition(Trajectory):
@@ -162,7 +171,7 @@ class SetpointPosition(Trajectory):
     def __init__(self, theta0: float = 0.0):
         self._seg = Quintic(0.0, 1.0, theta0, 0.0, 0.0, theta0)
 
-    def set(self, value: float, t: float, duration: float) -> None:
+    def set(self, value: float, t: float, duration: float) -> None:  # noqa: A003
         p, v, a, _ = self.sample(t)
         self._seg = Quintic(t, duration, p, v, a, value)
 
@@ -181,7 +190,7 @@ class SetpointSpeed(Trajectory):
         self._theta_start = float(theta0)
         self._t_start = 0.0
 
-    def set(self, value: float, t: float, duration: float) -> None:
+    def set(self, value: float, t: float, duration: float) -> None:  # noqa: A003
         theta, w, a, j = self.sample(t)
         self._theta_start = theta
         self._t_start = t
@@ -206,7 +215,7 @@ class SetpointTorque:
     def __init__(self, tau0: float = 0.0):
         self._seg = Quintic(0.0, 1.0, tau0, 0.0, 0.0, tau0)
 
-    def set(self, value: float, t: float, duration: float) -> None:
+    def set(self, value: float, t: float, duration: float) -> None:  # noqa: A003
         p, v, a, _ = self._seg.sample(t)
         self._seg = Quintic(t, duration, p, v, a, value)
 

@@ -1,20 +1,23 @@
-"""Trajectories, reference model (eq. 3.13/3.26), flux strategies and the model inverse (eq. 3.29)."""
+"""
+Trajectories, reference model, flux strategies and the model inverse.
+
+Seed 000 eq. 3.13/3.26 and eq. 3.29.
+"""
 import math
 import random
-
-import numpy as np
-import pytest
 
 from im_common.loads import NoLoad
 from im_common.model import stator_flux
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController
-from im_controller.flux import LowPass2, flux_min_energy, flux_min_loss
-from im_controller.reference import (ModelCoefficients, dq_reference, reference_alpha_beta,
+from im_controller.flux import flux_min_energy, flux_min_loss, LowPass2
+from im_controller.reference import (dq_reference, ModelCoefficients, reference_alpha_beta,
                                      steady_losses, steady_state, torque_alpha_beta)
-from im_controller.trajectories import (Quintic, ThesisPositionProfile, ThesisSpeedProfile,
-                                        cubed_gaussian_step_integral)
+from im_controller.trajectories import (cubed_gaussian_step_integral, Quintic,
+                                        ThesisPositionProfile, ThesisSpeedProfile)
+import numpy as np
+import pytest
 
 C = ModelCoefficients.from_params(THESIS_MOTOR)
 
@@ -81,6 +84,7 @@ def test_reference_torque_alignment_and_rotor_equations():
 
 def test_min_energy_slip_minimizes_magnetic_energy():
     tau = 6.0
+
     def energy(phi):
         i_ds, i_qs, _, _, i_dr, i_qr, _ = dq_reference(C, tau, 0.0, phi, 0.0, 0.0)
         return 0.5 * (C.L_s * (i_ds ** 2 + i_qs ** 2) + 2 * C.L_sr * (i_ds * i_dr + i_qs * i_qr)
@@ -111,7 +115,10 @@ def test_filter_is_exact_for_held_input():
     f.set_input(1.0)
     # fine RK4 of the same ODE
     y, dy, h = 0.0, 0.0, 1e-6
-    acc = lambda y, dy: f.p_prod * (1.0 - y) - f.p_sum * dy
+
+    def acc(y, dy):
+        return f.p_prod * (1.0 - y) - f.p_sum * dy
+
     for _ in range(20):
         f.advance(1e-4)
     for _ in range(2000):
@@ -130,9 +137,14 @@ def test_filter_is_exact_for_held_input():
 @pytest.mark.parametrize('strategy,hold', [('constant_flux', True), ('min_loss', True),
                                            ('constant_flux', False)])
 def test_feedforward_open_loop_reproduces_the_reference(strategy, hold):
-    """Plant started on the reference and driven by V* alone follows the reference (model inverse)."""
+    """
+    Check that a plant started on the reference and driven by V* alone follows it.
+
+    The model inverse.
+    """
     omega0 = 100.0
-    params = THESIS_MOTOR.with_values(J=1e5)   # constant speed: the test is about the electrical inverse
+    # constant speed: the test is about the electrical inverse
+    params = THESIS_MOTOR.with_values(J=1e5)
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy=strategy, phi_d=0.8,
                            k1=1e-12, flux_coupling='none', params=params, load='none',
                            setpoint_duration=2.0, hold_compensation=hold)
@@ -153,7 +165,8 @@ def test_feedforward_open_loop_reproduces_the_reference(strategy, hold):
         va, vb = ctl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r,
                              out['phi_r_alpha'], out['phi_r_beta'])
         r = ctl.reference
-        worst_i = max(worst_i, math.hypot(m.i_alpha - r['i_alpha_ref'], m.i_beta - r['i_beta_ref']))
+        worst_i = max(worst_i,
+                      math.hypot(m.i_alpha - r['i_alpha_ref'], m.i_beta - r['i_beta_ref']))
         worst_phi = max(worst_phi, math.hypot(out['phi_r_alpha'] - r['phi_alpha_ref'],
                                               out['phi_r_beta'] - r['phi_beta_ref']))
         worst_tau = max(worst_tau, abs(out['tau_m'] - r['tau_ref']))
@@ -172,8 +185,10 @@ def test_feedforward_open_loop_reproduces_the_reference(strategy, hold):
 
 def test_invalid_config_names_the_field():
     for kwargs, name in [({'k1': -40.0}, 'k1'), ({'strategy': 'fast'}, 'strategy'),
-                         ({'mode': 'angle'}, 'mode'), ({'phi_min': 0.5, 'phi_max': 0.4}, 'phi_max'),
-                         ({'phi_d': float('nan')}, 'phi_d'), ({'current_gain': [[1, 0]]}, 'current_gain'),
+                         ({'mode': 'angle'}, 'mode'),
+                         ({'phi_min': 0.5, 'phi_max': 0.4}, 'phi_max'),
+                         ({'phi_d': float('nan')}, 'phi_d'),
+                         ({'current_gain': [[1, 0]]}, 'current_gain'),
                          ({'current_gain': [[-1, 0], [0, 1]]}, 'current_gain'),
                          ({'v_limit': 0.0}, 'v_limit'), ({'k_p': -1.0}, 'k_p'),
                          ({'load': 'spring'}, 'load'), ({'mode': 'torque'}, 'profile'),
@@ -185,7 +200,8 @@ def test_invalid_config_names_the_field():
 
 
 def test_defaults_decode_the_gain_table():
-    assert (ControllerConfig(mode='position').k_p, ControllerConfig(mode='position').k_v) == (10.0, 1.0)
+    position = ControllerConfig(mode='position')
+    assert (position.k_p, position.k_v) == (10.0, 1.0)
     assert (ControllerConfig(mode='speed').k_p, ControllerConfig(mode='speed').k_v) == (1.0, 3.0)
     assert ControllerConfig().k1 == 40.0
 

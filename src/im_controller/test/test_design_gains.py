@@ -1,4 +1,7 @@
-"""design_gains: certified drive gains at the node period (im_controller.gain_design.drive) and the CLI.
+"""
+design_gains: certified drive gains at the node period, and the CLI.
+
+See im_controller.gain_design.drive.
 
 Physics asserted: the certified current gain makes every sampled current-error model contract, the
 thesis's 40 V/A at 1 ms does not (sampled pole a − b·k1 leaves the unit circle), and the offline
@@ -9,11 +12,10 @@ import json
 import math
 import re
 
-import numpy as np
-import pytest
-
 from im_controller import design_gains
 from im_controller.gain_design import drive
+import numpy as np
+import pytest
 
 SMALL_OBS = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 1}
 
@@ -97,8 +99,12 @@ def gains_100us():
 
 
 def test_thesis_observer_error_map_is_the_observers_own():
-    """M built column by column propagates the difference of two observers fed the same data,
-    and differs from the exact held-injection ZOH map only at RK4 order (one 100 µs sub-step)."""
+    """
+    Check the observer's one-period error map M against two observers and the exact map.
+
+    M built column by column propagates the difference of two observers fed the same data, and
+    differs from the exact held-injection ZOH map only at RK4 order (one 100 µs sub-step).
+    """
     from im_common.params import THESIS_MOTOR
     from im_observer.observer import RotorFluxObserver
     m = THESIS_MOTOR
@@ -107,7 +113,8 @@ def test_thesis_observer_error_map_is_the_observers_own():
     x1, x2 = (1.0, -2.0, 0.3, 0.1), (0.5, 1.0, -0.2, 0.4)
     o1 = RotorFluxObserver(m, k_e=k_e, x0=x1)
     o2 = RotorFluxObserver(m, k_e=k_e, x0=x2)
-    d = np.subtract(o1.step(1e-4, 30.0, -10.0, 2.0, 1.0, w), o2.step(1e-4, 30.0, -10.0, 2.0, 1.0, w))
+    d = np.subtract(o1.step(1e-4, 30.0, -10.0, 2.0, 1.0, w),
+                    o2.step(1e-4, 30.0, -10.0, 2.0, 1.0, w))
     assert np.allclose(d, M @ np.subtract(x1, x2), rtol=0, atol=1e-12)
     Mz, _ = drive.held_injection_zoh_map(p, w, 1e-4, k_e)
     assert np.abs(M - Mz).max() < 1e-5 * np.abs(M).max()
@@ -116,7 +123,8 @@ def test_thesis_observer_error_map_is_the_observers_own():
 def test_100us_thesis_observer_certified_1ms_not(gains_100us):
     c = gains_100us.thesis_observer
     assert gains_100us.observer_structure == 'thesis' and c.certified
-    assert abs(c.k_e - 1.0 / 0.07562) < 1e-3                       # k_e = 1/σ̂ of the nominal motor
+    # k_e = 1/σ̂ of the nominal motor
+    assert abs(c.k_e - 1.0 / 0.07562) < 1e-3
     assert c.scope.startswith('frozen-parameter') and c.speed_step >= 20.0
     assert c.worst_rho_dense < math.exp(-1.0 * 1e-4)                # ≥ 1 1/s for every speed path
     assert c.worst_spectral_radius < 1.0

@@ -1,23 +1,30 @@
-"""The loss-optimal flux trajectory (im_controller.flux_plan): the convex program against closed
-forms, its discretisation by refinement, and the limits as constraints."""
-import math
+"""
+The loss-optimal flux trajectory (im_controller.flux_plan).
 
-import numpy as np
-import pytest
+The convex program against closed forms, its discretisation by refinement, and the limits as
+constraints.
+"""
+import math
 
 from im_common.params import THESIS_MOTOR as M
 from im_controller.flux import flux_min_loss
 from im_controller.flux_plan import (FluxPlan, grid, loss_rates, plan_along, plan_flux,
                                      static_loss_optimal_flux)
 from im_controller.reference import ModelCoefficients, steady_losses
+import numpy as np
+import pytest
 
 C = ModelCoefficients.from_params(M)
 
 
 @pytest.mark.parametrize('tau,omega', [(5.0, 100.0), (-5.88, 0.0), (2.5, 180.0), (-3.0, -50.0)])
 def test_static_closed_form_minimizes_the_models_steady_loss(tau, omega):
-    """dp/dy = 0 in closed form: the brute-force minimum of reference.steady_losses (the
-    project's own steady loss, copper + core with f_e from the slip) over a fine flux grid."""
+    """
+    dp/dy = 0 in closed form.
+
+    The brute-force minimum of reference.steady_losses (the project's own steady loss, copper +
+    core with f_e from the slip) over a fine flux grid.
+    """
     phi = static_loss_optimal_flux(C, tau, omega, M.k_e, M.k_h)
     grid_ = np.linspace(0.05, 1.5, 290001)
     losses = [steady_losses(C, tau, p, omega, M.k_e, M.k_h) for p in grid_]
@@ -31,10 +38,14 @@ def test_static_closed_form_minimizes_the_models_steady_loss(tau, omega):
 
 @pytest.mark.parametrize('core', [False, True])
 def test_a_constant_torque_held_long_is_planned_at_the_static_optimum(core):
-    """Constant τ, ω over 4 s from a far-off start flux, end free: away from both ends the
-    optimal trajectory sits on the static loss-optimal flux (the closed form)."""
+    """
+    Constant τ, ω over 4 s from a far-off start flux, end free.
+
+    Away from both ends the optimal trajectory sits on the static loss-optimal flux (the closed
+    form).
+    """
     tau, omega = 5.0, 100.0
-    k = dict(k_e=M.k_e, k_h=M.k_h) if core else {}
+    k = {'k_e': M.k_e, 'k_h': M.k_h} if core else {}
     plan = plan_along(C, lambda t: (tau, omega), 0.0, 4.0, 1.0, 2e-3, **k)
     expect = static_loss_optimal_flux(C, tau, omega, **k)
     phi_mid = plan.sample(2.0)[0]
@@ -52,7 +63,7 @@ def test_a_constant_torque_held_long_is_planned_at_the_static_optimum(core):
 
 
 def _pendulum_like(t):
-    """A smooth (C¹) torque through zero and back to a hold, with speed: a position move."""
+    """Return a smooth (C¹) torque through zero and back to a hold, with speed: a position move."""
     s = max(0.0, t - 0.3)
     return (30.0 * s * s * math.exp(-4.0 * s) * math.cos(3.0 * s)
             - 2.0 * (1.0 - math.exp(-5.0 * s * s)), 20.0 * s * s * math.exp(-3.0 * s))
@@ -60,9 +71,13 @@ def _pendulum_like(t):
 
 @pytest.mark.parametrize('phi0,rate', [(0.3, 0.35), (0.0, 0.7)])
 def test_the_discretisation_converges_under_refinement(phi0, rate):
-    """Halving the grid: the midpoint rule converges at second order from a magnetized start
-    (the change shrinks ≈ 4×); from a demagnetized one, where φ = √y leaves 0 with a kink,
-    more slowly, still monotonically, and at 1 ms both are within 1e-6 of the limit's scale."""
+    """
+    Halving the grid.
+
+    The midpoint rule converges at second order from a magnetized start (the change shrinks ≈
+    4×); from a demagnetized one, where φ = √y leaves 0 with a kink, more slowly, still
+    monotonically, and at 1 ms both are within 1e-6 of the limit's scale.
+    """
     costs = [plan_along(C, _pendulum_like, 0.0, 1.5, phi0, h, k_e=M.k_e, k_h=M.k_h).loss_J
              for h in (8e-3, 4e-3, 2e-3, 1e-3)]
     diffs = np.abs(np.diff(costs))

@@ -1,10 +1,9 @@
 """Drive application: sampled motor models, gridding, designs, the thesis's gains."""
-import numpy as np
-import pytest
-
 from im_common.model import eq112_matrices
 from im_common.params import THESIS_MOTOR as M
 from im_controller.gain_design import motor
+import numpy as np
+import pytest
 
 SMALL = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 2, 'omega_r': 3}
 
@@ -41,7 +40,8 @@ def test_thesis_current_gain_is_unstable_at_1ms_and_stable_at_50us():
 
 def test_designed_current_gain_is_certified_and_stable_on_dense_grid():
     d = motor.design_current_gain(1e-3, omega_max=0.0, vertex_points=SMALL,
-                                  certify_points={'R_r': 4, 'L_s': 4, 'L_r': 4, 'L_sr': 4, 'omega_r': 1})
+                                  certify_points={'R_r': 4, 'L_s': 4, 'L_r': 4, 'L_sr': 4,
+                                                  'omega_r': 1})
     assert d.certified
     assert d.result.certificate.grid_margin > 0
     assert d.dense_spectral_radius < 1.0
@@ -56,7 +56,8 @@ def test_infeasible_design_returns_no_gain():
 
 def test_observer_dual_gain_maps_back():
     d = motor.design_observer_gain(1e-3, omega_max=0.0, vertex_points=SMALL,
-                                   certify_points={'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 1})
+                                   certify_points={'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3,
+                                                   'omega_r': 1})
     assert d.certified and d.gain.shape == (4, 2)
     g = motor.parameter_grid({'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 1}, 0.0)
     A_d, _ = motor.sampled_models(g, 1e-3)
@@ -64,9 +65,13 @@ def test_observer_dual_gain_maps_back():
 
 
 def test_thesis_gain_limit_over_the_box_is_the_scalar_current_loop_closed_form():
-    """The 210 µs the README quotes: the 4-state sampled current loop with K = 40 I loses stability
-    where the scalar current-error loop does, T_s = −(σL_s/R_eq) ln(1 − 2R_eq/(R_eq + k₁)), at the
-    stiffest admissible point of the box (σ = σ_min); the nominal motor tolerates more (≈ 318 µs)."""
+    """
+    The 210 µs the README quotes.
+
+    The 4-state sampled current loop with K = 40 I loses stability where the scalar
+    current-error loop does, T_s = −(σL_s/R_eq) ln(1 − 2R_eq/(R_eq + k₁)), at the stiffest
+    admissible point of the box (σ = σ_min); the nominal motor tolerates more (≈ 318 µs).
+    """
     pts = {'R_r': 3, 'L_s': 3, 'L_r': 3, 'L_sr': 3, 'omega_r': 3}
     r = motor.thesis_gain_stability_limit(points=pts, T_min=1e-4, T_max=1e-3, samples=6,
                                           refine_steps=10)
@@ -79,5 +84,6 @@ def test_thesis_gain_limit_over_the_box_is_the_scalar_current_loop_closed_form()
     assert 2.0e-4 < r['current_loop_limit'] < 2.2e-4
     assert r['limit'] == min(r['current_loop_limit'], r['observer_limit'])
     nominal_R_eq = M.R_s + M.R_r * (M.L_sr / M.L_r) ** 2
-    nominal = -(M.sigma * M.L_s / nominal_R_eq) * np.log(1 - 2 * nominal_R_eq / (nominal_R_eq + 40.0))
+    nominal = (-(M.sigma * M.L_s / nominal_R_eq)
+               * np.log(1 - 2 * nominal_R_eq / (nominal_R_eq + 40.0)))
     assert nominal > 1.4 * r['current_loop_limit']

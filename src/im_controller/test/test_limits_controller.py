@@ -1,16 +1,19 @@
-"""Limits of the control law (issue 10): smooth magnetizing floor, torque/current/speed bounds,
-field weakening, the anti-windup that cannot latch, live reconfiguration, profiles."""
-import math
+"""
+Limits of the control law (issue 10).
 
-import pytest
+Smooth magnetizing floor, torque/current/speed bounds, field weakening, the anti-windup that cannot
+latch, live reconfiguration, profiles.
+"""
+import math
 
 from im_common.loads import NoLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, smooth_floor
-from im_controller.parameters import LIVE_PARAMETERS, live_changes
+from im_controller.parameters import live_changes, LIVE_PARAMETERS
 from im_controller.profiles import from_parameters, from_samples, from_setpoints, load_profile
 from im_observer.observer import RotorFluxObserver
+import pytest
 
 
 def test_smooth_floor_is_c2_and_exact_above_three_eps():
@@ -51,8 +54,11 @@ def _loop(cfg, n, setpoints=(), plant_kw=None, x0=None):
 
 
 def test_torque_mode_start_up_magnetizes_without_a_spike():
-    """Torque mode from a demagnetized machine (issue 10, item 2): the start-up voltage stays
-    below the voltage the run needs once the torque is applied."""
+    """
+    Torque mode from a demagnetized machine (issue 10, item 2).
+
+    The start-up voltage stays below the voltage the run needs once the torque is applied.
+    """
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy='constant_flux')
     out, _ = _loop(cfg, 4000, setpoints=[('torque', 5.0, 0.2)])
     v_start = max(r[1] for r in out if r[0] < 0.2)
@@ -64,8 +70,12 @@ def test_torque_mode_start_up_magnetizes_without_a_spike():
 
 
 def test_a_torque_demand_on_a_demagnetized_machine_waits_for_the_flux():
-    """Torque asked for at t = 0: the torque reference grows with the flux (|i_q*| ≤ 2 i_d*/√σ
-    with zero torque at the floor flux), so the first steps need no voltage step."""
+    """
+    Torque asked for at t = 0.
+
+    The torque reference grows with the flux (|i_q*| ≤ 2 i_d*/√σ with zero torque at the floor
+    flux), so the first steps need no voltage step.
+    """
     cfg = ControllerConfig(mode='torque', profile='setpoint', strategy='constant_flux',
                            setpoint_duration=0.01)
     out, _ = _loop(cfg, 3000, setpoints=[('torque', 5.0, 0.0)])
@@ -96,16 +106,21 @@ def test_current_limit_bounds_the_reference_current():
     ctl.compute(0.0, op['i_alpha'], op['i_beta'], 0.0, 0.0, op['phi_alpha'], op['phi_beta'])
     ctl.set_setpoint('torque', 100.0, 0.0)
     for k in range(1, 200):
-        ctl.compute(k * 1e-4, op['i_alpha'], op['i_beta'], 0.0, 0.0, op['phi_alpha'], op['phi_beta'])
+        ctl.compute(k * 1e-4, op['i_alpha'], op['i_beta'], 0.0, 0.0, op['phi_alpha'],
+                    op['phi_beta'])
     r = ctl.reference
     assert math.hypot(r['i_d_ref'], r['i_q_ref']) == pytest.approx(20.0, rel=1e-6)
     assert r['torque_limited']
 
 
 def test_the_fluxes_within_a_current_limit_are_the_roots_of_a_quadratic():
-    """Closed form: at either end of the range the steady currents of τ are exactly i_max,
-    inside it they are below, outside above; beyond any flux's reach the range is the single
-    flux of most torque per ampere, i_d = i_q."""
+    """
+    Check the flux range under a current limit against its closed form.
+
+    Closed form: at either end of the range the steady currents of τ are exactly i_max, inside it
+    they are below, outside above; beyond any flux's reach the range is the single flux of most
+    torque per ampere, i_d = i_q.
+    """
     from im_controller.flux import flux_range_within_current
     c = DriveController(ControllerConfig()).coefficients
 
@@ -129,8 +144,12 @@ def test_the_fluxes_within_a_current_limit_are_the_roots_of_a_quadratic():
 ])
 def test_under_a_current_limit_the_optimizing_strategies_choose_a_flux_that_fits(
         strategy, tau, limit, side):
-    """Under a current limit the flux target of min_energy / min_loss is the nearest to its own
-    optimum whose steady current for τ fits in 0.9 × the limit; constant flux keeps φ_d."""
+    """
+    Check each strategy's flux target under a current limit.
+
+    Under a current limit the flux target of min_energy / min_loss is the nearest to its own
+    optimum whose steady current for τ fits in 0.9 × the limit; constant flux keeps φ_d.
+    """
     from im_controller.flux import FluxStrategy, flux_range_within_current
     c = DriveController(ControllerConfig()).coefficients
     own = FluxStrategy(strategy).target(c, tau, 0.0)
@@ -167,21 +186,27 @@ def test_speed_limit_stops_pushing_beyond_it():
 
 
 def test_field_weakening_caps_the_flux_inversely_with_speed():
-    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux', v_limit=311.0)
+    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux',
+                           v_limit=311.0)
     ctl = DriveController(cfg)
     c = ctl.coefficients
     base = 0.85 * 311.0 * c.L_sr / (c.L_s * 1.2 * c.v)     # speed where the cap reaches φ_d
     assert ctl.flux_cap(0.5 * base) > 1.2
     assert ctl.flux_cap(2 * base) == pytest.approx(ctl.flux_cap(base) / 2)
     assert DriveController(ControllerConfig(v_limit=None)).flux_cap(1e4) == math.inf
-    assert DriveController(ControllerConfig(v_limit=311.0, field_weakening=False)).flux_cap(1e4) == math.inf
+    assert DriveController(ControllerConfig(v_limit=311.0,
+                                            field_weakening=False)).flux_cap(1e4) == math.inf
 
 
 def test_voltage_saturation_does_not_freeze_the_torque_filter():
-    """The latch of issue 10: one unsaturated step between saturated ones froze the PD filter's
-    input. Now the filter takes every input: after a saturated stretch its state follows the
-    latest PD demand, not one from the past."""
-    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux', v_limit=50.0)
+    """
+    The latch of issue 10: one unsaturated step between saturated ones froze the PD filter's input.
+
+    Now the filter takes every input: after a saturated stretch its state follows the latest PD
+    demand, not one from the past.
+    """
+    cfg = ControllerConfig(mode='speed', profile='setpoint', strategy='constant_flux',
+                           v_limit=50.0)
     ctl = DriveController(cfg)
     from im_controller.control_law import steady_operating_point
     op = steady_operating_point(ControllerConfig(mode='speed', profile='setpoint',
@@ -200,9 +225,13 @@ def test_voltage_saturation_does_not_freeze_the_torque_filter():
 
 
 def test_reconfigure_keeps_state_and_is_continuous():
-    """Mid-run changes of a gain and of a flux level: the run state is kept and the command
-    moves only by what the change implies — ΔK·|i − i*| for k₁; for φ_min the flux filter's
-    acceleration change p₁p₂Δφ_tgt through d i_d*/dt = (T_r/L_sr) d²φ*/dt² into σL_s di/dt."""
+    """
+    Mid-run changes of a gain and of a flux level.
+
+    The run state is kept and the command moves only by what the change implies — ΔK·|i − i*|
+    for k₁; for φ_min the flux filter's acceleration change p₁p₂Δφ_tgt through d i_d*/dt =
+    (T_r/L_sr) d²φ*/dt² into σL_s di/dt.
+    """
     from im_common.loads import PendulumLoad
     cfg = ControllerConfig(mode='position', profile='thesis', strategy='min_energy')
     T_s = cfg.T_s
@@ -216,7 +245,8 @@ def test_reconfigure_keeps_state_and_is_continuous():
     for k in range(5600):
         if k in (5000, 5500):
             ref = dict(ctl.reference)
-            err = math.hypot(m_prev.i_alpha - ref['i_alpha_ref'], m_prev.i_beta - ref['i_beta_ref'])
+            err = math.hypot(m_prev.i_alpha - ref['i_alpha_ref'],
+                             m_prev.i_beta - ref['i_beta_ref'])
             if k == 5000:
                 ctl.reconfigure({'k1': 60.0})
                 bounds[k] = 20.0 * err
@@ -274,7 +304,8 @@ def test_live_parameters_convert_like_the_node():
 
 def test_profiles_yaml_csv_and_parameters(tmp_path):
     p = tmp_path / 'p.yaml'
-    p.write_text('setpoints:\n  - {t: 0.0, velocity: 100.0}\n  - {t: 0.2, velocity: 180.0, duration: 0.3}\n')
+    p.write_text('setpoints:\n  - {t: 0.0, velocity: 100.0}\n'
+                 '  - {t: 0.2, velocity: 180.0, duration: 0.3}\n')
     prof = load_profile(str(p))
     assert prof.mode == 'speed' and prof.start_value == 100.0
     assert prof.setpoints == ((0.0, 100.0, None), (0.2, 180.0, 0.3))
@@ -292,13 +323,15 @@ def test_profiles_yaml_csv_and_parameters(tmp_path):
         ctl.compute(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         if k in (5000, 10000):
             seen[k] = ctl.reference['theta_ref']
-    assert seen[5000] == pytest.approx(1.0, abs=1e-9) and seen[10000] == pytest.approx(0.5, abs=1e-9)
+    assert seen[5000] == pytest.approx(1.0, abs=1e-9)
+    assert seen[10000] == pytest.approx(0.5, abs=1e-9)
 
 
 @pytest.mark.parametrize('text, where', [
     ('setpoints: []\n', 'setpoints'),
     ('setpoints:\n  - {t: 0.0, speed: 1.0}\n', 'setpoints[0].speed'),
-    ('setpoints:\n  - {t: 0.0, velocity: 1.0}\n  - {t: 0.1, position: 1.0}\n', 'setpoints[1].position'),
+    ('setpoints:\n  - {t: 0.0, velocity: 1.0}\n  - {t: 0.1, position: 1.0}\n',
+     'setpoints[1].position'),
     ('setpoints:\n  - {t: 0.5, velocity: 1.0}\n  - {t: 0.1, velocity: 1.0}\n', 'entry 1 t'),
     ('setpoints:\n  - {velocity: 1.0}\n', 'setpoints[0].t'),
     ('setpoints:\n  - {t: 0.0, velocity: .nan}\n', 'setpoints[0].velocity'),

@@ -1,4 +1,5 @@
-"""Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27-3.28, 4.13).
+"""
+Full-order nonlinear observer of stator currents and rotor fluxes (seed 000 eq. 3.27-3.28, 4.13).
 
 Plant, electrical part (eq. 1.112 / the first four rows of eq. 1.126), x = (i_s, φ_r) in αβ; the
 coefficients come from :func:`im_common.model.eq112_coefficients`, the one home of the model:
@@ -20,15 +21,17 @@ The first injection is the thesis's F = diag(K_e, 0), K_e = k_e I (default k_e =
 The second injects the current error into the flux rows with exactly the gain that makes the
 error matrix skew apart from R_αβ + F: with x̄ = x − x̂,
 
-    D dx̄/dt + [𝒞̃(ω) + R_αβ + F] x̄ = 0,  𝒞̃(ω) = (vω/L_r)[[0, L_sr 𝒥], [L_sr 𝒥, −𝒥]] = −𝒞̃ᵀ   (eq. 3.28)
+    D dx̄/dt + [𝒞̃(ω) + R_αβ + F] x̄ = 0,  𝒞̃(ω) = (vω/L_r)[[0, L_sr 𝒥], [L_sr 𝒥, −𝒥]] = −𝒞̃ᵀ
+    (eq. 3.28)
 
 so V = ½ x̄ᵀ D x̄ obeys dV/dt = −x̄ᵀ (R_αβ + F) x̄ < 0 for every speed. Without the second
 injection (``skew_injection=False``, the literal F of the thesis) the error still converges in
 practice but V is not monotone at speed (see docs/controller.md and the tests).
 
-Estimates (eq. 4.13): ``set_estimates(R_r, theta)`` replaces R̂_r and θ̂ = L̂_sr/L̂_r (L̂_r = L̂_sr/θ̂,
-L̂_s, L̂_sr, R̂_s fixed); ``set_estimates(L_M=..., R_R=..., L_sigma=...[, R_s=...])`` replaces the
-inverse-Γ parameters, so every coefficient follows the identified motor (docs/adaptation.md §7).
+Estimates (eq. 4.13): ``set_estimates(R_r, theta)`` replaces R̂_r and θ̂ = L̂_sr/L̂_r (L̂_r =
+L̂_sr/θ̂, L̂_s, L̂_sr, R̂_s fixed); ``set_estimates(L_M=..., R_R=..., L_sigma=...[, R_s=...])``
+replaces the inverse-Γ parameters, so every coefficient follows the identified motor
+(docs/adaptation.md §7).
 
 Sampling: each ``step`` integrates [t_k, t_k + T_s] with V held (ZOH) and the measured current and
 speed held at their t_k values, by classical RK4 in sub-steps of at most ``max_substep``.
@@ -46,8 +49,8 @@ import math
 from typing import Optional, Sequence, Tuple
 
 from im_common.model import eq112_coefficients
-from im_common.params import (IDENTIFIABLE_NAMES, InvalidParameter, MotorParams, THESIS_MOTOR,
-                              check_real)
+from im_common.params import (check_real, IDENTIFIABLE_NAMES, InvalidParameter, MotorParams,
+                              THESIS_MOTOR)
 
 
 _finite = check_real
@@ -73,22 +76,28 @@ class RotorFluxObserver:
             raise InvalidParameter('max_substep', max_substep, 'must be > 0 s')
         self.max_substep = ms
         if len(x0) != 4:
-            raise InvalidParameter('x0', x0, 'must have 4 elements (i_alpha, i_beta, phi_alpha, phi_beta)')
+            raise InvalidParameter('x0', x0,
+                                   'must have 4 elements (i_alpha, i_beta, phi_alpha, phi_beta)')
         self.state: Tuple[float, float, float, float] = tuple(_finite('x0', v) for v in x0)
         self.skew_injection = bool(skew_injection)
         self.L = None
         self.gain_period = None
         if injection_gain is not None:
-            rows = [list(r) for r in injection_gain] if not isinstance(injection_gain[0], (int, float)) \
-                else [list(injection_gain[2 * i:2 * i + 2]) for i in range(len(injection_gain) // 2)]
+            if not isinstance(injection_gain[0], (int, float)):
+                rows = [list(r) for r in injection_gain]
+            else:
+                rows = [list(injection_gain[2 * i:2 * i + 2])
+                        for i in range(len(injection_gain) // 2)]
             if len(rows) != 4 or any(len(r) != 2 for r in rows):
                 raise InvalidParameter('injection_gain', injection_gain,
-                                       'must be 4x2 (a list of 4 rows of 2, or 8 numbers row-major)')
+                                       'must be 4x2 (a list of 4 rows '
+                                       'of 2, or 8 numbers row-major)')
             self.L = tuple(tuple(_finite('injection_gain', v) for v in r) for r in rows)
             gp = _finite('gain_period', gain_period) if gain_period is not None else None
             if gp is None or gp <= 0.0:
                 raise InvalidParameter('gain_period', gain_period,
-                                       'a discrete injection_gain needs the period it was designed for (> 0 s)')
+                                       'a discrete injection_gain needs the '
+                                       'period it was designed for (> 0 s)')
             self.gain_period = gp
         self.R_s = params.R_s
         self.L_s = params.L_s
@@ -105,7 +114,8 @@ class RotorFluxObserver:
         if not self.L_s - self.L_sr * th > 0.0:
             raise InvalidParameter('theta', th, 'estimate makes sigma*L_s = L_s - L_sr*theta <= 0')
         self.L_r = L_r
-        # the plant copy: eq. 1.112 at the estimates, from the model (the one home of the equations)
+        # the plant copy: eq. 1.112 at the estimates, from the model (the one home of the
+        # equations)
         self._c = eq112_coefficients(self.R_s, self._R_r, self.L_s, L_r, self.L_sr)
         self._inv_sLs = self._c.inv_sigma_Ls
 
@@ -115,13 +125,17 @@ class RotorFluxObserver:
 
     def set_estimates(self, R_r: Optional[float] = None, theta: Optional[float] = None,
                       **identifiable) -> None:
-        """Use adapted estimates from now on, in one of two parametrizations:
+        """
+        Use adapted estimates from now on.
+
+        Use adapted estimates from now on, in one of two parametrizations:
 
         * ``R_r`` and/or ``theta`` = L̂_sr/L̂_r (eq. 4.13; L̂_s, L̂_sr, R̂_s fixed);
         * the inverse-Γ set ``L_M``, ``R_R``, ``L_sigma`` (and optionally ``R_s``): every
           coefficient follows them, in the rotor gauge of the nominal model (θ = L_sr/L_r of
           ``params``, :meth:`MotorParams.with_identifiable`; docs/adaptation.md §7).
-        Errors (InvalidParameter) name the estimate."""
+        Errors (InvalidParameter) name the estimate.
+        """
         if identifiable:
             unknown = set(identifiable) - set(IDENTIFIABLE_NAMES)
             if unknown:
@@ -150,7 +164,8 @@ class RotorFluxObserver:
                 raise InvalidParameter('theta', theta, 'estimate must be > 0')
             if self.L_s - self.L_sr * t <= 0.0:
                 raise InvalidParameter('theta', theta,
-                                       f'estimate must be below L_s/L_sr = {self.L_s / self.L_sr:.6g}')
+                                       f'estimate must be below L_s/L_sr '
+                                       f'= {self.L_s / self.L_sr:.6g}')
             self._theta = t
         self._update()
 
@@ -166,7 +181,11 @@ class RotorFluxObserver:
     # ------------------------------------------------------------------------------------------
     def step(self, T_s: float, v_alpha: float, v_beta: float, i_alpha: float, i_beta: float,
              omega_r: float) -> Tuple[float, float, float, float]:
-        """Advance the estimate from t_k to t_k + T_s; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k + T_s."""
+        """
+        Advance the estimate from t_k to t_k + T_s.
+
+        Returns (î_α, î_β, φ̂_α, φ̂_β) at t_k + T_s.
+        """
         if not (T_s > 0.0 and math.isfinite(T_s)):
             raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
         for name, val in (('v_alpha', v_alpha), ('v_beta', v_beta), ('i_alpha', i_alpha),
@@ -175,7 +194,8 @@ class RotorFluxObserver:
                 raise ValueError(f"observer input '{name}' is not finite ({val!r})")
         discrete = self.L is not None
         if discrete and abs(T_s - self.gain_period) > 1e-9 * self.gain_period:
-            raise ValueError(f'injection_gain was designed for gain_period = {self.gain_period!r} s '
+            raise ValueError(f'injection_gain was designed for '
+                             f'gain_period = {self.gain_period!r} s '
                              f'but step() was called with T_s = {T_s!r} s')
         n = int(math.ceil(T_s / self.max_substep - 1e-9))
         if n < 1:
@@ -229,7 +249,8 @@ class RotorFluxObserver:
             ib += L[1][0] * e_a0 + L[1][1] * e_b0
             pa += L[2][0] * e_a0 + L[2][1] * e_b0
             pb += L[3][0] * e_a0 + L[3][1] * e_b0
-        if not (math.isfinite(ia) and math.isfinite(ib) and math.isfinite(pa) and math.isfinite(pb)):
+        if not (math.isfinite(ia) and math.isfinite(ib)
+                and math.isfinite(pa) and math.isfinite(pb)):
             raise FloatingPointError('observer state became non-finite')
         self.state = (ia, ib, pa, pb)
         return self.state

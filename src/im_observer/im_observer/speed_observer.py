@@ -1,5 +1,8 @@
-"""Speed-adaptive full-order observer: the rotor flux *and* the shaft speed from the stator
-voltage and current only (speed-sensorless mode; derivation and limits in docs/sensorless.md).
+"""
+Speed-adaptive full-order observer.
+
+The rotor flux *and* the shaft speed from the stator voltage and current only (speed-sensorless
+mode; derivation and limits in docs/sensorless.md).
 
 The flux part is :class:`im_observer.observer.RotorFluxObserver` (the plant copy of eq. 1.112 with
 the current-error injections, the one home of those equations) driven by the *estimated* speed
@@ -24,8 +27,8 @@ destabilize regeneration.
 
 Optional low-speed rotation of the error (``error_rotation`` η₀, default 0: off):
 
-    ε = [e_⊥ − η(ω̂) e_∥] / max(|φ̂|², φ_f²),   e_⊥ = e_α φ̂_β − e_β φ̂_α,  e_∥ = e_α φ̂_α + e_β φ̂_β
-    η(ω̂) = −η₀ sign(ω̂) max(0, 1 − |v ω̂|/ω_λ)
+    ε = [e_⊥ − η(ω̂) e_∥] / max(|φ̂|², φ_f²),   e_⊥ = e_α φ̂_β − e_β φ̂_α,  e_∥ = e_α φ̂_α + e_β
+    φ̂_β η(ω̂) = −η₀ sign(ω̂) max(0, 1 − |v ω̂|/ω_λ)
 
 (without the flux-row gain η₀ = 0.3 reduced the regenerating-mode instability; with it, it does
 not help).
@@ -41,7 +44,7 @@ import math
 from typing import Optional, Sequence
 
 from im_common.model import eq112_coefficients
-from im_common.params import InvalidParameter, MotorParams, THESIS_MOTOR, check_real
+from im_common.params import check_real, InvalidParameter, MotorParams, THESIS_MOTOR
 
 from .observer import RotorFluxObserver
 
@@ -52,7 +55,8 @@ POSITION_NEEDS_SENSOR = ('the position task needs the measured shaft position; a
 DEFAULT_SPEED_BANDWIDTH = 600.0
 #: default floor of |φ̂| in the adaptation's normalization [Wb] (a quarter of the default phi_min)
 DEFAULT_FLUX_FLOOR = 0.05
-#: low-speed rotation of the adaptation error (η₀) and the electrical frequency where it ends [rad/s]
+# : low-speed rotation of the adaptation error (η₀) and the electrical frequency where it ends
+# [rad/s]
 DEFAULT_ERROR_ROTATION = 0.0
 #: flux-row gain (c₀, c₁ [rad/s], c₂ [rad/s]) and the electrical-speed band (w₀, w₁) [rad/s]
 #: over which it fades in (SpeedAdaptiveObserver.flux_row_gain)
@@ -62,19 +66,21 @@ DEFAULT_ROTATION_FREQUENCY = 200.0
 
 
 def error_gain(params: MotorParams, k_e: Optional[float] = None) -> float:
-    """g = ∂ε/∂ω̃ in the quasi-static limit: v K / (γ + k_e/σL_s) [dimensionless·s/rad·rad/s]."""
+    """Return g = ∂ε/∂ω̃ in the quasi-static limit: v K / (γ + k_e/σL_s)."""
     c = eq112_coefficients(params.R_s, params.R_r, params.L_s, params.L_r, params.L_sr)
     ke = 1.0 / params.sigma if k_e is None else k_e
     return params.pole_pairs * c.K / (c.gamma + ke * c.inv_sigma_Ls)
 
 
 def adaptation_gains(params: MotorParams, bandwidth: float, k_e: Optional[float] = None):
-    """(k_p, k_i) of the speed adaptation for a speed-estimate bandwidth α_ω [rad/s].
+    """
+    (k_p, k_i) of the speed adaptation for a speed-estimate bandwidth α_ω [rad/s].
 
     With the current error's own lag, ε = g γ'/(s + γ') ω̃ (γ' = γ + k_e/σL_s), and k_p = 0,
     k_i = α_ω/g the loop's characteristic polynomial is s² + γ' s + γ' α_ω: poles ≈ −α_ω and
     −(γ' − α_ω), real for α_ω ≤ γ'/4. A proportional part would only speed up the fast pole
-    (and feed the current noise straight into ω̂), so k_p = 0."""
+    (and feed the current noise straight into ω̂), so k_p = 0.
+    """
     g = error_gain(params, k_e)
     return 0.0, bandwidth / g
 
@@ -139,8 +145,11 @@ class SpeedAdaptiveObserver:
         return (ea * pb - eb * pa - eta * (ea * pa + eb * pb)) / den
 
     def step(self, T_s: float, v_alpha: float, v_beta: float, i_alpha: float, i_beta: float):
-        """Advance from t_k to t_k + T_s with V_k, i_k; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k+1.
-        ``omega_hat`` / ``theta_hat`` are updated (ω̂_k, θ̂_k+1)."""
+        """
+        Advance from t_k to t_k + T_s with V_k, i_k; returns (î_α, î_β, φ̂_α, φ̂_β) at t_k+1.
+
+        ``omega_hat`` / ``theta_hat`` are updated (ω̂_k, θ̂_k+1).
+        """
         for name, val in (('i_alpha', i_alpha), ('i_beta', i_beta)):
             if not math.isfinite(val):
                 raise ValueError(f"observer input '{name}' is not finite ({val!r})")
@@ -161,12 +170,17 @@ class SpeedAdaptiveObserver:
         return state
 
     def flux_row_gain(self, omega_hat: float):
-        """(Re G, Im G) [Ω] of the flux-row injection dφ̂/dt += G e (complex, e = e_α + j e_β):
+        """
+        Return the flux-row injection gain G.
 
-            G = −(γ′/K) h [c₀ + (c₁ − j c₂ sign ω̂) / (v|ω̂|)],  h = clip((v|ω̂| − w₀)/(w₁ − w₀), 0, 1)
+        (Re G, Im G) [Ω] of the flux-row injection dφ̂/dt += G e (complex, e = e_α + j e_β):
+
+            G = −(γ′/K) h [c₀ + (c₁ − j c₂ sign ω̂) / (v|ω̂|)],  h = clip((v|ω̂| − w₀)/(w₁ − w₀),
+            0, 1)
 
         (docs/sensorless.md §3: fitted to the gains that minimize the slowest linearized pole
-        point by point; zero below w₀ where it would destabilize low-speed regeneration)."""
+        point by point; zero below w₀ where it would destabilize low-speed regeneration).
+        """
         c0, c1, c2 = self.flux_gain
         w0, w1 = self.flux_gain_band
         w_e = abs(self.flux.v * omega_hat)
@@ -188,8 +202,13 @@ class SpeedAdaptiveObserver:
 
 
 def operating_point(params: MotorParams, omega_r: float, torque: float, phi: float) -> dict:
-    """Steady state of the motor at shaft speed ω_r, torque τ and rotor flux |φ_r| = φ, in the
-    synchronous frame with φ_r on the d axis: currents, stator frequency ω_s = vω_r + ω_sl, voltage."""
+    """
+    Return the motor's steady state at speed ω_r, torque τ and rotor flux φ.
+
+    Steady state of the motor at shaft speed ω_r, torque τ and rotor flux |φ_r| = φ, in the
+    synchronous frame with φ_r on the d axis: currents, stator frequency ω_s = vω_r + ω_sl,
+    voltage.
+    """
     p = params
     k = p.L_sr / p.L_r
     i_d = phi / p.L_sr
@@ -207,10 +226,14 @@ def operating_point(params: MotorParams, omega_r: float, torque: float, phi: flo
 
 def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: float,
                      phi: float, params: Optional[MotorParams] = None):
-    """Poles (numpy array) of the observer + speed adaptation linearized about the steady state
-    (ω_r, τ, φ) of the motor ``params`` (default: the observer's own model), continuous time, in
-    the synchronous frame. States (î_d, î_q, φ̂_d, φ̂_q, ∫): the true state is the equilibrium
-    only when the models agree. Local stability ⇔ every real part < 0 (docs/sensorless.md §3)."""
+    """
+    Return the poles of the observer and speed adaptation, linearized.
+
+    Poles (numpy array) of the observer + speed adaptation linearized about the steady state (ω_r,
+    τ, φ) of the motor ``params`` (default: the observer's own model), continuous time, in the
+    synchronous frame. States (î_d, î_q, φ̂_d, φ̂_q, ∫): the true state is the equilibrium only
+    when the models agree. Local stability ⇔ every real part < 0 (docs/sensorless.md §3).
+    """
     import numpy as np
     obs = observer
     p = params if params is not None else obs.params
@@ -238,8 +261,10 @@ def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: 
             - we * c.K * pa - w_s * ia
         sk = we * c.L_sr if fo.skew_injection else 0.0
         gr, gi = obs.flux_row_gain(w)
-        dpa = -we * pb + c.L_sr * c.inv_Tr * ia - c.inv_Tr * pa - sk * eb + w_s * pb + gr * ea - gi * eb
-        dpb = we * pa + c.L_sr * c.inv_Tr * ib - c.inv_Tr * pb + sk * ea - w_s * pa + gr * eb + gi * ea
+        dpa = (-we * pb + c.L_sr * c.inv_Tr * ia - c.inv_Tr * pa - sk * eb + w_s * pb
+               + gr * ea - gi * eb)
+        dpb = (we * pa + c.L_sr * c.inv_Tr * ib - c.inv_Tr * pb + sk * ea - w_s * pa
+               + gr * eb + gi * ea)
         return np.array([dia, dib, dpa, dpb, obs.k_i * eps])
 
     z0 = np.array([i_m[0], i_m[1], phi, 0.0, omega_r])

@@ -1,12 +1,15 @@
-"""Observer (seed 000 eq. 3.27-3.28): error energy ½ x̄ᵀ D x̄ never increases with exact parameters."""
-import math
+"""
+Observer (seed 000 eq. 3.27-3.28): the error energy never increases.
 
-import pytest
+With exact parameters, ½ x̄ᵀ D x̄ is non-increasing.
+"""
+import math
 
 from im_common.loads import NoLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_observer.observer import RotorFluxObserver
+import pytest
 
 
 def _run(T_s, n, skew=True, omega=150.0, flux_error=0.5, injection_gain=None, k_e=None):
@@ -15,7 +18,10 @@ def _run(T_s, n, skew=True, omega=150.0, flux_error=0.5, injection_gain=None, k_
     plant = PlantSimulator(params, NoLoad(), T_s=T_s, max_substep=T_s, omega0=omega)
     # magnetize first (open loop), then start the observer with the flux off by flux_error
     w = 2 * omega + 20.0
-    volt = lambda t: (150.0 * math.cos(w * t), 150.0 * math.sin(w * t))
+
+    def volt(t):
+        return 150.0 * math.cos(w * t), 150.0 * math.sin(w * t)
+
     while plant.t < 0.05:
         plant.step(*volt(plant.t))
     m = plant.measure()
@@ -29,7 +35,8 @@ def _run(T_s, n, skew=True, omega=150.0, flux_error=0.5, injection_gain=None, k_
     for _ in range(n):
         m = plant.measure()
         out = plant.model.outputs(plant.t, plant.x)
-        V.append(obs.lyapunov(out['i_alpha'], out['i_beta'], out['phi_r_alpha'], out['phi_r_beta']))
+        V.append(obs.lyapunov(out['i_alpha'], out['i_beta'], out['phi_r_alpha'],
+                              out['phi_r_beta']))
         va, vb = volt(plant.t)
         plant.step(va, vb)
         obs.step(T_s, va, vb, m.i_alpha, m.i_beta, m.omega_r)

@@ -1,1 +1,5 @@
-"""Recording of a drive run: MCAP writer/reader, lossless recorder, replay, recover, run analysis, report."""
+"""
+Recording of a drive run.
+
+MCAP writer/reader, lossless recorder, replay, recover, run analysis, report.
+"""

@@ -1,4 +1,5 @@
-"""Runs recorded to MCAP (ROS 2 profile) and read back.
+"""
+Runs recorded to MCAP (ROS 2 profile) and read back.
 
 Writing
 -------
@@ -11,7 +12,8 @@ Foxglove, PlotJuggler and ``rosbags`` open:
   (``RIHS01_...``);
 * messages in chunks (zstd, lz4 or none), each followed by its Message Index records; a summary
   section with Schemas, Channels, Chunk Indexes, Metadata Indexes and Statistics, Summary Offsets,
-  CRCs; a ``rosbag2`` Metadata record with ``serialized_metadata`` as ``ros2 bag record`` writes it;
+  CRCs; a ``rosbag2`` Metadata record with ``serialized_metadata`` as ``ros2 bag record`` writes
+  it;
 * run metadata (scenario, parameters, versions, git revision) as named Metadata records.
 
 Every message's log time and publish time is its stamp in simulated time (integer ns).
@@ -27,23 +29,24 @@ Reading
 -------
 :func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
 :func:`im_recording.run.load_run` turns a recording into a :class:`~im_recording.run.Run` (trace
-arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any unreadable,
-truncated or missing file raises :class:`BagError` naming the file and what is wrong.
+arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any
+unreadable, truncated or missing file raises :class:`BagError` naming the file and what is wrong.
 """
 from __future__ import annotations
 
 import atexit
 import contextlib
+from dataclasses import dataclass, field
 import os
+from pathlib import Path
 import signal
 import struct
+from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 import weakref
 import zlib
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 
 from im_common import cdr
+
 from .msgdefs import full_definition, ros_distro, type_hash
 
 MAGIC = b'\x89MCAP0\r\n'
@@ -110,8 +113,11 @@ def _record(op: int, body: bytes) -> bytes:
 
 
 def _time(ns: int) -> dict:
-    """An ``rmw_time_t`` as rosbag2 writes it (``sec``, ``nsec``); a negative or infinite
-    duration is ``RMW_DURATION_INFINITE``."""
+    """
+    Return an ``rmw_time_t`` as rosbag2 writes it (``sec``, ``nsec``).
+
+    A negative or infinite duration is ``RMW_DURATION_INFINITE``.
+    """
     ns = int(ns)
     if ns < 0 or ns >= INFINITE_NS:
         return dict(INFINITE)
@@ -119,10 +125,14 @@ def _time(ns: int) -> dict:
 
 
 def qos_profile_dict(profile) -> dict:
-    """One QoS profile (an ``rclpy.qos.QoSProfile``, e.g. a ``TopicEndpointInfo.qos_profile``) as
+    """
+    Encode one QoS profile as rosbag2 Jazzy does for metadata version 9.
+
+    One QoS profile (an ``rclpy.qos.QoSProfile``, e.g. a ``TopicEndpointInfo.qos_profile``) as
     rosbag2 Jazzy encodes it for metadata version 9: policies as their ``rmw`` names
-    (``keep_last``, ``reliable``, ``transient_local``, ``unknown``, ...), durations as
-    ``{sec, nsec}``."""
+    (``keep_last``, ``reliable``, ``transient_local``, ``unknown``, ...), durations as ``{sec,
+    nsec}``.
+    """
     return {'history': profile.history.name.lower(), 'depth': int(profile.depth),
             'reliability': profile.reliability.name.lower(),
             'durability': profile.durability.name.lower(),
@@ -134,17 +144,25 @@ def qos_profile_dict(profile) -> dict:
 
 
 def offered_qos_yaml(profiles: Iterable) -> str:
-    """The ``offered_qos_profiles`` channel metadata: a YAML *list* with one entry per publisher
-    (``rclpy.qos.QoSProfile`` objects or :func:`qos_profile_dict` dicts), as rosbag2's recorder
-    writes the profiles the publishers offer (``get_publishers_info_by_topic``)."""
+    """
+    Return the ``offered_qos_profiles`` channel metadata.
+
+    A YAML *list* with one entry per publisher (``rclpy.qos.QoSProfile`` objects or
+    :func:`qos_profile_dict` dicts), as rosbag2's recorder writes the profiles the publishers
+    offer (``get_publishers_info_by_topic``).
+    """
     import yaml
     items = [p if isinstance(p, dict) else qos_profile_dict(p) for p in profiles]
     return yaml.safe_dump(items, sort_keys=False, default_flow_style=False) if items else ''
 
 
 def parse_qos_yaml(text: Optional[str], topic: str = '?') -> list:
-    """The list of profiles in an ``offered_qos_profiles`` string ('' is no profile); anything
-    but a YAML list of mappings is a ValueError naming the topic (rosbag2 would throw)."""
+    """
+    Return the list of profiles in an ``offered_qos_profiles`` string ('' is no profile).
+
+    Anything but a YAML list of mappings is a ValueError naming the topic (rosbag2 would
+    throw).
+    """
     import yaml
     if not text:
         return []
@@ -172,9 +190,12 @@ DEFAULT_QOS = qos_yaml()
 
 
 def parameters_metadata(values: Mapping[str, object]) -> Dict[str, str]:
-    """A node's parameters as a ``parameters/<node>`` metadata record: name -> ``repr`` of the
-    value, arrays as lists (the same text whether the values come from the node itself or over
-    its parameter services)."""
+    """
+    Return a node's parameters as a ``parameters/<node>`` metadata record.
+
+    Name -> ``repr`` of the value, arrays as lists (the same text whether the values come from
+    the node itself or over its parameter services).
+    """
     def norm(v):
         if isinstance(v, (list, tuple)) or type(v).__name__ == 'array' or hasattr(v, 'tolist'):
             return [norm(x) for x in (v.tolist() if hasattr(v, 'tolist') else v)]
@@ -230,12 +251,17 @@ def _same_file(a: Path, b: Path) -> bool:
 
 
 def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'output') -> Path:
-    """Refuse an output that is one of ``inputs`` (same real path or inode; even with
-    ``force``) or that exists (without ``force``). :class:`FileExistsError`, one line."""
+    """
+    Refuse an output that is one of the inputs or that exists.
+
+    Refuse an output that is one of ``inputs`` (same real path or inode; even with ``force``) or
+    that exists (without ``force``). :class:`FileExistsError`, one line.
+    """
     o = Path(out)
     for i in inputs:
         if i is not None and _same_file(o, Path(i)):
-            raise FileExistsError(f'{o}: the {what} is also an input ({i}); refusing to write over '
+            raise FileExistsError(f'{o}: the {what} is also an input '
+                                  f'({i}); refusing to write over '
                                   'it (even with --force); choose another file')
     if o.is_dir():
         raise FileExistsError(f'{o}: the {what} is a directory, not a file')
@@ -247,10 +273,14 @@ def check_output(out, inputs: Iterable = (), force: bool = False, what: str = 'o
 
 
 def check_writable(out, what: str = 'output') -> None:
-    """Refuse, before any work, an output that cannot be created: a file is created and removed
-    in its directory (or, where that does not exist yet, in the nearest existing one, whose
-    subdirectories the writer creates). A read-only file system, a directory without write
-    permission or a path through a file is one :class:`OSError` line naming the output."""
+    """
+    Refuse, before any work, an output that cannot be created.
+
+    A file is created and removed in its directory (or, where that does not exist yet, in the
+    nearest existing one, whose subdirectories the writer creates). A read-only file system, a
+    directory without write permission or a path through a file is one :class:`OSError` line
+    naming the output.
+    """
     import tempfile
     o = Path(out)
     d = o.parent if str(o.parent) else Path('.')
@@ -290,16 +320,23 @@ PART_SUFFIX = '.part'
 
 
 def partial_path(path) -> Path:
-    """Where :class:`BagWriter` writes ``path`` until it is closed (``run.mcap.part``); a killed
-    writer leaves its data there, and ``recover run.mcap`` finds it."""
+    """
+    Where :class:`BagWriter` writes ``path`` until it is closed (``run.mcap.part``).
+
+    A killed writer leaves its data there, and ``recover run.mcap`` finds it.
+    """
     p = Path(path)
     return p.with_name(p.name + PART_SUFFIX)
 
 
 class _Output:
-    """The writer's file: an OS error on a write or flush (disk full, I/O error, a file system
-    gone read-only) becomes one :class:`BagError` naming the ``.part`` and the cause, and the
-    writer stops there — what reached the file stays for ``recover``."""
+    """
+    The writer's file.
+
+    An OS error on a write or flush (disk full, I/O error, a file system gone read-only)
+    becomes one :class:`BagError` naming the ``.part`` and the cause, and the writer stops
+    there — what reached the file stays for ``recover``.
+    """
 
     def __init__(self, f, failed):
         self._f = f
@@ -328,7 +365,8 @@ class _Output:
 
 
 class BagWriter:
-    """MCAP writer for ROS 2 runs (context manager).
+    """
+    MCAP writer for ROS 2 runs (context manager).
 
     Parameters
     ----------
@@ -354,6 +392,7 @@ class BagWriter:
         Where a topic declared without ``qos`` (by :meth:`add_topic`, on its first message, or
         by :meth:`declare_expected`) takes its profiles from; a recorder sets it to the
         publishers the ROS graph lists. None: :data:`DEFAULT_QOS`.
+
     """
 
     def __init__(self, path, force: bool = False,
@@ -437,8 +476,11 @@ class BagWriter:
         return self._closed
 
     def discard(self) -> None:
-        """Abandon a file nothing was written to yet (its ``.part``); an existing ``path`` is
-        left as it was."""
+        """
+        Abandon a file nothing was written to yet (its ``.part``).
+
+        An existing ``path`` is left as it was.
+        """
         if not self._closed:
             self._closed = True
             self._f.close()
@@ -446,8 +488,12 @@ class BagWriter:
 
     # -- low level ------------------------------------------------------------------------
     def _write_failed(self, exc: OSError) -> None:
-        """The file cannot be written: stop here (no later write or close touches it), keep the
-        ``.part`` for ``recover``, raise one :class:`BagError` (also kept in :attr:`failed`)."""
+        """
+        Return the file cannot be written.
+
+        Stop here (no later write or close touches it), keep the ``.part`` for ``recover``,
+        raise one :class:`BagError` (also kept in :attr:`failed`).
+        """
         self.failed = BagError(self.part, f'cannot write the recording '
                                           f'({exc.strerror or exc}); what was written is kept: '
                                           f'`ros2 run im_recording recover {self.path}`')
@@ -466,7 +512,8 @@ class BagWriter:
 
     # -- declarations ---------------------------------------------------------------------
     def add_topic(self, topic: str, type_name: str, qos: Optional[str] = None) -> int:
-        """Declare a topic (idempotent for the same type); returns its channel id.
+        """
+        Declare a topic (idempotent for the same type); returns its channel id.
 
         ``qos`` is the ``offered_qos_profiles`` YAML list, one profile per publisher
         (:func:`offered_qos_yaml`; default: one reliable, volatile, keep_last 10 profile); a
@@ -508,8 +555,11 @@ class BagWriter:
         return cid
 
     def expect_topic(self, topic: str, type_name: str) -> None:
-        """A topic to declare on its first message (its publishers known by then) or by
-        :meth:`declare_expected`."""
+        """
+        Return a topic to declare on its first message.
+
+        Its publishers are known by then; or declared by :meth:`declare_expected`.
+        """
         cdr.message_class(type_name)            # fails early on unknown types
         self._expected[topic] = type_name
 
@@ -531,7 +581,7 @@ class BagWriter:
         return self._chan[topic]
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        """A named Metadata record (string -> string), written to the file at once."""
+        """Return a named Metadata record (string -> string), written to the file at once."""
         if self._closed:
             raise BagError(self.path, f'cannot add metadata {name!r}: the bag is closed')
         rec = _record(OP_METADATA, _s(name) + _map_str({str(k): str(v) for k, v in data.items()}))
@@ -567,8 +617,12 @@ class BagWriter:
             self._flush_chunk()
 
     def write_vector3(self, topic: str, stamp_ns: int, x: float, y: float, z: float = 0.0) -> None:
-        """Fast path: a ``Vector3Stamped`` (frame_id '') stamped ``stamp_ns`` without a message
-        object. The topic must be (or default to) a Vector3Stamped topic."""
+        """
+        Write a Vector3Stamped without a message object (fast path).
+
+        Fast path: a ``Vector3Stamped`` (frame_id '') stamped ``stamp_ns`` without a message
+        object. The topic must be (or default to) a Vector3Stamped topic.
+        """
         s, ns = divmod(stamp_ns, 1_000_000_000)
         self.write_serialized(topic, cdr.pack_vector3_stamped(s, ns, x, y, z), stamp_ns)
 
@@ -595,7 +649,8 @@ class BagWriter:
             # A signal handler may have interrupted write() between its two appends; keep only
             # complete messages.
             last_off = ix[-1][2]
-            (length,) = _U64.unpack_from(buf, last_off + 1) if len(buf) >= last_off + 9 else (None,)
+            (length,) = _U64.unpack_from(buf,
+                                         last_off + 1) if len(buf) >= last_off + 9 else (None,)
             if length is None or last_off + 9 + length > len(buf):
                 ix.pop()
                 del buf[last_off:]
@@ -662,12 +717,16 @@ class BagWriter:
         return sum(self._counts.values()) + len(self._ix)
 
     def _rosbag2_metadata(self) -> str:
-        """rosbag2's ``BagMetadata`` (version 9) as ``YAML::convert<BagMetadata>::encode`` lays
-        it out: the *bare* mapping (``version`` at the top; the ``rosbag2_bagfile_information:``
+        """
+        Return rosbag2's ``BagMetadata`` record (version 9).
+
+        rosbag2's ``BagMetadata`` (version 9) as ``YAML::convert<BagMetadata>::encode`` lays it
+        out: the *bare* mapping (``version`` at the top; the ``rosbag2_bagfile_information:``
         wrapper belongs to ``metadata.yaml`` files, not to this record) and each topic's
-        ``offered_qos_profiles`` as a YAML list. rosbag2's ``read_metadata()`` decodes it
-        without catching, so a wrong layout aborts ``ros2 bag info``/``play``
-        (``tests/test_rosbag2_compat.py`` applies its rules)."""
+        ``offered_qos_profiles`` as a YAML list. rosbag2's ``read_metadata()`` decodes it without
+        catching, so a wrong layout aborts ``ros2 bag info``/``play``
+        (``tests/test_rosbag2_compat.py`` applies its rules).
+        """
         import yaml
         start = self._t_min or 0
         dur = (self._t_max - self._t_min) if self._t_min is not None else 0
@@ -692,9 +751,12 @@ class BagWriter:
         return yaml.safe_dump(md, sort_keys=False, default_flow_style=False)
 
     def close(self) -> None:
-        """Finish the file: last chunk, summary, footer. Idempotent; safe to call from a signal
-        handler that interrupted :meth:`write` (an incomplete last message is dropped) or from
-        ``atexit``."""
+        """
+        Finish the file: last chunk, summary, footer.
+
+        Idempotent; safe to call from a signal handler that interrupted :meth:`write` (an
+        incomplete last message is dropped) or from ``atexit``.
+        """
         if self._closed:
             return
         if self._flushing:          # re-entered from a signal handler during a chunk flush
@@ -782,7 +844,8 @@ def _open_checked(path):
     if not p.exists():
         if partial_path(p).exists():
             raise BagError(p, f'no such file, but an interrupted (truncated) recording is at '
-                           f'{partial_path(p)}; salvage it with `ros2 run im_recording recover {p}`')
+                           f'{partial_path(p)}; salvage it with '
+                           f'`ros2 run im_recording recover {p}`')
         raise BagError(p, 'no such file')
     if p.is_dir():
         raise BagError(p, 'is a directory; expected an .mcap file')
@@ -801,7 +864,7 @@ def _open_checked(path):
 
 
 def _check_summary_crc(p: Path) -> None:
-    """The footer's summary CRC (summary start .. footer's own fields) must match."""
+    """Return the footer's summary CRC (summary start .. footer's own fields) must match."""
     size = p.stat().st_size
     with open(p, 'rb') as f:
         f.seek(size - 8 - 29)
@@ -819,12 +882,13 @@ def _check_summary_crc(p: Path) -> None:
     got = zlib.crc32(body)
     if got != crc:
         raise BagError(p, f'summary section CRC mismatch (stored {crc:#010x}, computed '
-                          f'{got:#010x}): the index is damaged; `ros2 run im_recording recover {p}` '
+                          f'{got:#010x}): the index is damaged; '
+                          f'`ros2 run im_recording recover {p}` '
                           'rebuilds it from the data')
 
 
 def check_data_crc(path) -> None:
-    """The Data End record's CRC over the whole data section (BagError on a mismatch)."""
+    """Return the Data End record's CRC over the whole data section (BagError on a mismatch)."""
     p = _open_checked(path)
     size = p.stat().st_size
     with open(p, 'rb') as f:
@@ -941,7 +1005,8 @@ def _chunk_messages(p, f, ci, chans):
             cid, _, log_time, _ = struct.unpack_from('<HIQQ', data, pos + 9)
             c = chans.get(cid)
             if c is not None:
-                out.append((log_time, seq, c[0], c[1], data[pos + 9 + _MSG_FIXED:pos + 9 + length]))
+                out.append((log_time, seq, c[0], c[1],
+                            data[pos + 9 + _MSG_FIXED:pos + 9 + length]))
                 seq += 1
         pos += 9 + length
     out.sort(key=lambda e: (e[0], e[1]))
@@ -953,7 +1018,8 @@ def _iter_raw_mcap(p, chans):
     from mcap.reader import make_reader
     try:
         with open(p, 'rb') as f:
-            for sch, ch, m in make_reader(f, validate_crcs=True).iter_messages(log_time_order=True):
+            for sch, ch, m in make_reader(f,
+                                          validate_crcs=True).iter_messages(log_time_order=True):
                 if m.channel_id in chans:
                     topic, tname = chans[m.channel_id]
                     yield topic, tname, m.log_time, m.data

@@ -1,4 +1,5 @@
-"""Message definitions and type hashes for MCAP schemas and channels.
+r"""
+Message definitions and type hashes for MCAP schemas and channels.
 
 :func:`full_definition` is the ``ros2msg`` schema text byte for byte as rosbag2 Jazzy's recorder
 writes it (``rosbag2_cpp::LocalMessageDefinitionSource::get_full_text``): the type's installed
@@ -53,8 +54,12 @@ def _prefixes():
 
 @functools.lru_cache(maxsize=None)
 def msg_file(type_name: str) -> str:
-    """Path of the installed ``.msg`` file of ``pkg/msg/Type`` (ValueError naming the type and
-    where it was looked for)."""
+    """
+    Return the path of the installed ``.msg`` file of ``pkg/msg/Type``.
+
+    Path of the installed ``.msg`` file of ``pkg/msg/Type`` (ValueError naming the type and where
+    it was looked for).
+    """
     m = _TYPENAME.match(type_name)
     if m is None:
         raise ValueError(f'{type_name}: not a message type name (pkg/msg/Type); cannot write '
@@ -78,7 +83,7 @@ def _msg_text(type_name: str) -> str:
 
 
 def dependencies(text: str, package: str) -> list:
-    """The non-primitive field types of a ``.msg`` text as ``pkg/Type``, sorted."""
+    """Return the non-primitive field types of a ``.msg`` text as ``pkg/Type``, sorted."""
     out = set()
     for m in _FIELD_TYPE.finditer(text):
         t = m.group(1)

@@ -1,4 +1,5 @@
-"""PNG figures of recorded runs in the style of seed 000 (Figures 3.4-3.13 and 4.7-4.15).
+"""
+PNG figures of recorded runs in the style of seed 000 (Figures 3.4-3.13 and 4.7-4.15).
 
 Each function takes a list of :class:`~im_recording.run.Run` (one run, or several overlaid for a
 comparison), writes one PNG and returns its path, or None when the runs lack the data. matplotlib
@@ -44,8 +45,12 @@ def _has(run, *keys) -> bool:
 
 
 def _dec(run, *keys):
-    """Time and the given series at the instants where all of them were sampled (decimated
-    topics are NaN in between), thinned to at most MAX_POINTS samples."""
+    """
+    Return the series at the instants where all of them were sampled.
+
+    Time and the given series at the instants where all of them were sampled (decimated topics are
+    NaN in between), thinned to at most MAX_POINTS samples.
+    """
     tr = run.trace
     ok = np.ones(len(tr['t']), bool)
     for k in keys:
@@ -108,7 +113,7 @@ def _ref_real(ax, runs, ref_key, real_key, ylabel, ref_name, real_name, scale=1.
 
 
 def plot_tracking(runs: Sequence, out_dir, kind: str) -> Optional[str]:
-    """(a) position or speed, reference and real; (b) torque, reference and real."""
+    """Plot (a) position or speed, reference and real; (b) torque, reference and real."""
     key, ref, unit, name = {
         'position': ('theta_r', 'theta_ref', 'rad', 'θ'),
         'speed': ('omega_r', 'omega_ref', 'rad/s', 'ω'),

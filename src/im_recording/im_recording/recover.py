@@ -1,4 +1,5 @@
-"""Salvage a recording cut short by a hard kill or damaged on disk.
+"""
+Salvage a recording cut short by a hard kill or damaged on disk.
 
 ``ros2 run im_recording recover bags/broken.mcap [-o fixed.mcap] [--force]``
 
@@ -35,19 +36,19 @@ from __future__ import annotations
 
 import argparse
 import bisect
+from dataclasses import dataclass, field
 import os
+from pathlib import Path
 import re
 import struct
 import sys
-import zlib
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Dict, List, Optional, Tuple
+import zlib
 
-from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, MAGIC, OP_CHANNEL, OP_CHUNK,
-                  OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER, OP_MESSAGE,
-                  OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS,
-                  OP_SUMMARY_OFFSET, BagError, BagWriter, check_output, partial_path)
+from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, BagError, BagWriter, check_output,
+                  MAGIC, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER,
+                  OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA,
+                  OP_STATISTICS, OP_SUMMARY_OFFSET, partial_path)
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
 
@@ -174,8 +175,11 @@ def parse_attachment(b) -> None:
 
 
 def chunk_header(b) -> Tuple[int, int, int, int, str, int]:
-    """(start, end, uncompressed size, CRC, compression, offset of the records) of a Chunk body;
-    Damage unless its fields are consistent with each other and with the record's length."""
+    """
+    (start, end, uncompressed size, CRC, compression, offset of the records) of a Chunk body.
+
+    Damage unless its fields are consistent with each other and with the record's length.
+    """
     _need(b, 0, _CHUNK_HEAD.size)
     t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(b, 0)
     comp, p = _str(b, _CHUNK_HEAD.size)
@@ -220,9 +224,12 @@ def _inflate(comp: str, raw, usize: int) -> bytes:
 
 
 def chunk_records(b):
-    """Validate a whole Chunk body and everything in it. Returns (uncompressed records,
-    messages as [(channel, log time, data start, data end)], declarations as [(number of messages
-    before it, opcode, parsed Schema or Channel)])."""
+    """
+    Validate a whole Chunk body and everything in it.
+
+    Returns (uncompressed records, messages as [(channel, log time, data start, data end)],
+    declarations as [(number of messages before it, opcode, parsed Schema or Channel)]).
+    """
     _t0, _t1, usize, crc, comp, p = chunk_header(b)
     inner = _inflate(comp, memoryview(b)[p:], usize)
     if len(inner) != usize:
@@ -261,6 +268,7 @@ def chunk_records(b):
 @dataclass
 class Lost:
     """Bytes ``start``..``end`` skipped as damaged, and what is known of the messages in them."""
+
     start: int
     end: int
     why: str
@@ -291,7 +299,7 @@ class Lost:
                 self.messages = sum(self.index[o][0] for o in self.chunk_mi)
         elif self.indexed:
             self.messages = 0
-            self.source = 'no chunk in them per the file\'s chunk index'
+            self.source = "no chunk in them per the file's chunk index"
         elif self.header is not None and self.index and min(self.index) == self.header[2]:
             # the damaged chunk's own header, and its message index right after it
             self.t0, self.t1 = self.header[0], self.header[1]
@@ -336,6 +344,7 @@ class Lost:
 # Reading
 # ------------------------------------------------------------------------------------------
 class _Source:
+
     def __init__(self, path: Path):
         self.path = path
         try:
@@ -349,7 +358,8 @@ class _Source:
             self.f.seek(off)
             return self.f.read(n)
         except OSError as exc:
-            raise BagError(self.path, f'cannot read at byte {off}: {exc.strerror or exc}') from None
+            raise BagError(self.path,
+                           f'cannot read at byte {off}: {exc.strerror or exc}') from None
 
     def close(self) -> None:
         self.f.close()
@@ -377,8 +387,12 @@ class _Scan:
 
     # -- footer / summary ------------------------------------------------------------------
     def _footer(self) -> Optional[Tuple[int, int, int]]:
-        """(summary start, summary end, footer start) when the file ends in a valid footer and
-        its summary (CRC checked where it has one) parses; None otherwise."""
+        """
+        Locate a valid footer and its summary.
+
+        (summary start, summary end, footer start) when the file ends in a valid footer and its
+        summary (CRC checked where it has one) parses; None otherwise.
+        """
         size = self.size
         fstart = size - 8 - 29
         if fstart < 8 or self.src.read(size - 8, 8) != MAGIC:
@@ -411,8 +425,12 @@ class _Scan:
         return (start, ostart or fstart, fstart)
 
     def _end_ok(self, pos: int, crc: Optional[int]) -> bool:
-        """A Data End record at ``pos`` validates: the end of the file or the summary follows
-        it, or its data-section CRC matches ``crc`` (the CRC of everything before it)."""
+        """
+        Return a Data End record at ``pos`` validates.
+
+        The end of the file or the summary follows it, or its data-section CRC matches
+        ``crc`` (the CRC of everything before it).
+        """
         end = pos + 13
         if end == self.size:
             return True
@@ -443,9 +461,13 @@ class _Scan:
         return ok
 
     def _starts_here(self, pos: int) -> bool:
-        """Records that parse exactly, from ``pos`` on, ending in one that carries a check (a
-        Chunk or Attachment whose CRC matches, a Data End that validates) or at the end of the
-        file. A run found to fail is remembered, so no offset is walked twice."""
+        """
+        Return the records that parse exactly from ``pos`` on.
+
+        The run ends in one that carries a check (a Chunk or Attachment whose CRC matches, a Data
+        End that validates) or at the end of the file. A run found to fail is remembered, so no
+        offset is walked twice.
+        """
         seen: List[int] = []
         ok = self._walk(pos, seen)
         if ok is None:              # too long a run to judge: nothing learnt about its offsets
@@ -490,9 +512,12 @@ class _Scan:
         return None
 
     def _resync(self, start: int) -> Optional[int]:
-        """The first offset >= ``start`` where :meth:`_starts_here`; None if there is none.
+        """
+        Return the first offset >= ``start`` where :meth:`_starts_here`; None if there is none.
+
         One regular-expression pass over the bytes (read in windows growing from 64 KiB to
-        1 MiB); only offsets shaped like a record header are tried."""
+        1 MiB); only offsets shaped like a record header are tried.
+        """
         pos, win_size = start, 1 << 16
         while pos < self.size:
             win = self.src.read(pos, win_size + 8)
@@ -570,8 +595,12 @@ class _Scan:
         self.ending = f'the file ends at byte {size} after its last record'
 
     def _declare_from_summary(self) -> None:
-        """An intact summary repeats every Schema and Channel: declare them first, so a channel
-        whose record in the data section is damaged still has its messages copied."""
+        """
+        Return an intact summary repeats every Schema and Channel.
+
+        Declare them first, so a channel whose record in the data section is damaged still
+        has its messages copied.
+        """
         if self.summary is None:
             return
         p, end = self.summary[0], self.summary[1]
@@ -588,8 +617,12 @@ class _Scan:
             p += 9 + length
 
     def _torn_index(self, pos: int, length: int) -> bool:
-        """The record at ``pos`` is the Message Index of the intact chunk before it, cut by the
-        end of the file (its fields agree with its length and nothing validates after it)."""
+        """
+        Tell whether the record at ``pos`` is a Message Index cut by the end of the file.
+
+        It must belong to the intact chunk before it: its fields agree with its length and nothing
+        validates after it.
+        """
         if self.open_loss is not None or self.last_op not in (OP_CHUNK, OP_MESSAGE_INDEX):
             return False
         head = self.src.read(pos + 9, 6)
@@ -598,8 +631,12 @@ class _Scan:
         return self._resync(pos + 1) is None
 
     def _record(self, pos: int, op: int, length: int, end: int):
-        """Take the record at ``pos``; (None, None) if it validated, else (why, where the next
-        record would start if only this one is bad)."""
+        """
+        Take the record at ``pos``.
+
+        (None, None) if it validated, else (why, where the next record would start if only
+        this one is bad).
+        """
         if end > self.size:
             if op == OP_MESSAGE_INDEX and self._torn_index(pos, length):
                 # the index of the intact chunk before it, cut by the end of the file: the
@@ -628,10 +665,13 @@ class _Scan:
             if self.crc is not None and stored and stored != self.crc:
                 self.crc_mismatch = True
             self.complete = True
-            self.ending = ('the file was complete (data end, then ' + (
-                'a valid summary and footer)' if self.summary is not None
-                and self.summary[0] == pos + 13 else 'the end of the file)' if pos + 13 == self.size
-                else 'a damaged summary, but the data CRC matches)'))
+            if self.summary is not None and self.summary[0] == pos + 13:
+                then = 'a valid summary and footer)'
+            elif pos + 13 == self.size:
+                then = 'the end of the file)'
+            else:
+                then = 'a damaged summary, but the data CRC matches)'
+            self.ending = 'the file was complete (data end, then ' + then
             return None, None
         elif op not in _DATA_OPS:
             return f'opcode {op} does not belong in the data section', guess
@@ -678,15 +718,22 @@ class _Scan:
             self.attachments += 1
 
     def _indexes_last_chunk(self, cid: int, n: int, t0, t1) -> bool:
-        """A Message Index read after damage that describes the intact chunk before the damage
-        (same channel, count and stamps), not a lost one."""
+        """
+        Tell whether a Message Index read after damage describes the intact chunk before it.
+
+        Same channel, count and stamps, not a lost chunk.
+        """
         stamps = [m[1] for m in self.last_chunk if m[0] == cid]
         return bool(stamps) and (len(stamps), min(stamps), max(stamps)) == (n, t0, t1)
 
     # -- after the pass: what the damaged bytes held ------------------------------------------
     def settle(self) -> Optional[int]:
-        """Fill in each loss's time range and message count; return the file's own message
-        count (its Statistics record) when its summary is intact."""
+        """
+        Fill in each loss's time range and message count.
+
+        Return the file's own message count (its Statistics record) when its summary is
+        intact.
+        """
         total, indexed = None, False
         if self.summary is not None and self.summary[0] < self.summary[1]:
             starts = [x.start for x in self.lost]
@@ -737,8 +784,11 @@ _OP_NAMES = {OP_SCHEMA: 'schema', OP_CHANNEL: 'channel', OP_MESSAGE: 'message',
 # Writing
 # ------------------------------------------------------------------------------------------
 class _Out:
-    """Streams what the scan hands over into a :class:`BagWriter` on a temporary file next to
-    ``out``; :meth:`finish` renames it into place, :meth:`abort` removes it."""
+    """
+    Streams what the scan hands over into a :class:`BagWriter` on a temporary file next to ``out``.
+
+    :meth:`finish` renames it into place, :meth:`abort` removes it.
+    """
 
     def __init__(self, out: Path, force: bool):
         self.out, self.force = out, force
@@ -792,7 +842,11 @@ class _Out:
             self.t_last = t
 
     def chunk(self, inner: bytes, msgs, decls) -> None:
-        """A validated chunk's messages, with any Schema/Channel it declares in their place."""
+        """
+        Return a validated chunk's messages.
+
+        Any Schema/Channel it declares comes in its place.
+        """
         view = memoryview(inner)
         k = 0
         for at, op, rec in decls:
@@ -845,7 +899,7 @@ class _Out:
 
 
 def source_of(path) -> Path:
-    """The file to salvage: ``path``, or the ``<path>.part`` a killed writer left."""
+    """Return the file to salvage: ``path``, or the ``<path>.part`` a killed writer left."""
     p = Path(path)
     if not p.exists() and partial_path(p).exists():
         return partial_path(p)
@@ -861,8 +915,11 @@ def default_output(path) -> Path:
 
 
 def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
-    """Rewrite the intact records of ``path`` into ``out``; returns counts, paths and what was
-    lost (``lost``: one line each; ``lost_ranges``: the same as dicts).
+    """
+    Rewrite the intact records of ``path`` into ``out``.
+
+    Returns counts, paths and what was lost (``lost``: one line each; ``lost_ranges``: the same
+    as dicts).
 
     ``path`` may name a recording whose writer was killed: its data is then in ``<path>.part``
     (see :class:`~im_recording.bag.BagWriter`), which is read instead.

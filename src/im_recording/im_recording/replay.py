@@ -1,4 +1,5 @@
-"""Replay a recording, or re-run the observer on it.
+"""
+Replay a recording, or re-run the observer on it.
 
 Publishing::
 
@@ -30,18 +31,18 @@ from __future__ import annotations
 
 import argparse
 import ast
+from dataclasses import fields
 import heapq
 import math
 import sys
 import time
-from dataclasses import fields
 from typing import Dict, List, Optional, Sequence, Tuple
-
-import numpy as np
 
 from im_common import cdr
 from im_common.params import estimate_arguments
 from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
+import numpy as np
+
 from .bag import BagError, BagWriter, check_output, info, iter_raw
 from .run import REEST_CURRENT, REEST_FLUX
 
@@ -97,8 +98,12 @@ def _series(path) -> Dict[str, Dict[int, tuple]]:
 
 def reestimate_series(path, config: dict, stop=None
                       ) -> List[Tuple[int, Tuple[float, float, float, float]]]:
-    """[(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k (up to
-    the step at which ``stop()`` turned true, if given)."""
+    """
+    Re-run the observer on the recorded inputs.
+
+    [(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k (up to the step
+    at which ``stop()`` turned true, if given).
+    """
     from im_observer.observer import RotorFluxObserver
     s = _series(path)
     steps = sorted(set(s[MEAS_CURRENT]) & set(s[MEAS_SHAFT]) & set(s[CMD_VOLTAGE]))
@@ -108,7 +113,7 @@ def reestimate_series(path, config: dict, stop=None
     kw = {k: config[k] for k in ('k_e', 'max_substep', 'injection_gain', 'gain_period', 'x0')}
     obs = RotorFluxObserver(config['params'], **kw)
     grid = sorted(s[MEAS_CURRENT])
-    nxt = {a: b for a, b in zip(grid, grid[1:])}
+    nxt = dict(zip(grid, grid[1:]))
     period = int(np.median(np.diff(grid))) if len(grid) > 1 else None
     out = []
     for t in steps:
@@ -130,7 +135,8 @@ def reestimate_series(path, config: dict, stop=None
 
 def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
                use_adapter: Optional[bool] = None, force: bool = False, stop=None) -> dict:
-    """Write ``out_path``: every message of ``path`` plus the re-estimated observer outputs.
+    """
+    Write ``out_path``: every message of ``path`` plus the re-estimated observer outputs.
 
     ``out_path`` is never ``path`` (FileExistsError, even with ``force``); an existing file only
     with ``force``. ``stop()`` (e.g. a :class:`im_common.stopping.StopSignals` flag) ends the
@@ -182,8 +188,12 @@ def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
 # Publishing
 # ------------------------------------------------------------------------------------------
 def _qos_from_yaml(text: Optional[str], topic: str = '?'):
-    """The recorded offered QoS of ``topic``; a record without one gets reliable/volatile, a
-    record that does not parse is a ValueError naming the topic (never a silent default)."""
+    """
+    Return the recorded offered QoS of ``topic``.
+
+    A record without one gets reliable/volatile, a record that does not parse is a ValueError
+    naming the topic (never a silent default).
+    """
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     import yaml
     rel, dur, depth = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 100

@@ -1,4 +1,5 @@
-"""Figures of merit and figures from recorded runs.
+"""
+Figures of merit and figures from recorded runs.
 
 ``ros2 run im_recording report bags/a.mcap [more.mcap ...] [--out DIR] [--no-plots]``
 
@@ -15,13 +16,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from pathlib import Path
+import sys
 from typing import Dict, List, Sequence
 
-import numpy as np
-
 from im_common import topics as T
+import numpy as np
 
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
 ROWS = [
@@ -69,9 +69,13 @@ def _finite(x):
 
 
 def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
-    """Each adapted parameter against the truth: max / RMS / final relative error, the final
-    values (``<n>_hat_final``, ``<n>_true_final``), and over the last ``last_window`` seconds the
-    relative RMS and peak-to-peak of the error (issue targets: < 5 %)."""
+    """
+    Each adapted parameter against the truth.
+
+    Max / RMS / final relative error, the final values (``<n>_hat_final``, ``<n>_true_final``),
+    and over the last ``last_window`` seconds the relative RMS and peak-to-peak of the error
+    (issue targets: < 5 %).
+    """
     from .run import RunningFigures
     acc = RunningFigures(last_window)
     acc.rows(trace)
@@ -79,9 +83,12 @@ def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
 
 
 def figures_of_merit(run) -> Dict[str, float]:
-    """Every figure of merit a run's recording supports, over every control instant: from the
-    run's running figures when it was streamed (:func:`im_recording.run.stream_run`), else from its
-    trace."""
+    """
+    Every figure of merit a run's recording supports, over every control instant.
+
+    From the run's running figures when it was streamed (:func:`im_recording.run.stream_run`),
+    else from its trace.
+    """
     from im_common.metrics import balance_relative, energy_figures
     from .run import RunningFigures
     acc = run.running
@@ -102,12 +109,16 @@ def figures_of_merit(run) -> Dict[str, float]:
 
 
 def run_status(run, fig: Dict[str, float]) -> dict:
-    """Whether a recording holds the whole run: ``interrupted`` (stopped by a signal),
-    ``partial`` (the run ended before its duration — a node failed or stopped it, a signal
-    interrupted it, the recorder did not see it finish — or the file was recovered from a damaged
-    one, or holds fewer control steps than its duration asks), ``ended`` (the failed/stopped
-    events, with their reasons), ``gaps`` (lock-step topics without a message at some control
-    instants, with the ranges), and one human-readable note per finding in ``notes``."""
+    """
+    Whether a recording holds the whole run.
+
+    ``interrupted`` (stopped by a signal), ``partial`` (the run ended before its duration — a
+    node failed or stopped it, a signal interrupted it, the recorder did not see it finish — or
+    the file was recovered from a damaged one, or holds fewer control steps than its duration
+    asks), ``ended`` (the failed/stopped events, with their reasons), ``gaps`` (lock-step
+    topics without a message at some control instants, with the ranges), and one human-readable
+    note per finding in ``notes``.
+    """
     md = run.metadata
     notes: List[str] = []
     st: dict = {'interrupted': None, 'partial': False, 'ended': [], 'gaps': {}, 'notes': notes}
@@ -146,7 +157,7 @@ def run_status(run, fig: Dict[str, float]) -> dict:
         for topic, g in st['gaps'].items():
             rs = ', '.join(f'{a:.6f}-{b:.6f} s' for a, b in g['ranges'])
             notes.append(f"{topic}: {g['missing']} control instants missing "
-                         f"({rs})")
+                         f'({rs})')
     if run.late:
         notes.append(f'{run.late} messages arrived out of order and are not in the figures')
     st['refused'] = run.refused         # a rogue's or another graph's: not part of the run
@@ -191,7 +202,8 @@ def jsonable(x):
 
 
 def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
-    """Report on one or more recordings; returns {'markdown', 'json', 'figures', 'runs'}.
+    """
+    Report on one or more recordings; returns {'markdown', 'json', 'figures', 'runs'}.
 
     Raises :class:`~im_recording.bag.BagError` for an unreadable recording.
     """
@@ -218,7 +230,7 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     md = ['# Run report', '']
     md.append('Recordings: ' + ', '.join(f'`{r["bag"]}`' for r in results))
     md += ['', markdown_table(results), '']
-    md.append('Energies are the plant\'s integrated books over the recorded window '
+    md.append("Energies are the plant's integrated books over the recorded window "
               '(`/im/truth/energy`); tracking errors and peaks from `im_common.metrics`. '
               'The balance residual is E_in − copper − friction − load − parameter-variation '
               '− ΔW_mag − ΔE_kin (core loss is an accounting model outside the balance).')
@@ -235,7 +247,8 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
         if r['status']['refused']]
     if refused:
         md += ['', '## Refused messages', '',
-               'Messages not signed by the recorded graph (a rogue publisher, another graph on the '
+               'Messages not signed by the recorded graph '
+               '(a rogue publisher, another graph on the '
                'domain): refused by the nodes, kept apart by the recorder, in no figure.', '']
         md += refused
     from .bag import write_atomic

@@ -1,4 +1,5 @@
-"""A recording turned into analysis arrays: :func:`load_run` -> :class:`Run`.
+"""
+A recording turned into analysis arrays: :func:`load_run` -> :class:`Run`.
 
 The trace follows the :mod:`im_common.metrics` format: equal-length 1-D arrays sampled at the
 control instants t_k (the stamps of ``/im/measured/current``), every topic aligned on its header
@@ -40,10 +41,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
-import numpy as np
-
 from im_common import cdr
 from im_common import topics as T
+import numpy as np
 
 REEST_FLUX, REEST_CURRENT = T.REEST_FLUX, T.REEST_CURRENT
 
@@ -115,8 +115,12 @@ class Run:
 
     @property
     def refused(self) -> Dict[str, int]:
-        """Messages not signed by the recorded graph (a rogue publisher, another graph), per topic
-        they came on, as the recorder kept them on ``/im/refused<topic>``."""
+        """
+        Count the messages not signed by the recorded graph, per topic.
+
+        Messages not signed by the recorded graph (a rogue publisher, another graph), per topic
+        they came on, as the recorder kept them on ``/im/refused<topic>``.
+        """
         n = len(T.REFUSED_PREFIX)
         return {t[n:]: c for t, c in sorted(self.counts.items())
                 if t.startswith(T.REFUSED_PREFIX + '/') and c}
@@ -156,7 +160,7 @@ def _decode_v3(payloads: List[bytes]):
 
 
 def _align(master: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """values sampled at ``stamps`` picked at ``master`` (NaN where absent; last one wins)."""
+    """Pick the values sampled at ``stamps`` at ``master`` (NaN where absent; last one wins)."""
     out = np.full(master.shape, np.nan)
     if len(stamps) == 0:
         return out
@@ -204,8 +208,11 @@ def _decode_js(topic: str, payloads: List[bytes]):
 
 
 def decode_topic(topic: str, payloads: List[bytes]):
-    """(stamps ns, {trace key: values}) of one topic's payloads, in their order; None for a topic
-    the trace does not use."""
+    """
+    (stamps ns, {trace key: values}) of one topic's payloads, in their order.
+
+    None for a topic the trace does not use.
+    """
     if topic in V3_KEYS:
         st, x, y, z = _decode_v3(payloads)
         kx, ky, kz = V3_KEYS[topic]
@@ -219,11 +226,14 @@ def decode_topic(topic: str, payloads: List[bytes]):
 
 
 class TraceStream:
-    """:func:`build_trace` in bounded memory: payloads go in with :meth:`add`, and every
-    ``batch`` messages the rows older than the newest ``margin`` master stamps are aligned and
-    handed to ``sinks`` (objects with ``rows(chunk)`` and ``series(series_chunk)``), then
-    dropped. A message stamped before rows already handed on cannot be aligned any more: it is
-    counted in :attr:`late` (the caller reports it), never silently merged.
+    """
+    Align a trace in bounded memory.
+
+    :func:`build_trace` in bounded memory: payloads go in with :meth:`add`, and every ``batch``
+    messages the rows older than the newest ``margin`` master stamps are aligned and handed to
+    ``sinks`` (objects with ``rows(chunk)`` and ``series(series_chunk)``), then dropped. A message
+    stamped before rows already handed on cannot be aligned any more: it is counted in :attr:`late`
+    (the caller reports it), never silently merged.
     """
 
     def __init__(self, sinks=(), batch: int = 40000, margin: int = 256):
@@ -310,9 +320,13 @@ class TraceStream:
 
 
 class TraceKeeper:
-    """Sink of a :class:`TraceStream` that keeps the aligned rows: all of them, or (``limit``)
-    at most about 2·limit, thinned to every S-th control instant where S is a multiple of every
-    topic's own publishing period (so decimated topics keep their samples)."""
+    """
+    Sink of a :class:`TraceStream` that keeps the aligned rows.
+
+    All of them, or (``limit``) at most about 2·limit, thinned to every S-th control instant
+    where S is a multiple of every topic's own publishing period (so decimated topics keep
+    their samples).
+    """
 
     def __init__(self, limit: Optional[int] = None):
         self.limit = limit
@@ -377,8 +391,12 @@ class TraceKeeper:
 
 
 class TruthBooks:
-    """Sink of a :class:`TraceStream` keeping the first and last energy sample and the last
-    parameter sample: all :func:`truth_final_from` needs."""
+    """
+    Keep what :func:`truth_final_from` needs from a trace stream.
+
+    Sink of a :class:`TraceStream` keeping the first and last energy sample and the last parameter
+    sample: all :func:`truth_final_from` needs.
+    """
 
     def __init__(self):
         self.first: Optional[tuple] = None
@@ -407,8 +425,8 @@ class TruthBooks:
         series = {}
         if self.first is not None:
             keys = [k for k in self.last[1] if k in self.first[1]]
-            series[T.TRUTH_ENERGY] = {k: np.array([self.first[1][k], self.last[1][k]])
-                                          for k in keys}
+            first, last = self.first[1], self.last[1]
+            series[T.TRUTH_ENERGY] = {k: np.array([first[k], last[k]]) for k in keys}
         if self.par is not None:
             series[T.TRUTH_PARAMS] = {k: np.array([v]) for k, v in self.par[1].items()}
         return truth_final_from(series)
@@ -435,7 +453,8 @@ def _norm(a):
 TRACKING = (
     ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_true'),
      _diff('theta_true', 'theta_ref')),
-    ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_r'), _diff('theta_r', 'theta_ref')),
+    ('pos_err_max_rad', 'pos_err_rms_rad', ('theta_ref', 'theta_r'),
+     _diff('theta_r', 'theta_ref')),
     ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_true'),
      _diff('omega_true', 'omega_ref')),
     ('speed_err_max_rad_s', 'speed_err_rms_rad_s', ('omega_ref', 'omega_r'),
@@ -467,7 +486,7 @@ class _Acc:
             self.ss += float(np.sum(np.square(e)))
             self.n += len(e)
 
-    def max(self) -> float:
+    def max(self) -> float:  # noqa: A003
         return self.mx if self.n else float('nan')
 
     def rms(self) -> float:
@@ -475,10 +494,13 @@ class _Acc:
 
 
 class RunningFigures:
-    """Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`): the tracking,
-    peak and estimate figures of :func:`im_recording.report.figures_of_merit` from running maxima,
-    sums of squares and the last ``last_window`` seconds only, plus the lock-step topics'
-    missing control instants (:meth:`gaps`)."""
+    """
+    Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`).
+
+    The tracking, peak and estimate figures of :func:`im_recording.report.figures_of_merit`
+    from running maxima, sums of squares and the last ``last_window`` seconds only, plus the
+    lock-step topics' missing control instants (:meth:`gaps`).
+    """
 
     def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20):
         self.window = float(last_window)
@@ -491,9 +513,9 @@ class RunningFigures:
         self.t_last: Optional[float] = None
         self.steps = 0
         self.lockstep = tuple(lockstep_topics)
-        self.missing = {t: 0 for t in self.lockstep}
+        self.missing = dict.fromkeys(self.lockstep, 0)
         self.ranges: Dict[str, List[list]] = {t: [] for t in self.lockstep}
-        self._open: Dict[str, bool] = {t: False for t in self.lockstep}
+        self._open: Dict[str, bool] = dict.fromkeys(self.lockstep, False)
         self.max_ranges = max_ranges
 
     def series(self, sent) -> None:
@@ -549,7 +571,9 @@ class RunningFigures:
         self._open[topic] = bool(absent[-1])
 
     def gaps(self) -> Dict[str, dict]:
-        """Lock-step topics with control instants that have no message: count and ranges [s].
+        """
+        Lock-step topics with control instants that have no message: count and ranges [s].
+
         The run's last instant is not a gap: the plant's final measurement is answered by no one.
         """
         out = {}
@@ -617,7 +641,7 @@ def build_trace(raw: Dict[str, List[bytes]]) -> Tuple[Dict[str, np.ndarray], Dic
 
 
 def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
-    """The energy books over the recorded window (see module doc)."""
+    """Return the energy books over the recorded window (see module doc)."""
     out: Dict[str, float] = {}
     en = series.get(T.TRUTH_ENERGY)
     if en is not None and len(en['t_ns']):
@@ -652,9 +676,13 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
 
 
 class RunEvents:
-    """The /im/status events that end a node's part of the run — ``finished``, ``stopped``,
-    ``failed`` — as dicts (node, state, t [s], reason, time_master), in recorded order: how the
-    run ended, whoever recorded it (the in-process graph's tap or the recorder node)."""
+    """
+    The /im/status events that end a node's part of the run.
+
+    ``finished``, ``stopped``, ``failed`` — as dicts (node, state, t [s], reason, time_master),
+    in recorded order: how the run ended, whoever recorded it (the in-process graph's tap or
+    the recorder node).
+    """
 
     ENDS = ('finished', 'stopped', 'failed')
 
@@ -681,15 +709,19 @@ class RunEvents:
 
 
 def lockstep_topics() -> Tuple[str, ...]:
-    """The topics every control instant must have (``critical`` rows of the topic table)."""
+    """Return the topics every control instant must have (``critical`` rows of the topic table)."""
     return tuple(t.name for t in T.TOPICS if t.critical)
 
 
 def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full',
                limit: int = 10000, types: Optional[dict] = None) -> Run:
-    """A :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
+    """
+    Analyse a run from its ``(topic, payload)`` pairs.
+
+    Return a :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
     ``trace='full'`` (every row kept); ``'decimated'`` keeps about ``limit``-``2·limit`` rows for
-    the plots, None none. The figures always cover every control instant."""
+    the plots, None none. The figures always cover every control instant.
+    """
     books, figs = TruthBooks(), RunningFigures(lockstep_topics=lockstep_topics())
     sinks = [books, figs]
     keeper = None
@@ -709,7 +741,8 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
 
 
 def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
-    """Read a recording into a :class:`Run`; :class:`~im_recording.bag.BagError` if unreadable.
+    """
+    Read a recording into a :class:`Run`; :class:`~im_recording.bag.BagError` if unreadable.
 
     ``trace``: 'full' (every control instant), 'decimated' (about ``limit`` rows, what the
     report's plots need) or None; the figures cover the whole run either way. Every CRC is

@@ -1,4 +1,5 @@
-"""A small synthetic recording, for tests and demos of the bag tools without the ROS graph.
+"""
+A small synthetic recording, for tests and demos of the bag tools without the ROS graph.
 
 :func:`make_synthetic_bag` drives :class:`im_common.plant_sim.PlantSimulator` open loop with a
 rotating stator-voltage vector (v_α, v_β) = V (cos 2πft, sin 2πft) and records every step the

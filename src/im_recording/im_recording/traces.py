@@ -1,7 +1,10 @@
-"""Live capture of a graph run: the serialized messages every node publishes, summarized while
-the run goes into the same :class:`im_recording.run.Run` a recording gives — so the scenario's
-summary and the report of its MCAP are computed by the same code
-(:class:`im_recording.run.RunningFigures` behind :func:`im_recording.report.figures_of_merit`).
+"""
+Live capture of a graph run.
+
+The serialized messages every node publishes, summarized while the run goes into the same
+:class:`im_recording.run.Run` a recording gives — so the scenario's summary and the report of its
+MCAP are computed by the same code (:class:`im_recording.run.RunningFigures` behind
+:func:`im_recording.report.figures_of_merit`).
 
 Memory stays bounded: the payloads are decoded and folded into running sums every
 :attr:`im_recording.run.TraceStream.batch` messages and then dropped; the per-step trace is kept
@@ -11,21 +14,23 @@ from __future__ import annotations
 
 from typing import Optional, Union
 
-from im_recording.bag import BagError
 from im_common.cdr import encode, header_stamp_ns
+from im_recording.bag import BagError
 
 
 class Tap:
-    """Graph publisher tap: folds each published payload into the run's figures and, if given,
-    writes it to a bag.
+    """
+    Graph publisher tap.
+
+    Folds each published payload into the run's figures and, if given, writes it to a bag.
 
     ``keep``: True keeps the whole per-step trace (memory grows with the run), 'decimated'
     about ``limit`` rows, False none (the figures still cover every step).
     """
 
     def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000):
-        from im_recording.run import (RunningFigures, TraceKeeper, TraceStream, TruthBooks,
-                                    lockstep_topics)
+        from im_recording.run import (lockstep_topics, RunningFigures, TraceKeeper, TraceStream,
+                                      TruthBooks)
         self.writer = writer
         self.error: Optional[str] = None    # why the writer stopped (its file cannot be written)
         self.on_error = None                # called with that line (a graph ends its run)
@@ -58,7 +63,7 @@ class Tap:
         self.stream.add(topic, data)
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):
-        """The captured run as a :class:`im_recording.run.Run` (ends the capture)."""
+        """Return the captured run as a :class:`im_recording.run.Run` (ends the capture)."""
         from im_recording.run import Run
         if self._run is None:
             self.stream.flush(final=True)

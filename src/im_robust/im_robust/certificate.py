@@ -1,4 +1,5 @@
-"""Independent certificates for a static output-feedback gain.
+"""
+Independent certificates for a static output-feedback gain.
 
 A gain G is *certified* for an uncertain system when a single P = P' ≻ 0 satisfies, in the original
 coordinates and with the thesis's sign convention A_cl = A − B G C (seed 001 eq. 3.3-3.4),
@@ -6,12 +7,12 @@ coordinates and with the thesis's sign convention A_cl = A − B G C (seed 001 e
     continuous:  A_cl' P + P A_cl ⪯ −2 α_c P   with α_c > α   at every vertex model
     discrete:    A_cl' P A_cl     ⪯  ρ_c² P    with ρ_c < ρ   at every vertex model
 
-checked with numpy eigenvalues (not by trusting a solver's status). α_c is the guaranteed decay rate
-of V = x'Px (1/s), ρ_c the guaranteed contraction per step. By convexity (eq. 2.22 and Lemma 2.3.1),
-this holds on the convex hull of the vertex models. The same P is then checked on a dense grid of the
-uncertain parameters, together with the eigenvalues of every grid model: for models that are not
-affine in the parameters (a sampled motor model) the grid check is what ties the vertices to the
-physical parameter box — it is evidence, not proof, between grid points.
+checked with numpy eigenvalues (not by trusting a solver's status). α_c is the guaranteed decay
+rate of V = x'Px (1/s), ρ_c the guaranteed contraction per step. By convexity (eq. 2.22 and Lemma
+2.3.1), this holds on the convex hull of the vertex models. The same P is then checked on a dense
+grid of the uncertain parameters, together with the eigenvalues of every grid model: for models
+that are not affine in the parameters (a sampled motor model) the grid check is what ties the
+vertices to the physical parameter box — it is evidence, not proof, between grid points.
 
 P comes from the synthesis (P = W₁⁻¹) when that passes; otherwise from a fresh analysis SDP that
 only sees G and the vertex models.
@@ -28,7 +29,8 @@ from .polytope import Model, UncertainSystem
 
 @dataclass
 class Certificate:
-    """Outcome of :func:`certify`.
+    """
+    Outcome of :func:`certify`.
 
     ``margin`` is α_c − α (continuous, 1/s) or ρ − ρ_c (discrete); ``rate`` is α_c or ρ_c.
     ``grid_margin`` is the same quantity over the dense grid with the same P, and
@@ -54,7 +56,8 @@ class Certificate:
                 'P_condition': None if self.P is None else float(np.linalg.cond(self.P)),
                 'grid_points': int(self.grid_points),
                 'grid_margin': None if self.grid_margin is None else float(self.grid_margin),
-                'grid_worst_eig': None if self.grid_worst_eig is None else float(self.grid_worst_eig),
+                'grid_worst_eig': (None if self.grid_worst_eig is None
+                                   else float(self.grid_worst_eig)),
                 'reason': self.reason}
 
 
@@ -65,7 +68,8 @@ def _sym_sqrt_and_inv(P: np.ndarray):
     return (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T
 
 
-def lyapunov_rates(closed_loops: Sequence[np.ndarray], P: np.ndarray, discrete: bool) -> np.ndarray:
+def lyapunov_rates(closed_loops: Sequence[np.ndarray], P: np.ndarray,
+                   discrete: bool) -> np.ndarray:
     """Per-model α_c (continuous) or ρ_c (discrete) for the quadratic function x'Px."""
     Ph, Pih = _sym_sqrt_and_inv(P)
     if Ph is None:
@@ -92,7 +96,8 @@ def _margin(rate: float, discrete: bool, alpha: float, rho: float) -> float:
 
 def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: float = 0.0,
                  rho: float = 1.0, solver: str = 'CLARABEL') -> Optional[np.ndarray]:
-    """A common P for the closed loops at the required rate, or None (fresh SDP, G only).
+    """
+    Return a common P for the closed loops at the required rate, or None (fresh SDP, G only).
 
     Minimizes the condition number bound s of I ⪯ P ⪯ s I subject to the Lyapunov inequalities with
     a unit margin (the problem is homogeneous in P, so the margin only fixes the scale).
@@ -101,7 +106,7 @@ def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: floa
     n = closed_loops[0].shape[0]
     P = cp.Variable((n, n), symmetric=True)
     s = cp.Variable()
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
     cons = [P >> I, P << s * I]
     for Acl in closed_loops:
         if discrete:
@@ -123,21 +128,27 @@ def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: floa
 def certify(system: UncertainSystem, G, *, alpha: float = 0.0, rho: float = 1.0,
             P: Optional[np.ndarray] = None, grid_models: Optional[Sequence[Model]] = None,
             tol: float = 1e-9, max_condition: float = 1e12) -> Certificate:
-    """Check G on every vertex model with a common P, then on ``grid_models`` with the same P.
+    """
+    Check G on every vertex model with a common P, then on ``grid_models`` with the same P.
 
     Parameters
     ----------
     system : UncertainSystem
+        Vertex models, output matrix C, time domain.
     G : (m, r) array
         Gain of u = −G y.
     alpha, rho : float
         Required decay rate (continuous, 1/s) or contraction bound (discrete).
     P : array, optional
-        Candidate Lyapunov matrix (e.g. from the synthesis); if it fails, a fresh analysis SDP is tried.
+        Candidate Lyapunov matrix (e.g. from the synthesis); if it fails, a fresh analysis SDP is
+        tried.
     grid_models : sequence of (A, B), optional
         Dense-grid models checked with the same P and by their eigenvalues.
     tol : float
         Required strict margin (relative to 1 for discrete; in 1/s for continuous).
+    max_condition : float
+        Largest condition number of P accepted.
+
     """
     G = np.atleast_2d(np.asarray(G, dtype=float))
     if G.shape != (system.m, system.r):
@@ -218,7 +229,10 @@ def best_rate(system: UncertainSystem, G, *, lo: float | None = None, hi: float 
     lo_ = lo or 0.0
     if not ok(lo_):
         return np.nan
-    hi_ = hi if hi is not None else max(1.0, 2.0 * max(np.abs(np.linalg.eigvals(L)).max() for L in loops))
+    if hi is not None:
+        hi_ = hi
+    else:
+        hi_ = max(1.0, 2.0 * max(np.abs(np.linalg.eigvals(L)).max() for L in loops))
     for _ in range(iterations):
         mid = 0.5 * (lo_ + hi_)
         if ok(mid):

@@ -1,4 +1,5 @@
-"""Command line: reproduce seed 001 §4.2.
+"""
+Command line: reproduce seed 001 §4.2.
 
     python -m im_robust.cli examples --out bags/robust
     ros2 run im_robust robust_examples examples --out bags/robust
@@ -11,16 +12,15 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 from typing import List, Optional
 
+from im_common.cli import logger, parse_args
 import numpy as np
 
-from im_common.cli import logger, parse_args
-
-from .examples import EXAMPLES, check_printed_solution, thesis_gain_decay
+from .examples import check_printed_solution, EXAMPLES, thesis_gain_decay
 from .refine import reduce_gain_norm
 from .synthesis import synthesize
 
@@ -80,7 +80,8 @@ def run_examples(out: Path, keys: Optional[List[str]] = None, refine: bool = Tru
             if solver == 'clarabel':
                 sdp = res
             note = res.message
-            if solver == 'cutting-plane' and sdp is not None and sdp.G is not None and res.G is not None:
+            if (solver == 'cutting-plane' and sdp is not None and sdp.G is not None
+                    and res.G is not None):
                 dG = float(np.abs(res.G - sdp.G).max())
                 dobj = abs(res.objective - sdp.objective) / max(1.0, abs(sdp.objective))
                 note = f'vs Clarabel: max|dG| = {dG:.2e}, rel. d objective = {dobj:.2e}'
@@ -103,7 +104,7 @@ def run_examples(out: Path, keys: Optional[List[str]] = None, refine: bool = Tru
         if refine and rate_th is not None:
             kw = ({'rho': rate_th} if ex.system.discrete else {'alpha': rate_th})
             t0 = time.perf_counter()
-            _log(f'example {key}: synthesis and norm reduction at the printed gain\'s certified '
+            _log(f"example {key}: synthesis and norm reduction at the printed gain's certified "
                  f'rate {rate_th:.6g} ...')
             start = synthesize(ex.system, D=ex.D, solver='clarabel', grid_models=grid, margin=1e-6,
                                normalization='output', **kw)
@@ -119,7 +120,8 @@ def run_examples(out: Path, keys: Optional[List[str]] = None, refine: bool = Tru
                 rows.append(_row(ex, label, G=ref.G, cert=ref.certificate,
                                  iterations=ref.iterations, wall=time.perf_counter() - t0,
                                  note=f'same certified rate as the printed G '
-                                      f'({"rho" if ex.system.discrete else "alpha"} = {rate_th:.4g}); '
+                                      f'({"rho" if ex.system.discrete else "alpha"} = '
+                                      f'{rate_th:.4g}); '
                                       f'{seed_note}'))
     out.mkdir(parents=True, exist_ok=True)
     (out / 'examples.json').write_text(json.dumps(rows, indent=2) + '\n')
@@ -135,10 +137,13 @@ def _fmt(x, spec='.4f'):
 def render_markdown(rows: List[dict], checks: dict) -> str:
     lines = ['# Seed 001 §4.2 reproduced', '',
              'u = −G y, closed loop A − B G C. ‖G‖ is the spectral norm. "objective" is',
-             'f(W_o) = λ_max(W₃) of eq. 2.33 (thesis normalization: Θ ⪯ −I, W₁ ⪰ I). "margin" is the',
-             'certified decay rate α_c (1/s, continuous) or 1 − ρ_c (discrete) of a common P checked',
+             'f(W_o) = λ_max(W₃) of eq. 2.33 (thesis '
+             'normalization: Θ ⪯ −I, W₁ ⪰ I). "margin" is the',
+             'certified decay rate α_c (1/s, continuous) '
+             'or 1 − ρ_c (discrete) of a common P checked',
              'with numpy at every vertex and on a dense parameter grid.', '',
-             '"best rate" is the largest α (1/s, continuous) or smallest ρ (discrete) for which the gain',
+             '"best rate" is the largest α (1/s, continuous) '
+             'or smallest ρ (discrete) for which the gain',
              'is certified (bisection on the analysis LMI).', '',
              '| ex. | solver | ‖G‖ | thesis ‖G‖ | objective | iterations | thesis it. | certified '
              '| margin | best rate | wall s | note |',
@@ -148,9 +153,10 @@ def render_markdown(rows: List[dict], checks: dict) -> str:
                      f"{r['thesis_norm_G']:.4f} | {_fmt(r['objective'], '.4f')} | "
                      f"{r['iterations'] if r['iterations'] is not None else '—'} | "
                      f"{r['thesis_iterations']} | {'yes' if r['certified'] else 'no'} | "
-                     f"{_fmt(r['margin'], '.4g')} | {_fmt(r['best_rate'], '.4g')} | {r['wall_s']:.2f} | "
+                     f"{_fmt(r['margin'], '.4g')} | {_fmt(r['best_rate'], '.4g')} | "
+                     f"{r['wall_s']:.2f} | "
                      f"{r['note']} |")
-    lines += ['', '## The thesis\'s printed W_o against its own constraints (ε = 1)', '',
+    lines += ['', "## The thesis's printed W_o against its own constraints (ε = 1)", '',
               '| ex. | max λ(Θ_l) (≤ −1) | λ_min(W₁) (≥ 1) | λ_min(W) (≥ 0) | f(W_o) | '
               'G from W_o − printed G | printed G certified | printed G best rate |',
               '|---|---|---|---|---|---|---|---|']

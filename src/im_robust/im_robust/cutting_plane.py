@@ -1,14 +1,15 @@
-"""The thesis's own solver: a cutting-plane method with one LP per iteration (seed 001 §4.1).
+"""
+The thesis's own solver: a cutting-plane method with one LP per iteration (seed 001 §4.1).
 
 Problem (4.2): minimize t over (t, ω) in C_f = {W_o(ω) ∈ C, λ_max(W₃) ≤ t}. Every constraint of
 (3.33) is "an extreme eigenvalue of an affine matrix function of ω has a sign", so at a point that
 violates it the eigenvector v gives a linear inequality that the point violates and every feasible
 point satisfies (the separating hyperplane of Theorem 2.2.3, eq. 2.25-2.29 and 2.60-2.61):
 
-    Θ_l:        v' Θ_l(W(ω)) v ≤ −ε          (v: top eigenvector of Θ_l)
-    W₁ ⪰ I:     v' W₁(ω) v ≥ 1               (v: bottom eigenvector of W₁)
-    W ⪰ 0:      v' W(ω) v ≥ 0                (v: bottom eigenvector of W)
-    epigraph:   v' W₃(ω) v ≤ t               (v: top eigenvector of W₃) — the (Z^k, γ^k) cut of (4.3)
+    Θ_l:        v' Θ_l(W(ω)) v ≤ −ε          (v: top eigenvector of Θ_l) W₁ ⪰ I:     v' W₁(ω) v ≥ 1
+    (v: bottom eigenvector of W₁) W ⪰ 0:      v' W(ω) v ≥ 0                (v: bottom eigenvector
+    of W) epigraph:   v' W₃(ω) v ≤ t               (v: top eigenvector of W₃) — the (Z^k, γ^k) cut
+    of (4.3)
 
 Each iteration solves the LP over the cuts collected so far (HiGHS through scipy.optimize.linprog
 instead of the thesis's dual simplex with warm start, eq. 4.5-4.8), then adds cuts at its solution.
@@ -26,14 +27,15 @@ t ∈ [0, bound]. The box is part of the problem actually solved:
   iterations are needed, and HiGHS's absolute tolerances (1e-7) act on numbers of size ``bound``.
 
 The iteration count therefore depends on ``bound``, on the tolerances and on which cuts are added
-(``cuts='deepest'`` adds the single most violated constraint cut, as the thesis's ρ* = max ρ_l, plus
-the epigraph cut when λ_max(W₃) > t; ``'all'`` adds one per violated family and vertex) — compare counts with the thesis's 211/103/77 with that in mind.
+(``cuts='deepest'`` adds the single most violated constraint cut, as the thesis's ρ* = max ρ_l,
+plus the epigraph cut when λ_max(W₃) > t; ``'all'`` adds one per violated family and vertex) —
+compare counts with the thesis's 211/103/77 with that in mind.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -56,19 +58,31 @@ def _quad(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum('i,kij,j->k', v, M, v)
 
 
-def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6, max_iterations: int = 20000,
+def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6,
+                        max_iterations: int = 20000,
                         cuts: str = 'deepest', progress: bool = False,
                         progress_every: int = 200) -> CuttingPlaneResult:
-    """Kelley cutting-plane solution of (3.33) for a :class:`~im_robust.synthesis.Problem`.
+    """
+    Kelley cutting-plane solution of (3.33) for a :class:`~im_robust.synthesis.Problem`.
 
     Parameters
     ----------
+    prob : Problem
+        The problem built by :func:`im_robust.synthesis.build_problem`.
     bound : float
         Box on every free entry of W_o and on t (see module notes).
     tol : float
         Stop when every constraint is violated by at most ``tol``·max(1, ε) and the epigraph gap
         λ_max(W₃) − t is at most ``tol``·max(1, t).
-    cuts : ``'deepest'`` (thesis) or ``'all'``.
+    max_iterations : int
+        Iterations before giving up (status ``'max_iterations'``).
+    cuts : str
+        ``'deepest'`` (thesis) or ``'all'``.
+    progress : bool
+        Print iteration progress on stderr, every ``progress_every`` iterations.
+    progress_every : int
+        Iterations between two progress lines.
+
     """
     if cuts not in ('deepest', 'all'):
         raise ValueError("cuts must be 'deepest' or 'all'")
@@ -77,7 +91,8 @@ def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6, max_iter
     nvar = q + 1                      # ω, then t
     c = np.zeros(nvar)
     c[-1] = 1.0
-    bounds = [(-bound, bound)] * st.n_offdiag + [(0.0, bound)] * (q - st.n_offdiag) + [(0.0, bound)]
+    bounds = ([(-bound, bound)] * st.n_offdiag + [(0.0, bound)] * (q - st.n_offdiag)
+              + [(0.0, bound)])
     rows: List[np.ndarray] = []
     rhs: List[float] = []
 

@@ -1,4 +1,5 @@
-"""The three worked examples of seed 001 §4.2, with what the thesis printed for them.
+"""
+The three worked examples of seed 001 §4.2, with what the thesis printed for them.
 
 Each example gives the uncertain system (vertex models, C, time domain), the D the thesis chose,
 a parameter family for dense-grid certification, and the thesis's printed W_o, G, ‖G‖ and
@@ -13,7 +14,7 @@ from typing import Dict, Optional
 import numpy as np
 
 from .polytope import UncertainSystem
-from .structure import StructuredW, apply_map
+from .structure import apply_map, StructuredW
 from .synthesis import build_problem
 
 
@@ -45,7 +46,10 @@ def _aircraft_A(q: float, a23: float = AIRCRAFT_A23_PRINTED) -> np.ndarray:
 
 
 def example1(a23: float = AIRCRAFT_A23_PRINTED) -> ThesisExample:
-    """§4.2.1: aircraft (Galimidi & Barmish), continuous, A uncertain, q ∈ [−1.5, 1.5] (eq. 4.10-4.19).
+    """
+    §4.2.1: aircraft (Galimidi & Barmish), continuous, A uncertain.
+
+    q ∈ [−1.5, 1.5] (eq. 4.10-4.19).
 
     ``a23`` is the (2, 3) entry of A: 0.35 as printed, or 0.035 (the reading under which the
     printed W_o is feasible; key ``'1-a23'``).
@@ -55,14 +59,17 @@ def example1(a23: float = AIRCRAFT_A23_PRINTED) -> ThesisExample:
     typo = a23 != AIRCRAFT_A23_PRINTED
     sysm = UncertainSystem.product([_aircraft_A(-1.5, a23), _aircraft_A(1.5, a23)], [B], C,
                                    discrete=False,
-                                   name=f'example 1 (aircraft{", a23 = %g" % a23 if typo else ""})',
-                                   family=lambda p: (_aircraft_A(p[0], a23), B), bounds=[(-1.5, 1.5)])
+                                   name=('example 1 (aircraft'
+                                         + (f', a23 = {a23:g}' if typo else '') + ')'),
+                                   family=lambda p: (_aircraft_A(p[0], a23), B),
+                                   bounds=[(-1.5, 1.5)])
     W = np.array([[765.5, -692.0, 0, 0, -767.2],
                   [-692.0, 7054.1, 0, 0, -3301.7],
                   [0, 0, 195.4, 57.7, 0],
                   [0, 0, 57.7, 59.7, 0],
                   [-767.2, -3301.7, 0, 0, 3251.7]])
-    key, title = ('1-a23', f'§4.2.1 aircraft with a23 = {a23:g} (typo reading of the printed 0.35)') \
+    key, title = ('1-a23',
+                  f'§4.2.1 aircraft with a23 = {a23:g} (typo reading of the printed 0.35)') \
         if typo else ('1', '§4.2.1 continuous, A uncertain (aircraft, a23 = 0.35 as printed)')
     return ThesisExample(key, title, sysm,
                          np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]]), W,
@@ -81,10 +88,13 @@ def _heli_B(p3: float) -> np.ndarray:
 
 
 def example2() -> ThesisExample:
-    """§4.2.2: helicopter (Keel, Bhattacharyya & Howze), continuous, A and B uncertain (eq. 4.20-4.28).
+    """
+    §4.2.2: helicopter (Keel, Bhattacharyya & Howze), continuous.
 
-    p1 = 0.3681 ± 20·0.05, p2 = 1.42 ± 20·0.01, p3 = 3.5446 ± 20·0.04 (eq. 4.23): D_A has 4 vertices
-    (p1, p2), D_B has 2 (p3), so L = 8 vertex models.
+    A and B uncertain (eq. 4.20-4.28).
+
+    p1 = 0.3681 ± 20·0.05, p2 = 1.42 ± 20·0.01, p3 = 3.5446 ± 20·0.04 (eq. 4.23): D_A has 4
+    vertices (p1, p2), D_B has 2 (p3), so L = 8 vertex models.
     """
     r1, r2, r3 = 20 * 0.05, 20 * 0.01, 20 * 0.04
     As = [_heli_A(0.3681 + s1 * r1, 1.42 + s2 * r2) for s1 in (-1, 1) for s2 in (-1, 1)]
@@ -131,7 +141,8 @@ EXAMPLES = {'1': example1, '1-a23': lambda: example1(AIRCRAFT_A23_TYPO_READING),
 
 
 def check_printed_solution(ex: ThesisExample, margin: float = 1.0) -> Dict[str, object]:
-    """Evaluate the thesis's printed W_o against its own constraints (3.33).
+    """
+    Evaluate the thesis's printed W_o against its own constraints (3.33).
 
     Returns the largest eigenvalue of each Θ_l (must be ≤ −ε), λ_min(W₁) (must be ≥ 1), λ_min(W)
     (must be ≥ 0), the structure violation, f(W_o) = λ_max(W₃), the G implied by W_o (eq. 3.35)

@@ -1,4 +1,5 @@
-"""Polytopic uncertain linear systems and the augmented system of seed 001 (eq. 2.7, 2.9).
+"""
+Polytopic uncertain linear systems and the augmented system of seed 001 (eq. 2.7, 2.9).
 
 Sign convention used everywhere in this package (seed 001 eq. 3.3-3.4):
 
@@ -8,10 +9,10 @@ so a *positive* G adds damping when B and C have the usual signs. State feedback
 case C = I (then G = K, eq. 2.5-2.6).
 
 A model set is a list of vertex models ``(A_l, B_l)``. The uncertain system is the convex hull of
-the augmented matrices F_l = [[A_l, −B_l], [0, 0]] (eq. 2.9), so both ways of the thesis are covered:
-``UncertainSystem.product`` builds all N·M pairs of independent vertex sets D_A × D_B (eq. 1.25-1.26),
-while a list of coupled pairs (A and B evaluated at the same parameter point, as for a sampled motor
-model) is passed directly.
+the augmented matrices F_l = [[A_l, −B_l], [0, 0]] (eq. 2.9), so both ways of the thesis are
+covered: ``UncertainSystem.product`` builds all N·M pairs of independent vertex sets D_A × D_B (eq.
+1.25-1.26), while a list of coupled pairs (A and B evaluated at the same parameter point, as for a
+sampled motor model) is passed directly.
 """
 from __future__ import annotations
 
@@ -36,7 +37,8 @@ def _as_matrix(x, name: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class UncertainSystem:
-    """Polytopic uncertain system x' = A x + B u (or x⁺ = A x + B u), y = C x.
+    """
+    Polytopic uncertain system x' = A x + B u (or x⁺ = A x + B u), y = C x.
 
     Parameters
     ----------
@@ -53,6 +55,7 @@ class UncertainSystem:
         uncertain parameters (it is not used by the synthesis).
     bounds : sequence of (low, high), optional
         Box of the uncertain parameters passed to ``family``.
+
     """
 
     models: Tuple[Model, ...]
@@ -141,7 +144,7 @@ class UncertainSystem:
 
 
 def augmented(A: np.ndarray, B: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """The augmented pair of eq. 2.7: F = [[A, −B], [0, 0]], E = [0; I] (p = n + m)."""
+    """Return the augmented pair of eq. 2.7: F = [[A, −B], [0, 0]], E = [0; I] (p = n + m)."""
     n, m = B.shape
     F = np.zeros((n + m, n + m))
     F[:n, :n] = A
@@ -153,7 +156,8 @@ def augmented(A: np.ndarray, B: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
 
 def with_decay(models: Sequence[Model], discrete: bool, alpha: float = 0.0,
                rho: float = 1.0) -> List[Model]:
-    """Vertex models whose quadratic stability means a guaranteed decay rate.
+    """
+    Vertex models whose quadratic stability means a guaranteed decay rate.
 
     Continuous time: (A + αI, B) stable  ⇔  Re λ(A − BGC) < −α (and V = x'Px decays as e^{−2αt}).
     Discrete time:  (A/ρ, B/ρ) stable  ⇔  |λ(A − BGC)| < ρ (and V decays as ρ^{2k}).

@@ -1,12 +1,13 @@
-"""Gain-norm reduction at a fixed guaranteed decay rate (an addition to seed 001, not in it).
+"""
+Gain-norm reduction at a fixed guaranteed decay rate (an addition to seed 001, not in it).
 
 The thesis minimizes the *bound* λ_max(W₃) ≥ ‖G‖², not ‖G‖ itself, and the bound is loose when
 W1y ≫ I. Minimizing ‖G‖ over quadratically stabilizing gains is not convex (it is bilinear in G
 and P), but each half is: for fixed P, the Lyapunov inequalities are affine in G; for fixed G they
 are affine in P. This module alternates
 
-    P-step:  maximize δ over I ⪯ P ⪯ κ I  with the vertex inequalities at rate α (or ρ) and margin δ
-    G-step:  minimize ‖G‖ with that P fixed and margin δ_min
+    P-step:  maximize δ over I ⪯ P ⪯ κ I  with the vertex inequalities at rate α (or ρ) and margin
+    δ G-step:  minimize ‖G‖ with that P fixed and margin δ_min
 
 starting from a certified gain. The current G stays feasible in the next G-step as long as the
 P-step margin is at least δ_min, so ‖G‖ never increases; every iterate is re-certified by
@@ -15,8 +16,8 @@ it finds *a* smaller certified gain, not the smallest one.
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
+import sys
 from typing import List, Optional
 
 import numpy as np
@@ -36,7 +37,7 @@ class RefineResult:
 
 def _lyap_blocks(cp, Acl, P, discrete, alpha, rho, margin):
     n = Acl.shape[0]
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
     if discrete:
         return cp.bmat([[rho * rho * P - margin * I, Acl.T @ P], [P @ Acl, P]]) >> 0
     Aa = Acl + alpha * I
@@ -47,7 +48,8 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
                      iterations: int = 25, kappa: float = 1e4, min_margin: float = 1e-4,
                      grid_models=None, rel_tol: float = 1e-4,
                      progress: bool = False) -> Optional[RefineResult]:
-    """Alternate P- and G-steps from a certified G0; return the smallest certified gain found.
+    """
+    Alternate P- and G-steps from a certified G0; return the smallest certified gain found.
 
     Returns None when G0 itself cannot be certified at the requested rate.
     """
@@ -59,7 +61,7 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
     best = RefineResult(G.copy(), float(np.linalg.norm(G, 2)), best_cert, 0,
                         [float(np.linalg.norm(G, 2))])
     n = system.n
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
     for k in range(1, iterations + 1):
         P = cp.Variable((n, n), symmetric=True)
         delta = cp.Variable()
@@ -73,7 +75,8 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
         Gv = cp.Variable(G.shape)
         g = cp.Variable()
         cons = [cp.sigma_max(Gv) <= g]
-        cons += [_lyap_blocks(cp, A - B @ Gv @ system.C, Pv, system.discrete, alpha, rho, min_margin)
+        cons += [_lyap_blocks(cp, A - B @ Gv @ system.C, Pv, system.discrete, alpha, rho,
+                              min_margin)
                  for A, B in system.models]
         cp.Problem(cp.Minimize(g), cons).solve(solver='CLARABEL')
         if Gv.value is None:

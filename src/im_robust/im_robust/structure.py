@@ -1,8 +1,9 @@
-"""The structured matrix W_o of seed 001 eq. 3.31 and the linear maps of the cone (2.59).
+"""
+The structured matrix W_o of seed 001 eq. 3.31 and the linear maps of the cone (2.59).
 
-In the coordinates x̃ = T x, T = [C; D] (eq. 3.7, 3.26), the state splits into the r outputs
-(index set y) and the n − r complementary coordinates (index set d); the augmented variable adds
-the m inputs (index set u). The equality constraints C W₁ D' = 0 and W₂' D' = 0 (eq. 3.9, 3.29-3.30)
+In the coordinates x̃ = T x, T = [C; D] (eq. 3.7, 3.26), the state splits into the r outputs (index
+set y) and the n − r complementary coordinates (index set d); the augmented variable adds the m
+inputs (index set u). The equality constraints C W₁ D' = 0 and W₂' D' = 0 (eq. 3.9, 3.29-3.30)
 become the zero pattern
 
           y     d     u
@@ -30,7 +31,7 @@ from typing import List, Sequence, Tuple
 
 import numpy as np
 
-from .polytope import Model, augmented
+from .polytope import augmented, Model
 
 
 class StructuredW:
@@ -75,7 +76,8 @@ class StructuredW:
         mask = ~self.free_mask
         return float(np.abs(W[mask]).max()) if mask.any() else 0.0
 
-    # Linear maps: each returns an array of shape (q, k, k) with M(ω) = Σ_k ω_k M_k ----------------
+    # Linear maps: each returns an array of shape (q, k, k) with M(ω) = Σ_k ω_k M_k
+    # ----------------
     def theta_maps(self, models: Sequence[Model], discrete: bool) -> List[np.ndarray]:
         """Θ_l restricted to E'z = 0 (the leading n × n block), one (q, n, n) array per vertex."""
         n = self.n
@@ -91,7 +93,11 @@ class StructuredW:
         return maps
 
     def w1_map(self, block: str = 'all') -> np.ndarray:
-        """W₁ (``'all'``, the thesis's F₀ normalization, eq. 2.23/2.30) or only W1y (``'output'``)."""
+        """
+        Return the normalized variables.
+
+        W₁ (``'all'``, the thesis's F₀ normalization, eq. 2.23/2.30) or only W1y (``'output'``).
+        """
         k = self.n if block == 'all' else self.r
         return self.basis[:, :k, :k]
 

@@ -1,11 +1,12 @@
-"""Robust static output-feedback synthesis by convex programming (seed 001 ch. 2-3).
+"""
+Robust static output-feedback synthesis by convex programming (seed 001 ch. 2-3).
 
 The problem solved is (3.33)/(4.1): in the coordinates x̃ = T x with T = [C; D],
 
     minimize    f(W_o) = λ_max(W₃)                                   (eq. 2.33)
     subject to  W_o = W_o' ⪰ 0 with the zero pattern of eq. 3.31
                 Θ_l(W_o) restricted to E'z = 0  ⪯ −ε I,  l = 1…L      (eq. 2.30 / 2.59)
-                W₁ ⪰ I                                                 (the l = 0 vertex F₀, eq. 2.23)
+                W₁ ⪰ I                                           (the l = 0 vertex F₀, eq. 2.23)
 
 and the gain is G = W2y' W1y⁻¹ (eq. 3.35), u = −G y. Since W₁ ⪰ I and W ⪰ 0,
 G Gᵀ ⪯ G W1y Gᵀ ⪯ W₃, so ‖G‖² ≤ f(W_o) (eq. 2.31-2.33, 3.19).
@@ -24,28 +25,29 @@ gain (``G is None``) and says why.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
 from .certificate import Certificate, certify
-from .polytope import Model, UncertainSystem, complete_basis, with_decay
-from .structure import StructuredW, apply_map
+from .polytope import complete_basis, Model, UncertainSystem, with_decay
+from .structure import apply_map, StructuredW
 
 SOLVERS = ('clarabel', 'scs', 'cutting-plane')
 
 
 @dataclass
 class SynthesisResult:
-    """Outcome of a synthesis.
+    """
+    Outcome of a synthesis.
 
-    status : ``'certified'`` (G is set and certified), ``'infeasible'`` (the solver proved the convex
-    problem infeasible — for the cutting plane: within its box bounds), ``'uncertified'`` (the solver
-    returned a point but the gain failed the independent check; G is None and the candidate is kept
-    in ``rejected_G``) or ``'failed'`` (solver error, iteration limit).
+    status : ``'certified'`` (G is set and certified), ``'infeasible'`` (the solver proved the
+    convex problem infeasible — for the cutting plane: within its box bounds), ``'uncertified'``
+    (the solver returned a point but the gain failed the independent check; G is None and the
+    candidate is kept in ``rejected_G``) or ``'failed'`` (solver error, iteration limit).
     """
 
     status: str
@@ -96,7 +98,11 @@ class Problem:
 
 def build_problem(system: UncertainSystem, *, D=None, alpha: float = 0.0, rho: float = 1.0,
                   margin: float = 1.0, normalization: str = 'thesis') -> Problem:
-    """Steps 1-2 of the algorithm of §3.3: T = [C; D], S = diag(T, I), extreme models S F_l S⁻¹."""
+    """
+    Build the problem: steps 1-2 of the algorithm of §3.3.
+
+    T = [C; D], S = diag(T, I), extreme models S F_l S⁻¹.
+    """
     if normalization not in ('thesis', 'output'):
         raise ValueError("normalization must be 'thesis' or 'output'")
     if not margin > 0:
@@ -153,10 +159,12 @@ def _solve_sdp(prob: Problem, solver: str, verbose: bool = False):
 
 def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alpha: float = 0.0,
                rho: float = 1.0, margin: float = 1.0, normalization: str = 'thesis',
-               grid_models: Optional[Sequence[Model]] = None, certify_alpha: Optional[float] = None,
+               grid_models: Optional[Sequence[Model]] = None,
+               certify_alpha: Optional[float] = None,
                certify_rho: Optional[float] = None, progress: bool = False,
                **cutting_plane_options) -> SynthesisResult:
-    """Solve (3.33) and certify the gain.
+    """
+    Solve (3.33) and certify the gain.
 
     Parameters
     ----------
@@ -164,16 +172,23 @@ def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alp
         Vertex models, output matrix C, time domain.
     D : (n − r, n) array, optional
         Completes T = [C; D]; default: orthonormal complement of the rows of C.
-    solver : ``'clarabel'``, ``'scs'`` or ``'cutting-plane'`` (§4.1, LPs by HiGHS).
+    solver : str
+        ``'clarabel'``, ``'scs'`` or ``'cutting-plane'`` (§4.1, LPs by HiGHS).
     alpha, rho : float
         Required decay: continuous Re λ < −α (vertices A + αI), discrete |λ| < ρ (vertices A/ρ).
     margin : float
         ε of the normalization z'Θz ≤ −ε (thesis: 1).
-    normalization : ``'thesis'`` (W₁ ⪰ I) or ``'output'`` (W1y ⪰ I).
-    grid_models : optional dense-grid models for the certificate.
-    certify_alpha, certify_rho : rate the certificate demands (default: alpha, rho).
-    progress : print iteration progress on stderr (cutting plane).
-    cutting_plane_options : passed to :func:`im_robust.cutting_plane.solve_cutting_plane`.
+    normalization : str
+        ``'thesis'`` (W₁ ⪰ I) or ``'output'`` (W1y ⪰ I).
+    grid_models : sequence of (A, B), optional
+        Dense-grid models for the certificate.
+    certify_alpha, certify_rho : float, optional
+        Rate the certificate demands (default: alpha, rho).
+    progress : bool
+        Print iteration progress on stderr (cutting plane).
+    cutting_plane_options
+        Passed to :func:`im_robust.cutting_plane.solve_cutting_plane`.
+
     """
     if solver not in SOLVERS:
         raise ValueError(f'solver must be one of {SOLVERS}, got {solver!r}')

@@ -1,12 +1,11 @@
 """Synthesis, certificate and cutting plane on small problems with known answers."""
-import numpy as np
-import pytest
-
 from im_robust.certificate import certify
 from im_robust.examples import (AIRCRAFT_A23_TYPO_READING, check_printed_solution, example1,
                                 example3)
-from im_robust.polytope import UncertainSystem, augmented
+from im_robust.polytope import augmented, UncertainSystem
 from im_robust.synthesis import synthesize
+import numpy as np
+import pytest
 
 
 def scalar_continuous(a_values, b=1.0):
@@ -129,16 +128,21 @@ def test_thesis_example1_is_certified_and_its_printed_W_is_not_feasible():
 
 
 def test_example1_printed_W_is_feasible_only_with_a23_read_as_0_035():
-    """Seed 001 example 1 both ways: with a23 = 0.35 as printed, the printed W_o violates (3.33) at
-    both vertices by far; with a23 = 0.035 both vertex constraints hold and are active to print
-    precision (λ_max(Θ_l) ≈ −ε = −1), which is what a solution of the LP looks like. W_o itself
-    does not depend on A: its λ_min(W) is the same small negative number (4-digit rounding)."""
+    """
+    Seed 001 example 1 both ways.
+
+    With a23 = 0.35 as printed, the printed W_o violates (3.33) at both vertices by far; with
+    a23 = 0.035 both vertex constraints hold and are active to print precision (λ_max(Θ_l) ≈ −ε
+    = −1), which is what a solution of the LP looks like. W_o itself does not depend on A: its
+    λ_min(W) is the same small negative number (4-digit rounding).
+    """
     printed = check_printed_solution(example1())
     typo = check_printed_solution(example1(AIRCRAFT_A23_TYPO_READING))
     assert min(printed['theta_max_eig']) > 100.0 and not printed['theta_ok']
     assert typo['theta_ok'] and max(abs(v + 1.0) for v in typo['theta_max_eig']) < 0.01
     assert typo['lambda_min_W'] == printed['lambda_min_W'] and abs(typo['lambda_min_W']) < 0.05
-    assert typo['G_mismatch'] < 1e-4                  # the printed G is the one the printed W gives
+    # the printed G is the one the printed W gives
+    assert typo['G_mismatch'] < 1e-4
     ex = example1(AIRCRAFT_A23_TYPO_READING)
     assert ex.key == '1-a23' and certify(ex.system, ex.G_printed).certified
 

@@ -1,4 +1,5 @@
-"""Gain design for the drive's fixed-rate loops (current loop and observer injection).
+"""
+Gain design for the drive's fixed-rate loops (current loop and observer injection).
 
 Drive-specific use of the generic synthesis library :mod:`im_robust` (seed 001) on the models of
 seed 000: :mod:`.motor` (sampled 4-state models, 4-state designs, the thesis gain's sampled-data

@@ -1,11 +1,12 @@
-"""Drive gains at the node period, posed the way the controller and observer use them.
+"""
+Drive gains at the node period, posed the way the controller and observer use them.
 
-The 4-state designs of :mod:`im_controller.gain_design.motor` ask one static gain to make the whole (i, φ_r) ZOH
-model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms that is
-infeasible (no common Lyapunov function, flux modes fixed by T_r). The controller does not need
-it: it feeds forward the back-EMF and flux terms (seed 000 eq. 3.29), so the current gain only
-has to stabilize the *stator-current error* subsystem. This module designs and certifies that
-(see docs/robust.md, "Drive gains at the node period"):
+The 4-state designs of :mod:`im_controller.gain_design.motor` ask one static gain to make the whole
+(i, φ_r) ZOH model quadratically stable over the parameter box and ω_r ∈ [−ω_max, ω_max]. At 1 ms
+that is infeasible (no common Lyapunov function, flux modes fixed by T_r). The controller does not
+need it: it feeds forward the back-EMF and flux terms (seed 000 eq. 3.29), so the current gain only
+has to stabilize the *stator-current error* subsystem. This module designs and certifies that (see
+docs/robust.md, "Drive gains at the node period"):
 
 Current loop. With V = V* + ΔV, ΔV_k = −K e_k, e = i − i*, the current error obeys
 
@@ -37,27 +38,26 @@ the period there is no common P over the speeds, so the certificate is per froze
 with an affine speed-dependent P(ω), valid for a bounded speed change per period. Where they do
 not certify (1 ms), the synthesis above is used.
 
-Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb (:class:`im_controller.gain_design.motor.Scaling`).
+Scaling: per unit with i_b = 1 Wb/L_sr, V_b = v·ω_b·1 Wb
+(:class:`im_controller.gain_design.motor.Scaling`).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import math
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence
-
-import numpy as np
 
 from im_common.cli import gated_logger
 from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
-
 from im_robust.certificate import Certificate, certify
-from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, THESIS_K1, Scaling,
-                    parameter_grid, zoh,
-                    sampled_models)
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
+import numpy as np
+
+from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, parameter_grid, sampled_models, Scaling,
+                    THESIS_K1, zoh)
 
 #: parameter grid of the (R_eq, σL_s) vertex models and of the dense certificate grid
 SUBSYSTEM_VERTEX_POINTS = {'R_r': 2, 'L_s': 3, 'L_r': 3, 'L_sr': 5, 'omega_r': 1}
@@ -96,8 +96,12 @@ def subsystem_ab(pts: np.ndarray, T_s: float):
 
 def current_error_system(pts: np.ndarray, T_s: float, *, injection: str = 'voltage',
                          motor: MotorParams = THESIS_MOTOR, name: str = '') -> UncertainSystem:
-    """Per-unit 2×2 models of the current error: (a I, b̃ I) for a voltage gain, (a I, I) for the
-    observer's direct current-error injection. State feedback (C = I)."""
+    """
+    Per-unit 2×2 models of the current error.
+
+    (a I, b̃ I) for a voltage gain, (a I, I) for the observer's direct current-error injection.
+    State feedback (C = I).
+    """
     sc = Scaling.for_motor(motor)
     a, b = subsystem_ab(pts, T_s)
     if injection == 'voltage':
@@ -106,7 +110,7 @@ def current_error_system(pts: np.ndarray, T_s: float, *, injection: str = 'volta
         b = np.ones_like(a)
     else:
         raise ValueError(f"injection must be 'voltage' or 'direct', got {injection!r}")
-    I = np.eye(2)
+    I = np.eye(2)  # noqa: E741 (the identity matrix, as in the equations)
     return UncertainSystem([(ak * I, bk * I) for ak, bk in zip(a, b)], None, discrete=True,
                            name=name or f'current error ({injection}) T_s={T_s:g}')
 
@@ -176,8 +180,12 @@ def _feasible(system: UncertainSystem, rho: float) -> bool:
 
 
 def best_feasible_rate(system: UncertainSystem, T_s: float, *, iterations: int = 11) -> float:
-    """Largest α [1/s] (bisection on ρ = exp(−α T_s)) for which (3.33) yields a certified gain on
-    the vertex models; 0 if even ρ = 1 fails."""
+    """
+    Return the largest decay rate α for which a certified current gain exists.
+
+    Largest α [1/s] (bisection on ρ = exp(−α T_s)) for which (3.33) yields a certified gain on the
+    vertex models; 0 if even ρ = 1 fails.
+    """
     if not _feasible(system, 1.0):
         return 0.0
     lo, hi = 0.0, 1.0     # ρ: infeasible ≤ lo, feasible ≥ hi
@@ -190,16 +198,19 @@ def best_feasible_rate(system: UncertainSystem, T_s: float, *, iterations: int =
     return -math.log(hi) / T_s
 
 
-def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate: Optional[float] = None,
+def design_subsystem_gain(T_s: float, *, injection: str = 'voltage',
+                          decay_rate: Optional[float] = None,
                           rate_fraction: float = DEFAULT_RATE_FRACTION,
                           sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                           vertex_points=None, certify_points=None, design_reserve: float = 0.02,
                           progress: bool = False) -> LoopDesign:
-    """Certified 2×2 gain of the current-error subsystem at T_s.
+    """
+    Certified 2×2 gain of the current-error subsystem at T_s.
 
-    ``decay_rate`` None: ``rate_fraction`` × the largest feasible rate (bisection). The synthesis is
-    asked for (1 + ``design_reserve``)·α at the vertex models and the certificate checks α at the
-    vertices and on the dense grid (the sampled (a, b) curve bulges out of the hull of its samples).
+    ``decay_rate`` None: ``rate_fraction`` × the largest feasible rate (bisection). The synthesis
+    is asked for (1 + ``design_reserve``)·α at the vertex models and the certificate checks α at
+    the vertices and on the dense grid (the sampled (a, b) curve bulges out of the hull of its
+    samples).
     """
     if not (math.isfinite(T_s) and T_s > 0):
         raise ValueError(f'T_s = {T_s!r} must be a positive period in seconds')
@@ -234,8 +245,12 @@ def design_subsystem_gain(T_s: float, *, injection: str = 'voltage', decay_rate:
 
 
 def _subsystem_models(T_s, sigma_min, motor, vertex_points, certify_points):
-    """(scaling, vertex points, dense points, vertex system, dense certification models) of the
-    current-error subsystem."""
+    """
+    Set up the current-error subsystem for the gain design.
+
+    (scaling, vertex points, dense points, vertex system, dense certification models) of the
+    current-error subsystem.
+    """
     sc = Scaling.for_motor(motor)
     vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
     cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
@@ -247,7 +262,7 @@ def _subsystem_models(T_s, sigma_min, motor, vertex_points, certify_points):
 def certify_current_gain(K, T_s: float, *, decay_rate: float = 0.0,
                          sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                          vertex_points=None, certify_points=None) -> Certificate:
-    """The library's certificate for a given current gain K [V/A] on the subsystem at T_s."""
+    """Return the library's certificate for a current gain K [V/A] on the subsystem at T_s."""
     sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
                                                 certify_points)
     G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
@@ -259,7 +274,8 @@ def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
                           sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
                           vertex_points=None, certify_points=None,
                           progress: bool = False) -> Optional[LoopDesign]:
-    """The thesis's current gain K = k I, certified as it is on the current-error subsystem.
+    """
+    Return the thesis's current gain K = k I, certified as it is on the current-error subsystem.
 
     The largest rate α_k for which a common P exists at the vertex models is found by bisection
     (:func:`im_robust.certificate.best_rate`); K is then certified at ``rate_fraction``·α_k on the
@@ -307,8 +323,12 @@ def _observer_system(A_d: np.ndarray, sc: Scaling, name: str) -> UncertainSystem
 
 @dataclass
 class ObserverCertificate:
-    """Certificate of x̂⁺ = A_d x̂ + B_d V + L (i − î): scope 'box' (one P for every parameter
-    point and speed) or 'frozen-parameter' (one P per parameter point, common to every speed)."""
+    """
+    Certificate of x̂⁺ = A_d x̂ + B_d V + L (i − î).
+
+    Scope 'box' (one P for every parameter point and speed) or 'frozen-parameter' (one P per
+    parameter point, common to every speed).
+    """
 
     certified: bool
     scope: str
@@ -330,8 +350,12 @@ class ObserverCertificate:
 
 def _certify_strict(system: UncertainSystem, G, rho: float, decay_rate: float, T_s: float,
                     dense) -> Certificate:
-    """certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin
-    is not left at the LMI's numerical floor; certify() falls back to its own P if that fails."""
+    """
+    Certify with a P that leaves margin above the LMI's numerical floor.
+
+    certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin is not
+    left at the LMI's numerical floor; certify() falls back to its own P if that fails.
+    """
     from im_robust.certificate import analysis_lmi
     strict = math.exp(-1.5 * decay_rate * T_s) if decay_rate > 0 else rho
     P = analysis_lmi(system.closed_loops(G), True, rho=strict)
@@ -344,7 +368,8 @@ def certify_observer_gain(L, T_s: float, *, omega_max: float = 200.0,
                           param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
                           omega_dense: int = OBSERVER_OMEGA_DENSE,
                           progress: bool = False) -> ObserverCertificate:
-    """Certify the 4-state observer error e⁺ = (A_d(p, ω) − L C) e with the library's certificate.
+    """
+    Certify the 4-state observer error e⁺ = (A_d(p, ω) − L C) e with the library's certificate.
 
     First box-wide (vertex models: parameter grid × ``omega_vertices`` speeds, dense check:
     ``omega_dense`` speeds at the same parameter points); if no common P exists, per frozen
@@ -409,7 +434,10 @@ THESIS_OBSERVER_SPEED_STEP = 20.0
 def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
                               motor: MotorParams = THESIS_MOTOR, max_substep: float = 1e-4,
                               skew_injection: bool = True) -> np.ndarray:
-    """The observer's own one-period error map M (SI, 4×4), built column by column from
+    """
+    Return the observer's own one-period error map M.
+
+    M (SI, 4×4) is built column by column from
     :class:`im_observer.observer.RotorFluxObserver` (thesis structure, ``k_e`` fixed, skew
     injection on) with model parameters ``point`` = (R_r, L_s, L_r, L_sr) and R_s of ``motor``.
 
@@ -435,9 +463,13 @@ def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float
 
 def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k_e: float, *,
                            motor: MotorParams = THESIS_MOTOR):
-    """(M_zoh, A_d): the same held-injection map with the period integrated exactly,
-    M_zoh = A_d − Γ_d H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction
-    were the plant's exact ZOH flow."""
+    """
+    Return the held-injection error map with the period integrated exactly.
+
+    (M_zoh, A_d): the same held-injection map with the period integrated exactly, M_zoh = A_d − Γ_d
+    H C, Γ_d = ∫₀^{T_s} e^{Aτ}dτ — the error map if the observer's prediction were the plant's
+    exact ZOH flow.
+    """
     R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
     A, _ = eq112_matrices(motor.R_s, R_r, L_s, L_r, L_sr, motor.pole_pairs, float(omega_r))
     sLs = L_s - L_sr ** 2 / L_r
@@ -449,7 +481,8 @@ def held_injection_zoh_map(point: Sequence[float], omega_r: float, T_s: float, k
 
 @dataclass
 class ThesisObserverCertificate:
-    """Certificate of the sampled thesis-structure observer (k_e, skew injection) at T_s.
+    """
+    Certificate of the sampled thesis-structure observer (k_e, skew injection) at T_s.
 
     Scope 'frozen-parameter, speed-dependent P': at each parameter point one
     P(ω) = P₀ + (ω/ω_max) P₁ ≻ 0 with ‖M(ω)‖ contracting from P(ω) to P(ω') by ρ for every
@@ -482,15 +515,19 @@ class ThesisObserverCertificate:
 
 def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: float, step: float,
                        rho: float):
-    """(P₀, P₁) of P(ω) = P₀ + (ω/ω_max)P₁ with P(±ω_max) ⪰ I and, at every (M, ω),
-    Mᵀ P(ω') M ⪯ ρ² P(ω) for ω' = ω ± step (clipped to the range); None if the SDP fails.
-    For fixed ω the inequality is affine in ω', so the two ends cover every |ω' − ω| ≤ step."""
+    """
+    Find a speed-scheduled Lyapunov matrix P(ω) for the observer error maps.
+
+    (P₀, P₁) of P(ω) = P₀ + (ω/ω_max)P₁ with P(±ω_max) ⪰ I and, at every (M, ω), Mᵀ P(ω') M ⪯ ρ²
+    P(ω) for ω' = ω ± step (clipped to the range); None if the SDP fails. For fixed ω the
+    inequality is affine in ω', so the two ends cover every |ω' − ω| ≤ step.
+    """
     import cvxpy as cp
     n = 4
     P0 = cp.Variable((n, n), symmetric=True)
     P1 = cp.Variable((n, n), symmetric=True)
     s = cp.Variable()
-    I = np.eye(n)
+    I = np.eye(n)  # noqa: E741 (the identity matrix, as in the equations)
 
     def P(w):
         return P0 + (w / omega_max) * P1
@@ -510,8 +547,12 @@ def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: floa
 
 
 def _speed_dependent_rate(P0, P1, Ms, ws, omega_max: float, step: float):
-    """(worst ρ_c, worst cond P) of e ↦ M e from P(ω) to P(ω'), ω' ∈ {ω − step, ω, ω + step}
-    clipped, with numpy eigenvalues; (inf, inf) if some P(ω) is not positive definite."""
+    """
+    Check a speed-scheduled P(ω) numerically.
+
+    (worst ρ_c, worst cond P) of e ↦ M e from P(ω) to P(ω'), ω' ∈ {ω − step, ω, ω + step} clipped,
+    with numpy eigenvalues; (inf, inf) if some P(ω) is not positive definite.
+    """
     worst, cond = 0.0, 0.0
     for M, w in zip(Ms, ws):
         lam, V = np.linalg.eigh(P0 + (w / omega_max) * P1)
@@ -521,26 +562,31 @@ def _speed_dependent_rate(P0, P1, Ms, ws, omega_max: float, step: float):
         Pih = (V / np.sqrt(lam)) @ V.T
         for wp in (max(-omega_max, w - step), w, min(omega_max, w + step)):
             Q = P0 + (wp / omega_max) * P1
-            worst = max(worst, math.sqrt(max(0.0, np.linalg.eigvalsh(Pih @ M.T @ Q @ M @ Pih).max())))
+            worst = max(worst,
+                        math.sqrt(max(0.0, np.linalg.eigvalsh(Pih @ M.T @ Q @ M @ Pih).max())))
     return worst, cond
 
 
 def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_max: float = 200.0,
                             speed_step: float = THESIS_OBSERVER_SPEED_STEP,
                             decay_rate: float = DEFAULT_OBSERVER_RATE,
-                            sigma_min: float = DEFAULT_SIGMA_MIN, motor: MotorParams = THESIS_MOTOR,
+                            sigma_min: float = DEFAULT_SIGMA_MIN,
+                            motor: MotorParams = THESIS_MOTOR,
                             param_points=None, omega_vertices: int = OBSERVER_OMEGA_VERTICES,
                             omega_dense: int = OBSERVER_OMEGA_DENSE, max_substep: float = 1e-4,
                             progress: bool = False) -> ThesisObserverCertificate:
-    """Certify the observer in the thesis's structure (``k_e`` fixed, default 1/σ̂ of ``motor``
-    — what the node uses with k_e_injection = 0 — plus the speed-scheduled skew injection).
+    """
+    Certify the observer in the thesis's structure.
+
+    Certify the observer in the thesis's structure (``k_e`` fixed, default 1/σ̂ of ``motor`` — what
+    the node uses with k_e_injection = 0 — plus the speed-scheduled skew injection).
 
     Error map: the observer's own M(p, ω) (:func:`thesis_observer_error_map`, RK4 sub-steps) at
     each parameter point (observer model = plant, as in :func:`certify_observer_gain`). With the
-    plant integrated exactly, e⁺ = M e + d with d = (A_d − Φ)x + (B_d − ΓB)V, the model's one-period
-    integration error (RK4: O((‖A‖T_s/n)⁵) per sub-step), an input to the certified map, reported
-    as ``model_residual``. The exact held-injection map M_zoh (:func:`held_injection_zoh_map`) is
-    checked with the same P on the dense speeds too.
+    plant integrated exactly, e⁺ = M e + d with d = (A_d − Φ)x + (B_d − ΓB)V, the model's
+    one-period integration error (RK4: O((‖A‖T_s/n)⁵) per sub-step), an input to the certified map,
+    reported as ``model_residual``. The exact held-injection map M_zoh
+    (:func:`held_injection_zoh_map`) is checked with the same P on the dense speeds too.
 
     Steps: (1) spectral radius of every map (stop if ≥ ρ); (2) a common P over the speed range at
     the nominal point (reported; the held skew injection defeats it); (3) per parameter point the
@@ -585,12 +631,14 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
     spec = float(max(np.abs(np.linalg.eigvals(M)).max() for r in Md + Mz for M in r))
 
     def result(ok, scope, rv, rd, common, cond, reason=''):
-        return ThesisObserverCertificate(ok, T_s, k_e, omega_max, speed_step, decay_rate, scope, rv,
+        return ThesisObserverCertificate(ok, T_s, k_e, omega_max, speed_step, decay_rate, scope,
+                                         rv,
                                          rd, spec, common, diff, resid, cond, len(pts), n_models,
                                          reason, time.perf_counter() - t0)
     if not spec < rho:
         return result(False, 'eigenvalues', None, None, None, None,
-                      f'spectral radius {spec:.6g} >= rho = {rho:.8f}: the sampled thesis-structure '
+                      f'spectral radius {spec:.6g} >= rho = '
+                      f'{rho:.8f}: the sampled thesis-structure '
                       f'error map is not stable on the grid (T_s = {T_s:g} s, k_e = {k_e:.4g})')
     nominal = len(pts) - 1
     common = analysis_lmi(Mv[nominal], True, rho=1.0) is not None
@@ -622,7 +670,8 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
 # ---------------------------------------------------------------------------------------------
 def held_coupling_residual(T_s: float, k: float, *, omega_max: float = 200.0,
                            motor: MotorParams = THESIS_MOTOR) -> Dict[str, float]:
-    """Damping of the flux-error mode lost to the *held* cancellation term v ω θ 𝒥 (φ̂ − φ*)_k.
+    """
+    Damping of the flux-error mode lost to the *held* cancellation term v ω θ 𝒥 (φ̂ − φ*)_k.
 
     The plant's coupling −v ω θ 𝒥 f(t) rotates with the field (ρ̇ = v ω + ω_sl); the controller
     holds its sample over the period, so the residual averages to v ω θ ρ̇ (T_s/2) f — in phase
@@ -653,9 +702,13 @@ def choose_flux_coupling(T_s: float, k: float, *, omega_max: float = 200.0,
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class DriveGains:
-    """Both gains at T_s. ``observer_structure`` 'thesis': the observer keeps k_e (1/σ̂) and the
-    skew injection, certified by ``thesis_observer``; 'discrete': the injection L = [ℓ I; 0]
-    of ``observer_current``, certified by ``observer``."""
+    """
+    Both gains at T_s.
+
+    ``observer_structure`` 'thesis': the observer keeps k_e (1/σ̂) and the skew injection,
+    certified by ``thesis_observer``; 'discrete': the injection L = [ℓ I; 0] of
+    ``observer_current``, certified by ``observer``.
+    """
 
     T_s: float
     omega_max: float
@@ -681,7 +734,7 @@ class DriveGains:
 
     @property
     def k_e(self) -> Optional[float]:
-        """The thesis-structure observer's k_e (None with the discrete injection)."""
+        """Return the thesis-structure observer's gain (None with the discrete injection)."""
         t = self.thesis_observer
         return t.k_e if self.observer_structure == 'thesis' and t is not None else None
 
@@ -717,7 +770,10 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
                        current_policy: str = 'thesis-if-certified',
                        observer_structure: str = 'auto',
                        progress: bool = False) -> DriveGains:
-    """Current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
+    """
+    Return the gains for T_s.
+
+    The current gain K, the observer (thesis structure or discrete L = [ℓ I; 0]) and the
     flux-coupling choice at T_s.
 
     ``current_policy`` 'thesis-if-certified' (default, ``decay_rate`` None): keep the thesis's
@@ -733,12 +789,12 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
         raise ValueError(f'omega_max = {omega_max!r} must be >= 0 rad/s')
     if current_policy not in ('thesis-if-certified', 'synthesis'):
         raise ValueError(f"current_policy must be 'thesis-if-certified' or 'synthesis', "
-                         f"got {current_policy!r}")
+                         f'got {current_policy!r}')
     if observer_structure not in ('auto', 'thesis', 'discrete'):
         raise ValueError(f"observer_structure must be 'auto', 'thesis' or 'discrete', "
-                         f"got {observer_structure!r}")
-    kw = dict(sigma_min=sigma_min, motor=motor, vertex_points=vertex_points,
-              certify_points=certify_points, rate_fraction=rate_fraction, progress=progress)
+                         f'got {observer_structure!r}')
+    kw = {'sigma_min': sigma_min, 'motor': motor, 'vertex_points': vertex_points,
+          'certify_points': certify_points, 'rate_fraction': rate_fraction, 'progress': progress}
     cur = None
     if current_policy == 'thesis-if-certified' and decay_rate is None:
         cur = thesis_current_design(T_s, **kw)
@@ -765,7 +821,10 @@ def design_drive_gains(T_s: float, *, omega_max: float = 200.0, decay_rate: Opti
                                         decay_rate=observer_decay_rate, sigma_min=sigma_min,
                                         motor=motor, param_points=observer_param_points,
                                         progress=progress)
-    k = float(np.linalg.eigvalsh(0.5 * (cur.gain + cur.gain.T)).min()) if cur.certified else THESIS_K1
+    if cur.certified:
+        k = float(np.linalg.eigvalsh(0.5 * (cur.gain + cur.gain.T)).min())
+    else:
+        k = THESIS_K1
     return DriveGains(T_s, omega_max, sigma_min, cur, obs_cur, obs,
                       choose_flux_coupling(T_s, k, omega_max=omega_max, motor=motor),
                       held_coupling_residual(T_s, k, omega_max=omega_max, motor=motor),

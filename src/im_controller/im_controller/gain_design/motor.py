@@ -1,4 +1,5 @@
-"""Robust sampled gains for the induction-motor drive (seed 001 applied to seed 000).
+"""
+Robust sampled gains for the induction-motor drive (seed 001 applied to seed 000).
 
 Model. Seed 000 eq. 1.112, state x = [i_α, i_β, φ_rα, φ_rβ] (A, A, Wb, Wb), input V_αβ (V), the
 mechanical speed ω_r (rad/s) a parameter, electrical speed v·ω_r:
@@ -11,13 +12,13 @@ sampled with a zero-order hold at the node period T_s: [A_d B_d; 0 I] = exp([A B
 
 Uncertainty. R_r ∈ [0.42, 1.26] Ω, L_s, L_r ∈ [0.084, 0.116] H, L_sr ∈ [0.081, 0.113] H, ω_r ∈
 [−ω_max, ω_max], R_s at its nominal value; only combinations with σ = 1 − L_sr²/(L_s L_r) ≥ σ_min.
-σ_min must be positive: as σ → 0 the current time constant σL_s/R_eq → 0, the sampled current
-mode becomes a one-step delay with gain 1/R_eq, and a current gain K is stable only for
-K < R_eq ≈ 0.9-1.8 Ω whatever T_s. The default σ_min = 0.05 keeps every point of the chapter-4
-variation profile (σ ∈ [0.051, 0.070]). The set is not a polytope (σ ≥ σ_min is a quadric cut) and A_d, B_d are not affine in the
-parameters (exp of a matrix affine in R_r, ω_r and rational in the inductances). The synthesis
-therefore uses *sampled* vertex models: (A_d, B_d) at a grid of the parameters (``vertex_points``).
-What the certificate then guarantees:
+σ_min must be positive: as σ → 0 the current time constant σL_s/R_eq → 0, the sampled current mode
+becomes a one-step delay with gain 1/R_eq, and a current gain K is stable only for K < R_eq ≈
+0.9-1.8 Ω whatever T_s. The default σ_min = 0.05 keeps every point of the chapter-4 variation
+profile (σ ∈ [0.051, 0.070]). The set is not a polytope (σ ≥ σ_min is a quadric cut) and A_d, B_d
+are not affine in the parameters (exp of a matrix affine in R_r, ω_r and rational in the
+inductances). The synthesis therefore uses *sampled* vertex models: (A_d, B_d) at a grid of the
+parameters (``vertex_points``). What the certificate then guarantees:
 
 - exactly: quadratic stability (with the stated rate) of every model in the convex hull of the
   sampled (A_d, B_d) pairs — including arbitrarily fast variation among them;
@@ -29,9 +30,10 @@ Loops designed here (sign conventions of the YAML the nodes read):
 - current loop: ΔV_k = −K (i_k − i*_k) with a 2×2 K on the measured currents only — static output
   feedback with C = [I₂ 0] (seed 001 ch. 3, G = K); closed loop A_d − B_d K C.
 - observer: x̂_{k+1} = A_d x̂_k + B_d V_k + L (i_k − C x̂_k), 4×2 L; error e = x − x̂ obeys
-  e_{k+1} = (A_d − L C) e_k when the observer's model equals the plant's. Designed as the dual state
-  feedback problem (A_d', C') with G = L' (seed 001 ch. 2; quadratic stability of A' and A with a
-  common P are equivalent: ‖P^{½} A P^{−½}‖ = ‖P^{−½} A' P^{½}‖ with the roles of P and P⁻¹ swapped).
+  e_{k+1} = (A_d − L C) e_k when the observer's model equals the plant's. Designed as the dual
+  state feedback problem (A_d', C') with G = L' (seed 001 ch. 2; quadratic stability of A' and A
+  with a common P are equivalent: ‖P^{½} A P^{−½}‖ = ‖P^{−½} A' P^{½}‖ with the roles of P and
+  P⁻¹ swapped).
 
 Scaling. In SI units the sampled model mixes entries of size 1e-4 to 1e2 (flux→current coupling
 v ω_r K T_s ≈ 60 at 1 ms). The synthesis runs in per-unit coordinates: φ_b = 1 Wb,
@@ -44,20 +46,17 @@ so for the current loop α is bounded by min R_r/L_r = 0.42/0.116 ≈ 3.6 1/s wh
 """
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass, field
+import math
 from typing import Dict, List, Optional, Tuple
-
-import numpy as np
-from scipy.linalg import expm
 
 from im_common.cli import gated_logger
 from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
-
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
+import numpy as np
+from scipy.linalg import expm
 
 DEFAULT_BOX: Dict[str, Tuple[float, float]] = {
     'R_r': (0.42, 1.26), 'L_s': (0.084, 0.116), 'L_r': (0.084, 0.116), 'L_sr': (0.081, 0.113)}
@@ -80,16 +79,18 @@ def zoh(A: np.ndarray, B: np.ndarray, T_s: float) -> Tuple[np.ndarray, np.ndarra
 def parameter_grid(points: Dict[str, int] | int, omega_max: float,
                    box: Optional[Dict[str, Tuple[float, float]]] = None,
                    sigma_min: float = DEFAULT_SIGMA_MIN) -> np.ndarray:
-    """Rows (R_r, L_s, L_r, L_sr, ω_r) of a regular grid of the box ∩ {σ ≥ σ_min}.
+    """
+    Rows (R_r, L_s, L_r, L_sr, ω_r) of a regular grid of the box ∩ {σ ≥ σ_min}.
 
-    ``points`` is a count per name of :data:`PARAM_NAMES` (or one count for all); a count of 1 takes
-    the middle of the interval. Grid values of L_sr beyond the σ = σ_min surface are moved onto it
-    (L_sr = √((1 − σ_min) L_s L_r)), so the grid covers the stiffest admissible models instead of
-    dropping them; duplicate rows are removed.
+    ``points`` is a count per name of :data:`PARAM_NAMES` (or one count for all); a count of 1
+    takes the middle of the interval. Grid values of L_sr beyond the σ = σ_min surface are moved
+    onto it (L_sr = √((1 − σ_min) L_s L_r)), so the grid covers the stiffest admissible models
+    instead of dropping them; duplicate rows are removed.
     """
     if not 0.0 < sigma_min < 1.0:
         raise ValueError(f'sigma_min = {sigma_min} must be in (0, 1): sigma -> 0 is a motor '
-                         f'without leakage, whose sampled current loop tolerates no gain above R_eq')
+                         f'without leakage, whose sampled current '
+                         f'loop tolerates no gain above R_eq')
     box = dict(DEFAULT_BOX if box is None else box)
     box['omega_r'] = (-abs(omega_max), abs(omega_max))
     counts = {k: points for k in PARAM_NAMES} if isinstance(points, int) else dict(points)
@@ -146,7 +147,11 @@ class Scaling:
 
 def current_loop_system(A_d: np.ndarray, B_d: np.ndarray, scaling: Scaling,
                         name: str = 'current loop') -> UncertainSystem:
-    """Per-unit (Ã, B̃, C̃) of the current loop: Ã = S⁻¹ A_d S, B̃ = S⁻¹ B_d S_u, C̃ = S_y⁻¹ C S."""
+    """
+    Return the per-unit (Ã, B̃, C̃) of the current loop.
+
+    Ã = S⁻¹ A_d S, B̃ = S⁻¹ B_d S_u, C̃ = S_y⁻¹ C S.
+    """
     S, Si = scaling.S, np.linalg.inv(scaling.S)
     models = [(Si @ A @ S, Si @ B @ scaling.S_u) for A, B in zip(A_d, B_d)]
     C = np.linalg.inv(scaling.S_y) @ C_CURRENT @ S
@@ -206,11 +211,12 @@ DEFAULT_CERTIFY_POINTS = {'R_r': 5, 'L_s': 5, 'L_r': 5, 'L_sr': 5, 'omega_r': 41
 
 
 def _current_D_candidates() -> List[np.ndarray]:
-    """Choices of D for T = [C; D] tried in turn (step 4 of §3.3: redefine D when C is empty).
+    """
+    Choices of D for T = [C; D] tried in turn (step 4 of §3.3: redefine D when C is empty).
 
     Per-unit coordinates: [0 I] (rotor flux), then rotor-current-like and stator-flux-like mixes.
     """
-    Z, I = np.zeros((2, 2)), np.eye(2)
+    Z, I = np.zeros((2, 2)), np.eye(2)  # noqa: E741 (the identity matrix, as in the equations)
     return [np.hstack([Z, I]), np.hstack([-I, I]), np.hstack([I, I]), np.hstack([-0.5 * I, I])]
 
 
@@ -221,10 +227,11 @@ def design_current_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_ra
                         motor: MotorParams = THESIS_MOTOR, sigma_min: float = DEFAULT_SIGMA_MIN,
                         vertex_points=None, certify_points=None, margin: float = 1e-6,
                         design_extra_rate: float = 1.0, progress: bool = False) -> GainDesign:
-    """Robust 2×2 current gain K (ΔV = −K(i − i*)) at the period T_s with |λ| < exp(−α T_s).
+    """
+    Robust 2×2 current gain K (ΔV = −K(i − i*)) at the period T_s with |λ| < exp(−α T_s).
 
-    Solves seed 001 (3.33) with ``normalization='output'`` and a small ε (``margin``; the rate is the
-    margin that matters here) in per-unit coordinates, trying the D of
+    Solves seed 001 (3.33) with ``normalization='output'`` and a small ε (``margin``; the rate is
+    the margin that matters here) in per-unit coordinates, trying the D of
     :func:`_current_D_candidates` in turn. The synthesis asks for α + ``design_extra_rate`` at the
     vertex models and the certificate checks α on the dense grid: without that reserve the
     minimum-norm solution sits on the boundary at the vertices and the dense-grid models just
@@ -299,10 +306,11 @@ def design_observer_gain(T_s: float = 1e-3, *, omega_max: float = 200.0, decay_r
 # The thesis's continuous gains, sampled
 # ---------------------------------------------------------------------------------------------
 def thesis_continuous_gains(motor: MotorParams = THESIS_MOTOR) -> Tuple[np.ndarray, np.ndarray]:
-    """K_c = k1·I (V/A) and the observer injection L_c (1/s on the current error), seed 000.
+    """
+    K_c = k1·I (V/A) and the observer injection L_c (1/s on the current error), seed 000.
 
-    The observer (eq. 3.27) is D x̂' + (C + R) x̂ = M V + F (x − x̂) with F = diag(k_e I₂, 0) and
-    D = diag(σL_s I₂, (1/L_r) I₂); in explicit form the injection is D⁻¹F = [k_e/(σ L_s) I₂; 0] with
+    The observer (eq. 3.27) is D x̂' + (C + R) x̂ = M V + F (x − x̂) with F = diag(k_e I₂, 0) and D
+    = diag(σL_s I₂, (1/L_r) I₂); in explicit form the injection is D⁻¹F = [k_e/(σ L_s) I₂; 0] with
     k_e = 1/σ (§3.4.6), evaluated with the observer's nominal σ̂, L̂_s.
     """
     K_c = THESIS_K1 * np.eye(2)
@@ -313,8 +321,12 @@ def thesis_continuous_gains(motor: MotorParams = THESIS_MOTOR) -> Tuple[np.ndarr
 
 def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
                          ) -> Tuple[np.ndarray, np.ndarray]:
-    """K (unchanged: a static voltage gain) and L = Γ L_c with Γ = ∫₀^{T_s} e^{Aτ} dτ of the nominal
-    model at ω_r = 0 (the injection held over the period like the voltage)."""
+    """
+    Return K and the discrete observer injection L of a continuous one.
+
+    K (unchanged: a static voltage gain) and L = Γ L_c with Γ = ∫₀^{T_s} e^{Aτ} dτ of the nominal
+    model at ω_r = 0 (the injection held over the period like the voltage).
+    """
     K_c, L_c = thesis_continuous_gains(motor)
     A, _ = eq112_matrices(motor.R_s, motor.R_r, motor.L_s, motor.L_r, motor.L_sr,
                           motor.pole_pairs, 0.0)
@@ -322,9 +334,14 @@ def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
     return K_c, Gamma_L
 
 
-def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
+def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0,
+                          motor: MotorParams = THESIS_MOTOR,
                           points=None, sigma_min: float = DEFAULT_SIGMA_MIN) -> Dict[str, float]:
-    """Worst spectral radius of the sampled current loop and observer error with the thesis's gains."""
+    """
+    Return the worst spectral radius of the sampled loop with the thesis's gains.
+
+    Of the current loop and of the observer error.
+    """
     grid = parameter_grid(points or DEFAULT_CERTIFY_POINTS, omega_max, sigma_min=sigma_min)
     A_d, B_d = sampled_models(grid, T_s, motor)
     K, L = thesis_gains_sampled(T_s, motor)
@@ -337,7 +354,8 @@ def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0, motor: MotorP
 def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
                                 T_min: float = 1e-5, T_max: float = 2e-3, samples: int = 60,
                                 points=None, refine_steps: int = 12) -> Dict[str, object]:
-    """Largest T_s at which the thesis's gains (K = 40 I, k_e = 1/σ) keep every model stable.
+    """
+    Largest T_s at which the thesis's gains (K = 40 I, k_e = 1/σ) keep every model stable.
 
     Grid search over log-spaced T_s in [T_min, T_max], then bisection between the last stable and
     the first unstable sample, separately for the current loop and the observer. "Stable" means
@@ -360,7 +378,8 @@ def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams 
         lo, hi = float(grid_T[k - 1]), float(grid_T[k])
         for _ in range(refine_steps):
             mid = math.sqrt(lo * hi)
-            if thesis_gain_stability(mid, omega_max=omega_max, motor=motor, points=points)[key] < 1.0:
+            if thesis_gain_stability(mid, omega_max=omega_max, motor=motor,
+                                     points=points)[key] < 1.0:
                 lo = mid
             else:
                 hi = mid
