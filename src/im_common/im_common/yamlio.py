@@ -1,4 +1,5 @@
-"""The one writer and the one reader of ROS parameter YAML (``node: {ros__parameters: {...}}``).
+"""
+The one writer and the one reader of ROS parameter YAML (``node: {ros__parameters: {...}}``).
 
 Values are plain Python (numbers, strings, bools, lists of numbers); numpy scalars and arrays are
 converted. Floats are written with ``repr`` precision so a file read back gives the same numbers.
@@ -30,7 +31,8 @@ def _plain(node: str, name: str, value):
         if not math.isfinite(value):
             raise ValueError(f'parameter {node}.{name} = {value!r} is not finite')
         return value
-    raise ValueError(f'parameter {node}.{name} has type {type(value).__name__}, not a ROS parameter type')
+    raise ValueError(f'parameter {node}.{name} has type {type(value).__name__}, '
+                     f'not a ROS parameter type')
 
 
 class _Dumper(yaml.SafeDumper):
@@ -46,7 +48,8 @@ def _list_flow(dumper, data):
 _Dumper.add_representer(list, _list_flow)
 
 
-def parameters_yaml(nodes: Mapping[str, Mapping[str, object]], header: Optional[str] = None) -> str:
+def parameters_yaml(nodes: Mapping[str, Mapping[str, object]],
+                    header: Optional[str] = None) -> str:
     """YAML text for ``{node: {param: value}}``; ``header`` (comment lines) goes first."""
     doc: Dict[str, dict] = {}
     for node, params in nodes.items():
@@ -60,8 +63,11 @@ def parameters_yaml(nodes: Mapping[str, Mapping[str, object]], header: Optional[
 
 
 class YamlFileError(ValueError):
-    """A YAML file that cannot be read or parsed; the message is one line naming the file (and
-    the line and column of a syntax error)."""
+    """
+    A YAML file that cannot be read or parsed.
+
+    The message is one line naming the file (and the line and column of a syntax error).
+    """
 
 
 class ParametersFileError(YamlFileError):
@@ -69,8 +75,11 @@ class ParametersFileError(YamlFileError):
 
 
 def _loader():
-    """A safe YAML loader that, like rcl's parser, ignores tags (``launch_ros`` writes lists as
-    ``!!python/tuple``)."""
+    """
+    Return a safe YAML loader that, like rcl's parser, ignores tags.
+
+    (``launch_ros`` writes lists as ``!!python/tuple``.)
+    """
     class Loader(yaml.SafeLoader):
         pass
 
@@ -98,22 +107,29 @@ def _read(path: str, what: str, error: type, loader):
 
 
 def read_yaml_file(path: str, what: str = 'YAML file'):
-    """The YAML document in ``path`` (safe loading); a file that cannot be read or parsed is one
-    :class:`YamlFileError` naming ``what`` (e.g. 'campaign spec'), the file and, for a syntax
-    error, its line and column: the lines :func:`load_parameters_file` gives."""
+    """
+    Return the YAML document in ``path`` (safe loading).
+
+    A file that cannot be read or parsed is one :class:`YamlFileError` naming ``what`` (e.g.
+    'campaign spec'), the file and, for a syntax error, its line and column: the lines
+    :func:`load_parameters_file` gives.
+    """
     return _read(path, what, YamlFileError, yaml.SafeLoader)
 
 
 def node_name(key) -> str:
-    """The node a parameters-file section is for: ``/ns/controller`` -> ``controller``."""
+    """Return the node a parameters-file section is for: ``/ns/controller`` -> ``controller``."""
     return str(key).strip('/').split('/')[-1]
 
 
 def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Dict[str, dict]:
-    """``{node: {param: value}}`` of a ROS 2 parameters file (section names as written, e.g.
-    ``/**`` or ``/controller``); with ``nodes``, sections are keyed by node name and a section
-    for a node not in ``nodes`` is refused naming the nearest one. Every problem is one
-    :class:`ParametersFileError` naming the file."""
+    """
+    Return ``{node: {param: value}}`` of a ROS 2 parameters file.
+
+    Section names are as written (e.g. ``/**`` or ``/controller``); with ``nodes``, sections are
+    keyed by node name and a section for a node not in ``nodes`` is refused naming the nearest one.
+    Every problem is one :class:`ParametersFileError` naming the file.
+    """
     import difflib
     doc = _read(path, 'parameters file', ParametersFileError, _loader())
     if doc is None:
@@ -127,7 +143,7 @@ def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Di
     for key, body in doc.items():
         values = (body or {}).get('ros__parameters', {}) if isinstance(body, dict) else None
         if not isinstance(values, dict):
-            raise ParametersFileError(f"parameters file {path} is not a ROS 2 parameters file: "
+            raise ParametersFileError(f'parameters file {path} is not a ROS 2 parameters file: '
                                       f"node '{key}' needs a 'ros__parameters' mapping")
         name = str(key)
         if known is not None:
