@@ -1,13 +1,15 @@
-"""The campaign's Dask pool: a local cluster of every core or an existing scheduler
+"""
+The campaign's Dask pool: a local cluster of every core or an existing scheduler
 (docs/campaign.md). The campaign runs its jobs on it and the studies and ``make reproduce`` map
-their cases over it with :func:`pool_map`."""
+their cases over it with :func:`pool_map`.
+"""
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 import math
 import os
 import time
-from dataclasses import dataclass
 from typing import Callable, Iterable, Optional, Sequence
 
 from im_common.cli import logger
@@ -23,8 +25,10 @@ def one_line(exc: BaseException) -> str:
 
 @dataclass
 class Pool:
-    """A Dask client on a local cluster of ``workers`` single-threaded processes, or on an
-    existing scheduler at ``address``. ``map`` yields (index, result) as they finish."""
+    """
+    A Dask client on a local cluster of ``workers`` single-threaded processes, or on an
+    existing scheduler at ``address``. ``map`` yields (index, result) as they finish.
+    """
     workers: Optional[int] = None
     address: Optional[str] = None
 
@@ -58,7 +62,7 @@ class Pool:
             with contextlib.suppress(Exception):
                 self.cluster.close()
 
-    def map(self, fn: Callable, items: Sequence, *args) -> Iterable:
+    def map(self, fn: Callable, items: Sequence, *args) -> Iterable:  # noqa: A003 (Pool.map)
         from distributed import as_completed
         shared = [self.client.scatter(a, broadcast=True) for a in args]
         futures = {self.client.submit(fn, item, *shared, pure=False): i
@@ -77,8 +81,10 @@ def _call(item, fn):
 
 def pool_map(fn: Callable, items: Sequence, workers: Optional[int] = None,
              address: Optional[str] = None, label: str = '', progress: bool = True) -> list:
-    """``[fn(x) for x in items]`` on the campaign pool, in order (``make reproduce``, studies).
-    ``fn`` must be importable by the workers (a module-level function)."""
+    """
+    ``[fn(x) for x in items]`` on the campaign pool, in order (``make reproduce``, studies).
+    ``fn`` must be importable by the workers (a module-level function).
+    """
     results: list = [None] * len(items)
     if not items:
         return results

@@ -1,19 +1,20 @@
-"""Campaign specs (docs/campaign.md): reading and checking a spec, drawing its motors, the
+"""
+Campaign specs (docs/campaign.md): reading and checking a spec, drawing its motors, the
 runs it names and executing one of them. Every column of a run's row but ``wall_s`` is a function
-of (spec, index)."""
+of (spec, index).
+"""
 from __future__ import annotations
 
 import hashlib
 import json
 import math
 import os
-import time
 from pathlib import Path
+import time
 from typing import Dict, List, Optional
 
-import numpy as np
-
 from im_bringup.config import ADAPTATION
+import numpy as np
 
 from .campaign_pool import one_line
 
@@ -52,8 +53,10 @@ def _default_sigma_min() -> float:
 
 
 def _resolve(path: str, base: Path) -> str:
-    """A file named in a spec: absolute, or relative to the spec's folder, or a shipped file of
-    ``im_bringup``/``im_common`` (``config/...``)."""
+    """
+    A file named in a spec: absolute, or relative to the spec's folder, or a shipped file of
+    ``im_bringup``/``im_common`` (``config/...``).
+    """
     p = Path(os.path.expanduser(path))
     if p.is_absolute():
         return str(p)
@@ -71,8 +74,10 @@ def _resolve(path: str, base: Path) -> str:
 
 
 def _distribution(name: str, value, where: str) -> dict:
-    """A box entry as {'kind': 'uniform', 'lo', 'hi'} / {'kind': 'normal', 'mean', 'std', 'lo',
-    'hi'} / {'kind': 'fixed', 'value'}."""
+    """
+    A box entry as {'kind': 'uniform', 'lo', 'hi'} / {'kind': 'normal', 'mean', 'std', 'lo',
+    'hi'} / {'kind': 'fixed', 'value'}.
+    """
     def num(v, what):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise SpecError(f'{where}: box.{name}.{what} = {v!r} is not a finite number')
@@ -294,8 +299,10 @@ def jobs(spec: dict) -> List[dict]:
 
 
 def gain_arguments(spec: dict) -> Dict[str, dict]:
-    """Per gain set: node-parameter overrides ({'controller': {...}, 'observer': {...}}) —
-    empty for the thesis's gains, designed at T_s for 'certified', read from a gains file."""
+    """
+    Per gain set: node-parameter overrides ({'controller': {...}, 'observer': {...}}) —
+    empty for the thesis's gains, designed at T_s for 'certified', read from a gains file.
+    """
     from im_controller.design_gains import design_for_scenario
     out = {}
     for g in spec['gain_sets']:
@@ -336,8 +343,10 @@ def scenario_for(job: dict, spec: dict, gains: dict):
 
 
 def adapter_for(job: dict, spec: dict):
-    """The offline loop's adapter hook of an adaptive job (None for the nominal controller):
-    the adapter starts from the nominal motor, like the controller and observer."""
+    """
+    The offline loop's adapter hook of an adaptive job (None for the nominal controller):
+    the adapter starts from the nominal motor, like the controller and observer.
+    """
     if job['controller'] == 'nominal':
         return None
     from im_adapt.adaptation import AdaptationGains
