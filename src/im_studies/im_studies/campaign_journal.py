@@ -1,7 +1,9 @@
 """
-The campaign's journal (docs/campaign.md): every finished row is appended to ``DIR/rows.jsonl``
-and synced before the next is counted, so a killed campaign resumes with the same command and runs
-nothing twice; ``DIR/campaign.json`` holds the spec's hash, so another spec is refused.
+The campaign's journal (docs/campaign.md): finished rows, kept so that a campaign resumes.
+
+Every finished row is appended to ``DIR/rows.jsonl`` and synced before the next is counted, so a
+killed campaign resumes with the same command and runs nothing twice; ``DIR/campaign.json`` holds
+the spec's hash, so another spec is refused.
 """
 from __future__ import annotations
 
@@ -31,7 +33,9 @@ def versions() -> dict:
 
 def read_journal(path: Path) -> Dict[int, dict]:
     """
-    Rows already finished: {index: row}. A torn last line (the process was killed while
+    Return the rows already finished: {index: row}.
+
+    A torn last line (the process was killed while
     writing it) is cut off, so that run is run again; nothing else is.
     """
     rows: Dict[int, dict] = {}

@@ -1,6 +1,7 @@
 """
-The campaign's Dask pool: a local cluster of every core or an existing scheduler
-(docs/campaign.md). The campaign runs its jobs on it and the studies and ``make reproduce`` map
+The campaign's Dask pool: a local cluster of every core or an existing scheduler.
+
+See docs/campaign.md. The campaign runs its jobs on it and the studies and ``make reproduce`` map
 their cases over it with :func:`pool_map`.
 """
 from __future__ import annotations
@@ -18,7 +19,7 @@ _log = logger('campaign')
 
 
 def one_line(exc: BaseException) -> str:
-    """An exception as one line (its type and text), for a row or an error message."""
+    """Format an exception as one line (its type and text), for a row or an error message."""
     text = ' '.join(str(exc).split())
     return f'{type(exc).__name__}: {text}'[:300]
 
@@ -26,9 +27,11 @@ def one_line(exc: BaseException) -> str:
 @dataclass
 class Pool:
     """
-    A Dask client on a local cluster of ``workers`` single-threaded processes, or on an
-    existing scheduler at ``address``. ``map`` yields (index, result) as they finish.
+    A Dask client on a local cluster of ``workers`` single-threaded processes, or on a scheduler.
+
+    The scheduler is an existing one at ``address``. ``map`` yields (index, result) as they finish.
     """
+
     workers: Optional[int] = None
     address: Optional[str] = None
 
@@ -82,7 +85,10 @@ def _call(item, fn):
 def pool_map(fn: Callable, items: Sequence, workers: Optional[int] = None,
              address: Optional[str] = None, label: str = '', progress: bool = True) -> list:
     """
-    ``[fn(x) for x in items]`` on the campaign pool, in order (``make reproduce``, studies).
+    Compute ``[fn(x) for x in items]`` on the campaign pool, in order.
+
+    Used by ``make reproduce`` and the studies.
+
     ``fn`` must be importable by the workers (a module-level function).
     """
     results: list = [None] * len(items)

@@ -1,6 +1,8 @@
 """
-The campaign's results (docs/campaign.md): ``runs.parquet`` (one row per run), the summary and
-``report.md`` with its histograms, stability map and worst runs.
+The campaign's results (docs/campaign.md): the runs table, the summary and the report.
+
+That is ``runs.parquet`` (one row per run), the summary and ``report.md`` with its histograms,
+stability map and worst runs.
 """
 from __future__ import annotations
 
@@ -107,7 +109,9 @@ def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
 
 def _badness(r: dict) -> tuple:
     """
-    Order for 'worst runs': unstable first (earliest end first), then failures, then the
+    Return the sort key of 'worst runs'.
+
+    Unstable first (earliest end first), then failures, then the
     largest tracking error relative to the task's own scale.
     """
     rank = {'diverged': 3, 'tripped': 3, 'failed': 2, 'ok': 0}[r['status']]

@@ -26,7 +26,7 @@ THESIS_PLATE = {'voltage': 220.0, 'current': 4.9, 'frequency': 60.0, 'speed': 17
 
 
 def plate_of(motor):
-    """The nameplate a motor file's ratings are (its nameplate fields)."""
+    """Return the nameplate a motor file's ratings are (its nameplate fields)."""
     from im_adapt.commissioning import Nameplate
     return Nameplate(voltage=motor.rated_voltage_rms_line, current=motor.rated_current_rms,
                      frequency=motor.rated_frequency, speed=motor.rated_speed_rpm,
@@ -36,8 +36,9 @@ def plate_of(motor):
 def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = False,
                    seed: int = 0):
     """
-    Commission ``motor`` on the ROS-free plant (limits: its ratings); returns
-    (Commissioning, Identified) — Identified raises NotInformative from ``result``.
+    Commission ``motor`` on the ROS-free plant (limits: its ratings).
+
+    Returns (Commissioning, Identified) — Identified raises NotInformative from ``result``.
     """
     from im_adapt.commissioning import Commissioning, simulate_commissioning
     from im_common.plant_sim import PlantSimulator
@@ -53,10 +54,12 @@ def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = 
 
 def speed_error(motor, estimates) -> dict:
     """
-    Speed-tracking errors [rad/s] of the min_loss speed task (offline loop) with
-    ``estimates`` as the controller's and observer's model: max, RMS, and max after 0.2 s (the
-    task starts in the steady state of the *estimates*, so a model in another rotor gauge starts
-    the plant with a slightly different flux: a start transient of the loop, not of the model).
+    Return the speed-tracking errors [rad/s] of the min_loss speed task (offline loop).
+
+    ``estimates`` are the controller's and observer's model. The errors: max, RMS, and max after
+    0.2 s (the task starts in the steady state of the *estimates*, so a model in another rotor
+    gauge starts the plant with a slightly different flux: a start transient of the loop, not of
+    the model).
     """
     import numpy as np
     from im_bringup.offline import Scenario, simulate

@@ -84,7 +84,7 @@ def _tracking(r: dict) -> str:
 
 
 def _bound(runs: List[dict], task: str) -> dict:
-    """The task's bound row (make reproduce's convex lower bound on the losses)."""
+    """Return the task's bound row (make reproduce's convex lower bound on the losses)."""
     for r in runs:
         if (r.get('task'), r.get('strategy')) == (task, 'bound'):
             return r
@@ -120,7 +120,7 @@ def _table(runs: List[dict]) -> Tuple[List[str], float]:
 
 
 def _bound_lines(runs: List[dict]) -> List[str]:
-    """The paragraph on the lower bound and the optimal strategy (docs/controller.md §10)."""
+    """Return the paragraph on the lower bound and the optimal strategy (docs/controller.md)."""
     bp, bs = _bound(runs, 'position'), _bound(runs, 'speed')
     low = min(min(b['ratio_loss'].values()) for b in (bp, bs))
     return [
@@ -144,8 +144,9 @@ def _bound_lines(runs: List[dict]) -> List[str]:
 
 def _robust_deviation(runs: List[dict]) -> float:
     """
-    Largest relative loss difference of the certified 1 ms gains at 1 kHz from the 100 µs runs
-    (the six chapter-3 runs).
+    Return the largest relative loss difference of the certified 1 ms gains from the 100 µs runs.
+
+    The certified gains run at 1 kHz; the runs are the six chapter-3 runs.
     """
     return max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
                    / _run(runs, t, s)['E_loss_J'] - 1.0)
@@ -153,7 +154,7 @@ def _robust_deviation(runs: List[dict]) -> float:
 
 
 def render(runs: List[dict]) -> str:
-    """The status block (without the marker lines), deterministic in the summary."""
+    """Return the status block (without the marker lines), deterministic in the summary."""
     table, worst = _table(runs)
     pme = _run(runs, 'position', 'min_energy')
     th_pme = thesis.energy('position', 'min_energy')
@@ -162,7 +163,7 @@ def render(runs: List[dict]) -> str:
     th_speed = sorted(e - l for (t, _), (e, l) in thesis.ENERGY.items() if t == 'speed')
 
     def ch4(task: str, controller: str, fmt: str) -> str:
-        """The chapter-4 RMS errors of the three strategies, 'a / b / c'."""
+        """Return the chapter-4 RMS errors of the three strategies, 'a / b / c'."""
         key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
         return ' / '.join(format(_run(runs, task, s_, controller, 'chapter4')[key], fmt)
                           for s_ in STRATEGIES)
@@ -260,8 +261,9 @@ def render(runs: List[dict]) -> str:
 
 def render_headline(runs: List[dict]) -> str:
     """
-    The README's results headline (without the marker lines): a few figures of the results
-    page, from the same summary.
+    Return the README's results headline (without the marker lines).
+
+    It holds a few figures of the results page, from the same summary.
     """
     _, worst = _table(runs)
     bp, bs = _bound(runs, 'position'), _bound(runs, 'speed')
@@ -297,8 +299,10 @@ def render_headline(runs: List[dict]) -> str:
 
 def split_block(text: str, name: str, path: str) -> Tuple[str, str, str]:
     """
-    (before and including the begin line, block, end line and after) of the block ``name``;
-    ValueError names the file and the markers.
+    Split the text around the block ``name``.
+
+    Returns (before and including the begin line, block, end line and after); ValueError names the
+    file and the markers.
     """
     begin, end = f'<!-- {name}:begin -->', f'<!-- {name}:end -->'
     if text.count(begin) != 1 or text.count(end) != 1:

@@ -42,7 +42,7 @@ def chapter3_runs(T_s: float = 1e-4) -> List[dict]:
 
 
 def optimal_runs(T_s: float = 1e-4) -> List[dict]:
-    """The chapter-3 tasks with the loss-optimal flux trajectory (nominal controller)."""
+    """Return the chapter-3 tasks with the loss-optimal flux trajectory (nominal controller)."""
     return [{'task': task, 'strategy': 'optimal', 'controller': 'nominal', 'variation': 'none',
              'T_s': T_s}
             for task in THESIS_TASKS]
@@ -50,8 +50,10 @@ def optimal_runs(T_s: float = 1e-4) -> List[dict]:
 
 def start_flux(task: str, strategy: str) -> float:
     """
-    |φ_r(0)| of the plant in a run of ``make reproduce``: 0 from rest (demagnetized), else the
-    controller's own steady state (the plant's initial_flux parameter).
+    Return |φ_r(0)| of the plant in a run of ``make reproduce``.
+
+    It is 0 from rest (demagnetized), else the controller's own steady state (the plant's
+    initial_flux parameter).
     """
     from im_bringup.config import node_parameters
     flux = node_parameters(task, strategy)['plant'].get('initial_flux')
@@ -60,8 +62,9 @@ def start_flux(task: str, strategy: str) -> float:
 
 def task_path(task: str):
     """
-    (τ(t), ω(t)) of exact tracking of the task's reference with the plant's own motor and
-    load: τ = J θ̈* + b θ̇* + τ_L(t, θ*, θ̇*).
+    Return (τ(t), ω(t)) of exact tracking of the task's reference.
+
+    With the plant's own motor and load: τ = J θ̈* + b θ̇* + τ_L(t, θ*, θ̇*).
     """
     from im_bringup.config import TASK_PRESETS
     from im_common.loads import make_load
@@ -82,8 +85,9 @@ def task_path(task: str):
 
 def loss_bound(task: str, phi0: float, step: float = 1e-3, core: bool = True):
     """
-    The convex lower bound (im_controller.flux_plan) on the losses of the task run over
-    [0, duration] from the start flux φ0, end flux free: a FluxPlan.
+    Return the convex lower bound (im_controller.flux_plan) on the losses of the task, a FluxPlan.
+
+    The task runs over [0, duration] from the start flux φ0, end flux free.
     """
     from im_bringup.config import TASK_PRESETS
     from im_common.params import THESIS_MOTOR as m
@@ -96,7 +100,9 @@ def loss_bound(task: str, phi0: float, step: float = 1e-3, core: bool = True):
 
 def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
     """
-    Per task, the bound row: copper-only and copper + core bounds from each nominal 100 µs
+    Return the bound row of each task.
+
+    Per task: copper-only and copper + core bounds from each nominal 100 µs
     run's own start flux (one bound per distinct start), the grid refinement check (the same
     bounds at step/2) and each strategy's ratios (losses / total bound, copper / copper bound).
     """
@@ -133,8 +139,10 @@ def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
 
 def run_one(item) -> dict:
     """
-    One run of ``make reproduce`` through the in-process graph: ``item`` = (n, spec, out_dir,
-    record); DDS domain 150 + n mod 80, so the pool's concurrent graphs never share one.
+    Run one run of ``make reproduce`` through the in-process graph.
+
+    ``item`` = (n, spec, out_dir, record); DDS domain 150 + n mod 80, so the pool's concurrent
+    graphs never share one.
     """
     from im_bringup.config import node_parameters
     from im_bringup.scenario import run_scenario
@@ -166,7 +174,7 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False,
 
 
 def _f(value, fmt: str, scale: float = 1.0) -> str:
-    """A table cell: the number formatted, or '—' where the figure does not apply."""
+    """Format a table cell: the number formatted, or '—' where the figure does not apply."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '—'
     return format(value * scale, fmt)
@@ -208,7 +216,7 @@ def markdown(results: List[dict]) -> str:
 
 
 def bound_markdown(results: List[dict]) -> str:
-    """The bound rows: per task and run, the start flux, both bounds and the run's ratios."""
+    """Return the bound rows: per task and run, the start flux, both bounds and the ratios."""
     rows = ['| task | strategy | start flux [Wb] | copper bound [J] | copper / bound | '
             'loss bound (copper + core) [J] | losses / bound |', '|' + ' --- |' * 7]
     for b in results:
@@ -268,7 +276,7 @@ def chapter4_runs() -> List[dict]:
 
 
 def robust_runs() -> List[dict]:
-    """The chapter-3 tasks at 1 kHz with certified robust gains (and with the thesis's)."""
+    """Return the chapter-3 tasks at 1 kHz with certified robust gains (and with the thesis's)."""
     from im_controller.design_gains import design_for_scenario
     runs = [{'task': task, 'strategy': 'min_energy', 'controller': 'nominal', 'variation': 'none',
              'T_s': 1e-3}

@@ -7,7 +7,8 @@ Runs the chapter-3 position and speed tasks × {min_energy, constant_flux, min_l
 (im_bringup.offline, the lock-step order of the ROS graph) with
 
 - the thesis's gains (k1 = 40 V/A, k_e = 1/σ, flux coupling 'cancel') at 100 µs and at 1 ms;
-- the certified gains of :func:`im_controller.gain_design.drive.design_drive_gains` at 100 µs and at 1 ms
+- the certified gains of :func:`im_controller.gain_design.drive.design_drive_gains` at 100 µs and
+at 1 ms
   (current gain K; the observer in the thesis's structure where it is certified, else the
   discrete injection L; the flux-coupling mode chosen for the period).
 
@@ -95,6 +96,8 @@ def _find(rows, task, strategy, T_s, gains):
 
 def compare(rows: List[dict]) -> List[dict]:
     """
+    Compare the certified gains with the thesis's, per task and strategy.
+
     Per task/strategy: 1 ms certified vs 100 µs thesis (losses within 5 %), 100 µs certified vs
     100 µs thesis (no worse), and how the thesis's gains fail at 1 ms.
     """

@@ -117,7 +117,7 @@ def current_loop_estimate(k1: float = 40.0) -> float:
 
 
 def is_stable(task: str, strategy: str, T_s: float, duration: float | None = None):
-    """Stable = the run completes with bounded currents and the tracking error of a working drive."""
+    """Tell whether a run completes with bounded currents and a working drive's tracking error."""
     try:
         s = simulate(Scenario(task=task, strategy=strategy, T_s=T_s, duration=duration),
                      record_every=1).summary

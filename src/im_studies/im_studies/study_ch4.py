@@ -77,7 +77,9 @@ def sensitivity_cases(base=THESIS_MOTOR) -> Dict[str, Callable[[], ParameterSche
 # ---------------------------------------------------------------------------------------------
 class TruthFed:
     """
-    A bound, not a controller: hands the controller and observer the plant's *true*
+    Feed the controller and observer the plant's true parameters (a bound, not a controller).
+
+    It hands the controller and observer the plant's *true*
     identifiable parameters (R_s, L_σ, L_M, R_R at t_k+1; docs/adaptation.md §7) — what a perfect
     adapter would. Fed these, the controller's model is terminal-equivalent to the drifting motor
     at every step; what is left of the tracking error is the drift's speed (dL/dt terms), not a
@@ -114,7 +116,8 @@ def run_case(task: str, strategy: str, controller: str, variation: str,
              duration: Optional[float] = None, record_every: int = 10,
              schedule: Optional[ParameterSchedule] = None) -> dict:
     """
-    One closed-loop run; the summary plus estimates against truth (see module docstring).
+    Run one closed loop; return the summary plus estimates against truth (see module docstring).
+
     ``schedule`` overrides the named variation (``variation`` is then only a label).
     """
     ctl_label = controller if controller in offline.CONTROLLERS else 'nominal'

@@ -1,7 +1,8 @@
 """
-``python -m im_studies.study_motors --out bags/motors``: every shipped motor, every flux
-strategy, position and speed tasks scaled to the motor's ratings, on the offline loop — a
-``make reproduce``-style table per motor (summary.json + summary.md).
+``python -m im_studies.study_motors --out bags/motors``: every shipped motor, rating-scaled.
+
+Every shipped motor, every flux strategy, position and speed tasks scaled to the motor's ratings,
+on the offline loop — a ``make reproduce``-style table per motor (summary.json + summary.md).
 
 Scaling (from the motor file's ratings; docs/limits.md):
 
@@ -28,9 +29,9 @@ motor's rated flux, not the 1.2 Wb of seed 000 §3.4.6.
 
 ``--drift``: the same runs under the chapter-4 drift scaled to each motor (:func:`drift_schedule`:
 R_r from 0.5 to 1.5 times the motor file's over the run, L_s, L_r, L_sr swing by ±16 % of L_sr, as
-in seed 000 §4.3), controller and observer starting from the motor file, with the nominal controller, the
-adapter's two improved-law feeds and the truth-fed bound (docs/adaptation.md §6) — the issue-13
-rows for every shipped motor.
+in seed 000 §4.3), controller and observer starting from the motor file, with the nominal
+controller, the adapter's two improved-law feeds and the truth-fed bound (docs/adaptation.md §6) —
+the issue-13 rows for every shipped motor.
 """
 from __future__ import annotations
 
@@ -59,8 +60,10 @@ OVERLOAD = 2.0
 
 def rated_flux(motor: MotorParams, margin: float = DEFAULT_VOLTAGE_MARGIN) -> float:
     """
-    φ_n = m V_n L_sr / (L_s v ω_n): the flux whose steady voltage fills the margin at rated
-    speed (field weakening starts there).
+    Return φ_n = m V_n L_sr / (L_s v ω_n), the motor's rated flux.
+
+    It is the flux whose steady voltage fills the margin at rated speed (field weakening starts
+    there).
     """
     if not (motor.rated_voltage > 0 and motor.rated_speed > 0):
         raise ValueError('the motor file gives no rated_voltage / rated_speed to scale to')
@@ -74,7 +77,8 @@ REVERSAL_TORQUE_SHARE = 0.75
 
 def peak_torque(motor: MotorParams) -> float:
     """
-    The steady field-oriented torque at the current limit (OVERLOAD · I_n) and rated flux:
+    Return the steady field-oriented torque at the current limit (OVERLOAD · I_n) and rated flux.
+
     i_d = φ_n/L_sr, i_q = √(I² − i_d²), τ = v (L_sr/L_r) φ_n i_q (:func:`im_common.model.torque`).
     """
     phi = rated_flux(motor)
@@ -89,7 +93,9 @@ def peak_torque(motor: MotorParams) -> float:
 
 def reversal_time(motor: MotorParams, span: float = 1.8) -> float:
     """
-    T of the quintic speed reversal over ``span`` · ω_n whose peak acceleration J·1.875·Δω/T
+    Return the duration T of the quintic speed reversal over ``span`` · ω_n.
+
+    Its peak acceleration J·1.875·Δω/T
     is :data:`REVERSAL_TORQUE_SHARE` of :func:`peak_torque` (the load, braking the forward
     speed, is left as margin).
     """
@@ -98,7 +104,7 @@ def reversal_time(motor: MotorParams, span: float = 1.8) -> float:
 
 
 def scaled_options(motor: MotorParams, task: str) -> dict:
-    """Controller options of a rating-scaled run (module doc)."""
+    """Return the controller options of a rating-scaled run (module doc)."""
     phi = rated_flux(motor)
     kp, kv = DEFAULT_GAINS[task]
     s = motor.J / THESIS_MOTOR.J
@@ -152,7 +158,8 @@ DRIFT_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis_pair', TRUTH_FED)
 
 def drift_schedule(motor: MotorParams, duration: float) -> ParameterSchedule:
     """
-    The chapter-4 profile (seed 000 §4.3) scaled to ``motor`` and to a run of ``duration``:
+    Return the chapter-4 profile (seed 000 §4.3) scaled to ``motor`` and to a run of ``duration``.
+
     R_r rises from half to 1.5 times the motor file's value over the run (the thesis's 0.42 →
     1.26 Ω against the model's 0.842 Ω over its 2 s), and L_s, L_r, L_sr each swing by
     + 0.16 L_sr sin(πt) (the thesis's 0.016 H on 0.1 H; σL_s stays nearly constant).

@@ -1,9 +1,10 @@
 """
-``python -m im_studies.study_sensorless [--json FILE]``: the speed-sensorless drive on the
-offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy, sensored against
-sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s reversal against
-a constant 1 N·m on every shipped motor with its rating-scaled controller (``study_motors``).
-Prints a Markdown table; ``--json`` writes the rows.
+``python -m im_studies.study_sensorless [--json FILE]``: the speed-sensorless drive, offline.
+
+It runs on the offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy,
+sensored against sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s
+reversal against a constant 1 N·m on every shipped motor with its rating-scaled controller
+(``study_motors``). Prints a Markdown table; ``--json`` writes the rows.
 """
 from __future__ import annotations
 
@@ -36,6 +37,8 @@ def motor_file(name: str):
 def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless: bool = True,
                         **kw) -> Scenario:
     """
+    Run the speed reversal +100 → −100 rad/s of one motor.
+
     +100 → −100 rad/s (quintic as fast as :func:`study_motors.reversal_time` allows for the
     span) against a constant 1 N·m, from steady state, the measured speed useless when sensorless.
     """

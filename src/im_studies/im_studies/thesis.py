@@ -25,7 +25,7 @@ def energy(task: str, strategy: str) -> Optional[Tuple[float, float]]:
 
 
 def losses(task: str, strategy: str) -> float:
-    """The thesis's losses [J] for a run it reports; KeyError names the run otherwise."""
+    """Return the thesis's losses [J] for a run it reports; KeyError names the run otherwise."""
     try:
         return ENERGY[(task, strategy)][1]
     except KeyError:
