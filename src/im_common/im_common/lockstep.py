@@ -205,7 +205,7 @@ class LockstepNode(Node):
 
     @property
     def run_id(self) -> str:
-        """The time master's run this node follows ('' until it has seen one)."""
+        """Return the time master's run this node follows ('' until it has seen one)."""
         return self.protocol.run_id
 
     @run_id.setter
@@ -214,17 +214,17 @@ class LockstepNode(Node):
 
     @property
     def peers(self) -> Dict[str, tuple]:
-        """Node name -> (state, values) of its last event in the run followed."""
+        """Return node name -> (state, values) of its last event in the run followed."""
         return self.protocol.peers
 
     @property
     def providers(self) -> Dict[str, str]:
-        """Publisher node name -> one topic of this node's inputs it provides."""
+        """Return publisher node name -> one topic of this node's inputs it provides."""
         return self.protocol.providers
 
     @property
     def master_state(self) -> str:
-        """The last state of the time master (plant) of the run followed."""
+        """Return the last state of the time master (plant) of the run followed."""
         return self.protocol.master_state
 
     # Parameters -----------------------------------------------------------------------
