@@ -119,7 +119,8 @@ def test_no_package_level_cycle():
 
 
 #: module circles being removed on other branches of issue 12 (bag.py/run.py,
-#: config.py/offline.py); the merge that removes one deletes its entry here, and the test then guards it.
+#: config.py/offline.py); the merge that removes one deletes its entry here, and the test then
+#: guards it.
 PENDING_CIRCLES: set = set()
 
 
