@@ -1,4 +1,5 @@
-"""Who may import whom (docs/architecture.md), read from the source itself.
+"""
+Who may import whom (docs/architecture.md), read from the source itself.
 
 Every module under src/<pkg>/<pkg>/ is parsed with :mod:`ast` (no import is executed) and each
 ``import`` / ``from ... import`` (module level or inside functions, relative ones resolved) becomes
@@ -8,8 +9,8 @@ it); every sibling package a package imports is declared in its package.xml; the
 modules reach no rclpy, directly or through project modules.
 """
 import ast
-import re
 from pathlib import Path
+import re
 
 import pytest
 
@@ -21,6 +22,7 @@ LAYERS = ['im_recording', 'im_bringup', 'im_studies']
 
 def _layer(pkg: str) -> int:
     return LAYERS.index(pkg) + 1 if pkg in LAYERS else 0
+
 
 #: ROS-free math: nodes are thin shells over these, and they are unit-tested without ROS.
 ROS_FREE = [
@@ -116,8 +118,9 @@ def test_no_package_level_cycle():
             visit(p, [p])
 
 
-#: module circles being removed on other branches of issue 12 (bag.py/run.py, config.py/offline.py);
-#: the merge that removes one deletes its entry here, and the test then guards it.
+#: module circles being removed on other branches of issue 12 (bag.py/run.py,
+#: config.py/offline.py); the merge that removes one deletes its entry here, and the test then
+#: guards it.
 PENDING_CIRCLES: set = set()
 
 
@@ -184,7 +187,8 @@ def test_imported_siblings_are_declared_in_package_xml():
 
 def test_declared_siblings_are_imported():
     edges = _package_edges()
-    extra = sorted(f'{p}: {q}' for p in PACKAGES for q in (_declared(p) & set(PACKAGES)) - edges[p])
+    extra = sorted(f'{p}: {q}' for p in PACKAGES
+                   for q in (_declared(p) & set(PACKAGES)) - edges[p])
     assert not extra, 'declared in package.xml but never imported: ' + ', '.join(extra)
 
 

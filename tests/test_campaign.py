@@ -1,6 +1,8 @@
-"""Campaigns (im_studies.campaign and its campaign_* modules, docs/campaign.md): specs, draws,
+"""
+Campaigns (im_studies.campaign and its campaign_* modules, docs/campaign.md): specs, draws,
 the Dask pool (a real local cluster), determinism over worker counts, resume after a kill,
-failure rows, the Parquet file."""
+failure rows, the Parquet file.
+"""
 import json
 import math
 import os
@@ -10,15 +12,14 @@ import subprocess
 import sys
 import time
 
-import pytest
-import yaml
-
 from im_studies.campaign import run_campaign
 from im_studies.campaign_journal import JOURNAL, read_journal
 from im_studies.campaign_pool import pool_map
 from im_studies.campaign_report import read_rows
-from im_studies.campaign_spec import (DRAWN, SpecError, draw, gain_arguments, jobs, read_spec,
-                                      run_job)
+from im_studies.campaign_spec import (draw, DRAWN, gain_arguments, jobs, read_spec, run_job,
+                                      SpecError)
+import pytest
+import yaml
 
 GAINS_1MS = os.path.join(os.path.dirname(__file__), '..', 'src', 'im_bringup', 'config',
                          'gains_1ms.yaml')
@@ -91,8 +92,10 @@ def test_a_gains_file_for_another_period_is_refused(tmp_path):
 
 
 def test_a_spec_or_gains_file_that_is_not_yaml_is_one_line_naming_the_file_and_where(tmp_path):
-    """The spec and the gains files it names are read by im_common.yamlio, the reader of every
-    parameters file: the same line, naming the file and the line and column of the fault."""
+    """
+    The spec and the gains files it names are read by im_common.yamlio, the reader of every
+    parameters file: the same line, naming the file and the line and column of the fault.
+    """
     broken = tmp_path / 'broken.yaml'
     broken.write_text('name: x\ndraws: [1, 2\nseed: 3\n')
     with pytest.raises(SpecError) as e:
@@ -165,9 +168,11 @@ def test_a_row_through_the_graph_equals_the_offline_row(tmp_path):
 
 
 def test_adaptive_rows_adapt_to_the_drawn_motor(tmp_path):
-    """controllers: [nominal, adaptive]: on a motor whose R_r is 40 % below the nominal model's,
+    """
+    controllers: [nominal, adaptive]: on a motor whose R_r is 40 % below the nominal model's,
     the adapter (starting from the nominal motor) cuts the position error; the rows say which
-    controller ran, and the graph gives the offline row."""
+    controller ran, and the graph gives the offline row.
+    """
     spec = read_spec(write_spec(tmp_path, draws=1, duration=1.0, box={'R_r': 0.5},
                                 controllers=['nominal', 'adaptive'],
                                 gain_sets=[{'name': 'thesis', 'gains': 'thesis',
@@ -186,8 +191,10 @@ def test_adaptive_rows_adapt_to_the_drawn_motor(tmp_path):
 
 
 def test_unstable_and_failed_runs_are_rows(tmp_path):
-    """The thesis's gains at 1 kHz trip the inverter (a result); a run that cannot be built
-    (a position profile for the speed task) is a failure row with its one-line error."""
+    """
+    The thesis's gains at 1 kHz trip the inverter (a result); a run that cannot be built
+    (a position profile for the speed task) is a failure row with its one-line error.
+    """
     prof = tmp_path / 'p.yaml'
     prof.write_text(yaml.safe_dump({'setpoints': [{'t': 0.0, 'position': -1.5},
                                                   {'t': 0.05, 'position': -1.4}]}))

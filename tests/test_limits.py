@@ -1,17 +1,18 @@
-"""Issue 10 on the offline closed loop: the done-when checks, the latch cases, reversals on every
-shipped motor and strategy, motor files, profiles and loads of one's own, plant protection."""
+"""
+Issue 10 on the offline closed loop: the done-when checks, the latch cases, reversals on every
+shipped motor and strategy, motor files, profiles and loads of one's own, plant protection.
+"""
 import glob
 import math
 import os
 
-import numpy as np
-import pytest
-
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import load_file
-from im_common.params import RATING_NAMES, InvalidParameter, THESIS_MOTOR, load_motor_file
+from im_common.params import InvalidParameter, load_motor_file, RATING_NAMES, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_controller.profiles import from_setpoints
+import numpy as np
+import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MOTOR_DIR = os.path.join(HERE, '..', 'src', 'im_common', 'config', 'motors')
@@ -35,8 +36,10 @@ def _tail_error(trace, t_from):
     ((180.0, 130.0, 130.0), 311.0, False),
 ])
 def test_speed_steps_under_a_voltage_limit_do_not_run_away(levels, v_limit, fw):
-    """Issue 10 item 1: 100 → 180 → 100 rad/s at 311 V ran away to 406 rad/s; now the speed
-    error over the last 0.5 s of 3 s is < 2 rad/s, and no command exceeds the limit."""
+    """
+    Issue 10 item 1: 100 → 180 → 100 rad/s at 311 V ran away to 406 rad/s; now the speed
+    error over the last 0.5 s of 3 s is < 2 rad/s, and no command exceeds the limit.
+    """
     prof = _speed_profile((0.0, levels[0]), (0.2, levels[1]), (1.5, levels[2]))
     sc = Scenario(task='speed', strategy='constant_flux', v_limit=v_limit, duration=3.0,
                   profile=prof, controller_options={'field_weakening': fw})
@@ -47,8 +50,10 @@ def test_speed_steps_under_a_voltage_limit_do_not_run_away(levels, v_limit, fw):
 
 
 def test_position_start_up_needs_no_voltage_beyond_the_run():
-    """Issue 10 item 2: the constant-flux position run's peak voltage is at most 1.5× its peak
-    after t = 0.2 s (it was 562 V against 37 V)."""
+    """
+    Issue 10 item 2: the constant-flux position run's peak voltage is at most 1.5× its peak
+    after t = 0.2 s (it was 562 V against 37 V).
+    """
     r = simulate(Scenario(task='position', strategy='constant_flux'))
     v = np.hypot(r.trace['v_alpha'], r.trace['v_beta'])
     assert v.max() <= 1.5 * v[r.trace['t'] >= 0.2].max()
@@ -57,9 +62,11 @@ def test_position_start_up_needs_no_voltage_beyond_the_run():
 
 @pytest.mark.parametrize('motor_file', MOTOR_FILES, ids=lambda p: os.path.basename(p)[:-5])
 def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit_gives(motor_file):
-    """study_motors sizes the speed reversal to the motor: at the current limit 2 I_n and rated
+    """
+    study_motors sizes the speed reversal to the motor: at the current limit 2 I_n and rated
     flux φ_n the steady field-oriented torque is v (L_sr/L_r) φ_n √((2 I_n)² − (φ_n/L_sr)²); the
-    quintic's peak acceleration 1.875 Δω/T times J is 75 % of it."""
+    quintic's peak acceleration 1.875 Δω/T times J is 75 % of it.
+    """
     from im_studies.study_motors import peak_torque, rated_flux, reversal_time, scaled_scenario
     m = load_motor_file(motor_file)
     phi = rated_flux(m)
@@ -77,12 +84,14 @@ def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit
 @pytest.mark.parametrize('motor_file', MOTOR_FILES, ids=lambda p: os.path.basename(p)[:-5])
 @pytest.mark.parametrize('strategy', STRATEGIES)
 def test_reversal_on_every_shipped_motor_and_strategy(motor_file, strategy):
-    """+0.9 ω_n → −0.9 ω_n (a reversal through zero speed) scaled to the motor's ratings
+    """
+    +0.9 ω_n → −0.9 ω_n (a reversal through zero speed) scaled to the motor's ratings
     (im_studies.study_motors: rated flux, limits V_n, 2 I_n, peak torque 75 % of what the
     current limit gives): the speed follows (RMS error < 0.005 rad/s over the whole run, the
     reversal included: it is feasible inside the limits, and min-energy raises its flux where the
     current limit would bind), the flux never collapses, no command
-    exceeds the voltage limit, and the voltage has no one-step spike."""
+    exceeds the voltage limit, and the voltage has no one-step spike.
+    """
     from im_studies.study_motors import peak_torque, rated_flux, scaled_scenario
     motor = load_motor_file(motor_file)
     r = simulate(scaled_scenario(motor, 'speed', strategy), record_every=5)
@@ -100,11 +109,14 @@ def test_reversal_on_every_shipped_motor_and_strategy(motor_file, strategy):
 
 
 def test_a_motor_never_seen_runs_a_min_loss_reversal(tmp_path):
-    """Done-when 3 with a motor file written here (5 hp-like numbers, none of the shipped ones):
-    +100 → −100 rad/s with min_loss, speed error over the last 0.5 s < 2 rad/s."""
+    """
+    Done-when 3 with a motor file written here (5 hp-like numbers, none of the shipped ones):
+    +100 → −100 rad/s with min_loss, speed error over the last 0.5 s < 2 rad/s.
+    """
     mf = tmp_path / 'my_motor.yaml'
     mf.write_text('/**:\n  ros__parameters:\n    R_s: 1.1\n    R_r: 1.0\n    L_s: 0.165\n'
-                  '    L_r: 0.165\n    L_sr: 0.158\n    pole_pairs: 2\n    J: 0.02\n    b: 0.002\n')
+                  '    L_r: 0.165\n    L_sr: 0.158\n    pole_pairs: 2\n    J: 0.02\n    b: '
+                  '0.002\n')
     pf = tmp_path / 'rev.yaml'
     pf.write_text('setpoints:\n  - {t: 0.0, velocity: 100.0}\n  - {t: 0.3, velocity: -100.0}\n')
     from im_controller.profiles import load_profile
@@ -262,10 +274,12 @@ def test_shipped_profiles_and_loads_load():
 
 @pytest.mark.parametrize('motor_file', MOTOR_FILES)
 def test_scaled_chapter4_drift_and_the_adaptive_position_rows(motor_file):
-    """The chapter-4 drift scaled to each shipped motor (study_motors --drift): R_r goes from 0.5
+    """
+    The chapter-4 drift scaled to each shipped motor (study_motors --drift): R_r goes from 0.5
     to 1.5 times the motor file's over the run, L_s, L_r, L_sr swing together by 0.16 L_sr so σL_s
     barely moves, every instant is a motor; on the min-loss position task the adaptive controller
-    beats the nominal one at least 2.5× (docs/adaptation.md §6)."""
+    beats the nominal one at least 2.5× (docs/adaptation.md §6).
+    """
     from im_studies.study_motors import _drift_case, drift_schedule
     motor = load_motor_file(motor_file)
     sched = drift_schedule(motor, 2.2)
@@ -276,6 +290,7 @@ def test_scaled_chapter4_drift_and_the_adaptive_position_rows(motor_file):
     assert half.L_sr == pytest.approx(1.16 * motor.L_sr)
     assert half.L_sigma == pytest.approx(motor.L_sigma, rel=0.25)
     name = os.path.basename(motor_file)
-    nom, ada = (_drift_case((motor, name, 'position', 'min_loss', c)) for c in ('nominal', 'adaptive'))
+    nom, ada = (_drift_case((motor, name, 'position', 'min_loss', c))
+                for c in ('nominal', 'adaptive'))
     assert nom['trip'] is None and ada['trip'] is None
     assert ada['err_rms'] < nom['err_rms'] / 2.5, (nom['err_rms'], ada['err_rms'])

@@ -1,14 +1,15 @@
-"""Issue 10 through the lock-step graph: a motor file, a profile and a load of one's own reach
+"""
+Issue 10 through the lock-step graph: a motor file, a profile and a load of one's own reach
 every node through ``node_parameters`` (the in-process fixture passes them straight on), and the
-graph still equals the offline loop with them."""
+graph still equals the offline loop with them.
+"""
 import os
-
-import numpy as np
-import pytest
 
 from im_bringup.config import node_parameters
 from im_bringup.testing import assert_samples_match, run_graph
 from im_common.params import load_motor_file
+import numpy as np
+import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MOTOR = os.path.join(HERE, '..', 'src', 'im_common', 'config', 'motors', 'krause_3hp.yaml')
@@ -40,7 +41,8 @@ def test_motor_profile_and_load_reach_every_node(files):
     # an explicit mismatch: the model differs from the plant only where asked
     q = node_parameters('speed', 'min_loss', motor=MOTOR,
                         estimates=m.with_values(R_r=1.2 * m.R_r), profile=prof)
-    assert q['plant']['R_r'] == m.R_r and q['controller']['R_r'] == q['observer']['R_r'] == 1.2 * m.R_r
+    assert (q['plant']['R_r'] == m.R_r
+            and q['controller']['R_r'] == q['observer']['R_r'] == 1.2 * m.R_r)
 
 
 def test_node_parameters_refuse_bad_options(files, tmp_path):
@@ -75,12 +77,15 @@ def test_graph_equals_the_offline_loop_with_motor_profile_load_and_limits(files)
 
 
 def test_torque_task_follows_an_effort_profile_in_the_graph_and_offline(tmp_path):
-    """The torque task (an effort profile, beyond the thesis): graph and offline loop agree, the
-    torque follows the profile once the machine is magnetized."""
+    """
+    The torque task (an effort profile, beyond the thesis): graph and offline loop agree, the
+    torque follows the profile once the machine is magnetized.
+    """
     from im_bringup.offline import Scenario, simulate
     from im_controller.profiles import load_profile
     prof = tmp_path / 'effort.yaml'
-    prof.write_text('setpoints:\n  - {t: 0.0, effort: 0.0}\n  - {t: 0.03, effort: 2.0, duration: 0.01}\n')
+    prof.write_text('setpoints:\n  - {t: 0.0, effort: 0.0}\n  - {t: 0.03, effort: 2.0, duration: '
+                    '0.01}\n')
     g = run_graph(task='torque', strategy='constant_flux', duration=0.06, profile=str(prof))
     off = simulate(Scenario(task='torque', strategy='constant_flux', duration=0.06,
                             profile=load_profile(str(prof))))
@@ -92,9 +97,11 @@ def test_torque_task_follows_an_effort_profile_in_the_graph_and_offline(tmp_path
 
 
 def _message_from_yaml(msg_type, text: str):
-    """The message ``ros2 topic pub TOPIC TYPE 'TEXT'`` publishes: a default-constructed message
+    """
+    The message ``ros2 topic pub TOPIC TYPE 'TEXT'`` publishes: a default-constructed message
     whose fields named in the YAML are set (rosidl_runtime_py.set_message_fields' rule), every
-    other field left at its default — an unset header stamp is 0 s 0 ns, unset arrays empty."""
+    other field left at its default — an unset header stamp is 0 s 0 ns, unset arrays empty.
+    """
     import yaml
     msg = msg_type()
     for name, value in yaml.safe_load(text).items():
@@ -103,11 +110,13 @@ def _message_from_yaml(msg_type, text: str):
 
 
 def test_a_setpoint_sent_the_readme_way_moves_the_reference_from_where_it_is():
-    """Issue 23: the README's ``ros2 topic pub --once /im/setpoint sensor_msgs/msg/JointState
+    """
+    Issue 23: the README's ``ros2 topic pub --once /im/setpoint sensor_msgs/msg/JointState
     '{name: [rotor], velocity: [150.0]}'`` (stamp 0, "now") sent at t = 0.6 s, long after the
     start: θ*, ω* continue from where they are (no rebuilt past), ω* takes the quintic's
     setpoint_duration to 150 with its peak acceleration 1.875·Δω/T, τ* stays within the torque
-    that acceleration needs (far under the torque limit) and the shaft does not overshoot."""
+    that acceleration needs (far under the torque limit) and the shaft does not overshoot.
+    """
     import rclpy.node
     from sensor_msgs.msg import JointState
 
@@ -166,9 +175,11 @@ def test_a_setpoint_sent_the_readme_way_moves_the_reference_from_where_it_is():
 
 def test_the_same_setpoint_sent_twice_is_two_commands_and_one_message_on_both_subscriptions_one(
         ros_context):
-    """`ros2 topic pub` 150, then 100, then 150 again: three commands (same stamp 0, same
+    """
+    `ros2 topic pub` 150, then 100, then 150 again: three commands (same stamp 0, same
     value as the first is no reason to drop the third); a transient-local publisher's message,
-    delivered on both of the controller's subscriptions, is one command."""
+    delivered on both of the controller's subscriptions, is one command.
+    """
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import JointState
 
@@ -191,9 +202,11 @@ def test_the_same_setpoint_sent_twice_is_two_commands_and_one_message_on_both_su
 
 def test_a_negative_gain_is_refused_by_name_and_the_default_sentinel_says_what_it_uses(
         ros_context):
-    """Issue 23: `ros2 param set /controller k_p -0.5` was accepted and logged as -0.5 while the
+    """
+    Issue 23: `ros2 param set /controller k_p -0.5` was accepted and logged as -0.5 while the
     per-mode default ran. Now -0.5 is refused with one line naming k_p (the old value stays in
-    force); -1, the documented sentinel, is accepted and announced with the gain it stands for."""
+    force); -1, the documented sentinel, is accepted and announced with the gain it stands for.
+    """
     from rclpy.parameter import Parameter
 
     from im_common import topics as T
@@ -205,7 +218,8 @@ def test_a_negative_gain_is_refused_by_name_and_the_default_sentinel_says_what_i
     try:
         for name in ('k_p', 'k_v', 'flux_preview'):
             res = node.set_parameters([Parameter(name, value=-0.5)])[0]
-            assert not res.successful and res.reason.startswith(f"invalid parameter '{name}' = -0.5")
+            assert not res.successful and res.reason.startswith(f"invalid parameter '{name}' = "
+                                                                '-0.5')
             assert '\n' not in res.reason
         assert node.get_parameter('k_p').value == 4.0 and node._pending_changes is None
         assert node.set_parameters([Parameter('k_p', value=-1.0)])[0].successful

@@ -1,6 +1,8 @@
-"""The parts LockstepNode is composed of, each on its own and without ROS: the step gate
+"""
+The parts LockstepNode is composed of, each on its own and without ROS: the step gate
 (im_common.step_gate), the run protocol's decisions (im_common.run_protocol) and the node's message
-signing (im_common.signing); and the one step loop every node shell shares."""
+signing (im_common.signing); and the one step loop every node shell shares.
+"""
 from __future__ import annotations
 
 import os
@@ -8,15 +10,14 @@ import subprocess
 import sys
 from types import SimpleNamespace
 
-import pytest
-
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import Vector3Out
-from im_common.run_protocol import (FAILED, FINISHED, FINISHING, READY, RUNNING, STOPPING,
-                                    WAITING, WARNING, RunProtocol, watchdog_limit)
-from im_common.signing import NodeSigning, allowed_publishers, foreign_publishers
-from im_common.step_gate import StepGate, finite
+from im_common.run_protocol import (FAILED, FINISHED, FINISHING, READY, RUNNING, RunProtocol,
+                                    STOPPING, WAITING, WARNING, watchdog_limit)
+from im_common.signing import allowed_publishers, foreign_publishers, NodeSigning
+from im_common.step_gate import finite, StepGate
+import pytest
 
 P = 100_000          # T_s = 1e-4 s in ns
 A, B = '/a', '/b'
@@ -217,8 +218,10 @@ def test_who_may_publish_on_a_nodes_inputs():
 
 # The step loop -------------------------------------------------------------------------------
 def test_the_step_loop_has_one_home():
-    """Every node shell computes one step (``step``); none copies the loop that takes complete
-    steps from its gate (``LockstepNode.ready``)."""
+    """
+    Every node shell computes one step (``step``); none copies the loop that takes complete
+    steps from its gate (``LockstepNode.ready``).
+    """
     from im_adapt.adapter_node import AdapterNode
     from im_common.lockstep import LockstepNode
     from im_controller.controller_node import ControllerNode

@@ -1,23 +1,25 @@
-"""Motor ratings in nameplate units (issue 24, part 2): converted once to the model's
+"""
+Motor ratings in nameplate units (issue 24, part 2): converted once to the model's
 power-invariant frame, the rated flux from the equivalent circuit, and the ratings as the drive's
 default limits, protection and flux level — explicit values override, unrated motors run as the
-thesis did."""
+thesis did.
+"""
 import math
 import os
 
-import numpy as np
-import pytest
-
-from im_common.params import (CURRENT_TRIP_MARGIN, SPEED_TRIP_MARGIN, THESIS_MOTOR,
-                              InvalidParameter, MotorParams, clarke, default_limits,
-                              describe_defaults, load_motor_file, rated_flux, shipped_motors_dir, vector_magnitude)
+from im_common.params import (clarke, CURRENT_TRIP_MARGIN, default_limits, describe_defaults,
+                              InvalidParameter, load_motor_file, MotorParams, rated_flux,
+                              shipped_motors_dir, SPEED_TRIP_MARGIN, THESIS_MOTOR,
+                              vector_magnitude)
 from im_common.plant_sim import PlantSimulator
 from im_common.steady_state import params_steady_state
 from im_controller.control_law import ControllerConfig
+import numpy as np
+import pytest
 
 #: the thesis motor's electrical values with a user's nameplate: 220 V, 5 A, 60 Hz, 1750 rpm
-PLATE = dict(rated_voltage_rms_line=220.0, rated_current_rms=5.0, rated_frequency=60.0,
-             rated_speed_rpm=1750.0, rated_power=2200.0)
+PLATE = {'rated_voltage_rms_line': 220.0, 'rated_current_rms': 5.0, 'rated_frequency': 60.0,
+         'rated_speed_rpm': 1750.0, 'rated_power': 2200.0}
 RATED = THESIS_MOTOR.with_values(**PLATE)
 
 
@@ -28,10 +30,12 @@ def _balanced(rms: float, phase: float, t: np.ndarray, w: float = 2 * math.pi * 
 
 
 def test_a_balanced_set_of_known_rms_is_a_vector_of_sqrt3_times_it_through_the_transform():
-    """Closed form: x_k = √2 X cos(ωt − 2πk/3) → |x_αβ| = √3 X at every instant, and the
+    """
+    Closed form: x_k = √2 X cos(ωt − 2πk/3) → |x_αβ| = √3 X at every instant, and the
     transform keeps the power (Σ v_k i_k = v·i); so a star of phase voltage V_LL/√3 and line
     current I is a voltage vector of magnitude V_LL and a current vector of √3 I, and the model's
-    v·i at unity power factor is the nameplate's √3 V_LL I."""
+    v·i at unity power factor is the nameplate's √3 V_LL I.
+    """
     t = np.linspace(0.0, 0.05, 997)
     V_LL, I_L, pf_angle = 220.0, 5.0, 0.4
     v_abc = _balanced(V_LL / math.sqrt(3.0), 0.0, t)
@@ -52,9 +56,11 @@ def test_a_balanced_set_of_known_rms_is_a_vector_of_sqrt3_times_it_through_the_t
 
 @pytest.mark.parametrize('name', ['thesis', 'krause_3hp', 'krause_50hp'])
 def test_rated_flux_is_the_models_own_steady_state_at_rated_voltage_frequency_and_speed(name):
-    """The derived rated flux equals |Φ_r| of the plant model's phasor steady state (a formulation
+    """
+    The derived rated flux equals |Φ_r| of the plant model's phasor steady state (a formulation
     that shares no code with the inverse-Γ formula) at the rated voltage-vector magnitude, 2πf
-    and the rated speed."""
+    and the rated speed.
+    """
     m = load_motor_file(os.path.join(shipped_motors_dir(), f'{name}.yaml'))
     ss = params_steady_state(m, m.rated_voltage, 2 * math.pi * m.rated_frequency, m.rated_speed)
     assert rated_flux(m) == pytest.approx(abs(ss.Phi_r), rel=1e-9)
@@ -98,12 +104,15 @@ def test_a_motor_without_ratings_runs_as_the_thesis_did():
 
 
 def test_node_parameters_left_at_their_default_take_the_ratings_and_zero_is_none():
-    """The controller's and plant's -1 parameters (their default) go through the same defaults;
-    0 keeps meaning 'none'."""
+    """
+    The controller's and plant's -1 parameters (their default) go through the same defaults;
+    0 keeps meaning 'none'.
+    """
     from im_controller.parameters import config_from_parameters, declare_controller
     from im_plant.parameters import declare_plant, simulator_from_parameters
 
     class FakeNode:
+
         def __init__(self, **given):
             self.given = given
 
@@ -127,10 +136,12 @@ def test_node_parameters_left_at_their_default_take_the_ratings_and_zero_is_none
 
 
 def test_min_energy_on_a_motor_rated_below_its_draw_stays_within_the_rating_by_default():
-    """The user's case: the thesis's speed task with min_energy on a motor whose nameplate says
+    """
+    The user's case: the thesis's speed task with min_energy on a motor whose nameplate says
     5 A (8.66 A as a vector). Without ratings the drive draws far more; with them, by default,
     the stator current stays within the rated current, the voltage within the rated voltage,
-    and the configuration says the limits came from the ratings."""
+    and the configuration says the limits came from the ratings.
+    """
     from im_bringup.offline import Scenario, simulate
     unrated = simulate(Scenario(task='speed', strategy='min_energy', duration=1.0,
                                 motor=THESIS_MOTOR), record_every=5)

@@ -1,4 +1,5 @@
-"""The README a newcomer reads first, and the generated pages it points to (issue 24 item 5).
+"""
+The README a newcomer reads first, and the generated pages it points to (issue 24 item 5).
 
 The README starts with the two commands CI and users run, says where the demo's files land (the
 paths the Makefile's demo recipe writes), stays short, and every command it shows runs: each
@@ -6,16 +7,16 @@ paths the Makefile's demo recipe writes), stays short, and every command it show
 argument is declared, each ``make`` target exists. The generated blocks are what their one
 generator renders: the topic and parameter tables of docs/parameters.md from the code
 (``python -m im_studies.docs``), the results of docs/results.md and the README's headline from the
-committed summary (``python -m im_studies.readme_status``); ``make readme`` runs both."""
+committed summary (``python -m im_studies.readme_status``); ``make readme`` runs both.
+"""
 import ast
 import os
 import re
 import shlex
 import subprocess
 
-import pytest
-
 from im_studies.docs import render
+import pytest
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..')
 README = os.path.join(ROOT, 'README.md')
@@ -68,8 +69,10 @@ def test_readme_is_short():
 
 
 def test_first_screen_says_where_the_demo_files_land_and_what_to_read_next():
-    """The paths on the first screen are the ones the demo recipe writes: the recording, the
-    summary next to it (scenario's default) and the report directory."""
+    """
+    The paths on the first screen are the ones the demo recipe writes: the recording, the
+    summary next to it (scenario's default) and the report directory.
+    """
     recipe = _makefile_recipe('demo')
     record = re.search(r'--record (\S+)', recipe).group(1)
     report = re.search(r'--report (\S+)', recipe).group(1)
@@ -99,8 +102,10 @@ def _ros2_run_path(package: str, executable: str) -> str:
 
 @pytest.mark.parametrize('page', COMMAND_PAGES)
 def test_every_ros2_run_shown_runs_with_the_options_shown(page):
-    """Each ``ros2 run PKG EXE ...`` line: the executable is where ``ros2 run`` looks, and every
-    long option shown is one its ``--help`` lists (a renamed option fails here)."""
+    """
+    Each ``ros2 run PKG EXE ...`` line: the executable is where ``ros2 run`` looks, and every
+    long option shown is one its ``--help`` lists (a renamed option fails here).
+    """
     runs = [shlex.split(line) for line in _code_lines(_read(page)) if line.startswith('ros2 run ')]
     assert len(runs) >= 5
     helps = {}
@@ -134,9 +139,11 @@ def test_every_ros2_launch_argument_shown_is_declared(page):
 
 
 def test_readme_ros2_stand_in_runs_an_executable(tmp_path):
-    """Without a ROS 2 install the README's ``ros2`` shell function is how a user types ``ros2
+    """
+    Without a ROS 2 install the README's ``ros2`` shell function is how a user types ``ros2
     run``: pasted as shown, it runs the installed executable and refuses other verbs in one
-    line."""
+    line.
+    """
     defs = [line for line in _code_lines(_read('README.md')) if line.startswith('ros2()')]
     assert len(defs) == 1, 'the README defines its ros2 stand-in once'
     script = tmp_path / 'shell.sh'
@@ -155,8 +162,10 @@ def _blocks():
 
 
 def test_results_and_headline_are_generated_from_the_committed_summary():
-    """docs/results.md's status block and the README's headline are exactly what `make readme`
-    renders from docs/data/reproduce_summary.json (the copy `make reproduce` refreshes)."""
+    """
+    docs/results.md's status block and the README's headline are exactly what `make readme`
+    renders from docs/data/reproduce_summary.json (the copy `make reproduce` refreshes).
+    """
     from im_studies.readme_status import (DEFAULT_SUMMARY, first_difference, load_summary,
                                           render_headline)
     from im_studies.readme_status import render as render_status
@@ -172,8 +181,10 @@ def test_results_and_headline_are_generated_from_the_committed_summary():
 
 
 def test_results_block_follows_the_summary_and_names_a_missing_run(tmp_path):
-    """Generated, not copied: a changed figure in the summary changes the block and the headline; a
-    summary without a run the blocks need is refused with a message naming the run."""
+    """
+    Generated, not copied: a changed figure in the summary changes the block and the headline; a
+    summary without a run the blocks need is refused with a message naming the run.
+    """
     import json
 
     from im_studies.readme_status import SummaryError, load_summary, render_headline
@@ -198,8 +209,10 @@ def test_results_block_follows_the_summary_and_names_a_missing_run(tmp_path):
 
 
 def test_check_names_the_stale_file_and_write_restores_it(tmp_path):
-    """`readme_status --check` exits 1 naming the file whose block is stale; `--write` fills both
-    files; a file without its markers is one line naming file and markers, exit 2."""
+    """
+    `readme_status --check` exits 1 naming the file whose block is stale; `--write` fills both
+    files; a file without its markers is one line naming file and markers, exit 2.
+    """
     import shutil
 
     from im_studies.readme_status import main

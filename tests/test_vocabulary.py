@@ -1,4 +1,5 @@
-"""No concept has two homes (issue 24): the names of the flux strategies, the tasks and the
+"""
+No concept has two homes (issue 24): the names of the flux strategies, the tasks and the
 controllers are written once, in their homes, and imported everywhere else.
 
 Every tuple, list or set literal of strings under src/ that holds exactly the names of one of
@@ -35,8 +36,10 @@ VOCABULARIES = {
 
 
 def _string_literals(tree: ast.AST):
-    """(node, the strings) of every tuple/list/set literal made of string constants only, and the
-    name it is assigned to at module or class level (None otherwise)."""
+    """
+    (node, the strings) of every tuple/list/set literal made of string constants only, and the
+    name it is assigned to at module or class level (None otherwise).
+    """
     assigned = {}
     for node in ast.walk(tree):
         if isinstance(node, (ast.Assign, ast.AnnAssign)):
@@ -82,9 +85,9 @@ def test_the_scanner_finds_a_copy_in_any_order(tmp_path):
     (tmp_path / 'pkg').mkdir()
     (tmp_path / 'pkg' / 'study.py').write_text(
         "TASKS = ['speed', 'position']\n"
-        "def f():\n"
+        'def f():\n'
         "    for s in ('min_loss', 'min_energy', 'constant_flux'):\n"
-        "        pass\n"
+        '        pass\n'
         "OTHER = ('position', 'speed', 'extra')\n"
         "ONE = ('position',)\n")
     assert copies(tmp_path) == [
@@ -125,7 +128,9 @@ def other_yaml_reads(root: Path) -> list:
 
 
 def test_the_studies_read_every_yaml_file_through_yamlio():
-    """Specs, gains and parameters files: one reader (im_common.yamlio), one error style (a line
-    naming the file and where), whatever the study."""
+    """
+    Specs, gains and parameters files: one reader (im_common.yamlio), one error style (a line
+    naming the file and where), whatever the study.
+    """
     found = other_yaml_reads(SRC / 'im_studies')
     assert not found, '\n'.join(['YAML read outside im_common.yamlio:'] + found)

@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Studies on the drive: the thesis reproduction, the chapter studies, the Dask campaign and the README/docs generators.',
+    description='Studies on the drive: the thesis reproduction, the chapter studies, the Dask '
+                'campaign and the README/docs generators.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

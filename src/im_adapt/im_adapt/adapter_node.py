@@ -1,4 +1,5 @@
-"""``ros2 run im_adapt adapter``: online estimates of R_r and θ = L_sr/L_r (seed 000 §4.2).
+"""
+``ros2 run im_adapt adapter``: online estimates of R_r and θ = L_sr/L_r (seed 000 §4.2).
 
 A thin shell around the adaptation law. At step k it takes the measured current and speed, the
 voltage command and the observer's estimate stamped t_k, updates the estimates, and publishes
@@ -15,15 +16,14 @@ from __future__ import annotations
 
 import sys
 
-from rcl_interfaces.msg import SetParametersResult
-from sensor_msgs.msg import JointState
-
+from im_adapt.parameters import declare_law
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
-from im_common.lockstep import PARAMETERS, LockstepNode, StepGate, lockstep_qos, node_main
+from im_common.lockstep import lockstep_qos, LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import declare_motor, declare_run
-from im_adapt.parameters import declare_law
+from rcl_interfaces.msg import SetParametersResult
+from sensor_msgs.msg import JointState
 
 
 class AdapterNode(LockstepNode):

@@ -1,4 +1,5 @@
-"""Who may command the motor: a per-graph key and a tag on every message that steers the run.
+"""
+Who may command the motor: a per-graph key and a tag on every message that steers the run.
 
 The Fast DDS in the PyPI wheels has no DDS security, so any participant on the ROS domain can
 publish on the lock-step topics. The graph protects itself with a secret shared by its own nodes
@@ -56,8 +57,11 @@ def default_key_file() -> str:
 
 
 def write_key_file(path: str) -> str:
-    """Create ``path`` (mode 0600, its directory 0700 if new) holding a fresh random key; an
-    existing file is kept (two nodes starting at once end up with the same key)."""
+    """
+    Create ``path`` (mode 0600, its directory 0700 if new) holding a fresh random key.
+
+    An existing file is kept (two nodes starting at once end up with the same key).
+    """
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, mode=0o700, exist_ok=True)
     try:
@@ -72,7 +76,7 @@ def write_key_file(path: str) -> str:
 
 
 def new_key_file(directory: Optional[str] = None) -> str:
-    """A fresh key for one graph, in a new private directory (``ros2 launch``, the tools)."""
+    """Make a fresh key for one graph, in a new private directory (``ros2 launch``, the tools)."""
     d = tempfile.mkdtemp(prefix='im_drive_key_', dir=directory)
     return write_key_file(os.path.join(d, 'graph.key'))
 
@@ -87,7 +91,11 @@ def remove_key_file(path: str) -> None:
 
 
 def read_key_file(path: str, create: bool = False) -> bytes:
-    """The key in ``path``; one-line :class:`GraphKeyError` naming the file and what is wrong."""
+    """
+    Return the key in ``path``.
+
+    Raises a one-line :class:`GraphKeyError` naming the file and what is wrong.
+    """
     if create and not os.path.exists(path):
         write_key_file(path)
     try:
@@ -95,17 +103,17 @@ def read_key_file(path: str, create: bool = False) -> bytes:
         with open(path, 'rb') as f:
             text = f.read().strip()
     except OSError as exc:
-        raise GraphKeyError(f"graph key file {path}: {exc.strerror}") from None
+        raise GraphKeyError(f'graph key file {path}: {exc.strerror}') from None
     if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
         raise GraphKeyError(f'graph key file {path} is accessible to other users (mode '
-                        f'{stat.S_IMODE(st.st_mode):04o}): chmod 600 {path}')
+                            f'{stat.S_IMODE(st.st_mode):04o}): chmod 600 {path}')
     try:
         key = bytes.fromhex(text.decode('ascii'))
     except (UnicodeDecodeError, ValueError):
         key = b''
     if len(key) < 16:
         raise GraphKeyError(f'graph key file {path} does not hold a key (expected {KEY_BYTES} '
-                        f'random bytes as hex digits)')
+                            f'random bytes as hex digits)')
     return key[:KEY_BYTES]
 
 
@@ -119,7 +127,8 @@ _LAST_MAX = 1024
 
 
 class Signer:
-    """Tags and verifies messages of one graph (one key, one run id at a time).
+    """
+    Tags and verifies messages of one graph (one key, one run id at a time).
 
     Serialized ``Vector3Stamped`` / ``JointState`` (the lock-step topics) are tagged in place of
     the last ``TAG_HEX`` characters of their frame id (:meth:`sign` / :meth:`verify`);
@@ -154,19 +163,23 @@ class Signer:
 
     @staticmethod
     def frame(base: str) -> str:
-        """The frame id a publisher packs its messages with: ``base#`` + a placeholder tag."""
+        """Return the frame id a publisher packs its messages with: ``base#`` + a dummy tag."""
         return base + SEPARATOR + '0' * TAG_HEX
 
     def _mac(self, topic: str, data: bytes, at: int, end: int) -> bytes:
-        """The tag (hex digits) over the stamp, the frame id's length and text before the tag,
-        and every byte after the frame id (the values)."""
+        """
+        Return the tag (hex digits) of a packed message.
+
+        It covers the stamp, the frame id's length and text before the tag, and every byte after
+        the frame id (the values).
+        """
         h = self._hasher(topic)
         h.update(data[4:at])
         h.update(data[end:])
         return h.hexdigest().encode()
 
     def sign(self, topic: str, data: bytes) -> bytes:
-        """``data`` (packed with :meth:`frame`) with its tag written into the frame id."""
+        """Return ``data`` (packed with :meth:`frame`) with its tag written into the frame id."""
         end = 15 + _U32.unpack_from(data, 12)[0]      # the frame id's NUL
         at = end - TAG_HEX
         signed = data[:at] + self._mac(topic, data, at, end) + data[end:]
@@ -176,7 +189,7 @@ class Signer:
         return signed
 
     def verify(self, topic: str, data: bytes) -> bool:
-        """True if ``data`` carries this graph's tag for ``topic`` in the current run."""
+        """Return True if ``data`` carries this graph's tag for ``topic`` in the current run."""
         ident = self._ids.get(topic) or self._ident(topic)
         if _LAST.get(ident) == data:
             return True                 # the very bytes signed or verified last: same tag
@@ -196,7 +209,7 @@ class Signer:
         return True
 
     def tag_bytes(self, topic: str, payload: bytes) -> str:
-        """The tag of an arbitrary payload (a serialized message with an empty tag slot)."""
+        """Return the tag of an arbitrary payload (a serialized message with an empty tag slot)."""
         h = self._hasher(topic)
         h.update(payload)
         return h.hexdigest()
@@ -206,9 +219,12 @@ class Signer:
 
 
 def status_payload(msg) -> bytes:
-    """What a status event's tag covers (a ``diagnostic_msgs/DiagnosticArray``): its stamp and
-    every field of every status, encoded canonically (rclpy's serialization leaves padding bytes
-    undefined, so it cannot be signed)."""
+    """
+    Return what a status event's tag covers (a ``diagnostic_msgs/DiagnosticArray``).
+
+    That is its stamp and every field of every status, encoded canonically (rclpy's serialization
+    leaves padding bytes undefined, so it cannot be signed).
+    """
     import json
     st = msg.header.stamp
     return json.dumps([st.sec, st.nanosec, [
@@ -218,12 +234,12 @@ def status_payload(msg) -> bytes:
 
 
 def progress_payload(node: str, stamp_ns: int) -> bytes:
-    """What a lossless follower's acknowledgement tag covers: its name and the acked stamp."""
+    """Return what a lossless follower's acknowledgement tag covers: its name and acked stamp."""
     return f'{node}\0{int(stamp_ns)}'.encode()
 
 
 def split_frame(frame_id: str):
-    """(base, tag) of a tagged frame id; (frame_id, '') when it carries no tag."""
+    """Return (base, tag) of a tagged frame id; (frame_id, '') when it carries no tag."""
     if len(frame_id) > TAG_HEX and frame_id[-TAG_HEX - 1] == SEPARATOR:
         return frame_id[:-TAG_HEX - 1], frame_id[-TAG_HEX:]
     return frame_id, ''

@@ -1,4 +1,5 @@
-"""The lock-step helper shared by every node: step gate, run protocol, watchdog, and ``main``.
+"""
+The lock-step helper shared by every node: step gate, run protocol, watchdog, and ``main``.
 
 Step protocol (``docs/architecture.md``): step k is
   plant publishes measurements stamped t_k → controller computes V_k once it holds every input
@@ -25,8 +26,8 @@ import sys
 import time
 from typing import Callable, Dict, List, Optional, Sequence
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
@@ -36,11 +37,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from . import auth, realtime
 from .conversions import NS_PER_S
 from .params import parameter_error
-from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, NOT_STATES,  # noqa: F401
-                           PARAMETERS, READY, RUNNING, STOPPED, STOPPING, WAITING, WARNING,
-                           RunProtocol, is_master, watchdog_limit)
-from .signing import NodeSigning, allowed_publishers, foreign_publishers
-from .step_gate import LOCKSTEP_DEPTH, StepGate, finite
+from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, is_master,  # noqa: F401
+                           NOT_STATES, PARAMETERS, READY, RUNNING, RunProtocol, STOPPED, STOPPING,
+                           WAITING, WARNING, watchdog_limit)
+from .signing import allowed_publishers, foreign_publishers, NodeSigning
+from .step_gate import finite, LOCKSTEP_DEPTH, StepGate
 from .stopping import StopSignals
 
 #: Reader history of /im/status (events of every node on the domain while this one starts).
@@ -73,10 +74,14 @@ def data_qos(depth: int = 100) -> QoSProfile:
 
 
 def status_qos(depth: int = 20) -> QoSProfile:
-    """Run-protocol events: reliable and transient-local (a node that starts late sees them).
-    Readers ask for a deeper history (:data:`STATUS_READER_DEPTH`): while a node is still
-    starting, the events of every node on the domain (another graph's too) queue up, and the time
-    master's one ``waiting`` must not be pushed out by them."""
+    """
+    Return the QoS of the run-protocol events: reliable and transient-local.
+
+    A node that starts late sees them. Readers ask for a deeper history
+    (:data:`STATUS_READER_DEPTH`): while a node is still starting, the events of every node on the
+    domain (another graph's too) queue up, and the time master's one ``waiting`` must not be pushed
+    out by them.
+    """
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -87,7 +92,8 @@ def describe(description: str, lo=None, hi=None, read_only: bool = False, intege
     d = ParameterDescriptor(description=description, read_only=read_only)
     if lo is not None and hi is not None:
         if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=int(step or 1))]
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi),
+                                            step=int(step or 1))]
         else:
             d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
                                                          step=float(step or 0.0))]
@@ -95,16 +101,23 @@ def describe(description: str, lo=None, hi=None, read_only: bool = False, intege
 
 
 class ConfigurationError(ValueError):
-    """A node refuses its configuration (a parameter unknown, of the wrong type or out of
-    range); the message is the one line every path prints (:func:`build_node`)."""
+    """
+    A node refuses its configuration (a parameter unknown, of the wrong type or out of range).
+
+    The message is the one line every path prints (:func:`build_node`).
+    """
 
 
 def build_node(factory: Callable[..., 'LockstepNode'], **kwargs) -> 'LockstepNode':
-    """Construct a drive node and check its configuration: every declared parameter's type and
-    range (:meth:`LockstepNode.param`) and no parameter given that it does not declare
-    (:meth:`LockstepNode.check_overrides`). A node executable (:func:`node_main`), the in-process
-    graph and the check a supervisor makes before starting processes all build nodes here, so a
-    configuration is refused with the same :class:`ConfigurationError` line on every path."""
+    """
+    Construct a drive node and check its configuration.
+
+    Checked: every declared parameter's type and range (:meth:`LockstepNode.param`) and no
+    parameter given that it does not declare (:meth:`LockstepNode.check_overrides`). A node
+    executable (:func:`node_main`), the in-process graph and the check a supervisor makes before
+    starting processes all build nodes here, so a configuration is refused with the same
+    :class:`ConfigurationError` line on every path.
+    """
     node = None
     try:
         node = factory(**kwargs)
@@ -121,7 +134,8 @@ def stamp_text(ns: int) -> str:
 
 
 class LockstepNode(Node):
-    """Base of the drive nodes: parameters with descriptors, the run protocol, the watchdog.
+    """
+    Base of the drive nodes: parameters with descriptors, the run protocol, the watchdog.
 
     A subclass sets ``self.gate`` (a :class:`StepGate`), declares its gate inputs with
     :meth:`gate_input`, implements :meth:`step` (one complete step's computation) and calls
@@ -172,10 +186,10 @@ class LockstepNode(Node):
         key_file = self.param(
             'graph_key_file', '',
             "file holding the graph's key (empty: $IM_GRAPH_KEY_FILE, else "
-            "$ROS_HOME/im_drive/graph.key, created on first use); see docs/security.md")
+            '$ROS_HOME/im_drive/graph.key, created on first use); see docs/security.md')
         self.allowed = self._allowed_publishers(self.param(
             'allowed_publishers', '',
-            'publishers allowed on this node\'s inputs besides the topic table\'s: space-separated '
+            "publishers allowed on this node's inputs besides the topic table's: space-separated "
             'topic=node items (e.g. /im/command/voltage=/ctl2)'))
         if graph_key is None:
             path = key_file or auth.default_key_file()
@@ -191,7 +205,7 @@ class LockstepNode(Node):
 
     @property
     def run_id(self) -> str:
-        """The time master's run this node follows ('' until it has seen one)."""
+        """Return the time master's run this node follows ('' until it has seen one)."""
         return self.protocol.run_id
 
     @run_id.setter
@@ -200,17 +214,17 @@ class LockstepNode(Node):
 
     @property
     def peers(self) -> Dict[str, tuple]:
-        """Node name -> (state, values) of its last event in the run followed."""
+        """Return node name -> (state, values) of its last event in the run followed."""
         return self.protocol.peers
 
     @property
     def providers(self) -> Dict[str, str]:
-        """Publisher node name -> one topic of this node's inputs it provides."""
+        """Return publisher node name -> one topic of this node's inputs it provides."""
         return self.protocol.providers
 
     @property
     def master_state(self) -> str:
-        """The last state of the time master (plant) of the run followed."""
+        """Return the last state of the time master (plant) of the run followed."""
         return self.protocol.master_state
 
     # Parameters -----------------------------------------------------------------------
@@ -233,8 +247,12 @@ class LockstepNode(Node):
         return value
 
     def check_overrides(self) -> None:
-        """Refuse parameters given for this node (YAML, ``-p``) that it does not declare, naming
-        the nearest valid one: a misspelt gain must not silently fall back to its default."""
+        """
+        Refuse parameters given for this node (YAML, ``-p``) that it does not declare.
+
+        The error names the nearest valid one: a misspelt gain must not silently fall back to its
+        default.
+        """
         declared = set(self._parameters)
         unknown = sorted(n for n in getattr(self, '_parameter_overrides', {}) if n not in declared
                          and not n.startswith('qos_overrides.'))
@@ -242,13 +260,14 @@ class LockstepNode(Node):
             name = unknown[0]
             near = difflib.get_close_matches(name, sorted(declared), n=1, cutoff=0.5)
             hint = f"; did you mean '{near[0]}'?" if near else ''
+            also = f' (also unknown: {", ".join(unknown[1:])})' if unknown[1:] else ''
             raise ValueError(f"unknown parameter '{name}' for node '{self.get_name()}'{hint}"
-                             + (f' (also unknown: {", ".join(unknown[1:])})' if unknown[1:] else ''))
+                             + also)
 
     # Status ------------------------------------------------------------------------------
     def status(self, state: str, level: int = 0, stamp_ns: Optional[int] = None,
                **values) -> None:
-        """Publish a run-protocol event on /im/status (and keep it as this node's state)."""
+        """Publish a run-protocol event on /im/status; keep it as this node's state."""
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         if state not in NOT_STATES:
             self.state = state
@@ -283,8 +302,11 @@ class LockstepNode(Node):
                 self.on_peer_status(st.name, st.message, values)
 
     def _foreign_status(self, msg) -> None:
-        """A run-protocol event not signed by this graph: never acted on, reported once per
-        sender (another graph with its own key, or a rogue)."""
+        """
+        Report a run-protocol event not signed by this graph, once per sender; never act on it.
+
+        The sender is another graph with its own key, or a rogue.
+        """
         for st in msg.status:
             key = (st.name, st.message)
             if st.name in self._foreign_status_said or len(self._foreign_status_said) > 100:
@@ -293,7 +315,7 @@ class LockstepNode(Node):
             pubs = self.foreign_publishers(_status_topic())
             self.get_logger().warning(
                 f"ignoring {_status_topic()} event '{key[1]}' from '{key[0]}': not signed by "
-                f"this graph (another graph with its own key, or a foreign node"
+                f'this graph (another graph with its own key, or a foreign node'
                 + (f"; publishers not of this graph: {', '.join(pubs)}" if pubs else '') + ')')
 
     def adopt_run(self, run_id: str) -> None:
@@ -307,12 +329,19 @@ class LockstepNode(Node):
             self._drain_early()
 
     def on_run_adopted(self) -> None:
-        """Hook: this node now follows a run (nodes publishing an initial estimate do it here,
-        signed for that run)."""
+        """
+        Act on following a run from now on (a hook).
+
+        Nodes publishing an initial estimate do it here, signed for that run.
+        """
 
     def enter_realtime(self) -> None:
-        """free_run, as its own process: SCHED_FIFO for every thread of this process (or one
-        warning saying why not, also on /im/status: the run then has no real-time guarantee)."""
+        """
+        Enter free_run, as its own process: SCHED_FIFO for every thread of this process.
+
+        If that fails, one warning says why (also on /im/status: the run then has no real-time
+        guarantee).
+        """
         if not self.own_process or not self.realtime_capable or self.scheduling != 'normal':
             return
         if self.rt_priority <= 0:
@@ -330,8 +359,11 @@ class LockstepNode(Node):
             self.status(WARNING, level=1, reason=msg)
 
     def follow_master(self, state: str, run: str) -> bool:
-        """A time master's event: choose the run to follow (the one running, else the latest
-        waiting to start) and tell whether this event belongs to it."""
+        """
+        Take a time master's event: choose the run to follow, tell whether the event belongs to it.
+
+        The run followed is the one running, else the latest waiting to start.
+        """
         adopt, lock = self.protocol.master_event(state, run)
         if adopt is not None:
             self.adopt_run(adopt)
@@ -340,14 +372,21 @@ class LockstepNode(Node):
         return bool(run) and run == self.run_id
 
     def lock_run(self) -> None:
-        """The followed run is final: what was kept for another run and does not verify for this
-        one is refused now."""
+        """
+        Make the followed run final.
+
+        What was kept for another run and does not verify for this one is refused now.
+        """
         self.protocol.locked = True
         self._drain_early()
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
-        """React to another node's event: the time master's end ends this node; a provider that
-        stops or fails ends this node's part of the run."""
+        """
+        React to another node's event.
+
+        The time master's end ends this node; a provider that stops or fails ends this node's part
+        of the run.
+        """
         master = is_master(values)
         if master and not self.time_master:
             run = values.get('run_id', '')
@@ -356,7 +395,7 @@ class LockstepNode(Node):
                     self._foreign_said = True
                     self.get_logger().warning(
                         f"ignoring '{name}' of another run ({run}) on this ROS domain; this "
-                        f"node follows run {self.run_id}")
+                        f'node follows run {self.run_id}')
                 return
             self.protocol.master_state = state
             if state == RUNNING:
@@ -374,7 +413,7 @@ class LockstepNode(Node):
             self.end_run(*end)
 
     def end_run(self, reason: str, notify: bool = False) -> None:
-        """This node's part of the run is over (not a failure of this node)."""
+        """End this node's part of the run (not a failure of this node)."""
         if self.done:
             return
         self.get_logger().info(reason)
@@ -386,7 +425,7 @@ class LockstepNode(Node):
 
     # Protocol ----------------------------------------------------------------------------
     def start_protocol(self, input_timeout: float, startup_timeout: float) -> None:
-        """Announce ``waiting``; become ``ready`` once every input has a publisher; watch inputs."""
+        """Announce ``waiting``; go ``ready`` once every input has a publisher; watch inputs."""
         self._timeout = float(input_timeout)
         self._startup_timeout = float(startup_timeout)
         self._since = time.monotonic()
@@ -411,19 +450,23 @@ class LockstepNode(Node):
 
     # Who may publish ------------------------------------------------------------------------
     def _allowed_publishers(self, text: str) -> Dict[str, set]:
-        """topic -> allowed publisher nodes ('/ns/name') (:func:`signing.allowed_publishers`)."""
+        """Return topic -> allowed publisher nodes ('/ns/name') (:func:`allowed_publishers`)."""
         return allowed_publishers(self.get_namespace(), text)
 
     def foreign_publishers(self, topic: str) -> List[str]:
-        """Publishers of ``topic`` (graph API) that are not allowed on it, as '/ns/name'."""
+        """Return the publishers of ``topic`` (graph API) not allowed on it, as '/ns/name'."""
         return foreign_publishers(self.allowed.get(topic),
                                   self.get_publishers_info_by_topic(topic))
 
     def check_publishers(self, now: Optional[float] = None) -> None:
-        """About every second (and before the first step): a publisher of an input (or of /clock)
-        that the allow-list does not name is reported once (node, namespace, topic) on the log and
+        """
+        Report publishers the allow-list does not name, about every second.
+
+        Also before the first step: a publisher of an input (or of /clock) that the allow-list
+        does not name is reported once (node, namespace, topic) on the log and
         on /im/status; its messages are refused anyway, since they do not carry this graph's tag
-        (and /clock only sets ROS time, which no computation of the drive uses)."""
+        (and /clock only sets ROS time, which no computation of the drive uses).
+        """
         now = time.monotonic() if now is None else now
         if now - self._publishers_checked < 1.0:
             return
@@ -438,7 +481,7 @@ class LockstepNode(Node):
                 seen.add(node)
                 effect = ('its messages are refused' if t != CLOCK else
                           'ignored: the drive computes on step stamps, never on ROS time')
-                text = (f"foreign publisher {node} on {t} (allowed: "
+                text = (f'foreign publisher {node} on {t} (allowed: '
                         f"{', '.join(sorted(self.allowed.get(t, ())))}): {effect}")
                 self.get_logger().error(text)
                 self.status(WARNING, level=1, reason=text, topic=t, foreign_node=node)
@@ -452,10 +495,13 @@ class LockstepNode(Node):
     EARLY_KEEP_NEWEST = False
 
     def unsigned_input(self, topic: str, data: bytes, handler: Callable) -> None:
-        """``data`` does not verify for the run this node follows now: before that run is running
-        it may belong to the run this node is about to follow (kept, bounded, and handed to
-        ``handler`` again when the run is adopted or starts: :meth:`NodeSigning.keep_early`);
-        afterwards it is refused."""
+        """
+        Keep or refuse ``data``, which does not verify for the run this node follows now.
+
+        Before that run is running it may belong to the run this node is about to follow (kept,
+        bounded, and handed to ``handler`` again when the run is adopted or starts:
+        :meth:`NodeSigning.keep_early`); afterwards it is refused.
+        """
         p = self.protocol
         refused = (topic, data)
         if not p.locked and not self.time_master:
@@ -469,15 +515,18 @@ class LockstepNode(Node):
             handler(data)
 
     def sign(self, topic: str, data: bytes) -> bytes:
-        """A lock-step message of this node, tagged for the run it follows."""
+        """Tag a lock-step message of this node for the run it follows."""
         return self.signing.sign(topic, data)
 
     def refuse_unsigned(self, topic: str, data: bytes) -> None:
-        """A message without this graph's tag for this run: refused, counted, its topic's
-        foreign publishers named (the graph API is asked at the first one, then at most 10 times a
-        second). Cheap: another graph on the domain (its own key, the same node names) sends
-        thousands a second, and a node that fell behind them would lose its own graph's samples
-        from its reader history."""
+        """
+        Refuse and count a message without this graph's tag for this run.
+
+        Its topic's foreign publishers are named (the graph API is asked at the first one, then at
+        most 10 times a second). Cheap: another graph on the domain (its own key, the same node
+        names) sends thousands a second, and a node that fell behind them would lose its own
+        graph's samples from its reader history.
+        """
         self.refused_by_topic[topic] = self.refused_by_topic.get(topic, 0) + 1
         now = time.monotonic()
         if now - self._refused_asked >= 0.1:
@@ -498,7 +547,7 @@ class LockstepNode(Node):
                if pubs else 'its publisher uses an allowed name: another graph with its own '
                'key, or a node of an earlier run')
         self.refuse(topic, ns, f"not signed by this graph for run {self.run_id or '(none yet)'}"
-                    f" ({who})")
+                    f' ({who})')
 
     def missing_inputs(self) -> List[str]:
         return [t for t in self.inputs if self.count_publishers(t) == 0]
@@ -533,7 +582,7 @@ class LockstepNode(Node):
         if missing:
             return 'no publisher yet of ' + ', '.join(missing)
         if not self.time_master and not self.run_id:
-            return 'no run-protocol event of a time master (plant) signed with this graph\'s key'
+            return "no run-protocol event of a time master (plant) signed with this graph's key"
         return 'waiting'
 
     def ready_to_start(self) -> bool:
@@ -544,8 +593,12 @@ class LockstepNode(Node):
         self.status(READY, publishes=' '.join(self.lockstep_outputs()))
 
     def lockstep_outputs(self) -> List[str]:
-        """The lock-step topics this node publishes (its ``ready`` says so: a lossless follower
-        then knows which topics the run has and waits for each)."""
+        """
+        Return the lock-step topics this node publishes.
+
+        Its ``ready`` says so: a lossless follower then knows which topics the run has and waits
+        for each.
+        """
         from .topics import LOCKSTEP_TOPICS
         return [p.topic_name for p in self.publishers if p.topic_name in LOCKSTEP_TOPICS]
 
@@ -562,12 +615,15 @@ class LockstepNode(Node):
             hint = (f' ({", ".join(gone)} no longer has a publisher)' if gone else '')
             hint += self.crosstalk_hint()
             self.fail(f"no {', '.join(missing)} stamped {stamp_text(g.expected)} "
-                      f"(step {g.step()}) within {limit:.1f} s of wall time"
-                      f"{hint}; stopping")
+                      f'(step {g.step()}) within {limit:.1f} s of wall time'
+                      f'{hint}; stopping')
 
     def crosstalk_hint(self) -> str:
-        """Names the lock-step topics with more than one publisher (another graph on this
-        domain), or '' if there are none."""
+        """
+        Name the lock-step topics with more than one publisher, or '' if there are none.
+
+        More than one publisher means another graph on this domain.
+        """
         from .topics import LOCKSTEP_TOPICS
         busy = [t for t in LOCKSTEP_TOPICS if self.count_publishers(t) > 1]
         if not busy:
@@ -577,9 +633,13 @@ class LockstepNode(Node):
                 f'{self.context.get_domain_id()}) — give each graph its own')
 
     def gate_input(self, topic: str, extract: Callable) -> None:
-        """Subscribe (serialized, lock-step QoS) to ``topic`` and feed ``extract(data)`` =
-        (stamp_ns, value) into the step gate; complete steps go to ``self.ready(inputs)``.
-        A payload that cannot be decoded is refused with its topic and counted, never fatal."""
+        """
+        Subscribe (serialized, lock-step QoS) to ``topic`` and feed the step gate.
+
+        ``extract(data)`` = (stamp_ns, value) goes into the step gate; complete steps go to
+        ``self.ready(inputs)``.
+        A payload that cannot be decoded is refused with its topic and counted, never fatal.
+        """
         from geometry_msgs.msg import Vector3Stamped
         from sensor_msgs.msg import JointState
         from .topics import JS, TOPIC_TYPES
@@ -625,10 +685,13 @@ class LockstepNode(Node):
                                     f'{self.refused})')
 
     def ready(self, inputs) -> None:
-        """The step loop, the one of every node: compute the complete step ``inputs`` (its
-        stamp is ``self.gate.expected``), then every following step whose inputs are already
-        there, until one is incomplete, the node held a step back (:meth:`hold_step`), reached its
-        last step, or is done."""
+        """
+        Run the step loop, the one of every node.
+
+        Compute the complete step ``inputs`` (its stamp is ``self.gate.expected``), then every
+        following step whose inputs are already there, until one is incomplete, the node held a
+        step back (:meth:`hold_step`), reached its last step, or is done.
+        """
         gate = self.gate
         while inputs is not None and not self.done:
             if self.hold_step(inputs):
@@ -640,8 +703,12 @@ class LockstepNode(Node):
             inputs = gate.advance()
 
     def hold_step(self, inputs) -> bool:
-        """Hook: True keeps the complete step ``inputs`` for later (the node resumes it by
-        calling :meth:`ready` again); the plant holds while a lossless follower lags."""
+        """
+        Tell whether to keep the complete step ``inputs`` for later (a hook).
+
+        True keeps them; the node resumes them by calling :meth:`ready` again; the plant holds
+        while a lossless follower lags.
+        """
         return False
 
     def step(self, inputs: dict) -> None:  # pragma: no cover - each node defines it
@@ -653,7 +720,7 @@ class LockstepNode(Node):
             self.state = RUNNING
 
     def reached_last_step(self) -> None:
-        """This node computed its last step: wait for the plant to confirm the end."""
+        """Note that this node computed its last step: wait for the plant to confirm the end."""
         self.state = FINISHING
         self._since = time.monotonic()
         if self.master_state in END_STATES:
@@ -674,8 +741,12 @@ class LockstepNode(Node):
             self.on_stop(self)
 
     def request_stop(self, signame: str) -> None:
-        """A stop signal: say so on /im/status and end (exit code 0). The time master's stop
-        ends the run (``stopped``); any other node's is news for the others (``stopping``)."""
+        """
+        Take a stop signal: say so on /im/status and end (exit code 0).
+
+        The time master's stop ends the run (``stopped``); any other node's is news for the others
+        (``stopping``).
+        """
         if self.done:
             return
         where = f' at step {self.current_ns() // self.period}' if self.period else ''
@@ -706,14 +777,17 @@ def _status_topic() -> str:
 
 
 def make_executor(context=None):
-    """The EventsExecutor (≈5× the SingleThreadedExecutor's message rate on these machines)."""
+    """Return an EventsExecutor (≈5× the SingleThreadedExecutor's message rate here)."""
     from rclpy.experimental import EventsExecutor
     return EventsExecutor(context=context)
 
 
 def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] = None) -> None:
-    """Spin until every node in ``nodes`` is done, one failed, or a stop signal arrived (then
-    every node is asked to stop and spun a little longer so that it can say so)."""
+    """
+    Spin until every node in ``nodes`` is done, one failed, or a stop signal arrived.
+
+    After a stop signal every node is asked to stop and spun a little longer so that it can say so.
+    """
     while rclpy.ok(context=context):
         if any(n.exit_code for n in nodes) or all(n.done for n in nodes):
             return
@@ -730,9 +804,12 @@ def _rcl_error():
 
 
 def init_args_error(args: List[str]) -> Optional[str]:
-    """A readable line for a bad ``--params-file`` (missing, unreadable, malformed) before
-    ``rclpy.init`` turns it into a traceback; None when the files look loadable. The file is
-    read by :func:`im_common.yamlio.load_parameters_file`, as on every other path."""
+    """
+    Return a readable line for a bad ``--params-file`` (missing, unreadable, malformed).
+
+    That is before ``rclpy.init`` turns it into a traceback; None when the files look loadable. The
+    file is read by :func:`im_common.yamlio.load_parameters_file`, as on every other path.
+    """
     from im_common.yamlio import ParametersFileError, load_parameters_file
     for i, a in enumerate(args):
         if a == '--params-file':
@@ -746,7 +823,8 @@ def init_args_error(args: List[str]) -> Optional[str]:
 
 
 def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
-    """``main`` of a drive node: Jazzy shutdown idiom, stop signals, one-line errors.
+    """
+    Run a drive node (its ``main``): Jazzy shutdown idiom, stop signals, one-line errors.
 
     Exit codes: 0 finished or stopped (signal, or the run ended elsewhere), 1 failed, 2 refused
     configuration.

@@ -1,5 +1,8 @@
-"""The run protocol's decisions: which run a node follows, which events concern it, when its part
-of the run is over, and how long its watchdog waits.
+"""
+The run protocol's decisions: the run a node follows, its events, its end, its watchdog.
+
+Which run a node follows, which events concern it, when its part of the run is over, and how long
+its watchdog waits.
 
 ROS-free (unit-tested without rclpy in ``tests/test_lockstep_parts.py``):
 :class:`im_common.lockstep.LockstepNode` publishes and receives the events on ``/im/status`` and
@@ -41,12 +44,13 @@ PROVIDER_GONE = (STOPPING, FAILED, STOPPED)
 
 
 def is_master(values: dict) -> bool:
-    """The event is the time master's (the plant's)."""
+    """Tell whether the event is the time master's (the plant's)."""
     return values.get('time_master') == 'true'
 
 
 class RunProtocol:
-    """One node's view of the run: the run it follows, its time master's last state, its peers.
+    """
+    One node's view of the run: the run it follows, its time master's last state, its peers.
 
     ``run_id`` is the time master's run this node follows ('' until it has seen one);
     ``masters`` the last state of every time master of this graph's key seen (run id -> state);
@@ -67,8 +71,11 @@ class RunProtocol:
 
     def event_values(self, critical: bool, time_master: bool, period: int, ns: int,
                      values: dict) -> dict:
-        """The key/values of this node's event stamped ``ns``: its role, period, step and run,
-        then ``values``."""
+        """
+        Return the key/values of this node's event stamped ``ns``.
+
+        They are its role, period, step and run, then ``values``.
+        """
         base = {'role': 'critical' if critical else 'follower',
                 'T_s_ns': period, 'step': ns // period if period else 0}
         if time_master:
@@ -78,9 +85,12 @@ class RunProtocol:
         return base
 
     def accept(self, own_name: str, name: str, state: str, values: dict) -> bool:
-        """Whether a (verified) event concerns this node; a peer's is remembered in ``peers``.
+        """
+        Tell whether a (verified) event concerns this node; a peer's is remembered in ``peers``.
+
         Ignored: this node's own events, the events that are not states, and the events of
-        nodes that follow another run of the same key."""
+        nodes that follow another run of the same key.
+        """
         if name == own_name and values.get('run_id', '') == self.run_id:
             return False
         if state in NOT_STATES:
@@ -94,10 +104,12 @@ class RunProtocol:
         return True
 
     def master_event(self, state: str, run: str) -> Tuple[Optional[str], bool]:
-        """A time master's event: (the run to adopt now or None, whether to lock on it).
+        """
+        Take a time master's event: return (the run to adopt now or None, whether to lock on it).
 
         The run followed is the one running, else the latest one waiting to start; once the
-        followed run is running the choice is final."""
+        followed run is running the choice is final.
+        """
         if not run or self.locked:
             return None, False
         self.masters[run] = state
@@ -112,15 +124,18 @@ class RunProtocol:
         return None, False
 
     def other_live_runs(self) -> List[str]:
-        """Runs of time masters not ended that this node does not follow (yet)."""
+        """Return the runs of time masters not ended that this node does not follow (yet)."""
         return [r for r, st in self.masters.items() if st not in END_STATES and r != self.run_id]
 
     def end_of_part(self, name: str, state: str, values: dict, own_state: str, following: bool,
                     critical: bool) -> Optional[Tuple[str, bool]]:
-        """Whether another node's event ends this node's part of the run: (reason, notify) or
-        None. The time master's end ends it (its ``finished`` only once this node finished its
+        """
+        Tell whether another node's event ends this node's part: (reason, notify) or None.
+
+        The time master's end ends it (its ``finished`` only once this node finished its
         own last step, or follows); a provider of a critical node stopping or failing ends it
-        too, and this node then says ``stopped`` (notify)."""
+        too, and this node then says ``stopped`` (notify).
+        """
         why = f" ({values['reason']})" if values.get('reason') else ''
         if is_master(values) and state in END_STATES:
             if state != FINISHED or own_state == FINISHING or following:
@@ -133,9 +148,12 @@ class RunProtocol:
 
 def watchdog_limit(state: str, timeout: float, startup_timeout: float,
                    time_master: bool) -> float:
-    """How long [wall s] an exact gate may wait for its expected step before it is a fault:
-    ``input_timeout`` while running (before step 0 at least the startup timeout); a node that is
-    not the time master waits 1.5× + 1 s, so the time master diagnoses a stalled run first."""
+    """
+    Return how long [wall s] an exact gate may wait for its expected step before it is a fault.
+
+    That is ``input_timeout`` while running (before step 0 at least the startup timeout); a node
+    that is not the time master waits 1.5× + 1 s, so the time master diagnoses a stalled run first.
+    """
     limit = timeout if state == RUNNING else max(timeout, startup_timeout)
     if not time_master:
         limit = 1.5 * limit + 1.0

@@ -1,5 +1,7 @@
-"""Message signing of one lock-step node: its tags, its checks, and the messages kept for a run
-it has not adopted yet.
+"""
+Message signing of one lock-step node.
+
+Its tags, its checks, and the messages kept for a run it has not adopted yet.
 
 ROS-free (unit-tested without rclpy in ``tests/test_lockstep_parts.py``); the tags themselves are
 :mod:`im_common.auth`'s. :class:`im_common.lockstep.LockstepNode` signs every lock-step message it
@@ -28,9 +30,12 @@ UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 
 class NodeSigning:
-    """The signers of one node (one graph key): ``signer`` for the lock-step messages of the run
-    it follows (:meth:`set_run`), ``status_signer`` for ``/im/status`` events and
-    ``/im/progress`` acknowledgements, and one per other run a message was checked against.
+    """
+    The signers of one node (one graph key).
+
+    It holds ``signer`` for the lock-step messages of the run it follows (:meth:`set_run`),
+    ``status_signer`` for ``/im/status`` events and ``/im/progress`` acknowledgements, and one per
+    other run a message was checked against.
 
     ``early_max`` bounds the messages kept before the run is known; when full, ``keep_newest``
     False refuses the new message (a follower needs the first steps of its run, which come
@@ -57,15 +62,15 @@ class NodeSigning:
         self.signer.set_run(run_id)
 
     def sign(self, topic: str, data: bytes) -> bytes:
-        """A lock-step message of this node, tagged for the run it follows."""
+        """Tag a lock-step message of this node for the run it follows."""
         return self.signer.sign(topic, data)
 
     def verify(self, topic: str, data: bytes) -> bool:
-        """True if ``data`` carries this graph's tag for ``topic`` in the run followed."""
+        """Return True if ``data`` carries this graph's tag for ``topic`` in the run followed."""
         return self.signer.verify(topic, data)
 
     def signer_for(self, run_id: str) -> auth.Signer:
-        """A signer of this key for another run (kept: checked again for every message)."""
+        """Return a signer of this key for another run (kept: checked again for every message)."""
         signer = self._candidates.get(run_id)
         if signer is None:
             signer = self._candidates[run_id] = auth.Signer(self.key, run_id)
@@ -73,21 +78,24 @@ class NodeSigning:
 
     # Run-protocol events --------------------------------------------------------------------
     def status_tag(self, msg) -> str:
-        """The tag of a status event, over its content (:func:`im_common.auth.status_payload`)."""
+        """Return the tag of a status event, over its content (:func:`auth.status_payload`)."""
         return self.status_signer.tag_bytes(self.status_topic, auth.status_payload(msg))
 
     def status_verifies(self, msg) -> bool:
-        """The event carries this graph's tag (in ``header.frame_id``)."""
+        """Tell whether the event carries this graph's tag (in ``header.frame_id``)."""
         return self.status_signer.check_bytes(self.status_topic, auth.status_payload(msg),
                                               msg.header.frame_id)
 
     # Messages of a run not adopted yet ---------------------------------------------------------
     def keep_early(self, topic: str, data: bytes, handler: Callable,
                    runs: Optional[Sequence[str]]) -> Optional[Tuple[str, bytes]]:
-        """Keep ``data`` (which does not verify for the run followed now) if it may be of a run
-        this node could still follow: before any time master was seen (``runs`` None) anything,
-        afterwards only what verifies for one of ``runs`` — a flood of foreign messages cannot
-        push the graph's own out. Returns the message refused, (topic, data), or None."""
+        """
+        Keep ``data``, not verifying for the run followed now, if it may be of a run to come.
+
+        That is a run this node could still follow: before any time master was seen (``runs`` None)
+        anything, afterwards only what verifies for one of ``runs`` — a flood of foreign messages
+        cannot push the graph's own out. Returns the message refused, (topic, data), or None.
+        """
         if not self.keep_newest and len(self.early) >= self.early_max:
             return topic, data
         if runs is not None and not any(self.signer_for(r).verify(topic, data) for r in runs):
@@ -99,15 +107,19 @@ class NodeSigning:
         return None
 
     def take_early(self) -> List[tuple]:
-        """The messages kept so far, (topic, data, handler), oldest first; the buffer empties."""
+        """Return and clear the messages kept so far, (topic, data, handler), oldest first."""
         early, self.early = self.early, []
         return early
 
 
 def allowed_publishers(namespace: str, text: str) -> Dict[str, set]:
-    """topic -> allowed publisher nodes ('/ns/name'): the topic table's publisher in
-    ``namespace``, plus the items of ``text`` (the ``allowed_publishers`` parameter:
-    space-separated ``/topic=node``, a node without a leading '/' in ``namespace``)."""
+    """
+    Return topic -> allowed publisher nodes ('/ns/name').
+
+    They are the topic table's publisher in ``namespace``, plus the items of ``text`` (the
+    ``allowed_publishers`` parameter: space-separated ``/topic=node``, a node without a leading '/'
+    in ``namespace``).
+    """
     from .topics import TOPICS
     ns = namespace.rstrip('/')
     allowed = {t.name: {f'{ns}/{t.publisher}'} for t in TOPICS if ' ' not in t.publisher}
@@ -115,15 +127,18 @@ def allowed_publishers(namespace: str, text: str) -> Dict[str, set]:
         topic, sep, node = item.partition('=')
         if not sep or not topic.startswith('/') or not node:
             raise ValueError(f"invalid parameter 'allowed_publishers' item {item!r}: "
-                             f"expected /topic=node")
+                             'expected /topic=node')
         allowed.setdefault(topic, set()).add(node if node.startswith('/') else f'{ns}/{node}')
     return allowed
 
 
 def foreign_publishers(allowed: Optional[set], infos: Iterable) -> List[str]:
-    """The publishers in ``infos`` (the graph API's, with ``node_namespace`` and ``node_name``)
-    not in ``allowed`` (None: any is allowed), as '/ns/name', each once; a participant whose node
-    is not discovered yet is left for the next look."""
+    """
+    Return the publishers in ``infos`` not in ``allowed``, as '/ns/name', each once.
+
+    ``infos`` are the graph API's, with ``node_namespace`` and ``node_name``; ``allowed`` None
+    allows any. A participant whose node is not discovered yet is left for the next look.
+    """
     out: List[str] = []
     for i in infos:
         if i.node_name == UNKNOWN_NODE:

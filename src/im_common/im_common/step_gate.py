@@ -1,5 +1,5 @@
-"""The step gate: which inputs of a lock-step node make up step k, and when that step is
-complete.
+"""
+The step gate: which inputs of a lock-step node make up step k, and when that step is complete.
 
 ROS-free (plain Python, unit-tested without rclpy in ``tests/test_lockstep_parts.py``). A node
 (:class:`im_common.lockstep.LockstepNode`) feeds every decoded input into its gate by topic and
@@ -25,7 +25,8 @@ LOCKSTEP_DEPTH = 100
 
 
 class StepGate:
-    """Collects the inputs of step k by stamp; ``put`` returns them once all have arrived.
+    """
+    Collects the inputs of step k by stamp; ``put`` returns them once all have arrived.
 
     ``follow=False`` (*exact*): steps are taken strictly in order; inputs stamped before the
     expected step (replays of transient-local history) are ignored, inputs for later steps wait in
@@ -57,8 +58,12 @@ class StepGate:
         self.max_pending = max_pending
 
     def put(self, topic: str, ns: int, value) -> Optional[dict]:
-        """Take ``topic``'s value stamped ``ns``; return the expected step's inputs (topic ->
-        value) if this completes it (a follow gate: or a later step, jumping to it), else None."""
+        """
+        Take ``topic``'s value stamped ``ns``; return a completed step's inputs, else None.
+
+        The inputs (topic -> value) are the expected step's if this completes it (a follow gate:
+        or a later step's, jumping to it).
+        """
         if ns < self.expected:
             return None
         pending = self.pending
@@ -111,16 +116,16 @@ class StepGate:
         return None
 
     def missing(self) -> list:
-        """The required topics that have not brought the expected step yet."""
+        """Return the required topics that have not brought the expected step yet."""
         have = self.pending.get(self.expected, {})
         return [t for t in self.required if t not in have]
 
     def step(self) -> int:
-        """The number of the step the gate waits for."""
+        """Return the number of the step the gate waits for."""
         return self.expected // self.period
 
     def gap_text(self, n: int = 5) -> str:
-        """The first ``n`` stamp ranges jumped over, as ``a-b s`` items (for the end report)."""
+        """Return the first ``n`` stamp ranges jumped over, as ``a-b s`` items (end report)."""
         return ', '.join(f'{a / 1e9:.4f}-{b / 1e9:.4f} s' for a, b in self.gap_ranges[:n])
 
 

@@ -31,8 +31,8 @@ def _plain(node: str, name: str, value):
         if not math.isfinite(value):
             raise ValueError(f'parameter {node}.{name} = {value!r} is not finite')
         return value
-    raise ValueError(f'parameter {node}.{name} has type '
-                     f'{type(value).__name__}, not a ROS parameter type')
+    raise ValueError(f'parameter {node}.{name} has type {type(value).__name__}, '
+                     f'not a ROS parameter type')
 
 
 class _Dumper(yaml.SafeDumper):
@@ -63,8 +63,11 @@ def parameters_yaml(nodes: Mapping[str, Mapping[str, object]],
 
 
 class YamlFileError(ValueError):
-    """A YAML file that cannot be read or parsed; the message is one line naming the file (and
-    the line and column of a syntax error)."""
+    """
+    A YAML file that cannot be read or parsed.
+
+    The message is one line naming the file (and the line and column of a syntax error).
+    """
 
 
 class ParametersFileError(YamlFileError):
@@ -75,7 +78,7 @@ def _loader():
     """
     Return a safe YAML loader that, like rcl's parser, ignores tags.
 
-    ``launch_ros`` writes lists as ``!!python/tuple``.
+    (``launch_ros`` writes lists as ``!!python/tuple``.)
     """
     class Loader(yaml.SafeLoader):
         pass
@@ -104,9 +107,13 @@ def _read(path: str, what: str, error: type, loader):
 
 
 def read_yaml_file(path: str, what: str = 'YAML file'):
-    """The YAML document in ``path`` (safe loading); a file that cannot be read or parsed is one
-    :class:`YamlFileError` naming ``what`` (e.g. 'campaign spec'), the file and, for a syntax
-    error, its line and column: the lines :func:`load_parameters_file` gives."""
+    """
+    Return the YAML document in ``path`` (safe loading).
+
+    A file that cannot be read or parsed is one :class:`YamlFileError` naming ``what`` (e.g.
+    'campaign spec'), the file and, for a syntax error, its line and column: the lines
+    :func:`load_parameters_file` gives.
+    """
     return _read(path, what, YamlFileError, yaml.SafeLoader)
 
 
@@ -117,12 +124,11 @@ def node_name(key) -> str:
 
 def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Dict[str, dict]:
     """
-    Read a ROS 2 parameters file as ``{node: {param: value}}``.
+    Return ``{node: {param: value}}`` of a ROS 2 parameters file.
 
-    ``{node: {param: value}}`` of a ROS 2 parameters file (section names as written, e.g. ``/**``
-    or ``/controller``); with ``nodes``, sections are keyed by node name and a section for a node
-    not in ``nodes`` is refused naming the nearest one. Every problem is one
-    :class:`ParametersFileError` naming the file.
+    Section names are as written (e.g. ``/**`` or ``/controller``); with ``nodes``, sections are
+    keyed by node name and a section for a node not in ``nodes`` is refused naming the nearest one.
+    Every problem is one :class:`ParametersFileError` naming the file.
     """
     import difflib
     doc = _read(path, 'parameters file', ParametersFileError, _loader())

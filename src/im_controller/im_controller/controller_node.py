@@ -1,4 +1,5 @@
-"""``ros2 run im_controller controller``: torque tracking with minimum magnetic energy (seed 000 ch. 3-4).
+"""
+``ros2 run im_controller controller``: tracking with minimum magnetic energy (seed 000 ch. 3-4).
 
 A thin shell around :class:`im_controller.control_law.DriveController`. At step k it waits for the
 measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the adapter's
@@ -17,27 +18,26 @@ on ``/im/status`` with the step it took effect, so a recording holds it.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 import sys
 import time
-from dataclasses import replace
 
 from geometry_msgs.msg import Vector3Stamped
-from sensor_msgs.msg import JointState
-
 from im_common import topics as T
 from im_common.auth import Signer
-from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, period_ns, shaft_in,
-                                   stamp_ns, xy_in)
-from im_common.lockstep import (PARAMETERS, LockstepNode, StepGate, data_qos, lockstep_qos,
-                                node_main, status_qos)
+from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, stamp_ns,
+                                   Vector3Out, xy_in)
+from im_common.lockstep import (data_qos, lockstep_qos, LockstepNode, node_main, PARAMETERS,
+                                status_qos, StepGate)
+from im_common.node_params import declare_motor, declare_run
+from im_common.params import describe_defaults
+from im_controller.control_law import DriveController
+from im_controller.parameters import (config_from_parameters, declare_controller, live_changes,
+                                      LIVE_PARAMETERS, SENTINEL_DEFAULTS)
+from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
-from im_common.node_params import declare_motor, declare_run
-from im_controller.control_law import DriveController
-from im_observer.speed_observer import POSITION_NEEDS_SENSOR
-from im_controller.parameters import (LIVE_PARAMETERS, SENTINEL_DEFAULTS, config_from_parameters,
-                                      declare_controller, live_changes)
-from im_common.params import describe_defaults
+from sensor_msgs.msg import JointState
 
 
 class ControllerNode(LockstepNode):
@@ -63,7 +63,8 @@ class ControllerNode(LockstepNode):
         if cfg.from_ratings:
             self.get_logger().info(describe_defaults(cfg.from_ratings))
         # the run's end is the optimal strategy's planning horizon (0: open-ended)
-        self.ctl = DriveController(replace(cfg, horizon=self.duration if self.duration > 0 else None))
+        horizon = self.duration if self.duration > 0 else None
+        self.ctl = DriveController(replace(cfg, horizon=horizon))
         self._plan_note = ''
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
@@ -116,7 +117,7 @@ class ControllerNode(LockstepNode):
         return SetParametersResult(successful=True)
 
     def _after_set_parameters(self, parameters) -> None:
-        """Accepted: stage the changes for the next step boundary."""
+        """Stage accepted changes for the next step boundary."""
         changes = {p.name: p.value for p in parameters if p.name in LIVE_PARAMETERS}
         if changes:
             self._pending_changes = dict(self._pending_changes or {}, **changes)
@@ -139,9 +140,12 @@ class ControllerNode(LockstepNode):
         self.status(PARAMETERS, **said)
 
     def on_setpoint(self, msg: JointState, via: str = 'volatile') -> None:
-        """A setpoint takes effect at the first step at or after its stamp; a stamp in the past
-        (0 included: ``ros2 topic pub`` leaves it unset) means now (:meth:`DriveController.
-        set_setpoint`)."""
+        """
+        Take a setpoint: it takes effect at the first step at or after its stamp.
+
+        A stamp in the past (0 included: ``ros2 topic pub`` leaves it unset) means now
+        (:meth:`DriveController.set_setpoint`).
+        """
         ns = stamp_ns(msg.header.stamp)
         key = (ns, tuple(msg.position), tuple(msg.velocity), tuple(msg.effort))
         now = time.monotonic()
@@ -158,7 +162,8 @@ class ControllerNode(LockstepNode):
                 try:
                     self.ctl.set_setpoint(kind, float(field[0]), ns / 1e9)
                 except ValueError as exc:
-                    self.get_logger().error(f'rejected {T.SETPOINT} stamped {ns / 1e9:.9f} s: {exc}')
+                    self.get_logger().error(
+                        f'rejected {T.SETPOINT} stamped {ns / 1e9:.9f} s: {exc}')
                     return
                 start = max(ns, self.gate.expected)
                 self.get_logger().info(

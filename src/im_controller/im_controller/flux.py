@@ -1,4 +1,5 @@
-"""Rotor-flux strategies and the smoothing filters that give references their derivatives.
+"""
+Rotor-flux strategies and the smoothing filters that give references their derivatives.
 
 Flux strategies map the torque reference τ* (and the speed) to a *target* rotor flux φ_tgt:
 
@@ -46,7 +47,8 @@ TWO_PI = 2.0 * math.pi
 
 
 class LowPass2:
-    """y'' = p₁p₂(u − y) − (p₁ + p₂) y', poles −p₁, −p₂ (time constants τ₁ = 1/p₁, τ₂ = 1/p₂).
+    """
+    y'' = p₁p₂(u − y) − (p₁ + p₂) y', poles −p₁, −p₂ (time constants τ₁ = 1/p₁, τ₂ = 1/p₂).
 
     Unity DC gain. ``advance(dt)`` propagates (y, y') exactly over dt with the input held
     (zero-order hold); ``accel`` is y'' right after the last ``set_input``.
@@ -117,13 +119,16 @@ def flux_min_energy(c: ModelCoefficients, tau: float, phi_min: float, phi_max: f
 
 
 def flux_range_within_current(c: ModelCoefficients, tau: float, i_max: float):
-    """(φ₁, φ₂): the rotor fluxes whose steady currents for the torque τ fit in ``i_max``.
+    """
+    Return (φ₁, φ₂): the rotor fluxes whose steady currents for the torque τ fit in ``i_max``.
+
     i_d = φ/L_sr, i_q = L_r τ/(v L_sr φ), i_d² + i_q² ≤ i_max² is, with x = φ², the quadratic
     x²/L_sr² − i_max² x + b ≤ 0, b = (L_r τ/(v L_sr))², between its roots
     x₁ = 2b/(i_max² + √D), x₂ = L_sr² (i_max² + √D)/2, D = i_max⁴ − 4b/L_sr². A torque beyond
     the current's reach at any flux (D ≤ 0) gets the flux of most torque per ampere, i_d = i_q:
     φ₁ = φ₂ = L_sr i_max/√2. The optimizing strategies' flux is clipped into it
-    (docs/limits.md): min-energy's is far below φ₁ near the limit, min-loss's can pass φ₂."""
+    (docs/limits.md): min-energy's is far below φ₁ near the limit, min-loss's can pass φ₂.
+    """
     b = (c.L_r * tau / (c.v * c.L_sr)) ** 2
     i2 = i_max * i_max
     disc = i2 * i2 - 4.0 * b / (c.L_sr * c.L_sr)
@@ -167,10 +172,12 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
 
 
 class FluxStrategy:
-    """Target rotor flux for a torque demand: ``target(coefficients, tau, omega_r)``.
+    """
+    Target rotor flux for a torque demand: ``target(coefficients, tau, omega_r)``.
 
     ``i_max`` (A, None: no bound): the optimizing strategies' flux is clipped into
-    :func:`flux_range_within_current` of it, then into [φ_min, φ_max]; constant flux keeps φ_d."""
+    :func:`flux_range_within_current` of it, then into [φ_min, φ_max]; constant flux keeps φ_d.
+    """
 
     def __init__(self, name: str, phi_d: float = 1.2, phi_min: float = 0.2, phi_max: float = 1.2,
                  k_e: float = 0.012, k_h: float = 0.012, core_exponent: float = 2.0,

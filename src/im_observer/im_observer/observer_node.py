@@ -1,4 +1,5 @@
-"""``ros2 run im_observer observer``: full-order rotor-flux observer (seed 000 eq. 3.27 / 4.13).
+"""
+``ros2 run im_observer observer``: full-order rotor-flux observer (seed 000 eq. 3.27 / 4.13).
 
 A thin shell around :class:`im_observer.observer.RotorFluxObserver`. At step k it takes the
 measured current and speed and the voltage command stamped t_k (and the adapter's estimates
@@ -14,17 +15,16 @@ from __future__ import annotations
 import sys
 
 from geometry_msgs.msg import Vector3Stamped
-from sensor_msgs.msg import JointState
-
 from im_common import topics as T
 from im_common.auth import Signer
-from im_common.conversions import (JointStateOut, Vector3Out, estimates_in, period_ns, shaft_in,
+from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, Vector3Out,
                                    xy_in)
-from im_common.lockstep import LockstepNode, StepGate, data_qos, lockstep_qos, node_main
+from im_common.lockstep import data_qos, lockstep_qos, LockstepNode, node_main, StepGate
 from im_common.node_params import declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
-from im_observer.speed_observer import SpeedAdaptiveObserver
 from im_observer.parameters import check_gain_period, declare_observer
+from im_observer.speed_observer import SpeedAdaptiveObserver
+from sensor_msgs.msg import JointState
 
 
 class ObserverNode(LockstepNode):

@@ -1,4 +1,7 @@
-"""``ros2 run im_recording record [--out bags/<run>.mcap] [--force] [--topics T ...] [--continuous]``
+"""
+``ros2 run im_recording record``: the recorder of a running graph.
+
+``ros2 run im_recording record [--out bags/<run>.mcap] [--force] [--topics T ...] [--continuous]``
 
 Records a running graph to MCAP: one subscription per topic of :data:`im_common.topics.TOPICS`
 (or the given topics; a topic outside the table needs ``topic:=pkg/msg/Type``), written as
@@ -35,12 +38,12 @@ import sys
 import time
 from typing import Dict, Iterable, List, Optional
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
 from im_common import cdr, realtime
 from im_common import topics as T
-from im_common.lockstep import (END_STATES, FINISHED, READY, RUNNING, WARNING, LockstepNode,
-                                stamp_text)
+from im_common.lockstep import (END_STATES, FINISHED, LockstepNode, READY, RUNNING, stamp_text,
+                                WARNING)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
 from .bag import BagError, BagWriter, offered_qos_yaml
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
@@ -65,7 +68,7 @@ def default_topics() -> Dict[str, str]:
 
 
 def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
-    """['/a', '/b:=pkg/msg/T'] -> {topic: type} (types of table topics filled in)."""
+    """Parse ['/a', '/b:=pkg/msg/T'] -> {topic: type} (types of table topics filled in)."""
     table = default_topics()
     if not items:
         return table
@@ -85,10 +88,13 @@ def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
 
 
 class StampTrack:
-    """Per-topic continuity check of a lock-step topic: the first and last stamp received and the
-    steps missing between received stamps (cheap enough for every message); the steps missing
-    before the first and after the last are added by :meth:`account`, once the run's first and
-    last step are known."""
+    """
+    Per-topic continuity check of a lock-step topic.
+
+    It keeps the first and last stamp received and the steps missing between received stamps (cheap
+    enough for every message); the steps missing before the first and after the last are added by
+    :meth:`account`, once the run's first and last step are known.
+    """
 
     __slots__ = ('first', 'last', 'missing', 'ranges')
 
@@ -113,9 +119,13 @@ class StampTrack:
             self.last = ns
 
     def account(self, start: Optional[int], end: Optional[int], period: int) -> tuple:
-        """(steps missing, their ranges) from ``start`` to ``end`` (stamps, both included; None:
-        not known, nothing counted on that side): before the first stamp received, between
-        received stamps, after the last."""
+        """
+        Return (steps missing, their ranges) from ``start`` to ``end``.
+
+        ``start`` and ``end`` are stamps, both included (None: not known, nothing counted on that
+        side). The steps are those before the first stamp received, between received stamps, and
+        after the last.
+        """
         if self.first is None:
             if start is None or end is None or not period or end < start:
                 return 0, []
@@ -178,8 +188,8 @@ class RecorderNode(LockstepNode):
                           else DurabilityPolicy.VOLATILE)
             # lock-step topics: a reader history deep enough for a few seconds of a run that had
             # not yet seen the recorder (joining late, or slow to start): no overwrite meanwhile
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
-                             depth=max(depth, LOCKSTEP_READER_DEPTH) if topic in critical else depth,
+            history = max(depth, LOCKSTEP_READER_DEPTH) if topic in critical else depth
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=history,
                              reliability=reliability, durability=durability)
             writer.expect_topic(topic, tname)   # declared with its publishers' offers
             self.counts[topic] = 0
@@ -195,9 +205,12 @@ class RecorderNode(LockstepNode):
         self.create_timer(0.02, self._maybe_ack)
 
     def _fetch_parameters(self, name: str) -> None:
-        """Once per peer of this graph: its parameters, every one with its value (defaults
-        included) over its parameter services, into ``parameters/<name>`` — what the in-process
-        scenario records from the nodes themselves."""
+        """
+        Fetch each peer's parameters once, over its parameter services.
+
+        Every parameter with its value (defaults included) goes into ``parameters/<name>`` — what
+        the in-process scenario records from the nodes themselves.
+        """
         if name in self.parameters_asked or name == self.get_name():
             return
         from rclpy.parameter import parameter_value_to_python
@@ -229,13 +242,17 @@ class RecorderNode(LockstepNode):
     parameters_written: list
 
     def offered_qos(self, topic: str) -> str:
-        """The ``offered_qos_profiles`` of ``topic``: one profile per publisher the graph lists."""
+        """Return ``topic``'s ``offered_qos_profiles``: one profile per publisher listed."""
         return offered_qos_yaml(i.qos_profile for i in self.get_publishers_info_by_topic(topic))
 
     def run_topics(self) -> List[str]:
-        """The lock-step topics of the followed run this recorder tracks: those every graph has
+        """
+        Return the lock-step topics of the followed run this recorder tracks.
+
+        Those are the ones every graph has
         (:data:`ACK_TOPICS`), those a node of the run announced (``publishes`` of its ``ready``:
-        the adapter's estimates), and any that brought data of the run."""
+        the adapter's estimates), and any that brought data of the run.
+        """
         announced = self._announced.get(self.run_id, ())
         return [t for t, tr in self.track.items()
                 if t in ACK_TOPICS or t in announced or tr.first is not None]
@@ -280,11 +297,15 @@ class RecorderNode(LockstepNode):
         self._ack_topics = [t for t in self.track if t in ACK_TOPICS or t in announced]
 
     def _enter_free_run(self) -> None:
-        """free_run: the loop has deadlines, the recorder has none but must keep up with 1/T_s
-        steps, which the plant does not wait for. Its threads go to SCHED_FIFO *below* the loop's
+        """
+        Enter free_run: SCHED_FIFO below the loop's priority.
+
+        The loop has deadlines, the recorder has none but must keep up with 1/T_s steps, which the
+        plant does not wait for. Its threads go to SCHED_FIFO *below* the loop's
         (``rt_priority``, default 40 < the loop's 50): the loop preempts the recorder, and the
         recorder preempts every ordinary process (a busy neighbour can no longer starve it until
-        the publishers' histories overflow)."""
+        the publishers' histories overflow).
+        """
         if self._free_run_entered:
             return
         self._free_run_entered = True
@@ -305,7 +326,7 @@ class RecorderNode(LockstepNode):
             self.status(WARNING, level=1, reason=msg)
 
     def current_ns(self) -> int:
-        """The last step it recorded on the measured current (its own position in the run)."""
+        """Return the last step recorded on the measured current (its own position in the run)."""
         tr = self.track.get(T.MEAS_CURRENT)
         return tr.last if tr is not None and tr.last is not None else 0
 
@@ -331,9 +352,13 @@ class RecorderNode(LockstepNode):
             self._end_wall = now
 
     def drained(self) -> bool:
-        """After the run's end: every lock-step topic has reached the plant's last step (or
-        nothing new came for a second). A plant that left the graph without a final status (its
-        last event lost, or killed) also ends the recording, and the bag says so."""
+        """
+        Tell whether the recording is complete after the run's end.
+
+        Complete: every lock-step topic has reached the plant's last step (or nothing new came for
+        a second). A plant that left the graph without a final status (its
+        last event lost, or killed) also ends the recording, and the bag says so.
+        """
         if self.end_state is None:
             self._check_master_left()
         if self.end_state is None:
@@ -393,8 +418,11 @@ class RecorderNode(LockstepNode):
         self._refused(topic, data)
 
     def _refused(self, topic: str, data: bytes) -> None:
-        """A message not signed by this graph: kept apart on ``/im/refused<topic>`` (evidence,
-        never mixed with the run's data), counted, its publisher named."""
+        """
+        Keep a message not signed by this graph apart on ``/im/refused<topic>``.
+
+        It is evidence, never mixed with the run's data; it is counted and its publisher named.
+        """
         n = self.unsigned[topic] = self.unsigned.get(topic, 0) + 1
         now = time.monotonic()
         if not self.foreign.get(topic) and now - self._named_at.get(topic, 0.0) > 0.2:
@@ -414,8 +442,12 @@ class RecorderNode(LockstepNode):
             return
 
     def flush_unverified(self) -> None:
-        """At the end: messages kept until their run was known are recorded if they verify now,
-        else kept as refused (no run of this graph was seen: a playback, another graph)."""
+        """
+        Record or refuse, at the end, the messages kept until their run was known.
+
+        They are recorded if they verify now, else kept as refused (no run of this graph was seen:
+        a playback, another graph).
+        """
         self.lock_run()
 
     def _write(self, write, topic, data, t, counts, track) -> None:
@@ -436,9 +468,13 @@ class RecorderNode(LockstepNode):
     _master_gone_since = None
 
     def _maybe_ack(self) -> None:
-        """Acknowledge the last step received on every lock-step topic of the run: a topic that
-        has brought nothing yet (its publisher not yet matched) holds the acknowledgement — and
-        so the plant — back, while its samples wait in the publisher's history."""
+        """
+        Acknowledge the last step received on every lock-step topic of the run.
+
+        A topic that has brought nothing yet (its publisher not yet matched) holds the
+        acknowledgement — and so the plant — back, while its samples wait in the publisher's
+        history.
+        """
         if not self._ack_topics:
             return
         ack = None
@@ -460,13 +496,15 @@ class RecorderNode(LockstepNode):
 
     # Report ------------------------------------------------------------------------------
     def run_bounds(self, topic: str) -> tuple:
-        """(first, last) stamp this recording must hold on ``topic`` (None: not known).
+        """
+        (first, last) stamp this recording must hold on ``topic`` (None: not known).
 
         First: the run's first step when the plant counted this recorder from the start (its
         ``running`` lists it), else — it joined a running run — the first step every topic of the
         run has. Last: the step of the plant's final event; the command of that step is never
         computed, and after a stop or a failure only the measurements of that step are sure to
-        exist (the commands and estimates up to the step before)."""
+        exist (the commands and estimates up to the step before).
+        """
         p = self.period
         if not p:
             return None, None
@@ -487,8 +525,11 @@ class RecorderNode(LockstepNode):
         return start, end
 
     def gaps(self) -> Dict[str, dict]:
-        """Per tracked lock-step topic: the steps of the run it lacks (before its first stamp,
-        between, after its last) and their stamp ranges."""
+        """
+        Return, per tracked lock-step topic, the steps of the run it lacks and their stamp ranges.
+
+        The steps lacking are those before its first stamp, between, and after its last.
+        """
         out = {}
         topics = set(self.run_topics())
         for t, tr in self.track.items():
@@ -613,7 +654,7 @@ def main(argv=None) -> int:
             try:
                 if node is not None:
                     node.flush_unverified()
-                    writer.declare_expected()       # topics that had no message, while the node lives
+                    writer.declare_expected()   # topics that had no message, while the node lives
                     meta = node.close_metadata(stop.requested)
                     meta['parameters_not_received'] = ' '.join(
                         sorted(set(node.parameters_asked) - set(node.parameters_written)))
@@ -636,12 +677,11 @@ def main(argv=None) -> int:
                     text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
                 if missing:
                     first = {t: gaps[t]['ranges'][:3] for t in missing}
-                    text += ('; MISSING steps ' + ', '.join(f'{t}: {m}' for t, m in
-                                                           missing.items())
-                             + ' (first ranges: ' + '; '.join(
-                                 f"{t} " + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}'
-                                                      for x, y in r) for t, r in first.items())
-                             + ')')
+                    steps = ', '.join(f'{t}: {m}' for t, m in missing.items())
+                    ranges = '; '.join(
+                        f'{t} ' + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}' for x, y in r)
+                        for t, r in first.items())
+                    text += f'; MISSING steps {steps} (first ranges: {ranges})'
                 else:
                     text += '; no step missing on the lock-step topics'
                 print(text, file=sys.stderr)
@@ -649,4 +689,3 @@ def main(argv=None) -> int:
                 node.destroy_node()
             rclpy.try_shutdown()
     return 0
-

@@ -1,1 +1,1 @@
-"""Studies: the thesis reproduction, chapter studies, the Dask campaign, the README/docs generators."""
+"""Studies: the thesis reproduction, chapter studies, the Dask campaign, README/docs generators."""

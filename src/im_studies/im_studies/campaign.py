@@ -1,4 +1,5 @@
-"""Campaigns: Monte Carlo validation of the drive over a parameter box (docs/campaign.md).
+"""
+Campaigns: Monte Carlo validation of the drive over a parameter box (docs/campaign.md).
 
     ros2 run im_studies campaign SPEC.yaml [--out DIR] [--workers N | --address tcp://HOST:8786]
     ros2 run im_studies campaign SPEC.yaml --run INDEX [--graph] [--record BAG]   # one run alone
@@ -27,20 +28,19 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 from typing import List, Optional
 
+from im_common.cli import logger
 import numpy as np
 
-from im_common.cli import logger
-
 from .campaign_journal import JOURNAL, Journal, prepare_out, versions
-from .campaign_pool import Pool, log_progress
+from .campaign_pool import log_progress, Pool
 from .campaign_report import summarize, write_parquet, write_report
-from .campaign_spec import SpecError, gain_arguments, graph_parameters, jobs, read_spec, \
-    run_job, spec_hash
+from .campaign_spec import (gain_arguments, graph_parameters, jobs, read_spec, run_job, spec_hash,
+                            SpecError)
 
 _log = logger('campaign')
 
@@ -192,7 +192,7 @@ def main(argv=None) -> int:
               f"unstable, {g['failed']} failed")
     if 'speedup_vs_one_worker' in s:
         print(f"speed-up vs one worker: ×{s['speedup_vs_one_worker']:.2f}")
-    print(f"written: {out}/runs.parquet, {out}/summary.json, {out}/report.md")
+    print(f'written: {out}/runs.parquet, {out}/summary.json, {out}/report.md')
     return 0
 
 

@@ -1,13 +1,17 @@
-"""The campaign's journal (docs/campaign.md): every finished row is appended to ``DIR/rows.jsonl``
-and synced before the next is counted, so a killed campaign resumes with the same command and runs
-nothing twice; ``DIR/campaign.json`` holds the spec's hash, so another spec is refused."""
+"""
+The campaign's journal (docs/campaign.md): finished rows, kept so that a campaign resumes.
+
+Every finished row is appended to ``DIR/rows.jsonl`` and synced before the next is counted, so a
+killed campaign resumes with the same command and runs nothing twice; ``DIR/campaign.json`` holds
+the spec's hash, so another spec is refused.
+"""
 from __future__ import annotations
 
 import contextlib
 import json
 import os
-import sys
 from pathlib import Path
+import sys
 from typing import Dict
 
 from .campaign_spec import spec_hash
@@ -28,8 +32,12 @@ def versions() -> dict:
 
 
 def read_journal(path: Path) -> Dict[int, dict]:
-    """Rows already finished: {index: row}. A torn last line (the process was killed while
-    writing it) is cut off, so that run is run again; nothing else is."""
+    """
+    Return the rows already finished: {index: row}.
+
+    A torn last line (the process was killed while
+    writing it) is cut off, so that run is run again; nothing else is.
+    """
     rows: Dict[int, dict] = {}
     if not path.exists():
         return rows
@@ -52,6 +60,7 @@ def read_journal(path: Path) -> Dict[int, dict]:
 
 
 class Journal:
+
     def __init__(self, path: Path):
         self.f = open(path, 'a', encoding='utf-8')
 

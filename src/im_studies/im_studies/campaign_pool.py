@@ -1,13 +1,16 @@
-"""The campaign's Dask pool: a local cluster of every core or an existing scheduler
-(docs/campaign.md). The campaign runs its jobs on it and the studies and ``make reproduce`` map
-their cases over it with :func:`pool_map`."""
+"""
+The campaign's Dask pool: a local cluster of every core or an existing scheduler.
+
+See docs/campaign.md. The campaign runs its jobs on it and the studies and ``make reproduce`` map
+their cases over it with :func:`pool_map`.
+"""
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 import math
 import os
 import time
-from dataclasses import dataclass
 from typing import Callable, Iterable, Optional, Sequence
 
 from im_common.cli import logger
@@ -16,15 +19,19 @@ _log = logger('campaign')
 
 
 def one_line(exc: BaseException) -> str:
-    """An exception as one line (its type and text), for a row or an error message."""
+    """Format an exception as one line (its type and text), for a row or an error message."""
     text = ' '.join(str(exc).split())
     return f'{type(exc).__name__}: {text}'[:300]
 
 
 @dataclass
 class Pool:
-    """A Dask client on a local cluster of ``workers`` single-threaded processes, or on an
-    existing scheduler at ``address``. ``map`` yields (index, result) as they finish."""
+    """
+    A Dask client on a local cluster of ``workers`` single-threaded processes, or on a scheduler.
+
+    The scheduler is an existing one at ``address``. ``map`` yields (index, result) as they finish.
+    """
+
     workers: Optional[int] = None
     address: Optional[str] = None
 
@@ -58,7 +65,7 @@ class Pool:
             with contextlib.suppress(Exception):
                 self.cluster.close()
 
-    def map(self, fn: Callable, items: Sequence, *args) -> Iterable:
+    def map(self, fn: Callable, items: Sequence, *args) -> Iterable:  # noqa: A003 (Pool.map)
         from distributed import as_completed
         shared = [self.client.scatter(a, broadcast=True) for a in args]
         futures = {self.client.submit(fn, item, *shared, pure=False): i
@@ -77,8 +84,13 @@ def _call(item, fn):
 
 def pool_map(fn: Callable, items: Sequence, workers: Optional[int] = None,
              address: Optional[str] = None, label: str = '', progress: bool = True) -> list:
-    """``[fn(x) for x in items]`` on the campaign pool, in order (``make reproduce``, studies).
-    ``fn`` must be importable by the workers (a module-level function)."""
+    """
+    Compute ``[fn(x) for x in items]`` on the campaign pool, in order.
+
+    Used by ``make reproduce`` and the studies.
+
+    ``fn`` must be importable by the workers (a module-level function).
+    """
     results: list = [None] * len(items)
     if not items:
         return results

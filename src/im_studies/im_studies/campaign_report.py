@@ -1,5 +1,9 @@
-"""The campaign's results (docs/campaign.md): ``runs.parquet`` (one row per run), the summary and
-``report.md`` with its histograms, stability map and worst runs."""
+"""
+The campaign's results (docs/campaign.md): the runs table, the summary and the report.
+
+That is ``runs.parquet`` (one row per run), the summary and ``report.md`` with its histograms,
+stability map and worst runs.
+"""
 from __future__ import annotations
 
 import json
@@ -11,7 +15,7 @@ from typing import Dict, List
 import numpy as np
 
 from .campaign_journal import versions
-from .campaign_spec import DRAWN, FIGURES, UNSTABLE, spec_hash
+from .campaign_spec import DRAWN, FIGURES, spec_hash, UNSTABLE
 
 COLUMNS = (('index', 'int64'), ('draw', 'int64'), ('task', 'string'), ('strategy', 'string'),
            ('controller', 'string'),
@@ -104,8 +108,12 @@ def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
 
 
 def _badness(r: dict) -> tuple:
-    """Order for 'worst runs': unstable first (earliest end first), then failures, then the
-    largest tracking error relative to the task's own scale."""
+    """
+    Return the sort key of 'worst runs'.
+
+    Unstable first (earliest end first), then failures, then the
+    largest tracking error relative to the task's own scale.
+    """
     rank = {'diverged': 3, 'tripped': 3, 'failed': 2, 'ok': 0}[r['status']]
     err = r['pos_err_max_rad'] if r['task'] == 'position' else r['speed_err_max_rad_s'] / 10.0
     err = err if math.isfinite(err) else 0.0

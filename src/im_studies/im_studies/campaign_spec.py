@@ -1,19 +1,21 @@
-"""Campaign specs (docs/campaign.md): reading and checking a spec, drawing its motors, the
-runs it names and executing one of them. Every column of a run's row but ``wall_s`` is a function
-of (spec, index)."""
+"""
+Campaign specs (docs/campaign.md): read, check, draw the motors, name and execute the runs.
+
+Reading and checking a spec, drawing its motors, the runs it names and executing one of them. Every
+column of a run's row but ``wall_s`` is a function of (spec, index).
+"""
 from __future__ import annotations
 
 import hashlib
 import json
 import math
 import os
-import time
 from pathlib import Path
+import time
 from typing import Dict, List, Optional
 
-import numpy as np
-
 from im_bringup.config import ADAPTATION
+import numpy as np
 
 from .campaign_pool import one_line
 
@@ -41,7 +43,7 @@ class SpecError(ValueError):
 
 # ---------------------------------------------------------------------------------------- spec
 def default_box() -> Dict[str, list]:
-    """The chapter-4 box the robust gains are certified over (im_controller.gain_design)."""
+    """Return the chapter-4 box the robust gains are certified over (im_controller.gain_design)."""
     from im_controller.gain_design.motor import DEFAULT_BOX
     return {k: list(v) for k, v in DEFAULT_BOX.items()}
 
@@ -52,8 +54,12 @@ def _default_sigma_min() -> float:
 
 
 def _resolve(path: str, base: Path) -> str:
-    """A file named in a spec: absolute, or relative to the spec's folder, or a shipped file of
-    ``im_bringup``/``im_common`` (``config/...``)."""
+    """
+    Resolve a file named in a spec.
+
+    It is absolute, or relative to the spec's folder, or a shipped file of
+    ``im_bringup``/``im_common`` (``config/...``).
+    """
     p = Path(os.path.expanduser(path))
     if p.is_absolute():
         return str(p)
@@ -71,8 +77,12 @@ def _resolve(path: str, base: Path) -> str:
 
 
 def _distribution(name: str, value, where: str) -> dict:
-    """A box entry as {'kind': 'uniform', 'lo', 'hi'} / {'kind': 'normal', 'mean', 'std', 'lo',
-    'hi'} / {'kind': 'fixed', 'value'}."""
+    """
+    Check a box entry and return it as a dict with its ``kind``.
+
+    The forms are {'kind': 'uniform', 'lo', 'hi'} / {'kind': 'normal', 'mean', 'std', 'lo', 'hi'} /
+    {'kind': 'fixed', 'value'}.
+    """
     def num(v, what):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise SpecError(f'{where}: box.{name}.{what} = {v!r} is not a finite number')
@@ -164,7 +174,7 @@ def _files(spec: dict, key: str, where: str, base: Path) -> List[str]:
 
 
 def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) -> dict:
-    """The spec with every default filled in and every value checked (SpecError, one line)."""
+    """Return the spec, every default filled in and every value checked (one-line SpecError)."""
     from im_controller.control_law import MODES
     from im_controller.flux import STRATEGIES
     base = Path(base or '.')
@@ -294,8 +304,12 @@ def jobs(spec: dict) -> List[dict]:
 
 
 def gain_arguments(spec: dict) -> Dict[str, dict]:
-    """Per gain set: node-parameter overrides ({'controller': {...}, 'observer': {...}}) —
-    empty for the thesis's gains, designed at T_s for 'certified', read from a gains file."""
+    """
+    Return the node-parameter overrides of each gain set.
+
+    Overrides are ({'controller': {...}, 'observer': {...}}) — empty for the thesis's gains,
+    designed at T_s for 'certified', read from a gains file.
+    """
     from im_controller.design_gains import design_for_scenario
     out = {}
     for g in spec['gain_sets']:
@@ -321,7 +335,7 @@ def gain_arguments(spec: dict) -> Dict[str, dict]:
 
 
 def scenario_for(job: dict, spec: dict, gains: dict):
-    """The offline :class:`~im_bringup.offline.Scenario` of one job."""
+    """Return the offline :class:`~im_bringup.offline.Scenario` of one job."""
     from im_bringup.offline import Scenario, gain_arguments_from_parameters
     from im_common.loads import load_file
     from im_controller.profiles import load_profile
@@ -336,8 +350,11 @@ def scenario_for(job: dict, spec: dict, gains: dict):
 
 
 def adapter_for(job: dict, spec: dict):
-    """The offline loop's adapter hook of an adaptive job (None for the nominal controller):
-    the adapter starts from the nominal motor, like the controller and observer."""
+    """
+    Return the offline loop's adapter hook of an adaptive job (None for the nominal controller).
+
+    The adapter starts from the nominal motor, like the controller and observer.
+    """
     if job['controller'] == 'nominal':
         return None
     from im_adapt.adaptation import AdaptationGains

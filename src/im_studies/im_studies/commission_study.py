@@ -1,4 +1,5 @@
-"""Accuracy of self-commissioning (docs/commissioning.md §6), on the ROS-free plant.
+"""
+Accuracy of self-commissioning (docs/commissioning.md §6), on the ROS-free plant.
 
     python -m im_studies.commission_study [--draws 20] [--noise 0.05] [--out bags/commission]
 
@@ -25,7 +26,7 @@ THESIS_PLATE = {'voltage': 220.0, 'current': 4.9, 'frequency': 60.0, 'speed': 17
 
 
 def plate_of(motor):
-    """The nameplate a motor file's ratings are (its nameplate fields)."""
+    """Return the nameplate a motor file's ratings are (its nameplate fields)."""
     from im_adapt.commissioning import Nameplate
     return Nameplate(voltage=motor.rated_voltage_rms_line, current=motor.rated_current_rms,
                      frequency=motor.rated_frequency, speed=motor.rated_speed_rpm,
@@ -34,8 +35,11 @@ def plate_of(motor):
 
 def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = False,
                    seed: int = 0):
-    """Commission ``motor`` on the ROS-free plant (limits: its ratings); returns
-    (Commissioning, Identified) — Identified raises NotInformative from ``result``."""
+    """
+    Commission ``motor`` on the ROS-free plant (limits: its ratings).
+
+    Returns (Commissioning, Identified) — Identified raises NotInformative from ``result``.
+    """
     from im_adapt.commissioning import Commissioning, simulate_commissioning
     from im_common.plant_sim import PlantSimulator
     plate = plate_of(motor)
@@ -49,10 +53,14 @@ def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = 
 
 
 def speed_error(motor, estimates) -> dict:
-    """Speed-tracking errors [rad/s] of the min_loss speed task (offline loop) with
-    ``estimates`` as the controller's and observer's model: max, RMS, and max after 0.2 s (the
-    task starts in the steady state of the *estimates*, so a model in another rotor gauge starts
-    the plant with a slightly different flux: a start transient of the loop, not of the model)."""
+    """
+    Return the speed-tracking errors [rad/s] of the min_loss speed task (offline loop).
+
+    ``estimates`` are the controller's and observer's model. The errors: max, RMS, and max after
+    0.2 s (the task starts in the steady state of the *estimates*, so a model in another rotor
+    gauge starts the plant with a slightly different flux: a start transient of the loop, not of
+    the model).
+    """
     import numpy as np
     from im_bringup.offline import Scenario, simulate
     r = simulate(Scenario(task='speed', strategy='min_loss', motor=motor, estimates=estimates))
@@ -147,19 +155,23 @@ def _write(out: Path, noise: float, rows) -> None:
 
 def table(rows) -> str:
     head = ('| motor | σ | R_s | σL_s | L_M | R_R | J | speed error RMS: true / '
-            'true in the file\'s gauge / identified [mrad/s] | max after 0.2 s | max |\n'
+            "true in the file's gauge / identified [mrad/s] | max after 0.2 s | max |\n"
             '| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n')
     lines = []
     for r in rows:
         if 'error' in r:
             lines.append(f"| {r['motor']} | {r['sigma']:.3f} | refused: {r['error']} "
-                         "| | | | | | | |")
+                         '| | | | | | | |')
             continue
         cells = ' | '.join(f"{r[n + '_err_pct']:+.3f} ± {r[n + '_std_pct']:.3f} %"
                            for n in ('R_s', 'L_sigma', 'L_M', 'R_R', 'J'))
-        trk = ' | '.join(f"{1e3 * r[f'speed_{x}_true']:.3f} / {1e3 * r[f'speed_{x}_perfect']:.3f} / "
-                         f"{1e3 * r[f'speed_{x}_identified']:.3f}"
-                         for x in ('rms', 'max_after', 'max')) if 'speed_rms_true' in r else '— | — | —'
+        if 'speed_rms_true' in r:
+            trk = ' | '.join(f"{1e3 * r[f'speed_{x}_true']:.3f} / "
+                             f"{1e3 * r[f'speed_{x}_perfect']:.3f} / "
+                             f"{1e3 * r[f'speed_{x}_identified']:.3f}"
+                             for x in ('rms', 'max_after', 'max'))
+        else:
+            trk = '— | — | —'
         lines.append(f"| {r['motor']} | {r['sigma']:.3f} | {cells} | {trk} |")
     return head + '\n'.join(lines) + '\n'
 

@@ -1,4 +1,5 @@
-"""Regenerate the topic and parameter tables of docs/parameters.md from the code.
+"""
+Regenerate the topic and parameter tables of docs/parameters.md from the code.
 
     python -m im_studies.docs [docs/parameters.md]      (make readme runs it)
 

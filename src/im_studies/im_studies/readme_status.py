@@ -1,4 +1,5 @@
-"""The results page and the README's headline, generated from ``make reproduce``'s summary.
+"""
+The results page and the README's headline, generated from ``make reproduce``'s summary.
 
     python -m im_studies.readme_status [--summary FILE] [--results docs/results.md]
                                        [--readme README.md] [--write | --check]
@@ -18,21 +19,21 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from pathlib import Path
 import sys
 import textwrap
-from pathlib import Path
 from typing import List, Optional, Tuple
 
 from im_common.cli import parse_args
-
-from im_studies import thesis
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES as STRATEGIES
+from im_studies import thesis
 
 DEFAULT_SUMMARY = 'docs/data/reproduce_summary.json'
 #: where each generated block lives (one generator, this module, for both)
 DEFAULT_RESULTS, DEFAULT_README = 'docs/results.md', 'README.md'
-STRATEGY_LABEL = {'min_energy': 'min_energy (eq. 3.19/3.25)', 'constant_flux': 'constant_flux (1.2 Wb)',
+STRATEGY_LABEL = {'min_energy': 'min_energy (eq. 3.19/3.25)', 'constant_flux': 'constant_flux '
+                                                                               '(1.2 Wb)',
                   'min_loss': 'min_loss (beyond the thesis)',
                   'optimal': 'optimal (planned flux trajectory)'}
 
@@ -60,7 +61,8 @@ def _run(runs: List[dict], task: str, strategy: str, controller: str = 'nominal'
         if (r.get('task'), r.get('strategy'), r.get('controller'), r.get('variation', 'none'),
                 r.get('rate_hz')) == (task, strategy, controller, variation, rate_hz):
             return r
-    raise SummaryError(f'summary has no run task={task} strategy={strategy} controller={controller} '
+    raise SummaryError(f'summary has no run task={task} strategy={strategy} '
+                       f'controller={controller} '
                        f'variation={variation} rate={rate_hz:g} Hz (run make reproduce)')
 
 
@@ -82,7 +84,7 @@ def _tracking(r: dict) -> str:
 
 
 def _bound(runs: List[dict], task: str) -> dict:
-    """The task's bound row (make reproduce's convex lower bound on the losses)."""
+    """Return the task's bound row (make reproduce's convex lower bound on the losses)."""
     for r in runs:
         if (r.get('task'), r.get('strategy')) == (task, 'bound'):
             return r
@@ -112,47 +114,56 @@ def _table(runs: List[dict]) -> Tuple[List[str], float]:
             else:
                 cf = _run(runs, 'speed', 'constant_flux')
                 loss = f"**{loss}** ({r['E_loss_J'] / cf['E_loss_J']:.2f} × constant flux)"
-            rows.append(f"| {task} | {label} | {e_in} | {loss} | "
+            rows.append(f'| {task} | {label} | {e_in} | {loss} | '
                         f"{bound['ratio_loss'][strategy]:.4f} | {_tracking(r)} |")
     return rows, worst
 
 
 def _bound_lines(runs: List[dict]) -> List[str]:
-    """The paragraph on the lower bound and the optimal strategy (docs/controller.md §10)."""
+    """Return the paragraph on the lower bound and the optimal strategy (docs/controller.md)."""
     bp, bs = _bound(runs, 'position'), _bound(runs, 'speed')
     low = min(min(b['ratio_loss'].values()) for b in (bp, bs))
     return [
-        '**Loss floor.** *losses / bound* is each run\'s losses over the least losses any rotor-flux',
-        'trajectory can have while delivering the task\'s torque exactly (a convex program in φ², from the',
-        f"run's own start flux, end flux free; position {bp['E_loss_bound_J']['optimal']:.2f} J, copper"
+        "**Loss floor.** *losses / bound* is each run's losses over the least losses any "
+        'rotor-flux',
+        "trajectory can have while delivering the task's torque exactly (a convex program in φ², "
+        'from the',
+        f"run's own start flux, end flux free; position {bp['E_loss_bound_J']['optimal']:.2f} J, "
+        'copper'
         f" alone {bp['E_copper_bound_J']['optimal']:.2f} J;",
-        f"speed {bs['E_loss_bound_J']['optimal']:.2f} J from {bs['start_flux_Wb']['optimal']:.3f} Wb,"
-        f" copper alone {bs['E_copper_bound_J']['optimal']:.2f} J; `docs/controller.md` §10). `optimal`"
+        f"speed {bs['E_loss_bound_J']['optimal']:.2f} J from {bs['start_flux_Wb']['optimal']:.3f} "
+        'Wb,'
+        f" copper alone {bs['E_copper_bound_J']['optimal']:.2f} J; `docs/controller.md` §10). "
+        '`optimal`'
         ' plans that',
         'trajectory before the run and tracks it with the same current loop.',
-        *([f'A ratio below 1 ({low:.6f}) is the bound\'s exactness, not a better flux: it assumes'
+        *([f"A ratio below 1 ({low:.6f}) is the bound's exactness, not a better flux: it assumes"
            ' exact torque', 'tracking, the run tracks to ≈ 10⁻³ N·m.'] if low < 1.0 else []),
     ]
 
 
 def _robust_deviation(runs: List[dict]) -> float:
-    """Largest relative loss difference of the certified 1 ms gains at 1 kHz from the 100 µs runs
-    (the six chapter-3 runs)."""
+    """
+    Return the largest relative loss difference of the certified 1 ms gains from the 100 µs runs.
+
+    The certified gains run at 1 kHz; the runs are the six chapter-3 runs.
+    """
     return max(abs(_run(runs, t, s, 'robust', 'none', 1e3)['E_loss_J']
                    / _run(runs, t, s)['E_loss_J'] - 1.0)
                for t in THESIS_TASKS for s in STRATEGIES)
 
 
 def render(runs: List[dict]) -> str:
-    """The status block (without the marker lines), deterministic in the summary."""
+    """Return the status block (without the marker lines), deterministic in the summary."""
     table, worst = _table(runs)
     pme = _run(runs, 'position', 'min_energy')
     th_pme = thesis.energy('position', 'min_energy')
     sme = _run(runs, 'speed', 'min_energy')
     mech = sme['dE_kinetic_J'] + sme['W_load_J'] + sme['E_friction_J']
     th_speed = sorted(e - l for (t, _), (e, l) in thesis.ENERGY.items() if t == 'speed')
+
     def ch4(task: str, controller: str, fmt: str) -> str:
-        """The chapter-4 RMS errors of the three strategies, 'a / b / c'."""
+        """Return the chapter-4 RMS errors of the three strategies, 'a / b / c'."""
         key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
         return ' / '.join(format(_run(runs, task, s_, controller, 'chapter4')[key], fmt)
                           for s_ in STRATEGIES)
@@ -160,10 +171,13 @@ def render(runs: List[dict]) -> str:
     lines = [
         '## What it reproduces (measured)',
         '',
-        'All figures below come from `make reproduce` (the four-node graph, in lock-step, T_s = 100 µs,',
+        'All figures below come from `make reproduce` (the four-node graph, in lock-step, T_s = '
+        '100 µs,',
         'thesis motor, loads and gains; `bags/reproduce/summary.json`, committed as',
-        '`docs/data/reproduce_summary.json`; this block is generated by `make readme`). The graph\'s',
-        'numbers are identical to the ROS-free loop\'s (`tests/test_graph.py`), and the energy books close',
+        '`docs/data/reproduce_summary.json`; this block is generated by `make readme`). The '
+        "graph's",
+        "numbers are identical to the ROS-free loop's (`tests/test_graph.py`), and the energy "
+        'books close',
         f'to ≤ {_sci(worst)} of E_in.',
         '',
         *table,
@@ -172,56 +186,85 @@ def render(runs: List[dict]) -> str:
         '',
         'Where the faithful implementation disagrees with the thesis, the energy balance says why',
         '(details in `docs/controller.md` §8):',
-        '- *Position, min-energy:* the minimum-magnetic-energy flux is the wrong flux for *holding* the',
-        '  pendulum at the end (τ_L = 10 cos(0.7π) = −5.88 N·m): at 0.263 Wb it costs 207 W of copper loss,',
-        '  at the loss-optimal 0.60 Wb 76 W. The 0.8 s hold alone costs 166 J, more than the thesis\'s whole',
+        '- *Position, min-energy:* the minimum-magnetic-energy flux is the wrong flux for '
+        '*holding* the',
+        '  pendulum at the end (τ_L = 10 cos(0.7π) = −5.88 N·m): at 0.263 Wb it costs 207 W of '
+        'copper loss,',
+        '  at the loss-optimal 0.60 Wb 76 W. The 0.8 s hold alone costs 166 J, more than the '
+        "thesis's whole",
         f'  {th_pme[1]:g} J. The mechanical side agrees with the thesis (E_in − losses = '
         f"{pme['E_in_J'] - pme['E_loss_J']:.1f} J vs {th_pme[0] - th_pme[1]:.1f} J: the",
-        f"  pendulum's {pme['W_load_J']:.2f} J of potential energy plus friction and magnetization).",
-        f'- *Speed task:* the stated J, b, load and trajectory need {mech:.0f} J of mechanical energy (ΔE_kin',
-        f"  {sme['dE_kinetic_J']:.1f} + load {sme['W_load_J']:.1f} + friction {sme['E_friction_J']:.1f} J);"
+        f"  pendulum's {pme['W_load_J']:.2f} J of potential energy plus friction and "
+        'magnetization).',
+        f'- *Speed task:* the stated J, b, load and trajectory need {mech:.0f} J of mechanical '
+        'energy (ΔE_kin',
+        f"  {sme['dE_kinetic_J']:.1f} + load {sme['W_load_J']:.1f} + friction "
+        f"{sme['E_friction_J']:.1f} J);"
         f" the thesis's E_in − losses is only {th_speed[0]:.0f}-{th_speed[-1]:.0f} J. No factor",
         '  was added to match a number.',
-        '- The core-loss model is printed with φ^m but its coefficients are in W·s/Wb²; we use φ^m²',
+        '- The core-loss model is printed with φ^m but its coefficients are in W·s/Wb²; we use '
+        'φ^m²',
         '  (exponent 1 moves only the core loss, the ranking of the strategies is unchanged).',
         '',
-        '**Sampled-data limit of the thesis\'s gains** (k₁ = 40 V/A, k_e = 1/σ; `make study`): all six runs',
-        'are stable at T_s = 316.7 µs and unstable at 318.5 µs (closed form 2σL_s/k₁ ≈ 317.6 µs) — the loop',
-        'needs at least ≈ 3.2 kHz with the nominal motor; over the whole chapter-4 parameter box the',
-        'limit is 210 µs (`im_controller.gain_design.motor.thesis_gain_stability_limit`, printed by',
+        "**Sampled-data limit of the thesis's gains** (k₁ = 40 V/A, k_e = 1/σ; `make study`): "
+        'all six runs',
+        'are stable at T_s = 316.7 µs and unstable at 318.5 µs (closed form 2σL_s/k₁ ≈ 317.6 µs) '
+        '— the loop',
+        'needs at least ≈ 3.2 kHz with the nominal motor; over the whole chapter-4 parameter box '
+        'the',
+        'limit is 210 µs (`im_controller.gain_design.motor.thesis_gain_stability_limit`, printed '
+        'by',
         '`make study`).',
         '',
-        '**Chapter 4** (`make reproduce`, chapter-4 variation profile, controller estimates of §4.3):',
+        '**Chapter 4** (`make reproduce`, chapter-4 variation profile, controller estimates of '
+        '§4.3):',
         'the improved adaptation law, feeding its L̂_σ, L̂_M, R̂_R into every coefficient of the',
-        f"controller and observer, holds the position RMS error at {ch4('position', 'adaptive', '.4f')}"
+        'controller and observer, holds the position RMS error at '
+        f"{ch4('position', 'adaptive', '.4f')}"
         f" rad (nominal {ch4('position', 'nominal', '.3f')})",
         f"and the speed RMS error at {ch4('speed', 'adaptive', '.3f')} rad/s (nominal "
         f"{ch4('speed', 'nominal', '.3f')}) for min-energy / constant flux / min-loss;",
-        'the thesis law\'s own oscillation is gone (`docs/adaptation.md` §6).',
+        "the thesis law's own oscillation is gone (`docs/adaptation.md` §6).",
         '',
-        '**Robust gains at the node period (seed 001).** `ros2 run im_controller design_gains --period 1e-3',
-        '--out gains.yaml` designs, over the polytope R_r ∈ [0.42, 1.26] Ω, L_s, L_r, L_sr over the',
-        'chapter-4 ranges (σ ≥ 0.05), ω_r ∈ [−200, 200] rad/s, the current-error gain and the observer',
-        'injection on the zero-order-hold models, and writes them only with a certificate (a Lyapunov',
-        'matrix re-checked with numpy on a dense grid; `docs/robust.md` §7 states exactly what each',
-        'certificate does and does not guarantee). At 1 ms: K = 7.08 I V/A (current error contracts by',
-        'ρ = 0.867 per step, 143 1/s, one P for the whole box) and a discrete observer injection ℓ = 0.785',
-        '(certified per parameter point for every speed). With the thesis\'s K = 40 I the sampled current',
-        'pole is −4.85 at 1 ms and the run diverges within 10 steps (`tests/test_graph.py`); with the',
-        f'certified gains all six chapter-3 runs at 1 kHz have losses within {100 * robust_dev:.1f} % of the'
+        '**Robust gains at the node period (seed 001).** `ros2 run im_controller design_gains '
+        '--period 1e-3',
+        '--out gains.yaml` designs, over the polytope R_r ∈ [0.42, 1.26] Ω, L_s, L_r, L_sr over '
+        'the',
+        'chapter-4 ranges (σ ≥ 0.05), ω_r ∈ [−200, 200] rad/s, the current-error gain and the '
+        'observer',
+        'injection on the zero-order-hold models, and writes them only with a certificate (a '
+        'Lyapunov',
+        'matrix re-checked with numpy on a dense grid; `docs/robust.md` §7 states exactly what '
+        'each',
+        'certificate does and does not guarantee). At 1 ms: K = 7.08 I V/A (current error '
+        'contracts by',
+        'ρ = 0.867 per step, 143 1/s, one P for the whole box) and a discrete observer injection '
+        'ℓ = 0.785',
+        "(certified per parameter point for every speed). With the thesis's K = 40 I the sampled "
+        'current',
+        'pole is −4.85 at 1 ms and the run diverges within 10 steps (`tests/test_graph.py`); with '
+        'the',
+        'certified gains all six chapter-3 runs at 1 kHz have losses within '
+        f'{100 * robust_dev:.1f} % of the'
         ' 100 µs runs',
-        '(`make reproduce`, rows `robust` at 1000 Hz). At 100 µs the thesis\'s own gains pass the',
-        'certificate (K = 40 I at 712 1/s; the thesis-structure observer with k_e = 1/σ per parameter point',
-        'with a speed-dependent P for speed changes ≤ 20 rad/s per period — no speed-independent P exists),',
-        'so the certified design keeps them and is no worse than the thesis by construction. Use the YAML',
+        "(`make reproduce`, rows `robust` at 1000 Hz). At 100 µs the thesis's own gains pass the",
+        'certificate (K = 40 I at 712 1/s; the thesis-structure observer with k_e = 1/σ per '
+        'parameter point',
+        'with a speed-dependent P for speed changes ≤ 20 rad/s per period — no speed-independent '
+        'P exists),',
+        'so the certified design keeps them and is no worse than the thesis by construction. Use '
+        'the YAML',
         'with `scenario --T-s 1e-3 --gains gains.yaml` or `--params-file` on the nodes.',
     ]
     return '\n'.join(lines) + '\n'
 
 
 def render_headline(runs: List[dict]) -> str:
-    """The README's results headline (without the marker lines): a few figures of the results
-    page, from the same summary."""
+    """
+    Return the README's results headline (without the marker lines).
+
+    It holds a few figures of the results page, from the same summary.
+    """
     _, worst = _table(runs)
     bp, bs = _bound(runs, 'position'), _bound(runs, 'speed')
     loss = {(t, s_): _run(runs, t, s_)['E_loss_J'] for t in THESIS_TASKS
@@ -229,18 +272,21 @@ def render_headline(runs: List[dict]) -> str:
     drift = {c: _run(runs, 'position', 'min_energy', c, 'chapter4')['pos_err_rms_rad']
              for c in ('nominal', 'adaptive')}
     robust_dev = _robust_deviation(runs)
-    intro = ('From `make reproduce` (the four-node graph in lock-step, T_s = 100 µs, the thesis\'s'
+    intro = ("From `make reproduce` (the four-node graph in lock-step, T_s = 100 µs, the thesis's"
              ' motor, loads and gains; every figure and its explanation in'
              ' [docs/results.md](docs/results.md)):')
     bullets = [
-        f"**Losses:** the `min_loss` flux strategy loses {loss['position', 'min_loss']:.2f} J on the"
+        f"**Losses:** the `min_loss` flux strategy loses {loss['position', 'min_loss']:.2f} J on "
+        'the'
         f" position task and {loss['speed', 'min_loss']:.2f} J on the speed task, against"
         f" {loss['position', 'constant_flux']:.2f} J and {loss['speed', 'constant_flux']:.2f} J at"
-        f" constant flux; no flux trajectory can lose less than"
+        ' constant flux; no flux trajectory can lose less than'
         f" {bp['E_loss_bound_J']['optimal']:.2f} J / {bs['E_loss_bound_J']['optimal']:.2f} J.",
-        f"**Drift:** under the chapter-4 parameter drift the adaptive controller holds the position"
-        f" RMS error at {drift['adaptive']:.4f} rad (nominal controller {drift['nominal']:.3f} rad;"
-        f" min_energy strategy).",
+        '**Drift:** under the chapter-4 parameter drift the adaptive controller holds the '
+        'position'
+        f" RMS error at {drift['adaptive']:.4f} rad (nominal controller {drift['nominal']:.3f} "
+        'rad;'
+        ' min_energy strategy).',
         f'**Sampled gains:** with the certified 1 ms gains all six chapter-3 runs at 1 kHz have'
         f' losses within {100 * robust_dev:.1f} % of the 100 µs runs.',
         f'**Energy books** close to ≤ {_sci(worst)} of E_in on every run.',
@@ -252,8 +298,12 @@ def render_headline(runs: List[dict]) -> str:
 
 
 def split_block(text: str, name: str, path: str) -> Tuple[str, str, str]:
-    """(before and including the begin line, block, end line and after) of the block ``name``;
-    ValueError names the file and the markers."""
+    """
+    Split the text around the block ``name``.
+
+    Returns (before and including the begin line, block, end line and after); ValueError names the
+    file and the markers.
+    """
     begin, end = f'<!-- {name}:begin -->', f'<!-- {name}:end -->'
     if text.count(begin) != 1 or text.count(end) != 1:
         raise ValueError(f'{path} must contain {begin} and {end} exactly once each')

@@ -1,4 +1,5 @@
-"""``make reproduce``: the thesis's tables re-run through the four-node lock-step graph.
+"""
+``make reproduce``: the thesis's tables re-run through the four-node lock-step graph.
 
 Chapter 3 (seed 000 §3.4): position and speed tasks × {min_energy, constant_flux, min_loss} at
 T_s = 100 µs with the thesis's motor, loads and gains, and the ``optimal`` strategy beside them
@@ -35,27 +36,36 @@ CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', '
 
 
 def chapter3_runs(T_s: float = 1e-4) -> List[dict]:
-    return [dict(task=task, strategy=strategy, controller='nominal', variation='none', T_s=T_s)
+    return [{'task': task, 'strategy': strategy, 'controller': 'nominal', 'variation': 'none',
+             'T_s': T_s}
             for task in THESIS_TASKS for strategy in COMPARED_STRATEGIES]
 
 
 def optimal_runs(T_s: float = 1e-4) -> List[dict]:
-    """The chapter-3 tasks with the loss-optimal flux trajectory (nominal controller)."""
-    return [dict(task=task, strategy='optimal', controller='nominal', variation='none', T_s=T_s)
+    """Return the chapter-3 tasks with the loss-optimal flux trajectory (nominal controller)."""
+    return [{'task': task, 'strategy': 'optimal', 'controller': 'nominal', 'variation': 'none',
+             'T_s': T_s}
             for task in THESIS_TASKS]
 
 
 def start_flux(task: str, strategy: str) -> float:
-    """|φ_r(0)| of the plant in a run of ``make reproduce``: 0 from rest (demagnetized), else the
-    controller's own steady state (the plant's initial_flux parameter)."""
+    """
+    Return |φ_r(0)| of the plant in a run of ``make reproduce``.
+
+    It is 0 from rest (demagnetized), else the controller's own steady state (the plant's
+    initial_flux parameter).
+    """
     from im_bringup.config import node_parameters
     flux = node_parameters(task, strategy)['plant'].get('initial_flux')
     return 0.0 if flux is None else math.hypot(*flux)
 
 
 def task_path(task: str):
-    """(τ(t), ω(t)) of exact tracking of the task's reference with the plant's own motor and
-    load: τ = J θ̈* + b θ̇* + τ_L(t, θ*, θ̇*)."""
+    """
+    Return (τ(t), ω(t)) of exact tracking of the task's reference.
+
+    With the plant's own motor and load: τ = J θ̈* + b θ̇* + τ_L(t, θ*, θ̇*).
+    """
     from im_bringup.config import TASK_PRESETS
     from im_common.loads import make_load
     from im_common.params import THESIS_MOTOR
@@ -74,21 +84,28 @@ def task_path(task: str):
 
 
 def loss_bound(task: str, phi0: float, step: float = 1e-3, core: bool = True):
-    """The convex lower bound (im_controller.flux_plan) on the losses of the task run over
-    [0, duration] from the start flux φ0, end flux free: a FluxPlan."""
+    """
+    Return the convex lower bound (im_controller.flux_plan) on the losses of the task, a FluxPlan.
+
+    The task runs over [0, duration] from the start flux φ0, end flux free.
+    """
     from im_bringup.config import TASK_PRESETS
     from im_common.params import THESIS_MOTOR as m
     from im_controller.flux_plan import plan_along
     from im_controller.reference import ModelCoefficients
     c = ModelCoefficients.from_params(m)
-    k = dict(k_e=m.k_e, k_h=m.k_h) if core else {}
+    k = {'k_e': m.k_e, 'k_h': m.k_h} if core else {}
     return plan_along(c, task_path(task), 0.0, TASK_PRESETS[task]['duration'], phi0, step, **k)
 
 
 def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
-    """Per task, the bound row: copper-only and copper + core bounds from each nominal 100 µs
+    """
+    Return the bound row of each task.
+
+    Per task: copper-only and copper + core bounds from each nominal 100 µs
     run's own start flux (one bound per distinct start), the grid refinement check (the same
-    bounds at step/2) and each strategy's ratios (losses / total bound, copper / copper bound)."""
+    bounds at step/2) and each strategy's ratios (losses / total bound, copper / copper bound).
+    """
     rows = []
     for task in THESIS_TASKS:
         runs = [r for r in results if r.get('task') == task and r.get('controller') == 'nominal'
@@ -121,8 +138,12 @@ def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
 
 
 def run_one(item) -> dict:
-    """One run of ``make reproduce`` through the in-process graph: ``item`` = (n, spec, out_dir,
-    record); DDS domain 150 + n mod 80, so the pool's concurrent graphs never share one."""
+    """
+    Run one run of ``make reproduce`` through the in-process graph.
+
+    ``item`` = (n, spec, out_dir, record); DDS domain 150 + n mod 80, so the pool's concurrent
+    graphs never share one.
+    """
     from im_bringup.config import node_parameters
     from im_bringup.scenario import run_scenario
     n, spec, out_dir, record = item
@@ -135,7 +156,8 @@ def run_one(item) -> dict:
     bag = None
     if record:
         bag = os.path.join(out_dir, f"{spec['task']}_{spec['strategy']}_{spec['controller']}_"
-                                    f"{spec.get('variation', 'none')}_{1.0 / spec['T_s']:g}Hz.mcap")
+                                    f"{spec.get('variation', 'none')}_"
+                                    f"{1.0 / spec['T_s']:g}Hz.mcap")
     s = run_scenario(params, task=spec['task'], strategy=spec['strategy'],
                      controller=spec['controller'], variation=spec.get('variation', 'none'),
                      record=bag, force=True, progress=False, domain_id=150 + n % 80)
@@ -152,7 +174,7 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False,
 
 
 def _f(value, fmt: str, scale: float = 1.0) -> str:
-    """A table cell: the number formatted, or '—' where the figure does not apply."""
+    """Format a table cell: the number formatted, or '—' where the figure does not apply."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return '—'
     return format(value * scale, fmt)
@@ -167,28 +189,34 @@ def _status(r: dict) -> str:
 
 def markdown(results: List[dict]) -> str:
     rows = ['| task | strategy | controller | variation | rate [Hz] | E_in [J] | thesis E_in | '
-            'losses [J] | thesis losses | copper | core | load work | friction | ΔE_kin | ΔW_mag | '
-            'balance residual | pos err max [mrad] | speed err max [rad/s] | torque err max [N·m] | '
-            'steps/s | run |',
+            'losses [J] | thesis losses | copper | core | load work | friction | ΔE_kin | '
+            'ΔW_mag | balance residual | pos err max [mrad] | speed err max [rad/s] | '
+            'torque err max [N·m] | steps/s | run |',
             '|' + ' --- |' * 21]
     for r in results:
         if r.get('strategy') == 'bound':
             continue
-        th = thesis.energy(r['task'], r['strategy']) if r.get('variation', 'none') == 'none' else None
-        the, thl = (f'{th[0]:.2f}', f'{th[1]:.2f}') if th and r['controller'] == 'nominal' else ('', '')
+        th = None
+        if r.get('variation', 'none') == 'none':
+            th = thesis.energy(r['task'], r['strategy'])
+        the, thl = ('', '')
+        if th and r['controller'] == 'nominal':
+            the, thl = (f'{th[0]:.2f}', f'{th[1]:.2f}')
         rows.append(
-            f"| {r['task']} | {r['strategy']} | {r['controller']} | {r.get('variation', 'none')} | "
+            f"| {r['task']} | {r['strategy']} | {r['controller']} | {r.get('variation', 'none')} "
+            '| '
             f"{r['rate_hz']:g} | {r['E_in_J']:.2f} | {the} | {r['E_loss_J']:.2f} | {thl} | "
             f"{r['E_copper_J']:.2f} | {r['E_core_J']:.2f} | {r['W_load_J']:.2f} | "
             f"{r['E_friction_J']:.2f} | {r['dE_kinetic_J']:.2f} | {r['dW_magnetic_J']:.2f} | "
             f"{r['balance_residual_J']:.2e} | {_f(r.get('pos_err_max_rad'), '.2f', 1e3)} | "
-            f"{_f(r.get('speed_err_max_rad_s'), '.3f')} | {_f(r.get('torque_err_max_Nm'), '.3f')} | "
+            f"{_f(r.get('speed_err_max_rad_s'), '.3f')} | {_f(r.get('torque_err_max_Nm'), '.3f')} "
+            '| '
             f"{r['steps'] / r['wall_s']:.0f} | {_status(r)} |")
     return '\n'.join(rows) + '\n'
 
 
 def bound_markdown(results: List[dict]) -> str:
-    """The bound rows: per task and run, the start flux, both bounds and the run's ratios."""
+    """Return the bound rows: per task and run, the start flux, both bounds and the ratios."""
     rows = ['| task | strategy | start flux [Wb] | copper bound [J] | copper / bound | '
             'loss bound (copper + core) [J] | losses / bound |', '|' + ' --- |' * 7]
     for b in results:
@@ -224,12 +252,13 @@ def main(argv=None) -> int:
         json.dump(jsonable(results), f, indent=2, allow_nan=False)
     with open(os.path.join(args.out, 'summary.md'), 'w') as f:
         f.write('# Thesis figures re-run through the lock-step graph\n\n')
-        f.write('Thesis: seed 000 §3.4.7 (energy drawn / losses). Energies from the plant\'s '
+        f.write("Thesis: seed 000 §3.4.7 (energy drawn / losses). Energies from the plant's "
                 'integrated books; balance residual = E_in − copper − friction − load work − '
                 'E_param − ΔW_mag − ΔE_kin (core loss is accounting only).\n\n')
         f.write(markdown(results))
-        f.write('\nLower bound on the losses over every flux trajectory with exact torque tracking '
-                '(docs/controller.md §10), from each run\'s own start flux, end flux free:\n\n')
+        f.write('\nLower bound on the losses over every flux trajectory with exact torque '
+                'tracking '
+                "(docs/controller.md §10), from each run's own start flux, end flux free:\n\n")
         f.write(bound_markdown(results))
     print(markdown(results))
     print(bound_markdown(results))
@@ -239,24 +268,25 @@ def main(argv=None) -> int:
 
 def chapter4_runs() -> List[dict]:
     """Nominal vs the thesis's adaptation law vs the improved law under the chapter-4 profile."""
-    return [dict(task=task, strategy=strategy, controller=controller, variation='chapter4',
-                 T_s=1e-4)
+    return [{'task': task, 'strategy': strategy, 'controller': controller,
+             'variation': 'chapter4', 'T_s': 1e-4}
             for task in THESIS_TASKS
             for strategy in COMPARED_STRATEGIES
             for controller in ('nominal', 'adaptive_thesis', 'adaptive')]
 
 
 def robust_runs() -> List[dict]:
-    """The chapter-3 tasks at 1 kHz with certified robust gains (and with the thesis's)."""
+    """Return the chapter-3 tasks at 1 kHz with certified robust gains (and with the thesis's)."""
     from im_controller.design_gains import design_for_scenario
-    runs = [dict(task=task, strategy='min_energy', controller='nominal', variation='none', T_s=1e-3)
+    runs = [{'task': task, 'strategy': 'min_energy', 'controller': 'nominal', 'variation': 'none',
+             'T_s': 1e-3}
             for task in THESIS_TASKS]          # the thesis's gains at 1 kHz
     for T_s in (1e-3, 1e-4):
         gains = design_for_scenario(T_s)
         for task in THESIS_TASKS:
             for strategy in COMPARED_STRATEGIES:
-                runs.append(dict(task=task, strategy=strategy, controller='robust',
-                                 variation='none', T_s=T_s, parameters=gains))
+                runs.append({'task': task, 'strategy': strategy, 'controller': 'robust',
+                             'variation': 'none', 'T_s': T_s, 'parameters': gains})
     return runs
 
 

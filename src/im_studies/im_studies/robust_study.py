@@ -1,4 +1,5 @@
-"""Certified gains at the node period against the thesis's, in the offline closed loop.
+"""
+Certified gains at the node period against the thesis's, in the offline closed loop.
 
     python -m im_studies.robust_study --out DIR
 
@@ -6,7 +7,8 @@ Runs the chapter-3 position and speed tasks × {min_energy, constant_flux, min_l
 (im_bringup.offline, the lock-step order of the ROS graph) with
 
 - the thesis's gains (k1 = 40 V/A, k_e = 1/σ, flux coupling 'cancel') at 100 µs and at 1 ms;
-- the certified gains of :func:`im_controller.gain_design.drive.design_drive_gains` at 100 µs and at 1 ms
+- the certified gains of :func:`im_controller.gain_design.drive.design_drive_gains` at 100 µs and
+at 1 ms
   (current gain K; the observer in the thesis's structure where it is certified, else the
   discrete injection L; the flux-coupling mode chosen for the period).
 
@@ -25,11 +27,10 @@ import sys
 import time
 from typing import List, Optional
 
-import numpy as np
-
 from im_common.cli import logger, parse_args
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES
+import numpy as np
 
 KEYS = ('E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'pos_err_max_rad', 'speed_err_max_rad_s',
         'torque_err_max_Nm', 'i_max_A', 'balance_relative', 'wall_s')
@@ -52,8 +53,8 @@ def gains_for(T_s: float, progress: bool = True) -> dict:
 
 def run_one(task: str, strategy: str, T_s: float, gains: Optional[dict]) -> dict:
     from im_bringup.offline import Scenario, simulate
-    kw = {} if gains is None else {k: gains[k] for k in ('current_gain', 'observer_gain', 'k_e',
-                                                          'controller_options')}
+    names = ('current_gain', 'observer_gain', 'k_e', 'controller_options')
+    kw = {} if gains is None else {k: gains[k] for k in names}
     sc = Scenario(task=task, strategy=strategy, T_s=T_s, **kw)
     row = {'task': task, 'strategy': strategy, 'T_s': T_s,
            'gains': 'thesis' if gains is None else 'certified'}
@@ -94,8 +95,12 @@ def _find(rows, task, strategy, T_s, gains):
 
 
 def compare(rows: List[dict]) -> List[dict]:
-    """Per task/strategy: 1 ms certified vs 100 µs thesis (losses within 5 %), 100 µs certified vs
-    100 µs thesis (no worse), and how the thesis's gains fail at 1 ms."""
+    """
+    Compare the certified gains with the thesis's, per task and strategy.
+
+    Per task/strategy: 1 ms certified vs 100 µs thesis (losses within 5 %), 100 µs certified vs
+    100 µs thesis (no worse), and how the thesis's gains fail at 1 ms.
+    """
     out = []
     for task in THESIS_TASKS:
         for strategy in COMPARED_STRATEGIES:
@@ -104,9 +109,11 @@ def compare(rows: List[dict]) -> List[dict]:
             c01 = _find(rows, task, strategy, 1e-4, 'certified')
             t1 = _find(rows, task, strategy, 1e-3, 'thesis')
             d = {'task': task, 'strategy': strategy,
-                 'loss_100us_thesis': ref.get('E_loss_J'), 'loss_1ms_certified': c1.get('E_loss_J'),
+                 'loss_100us_thesis': ref.get('E_loss_J'),
+                 'loss_1ms_certified': c1.get('E_loss_J'),
                  'loss_100us_certified': c01.get('E_loss_J'),
-                 'thesis_1ms_diverged': t1['diverged'], 'thesis_1ms_t_diverged': t1.get('t_diverged_s')}
+                 'thesis_1ms_diverged': t1['diverged'],
+                 'thesis_1ms_t_diverged': t1.get('t_diverged_s')}
             if not c1['diverged'] and not ref['diverged']:
                 d['rel_loss_1ms'] = c1['E_loss_J'] / ref['E_loss_J'] - 1.0
                 d['within_5pct'] = abs(d['rel_loss_1ms']) <= LOSS_TOLERANCE
@@ -126,7 +133,7 @@ def _f(x, fmt):
 
 
 def markdown(res: dict) -> str:
-    lines = ['# Certified gains at the node period vs the thesis\'s (offline loop)', '']
+    lines = ["# Certified gains at the node period vs the thesis's (offline loop)", '']
     lines.append('| T_s | current gain K [V/A] | certified current-error rate [1/s] | '
                  'observer | observer 4-state certificate | flux coupling |')
     lines.append('|---|---|---|---|---|---|')
@@ -142,7 +149,8 @@ def markdown(res: dict) -> str:
             obs = f"discrete L = [{d['observer_current']['gain'][0][0]:.4f} I; 0]"
             oc = f"{o['scope']}, ρ = {o['worst_rho_dense']:.6f}"
         lines.append(f"| {T} s | {cur['gain'][0][0]:.3f} I ({cur['source']}) | "
-                     f"{cur['certified_rate_dense']:.1f} (ρ = {cur['lyapunov_rho_dense']:.5f}, best "
+                     f"{cur['certified_rate_dense']:.1f} (ρ = {cur['lyapunov_rho_dense']:.5f}, "
+                     'best '
                      f"{cur['best_feasible_rate']:.1f}) | {obs} | {oc} | {d['flux_coupling']} |")
     lines += ['', '## Losses [J] and tracking', '',
               '| task | strategy | 100 µs thesis | 1 ms certified | Δ | within 5 % | '

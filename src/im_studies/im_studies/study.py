@@ -1,4 +1,5 @@
-"""Closed-loop study of seed 000 chapter 3: the energy table of §3.4.7 and the sampled-data limit.
+"""
+Closed-loop study of seed 000 chapter 3: the energy table of §3.4.7 and the sampled-data limit.
 
     python -m im_studies.study --out study_out [--quick] [--no-limit] [--no-exponent1] [--sweep]
 
@@ -24,15 +25,14 @@ import os
 import sys
 import time
 
+from im_bringup.offline import Scenario, simulate
 from im_common.cli import logger, parse_args
-
 from im_common.params import THESIS_MOTOR
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.gain_design.motor import thesis_gain_stability_limit
 
 from . import thesis
-from im_bringup.offline import Scenario, simulate
 
 
 _log = logger()
@@ -57,9 +57,12 @@ def energy_table(T_s: float, exponent: float, quick: bool, progress: bool) -> li
 
 def print_energy_table(rows: list, title: str) -> None:
     print(f'\n{title}')
-    hdr = (f"{'task':8s} {'strategy':13s} {'E_in':>8s} {'(thesis)':>9s} {'losses':>8s} {'(thesis)':>9s}"
-           f" {'copper':>8s} {'core':>7s} {'W_load':>7s} {'fric':>7s} {'dE_kin':>7s} {'dW_mag':>7s}"
-           f" {'resid':>8s} {'pos_err':>8s} {'spd_err':>8s} {'tau_err':>7s} {'V_max':>6s} {'i_max':>6s}"
+    hdr = (f"{'task':8s} {'strategy':13s} {'E_in':>8s} {'(thesis)':>9s} {'losses':>8s} "
+           f"{'(thesis)':>9s}"
+           f" {'copper':>8s} {'core':>7s} {'W_load':>7s} {'fric':>7s} {'dE_kin':>7s} "
+           f"{'dW_mag':>7s}"
+           f" {'resid':>8s} {'pos_err':>8s} {'spd_err':>8s} {'tau_err':>7s} {'V_max':>6s} "
+           f"{'i_max':>6s}"
            f" {'us/ctl':>6s} {'us/obs':>6s}")
     print(hdr)
     print('-' * len(hdr))
@@ -67,10 +70,13 @@ def print_energy_table(rows: list, title: str) -> None:
         te = '' if s['thesis_E_in_J'] is None else f"{s['thesis_E_in_J']:.2f}"
         tl = '' if s['thesis_E_loss_J'] is None else f"{s['thesis_E_loss_J']:.2f}"
         pe = s['pos_err_max_rad']
-        print(f"{s['task']:8s} {s['strategy']:13s} {s['E_in_J']:8.2f} {te:>9s} {s['E_loss_J']:8.2f} {tl:>9s}"
-              f" {s['E_copper_J']:8.2f} {s['E_core_J']:7.2f} {s['W_load_J']:7.2f} {s['E_friction_J']:7.2f}"
+        print(f"{s['task']:8s} {s['strategy']:13s} {s['E_in_J']:8.2f} {te:>9s} "
+              f"{s['E_loss_J']:8.2f} {tl:>9s}"
+              f" {s['E_copper_J']:8.2f} {s['E_core_J']:7.2f} {s['W_load_J']:7.2f} "
+              f"{s['E_friction_J']:7.2f}"
               f" {s['dE_kinetic_J']:7.2f} {s['dW_magnetic_J']:7.2f} {s['balance_residual_J']:8.1e}"
-              f" {('%.2e' % pe) if not math.isnan(pe) else '-':>8s} {s['speed_err_max_rad_s']:8.2e}"
+              f" {('%.2e' % pe) if not math.isnan(pe) else '-':>8s} "
+              f"{s['speed_err_max_rad_s']:8.2e}"
               f" {s['torque_err_max_Nm']:7.4f} {s['V_max_V']:6.0f} {s['i_max_A']:6.1f}"
               f" {s['us_per_compute']:6.1f} {s['us_per_observer_step']:6.1f}")
 
@@ -98,7 +104,8 @@ def targets(rows: list) -> dict:
 
 
 def current_loop_estimate(k1: float = 40.0) -> float:
-    """Largest T_s of the sampled scalar current-error loop σL_s ė = −R_eq e − k₁ e_k.
+    """
+    Largest T_s of the sampled scalar current-error loop σL_s ė = −R_eq e − k₁ e_k.
 
     e_{k+1} = [a − (1 − a) k₁/R_eq] e_k, a = exp(−R_eq T_s/σL_s); stable while
     (1 − a)(1 + k₁/R_eq) < 2, i.e. T_s < −(σL_s/R_eq) ln(1 − 2R_eq/(R_eq + k₁)).
@@ -110,7 +117,7 @@ def current_loop_estimate(k1: float = 40.0) -> float:
 
 
 def is_stable(task: str, strategy: str, T_s: float, duration: float | None = None):
-    """Stable = the run completes with bounded currents and the tracking error of a working drive."""
+    """Tell whether a run completes with bounded currents and a working drive's tracking error."""
     try:
         s = simulate(Scenario(task=task, strategy=strategy, T_s=T_s, duration=duration),
                      record_every=1).summary
@@ -118,7 +125,10 @@ def is_stable(task: str, strategy: str, T_s: float, duration: float | None = Non
         return False, {'error': str(exc)}
     if s.get('trip'):                   # the protection stopped a run that lost control
         return False, {'trip': s['trip']}
-    err_ok = (s['pos_err_max_rad'] < 0.05) if task == 'position' else (s['speed_err_max_rad_s'] < 2.0)
+    if task == 'position':
+        err_ok = s['pos_err_max_rad'] < 0.05
+    else:
+        err_ok = s['speed_err_max_rad_s'] < 2.0
     ok = math.isfinite(s['E_in_J']) and s['i_max_A'] < 100.0 and err_ok
     return ok, {k: s[k] for k in ('pos_err_max_rad', 'speed_err_max_rad_s', 'torque_err_max_Nm',
                                   'i_max_A', 'E_loss_J')}
@@ -128,20 +138,24 @@ def sampling_limit(task: str, strategy: str, lo: float = 1e-4, hi: float = 2e-3,
                    rel_tol: float = 0.01) -> dict:
     ok_lo, fig_lo = is_stable(task, strategy, lo)
     if not ok_lo:
-        return {'task': task, 'strategy': strategy, 'limit_s': None, 'note': f'unstable at {lo:g} s'}
+        return {'task': task, 'strategy': strategy, 'limit_s': None, 'note': f'unstable at {lo:g} '
+                                                                             's'}
     ok_hi, fig_hi = is_stable(task, strategy, hi)
     if ok_hi:
-        return {'task': task, 'strategy': strategy, 'limit_s': None, 'note': f'stable up to {hi:g} s'}
+        return {'task': task, 'strategy': strategy, 'limit_s': None, 'note': 'stable up to '
+                                                                             f'{hi:g} s'}
     while (hi - lo) / lo > rel_tol:
         mid = math.sqrt(lo * hi)
         ok, fig = is_stable(task, strategy, mid)
-        _log(f'  T_s limit {task}/{strategy}: {mid * 1e6:7.1f} us -> {"stable" if ok else "unstable"}')
+        _log(f'  T_s limit {task}/{strategy}: {mid * 1e6:7.1f} us -> '
+             f'{"stable" if ok else "unstable"}')
         if ok:
             lo, fig_lo = mid, fig
         else:
             hi, fig_hi = mid, fig
-    return {'task': task, 'strategy': strategy, 'largest_stable_T_s': lo, 'smallest_unstable_T_s': hi,
-            'rate_hz_needed': 1.0 / lo, 'at_largest_stable': fig_lo, 'at_smallest_unstable': fig_hi}
+    return {'task': task, 'strategy': strategy, 'largest_stable_T_s': lo,
+            'smallest_unstable_T_s': hi, 'rate_hz_needed': 1.0 / lo, 'at_largest_stable': fig_lo,
+            'at_smallest_unstable': fig_hi}
 
 
 def sweep_min_loss(progress: bool) -> list:
@@ -154,9 +168,11 @@ def sweep_min_loss(progress: bool) -> list:
                     'flux_time_constants': tc, 'flux_preview': lead})).summary
                 out.append({'task': task, 'flux_time_constants': tc, 'flux_preview': lead,
                             'E_loss_J': s['E_loss_J'], 'pos_err_max_rad': s['pos_err_max_rad'],
-                            'speed_err_max_rad_s': s['speed_err_max_rad_s'], 'V_max_V': s['V_max_V']})
+                            'speed_err_max_rad_s': s['speed_err_max_rad_s'],
+                            'V_max_V': s['V_max_V']})
                 if progress:
-                    _log(f'  sweep {task} tc={tc[0]:.3f} preview={lead:.2f}: {s["E_loss_J"]:.2f} J')
+                    _log(f'  sweep {task} tc={tc[0]:.3f} preview={lead:.2f}: '
+                         f'{s["E_loss_J"]:.2f} J')
     return out
 
 
@@ -166,14 +182,16 @@ def main(argv=None) -> int:
     ap.add_argument('--T-s', type=float, default=1e-4, dest='T_s', help='control period [s]')
     ap.add_argument('--quick', action='store_true', help='short runs (smoke test)')
     ap.add_argument('--no-limit', action='store_true', help='skip the T_s stability bisection')
-    ap.add_argument('--no-exponent1', action='store_true', help='skip the core-loss exponent-1 table')
+    ap.add_argument('--no-exponent1', action='store_true', help='skip the core-loss exponent-1 '
+                                                                'table')
     ap.add_argument('--sweep', action='store_true', help='also sweep the min_loss design knobs')
     args = parse_args(ap, argv)
     wall0 = time.perf_counter()
     result = {'T_s': args.T_s, 'quick': args.quick}
     rows2 = energy_table(args.T_s, 2.0, args.quick, True)
     result['runs_core_exponent_2'] = rows2
-    print_energy_table(rows2, f'Energy table, T_s = {args.T_s * 1e6:g} us, core loss (k_h + k_e f_e) f_e phi_m^2'
+    print_energy_table(rows2, f'Energy table, T_s = {args.T_s * 1e6:g} us, core loss (k_h + k_e '
+                              'f_e) f_e phi_m^2'
                               ' [J; errors rad, rad/s, N m; V, A; us per call]')
     if not args.quick:
         result['targets'] = targets(rows2)
@@ -186,21 +204,25 @@ def main(argv=None) -> int:
     for s in rows2:
         th = '' if s['thesis_E_in_J'] is None else \
             f"thesis E_in-losses = {s['thesis_E_in_J'] - s['thesis_E_loss_J']:8.2f}"
-        print(f"  {s['task']:8s} {s['strategy']:13s} E_in = {s['E_in_J']:8.2f} = {s['E_copper_J']:.2f} + "
+        print(f"  {s['task']:8s} {s['strategy']:13s} E_in = {s['E_in_J']:8.2f} = "
+              f"{s['E_copper_J']:.2f} + "
               f"{s['W_load_J']:.2f} + {s['E_friction_J']:.2f} + {s['dE_kinetic_J']:.2f} + "
               f"{s['dW_magnetic_J']:.2f} (+{s['balance_residual_J']:.1e});  ours E_in-losses = "
               f"{s['E_in_J'] - s['E_loss_J']:8.2f}  {th}")
     if not args.no_exponent1:
         rows1 = energy_table(args.T_s, 1.0, args.quick, True)
         result['runs_core_exponent_1'] = rows1
-        print_energy_table(rows1, 'Same with core loss (k_h + k_e f_e) f_e phi_m (exponent 1, as printed)')
+        print_energy_table(rows1, 'Same with core loss (k_h + k_e f_e) f_e phi_m (exponent 1, as '
+                                  'printed)')
         order = {}
         for rows, ex in ((rows2, 2), (rows1, 1)):
             for task in THESIS_TASKS:
-                ranked = sorted((s for s in rows if s['task'] == task), key=lambda s: s['E_loss_J'])
+                ranked = sorted((s for s in rows if s['task'] == task),
+                                key=lambda s: s['E_loss_J'])
                 order[f'{task}_exp{ex}'] = [s['strategy'] for s in ranked]
         result['loss_ranking'] = order
-        print('\nLoss ranking (lowest first): ' + '; '.join(f'{k}: {" < ".join(v)}' for k, v in order.items()))
+        print('\nLoss ranking (lowest first): '
+              + '; '.join(f'{k}: {" < ".join(v)}' for k, v in order.items()))
     if not args.no_limit:
         est = current_loop_estimate(40.0)
         limits = []
@@ -212,23 +234,27 @@ def main(argv=None) -> int:
         _log('T_s stability limit over the chapter-4 parameter box (eigenvalues on a grid)')
         box = thesis_gain_stability_limit(samples=12, refine_steps=10)
         result['sampling_limit']['parameter_box'] = {k: v for k, v in box.items() if k != 'table'}
-        print(f'\nSampled-data limit with the thesis gains (k1 = 40 V/A, k_e = 1/sigma), bisection over T_s;'
+        print('\nSampled-data limit with the thesis gains (k1 = 40 V/A, k_e = 1/sigma), '
+              'bisection over T_s;'
               f' scalar current-loop estimate {est * 1e6:.1f} us')
         for L in limits:
             if L.get('largest_stable_T_s'):
-                print(f"  {L['task']:8s} {L['strategy']:13s} stable at {L['largest_stable_T_s'] * 1e6:7.1f} us,"
+                print(f"  {L['task']:8s} {L['strategy']:13s} stable at "
+                      f"{L['largest_stable_T_s'] * 1e6:7.1f} us,"
                       f" unstable at {L['smallest_unstable_T_s'] * 1e6:7.1f} us"
                       f"  (>= {L['rate_hz_needed']:.0f} Hz)")
             else:
                 print(f"  {L['task']:8s} {L['strategy']:13s} {L['note']}")
         print(f"  over the chapter-4 parameter box, |omega_r| <= {box['omega_max']:g} rad/s "
-              f"(eigenvalues on a grid, not a certificate): current loop stable up to "
-              f"{box['current_loop_limit'] * 1e6:.0f} us, observer up to {box['observer_limit'] * 1e6:.0f} us")
+              '(eigenvalues on a grid, not a certificate): current loop stable up to '
+              f"{box['current_loop_limit'] * 1e6:.0f} us, observer up to "
+              f"{box['observer_limit'] * 1e6:.0f} us")
     if args.sweep:
         result['min_loss_sweep'] = sweep_min_loss(True)
         print('\nmin_loss design knobs (flux filter time constant tau1, preview) -> losses [J]')
         for s in result['min_loss_sweep']:
-            print(f"  {s['task']:8s} tau1={s['flux_time_constants'][0]:.4f} s preview={s['flux_preview']:.2f} s:"
+            print(f"  {s['task']:8s} tau1={s['flux_time_constants'][0]:.4f} s "
+                  f"preview={s['flux_preview']:.2f} s:"
                   f" {s['E_loss_J']:8.2f}")
     result['wall_s'] = time.perf_counter() - wall0
     os.makedirs(args.out, exist_ok=True)

@@ -1,4 +1,5 @@
-"""Chapter-4 study (seed 000 §4.2.1 and §4.3): ``python -m im_studies.study_ch4 --out DIR``.
+"""
+Chapter-4 study (seed 000 §4.2.1 and §4.3): ``python -m im_studies.study_ch4 --out DIR``.
 
 1. Sensitivity (§4.2.1): the nominal controller under one electrical parameter varied at a time
    (the thesis's profiles where they are physical, constant factors ×0.5/×1.5 for resistances,
@@ -22,19 +23,16 @@ import sys
 import time
 from typing import Callable, Dict, List, Optional
 
-import numpy as np
-
-from im_common.cli import logger, parse_args
-
 from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
-from im_common.params import (THESIS_MOTOR, InvalidParameter, ParameterSchedule,
-                              constant, ramp, sinusoid)
-from im_controller.control_law import THESIS_TASKS
-from im_controller.flux import COMPARED_STRATEGIES
-
 from im_bringup import offline
 from im_bringup.offline import CHAPTER4_ESTIMATES, Scenario, simulate
+from im_common.cli import logger, parse_args
+from im_common.params import (constant, InvalidParameter, ParameterSchedule, ramp, sinusoid,
+                              THESIS_MOTOR)
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES
+import numpy as np
 
 from .campaign_spec import NOMINAL_AND_ADAPTIVE
 
@@ -78,11 +76,15 @@ def sensitivity_cases(base=THESIS_MOTOR) -> Dict[str, Callable[[], ParameterSche
 # Runs
 # ---------------------------------------------------------------------------------------------
 class TruthFed:
-    """A bound, not a controller: hands the controller and observer the plant's *true*
+    """
+    Feed the controller and observer the plant's true parameters (a bound, not a controller).
+
+    It hands the controller and observer the plant's *true*
     identifiable parameters (R_s, L_σ, L_M, R_R at t_k+1; docs/adaptation.md §7) — what a perfect
     adapter would. Fed these, the controller's model is terminal-equivalent to the drifting motor
     at every step; what is left of the tracking error is the drift's speed (dL/dt terms), not a
-    wrong model."""
+    wrong model.
+    """
 
     def __init__(self, schedule, est_params, record_every: int = 10):
         self.schedule = schedule
@@ -113,8 +115,11 @@ def run_case(task: str, strategy: str, controller: str, variation: str,
              gains: Optional[AdaptationGains] = None, T_s: float = 1e-4,
              duration: Optional[float] = None, record_every: int = 10,
              schedule: Optional[ParameterSchedule] = None) -> dict:
-    """One closed-loop run; the summary plus estimates against truth (see module docstring).
-    ``schedule`` overrides the named variation (``variation`` is then only a label)."""
+    """
+    Run one closed loop; return the summary plus estimates against truth (see module docstring).
+
+    ``schedule`` overrides the named variation (``variation`` is then only a label).
+    """
     ctl_label = controller if controller in offline.CONTROLLERS else 'nominal'
     sc = Scenario(task=task, strategy=strategy, variation=variation, T_s=T_s, duration=duration,
                   schedule=schedule, controller=ctl_label)
@@ -155,8 +160,10 @@ def run_case(task: str, strategy: str, controller: str, variation: str,
     # Identification over the last second: relative RMS and peak-to-peak of the error.
     last = t > t_end - 1.0
     params = [schedule.params_at(float(x)) for x in t[last]]
-    for name, hat, true_of in (('R_r', R_r_hat, lambda p: p.R_r), ('theta', th_hat, lambda p: p.theta),
-                               ('L_M', L_M_hat, lambda p: p.L_M), ('R_R', R_R_hat, lambda p: p.R_R)):
+    for name, hat, true_of in (('R_r', R_r_hat, lambda p: p.R_r),
+                               ('theta', th_hat, lambda p: p.theta),
+                               ('L_M', L_M_hat, lambda p: p.L_M),
+                               ('R_R', R_R_hat, lambda p: p.R_R)):
         tru = np.array([true_of(p) for p in params])
         err = hat[last] - tru
         out[f'{name}_err_rms_rel_last1s'] = float(math.sqrt(np.mean((err / tru) ** 2)))
@@ -219,10 +226,14 @@ def targets(rows: List[dict]) -> List[dict]:
     out = []
     for task in THESIS_TASKS:
         for strategy in COMPARED_STRATEGIES:
-            nom = _find(rows, task=task, strategy=strategy, controller='nominal', variation='chapter4')
-            ada = _find(rows, task=task, strategy=strategy, controller='adaptive', variation='chapter4')
-            ada_n = _find(rows, task=task, strategy=strategy, controller='adaptive', variation='none')
-            nom_n = _find(rows, task=task, strategy=strategy, controller='nominal', variation='none')
+            nom = _find(rows, task=task, strategy=strategy,
+                        controller='nominal', variation='chapter4')
+            ada = _find(rows, task=task, strategy=strategy,
+                        controller='adaptive', variation='chapter4')
+            ada_n = _find(rows, task=task, strategy=strategy,
+                          controller='adaptive', variation='none')
+            nom_n = _find(rows, task=task, strategy=strategy,
+                          controller='nominal', variation='none')
             orc = _find(rows, task=task, strategy=strategy, controller=TRUTH_FED,
                         variation='chapter4')
             the_n = _find(rows, task=task, strategy=strategy, controller='adaptive_thesis',
@@ -247,7 +258,8 @@ def targets(rows: List[dict]) -> List[dict]:
                 t['E_in_nominal_params_vs_thesis_law'] = rel
                 t['energy_within_5pct'] = abs(rel) <= 0.05
             if ada_n is not None and nom_n is not None:
-                t['E_in_nominal_params_vs_nominal_controller'] = ada_n['E_in_J'] / nom_n['E_in_J'] - 1.0
+                t['E_in_nominal_params_vs_nominal_controller'] = (ada_n['E_in_J'] / nom_n['E_in_J']
+                                                                  - 1.0)
             if orc is not None:
                 t['tracking_rms_ratio_truth_fed_over_nominal'] = orc[key] / nom[key]
             out.append(t)
@@ -282,7 +294,8 @@ def markdown(sens: List[dict], comp: List[dict], tgt: List[dict]) -> str:
         lines.append('')
     if comp:
         lines += ['## Nominal vs adaptive', '',
-                  '| variation | task | strategy | controller | pos RMS [rad] | speed RMS [rad/s] | '
+                  '| variation | task | strategy | controller | pos RMS [rad] | speed RMS [rad/s] '
+                  '| '
                   'torque RMS [N·m] | E_in [J] | E_loss [J] | R̂_r / R_r | θ̂ / θ | '
                   'L̂_M / L_M [mH] | R̂_R / R_R | L_M RMS / p-p | R_R RMS / p-p |',
                   '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
@@ -296,8 +309,10 @@ def markdown(sens: List[dict], comp: List[dict], tgt: List[dict]) -> str:
                 f"{r['theta_hat_final']:.3f} / {r['theta_true_final']:.3f}",
                 f"{1e3 * r['L_M_hat_final']:.1f} / {1e3 * r['L_M_true_final']:.1f}",
                 f"{r['R_R_hat_final']:.3f} / {r['R_R_true_final']:.3f}",
-                f"{100 * r['L_M_err_rms_rel_last1s']:.1f} % / {100 * r['L_M_err_ptp_rel_last1s']:.1f} %",
-                f"{100 * r['R_R_err_rms_rel_last1s']:.1f} % / {100 * r['R_R_err_ptp_rel_last1s']:.1f} %",
+                f"{100 * r['L_M_err_rms_rel_last1s']:.1f} % / "
+                f"{100 * r['L_M_err_ptp_rel_last1s']:.1f} %",
+                f"{100 * r['R_R_err_rms_rel_last1s']:.1f} % / "
+                f"{100 * r['R_R_err_ptp_rel_last1s']:.1f} %",
             ]) + ' |')
         lines.append('')
     if tgt:
@@ -308,7 +323,8 @@ def markdown(sens: List[dict], comp: List[dict], tgt: List[dict]) -> str:
                   '|---|---|---|---|---|---|---|---|---|---|---|---|---|---|']
         for t in tgt:
             lines.append('| ' + ' | '.join([
-                t['task'], t['strategy'], _f(t['tracking_rms_ratio_adaptive_over_nominal'], '{:.3f}'),
+                t['task'], t['strategy'],
+                _f(t['tracking_rms_ratio_adaptive_over_nominal'], '{:.3f}'),
                 _f(t['tracking_half_of_nominal']),
                 f"{100 * t['L_M_rms_rel_last1s']:.1f} %", f"{100 * t['R_R_rms_rel_last1s']:.1f} %",
                 _f(t['within_5pct_rms']),

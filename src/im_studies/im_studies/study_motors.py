@@ -1,6 +1,8 @@
-"""``python -m im_studies.study_motors --out bags/motors``: every shipped motor, every flux
-strategy, position and speed tasks scaled to the motor's ratings, on the offline loop — a
-``make reproduce``-style table per motor (summary.json + summary.md).
+"""
+``python -m im_studies.study_motors --out bags/motors``: every shipped motor, rating-scaled.
+
+Every shipped motor, every flux strategy, position and speed tasks scaled to the motor's ratings,
+on the offline loop — a ``make reproduce``-style table per motor (summary.json + summary.md).
 
 Scaling (from the motor file's ratings; docs/limits.md):
 
@@ -27,9 +29,9 @@ motor's rated flux, not the 1.2 Wb of seed 000 §3.4.6.
 
 ``--drift``: the same runs under the chapter-4 drift scaled to each motor (:func:`drift_schedule`:
 R_r from 0.5 to 1.5 times the motor file's over the run, L_s, L_r, L_sr swing by ±16 % of L_sr, as
-in seed 000 §4.3), controller and observer starting from the motor file, with the nominal controller, the
-adapter's two improved-law feeds and the truth-fed bound (docs/adaptation.md §6) — the issue-13
-rows for every shipped motor.
+in seed 000 §4.3), controller and observer starting from the motor file, with the nominal
+controller, the adapter's two improved-law feeds and the truth-fed bound (docs/adaptation.md §6) —
+the issue-13 rows for every shipped motor.
 """
 from __future__ import annotations
 
@@ -40,29 +42,33 @@ import math
 import os
 import sys
 
-import numpy as np
-
+from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad, LinearLoad
 from im_common.model import torque
-from im_common.params import (MotorParams, ParameterSchedule, THESIS_MOTOR, load_motor_file, ramp,
-                              shipped_motors_dir, sinusoid)
-from im_controller.control_law import (DEFAULT_GAINS, DEFAULT_VOLTAGE_MARGIN, THESIS_TASKS,
-                                       ControllerConfig)
+from im_common.params import (load_motor_file, MotorParams, ParameterSchedule, ramp,
+                              shipped_motors_dir, sinusoid, THESIS_MOTOR)
+from im_controller.control_law import (ControllerConfig, DEFAULT_GAINS, DEFAULT_VOLTAGE_MARGIN,
+                                       THESIS_TASKS)
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import from_setpoints
+import numpy as np
 
-from im_bringup.offline import Scenario, simulate
 from .study_ch4 import TRUTH_FED
 
 OVERLOAD = 2.0
 
 
 def rated_flux(motor: MotorParams, margin: float = DEFAULT_VOLTAGE_MARGIN) -> float:
-    """φ_n = m V_n L_sr / (L_s v ω_n): the flux whose steady voltage fills the margin at rated
-    speed (field weakening starts there)."""
+    """
+    Return φ_n = m V_n L_sr / (L_s v ω_n), the motor's rated flux.
+
+    It is the flux whose steady voltage fills the margin at rated speed (field weakening starts
+    there).
+    """
     if not (motor.rated_voltage > 0 and motor.rated_speed > 0):
         raise ValueError('the motor file gives no rated_voltage / rated_speed to scale to')
-    return margin * motor.rated_voltage * motor.L_sr / (motor.L_s * motor.pole_pairs * motor.rated_speed)
+    return (margin * motor.rated_voltage * motor.L_sr
+            / (motor.L_s * motor.pole_pairs * motor.rated_speed))
 
 
 #: The speed reversal's peak acceleration torque as a share of :func:`peak_torque`.
@@ -70,34 +76,42 @@ REVERSAL_TORQUE_SHARE = 0.75
 
 
 def peak_torque(motor: MotorParams) -> float:
-    """The steady field-oriented torque at the current limit (OVERLOAD · I_n) and rated flux:
-    i_d = φ_n/L_sr, i_q = √(I² − i_d²), τ = v (L_sr/L_r) φ_n i_q (:func:`im_common.model.torque`)."""
+    """
+    Return the steady field-oriented torque at the current limit (OVERLOAD · I_n) and rated flux.
+
+    i_d = φ_n/L_sr, i_q = √(I² − i_d²), τ = v (L_sr/L_r) φ_n i_q (:func:`im_common.model.torque`).
+    """
     phi = rated_flux(motor)
     i_lim = OVERLOAD * motor.rated_current
     i_d = phi / motor.L_sr
     if i_d >= i_lim:
         raise ValueError(f'the rated flux {phi:.3g} Wb needs i_d = {i_d:.3g} A, at or above the '
-                         f'current limit {i_lim:.3g} A: the motor file\'s ratings disagree')
+                         f"current limit {i_lim:.3g} A: the motor file's ratings disagree")
     return torque(i_d, math.sqrt(i_lim * i_lim - i_d * i_d), phi, 0.0, motor.L_r, motor.L_sr,
                   motor.pole_pairs)
 
 
 def reversal_time(motor: MotorParams, span: float = 1.8) -> float:
-    """T of the quintic speed reversal over ``span`` · ω_n whose peak acceleration J·1.875·Δω/T
+    """
+    Return the duration T of the quintic speed reversal over ``span`` · ω_n.
+
+    Its peak acceleration J·1.875·Δω/T
     is :data:`REVERSAL_TORQUE_SHARE` of :func:`peak_torque` (the load, braking the forward
-    speed, is left as margin)."""
-    return 1.875 * span * motor.rated_speed * motor.J / (REVERSAL_TORQUE_SHARE * peak_torque(motor))
+    speed, is left as margin).
+    """
+    return (1.875 * span * motor.rated_speed * motor.J
+            / (REVERSAL_TORQUE_SHARE * peak_torque(motor)))
 
 
 def scaled_options(motor: MotorParams, task: str) -> dict:
-    """Controller options of a rating-scaled run (module doc)."""
+    """Return the controller options of a rating-scaled run (module doc)."""
     phi = rated_flux(motor)
     kp, kv = DEFAULT_GAINS[task]
     s = motor.J / THESIS_MOTOR.J
     k1 = ControllerConfig().k1 * motor.sigma * motor.L_s / (THESIS_MOTOR.sigma * THESIS_MOTOR.L_s)
     return {'phi_d': phi, 'phi_max': phi, 'phi_min': 0.2 * phi, 'k_p': kp * s, 'k_v': kv * s,
-            'k1': k1,
-            'current_limit': OVERLOAD * motor.rated_current, 'speed_limit': 1.2 * motor.rated_speed}
+            'k1': k1, 'current_limit': OVERLOAD * motor.rated_current,
+            'speed_limit': 1.2 * motor.rated_speed}
 
 
 def scaled_scenario(motor: MotorParams, task: str, strategy: str) -> Scenario:
@@ -143,10 +157,13 @@ DRIFT_CONTROLLERS = ('nominal', 'adaptive', 'adaptive_thesis_pair', TRUTH_FED)
 
 
 def drift_schedule(motor: MotorParams, duration: float) -> ParameterSchedule:
-    """The chapter-4 profile (seed 000 §4.3) scaled to ``motor`` and to a run of ``duration``:
+    """
+    Return the chapter-4 profile (seed 000 §4.3) scaled to ``motor`` and to a run of ``duration``.
+
     R_r rises from half to 1.5 times the motor file's value over the run (the thesis's 0.42 →
     1.26 Ω against the model's 0.842 Ω over its 2 s), and L_s, L_r, L_sr each swing by
-    + 0.16 L_sr sin(πt) (the thesis's 0.016 H on 0.1 H; σL_s stays nearly constant)."""
+    + 0.16 L_sr sin(πt) (the thesis's 0.016 H on 0.1 H; σL_s stays nearly constant).
+    """
     a = 0.16 * motor.L_sr
     return ParameterSchedule(motor, {'R_r': ramp(0.5 * motor.R_r, motor.R_r / duration),
                                      'L_s': sinusoid(motor.L_s, a, math.pi),
@@ -188,12 +205,15 @@ def run_drift(motors: dict, workers=None) -> list:
 
 def drift_markdown(rows: list) -> str:
     out = ['# Shipped motors under the scaled chapter-4 drift', '',
-           'Generated by `python -m im_studies.study_motors --drift`: RMS tracking error, position '
-           '[rad] / speed [rad/s]; the controller starts from the motor file (docs/adaptation.md §6).',
+           'Generated by `python -m im_studies.study_motors --drift`: RMS tracking error, '
+           'position '
+           '[rad] / speed [rad/s]; the controller starts from the motor file (docs/adaptation.md '
+           '§6).',
            '', '| motor | task | strategy | ' + ' | '.join(DRIFT_CONTROLLERS) + ' |',
            '| --- | --- | --- |' + ' ---: |' * len(DRIFT_CONTROLLERS)]
     cells = {(r['motor'], r['task'], r['strategy'], r['controller']): r for r in rows}
-    for motor, task, strategy in dict.fromkeys((r['motor'], r['task'], r['strategy']) for r in rows):
+    runs = dict.fromkeys((r['motor'], r['task'], r['strategy']) for r in rows)
+    for motor, task, strategy in runs:
         row = []
         for c in DRIFT_CONTROLLERS:
             r = cells[(motor, task, strategy, c)]
@@ -217,7 +237,8 @@ def markdown(rows: list, motors: dict) -> str:
         for r in rows:
             if r['motor'] != name:
                 continue
-            out.append(f"| {r['task']} | {r['strategy']} | {r['E_in_J']:.2f} | {r['E_loss_J']:.2f} "
+            out.append(f"| {r['task']} | {r['strategy']} | {r['E_in_J']:.2f} | "
+                       f"{r['E_loss_J']:.2f} "
                        f"| {r['err_max']:.3g} | {r['err_tail']:.3g} | {r['V_max_V']:.1f} | "
                        f"{r['i_max_A']:.1f} | {r['balance_relative']:.1e} | "
                        f"{r['trip']['reason'] if r['trip'] else '—'} |")
@@ -231,7 +252,8 @@ def main(argv=None) -> int:
     ap.add_argument('--motor', action='append', metavar='YAML',
                     help='motor file(s) (default: every shipped motor)')
     ap.add_argument('--drift', action='store_true',
-                    help='the scaled chapter-4 drift rows instead (nominal, adaptive feeds, truth-fed)')
+                    help='the scaled chapter-4 drift rows instead (nominal, adaptive feeds, '
+                         'truth-fed)')
     args = ap.parse_args(argv)
     paths = args.motor or sorted(glob.glob(os.path.join(shipped_motors_dir(), '*.yaml')))
     if not paths:
@@ -258,7 +280,7 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, f'{stem}.md'), 'w') as f:
         f.write(text + '\n')
     print(text)
-    print(f"written: {args.out}/{stem}.json, {args.out}/{stem}.md")
+    print(f'written: {args.out}/{stem}.json, {args.out}/{stem}.md')
     return 0
 
 

@@ -1,8 +1,10 @@
-"""``python -m im_studies.study_sensorless [--json FILE]``: the speed-sensorless drive on the
-offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy, sensored against
-sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s reversal against
-a constant 1 N·m on every shipped motor with its rating-scaled controller (``study_motors``).
-Prints a Markdown table; ``--json`` writes the rows.
+"""
+``python -m im_studies.study_sensorless [--json FILE]``: the speed-sensorless drive, offline.
+
+It runs on the offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy,
+sensored against sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s
+reversal against a constant 1 N·m on every shipped motor with its rating-scaled controller
+(``study_motors``). Prints a Markdown table; ``--json`` writes the rows.
 """
 from __future__ import annotations
 
@@ -10,14 +12,13 @@ import argparse
 import json
 import sys
 
-import numpy as np
-
+from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad
 from im_common.params import load_motor_file, shipped_motors_dir
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
+import numpy as np
 
-from im_bringup.offline import Scenario, simulate
 from .study_motors import reversal_time, scaled_options
 
 #: the measured speed's noise in the sensorless runs [rad/s]: useless to a speed controller
@@ -35,8 +36,12 @@ def motor_file(name: str):
 
 def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless: bool = True,
                         **kw) -> Scenario:
-    """+100 → −100 rad/s (quintic as fast as :func:`study_motors.reversal_time` allows for the
-    span) against a constant 1 N·m, from steady state, the measured speed useless when sensorless."""
+    """
+    Run the speed reversal +100 → −100 rad/s of one motor.
+
+    +100 → −100 rad/s (quintic as fast as :func:`study_motors.reversal_time` allows for the
+    span) against a constant 1 N·m, from steady state, the measured speed useless when sensorless.
+    """
     m = motor_file(motor)
     ramp = reversal_time(m, span=2.0 * REVERSAL_SPEED / m.rated_speed)
     prof = Profile('speed', ((0.0, REVERSAL_SPEED, None), (0.2, -REVERSAL_SPEED, ramp)),
@@ -80,12 +85,14 @@ def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
 
 
 def table(rows: list) -> str:
-    out = ['| run | motor | strategy | speed err max after 0.1 s [rad/s] | at the end | ω̂ − ω max '
+    out = ['| run | motor | strategy | speed err max after 0.1 s [rad/s] | at the end | ω̂ − ω '
+           'max '
            '| sensored err max | E_loss sensored [J] | E_loss sensorless [J] | change |',
            '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
     for r in rows:
         trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
-        out.append(f"| {r['run']} | {r['motor']} | {r['strategy']}{trip} | {r['speed_err_max']:.3f} "
+        out.append(f"| {r['run']} | {r['motor']} | {r['strategy']}{trip} | "
+                   f"{r['speed_err_max']:.3f} "
                    f"| {r['speed_err_end']:+.3f} | {r['estimate_err_max']:.3f} "
                    f"| {r['speed_err_max_sensored']:.4f} | {r['E_loss_sensored']:.1f} "
                    f"| {r['E_loss_sensorless']:.1f} | {100 * r['loss_change']:+.2f} % |")

@@ -1,7 +1,9 @@
-"""The thesis's published reference figures: the one home of every number the tools compare with.
+"""
+The thesis's published reference figures: the one home of every number the tools compare with.
 
 Seed 000 §3.4.7 (Table of energies): energy drawn from the source and losses, in J, per task and
-flux strategy, with the thesis's motor, loads, gains and T_s = 100 µs. The study, ``make reproduce``
+flux strategy, with the thesis's motor, loads, gains and T_s = 100 µs. The study, ``make '
+                        thesis'reproduce``'
 and the README's generated results block all read them from here.
 """
 from __future__ import annotations
@@ -23,8 +25,9 @@ def energy(task: str, strategy: str) -> Optional[Tuple[float, float]]:
 
 
 def losses(task: str, strategy: str) -> float:
-    """The thesis's losses [J] for a run it reports; KeyError names the run otherwise."""
+    """Return the thesis's losses [J] for a run it reports; KeyError names the run otherwise."""
     try:
         return ENERGY[(task, strategy)][1]
     except KeyError:
-        raise KeyError(f'the thesis prints no losses for task={task!r} strategy={strategy!r}') from None
+        raise KeyError(f'the thesis prints no losses for task={task!r} '
+                       f'strategy={strategy!r}') from None
