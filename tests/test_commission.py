@@ -119,6 +119,34 @@ def test_nameplate_gives_ratings_pole_pairs_and_the_rated_flux():
         nameplate_from_dict({k: v for k, v in THESIS_PLATE.items() if k != 'power'})
 
 
+def _rescaled(m, k):
+    """``m`` in another rotor gauge: φ_r → kφ_r, L_sr → kL_sr, L_r → k²L_r, R_r → k²R_r — the
+    same inverse-Γ set, so the same terminal behaviour (docs/commissioning.md §1)."""
+    return m.with_values(L_sr=k * m.L_sr, L_r=k * k * m.L_r, R_r=k * k * m.R_r)
+
+
+@pytest.mark.parametrize('k', [0.8, 1.25])
+def test_a_model_in_another_gauge_drives_the_plant_exactly_like_the_model_in_its_own(k):
+    """The speed task starts in the model's steady state (control_law.steady_start): the plant
+    must start in the physical state that steady state is — the same currents and inverse-Γ
+    rotor flux ψ_R = θφ_r — whatever gauge the model's file is written in. Then the whole
+    closed loop (controller, observer, min_loss flux) is gauge-covariant."""
+    import numpy as np
+    from im_bringup.offline import Scenario, simulate
+    m = _motor('thesis')
+    twin = _rescaled(m, k)
+    assert twin.identifiable() == pytest.approx(m.identifiable(), rel=1e-12)
+    runs = [simulate(Scenario(task='speed', strategy='min_loss', motor=m, estimates=e,
+                              duration=0.3)).trace for e in (m, twin)]
+    for key in ('i_alpha', 'i_beta', 'tau_m', 'omega_r', 'E_in'):
+        a, b = (np.asarray(r[key]) for r in runs)
+        err = float(np.max(np.abs(a - b)))
+        assert err <= 1e-9 * max(1.0, float(np.max(np.abs(a)))), (key, err)
+    # the rotor flux the plant starts with is the model's, converted to the plant's gauge
+    phi = [np.hypot(r['phi_r_alpha'][0], r['phi_r_beta'][0]) for r in runs]
+    assert phi[1] == pytest.approx(phi[0], rel=1e-12)
+
+
 def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one():
     from im_studies.commission_study import plate_of, speed_error
     m = _motor('thesis')
