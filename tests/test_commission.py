@@ -147,10 +147,25 @@ def test_a_model_in_another_gauge_drives_the_plant_exactly_like_the_model_in_its
     assert phi[1] == pytest.approx(phi[0], rel=1e-12)
 
 
-def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one():
+def _box_motor(name):
+    from im_studies.commission_study import motors
+    return dict(motors(3))[name]        # box draws 1, 8, 9 are the first three with σ < 0.15
+
+
+@pytest.mark.parametrize('name', ['thesis', 'box draw 9'])
+def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one(name):
+    """Done-when of issue 26: the identified file (written in the gauge L_s = L_r) as the
+    controller's and observer's model tracks within 2x the error of the true file. Box draw 9
+    has L_s != L_r (theta differs by 12 %): its run starts the plant from the identified model's
+    steady state, which must be converted to the plant's gauge (control_law.steady_start)."""
     from im_studies.commission_study import plate_of, speed_error
-    m = _motor('thesis')
-    _, ident = _identified('thesis')
+    if name == 'thesis':
+        m = _motor('thesis')
+        _, ident = _identified('thesis')
+    else:
+        m = _box_motor(name)
+        ident = _commission(m).result()
+    assert name == 'thesis' or abs(ident.motor().theta / m.theta - 1) > 0.05   # another gauge
     true = speed_error(m, m)
     mine = speed_error(m, ident.motor(plate_of(m).ratings()))
     assert mine['rms'] <= 2.0 * true['rms'], (mine, true)
