@@ -6,8 +6,9 @@ subscribes and the services it answers (its parameter services), read off the no
 setpoint (``ros2 topic pub /im/setpoint``), read the run protocol, set live parameters
 (``ros2 param set``). The commissioning tool (``ros2 run im_bringup commission``,
 docs/commissioning.md §7) has its own enclave ``/im_drive/commission``: it publishes the command
-topic in the controller's place (``STANDS_IN``). ``tests/test_security.py`` checks that the shipped file is what this module
-generates and that it agrees with the topic table (:mod:`im_common.topics`).
+topic in the controller's place (``STANDS_IN``). ``tests/test_security.py`` checks that the
+shipped file is what this module generates and that it agrees with the topic table
+(:mod:`im_common.topics`).
 
     python -m im_bringup.sros2_policy [--write]   # print (or, from the repository's root,
                                                   # rewrite) the shipped policy
