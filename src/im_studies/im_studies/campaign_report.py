@@ -12,7 +12,7 @@ import numpy as np
 
 from .campaign_journal import versions
 from .campaign_spec import COMMISSION_TASK, DRAWN, FIGURES, UNSTABLE, spec_hash
-from .commission_study import COMPARED
+from .commission_sim import COMPARED
 
 COLUMNS = (('index', 'int64'), ('draw', 'int64'), ('task', 'string'), ('strategy', 'string'),
            ('controller', 'string'),

@@ -449,7 +449,7 @@ def commission_row(job: dict, spec: dict) -> dict:
     """Commission the drawn motor (limits: its ratings, else the thesis motor's) as
     ``commission_study`` does; the row holds each parameter's error against the draw and its
     reported standard deviation [%]. Never raises: a refusal is a ``failed`` row saying why."""
-    from .commission_study import COMPARED, identification_errors, with_ratings
+    from .commission_sim import COMPARED, identification_errors, with_ratings
     row = dict(job)
     row['sigma'] = 1.0 - job['L_sr'] ** 2 / (job['L_s'] * job['L_r'])
     row['sigma_L_s'] = row['sigma'] * job['L_s']
