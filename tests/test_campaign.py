@@ -299,3 +299,52 @@ def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
 
 def test_pool_map_returns_results_in_order():
     assert pool_map(math.sqrt, [4.0, 9.0, 16.0], workers=2, progress=False) == [2.0, 3.0, 4.0]
+
+
+# ------------------------------------------------------------------------- commissioning axis
+def test_commissioning_axis_identifies_each_drawn_motor_and_reports_its_errors(tmp_path):
+    """``commission: true`` (docs/campaign.md): one commissioning job per draw (after the runs,
+    so the runs keep their indices), the drawn motor identified on the ROS-free plant as
+    commission_study does; the report gives each parameter's error against the draw's truth."""
+    path = write_spec(tmp_path, draws=2, gain_sets=[{'name': 'thesis', 'gains': 'thesis',
+                                                     'T_s': 1e-3}],
+                      commission={'noise': 0.05})
+    spec = read_spec(path)
+    plain = read_spec(write_spec(tmp_path, name='plain', draws=2,
+                                 gain_sets=[{'name': 'thesis', 'gains': 'thesis', 'T_s': 1e-3}]))
+    runs = jobs(plain)
+    all_jobs = jobs(spec)
+    assert all_jobs[:len(runs)] == runs                     # the runs keep their indices
+    com = all_jobs[len(runs):]
+    assert [(j['task'], j['draw']) for j in com] == [('commission', 0), ('commission', 1)]
+    summary = run_campaign(spec, str(tmp_path / 'out'), path, workers=1, progress=False)
+    rows = read_rows(tmp_path / 'out' / 'runs.parquet')
+    assert summary['runs'] == len(runs)                      # the run statistics are the runs'
+    c = summary['commissioning']
+    assert [d['draw'] for d in c['draws']] == [0, 1]
+    for d, job in zip(c['draws'], com):
+        assert d['status'] == 'ok', d
+        truth = spec_motor(spec, job)
+        row = next(r for r in rows if r['index'] == job['index'])
+        for n, true in dict(truth.identifiable(), J=truth.J).items():
+            err = d[n + '_err_pct']
+            assert abs(err) < (5.0 if n == 'J' else 3.0), (n, err)
+            assert row[n + '_err_pct'] == pytest.approx(err)
+            assert d[n + '_std_pct'] > 0
+    for n in ('R_s', 'L_sigma', 'L_M', 'R_R', 'J'):
+        assert c['max_abs_err_pct'][n] == pytest.approx(
+            max(abs(d[n + '_err_pct']) for d in c['draws']))
+    report = (tmp_path / 'out' / 'report.md').read_text()
+    assert '## Commissioning' in report and 'σL_s' in report
+
+
+def spec_motor(spec, job):
+    from im_studies.campaign_spec import base_motor
+    return base_motor(spec).with_values(**{k: job[k] for k in DRAWN})
+
+
+def test_a_bad_commission_key_is_one_line(tmp_path):
+    with pytest.raises(SpecError, match=r'commission.*noise'):
+        read_spec(write_spec(tmp_path, commission={'noise': -1}))
+    with pytest.raises(SpecError, match='commission'):
+        read_spec(write_spec(tmp_path, commission='yes'))

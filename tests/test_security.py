@@ -252,8 +252,16 @@ def test_the_shipped_sros2_policy_is_generated_from_the_nodes_and_matches_the_to
     for name in P.NODES:
         assert sorted(rules[name]['publish']) == endpoints[name]['publish']
         assert sorted(rules[name]['subscribe']) == endpoints[name]['subscribe']
+    # the commissioning tool (docs/commissioning.md §7) drives the graph in the controller's
+    # place: it is granted the command topic and the lock-step inputs, nothing else of the table
+    com = rules['commission']
+    table = {spec.name for spec in T.TOPICS}
+    assert set(com['publish']) & table == {T.CMD_VOLTAGE, T.STATUS}, com['publish']
+    assert {T.MEAS_CURRENT, T.MEAS_SHAFT} <= set(com['subscribe'])
+    assert P.STANDS_IN == {'commission': 'controller'}
     for spec in T.TOPICS:
-        owners = [n for n in P.NODES if spec.name in rules[n]['publish']]
+        owners = [n for n in P.NODES if spec.name in rules[n]['publish']
+                  and not (n in P.STANDS_IN and P.STANDS_IN[n] == spec.publisher)]
         if spec.publisher in P.NODES:
             assert owners == [spec.publisher], (spec.name, owners)
         elif spec.name == T.SETPOINT:

@@ -4,8 +4,11 @@ One enclave per node (``/im_drive/<node>``) granting exactly the topics the node
 subscribes and the services it answers (its parameter services), read off the nodes themselves
 (built in-process, not spun), plus ``/im_drive/user`` for a person at the console: publish a
 setpoint (``ros2 topic pub /im/setpoint``), read the run protocol, set live parameters
-(``ros2 param set``). ``tests/test_security.py`` checks that the shipped file is what this module
-generates and that it agrees with the topic table (:mod:`im_common.topics`).
+(``ros2 param set``). The commissioning tool (``ros2 run im_bringup commission``,
+docs/commissioning.md §7) has its own enclave ``/im_drive/commission``: it publishes the command
+topic in the controller's place (``STANDS_IN``). ``tests/test_security.py`` checks that the
+shipped file is what this module generates and that it agrees with the topic table
+(:mod:`im_common.topics`).
 
     python -m im_bringup.sros2_policy [--write]   # print (or, from the repository's root,
                                                   # rewrite) the shipped policy
@@ -24,7 +27,9 @@ from xml.sax.saxutils import escape
 
 ENCLAVE_ROOT = '/im_drive'
 POLICY_VERSION = '0.2.0'
-NODES = ('plant', 'controller', 'observer', 'adapter', 'recorder')
+NODES = ('plant', 'controller', 'observer', 'adapter', 'recorder', 'commission')
+#: {node: the node whose topics it publishes in that node's place} (the topic table names the other)
+STANDS_IN = {'commission': 'controller'}
 #: The shipped file, relative to the repository's root (installed to share/im_bringup/config/sros2).
 SHIPPED = os.path.join('src', 'im_bringup', 'config', 'sros2', 'policy.xml')
 
@@ -35,6 +40,8 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
     from rclpy.context import Context
 
     from im_adapt.adapter_node import AdapterNode
+    from im_adapt.commissioning import Commissioning
+    from im_bringup.commission import make_node as commission_node
     from im_controller.controller_node import ControllerNode
     from im_observer.observer_node import ObserverNode
     from im_plant.plant_node import PlantNode
@@ -56,7 +63,10 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
                  'observer': ObserverNode(context=ctx, graph_key=key, parameter_overrides=[
                      P('use_adapter', value=True), sim]),
                  'adapter': AdapterNode(context=ctx, graph_key=key, parameter_overrides=[sim]),
-                 'recorder': RecorderNode(writer, context=ctx, graph_key=key)}
+                 'recorder': RecorderNode(writer, context=ctx, graph_key=key),
+                 'commission': commission_node(Commissioning(1e-4, 8.0, 300.0, pole_pairs=2,
+                                                             test_speed=100.0),
+                                               1e-4, context=ctx, graph_key=key)}
         # the same nodes speed-sensorless (docs/sensorless.md): the union of both is granted
         sl = [P('sensorless', value=True), P('use_adapter', value=True), sim]
         also = {'controller': ControllerNode(context=ctx, graph_key=key, parameter_overrides=[

@@ -746,11 +746,16 @@ def steady_operating_point(config: ControllerConfig, t0: float, theta0: float, o
 
 def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, omega0: float):
     """(plant x₀, observer x̂₀) of a run started in the controller's own steady state at
-    (θ₀, ω₀): the plant's stator flux from the reference currents and rotor flux with the
-    plant's (true) inductances, the observer on the reference."""
+    (θ₀, ω₀): the plant in the physical state that steady state is — the reference stator
+    currents and the same inverse-Γ rotor flux ψ_R = θφ_r (θ = L_sr/L_r) — written in the
+    plant's gauge (φ_r scaled by θ_model/θ_plant, ψ_s from the plant's inductances); the
+    observer on the reference, in the model's gauge. A model written in another rotor gauge
+    (same inverse-Γ set, docs/commissioning.md §1) thus starts the plant in the same state."""
     from im_common.model import stator_flux
     op = steady_operating_point(config, 0.0, theta0, omega0)
-    psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'],
+    gauge = config.params.theta / plant.theta
+    phi_a, phi_b = gauge * op['phi_alpha'], gauge * op['phi_beta']
+    psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], phi_a, phi_b,
                                plant.L_s, plant.L_r, plant.L_sr)
-    x0 = (psi_a, psi_b, op['phi_alpha'], op['phi_beta'], float(theta0), float(omega0))
+    x0 = (psi_a, psi_b, phi_a, phi_b, float(theta0), float(omega0))
     return x0, (op['i_alpha'], op['i_beta'], op['phi_alpha'], op['phi_beta'])

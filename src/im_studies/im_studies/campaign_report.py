@@ -15,7 +15,8 @@ from typing import Dict, List
 import numpy as np
 
 from .campaign_journal import versions
-from .campaign_spec import DRAWN, FIGURES, spec_hash, UNSTABLE
+from .campaign_spec import COMMISSION_TASK, DRAWN, FIGURES, spec_hash, UNSTABLE
+from .commission_sim import COMPARED
 
 COLUMNS = (('index', 'int64'), ('draw', 'int64'), ('task', 'string'), ('strategy', 'string'),
            ('controller', 'string'),
@@ -23,7 +24,10 @@ COLUMNS = (('index', 'int64'), ('draw', 'int64'), ('task', 'string'), ('strategy
            *((k, 'float64') for k in DRAWN), ('sigma', 'float64'), ('sigma_L_s', 'float64'),
            ('status', 'string'),
            ('trip', 'string'), ('t_end_s', 'float64'), ('error', 'string'),
-           *((k, 'float64') for k in FIGURES), ('wall_s', 'float64'))
+           *((k, 'float64') for k in FIGURES), ('wall_s', 'float64'),
+           # the commissioning axis (``commission: true``): identified/true − 1 and the reported
+           # standard deviation [%] of each commissioned parameter (null on the runs' rows)
+           *((n + x, 'float64') for n in COMPARED for x in ('_err_pct', '_std_pct')))
 
 
 def write_parquet(rows: List[dict], path: Path, metadata: dict) -> None:
@@ -48,7 +52,30 @@ def replay_command(spec_path: str, index: int) -> str:
     return f'ros2 run im_studies campaign {spec_path} --run {index}'
 
 
+def split_commissioning(rows: List[dict]):
+    """(the runs' rows, the commissioning rows) of a campaign."""
+    return ([r for r in rows if r['task'] != COMMISSION_TASK],
+            [r for r in rows if r['task'] == COMMISSION_TASK])
+
+
+def commissioning_summary(rows: List[dict]) -> dict:
+    """Per draw each parameter's error and reported std [%], and per parameter the largest
+    |error| and the median |error|/std over the draws that were identified."""
+    draws = [{'draw': r['draw'], 'index': r['index'], 'status': r['status'],
+              'error': r['error'], 'sigma': r['sigma'],
+              **{n + x: r[n + x] for n in COMPARED for x in ('_err_pct', '_std_pct')}}
+             for r in rows]
+    ok = [d for d in draws if d['status'] == 'ok']
+    return {'draws': draws, 'identified': len(ok), 'refused': len(draws) - len(ok),
+            'max_abs_err_pct': {n: max((abs(d[n + '_err_pct']) for d in ok), default=None)
+                                for n in COMPARED},
+            'median_err_over_std': {n: float(np.median([abs(d[n + '_err_pct']) / d[n + '_std_pct']
+                                                        for d in ok])) if ok else None
+                                    for n in COMPARED}}
+
+
 def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
+    rows, commissioned = split_commissioning(rows)
     by_set: Dict[str, dict] = {}
     for g in spec['gain_sets']:
         rs = [r for r in rows if r['gain_set'] == g['name']]
@@ -104,6 +131,8 @@ def summarize(rows: List[dict], spec: dict, info: dict, spec_path: str) -> dict:
                       'sigma_L_s': r['sigma_L_s'],
                       'replay': replay_command(spec_path, r['index'])} for r in worst],
            'versions': versions()}
+    if commissioned:
+        out['commissioning'] = commissioning_summary(commissioned)
     return out
 
 
@@ -125,6 +154,7 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
     """report.md with loss and error histograms, the stability map and the worst runs."""
     from im_recording.plots import _plt
     plt = _plt()
+    rows, _ = split_commissioning(rows)
     figs = []
     sets = [g['name'] for g in spec['gain_sets']]
     colors = dict(zip(sets, plt.rcParams['axes.prop_cycle'].by_key()['color']))
@@ -231,5 +261,31 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
                      f"{why.replace('|', '∣')} | "
                      + ' | '.join(f'{w[k]:.4g}' for k in DRAWN)
                      + f" | {w['sigma']:.3f} | {w['sigma_L_s'] * 1e3:.3f} | `{w['replay']}` |")
+    if 'commissioning' in summary:
+        lines += commissioning_lines(summary['commissioning'])
     from im_recording.bag import write_atomic
     write_atomic(out / 'report.md', '\n'.join(lines) + '\n')
+
+
+COMPARED_LABELS = {'R_s': 'R_s', 'L_sigma': 'σL_s', 'L_M': 'L_M', 'R_R': 'R_R', 'J': 'J'}
+
+
+def commissioning_lines(c: dict) -> List[str]:
+    """The report's commissioning section: identified/true − 1 ± the reported std per draw."""
+    names = [COMPARED_LABELS[n] for n in COMPARED]
+    lines = ['', '## Commissioning', '',
+             f"Each draw commissioned on the ROS-free plant (docs/commissioning.md): "
+             f"{c['identified']} identified, {c['refused']} refused. Errors are identified/true − 1 "
+             '± the reported standard deviation.', '',
+             '| draw | σ | ' + ' | '.join(names) + ' |', '| ---: | ---: |' + ' ---: |' * len(names)]
+    for d in c['draws']:
+        if d['status'] != 'ok':
+            lines.append(f"| {d['draw']} | {d['sigma']:.3f} | refused: "
+                         f"{d['error'].replace('|', '∣')} |" + ' |' * (len(names) - 1))
+            continue
+        lines.append(f"| {d['draw']} | {d['sigma']:.3f} | " + ' | '.join(
+            f"{d[n + '_err_pct']:+.3f} ± {d[n + '_std_pct']:.3f} %" for n in COMPARED) + ' |')
+    worst = c['max_abs_err_pct']
+    lines.append('| largest \\|error\\| | | ' + ' | '.join(
+        '—' if worst[n] is None else f'{worst[n]:.3f} %' for n in COMPARED) + ' |')
+    return lines

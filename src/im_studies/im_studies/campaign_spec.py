@@ -22,7 +22,7 @@ from .campaign_pool import one_line
 SPEC_KEYS = ('name', 'seed', 'draws', 'motor', 'box', 'sigma_min', 'tasks', 'strategies',
              'controllers',
              'gain_sets', 'loads', 'profiles', 'duration', 'mode', 'map', 'worst',
-             'speedup_runs')
+             'speedup_runs', 'commission')
 #: parameters of the plant's motor a spec may draw (the motor's electrical parameters)
 DRAWN = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: what the stability map may be drawn over: a drawn parameter, σ or σL_s
@@ -241,6 +241,7 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
     if not isinstance(m, list) or len(m) != 2 or any(x not in MAP_AXES for x in m):
         raise SpecError(f'{where}: map = {m!r}: two of {", ".join(MAP_AXES)}')
     spec['map'] = list(m)
+    spec.update(commission_spec(raw, where))
     return spec
 
 
@@ -300,7 +301,7 @@ def jobs(spec: dict) -> List[dict]:
             out.append({'index': len(out), 'draw': d, 'task': task, 'strategy': strategy,
                         'controller': controller, 'gain_set': g['name'], 'T_s': g['T_s'],
                         'load': load, 'profile': profile, **motor})
-    return out
+    return out + commission_jobs(spec, len(out))
 
 
 def gain_arguments(spec: dict) -> Dict[str, dict]:
@@ -381,6 +382,8 @@ def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
 def run_job(job: dict, spec: dict, gains: dict) -> dict:
     """Execute one run; never raises: the row says ok / tripped / diverged / failed."""
     import re
+    if job['task'] == COMMISSION_TASK:
+        return commission_row(job, spec)
     row = dict(job)
     row['sigma'] = 1.0 - job['L_sr'] ** 2 / (job['L_s'] * job['L_r'])
     row['sigma_L_s'] = row['sigma'] * job['L_s']     # the current loop's inductance
@@ -420,5 +423,66 @@ def run_job(job: dict, spec: dict, gains: dict) -> dict:
             row.update(status='diverged', t_end_s=float(s.get('duration_s', float('nan'))))
         else:
             row.update(status='ok', t_end_s=float(s.get('duration_s', float('nan'))))
+    row['wall_s'] = time.perf_counter() - t0
+    return row
+
+
+# ------------------------------------------------------------------------ commissioning axis
+#: the task name of a commissioning job (one per draw, after the runs: ``commission: true``)
+COMMISSION_TASK = 'commission'
+#: default current noise [A per 8.487 A of rated current] of the commissioning axis
+COMMISSION_NOISE = 0.05
+
+
+def commission_spec(raw: dict, where: str) -> dict:
+    """``commission``: absent / false (no commissioning), true, or ``{noise: A}`` — each draw
+    is commissioned on the ROS-free plant (docs/commissioning.md §6) with that current noise
+    [A per 8.487 A of rated current]. Only a commissioning spec carries the key, so the hash of
+    every other spec (and a campaign folder's resumption) is unchanged."""
+    v = raw.get('commission', False)
+    if v is False or v is None:
+        return {}
+    if v is True:
+        v = {}
+    if not isinstance(v, dict) or set(v) - {'noise'}:
+        raise SpecError(f'{where}: commission = {v!r}: true, false or {{noise: A}}')
+    noise = v.get('noise', COMMISSION_NOISE)
+    if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not (
+            math.isfinite(noise) and noise >= 0):
+        raise SpecError(f'{where}: commission.noise = {noise!r} must be a current >= 0 A')
+    return {'commission': {'noise': float(noise)}}
+
+
+def commission_jobs(spec: dict, start: int) -> List[dict]:
+    """One commissioning job per draw, numbered from ``start`` (after every run)."""
+    if not spec.get('commission'):
+        return []
+    return [{'index': start + d, 'draw': d, 'task': COMMISSION_TASK, 'strategy': '',
+             'controller': '', 'gain_set': '', 'T_s': 1e-4, 'load': '', 'profile': '',
+             **draw(spec, d)} for d in range(spec['draws'])]
+
+
+def commission_row(job: dict, spec: dict) -> dict:
+    """Commission the drawn motor (limits: its ratings, else the thesis motor's) as
+    ``commission_study`` does; the row holds each parameter's error against the draw and its
+    reported standard deviation [%]. Never raises: a refusal is a ``failed`` row saying why."""
+    from .commission_sim import COMPARED, identification_errors, with_ratings
+    row = dict(job)
+    row['sigma'] = 1.0 - job['L_sr'] ** 2 / (job['L_s'] * job['L_r'])
+    row['sigma_L_s'] = row['sigma'] * job['L_s']
+    for k in FIGURES:
+        row[k] = float('nan')
+    for n in COMPARED:
+        row[n + '_err_pct'] = row[n + '_std_pct'] = float('nan')
+    row.update(status='failed', trip='', t_end_s=float('nan'), error='')
+    t0 = time.perf_counter()
+    try:
+        motor = with_ratings(base_motor(spec)).with_values(**{k: job[k] for k in DRAWN})
+        com, _, errors = identification_errors(motor, spec['commission']['noise'],
+                                               seed=job['draw'])
+    except Exception as exc:   # NotInformative and anything else: a row, never the end
+        row['error'] = one_line(exc)
+    else:
+        row.update(errors, status='ok', t_end_s=com.k * com.T_s)
     row['wall_s'] = time.perf_counter() - t0
     return row
