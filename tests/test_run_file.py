@@ -160,3 +160,20 @@ def test_the_adaptive_controller_holds_the_position_under_the_drift_the_nominal_
     nominal = run_graph(scenario=replace(sc, controller='nominal')).summary
     assert nominal['pos_err_rms_rad'] > 0.1
     assert adaptive['pos_err_rms_rad'] <= 0.01
+
+
+def test_the_launch_file_takes_the_run_file_and_records_it(tmp_path):
+    from im_bringup.processes import launch_processes
+    bag = str(tmp_path / 'l.mcap')
+    args = {'run': DRIFT, 'task': '', 'duration': '0.3', 'controller': 'nominal', 'record': bag,
+            'use_adapter': '', 'gains': '', 'params_file': '', 'sensorless': '', 'mode': ''}
+    procs = {p.name: p for p in launch_processes(args)}
+    sc = Scenario.from_file(DRIFT, {'duration': 0.3, 'controller': 'nominal'})
+    assert {k: v for k, v in procs['plant'].parameters.items() if k not in (
+        'graph_key_file', 'wait_for', 'mode')} == sc.node_parameters()['plant']
+    assert json.loads(procs['plant'].parameters['variation_schedule']) == sc.variation
+    meta = json.loads(procs['recorder'].arguments[procs['recorder'].arguments.index('--metadata')
+                                                  + 1])
+    assert meta['run']['yaml'] == sc.to_yaml() and 'adapter' not in procs
+    with pytest.raises(RunFileError, match='^launch arguments: controller: must be one of'):
+        launch_processes(dict(args, controller='clever'))

@@ -382,10 +382,10 @@ class Scenario:
             raise RunFileError(source, 'run file', str(exc).splitlines()[0]) from None
 
     @classmethod
-    def from_file(cls, path: str, overrides: Optional[Mapping] = None) -> 'Scenario':
+    def from_file(cls, path: str, overrides: Optional[Mapping] = None,
+                  override_source: str = 'command line') -> 'Scenario':
         """Read a run file (YAML); ``overrides`` {key: value} as ``--set key=value`` gives them."""
         import yaml
-        name = os.path.basename(path) if path else 'run file'
         try:
             with open(path) as f:
                 doc = yaml.safe_load(f)
@@ -394,9 +394,8 @@ class Scenario:
         except yaml.YAMLError as exc:
             raise RunFileError(path, 'run file',
                                f'is not valid YAML ({str(exc).splitlines()[0]})') from None
-        del name
         return cls.from_mapping(doc, source=path, base_dir=os.path.dirname(os.path.abspath(path)),
-                                overrides=overrides)
+                                overrides=overrides, override_source=override_source)
 
     def to_mapping(self) -> dict:
         """The run file of this scenario, fully resolved: motor, estimates, load, profile and

@@ -59,25 +59,9 @@ ARGUMENTS = (
 
 
 def _processes(context):
-    import os
-
-    import yaml
-    from im_bringup.processes import check_processes, graph_processes
-    from im_bringup.run_file import Scenario
-    from im_bringup.scenario import run_metadata
+    from im_bringup.processes import check_processes, launch_processes
     a = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
-    over = {key: yaml.safe_load(a[key]) for key in ('task', 'strategy', 'controller', 'T_s',
-                                                     'duration', 'mode', 'sensorless') if a[key]}
-    over.update({('parameters' if key == 'params_file' else key): os.path.abspath(a[key])
-                 for key in ('gains', 'params_file') if a[key]})
-    sc = (Scenario.from_file(a['run'], overrides=over) if a['run'] else
-          Scenario.from_mapping({}, source='launch arguments', overrides=over,
-                                override_source='launch arguments'))
-    procs = graph_processes(       # with a fresh graph key, removed when ros2 launch exits
-        scenario=sc, mode=sc.mode, record=a['record'] or None,
-        use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()],
-        record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
-                                     scenario=sc) if a['record'] else None)
+    procs = launch_processes(a)     # with a fresh graph key, removed when ros2 launch exits
     check_processes(procs)      # what a node would refuse, refused before any process starts
     secure = a['security'].lower() == 'true'
     return [Node(package=p.package, executable=p.executable, name=p.name,
