@@ -177,3 +177,12 @@ def test_the_launch_file_takes_the_run_file_and_records_it(tmp_path):
     assert meta['run']['yaml'] == sc.to_yaml() and 'adapter' not in procs
     with pytest.raises(RunFileError, match='^launch arguments: controller: must be one of'):
         launch_processes(dict(args, controller='clever'))
+
+
+def test_the_summary_names_the_variation_the_plant_runs():
+    from im_bringup.testing import run_graph
+    custom = run_graph(task='position', duration=0.01, parameters={'plant': {
+        'variation': 'custom', 'variation_parameter': 'R_r', 'variation_kind': 'ramp'}})
+    assert custom.summary['variation'] == 'custom R_r ramp'          # was 'none'
+    drift = run_graph(scenario=Scenario.from_file(DRIFT, {'duration': 0.01}))
+    assert drift.summary['variation'].startswith('R_r step x2 at 0.5 s; L_sr')

@@ -251,6 +251,20 @@ OVERRIDE_OPTIONS = ('task', 'strategy', 'controller', 'variation', 'T_s', 'durat
 FILE_OPTIONS = ('motor', 'estimates', 'profile', 'load', 'gains', 'params_file')
 
 
+def plant_variation(parameters: dict) -> str:
+    """The variation the plant will really run, from its parameters (a ``parameters:``/
+    ``--params-file`` override of the plant included): what the summary and header say."""
+    from im_common.params import describe_variation
+    plant = parameters.get('plant', {})
+    name = plant.get('variation', 'none')
+    if name == 'schedule':
+        return describe_variation(json.loads(plant.get('variation_schedule') or '{}'))
+    if name == 'custom':
+        return (f"custom {plant.get('variation_parameter', 'R_r')} "
+                f"{plant.get('variation_kind', 'ramp')}")
+    return name
+
+
 def rerun_mapping(bag: str) -> dict:
     """The run file a bag carries (its ``run`` record), as a mapping; one ValueError line when
     the bag has none (recorded before run files, or not by this stack)."""
@@ -306,7 +320,7 @@ def main(argv=None) -> int:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     args.task, args.strategy, args.controller = sc.task, sc.strategy, sc.controller
-    args.T_s, args.duration, args.variation = sc.T_s, sc.duration, sc.variation_label
+    args.T_s, args.duration, args.variation = sc.T_s, sc.duration, plant_variation(parameters)
     from im_recording.bag import check_output, write_atomic
     if args.write_params:
         try:

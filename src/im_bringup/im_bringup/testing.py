@@ -43,7 +43,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.run_file import Scenario
-    from im_bringup.scenario import run_metadata, summarize
+    from im_bringup.scenario import plant_variation, run_metadata, summarize
     from im_recording.traces import Tap
     if isinstance(scenario, str):
         scenario = Scenario.from_file(scenario)
@@ -55,6 +55,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
         params = node_parameters(task, strategy, controller, variation, T_s, duration, **config)
     for node, values in (parameters or {}).items():
         params.setdefault(node, {}).update(values)
+    variation = plant_variation(params)
     writer = None
     if record:
         from im_recording.bag import BagWriter

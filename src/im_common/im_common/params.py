@@ -597,7 +597,8 @@ def describe_variation(spec) -> str:
     if not spec:
         return 'none'
     parts = []
-    for pname, items in spec.items():
+    for pname in (n for n in ELECTRICAL_NAMES if n in spec):     # one order on every path
+        items = spec[pname]
         terms = []
         for i in items:
             if 'sine' in i:
