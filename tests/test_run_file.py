@@ -163,7 +163,7 @@ def test_the_adaptive_controller_holds_the_position_under_the_drift_the_nominal_
 
 
 def test_the_launch_file_takes_the_run_file_and_records_it(tmp_path):
-    from im_bringup.processes import launch_processes
+    from im_bringup.scenario import launch_processes
     bag = str(tmp_path / 'l.mcap')
     args = {'run': DRIFT, 'task': '', 'duration': '0.3', 'controller': 'nominal', 'record': bag,
             'use_adapter': '', 'gains': '', 'params_file': '', 'sensorless': '', 'mode': ''}

@@ -6,43 +6,14 @@ parameters YAML (``ros__parameters`` added by :func:`to_yaml`).
 """
 from __future__ import annotations
 
-import math
 from typing import Dict, Optional, Sequence
 
-from im_controller.flux import STRATEGIES  # the one home of the flux-strategy names
+from im_controller.flux import STRATEGIES  # noqa: F401 (re-exported; the one home of the names)
 
-TASKS = ('position', 'speed', 'torque')
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
-# the adaptive controllers: the adapter's law and what the controller and observer take from it
-# (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
-ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},
-              'adaptive': {'law': 'improved', 'feed': 'inverse_gamma'},
-              'adaptive_thesis_pair': {'law': 'improved', 'feed': 'thesis_pair'}}
-
-# Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.
-# The position task starts at rest, demagnetized, pendulum hanging (τ_L = 0). The speed task's
-# reference starts at 135 rad/s with 2.49 N·m of load that a demagnetized motor cannot carry, so
-# it starts in the controller's own steady state there ('steady', see im_bringup.offline).
-TASK_PRESETS = {
-    'position': {'load': 'pendulum', 'load_mgl': 10.0, 'theta0': -math.pi / 2, 'omega0': 0.0,
-                 'start': 'rest', 'duration': 2.0},
-    'speed': {'load': 'linear', 'load_c1': 1.0, 'load_c2': 0.001, 'theta0': 0.0, 'omega0': 135.0,
-              'start': 'steady', 'duration': 1.5},
-    # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
-    'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
-}
-TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
-                        "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
-
-
-def motor_parameters(motor) -> Dict[str, object]:
-    """The node parameters of a motor (every field ``declare_motor`` declares)."""
-    return {k: (int(v) if k == 'pole_pairs' else float(v)) for k, v in motor.as_dict().items()}
-
-
-CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weakening',
-                     'voltage_margin', 'current_margin')
-PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
+# The task presets and the controller vocabulary live with the run description
+# (im_bringup.run_file), which reads them; imported here under their familiar names.
+from .run_file import (ADAPTATION, CONTROLLER_LIMITS, CONTROLLERS, PLANT_PROTECTION,  # noqa: F401
+                       TASK_PRESETS, TASKS, TORQUE_NEEDS_PROFILE, Scenario, motor_parameters)
 
 
 def node_parameters(task: str = 'position', strategy: str = 'min_energy',
@@ -63,7 +34,6 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     limits (:data:`CONTROLLER_LIMITS`), ``protection``: plant inverter rating and trips
     (:data:`PLANT_PROTECTION`). A bad value is one ValueError naming it.
     """
-    from .run_file import Scenario
     limits = dict(limits or {})
     protection = dict(protection or {})
     for key in limits:

@@ -38,12 +38,43 @@ from im_controller.control_law import ControllerConfig, steady_start
 from im_controller.flux import STRATEGIES
 from im_controller.profiles import KINDS, MODE_KIND, Profile, from_setpoints, load_profile
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
+from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
 
-from .config import (ADAPTATION, CONTROLLER_LIMITS, CONTROLLERS, PLANT_PROTECTION, TASK_PRESETS,
-                     TASKS, TORQUE_NEEDS_PROFILE, motor_parameters)
+
+TASKS = ('position', 'speed', 'torque')
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
+# the adaptive controllers: the adapter's law and what the controller and observer take from it
+# (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
+ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},
+              'adaptive': {'law': 'improved', 'feed': 'inverse_gamma'},
+              'adaptive_thesis_pair': {'law': 'improved', 'feed': 'thesis_pair'}}
+
+# Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.
+# The position task starts at rest, demagnetized, pendulum hanging (τ_L = 0). The speed task's
+# reference starts at 135 rad/s with 2.49 N·m of load that a demagnetized motor cannot carry, so
+# it starts in the controller's own steady state there ('steady', see im_bringup.offline).
+TASK_PRESETS = {
+    'position': {'load': 'pendulum', 'load_mgl': 10.0, 'theta0': -math.pi / 2, 'omega0': 0.0,
+                 'start': 'rest', 'duration': 2.0},
+    'speed': {'load': 'linear', 'load_c1': 1.0, 'load_c2': 0.001, 'theta0': 0.0, 'omega0': 135.0,
+              'start': 'steady', 'duration': 1.5},
+    # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
+    'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
+}
+TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
+                        "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
+
+
+def motor_parameters(motor) -> Dict[str, object]:
+    """The node parameters of a motor (every field ``declare_motor`` declares)."""
+    return {k: (int(v) if k == 'pole_pairs' else float(v)) for k, v in motor.as_dict().items()}
+
+
+CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weakening',
+                     'voltage_margin', 'current_margin')
+PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
 
 START_MODES = ('rest', 'steady')
-STEPPING_MODES = ('lockstep', 'free_run')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
 #: limits and trips where 0 means "none" on the command line and in a run file
 ZERO_IS_NONE = ('v_limit', 'torque_limit', 'current_limit', 'speed_limit', 'current_trip',

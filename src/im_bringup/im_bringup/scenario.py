@@ -141,6 +141,33 @@ def run_metadata(task: str, strategy: str, controller: str, variation: str,
     return {k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()}
 
 
+def launch_processes(arguments: Mapping[str, str]) -> list:
+    """The processes ``ros2 launch im_bringup drive.launch.py`` starts for its arguments (strings
+    as launch gives them, '' = not given): the ``run`` file, overridden by the scenario
+    arguments given (``task``, ``strategy``, ``controller``, ``T_s``, ``duration``, ``mode``,
+    ``sensorless``, ``gains``, ``params_file``), with the recorder when ``record`` names a file
+    (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`)."""
+    import yaml
+    from im_bringup.processes import graph_processes
+    from im_bringup.run_file import Scenario
+    a = {k: str(v) for k, v in arguments.items()}
+    over = {key: yaml.safe_load(a[key]) for key in ('task', 'strategy', 'controller', 'T_s',
+                                                     'duration', 'mode', 'sensorless')
+            if a.get(key)}
+    over.update({('parameters' if key == 'params_file' else key): os.path.abspath(a[key])
+                 for key in ('gains', 'params_file') if a.get(key)})
+    sc = (Scenario.from_file(a['run'], overrides=over, override_source='launch arguments')
+          if a.get('run') else
+          Scenario.from_mapping({}, source='launch arguments', overrides=over,
+                                override_source='launch arguments'))
+    record = a.get('record') or None
+    return graph_processes(
+        scenario=sc, mode=sc.mode, record=record,
+        use_adapter={'': None, 'true': True, 'false': False}[a.get('use_adapter', '').lower()],
+        record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
+                                     scenario=sc) if record else None)
+
+
 def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
                  variation: str = 'none', record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,

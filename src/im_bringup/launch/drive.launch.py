@@ -59,7 +59,8 @@ ARGUMENTS = (
 
 
 def _processes(context):
-    from im_bringup.processes import check_processes, launch_processes
+    from im_bringup.processes import check_processes
+    from im_bringup.scenario import launch_processes
     a = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
     procs = launch_processes(a)     # with a fresh graph key, removed when ros2 launch exits
     check_processes(procs)      # what a node would refuse, refused before any process starts
