@@ -38,7 +38,7 @@ def test_launch_file_declares_the_arguments_and_uses_the_one_description():
     names = {elt.elts[0].value for elt in args.value.elts}
     assert {'task', 'strategy', 'controller', 'T_s', 'duration', 'mode', 'use_adapter',
             'record'} <= names
-    assert 'graph_processes' in src and 'OpaqueFunction' in src
+    assert 'launch_processes' in src and 'OpaqueFunction' in src
 
 
 def test_graph_processes_starts_what_the_run_needs():

@@ -47,7 +47,7 @@ def test_motor_profile_and_load_reach_every_node(files):
 
 def test_node_parameters_refuse_bad_options(files, tmp_path):
     prof, _ = files
-    with pytest.raises(ValueError, match='a speed profile for the position task'):
+    with pytest.raises(ValueError, match='is a speed profile; the task is position'):
         node_parameters('position', profile=prof)
     with pytest.raises(ValueError, match="invalid limit 'torque'"):
         node_parameters('speed', limits={'torque': 1.0})

@@ -12,6 +12,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config/runs', glob('config/runs/*.yaml')),
         ('share/' + package_name + '/config/sros2', glob('config/sros2/*.xml')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
     ],

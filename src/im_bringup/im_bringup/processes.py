@@ -55,18 +55,26 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                     extra: Optional[Mapping[str, Mapping[str, object]]] = None,
                     key_file: Optional[str] = None,
                     record_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
-                    **config) -> List[NodeProcess]:
+                    scenario=None, **config) -> List[NodeProcess]:
     """The processes of one run (see the module docstring); ``extra`` = {node: {param: value}}
     merged last (a gains or parameters YAML), ``config`` goes to
     :func:`im_bringup.config.node_parameters`. ``key_file``: the graph's key (default: a fresh
     one, :func:`im_common.auth.new_key_file`, removed when this process exits), given to every
     node as ``graph_key_file``. ``record_metadata``: named metadata records the recorder writes
     into the bag (``record --metadata``; the scenario runner's
-    :func:`im_bringup.scenario.run_metadata`)."""
+    :func:`im_bringup.scenario.run_metadata`). ``scenario``: a
+    :class:`~im_bringup.run_file.Scenario` (a run file) instead of task ... config."""
     from im_bringup.config import node_parameters
     if mode not in ('lockstep', 'free_run'):
         raise ValueError(f"invalid mode {mode!r}: lockstep or free_run")
-    params = node_parameters(task, strategy, controller, T_s=T_s, duration=duration, **config)
+    if scenario is not None:
+        params = scenario.node_parameters(**{k: config.pop(k) for k in (
+            'truth_decimation', 'reference_decimation', 'input_timeout') if k in config})
+        if config:
+            raise ValueError(f"invalid option {next(iter(config))!r} beside a scenario")
+    else:
+        params = node_parameters(task, strategy, controller, T_s=T_s, duration=duration,
+                                 **config)
     adaptive = params['controller'].get('use_adapter', False)
     if use_adapter is not None and use_adapter != adaptive:
         adaptive = bool(use_adapter)

@@ -1,13 +1,15 @@
 """``ros2 run im_bringup scenario``: one drive run — the four nodes in one process, in lock-step.
 
-Spins plant, controller, observer and adapter on a context of their own with the chosen task,
-flux strategy, controller, variation and rate; shows progress; optionally records every topic to
-MCAP and writes the report; always writes a JSON summary of the figures of merit.
+Spins plant, controller, observer and adapter on a context of their own as a run file says
+(:class:`im_bringup.run_file.Scenario`, docs/running.md; the options below override its keys);
+shows progress; optionally records every topic to MCAP (the bag carries the resolved run file as
+its ``run`` record) and writes the report; always writes a JSON summary of the figures of merit.
 
 Example::
 
-    ros2 run im_bringup scenario --task position --strategy min_loss \\
+    ros2 run im_bringup scenario RUN.yaml --set controller=adaptive \\
         --record bags/demo.mcap --report bags/demo_report
+    ros2 run im_bringup scenario --rerun bags/demo.mcap --record bags/again.mcap
 """
 from __future__ import annotations
 
@@ -18,22 +20,31 @@ import subprocess
 import sys
 from typing import Optional
 
-from im_bringup.config import (CONTROLLERS, STRATEGIES, TASKS, VARIATIONS, node_parameters,
-                               to_yaml)
+from im_bringup.config import CONTROLLERS, STRATEGIES, TASKS, to_yaml
+from im_common.params import SCHEDULES
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='scenario', description=__doc__.split('\n\n')[0])
-    ap.add_argument('--task', choices=TASKS, default='position')
-    ap.add_argument('--strategy', choices=STRATEGIES, default='min_energy')
-    ap.add_argument('--controller', choices=CONTROLLERS, default='nominal',
-                    help='nominal, or adaptive with the thesis law or the improved law')
-    ap.add_argument('--variation', choices=VARIATIONS, default='none',
-                    help='time variation of the true motor parameters (chapter4: seed 000 §4.3)')
-    ap.add_argument('--T-s', dest='T_s', type=float, default=1e-4, help='control period [s]')
+    ap.add_argument('run', nargs='?', metavar='RUN.yaml',
+                    help='run file (docs/running.md); the options below override its keys')
+    ap.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                    help='override one run-file key (YAML value; dotted for nested keys, e.g. '
+                         'noise.current=0.05); repeatable')
+    ap.add_argument('--rerun', metavar='MCAP',
+                    help='run again the run file a bag carries (its "run" record)')
+    ap.add_argument('--task', choices=TASKS, default=None, help='default: position')
+    ap.add_argument('--strategy', choices=STRATEGIES, default=None, help='default: min_energy')
+    ap.add_argument('--controller', choices=CONTROLLERS, default=None,
+                    help='nominal (default), or adaptive with the thesis law or the improved law')
+    ap.add_argument('--variation', choices=tuple(SCHEDULES), default=None,
+                    help='a named time variation of the true motor parameters (chapter4: seed '
+                         '000 §4.3); breakpoints of your own go in the run file')
+    ap.add_argument('--T-s', dest='T_s', type=float, default=None,
+                    help='control period [s] (default 1e-4)')
     ap.add_argument('--duration', type=float, default=None,
                     help='simulated seconds (default: the task length, 2.0 / 1.5 s)')
-    ap.add_argument('--v-limit', type=float, default=0.0,
+    ap.add_argument('--v-limit', type=float, default=None,
                     help='inverter voltage limit [V] shared by plant and controller (0: none)')
     ap.add_argument('--motor', metavar='YAML',
                     help='motor file (ROS 2 parameters, /**: ros__parameters: R_s, R_r, L_s, L_r, '
@@ -49,23 +60,24 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--load', metavar='YAML',
                     help='shaft load: YAML {kind: linear, c1: 1.0, c2: 0.001} (kinds none, '
                          'constant tau, pendulum mgl, linear c1 c2); default: the task\'s load')
-    ap.add_argument('--torque-limit', type=float, default=0.0, help='|tau*| bound [N m] (0: none)')
-    ap.add_argument('--current-limit', type=float, default=0.0,
+    ap.add_argument('--torque-limit', type=float, default=None, help='|tau*| bound [N m] (0: none)')
+    ap.add_argument('--current-limit', type=float, default=None,
                     help='stator-current magnitude the torque demand may ask for [A] (0: none)')
-    ap.add_argument('--speed-limit', type=float, default=0.0,
+    ap.add_argument('--speed-limit', type=float, default=None,
                     help='no torque pushes the shaft beyond this speed [rad/s] (0: none)')
-    ap.add_argument('--current-trip', type=float, default=0.0,
+    ap.add_argument('--current-trip', type=float, default=None,
                     help='plant protection: zero voltage above this |i_s| [A] (0: off)')
-    ap.add_argument('--speed-trip', type=float, default=0.0,
+    ap.add_argument('--speed-trip', type=float, default=None,
                     help='plant protection: zero voltage above this |omega_r| [rad/s] (0: off)')
-    ap.add_argument('--sensorless', action='store_true',
+    ap.add_argument('--sensorless', action='store_true', default=None,
                     help='speed-sensorless: controller, observer and adapter use the observer\'s '
                          'speed estimate, not the measured shaft (speed and torque tasks; '
                          'docs/sensorless.md)')
     ap.add_argument('--gains', metavar='YAML',
                     help='parameters YAML from `design_gains` (controller current gain, observer '
-                         'injection gain); merged over the scenario parameters')
-    ap.add_argument('--params-file', metavar='YAML', help='extra node parameters to merge')
+                         'injection gain): the run file\'s gains')
+    ap.add_argument('--params-file', metavar='YAML',
+                    help='extra node parameters to merge (the run file\'s parameters)')
     ap.add_argument('--record', metavar='MCAP', help='record every topic to this MCAP file')
     ap.add_argument('--force', action='store_true', help='overwrite an existing recording')
     ap.add_argument('--report', metavar='DIR', help='write the report of the recording here')
@@ -114,23 +126,55 @@ def package_versions() -> dict:
 
 
 def run_metadata(task: str, strategy: str, controller: str, variation: str,
-                 extra: Optional[dict] = None) -> dict:
-    """The named metadata records of a scenario's recording — ``scenario``, ``versions``,
-    ``git`` (and ``extra``) — as strings: the one source for the in-process bag and for the
+                 extra: Optional[dict] = None, scenario=None) -> dict:
+    """The named metadata records of a scenario's recording — ``scenario``, ``run`` (the
+    resolved run file, ``{'yaml': text}``, when ``scenario`` is given), ``versions``, ``git``
+    (and ``extra``) — as strings: the one source for the in-process bag and for the
     ``--processes`` recorder (``record --metadata``). ``parameters/<node>`` come from the
     running nodes (:func:`im_recording.bag.parameters_metadata`)."""
     meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
                          'variation': variation},
             'versions': package_versions(), 'git': {'revision': git_revision()}}
+    if scenario is not None:
+        meta['run'] = {'yaml': scenario.to_yaml()}
     meta.update(extra or {})
     return {k: {kk: str(vv) for kk, vv in v.items()} for k, v in meta.items()}
+
+
+def launch_processes(arguments: Mapping[str, str]) -> list:
+    """The processes ``ros2 launch im_bringup drive.launch.py`` starts for its arguments (strings
+    as launch gives them, '' = not given): the ``run`` file, overridden by the scenario
+    arguments given (``task``, ``strategy``, ``controller``, ``T_s``, ``duration``, ``mode``,
+    ``sensorless``, ``gains``, ``params_file``), with the recorder when ``record`` names a file
+    (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`)."""
+    import yaml
+    from im_bringup.processes import graph_processes
+    from im_bringup.run_file import Scenario
+    a = {k: str(v) for k, v in arguments.items()}
+    over = {key: yaml.safe_load(a[key]) for key in ('task', 'strategy', 'controller', 'T_s',
+                                                     'duration', 'mode', 'sensorless')
+            if a.get(key)}
+    over.update({('parameters' if key == 'params_file' else key): os.path.abspath(a[key])
+                 for key in ('gains', 'params_file') if a.get(key)})
+    sc = (Scenario.from_file(a['run'], overrides=over, override_source='launch arguments')
+          if a.get('run') else
+          Scenario.from_mapping({}, source='launch arguments', overrides=over,
+                                override_source='launch arguments'))
+    record = a.get('record') or None
+    return graph_processes(
+        scenario=sc, mode=sc.mode, record=record,
+        use_adapter={'': None, 'true': True, 'false': False}[a.get('use_adapter', '').lower()],
+        record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
+                                     scenario=sc) if record else None)
 
 
 def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
                  variation: str = 'none', record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,
-                 metadata: Optional[dict] = None) -> dict:
-    """Run one scenario through the lock-step graph; return its summary (figures of merit)."""
+                 metadata: Optional[dict] = None, scenario=None) -> dict:
+    """Run one scenario through the lock-step graph; return its summary (figures of merit).
+    ``scenario``: the :class:`~im_bringup.run_file.Scenario` the parameters came from (the
+    bag's ``run`` record)."""
     from im_bringup.graph import DriveGraph
     from im_recording.traces import Tap
     from im_common.stopping import StopSignals
@@ -138,7 +182,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     if record:
         from im_recording.bag import BagWriter
         writer = BagWriter(record, force=force, metadata=run_metadata(
-            task, strategy, controller, variation, metadata))
+            task, strategy, controller, variation, metadata, scenario=scenario))
     sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
     graph = None
     with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
@@ -227,34 +271,87 @@ def print_summary(s: dict) -> None:
               + ', '.join(f'{n} on {t}' for t, n in topics.items()))
 
 
+#: scenario options that override the run-file key of the same name
+OVERRIDE_OPTIONS = ('task', 'strategy', 'controller', 'variation', 'T_s', 'duration', 'v_limit',
+                    'motor', 'estimates', 'profile', 'load', 'torque_limit', 'current_limit',
+                    'speed_limit', 'current_trip', 'speed_trip', 'sensorless', 'gains')
+FILE_OPTIONS = ('motor', 'estimates', 'profile', 'load', 'gains', 'params_file')
+
+
+def plant_variation(parameters: dict) -> str:
+    """The variation the plant will really run, from its parameters (a ``parameters:``/
+    ``--params-file`` override of the plant included): what the summary and header say."""
+    from im_common.params import describe_variation
+    plant = parameters.get('plant', {})
+    name = plant.get('variation', 'none')
+    if name == 'schedule':
+        return describe_variation(json.loads(plant.get('variation_schedule') or '{}'))
+    if name == 'custom':
+        return (f"custom {plant.get('variation_parameter', 'R_r')} "
+                f"{plant.get('variation_kind', 'ramp')}")
+    return name
+
+
+def rerun_mapping(bag: str) -> dict:
+    """The run file a bag carries (its ``run`` record), as a mapping; one ValueError line when
+    the bag has none (recorded before run files, or not by this stack)."""
+    import yaml
+    from im_recording.bag import info
+    meta = info(bag).metadata
+    if 'run' not in meta or 'yaml' not in meta['run']:
+        raise ValueError(f'{bag}: no "run" record (recorded before run files existed, or not by '
+                         'the scenario runner); cannot re-run it')
+    return yaml.safe_load(meta['run']['yaml'])
+
+
+def scenario_from_args(args):
+    """The :class:`~im_bringup.run_file.Scenario` of the command line: the run file (or the
+    bag's ``run`` record with ``--rerun``), overridden by the options given and ``--set``."""
+    import yaml
+    from im_bringup.run_file import RunFileError, Scenario
+    over = {}
+    for key in OVERRIDE_OPTIONS + ('params_file',):
+        value = getattr(args, key, None)
+        if value is None:
+            continue
+        if key in FILE_OPTIONS:
+            value = os.path.abspath(value)
+        over['parameters' if key == 'params_file' else key] = value
+    for item in args.set:
+        key, eq, text = item.partition('=')
+        if not eq or not key:
+            raise RunFileError('--set', item, 'must be KEY=VALUE')
+        try:
+            over[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise RunFileError('--set', key, f'value is not YAML ({str(exc).splitlines()[0]})') \
+                from None
+    if args.rerun:
+        if args.run:
+            raise RunFileError('--rerun', args.rerun, 'takes no run file besides the bag')
+        return Scenario.from_mapping(rerun_mapping(args.rerun), source=f'{args.rerun} (run)',
+                                     overrides=over)
+    if args.run:
+        return Scenario.from_file(args.run, overrides=over)
+    return Scenario.from_mapping({}, source='command line', overrides=over)
+
+
 def main(argv=None) -> int:
     from im_common.cli import parse_args
+    from im_recording.bag import BagError
     args = parse_args(build_parser(), argv)
     try:
-        limits = {k: v for k, v in (('torque_limit', args.torque_limit),
-                                    ('current_limit', args.current_limit),
-                                    ('speed_limit', args.speed_limit)) if v}
-        protection = {k: v for k, v in (('current_trip', args.current_trip),
-                                        ('speed_trip', args.speed_trip)) if v}
-        parameters = node_parameters(args.task, args.strategy, args.controller, args.variation,
-                                     args.T_s, args.duration, args.v_limit, motor=args.motor,
-                                     estimates=args.estimates, profile=args.profile,
-                                     load=args.load, limits=limits, protection=protection,
-                                     sensorless=args.sensorless)
-    except ValueError as exc:
+        sc = scenario_from_args(args)
+        parameters = sc.node_parameters()
+    except (ValueError, BagError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
-    for extra in (args.gains, args.params_file):
-        if extra:
-            try:
-                merge_yaml(parameters, extra)
-            except ValueError as exc:
-                print(f'error: {exc}', file=sys.stderr)
-                return 2
+    args.task, args.strategy, args.controller = sc.task, sc.strategy, sc.controller
+    args.T_s, args.duration, args.variation = sc.T_s, sc.duration, plant_variation(parameters)
     from im_recording.bag import check_output, write_atomic
     if args.write_params:
         try:
-            check_output(args.write_params, [args.gains, args.params_file], args.force,
+            check_output(args.write_params, [args.gains, args.params_file, args.run], args.force,
                          what='--write-params file')
             write_atomic(args.write_params, to_yaml(parameters))
         except OSError as exc:
@@ -268,7 +365,7 @@ def main(argv=None) -> int:
         return 2
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
-    inputs = [args.gains, args.params_file]
+    inputs = [args.gains, args.params_file, args.run, args.rerun]
     try:
         if args.record:
             if _same(args.record, out):
@@ -286,13 +383,13 @@ def main(argv=None) -> int:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     if args.processes:
-        return _run_processes(args, parameters, out)
-    from im_recording.bag import BagError
+        return _run_processes(args, sc, parameters, out)
     try:
         summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
                                controller=args.controller, variation=args.variation,
                                record=args.record, force=args.force,
-                               progress=not args.no_progress, domain_id=args.domain_id)
+                               progress=not args.no_progress, domain_id=args.domain_id,
+                               scenario=sc)
     except (ValueError, FileExistsError, rclpy_errors()) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
@@ -357,7 +454,7 @@ def _write_report(record: str, report: str) -> int:
     return 0
 
 
-def _run_processes(args, parameters: dict, out: str) -> int:
+def _run_processes(args, sc, parameters: dict, out: str) -> int:
     """``--processes``: the scenario's nodes as separate processes (``im_bringup.processes``, what
     ``ros2 launch im_bringup drive.launch.py`` starts) plus the recorder; the figures come from
     the recording, by the report's own code."""
@@ -368,12 +465,11 @@ def _run_processes(args, parameters: dict, out: str) -> int:
     from im_recording.report import figures_of_merit
     from im_recording.run import load_run
     from im_common.lockstep import ConfigurationError
-    procs = graph_processes(args.task, args.strategy, args.controller, T_s=args.T_s,
-                            duration=args.duration, mode=parameters['plant'].get('mode',
-                                                                                'lockstep'),
+    procs = graph_processes(scenario=sc, mode=parameters['plant'].get('mode', 'lockstep'),
                             record=args.record, extra=parameters,
                             record_metadata=run_metadata(args.task, args.strategy,
-                                                         args.controller, args.variation))
+                                                         args.controller, args.variation,
+                                                         scenario=sc))
     try:            # what a node's own process would refuse, before any process starts
         check_processes(procs)
     except ConfigurationError as exc:

@@ -10,7 +10,10 @@ Use it from a ``conftest.py``::
 
 Each call builds a fresh :class:`im_bringup.graph.DriveGraph` on its own ``Context`` and DDS
 domain, runs it to the end in lock-step, tears it down, and returns the summary (figures of merit)
-with the traces. Extra node parameters go in ``parameters={'plant': {...}, ...}``.
+with the traces. Extra node parameters go in ``parameters={'plant': {...}, ...}``. A run file
+(docs/running.md) is given as ``scenario=`` (a path or an :class:`im_bringup.run_file.Scenario`)::
+
+    result = drive_graph(scenario='runs/drift.yaml')
 """
 from __future__ import annotations
 
@@ -31,22 +34,33 @@ class GraphResult:
 def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: str = 'nominal',
               variation: str = 'none', T_s: float = 1e-4, duration: Optional[float] = None,
               parameters: Optional[dict] = None, nodes=None, record: Optional[str] = None,
-              beside=None, **config) -> GraphResult:
+              beside=None, scenario=None, **config) -> GraphResult:
     """Run one scenario in-process and return its summary and traces.
 
-    ``beside(domain_id)``: a context manager entered while the graph runs (e.g. your own node,
-    or a foreign one, on the graph's ROS domain)."""
+    ``scenario``: a run file path or :class:`~im_bringup.run_file.Scenario` (then task ...
+    config are not given). ``beside(domain_id)``: a context manager entered while the graph
+    runs (e.g. your own node, or a foreign one, on the graph's ROS domain)."""
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
-    from im_bringup.scenario import summarize
+    from im_bringup.run_file import Scenario
+    from im_bringup.scenario import plant_variation, run_metadata, summarize
     from im_recording.traces import Tap
-    params = node_parameters(task, strategy, controller, variation, T_s, duration, **config)
+    if isinstance(scenario, str):
+        scenario = Scenario.from_file(scenario)
+    if scenario is not None:
+        params = scenario.node_parameters(**config)
+        task, strategy, controller = scenario.task, scenario.strategy, scenario.controller
+        variation = scenario.variation_label
+    else:
+        params = node_parameters(task, strategy, controller, variation, T_s, duration, **config)
     for node, values in (parameters or {}).items():
         params.setdefault(node, {}).update(values)
+    variation = plant_variation(params)
     writer = None
     if record:
         from im_recording.bag import BagWriter
-        writer = BagWriter(record, force=True)
+        writer = BagWriter(record, force=True, metadata=run_metadata(
+            task, strategy, controller, variation, scenario=scenario))
     sink = Tap(writer)
     graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink)
     try:

@@ -1,10 +1,13 @@
 """Jazzy launch file: the drive graph as separate processes.
 
-    ros2 launch im_bringup drive.launch.py [task:=position|speed] [strategy:=min_energy|...]
+    ros2 launch im_bringup drive.launch.py [run:=RUN.yaml] [task:=position|speed] [strategy:=min_energy|...]
         [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair] [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
         [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true] [sensorless:=true]
 
+``run`` names a run file (docs/running.md: the run's every key, variation and noise included);
+the scenario arguments given (task, strategy, controller, T_s, duration, mode, gains, params_file,
+sensorless) override its keys, as ``scenario RUN.yaml --task ...`` does.
 Which processes start, with which parameters, comes from :func:`im_bringup.processes.
 graph_processes` — the same description the project's tests start the graph from: plant,
 controller, observer; the adapter when the controller uses it; the recorder (a lossless follower)
@@ -32,20 +35,21 @@ from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 ARGUMENTS = (
-    ('task', 'position', 'position or speed (seed 000 §3.4.4-3.4.5)'),
-    ('strategy', 'min_energy', 'flux strategy: min_energy, constant_flux, min_loss or optimal'),
-    ('controller', 'nominal', 'nominal, adaptive (improved law, inverse-Gamma feed), '
+    ('run', '', 'run file (docs/running.md); the arguments below that are given override it'),
+    ('task', '', 'position (default), speed or torque (seed 000 §3.4.4-3.4.5)'),
+    ('strategy', '', 'flux strategy: min_energy (default), constant_flux, min_loss or optimal'),
+    ('controller', '', 'nominal (default), adaptive (improved law, inverse-Gamma feed), '
                    'adaptive_thesis (thesis law) or adaptive_thesis_pair (improved law, thesis '
                    'pair feed)'),
-    ('T_s', '0.0001', 'control period [s]'),
+    ('T_s', '', 'control period [s] (default 0.0001)'),
     ('duration', '', 'simulated seconds (empty: the task length)'),
-    ('mode', 'lockstep', 'lockstep (simulated time) or free_run (wall-clock fixed rate)'),
+    ('mode', '', 'lockstep (default, simulated time) or free_run (wall-clock fixed rate)'),
     ('use_adapter', '', 'true/false: controller and observer use the adapter (empty: as '
                         'the controller argument implies)'),
     ('record', '', 'MCAP file to record the run to (empty: no recorder)'),
     ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),
     ('params_file', '', 'extra parameters YAML merged last'),
-    ('sensorless', 'false', 'true: speed-sensorless, controller/observer/adapter use the '
+    ('sensorless', '', 'true: speed-sensorless, controller/observer/adapter use the '
                             "observer's speed estimate, not the measured shaft (speed and torque "
                             'tasks; docs/sensorless.md)'),
     ('security', 'false', 'true: start each node in its SROS2 enclave /im_drive/<node> (needs a '
@@ -55,19 +59,10 @@ ARGUMENTS = (
 
 
 def _processes(context):
-    from im_bringup.processes import check_processes, graph_processes, load_params_yaml
+    from im_bringup.processes import check_processes
+    from im_bringup.scenario import launch_processes
     a = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
-    extra = {}
-    for key in ('gains', 'params_file'):
-        if a[key]:
-            for node, values in load_params_yaml(a[key]).items():
-                extra.setdefault(node, {}).update(values)
-    procs = graph_processes(       # with a fresh graph key, removed when ros2 launch exits
-        task=a['task'], strategy=a['strategy'], controller=a['controller'],
-        T_s=float(a['T_s']), duration=float(a['duration']) if a['duration'] else None,
-        mode=a['mode'], record=a['record'] or None, extra=extra,
-        use_adapter={'': None, 'true': True, 'false': False}[a['use_adapter'].lower()],
-        sensorless=a['sensorless'].lower() == 'true')
+    procs = launch_processes(a)     # with a fresh graph key, removed when ros2 launch exits
     check_processes(procs)      # what a node would refuse, refused before any process starts
     secure = a['security'].lower() == 'true'
     return [Node(package=p.package, executable=p.executable, name=p.name,

@@ -607,16 +607,11 @@ class ParameterSchedule:
 
 
 def chapter4_schedule(base: MotorParams = THESIS_MOTOR) -> ParameterSchedule:
-    """Seed 000 §4.3 variation profile.
+    """Seed 000 §4.3 variation profile, as a breakpoint variation (:data:`CHAPTER4_VARIATION`).
 
     R_r = 0.42 t + 0.42, L_s = L_r = 0.1 + 0.016 sin(πt), L_sr = 0.097 + 0.016 sin(πt).
     """
-    return ParameterSchedule(base, {
-        'R_r': ramp(0.42, 0.42),
-        'L_s': sinusoid(0.1, 0.016, math.pi),
-        'L_r': sinusoid(0.1, 0.016, math.pi),
-        'L_sr': sinusoid(0.097, 0.016, math.pi),
-    }, name='chapter4')
+    return variation_schedule(base, CHAPTER4_VARIATION, name='chapter4')
 
 
 def single_variation_schedule(name: str, factor: float, base: MotorParams = THESIS_MOTOR
@@ -628,7 +623,171 @@ def single_variation_schedule(name: str, factor: float, base: MotorParams = THES
                              name=f'{name}x{factor:g}')
 
 
+#: Seed 000 §4.3 in the run file's ``variation:`` form (SI values; 0.5 Hz = π rad/s; the ramp
+#: 0.42 t + 0.42 written up to 1000 s); the shipped run file config/runs/chapter4.yaml holds the same
+CHAPTER4_VARIATION = {
+    'R_r': [{'t': 0.0, 'value': 0.42, 'shape': 'step'},
+            {'t': 1000.0, 'value': 420.42, 'shape': 'ramp'}],
+    'L_s': [{'t': 0.0, 'value': 0.1, 'shape': 'step'}, {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
+    'L_r': [{'t': 0.0, 'value': 0.1, 'shape': 'step'}, {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
+    'L_sr': [{'t': 0.0, 'value': 0.097, 'shape': 'step'},
+             {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
+}
+
 SCHEDULES = {
     'none': lambda base=THESIS_MOTOR: ParameterSchedule(base),
     'chapter4': chapter4_schedule,
 }
+
+
+# Breakpoint schedules (the run file's ``variation:``; docs/running.md) -------------------------
+BREAKPOINT_SHAPES = ('step', 'ramp')
+
+
+class Breakpoints:
+    """One parameter's value in time from breakpoints and optional sine terms (``value(t)``,
+    ``rate(t)``, as :class:`Variation`).
+
+    ``points``: ((t, level, shape), ...) with t strictly increasing; ``step`` jumps to the level
+    at t, ``ramp`` goes linearly from the previous breakpoint (the first from (0, ``start``)).
+    Before the first breakpoint the level is ``start``, after the last it holds. ``sines``:
+    ((amplitude, frequency [Hz], phase [rad]), ...) added to the level. ``unit`` multiplies
+    the whole (the motor file's value for ``scale`` breakpoints, 1 for ``value`` ones).
+    """
+
+    def __init__(self, points, sines=(), start: float = 1.0, unit: float = 1.0):
+        self.points = tuple((float(t), float(v), s) for t, v, s in points)
+        self.sines = tuple((float(a), 2.0 * math.pi * float(f), float(p)) for a, f, p in sines)
+        self.start = float(start)
+        self.unit = float(unit)
+
+    def _level(self, t: float):
+        """(level, d level/dt) of the breakpoints at t."""
+        prev_t, prev_v = 0.0, self.start
+        for t_i, v_i, shape in self.points:
+            if t < t_i:
+                if shape == 'ramp' and t >= prev_t and t_i > prev_t:
+                    slope = (v_i - prev_v) / (t_i - prev_t)
+                    return prev_v + slope * (t - prev_t), slope
+                return prev_v, 0.0
+            prev_t, prev_v = t_i, v_i
+        return prev_v, 0.0
+
+    def value(self, t: float) -> float:
+        v, _ = self._level(t)
+        for a, w, p in self.sines:
+            v = v + a * math.sin(w * t + p)
+        return v if self.unit == 1.0 else self.unit * v
+
+    def rate(self, t: float) -> float:
+        _, r = self._level(t)
+        for a, w, p in self.sines:
+            r = r + a * w * math.cos(w * t + p)
+        return r if self.unit == 1.0 else self.unit * r
+
+
+def _spec_number(where: str, value, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InvalidParameter(where, value, 'must be a finite number')
+    if positive and value <= 0:
+        raise InvalidParameter(where, value, 'must be > 0')
+    return float(value)
+
+
+def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
+    """The validated, normalized form of a breakpoint variation ``{parameter: [item, ...]}``
+    (docs/running.md): items ``{t, scale|value, shape}`` (shape step by default) and
+    ``{sine, frequency, phase}``. Errors are :class:`InvalidParameter` named by the key path,
+    e.g. ``variation.R_r[0].shape``."""
+    if spec is None:
+        return {}
+    if not isinstance(spec, Mapping):
+        raise InvalidParameter(where, spec, 'must be a mapping {parameter: [breakpoints]} or a '
+                               f'name ({", ".join(SCHEDULES)})')
+    out: Dict[str, list] = {}
+    for name, items in spec.items():
+        key = f'{where}.{name}'
+        if name not in ELECTRICAL_NAMES:
+            raise InvalidParameter(key, items, f'only {", ".join(ELECTRICAL_NAMES)} can vary in time')
+        if not isinstance(items, (list, tuple)) or not items:
+            raise InvalidParameter(key, items, 'must be a non-empty list of breakpoints')
+        clean, unit_kind, last_t = [], None, None
+        for k, item in enumerate(items):
+            at = f'{key}[{k}]'
+            if not isinstance(item, Mapping):
+                raise InvalidParameter(at, item, 'must be a mapping {t, scale, shape} or '
+                                                 '{sine, frequency, phase}')
+            if 'sine' in item:
+                unknown = [x for x in item if x not in ('sine', 'frequency', 'phase')]
+                if unknown:
+                    raise InvalidParameter(f'{at}.{unknown[0]}', item[unknown[0]],
+                                           'unknown in a sine term (sine, frequency, phase)')
+                if 'frequency' not in item:
+                    raise InvalidParameter(f'{at}.frequency', None, 'is missing (Hz)')
+                clean.append({'sine': _spec_number(f'{at}.sine', item['sine']),
+                              'frequency': _spec_number(f'{at}.frequency', item['frequency'], True),
+                              'phase': _spec_number(f'{at}.phase', item.get('phase', 0.0))})
+                continue
+            unknown = [x for x in item if x not in ('t', 'scale', 'value', 'shape')]
+            if unknown:
+                raise InvalidParameter(f'{at}.{unknown[0]}', item[unknown[0]],
+                                       'unknown in a breakpoint (t, scale or value, shape)')
+            if 't' not in item:
+                raise InvalidParameter(f'{at}.t', None, 'is missing (s)')
+            t = _spec_number(f'{at}.t', item['t'])
+            if t < 0:
+                raise InvalidParameter(f'{at}.t', t, 'must be >= 0')
+            if last_t is not None and t <= last_t:
+                raise InvalidParameter(f'{at}.t', t, f'must be after the previous breakpoint ({last_t:g} s)')
+            kinds = [x for x in ('scale', 'value') if x in item]
+            if len(kinds) != 1:
+                raise InvalidParameter(at, dict(item), 'needs exactly one of scale (x the motor '
+                                                       "file's value) or value (SI)")
+            if unit_kind is not None and kinds[0] != unit_kind:
+                raise InvalidParameter(f'{at}.{kinds[0]}', item[kinds[0]],
+                                       f'all breakpoints of {name} use one of scale or value')
+            unit_kind = kinds[0]
+            shape = item.get('shape', 'step')
+            if shape not in BREAKPOINT_SHAPES:
+                raise InvalidParameter(f'{at}.shape', shape, 'must be step or ramp')
+            clean.append({'t': t, unit_kind: _spec_number(f'{at}.{unit_kind}', item[unit_kind]),
+                          'shape': shape})
+            last_t = t
+        out[name] = clean
+    return out
+
+
+def variation_schedule(base: MotorParams, spec, name: Optional[str] = None) -> ParameterSchedule:
+    """The :class:`ParameterSchedule` of a breakpoint variation (:func:`normalize_variation`)
+    over the motor ``base``: ``scale`` levels multiply the motor's value, ``value`` levels are SI;
+    before the first breakpoint a parameter keeps the motor's value."""
+    spec = normalize_variation(spec)
+    variations = {}
+    for pname, items in spec.items():
+        base_value = getattr(base, pname)
+        by_value = any('value' in i for i in items)
+        points = [(i['t'], i['value' if by_value else 'scale'], i['shape'])
+                  for i in items if 'sine' not in i]
+        sines = [(i['sine'], i['frequency'], i['phase']) for i in items if 'sine' in i]
+        variations[pname] = Breakpoints(points, sines, start=base_value if by_value else 1.0,
+                                        unit=1.0 if by_value else base_value)
+    return ParameterSchedule(base, variations, name=name or describe_variation(spec))
+
+
+def describe_variation(spec) -> str:
+    """A one-line account of a breakpoint variation (summaries, console headers)."""
+    spec = normalize_variation(spec)
+    if not spec:
+        return 'none'
+    parts = []
+    for pname in (n for n in ELECTRICAL_NAMES if n in spec):     # one order on every path
+        items = spec[pname]
+        terms = []
+        for i in items:
+            if 'sine' in i:
+                terms.append(f"+{i['sine']:g} sin {i['frequency']:g} Hz")
+            else:
+                level = f"x{i['scale']:g}" if 'scale' in i else f"{i['value']:g}"
+                terms.append(f"{i['shape']} {level} at {i['t']:g} s")
+        parts.append(f"{pname} " + ', '.join(terms))
+    return '; '.join(parts)

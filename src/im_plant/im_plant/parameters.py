@@ -10,7 +10,7 @@ from im_common.loads import LOAD_KINDS, make_load
 from im_common.model import stator_flux
 from im_common.node_params import declare_motor
 from im_common.params import (ELECTRICAL_NAMES, SCHEDULES, MotorParams, ParameterSchedule,
-                              RATED, Variation)
+                              RATED, Variation, variation_schedule)
 from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
 
 STEPPING_MODES = ('lockstep', 'free_run')
@@ -22,9 +22,14 @@ def declare_plant(node) -> dict:
     p = node.param
     v = {'motor': declare_motor(node)}
     v['variation'] = p('variation', 'none',
-                       'time variation of the true parameters (custom: one parameter varied as '
-                       'variation_kind with the variation_* values below)',
-                       choices=tuple(SCHEDULES) + ('custom',))
+                       'time variation of the true parameters (schedule: the breakpoints of '
+                       'variation_schedule; custom: one parameter varied as variation_kind with '
+                       'the variation_* values below)',
+                       choices=tuple(SCHEDULES) + ('schedule', 'custom'))
+    v['variation_schedule'] = p('variation_schedule', '',
+                                "variation schedule: the run file's variation as JSON, "
+                                '{parameter: [{t, scale|value, shape}, {sine, frequency, phase}]} '
+                                '(docs/running.md)')
     v['variation_parameter'] = p('variation_parameter', 'R_r', 'custom variation: which parameter',
                                  choices=ELECTRICAL_NAMES)
     v['variation_kind'] = p('variation_kind', 'ramp',
@@ -94,7 +99,18 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
                              f"the motor's rating")
         elif v[key] == 0:
             v[key] = None
-    if v['variation'] == 'custom':
+    if v['variation'] == 'schedule':
+        import json
+        try:
+            spec = json.loads(v['variation_schedule'] or 'null')
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"invalid parameter 'variation_schedule': not JSON ({exc.msg})") \
+                from None
+        if not spec:
+            raise ValueError("invalid parameter 'variation_schedule': empty, but variation is "
+                             "'schedule'")
+        schedule = variation_schedule(motor, spec)
+    elif v['variation'] == 'custom':
         schedule = ParameterSchedule(motor, {v['variation_parameter']: Variation(
             v['variation_kind'], v['variation_offset'], slope=v['variation_slope'],
             amplitude=v['variation_amplitude'], omega=v['variation_omega'])}, name='custom')

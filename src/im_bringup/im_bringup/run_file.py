@@ -1,0 +1,620 @@
+"""The run file: one frozen, validated :class:`Scenario` describes a whole run (ROS-free).
+
+Every way of running takes it — ``ros2 run im_bringup scenario RUN.yaml [--set key=value]``
+(in one process or ``--processes``), ``ros2 launch im_bringup drive.launch.py run:=RUN.yaml``,
+the test fixture (:mod:`im_bringup.testing`), the ROS-free loop (:func:`im_bringup.offline.
+simulate`) and Python. Its keys are the ``scenario`` options' long names with underscores plus
+``variation`` (breakpoints of any electrical motor parameter) and ``noise`` (docs/running.md)::
+
+    task: position
+    controller: adaptive
+    variation:
+      R_r:  [{t: 0.5, scale: 2.0, shape: step}]
+      L_sr: [{t: 0.0, scale: 1.0}, {t: 2.0, scale: 0.8, shape: ramp}]
+    noise: {current: 0.05, speed: 0.05, seed: 1}
+
+:meth:`Scenario.from_file` / :meth:`Scenario.from_mapping` read it (an error is one line naming
+the file and the key, e.g. ``run.yaml: variation.R_r[0].shape: must be step or ramp``),
+:meth:`Scenario.to_mapping` / :meth:`Scenario.to_yaml` write it back fully resolved (motor, load,
+profile, gains inline: what every bag carries as its ``run`` record), and
+:meth:`Scenario.node_parameters` gives the four nodes' ROS parameters.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, fields, replace
+from typing import Dict, Mapping, Optional
+
+import numpy as np
+
+from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
+from im_common.params import (CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR, InvalidParameter,
+                              MotorParams, ParameterSchedule, describe_variation,
+                              load_motor_file, motor_from_dict, normalize_variation,
+                              variation_schedule)
+from im_controller.control_law import ControllerConfig, MODES, steady_start
+from im_controller.flux import STRATEGIES
+from im_controller.profiles import KINDS, MODE_KIND, Profile, from_setpoints, load_profile
+from im_observer.speed_observer import POSITION_NEEDS_SENSOR
+from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
+
+TASKS = MODES                                      # the task names' one home: the control law
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
+# the adaptive controllers: the adapter's law and what the controller and observer take from it
+# (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
+ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},
+              'adaptive': {'law': 'improved', 'feed': 'inverse_gamma'},
+              'adaptive_thesis_pair': {'law': 'improved', 'feed': 'thesis_pair'}}
+
+# Seed 000 §3.4.4-3.4.5: each task's load, initial shaft state and length.
+# The position task starts at rest, demagnetized, pendulum hanging (τ_L = 0). The speed task's
+# reference starts at 135 rad/s with 2.49 N·m of load that a demagnetized motor cannot carry, so
+# it starts in the controller's own steady state there ('steady', see im_bringup.offline).
+TASK_PRESETS = {
+    'position': {'load': 'pendulum', 'load_mgl': 10.0, 'theta0': -math.pi / 2, 'omega0': 0.0,
+                 'start': 'rest', 'duration': 2.0},
+    'speed': {'load': 'linear', 'load_c1': 1.0, 'load_c2': 0.001, 'theta0': 0.0, 'omega0': 135.0,
+              'start': 'steady', 'duration': 1.5},
+    # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
+    'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
+}
+TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
+                        "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
+
+
+def motor_parameters(motor) -> Dict[str, object]:
+    """The node parameters of a motor (every field ``declare_motor`` declares)."""
+    return {k: (int(v) if k == 'pole_pairs' else float(v)) for k, v in motor.as_dict().items()}
+
+
+CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weakening',
+                     'voltage_margin', 'current_margin')
+PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
+
+START_MODES = ('rest', 'steady')
+DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
+#: limits and trips where 0 means "none" on the command line and in a run file
+ZERO_IS_NONE = ('v_limit', 'torque_limit', 'current_limit', 'speed_limit', 'current_trip',
+                'speed_trip')
+NOISE_KEYS = {'current': 'current_noise_std', 'speed': 'speed_noise_std', 'seed': 'noise_seed'}
+NODES = ('plant', 'controller', 'observer', 'adapter')
+
+
+class RunFileError(ValueError):
+    """A run file (or an override) that cannot be used: ``<source>: <key>: <reason>``."""
+
+    def __init__(self, source: str, key: str, reason: str):
+        self.source, self.key, self.reason = source, key, reason
+        super().__init__(f'{source}: {key}: {reason}')
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One closed-loop run. Units SI; None picks the task default (docs/running.md).
+
+    Built from keywords (Python) or a run file (:meth:`from_file`); frozen: derive variants
+    with :func:`dataclasses.replace`. ``motor``/``estimates``/``profile``/``load_model`` take the
+    object or a file path; ``variation`` is a name of :data:`im_common.params.SCHEDULES` or a
+    breakpoint mapping; ``gains`` and ``parameters`` are {node: {parameter: value}}.
+    """
+
+    task: str = 'position'
+    strategy: str = 'min_energy'
+    T_s: float = 1e-4
+    duration: Optional[float] = None
+    variation: object = 'none'
+    controller: str = 'nominal'
+    v_limit: Optional[float] = None
+    current_gain: Optional[list] = None
+    observer_gain: Optional[list] = None
+    k_e: Optional[float] = None
+    current_noise_std: float = 0.0
+    speed_noise_std: float = 0.0
+    noise_seed: int = 0
+    start: Optional[str] = None
+    theta0: Optional[float] = None
+    omega0: Optional[float] = None
+    core_loss_exponent: float = 2.0
+    plant_substep: float = 1e-4
+    observer_substep: float = 1e-4
+    controller_options: dict = field(default_factory=dict)
+    schedule: Optional[ParameterSchedule] = None   # overrides ``variation`` (ROS-free loop only)
+    motor: Optional[MotorParams] = None       # the plant's motor (None: the thesis motor)
+    estimates: Optional[MotorParams] = None   # the controller/observer model (None: = motor)
+    profile: Optional[Profile] = None         # setpoints of one's own (None: thesis profile)
+    load_model: Optional[Load] = None         # shaft load (None: the task's thesis load)
+    inverter_rating: Optional[float] = None   # plant's inverter limit [V] (None: plant default)
+    sensorless: bool = False                  # controller/observer use no measured speed/position
+    speed_observer_options: dict = field(default_factory=dict)  # SpeedAdaptiveObserver keywords
+    torque_limit: Optional[float] = None      # controller limits (None: none)
+    current_limit: Optional[float] = None
+    speed_limit: Optional[float] = None
+    current_trip: Optional[float] = None      # plant protection (None: off)
+    speed_trip: Optional[float] = None
+    gains: Optional[dict] = None              # design_gains output {controller: .., observer: ..}
+    mode: str = 'lockstep'                    # the plant's stepping (graph runs)
+    parameters: Optional[dict] = None         # extra node parameters, merged last (graph runs)
+
+    def __post_init__(self):
+        put = object.__setattr__
+        for name, read in (('motor', load_motor_file), ('estimates', load_motor_file),
+                           ('profile', load_profile), ('load_model', load_file)):
+            if isinstance(getattr(self, name), str):
+                put(self, name, read(getattr(self, name)))
+        if self.task not in TASKS:
+            raise InvalidParameter('task', self.task, f'must be one of {", ".join(TASKS)}')
+        if self.strategy not in STRATEGIES:
+            raise InvalidParameter('strategy', self.strategy,
+                                   f'must be one of {", ".join(STRATEGIES)}')
+        if self.controller not in CONTROLLERS:
+            raise InvalidParameter('controller', self.controller,
+                                   f'must be one of {", ".join(CONTROLLERS)}')
+        if self.mode not in STEPPING_MODES:
+            raise InvalidParameter('mode', self.mode, f'must be one of {", ".join(STEPPING_MODES)}')
+        if isinstance(self.variation, Mapping):
+            put(self, 'variation', normalize_variation(self.variation) or 'none')
+        elif self.schedule is None and self.variation not in SCHEDULES:
+            raise InvalidParameter('variation', self.variation,
+                                   f'must be one of {", ".join(SCHEDULES)} or a mapping '
+                                   '{parameter: [breakpoints]}')
+        if not (isinstance(self.T_s, (int, float)) and math.isfinite(self.T_s) and self.T_s > 0):
+            raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
+        if self.sensorless and self.task == 'position':
+            raise InvalidParameter('sensorless', True, POSITION_NEEDS_SENSOR)
+        if self.task == 'torque' and self.profile is None:
+            raise InvalidParameter('profile', None, TORQUE_NEEDS_PROFILE)
+        if self.profile is not None and self.profile.mode != self.task:
+            raise InvalidParameter('profile', self.profile.source,
+                                   f'is a {self.profile.mode} profile; the task is {self.task}')
+        for name in ('current_noise_std', 'speed_noise_std'):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 \
+                    or not math.isfinite(v):
+                raise InvalidParameter(name, v, 'must be a standard deviation >= 0')
+        for name in ZERO_IS_NONE + ('inverter_rating',):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                  or not (math.isfinite(v) and v > 0)):
+                raise InvalidParameter(name, v, 'must be > 0 (or none)')
+        if self.duration is None:
+            put(self, 'duration', DEFAULT_DURATION[self.task] if self.profile is None
+                else self.profile.end_time + 1.0)
+        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration)
+                and self.duration > 0):
+            raise InvalidParameter('duration', self.duration, 'must be > 0 s')
+        preset = TASK_PRESETS[self.task]
+        if self.start is None:
+            put(self, 'start', preset['start'])
+        if self.start not in START_MODES:
+            raise InvalidParameter('start', self.start, f'must be one of {", ".join(START_MODES)}')
+        start_value = self.profile.start_value if self.profile is not None else None
+        if self.theta0 is None:
+            put(self, 'theta0', start_value if self.task == 'position' and start_value is not None
+                else preset['theta0'])
+        if self.omega0 is None:
+            put(self, 'omega0', start_value if self.task == 'speed' and start_value is not None
+                else preset['omega0'])
+        if self.gains:
+            self._check_gains()
+        for node in (self.parameters or {}):
+            if node not in NODES:
+                raise InvalidParameter(f'parameters.{node}', self.parameters[node],
+                                       f'unknown node (one of {", ".join(NODES)})')
+        if isinstance(self.variation, dict):     # the schedule must stay a motor over the run
+            self.plant_schedule().validate(self.duration)
+
+    def _check_gains(self) -> None:
+        gain_arguments_from_parameters(self.gains)
+        for node in ('controller', 'observer'):
+            period = self.gains.get(node, {}).get('gain_period')
+            if period is not None and abs(float(period) - self.T_s) > 1e-12:
+                raise InvalidParameter(f'gains.{node}.gain_period', period,
+                                       f'the gains were designed for another period than '
+                                       f'T_s = {self.T_s:g} s')
+
+    # The model of the run ------------------------------------------------------------------
+    @property
+    def variation_label(self) -> str:
+        """What the summary and the console header say about the variation."""
+        if isinstance(self.variation, dict):
+            return describe_variation(self.variation)
+        return str(self.variation)
+
+    def plant_motor(self) -> MotorParams:
+        return self.motor if self.motor is not None else THESIS_MOTOR
+
+    def plant_schedule(self) -> ParameterSchedule:
+        if self.schedule is not None:
+            return self.schedule
+        if isinstance(self.variation, dict):
+            return variation_schedule(self.plant_motor(), self.variation)
+        return SCHEDULES[self.variation](self.plant_motor())
+
+    def model_estimates(self) -> MotorParams:
+        """The controller's and observer's motor model: explicit ``estimates``, else the
+        chapter-4 estimates under that named variation, else the plant's own motor."""
+        if self.estimates is not None:
+            return self.estimates
+        if self.variation == 'chapter4':
+            return CHAPTER4_ESTIMATES
+        return self.plant_motor()
+
+    def plant_load(self) -> Load:
+        if self.load_model is not None:
+            return self.load_model
+        p = TASK_PRESETS[self.task]
+        return make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
+                         c2=p.get('load_c2', 0.001))
+
+    def limits(self) -> dict:
+        """The controller limits that are set (torque/current/speed and the margins)."""
+        out = {k: getattr(self, k) for k in ('torque_limit', 'current_limit', 'speed_limit')
+               if getattr(self, k) is not None}
+        out.update({k: v for k, v in self.controller_options.items() if k in CONTROLLER_LIMITS})
+        return out
+
+    def gain_arguments(self) -> dict:
+        """current_gain, observer_gain, k_e, controller_options of the ROS-free loop (explicit
+        fields first, then the ``gains`` mapping)."""
+        kw = gain_arguments_from_parameters(self.gains) if self.gains else {}
+        out = {'current_gain': self.current_gain if self.current_gain is not None
+               else kw.get('current_gain'),
+               'observer_gain': self.observer_gain if self.observer_gain is not None
+               else kw.get('observer_gain'),
+               'k_e': self.k_e if self.k_e is not None else kw.get('k_e')}
+        out['controller_options'] = dict(kw.get('controller_options', {}), **self.controller_options)
+        return out
+
+    def initial_state(self):
+        """(plant x0 or None, observer x̂_0): at rest demagnetized, or ('steady') in the
+        controller's own steady state at (θ0, ω0) — plant and observer both start there."""
+        if self.start != 'steady':
+            return None, (0.0, 0.0, 0.0, 0.0)
+        return steady_start(self.controller_config(), self.plant_schedule().params_at(0.0),
+                            self.theta0, self.omega0)
+
+    def controller_config(self) -> ControllerConfig:
+        g = self.gain_arguments()
+        opts = dict(g['controller_options'])
+        opts.setdefault('core_loss_exponent', self.core_loss_exponent)
+        opts.setdefault('horizon', self.duration)   # the run's end: the optimal strategy's plan
+        for key in ('torque_limit', 'current_limit', 'speed_limit'):
+            if getattr(self, key) is not None:
+                opts.setdefault(key, getattr(self, key))
+        if self.profile is not None:
+            opts.setdefault('profile', 'setpoint')
+            opts.setdefault('setpoints', self.profile.setpoints)
+        for key, value in load_parameters(self.plant_load()).items():
+            opts.setdefault(key, value)
+        return ControllerConfig(mode=self.task, strategy=self.strategy,
+                                params=self.model_estimates(), v_limit=self.v_limit,
+                                current_gain=g['current_gain'], T_s=self.T_s, **opts)
+
+    # The graph's parameters ----------------------------------------------------------------
+    def node_parameters(self, truth_decimation: int = 10, reference_decimation: int = 10,
+                        input_timeout: float = 5.0) -> Dict[str, Dict[str, object]]:
+        """Parameters of the four nodes ({node: {parameter: value}}, a ROS 2 parameters file's
+        structure; no ROS import). Without motor, estimates, profile, load, limits, noise or
+        gains the thesis scenario of the task."""
+        if self.schedule is not None:
+            raise InvalidParameter('schedule', self.schedule.name,
+                                   'a schedule object runs on the ROS-free loop only; write it '
+                                   'as a variation mapping for the graph')
+        unknown = [k for k in self.controller_options if k not in CONTROLLER_LIMITS
+                   and k != 'flux_coupling']
+        if unknown:
+            raise InvalidParameter(f'controller_options.{unknown[0]}',
+                                   self.controller_options[unknown[0]],
+                                   'runs on the ROS-free loop only (the graph takes '
+                                   f'{", ".join(CONTROLLER_LIMITS)}, flux_coupling)')
+        limits = self.limits()
+        protection = {k: getattr(self, k) for k in PLANT_PROTECTION if getattr(self, k) is not None}
+        common = {'T_s': float(self.T_s), 'duration': float(self.duration),
+                  'input_timeout': float(input_timeout)}
+        v_limit = float(self.v_limit or 0.0)
+        if self.load_model is not None:
+            lp = load_parameters(self.load_model)
+        else:
+            lp = {k: v for k, v in TASK_PRESETS[self.task].items()
+                  if k in ('load', 'load_mgl', 'load_c1', 'load_c2', 'load_tau')}
+        mine = motor_parameters(self.motor) if self.motor is not None else {}
+        model_values = dict(mine)
+        if self.estimates is not None:
+            model_values = motor_parameters(self.estimates)
+        elif self.variation == 'chapter4':
+            model_values.update({k: getattr(CHAPTER4_ESTIMATES, k)
+                                 for k in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')})
+        if isinstance(self.variation, dict):
+            variation = {'variation': 'schedule',
+                         'variation_schedule': json.dumps(self.variation, sort_keys=True)}
+        else:
+            variation = {'variation': self.variation}
+        plant = dict(common, **variation, v_limit=v_limit, truth_decimation=int(truth_decimation),
+                     **mine, **lp, theta0=float(self.theta0), omega0=float(self.omega0))
+        plant.update({k: float(v) for k, v in protection.items()})
+        if self.current_noise_std or self.speed_noise_std:
+            plant.update(current_noise_std=float(self.current_noise_std),
+                         speed_noise_std=float(self.speed_noise_std),
+                         noise_seed=int(self.noise_seed))
+        if self.mode != 'lockstep':
+            plant['mode'] = self.mode
+        x0 = obs_x0 = None
+        if self.start == 'steady':
+            x0, obs_x0 = self.initial_state()
+        adaptive = self.controller in ADAPTATION
+        ctl = dict(common, mode=self.task, strategy=self.strategy, use_adapter=adaptive,
+                   v_limit=v_limit, reference_decimation=int(reference_decimation),
+                   load_known=True, **lp, **model_values)
+        if self.profile is not None:
+            ctl.update(self.profile.as_parameters())
+        ctl.update({k: (v if isinstance(v, bool) else float(v)) for k, v in limits.items()})
+        if 'flux_coupling' in self.controller_options:
+            ctl['flux_coupling'] = self.controller_options['flux_coupling']
+        if self.current_gain is not None:
+            ctl['current_gain'] = [float(g) for g in _flat(self.current_gain)]
+            ctl['gain_period'] = float(self.T_s)
+        if x0 is not None:          # plant and observer start in the controller's steady state
+            plant['initial_current'] = [float(obs_x0[0]), float(obs_x0[1])]
+            plant['initial_flux'] = [float(x0[2]), float(x0[3])]
+        obs = dict(common, use_adapter=adaptive, **model_values)
+        if x0 is not None:
+            obs['initial_state'] = [float(v) for v in obs_x0]
+        if self.observer_gain is not None:
+            obs['injection_gain'] = [float(g) for g in _flat(self.observer_gain)]
+            obs['gain_period'] = float(self.T_s)
+        if self.k_e is not None:
+            obs['k_e_injection'] = float(self.k_e)
+        adapter = dict(common, enable=adaptive, **model_values)
+        if self.sensorless:     # controller, observer, adapter: the observer's ω̂ replaces the shaft
+            ctl['sensorless'] = obs['sensorless'] = adapter['sensorless'] = True
+            obs['initial_speed'] = float(self.omega0) if self.start == 'steady' else 0.0
+        if adaptive:
+            adapter.update(ADAPTATION[self.controller])
+        out = {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}
+        for extra in (self.gains, self.parameters):
+            for node, values in (extra or {}).items():
+                out[node].update(values)
+        return out
+
+    # The run file --------------------------------------------------------------------------
+    @classmethod
+    def from_mapping(cls, mapping: Mapping, source: str = 'run file',
+                     base_dir: Optional[str] = None, overrides: Optional[Mapping] = None,
+                     override_source: str = 'command line') -> 'Scenario':
+        """The Scenario of a run file's mapping (``overrides`` applied over it, dotted keys for
+        nested ones); any error is one :class:`RunFileError` naming ``source`` (or
+        ``override_source`` for an override's key) and the key. Relative file paths are read
+        from ``base_dir`` (the run file's directory)."""
+        if mapping is None:
+            mapping = {}
+        if not isinstance(mapping, Mapping):
+            raise RunFileError(source, 'run file', 'must be a mapping of run keys (docs/running.md)')
+        doc = json.loads(json.dumps(dict(mapping), default=str))   # a deep, plain copy
+        over = set()
+        for key, value in (overrides or {}).items():
+            over.add(key.split('.')[0])
+            _set_dotted(doc, key, value)
+        try:
+            return cls(**_fields_from_mapping(doc, base_dir))
+        except InvalidParameter as exc:
+            key = exc.name.split(':')[0]
+            top = key.split('.')[0].split('[')[0]
+            where = override_source if top in over else source
+            reason = exc.reason if exc.value is None or f'{exc.value!r}' in exc.reason \
+                else f'{exc.reason} (got {exc.value!r})'
+            if ':' in exc.name:     # an error inside a referenced file: the file names itself
+                reason = f'{exc.name.split(": ", 1)[1]}: {reason}'
+                key = exc.name.split(': ', 1)[0]
+            raise RunFileError(where, _key_name(key), reason) from None
+        except (TypeError, ValueError) as exc:
+            raise RunFileError(source, 'run file', str(exc).splitlines()[0]) from None
+
+    @classmethod
+    def from_file(cls, path: str, overrides: Optional[Mapping] = None,
+                  override_source: str = 'command line') -> 'Scenario':
+        """Read a run file (YAML); ``overrides`` {key: value} as ``--set key=value`` gives them."""
+        import yaml
+        try:
+            with open(path) as f:
+                doc = yaml.safe_load(f)
+        except OSError as exc:
+            raise RunFileError(path, 'run file', f'cannot be read ({exc.strerror})') from None
+        except yaml.YAMLError as exc:
+            raise RunFileError(path, 'run file',
+                               f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+        return cls.from_mapping(doc, source=path, base_dir=os.path.dirname(os.path.abspath(path)),
+                                overrides=overrides, override_source=override_source)
+
+    def to_mapping(self) -> dict:
+        """The run file of this scenario, fully resolved: motor, estimates, load, profile and
+        gains inline, so it re-runs without any other file (:meth:`from_mapping` of it gives an
+        equal Scenario)."""
+        if self.schedule is not None:
+            raise InvalidParameter('schedule', self.schedule.name,
+                                   'a schedule object has no run-file form; use a variation mapping')
+        out = {'task': self.task, 'strategy': self.strategy, 'controller': self.controller,
+               'T_s': float(self.T_s), 'duration': float(self.duration),
+               'variation': self.variation}
+        derived = replace(self, start=None, theta0=None, omega0=None)
+        for name in ('start', 'theta0', 'omega0'):
+            if getattr(self, name) != getattr(derived, name):
+                out[name] = getattr(self, name)
+        if self.motor is not None:
+            out['motor'] = motor_parameters(self.motor)
+        if self.estimates is not None:
+            out['estimates'] = motor_parameters(self.estimates)
+        if self.load_model is not None:
+            out['load'] = dict(self.load_model.describe())
+        if self.profile is not None:
+            key = MODE_KIND[self.profile.mode]
+            out['profile'] = {'setpoints': [dict({'t': t, key: v}, **({} if d is None else
+                                                                       {'duration': d}))
+                                            for t, v, d in self.profile.setpoints]}
+        for name in ZERO_IS_NONE + ('inverter_rating',):
+            if getattr(self, name) is not None:
+                out[name] = float(getattr(self, name))
+        if self.current_noise_std or self.speed_noise_std or self.noise_seed:
+            out['noise'] = {'current': float(self.current_noise_std),
+                            'speed': float(self.speed_noise_std), 'seed': int(self.noise_seed)}
+        if self.sensorless:
+            out['sensorless'] = True
+        if self.mode != 'lockstep':
+            out['mode'] = self.mode
+        defaults = {f.name: f.default for f in fields(self)}
+        for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
+                     'core_loss_exponent', 'plant_substep', 'observer_substep'):
+            if getattr(self, name) is not None and getattr(self, name) != defaults[name]:
+                out[name] = getattr(self, name)
+        for name in ('controller_options', 'speed_observer_options'):
+            if getattr(self, name):
+                out[name] = dict(getattr(self, name))
+        return json.loads(json.dumps(out, default=_plain))
+
+    def to_yaml(self) -> str:
+        """:meth:`to_mapping` as YAML text (floats exactly, in their shortest repr)."""
+        import yaml
+        return yaml.safe_dump(self.to_mapping(), sort_keys=False, default_flow_style=None,
+                              width=100)
+
+
+#: controller / observer node parameters a gains file may set, and their Scenario counterparts
+GAIN_PARAMETERS = {'controller': ('current_gain', 'gain_period', 'flux_coupling'),
+                   'observer': ('injection_gain', 'gain_period', 'k_e_injection')}
+
+
+def gain_arguments_from_parameters(params: dict) -> dict:
+    """Scenario keyword arguments of node-parameter gain overrides (``design_gains --out``,
+    :func:`im_controller.design_gains.design_for_scenario`): {'controller': {...}, 'observer':
+    {...}} -> current_gain (2×2), observer_gain (4×2), k_e, controller_options. Empty -> the
+    thesis's gains. Any other parameter is refused by name (the offline loop would ignore it)."""
+    kw: dict = {}
+    for node, values in (params or {}).items():
+        allowed = GAIN_PARAMETERS.get(node)
+        if allowed is None:
+            raise InvalidParameter('gains', node, 'only controller and observer gains apply')
+        for key in values:
+            if key not in allowed:
+                raise InvalidParameter(f'{node}.{key}', values[key],
+                                       f'not a gain parameter (one of {", ".join(allowed)})')
+    c, o = (params or {}).get('controller', {}), (params or {}).get('observer', {})
+    if c.get('current_gain') is not None:
+        kw['current_gain'] = np.asarray(c['current_gain'], float).reshape(2, 2).tolist()
+    if c.get('flux_coupling') is not None:
+        kw['controller_options'] = {'flux_coupling': c['flux_coupling']}
+    if o.get('injection_gain') is not None:
+        kw['observer_gain'] = np.asarray(o['injection_gain'], float).reshape(4, 2).tolist()
+    if o.get('k_e_injection'):
+        kw['k_e'] = float(o['k_e_injection'])
+    return kw
+
+
+#: run-file keys that are not Scenario fields of the same name
+RENAMED = {'load': 'load_model'}
+
+
+def run_keys() -> tuple:
+    """Every key a run file may hold."""
+    names = [f.name for f in fields(Scenario) if f.name not in ('schedule', 'load_model',
+                                                                'current_noise_std',
+                                                                'speed_noise_std', 'noise_seed')]
+    return tuple(names + ['load', 'noise'])
+
+
+def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
+    import difflib
+    keys = run_keys()
+    kw = {}
+
+    def path(value):
+        return value if base_dir is None or os.path.isabs(value) else os.path.join(base_dir, value)
+
+    for key, value in doc.items():
+        if key not in keys:
+            near = difflib.get_close_matches(str(key), keys, n=1)
+            raise InvalidParameter(str(key), value, f"unknown run-file key; did you mean "
+                                   f"'{near[0]}'?" if near else 'unknown run-file key (see '
+                                   'docs/running.md)')
+        if key in ZERO_IS_NONE and value == 0:
+            value = None
+        if key == 'noise':
+            if not isinstance(value, Mapping):
+                raise InvalidParameter('noise', value, 'must be a mapping {current, speed, seed}')
+            for k, v in value.items():
+                if k not in NOISE_KEYS:
+                    raise InvalidParameter(f'noise.{k}', v, 'unknown (current [A], speed '
+                                                             '[rad/s], seed)')
+                if k == 'seed' and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+                    raise InvalidParameter('noise.seed', v, 'must be an integer >= 0')
+                if k != 'seed' and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                    raise InvalidParameter(f'noise.{k}', v, 'must be a standard deviation >= 0')
+                kw[NOISE_KEYS[k]] = v
+            continue
+        if key == 'motor' and isinstance(value, Mapping):
+            value = motor_from_dict(value, source='motor')
+        elif key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
+                and isinstance(value, str):
+            value = path(value)
+            if key in ('gains', 'parameters'):
+                value = _read_parameters_file(value)
+            elif key == 'load':
+                value = load_file(value)
+        elif key == 'load' and value is not None:
+            value = load_from_dict(value, source='load')
+        elif key == 'profile' and value is not None:
+            if not isinstance(value, Mapping) or set(value) != {'setpoints'}:
+                raise InvalidParameter('profile', value, 'must be a file or {setpoints: [...]}')
+            value = from_setpoints(value['setpoints'], source='profile')
+        kw[RENAMED.get(key, key)] = value
+    est = kw.get('estimates')
+    if isinstance(est, Mapping):      # a partial model: these values over the plant's motor
+        motor = kw.get('motor')
+        if isinstance(motor, str):
+            motor = load_motor_file(motor)
+        base = (motor or THESIS_MOTOR).as_dict()
+        kw['estimates'] = motor_from_dict(dict(base, **est), source='estimates')
+    for key in ('gains', 'parameters'):
+        if kw.get(key) is not None and not isinstance(kw[key], Mapping):
+            raise InvalidParameter(key, kw[key], 'must be a file or {node: {parameter: value}}')
+    return kw
+
+
+def _read_parameters_file(path: str) -> dict:
+    from im_common.yamlio import load_parameters_file
+    return {node: dict(values) for node, values in
+            load_parameters_file(path, nodes={n: {} for n in NODES}).items()}
+
+
+def _set_dotted(doc: dict, key: str, value) -> None:
+    parts = key.split('.')
+    d = doc
+    for p in parts[:-1]:
+        if not isinstance(d.get(p), dict):
+            d[p] = {}
+        d = d[p]
+    d[parts[-1]] = value
+
+
+def _key_name(key: str) -> str:
+    return {'load_model': 'load', 'current_noise_std': 'noise.current',
+            'speed_noise_std': 'noise.speed', 'noise_seed': 'noise.seed'}.get(key, key)
+
+
+def _flat(gain):
+    import numpy as np
+    return np.asarray(gain, float).ravel().tolist()
+
+
+def _plain(value):
+    import numpy as np
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, tuple):
+        return list(value)
+    raise TypeError(f'{value!r} has no run-file form')
+
+
+__all__ = ['Scenario', 'RunFileError', 'run_keys', 'KINDS']
