@@ -9,7 +9,7 @@ first; the test names each one as file:line.
 import ast
 from pathlib import Path
 
-from im_bringup.config import CONTROLLERS
+from im_bringup.run_file import CONTROLLERS
 from im_controller.control_law import MODES, THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES, STRATEGIES
 from im_studies.campaign_spec import NOMINAL_AND_ADAPTIVE
@@ -29,7 +29,7 @@ VOCABULARIES = {
     'im_controller.control_law.THESIS_TASKS': (THESIS_TASKS,
                                                'im_controller/im_controller/control_law.py',
                                                'THESIS_TASKS'),
-    'im_bringup.config.CONTROLLERS': (CONTROLLERS, 'im_bringup/im_bringup/config.py',
+    'im_bringup.run_file.CONTROLLERS': (CONTROLLERS, 'im_bringup/im_bringup/run_file.py',
                                       'CONTROLLERS'),
     'im_studies.campaign_spec.NOMINAL_AND_ADAPTIVE': (NOMINAL_AND_ADAPTIVE, None, None),
 }
