@@ -33,7 +33,7 @@ from im_observer.speed_observer import SpeedAdaptiveObserver
 
 from .config import CONTROLLERS, TASK_PRESETS, TASKS  # noqa: F401 (re-exported)
 from im_common.params import CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR  # noqa: F401 (re-exported)
-from .run_file import (DEFAULT_DURATION, GAIN_PARAMETERS, START_MODES,  # noqa: F401 (re-exported)
+from .run_file import (DEFAULT_DURATION, GAIN_PARAMETERS, limit_value, START_MODES,  # noqa: F401 (re-exported)
                        Scenario, gain_arguments_from_parameters)
 
 
@@ -57,12 +57,13 @@ def build(sc: Scenario):
     gains = sc.gain_arguments()
     x0, obs_x0 = sc.initial_state()
     plant = PlantSimulator(sc.plant_schedule(), sc.plant_load(), T_s=sc.T_s,
-                           max_substep=sc.plant_substep, v_limit=sc.v_limit,
+                           max_substep=sc.plant_substep, v_limit=limit_value(sc.v_limit),
                            current_noise_std=sc.current_noise_std,
                            speed_noise_std=sc.speed_noise_std, noise_seed=sc.noise_seed,
                            theta0=sc.theta0, omega0=sc.omega0, x0=x0,
                            core_loss_exponent=sc.core_loss_exponent,
-                           current_trip=sc.current_trip, speed_trip=sc.speed_trip,
+                           current_trip=limit_value(sc.current_trip),
+                           speed_trip=limit_value(sc.speed_trip),
                            **({} if sc.inverter_rating is None
                               else {'inverter_rating': sc.inverter_rating}))
     controller = DriveController(cfg)

@@ -30,7 +30,7 @@ from typing import Dict, Mapping, Optional
 import numpy as np
 
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
-from im_common.params import (CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR, InvalidParameter,
+from im_common.params import (CHAPTER4_ESTIMATES, RATED, SCHEDULES, THESIS_MOTOR, InvalidParameter,
                               MotorParams, ParameterSchedule, describe_variation,
                               load_motor_file, motor_from_dict, normalize_variation,
                               variation_schedule)
@@ -75,9 +75,22 @@ PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
 
 START_MODES = ('rest', 'steady')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
-#: limits and trips where 0 means "none" on the command line and in a run file
+#: limits and trips where 0 means "none" on the command line and in a run file; left out (None),
+#: v_limit, current_limit and the trips take the motor's rating (none without one; docs/limits.md)
 ZERO_IS_NONE = ('v_limit', 'torque_limit', 'current_limit', 'speed_limit', 'current_trip',
                 'speed_trip')
+
+
+def limit_value(value):
+    """Return a limit as the ROS-free models take it: not given → RATED, 0 → None (none)."""
+    if value is None:
+        return RATED
+    return None if value == 0 else value
+
+
+def limit_parameter(value) -> float:
+    """Return a limit as the nodes take it: not given → -1 (the rating), 0 → 0 (none)."""
+    return -1.0 if value is None else float(value)
 NOISE_KEYS = {'current': 'current_noise_std', 'speed': 'speed_noise_std', 'seed': 'noise_seed'}
 NODES = ('plant', 'controller', 'observer', 'adapter')
 
@@ -175,9 +188,11 @@ class Scenario:
                 raise InvalidParameter(name, v, 'must be a standard deviation >= 0')
         for name in ZERO_IS_NONE + ('inverter_rating',):
             v = getattr(self, name)
+            low = 0.0 if name in ZERO_IS_NONE else 1e-300      # 0: none
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                  or not (math.isfinite(v) and v > 0)):
-                raise InvalidParameter(name, v, 'must be > 0 (or none)')
+                                  or not (math.isfinite(v) and v >= low)):
+                raise InvalidParameter(name, v, 'must be >= 0 (0: none)' if low == 0.0
+                                       else 'must be > 0')
         if self.duration is None:
             put(self, 'duration', DEFAULT_DURATION[self.task] if self.profile is None
                 else self.profile.end_time + 1.0)
@@ -280,16 +295,17 @@ class Scenario:
         opts = dict(g['controller_options'])
         opts.setdefault('core_loss_exponent', self.core_loss_exponent)
         opts.setdefault('horizon', self.duration)   # the run's end: the optimal strategy's plan
-        for key in ('torque_limit', 'current_limit', 'speed_limit'):
+        opts.setdefault('current_limit', limit_value(self.current_limit))
+        for key in ('torque_limit', 'speed_limit'):
             if getattr(self, key) is not None:
-                opts.setdefault(key, getattr(self, key))
+                opts.setdefault(key, getattr(self, key) or None)
         if self.profile is not None:
             opts.setdefault('profile', 'setpoint')
             opts.setdefault('setpoints', self.profile.setpoints)
         for key, value in load_parameters(self.plant_load()).items():
             opts.setdefault(key, value)
         return ControllerConfig(mode=self.task, strategy=self.strategy,
-                                params=self.model_estimates(), v_limit=self.v_limit,
+                                params=self.model_estimates(), v_limit=limit_value(self.v_limit),
                                 current_gain=g['current_gain'], T_s=self.T_s, **opts)
 
     # The graph's parameters ----------------------------------------------------------------
@@ -313,7 +329,7 @@ class Scenario:
         protection = {k: getattr(self, k) for k in PLANT_PROTECTION if getattr(self, k) is not None}
         common = {'T_s': float(self.T_s), 'duration': float(self.duration),
                   'input_timeout': float(input_timeout)}
-        v_limit = float(self.v_limit or 0.0)
+        v_limit = limit_parameter(self.v_limit)
         if self.load_model is not None:
             lp = load_parameters(self.load_model)
         else:
@@ -536,8 +552,6 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
             raise InvalidParameter(str(key), value, f"unknown run-file key; did you mean "
                                    f"'{near[0]}'?" if near else 'unknown run-file key (see '
                                    'docs/running.md)')
-        if key in ZERO_IS_NONE and value == 0:
-            value = None
         if key == 'noise':
             if not isinstance(value, Mapping):
                 raise InvalidParameter('noise', value, 'must be a mapping {current, speed, seed}')
