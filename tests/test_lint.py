@@ -48,8 +48,6 @@ PENDING = {
     'src/im_recording/im_recording/record_node.py',
     'src/im_studies/*',
     'tests/test_campaign.py',
-    'tests/test_readme.py',
-    'tests/test_limits*.py',
 }
 
 
