@@ -47,7 +47,6 @@ PENDING = {
     'src/im_adapt/im_adapt/adapter_node.py',
     'src/im_recording/im_recording/record_node.py',
     'src/im_studies/*',
-    'tests/test_campaign.py',
 }
 
 
