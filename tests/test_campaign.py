@@ -1,4 +1,6 @@
 """
+Campaigns: specs, draws, the Dask pool, determinism, resume, failure rows, Parquet.
+
 Campaigns (im_studies.campaign and its campaign_* modules, docs/campaign.md): specs, draws,
 the Dask pool (a real local cluster), determinism over worker counts, resume after a kill,
 failure rows, the Parquet file.
@@ -93,6 +95,8 @@ def test_a_gains_file_for_another_period_is_refused(tmp_path):
 
 def test_a_spec_or_gains_file_that_is_not_yaml_is_one_line_naming_the_file_and_where(tmp_path):
     """
+    Check that a spec or gains file that is not YAML is one line naming the file and where.
+
     The spec and the gains files it names are read by im_common.yamlio, the reader of every
     parameters file: the same line, naming the file and the line and column of the fault.
     """
@@ -169,6 +173,8 @@ def test_a_row_through_the_graph_equals_the_offline_row(tmp_path):
 
 def test_adaptive_rows_adapt_to_the_drawn_motor(tmp_path):
     """
+    Check that the adaptive rows adapt to the drawn motor.
+
     controllers: [nominal, adaptive]: on a motor whose R_r is 40 % below the nominal model's,
     the adapter (starting from the nominal motor) cuts the position error; the rows say which
     controller ran, and the graph gives the offline row.
@@ -192,6 +198,8 @@ def test_adaptive_rows_adapt_to_the_drawn_motor(tmp_path):
 
 def test_unstable_and_failed_runs_are_rows(tmp_path):
     """
+    Check that unstable and failed runs are rows.
+
     The thesis's gains at 1 kHz trip the inverter (a result); a run that cannot be built
     (a position profile for the speed task) is a failure row with its one-line error.
     """

@@ -1,7 +1,9 @@
 """
-Every relative link in README.md and docs/*.md leads somewhere: the file exists, and a
-``#anchor`` names a heading of that file (as GitHub makes heading anchors). A README that sends a
-newcomer to a moved or renamed page fails here, not in the newcomer's browser.
+Every relative link in README.md and docs/*.md leads somewhere.
+
+The file exists, and a ``#anchor`` names a heading of that file (as GitHub makes heading anchors).
+A README that sends a newcomer to a moved or renamed page fails here, not in the newcomer's
+browser.
 """
 import glob
 import os
@@ -26,8 +28,10 @@ def _strip_code(text: str) -> str:
 
 def anchors(text: str) -> set:
     """
-    The anchors GitHub gives the headings of a page: lower case, punctuation dropped except
-    ``-`` and ``_``, spaces to ``-``, repeats numbered ``-1``, ``-2``, ...
+    Return the anchors GitHub gives the headings of a page.
+
+    Lower case, punctuation dropped except ``-`` and ``_``, spaces to ``-``, repeats numbered
+    ``-1``, ``-2``, ...
     """
     seen, out = {}, set()
     for heading in re.findall(r'^#{1,6}\s+(.*?)\s*#*\s*$', _strip_fences(text), re.M):
@@ -86,8 +90,10 @@ def test_the_readme_links_the_docs_it_points_to():
 
 def test_a_broken_file_or_anchor_is_named(tmp_path):
     """
-    The checker itself: a missing page and a missing heading are each reported by name, a good
-    link and an external one are not.
+    Check that the checker names a missing page and a missing heading.
+
+    A missing page and a missing heading are each reported by name, a good link and an external
+    one are not.
     """
     (tmp_path / 'docs').mkdir()
     (tmp_path / 'docs' / 'a.md').write_text(

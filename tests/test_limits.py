@@ -1,4 +1,6 @@
 """
+Issue 10 (limits, motors, profiles, loads, protection) on the offline closed loop.
+
 Issue 10 on the offline closed loop: the done-when checks, the latch cases, reversals on every
 shipped motor and strategy, motor files, profiles and loads of one's own, plant protection.
 """
@@ -37,6 +39,8 @@ def _tail_error(trace, t_from):
 ])
 def test_speed_steps_under_a_voltage_limit_do_not_run_away(levels, v_limit, fw):
     """
+    Check that speed steps under a voltage limit do not run away.
+
     Issue 10 item 1: 100 → 180 → 100 rad/s at 311 V ran away to 406 rad/s; now the speed
     error over the last 0.5 s of 3 s is < 2 rad/s, and no command exceeds the limit.
     """
@@ -51,6 +55,8 @@ def test_speed_steps_under_a_voltage_limit_do_not_run_away(levels, v_limit, fw):
 
 def test_position_start_up_needs_no_voltage_beyond_the_run():
     """
+    Check that the position start-up needs no voltage beyond what the run needs.
+
     Issue 10 item 2: the constant-flux position run's peak voltage is at most 1.5× its peak
     after t = 0.2 s (it was 562 V against 37 V).
     """
@@ -63,6 +69,8 @@ def test_position_start_up_needs_no_voltage_beyond_the_run():
 @pytest.mark.parametrize('motor_file', MOTOR_FILES, ids=lambda p: os.path.basename(p)[:-5])
 def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit_gives(motor_file):
     """
+    Check that the scaled reversal asks 75 % of the torque the current limit gives.
+
     study_motors sizes the speed reversal to the motor: at the current limit 2 I_n and rated
     flux φ_n the steady field-oriented torque is v (L_sr/L_r) φ_n √((2 I_n)² − (φ_n/L_sr)²); the
     quintic's peak acceleration 1.875 Δω/T times J is 75 % of it.
@@ -85,6 +93,8 @@ def test_the_scaled_reversal_asks_three_quarters_of_the_torque_the_current_limit
 @pytest.mark.parametrize('strategy', STRATEGIES)
 def test_reversal_on_every_shipped_motor_and_strategy(motor_file, strategy):
     """
+    Check a speed reversal on every shipped motor and strategy.
+
     +0.9 ω_n → −0.9 ω_n (a reversal through zero speed) scaled to the motor's ratings
     (im_studies.study_motors: rated flux, limits V_n, 2 I_n, peak torque 75 % of what the
     current limit gives): the speed follows (RMS error < 0.005 rad/s over the whole run, the
@@ -110,6 +120,8 @@ def test_reversal_on_every_shipped_motor_and_strategy(motor_file, strategy):
 
 def test_a_motor_never_seen_runs_a_min_loss_reversal(tmp_path):
     """
+    Check a min-loss reversal on a motor file written here, unlike any shipped one.
+
     Done-when 3 with a motor file written here (5 hp-like numbers, none of the shipped ones):
     +100 → −100 rad/s with min_loss, speed error over the last 0.5 s < 2 rad/s.
     """
@@ -236,6 +248,7 @@ def test_plant_trips_on_a_non_finite_state_and_keeps_the_last_finite_one():
 
     class Boom:
         """One non-finite load torque (the 30th evaluation), finite before and after."""
+
         name = 'boom'
         calls = 0
 
@@ -275,6 +288,8 @@ def test_shipped_profiles_and_loads_load():
 @pytest.mark.parametrize('motor_file', MOTOR_FILES)
 def test_scaled_chapter4_drift_and_the_adaptive_position_rows(motor_file):
     """
+    Check the scaled chapter-4 drift and that adaptation wins on every shipped motor.
+
     The chapter-4 drift scaled to each shipped motor (study_motors --drift): R_r goes from 0.5
     to 1.5 times the motor file's over the run, L_s, L_r, L_sr swing together by 0.16 L_sr so σL_s
     barely moves, every instant is a motor; on the min-loss position task the adaptive controller

@@ -1,4 +1,6 @@
 """
+Issue 10 (motor files, profiles, loads) through the lock-step graph.
+
 Issue 10 through the lock-step graph: a motor file, a profile and a load of one's own reach
 every node through ``node_parameters`` (the in-process fixture passes them straight on), and the
 graph still equals the offline loop with them.
@@ -78,6 +80,8 @@ def test_graph_equals_the_offline_loop_with_motor_profile_load_and_limits(files)
 
 def test_torque_task_follows_an_effort_profile_in_the_graph_and_offline(tmp_path):
     """
+    Check the torque task following an effort profile, in the graph and offline.
+
     The torque task (an effort profile, beyond the thesis): graph and offline loop agree, the
     torque follows the profile once the machine is magnetized.
     """
@@ -98,6 +102,8 @@ def test_torque_task_follows_an_effort_profile_in_the_graph_and_offline(tmp_path
 
 def _message_from_yaml(msg_type, text: str):
     """
+    Build the message ``ros2 topic pub TOPIC TYPE 'TEXT'`` publishes.
+
     The message ``ros2 topic pub TOPIC TYPE 'TEXT'`` publishes: a default-constructed message
     whose fields named in the YAML are set (rosidl_runtime_py.set_message_fields' rule), every
     other field left at its default — an unset header stamp is 0 s 0 ns, unset arrays empty.
@@ -111,6 +117,8 @@ def _message_from_yaml(msg_type, text: str):
 
 def test_a_setpoint_sent_the_readme_way_moves_the_reference_from_where_it_is():
     """
+    Check that a setpoint sent the README's way moves the reference from where it is.
+
     Issue 23: the README's ``ros2 topic pub --once /im/setpoint sensor_msgs/msg/JointState
     '{name: [rotor], velocity: [150.0]}'`` (stamp 0, "now") sent at t = 0.6 s, long after the
     start: θ*, ω* continue from where they are (no rebuilt past), ω* takes the quintic's
@@ -176,6 +184,8 @@ def test_a_setpoint_sent_the_readme_way_moves_the_reference_from_where_it_is():
 def test_the_same_setpoint_sent_twice_is_two_commands_and_one_message_on_both_subscriptions_one(
         ros_context):
     """
+    Check that a setpoint sent twice counts twice, and one message on both subscriptions once.
+
     `ros2 topic pub` 150, then 100, then 150 again: three commands (same stamp 0, same
     value as the first is no reason to drop the third); a transient-local publisher's message,
     delivered on both of the controller's subscriptions, is one command.
@@ -203,6 +213,8 @@ def test_the_same_setpoint_sent_twice_is_two_commands_and_one_message_on_both_su
 def test_a_negative_gain_is_refused_by_name_and_the_default_sentinel_says_what_it_uses(
         ros_context):
     """
+    Check that a negative gain is refused by name and the -1 sentinel says what it uses.
+
     Issue 23: `ros2 param set /controller k_p -0.5` was accepted and logged as -0.5 while the
     per-mode default ran. Now -0.5 is refused with one line naming k_p (the old value stays in
     force); -1, the documented sentinel, is accepted and announced with the gain it stands for.

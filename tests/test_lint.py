@@ -47,10 +47,6 @@ PENDING = {
     'src/im_adapt/im_adapt/adapter_node.py',
     'src/im_recording/im_recording/record_node.py',
     'src/im_studies/*',
-    'tests/test_campaign.py',
-    'tests/test_architecture.py',
-    'tests/test_readme.py',
-    'tests/test_limits*.py',
 }
 
 

@@ -1,7 +1,8 @@
 """
-The parts LockstepNode is composed of, each on its own and without ROS: the step gate
-(im_common.step_gate), the run protocol's decisions (im_common.run_protocol) and the node's message
-signing (im_common.signing); and the one step loop every node shell shares.
+The parts LockstepNode is composed of, each on its own and without ROS.
+
+The step gate (im_common.step_gate), the run protocol's decisions (im_common.run_protocol) and the
+node's message signing (im_common.signing); and the one step loop every node shell shares.
 """
 from __future__ import annotations
 
@@ -219,6 +220,8 @@ def test_who_may_publish_on_a_nodes_inputs():
 # The step loop -------------------------------------------------------------------------------
 def test_the_step_loop_has_one_home():
     """
+    Check that the node shells share one step loop.
+
     Every node shell computes one step (``step``); none copies the loop that takes complete
     steps from its gate (``LockstepNode.ready``).
     """

@@ -1,8 +1,9 @@
 """
-Motor ratings in nameplate units (issue 24, part 2): converted once to the model's
-power-invariant frame, the rated flux from the equivalent circuit, and the ratings as the drive's
-default limits, protection and flux level — explicit values override, unrated motors run as the
-thesis did.
+Motor ratings in nameplate units (issue 24, part 2).
+
+Converted once to the model's power-invariant frame, the rated flux from the equivalent circuit,
+and the ratings as the drive's default limits, protection and flux level — explicit values
+override, unrated motors run as the thesis did.
 """
 import math
 import os
@@ -24,13 +25,15 @@ RATED = THESIS_MOTOR.with_values(**PLATE)
 
 
 def _balanced(rms: float, phase: float, t: np.ndarray, w: float = 2 * math.pi * 60.0):
-    """A balanced three-phase set of phase RMS value ``rms``."""
+    """Return a balanced three-phase set of phase RMS value ``rms``."""
     return [math.sqrt(2.0) * rms * np.cos(w * t + phase - 2.0 * math.pi * k / 3.0)
             for k in range(3)]
 
 
 def test_a_balanced_set_of_known_rms_is_a_vector_of_sqrt3_times_it_through_the_transform():
     """
+    Check the transform against the closed form for a balanced set.
+
     Closed form: x_k = √2 X cos(ωt − 2πk/3) → |x_αβ| = √3 X at every instant, and the
     transform keeps the power (Σ v_k i_k = v·i); so a star of phase voltage V_LL/√3 and line
     current I is a voltage vector of magnitude V_LL and a current vector of √3 I, and the model's
@@ -57,6 +60,8 @@ def test_a_balanced_set_of_known_rms_is_a_vector_of_sqrt3_times_it_through_the_t
 @pytest.mark.parametrize('name', ['thesis', 'krause_3hp', 'krause_50hp'])
 def test_rated_flux_is_the_models_own_steady_state_at_rated_voltage_frequency_and_speed(name):
     """
+    Check the rated flux against the plant model's own steady state.
+
     The derived rated flux equals |Φ_r| of the plant model's phasor steady state (a formulation
     that shares no code with the inverse-Γ formula) at the rated voltage-vector magnitude, 2πf
     and the rated speed.
@@ -105,6 +110,8 @@ def test_a_motor_without_ratings_runs_as_the_thesis_did():
 
 def test_node_parameters_left_at_their_default_take_the_ratings_and_zero_is_none():
     """
+    Check that -1 node parameters take the ratings and 0 means none.
+
     The controller's and plant's -1 parameters (their default) go through the same defaults;
     0 keeps meaning 'none'.
     """
@@ -137,6 +144,8 @@ def test_node_parameters_left_at_their_default_take_the_ratings_and_zero_is_none
 
 def test_min_energy_on_a_motor_rated_below_its_draw_stays_within_the_rating_by_default():
     """
+    Check that min_energy stays within a small motor's rating by default.
+
     The user's case: the thesis's speed task with min_energy on a motor whose nameplate says
     5 A (8.66 A as a vector). Without ratings the drive draws far more; with them, by default,
     the stator current stays within the rated current, the voltage within the rated voltage,

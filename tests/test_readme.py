@@ -36,7 +36,7 @@ COMMAND_PAGES = ('README.md', os.path.join('docs', 'commands.md'))
 
 
 def _code_lines(text: str, lang: str = 'bash'):
-    """The lines of a page's ``lang`` code blocks, continuation lines joined, comments cut."""
+    """Yield the lines of a page's ``lang`` code blocks, continuations joined, comments cut."""
     for block in re.findall(rf'```{lang}\n(.*?)```', text, re.S):
         for line in block.replace('\\\n', ' ').splitlines():
             line = line.split(' # ')[0].strip()
@@ -70,6 +70,8 @@ def test_readme_is_short():
 
 def test_first_screen_says_where_the_demo_files_land_and_what_to_read_next():
     """
+    Check that the first screen names the paths the demo recipe writes.
+
     The paths on the first screen are the ones the demo recipe writes: the recording, the
     summary next to it (scenario's default) and the report directory.
     """
@@ -103,6 +105,8 @@ def _ros2_run_path(package: str, executable: str) -> str:
 @pytest.mark.parametrize('page', COMMAND_PAGES)
 def test_every_ros2_run_shown_runs_with_the_options_shown(page):
     """
+    Check that each ``ros2 run`` shown runs, with the options shown.
+
     Each ``ros2 run PKG EXE ...`` line: the executable is where ``ros2 run`` looks, and every
     long option shown is one its ``--help`` lists (a renamed option fails here).
     """
@@ -140,6 +144,8 @@ def test_every_ros2_launch_argument_shown_is_declared(page):
 
 def test_readme_ros2_stand_in_runs_an_executable(tmp_path):
     """
+    Check that the README's ``ros2`` stand-in runs an installed executable.
+
     Without a ROS 2 install the README's ``ros2`` shell function is how a user types ``ros2
     run``: pasted as shown, it runs the installed executable and refuses other verbs in one
     line.
@@ -163,6 +169,8 @@ def _blocks():
 
 def test_results_and_headline_are_generated_from_the_committed_summary():
     """
+    Check that the results block and headline are generated from the committed summary.
+
     docs/results.md's status block and the README's headline are exactly what `make readme`
     renders from docs/data/reproduce_summary.json (the copy `make reproduce` refreshes).
     """
@@ -182,6 +190,8 @@ def test_results_and_headline_are_generated_from_the_committed_summary():
 
 def test_results_block_follows_the_summary_and_names_a_missing_run(tmp_path):
     """
+    Check that the results block follows the summary and names a missing run.
+
     Generated, not copied: a changed figure in the summary changes the block and the headline; a
     summary without a run the blocks need is refused with a message naming the run.
     """
@@ -210,6 +220,8 @@ def test_results_block_follows_the_summary_and_names_a_missing_run(tmp_path):
 
 def test_check_names_the_stale_file_and_write_restores_it(tmp_path):
     """
+    Check that ``--check`` names the stale file and ``--write`` restores it.
+
     `readme_status --check` exits 1 naming the file whose block is stale; `--write` fills both
     files; a file without its markers is one line naming file and markers, exit 2.
     """

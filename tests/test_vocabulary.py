@@ -1,6 +1,8 @@
 """
-No concept has two homes (issue 24): the names of the flux strategies, the tasks and the
-controllers are written once, in their homes, and imported everywhere else.
+No concept has two homes (issue 24).
+
+The names of the flux strategies, the tasks and the controllers are written once, in their homes,
+and imported everywhere else.
 
 Every tuple, list or set literal of strings under src/ that holds exactly the names of one of
 these vocabularies (in any order) outside its home is a second copy that will drift from the
@@ -37,8 +39,10 @@ VOCABULARIES = {
 
 def _string_literals(tree: ast.AST):
     """
-    (node, the strings) of every tuple/list/set literal made of string constants only, and the
-    name it is assigned to at module or class level (None otherwise).
+    Find every tuple/list/set literal made of string constants only.
+
+    Yields (node, the strings) of each, and the name it is assigned to at module or class level
+    (None otherwise).
     """
     assigned = {}
     for node in ast.walk(tree):
@@ -129,6 +133,8 @@ def other_yaml_reads(root: Path) -> list:
 
 def test_the_studies_read_every_yaml_file_through_yamlio():
     """
+    Check that the studies read every YAML file through im_common.yamlio.
+
     Specs, gains and parameters files: one reader (im_common.yamlio), one error style (a line
     naming the file and where), whatever the study.
     """

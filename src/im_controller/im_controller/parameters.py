@@ -50,8 +50,8 @@ def declare_controller(node) -> dict:
                      'reference source: the thesis trajectories (seed 000 §3.4.4) or setpoints '
                      'from /im/setpoint turned into smooth references', choices=PROFILES)
     v['strategy'] = p('strategy', 'min_energy', 'flux strategy', choices=STRATEGIES)
-    v['phi_d'] = p('phi_d', -1.0, 'constant-flux level [Wb] (-1: the motor\'s rated flux, '
-                   'else the thesis\'s 1.2)', -1.0, 10.0)
+    v['phi_d'] = p('phi_d', -1.0, "constant-flux level [Wb] (-1: the motor's rated flux, "
+                   "else the thesis's 1.2)", -1.0, 10.0)
     v['phi_min'] = p('phi_min', -1.0, 'lower flux bound of min_energy / min_loss [Wb] (-1: 1/6 '
                      'of the rated flux, else 0.2)', -1.0, 10.0)
     v['phi_max'] = p('phi_max', -1.0, 'upper flux bound (saturation) [Wb] (-1: the rated flux, '
@@ -69,7 +69,7 @@ def declare_controller(node) -> dict:
     v['load_c2'] = p('load_c2', 0.001, 'linear load model c2 [N m s]', -1e3, 1e3)
     v['load_tau'] = p('load_tau', 0.0, 'constant load model [N m]', -1e4, 1e4)
     v['v_limit'] = p('v_limit', -1.0, 'voltage-vector limit with anti-windup [V] (0: none; -1: '
-                     'the motor\'s rated voltage, none without one)', -1.0, 1e5)
+                     "the motor's rated voltage, none without one)", -1.0, 1e5)
     v['current_gain'] = p('current_gain', [0.0],
                           'full 2x2 current gain K1, row-major, from design_gains ([0.0]: k1 I)')
     v['gain_period'] = p('gain_period', 0.0, 'period current_gain was designed for [s]', 0.0, 1.0)
@@ -95,7 +95,7 @@ def declare_controller(node) -> dict:
     v['torque_limit'] = p('torque_limit', 0.0, 'bound on |tau*| [N m] (0: none)', 0.0, 1e7)
     v['current_limit'] = p('current_limit', -1.0,
                            'stator-current magnitude the torque demand may ask for [A] (0: none; '
-                           '-1: the motor\'s rated current, none without one)', -1.0, 1e6)
+                           "-1: the motor's rated current, none without one)", -1.0, 1e6)
     v['speed_limit'] = p('speed_limit', 0.0,
                          'beyond this |omega_r| no torque pushes further [rad/s] (0: none)', 0.0,
                          1e5)
