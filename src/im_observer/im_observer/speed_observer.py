@@ -59,6 +59,8 @@ DEFAULT_ERROR_ROTATION = 0.0
 DEFAULT_FLUX_GAIN = (1.2, 200.0, 100.0)
 DEFAULT_FLUX_GAIN_BAND = (10.0, 40.0)
 DEFAULT_ROTATION_FREQUENCY = 200.0
+#: bandwidth [rad/s] of the load-torque estimate of the mechanical model (mechanical_model)
+DEFAULT_LOAD_BANDWIDTH = 50.0
 
 
 def error_gain(params: MotorParams, k_e: Optional[float] = None) -> float:
@@ -91,7 +93,8 @@ class SpeedAdaptiveObserver:
                  flux_gain_band: Sequence[float] = DEFAULT_FLUX_GAIN_BAND,
                  error_rotation: float = DEFAULT_ERROR_ROTATION,
                  rotation_frequency: float = DEFAULT_ROTATION_FREQUENCY, injection_gain=None,
-                 gain_period: Optional[float] = None):
+                 gain_period: Optional[float] = None, mechanical_model: bool = True,
+                 load_bandwidth: float = DEFAULT_LOAD_BANDWIDTH):
         self.flux = RotorFluxObserver(params, k_e=k_e, max_substep=max_substep, x0=x0,
                                       injection_gain=injection_gain, gain_period=gain_period)
         self.params = params
@@ -111,6 +114,12 @@ class SpeedAdaptiveObserver:
         if not w1 > w0:
             raise InvalidParameter('flux_gain_band', flux_gain_band, 'needs w1 > w0')
         self.flux_gain_band = (w0, w1)
+        if not isinstance(mechanical_model, bool):
+            raise InvalidParameter('mechanical_model', mechanical_model, 'must be true or false')
+        self.mechanical_model = mechanical_model
+        lb = check_real('load_bandwidth', load_bandwidth, 0.0)
+        self.k_load = lb * bw * params.J / error_gain(params, self.flux.k_e)
+        self.load_hat = 0.0
         self._integral = check_real('omega0', omega0)
         self.omega_hat = self._integral
         self.theta_hat = check_real('theta0', theta0)
@@ -147,6 +156,14 @@ class SpeedAdaptiveObserver:
         eps = self.speed_error_signal(i_alpha, i_beta)
         self.epsilon = eps
         self._integral += self.k_i * T_s * eps
+        if self.mechanical_model:
+            # the estimated air-gap torque accelerates the estimate (J, b of the model; the load
+            # is what the adaptation integrates): ω̂ no longer lags a known acceleration
+            ia, ib, pa, pb = self.flux.state
+            p = self.params
+            tau = p.pole_pairs * self.flux._theta * (i_beta * pa - i_alpha * pb)
+            self.load_hat -= self.k_load * T_s * eps
+            self._integral += T_s * (tau - p.b * self._integral - self.load_hat) / p.J
         w = self._integral + self.k_p * eps
         self.omega_hat = w
         ia, ib, _, _ = self.flux.state

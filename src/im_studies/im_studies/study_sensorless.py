@@ -27,6 +27,8 @@ REVERSAL_SPEED = 100.0
 REVERSAL_LOAD = 1.0
 #: the speed error is judged after this time [s] (the speed task starts in steady state)
 SETTLE = 0.1
+#: the torque task's step [N·m]
+TORQUE_STEP = 5.0
 
 
 def motor_file(name: str):
@@ -46,6 +48,30 @@ def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless:
                     v_limit=m.rated_voltage, controller_options=scaled_options(m, 'speed'),
                     sensorless=sensorless,
                     speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0, **kw)
+
+
+def sensorless_options(sensorless: bool) -> dict:
+    """Scenario keywords of a sensorless run: the measured speed useless, and the controller
+    told that its θ, ω are the observer's (direct field orientation, docs/sensorless.md §4)."""
+    if not sensorless:
+        return {'sensorless': False}
+    return {'sensorless': True, 'speed_noise_std': USELESS_SPEED_NOISE,
+            'controller_options': {'sensorless': True}}
+
+
+def torque_task(strategy: str, sensorless: bool = True, **kw) -> Scenario:
+    """0 → +5 → −5 N·m from rest (unloaded shaft: it accelerates, then brakes through zero
+    speed into the other direction), thesis motor."""
+    prof = Profile('torque', ((0.0, 0.0, None), (0.1, TORQUE_STEP, None),
+                              (0.4, -TORQUE_STEP, None)), source='sensorless torque task')
+    opts = sensorless_options(sensorless)
+    opts.update(kw)
+    return Scenario(task='torque', strategy=strategy, profile=prof, duration=0.8, **opts)
+
+
+def torque_error_rms(result) -> float:
+    tr = result.trace
+    return float(np.sqrt(np.mean((tr['tau_m'] - tr['tau_ref']) ** 2)))
 
 
 def _row(label: str, motor: str, strategy: str, sensored, sensorless) -> dict:
