@@ -80,6 +80,9 @@ LAWS = ('thesis', 'improved')
 FEEDS = ('auto', 'inverse_gamma', 'thesis_pair')
 FEED_DEFAULT = 'auto'
 TWO_PI = 2.0 * math.pi
+#: sensorless: the stator frequency [rad/s] below which the improved law holds its estimates
+#: (docs/sensorless.md §3)
+SENSORLESS_MIN_FREQUENCY = 100.0
 
 
 @dataclass(frozen=True)
@@ -276,7 +279,8 @@ class ParameterAdapter:
     ``update`` is scalar Python on complex numbers (αβ pairs as α + jβ); one call per period.
     """
 
-    def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float):
+    def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float,
+                 sensorless: bool = False):
         _finite('R_r_initial', R_r0, lo=0.0, strict=True)
         _finite('theta_initial', theta0, lo=0.0, strict=True)
         self.params = params
@@ -293,6 +297,12 @@ class ParameterAdapter:
         self.L_M_lo, self.L_M_hi = g.L_M_min, g.L_M_max
         self.L_sigma = g.L_sigma
         self.improved = g.law == 'improved'
+        # sensorless (ω is the observer's ω̂): R_R and ω enter the rotor equation only through the
+        # slip, so R̂_R is held and only L_σ and c = R_R/L_M (i.e. L_M) are estimated
+        # (docs/sensorless.md §3)
+        if not isinstance(sensorless, bool):
+            raise InvalidParameter('sensorless', sensorless, 'must be true or false')
+        self.sensorless = sensorless
         self.freeze = g.freeze
         self.N = g.decimation
         # Controller-facing estimates.
@@ -442,7 +452,9 @@ class ParameterAdapter:
         if not self.freeze:
             g = self.gains
             self.theta = _clip(th + g.gamma_t * T_s * self._acc_t, self.theta_lo, self.theta_hi)
-            self.R_r = _clip(self.R_r + g.gamma_r * T_s * self._acc_r, self.R_r_lo, self.R_r_hi)
+            if not self.sensorless:     # the rotor loss balance needs τ̂ω: R̂_r held
+                self.R_r = _clip(self.R_r + g.gamma_r * T_s * self._acc_r, self.R_r_lo,
+                                 self.R_r_hi)
             self.L_M = self.L_sr * self.theta
             self.R_R = self.R_r * self.theta * self.theta
             self.L_sigma = self.L_s - self.L_M
@@ -518,6 +530,11 @@ class ParameterAdapter:
         g1 = r1 + c * Hi
         x1, y1, x2, y2, x3, y3 = g1.real, g1.imag, Hi.real, Hi.imag, -Hphi.real, -Hphi.imag
         S = self._S
+        if self.sensorless and abs(self._omega_e) < SENSORLESS_MIN_FREQUENCY:
+            # an R_s error moves the voltage-model flux by ~R̃_s|i|/ω_e, which the rotor equation
+            # would read as L_M (and L_σ): below this stator frequency nothing is learnt
+            e = 0j
+            x1 = y1 = x2 = y2 = x3 = y3 = 0.0
         S[0] += x1 * x1 + y1 * y1
         S[1] += x1 * x2 + y1 * y2
         S[2] += x1 * x3 + y1 * y3
@@ -553,7 +570,17 @@ class ParameterAdapter:
             return
         c = self._c
         L_sig = self.L_sigma
-        if self.estimate_leakage:
+        if self.sensorless:      # R̂_R held: (L_σ, c) or c alone from their rows
+            R11, R13, R33 = R[0], R[2], R[5]
+            if self.estimate_leakage:
+                det = R11 * R33 - R13 * R13
+                L_sig = _clip(L_sig + (R33 * g[0] - R13 * g[2]) / det, self.L_sigma_lo,
+                              self.L_sigma_hi)
+                c = c + (R11 * g[2] - R13 * g[0]) / det
+            else:
+                c = c + g[2] / R33
+            R_R = self.R_R
+        elif self.estimate_leakage:
             d = _solve_sym3(R, g)
             L_sig = _clip(L_sig + d[0], self.L_sigma_lo, self.L_sigma_hi)
             R_R = self.R_R + d[1]
