@@ -23,7 +23,8 @@ class LockstepAdapter:
     ----------
     adapter : ParameterAdapter
     record_every : int
-        Keep one estimate sample every this many steps (0: keep none).
+        Keep one estimate sample every this many steps (0: keep none): (R_r, θ, L_M, R_R, L_σ,
+        R_s) at ``t``.
     """
 
     def __init__(self, adapter: ParameterAdapter, record_every: int = 10):
@@ -52,5 +53,5 @@ class LockstepAdapter:
         if self.record_every and self.k % self.record_every == 0:
             self.t.append(t + T_s)
             self.samples.append((est['R_r'], est['theta'], est['L_M'], est['R_R'],
-                                 est.get('L_sigma', float('nan'))))
+                                 est.get('L_sigma', float('nan')), self.adapter.R_s))
         return est

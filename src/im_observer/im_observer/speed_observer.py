@@ -61,8 +61,6 @@ DEFAULT_FLUX_GAIN_BAND = (10.0, 40.0)
 DEFAULT_ROTATION_FREQUENCY = 200.0
 #: bandwidth [rad/s] of the load-torque estimate of the mechanical model (mechanical_model)
 DEFAULT_LOAD_BANDWIDTH = 50.0
-#: current [A] below which the stator-resistance law's normalization stops growing
-RESISTANCE_CURRENT_FLOOR = 1.0
 
 
 def error_gain(params: MotorParams, k_e: Optional[float] = None) -> float:
@@ -96,8 +94,7 @@ class SpeedAdaptiveObserver:
                  error_rotation: float = DEFAULT_ERROR_ROTATION,
                  rotation_frequency: float = DEFAULT_ROTATION_FREQUENCY, injection_gain=None,
                  gain_period: Optional[float] = None, mechanical_model: bool = True,
-                 load_bandwidth: float = DEFAULT_LOAD_BANDWIDTH,
-                 resistance_bandwidth: float = 0.0):
+                 load_bandwidth: float = DEFAULT_LOAD_BANDWIDTH):
         self.flux = RotorFluxObserver(params, k_e=k_e, max_substep=max_substep, x0=x0,
                                       injection_gain=injection_gain, gain_period=gain_period)
         self.params = params
@@ -123,13 +120,6 @@ class SpeedAdaptiveObserver:
         lb = check_real('load_bandwidth', load_bandwidth, 0.0)
         self.k_load = lb * bw * params.J / error_gain(params, self.flux.k_e)
         self.load_hat = 0.0
-        # stator resistance law (off at 0): R̂_s' = −λ_R eᵀi/max(|i|², i_f²), λ_R = β_R σL_s γ′
-        self.resistance_bandwidth = check_real('resistance_bandwidth', resistance_bandwidth, 0.0)
-        c = self.flux._c
-        self.k_resistance = (self.resistance_bandwidth / c.inv_sigma_Ls
-                             * (c.gamma + self.flux.k_e * c.inv_sigma_Ls))
-        self.R_s_hat = params.R_s
-        self._R_s_bounds = (0.25 * params.R_s, 4.0 * params.R_s)
         self._integral = check_real('omega0', omega0)
         self.omega_hat = self._integral
         self.theta_hat = check_real('theta0', theta0)
@@ -144,12 +134,8 @@ class SpeedAdaptiveObserver:
         return self.flux.estimates
 
     def set_estimates(self, **kw) -> None:
-        """Adapted motor estimates (as :meth:`RotorFluxObserver.set_estimates`); with the
-        resistance law on, R̂_s stays this observer's own."""
+        """Adapted motor estimates (as :meth:`RotorFluxObserver.set_estimates`)."""
         self.flux.set_estimates(**kw)
-        if self.k_resistance > 0.0 and self.flux.R_s != self.R_s_hat:
-            self.flux.R_s = self.R_s_hat
-            self.flux._update()
 
     def speed_error_signal(self, i_alpha: float, i_beta: float) -> float:
         """ε of the measured current against the present estimate (see module docstring)."""
@@ -182,13 +168,6 @@ class SpeedAdaptiveObserver:
         self.omega_hat = w
         ia, ib, _, _ = self.flux.state
         ea, eb = i_alpha - ia, i_beta - ib
-        if self.k_resistance > 0.0:
-            i2 = max(i_alpha * i_alpha + i_beta * i_beta, RESISTANCE_CURRENT_FLOOR ** 2)
-            lo, hi = self._R_s_bounds
-            r = self.R_s_hat - self.k_resistance * T_s * (ea * i_alpha + eb * i_beta) / i2
-            self.R_s_hat = min(max(r, lo), hi)
-            self.flux.R_s = self.R_s_hat
-            self.flux._update()
         state = self.flux.step(T_s, v_alpha, v_beta, i_alpha, i_beta, w)
         gr, gi = self.flux_row_gain(w)
         if gr != 0.0 or gi != 0.0:     # + T_s G e with the error held, like the other injections
