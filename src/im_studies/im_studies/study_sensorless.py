@@ -13,7 +13,8 @@ import sys
 import numpy as np
 
 from im_common.loads import ConstantLoad
-from im_common.params import load_motor_file, shipped_motors_dir
+from im_common.params import (THESIS_MOTOR, ParameterSchedule, constant, load_motor_file,
+                              shipped_motors_dir)
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 
@@ -29,6 +30,10 @@ REVERSAL_LOAD = 1.0
 SETTLE = 0.1
 #: the torque task's step [N·m]
 TORQUE_STEP = 5.0
+#: the plant's stator resistance against the model's in the adaptive runs
+R_S_DRIFT = 1.3
+#: the low-speed hold: speed [rad/s], constant load [N·m], duration [s]
+HOLD_SPEED, HOLD_LOAD, HOLD_DURATION = 10.0, 4.0, 1.5
 
 
 def motor_file(name: str):
@@ -67,6 +72,39 @@ def torque_task(strategy: str, sensorless: bool = True, **kw) -> Scenario:
     opts = sensorless_options(sensorless)
     opts.update(kw)
     return Scenario(task='torque', strategy=strategy, profile=prof, duration=0.8, **opts)
+
+
+def drifted_stator(motor=THESIS_MOTOR, factor: float = R_S_DRIFT) -> ParameterSchedule:
+    """The plant's R_s ``factor`` × the model's (a warm stator), nothing else varying."""
+    return ParameterSchedule(motor, {'R_s': constant(factor * motor.R_s)},
+                             name=f'R_s x{factor:g}')
+
+
+def adaptive_speed_task(sensorless: bool, strategy: str = 'min_loss', **kw) -> Scenario:
+    """The thesis speed task with the plant's R_s drifted (run it with :func:`run_adaptive`)."""
+    opts = sensorless_options(sensorless)
+    opts.update(kw)
+    return Scenario(task='speed', strategy=strategy, schedule=drifted_stator(), **opts)
+
+
+def low_speed_hold(sensorless: bool = True, **kw) -> Scenario:
+    """10 rad/s against a constant 4 N·m from steady state, the plant's R_s drifted: the low
+    stator frequency where R_s weighs most in the voltage."""
+    prof = Profile('speed', ((0.0, HOLD_SPEED, None),), source='low-speed hold')
+    opts = sensorless_options(sensorless)
+    opts.update(kw)
+    return Scenario(task='speed', strategy='min_loss', profile=prof,
+                    load_model=ConstantLoad(tau=HOLD_LOAD), duration=HOLD_DURATION,
+                    schedule=drifted_stator(), **opts)
+
+
+def run_adaptive(sc: Scenario, record_every: int = 1):
+    """(result, estimate samples) of ``sc`` with the adapter on (improved law, inverse-Γ feed),
+    told ``sc.sensorless``; samples are rows (R_r, θ, L_M, R_R, L_σ, R_s)."""
+    from im_adapt.hook import LockstepAdapter
+    hook = LockstepAdapter.build(sc.model_estimates(), sensorless=sc.sensorless)
+    res = simulate(sc, adapter=hook, record_every=record_every)
+    return res, np.asarray(hook.samples)
 
 
 def torque_error_rms(result) -> float:
