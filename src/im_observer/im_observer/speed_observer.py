@@ -16,6 +16,15 @@ speed estimate: k_i = α_ω / g, k_p = 0 (:func:`adaptation_gains`). Normalizing
 loop's bandwidth independent of the flux level (min_energy's low flux); the floor φ_f keeps it
 bounded while the machine is demagnetized (there the speed is unobservable: ε carries no speed).
 
+Mechanical model (``mechanical_model``, default on; docs/sensorless.md §1): the estimated
+air-gap torque τ̂ = v θ (i_β φ̂_α − i_α φ̂_β) accelerates the estimate through the model's J and b,
+and the adaptation integrates the rest as a load estimate:
+
+    dω̂/dt = k_i ε + (τ̂ − b ω̂ − τ̂_L)/J,      dτ̂_L/dt = −k_L ε,      k_L = β α_ω J / g
+
+(β = ``load_bandwidth``): quasi-statically s² + α_ω s + α_ω β, so ω̂ follows an acceleration the
+drive itself produces without lag, and a constant load without offset.
+
 Flux-row gain (docs/sensorless.md §1): without it one real pole stays near −10 /s at every speed
 (a speed error traded against a flux-angle error through the rotor time constant), so ω̂ lags
 accelerations. The flux rows get dφ̂/dt += G(ω̂) e (complex), :meth:`flux_row_gain`, fitted to the

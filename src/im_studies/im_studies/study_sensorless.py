@@ -1,8 +1,9 @@
 """``python -m im_studies.study_sensorless [--json FILE]``: the speed-sensorless drive on the
 offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy, sensored against
 sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s reversal against
-a constant 1 N·m on every shipped motor with its rating-scaled controller (``study_motors``).
-Prints a Markdown table; ``--json`` writes the rows.
+a constant 1 N·m on every shipped motor with its rating-scaled controller (``study_motors``);
+then the torque task per strategy, and the adapter on with the plant's R_s drifted (the thesis
+speed task and a low-speed hold). Prints Markdown tables; ``--json`` writes the rows.
 """
 from __future__ import annotations
 
@@ -50,7 +51,8 @@ def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless:
                    source='sensorless reversal')
     return Scenario(task='speed', strategy=strategy, motor=m, profile=prof,
                     load_model=ConstantLoad(tau=REVERSAL_LOAD), duration=0.2 + ramp + 0.8,
-                    v_limit=m.rated_voltage, controller_options=scaled_options(m, 'speed'),
+                    v_limit=m.rated_voltage,
+                    controller_options=dict(scaled_options(m, 'speed'), sensorless=sensorless),
                     sensorless=sensorless,
                     speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0, **kw)
 
@@ -132,8 +134,7 @@ def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
     rows = []
     for st in strategies:
         a = simulate(Scenario(task='speed', strategy=st))
-        b = simulate(Scenario(task='speed', strategy=st, sensorless=True,
-                              speed_noise_std=USELESS_SPEED_NOISE))
+        b = simulate(Scenario(task='speed', strategy=st, **sensorless_options(True)))
         rows.append(_row('thesis speed task', 'thesis', st, a, b))
     for mo in motors:
         for st in strategies:
@@ -141,6 +142,66 @@ def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
             b = simulate(sensorless_reversal(mo, st), record_every=10)
             rows.append(_row('±100 rad/s reversal, 1 N·m', mo, st, a, b))
     return rows
+
+
+def run_torque(strategies=COMPARED_STRATEGIES) -> list:
+    """The torque task per strategy: torque error RMS sensored and sensorless."""
+    rows = []
+    for st in strategies:
+        a = simulate(torque_task(st, False))
+        b = simulate(torque_task(st, True))
+        tr = b.trace
+        rows.append({'strategy': st, 'torque_rms_sensored': torque_error_rms(a),
+                     'torque_rms_sensorless': torque_error_rms(b), 'trip': b.summary['trip'],
+                     'estimate_err_max': float(np.max(np.abs(tr['omega_hat'] - tr['omega_r']))),
+                     'omega_end': float(tr['omega_r'][-1])})
+    return rows
+
+
+def run_adapter() -> list:
+    """The adapter on, the plant's R_s × R_S_DRIFT: the thesis speed task (min_loss) sensored and
+    sensorless, and the sensorless low-speed hold (R̂_s at the end)."""
+    rows = []
+    for label, make in (('thesis speed task, min_loss', adaptive_speed_task),
+                        (f'{HOLD_SPEED:g} rad/s hold, {HOLD_LOAD:g} N·m, min_loss', low_speed_hold)):
+        (a, _), (b, s) = run_adaptive(make(False)), run_adaptive(make(True))
+        late = b.trace['t'] >= (SETTLE if make is adaptive_speed_task else 1.0)
+        e = b.trace['omega_r'] - b.trace['omega_ref']
+        ea = a.trace['omega_r'] - a.trace['omega_ref']
+        la = a.trace['t'] >= (SETTLE if make is adaptive_speed_task else 1.0)
+        rows.append({'run': label, 'trip': b.summary['trip'],
+                     'speed_err_max': float(np.max(np.abs(e[late]))),
+                     'speed_err_max_sensored': float(np.max(np.abs(ea[la]))),
+                     'E_loss_sensored': a.summary['E_loss_J'],
+                     'E_loss_sensorless': b.summary['E_loss_J'],
+                     'loss_change': b.summary['E_loss_J'] / a.summary['E_loss_J'] - 1.0,
+                     'R_s_true': R_S_DRIFT * THESIS_MOTOR.R_s, 'R_s_end': float(s[-1, 5]),
+                     'R_R_held': bool(np.all(s[:, 3] == s[0, 3])), 'L_M_end': float(s[-1, 2])})
+    return rows
+
+
+def torque_table(rows: list) -> str:
+    out = ['| strategy | torque err RMS sensored [N·m] | sensorless [N·m] | ω̂ − ω max [rad/s] '
+           '| ω at the end [rad/s] |', '| --- | --- | --- | --- | --- |']
+    for r in rows:
+        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        out.append(f"| {r['strategy']}{trip} | {r['torque_rms_sensored']:.4f} "
+                   f"| {r['torque_rms_sensorless']:.4f} | {r['estimate_err_max']:.3f} "
+                   f"| {r['omega_end']:+.1f} |")
+    return '\n'.join(out)
+
+
+def adapter_table(rows: list) -> str:
+    out = ['| run (plant R_s × 1.3, adapter on) | speed err max, sensored / sensorless [rad/s] '
+           '| E_loss sensored [J] | E_loss sensorless [J] | change | R̂_s at the end (true) [Ω] '
+           '| R̂_R held |', '| --- | --- | --- | --- | --- | --- | --- |']
+    for r in rows:
+        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        out.append(f"| {r['run']}{trip} | {r['speed_err_max_sensored']:.3f} / "
+                   f"{r['speed_err_max']:.3f} | {r['E_loss_sensored']:.1f} "
+                   f"| {r['E_loss_sensorless']:.1f} | {100 * r['loss_change']:+.2f} % "
+                   f"| {r['R_s_end']:.4f} ({r['R_s_true']:.4f}) | {'yes' if r['R_R_held'] else 'no'} |")
+    return '\n'.join(out)
 
 
 def table(rows: list) -> str:
@@ -164,9 +225,15 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     rows = run(a.strategy or COMPARED_STRATEGIES, a.motor or MOTORS)
     print(table(rows))
+    torque = run_torque(a.strategy or COMPARED_STRATEGIES)
+    print()
+    print(torque_table(torque))
+    adapter = run_adapter()
+    print()
+    print(adapter_table(adapter))
     if a.json:
         with open(a.json, 'w') as f:
-            json.dump(rows, f, indent=1)
+            json.dump({'speed': rows, 'torque': torque, 'adapter': adapter}, f, indent=1)
     return 0
 
 
