@@ -81,6 +81,9 @@ LAWS = ('thesis', 'improved')
 FEEDS = ('auto', 'inverse_gamma', 'thesis_pair')
 FEED_DEFAULT = 'auto'
 TWO_PI = 2.0 * math.pi
+#: sensorless, improved law: the stator frequency [rad/s] below which R_s is estimated and L_M
+#: held, above which L_M is estimated and R_s held (docs/sensorless.md §3)
+SENSORLESS_SPLIT_FREQUENCY = 100.0
 
 
 @dataclass(frozen=True)
@@ -284,7 +287,8 @@ class ParameterAdapter:
 
     """
 
-    def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float):
+    def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float,
+                 sensorless: bool = False):
         _finite('R_r_initial', R_r0, lo=0.0, strict=True)
         _finite('theta_initial', theta0, lo=0.0, strict=True)
         self.params = params
@@ -301,6 +305,12 @@ class ParameterAdapter:
         self.L_M_lo, self.L_M_hi = g.L_M_min, g.L_M_max
         self.L_sigma = g.L_sigma
         self.improved = g.law == 'improved'
+        # sensorless (ω is the observer's ω̂): R_R and ω enter the rotor equation only through the
+        # slip, so R̂_R is held; the improved law estimates (L_σ, R_s, c = R_R/L_M) instead of
+        # (L_σ, R_R, c): R_s through the voltage-model flux (docs/sensorless.md §3)
+        if not isinstance(sensorless, bool):
+            raise InvalidParameter('sensorless', sensorless, 'must be true or false')
+        self.sensorless = sensorless
         self.freeze = g.freeze
         self.N = g.decimation
         # Controller-facing estimates.
@@ -332,6 +342,8 @@ class ParameterAdapter:
         self._b = [0.0] * 3
         self._R = None
         self._c = self.R_R / self.L_M        # c = R_R/L_M = 1/T_r [1/s]
+        self._z = self._Hz = self._uz = 0j  # sensorless: −∂ψ̂/∂R_s and its rotor-frame filter
+        self.R_s_lo, self.R_s_hi = 0.25 * params.R_s, 4.0 * params.R_s
         self._filter_T = None     # period for which the filter coefficients are computed
         self.last = {}            # diagnostics of the last step (for tests and plots)
 
@@ -362,6 +374,8 @@ class ParameterAdapter:
         e = {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
         if self.improved and self.gains.feed == 'inverse_gamma':
             e['L_sigma'] = self.L_sigma
+            if self.sensorless:
+                e['R_s'] = self.R_s
         return e
 
     # ------------------------------------------------------------------------------------
@@ -400,8 +414,11 @@ class ParameterAdapter:
         else:
             psi_cm = (self.L_s - self.L_sr * self.theta) * i_prev + self.theta * self._phi_obs_prev
             self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
+        w_c = self._corner()
+        if self.sensorless:     # ψ̂ = … − R_s z: its sensitivity to R_s, integrated alike
+            self._z += T_s * (0.5 * (i + i_prev) - w_c * self._z)
         self._psi += T_s * (self._v_prev - self.R_s * 0.5 * (i + i_prev)
-                            + self._corner() * (psi_cm - self._psi))
+                            + w_c * (psi_cm - self._psi))
         V_prev = self._v_prev
         self._i_prev = i
         self._v_prev = V
@@ -460,7 +477,9 @@ class ParameterAdapter:
         if not self.freeze:
             g = self.gains
             self.theta = _clip(th + g.gamma_t * T_s * self._acc_t, self.theta_lo, self.theta_hi)
-            self.R_r = _clip(self.R_r + g.gamma_r * T_s * self._acc_r, self.R_r_lo, self.R_r_hi)
+            if not self.sensorless:     # the rotor loss balance needs τ̂ω: R̂_r held
+                self.R_r = _clip(self.R_r + g.gamma_r * T_s * self._acc_r, self.R_r_lo,
+                                 self.R_r_hi)
             self.L_M = self.L_sr * self.theta
             self.R_R = self.R_r * self.theta * self.theta
             self.L_sigma = self.L_s - self.L_M
@@ -487,7 +506,8 @@ class ParameterAdapter:
         self._filter_T = T_s
         # Forgetting per period of (L_σ, R_R, c), its N-period factors for the stored
         # [11, 12, 13, 22, 23, 33] entries, and the floor's share of N periods.
-        lam = (math.exp(-T_s / g.leakage_memory), math.exp(-T_s / g.memory),
+        lam = (math.exp(-T_s / g.leakage_memory),
+               math.exp(-T_s / (g.leakage_memory if self.sensorless else g.memory)),
                math.exp(-T_s / g.memory))
         N = self.N
         self._lamN = tuple(math.sqrt(lam[a] * lam[b]) ** N
@@ -536,6 +556,17 @@ class ParameterAdapter:
         e = y - (L_sig * r1 + self.R_R * Hi - c * Hphi)
         g1 = r1 + c * Hi
         x1, y1, x2, y2, x3, y3 = g1.real, g1.imag, Hi.real, Hi.imag, -Hphi.real, -Hphi.imag
+        if self.sensorless:     # R_s in R_R's place: −∂e/∂R_s = ω_f(z − Hz) + c Hz (rotor frame)
+            z_r = self._z * rot
+            Hz = self._Hz = fa * self._Hz + fb * (z_r + self._uz)
+            self._uz = z_r
+            gz = wf * (z_r - Hz) + c * Hz
+            x2, y2 = gz.real, gz.imag
+            # R_s moves ψ̂ by ~R̃_s|i|/ω_e, L_M by ~L̃_M i_d: one steady operating point cannot
+            # tell them apart, a changing stator frequency can. Below SENSORLESS_SPLIT_FREQUENCY
+            # (where R_s dominates) L_M is held (docs/sensorless.md §3).
+            if abs(self._omega_e) < SENSORLESS_SPLIT_FREQUENCY:
+                x3 = y3 = 0.0
         S = self._S
         S[0] += x1 * x1 + y1 * y1
         S[1] += x1 * x2 + y1 * y2
@@ -575,20 +606,34 @@ class ParameterAdapter:
         if self.estimate_leakage:
             d = _solve_sym3(R, g)
             L_sig = _clip(L_sig + d[0], self.L_sigma_lo, self.L_sigma_hi)
-            R_R = self.R_R + d[1]
+            d1 = d[1]
             c = c + d[2]
         else:
             R22, R23, R33 = R[3], R[4], R[5]
             det = R22 * R33 - R23 * R23
-            R_R = self.R_R + (R33 * g[1] - R23 * g[2]) / det
+            d1 = (R33 * g[1] - R23 * g[2]) / det
             c = c + (R22 * g[2] - R23 * g[1]) / det
-        R_R = _clip(R_R, self.R_R_lo, self.R_R_hi)
+        if self.sensorless:      # the second parameter is R_s; R̂_R held
+            R_s = _clip(self.R_s + d1, self.R_s_lo, self.R_s_hi)
+            self._shift_stator_resistance(R_s - self.R_s)
+            R_R = self.R_R
+        else:
+            R_R = _clip(self.R_R + d1, self.R_R_lo, self.R_R_hi)
         L_M = _clip(R_R / max(c, 1e-12), self.L_M_lo, self.L_M_hi)
         self.L_sigma = L_sig
         self.R_R = R_R
         self.L_M = L_M
         self._c = R_R / L_M
         self._publish_pair(R_R, self._c)
+
+    def _shift_stator_resistance(self, dR: float) -> None:
+        """R̂_s += dR, with ψ̂ and its filter states moved as if integrated with the new R̂_s
+        (ψ̂ is linear in R_s: ∂ψ̂/∂R_s = −z), so the next residuals see the change."""
+        self.R_s += dR
+        self._psi -= dR * self._z
+        self._Hpsi -= dR * self._Hz
+        ui, upsi = self._u_prev
+        self._u_prev = (ui, upsi - dR * self._uz)
 
     def _publish_pair(self, R_R, c):
         """

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import sys
 
+from im_adapt.adaptation import ParameterAdapter
 from im_adapt.parameters import declare_law
 from im_common import topics as T
 from im_common.auth import Signer
@@ -42,6 +43,15 @@ class AdapterNode(LockstepNode):
                         read_only=False)
         self._enable_next = None
         self.law = declare_law(self, params, R_r0, theta0)
+        sensorless = p('sensorless', False, "take the observer's speed estimate "
+                       f'({T.OBS_SPEED}) in place of the measured shaft and hold R_R '
+                       '(docs/sensorless.md)')
+        if sensorless:      # R_R and the speed meet only in the slip: R̂_R held
+            self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0, sensorless=True)
+            held = ('R_R' if self.law.improved else 'R_r')
+            est = ('R_s, L_sigma, L_M' if self.law.improved else 'theta')
+            self.get_logger().info(f'sensorless: {held} held at {getattr(self.law, held):.6g}, '
+                                   f'estimating {est} (docs/sensorless.md §3)')
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self.period = period_ns(self.T_s)
@@ -50,8 +60,6 @@ class AdapterNode(LockstepNode):
         # the law's estimates, in the topic's order (feed 'inverse_gamma' adds L_sigma)
         self.names = tuple(n for n in T.ESTIMATE_NAMES if n in self.law.estimates())
         self.out = JointStateOut(self.names, Signer.frame(''))
-        sensorless = p('sensorless', False, "take the observer's speed estimate "
-                       f'({T.OBS_SPEED}) in place of the measured shaft (docs/sensorless.md)')
         self.shaft = T.OBS_SPEED if sensorless else T.MEAS_SHAFT
         self.gate = StepGate([T.MEAS_CURRENT, self.shaft, T.CMD_VOLTAGE, T.OBS_FLUX],
                              self.period, follow=True)

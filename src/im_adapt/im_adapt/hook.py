@@ -25,8 +25,8 @@ class LockstepAdapter:
     ----------
     adapter : ParameterAdapter
     record_every : int
-        Keep one estimate sample every this many steps (0: keep none).
-
+        Keep one estimate sample every this many steps (0: keep none): (R_r, θ, L_M, R_R, L_σ,
+        R_s) at ``t``.
     """
 
     def __init__(self, adapter: ParameterAdapter, record_every: int = 10):
@@ -38,11 +38,12 @@ class LockstepAdapter:
 
     @classmethod
     def build(cls, params, gains: Optional[AdaptationGains] = None, R_r0: Optional[float] = None,
-              theta0: Optional[float] = None, record_every: int = 10):
-        """Adapter with the given gains (default: :class:`AdaptationGains`) from ``params``."""
+              theta0: Optional[float] = None, record_every: int = 10, sensorless: bool = False):
+        """Adapter with the given gains (default: :class:`AdaptationGains`) from ``params``;
+        ``sensorless``: the speed it is given is the observer's ω̂ (R̂_R held)."""
         gains = gains if gains is not None else AdaptationGains()
         ad = ParameterAdapter(params, gains, params.R_r if R_r0 is None else R_r0,
-                              params.theta if theta0 is None else theta0)
+                              params.theta if theta0 is None else theta0, sensorless=sensorless)
         return cls(ad, record_every)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
@@ -54,5 +55,5 @@ class LockstepAdapter:
         if self.record_every and self.k % self.record_every == 0:
             self.t.append(t + T_s)
             self.samples.append((est['R_r'], est['theta'], est['L_M'], est['R_R'],
-                                 est.get('L_sigma', float('nan'))))
+                                 est.get('L_sigma', float('nan')), self.adapter.R_s))
         return est

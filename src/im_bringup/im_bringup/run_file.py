@@ -295,6 +295,7 @@ class Scenario:
         opts = dict(g['controller_options'])
         opts.setdefault('core_loss_exponent', self.core_loss_exponent)
         opts.setdefault('horizon', self.duration)   # the run's end: the optimal strategy's plan
+        opts.setdefault('sensorless', self.sensorless)  # orient on the observed flux
         opts.setdefault('current_limit', limit_value(self.current_limit))
         for key in ('torque_limit', 'speed_limit'):
             if getattr(self, key) is not None:

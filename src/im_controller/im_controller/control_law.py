@@ -132,6 +132,9 @@ class ControllerConfig:
                     loss-optimal flux of the final reference)
     magnetizing_floor  [Wb] the smallest flux the reference model uses (a smooth floor, C²:
                     the start-up from a demagnetized machine needs no step); None → 0.1 φ_min
+    sensorless      the θ, ω given to ``compute`` are the observer's estimates (θ̂ = ∫ω̂, ω̂):
+                    the field angle is the observed flux angle ∠φ̂ (direct field orientation,
+                    docs/sensorless.md §4) instead of ∫(vω + ω_sl), which drifts while ω̂ lags
     """
 
     mode: str = 'position'
@@ -169,6 +172,7 @@ class ControllerConfig:
     current_margin: float = DEFAULT_CURRENT_MARGIN
     magnetizing_floor: Optional[float] = None
     horizon: Optional[float] = None
+    sensorless: bool = False
     #: {field: (value, why)} of the fields the motor model's ratings set (RATED_FIELDS)
     from_ratings: Optional[dict] = field(default=None, compare=False)
 
@@ -263,6 +267,8 @@ class ControllerConfig:
             raise InvalidParameter('magnetizing_floor', self.magnetizing_floor,
                                    f'must be <= phi_min = {self.phi_min:g}')
         self.setpoints = _check_setpoints(self.setpoints, self.profile)
+        if not isinstance(self.sensorless, bool):
+            raise InvalidParameter('sensorless', self.sensorless, 'must be true or false')
         self.horizon = _real('horizon', self.horizon, 0.0, lo_open=True, allow_none=True)
         if self.current_limit is not None:
             i_mag = self.phi_max / self.params.L_sr
@@ -648,6 +654,16 @@ class DriveController:
         refs = (i_a_ref, i_b_ref, p_a_ref, p_b_ref, v_a_ff, v_b_ff)
         return v_a_ff + dva, v_b_ff + dvb, refs
 
+    def _observed_angle(self, rho: float, phi_a: float, phi_b: float) -> float:
+        """Sensorless: the field angle is the observer's flux angle ∠φ̂ (unwrapped next to the
+        integrated ρ), once |φ̂| is above the magnetizing floor; below it (a demagnetized machine,
+        no angle to observe) the integrated ρ. Direct orientation: the angle does not integrate
+        ω̂, so a lagging speed estimate does not rotate the current away from the flux."""
+        if math.hypot(phi_a, phi_b) < self.config.magnetizing_floor:
+            return rho
+        d = math.atan2(phi_b, phi_a) - rho
+        return rho + (d + math.pi) % (2.0 * math.pi) - math.pi
+
     # ------------------------------------------------------------------------------------------
     def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
                 phi_alpha_hat: float, phi_beta_hat: float, estimates: dict | None = None):
@@ -693,6 +709,8 @@ class DriveController:
         i_ds, i_qs, di_ds, di_qs, _, _, w_sl = dq_reference(c, tau, dtau, phi, dphi, ddphi)
         rho_dot = c.v * omega_r + w_sl
         rho = self._rho if first else self._rho + 0.5 * dt * (self._rho_dot + rho_dot)
+        if cfg.sensorless:
+            rho = self._observed_angle(rho, phi_alpha_hat, phi_beta_hat)
         # 4. feedforward + feedback
         v_a, v_b, refs = self._voltage(c, i_ds, i_qs, di_ds, di_qs, phi, rho, rho_dot, dt, omega_r,
                                        omega_ref, i_alpha, i_beta, phi_alpha_hat, phi_beta_hat)

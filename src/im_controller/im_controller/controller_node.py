@@ -64,7 +64,7 @@ class ControllerNode(LockstepNode):
             self.get_logger().info(describe_defaults(cfg.from_ratings))
         # the run's end is the optimal strategy's planning horizon (0: open-ended)
         horizon = self.duration if self.duration > 0 else None
-        self.ctl = DriveController(replace(cfg, horizon=horizon))
+        self.ctl = DriveController(replace(cfg, horizon=horizon, sensorless=self.sensorless))
         self._plan_note = ''
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None

@@ -19,6 +19,15 @@ speed estimate: k_i = α_ω / g, k_p = 0 (:func:`adaptation_gains`). Normalizing
 loop's bandwidth independent of the flux level (min_energy's low flux); the floor φ_f keeps it
 bounded while the machine is demagnetized (there the speed is unobservable: ε carries no speed).
 
+Mechanical model (``mechanical_model``, default on; docs/sensorless.md §1): the estimated
+air-gap torque τ̂ = v θ (i_β φ̂_α − i_α φ̂_β) accelerates the estimate through the model's J and b,
+and the adaptation integrates the rest as a load estimate:
+
+    dω̂/dt = k_i ε + (τ̂ − b ω̂ − τ̂_L)/J,      dτ̂_L/dt = −k_L ε,      k_L = β α_ω J / g
+
+(β = ``load_bandwidth``): quasi-statically s² + α_ω s + α_ω β, so ω̂ follows an acceleration the
+drive itself produces without lag, and a constant load without offset.
+
 Flux-row gain (docs/sensorless.md §1): without it one real pole stays near −10 /s at every speed
 (a speed error traded against a flux-angle error through the rotor time constant), so ω̂ lags
 accelerations. The flux rows get dφ̂/dt += G(ω̂) e (complex), :meth:`flux_row_gain`, fitted to the
@@ -63,6 +72,8 @@ DEFAULT_ERROR_ROTATION = 0.0
 DEFAULT_FLUX_GAIN = (1.2, 200.0, 100.0)
 DEFAULT_FLUX_GAIN_BAND = (10.0, 40.0)
 DEFAULT_ROTATION_FREQUENCY = 200.0
+#: bandwidth [rad/s] of the load-torque estimate of the mechanical model (mechanical_model)
+DEFAULT_LOAD_BANDWIDTH = 50.0
 
 
 def error_gain(params: MotorParams, k_e: Optional[float] = None) -> float:
@@ -97,7 +108,8 @@ class SpeedAdaptiveObserver:
                  flux_gain_band: Sequence[float] = DEFAULT_FLUX_GAIN_BAND,
                  error_rotation: float = DEFAULT_ERROR_ROTATION,
                  rotation_frequency: float = DEFAULT_ROTATION_FREQUENCY, injection_gain=None,
-                 gain_period: Optional[float] = None):
+                 gain_period: Optional[float] = None, mechanical_model: bool = True,
+                 load_bandwidth: float = DEFAULT_LOAD_BANDWIDTH):
         self.flux = RotorFluxObserver(params, k_e=k_e, max_substep=max_substep, x0=x0,
                                       injection_gain=injection_gain, gain_period=gain_period)
         self.params = params
@@ -117,6 +129,12 @@ class SpeedAdaptiveObserver:
         if not w1 > w0:
             raise InvalidParameter('flux_gain_band', flux_gain_band, 'needs w1 > w0')
         self.flux_gain_band = (w0, w1)
+        if not isinstance(mechanical_model, bool):
+            raise InvalidParameter('mechanical_model', mechanical_model, 'must be true or false')
+        self.mechanical_model = mechanical_model
+        lb = check_real('load_bandwidth', load_bandwidth, 0.0)
+        self.k_load = lb * bw * params.J / error_gain(params, self.flux.k_e)
+        self.load_hat = 0.0
         self._integral = check_real('omega0', omega0)
         self.omega_hat = self._integral
         self.theta_hat = check_real('theta0', theta0)
@@ -156,6 +174,14 @@ class SpeedAdaptiveObserver:
         eps = self.speed_error_signal(i_alpha, i_beta)
         self.epsilon = eps
         self._integral += self.k_i * T_s * eps
+        if self.mechanical_model:
+            # the estimated air-gap torque accelerates the estimate (J, b of the model; the load
+            # is what the adaptation integrates): ω̂ no longer lags a known acceleration
+            ia, ib, pa, pb = self.flux.state
+            p = self.params
+            tau = p.pole_pairs * self.flux._theta * (i_beta * pa - i_alpha * pb)
+            self.load_hat -= self.k_load * T_s * eps
+            self._integral += T_s * (tau - p.b * self._integral - self.load_hat) / p.J
         w = self._integral + self.k_p * eps
         self.omega_hat = w
         ia, ib, _, _ = self.flux.state

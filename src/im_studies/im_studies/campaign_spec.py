@@ -22,7 +22,7 @@ from .campaign_pool import one_line
 SPEC_KEYS = ('name', 'seed', 'draws', 'motor', 'box', 'sigma_min', 'tasks', 'strategies',
              'controllers',
              'gain_sets', 'loads', 'profiles', 'duration', 'mode', 'map', 'worst',
-             'speedup_runs', 'commission')
+             'speedup_runs', 'commission', 'sensorless')
 #: parameters of the plant's motor a spec may draw (the motor's electrical parameters)
 DRAWN = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: what the stability map may be drawn over: a drawn parameter, σ or σL_s
@@ -217,6 +217,15 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
             if x not in allowed:
                 raise SpecError(f'{where}: {key}: {x!r} is not one of {", ".join(allowed)}')
         spec[key] = list(v)
+    if 'sensorless' in raw:      # the axis: runs with and/or without the measured shaft
+        from im_observer.speed_observer import POSITION_NEEDS_SENSOR
+        v = raw['sensorless']
+        v = [v] if isinstance(v, bool) else v
+        if not isinstance(v, list) or not v or not all(isinstance(x, bool) for x in v):
+            raise SpecError(f'{where}: sensorless = {v!r}: a list of true/false')
+        if True in v and 'position' in spec['tasks']:
+            raise SpecError(f'{where}: sensorless: {POSITION_NEEDS_SENSOR} (tasks has position)')
+        spec['sensorless'] = list(dict.fromkeys(v))
     if 'torque' in spec['tasks'] and raw.get('profiles', ['task']) == ['task']:
         raise SpecError(f'{where}: tasks: the torque task needs profiles (files)')
     gsets = raw.get('gain_sets', [{'name': 'thesis', 'gains': 'thesis', 'T_s': 1e-4}])
@@ -295,12 +304,12 @@ def jobs(spec: dict) -> List[dict]:
     out = []
     for d in range(spec['draws']):
         motor = draw(spec, d)
-        for task, strategy, controller, g, load, profile in itertools.product(
+        for task, strategy, controller, g, load, profile, sensorless in itertools.product(
                 spec['tasks'], spec['strategies'], spec['controllers'], spec['gain_sets'],
-                spec['loads'], spec['profiles']):
+                spec['loads'], spec['profiles'], spec.get('sensorless', [False])):
             out.append({'index': len(out), 'draw': d, 'task': task, 'strategy': strategy,
                         'controller': controller, 'gain_set': g['name'], 'T_s': g['T_s'],
-                        'load': load, 'profile': profile, **motor})
+                        'load': load, 'profile': profile, 'sensorless': sensorless, **motor})
     return out + commission_jobs(spec, len(out))
 
 
@@ -342,12 +351,15 @@ def scenario_for(job: dict, spec: dict, gains: dict):
     from im_controller.profiles import load_profile
     base = base_motor(spec)
     motor = base.with_values(**{k: job[k] for k in DRAWN})
+    kw = gain_arguments_from_parameters(gains[job['gain_set']])
+    if job.get('sensorless'):   # the controller orients on the observed flux (docs/sensorless.md)
+        kw['controller_options'] = dict(kw.get('controller_options', {}), sensorless=True)
     return Scenario(task=job['task'], strategy=job['strategy'], T_s=job['T_s'],
                     controller=job['controller'],
                     duration=spec['duration'], motor=motor, estimates=base,
                     load_model=None if job['load'] == 'task' else load_file(job['load']),
                     profile=None if job['profile'] == 'task' else load_profile(job['profile']),
-                    **gain_arguments_from_parameters(gains[job['gain_set']]))
+                    sensorless=bool(job.get('sensorless')), **kw)
 
 
 def adapter_for(job: dict, spec: dict):
@@ -361,7 +373,8 @@ def adapter_for(job: dict, spec: dict):
     from im_adapt.adaptation import AdaptationGains
     from im_adapt.hook import LockstepAdapter
     return LockstepAdapter.build(base_motor(spec),
-                                 AdaptationGains(**ADAPTATION[job['controller']]))
+                                 AdaptationGains(**ADAPTATION[job['controller']]),
+                                 sensorless=bool(job.get('sensorless')))
 
 
 def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
@@ -373,7 +386,8 @@ def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
                              motor=base.with_values(**{k: job[k] for k in DRAWN}),
                              estimates=base,
                              load=None if job['load'] == 'task' else job['load'],
-                             profile=None if job['profile'] == 'task' else job['profile'])
+                             profile=None if job['profile'] == 'task' else job['profile'],
+                             sensorless=bool(job.get('sensorless')))
     for node, values in gains[job['gain_set']].items():
         params[node].update(values)
     return params

@@ -4,7 +4,9 @@
 It runs on the offline loop (docs/sensorless.md §5) — the thesis speed task per flux strategy,
 sensored against sensorless with the measured speed made useless (σ = 50 rad/s), and a ±100 rad/s
 reversal against a constant 1 N·m on every shipped motor with its rating-scaled controller
-(``study_motors``). Prints a Markdown table; ``--json`` writes the rows.
+(``study_motors``); then the torque task per strategy, and the adapter on with the plant's R_s
+drifted (the thesis speed task and a low-speed hold). Prints Markdown tables; ``--json`` writes
+the rows.
 """
 from __future__ import annotations
 
@@ -14,7 +16,8 @@ import sys
 
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad
-from im_common.params import load_motor_file, shipped_motors_dir
+from im_common.params import (THESIS_MOTOR, ParameterSchedule, constant, load_motor_file,
+                              shipped_motors_dir)
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 import numpy as np
@@ -28,6 +31,12 @@ REVERSAL_SPEED = 100.0
 REVERSAL_LOAD = 1.0
 #: the speed error is judged after this time [s] (the speed task starts in steady state)
 SETTLE = 0.1
+#: the torque task's step [N·m]
+TORQUE_STEP = 5.0
+#: the plant's stator resistance against the model's in the adaptive runs
+R_S_DRIFT = 1.3
+#: the low-speed hold: speed [rad/s], constant load [N·m], duration [s]
+HOLD_SPEED, HOLD_LOAD, HOLD_DURATION = 10.0, 4.0, 1.5
 
 
 def motor_file(name: str):
@@ -48,9 +57,67 @@ def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless:
                    source='sensorless reversal')
     return Scenario(task='speed', strategy=strategy, motor=m, profile=prof,
                     load_model=ConstantLoad(tau=REVERSAL_LOAD), duration=0.2 + ramp + 0.8,
-                    v_limit=m.rated_voltage, controller_options=scaled_options(m, 'speed'),
+                    v_limit=m.rated_voltage,
+                    controller_options=dict(scaled_options(m, 'speed'), sensorless=sensorless),
                     sensorless=sensorless,
                     speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0, **kw)
+
+
+def sensorless_options(sensorless: bool) -> dict:
+    """Scenario keywords of a sensorless run: the measured speed useless, and the controller
+    told that its θ, ω are the observer's (direct field orientation, docs/sensorless.md §4)."""
+    if not sensorless:
+        return {'sensorless': False}
+    return {'sensorless': True, 'speed_noise_std': USELESS_SPEED_NOISE,
+            'controller_options': {'sensorless': True}}
+
+
+def torque_task(strategy: str, sensorless: bool = True, **kw) -> Scenario:
+    """0 → +5 → −5 N·m from rest (unloaded shaft: it accelerates, then brakes through zero
+    speed into the other direction), thesis motor."""
+    prof = Profile('torque', ((0.0, 0.0, None), (0.1, TORQUE_STEP, None),
+                              (0.4, -TORQUE_STEP, None)), source='sensorless torque task')
+    opts = sensorless_options(sensorless)
+    opts.update(kw)
+    return Scenario(task='torque', strategy=strategy, profile=prof, duration=0.8, **opts)
+
+
+def drifted_stator(motor=THESIS_MOTOR, factor: float = R_S_DRIFT) -> ParameterSchedule:
+    """The plant's R_s ``factor`` × the model's (a warm stator), nothing else varying."""
+    return ParameterSchedule(motor, {'R_s': constant(factor * motor.R_s)},
+                             name=f'R_s x{factor:g}')
+
+
+def adaptive_speed_task(sensorless: bool, strategy: str = 'min_loss', **kw) -> Scenario:
+    """The thesis speed task with the plant's R_s drifted (run it with :func:`run_adaptive`)."""
+    opts = sensorless_options(sensorless)
+    opts.update(kw)
+    return Scenario(task='speed', strategy=strategy, schedule=drifted_stator(), **opts)
+
+
+def low_speed_hold(sensorless: bool = True, **kw) -> Scenario:
+    """10 rad/s against a constant 4 N·m from steady state, the plant's R_s drifted: the low
+    stator frequency where R_s weighs most in the voltage."""
+    prof = Profile('speed', ((0.0, HOLD_SPEED, None),), source='low-speed hold')
+    opts = sensorless_options(sensorless)
+    opts.update(kw)
+    return Scenario(task='speed', strategy='min_loss', profile=prof,
+                    load_model=ConstantLoad(tau=HOLD_LOAD), duration=HOLD_DURATION,
+                    schedule=drifted_stator(), **opts)
+
+
+def run_adaptive(sc: Scenario, record_every: int = 1):
+    """(result, estimate samples) of ``sc`` with the adapter on (improved law, inverse-Γ feed),
+    told ``sc.sensorless``; samples are rows (R_r, θ, L_M, R_R, L_σ, R_s)."""
+    from im_adapt.hook import LockstepAdapter
+    hook = LockstepAdapter.build(sc.model_estimates(), sensorless=sc.sensorless)
+    res = simulate(sc, adapter=hook, record_every=record_every)
+    return res, np.asarray(hook.samples)
+
+
+def torque_error_rms(result) -> float:
+    tr = result.trace
+    return float(np.sqrt(np.mean((tr['tau_m'] - tr['tau_ref']) ** 2)))
 
 
 def _row(label: str, motor: str, strategy: str, sensored, sensorless) -> dict:
@@ -73,8 +140,7 @@ def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
     rows = []
     for st in strategies:
         a = simulate(Scenario(task='speed', strategy=st))
-        b = simulate(Scenario(task='speed', strategy=st, sensorless=True,
-                              speed_noise_std=USELESS_SPEED_NOISE))
+        b = simulate(Scenario(task='speed', strategy=st, **sensorless_options(True)))
         rows.append(_row('thesis speed task', 'thesis', st, a, b))
     for mo in motors:
         for st in strategies:
@@ -82,6 +148,66 @@ def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
             b = simulate(sensorless_reversal(mo, st), record_every=10)
             rows.append(_row('±100 rad/s reversal, 1 N·m', mo, st, a, b))
     return rows
+
+
+def run_torque(strategies=COMPARED_STRATEGIES) -> list:
+    """The torque task per strategy: torque error RMS sensored and sensorless."""
+    rows = []
+    for st in strategies:
+        a = simulate(torque_task(st, False))
+        b = simulate(torque_task(st, True))
+        tr = b.trace
+        rows.append({'strategy': st, 'torque_rms_sensored': torque_error_rms(a),
+                     'torque_rms_sensorless': torque_error_rms(b), 'trip': b.summary['trip'],
+                     'estimate_err_max': float(np.max(np.abs(tr['omega_hat'] - tr['omega_r']))),
+                     'omega_end': float(tr['omega_r'][-1])})
+    return rows
+
+
+def run_adapter() -> list:
+    """The adapter on, the plant's R_s × R_S_DRIFT: the thesis speed task (min_loss) sensored and
+    sensorless, and the sensorless low-speed hold (R̂_s at the end)."""
+    rows = []
+    for label, make in (('thesis speed task, min_loss', adaptive_speed_task),
+                        (f'{HOLD_SPEED:g} rad/s hold, {HOLD_LOAD:g} N·m, min_loss', low_speed_hold)):
+        (a, _), (b, s) = run_adaptive(make(False)), run_adaptive(make(True))
+        late = b.trace['t'] >= (SETTLE if make is adaptive_speed_task else 1.0)
+        e = b.trace['omega_r'] - b.trace['omega_ref']
+        ea = a.trace['omega_r'] - a.trace['omega_ref']
+        la = a.trace['t'] >= (SETTLE if make is adaptive_speed_task else 1.0)
+        rows.append({'run': label, 'trip': b.summary['trip'],
+                     'speed_err_max': float(np.max(np.abs(e[late]))),
+                     'speed_err_max_sensored': float(np.max(np.abs(ea[la]))),
+                     'E_loss_sensored': a.summary['E_loss_J'],
+                     'E_loss_sensorless': b.summary['E_loss_J'],
+                     'loss_change': b.summary['E_loss_J'] / a.summary['E_loss_J'] - 1.0,
+                     'R_s_true': R_S_DRIFT * THESIS_MOTOR.R_s, 'R_s_end': float(s[-1, 5]),
+                     'R_R_held': bool(np.all(s[:, 3] == s[0, 3])), 'L_M_end': float(s[-1, 2])})
+    return rows
+
+
+def torque_table(rows: list) -> str:
+    out = ['| strategy | torque err RMS sensored [N·m] | sensorless [N·m] | ω̂ − ω max [rad/s] '
+           '| ω at the end [rad/s] |', '| --- | --- | --- | --- | --- |']
+    for r in rows:
+        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        out.append(f"| {r['strategy']}{trip} | {r['torque_rms_sensored']:.4f} "
+                   f"| {r['torque_rms_sensorless']:.4f} | {r['estimate_err_max']:.3f} "
+                   f"| {r['omega_end']:+.1f} |")
+    return '\n'.join(out)
+
+
+def adapter_table(rows: list) -> str:
+    out = ['| run (plant R_s × 1.3, adapter on) | speed err max, sensored / sensorless [rad/s] '
+           '| E_loss sensored [J] | E_loss sensorless [J] | change | R̂_s at the end (true) [Ω] '
+           '| R̂_R held |', '| --- | --- | --- | --- | --- | --- | --- |']
+    for r in rows:
+        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        out.append(f"| {r['run']}{trip} | {r['speed_err_max_sensored']:.3f} / "
+                   f"{r['speed_err_max']:.3f} | {r['E_loss_sensored']:.1f} "
+                   f"| {r['E_loss_sensorless']:.1f} | {100 * r['loss_change']:+.2f} % "
+                   f"| {r['R_s_end']:.4f} ({r['R_s_true']:.4f}) | {'yes' if r['R_R_held'] else 'no'} |")
+    return '\n'.join(out)
 
 
 def table(rows: list) -> str:
@@ -107,9 +233,15 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     rows = run(a.strategy or COMPARED_STRATEGIES, a.motor or MOTORS)
     print(table(rows))
+    torque = run_torque(a.strategy or COMPARED_STRATEGIES)
+    print()
+    print(torque_table(torque))
+    adapter = run_adapter()
+    print()
+    print(adapter_table(adapter))
     if a.json:
         with open(a.json, 'w') as f:
-            json.dump(rows, f, indent=1)
+            json.dump({'speed': rows, 'torque': torque, 'adapter': adapter}, f, indent=1)
     return 0
 
 
