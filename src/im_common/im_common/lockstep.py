@@ -614,7 +614,13 @@ class LockstepNode(Node):
             inputs = gate.put(topic, ns, value)
             if inputs is not None:          # the step is complete
                 ready(inputs)
+            elif gate.follow:
+                self.on_incomplete(topic, ns)
         self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
+
+    def on_incomplete(self, topic: str, ns: int) -> None:
+        """Hook of a follow gate (free_run): ``topic`` stamped ``ns`` arrived and no step is
+        complete yet. The observer bridges a stalled loop here."""
 
     def refuse(self, topic: str, ns: Optional[int], reason: str) -> None:
         """Count and log an input that is refused (the node keeps running)."""
