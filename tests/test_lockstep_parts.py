@@ -73,8 +73,12 @@ def test_a_follow_gate_keeps_a_bounded_number_of_pending_steps():
 
 
 def test_a_gate_skips_to_a_step_its_node_bridged_to():
-    """A node that bridged steps itself moves its gate past them: counted as gaps, their inputs
-    dropped, never backwards, a step already complete handed over."""
+    """
+    Check that a node that bridged steps itself moves its gate past them.
+
+    They are counted as gaps and their inputs dropped; the gate never moves backwards; a step
+    already complete is handed over.
+    """
     g = StepGate(['a', 'b'], 10, follow=True)
     g.put('a', 0, 1)
     g.put('a', 30, 2)

@@ -79,9 +79,13 @@ class StepGate:
         return None
 
     def skip_to(self, ns: int) -> Optional[dict]:
-        """Give up every step before ``ns`` (counted as gaps) and wait for ``ns``; return its
-        inputs if they are already complete. A follower whose node bridged those steps itself
-        (the observer, :meth:`im_observer.observer_node.ObserverNode.on_incomplete`) calls it."""
+        """
+        Give up every step before ``ns`` (counted as gaps) and wait for ``ns``.
+
+        Returns its inputs if they are already complete. A follower whose node bridged those
+        steps itself (the observer, :meth:`im_observer.observer_node.ObserverNode.on_incomplete`)
+        calls it; the gate never moves backwards.
+        """
         if ns > self.expected:
             self._skip_to(ns)
             self.since = time.monotonic()
