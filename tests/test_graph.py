@@ -217,3 +217,46 @@ def test_non_finite_command_is_refused_and_held_by_the_observer(ros_context):
     assert node.refused == 2 and node.k_done == 2           # steps 1, 2 ran on the held 10 V
     assert all(math.isfinite(v) for v in node.obs.state)
     node.destroy_node()
+
+
+def test_a_free_run_observer_bridges_a_stalled_loop_up_to_the_plant(ros_context):
+    """
+    Check that one lost command does not stop a free_run loop for the rest of the run.
+
+    The controller's command of step 0 never reaches the observer (lost from its reader history
+    while it was starved: two free_run graphs on one domain). The controller waits for the
+    observer's estimate of step 1, the observer for that command: before, neither moved again
+    (2000 of 2000 steps without a command). Now the observer, 50 steps behind the plant's
+    measurements with no step complete, bridges open-loop up to the plant's present step, and the
+    next command it gets is computed on.
+    """
+    from im_common import topics as T
+    from im_common.auth import Signer
+    from im_common.conversions import JointStateOut, Vector3Out
+    from im_common.run_protocol import RUNNING
+    from im_observer.observer_node import STALL_STEPS, ObserverNode
+    node = ObserverNode(context=ros_context, graph_key=bytes(32))
+    node.on_peer_status('plant', RUNNING, {'time_master': 'true', 'run_id': 'run1',
+                                           'mode': 'free_run'})
+    assert node.run_id == 'run1' and node.gate.follow
+    sign = Signer(bytes(32), 'run1').sign
+    subs = {s.topic_name: s for s in node.subscriptions}
+    vec, shaft = Vector3Out(Signer.frame('ab')), JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
+
+    def measure(k):
+        ns = k * node.period
+        subs[T.MEAS_CURRENT].callback(sign(T.MEAS_CURRENT, vec.fill(ns, 1.0, 0.0)))
+        subs[T.MEAS_SHAFT].callback(sign(T.MEAS_SHAFT, shaft.fill(ns, (0.0,), (0.0,))))
+
+    for k in range(STALL_STEPS):            # no command: the loop has stalled at step 0
+        measure(k)
+    assert node.k_done == -1 and node.bridged == 0      # 49 steps behind: still waiting
+    measure(STALL_STEPS)
+    assert node.k_done == STALL_STEPS - 1 and node.bridged == STALL_STEPS
+    assert node.gate.expected == STALL_STEPS * node.period
+    subs[T.CMD_VOLTAGE].callback(sign(T.CMD_VOLTAGE, vec.fill(STALL_STEPS * node.period,
+                                                              10.0, 0.0)))
+    assert node.k_done == STALL_STEPS and node.bridged == STALL_STEPS    # computed on again
+    assert not node.done and node.exit_code == 0
+    assert all(math.isfinite(v) for v in node.obs.state)
+    node.destroy_node()

@@ -74,6 +74,28 @@ def test_a_follow_gate_keeps_a_bounded_number_of_pending_steps():
     assert g.expected == 7 * P and g.gaps == 7
 
 
+def test_a_gate_skips_to_a_step_its_node_bridged_to():
+    """
+    Check that a node that bridged steps itself moves its gate past them.
+
+    They are counted as gaps and their inputs dropped; the gate never moves backwards; a step
+    already complete is handed over.
+    """
+    g = StepGate(['a', 'b'], 10, follow=True)
+    g.put('a', 0, 1)
+    g.put('a', 30, 2)
+    g.put('b', 50, 3)
+    assert g.skip_to(30) is None and g.expected == 30 and g.gaps == 3
+    assert sorted(g.pending) == [30, 50]
+    assert g.skip_to(10) is None and g.expected == 30 and g.gaps == 3
+    assert g.put('b', 30, 4) == {'a': 2, 'b': 4}
+    exact = StepGate(['a', 'b'], 10)
+    exact.put('a', 0, 1)
+    exact.put('a', 20, 2)
+    assert exact.put('b', 20, 3) is None        # an exact gate waits for step 0
+    assert exact.skip_to(20) == {'a': 2, 'b': 3} and exact.gaps == 2 and exact.pending == {}
+
+
 def test_finite_looks_at_every_number_of_a_decoded_input():
     assert finite((1.0, 2.0)) and finite({'R_r': 1.0})
     assert not finite((1.0, float('nan'))) and not finite({'R_r': float('inf')})

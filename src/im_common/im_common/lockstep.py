@@ -174,6 +174,8 @@ class LockstepNode(Node):
         self._last_wait_log = 0.0
         self._watchdog = None
         self.on_stop: Optional[Callable[['LockstepNode'], None]] = None   # set by a graph
+        #: Key/values in every event of this node (the plant: its ``mode``).
+        self.event_context: Dict[str, str] = {}
         self.own_process = False      # set by node_main: real-time scheduling is this process's
         self.scheduling = 'normal'
         self.refused_by_topic: Dict[str, int] = {}
@@ -277,7 +279,7 @@ class LockstepNode(Node):
         st = DiagnosticStatus(level=bytes([level]), name=self.get_name(), message=state,
                               hardware_id='im_drive')
         base = self.protocol.event_values(self.critical, self.time_master, self.period, ns,
-                                          values)
+                                          dict(self.event_context, **values))
         st.values = [KeyValue(key=str(k), value=str(v)) for k, v in base.items()]
         msg.status = [st]
         msg.header.frame_id = self.signing.status_tag(msg)
@@ -398,12 +400,16 @@ class LockstepNode(Node):
                         f'node follows run {self.run_id}')
                 return
             self.protocol.master_state = state
+            if values.get('mode') == 'free_run':
+                # already at the time master's 'waiting': a node that became real-time only at
+                # 'running' sat at ordinary priority while another graph's free_run loop (real-
+                # time, on the same cores) starved it, and lost its own run's first steps from
+                # its reader histories
+                self.enter_realtime()
             if state == RUNNING:
                 self.free_run = values.get('mode') == 'free_run'
                 if self.free_run and self.gate is not None:
                     self.gate.follow = True
-                if self.free_run:
-                    self.enter_realtime()
         if self.done:
             return
         following = not self.critical or (self.gate is not None and self.gate.follow)
@@ -674,7 +680,13 @@ class LockstepNode(Node):
             inputs = gate.put(topic, ns, value)
             if inputs is not None:          # the step is complete
                 ready(inputs)
+            elif gate.follow:
+                self.on_incomplete(topic, ns)
         self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
+
+    def on_incomplete(self, topic: str, ns: int) -> None:
+        """Hook of a follow gate (free_run): ``topic`` stamped ``ns`` arrived and no step is
+        complete yet. The observer bridges a stalled loop here."""
 
     def refuse(self, topic: str, ns: Optional[int], reason: str) -> None:
         """Count and log an input that is refused (the node keeps running)."""

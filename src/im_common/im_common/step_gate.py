@@ -83,6 +83,22 @@ class StepGate:
                 return slot
         return None
 
+    def skip_to(self, ns: int) -> Optional[dict]:
+        """
+        Give up every step before ``ns`` (counted as gaps) and wait for ``ns``.
+
+        Returns its inputs if they are already complete. A follower whose node bridged those
+        steps itself (the observer, :meth:`im_observer.observer_node.ObserverNode.on_incomplete`)
+        calls it; the gate never moves backwards.
+        """
+        if ns > self.expected:
+            self._skip_to(ns)
+            self.since = time.monotonic()
+        slot = self.pending.get(self.expected)
+        if slot is not None and len(slot) == self.n:
+            return self.pending.pop(self.expected)
+        return None
+
     def _skip_to(self, ns: int) -> None:
         lost = (ns - self.expected) // self.period
         if lost > 0:

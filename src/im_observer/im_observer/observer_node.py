@@ -19,12 +19,19 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, Vector3Out,
                                    xy_in)
-from im_common.lockstep import data_qos, lockstep_qos, LockstepNode, node_main, StepGate
+from im_common.lockstep import (data_qos, LOCKSTEP_DEPTH, lockstep_qos, LockstepNode, node_main,
+                                StepGate)
 from im_common.node_params import declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
 from im_observer.parameters import check_gain_period, declare_observer
 from im_observer.speed_observer import SpeedAdaptiveObserver
 from sensor_msgs.msg import JointState
+
+
+#: free_run: a follow gate this many steps behind the plant's measurements with no step complete
+#: is a stalled loop (:meth:`ObserverNode.on_incomplete`) — half the lock-step window, 50 ms at
+#: 1 kHz; a loop that runs completes a step every period.
+STALL_STEPS = LOCKSTEP_DEPTH // 2
 
 
 class ObserverNode(LockstepNode):
@@ -91,6 +98,29 @@ class ObserverNode(LockstepNode):
         self.publish_estimate(k + 1)
         if self.last_step is not None and k + 1 >= self.last_step:
             self.reached_last_step()
+
+    def on_incomplete(self, topic: str, ns: int) -> None:
+        """free_run: the plant's measurement stamped ``ns`` came while this node still waits for
+        a step at least :data:`STALL_STEPS` earlier, and no later step is complete. The loop has
+        stalled: the controller waits for this node's estimate of a step whose command or
+        measurement never reached this node (lost from a reader history while the node was
+        starved), and this node waits for that command — neither would ever move again. Bridge
+        open-loop up to the plant's present step (what the plant did without commands), so the
+        controller gets estimates again."""
+        gate = self.gate
+        if topic != T.MEAS_CURRENT or ns - gate.expected < STALL_STEPS * self.period:
+            return
+        k = ns // self.period
+        try:
+            while self.k_done + 1 < k:
+                self._bridge(self.k_done + 1)
+        except (ValueError, ArithmeticError) as exc:
+            self.fail(f'observer failed bridging step {self.k_done + 1} '
+                      f'(t = {(self.k_done + 1) * self.T_s:.9f} s): {exc}')
+            return
+        inputs = gate.skip_to(ns)
+        if inputs is not None:
+            self.ready(inputs)
 
     def _bridge(self, j: int) -> None:
         v_a, v_b, omega = self.held

@@ -47,6 +47,7 @@ class PlantNode(LockstepNode):
         self.T_s, self.duration, timeout, startup = declare_run(self)
         values = declare_plant(self)
         self.mode = values['mode']
+        self.event_context = {'mode': self.mode}    # a free_run follower goes real-time early
         self.clock_every = values['clock_decimation']
         self.truth_every = values['truth_decimation']
         self.sim = simulator_from_parameters(values, self.T_s, self.duration)

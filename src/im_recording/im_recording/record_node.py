@@ -285,7 +285,7 @@ class RecorderNode(LockstepNode):
                 self.run_start = int(values.get('step', 0) or 0) * self.period
                 self.from_start = self.get_name() in values.get('followers', '').split()
                 self._set_ack_topics()
-            if state == RUNNING and values.get('mode') == 'free_run':
+            if values.get('mode') == 'free_run':   # from its 'waiting' on (lockstep.py)
                 self._enter_free_run()
             if state in END_STATES:
                 self.end_state = state
