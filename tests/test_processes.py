@@ -387,8 +387,10 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
     Check two launches on one ROS_DOMAIN_ID, the second started during the first.
 
     Two launches (each its own key, the same node names) on one ROS_DOMAIN_ID, the second started
-    while the first runs: both finish (exit 0), each records every step of its run, and in
-    lock-step each computes exactly what it computes alone. Before, each node asked the graph API
+    while the first runs: both finish (exit 0), each bag's missing count is what it lacks, and in
+    lock-step each records every step and computes exactly what it computes alone (in free_run,
+    before, one lost message of a step deadlocked both loops: 100 % of deadlines missed, no
+    command recorded). Before, each node asked the graph API
     for every message of the other graph it refused, fell behind the other graph's flood, its
     reader history lost its own graph's step and that plant stopped ("no /im/command/voltage
     stamped 0.468 s ... within 5.0 s").
@@ -423,7 +425,11 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
     for bag in bags:
         meta = info(bag).metadata['recording']
         missing = missing_in_bag(bag, period)
-        assert missing[T.MEAS_CURRENT] == missing[T.MEAS_SHAFT] == 0, (bag, missing)
+        if mode == 'lockstep':      # the plant waits for its recorder: nothing may be missing
+            assert missing[T.MEAS_CURRENT] == missing[T.MEAS_SHAFT] == 0, (bag, missing)
+        # free_run: two 1 kHz graphs at SCHED_FIFO 50 fill a 2-core machine and their recorders
+        # run below them (fifo:40) — a recording may lack steps, but never silently: what the
+        # bag lacks is exactly what its metadata reports missing
         assert missing == {t: int(meta[f'missing_steps{t}']) for t in LOCKSTEP}, (bag, meta)
     if mode == 'lockstep':
         live = run_graph(task='position', strategy='min_energy', duration=1.0)
