@@ -41,7 +41,6 @@ PENDING = {
     'src/im_common/im_common/auth.py',
     'src/im_plant/*',
     'src/im_controller/im_controller/flux.py',
-    'src/im_controller/im_controller/control_law.py',
     'src/im_controller/im_controller/controller_node.py',
     'src/im_observer/im_observer/observer_node.py',
     'src/im_adapt/im_adapt/adapter_node.py',
