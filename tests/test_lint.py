@@ -39,7 +39,7 @@ PENDING = {
     'src/im_common/im_common/plant_sim.py',
     'src/im_common/im_common/lockstep.py',
     'src/im_common/im_common/auth.py',
-    'src/im_plant/*',
+    'src/im_plant/im_plant/parameters.py',
     'src/im_controller/im_controller/flux.py',
     'src/im_controller/im_controller/controller_node.py',
     'src/im_observer/im_observer/observer_node.py',
