@@ -1,5 +1,7 @@
-"""Torque-tracking drive controller with flux strategies (seed 000 §3.2-3.3, eq. 3.1, 3.13, 3.25-3.31;
-§4.2, eq. 4.10-4.14 with adapted estimates).
+"""
+Torque-tracking drive controller with flux strategies.
+
+Seed 000 §3.2-3.3, eq. 3.1, 3.13, 3.25-3.31; §4.2, eq. 4.10-4.14 with adapted estimates.
 
 One call of :meth:`DriveController.compute` per control period t_k:
 
@@ -32,16 +34,16 @@ Everything per call is scalar Python.
 from __future__ import annotations
 
 import bisect
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Optional
 
 from im_common.loads import LOAD_KINDS, make_load
-from im_common.params import (RATED, InvalidParameter, MotorParams, THESIS_MOTOR, check_real,
-                              estimate_arguments, resolve_rated)
+from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
+                              resolve_rated, THESIS_MOTOR)
 
-from .flux import LOSS_OPTIMAL, STRATEGIES, FluxStrategy, LowPass2
-from .reference import (ModelCoefficients, dq_reference, feedforward_dq, steady_state)
+from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, STRATEGIES
+from .reference import dq_reference, feedforward_dq, ModelCoefficients, steady_state
 from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, ThesisPositionProfile,
                            ThesisSpeedProfile)
 
@@ -82,8 +84,10 @@ _real = check_real
 
 @dataclass
 class ControllerConfig:
-    """Configuration of :class:`DriveController` (SI units). Validated on construction; every
-    error names the field.
+    """
+    Configuration of :class:`DriveController` (SI units).
+
+    Validated on construction; every error names the field.
 
     mode            'position' | 'speed' | 'torque'
     profile         'thesis' (§3.4.4 trajectories) | 'setpoint' (``set_setpoint``)
@@ -180,10 +184,11 @@ class ControllerConfig:
         for name, allowed in (('mode', MODES), ('profile', PROFILES), ('strategy', STRATEGIES),
                               ('flux_coupling', FLUX_COUPLINGS)):
             if getattr(self, name) not in allowed:
-                raise InvalidParameter(name, getattr(self, name), f'must be one of {", ".join(allowed)}')
+                raise InvalidParameter(name, getattr(self, name),
+                                       f'must be one of {", ".join(allowed)}')
         if self.mode == 'torque' and self.profile == 'thesis':
             raise InvalidParameter('profile', self.profile,
-                                   "the thesis profiles are position/speed trajectories; "
+                                   'the thesis profiles are position/speed trajectories; '
                                    "mode 'torque' needs profile 'setpoint'")
         if not isinstance(self.params, MotorParams):
             raise InvalidParameter('params', self.params, 'must be a MotorParams')
@@ -192,7 +197,8 @@ class ControllerConfig:
         self.phi_min = _real('phi_min', self.phi_min, 0.0, lo_open=True)
         self.phi_max = _real('phi_max', self.phi_max, 0.0, lo_open=True)
         if self.phi_max < self.phi_min:
-            raise InvalidParameter('phi_max', self.phi_max, f'must be >= phi_min = {self.phi_min:g}')
+            raise InvalidParameter('phi_max', self.phi_max,
+                                   f'must be >= phi_min = {self.phi_min:g}')
         self.k1 = _real('k1', self.k1, 0.0, lo_open=True)
         kp0, kv0 = DEFAULT_GAINS[self.mode]
         self.k_p = kp0 if self.k_p is None else _real('k_p', self.k_p, 0.0)
@@ -215,7 +221,8 @@ class ControllerConfig:
             try:
                 rows = [[float(x) for x in r] for r in g]
             except (TypeError, ValueError):
-                raise InvalidParameter('current_gain', g, 'must be a 2x2 matrix of numbers') from None
+                raise InvalidParameter('current_gain', g,
+                                       'must be a 2x2 matrix of numbers') from None
             if len(rows) != 2 or any(len(r) != 2 for r in rows) or \
                     not all(math.isfinite(x) for r in rows for x in r):
                 raise InvalidParameter('current_gain', g, 'must be a 2x2 matrix of finite numbers')
@@ -229,8 +236,10 @@ class ControllerConfig:
             self.current_gain = rows
         self.T_s = _real('T_s', self.T_s, 0.0, lo_open=True)
         if not isinstance(self.hold_compensation, bool):
-            raise InvalidParameter('hold_compensation', self.hold_compensation, 'must be true or false')
-        self.torque_filter_bandwidth = _real('torque_filter_bandwidth', self.torque_filter_bandwidth,
+            raise InvalidParameter('hold_compensation', self.hold_compensation,
+                                   'must be true or false')
+        self.torque_filter_bandwidth = _real('torque_filter_bandwidth',
+                                             self.torque_filter_bandwidth,
                                              0.0, lo_open=True)
         if self.flux_time_constants is not None:
             try:
@@ -245,14 +254,17 @@ class ControllerConfig:
         if self.core_loss_exponent not in (1, 2, 1.0, 2.0):
             raise InvalidParameter('core_loss_exponent', self.core_loss_exponent, 'must be 1 or 2')
         self.core_loss_exponent = float(self.core_loss_exponent)
-        self.setpoint_duration = _real('setpoint_duration', self.setpoint_duration, 0.0, lo_open=True)
+        self.setpoint_duration = _real('setpoint_duration', self.setpoint_duration, 0.0,
+                                       lo_open=True)
         if self.flux_preview is None:
             self.flux_preview = DEFAULT_FLUX_PREVIEW if self.strategy in LOSS_OPTIMAL else 0.0
         self.flux_preview = _real('flux_preview', self.flux_preview, 0.0)
         for name in ('torque_limit', 'current_limit', 'speed_limit'):
-            setattr(self, name, _real(name, getattr(self, name), 0.0, lo_open=True, allow_none=True))
+            setattr(self, name,
+                    _real(name, getattr(self, name), 0.0, lo_open=True, allow_none=True))
         if not isinstance(self.field_weakening, bool):
-            raise InvalidParameter('field_weakening', self.field_weakening, 'must be true or false')
+            raise InvalidParameter('field_weakening', self.field_weakening,
+                                   'must be true or false')
         self.voltage_margin = _real('voltage_margin', self.voltage_margin, 0.0, lo_open=True)
         if self.voltage_margin > 1.0:
             raise InvalidParameter('voltage_margin', self.voltage_margin, 'must be <= 1')
@@ -279,13 +291,14 @@ class ControllerConfig:
 
 
 def _check_setpoints(setpoints, profile: str) -> tuple:
-    """((t, value, duration|None), ...) sorted by t; clear errors naming the entry."""
+    """Return ((t, value, duration|None), ...) sorted by t; clear errors naming the entry."""
     out = []
     for k, entry in enumerate(setpoints or ()):
         try:
             t, value, duration = entry
         except (TypeError, ValueError):
-            raise InvalidParameter(f'setpoints[{k}]', entry, 'must be (t, value, duration)') from None
+            raise InvalidParameter(f'setpoints[{k}]', entry,
+                                   'must be (t, value, duration)') from None
         t = _real(f'setpoints[{k}].t', t, 0.0)
         value = _real(f'setpoints[{k}].value', value)
         duration = _real(f'setpoints[{k}].duration', duration, 0.0, lo_open=True, allow_none=True)
@@ -298,10 +311,13 @@ def _check_setpoints(setpoints, profile: str) -> tuple:
 
 
 def smooth_floor(phi: float, dphi: float, ddphi: float, eps: float):
-    """(f, df/dt, d²f/dt²) of f(φ) = φ for φ ≥ 3ε and ε + φ²/(3ε) − φ³/(27ε²) below: f(0) = ε,
-    f'(0) = 0, and f, f', f'' continuous at 3ε. So a flux reference rising from zero keeps
-    φ* ≥ ε > 0 (eq. 3.13 divides by it) without a step in dφ*/dt or d²φ*/dt² — the start-up
-    needs no voltage beyond the magnetizing ramp (docs/limits.md)."""
+    """
+    Return (f, df/dt, d²f/dt²) of f(φ) = φ for φ ≥ 3ε and ε + φ²/(3ε) − φ³/(27ε²) below.
+
+    f(0) = ε, f'(0) = 0, and f, f', f'' continuous at 3ε. So a flux reference rising from zero
+    keeps φ* ≥ ε > 0 (eq. 3.13 divides by it) without a step in dφ*/dt or d²φ*/dt² — the
+    start-up needs no voltage beyond the magnetizing ramp (docs/limits.md).
+    """
     p1 = 3.0 * eps
     x = abs(phi)
     if x >= p1:
@@ -327,7 +343,7 @@ class DriveController:
         self.reset()
 
     def _apply_config(self, cfg: ControllerConfig) -> None:
-        """The derived objects of the reconfigurable fields (no run state touched)."""
+        """Build the derived objects of the reconfigurable fields (no run state touched)."""
         self.config = cfg
         self._strategy = FluxStrategy(
             cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max, cfg.params.k_e, cfg.params.k_h,
@@ -362,13 +378,18 @@ class DriveController:
         self._live_setpoint = False  # a setpoint not in the configured profile: not known ahead
         self.plan_note = ''          # optimal: what the flux reference follows, and why
         if cfg.profile == 'thesis':
-            self._traj = ThesisPositionProfile() if cfg.mode == 'position' else ThesisSpeedProfile()
+            self._traj = (ThesisPositionProfile() if cfg.mode == 'position'
+                          else ThesisSpeedProfile())
 
     def reconfigure(self, changes: dict) -> None:
-        """Change live fields (:data:`LIVE_FIELDS`) while running. The whole new configuration is
-        validated first (ValueError naming the field; the old one stays in force); then it is
-        applied keeping every run state (filters, field angle, reference generator, estimates),
-        so the next step continues from where this one left off."""
+        """
+        Change live fields (:data:`LIVE_FIELDS`) while running.
+
+        The whole new configuration is validated first (ValueError naming the field; the
+        old one stays in force); then it is applied keeping every run state (filters, field
+        angle, reference generator, estimates), so the next step continues from where this
+        one left off.
+        """
         from dataclasses import replace
         bad = [k for k in changes if k not in LIVE_FIELDS]
         if bad:
@@ -384,20 +405,25 @@ class DriveController:
     def coefficients(self) -> ModelCoefficients:
         return self._c
 
-    def set_setpoint(self, kind: str, value: float, t: float, duration: float | None = None) -> None:
-        """New setpoint ('position' rad | 'speed' rad/s | 'torque' N·m) reached smoothly
-        (quintic over ``duration``, default ``setpoint_duration``; torque over a tenth of it),
+    def set_setpoint(self, kind: str, value: float, t: float,
+                     duration: float | None = None) -> None:
+        """
+        Set a new setpoint ('position' rad | 'speed' rad/s | 'torque' N·m), reached smoothly.
+
+        Quintic over ``duration`` (default ``setpoint_duration``; torque over a tenth of it),
         taking effect at the first step at or after its stamp ``t``.
 
         A stamp at or before the last computed step (0 included: ``ros2 topic pub`` leaves the
         header unset) means *now*: the transition starts at the next step from where the reference
         is then, so θ*, ω* (and a*) stay continuous — the past is never rebuilt. A future stamp
-        waits in the schedule; the reference keeps moving as it was until then."""
+        waits in the schedule; the reference keeps moving as it was until then.
+        """
         cfg = self.config
         if cfg.profile != 'setpoint':
             raise ValueError("set_setpoint needs profile 'setpoint' (the thesis profile is fixed)")
         if kind != cfg.mode:
-            raise ValueError(f"setpoint kind {kind!r} does not match the controller mode {cfg.mode!r}")
+            raise ValueError(f'setpoint kind {kind!r} does not match '
+                             f'the controller mode {cfg.mode!r}')
         value = _real('value', value)
         t = _real('t', t)
         # a setpoint not in the configured profile: the reference is not known ahead
@@ -405,10 +431,15 @@ class DriveController:
         # in stamp order; equal stamps in arrival order (insort_right)
         bisect.insort(self._schedule, (t, value, duration), key=lambda s: s[0])
 
-    def _start_transition(self, value: float, t_i: float, duration: float | None, t: float) -> None:
-        """Start the transition of a setpoint stamped t_i at the step t (t_i <= t). Stamped after
-        the last computed step (within this period), it starts at its stamp — joining the
-        reference C² there; stamped at or before it (the past), it starts now, at t."""
+    def _start_transition(self, value: float, t_i: float, duration: float | None,
+                          t: float) -> None:
+        """
+        Start the transition of a setpoint stamped t_i at the step t (t_i <= t).
+
+        Stamped after the last computed step (within this period), it starts at its stamp —
+        joining the reference C² there; stamped at or before it (the past), it starts now,
+        at t.
+        """
         cfg = self.config
         start = t_i if t_i > self._t_prev else t
         if cfg.mode == 'torque':
@@ -417,8 +448,12 @@ class DriveController:
             self._traj.set(value, start, duration or cfg.setpoint_duration)
 
     def _set_estimates(self, estimates) -> None:
-        """Adapted estimates: the inverse-Γ set when it carries ``L_sigma`` (the improved law,
-        truth-fed runs: every coefficient follows), else the thesis's ``R_r``/``theta``."""
+        """
+        Set the adapted estimates.
+
+        The inverse-Γ set when it carries ``L_sigma`` (the improved law, truth-fed runs:
+        every coefficient follows), else the thesis's ``R_r``/``theta``.
+        """
         args = estimate_arguments(estimates)
         key = tuple(args.items())
         if key != self._est_key:
@@ -443,22 +478,25 @@ class DriveController:
         self._t_prev = t
 
     def _apply_schedule(self, t: float) -> None:
-        """Setpoints (the configured profile's and ``set_setpoint``'s) whose time has come, in
-        stamp order. Called at step t before ``_t_prev`` moves on (the first step: after
-        ``_init_run``, with ``_t_prev`` = t)."""
+        """
+        Start the setpoints whose time has come, in stamp order.
+
+        Those of the configured profile and of ``set_setpoint``. Called at step t before
+        ``_t_prev`` moves on (the first step: after ``_init_run``, with ``_t_prev`` = t).
+        """
         sched = self._schedule
         while sched and sched[0][0] <= t:
             t_i, value, duration = sched.pop(0)
             self._start_transition(value, t_i, duration, t)
 
     def _path_torque(self, t: float, c: ModelCoefficients) -> float:
-        """Torque needed to follow the reference exactly at time t (feedforward + load model)."""
+        """Return the torque to follow the reference exactly at t (feedforward + load model)."""
         theta, omega, acc, _ = self._traj.sample(t)
         return c.J * acc + c.b * omega + self._load.torque(t, theta + self._theta_offset, omega)
 
     # Stage 1 ----------------------------------------------------------------------------------
     def _mechanical(self, t, theta_r, omega_r, c):
-        """Eq. 3.1: (θ*, ω*, feedforward + load torque, its rate, PD input u_pd)."""
+        """Return eq. 3.1's (θ*, ω*, feedforward + load torque, its rate, PD input u_pd)."""
         cfg = self.config
         if cfg.mode == 'torque':
             tau_ff, dtau_ff = self._torque_sp.sample(t)
@@ -474,7 +512,7 @@ class DriveController:
 
     # Stage 2 ----------------------------------------------------------------------------------
     def _flux_reference(self, t, tau, omega_r, c):
-        """Target flux (strategy, capped above base speed) → filter → smooth floor."""
+        """Return the target flux (strategy, capped above base speed) → filter → smooth floor."""
         cfg = self.config
         if cfg.strategy == 'optimal':
             planned = self._planned(t, c)
@@ -496,8 +534,11 @@ class DriveController:
         return phi_tgt, phi, dphi, ddphi
 
     def _planned(self, t: float, c: ModelCoefficients):
-        """optimal: (φ, φ̇, φ̈) of the plan at t, or None where the causal fallback rules (no plan:
-        the reason is in ``plan_note``; a live setpoint; past the plan's end)."""
+        """
+        Return the optimal plan's (φ, φ̇, φ̈) at t, or None where the causal fallback rules.
+
+        None: no plan (the reason is in ``plan_note``), a live setpoint, or past the plan's end.
+        """
         if not self._plan_tried:
             self._plan_tried = True
             self._make_plan(t, c)
@@ -506,24 +547,29 @@ class DriveController:
             return None
         if self._live_setpoint:
             self._plan = None
-            self.plan_note = (f'optimal: a live setpoint at t = {t:.4f} s changed the reference the '
-                              f'plan was made for: min_loss from here on')
+            self.plan_note = (f'optimal: a live setpoint at t = {t:.4f} s changed the reference '
+                              f'the plan was made for: min_loss from here on')
             return None
         if t > plan.end:
             self._plan = None
-            self.plan_note = f'optimal: past the plan\'s end ({plan.end:g} s): min_loss from here on'
+            self.plan_note = (f"optimal: past the plan's end ({plan.end:g} s): "
+                              'min_loss from here on')
             return None
         return plan.sample(t)
 
     def _make_plan(self, t0: float, c: ModelCoefficients) -> None:
-        """The loss-optimal flux trajectory over the reference known ahead, from the present flux
-        reference (docs/controller.md §10), with the drive's limits as constraints."""
+        """
+        Plan the loss-optimal flux trajectory over the reference known ahead.
+
+        From the present flux reference (docs/controller.md §10), with the drive's limits as
+        constraints.
+        """
         import copy
         import numpy as np
         from .flux_plan import PLAN_STEP, PlanError, plan_flux, static_loss_optimal_flux
         cfg = self.config
         if cfg.mode == 'torque':
-            self.plan_note = ('optimal: the torque task\'s speed is not known ahead: min_loss '
+            self.plan_note = ("optimal: the torque task's speed is not known ahead: min_loss "
                               '(the best causal plan)')
             return
         if self._live_setpoint or (cfg.profile == 'setpoint' and not self._schedule):
@@ -567,8 +613,9 @@ class DriveController:
             self.plan_note = f'optimal: {exc}: min_loss (the best causal plan)'
             return
         self._plan = plan
-        limits = [name for name, on in (('current limit', plan.current_limit_active),
-                                         ('flux cap', plan.flux_cap_active)) if on]
+        limits = [name for name, on in (
+            ('current limit', plan.current_limit_active),
+            ('flux cap', plan.flux_cap_active)) if on]
         self.plan_note = (f'optimal: planned the flux over [{t0:g}, {t1:g}] s ({n} intervals) in '
                           f'{plan.solve_s:.2f} s, predicted losses {plan.loss_J:.2f} J'
                           + (f', bound by the {" and ".join(limits)}' if limits else '')
@@ -576,8 +623,13 @@ class DriveController:
                              f'undelivered' if plan.torque_shortfall > 1e-9 else ''))
 
     def flux_cap(self, omega_r: float) -> float:
-        """Field weakening: the largest flux whose steady voltage ω_e (L_s/L_sr) φ stays within
-        ``voltage_margin`` · v_limit at the speed ω_r (ω_e ≈ v ω_r); ∞ without a voltage limit."""
+        """
+        Return the field-weakening flux cap.
+
+        The largest flux whose steady voltage ω_e (L_s/L_sr) φ stays within
+        ``voltage_margin`` · v_limit at the speed ω_r (ω_e ≈ v ω_r); ∞ without a voltage
+        limit.
+        """
         cfg = self.config
         if cfg.v_limit is None or not cfg.field_weakening:
             return math.inf
@@ -589,8 +641,11 @@ class DriveController:
 
     # Stage 1b: limits of the torque demand -----------------------------------------------------
     def _limit_torque(self, tau, dtau, phi, dphi, omega_r, c):
-        """τ* within the torque limit, the current limit at the present flux and the speed
-        limit; dτ*/dt = 0 while a bound holds (the bound is what is demanded then)."""
+        """
+        Limit τ* by the torque limit, the current limit at the present flux and the speed limit.
+
+        dτ*/dt = 0 while a bound holds (the bound is what is demanded then).
+        """
         cfg = self.config
         hi = math.inf if cfg.torque_limit is None else cfg.torque_limit
         i_d = (phi + c.T_r * dphi) / c.L_sr
@@ -619,7 +674,7 @@ class DriveController:
     # Stage 4 ----------------------------------------------------------------------------------
     def _voltage(self, c, i_ds, i_qs, di_ds, di_qs, phi, rho, rho_dot, dt, omega_r, omega_ref,
                  i_alpha, i_beta, phi_alpha_hat, phi_beta_hat):
-        """Feedforward eq. 3.29 rotated to the hold interval + feedback eq. 3.30-3.31."""
+        """Return feedforward eq. 3.29 rotated to the hold interval + feedback eq. 3.30-3.31."""
         cfg = self.config
         v = c.v
         cr, sr = math.cos(rho), math.sin(rho)
@@ -655,10 +710,14 @@ class DriveController:
         return v_a_ff + dva, v_b_ff + dvb, refs
 
     def _observed_angle(self, rho: float, phi_a: float, phi_b: float) -> float:
-        """Sensorless: the field angle is the observer's flux angle ∠φ̂ (unwrapped next to the
-        integrated ρ), once |φ̂| is above the magnetizing floor; below it (a demagnetized machine,
-        no angle to observe) the integrated ρ. Direct orientation: the angle does not integrate
-        ω̂, so a lagging speed estimate does not rotate the current away from the flux."""
+        """
+        Return the sensorless field angle: the observer's flux angle ∠φ̂.
+
+        Unwrapped next to the integrated ρ, once |φ̂| is above the magnetizing floor; below it (a
+        demagnetized machine, no angle to observe) the integrated ρ. Direct orientation: the
+        angle does not integrate ω̂, so a lagging speed estimate does not rotate the current away
+        from the flux.
+        """
         if math.hypot(phi_a, phi_b) < self.config.magnetizing_floor:
             return rho
         d = math.atan2(phi_b, phi_a) - rho
@@ -667,11 +726,12 @@ class DriveController:
     # ------------------------------------------------------------------------------------------
     def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
                 phi_alpha_hat: float, phi_beta_hat: float, estimates: dict | None = None):
-        """Stator voltage (V_α, V_β) to hold over [t, t + T_s]. Updates ``self.reference``."""
+        """Return the stator voltage (V_α, V_β) to hold on [t, t + T_s]; set ``self.reference``."""
         if not (math.isfinite(t) and math.isfinite(i_alpha) and math.isfinite(i_beta)
                 and math.isfinite(theta_r) and math.isfinite(omega_r)
                 and math.isfinite(phi_alpha_hat) and math.isfinite(phi_beta_hat)):
-            names = ('t', 'i_alpha', 'i_beta', 'theta_r', 'omega_r', 'phi_alpha_hat', 'phi_beta_hat')
+            names = ('t', 'i_alpha', 'i_beta', 'theta_r', 'omega_r', 'phi_alpha_hat',
+                     'phi_beta_hat')
             vals = (t, i_alpha, i_beta, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
             bad = [n for n, v in zip(names, vals) if not math.isfinite(v)]
             raise ValueError(f'controller input(s) not finite: {", ".join(bad)}')
@@ -741,17 +801,22 @@ class DriveController:
         return v_a, v_b
 
 
-def steady_operating_point(config: ControllerConfig, t0: float, theta0: float, omega0: float) -> dict:
-    """The electrical state the controller holds at t0 when the shaft is exactly on its
-    reference at constant speed: torque from eq. 3.1 with zero tracking error, flux at the
-    strategy's target, field angle 0. Used to start the speed task in steady state.
+def steady_operating_point(config: ControllerConfig, t0: float, theta0: float,
+                           omega0: float) -> dict:
+    """
+    Return the electrical state the controller holds at t0, the shaft on its reference.
+
+    The shaft is exactly on its reference at constant speed: torque from eq. 3.1 with zero
+    tracking error, flux at the strategy's target, field angle 0. Used to start the speed task
+    in steady state.
     """
     ctl = DriveController(config)
     c = ctl.coefficients
     if config.mode == 'torque':
         tau = 0.0
     else:
-        _, w_ref, a_ref, _ = ctl._traj.sample(t0) if ctl._traj is not None else (theta0, omega0, 0.0, 0.0)
+        _, w_ref, a_ref, _ = (ctl._traj.sample(t0) if ctl._traj is not None
+                              else (theta0, omega0, 0.0, 0.0))
         if config.profile == 'setpoint':
             w_ref, a_ref = omega0, 0.0
         tau = c.J * a_ref + c.b * w_ref
@@ -763,12 +828,15 @@ def steady_operating_point(config: ControllerConfig, t0: float, theta0: float, o
 
 
 def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, omega0: float):
-    """(plant x₀, observer x̂₀) of a run started in the controller's own steady state at
-    (θ₀, ω₀): the plant in the physical state that steady state is — the reference stator
-    currents and the same inverse-Γ rotor flux ψ_R = θφ_r (θ = L_sr/L_r) — written in the
-    plant's gauge (φ_r scaled by θ_model/θ_plant, ψ_s from the plant's inductances); the
-    observer on the reference, in the model's gauge. A model written in another rotor gauge
-    (same inverse-Γ set, docs/commissioning.md §1) thus starts the plant in the same state."""
+    """
+    Return (plant x₀, observer x̂₀) of a run started in the controller's steady state (θ₀, ω₀).
+
+    The plant in the physical state that steady state is — the reference stator currents and
+    the same inverse-Γ rotor flux ψ_R = θφ_r (θ = L_sr/L_r) — written in the plant's gauge (φ_r
+    scaled by θ_model/θ_plant, ψ_s from the plant's inductances); the observer on the
+    reference, in the model's gauge. A model written in another rotor gauge (same inverse-Γ
+    set, docs/commissioning.md §1) thus starts the plant in the same state.
+    """
     from im_common.model import stator_flux
     op = steady_operating_point(config, 0.0, theta0, omega0)
     gauge = config.params.theta / plant.theta

@@ -1,4 +1,5 @@
-"""``ros2 run im_plant plant``: the simulated motor, load and inverter; the time master.
+"""
+``ros2 run im_plant plant``: the simulated motor, load and inverter; the time master.
 
 A thin shell around :class:`im_common.plant_sim.PlantSimulator`: parameters in, voltage commands
 in, measurements and ground truth out. It is the time master of the run protocol
@@ -7,10 +8,11 @@ in, measurements and ground truth out. It is the time master of the run protocol
 
 ``lockstep`` (default): it advances from t_k to t_k+1 only when the command stamped t_k has
 arrived, and stays within ``follower_window`` steps of every lossless follower (the recorder).
-``free_run``: it advances on a wall clock at T_s (a thread of its own). The command stamped t_k must arrive before
-the tick that ends step k (its deadline); otherwise the previous command is held for that step
-and the step counts as *missed* (a command that arrives after its deadline is *late* and dropped).
-Latencies (measurement k published → command k received) go into a histogram reported at the end.
+``free_run``: it advances on a wall clock at T_s (a thread of its own). The command stamped t_k
+must arrive before the tick that ends step k (its deadline); otherwise the previous command is held
+for that step and the step counts as *missed* (a command that arrives after its deadline is *late*
+and dropped). Latencies (measurement k published → command k received) go into a histogram reported
+at the end.
 """
 from __future__ import annotations
 
@@ -21,20 +23,18 @@ import threading
 import time
 
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.clock import Clock, ClockType
-from rosgraph_msgs.msg import Clock as ClockMsg
-
 from im_common import topics as T
-from im_common.auth import Signer, progress_payload, split_frame
-from im_common.conversions import (NS_PER_S, JointStateOut, Vector3Out, clock_bytes, period_ns,
+from im_common.auth import progress_payload, Signer, split_frame
+from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
-from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, READY, RUNNING, STOPPED,
-                                STOPPING, LockstepNode, StepGate, data_qos, lockstep_qos, node_main,
-                                stamp_text)
+from im_common.lockstep import (data_qos, END_STATES, FINISHED, LOCKSTEP_DEPTH, lockstep_qos,
+                                LockstepNode, node_main, READY, RUNNING, stamp_text, StepGate,
+                                STOPPED, STOPPING)
 from im_common.node_params import declare_run
-from im_common.timing import LatencyHistogram
 from im_common.params import describe_defaults
+from im_common.timing import LatencyHistogram
 from im_plant.parameters import declare_plant, simulator_from_parameters
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 
 class PlantNode(LockstepNode):
@@ -65,7 +65,8 @@ class PlantNode(LockstepNode):
                                  LOCKSTEP_DEPTH // 2)
         self.run_id = os.urandom(4).hex()       # tells this run's events from another graph's
         self.signer.set_run(self.run_id)        # ... and its lock-step messages (their tags)
-        self.other_masters: dict = {}           # run id -> (name, state, started_at) of another plant
+        # run id -> (name, state, started_at) of another plant
+        self.other_masters: dict = {}
         self.started_at = None                  # wall time of step 0 (which of two plants yields)
         self.rejected = 0
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
@@ -144,15 +145,15 @@ class PlantNode(LockstepNode):
             t_s = int(values.get('T_s_ns', 0) or 0)
             if t_s and t_s != self.period:        # 0: a node without a period (the recorder)
                 self.fail(f"node '{name}' runs at T_s = {t_s / 1e9:g} s, the plant at "
-                          f"{self.T_s:g} s: give every node the same T_s")
+                          f'{self.T_s:g} s: give every node the same T_s')
                 return False
         return True
 
     def _yield_to(self, name: str, run: str) -> None:
         self.fail(f"another plant ('{name}', run {run}) of this graph's key is on this "
-                  f"ROS domain (ROS_DOMAIN_ID={self.context.get_domain_id()}): the nodes "
-                  f"started by hand would not know which run to follow — give each "
-                  f"graph its own ROS_DOMAIN_ID or its own graph_key_file")
+                  f'ROS domain (ROS_DOMAIN_ID={self.context.get_domain_id()}): the nodes '
+                  f'started by hand would not know which run to follow — give each '
+                  f'graph its own ROS_DOMAIN_ID or its own graph_key_file')
 
     def status(self, state: str, level: int = 0, stamp_ns=None, **values) -> None:
         if self.started_at is not None:     # every event after step 0 says when it was taken
@@ -170,7 +171,7 @@ class PlantNode(LockstepNode):
         return '; '.join(parts) or 'waiting'
 
     def on_ready(self) -> None:
-        """Everyone is there: publish step 0 (and start the wall clock in free_run)."""
+        """Publish step 0, everyone being there (and start the wall clock in free_run)."""
         self.started_at = time.time()
         self.gate.since = time.monotonic()   # step 0's command is due from now, not from startup
         self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers))
@@ -191,10 +192,14 @@ class PlantNode(LockstepNode):
         self.publish_step()
 
     def _tick_loop(self) -> None:
-        """free_run's clock: a thread of its own that sleeps until t0 + (k+1)·T_s, so the ticks
-        do not queue behind the executor's callbacks. Commands are still received by the executor
-        thread (a dict insert under a lock). No busy-waiting: a spinning thread would hold the
-        GIL for up to the interpreter's switch interval and starve the executor thread."""
+        """
+        Run free_run's clock: a thread of its own that sleeps until t0 + (k+1)·T_s.
+
+        A thread of its own, so the ticks do not queue behind the executor's callbacks. Commands
+        are still received by the executor thread (a dict insert under a lock). No busy-waiting: a
+        spinning thread would hold the GIL for up to the interpreter's switch interval and starve
+        the executor thread.
+        """
         T_s, t0 = self.T_s, self._t0
         while not self.done and self.state == RUNNING:
             deadline = t0 + (self.sim.k + 1) * T_s
@@ -234,7 +239,7 @@ class PlantNode(LockstepNode):
             self.followers[name] = [base, time.monotonic()]
             if self.state == RUNNING:
                 self.get_logger().info(f"lossless follower '{name}' joined at step "
-                                       f"{self.sim.k}; keeping within {self.window} steps of it")
+                                       f'{self.sim.k}; keeping within {self.window} steps of it')
             return
         if state in (STOPPING, STOPPED) + END_STATES and name in self.followers:
             del self.followers[name]
@@ -244,7 +249,7 @@ class PlantNode(LockstepNode):
         if self.done or state not in (STOPPING, STOPPED) + END_STATES:
             return
         if name in self.wait_for or name in self.providers:
-            reason = f"{name} {state}" + (f" ({values['reason']})" if values.get('reason') else '')
+            reason = f'{name} {state}' + (f" ({values['reason']})" if values.get('reason') else '')
             self.get_logger().warning(f'run stopped at step {self.sim.k}: {reason}')
             self.status(STOPPED, level=1, reason=reason)
             self.finish()
@@ -264,9 +269,12 @@ class PlantNode(LockstepNode):
         self._resume()
 
     def _follower_lag(self, next_ns: int):
-        """The first follower more than ``follower_window`` steps behind ``next_ns`` (None if
-        none); a follower silent for ``input_timeout`` is dropped with a warning (its recording
-        will show the gap) — it is off the critical path and must not stop the run."""
+        """
+        Return the first follower more than ``follower_window`` steps behind ``next_ns``.
+
+        None if there is none. A follower silent for ``input_timeout`` is dropped with a warning
+        (its recording will show the gap) — it is off the critical path and must not stop the run.
+        """
         limit = next_ns - self.window * self.period
         for name, (ack, seen) in list(self.followers.items()):
             if ack >= limit:
@@ -274,8 +282,8 @@ class PlantNode(LockstepNode):
             if time.monotonic() - seen > self._timeout:
                 self.get_logger().warning(
                     f"follower '{name}' acknowledged nothing after {stamp_text(ack)} for "
-                    f"{self._timeout:.1f} s; continuing without it (its recording will miss "
-                    f"steps from there on)")
+                    f'{self._timeout:.1f} s; continuing without it (its recording will miss '
+                    f'steps from there on)')
                 del self.followers[name]
                 continue
             return name
@@ -325,8 +333,11 @@ class PlantNode(LockstepNode):
         self.ready(self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy)))
 
     def hold_step(self, inputs) -> bool:
-        """A lossless follower more than ``follower_window`` steps behind: park the step until
-        it acknowledges (:meth:`_resume`)."""
+        """
+        Park the step while a lossless follower is more than ``follower_window`` steps behind.
+
+        The step resumes when the follower acknowledges (:meth:`_resume`).
+        """
         if self.followers and self._follower_lag((self.sim.k + 1) * self.period):
             self._parked = inputs
             return True
@@ -350,8 +361,11 @@ class PlantNode(LockstepNode):
             self._free_cmd[k] = (vx, vy)
 
     def on_wall_tick(self) -> None:
-        """Integrate step k with the command stamped t_k if it arrived by now (its deadline),
-        else hold the previous one and count the step as missed."""
+        """
+        Integrate step k with the command stamped t_k if it arrived by now (its deadline).
+
+        Otherwise hold the previous command and count the step as missed.
+        """
         if self.done or self.state != RUNNING:
             return
         k = self.sim.k
@@ -425,7 +439,7 @@ class PlantNode(LockstepNode):
             self._try_finish()
 
     def _try_finish(self) -> None:
-        """After the last step: wait for lossless followers to acknowledge it, then finish."""
+        """Wait after the last step for lossless followers to acknowledge it, then finish."""
         if self.done:
             return
         final_ns = self.sim.k * self.period
@@ -475,7 +489,7 @@ def _peer_text(name: str, peer) -> str:
 
 
 def truth_params(tr: dict) -> list:
-    """True parameter vector in the order of ``topics.PARAM_NAMES``."""
+    """Return the true parameter vector in the order of ``topics.PARAM_NAMES``."""
     th = tr['L_sr'] / tr['L_r']
     return [tr['R_s'], tr['R_r'], tr['L_s'], tr['L_r'], tr['L_sr'], th, tr['L_sr'] * th,
             tr['R_r'] * th * th]
@@ -487,9 +501,12 @@ def _js():
 
 
 def _float(text):
-    """A status value as a number, None if absent or not a number. A plant whose events carry
-    no ``started_at`` has not reached step 0: a running plant does not yield to it (that plant
-    refuses to start when it sees this one)."""
+    """
+    Return a status value as a number, None if absent or not a number.
+
+    A plant whose events carry no ``started_at`` has not reached step 0: a running plant does
+    not yield to it (that plant refuses to start when it sees this one).
+    """
     try:
         return float(text)
     except (TypeError, ValueError):
