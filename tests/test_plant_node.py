@@ -192,7 +192,8 @@ def test_a_peers_warning_does_not_undo_its_ready(ctx):
     for it until its startup timeout.
     """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from im_common.lockstep import PARAMETERS, READY, WARNING, _status_topic, _unsigned
+    from im_common.auth import status_payload
+    from im_common.lockstep import PARAMETERS, READY, WARNING, _status_topic
     plant = make_plant(ctx, wait_for='controller', duration=0.01)
 
     def event(state, **values):
@@ -202,7 +203,7 @@ def test_a_peers_warning_does_not_undo_its_ready(ctx):
                                        hardware_id='im_drive',
                                        values=[KeyValue(key=k, value=str(v))
                                                for k, v in values.items()])]
-        msg.header.frame_id = plant.status_signer.tag_bytes(_status_topic(), _unsigned(msg))
+        msg.header.frame_id = plant.status_signer.tag_bytes(_status_topic(), status_payload(msg))
         plant._on_status(msg)
 
     assert not plant._start_condition()
