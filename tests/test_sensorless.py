@@ -8,8 +8,8 @@ from im_bringup.offline import build, Scenario, simulate
 from im_common.params import InvalidParameter, THESIS_MOTOR
 from im_observer.speed_observer import linearized_poles, SpeedAdaptiveObserver
 from im_studies.study_sensorless import (adaptive_speed_task, low_speed_hold, R_S_DRIFT,
-                                        run_adaptive, sensorless_reversal, SETTLE,
-                                        torque_error_rms, torque_task)
+                                         run_adaptive, sensorless_reversal, SETTLE,
+                                         torque_error_rms, torque_task)
 import numpy as np
 import pytest
 
@@ -168,10 +168,13 @@ def test_zero_stator_frequency_is_unobservable_and_the_drive_drifts_slowly_witho
 
 @pytest.mark.parametrize('strategy', ['min_energy', 'constant_flux', 'min_loss'])
 def test_sensorless_torque_task_tracks_the_torque_like_the_sensored_drive(strategy):
-    """0 → +5 → −5 N·m from rest, through zero speed: a field angle that integrates a lagging ω̂
-    turned the current away from the flux (torque error RMS ≈ 3 N·m); oriented on the observed
-    flux, with the mechanical model keeping ω̂ up with the acceleration, the sensorless drive's
-    torque error is within 2× the sensored one's."""
+    """
+    0 → +5 → −5 N·m from rest, through zero speed.
+
+    A field angle that integrates a lagging ω̂ turned the current away from the flux (torque
+    error RMS ≈ 3 N·m); oriented on the observed flux, with the mechanical model keeping ω̂ up
+    with the acceleration, the sensorless drive's torque error is within 2× the sensored one's.
+    """
     sensored = torque_error_rms(simulate(torque_task(strategy, False)))
     r = simulate(torque_task(strategy, True))
     assert r.summary['trip'] is None
@@ -180,10 +183,14 @@ def test_sensorless_torque_task_tracks_the_torque_like_the_sensored_drive(strate
 
 
 def test_sensorless_adapter_holds_the_rotor_resistance_and_matches_the_sensored_adaptive_run():
-    """With ω̂ in place of ω, R_R and the speed meet only in the slip: an adapter estimating R_R
-    drifted with ω̂ (4.5 rad/s error, +5 % losses). Holding R̂_R and estimating R_s, L_σ, L_M
-    instead, the sensorless drive with the plant's R_s 30 % above the model's tracks within
-    1 rad/s after the start and loses within 2 % of the sensored adaptive drive."""
+    """
+    With ω̂ in place of ω, R_R and the speed meet only in the slip.
+
+    An adapter estimating R_R drifted with ω̂ (4.5 rad/s error, +5 % losses). Holding R̂_R and
+    estimating R_s, L_σ, L_M instead, the sensorless drive with the plant's R_s 30 % above the
+    model's tracks within 1 rad/s after the start and loses within 2 % of the sensored adaptive
+    drive.
+    """
     sensored, _ = run_adaptive(adaptive_speed_task(False))
     r, s = run_adaptive(adaptive_speed_task(True))
     tr = r.trace
@@ -195,8 +202,12 @@ def test_sensorless_adapter_holds_the_rotor_resistance_and_matches_the_sensored_
 
 
 def test_sensorless_adapter_finds_the_stator_resistance_at_low_speed_under_load():
-    """10 rad/s against 4 N·m, the plant's R_s 30 % above the model's: the adapter's R̂_s (learnt
-    below 100 rad/s stator frequency, where it dominates the voltage) reaches the plant's."""
+    """
+    10 rad/s against 4 N·m, the plant's R_s 30 % above the model's.
+
+    The adapter's R̂_s (learnt below 100 rad/s stator frequency, where it dominates the
+    voltage) reaches the plant's.
+    """
     r, s = run_adaptive(low_speed_hold(), record_every=10)
     tr = r.trace
     true = R_S_DRIFT * THESIS_MOTOR.R_s

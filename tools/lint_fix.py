@@ -448,9 +448,15 @@ def wrap_code(src, notes):
 
 
 def main(paths):
+    if not paths or paths[0] in ('-h', '--help'):
+        print('usage: python tools/lint_fix.py FILE...  (mechanical fixes toward tests/test_lint.py)')
+        sys.exit(0 if paths else 2)
     for path in paths:
-        with open(path, encoding='utf-8') as f:
-            src = f.read()
+        try:
+            with open(path, encoding='utf-8') as f:
+                src = f.read()
+        except OSError as exc:
+            sys.exit(f'lint_fix: cannot read {path}: {exc.strerror}')
         new, notes = src, []
         for step in (fix_quotes, fix_imports, fix_docstrings, refill_docstrings, wrap_code):
             try:

@@ -627,8 +627,11 @@ class ParameterAdapter:
         self._publish_pair(R_R, self._c)
 
     def _shift_stator_resistance(self, dR: float) -> None:
-        """R̂_s += dR, with ψ̂ and its filter states moved as if integrated with the new R̂_s
-        (ψ̂ is linear in R_s: ∂ψ̂/∂R_s = −z), so the next residuals see the change."""
+        """
+        Move R̂_s by dR, with ψ̂ and its filter states as if integrated with the new R̂_s.
+
+        ψ̂ is linear in R_s (∂ψ̂/∂R_s = −z), so the next residuals see the change.
+        """
         self.R_s += dR
         self._psi -= dR * self._z
         self._Hpsi -= dR * self._Hz

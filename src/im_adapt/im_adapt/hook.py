@@ -27,6 +27,7 @@ class LockstepAdapter:
     record_every : int
         Keep one estimate sample every this many steps (0: keep none): (R_r, θ, L_M, R_R, L_σ,
         R_s) at ``t``.
+
     """
 
     def __init__(self, adapter: ParameterAdapter, record_every: int = 10):
@@ -39,8 +40,11 @@ class LockstepAdapter:
     @classmethod
     def build(cls, params, gains: Optional[AdaptationGains] = None, R_r0: Optional[float] = None,
               theta0: Optional[float] = None, record_every: int = 10, sensorless: bool = False):
-        """Adapter with the given gains (default: :class:`AdaptationGains`) from ``params``;
-        ``sensorless``: the speed it is given is the observer's ω̂ (R̂_R held)."""
+        """
+        Adapter with the given gains (default: :class:`AdaptationGains`) from ``params``.
+
+        ``sensorless``: the speed it is given is the observer's ω̂ (R̂_R held).
+        """
         gains = gains if gains is not None else AdaptationGains()
         ad = ParameterAdapter(params, gains, params.R_r if R_r0 is None else R_r0,
                               params.theta if theta0 is None else theta0, sensorless=sensorless)
