@@ -449,7 +449,7 @@ def wrap_code(src, notes):
 
 def main(paths):
     if not paths or paths[0] in ('-h', '--help'):
-        print('usage: python tools/lint_fix.py FILE...  (mechanical fixes toward tests/test_lint.py)')
+        print('usage: python tools/lint_fix.py FILE...  (fixes toward tests/test_lint.py)')
         sys.exit(0 if paths else 2)
     for path in paths:
         try:
