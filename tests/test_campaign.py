@@ -311,9 +311,13 @@ def test_pool_map_returns_results_in_order():
 
 # ------------------------------------------------------------------------- commissioning axis
 def test_commissioning_axis_identifies_each_drawn_motor_and_reports_its_errors(tmp_path):
-    """``commission: true`` (docs/campaign.md): one commissioning job per draw (after the runs,
-    so the runs keep their indices), the drawn motor identified on the ROS-free plant as
-    commission_study does; the report gives each parameter's error against the draw's truth."""
+    """
+    ``commission: true`` (docs/campaign.md).
+
+    One commissioning job per draw (after the runs, so the runs keep their indices), the drawn
+    motor identified on the ROS-free plant as commission_study does; the report gives each
+    parameter's error against the draw's truth.
+    """
     path = write_spec(tmp_path, draws=2, gain_sets=[{'name': 'thesis', 'gains': 'thesis',
                                                      'T_s': 1e-3}],
                       commission={'noise': 0.05})
