@@ -46,7 +46,6 @@ PENDING = {
     'src/im_observer/im_observer/observer_node.py',
     'src/im_adapt/im_adapt/adapter_node.py',
     'src/im_recording/im_recording/record_node.py',
-    'src/im_studies/*',
 }
 
 
