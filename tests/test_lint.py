@@ -36,7 +36,6 @@ AMENT_PEP257_IGNORE = {'D100', 'D101', 'D102', 'D103', 'D104', 'D105', 'D106', '
 PENDING = {
     'src/im_bringup/*',
     'src/im_common/im_common/params.py',
-    'src/im_common/im_common/plant_sim.py',
     'src/im_common/im_common/lockstep.py',
     'src/im_common/im_common/auth.py',
     'src/im_plant/*',
