@@ -81,6 +81,7 @@ class PlantSimulator:
         ``x0`` (the 6-element state ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r) is given.
     locked_rotor : bool
         The shaft is held where it starts (a locked-rotor test); the speed must start at 0.
+
     """
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
@@ -148,7 +149,7 @@ class PlantSimulator:
 
     @property
     def t(self) -> float:
-        """Current simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
+        """Return the simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
         return self.k * self.T_s
 
     def limit(self, v_a: float, v_b: float):
