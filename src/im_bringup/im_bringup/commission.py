@@ -1,8 +1,7 @@
 """
-``ros2 run im_bringup commission --out MOTOR.yaml``.
+``ros2 run im_bringup commission --out MOTOR.yaml``: measure a motor, write its motor file.
 
-Measure a motor's parameters through the graph's own topics and write its motor file
-(docs/commissioning.md).
+It measures the motor's parameters through the graph's own topics (docs/commissioning.md).
 
     commission --out MOTOR.yaml --nameplate PLATE.yaml [--locked-rotor --J J --b B]
     commission --out MOTOR.yaml --plant-motor TRUE.yaml --nameplate PLATE.yaml   # in simulation

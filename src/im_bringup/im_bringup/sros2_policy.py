@@ -155,7 +155,7 @@ def parse_policy(text: str) -> Dict[str, Dict[str, List[str]]]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='sros2_policy', description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog='sros2_policy', description=__doc__.strip().splitlines()[0])
     ap.add_argument('--write', action='store_true', help=f'rewrite {SHIPPED}')
     a = ap.parse_args(argv)
     text = policy_xml()
