@@ -34,7 +34,6 @@ AMENT_PEP257_IGNORE = {'D100', 'D101', 'D102', 'D103', 'D104', 'D105', 'D106', '
 #: branches lints them and deletes the entries; ``python tools/lint_fix.py FILE...`` does the
 #: mechanical part).
 PENDING = {
-    'src/im_common/im_common/params.py',
     'src/im_common/im_common/lockstep.py',
     'src/im_common/im_common/auth.py',
     'src/im_plant/*',
