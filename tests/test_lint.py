@@ -36,7 +36,7 @@ AMENT_PEP257_IGNORE = {'D100', 'D101', 'D102', 'D103', 'D104', 'D105', 'D106', '
 PENDING = {
     'src/im_common/im_common/lockstep.py',
     'src/im_common/im_common/auth.py',
-    'src/im_plant/*',
+    'src/im_plant/im_plant/plant_node.py',
     'src/im_controller/im_controller/flux.py',
     'src/im_controller/im_controller/control_law.py',
     'src/im_controller/im_controller/controller_node.py',
