@@ -311,9 +311,13 @@ def test_pool_map_returns_results_in_order():
 
 # ------------------------------------------------------------------------- commissioning axis
 def test_commissioning_axis_identifies_each_drawn_motor_and_reports_its_errors(tmp_path):
-    """``commission: true`` (docs/campaign.md): one commissioning job per draw (after the runs,
-    so the runs keep their indices), the drawn motor identified on the ROS-free plant as
-    commission_study does; the report gives each parameter's error against the draw's truth."""
+    """
+    ``commission: true`` (docs/campaign.md).
+
+    One commissioning job per draw (after the runs, so the runs keep their indices), the drawn
+    motor identified on the ROS-free plant as commission_study does; the report gives each
+    parameter's error against the draw's truth.
+    """
     path = write_spec(tmp_path, draws=2, gain_sets=[{'name': 'thesis', 'gains': 'thesis',
                                                      'T_s': 1e-3}],
                       commission={'noise': 0.05})
@@ -359,8 +363,12 @@ def test_a_bad_commission_key_is_one_line(tmp_path):
 
 
 def test_the_sensorless_axis_runs_both_ways_and_refuses_the_position_task(tmp_path):
-    """`sensorless: [false, true]` doubles the speed/torque runs (the second of each pair is the
-    offline loop's sensorless run of that motor); with the position task it is one line."""
+    """
+    Check that ``sensorless: [false, true]`` doubles the speed/torque runs.
+
+    The second of each pair is the offline loop's sensorless run of that motor; with the
+    position task the spec is refused in one line.
+    """
     from im_bringup.offline import Scenario, simulate
     from im_common.params import THESIS_MOTOR
     with pytest.raises(SpecError) as err:

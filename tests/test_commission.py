@@ -126,17 +126,24 @@ def test_nameplate_gives_ratings_pole_pairs_and_the_rated_flux():
 
 
 def _rescaled(m, k):
-    """``m`` in another rotor gauge: φ_r → kφ_r, L_sr → kL_sr, L_r → k²L_r, R_r → k²R_r — the
-    same inverse-Γ set, so the same terminal behaviour (docs/commissioning.md §1)."""
+    """
+    ``m`` in another rotor gauge.
+
+    φ_r → kφ_r, L_sr → kL_sr, L_r → k²L_r, R_r → k²R_r — the same inverse-Γ set, so the same
+    terminal behaviour (docs/commissioning.md §1).
+    """
     return m.with_values(L_sr=k * m.L_sr, L_r=k * k * m.L_r, R_r=k * k * m.R_r)
 
 
 @pytest.mark.parametrize('k', [0.8, 1.25])
 def test_a_model_in_another_gauge_drives_the_plant_exactly_like_the_model_in_its_own(k):
-    """The speed task starts in the model's steady state (control_law.steady_start): the plant
-    must start in the physical state that steady state is — the same currents and inverse-Γ
-    rotor flux ψ_R = θφ_r — whatever gauge the model's file is written in. Then the whole
-    closed loop (controller, observer, min_loss flux) is gauge-covariant."""
+    """
+    The speed task starts in the model's steady state (control_law.steady_start).
+
+    The plant must start in the physical state that steady state is — the same currents and
+    inverse-Γ rotor flux ψ_R = θφ_r — whatever gauge the model's file is written in. Then the
+    whole closed loop (controller, observer, min_loss flux) is gauge-covariant.
+    """
     import numpy as np
     from im_bringup.offline import Scenario, simulate
     m = _motor('thesis')
@@ -160,10 +167,14 @@ def _box_motor(name):
 
 @pytest.mark.parametrize('name', ['thesis', 'box draw 9'])
 def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one(name):
-    """Done-when of issue 26: the identified file (written in the gauge L_s = L_r) as the
-    controller's and observer's model tracks within 2x the error of the true file. Box draw 9
-    has L_s != L_r (theta differs by 12 %): its run starts the plant from the identified model's
-    steady state, which must be converted to the plant's gauge (control_law.steady_start)."""
+    """
+    Done-when of issue 26.
+
+    The identified file (written in the gauge L_s = L_r) as the controller's and observer's
+    model tracks within 2x the error of the true file. Box draw 9 has L_s != L_r (theta differs
+    by 12 %): its run starts the plant from the identified model's steady state, which must be
+    converted to the plant's gauge (control_law.steady_start).
+    """
     from im_studies.commission_study import plate_of, speed_error
     if name == 'thesis':
         m = _motor('thesis')

@@ -29,24 +29,9 @@ TREES = ('src', 'tests', 'benchmarks', 'tools')
 AMENT_PEP257_IGNORE = {'D100', 'D101', 'D102', 'D103', 'D104', 'D105', 'D106', 'D107',
                        'D203', 'D212', 'D404'}
 
-#: Files other branches of issue 24 are rewriting now: their findings are printed but do not fail
-#: the tests, so that the merges stay easy. This set must become empty (the merge after those
-#: branches lints them and deletes the entries; ``python tools/lint_fix.py FILE...`` does the
-#: mechanical part).
-PENDING = {
-    'src/im_bringup/*',
-    'src/im_common/im_common/params.py',
-    'src/im_common/im_common/plant_sim.py',
-    'src/im_common/im_common/lockstep.py',
-    'src/im_common/im_common/auth.py',
-    'src/im_plant/im_plant/parameters.py',
-    'src/im_controller/im_controller/flux.py',
-    'src/im_controller/im_controller/controller_node.py',
-    'src/im_observer/im_observer/observer_node.py',
-    'src/im_adapt/im_adapt/adapter_node.py',
-    'src/im_recording/im_recording/record_node.py',
-    'src/im_studies/*',
-}
+#: Files whose findings are printed but do not fail the tests: empty since issue 24 (every file
+#: is lint-clean; ``python tools/lint_fix.py FILE...`` does the mechanical part of a fix).
+PENDING: set = set()
 
 
 def _python_files():

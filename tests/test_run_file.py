@@ -1,18 +1,20 @@
-"""The run file (issue 24 part 1, docs/running.md): one frozen Scenario describes a run on every
-path — the ROS-free loop, the in-process graph, ``--processes``, ``--rerun`` of a bag — with
-breakpoint variations of any electrical parameter, measurement noise, and one-line errors."""
+"""
+The run file (issue 24 part 1, docs/running.md).
+
+One frozen Scenario describes a run on every path — the ROS-free loop, the in-process graph,
+``--processes``, ``--rerun`` of a bag — with breakpoint variations of any electrical parameter,
+measurement noise, and one-line errors.
+"""
+from dataclasses import FrozenInstanceError, replace
 import json
 import math
 import os
-from dataclasses import FrozenInstanceError, replace
-
-import numpy as np
-import pytest
 
 from im_bringup.offline import simulate
 from im_bringup.run_file import RunFileError, Scenario
-from im_common.params import (CHAPTER4_ESTIMATES, THESIS_MOTOR, ParameterSchedule, ramp,
-                              sinusoid)
+from im_common.params import CHAPTER4_ESTIMATES, ParameterSchedule, ramp, sinusoid, THESIS_MOTOR
+import numpy as np
+import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RUNS = os.path.join(HERE, '..', 'src', 'im_bringup', 'config', 'runs')
@@ -21,7 +23,7 @@ CHAPTER4 = os.path.join(RUNS, 'chapter4.yaml')
 
 
 def old_chapter4():
-    """The chapter-4 profile as it was written before run files (constant/ramp/sine terms)."""
+    """Return the chapter-4 profile as written before run files (constant/ramp/sine terms)."""
     return ParameterSchedule(THESIS_MOTOR, {'R_r': ramp(0.42, 0.42),
                                             'L_s': sinusoid(0.1, 0.016, math.pi),
                                             'L_r': sinusoid(0.1, 0.016, math.pi),

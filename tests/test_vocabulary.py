@@ -32,7 +32,7 @@ VOCABULARIES = {
                                                'im_controller/im_controller/control_law.py',
                                                'THESIS_TASKS'),
     'im_bringup.run_file.CONTROLLERS': (CONTROLLERS, 'im_bringup/im_bringup/run_file.py',
-                                      'CONTROLLERS'),
+                                        'CONTROLLERS'),
     'im_studies.campaign_spec.NOMINAL_AND_ADAPTIVE': (NOMINAL_AND_ADAPTIVE, None, None),
 }
 

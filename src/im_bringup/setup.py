@@ -20,7 +20,8 @@ setup(
     zip_safe=True,
     maintainer='IM drive stack maintainers',
     maintainer_email='drive-stack@example.org',
-    description='Bringing the drive up: the launch file, configuration, the scenario runner, the graph and process starters, commissioning.',
+    description='Bringing the drive up: the launch file, configuration, the '
+    'scenario runner, the graph and process starters, commissioning.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

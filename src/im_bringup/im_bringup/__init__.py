@@ -1,1 +1,5 @@
-"""Bringing the drive up: the launch file, configuration, the scenario runner, the graph and process starters."""
+"""
+Bringing the drive up.
+
+The launch file, configuration, the scenario runner, the graph and process starters.
+"""

@@ -1,18 +1,20 @@
-"""``ros2 run im_bringup commission --out MOTOR.yaml``: measure a motor's parameters through the
-graph's own topics and write its motor file (docs/commissioning.md).
+"""
+``ros2 run im_bringup commission --out MOTOR.yaml``: measure a motor, write its motor file.
+
+It measures the motor's parameters through the graph's own topics (docs/commissioning.md).
 
     commission --out MOTOR.yaml --nameplate PLATE.yaml [--locked-rotor --J J --b B]
     commission --out MOTOR.yaml --plant-motor TRUE.yaml --nameplate PLATE.yaml   # in simulation
 
-The tool joins the lock-step graph as the node ``commission``: at each step it takes the
-plant's ``/im/measured/current`` and ``/im/measured/shaft``, and publishes the test voltage on
+The tool joins the lock-step graph as the node ``commission``: at each step it takes the plant's
+``/im/measured/current`` and ``/im/measured/shaft``, and publishes the test voltage on
 ``/im/command/voltage`` (signed with the graph's key like every lock-step message). The test
-sequence and the estimators are :mod:`im_adapt.commissioning`. With ``--plant-motor`` it starts
-the simulated plant as a process of its own with that motor file as a ``--params-file`` (the tool
-never opens it: the plant node reads it), the drive's limits as the plant's protection (``current_trip``, ``v_limit``) and
-waits for the tool; without it, a plant (the real drive) must run with ``wait_for:
-commission``, ``allowed_publishers: /im/command/voltage=commission`` and an ``input_timeout``
-long enough for the fit between the tests (:data:`FIT_WAIT_S`).
+sequence and the estimators are :mod:`im_adapt.commissioning`. With ``--plant-motor`` it starts the
+simulated plant as a process of its own with that motor file as a ``--params-file`` (the tool never
+opens it: the plant node reads it), the drive's limits as the plant's protection (``current_trip``,
+``v_limit``) and waits for the tool; without it, a plant (the real drive) must run with ``wait_for:
+commission``, ``allowed_publishers: /im/command/voltage=commission`` and an ``input_timeout`` long
+enough for the fit between the tests (:data:`FIT_WAIT_S`).
 
 Exit codes: 0 written, 1 the tests could not determine the motor (one line why), 2 bad input.
 """
@@ -37,13 +39,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--nameplate', help='YAML with voltage [V line RMS], current [A line RMS], '
                    'frequency [Hz], speed [rpm], power [W]')
     p.add_argument('--current-limit', type=float,
-                   help='drive current-vector limit [A] (default: the nameplate\'s, sqrt(3) x '
+                   help="drive current-vector limit [A] (default: the nameplate's, sqrt(3) x "
                    'the line current)')
     p.add_argument('--voltage-limit', type=float,
-                   help='drive voltage-vector limit [V] (default: the nameplate\'s line voltage)')
+                   help="drive voltage-vector limit [V] (default: the nameplate's line voltage)")
     p.add_argument('--test-speed', type=float,
                    help='rated speed for the speed test [rad/s]; the test runs to half of it '
-                   '(default: the nameplate\'s)')
+                   "(default: the nameplate's)")
     p.add_argument('--locked-rotor', action='store_true',
                    help='the rotor is locked: standstill tests only; give --J and --b')
     p.add_argument('--J', type=float, help='inertia [kg m^2] to write with --locked-rotor')
@@ -85,7 +87,8 @@ def settings(args) -> dict:
         if args.J is None or args.b is None:
             raise Refused('--locked-rotor measures no inertia or friction: give --J and --b '
                           '(they are written as given)')
-        if not (args.J > 0 and math.isfinite(args.J)) or not (args.b >= 0 and math.isfinite(args.b)):
+        if (not (args.J > 0 and math.isfinite(args.J))
+                or not (args.b >= 0 and math.isfinite(args.b))):
             raise Refused(f'--J {args.J} must be > 0 and --b {args.b} >= 0')
     elif not speed:
         raise Refused('no speed for the speed test: give --nameplate or --test-speed '
@@ -99,8 +102,7 @@ def settings(args) -> dict:
 
 
 def make_node(com, T_s: float, **kwargs):
-    """The ``commission`` lock-step node around ``com`` (an :class:`im_adapt.commissioning.
-    Commissioning`)."""
+    """Build the ``commission`` lock-step node around ``com`` (a ``Commissioning``)."""
     from geometry_msgs.msg import Vector3Stamped
     from im_common import topics as T
     from im_common.auth import Signer
@@ -145,21 +147,30 @@ FIT_WAIT_S = 300.0
 
 
 def plant_parameters(s: dict, args) -> dict:
-    """The simulated plant's parameters besides its motor file (which the plant process reads
-    itself): the drive's limits as its protection, waiting for the tool, no end of its own."""
-    return dict(T_s=args.T_s, duration=0.0, wait_for='commission',
-                allowed_publishers='/im/command/voltage=commission',
-                current_trip=s['i_max'], v_limit=s['v_max'], locked_rotor=bool(args.locked_rotor),
-                current_noise_std=args.current_noise, speed_noise_std=args.speed_noise,
-                truth_decimation=0, input_timeout=FIT_WAIT_S)
+    """
+    Return the simulated plant's parameters besides its motor file (the plant process reads it).
+
+    The drive's limits as its protection, waiting for the tool, no end of its own.
+    """
+    return {'T_s': args.T_s, 'duration': 0.0, 'wait_for': 'commission',
+            'allowed_publishers': '/im/command/voltage=commission',
+            'current_trip': s['i_max'], 'v_limit': s['v_max'],
+            'locked_rotor': bool(args.locked_rotor),
+            'current_noise_std': args.current_noise, 'speed_noise_std': args.speed_noise,
+            'truth_decimation': 0, 'input_timeout': FIT_WAIT_S}
 
 
 def start_plant(motor_file: str, s: dict, args, domain: int, key_file: str, workdir: str):
-    """``ros2 run im_plant plant --ros-args --params-file <ours> --params-file MOTOR`` as a
-    process of its own (processes.GraphProcesses): the tool never opens the motor file."""
+    """
+    Start the simulated plant as a process of its own (processes.GraphProcesses).
+
+    ``ros2 run im_plant plant --ros-args --params-file <ours> --params-file MOTOR``: the tool
+    never opens the motor file.
+    """
     from .processes import GraphProcesses, NodeProcess
 
     class PlantProcess(GraphProcesses):
+
         def command(self, p):
             return super().command(p) + ['--params-file', os.path.abspath(motor_file)]
 
@@ -259,7 +270,7 @@ def run(args) -> int:
 
 
 def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) -> None:
-    """The motor file in the shipped layout with a comment block: uncertainties, gauge, tests."""
+    """Write the motor file in the shipped layout with a comment: uncertainties, gauge, tests."""
     from im_common.yamlio import parameters_yaml
     v, sd = ident.values, ident.std
     lines = [
@@ -283,7 +294,7 @@ def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) 
               + ', '.join(f'{k} {x:.3g}' for k, x in ident.rms_residual.items()) + '.']
     if flux is not None:
         lines.append(f'Rated rotor flux (nameplate voltage, frequency, speed; this gauge): '
-                     f'{flux:.4g} Wb (the controller\'s phi_d for constant flux).')
+                     f"{flux:.4g} Wb (the controller's phi_d for constant flux).")
     values = motor.as_dict()
     text = parameters_yaml({'/**': values}, header='\n'.join(lines))
     tmp = path + '.tmp'

@@ -1,5 +1,8 @@
-"""Scenario → node parameters: the one mapping used by the scenario runner, the launch YAML,
-the benchmarks and the tests (seed 000 §3.4: motor, tasks, loads, gains).
+"""
+Scenario → node parameters.
+
+The one mapping used by the scenario runner, the launch YAML, the benchmarks and the tests (seed
+000 §3.4: motor, tasks, loads, gains).
 
 ``node_parameters(...)`` returns ``{node: {parameter: value}}``, the structure of a ROS 2
 parameters YAML (``ros__parameters`` added by :func:`to_yaml`).
@@ -12,8 +15,9 @@ from im_controller.flux import STRATEGIES  # noqa: F401 (re-exported; the one ho
 
 # The task presets and the controller vocabulary live with the run description
 # (im_bringup.run_file), which reads them; imported here under their familiar names.
-from .run_file import (ADAPTATION, CONTROLLER_LIMITS, CONTROLLERS, PLANT_PROTECTION,  # noqa: F401
-                       TASK_PRESETS, TASKS, TORQUE_NEEDS_PROFILE, Scenario, motor_parameters)
+from .run_file import (ADAPTATION, CONTROLLER_LIMITS, CONTROLLERS,  # noqa: F401
+                       motor_parameters, PLANT_PROTECTION, Scenario, TASK_PRESETS, TASKS,
+                       TORQUE_NEEDS_PROFILE)
 
 
 def node_parameters(task: str = 'position', strategy: str = 'min_energy',
@@ -26,8 +30,10 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
                     load=None, limits: Optional[dict] = None,
                     protection: Optional[dict] = None,
                     sensorless: bool = False) -> Dict[str, Dict[str, object]]:
-    """Parameters of the four nodes for one scenario, by keywords: the
-    :class:`im_bringup.run_file.Scenario` of them and its
+    """
+    Return the parameters of the four nodes for one scenario, by keywords.
+
+    The :class:`im_bringup.run_file.Scenario` of them and its
     :meth:`~im_bringup.run_file.Scenario.node_parameters` (the one mapping).
 
     ``motor``/``estimates``/``profile``/``load``: file path or object; ``limits``: controller
@@ -42,8 +48,8 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
     for key in protection:
         if key not in PLANT_PROTECTION:
             raise ValueError(f"invalid protection {key!r}: one of {', '.join(PLANT_PROTECTION)}")
-    direct = {k: v for k, v in limits.items() if k in ('torque_limit', 'current_limit',
-                                                        'speed_limit') and v}
+    direct = {k: v for k, v in limits.items()
+              if k in ('torque_limit', 'current_limit', 'speed_limit') and v}
     options = {k: v for k, v in limits.items() if k not in direct and v is not None}
     sc = Scenario(task=task, strategy=strategy, controller=controller, variation=variation,
                   T_s=T_s, duration=duration, v_limit=v_limit or None,
@@ -56,7 +62,7 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
 
 
 def to_yaml(parameters: Dict[str, Dict[str, object]], use_sim_time: bool = True) -> str:
-    """A ROS 2 parameters file (``--params-file``) for the given node parameters."""
+    """Return a ROS 2 parameters file (``--params-file``) for the given node parameters."""
     from im_common.yamlio import parameters_yaml
     doc = {}
     for node, values in parameters.items():

@@ -1,14 +1,15 @@
-"""The four drive nodes spun in one process, on a context of their own, in lock-step.
+"""
+The four drive nodes spun in one process, on a context of their own, in lock-step.
 
-:class:`DriveGraph` is what the scenario runner, the benchmarks and the integration tests use; it is
-also the reusable piece for users' own integration tests (see :mod:`im_bringup.testing` for the
+:class:`DriveGraph` is what the scenario runner, the benchmarks and the integration tests use; it
+is also the reusable piece for users' own integration tests (see :mod:`im_bringup.testing` for the
 pytest fixture). Each graph owns its ``Context`` and a DDS domain id of its own (by default a
 random one in 150-229), so several graphs — or several test runs on one machine — never cross-talk.
 
 Recording in-process taps the nodes' publishers: every message a node publishes is also handed to
-the :class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot path.
-Each tapped topic is declared with the QoS profiles its publishers offer, as the ROS graph reports
-them (``get_publishers_info_by_topic``, what rosbag2's recorder and ``record`` store).
+the :class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot
+path. Each tapped topic is declared with the QoS profiles its publishers offer, as the ROS graph
+reports them (``get_publishers_info_by_topic``, what rosbag2's recorder and ``record`` store).
 """
 from __future__ import annotations
 
@@ -17,13 +18,11 @@ import random
 import time
 from typing import Dict, Mapping, Optional
 
+from im_common.cli import status_line
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
-
-from im_common.cli import status_line
-
 
 
 def _overrides(values: Mapping[str, object]):
@@ -31,7 +30,7 @@ def _overrides(values: Mapping[str, object]):
 
 
 def node_factories() -> Dict[str, object]:
-    """The node class of each drive node name."""
+    """Return the node class of each drive node name."""
     from im_adapt.adapter_node import AdapterNode
     from im_controller.controller_node import ControllerNode
     from im_observer.observer_node import ObserverNode
@@ -41,10 +40,14 @@ def node_factories() -> Dict[str, object]:
 
 
 def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
-    """Build every drive node named in ``parameters`` once, with its parameters, on a private
+    """
+    Check the parameters of every drive node before any process of a graph is started.
+
+    Build every drive node named in ``parameters`` once, with its parameters, on a private
     context that is shut down again, and raise the :class:`im_common.lockstep.ConfigurationError`
     of the first one that refuses them — what its own process would print — before any process
-    of a graph is started (``scenario --processes``, the launch file)."""
+    of a graph is started (``scenario --processes``, the launch file).
+    """
     from im_common.lockstep import build_node
     factories = node_factories()
     ctx = Context()
@@ -59,7 +62,8 @@ def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
 
 
 class DriveGraph:
-    """Plant, controller, observer and adapter nodes in one process.
+    """
+    Plant, controller, observer and adapter nodes in one process.
 
     Parameters
     ----------
@@ -73,6 +77,7 @@ class DriveGraph:
     domain_id : DDS domain (default random in 150-229).
     graph_key : the key its nodes sign their messages with (default: a random one, in memory;
         ``docs/security.md``).
+
     """
 
     NODE_NAMES = ('plant', 'controller', 'observer', 'adapter')
@@ -137,8 +142,11 @@ class DriveGraph:
         # through these tapped publishers; the plant publishes step 0 when the run starts.
 
     def _declare_offers(self, writer, topics) -> None:
-        """Declare each tapped topic with the profiles this graph's publishers offer (one per
-        publisher; the graph's own endpoints are known at once, no discovery needed)."""
+        """
+        Declare each tapped topic with the profiles this graph's publishers offer.
+
+        One per publisher; the graph's own endpoints are known at once, no discovery needed.
+        """
         from im_recording.bag import offered_qos_yaml
         ours = {(n.get_name(), n.get_namespace()) for n in self.nodes.values()}
         for topic, (node, cls) in topics.items():
@@ -147,28 +155,35 @@ class DriveGraph:
             expected = sum(1 for n in self.nodes.values() for p in n.publishers
                            if p.topic_name == topic)
             if len(infos) != expected:
-                raise RuntimeError(f'{topic}: the ROS graph lists {len(infos)} of this graph\'s '
+                raise RuntimeError(f"{topic}: the ROS graph lists {len(infos)} of this graph's "
                                    f'{expected} publishers; cannot record their QoS')
             type_name = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
             writer.add_topic(topic, type_name, qos=offered_qos_yaml(i.qos_profile for i in infos))
 
     def _stopped(self, node) -> None:
-        """A node finished or failed: the run ends when the plant is done or a node failed."""
+        """End the run when the plant is done or a node failed (a node finished or failed)."""
         if (node.exit_code or node is self.nodes.get('plant')) and not self._stop.done():
             self._stop.set_result(node.get_name())
 
     def fail(self, name: str, reason: str) -> None:
-        """A part of the run that is not a node failed (the in-process recorder: its file
-        cannot be written): the run ends as when a node fails, ``failures[name] = reason``."""
+        """
+        End the run because a part of it that is not a node failed.
+
+        The in-process recorder, say, whose file cannot be written: the run ends as when a node
+        fails, ``failures[name] = reason``.
+        """
         self._failures[name] = reason
         if self._stop is not None and not self._stop.done():
             self._stop.set_result(name)
 
     def run(self, progress: bool = False, wall_limit: Optional[float] = None,
             stop=None) -> dict:
-        """Spin until the plant reached its duration, a node failed, ``wall_limit`` [s] passed
-        (a failure: ``failures['graph']``) or ``stop`` (a :class:`~im_common.stopping.
-        StopSignals`) was requested; return run statistics.
+        """
+        Spin until the run ends; return run statistics.
+
+        The run ends when the plant reached its duration, a node failed, ``wall_limit`` [s]
+        passed (a failure: ``failures['graph']``) or ``stop`` (a
+        :class:`~im_common.stopping.StopSignals`) was requested.
 
         The executor runs natively (``spin_until_future_complete``) in slices of 0.1 s between
         which progress is printed and the stop flag checked; after a failure the others get up to
@@ -213,9 +228,13 @@ class DriveGraph:
         return stats
 
     def _spin(self, plant, t0, k0, progress, wall_limit, stop, failures) -> None:
-        """Spin natively until the stop future completes. The EventsExecutor does not return
-        from ``spin_until_future_complete`` while events keep coming, so a watcher thread prints
-        progress and completes the future on a stop request or at the wall-clock limit."""
+        """
+        Spin natively until the stop future completes.
+
+        The EventsExecutor does not return from ``spin_until_future_complete`` while events
+        keep coming, so a watcher thread prints progress and completes the future on a stop
+        request or at the wall-clock limit.
+        """
         import threading
         total = plant.last_step if plant is not None else None
         quit_watch = threading.Event()

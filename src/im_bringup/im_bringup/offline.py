@@ -1,10 +1,13 @@
-"""Offline closed loop: plant + controller + observer stepped in pure Python, in exactly the order
-the lock-step ROS graph uses (docs/architecture.md, "Lock-step protocol, startup and shutdown"):
+"""
+Offline closed loop: plant + controller + observer stepped in pure Python.
 
-    meas_k = plant.measure()                                  # plant publishes stamped t_k
-    V_k    = controller.compute(t_k, meas_k, φ̂_k, p̂_k)        # controller holds all inputs of step k
-    plant.step(V_k)                                           # plant integrates [t_k, t_k+1], V held
-    x̂_k+1  = observer.step(T_s, V_k, meas_k.i, meas_k.ω)      # observer predicts from the same data
+They step in exactly the order the lock-step ROS graph uses (docs/architecture.md, "Lock-step
+protocol, startup and shutdown"):
+
+    meas_k = plant.measure()                             # plant publishes stamped t_k
+    V_k    = controller.compute(t_k, meas_k, φ̂_k, p̂_k)   # controller holds all inputs of step k
+    plant.step(V_k)                                      # plant integrates [t_k, t_k+1], V held
+    x̂_k+1  = observer.step(T_s, V_k, meas_k.i, meas_k.ω) # observer predicts from the same data
     p̂_k+1  = adapter.step(..., x̂_k)  (optional hook, chapter 4; used from step k+1 on)
 
 So results of the ROS graph and of this loop are comparable sample by sample.
@@ -17,24 +20,23 @@ angle 0) — plant and observer both start there (``start='steady'``).
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
-
-import numpy as np
+import time
 
 from im_common.cli import status_line
 from im_common.metrics import energy_figures, tracking_figures
 from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
-from im_common.params import InvalidParameter, estimate_arguments
+from im_common.params import (CHAPTER4_ESTIMATES, estimate_arguments,  # noqa: F401 (re-exported)
+                              InvalidParameter, SCHEDULES, THESIS_MOTOR)
 from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import DriveController
 from im_observer.observer import RotorFluxObserver
 from im_observer.speed_observer import SpeedAdaptiveObserver
+import numpy as np
 
 from .config import CONTROLLERS, TASK_PRESETS, TASKS  # noqa: F401 (re-exported)
-from im_common.params import CHAPTER4_ESTIMATES, SCHEDULES, THESIS_MOTOR  # noqa: F401 (re-exported)
-from .run_file import (DEFAULT_DURATION, GAIN_PARAMETERS, limit_value, START_MODES,  # noqa: F401 (re-exported)
-                       Scenario, gain_arguments_from_parameters)
+from .run_file import (DEFAULT_DURATION, gain_arguments_from_parameters,  # noqa: F401
+                       GAIN_PARAMETERS, limit_value, Scenario, START_MODES)
 
 
 @dataclass
@@ -52,7 +54,7 @@ TRACE_KEYS = ('t', 'theta_r', 'omega_r', 'theta_ref', 'omega_ref', 'tau_m', 'tau
 
 
 def build(sc: Scenario):
-    """(plant, controller, observer) of a scenario, started as the scenario says."""
+    """Return (plant, controller, observer) of a scenario, started as the scenario says."""
     cfg = sc.controller_config()
     gains = sc.gain_arguments()
     x0, obs_x0 = sc.initial_state()
@@ -79,12 +81,14 @@ def build(sc: Scenario):
         return plant, controller, observer
     observer = RotorFluxObserver(cfg.params, k_e=gains['k_e'], max_substep=sc.observer_substep,
                                  x0=obs_x0, injection_gain=gains['observer_gain'],
-                                 gain_period=sc.T_s if gains['observer_gain'] is not None else None)
+                                 gain_period=(sc.T_s if gains['observer_gain'] is not None
+                                              else None))
     return plant, controller, observer
 
 
-def _record(tr: dict, rec: int, plant, controller, x_hat, t: float, v_a: float, v_b: float) -> None:
-    """One row of the traces at t_k (true state, references, applied voltage, energy books)."""
+def _record(tr: dict, rec: int, plant, controller, x_hat, t: float, v_a: float,
+            v_b: float) -> None:
+    """Record one row of the traces at t_k (true state, references, applied voltage, energy)."""
     x = plant.x
     _, _, L_s, L_r, L_sr = plant.schedule.values(t)
     i_sa, i_sb, _, _ = plant.state_currents()
@@ -129,7 +133,8 @@ def _summary(sc: Scenario, plant, trace: dict, n_steps: int) -> dict:
     summary.update(energy_figures(truth))
     summary.update(tracking_figures(trace, sc.task))
     summary['E_loss_J'] = summary['E_copper_J'] + summary['E_core_J']
-    summary['balance_relative'] = abs(summary['balance_residual_J']) / max(abs(summary['E_in_J']), 1e-12)
+    summary['balance_relative'] = (abs(summary['balance_residual_J'])
+                                   / max(abs(summary['E_in_J']), 1e-12))
     summary['steps'] = n_steps
     summary['trip'] = None if plant.trip is None else {'t': plant.trip[0], 'reason': plant.trip[1]}
     return summary
@@ -137,12 +142,14 @@ def _summary(sc: Scenario, plant, trace: dict, n_steps: int) -> dict:
 
 def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
              adapter=None, timing: bool = False) -> RunResult:
-    """Run ``scenario`` in the lock-step order; returns figures of merit and traces.
+    """
+    Run ``scenario`` in the lock-step order; return figures of merit and traces.
 
     ``adapter`` (optional, chapter 4): an object with ``step(T_s, t, v_alpha, v_beta, meas,
     x_hat) -> dict`` returning estimates (e.g. {'R_r': ..., 'theta': ...}) for the next step;
     they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13).
-    ``timing`` adds the mean wall time per ``compute`` and per ``observer.step`` [µs] to the summary.
+    ``timing`` adds the mean wall time per ``compute`` and per ``observer.step`` [µs] to the
+    summary.
     """
     sc = scenario
     if record_every < 1:

@@ -1,4 +1,5 @@
-"""The drive graph as separate processes: which nodes, with which parameters, started how.
+"""
+The drive graph as separate processes: which nodes, with which parameters, started how.
 
 One description, :func:`graph_processes`, serves ``launch/drive.launch.py`` (``ros2 launch``) and
 :class:`GraphProcesses`, the small supervisor that the tests, the benchmarks and ``scenario
@@ -18,13 +19,13 @@ What is started:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Dict, List, Mapping, Optional, Sequence
 
 
@@ -41,6 +42,7 @@ EXECUTABLES = {'plant': ('im_plant', 'plant'), 'controller': ('im_controller', '
 @dataclass
 class NodeProcess:
     """One process of the graph: ``ros2 run <package> <executable>`` with these parameters."""
+
     name: str
     package: str
     executable: str
@@ -56,22 +58,25 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                     key_file: Optional[str] = None,
                     record_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
                     scenario=None, **config) -> List[NodeProcess]:
-    """The processes of one run (see the module docstring); ``extra`` = {node: {param: value}}
-    merged last (a gains or parameters YAML), ``config`` goes to
+    """
+    Return the processes of one run (see the module docstring).
+
+    ``extra`` = {node: {param: value}} merged last (a gains or parameters YAML), ``config`` goes to
     :func:`im_bringup.config.node_parameters`. ``key_file``: the graph's key (default: a fresh
     one, :func:`im_common.auth.new_key_file`, removed when this process exits), given to every
     node as ``graph_key_file``. ``record_metadata``: named metadata records the recorder writes
     into the bag (``record --metadata``; the scenario runner's
     :func:`im_bringup.scenario.run_metadata`). ``scenario``: a
-    :class:`~im_bringup.run_file.Scenario` (a run file) instead of task ... config."""
+    :class:`~im_bringup.run_file.Scenario` (a run file) instead of task ... config.
+    """
     from im_bringup.config import node_parameters
     if mode not in ('lockstep', 'free_run'):
-        raise ValueError(f"invalid mode {mode!r}: lockstep or free_run")
+        raise ValueError(f'invalid mode {mode!r}: lockstep or free_run')
     if scenario is not None:
         params = scenario.node_parameters(**{k: config.pop(k) for k in (
             'truth_decimation', 'reference_decimation', 'input_timeout') if k in config})
         if config:
-            raise ValueError(f"invalid option {next(iter(config))!r} beside a scenario")
+            raise ValueError(f'invalid option {next(iter(config))!r} beside a scenario')
     else:
         params = node_parameters(task, strategy, controller, T_s=T_s, duration=duration,
                                  **config)
@@ -103,7 +108,7 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
 
 
 def graph_key_file() -> str:
-    """A fresh key for one graph (``docs/security.md``), removed when this process exits."""
+    """Return a fresh key for one graph (``docs/security.md``), removed when this process exits."""
     import atexit
     from im_common import auth
     path = auth.new_key_file()
@@ -112,14 +117,17 @@ def graph_key_file() -> str:
 
 
 def params_file_text(parameters: Mapping[str, object]) -> str:
-    """A node's parameters as ``launch_ros`` writes them: ``/**: ros__parameters: {...}``."""
+    """Return a node's parameters as ``launch_ros`` writes them (``/**: ros__parameters:``)."""
     from im_common.yamlio import parameters_yaml
     return parameters_yaml({'/**': dict(parameters)})
 
 
 def load_params_yaml(path: str) -> Dict[str, Dict[str, object]]:
-    """{node: {param: value}} of a ROS 2 parameters YAML (e.g. from ``design_gains``); a file
-    that cannot be used is one :class:`im_common.yamlio.ParametersFileError` naming it."""
+    """
+    Return {node: {param: value}} of a ROS 2 parameters YAML (e.g. from ``design_gains``).
+
+    A file that cannot be used is one :class:`im_common.yamlio.ParametersFileError` naming it.
+    """
     from im_bringup.config import node_parameters
     from im_common.yamlio import load_parameters_file
     return load_parameters_file(path, nodes=node_parameters())
@@ -131,7 +139,8 @@ def executable_path(package: str, executable: str) -> str:
 
 
 class GraphProcesses:
-    """Start the graph's processes, forward stop signals, collect exit codes and logs.
+    """
+    Start the graph's processes, forward stop signals, collect exit codes and logs.
 
     ``workdir`` receives one ``<name>.yaml`` (parameters) and one ``<name>.log`` (stdout+stderr)
     per process. ``env`` is added to this process's environment (e.g. ``ROS_DOMAIN_ID``).
@@ -197,8 +206,12 @@ class GraphProcesses:
         return {n: p.poll() for n, p in self.popen.items()}
 
     def stop(self, grace: float = 10.0) -> Dict[str, Optional[int]]:
-        """SIGINT to every running process (what ``ros2 launch`` does on Ctrl-C), then SIGKILL
-        after ``grace`` seconds for any that did not exit (reported as -9)."""
+        """
+        Stop the graph: SIGINT to every running process, then SIGKILL after ``grace`` seconds.
+
+        SIGINT is what ``ros2 launch`` does on Ctrl-C; a process that did not exit after
+        ``grace`` seconds is killed (reported as -9).
+        """
         self.send(signal.SIGINT)
         codes = self.wait(grace)
         stuck = [n for n, c in codes.items() if c is None]
@@ -232,11 +245,14 @@ FAILURE_GRACE = 2.0
 def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float,
                   env: Optional[Mapping[str, str]] = None, progress: bool = False
                   ) -> Dict[str, Optional[int]]:
-    """Start the graph, wait for every process to exit (SIGINT/SIGTERM to this process stop
-    the graph cleanly), stop it after ``timeout``; return the exit codes. A process that exits
+    """
+    Start the graph, wait for every process to exit, stop it after ``timeout``; return the codes.
+
+    SIGINT/SIGTERM to this process stop the graph cleanly. A process that exits
     with an error stops the graph: at once when it refused its configuration (exit code 2),
     after :data:`FAILURE_GRACE` otherwise — nobody waits out a startup timeout for a node that
-    is gone. :func:`failure_line` says which and why."""
+    is gone. :func:`failure_line` says which and why.
+    """
     from im_common.stopping import StopSignals
     g = GraphProcesses(processes, workdir, env)
     with StopSignals() as stop:
@@ -265,9 +281,12 @@ def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float
 
 
 def failure_line(workdir: str, codes: Mapping[str, Optional[int]]) -> Optional[str]:
-    """``'<node>: <its error line>'`` for the process that ended the graph (a refused
-    configuration first, then in start order), from its log in ``workdir``; None when every
-    process exited 0."""
+    """
+    Return ``'<node>: <its error line>'`` for the process that ended the graph.
+
+    A refused configuration first, then in start order, from its log in ``workdir``; None when
+    every process exited 0.
+    """
     failed = [n for n, c in codes.items() if c not in (None, 0)]
     if not failed:
         return None
@@ -290,8 +309,11 @@ def failure_line(workdir: str, codes: Mapping[str, Optional[int]]) -> Optional[s
 
 
 def check_processes(processes: Sequence[NodeProcess]) -> None:
-    """Refuse a configuration that a node's own process would refuse, before any process is
-    started: each node is built once with its parameters (:func:`im_bringup.graph.
-    check_parameters`); raises :class:`im_common.lockstep.ConfigurationError` (one line)."""
+    """
+    Refuse a configuration that a node's own process would refuse, before any process is started.
+
+    Each node is built once with its parameters (:func:`im_bringup.graph.check_parameters`);
+    raises :class:`im_common.lockstep.ConfigurationError` (one line).
+    """
     from im_bringup.graph import check_parameters
     check_parameters({p.name: p.parameters for p in processes})

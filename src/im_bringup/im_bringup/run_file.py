@@ -1,4 +1,5 @@
-"""The run file: one frozen, validated :class:`Scenario` describes a whole run (ROS-free).
+"""
+The run file: one frozen, validated :class:`Scenario` describes a whole run (ROS-free).
 
 Every way of running takes it — ``ros2 run im_bringup scenario RUN.yaml [--set key=value]``
 (in one process or ``--processes``), ``ros2 launch im_bringup drive.launch.py run:=RUN.yaml``,
@@ -21,24 +22,23 @@ profile, gains inline: what every bag carries as its ``run`` record), and
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field, fields, replace
 import json
 import math
 import os
-from dataclasses import dataclass, field, fields, replace
 from typing import Dict, Mapping, Optional
 
-import numpy as np
-
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
-from im_common.params import (CHAPTER4_ESTIMATES, RATED, SCHEDULES, THESIS_MOTOR, InvalidParameter,
-                              MotorParams, ParameterSchedule, describe_variation,
-                              load_motor_file, motor_from_dict, normalize_variation,
+from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, InvalidParameter,
+                              load_motor_file, motor_from_dict, MotorParams, normalize_variation,
+                              ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
                               variation_schedule)
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.flux import STRATEGIES
-from im_controller.profiles import KINDS, MODE_KIND, Profile, from_setpoints, load_profile
+from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
+import numpy as np
 
 TASKS = MODES                                      # the task names' one home: the control law
 CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
@@ -60,12 +60,12 @@ TASK_PRESETS = {
     # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
     'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
 }
-TORQUE_NEEDS_PROFILE = ("the torque task needs a profile of effort setpoints "
-                        "(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])")
+TORQUE_NEEDS_PROFILE = ('the torque task needs a profile of effort setpoints '
+                        '(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])')
 
 
 def motor_parameters(motor) -> Dict[str, object]:
-    """The node parameters of a motor (every field ``declare_motor`` declares)."""
+    """Return the node parameters of a motor (every field ``declare_motor`` declares)."""
     return {k: (int(v) if k == 'pole_pairs' else float(v)) for k, v in motor.as_dict().items()}
 
 
@@ -91,6 +91,8 @@ def limit_value(value):
 def limit_parameter(value) -> float:
     """Return a limit as the nodes take it: not given → -1 (the rating), 0 → 0 (none)."""
     return -1.0 if value is None else float(value)
+
+
 NOISE_KEYS = {'current': 'current_noise_std', 'speed': 'speed_noise_std', 'seed': 'noise_seed'}
 NODES = ('plant', 'controller', 'observer', 'adapter')
 
@@ -105,7 +107,8 @@ class RunFileError(ValueError):
 
 @dataclass(frozen=True)
 class Scenario:
-    """One closed-loop run. Units SI; None picks the task default (docs/running.md).
+    """
+    One closed-loop run. Units SI; None picks the task default (docs/running.md).
 
     Built from keywords (Python) or a run file (:meth:`from_file`); frozen: derive variants
     with :func:`dataclasses.replace`. ``motor``/``estimates``/``profile``/``load_model`` take the
@@ -165,7 +168,8 @@ class Scenario:
             raise InvalidParameter('controller', self.controller,
                                    f'must be one of {", ".join(CONTROLLERS)}')
         if self.mode not in STEPPING_MODES:
-            raise InvalidParameter('mode', self.mode, f'must be one of {", ".join(STEPPING_MODES)}')
+            raise InvalidParameter('mode', self.mode,
+                                   f'must be one of {", ".join(STEPPING_MODES)}')
         if isinstance(self.variation, Mapping):
             put(self, 'variation', normalize_variation(self.variation) or 'none')
         elif self.schedule is None and self.variation not in SCHEDULES:
@@ -232,7 +236,7 @@ class Scenario:
     # The model of the run ------------------------------------------------------------------
     @property
     def variation_label(self) -> str:
-        """What the summary and the console header say about the variation."""
+        """Return what the summary and the console header say about the variation."""
         if isinstance(self.variation, dict):
             return describe_variation(self.variation)
         return str(self.variation)
@@ -248,8 +252,12 @@ class Scenario:
         return SCHEDULES[self.variation](self.plant_motor())
 
     def model_estimates(self) -> MotorParams:
-        """The controller's and observer's motor model: explicit ``estimates``, else the
-        chapter-4 estimates under that named variation, else the plant's own motor."""
+        """
+        Return the controller's and observer's motor model.
+
+        Explicit ``estimates``, else the chapter-4 estimates under that named variation,
+        else the plant's own motor.
+        """
         if self.estimates is not None:
             return self.estimates
         if self.variation == 'chapter4':
@@ -264,27 +272,35 @@ class Scenario:
                          c2=p.get('load_c2', 0.001))
 
     def limits(self) -> dict:
-        """The controller limits that are set (torque/current/speed and the margins)."""
+        """Return the controller limits that are set (torque/current/speed and the margins)."""
         out = {k: getattr(self, k) for k in ('torque_limit', 'current_limit', 'speed_limit')
                if getattr(self, k) is not None}
         out.update({k: v for k, v in self.controller_options.items() if k in CONTROLLER_LIMITS})
         return out
 
     def gain_arguments(self) -> dict:
-        """current_gain, observer_gain, k_e, controller_options of the ROS-free loop (explicit
-        fields first, then the ``gains`` mapping)."""
+        """
+        Return current_gain, observer_gain, k_e, controller_options of the ROS-free loop.
+
+        Explicit fields first, then the ``gains`` mapping.
+        """
         kw = gain_arguments_from_parameters(self.gains) if self.gains else {}
         out = {'current_gain': self.current_gain if self.current_gain is not None
                else kw.get('current_gain'),
                'observer_gain': self.observer_gain if self.observer_gain is not None
                else kw.get('observer_gain'),
                'k_e': self.k_e if self.k_e is not None else kw.get('k_e')}
-        out['controller_options'] = dict(kw.get('controller_options', {}), **self.controller_options)
+        out['controller_options'] = dict(kw.get('controller_options', {}),
+                                         **self.controller_options)
         return out
 
     def initial_state(self):
-        """(plant x0 or None, observer x̂_0): at rest demagnetized, or ('steady') in the
-        controller's own steady state at (θ0, ω0) — plant and observer both start there."""
+        """
+        Return (plant x0 or None, observer x̂_0).
+
+        At rest demagnetized, or ('steady') in the controller's own steady state at (θ0, ω0) —
+        plant and observer both start there.
+        """
         if self.start != 'steady':
             return None, (0.0, 0.0, 0.0, 0.0)
         return steady_start(self.controller_config(), self.plant_schedule().params_at(0.0),
@@ -312,9 +328,12 @@ class Scenario:
     # The graph's parameters ----------------------------------------------------------------
     def node_parameters(self, truth_decimation: int = 10, reference_decimation: int = 10,
                         input_timeout: float = 5.0) -> Dict[str, Dict[str, object]]:
-        """Parameters of the four nodes ({node: {parameter: value}}, a ROS 2 parameters file's
-        structure; no ROS import). Without motor, estimates, profile, load, limits, noise or
-        gains the thesis scenario of the task."""
+        """
+        Return the parameters of the four nodes ({node: {parameter: value}}).
+
+        A ROS 2 parameters file's structure; no ROS import. Without motor, estimates, profile,
+        load, limits, noise or gains the thesis scenario of the task.
+        """
         if self.schedule is not None:
             raise InvalidParameter('schedule', self.schedule.name,
                                    'a schedule object runs on the ROS-free loop only; write it '
@@ -327,7 +346,8 @@ class Scenario:
                                    'runs on the ROS-free loop only (the graph takes '
                                    f'{", ".join(CONTROLLER_LIMITS)}, flux_coupling)')
         limits = self.limits()
-        protection = {k: getattr(self, k) for k in PLANT_PROTECTION if getattr(self, k) is not None}
+        protection = {k: getattr(self, k) for k in PLANT_PROTECTION
+                      if getattr(self, k) is not None}
         common = {'T_s': float(self.T_s), 'duration': float(self.duration),
                   'input_timeout': float(input_timeout)}
         v_limit = limit_parameter(self.v_limit)
@@ -384,7 +404,8 @@ class Scenario:
         if self.k_e is not None:
             obs['k_e_injection'] = float(self.k_e)
         adapter = dict(common, enable=adaptive, **model_values)
-        if self.sensorless:     # controller, observer, adapter: the observer's ω̂ replaces the shaft
+        # controller, observer, adapter: the observer's ω̂ replaces the shaft
+        if self.sensorless:
             ctl['sensorless'] = obs['sensorless'] = adapter['sensorless'] = True
             obs['initial_speed'] = float(self.omega0) if self.start == 'steady' else 0.0
         if adaptive:
@@ -400,14 +421,18 @@ class Scenario:
     def from_mapping(cls, mapping: Mapping, source: str = 'run file',
                      base_dir: Optional[str] = None, overrides: Optional[Mapping] = None,
                      override_source: str = 'command line') -> 'Scenario':
-        """The Scenario of a run file's mapping (``overrides`` applied over it, dotted keys for
-        nested ones); any error is one :class:`RunFileError` naming ``source`` (or
-        ``override_source`` for an override's key) and the key. Relative file paths are read
-        from ``base_dir`` (the run file's directory)."""
+        """
+        Return the Scenario of a run file's mapping.
+
+        ``overrides`` are applied over it, dotted keys for nested ones; any error is one
+        :class:`RunFileError` naming ``source`` (or ``override_source`` for an override's key)
+        and the key. Relative file paths are read from ``base_dir`` (the run file's directory).
+        """
         if mapping is None:
             mapping = {}
         if not isinstance(mapping, Mapping):
-            raise RunFileError(source, 'run file', 'must be a mapping of run keys (docs/running.md)')
+            raise RunFileError(source, 'run file',
+                               'must be a mapping of run keys (docs/running.md)')
         doc = json.loads(json.dumps(dict(mapping), default=str))   # a deep, plain copy
         over = set()
         for key, value in (overrides or {}).items():
@@ -445,12 +470,16 @@ class Scenario:
                                 overrides=overrides, override_source=override_source)
 
     def to_mapping(self) -> dict:
-        """The run file of this scenario, fully resolved: motor, estimates, load, profile and
-        gains inline, so it re-runs without any other file (:meth:`from_mapping` of it gives an
-        equal Scenario)."""
+        """
+        Return the run file of this scenario, fully resolved.
+
+        Motor, estimates, load, profile and gains inline, so it re-runs without any other
+        file (:meth:`from_mapping` of it gives an equal Scenario).
+        """
         if self.schedule is not None:
             raise InvalidParameter('schedule', self.schedule.name,
-                                   'a schedule object has no run-file form; use a variation mapping')
+                                   'a schedule object has no run-file '
+                                   'form; use a variation mapping')
         out = {'task': self.task, 'strategy': self.strategy, 'controller': self.controller,
                'T_s': float(self.T_s), 'duration': float(self.duration),
                'variation': self.variation}
@@ -466,8 +495,8 @@ class Scenario:
             out['load'] = dict(self.load_model.describe())
         if self.profile is not None:
             key = MODE_KIND[self.profile.mode]
-            out['profile'] = {'setpoints': [dict({'t': t, key: v}, **({} if d is None else
-                                                                       {'duration': d}))
+            out['profile'] = {'setpoints': [dict({'t': t, key: v},
+                                                 **({} if d is None else {'duration': d}))
                                             for t, v, d in self.profile.setpoints]}
         for name in ZERO_IS_NONE + ('inverter_rating',):
             if getattr(self, name) is not None:
@@ -502,10 +531,14 @@ GAIN_PARAMETERS = {'controller': ('current_gain', 'gain_period', 'flux_coupling'
 
 
 def gain_arguments_from_parameters(params: dict) -> dict:
-    """Scenario keyword arguments of node-parameter gain overrides (``design_gains --out``,
-    :func:`im_controller.design_gains.design_for_scenario`): {'controller': {...}, 'observer':
+    """
+    Return the Scenario keyword arguments of node-parameter gain overrides.
+
+    The overrides of ``design_gains --out``
+    (:func:`im_controller.design_gains.design_for_scenario`): {'controller': {...}, 'observer':
     {...}} -> current_gain (2×2), observer_gain (4×2), k_e, controller_options. Empty -> the
-    thesis's gains. Any other parameter is refused by name (the offline loop would ignore it)."""
+    thesis's gains. Any other parameter is refused by name (the offline loop would ignore it).
+    """
     kw: dict = {}
     for node, values in (params or {}).items():
         allowed = GAIN_PARAMETERS.get(node)
@@ -550,7 +583,7 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
     for key, value in doc.items():
         if key not in keys:
             near = difflib.get_close_matches(str(key), keys, n=1)
-            raise InvalidParameter(str(key), value, f"unknown run-file key; did you mean "
+            raise InvalidParameter(str(key), value, f'unknown run-file key; did you mean '
                                    f"'{near[0]}'?" if near else 'unknown run-file key (see '
                                    'docs/running.md)')
         if key == 'noise':
@@ -558,8 +591,8 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
                 raise InvalidParameter('noise', value, 'must be a mapping {current, speed, seed}')
             for k, v in value.items():
                 if k not in NOISE_KEYS:
-                    raise InvalidParameter(f'noise.{k}', v, 'unknown (current [A], speed '
-                                                             '[rad/s], seed)')
+                    raise InvalidParameter(f'noise.{k}', v,
+                                           'unknown (current [A], speed [rad/s], seed)')
                 if k == 'seed' and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
                     raise InvalidParameter('noise.seed', v, 'must be an integer >= 0')
                 if k != 'seed' and (isinstance(v, bool) or not isinstance(v, (int, float))):

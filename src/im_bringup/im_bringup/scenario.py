@@ -1,4 +1,5 @@
-"""``ros2 run im_bringup scenario``: one drive run — the four nodes in one process, in lock-step.
+r"""
+``ros2 run im_bringup scenario``: one drive run — the four nodes in one process, in lock-step.
 
 Spins plant, controller, observer and adapter on a context of their own as a run file says
 (:class:`im_bringup.run_file.Scenario`, docs/running.md; the options below override its keys);
@@ -7,7 +8,7 @@ its ``run`` record) and writes the report; always writes a JSON summary of the f
 
 Example::
 
-    ros2 run im_bringup scenario RUN.yaml --set controller=adaptive \\
+    ros2 run im_bringup scenario RUN.yaml --set controller=adaptive \
         --record bags/demo.mcap --report bags/demo_report
     ros2 run im_bringup scenario --rerun bags/demo.mcap --record bags/again.mcap
 """
@@ -18,7 +19,7 @@ import json
 import os
 import subprocess
 import sys
-from typing import Optional
+from typing import Mapping, Optional
 
 from im_bringup.config import CONTROLLERS, STRATEGIES, TASKS, to_yaml
 from im_common.params import SCHEDULES
@@ -54,13 +55,15 @@ def build_parser() -> argparse.ArgumentParser:
                     help='a different motor file for the controller/observer/adapter model '
                          '(an explicit model mismatch; default: --motor)')
     ap.add_argument('--profile', metavar='FILE',
-                    help='setpoints of your own: YAML "setpoints: [{t: 0.0, velocity: 100.0}, ...]" '
+                    help='setpoints of your own: YAML "setpoints: '
+                    '[{t: 0.0, velocity: 100.0}, ...]" '
                          '(position/velocity/effort as on /im/setpoint) or a sampled CSV '
                          '"t,velocity"; the task must match its kind (effort: --task torque)')
     ap.add_argument('--load', metavar='YAML',
                     help='shaft load: YAML {kind: linear, c1: 1.0, c2: 0.001} (kinds none, '
-                         'constant tau, pendulum mgl, linear c1 c2); default: the task\'s load')
-    ap.add_argument('--torque-limit', type=float, default=None, help='|tau*| bound [N m] (0: none)')
+                         "constant tau, pendulum mgl, linear c1 c2); default: the task's load")
+    ap.add_argument('--torque-limit', type=float, default=None,
+                    help='|tau*| bound [N m] (0: none)')
     ap.add_argument('--current-limit', type=float, default=None,
                     help='stator-current magnitude the torque demand may ask for [A] (0: none)')
     ap.add_argument('--speed-limit', type=float, default=None,
@@ -70,33 +73,39 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--speed-trip', type=float, default=None,
                     help='plant protection: zero voltage above this |omega_r| [rad/s] (0: off)')
     ap.add_argument('--sensorless', action='store_true', default=None,
-                    help='speed-sensorless: controller, observer and adapter use the observer\'s '
+                    help="speed-sensorless: controller, observer and adapter use the observer's "
                          'speed estimate, not the measured shaft (speed and torque tasks; '
                          'docs/sensorless.md)')
     ap.add_argument('--gains', metavar='YAML',
                     help='parameters YAML from `design_gains` (controller current gain, observer '
-                         'injection gain): the run file\'s gains')
+                         "injection gain): the run file's gains")
     ap.add_argument('--params-file', metavar='YAML',
-                    help='extra node parameters to merge (the run file\'s parameters)')
+                    help="extra node parameters to merge (the run file's parameters)")
     ap.add_argument('--record', metavar='MCAP', help='record every topic to this MCAP file')
     ap.add_argument('--force', action='store_true', help='overwrite an existing recording')
     ap.add_argument('--report', metavar='DIR', help='write the report of the recording here')
     ap.add_argument('--summary', metavar='JSON',
-                    help='summary file (default: next to the recording, or bags/<task>_<strategy>.json)')
+                    help='summary file (default: next to the '
+                    'recording, or bags/<task>_<strategy>.json)')
     ap.add_argument('--write-params', metavar='YAML',
-                    help='only write the node parameters of this scenario (for the launch file) and exit')
+                    help='only write the node parameters of this '
+                    'scenario (for the launch file) and exit')
     ap.add_argument('--processes', action='store_true',
                     help='run every node as its own process, started as the launch file starts '
                          'them, with the recorder (needs --record); logs next to the recording')
-    ap.add_argument('--domain-id', type=int, default=None, help='DDS domain (default: random 150-229)')
+    ap.add_argument('--domain-id', type=int, default=None,
+                    help='DDS domain (default: random 150-229)')
     ap.add_argument('--no-progress', action='store_true')
     return ap
 
 
 def merge_yaml(parameters: dict, path: str) -> dict:
-    """Merge a ROS 2 parameters YAML (node: {ros__parameters: {...}}) over ``parameters``; a
-    file that cannot be used is one :class:`im_common.yamlio.ParametersFileError` (ValueError)
-    naming it, the same line the launch file and the node executables give."""
+    """
+    Merge a ROS 2 parameters YAML (node: {ros__parameters: {...}}) over ``parameters``.
+
+    A file that cannot be used is one :class:`im_common.yamlio.ParametersFileError`
+    (ValueError) naming it, the same line the launch file and the node executables give.
+    """
     from im_common.yamlio import load_parameters_file
     for name, values in load_parameters_file(path, nodes=parameters).items():
         parameters[name].update(values)
@@ -127,11 +136,15 @@ def package_versions() -> dict:
 
 def run_metadata(task: str, strategy: str, controller: str, variation: str,
                  extra: Optional[dict] = None, scenario=None) -> dict:
-    """The named metadata records of a scenario's recording — ``scenario``, ``run`` (the
-    resolved run file, ``{'yaml': text}``, when ``scenario`` is given), ``versions``, ``git``
-    (and ``extra``) — as strings: the one source for the in-process bag and for the
-    ``--processes`` recorder (``record --metadata``). ``parameters/<node>`` come from the
-    running nodes (:func:`im_recording.bag.parameters_metadata`)."""
+    """
+    Return the named metadata records of a scenario's recording.
+
+    ``scenario``, ``run`` (the resolved run file, ``{'yaml': text}``, when ``scenario`` is
+    given), ``versions``, ``git`` (and ``extra``) — as strings: the one source for the
+    in-process bag and for the ``--processes`` recorder (``record --metadata``).
+    ``parameters/<node>`` come from the running nodes
+    (:func:`im_recording.bag.parameters_metadata`).
+    """
     meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
                          'variation': variation},
             'versions': package_versions(), 'git': {'revision': git_revision()}}
@@ -142,17 +155,21 @@ def run_metadata(task: str, strategy: str, controller: str, variation: str,
 
 
 def launch_processes(arguments: Mapping[str, str]) -> list:
-    """The processes ``ros2 launch im_bringup drive.launch.py`` starts for its arguments (strings
-    as launch gives them, '' = not given): the ``run`` file, overridden by the scenario
+    """
+    Return the processes ``ros2 launch im_bringup drive.launch.py`` starts for its arguments.
+
+    The arguments are strings as launch gives them, '' = not given: the ``run`` file, overridden
+    by the scenario
     arguments given (``task``, ``strategy``, ``controller``, ``T_s``, ``duration``, ``mode``,
     ``sensorless``, ``gains``, ``params_file``), with the recorder when ``record`` names a file
-    (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`)."""
+    (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`).
+    """
     import yaml
     from im_bringup.processes import graph_processes
     from im_bringup.run_file import Scenario
     a = {k: str(v) for k, v in arguments.items()}
-    over = {key: yaml.safe_load(a[key]) for key in ('task', 'strategy', 'controller', 'T_s',
-                                                     'duration', 'mode', 'sensorless')
+    over = {key: yaml.safe_load(a[key])
+            for key in ('task', 'strategy', 'controller', 'T_s', 'duration', 'mode', 'sensorless')
             if a.get(key)}
     over.update({('parameters' if key == 'params_file' else key): os.path.abspath(a[key])
                  for key in ('gains', 'params_file') if a.get(key)})
@@ -172,9 +189,12 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                  variation: str = 'none', record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,
                  metadata: Optional[dict] = None, scenario=None) -> dict:
-    """Run one scenario through the lock-step graph; return its summary (figures of merit).
+    """
+    Run one scenario through the lock-step graph; return its summary (figures of merit).
+
     ``scenario``: the :class:`~im_bringup.run_file.Scenario` the parameters came from (the
-    bag's ``run`` record)."""
+    bag's ``run`` record).
+    """
     from im_bringup.graph import DriveGraph
     from im_recording.traces import Tap
     from im_common.stopping import StopSignals
@@ -229,8 +249,12 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
               controller: str, variation: str) -> dict:
-    """The figures of merit of a graph run, computed from the captured messages by the report's
-    own code (:func:`im_recording.report.figures_of_merit`), plus the run's statistics."""
+    """
+    Return the figures of merit of a graph run, plus the run's statistics.
+
+    They are computed from the captured messages by the report's own code
+    (:func:`im_recording.report.figures_of_merit`).
+    """
     from im_recording.report import figures_of_merit
     T_s = parameters['plant']['T_s']
     run = tap.run(metadata={'scenario': {'task': task}})
@@ -279,8 +303,12 @@ FILE_OPTIONS = ('motor', 'estimates', 'profile', 'load', 'gains', 'params_file')
 
 
 def plant_variation(parameters: dict) -> str:
-    """The variation the plant will really run, from its parameters (a ``parameters:``/
-    ``--params-file`` override of the plant included): what the summary and header say."""
+    """
+    Return the variation the plant will really run, from its parameters.
+
+    A ``parameters:``/``--params-file`` override of the plant included: what the summary and
+    header say.
+    """
     from im_common.params import describe_variation
     plant = parameters.get('plant', {})
     name = plant.get('variation', 'none')
@@ -293,8 +321,12 @@ def plant_variation(parameters: dict) -> str:
 
 
 def rerun_mapping(bag: str) -> dict:
-    """The run file a bag carries (its ``run`` record), as a mapping; one ValueError line when
-    the bag has none (recorded before run files, or not by this stack)."""
+    """
+    Return the run file a bag carries (its ``run`` record), as a mapping.
+
+    One ValueError line when the bag has none (recorded before run files, or not by this
+    stack).
+    """
     import yaml
     from im_recording.bag import info
     meta = info(bag).metadata
@@ -305,8 +337,12 @@ def rerun_mapping(bag: str) -> dict:
 
 
 def scenario_from_args(args):
-    """The :class:`~im_bringup.run_file.Scenario` of the command line: the run file (or the
-    bag's ``run`` record with ``--rerun``), overridden by the options given and ``--set``."""
+    """
+    Return the :class:`~im_bringup.run_file.Scenario` of the command line.
+
+    The run file (or the bag's ``run`` record with ``--rerun``), overridden by the options
+    given and ``--set``.
+    """
     import yaml
     from im_bringup.run_file import RunFileError, Scenario
     over = {}
@@ -455,9 +491,13 @@ def _write_report(record: str, report: str) -> int:
 
 
 def _run_processes(args, sc, parameters: dict, out: str) -> int:
-    """``--processes``: the scenario's nodes as separate processes (``im_bringup.processes``, what
-    ``ros2 launch im_bringup drive.launch.py`` starts) plus the recorder; the figures come from
-    the recording, by the report's own code."""
+    """
+    Run ``--processes``: the scenario's nodes as separate processes, plus the recorder.
+
+    The scenario's nodes as separate processes (``im_bringup.processes``, what ``ros2 launch
+    im_bringup drive.launch.py`` starts) plus the recorder; the figures come from the
+    recording, by the report's own code.
+    """
     import random
 
     from im_bringup.processes import check_processes, failure_line, graph_processes, \

@@ -1,4 +1,5 @@
-"""The SROS2 access-control policy of the drive graph: ``config/sros2/policy.xml``.
+"""
+The SROS2 access-control policy of the drive graph: ``config/sros2/policy.xml``.
 
 One enclave per node (``/im_drive/<node>``) granting exactly the topics the node publishes and
 subscribes and the services it answers (its parameter services), read off the nodes themselves
@@ -28,9 +29,11 @@ from xml.sax.saxutils import escape
 ENCLAVE_ROOT = '/im_drive'
 POLICY_VERSION = '0.2.0'
 NODES = ('plant', 'controller', 'observer', 'adapter', 'recorder', 'commission')
-#: {node: the node whose topics it publishes in that node's place} (the topic table names the other)
+#: {node: the node whose topics it publishes in that node's place}
+#: (the topic table names the other)
 STANDS_IN = {'commission': 'controller'}
-#: The shipped file, relative to the repository's root (installed to share/im_bringup/config/sros2).
+#: The shipped file, relative to the repository's root
+#: (installed to share/im_bringup/config/sros2).
 SHIPPED = os.path.join('src', 'im_bringup', 'config', 'sros2', 'policy.xml')
 
 
@@ -91,7 +94,7 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
 
 
 def user_endpoints(nodes: Dict[str, Dict[str, List[str]]]) -> Dict[str, List[str]]:
-    """The console user: setpoint, run protocol, parameters of every node."""
+    """Return the console user's endpoints: setpoint, run protocol, parameters of every node."""
     from im_common import topics as T
     services = sorted({s for e in nodes.values() for s in e['reply'] if 'parameter' in s})
     return {'publish': [T.SETPOINT, '/rosout', '/parameter_events'],
@@ -152,7 +155,7 @@ def parse_policy(text: str) -> Dict[str, Dict[str, List[str]]]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog='sros2_policy', description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog='sros2_policy', description=__doc__.strip().splitlines()[0])
     ap.add_argument('--write', action='store_true', help=f'rewrite {SHIPPED}')
     a = ap.parse_args(argv)
     text = policy_xml()

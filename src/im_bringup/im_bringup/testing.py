@@ -1,4 +1,5 @@
-"""A pytest fixture that spins the whole drive graph in-process, for your own integration tests.
+"""
+A pytest fixture that spins the whole drive graph in-process, for your own integration tests.
 
 Use it from a ``conftest.py``::
 
@@ -35,11 +36,13 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
               variation: str = 'none', T_s: float = 1e-4, duration: Optional[float] = None,
               parameters: Optional[dict] = None, nodes=None, record: Optional[str] = None,
               beside=None, scenario=None, **config) -> GraphResult:
-    """Run one scenario in-process and return its summary and traces.
+    """
+    Run one scenario in-process and return its summary and traces.
 
     ``scenario``: a run file path or :class:`~im_bringup.run_file.Scenario` (then task ...
     config are not given). ``beside(domain_id)``: a context manager entered while the graph
-    runs (e.g. your own node, or a foreign one, on the graph's ROS domain)."""
+    runs (e.g. your own node, or a foreign one, on the graph's ROS domain).
+    """
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph
     from im_bringup.run_file import Scenario
@@ -81,8 +84,11 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
 
 def assert_samples_match(graph_trace: Dict[str, np.ndarray], offline_trace: Dict[str, np.ndarray],
                          keys, min_shared: int, rtol: float = 1e-9, atol: float = 1e-12) -> None:
-    """The graph's samples at t_k equal the ROS-free loop's per-step trace at the same instants
-    (stamps matched in integer ns; NaN samples of decimated topics skipped)."""
+    """
+    Assert the graph's samples at t_k equal the ROS-free loop's per-step trace at those instants.
+
+    Stamps are matched in integer ns; NaN samples of decimated topics are skipped.
+    """
     t_off = np.round(np.asarray(offline_trace['t']) * 1e9).astype(np.int64)
     idx = {ns: i for i, ns in enumerate(t_off)}
     stamps = np.round(np.asarray(graph_trace['t']) * 1e9).astype(np.int64)
@@ -97,5 +103,5 @@ def assert_samples_match(graph_trace: Dict[str, np.ndarray], offline_trace: Dict
 
 @pytest.fixture
 def drive_graph():
-    """Callable fixture: ``drive_graph(task=..., strategy=..., duration=..., parameters=...)``."""
+    """Return :func:`run_graph`, a callable fixture (task=..., strategy=..., duration=..., ...)."""
     return run_graph

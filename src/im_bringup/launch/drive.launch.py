@@ -1,7 +1,10 @@
-"""Jazzy launch file: the drive graph as separate processes.
+"""
+Jazzy launch file: the drive graph as separate processes.
 
-    ros2 launch im_bringup drive.launch.py [run:=RUN.yaml] [task:=position|speed] [strategy:=min_energy|...]
-        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair] [T_s:=0.0001] [duration:=2.0]
+    ros2 launch im_bringup drive.launch.py [run:=RUN.yaml] [task:=position|speed]
+        [strategy:=min_energy|...]
+        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair]
+        [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
         [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true] [sensorless:=true]
 
@@ -50,8 +53,8 @@ ARGUMENTS = (
     ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),
     ('params_file', '', 'extra parameters YAML merged last'),
     ('sensorless', '', 'true: speed-sensorless, controller/observer/adapter use the '
-                            "observer's speed estimate, not the measured shaft (speed and torque "
-                            'tasks; docs/sensorless.md)'),
+                       "observer's speed estimate, not the measured shaft (speed and torque "
+                       'tasks; docs/sensorless.md)'),
     ('security', 'false', 'true: start each node in its SROS2 enclave /im_drive/<node> (needs a '
                           'keystore from config/sros2/policy.xml and a middleware with DDS '
                           'security; docs/security.md)'),
@@ -73,8 +76,11 @@ def _processes(context):
 
 
 def _stop_on_failure(event, _context):
-    """A node that exits with an error (a refused configuration: 2) ends the launch at once:
-    the others do not wait out their startup timeout for it."""
+    """
+    End the launch at once when a node exits with an error (a refused configuration: 2).
+
+    The others do not wait out their startup timeout for it.
+    """
     if event.returncode:
         name = getattr(event, 'process_name', None) or 'a node'
         return [EmitEvent(event=Shutdown(reason=f'{name} exited with code {event.returncode}'))]

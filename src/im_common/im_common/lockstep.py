@@ -685,8 +685,12 @@ class LockstepNode(Node):
         self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
 
     def on_incomplete(self, topic: str, ns: int) -> None:
-        """Hook of a follow gate (free_run): ``topic`` stamped ``ns`` arrived and no step is
-        complete yet. The observer bridges a stalled loop here."""
+        """
+        Act on an input that completes no step of a follow gate (free_run).
+
+        ``topic`` stamped ``ns`` arrived and no step is complete yet. The observer bridges
+        a stalled loop here.
+        """
 
     def refuse(self, topic: str, ns: Optional[int], reason: str) -> None:
         """Count and log an input that is refused (the node keeps running)."""

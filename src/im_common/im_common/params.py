@@ -1,4 +1,5 @@
-"""Motor parameters, their validation, and time-varying parameter schedules.
+"""
+Motor parameters, their validation, and time-varying parameter schedules.
 
 One defaults table for the whole stack: :data:`THESIS_MOTOR` is the motor of seed 000 §3.4.1
 (eq. 3.33). Every package reads its nominal values from here.
@@ -51,8 +52,8 @@ measurements only, R_s, σL_s, L_M and R_R are identifiable; R_r and θ separate
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields, replace
+import math
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
@@ -80,8 +81,12 @@ class InvalidParameter(ValueError):
 
 
 def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: bool = False):
-    """``value`` as a finite float (≥ lo, or > lo when ``lo_open``); else InvalidParameter
-    naming ``name``. The one validation helper of the stack's math modules."""
+    """
+    Return ``value`` as a finite float (≥ lo, or > lo when ``lo_open``).
+
+    Else InvalidParameter naming ``name``. The one validation helper of the stack's math
+    modules.
+    """
     if value is None and allow_none:
         return None
     if isinstance(value, bool):
@@ -101,11 +106,14 @@ def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: boo
 
 
 def parameter_error(value, default, lo=None, hi=None) -> Optional[str]:
-    """Why ``value`` cannot be a parameter declared with ``default`` and range [lo, hi], or None.
+    """
+    Say why ``value`` cannot be a parameter declared with ``default`` and range [lo, hi], or None.
+
     The parameters are typed as in ROS 2: an integer is not taken for a real-valued parameter
     (no silent conversion; the line says to write it as a real number). The one type and range
     rule of every path that takes parameters: the nodes (``LockstepNode.param``) and the motor
-    files (:func:`motor_from_dict`)."""
+    files (:func:`motor_from_dict`).
+    """
     if isinstance(default, bool):
         return None if isinstance(value, bool) else 'must be true or false'
     if isinstance(default, (int, float)):
@@ -139,23 +147,29 @@ SQRT3 = math.sqrt(3.0)
 
 
 def clarke(x_a: float, x_b: float, x_c: float) -> Tuple[float, float]:
-    """The power-invariant Clarke transform of the model (seed 000 eq. 1.111-1.112):
-    (x_α, x_β) = √(2/3)·(x_a − x_b/2 − x_c/2, (√3/2)(x_b − x_c)). Power-invariant:
-    v_a i_a + v_b i_b + v_c i_c = v_α i_α + v_β i_β for a set without zero sequence."""
+    """
+    Apply the power-invariant Clarke transform of the model (seed 000 eq. 1.111-1.112).
+
+    (x_α, x_β) = √(2/3)·(x_a − x_b/2 − x_c/2, (√3/2)(x_b − x_c)). Power-invariant: v_a i_a +
+    v_b i_b + v_c i_c = v_α i_α + v_β i_β for a set without zero sequence.
+    """
     k = math.sqrt(2.0 / 3.0)
     return k * (x_a - 0.5 * x_b - 0.5 * x_c), k * 0.5 * SQRT3 * (x_b - x_c)
 
 
 def vector_magnitude(rms_phase: float) -> float:
-    """The αβ-vector magnitude of a balanced three-phase set whose phase RMS value is
-    ``rms_phase``: x_k = √2 X cos(ωt − 2πk/3) gives |x_αβ| = √(2/3)·(3/2)·√2 X = √3 X
-    (:func:`clarke`; tests/test_ratings.py checks it on sampled waveforms)."""
+    """
+    Return the αβ-vector magnitude of a balanced three-phase set of phase RMS value ``rms_phase``.
+
+    x_k = √2 X cos(ωt − 2πk/3) gives |x_αβ| = √(2/3)·(3/2)·√2 X = √3 X (:func:`clarke`;
+    tests/test_ratings.py checks it on sampled waveforms).
+    """
     return SQRT3 * rms_phase
 
 
 @dataclass(frozen=True)
 class MotorParams:
-    """Parameters of the squirrel-cage induction motor and its shaft (SI units, see module table)."""
+    """Parameters of the squirrel-cage induction motor and its shaft (SI, see module table)."""
 
     R_s: float = 0.687
     R_r: float = 0.842
@@ -180,7 +194,8 @@ class MotorParams:
         for name in ('b', 'k_e', 'k_h') + RATING_NAMES:
             _check_finite_positive(name, getattr(self, name), allow_zero=True)
         v = self.pole_pairs
-        if isinstance(v, bool) or not isinstance(v, int) and not (isinstance(v, float) and v.is_integer()):
+        if (isinstance(v, bool)
+                or not isinstance(v, int) and not (isinstance(v, float) and v.is_integer())):
             raise InvalidParameter('pole_pairs', v, 'must be a whole number')
         if int(v) < 1:
             raise InvalidParameter('pole_pairs', v, 'must be >= 1')
@@ -203,8 +218,12 @@ class MotorParams:
     # Ratings in the model's power-invariant frame (module doc; 0: not given) ---------------
     @property
     def rated_voltage(self) -> float:
-        """Voltage-vector magnitude at the rated voltage [V]: √3 × the phase voltage V_LL/√3 of
-        the equivalent star (:func:`vector_magnitude`), i.e. the line-to-line RMS voltage."""
+        """
+        Voltage-vector magnitude at the rated voltage [V].
+
+        √3 × the phase voltage V_LL/√3 of the equivalent star (:func:`vector_magnitude`),
+        i.e. the line-to-line RMS voltage.
+        """
         return self.rated_voltage_rms_line
 
     @property
@@ -251,20 +270,25 @@ class MotorParams:
         return self.L_r / self.R_r
 
     def identifiable(self) -> Dict[str, float]:
-        """The inverse-Γ parameters {'R_s', 'L_sigma', 'L_M', 'R_R'}: everything the terminals
-        (voltages, currents, speed) determine (docs/adaptation.md §1)."""
+        """
+        Return the inverse-Γ parameters {'R_s', 'L_sigma', 'L_M', 'R_R'}.
+
+        Everything the terminals (voltages, currents, speed) determine (docs/adaptation.md §1).
+        """
         return dict(zip(IDENTIFIABLE_NAMES, (self.R_s, self.L_sigma, self.L_M, self.R_R)))
 
     def with_identifiable(self, R_s: Optional[float] = None, L_sigma: Optional[float] = None,
                           L_M: Optional[float] = None, R_R: Optional[float] = None
                           ) -> 'MotorParams':
-        """The motor with these inverse-Γ parameters, in this motor's rotor gauge θ = L_sr/L_r.
+        """
+        Return the motor with these inverse-Γ parameters, in this motor's gauge θ = L_sr/L_r.
 
         Terminal signals fix R_s, L_σ, L_M and R_R but not θ (docs/adaptation.md §1); keeping θ
         fixes the scale of the rotor-flux coordinate φ_r = φ_M/θ: L_sr = L_M/θ, L_r = L_M/θ²,
         L_s = L_σ + L_M, R_r = R_R/θ². The result is terminal-equivalent to any motor with the
         same four values, and equal to this motor when none changes. Raises InvalidParameter
-        naming the value that is not a positive finite number."""
+        naming the value that is not a positive finite number.
+        """
         th = self.theta
         ident = self.identifiable()
         given = {'R_s': R_s, 'L_sigma': L_sigma, 'L_M': L_M, 'R_R': R_R}
@@ -284,7 +308,7 @@ class MotorParams:
         return self.pole_pairs
 
     def with_values(self, **values) -> 'MotorParams':
-        """A copy with some values replaced (validated)."""
+        """Return a copy with some values replaced (validated)."""
         return replace(self, **values)
 
     def as_dict(self) -> Dict[str, float]:
@@ -299,11 +323,17 @@ THESIS_ESTIMATE_NAMES = ('R_r', 'theta')
 
 
 def estimate_arguments(estimates: Mapping) -> Dict[str, float]:
-    """What a controller or observer model takes from the adapter's estimates: the inverse-Γ
-    set (``R_s``, ``L_sigma``, ``L_M``, ``R_R``, those present) when it carries ``L_sigma`` — the
-    improved law and truth-fed runs —, else the thesis's ``R_r``/``theta`` (docs/adaptation.md §7)."""
+    """
+    Return what a controller or observer model takes from the adapter's estimates.
+
+    The inverse-Γ set (``R_s``, ``L_sigma``, ``L_M``, ``R_R``, those present) when it carries
+    ``L_sigma`` — the improved law and truth-fed runs —, else the thesis's ``R_r``/``theta``
+    (docs/adaptation.md §7).
+    """
     names = IDENTIFIABLE_NAMES if 'L_sigma' in estimates else THESIS_ESTIMATE_NAMES
     return {n: estimates[n] for n in names if estimates.get(n) is not None}
+
+
 MOTOR_FIELDS = tuple(f.name for f in fields(MotorParams))
 
 # Ratings as drive defaults ---------------------------------------------------------------
@@ -320,12 +350,14 @@ FLUX_MIN_SHARE = 0.2 / 1.2
 
 def rated_rotor_flux(R_s: float, L_sigma: float, L_M: float, R_R: float, theta: float,
                      voltage: float, frequency: float, speed_rpm: float, pole_pairs: int) -> float:
-    """The rotor flux |φ_r| at rated voltage (vector magnitude, = V_LL), frequency and speed.
+    """
+    Return the rotor flux |φ_r| at rated voltage (vector magnitude, = V_LL), frequency, speed.
 
     The inverse-Γ equivalent circuit at ω_e = 2πf and the rated slip s = 1 − n v/(60 f):
     Z_M = jω_e L_M ∥ R_R/s, the magnetizing-branch voltage V_M = V·Z_M/(R_s + jω_e L_σ + Z_M),
     ψ_R = |V_M|/ω_e, and φ_r = ψ_R/θ in the motor's gauge θ = L_sr/L_r (docs/commissioning.md §4:
-    the flux the motor carries at its rated operating point)."""
+    the flux the motor carries at its rated operating point).
+    """
     we = 2.0 * math.pi * frequency
     slip = 1.0 - speed_rpm * pole_pairs / (60.0 * frequency)
     z_m = 1.0 / (1.0 / (1j * we * L_M) + slip / R_R)
@@ -334,8 +366,12 @@ def rated_rotor_flux(R_s: float, L_sigma: float, L_M: float, R_R: float, theta: 
 
 
 def rated_flux(motor: MotorParams) -> Optional[float]:
-    """The motor's rated rotor flux [Wb]: ``rated_flux`` when the file states it, else
-    :func:`rated_rotor_flux` from the rated voltage, frequency and speed, else None."""
+    """
+    Return the motor's rated rotor flux [Wb].
+
+    ``rated_flux`` when the file states it, else :func:`rated_rotor_flux` from the rated
+    voltage, frequency and speed, else None.
+    """
     if motor.rated_flux > 0:
         return motor.rated_flux
     if min(motor.rated_voltage_rms_line, motor.rated_frequency, motor.rated_speed_rpm) > 0:
@@ -346,15 +382,19 @@ def rated_flux(motor: MotorParams) -> Optional[float]:
 
 
 def default_limits(motor: MotorParams) -> Dict[str, Tuple[float, str]]:
-    """The defaults a motor's ratings give the drive: ``{parameter: (value, why)}`` for the
-    parameters a rating exists for (an unrated motor gives {} — the run is the thesis's).
+    """
+    Return the defaults a motor's ratings give the drive.
+
+    ``{parameter: (value, why)}`` for the parameters a rating exists for (an unrated motor
+    gives {} — the run is the thesis's).
 
     Controller: ``v_limit`` = rated voltage-vector magnitude, ``current_limit`` = rated
     current-vector magnitude, ``phi_d`` = ``phi_max`` = the rated flux and ``phi_min`` =
     :data:`FLUX_MIN_SHARE` of it. Plant: ``v_limit`` (the inverter), ``current_trip`` =
     :data:`CURRENT_TRIP_MARGIN` × rated current, ``speed_trip`` = :data:`SPEED_TRIP_MARGIN` ×
     rated speed. The one home of these defaults: the nodes (for parameters left at -1) and the
-    ROS-free loop call it; an explicit parameter always overrides."""
+    ROS-free loop call it; an explicit parameter always overrides.
+    """
     out: Dict[str, Tuple[float, str]] = {}
     if motor.rated_voltage_rms_line > 0:
         out['v_limit'] = (motor.rated_voltage,
@@ -386,10 +426,13 @@ RATED = 'rated'
 def resolve_rated(owner, names: Mapping[str, object], motor: MotorParams,
                   previous: Optional[Mapping[str, Tuple[float, str]]] = None
                   ) -> Dict[str, Tuple[float, str]]:
-    """Set each attribute of ``owner`` named in ``names`` ({name: fallback}) that is
-    :data:`RATED` from ``motor``'s ratings, else to its fallback. Returns ``{name: (value,
+    """
+    Set each :data:`RATED` attribute of ``owner`` from ``motor``'s ratings, else its fallback.
+
+    The attributes are those named in ``names`` ({name: fallback}). Returns ``{name: (value,
     why)}`` of those the ratings set, with the entries of ``previous`` still in force (a
-    configuration copied with ``dataclasses.replace`` keeps saying where its limits came from)."""
+    configuration copied with ``dataclasses.replace`` keeps saying where its limits came from).
+    """
     limits = default_limits(motor)
     used = {k: x for k, x in (previous or {}).items() if getattr(owner, k, None) == x[0]}
     for name, fallback in names.items():
@@ -403,16 +446,25 @@ def resolve_rated(owner, names: Mapping[str, object], motor: MotorParams,
 
 
 def describe_defaults(used: Mapping[str, Tuple[float, str]]) -> str:
-    """One line naming each default taken from the ratings, e.g. for the node logs:
-    ``from the motor's ratings: current_limit = 8.66 (rated current 5 A RMS ...)``."""
+    """
+    One line naming each default taken from the ratings, e.g. for the node logs.
+
+    ``from the motor's ratings: current_limit = 8.66 (rated current 5 A RMS ...)``.
+    """
     return "from the motor's ratings: " + '; '.join(
         f'{k} = {v:.4g} ({why})' for k, (v, why) in used.items())
+
+
 REQUIRED_MOTOR_FIELDS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'pole_pairs', 'J', 'b')
 
 
 def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
-    """A :class:`MotorParams` from a mapping of the motor fields; every error is one line
-    naming ``source`` and the field (missing, unknown with the nearest valid name, invalid)."""
+    """
+    Return a :class:`MotorParams` from a mapping of the motor fields.
+
+    Every error is one line naming ``source`` and the field (missing, unknown with the nearest
+    valid name, invalid).
+    """
     import difflib
     if not isinstance(values, Mapping):
         raise InvalidParameter(f'{source}', values, 'must be a mapping of motor parameters')
@@ -423,8 +475,10 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
                                    f'{LEGACY_RATINGS[key]}')
         if key not in MOTOR_FIELDS:
             near = difflib.get_close_matches(str(key), MOTOR_FIELDS, n=1)
-            hint = f"; did you mean '{near[0]}'?" if near else f" (known: {', '.join(MOTOR_FIELDS)})"
-            raise InvalidParameter(f'{source}: {key}', values[key], f'unknown motor parameter{hint}')
+            hint = (f"; did you mean '{near[0]}'?" if near
+                    else f" (known: {', '.join(MOTOR_FIELDS)})")
+            raise InvalidParameter(f'{source}: {key}', values[key],
+                                   f'unknown motor parameter{hint}')
     for key in REQUIRED_MOTOR_FIELDS:
         if key not in values:
             raise InvalidParameter(f'{source}: {key}', None, 'is missing')
@@ -441,8 +495,12 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
 
 
 def read_yaml_file(path: str, what: str):
-    """The YAML document in ``path``; a file that cannot be read or parsed is one
-    :class:`InvalidParameter` naming ``what`` (e.g. 'motor file') and the file."""
+    """
+    Return the YAML document in ``path``.
+
+    A file that cannot be read or parsed is one :class:`InvalidParameter` naming ``what``
+    (e.g. 'motor file') and the file.
+    """
     import yaml
     try:
         with open(path) as f:
@@ -455,14 +513,18 @@ def read_yaml_file(path: str, what: str):
 
 
 def load_motor_file(path: str) -> MotorParams:
-    """Read a motor file: a ROS 2 parameters YAML whose ``/**`` (every node) section holds the
-    motor fields under ``ros__parameters``."""
+    """
+    Read a motor file.
+
+    A ROS 2 parameters YAML whose ``/**`` (every node) section holds the motor fields under
+    ``ros__parameters``.
+    """
     doc = read_yaml_file(path, 'motor file')
     if not isinstance(doc, dict) or set(doc) != {'/**'} or not isinstance(doc['/**'], dict) \
             or set(doc['/**']) != {'ros__parameters'}:
         raise InvalidParameter(f'{path}', 'layout',
                                "must be '/**:' with one 'ros__parameters:' mapping (a ROS 2 "
-                               "parameters file for every node)")
+                               'parameters file for every node)')
     return motor_from_dict(doc['/**']['ros__parameters'] or {}, source=path)
 
 
@@ -479,6 +541,7 @@ def shipped_motors_dir() -> str:
     return os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'config',
                         'motors')
 
+
 # Seed 000 §4.3: the controller's fixed estimates under the chapter-4 variation profile
 # (R̂_s 0.687, L̂_s 0.084, L̂_sr 0.081, initial R̂_r 0.842 and θ̂ = L̂_sr/L̂_r = 0.952941).
 CHAPTER4_ESTIMATES = THESIS_MOTOR.with_values(R_s=0.687, L_s=0.084, L_sr=0.081, R_r=0.842,
@@ -490,7 +553,8 @@ CHAPTER4_ESTIMATES = THESIS_MOTOR.with_values(R_s=0.687, L_s=0.084, L_sr=0.081, 
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Variation:
-    """A scalar function of time with its derivative: ``value(t)``, ``rate(t)``.
+    """
+    A scalar function of time with its derivative: ``value(t)``, ``rate(t)``.
 
     kind: ``constant`` (offset), ``ramp`` (offset + slope·t) or ``sinusoid``
     (offset + amplitude·sin(omega·t + phase)).
@@ -539,7 +603,8 @@ def sinusoid(offset: float, amplitude: float, omega: float, phase: float = 0.0) 
 
 
 class ParameterSchedule:
-    """Electrical parameters of the plant as functions of time.
+    """
+    Electrical parameters of the plant as functions of time.
 
     ``values(t)`` returns ``(R_s, R_r, L_s, L_r, L_sr)``; ``inductance_rates(t)`` returns
     ``(dL_s/dt, dL_r/dt, dL_sr/dt)``. Parameters without a variation keep the base value,
@@ -559,7 +624,8 @@ class ParameterSchedule:
         self._values = tuple(getattr(base, n) for n in ELECTRICAL_NAMES)
         self._zero_rates = (0.0, 0.0, 0.0)
         self._fns: Tuple[Callable[[float], float], ...] = tuple(
-            (self.variations[n].value if n in self.variations else (lambda t, c=getattr(base, n): c))
+            (self.variations[n].value if n in self.variations
+             else (lambda t, c=getattr(base, n): c))
             for n in ELECTRICAL_NAMES)
         self._rate_fns = tuple(
             (self.variations[n].rate if n in self.variations else (lambda t: 0.0))
@@ -585,19 +651,20 @@ class ParameterSchedule:
         return tuple(f(t) for f in self._rate_fns)
 
     def params_at(self, t: float) -> MotorParams:
-        """The full, validated parameter set at time t."""
+        """Return the full, validated parameter set at time t."""
         return self.base.with_values(**dict(zip(ELECTRICAL_NAMES, self.values(t))))
 
     def validate(self, t_end: float, samples: int = 2001) -> None:
-        """Check positivity and σ > 0 on a grid over [0, t_end]; raise naming the parameter and time."""
+        """Check positivity and σ > 0 on a grid over [0, t_end]; raise naming parameter, time."""
         n = max(2, int(samples))
         for k in range(n):
             t = t_end * k / (n - 1)
             try:
                 self.params_at(t)
             except InvalidParameter as exc:
-                raise InvalidParameter(exc.name, exc.value,
-                                       f'{exc.reason} at t = {t:.6g} s of schedule {self.name!r}') from None
+                raise InvalidParameter(
+                    exc.name, exc.value,
+                    f'{exc.reason} at t = {t:.6g} s of schedule {self.name!r}') from None
 
     def describe(self) -> Dict[str, object]:
         return {'name': self.name,
@@ -607,7 +674,8 @@ class ParameterSchedule:
 
 
 def chapter4_schedule(base: MotorParams = THESIS_MOTOR) -> ParameterSchedule:
-    """Seed 000 §4.3 variation profile, as a breakpoint variation (:data:`CHAPTER4_VARIATION`).
+    """
+    Seed 000 §4.3 variation profile, as a breakpoint variation (:data:`CHAPTER4_VARIATION`).
 
     R_r = 0.42 t + 0.42, L_s = L_r = 0.1 + 0.016 sin(πt), L_sr = 0.097 + 0.016 sin(πt).
     """
@@ -616,7 +684,7 @@ def chapter4_schedule(base: MotorParams = THESIS_MOTOR) -> ParameterSchedule:
 
 def single_variation_schedule(name: str, factor: float, base: MotorParams = THESIS_MOTOR
                               ) -> ParameterSchedule:
-    """A constant scaling of one electrical parameter (seed 000 §4.2.1 sensitivity study)."""
+    """Return a constant scaling of one electrical parameter (seed 000 §4.2.1, sensitivity)."""
     if name not in ELECTRICAL_NAMES:
         raise InvalidParameter(name, factor, f'only {", ".join(ELECTRICAL_NAMES)} can be varied')
     return ParameterSchedule(base, {name: constant(getattr(base, name) * factor)},
@@ -624,12 +692,15 @@ def single_variation_schedule(name: str, factor: float, base: MotorParams = THES
 
 
 #: Seed 000 §4.3 in the run file's ``variation:`` form (SI values; 0.5 Hz = π rad/s; the ramp
-#: 0.42 t + 0.42 written up to 1000 s); the shipped run file config/runs/chapter4.yaml holds the same
+#: 0.42 t + 0.42 written up to 1000 s); the shipped run file config/runs/chapter4.yaml holds
+#: the same
 CHAPTER4_VARIATION = {
     'R_r': [{'t': 0.0, 'value': 0.42, 'shape': 'step'},
             {'t': 1000.0, 'value': 420.42, 'shape': 'ramp'}],
-    'L_s': [{'t': 0.0, 'value': 0.1, 'shape': 'step'}, {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
-    'L_r': [{'t': 0.0, 'value': 0.1, 'shape': 'step'}, {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
+    'L_s': [{'t': 0.0, 'value': 0.1, 'shape': 'step'},
+            {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
+    'L_r': [{'t': 0.0, 'value': 0.1, 'shape': 'step'},
+            {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
     'L_sr': [{'t': 0.0, 'value': 0.097, 'shape': 'step'},
              {'sine': 0.016, 'frequency': 0.5, 'phase': 0.0}],
 }
@@ -645,8 +716,10 @@ BREAKPOINT_SHAPES = ('step', 'ramp')
 
 
 class Breakpoints:
-    """One parameter's value in time from breakpoints and optional sine terms (``value(t)``,
-    ``rate(t)``, as :class:`Variation`).
+    """
+    One parameter's value in time from breakpoints and optional sine terms.
+
+    ``value(t)``, ``rate(t)``, as :class:`Variation`.
 
     ``points``: ((t, level, shape), ...) with t strictly increasing; ``step`` jumps to the level
     at t, ``ramp`` goes linearly from the previous breakpoint (the first from (0, ``start``)).
@@ -695,10 +768,13 @@ def _spec_number(where: str, value, positive: bool = False) -> float:
 
 
 def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
-    """The validated, normalized form of a breakpoint variation ``{parameter: [item, ...]}``
-    (docs/running.md): items ``{t, scale|value, shape}`` (shape step by default) and
+    """
+    Return the validated, normalized form of a breakpoint variation ``{parameter: [item, ...]}``.
+
+    See docs/running.md: items ``{t, scale|value, shape}`` (shape step by default) and
     ``{sine, frequency, phase}``. Errors are :class:`InvalidParameter` named by the key path,
-    e.g. ``variation.R_r[0].shape``."""
+    e.g. ``variation.R_r[0].shape``.
+    """
     if spec is None:
         return {}
     if not isinstance(spec, Mapping):
@@ -708,7 +784,8 @@ def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
     for name, items in spec.items():
         key = f'{where}.{name}'
         if name not in ELECTRICAL_NAMES:
-            raise InvalidParameter(key, items, f'only {", ".join(ELECTRICAL_NAMES)} can vary in time')
+            raise InvalidParameter(key, items,
+                                   f'only {", ".join(ELECTRICAL_NAMES)} can vary in time')
         if not isinstance(items, (list, tuple)) or not items:
             raise InvalidParameter(key, items, 'must be a non-empty list of breakpoints')
         clean, unit_kind, last_t = [], None, None
@@ -725,7 +802,8 @@ def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
                 if 'frequency' not in item:
                     raise InvalidParameter(f'{at}.frequency', None, 'is missing (Hz)')
                 clean.append({'sine': _spec_number(f'{at}.sine', item['sine']),
-                              'frequency': _spec_number(f'{at}.frequency', item['frequency'], True),
+                              'frequency': _spec_number(f'{at}.frequency', item['frequency'],
+                                                        True),
                               'phase': _spec_number(f'{at}.phase', item.get('phase', 0.0))})
                 continue
             unknown = [x for x in item if x not in ('t', 'scale', 'value', 'shape')]
@@ -738,7 +816,8 @@ def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
             if t < 0:
                 raise InvalidParameter(f'{at}.t', t, 'must be >= 0')
             if last_t is not None and t <= last_t:
-                raise InvalidParameter(f'{at}.t', t, f'must be after the previous breakpoint ({last_t:g} s)')
+                raise InvalidParameter(f'{at}.t', t,
+                                       f'must be after the previous breakpoint ({last_t:g} s)')
             kinds = [x for x in ('scale', 'value') if x in item]
             if len(kinds) != 1:
                 raise InvalidParameter(at, dict(item), 'needs exactly one of scale (x the motor '
@@ -758,9 +837,13 @@ def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
 
 
 def variation_schedule(base: MotorParams, spec, name: Optional[str] = None) -> ParameterSchedule:
-    """The :class:`ParameterSchedule` of a breakpoint variation (:func:`normalize_variation`)
-    over the motor ``base``: ``scale`` levels multiply the motor's value, ``value`` levels are SI;
-    before the first breakpoint a parameter keeps the motor's value."""
+    """
+    Return the :class:`ParameterSchedule` of a breakpoint variation over the motor ``base``.
+
+    The variation as :func:`normalize_variation` takes it: ``scale`` levels multiply the motor's
+    value, ``value`` levels are SI; before the first breakpoint a parameter keeps the motor's
+    value.
+    """
     spec = normalize_variation(spec)
     variations = {}
     for pname, items in spec.items():
@@ -775,7 +858,7 @@ def variation_schedule(base: MotorParams, spec, name: Optional[str] = None) -> P
 
 
 def describe_variation(spec) -> str:
-    """A one-line account of a breakpoint variation (summaries, console headers)."""
+    """Return a one-line account of a breakpoint variation (summaries, console headers)."""
     spec = normalize_variation(spec)
     if not spec:
         return 'none'
@@ -789,5 +872,5 @@ def describe_variation(spec) -> str:
             else:
                 level = f"x{i['scale']:g}" if 'scale' in i else f"{i['value']:g}"
                 terms.append(f"{i['shape']} {level} at {i['t']:g} s")
-        parts.append(f"{pname} " + ', '.join(terms))
+        parts.append(f'{pname} ' + ', '.join(terms))
     return '; '.join(parts)

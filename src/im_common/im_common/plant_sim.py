@@ -1,4 +1,5 @@
-"""The simulated plant: motor model + load + inverter, stepped one control period at a time.
+"""
+The simulated plant: motor model + load + inverter, stepped one control period at a time.
 
 The inverter is an ideal voltage source whose command is held over each period (zero-order hold),
 limited in vector magnitude to ``v_limit`` (optional, the configured limit the controller knows
@@ -22,15 +23,15 @@ are part of the integration and not computed after the fact.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Optional, Sequence
 
 from .loads import Load
-from .model import (E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, N_AUG, MotorModel,
-                    W_LOAD, currents, rk4_step)
-from .params import (RATED, InvalidParameter, MotorParams, ParameterSchedule, THESIS_MOTOR,
-                     resolve_rated)
+from .model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, MotorModel, N_AUG,
+                    rk4_step, W_LOAD)
+from .params import (InvalidParameter, MotorParams, ParameterSchedule, RATED, resolve_rated,
+                     THESIS_MOTOR)
 
 # The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
 # inverter (≈ 1 kV), above every shipped motor's needs; a larger command trips the plant.
@@ -58,7 +59,8 @@ class Measurement:
 
 
 class PlantSimulator:
-    """Stateful plant stepped by ``step(v_alpha, v_beta)`` over [t_k, t_k + T_s].
+    """
+    Stateful plant stepped by ``step(v_alpha, v_beta)`` over [t_k, t_k + T_s].
 
     Parameters
     ----------
@@ -79,6 +81,7 @@ class PlantSimulator:
         ``x0`` (the 6-element state ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r) is given.
     locked_rotor : bool
         The shaft is held where it starts (a locked-rotor test); the speed must start at 0.
+
     """
 
     def __init__(self, schedule: ParameterSchedule | MotorParams = THESIS_MOTOR,
@@ -119,7 +122,8 @@ class PlantSimulator:
         self.h = self.T_s / self.n_sub
         self.v_limit = v_limit
         self.inverter_rating = float(inverter_rating)
-        self._v_max = self.inverter_rating if v_limit is None else min(v_limit, self.inverter_rating)
+        self._v_max = (self.inverter_rating if v_limit is None
+                       else min(v_limit, self.inverter_rating))
         self.current_trip = current_trip
         self.speed_trip = speed_trip
         self.trip: Optional[tuple] = None     # (t, reason) once the protection tripped
@@ -145,12 +149,15 @@ class PlantSimulator:
 
     @property
     def t(self) -> float:
-        """Current simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
+        """Return the simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
         return self.k * self.T_s
 
     def limit(self, v_a: float, v_b: float):
-        """The voltage the inverter applies for a commanded (v_a, v_b): zero once tripped, else
-        scaled onto the limit when above it."""
+        """
+        Return the voltage the inverter applies for a commanded (v_a, v_b).
+
+        Zero once tripped, else scaled onto the limit when above it.
+        """
         if self.trip is not None:
             return 0.0, 0.0
         mag = math.hypot(v_a, v_b)
@@ -160,15 +167,21 @@ class PlantSimulator:
         return v_a, v_b
 
     def step(self, v_a: float, v_b: float) -> None:
-        """Integrate [t_k, t_k+1] with the command held; refuse non-finite commands; trip on
-        overcurrent, overspeed or a non-finite state (module doc)."""
+        """
+        Integrate [t_k, t_k+1] with the command held.
+
+        Refuse non-finite commands; trip on overcurrent, overspeed or a non-finite state
+        (module doc).
+        """
         if not (math.isfinite(v_a) and math.isfinite(v_b)):
-            raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) at t = {self.t:.9f} s')
+            raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) '
+                             f'at t = {self.t:.9f} s')
         if self.trip is None:
             mag = math.hypot(v_a, v_b)
             if mag > self.inverter_rating:
-                self.trip = (self.t, f'voltage command |V| = {mag:.4g} V above the inverter rating '
-                                     f'{self.inverter_rating:g} V')
+                self.trip = (self.t,
+                             f'voltage command |V| = {mag:.4g} V above the inverter rating '
+                             f'{self.inverter_rating:g} V')
         v_a, v_b = self.limit(v_a, v_b)
         x0 = self.x
         t0 = self.t
@@ -179,7 +192,8 @@ class PlantSimulator:
             x = self._integrate(x0, t0, 0.0, 0.0)
             if not all(math.isfinite(v) for v in x):
                 raise FloatingPointError(
-                    f'plant state became non-finite at t = {t0 + self.T_s:.9f} s even at zero voltage')
+                    f'plant state became non-finite at t = {t0 + self.T_s:.9f} s '
+                    'even at zero voltage')
         self.v_applied = (v_a, v_b)
         self.x = x
         self.k += 1
@@ -248,7 +262,7 @@ class PlantSimulator:
 
 
 def energy_summary(truth: dict) -> dict:
-    """The figures of merit of the energy books (J) from a ``truth()`` dict."""
+    """Return the figures of merit of the energy books (J) from a ``truth()`` dict."""
     e_cu = truth['E_cu_s'] + truth['E_cu_r']
     return {
         'E_in_J': truth['E_in'], 'E_copper_J': e_cu, 'E_core_J': truth['E_core'],

@@ -100,13 +100,16 @@ class ObserverNode(LockstepNode):
             self.reached_last_step()
 
     def on_incomplete(self, topic: str, ns: int) -> None:
-        """free_run: the plant's measurement stamped ``ns`` came while this node still waits for
-        a step at least :data:`STALL_STEPS` earlier, and no later step is complete. The loop has
-        stalled: the controller waits for this node's estimate of a step whose command or
-        measurement never reached this node (lost from a reader history while the node was
-        starved), and this node waits for that command — neither would ever move again. Bridge
-        open-loop up to the plant's present step (what the plant did without commands), so the
-        controller gets estimates again."""
+        """
+        Bridge a stalled free_run loop open-loop up to the plant's present step.
+
+        The plant's measurement stamped ``ns`` came while this node still waits for a step at
+        least :data:`STALL_STEPS` earlier, and no later step is complete. The loop has stalled:
+        the controller waits for this node's estimate of a step whose command or measurement
+        never reached this node (lost from a reader history while the node was starved), and
+        this node waits for that command — neither would ever move again. Bridging (what the
+        plant did without commands) gives the controller estimates again.
+        """
         gate = self.gate
         if topic != T.MEAS_CURRENT or ns - gate.expected < STALL_STEPS * self.period:
             return

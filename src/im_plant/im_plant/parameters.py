@@ -1,4 +1,5 @@
-"""ROS parameters of the plant node ↔ :class:`im_common.plant_sim.PlantSimulator`.
+"""
+ROS parameters of the plant node ↔ :class:`im_common.plant_sim.PlantSimulator`.
 
 Every plant parameter is declared here with a description and a range (the motor through
 :func:`im_common.node_params.declare_motor`, so a motor file's ``/**`` section reaches it);
@@ -9,16 +10,19 @@ from __future__ import annotations
 from im_common.loads import LOAD_KINDS, make_load
 from im_common.model import stator_flux
 from im_common.node_params import declare_motor
-from im_common.params import (ELECTRICAL_NAMES, SCHEDULES, MotorParams, ParameterSchedule,
-                              RATED, Variation, variation_schedule)
+from im_common.params import (ELECTRICAL_NAMES, MotorParams, ParameterSchedule, RATED, SCHEDULES,
+                              Variation, variation_schedule)
 from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
 
 STEPPING_MODES = ('lockstep', 'free_run')
 
 
 def declare_plant(node) -> dict:
-    """Declare the plant's parameters on ``node``; return their values by name (``motor``: the
-    validated :class:`MotorParams`)."""
+    """
+    Declare the plant's parameters on ``node``.
+
+    Return their values by name (``motor``: the validated :class:`MotorParams`).
+    """
     p = node.param
     v = {'motor': declare_motor(node)}
     v['variation'] = p('variation', 'none',
@@ -36,7 +40,8 @@ def declare_plant(node) -> dict:
                             'custom variation: value(t) = offset + slope*t (ramp), offset + '
                             'amplitude*sin(omega*t) (sinusoid), offset (constant)',
                             choices=('constant', 'ramp', 'sinusoid'))
-    v['variation_offset'] = p('variation_offset', 0.842, 'custom variation: offset [SI]', -1e6, 1e6)
+    v['variation_offset'] = p('variation_offset', 0.842, 'custom variation: offset [SI]', -1e6,
+                              1e6)
     v['variation_slope'] = p('variation_slope', 0.0, 'custom variation: slope [SI/s]', -1e6, 1e6)
     v['variation_amplitude'] = p('variation_amplitude', 0.0, 'custom variation: amplitude [SI]',
                                  -1e6, 1e6)
@@ -50,30 +55,34 @@ def declare_plant(node) -> dict:
     v['theta0'] = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
     v['omega0'] = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
     v['locked_rotor'] = p('locked_rotor', False,
-                          'the shaft is held where it starts (locked-rotor tests; omega0 must be 0)')
+                          'the shaft is held where it starts '
+                          '(locked-rotor tests; omega0 must be 0)')
     v['initial_current'] = p('initial_current', [0.0, 0.0],
                              'initial stator current [i_alpha, i_beta] [A]')
-    v['initial_flux'] = p('initial_flux', [0.0, 0.0], 'initial rotor flux [phi_alpha, phi_beta] [Wb]')
+    v['initial_flux'] = p('initial_flux', [0.0, 0.0],
+                          'initial rotor flux [phi_alpha, phi_beta] [Wb]')
     v['v_limit'] = p('v_limit', -1.0, 'inverter voltage-vector limit [V] (0: no limit; -1: the '
-                     'motor\'s rated voltage, no limit without one)', -1.0, 1e5)
+                     "motor's rated voltage, no limit without one)", -1.0, 1e5)
     v['inverter_rating'] = p('inverter_rating', DEFAULT_INVERTER_RATING,
-                             'the inverter\'s own voltage-vector limit [V]: a larger command trips '
+                             "the inverter's own voltage-vector limit [V]: a larger command trips "
                              'the plant to zero voltage (trip in the truth)', 1.0, 1e6)
     v['current_trip'] = p('current_trip', -1.0,
                           'protection: trip to zero voltage when |i_s| exceeds this [A] (0: off; '
-                          '-1: 2 x the motor\'s rated current, off without one)', -1.0, 1e6)
+                          "-1: 2 x the motor's rated current, off without one)", -1.0, 1e6)
     v['speed_trip'] = p('speed_trip', -1.0,
                         'protection: trip to zero voltage when |omega_r| exceeds this [rad/s] '
-                        '(0: off; -1: 2 x the motor\'s rated speed, off without one)', -1.0, 1e6)
+                        "(0: off; -1: 2 x the motor's rated speed, off without one)", -1.0, 1e6)
     v['current_noise_std'] = p('current_noise_std', 0.0, 'std of current measurement noise [A]',
                                0.0, 1e3)
     v['speed_noise_std'] = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]',
                              0.0, 1e4)
     v['noise_seed'] = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
-    v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7, 0.1)
+    v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7,
+                         0.1)
     v['mode'] = p('mode', 'lockstep', 'stepping', choices=STEPPING_MODES)
     v['clock_decimation'] = p('clock_decimation', 10,
-                              'publish /clock every N steps (the lock-step protocol runs on stamps; '
+                              'publish /clock every N steps (the '
+                              'lock-step protocol runs on stamps; '
                               '/clock drives sim time for timers and tools)', 1, 1000000)
     v['truth_decimation'] = p('truth_decimation', 10,
                               'publish ground truth every N steps (0: never); the last step is '
@@ -87,8 +96,11 @@ PROTECTION_FROM_RATINGS = ('v_limit', 'current_trip', 'speed_trip')
 
 
 def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -> PlantSimulator:
-    """The plant simulator from declared parameter values (0 = off for limits and trips);
-    ``duration`` > 0 validates the parameter schedule over the run."""
+    """
+    Build the plant simulator from declared parameter values (0 = off for limits and trips).
+
+    ``duration`` > 0 validates the parameter schedule over the run.
+    """
     motor: MotorParams = values['motor']
     v = dict(values)
     for key in PROTECTION_FROM_RATINGS:
@@ -123,7 +135,7 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
     if any(i0) or any(f0):
         if len(i0) != 2 or len(f0) != 2:
             raise ValueError("invalid parameter 'initial_current'/'initial_flux': two "
-                             "values each (alpha, beta)")
+                             'values each (alpha, beta)')
         P0 = schedule.params_at(0.0)
         psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
         x0 = (psi[0], psi[1], f0[0], f0[1], v['theta0'], v['omega0'])

@@ -53,14 +53,18 @@ def replay_command(spec_path: str, index: int) -> str:
 
 
 def split_commissioning(rows: List[dict]):
-    """(the runs' rows, the commissioning rows) of a campaign."""
+    """Split a campaign's rows into (the runs' rows, the commissioning rows)."""
     return ([r for r in rows if r['task'] != COMMISSION_TASK],
             [r for r in rows if r['task'] == COMMISSION_TASK])
 
 
 def commissioning_summary(rows: List[dict]) -> dict:
-    """Per draw each parameter's error and reported std [%], and per parameter the largest
-    |error| and the median |error|/std over the draws that were identified."""
+    """
+    Summarize the commissioning rows of a campaign.
+
+    Per draw each parameter's error and reported std [%], and per parameter the largest
+    |error| and the median |error|/std over the draws that were identified.
+    """
     draws = [{'draw': r['draw'], 'index': r['index'], 'status': r['status'],
               'error': r['error'], 'sigma': r['sigma'],
               **{n + x: r[n + x] for n in COMPARED for x in ('_err_pct', '_std_pct')}}
@@ -271,13 +275,14 @@ COMPARED_LABELS = {'R_s': 'R_s', 'L_sigma': 'σL_s', 'L_M': 'L_M', 'R_R': 'R_R',
 
 
 def commissioning_lines(c: dict) -> List[str]:
-    """The report's commissioning section: identified/true − 1 ± the reported std per draw."""
+    """Write the report's commissioning section: identified/true − 1 ± reported std per draw."""
     names = [COMPARED_LABELS[n] for n in COMPARED]
     lines = ['', '## Commissioning', '',
-             f"Each draw commissioned on the ROS-free plant (docs/commissioning.md): "
-             f"{c['identified']} identified, {c['refused']} refused. Errors are identified/true − 1 "
-             '± the reported standard deviation.', '',
-             '| draw | σ | ' + ' | '.join(names) + ' |', '| ---: | ---: |' + ' ---: |' * len(names)]
+             f'Each draw commissioned on the ROS-free plant (docs/commissioning.md): '
+             f"{c['identified']} identified, {c['refused']} refused. Errors are "
+             'identified/true − 1 ± the reported standard deviation.', '',
+             '| draw | σ | ' + ' | '.join(names) + ' |',
+             '| ---: | ---: |' + ' ---: |' * len(names)]
     for d in c['draws']:
         if d['status'] != 'ok':
             lines.append(f"| {d['draw']} | {d['sigma']:.3f} | refused: "

@@ -449,10 +449,13 @@ COMMISSION_NOISE = 0.05
 
 
 def commission_spec(raw: dict, where: str) -> dict:
-    """``commission``: absent / false (no commissioning), true, or ``{noise: A}`` — each draw
-    is commissioned on the ROS-free plant (docs/commissioning.md §6) with that current noise
-    [A per 8.487 A of rated current]. Only a commissioning spec carries the key, so the hash of
-    every other spec (and a campaign folder's resumption) is unchanged."""
+    """
+    ``commission``: absent / false (no commissioning), true, or ``{noise: A}``.
+
+    Each draw is commissioned on the ROS-free plant (docs/commissioning.md §6) with that
+    current noise [A per 8.487 A of rated current]. Only a commissioning spec carries the key,
+    so the hash of every other spec (and a campaign folder's resumption) is unchanged.
+    """
     v = raw.get('commission', False)
     if v is False or v is None:
         return {}
@@ -477,9 +480,13 @@ def commission_jobs(spec: dict, start: int) -> List[dict]:
 
 
 def commission_row(job: dict, spec: dict) -> dict:
-    """Commission the drawn motor (limits: its ratings, else the thesis motor's) as
-    ``commission_study`` does; the row holds each parameter's error against the draw and its
-    reported standard deviation [%]. Never raises: a refusal is a ``failed`` row saying why."""
+    """
+    Commission the drawn motor as ``commission_study`` does; return the job's row.
+
+    Limits: the motor's ratings, else the thesis motor's. The row holds each parameter's error
+    against the draw and its reported standard deviation [%]. Never raises: a refusal is a
+    ``failed`` row saying why.
+    """
     from .commission_sim import COMPARED, identification_errors, with_ratings
     row = dict(job)
     row['sigma'] = 1.0 - job['L_sr'] ** 2 / (job['L_s'] * job['L_r'])

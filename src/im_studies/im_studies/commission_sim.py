@@ -1,14 +1,17 @@
-"""Commissioning on the ROS-free plant, shared by the commissioning study
-(:mod:`im_studies.commission_study`, docs/commissioning.md §6) and the campaign's commissioning
-axis (:mod:`im_studies.campaign_spec`, docs/campaign.md): the motor's ratings as the drive's
-limits, the identification and its errors against the truth."""
+"""
+Commissioning on the ROS-free plant, shared by the study and the campaign.
+
+Used by the commissioning study (:mod:`im_studies.commission_study`, docs/commissioning.md §6)
+and the campaign's commissioning axis (:mod:`im_studies.campaign_spec`, docs/campaign.md): the
+motor's ratings as the drive's limits, the identification and its errors against the truth.
+"""
 from __future__ import annotations
 
 import os
 
 
 def plate_of(motor):
-    """The nameplate a motor file's ratings are (its nameplate fields)."""
+    """Return the nameplate a motor file's ratings are (its nameplate fields)."""
     from im_adapt.commissioning import Nameplate
     return Nameplate(voltage=motor.rated_voltage_rms_line, current=motor.rated_current_rms,
                      frequency=motor.rated_frequency, speed=motor.rated_speed_rpm,
@@ -17,8 +20,11 @@ def plate_of(motor):
 
 def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = False,
                    seed: int = 0):
-    """Commission ``motor`` on the ROS-free plant (limits: its ratings); returns
-    (Commissioning, Identified) — Identified raises NotInformative from ``result``."""
+    """
+    Commission ``motor`` on the ROS-free plant (limits: its ratings).
+
+    Returns (Commissioning, Identified) — Identified raises NotInformative from ``result``.
+    """
     from im_adapt.commissioning import Commissioning, simulate_commissioning
     from im_common.plant_sim import PlantSimulator
     plate = plate_of(motor)
@@ -32,8 +38,11 @@ def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = 
 
 
 def with_ratings(motor):
-    """``motor``, with the thesis motor's ratings (its shipped file) if it has none: the
-    commissioning tests need the drive's limits (docs/commissioning.md §6)."""
+    """
+    ``motor``, with the thesis motor's ratings (its shipped file) if it has none.
+
+    The commissioning tests need the drive's limits (docs/commissioning.md §6).
+    """
     from im_common.params import RATING_NAMES, load_motor_file, shipped_motors_dir
     if motor.rated_current:
         return motor
@@ -48,9 +57,13 @@ NOISE_REFERENCE_A = 8.487
 
 
 def identification_errors(motor, noise: float, seed: int = 0):
-    """Commission ``motor`` (ratings as the limits, current noise ``noise`` [A] per
-    NOISE_REFERENCE_A of rated current); returns (Commissioning, Identified, {name_err_pct,
-    name_std_pct}). Raises NotInformative (one line) when the tests are refused."""
+    """
+    Commission ``motor`` and compare the identified parameters with it.
+
+    Ratings as the limits, current noise ``noise`` [A] per NOISE_REFERENCE_A of rated current;
+    returns (Commissioning, Identified, {name_err_pct, name_std_pct}). Raises NotInformative
+    (one line) when the tests are refused.
+    """
     com = commission_sim(motor, noise=noise * motor.rated_current / NOISE_REFERENCE_A, seed=seed)
     ident = com.result()
     truth = dict(motor.identifiable(), J=motor.J, b=motor.b)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from im_common.cli import logger, parse_args, progress
 
-from .commission_sim import (COMPARED, NOISE_REFERENCE_A, commission_sim,  # noqa: F401
-                             identification_errors, plate_of, with_ratings)
+from .commission_sim import (commission_sim, COMPARED, identification_errors,  # noqa: F401
+                             NOISE_REFERENCE_A, plate_of, with_ratings)
 
 _log = logger('commission_study')
 SIGMA_MAX = 0.15

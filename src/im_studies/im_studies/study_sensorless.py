@@ -16,8 +16,8 @@ import sys
 
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad
-from im_common.params import (THESIS_MOTOR, ParameterSchedule, constant, load_motor_file,
-                              shipped_motors_dir)
+from im_common.params import (constant, load_motor_file, ParameterSchedule, shipped_motors_dir,
+                              THESIS_MOTOR)
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 import numpy as np
@@ -64,8 +64,12 @@ def sensorless_reversal(motor: str, strategy: str = 'constant_flux', sensorless:
 
 
 def sensorless_options(sensorless: bool) -> dict:
-    """Scenario keywords of a sensorless run: the measured speed useless, and the controller
-    told that its θ, ω are the observer's (direct field orientation, docs/sensorless.md §4)."""
+    """
+    Scenario keywords of a sensorless run.
+
+    The measured speed useless, and the controller told that its θ, ω are the observer's
+    (direct field orientation, docs/sensorless.md §4).
+    """
     if not sensorless:
         return {'sensorless': False}
     return {'sensorless': True, 'speed_noise_std': USELESS_SPEED_NOISE,
@@ -73,8 +77,11 @@ def sensorless_options(sensorless: bool) -> dict:
 
 
 def torque_task(strategy: str, sensorless: bool = True, **kw) -> Scenario:
-    """0 → +5 → −5 N·m from rest (unloaded shaft: it accelerates, then brakes through zero
-    speed into the other direction), thesis motor."""
+    """
+    Return the torque task: 0 → +5 → −5 N·m from rest, thesis motor.
+
+    The unloaded shaft accelerates, then brakes through zero speed into the other direction.
+    """
     prof = Profile('torque', ((0.0, 0.0, None), (0.1, TORQUE_STEP, None),
                               (0.4, -TORQUE_STEP, None)), source='sensorless torque task')
     opts = sensorless_options(sensorless)
@@ -83,21 +90,24 @@ def torque_task(strategy: str, sensorless: bool = True, **kw) -> Scenario:
 
 
 def drifted_stator(motor=THESIS_MOTOR, factor: float = R_S_DRIFT) -> ParameterSchedule:
-    """The plant's R_s ``factor`` × the model's (a warm stator), nothing else varying."""
+    """Return the plant's schedule: R_s ``factor`` × the model's (a warm stator), nothing else."""
     return ParameterSchedule(motor, {'R_s': constant(factor * motor.R_s)},
                              name=f'R_s x{factor:g}')
 
 
 def adaptive_speed_task(sensorless: bool, strategy: str = 'min_loss', **kw) -> Scenario:
-    """The thesis speed task with the plant's R_s drifted (run it with :func:`run_adaptive`)."""
+    """Return the thesis speed task, the plant's R_s drifted (run it with :func:`run_adaptive`)."""
     opts = sensorless_options(sensorless)
     opts.update(kw)
     return Scenario(task='speed', strategy=strategy, schedule=drifted_stator(), **opts)
 
 
 def low_speed_hold(sensorless: bool = True, **kw) -> Scenario:
-    """10 rad/s against a constant 4 N·m from steady state, the plant's R_s drifted: the low
-    stator frequency where R_s weighs most in the voltage."""
+    """
+    Return a 10 rad/s hold against a constant 4 N·m from steady state, the plant's R_s drifted.
+
+    The low stator frequency where R_s weighs most in the voltage.
+    """
     prof = Profile('speed', ((0.0, HOLD_SPEED, None),), source='low-speed hold')
     opts = sensorless_options(sensorless)
     opts.update(kw)
@@ -107,8 +117,12 @@ def low_speed_hold(sensorless: bool = True, **kw) -> Scenario:
 
 
 def run_adaptive(sc: Scenario, record_every: int = 1):
-    """(result, estimate samples) of ``sc`` with the adapter on (improved law, inverse-Γ feed),
-    told ``sc.sensorless``; samples are rows (R_r, θ, L_M, R_R, L_σ, R_s)."""
+    """
+    Run ``sc`` with the adapter on; return (result, estimate samples).
+
+    The adapter runs the improved law with the inverse-Γ feed and is told ``sc.sensorless``;
+    samples are rows (R_r, θ, L_M, R_R, L_σ, R_s).
+    """
     from im_adapt.hook import LockstepAdapter
     hook = LockstepAdapter.build(sc.model_estimates(), sensorless=sc.sensorless)
     res = simulate(sc, adapter=hook, record_every=record_every)
@@ -151,7 +165,7 @@ def run(strategies=COMPARED_STRATEGIES, motors=MOTORS) -> list:
 
 
 def run_torque(strategies=COMPARED_STRATEGIES) -> list:
-    """The torque task per strategy: torque error RMS sensored and sensorless."""
+    """Run the torque task per strategy: torque error RMS sensored and sensorless."""
     rows = []
     for st in strategies:
         a = simulate(torque_task(st, False))
@@ -165,11 +179,16 @@ def run_torque(strategies=COMPARED_STRATEGIES) -> list:
 
 
 def run_adapter() -> list:
-    """The adapter on, the plant's R_s × R_S_DRIFT: the thesis speed task (min_loss) sensored and
-    sensorless, and the sensorless low-speed hold (R̂_s at the end)."""
+    """
+    Run the adapter on, the plant's R_s × R_S_DRIFT.
+
+    The thesis speed task (min_loss) sensored and sensorless, and the sensorless low-speed hold
+    (R̂_s at the end).
+    """
     rows = []
     for label, make in (('thesis speed task, min_loss', adaptive_speed_task),
-                        (f'{HOLD_SPEED:g} rad/s hold, {HOLD_LOAD:g} N·m, min_loss', low_speed_hold)):
+                        (f'{HOLD_SPEED:g} rad/s hold, {HOLD_LOAD:g} N·m, min_loss',
+                         low_speed_hold)):
         (a, _), (b, s) = run_adaptive(make(False)), run_adaptive(make(True))
         late = b.trace['t'] >= (SETTLE if make is adaptive_speed_task else 1.0)
         e = b.trace['omega_r'] - b.trace['omega_ref']
@@ -206,7 +225,8 @@ def adapter_table(rows: list) -> str:
         out.append(f"| {r['run']}{trip} | {r['speed_err_max_sensored']:.3f} / "
                    f"{r['speed_err_max']:.3f} | {r['E_loss_sensored']:.1f} "
                    f"| {r['E_loss_sensorless']:.1f} | {100 * r['loss_change']:+.2f} % "
-                   f"| {r['R_s_end']:.4f} ({r['R_s_true']:.4f}) | {'yes' if r['R_R_held'] else 'no'} |")
+                   f"| {r['R_s_end']:.4f} ({r['R_s_true']:.4f}) "
+                   f"| {'yes' if r['R_R_held'] else 'no'} |")
     return '\n'.join(out)
 
 
