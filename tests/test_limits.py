@@ -183,7 +183,7 @@ def test_motor_file_layout_and_unreadable(tmp_path):
     p.write_text('plant:\n  ros__parameters:\n    R_s: 1.0\n')
     with pytest.raises(InvalidParameter, match=r"'/\*\*:'"):
         load_motor_file(str(p))
-    with pytest.raises(InvalidParameter, match='cannot be read'):
+    with pytest.raises(InvalidParameter, match='cannot read motor file'):
         load_motor_file(str(tmp_path / 'none.yaml'))
 
 

@@ -457,15 +457,11 @@ class Scenario:
     def from_file(cls, path: str, overrides: Optional[Mapping] = None,
                   override_source: str = 'command line') -> 'Scenario':
         """Read a run file (YAML); ``overrides`` {key: value} as ``--set key=value`` gives them."""
-        import yaml
-        try:
-            with open(path) as f:
-                doc = yaml.safe_load(f)
-        except OSError as exc:
-            raise RunFileError(path, 'run file', f'cannot be read ({exc.strerror})') from None
-        except yaml.YAMLError as exc:
-            raise RunFileError(path, 'run file',
-                               f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+        from im_common.yamlio import read_yaml_file
+
+        def error(message):
+            return RunFileError(path, 'run file', message)
+        doc = read_yaml_file(path, 'run file', error)
         return cls.from_mapping(doc, source=path, base_dir=os.path.dirname(os.path.abspath(path)),
                                 overrides=overrides, override_source=override_source)
 

@@ -496,20 +496,16 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
 
 def read_yaml_file(path: str, what: str):
     """
-    Return the YAML document in ``path``.
+    Return the YAML document in ``path``, read by :func:`im_common.yamlio.read_yaml_file`.
 
-    A file that cannot be read or parsed is one :class:`InvalidParameter` naming ``what``
-    (e.g. 'motor file') and the file.
+    The one reader's line (the file, and for a syntax error its line and column) comes as one
+    :class:`InvalidParameter` naming ``what`` (e.g. 'motor file'), as this module's callers take.
     """
-    import yaml
-    try:
-        with open(path) as f:
-            return yaml.safe_load(f)
-    except OSError as exc:
-        raise InvalidParameter(what, path, f'cannot be read ({exc.strerror})') from None
-    except yaml.YAMLError as exc:
-        raise InvalidParameter(what, path,
-                               f'is not valid YAML ({str(exc).splitlines()[0]})') from None
+    from .yamlio import read_yaml_file as read
+
+    def error(message):
+        return InvalidParameter(what, path, message)
+    return read(path, what, error)
 
 
 def load_motor_file(path: str) -> MotorParams:

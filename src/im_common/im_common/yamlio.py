@@ -106,15 +106,15 @@ def _read(path: str, what: str, error: type, loader):
         raise error(f'{what} {path} is not valid YAML{where}: {problem}') from None
 
 
-def read_yaml_file(path: str, what: str = 'YAML file'):
+def read_yaml_file(path: str, what: str = 'YAML file', error=YamlFileError):
     """
-    Return the YAML document in ``path`` (safe loading).
+    Return the YAML document in ``path`` (safe loading): the stack's one YAML file reader.
 
-    A file that cannot be read or parsed is one :class:`YamlFileError` naming ``what`` (e.g.
-    'campaign spec'), the file and, for a syntax error, its line and column: the lines
-    :func:`load_parameters_file` gives.
+    A file that cannot be read or parsed is one ``error(message)`` (default
+    :class:`YamlFileError`), the message naming ``what`` (e.g. 'campaign spec'), the file and,
+    for a syntax error, its line and column: the lines :func:`load_parameters_file` gives.
     """
-    return _read(path, what, YamlFileError, yaml.SafeLoader)
+    return _read(path, what, error, yaml.SafeLoader)
 
 
 def node_name(key) -> str:

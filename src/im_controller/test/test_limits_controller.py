@@ -353,7 +353,7 @@ def test_bad_csv_profiles(tmp_path):
         p.write_text(text)
         with pytest.raises(InvalidParameter, match=where):
             load_profile(str(p))
-    with pytest.raises(InvalidParameter, match='cannot be read'):
+    with pytest.raises(InvalidParameter, match='cannot read profile file'):
         load_profile(str(tmp_path / 'missing.yaml'))
     with pytest.raises(InvalidParameter):
         from_samples('velocity', [])
