@@ -88,8 +88,9 @@ def breakdown(stats: pstats.Stats) -> dict:
     return out
 
 
-#: Each node's step entry point: called once per complete step, inputs to outputs.
-STEP_ENTRY = {'plant': '_run', 'controller': 'ready', 'observer': 'ready', 'adapter': 'ready'}
+#: Each node's step entry point: called once per complete step, inputs to outputs (the shells'
+#: ``step``, which LockstepNode.ready calls; the figures keep their ``_ready`` names).
+STEP_ENTRY = dict.fromkeys(('plant', 'controller', 'observer', 'adapter'), 'step')
 
 
 def node_steps(stats: pstats.Stats) -> dict:
