@@ -4,6 +4,7 @@ Speed-sensorless mode through the ROS graph (issue 26 item 1, docs/sensorless.md
 In one process the graph equals the ROS-free loop, the nodes do not subscribe to the measured
 shaft, and a measured speed full of noise changes nothing; the same as separate processes.
 """
+from im_bringup.offline import simulate
 from im_bringup.testing import assert_samples_match, run_graph
 from im_common import topics as T
 import numpy as np
@@ -74,3 +75,30 @@ def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_
     fig = figures_of_merit(load_run(bag))
     for key in ('E_in_J', 'E_loss_J', 'V_max_V'):
         assert fig[key] == pytest.approx(quiet.summary[key], rel=1e-12), key
+
+
+def test_sensorless_adapter_hands_its_stator_resistance_to_the_graph_nodes():
+    """
+    Sensorless, the adapter estimates R_s (docs/sensorless.md §3); the nodes take it.
+
+    At 10 rad/s against 4 N·m with the plant's R_s 30 % above the model's, the graph (the
+    estimate travels on the adapter's topic) equals the ROS-free loop (the estimate handed over
+    in memory), and R̂_s has moved.
+    """
+    from dataclasses import replace
+
+    from im_adapt.hook import LockstepAdapter
+    from im_studies.study_sensorless import low_speed_hold, R_S_DRIFT
+    drift = {'R_s': [{'t': 0.0, 'scale': R_S_DRIFT}]}
+    sc = replace(low_speed_hold(), schedule=None, variation=drift, duration=0.05,
+                 controller='adaptive')
+    # the controller node orients on the observed flux by itself in sensorless mode
+    g = run_graph(scenario=replace(sc, controller_options={}))
+    assert g.summary['ok'], g.summary['failures']
+    hook = LockstepAdapter.build(sc.model_estimates(), sensorless=True)
+    off = simulate(replace(sc, controller='nominal'), adapter=hook)
+    r_s = np.asarray(hook.samples)[:, 5]
+    assert r_s[-1] != r_s[0]
+    for key in ('E_in_J', 'E_copper_J', 'dW_magnetic_J'):
+        assert g.summary[key] == pytest.approx(off.summary[key], rel=1e-9, abs=1e-12), key
+    assert_samples_match(g.trace, off.trace, ('phi_hat_alpha', 'omega_hat'), 50)

@@ -157,10 +157,11 @@ def estimates_in(data: bytes):
     (stamp_ns, model estimates) of the adapter's estimate JointState.
 
     {'R_r', 'theta'} from the thesis pair, the inverse-Γ set {'L_sigma', 'L_M', 'R_R'} when the
-    message carries L_sigma (:func:`im_common.params.estimate_arguments`).
+    message carries L_sigma, with 'R_s' when it carries that too (a sensorless adapter's;
+    :func:`im_common.params.estimate_arguments`). The first four names are required.
     """
     from .params import estimate_arguments
     from .topics import ESTIMATE_NAMES
     sec, nsec, names, pos, _, _ = decode_joint_state(data)
-    wanted = ESTIMATE_NAMES if 'L_sigma' in names else ESTIMATE_NAMES[:4]
+    wanted = ESTIMATE_NAMES[:4] + tuple(n for n in ESTIMATE_NAMES[4:] if n in names)
     return sec * NS_PER_S + nsec, estimate_arguments(named_values(names, pos, wanted))

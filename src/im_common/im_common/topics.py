@@ -58,8 +58,9 @@ HEADER = 'std_msgs/msg/Header'
 
 SHAFT_JOINT = 'rotor'
 # the adapter's estimate message: the first four, and L_sigma with the adapter's feed
-# 'inverse_gamma' (then the controller and observer take the inverse-Γ set, docs/adaptation.md §7)
-ESTIMATE_NAMES = ('R_r', 'theta', 'L_M', 'R_R', 'L_sigma')
+# 'inverse_gamma' (then the controller and observer take the inverse-Γ set, docs/adaptation.md §7),
+# and R_s when that adapter runs sensorless (it estimates R_s then, docs/sensorless.md §3)
+ESTIMATE_NAMES = ('R_r', 'theta', 'L_M', 'R_R', 'L_sigma', 'R_s')
 PARAM_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 POWER_NAMES = ('P_in', 'P_cu_s', 'P_cu_r', 'P_core', 'P_friction', 'P_load', 'P_param')
 ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
@@ -82,8 +83,8 @@ TOPICS: Tuple[TopicSpec, ...] = (
               'position theta_hat = integral of omega_hat [rad] (relative), velocity omega_hat '
               '[rad/s]', True),
     TopicSpec(ADAPT_ESTIMATE, JS, 'adapter',
-              "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma')] in position "
-              '[SI]', True),
+              "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma'(, 'R_s'))] "
+              'in position [SI]', True),
     TopicSpec(REF_SHAFT, JS, 'controller',
               'reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]'),
     TopicSpec(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),
