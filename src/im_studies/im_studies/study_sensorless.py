@@ -205,6 +205,59 @@ def run_adapter() -> list:
     return rows
 
 
+def commissioned_speed_task(motor, estimates, sensorless: bool = True) -> dict:
+    """
+    Run the thesis speed task (min_loss, 1.5 s) on ``motor`` with ``estimates`` as the model.
+
+    Returns the trip, the speed error max after SETTLE [rad/s] and the losses [J].
+    """
+    r = simulate(Scenario(task='speed', strategy='min_loss', motor=motor, estimates=estimates,
+                          duration=1.5, **sensorless_options(sensorless)))
+    late = r.trace['t'] >= SETTLE
+    return {'trip': r.summary['trip'], 'err': float(np.max(np.abs(
+        r.trace['omega_r'][late] - r.trace['omega_ref'][late]))), 'loss': r.summary['E_loss_J']}
+
+
+def run_commissioned(draws: int = 6, noise: float = 0.05) -> list:
+    """
+    Commission first, then run sensorless: motors of the campaign's parameter box.
+
+    Per box motor with σ < 0.15 (:func:`im_studies.commission_study.motors`, the first
+    ``draws``): the sensorless speed task with the thesis model, with the file the
+    commissioning identified (current noise ``noise`` A, seed = the draw's index here), and
+    the sensored drive with the true model.
+    """
+    from .commission_sim import identification_errors, plate_of
+    from .commission_study import motors
+    rows = []
+    for j, (name, m) in enumerate(x for x in motors(draws) if x[0].startswith('box')):
+        _, ident, _ = identification_errors(m, noise, seed=j)
+        rows.append({'motor': name, 'L_M_over_thesis': m.L_M / THESIS_MOTOR.L_M,
+                     'nominal': commissioned_speed_task(m, THESIS_MOTOR),
+                     'commissioned': commissioned_speed_task(
+                         m, ident.motor(plate_of(m).ratings())),
+                     'sensored_true': commissioned_speed_task(m, m, sensorless=False)})
+    return rows
+
+
+def commissioned_table(rows: list) -> str:
+    out = ['| motor | L_M / thesis | sensorless, thesis model | sensorless, commissioned file '
+           '| sensored, true model | losses: commissioned / true |',
+           '| --- | ---: | --- | --- | --- | ---: |']
+
+    def cell(r):
+        if r['trip'] is not None:
+            why = r['trip']['reason'].split(':')[0].split(' |')[0]
+            return f"trip at {1e3 * r['trip']['t']:.1f} ms ({why})"
+        return f"{r['err']:.3f} rad/s"
+    for r in rows:
+        change = r['commissioned']['loss'] / r['sensored_true']['loss'] - 1.0
+        out.append(f"| {r['motor']} | {r['L_M_over_thesis']:.2f} | {cell(r['nominal'])} "
+                   f"| {cell(r['commissioned'])} | {cell(r['sensored_true'])} "
+                   f'| {100 * change:+.2f} % |')
+    return '\n'.join(out)
+
+
 def torque_table(rows: list) -> str:
     out = ['| strategy | torque err RMS sensored [N·m] | sensorless [N·m] | ω̂ − ω max [rad/s] '
            '| ω at the end [rad/s] |', '| --- | --- | --- | --- | --- |']
@@ -250,6 +303,8 @@ def main(argv=None) -> int:
     ap.add_argument('--json', help='write the rows to this file')
     ap.add_argument('--strategy', action='append', choices=COMPARED_STRATEGIES)
     ap.add_argument('--motor', action='append', choices=MOTORS)
+    ap.add_argument('--draws', type=int, default=6,
+                    help='box motors commissioned, then run sensorless (default 6)')
     a = ap.parse_args(argv)
     rows = run(a.strategy or COMPARED_STRATEGIES, a.motor or MOTORS)
     print(table(rows))
@@ -259,9 +314,13 @@ def main(argv=None) -> int:
     adapter = run_adapter()
     print()
     print(adapter_table(adapter))
+    commissioned = run_commissioned(a.draws)
+    print()
+    print(commissioned_table(commissioned))
     if a.json:
         with open(a.json, 'w') as f:
-            json.dump({'speed': rows, 'torque': torque, 'adapter': adapter}, f, indent=1)
+            json.dump({'speed': rows, 'torque': torque, 'adapter': adapter,
+                       'commissioned': commissioned}, f, indent=1)
     return 0
 
 
