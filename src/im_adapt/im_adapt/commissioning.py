@@ -11,7 +11,9 @@ measures (stator current, shaft speed) and returning the voltage to apply; when 
   locked. The machine is then the passive RL network v → i with admittance
   Y(s) = (sL_M + R_R) / ((R_s + sL_σ)(sL_M + R_R) + sL_M R_R), fitted by output error on its
   exact zero-order-hold discretization (least squares on the simulated current, parameters in
-  log scale; the standard deviations from the residuals and the Jacobian);
+  log scale; the standard deviations from the residuals and the Jacobian), then refined
+  (rotor free) jointly with the speed test's rotor-flux balance dm/dt = R_R (i_d − m/L_M), which
+  pins L_σ + L_M far more precisely than the standstill's rotor time constant (:func:`fit_joint`);
 * J and b (rotor free only) from a run-up, coast and braking under flux-oriented current control
   built on the identified model: J Δω + b ∫ω dt = ∫τ̂ dt over windows, with the torque from the
   voltage-model stator flux, τ̂ = v (ψ_sα i_β − ψ_sβ i_α), ψ_s = ∫(V − R̂_s i) dt;
