@@ -162,10 +162,37 @@ def test_a_model_in_another_gauge_drives_the_plant_exactly_like_the_model_in_its
 
 def _box_motor(name):
     from im_studies.commission_study import motors
-    return dict(motors(3))[name]        # box draws 1, 8, 9 are the first three with σ < 0.15
+    return dict(motors(16))[name]       # box draws 1 ... 36 are the first 16 with σ < 0.15
 
 
-@pytest.mark.parametrize('name', ['thesis', 'box draw 9'])
+def test_the_turning_rotor_pins_the_magnetizing_inductance_to_a_few_hundredths_of_a_percent():
+    """
+    L_M is what the tracking is most sensitive to (docs/commissioning.md §6).
+
+    At standstill it shows only through the slow rotor time constant (±0.05-0.1 %); the speed
+    test's flux balance (m/i_d = L_M in every steady state, §3) measures it against a much larger
+    signal. Box draw 36 came out 0.2 % high from the standstill alone. Over noise seeds the
+    combined estimate is within 0.06 % and its reported standard deviation is honest.
+    """
+    from im_studies.commission_sim import identification_errors
+    m = _box_motor('box draw 36')
+    for seed in (15, 1, 2):
+        _, ident, err = identification_errors(m, 0.05, seed=seed)
+        assert abs(err['L_M_err_pct']) < 0.06 and err['L_M_std_pct'] < 0.04, (seed, err)
+        assert abs(err['L_M_err_pct']) < 4.0 * err['L_M_std_pct'], (seed, err)
+        assert abs(err['L_sigma_err_pct']) < 4.0 * err['L_sigma_std_pct'], (seed, err)
+
+
+def test_without_noise_the_identification_is_exact():
+    """The standstill model is exact and the flux balance's quadrature is corrected (§2, §3)."""
+    from im_studies.commission_sim import identification_errors
+    for m in (_motor('thesis'), _box_motor('box draw 36')):
+        _, ident, err = identification_errors(m, 0.0)
+        for n in ('R_s', 'L_sigma', 'L_M', 'R_R'):
+            assert abs(err[n + '_err_pct']) < 1e-4, (n, err)      # 10⁻⁶
+
+
+@pytest.mark.parametrize('name', ['thesis', 'box draw 9', 'box draw 36'])
 def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one(name):
     """
     Done-when of issue 26.
@@ -182,7 +209,7 @@ def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one(na
     else:
         m = _box_motor(name)
         ident = _commission(m).result()
-    assert name == 'thesis' or abs(ident.motor().theta / m.theta - 1) > 0.05   # another gauge
+    assert name != 'box draw 9' or abs(ident.motor().theta / m.theta - 1) > 0.05   # another gauge
     true = speed_error(m, m)
     mine = speed_error(m, ident.motor(plate_of(m).ratings()))
     assert mine['rms'] <= 2.0 * true['rms'], (mine, true)

@@ -11,7 +11,9 @@ measures (stator current, shaft speed) and returning the voltage to apply; when 
   locked. The machine is then the passive RL network v → i with admittance
   Y(s) = (sL_M + R_R) / ((R_s + sL_σ)(sL_M + R_R) + sL_M R_R), fitted by output error on its
   exact zero-order-hold discretization (least squares on the simulated current, parameters in
-  log scale; the standard deviations from the residuals and the Jacobian);
+  log scale; the standard deviations from the residuals and the Jacobian), then refined
+  (rotor free) jointly with the speed test's rotor-flux balance dm/dt = R_R (i_d − m/L_M), which
+  pins L_σ + L_M far more precisely than the standstill's rotor time constant (:func:`fit_joint`);
 * J and b (rotor free only) from a run-up, coast and braking under flux-oriented current control
   built on the identified model: J Δω + b ∫ω dt = ∫τ̂ dt over windows, with the torque from the
   voltage-model stator flux, τ̂ = v (ψ_sα i_β − ψ_sβ i_α), ψ_s = ∫(V − R̂_s i) dt;
@@ -42,6 +44,8 @@ TEST_CURRENT = 0.5       # standstill test current bound as a fraction of i_max
 SPEED_CURRENT = 0.8      # |i*| during the speed test as a fraction of i_max
 TRIP_FRACTION = 0.9      # a current above this fraction of i_max ends the test
 SPEED_FRACTION = 0.5     # the speed test runs up to this fraction of the rated (test) speed
+FLUX_WINDOW = 0.01       # block length of the speed test's flux balance [s]
+OFFSET_BLOCKS = 5        # blocks per constant voltage-model offset in the flux balance
 
 
 class NotInformative(ValueError):
@@ -230,6 +234,125 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
     std = dict(zip(IDENTIFIABLE_NAMES, (float(x * s) for x, s in zip(vals, rel))))
     sim, psi = standstill_response(vals, v, T_s)
     return values, std, math.sqrt(s2), np.array([sim[-1], psi[-1]])
+
+
+def flux_balance(ident, psi_s: np.ndarray, i: np.ndarray, v: np.ndarray, T_s: float,
+                 R_s: float, window: int) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Return the rotor-flux magnitude balance of a record under voltage-model flux estimation.
+
+    ``psi_s`` is the drive's voltage-model stator flux at t_k, ``i`` the measured currents
+    (complex, α + jβ), ``v`` the commanded voltages over [t_k, t_k+1], ``R_s`` the resistance
+    the flux was integrated with, ``ident`` = (R_s, L_σ, L_M, R_R). With ψ_R = ψ_s − L_σ i,
+    m = |ψ_R| and i_d the current along ψ_R, the rotor equation of the inverse-Γ model gives,
+    whatever the speed (the rotation term is perpendicular to ψ_R),
+
+        dm/dt = R_R (i_d − m / L_M),
+
+    integrated over the record and compared as differences of consecutive block means of
+    ``window`` samples (docs/commissioning.md §3). ∫i_d is the trapezoid corrected by the
+    change of the current's slope within each period (Euler-Maclaurin): the held voltage
+    against the turning back-EMF bends the current, which the trapezoid alone would misread by
+    T_s² ω_e |e| / (12 L_σ i_d) (4·10⁻⁴ at half the thesis motor's rated speed). Returns the
+    block-mean differences of m and of R_R ∫i_d and R_R ∫m [Wb] and the offset's columns N:
+    the model is y = a − b/L_M + N c.
+    """
+    _, L_s, L_M, R_R = (float(x) for x in ident)
+    lam = psi_s - L_s * i
+    m = np.abs(lam)
+    u = lam / m
+    i_d = (i * np.conj(u)).real
+    e = np.gradient(lam, T_s)                      # dψ_R/dt at t_k (central differences)
+    du = (e - (e * np.conj(u)).real * u) / m        # du/dt
+    # the current's slope just after t_k and just before t_k+1 (the command v_k held between)
+    s0 = (v[:-1] - R_s * i[:-1] - e[:-1]) / L_s
+    s1 = (v[:-1] - R_s * i[1:] - e[1:]) / L_s
+    d0 = (s0 * np.conj(u[:-1])).real + (i[:-1] * np.conj(du[:-1])).real
+    d1 = (s1 * np.conj(u[1:])).real + (i[1:] * np.conj(du[1:])).real
+    F = 0.5 * T_s * (i_d[:-1] + i_d[1:]) - T_s * T_s / 12.0 * (d1 - d0)
+    G = 0.5 * T_s * (m[:-1] + m[1:])
+    SF = np.concatenate([[0.0], np.cumsum(F)])
+    SG = np.concatenate([[0.0], np.cumsum(G)])
+    nb = len(m) // window
+    n = nb * window
+
+    def means(x):
+        return x[:n].reshape(nb, window).mean(axis=1)
+    # the voltage model's offset c (its integral of R_s × current noise, a random walk) moves m
+    # by Re(c̄ u): one constant offset per segment of OFFSET_BLOCKS blocks, fitted as a nuisance
+    cols = []
+    for a in range(0, n, OFFSET_BLOCKS * window):
+        mask = np.zeros(len(m))
+        mask[a:a + OFFSET_BLOCKS * window] = 1.0
+        cols += [np.diff(means(mask * u.real)), np.diff(means(mask * u.imag))]
+    return (np.diff(means(m)), R_R * np.diff(means(SF)), R_R * np.diff(means(SG)),
+            np.column_stack(cols))
+
+
+def fit_joint(v: np.ndarray, i: np.ndarray, T_s: float, start: Dict[str, float],
+              flux_record: Tuple[np.ndarray, np.ndarray, np.ndarray, float],
+              window: int) -> Tuple[Dict[str, float], Dict[str, float], float]:
+    """
+    Refine (R_s, L_σ, L_M, R_R) on the standstill record and the speed test's flux balance.
+
+    ``v``, ``i``: the standstill record (as :func:`fit_standstill`); ``start``: its values;
+    ``flux_record`` = (ψ_s, i, v, R_s) of the speed test from the end of magnetizing
+    (:func:`flux_balance`). The standstill sees L_M only through the slow rotor time constant;
+    the turning rotor's flux balance sees m/i_d = L_M in every steady state, i.e. L_σ + L_M
+    (L_σ moves m and i_d the other way) against a much larger signal. The balance residuals are
+    weighted by the standstill's residual scale over their own (one-lag autocorrelation
+    included: neighbouring block differences share a block), so the covariance is
+    s² (JᵀJ)⁻¹ of the joint problem. Returns (values, standard deviations, RMS standstill
+    residual [A]).
+    """
+    from scipy.optimize import least_squares
+    v = np.asarray(v, dtype=float)
+    i = np.asarray(i, dtype=float)
+    psi_s, i_c, v_c, R_s_used = flux_record
+    p0 = np.array([start[n] for n in IDENTIFIABLE_NAMES])
+
+    y, a, b, N = flux_balance(p0, psi_s, i_c, v_c, T_s, R_s_used, window)
+    # the offsets are projected out (variable projection; their columns hardly move with p)
+    Q, sv, _ = np.linalg.svd(N, full_matrices=False)
+    Q = Q[:, sv > 1e-9 * sv.max()] if sv.size else Q
+    dof = len(y) - Q.shape[1] - 1
+
+    def project(x):
+        return x - Q @ (Q.T @ x)
+
+    def balance(p):
+        y, a, b, _ = flux_balance(p, psi_s, i_c, v_c, T_s, R_s_used, window)
+        return project(y - a + b / p[2])
+
+    r_ss = standstill_response(p0, v, T_s)[0] - i
+    s_ss = math.sqrt(float(r_ss @ r_ss) / max(len(i) - 4, 1))
+    # the balance's own noise: its residuals with L_M fitted to it alone (linear in 1/L_M)
+    yp, ap, bp = project(y), project(a), project(b)
+    g = float(bp @ (ap - yp)) / float(bp @ bp)
+    r_fb = yp - ap + g * bp
+    var_fb = float(r_fb @ r_fb) / max(dof, 1)
+    lag1 = float(r_fb[1:] @ r_fb[:-1]) / max(dof, 1)
+    # the variance of a sum of the residuals with their one-lag correlation, per residual
+    var_fb = max(var_fb + 2.0 * lag1, 0.25 * var_fb)
+    w = s_ss / math.sqrt(var_fb) if var_fb > 0 else 0.0
+
+    def resid(lp):
+        p = np.exp(lp)
+        return np.concatenate([standstill_response(p, v, T_s)[0] - i, w * balance(p)])
+
+    sol = least_squares(resid, np.log(p0), method='lm', x_scale=1.0, xtol=1e-12, ftol=1e-12,
+                        gtol=1e-12, max_nfev=200)
+    n_ss = len(i)
+    r = sol.fun[:n_ss]
+    s2 = float(r @ r) / max(n_ss - 4, 1)
+    try:
+        rel = np.sqrt(np.maximum(np.diag(s2 * np.linalg.inv(sol.jac.T @ sol.jac)), 0.0))
+    except np.linalg.LinAlgError:
+        rel = np.full(4, np.inf)
+    vals = np.exp(sol.x)
+    return (dict(zip(IDENTIFIABLE_NAMES, (float(x) for x in vals))),
+            dict(zip(IDENTIFIABLE_NAMES, (float(x * s) for x, s in zip(vals, rel)))),
+            math.sqrt(s2))
 
 
 def _physical_start(v, i, T_s, R_s0):
@@ -450,6 +573,7 @@ class Commissioning:
         i = np.array(self.log_i)[: len(v), 0]
         values, std, rms, _ = fit_standstill(v, i, self.T_s, self.R_s0)
         self.electrical = (values, std, rms)
+        self._standstill_record = (v, i)
         # the state at t_k of the current step: one more model step from the last logged one
         R_s, L_s, L_M, R_R = (values[n] for n in IDENTIFIABLE_NAMES)
         _, psi = standstill_response(np.array([R_s, L_s, L_M, R_R]),
@@ -555,7 +679,26 @@ class Commissioning:
         if self.locked:
             return out
         self._identify_mechanics(out)
+        self._refine_electrical(out)
         return out
+
+    def _refine_electrical(self, out: Identified) -> None:
+        """Refit the inverse-Γ set on the standstill record and the speed test's flux balance."""
+        k0, ka, kr = self.marks['magnetize'], self.marks['accelerate'], self.marks['rest']
+        psi = np.array(self.log_psi[ka - k0:kr - k0])
+        i = np.array(self.log_i[ka:kr])
+        v = np.array(self.log_v[ka:kr])
+        window = max(int(round(FLUX_WINDOW / self.T_s)), 5)
+        if len(psi) < 4 * window:
+            return
+        c = (psi[:, 0] + 1j * psi[:, 1], i[:, 0] + 1j * i[:, 1], v[:, 0] + 1j * v[:, 1],
+             self.R_s)
+        values, std, rms = fit_joint(*self._standstill_record, self.T_s, self.electrical[0], c,
+                                     window)
+        out.values.update(values)
+        out.std.update(std)
+        out.rms_residual['standstill_A'] = rms
+        out.notes['L_M'] = 'standstill and speed-test flux balance (docs/commissioning.md §3)'
 
     def _identify_mechanics(self, out: Identified) -> None:
         T_s = self.T_s
