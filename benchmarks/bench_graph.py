@@ -14,6 +14,8 @@ step on, in the graph and in the bare loop alike; the graph's start-up before it
 run protocol's handshake, ≈ 0.5 s, a third of a 1 s run's wall time) is its own figure
 (``graph_in_process_start_s``).
 Targets: >= 0.9 of the bare loop in one process (``inprocess_over_bare``); recording <= 15 %.
+The computation alone (the same scenario without ROS, ``computation_us_per_step``) bounds that
+ratio: ``inprocess_ceiling_over_bare`` = bare step / (bare step + computation).
 """
 from __future__ import annotations
 
@@ -58,6 +60,32 @@ def in_process(duration: float, controller: str = 'nominal', record: bool = Fals
     return res.summary['steps_per_s_running']
 
 
+def computation_us_per_step(steps: int) -> float:
+    """
+    Return µs per step of the graph's computation alone: the same scenario, no ROS.
+
+    The speed task (min_energy) stepped as the lock-step graph steps it (measure, control law,
+    plant kernel, observer: :mod:`im_bringup.offline`), without recording: what a step costs
+    besides its messages however lean the protocol. With the bare loop's step it bounds the
+    in-process ratio: bare / (bare + computation) (``inprocess_ceiling_over_bare``).
+    """
+    import time
+
+    from im_bringup.offline import build
+    from im_bringup.run_file import Scenario
+    sc = Scenario(task='speed', strategy='min_energy', duration=steps * 1e-4)
+    plant, ctl, obs = build(sc)
+    x = obs.state
+    T_s = sc.T_s
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        m = plant.measure()
+        v_a, v_b = ctl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r, x[2], x[3], None)
+        plant.step(v_a, v_b)
+        x = obs.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)
+    return 1e6 * (time.perf_counter() - t0) / steps
+
+
 def run(quick: bool = False) -> dict:
     d = 0.05 if quick else 1.0
     steps = int(round(d * 1e4))
@@ -67,6 +95,8 @@ def run(quick: bool = False) -> dict:
     starts = []
     figures = {
         'kernel_steps_per_s': lambda: kernel.steps_per_second(THESIS_MOTOR, max(steps, 2000), 1),
+        # a minimum, taken as the best run like the rates' maxima (below)
+        'computation_steps_per_s': lambda: 1e6 / computation_us_per_step(max(steps, 2000)),
         'bare_loop_adapter_off_path_steps_per_s':
             lambda: bare.bare_loop(steps, adapter_on_path=False),
         'bare_loop_tagged_adapter_off_path_steps_per_s':
@@ -86,6 +116,12 @@ def run(quick: bool = False) -> dict:
     res['inprocess_over_bare'] = g / res['bare_loop_adapter_off_path_steps_per_s']
     res['inprocess_over_tagged_bare'] = g / res['bare_loop_tagged_adapter_off_path_steps_per_s']
     res['inprocess_over_kernel'] = g / res['kernel_steps_per_s']
+    bare_us = 1e6 / res['bare_loop_adapter_off_path_steps_per_s']
+    res['computation_us_per_step'] = 1e6 / res.pop('computation_steps_per_s')
+    res['graph_us_per_step'] = 1e6 / g
+    res['bare_loop_us_per_step'] = bare_us
+    # the best a graph whose step costs its messages plus its computation, and nothing else, reaches
+    res['inprocess_ceiling_over_bare'] = bare_us / (bare_us + res['computation_us_per_step'])
     res['adaptive_graph_vs_bare_loop'] = (res['graph_in_process_adaptive_steps_per_s']
                                           / res['bare_loop_adapter_on_path_steps_per_s'])
     res['tags_us_per_step_in_bare_loop'] = 1e6 * (
