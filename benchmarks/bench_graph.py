@@ -41,23 +41,34 @@ def in_process(duration: float, controller: str = 'nominal', record: bool = Fals
     """
     Steps/s of the speed task (min_energy) as ``scenario`` runs it, optionally recording.
 
-    From the plant's first step (``steps_per_s_running``), as the bare loop's and the processes'
-    rates are taken; the start-up before it (the run protocol's handshake) is appended to
-    ``start`` [s].
+    The graph and its summary tap as :func:`im_bringup.testing.run_graph` builds them; the rate
+    from the plant's first step (``DriveGraph.steps_per_s_running``), as the bare loop's and the
+    processes' rates are taken; the start-up before it (discovery, the run protocol's handshake)
+    is appended to ``start`` [s].
     """
-    from im_bringup.testing import run_graph
+    from im_bringup.config import node_parameters
+    from im_bringup.graph import DriveGraph
+    from im_recording.bag import BagWriter
+    from im_recording.traces import Tap
     tmp = tempfile.mkdtemp(prefix='bench_graph_') if record else None
+    writer = BagWriter(os.path.join(tmp, 'run.mcap'), force=True) if tmp else None
     try:
-        res = run_graph(task='speed', strategy='min_energy', controller=controller,
-                        duration=duration, record=os.path.join(tmp, 'run.mcap') if tmp else None)
+        graph = DriveGraph(node_parameters('speed', 'min_energy', controller, 'none', 1e-4,
+                                           duration), recorder=Tap(writer))
+        try:
+            stats = graph.run()
+        finally:
+            graph.close()
     finally:
+        if writer is not None:
+            writer.close()
         if tmp:
             shutil.rmtree(tmp, ignore_errors=True)
-    if not res.summary['ok']:
-        raise RuntimeError(f'graph run failed: {res.summary["failures"]}')
+    if not stats['ok']:
+        raise RuntimeError(f'graph run failed: {stats["failures"]}')
     if start is not None:
-        start.append(res.summary['start_s'])
-    return res.summary['steps_per_s_running']
+        start.append(graph.start_s)
+    return graph.steps_per_s_running
 
 
 def computation_us_per_step(steps: int) -> float:

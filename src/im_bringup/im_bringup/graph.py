@@ -113,6 +113,8 @@ class DriveGraph:
             self.close()
             raise
         self.wall_s = 0.0
+        self.start_s = float('nan')                 # of the last run (see :meth:`run`)
+        self.steps_per_s_running = float('nan')
 
     @property
     def plant(self):
@@ -190,9 +192,9 @@ class DriveGraph:
         a second to report theirs.
 
         The statistics: ``steps``, ``wall_s`` and ``steps_per_s`` (from the call, the run
-        protocol's start-up included), ``start_s`` (until the plant's first step) and
-        ``steps_per_s_running`` (from that step on, as the plant reports its rate), ``ok`` and
-        ``failures``.
+        protocol's start-up included), ``ok`` and ``failures``. The graph keeps ``start_s``
+        (wall time until the plant's first step) and ``steps_per_s_running`` (the rate from that
+        step on, as the plant reports it; the benchmarks' figure).
         """
         from rclpy.task import Future
         nodes = list(self.nodes.values())
@@ -225,8 +227,8 @@ class DriveGraph:
         if first is not None and t_end > first and steps:
             # start-up (the run protocol's handshake) apart from the rate of the steps, which the
             # plant's own report and the benchmarks give
-            stats['start_s'] = first - t0
-            stats['steps_per_s_running'] = steps / (t_end - first)
+            self.start_s = first - t0
+            self.steps_per_s_running = steps / (t_end - first)
         refused = {name: getattr(n, 'refused', 0) for name, n in self.nodes.items()}
         if any(refused.values()):
             stats['refused_inputs'] = refused
