@@ -131,7 +131,7 @@ def run(quick: bool = False) -> dict:
     res['computation_us_per_step'] = 1e6 / res.pop('computation_steps_per_s')
     res['graph_us_per_step'] = 1e6 / g
     res['bare_loop_us_per_step'] = bare_us
-    # the best a graph whose step costs its messages plus its computation, and nothing else, reaches
+    # the best ratio of a graph whose step costs its messages, its computation and nothing else
     res['inprocess_ceiling_over_bare'] = bare_us / (bare_us + res['computation_us_per_step'])
     res['adaptive_graph_vs_bare_loop'] = (res['graph_in_process_adaptive_steps_per_s']
                                           / res['bare_loop_adapter_on_path_steps_per_s'])

@@ -259,7 +259,7 @@ def free_run_busy_runs(runs: int, duration: float) -> dict:
     """
     each = [free_run(duration, busy=True) for _ in range(runs)]
     worst = max(each, key=lambda r: (r['free_run_1kHz_tripped'],
-                                      r['free_run_1kHz_missed_fraction']))
+                                     r['free_run_1kHz_missed_fraction']))
     res = {k.replace('free_run_1kHz', 'free_run_1kHz_busy'): v for k, v in worst.items()}
     res['free_run_1kHz_busy_runs'] = runs
     res['free_run_1kHz_busy_duration_s'] = duration

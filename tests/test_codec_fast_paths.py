@@ -48,7 +48,7 @@ def test_joint_state_out_equals_pack_joint_state(frame, names, seqs):
 
 
 def _batches():
-    """JointState batches: one layout (tags differ), and layouts mixed (names, counts, frames)."""
+    """Return JointState batches: one layout (tags differ), layouts mixed (names, counts)."""
     signer = Signer(bytes(32), 'run')
     shaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
     est = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))
