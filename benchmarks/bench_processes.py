@@ -8,7 +8,8 @@ The graph as separate processes (how users run it), next to its yardstick in the
    starts them): steps/s reported by the plant, and the ratio to the ping-pong (target >= 0.8).
 3. free_run at 1 kHz (T_s = 1 ms, the certified gains of ``config/gains_1ms.yaml``), position
    task, 2 s: fraction of steps whose command missed its deadline, latency quantiles, position
-   error, against the lock-step run at the same period and gains (in-process).
+   error, against the lock-step run at the same period and gains (in-process); beside a CPU-bound
+   process, five runs of 10 s, the worst one reported (issue 25: <= 1 % missed in every one).
 4. free_run recording completeness (``python benchmarks/bench_processes.py --free-run-record 10
    [--busy] [--runs N]``; in ``make bench`` the 2 s runs of 3.): the fraction of the steps the
    plant integrated whose measurements are in the recorder's bag, and of the commands the plant
@@ -16,6 +17,7 @@ The graph as separate processes (how users run it), next to its yardstick in the
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import random
@@ -162,7 +164,6 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
     from im_recording.run import load_run
     from im_bringup.processes import graph_processes
     from im_recording.report import figures_of_merit
-    from im_bringup.testing import run_graph
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
     extra = _gains()
@@ -183,8 +184,7 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
     hist = LatencyHistogram.from_values(end)
     steps = int(end['steps'])
     rec = recorded_fraction(bag, end)
-    ref = run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=duration,
-                    parameters=_gains())
+    ref = _lockstep_reference(duration)
     return {'free_run_1kHz_realtime': int(end.get('scheduling', '').startswith('fifo')),
             'free_run_1kHz_steps': steps, 'free_run_1kHz_tripped': tripped,
             'free_run_1kHz_missed_fraction': int(end['missed']) / steps,
@@ -202,6 +202,14 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
             'lockstep_1kHz_pos_err_rms_rad': ref.summary['pos_err_rms_rad'],
             'free_run_1kHz_vs_lockstep_pos_err_rms': fig.get('pos_err_rms_rad', math.nan)
             / ref.summary['pos_err_rms_rad']}
+
+
+@functools.lru_cache(maxsize=4)
+def _lockstep_reference(duration: float):
+    """Return the in-process lock-step run free_run is compared with (one per duration)."""
+    from im_bringup.testing import run_graph
+    return run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=duration,
+                     parameters=_gains())
 
 
 def recorded_fraction(bag: str, end: dict) -> dict:
@@ -232,8 +240,36 @@ def free_run_record(duration: float, busy: bool) -> dict:
     """One free_run run at 1 kHz with the recorder: recorded fractions and deadlines."""
     r = free_run(duration, busy=busy)
     keys = ('steps', 'tripped', 'missed_fraction', 'recorded_steps_fraction',
-            'recorded_commands_fraction', 'realtime')
+            'recorded_commands_fraction', 'realtime', 'pos_err_max_rad', 'latency_p99_le_us',
+            'latency_max_us')
     return {k: r[f'free_run_1kHz_{k}'] for k in keys}
+
+
+#: The busy-neighbour free_run figure of issue 25: this many runs of this length, the worst one.
+BUSY_RUNS, BUSY_DURATION_S = 5, 10.0
+
+
+def free_run_busy_runs(runs: int, duration: float) -> dict:
+    """
+    Run free_run at 1 kHz beside a CPU-bound process ``runs`` times; the worst run's figures.
+
+    ``free_run_1kHz_busy_*`` = the run with the most missed deadlines (its latency quantiles,
+    position error ...); ``..._missed_fraction_per_run`` and ``..._pos_err_max_rad_worst`` cover
+    every run.
+    """
+    each = [free_run(duration, busy=True) for _ in range(runs)]
+    worst = max(each, key=lambda r: (r['free_run_1kHz_tripped'],
+                                     r['free_run_1kHz_missed_fraction']))
+    res = {k.replace('free_run_1kHz', 'free_run_1kHz_busy'): v for k, v in worst.items()}
+    res['free_run_1kHz_busy_runs'] = runs
+    res['free_run_1kHz_busy_duration_s'] = duration
+    res['free_run_1kHz_busy_missed_fraction_per_run'] = [
+        r['free_run_1kHz_missed_fraction'] for r in each]
+    errs = [r['free_run_1kHz_pos_err_max_rad'] for r in each]
+    # a run that tripped before a reference was recorded ('nan') is the worst
+    res['free_run_1kHz_busy_pos_err_max_rad_worst'] = (
+        math.nan if any(math.isnan(e) for e in errs) else max(errs))
+    return res
 
 
 def run(quick: bool = False) -> dict:
@@ -254,8 +290,7 @@ def run(quick: bool = False) -> dict:
     res.update(free_run(0.5 if quick else d))
     if quick:
         return res
-    res.update({k.replace('free_run_1kHz', 'free_run_1kHz_busy'): v
-                for k, v in free_run(d, busy=True).items()})
+    res.update(free_run_busy_runs(BUSY_RUNS, BUSY_DURATION_S))
     res.update({k.replace('free_run_1kHz', 'free_run_1kHz_normal_sched'): v
                 for k, v in free_run(d, realtime=False).items()})
     return res

@@ -130,7 +130,9 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
     for the estimates (adaptive runs); without, the adapter still receives every step but nobody
     waits for it (nominal runs). Clock, ground truth, references and the observer's current
     estimate go out every ``decimation`` steps, as the graph's defaults publish them. ``tags``:
-    lock-step messages signed and checked with a graph key, as the drive nodes do.
+    lock-step messages signed and checked with a graph key, as the drive nodes do. The rate is
+    taken from the plant's first step, as the drive graph's (``steps_per_s_running``) and the
+    plant's own report: discovery and the run protocol's start-up are not steps.
     """
     from rclpy.task import Future
     ctx = _context()
@@ -144,7 +146,7 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
         js_ref = JointStateOut([T.SHAFT_JOINT])
         js_est = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))   # the adaptive controller's
         est = [1.0] * len(T.ESTIMATE_NAMES)                          # feed: every estimate name
-        state = {'k': 0}
+        state = {'k': 0, 't_first': None}
         done = Future()
 
         js_par, js_pow = JointStateOut(T.PARAM_NAMES), JointStateOut(T.POWER_NAMES)
@@ -155,6 +157,8 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
             node.pubs[T.MEAS_SHAFT].publish(sign(T.MEAS_SHAFT, js_shaft.fill(ns, (0.0,), (0.0,))))
 
         def plant_step(node, ns):
+            if state['t_first'] is None:
+                state['t_first'] = time.perf_counter()
             state['k'] += 1
             if state['k'] >= steps:
                 done.set_result(True)
@@ -216,7 +220,7 @@ def bare_loop(steps: int = 5000, adapter_on_path: bool = True, tags: bool = Fals
         measure(nodes[0], 0)
         while not done.done() and time.perf_counter() - t0 < limit_s:   # natively, as DriveGraph
             ex.spin_until_future_complete(done, timeout_sec=0.5)
-        dt = time.perf_counter() - t0
+        dt = time.perf_counter() - (state['t_first'] or t0)
         ex.shutdown()
         for n in nodes:
             n.destroy_node()

@@ -45,3 +45,46 @@ def test_joint_state_out_equals_pack_joint_state(frame, names, seqs):
     for ns in (0, 123_456_789_012):
         sec, nsec = divmod(ns, 1_000_000_000)
         assert out.fill(ns, *seqs) == pack_joint_state(sec, nsec, names, *seqs, frame)
+
+
+def _batches():
+    """Return JointState batches: one layout (tags differ), layouts mixed (names, counts)."""
+    signer = Signer(bytes(32), 'run')
+    shaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
+    est = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))
+    ref = JointStateOut([T.SHAFT_JOINT])
+    one = [signer.sign(T.MEAS_SHAFT, shaft.fill(k * 100_000, (0.1 * k,), (-2.0 * k,)))
+           for k in range(7)]
+    named = [est.fill(k * 100_000, [1.0 + k] * len(T.ESTIMATE_NAMES)) for k in range(5)]
+    refs = [ref.fill(k * 100_000, (0.5 * k,), (1.5,), (2.5 * k,)) for k in range(4)]
+    mixed_counts = refs[:2] + [ref.fill(9, (1.0,), (), (3.0,)), ref.fill(10, (), (2.0,), ())]
+    mixed_names = named[:2] + [pack_joint_state(0, 7, ('R_r', 'x'), (5.0, 6.0), (), ()),
+                               pack_joint_state(0, 8, ('R_r',), (), (), ())]
+    return [(T.MEAS_SHAFT, one), (T.ADAPT_ESTIMATE, named), (T.REF_SHAFT, refs),
+            (T.REF_SHAFT, mixed_counts), (T.ADAPT_ESTIMATE, mixed_names),
+            (T.TRUTH_PARAMS, [pack_joint_state(0, 1, ('a', 'b', 'a'), (1.0,), (), ())])]
+
+
+@pytest.mark.parametrize('topic, payloads', _batches())
+def test_batch_joint_state_decoding_equals_message_by_message(topic, payloads, monkeypatch):
+    """The one-layout batch decoder of the recording/summary gives what decoding each gives."""
+    import numpy as np
+
+    from im_recording import run
+    fast = run.decode_topic(topic, payloads)
+    monkeypatch.setattr(run, '_js_fixed', lambda _payloads: None)
+    slow = run.decode_topic(topic, payloads)
+    np.testing.assert_array_equal(fast[0], slow[0])
+    assert list(fast[1]) == list(slow[1])
+    for key in slow[1]:
+        np.testing.assert_array_equal(fast[1][key], slow[1][key], err_msg=key)
+        assert fast[1][key].dtype == slow[1][key].dtype
+
+
+def test_batch_joint_state_decoding_takes_one_layout_in_one_read():
+    """A batch of one layout is read by the batch decoder (what keeps the summary tap cheap)."""
+    from im_recording import run
+    for topic, payloads in _batches()[:3]:
+        assert run._js_fixed(payloads) is not None, topic
+    assert run._js_fixed(_batches()[3][1]) is None
+    assert run._js_fixed(_batches()[4][1]) is None

@@ -433,6 +433,41 @@ def _parse_joint_state(data):
     return (sec, nsec, tuple(names), seqs[0], seqs[1], seqs[2]), pos
 
 
+def joint_state_layout(data) -> Tuple[int, Tuple[Tuple[int, int], ...], int]:
+    """
+    Return where a JointState payload keeps its values: (end of the frame id, blocks, length).
+
+    ``blocks`` = ((offset, count) of position, velocity, effort): each block's doubles start at
+    ``offset``. Payloads of one length whose bytes between the frame id and the blocks are equal
+    have the same names and counts, hence their values at the same offsets (a batch decoder reads
+    them in one go: :func:`im_recording.run.decode_topic`).
+    """
+    try:
+        (n,) = _U32.unpack_from(data, 12)
+        pos = fid_end = 16 + n
+        pos += _pad(pos - 4, 4)
+        (cnt,) = _U32.unpack_from(data, pos)
+        pos += 4
+        for _ in range(cnt):
+            pos += _pad(pos - 4, 4)
+            (n,) = _U32.unpack_from(data, pos)
+            pos += 4 + n
+        blocks = []
+        for _ in range(3):
+            pos += _pad(pos - 4, 4)
+            (cnt,) = _U32.unpack_from(data, pos)
+            pos += 4
+            if cnt:
+                pos += _pad(pos - 4, 8)
+            blocks.append((pos, cnt))
+            pos += 8 * cnt
+    except struct.error as exc:
+        raise CdrError(f'bad JointState payload: {exc}') from None
+    if pos > len(data):
+        raise CdrError('JointState payload shorter than its sequences')
+    return fid_end, tuple(blocks), pos
+
+
 def decode_vector3_stamped(data) -> Tuple[int, int, float, float, float]:
     try:
         sec, nsec = _STAMP.unpack_from(data, 4)

@@ -186,7 +186,7 @@ class PlantSimulator:
         x0 = self.x
         t0 = self.t
         x = self._integrate(x0, t0, v_a, v_b)
-        if not all(math.isfinite(v) for v in x):
+        if not all(map(math.isfinite, x)):
             self.trip = (t0 + self.T_s, 'non-finite state')
             v_a = v_b = 0.0
             x = self._integrate(x0, t0, 0.0, 0.0)

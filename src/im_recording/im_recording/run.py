@@ -178,7 +178,64 @@ def _align(master: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.nda
     return out
 
 
+def _js_fixed(payloads: List[bytes]):
+    """
+    Return (stamps ns, names, [position, velocity, effort] arrays) of JointStates of one layout.
+
+    None unless every payload has the first one's length, frame id length, names and counts
+    (:func:`im_common.cdr.joint_state_layout`; the tag in the frame id may differ): then one
+    ``frombuffer`` reads them all, the same doubles the message-by-message decoder reads.
+    """
+    p0 = payloads[0]
+    n = len(p0)
+    try:
+        fid_end, blocks, end = cdr.joint_state_layout(p0)
+    except cdr.CdrError:
+        return None
+    if end != n:
+        return None
+    cuts, at = [], fid_end
+    for off, cnt in blocks:
+        cuts.append((at, off))
+        at = off + 8 * cnt
+    same = [(a, b, p0[a:b]) for a, b in cuts]
+    head = p0[12:16]
+    for p in payloads:
+        if len(p) != n or p[12:16] != head:
+            return None
+        for a, b, ref in same:
+            if p[a:b] != ref:
+                return None
+    names = ['sec', 'nsec'] + [f'q{j}' for j in range(3) if blocks[j][1]]
+    formats = ['<i4', '<u4'] + [('<f8', (c,)) for _, c in blocks if c]
+    offsets = [4, 8] + [off for off, c in blocks if c]
+    a = np.frombuffer(b''.join(payloads), dtype=np.dtype(
+        {'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': n}))
+    seqs = [a[f'q{j}'] if blocks[j][1] else None for j in range(3)]
+    return _stamp_ns(a['sec'], a['nsec']), cdr.decode_joint_state(p0)[2], seqs
+
+
 def _decode_js(topic: str, payloads: List[bytes]):
+    fixed = _js_fixed(payloads) if payloads else None
+    if fixed is not None:
+        st, row_names, seqs = fixed
+        cols = {}
+        if topic in JS_FIELDS:
+            for j, key in enumerate(JS_FIELDS[topic]):
+                if key is None:
+                    continue
+                col = (seqs[j][:, 0].astype(float) if seqs[j] is not None
+                       else np.full(len(st), np.nan))
+                if np.isfinite(col).any():
+                    cols[key] = col
+            return st, cols
+        suffix = JS_NAMED[topic]
+        pos = seqs[0]
+        for name in dict.fromkeys(row_names):
+            i = row_names.index(name)
+            cols[name + suffix] = (pos[:, i].astype(float) if pos is not None and
+                                   i < pos.shape[1] else np.full(len(st), np.nan))
+        return st, cols
     rows = [cdr.decode_joint_state(p) for p in payloads]
     st = _stamp_ns([r[0] for r in rows], [r[1] for r in rows]) if rows else np.zeros(0, np.int64)
     cols = {}
