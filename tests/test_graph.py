@@ -260,3 +260,20 @@ def test_a_free_run_observer_bridges_a_stalled_loop_up_to_the_plant(ros_context)
     assert not node.done and node.exit_code == 0
     assert all(math.isfinite(v) for v in node.obs.state)
     node.destroy_node()
+
+
+def test_a_free_run_plant_that_cannot_keep_real_time_stops_and_says_so():
+    """
+    free_run at 100 kHz: no Python plant integrates and publishes a step in 10 µs.
+
+    Behind the wall clock, the plant catches up tick after tick without sleeping (at real-time
+    priority it held a core for minutes when a machine could not keep up); more than
+    ``max_lag`` behind it stops the run, naming how far behind and why.
+    """
+    res = run_graph(task='position', T_s=1e-5, duration=1.0,
+                    parameters={'plant': {'mode': 'free_run', 'max_lag': 0.05}})
+    assert not res.summary['ok']
+    reasons = str(res.summary['failures'])
+    assert 'behind the wall clock' in reasons and 'max_lag = 0.05 s' in reasons, reasons
+    assert 'cannot integrate T_s = 1e-05 s in real time' in reasons
+    assert res.summary['steps'] < 50_000          # stopped early, not after catching up

@@ -80,6 +80,9 @@ def declare_plant(node) -> dict:
     v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7,
                          0.1)
     v['mode'] = p('mode', 'lockstep', 'stepping', choices=STEPPING_MODES)
+    v['max_lag'] = p('max_lag', 1.0,
+                     'free_run: stop the run when the plant is this far behind the wall clock '
+                     '[s] (it cannot integrate in real time; 0: never)', 0.0, 3600.0)
     v['clock_decimation'] = p('clock_decimation', 10,
                               'publish /clock every N steps (the '
                               'lock-step protocol runs on stamps; '

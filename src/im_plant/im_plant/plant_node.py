@@ -12,7 +12,8 @@ arrived, and stays within ``follower_window`` steps of every lossless follower (
 must arrive before the tick that ends step k (its deadline); otherwise the previous command is held
 for that step and the step counts as *missed* (a command that arrives after its deadline is *late*
 and dropped). Latencies (measurement k published → command k received) go into a histogram reported
-at the end.
+at the end. A plant that falls behind the wall clock catches up tick after tick; more than
+``max_lag`` behind (the machine cannot integrate in real time) it stops the run and says so.
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ class PlantNode(LockstepNode):
         self.T_s, self.duration, timeout, startup = declare_run(self)
         values = declare_plant(self)
         self.mode = values['mode']
+        self.max_lag = values['max_lag']
         self.event_context = {'mode': self.mode}    # a free_run follower goes real-time early
         self.clock_every = values['clock_decimation']
         self.truth_every = values['truth_decimation']
@@ -208,8 +210,17 @@ class PlantNode(LockstepNode):
                 time.sleep(left)
             if self.done or self.state != RUNNING:
                 return
-            if time.perf_counter() - deadline > 0.5 * T_s:
+            lag = time.perf_counter() - deadline
+            if lag > 0.5 * T_s:
                 self.overruns += 1          # this tick itself is late (the plant lags)
+                if 0.0 < self.max_lag < lag:
+                    # catching up would run flat out (at real-time priority) for as long as the
+                    # machine is too slow: stop instead, and say so
+                    with self._tick_lock:
+                        self.fail(f'free_run: the plant is {lag:.3f} s behind the wall clock at '
+                                  f't = {self.sim.k * T_s:.6f} s (max_lag = {self.max_lag:g} s): '
+                                  f'it cannot integrate T_s = {T_s:g} s in real time here')
+                    return
             with self._tick_lock:
                 self.on_wall_tick()
 
