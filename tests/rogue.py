@@ -1,8 +1,7 @@
 """
 A foreign node on the drive graph's ROS domain that tries to steer the run.
 
-It answers every measured current stamped t_k, on RELIABLE + TRANSIENT_LOCAL publishers (history
-1: see QOS), with a
+It answers every measured current stamped t_k, on RELIABLE + TRANSIENT_LOCAL publishers, with a
 50 V command of the same stamp, a fake flux estimate, fake adapter estimates, a fake measurement
 for the next step (ahead of the plant), a /clock jump, and — once it has seen the run's id on
 /im/status — a fake ``finished`` of the plant for that run. Imported by the in-process tests
@@ -24,12 +23,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-# history 1, not the graph's 100: a transient-local writer matched mid-run (DDS discovery between
-# separate processes can take one announcement period, 3 s) replays its history at once, and a
-# replay deeper than a reader's history can push a step's genuine sample out of it before the node
-# takes it, which stalls a lock-step run (a denial of service that only access control prevents,
-# docs/security.md, "What this is not"); this rogue tests what the tags refuse, every message alike
-QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+# the graph's own writer history (100): a late discovery replays it at once into the graph's
+# readers, which keep ten times that (im_common.lockstep.LOCKSTEP_READER_HISTORY, docs/security.md)
+QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATUS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.TRANSIENT_LOCAL)

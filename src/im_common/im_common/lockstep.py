@@ -54,6 +54,13 @@ STATUS_READER_DEPTH = 1000
 #: clock thread never ran again). In lock-step the follower window keeps
 #: every reader within ``LOCKSTEP_DEPTH // 2`` steps.
 LOCKSTEP_HISTORY = LOCKSTEP_DEPTH
+#: History of a node's lock-step *readers*: the samples of every writer on a topic share it, so
+#: another graph on the domain (or a rogue) that delivers more than a history's worth between two
+#: takes of a busy node — its writers' transient-local backlog replayed at a late discovery, or
+#: its own run while this node is starved — pushed this graph's untaken sample out, and a
+#: lock-step run stalled (docs/security.md). Ten writer histories deep; the writers keep 100, so
+#: no writer resends more than before.
+LOCKSTEP_READER_HISTORY = 10 * LOCKSTEP_DEPTH
 
 #: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
 STOP_FLUSH_S = 3.0
@@ -682,7 +689,8 @@ class LockstepNode(Node):
                 ready(inputs)
             elif gate.follow:
                 self.on_incomplete(topic, ns)
-        self.create_subscription(cls, topic, on_data, lockstep_qos(), raw=True)
+        self.create_subscription(cls, topic, on_data, lockstep_qos(LOCKSTEP_READER_HISTORY),
+                                 raw=True)
 
     def on_incomplete(self, topic: str, ns: int) -> None:
         """
