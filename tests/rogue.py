@@ -5,9 +5,9 @@ It answers every measured current stamped t_k, on RELIABLE + TRANSIENT_LOCAL pub
 1: see QOS), with a
 50 V command of the same stamp, a fake flux estimate, fake adapter estimates, a fake measurement
 for the next step (ahead of the plant), a fake applied voltage on the truth (a report topic: a
-recording must not mix it into the run's ground truth), a /clock jump, and — once it has seen the run's id on
-/im/status — a fake ``finished`` of the plant for that run. Imported by the in-process tests
-(:class:`Rogue`) and run as its own process by the multi-process ones
+recording must not mix it into the run's ground truth), a /clock jump, and — once it has seen the
+run's id on /im/status — a fake ``finished`` of the plant for that run. Imported by the
+in-process tests (:class:`Rogue`) and run as its own process by the multi-process ones
 (``python tests/rogue.py``, ROS_DOMAIN_ID from the environment, until SIGINT/SIGTERM).
 """
 import signal

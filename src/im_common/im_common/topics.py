@@ -93,26 +93,26 @@ TOPICS: Tuple[TopicSpec, ...] = (
               "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma'(, 'R_s'))] "
               'in position [SI]', True),
     _report(REF_SHAFT, JS, 'controller',
-              'reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]'),
+            'reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]'),
     _report(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),
     _report(REF_FLUX, V3, 'controller',
-              'rotor-flux reference phi*_alpha, phi*_beta [Wb]; z = flux magnitude phi_d* [Wb]'),
+            'rotor-flux reference phi*_alpha, phi*_beta [Wb]; z = flux magnitude phi_d* [Wb]'),
     TopicSpec(SETPOINT, JS, 'user',
               'setpoint: position [rad] or velocity [rad/s] or effort [N m] (one field set)'),
     _report(TRUTH_VOLTAGE, V3, 'plant', 'voltage applied by the inverter (after its limit) [V]'),
     _report(TRUTH_FLUX, V3, 'plant', 'true rotor flux phi_r_alpha, phi_r_beta [Wb]'),
     _report(TRUTH_TORQUE, V3, 'plant',
-              'x = electromagnetic torque tau_m, y = load torque tau_L, '
-              'z = friction b*omega [N m]'),
+            'x = electromagnetic torque tau_m, y = load torque tau_L, '
+            'z = friction b*omega [N m]'),
     _report(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     _report(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
     _report(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
     _report(TRUTH_SHAFT, JS, 'plant',
-              "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
-              '(without measurement noise)'),
+            "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
+            '(without measurement noise)'),
     _report(TRUTH_PEAKS, JS, 'plant',
-              f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
-              'current magnitudes over every step since the previous sample'),
+            f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
+            'current magnitudes over every step since the previous sample'),
     TopicSpec(STATUS, DIAG, 'every node',
               'run protocol: one status per event (waiting, ready, running, parameters, finished, '
               'stopping, stopped, failed); name = node, message = state, values = details; '
