@@ -3,9 +3,10 @@ A foreign node on the drive graph's ROS domain that tries to steer the run.
 
 It answers every measured current stamped t_k, on RELIABLE + TRANSIENT_LOCAL publishers, with a
 50 V command of the same stamp, a fake flux estimate, fake adapter estimates, a fake measurement
-for the next step (ahead of the plant), a /clock jump, and — once it has seen the run's id on
-/im/status — a fake ``finished`` of the plant for that run. Imported by the in-process tests
-(:class:`Rogue`) and run as its own process by the multi-process ones
+for the next step (ahead of the plant), a fake applied voltage on the truth (a report topic: a
+recording must not mix it into the run's ground truth), a /clock jump, and — once it has seen the
+run's id on /im/status — a fake ``finished`` of the plant for that run. Imported by the
+in-process tests (:class:`Rogue`) and run as its own process by the multi-process ones
 (``python tests/rogue.py``, ROS_DOMAIN_ID from the environment, until SIGINT/SIGTERM).
 """
 import signal
@@ -40,7 +41,8 @@ class RogueNode(Node):
         self.run_id = ''
         self.pubs = {t: self.create_publisher(cls, t, QOS) for t, cls in (
             (T.CMD_VOLTAGE, Vector3Stamped), (T.OBS_FLUX, Vector3Stamped),
-            (T.ADAPT_ESTIMATE, JointState), (T.MEAS_CURRENT, Vector3Stamped))}
+            (T.ADAPT_ESTIMATE, JointState), (T.MEAS_CURRENT, Vector3Stamped),
+            (T.TRUTH_VOLTAGE, Vector3Stamped))}
         self.clock = self.create_publisher(Clock, T.CLOCK, 10)
         self.status = self.create_publisher(DiagnosticArray, T.STATUS, STATUS_QOS)
         self.create_subscription(Vector3Stamped, T.MEAS_CURRENT, self.on_current, QOS)
@@ -74,6 +76,10 @@ class RogueNode(Node):
         ahead.header.stamp.sec, ahead.header.stamp.nanosec = stamp.sec, stamp.nanosec + 100_000
         ahead.vector.x = 100.0
         self.pubs[T.MEAS_CURRENT].publish(ahead)
+        truth = Vector3Stamped()
+        truth.header.stamp = stamp
+        truth.vector.x = ROGUE_VOLTAGE
+        self.pubs[T.TRUTH_VOLTAGE].publish(truth)
         clk = Clock()
         clk.clock.sec = stamp.sec + 1000
         self.clock.publish(clk)

@@ -3,6 +3,7 @@ import random
 import time
 
 from geometry_msgs.msg import Vector3Stamped
+from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, Vector3Out
 from im_recording.bag import BagWriter, info, read_messages
@@ -31,7 +32,8 @@ def test_recorder_node_records_what_was_published(tmp_path):
     writer = BagWriter(path)
     pub_node = rec = None
     try:
-        topics = parse_topics(['/im/measured/current', '/im/measured/shaft', '/clock'])
+        topics = parse_topics(['/im/measured/current', '/im/measured/shaft', '/clock',
+                               T.TRUTH_VOLTAGE])
         rec = RecorderNode(writer, topics, context=ctx)
         pub_node = Node('talker', context=ctx)
         q = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
@@ -39,14 +41,16 @@ def test_recorder_node_records_what_was_published(tmp_path):
         p_cur = pub_node.create_publisher(Vector3Stamped, '/im/measured/current', q)
         p_sh = pub_node.create_publisher(JointState, '/im/measured/shaft', q)
         p_clk = pub_node.create_publisher(Clock, '/clock', 10)
+        p_tv = pub_node.create_publisher(Vector3Stamped, T.TRUTH_VOLTAGE, q)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(rec)
         ex.add_node(pub_node)
         deadline = time.monotonic() + 10
         while (p_cur.get_subscription_count() == 0 or p_sh.get_subscription_count() == 0
-               or p_clk.get_subscription_count() == 0) and time.monotonic() < deadline:
+               or p_clk.get_subscription_count() == 0 or p_tv.get_subscription_count() == 0) \
+                and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
-        # the talker is the graph's plant: it signs the lock-step topics for its run
+        # the talker is the graph's plant: it signs the lock-step and truth topics for its run
         rec.adopt_run('run1')
         sign = Signer(rec.signer.key, 'run1').sign
         v3 = Vector3Out(Signer.frame('alphabeta'))
@@ -64,13 +68,19 @@ def test_recorder_node_records_what_was_published(tmp_path):
             sent += [('/im/measured/current', t, deserialize_message(cur, Vector3Stamped)),
                      ('/im/measured/shaft', t, deserialize_message(sh, JointState)),
                      ('/clock', t, c)]
+            if k % 10 == 0:
+                tv = sign(T.TRUTH_VOLTAGE, v3.fill(t, 20.0, -k))
+                p_tv.publish(tv)
+                sent.append((T.TRUTH_VOLTAGE, t, deserialize_message(tv, Vector3Stamped)))
             ex.spin_once(timeout_sec=0.0)
         # a foreign message on a lock-step topic: kept apart, never mixed into the run's data
         rogue = Vector3Stamped()
         rogue.header.stamp.sec = 2
         rogue.vector.x = 50.0
         p_cur.publish(rogue)
-        while (sum(rec.counts.values()) < len(sent) or not (rec.unsigned or rec.signing.early)) \
+        p_tv.publish(rogue)             # and on a report topic: another graph's ground truth
+        while (sum(rec.counts.values()) < len(sent)
+               or sum(rec.unsigned.values()) + len(rec.signing.early) < 2) \
                 and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
         rec.flush_unverified()          # the run never started: what did not verify is refused
@@ -87,7 +97,7 @@ def test_recorder_node_records_what_was_published(tmp_path):
     from rosbags.typesys import Stores, get_typestore
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as ar:
         assert sum(1 for c, _,
-                   raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 1
+                   raw in ar.messages() if ar.deserialize(raw, c.msgtype)) == len(sent) + 2
     key = lambda e: (e[1], e[0])  # noqa: E731
     assert sorted([(tp, t) for tp, t,
                    _ in got if not tp.startswith('/im/refused')]) == sorted([(tp, t) for tp, t,
@@ -96,10 +106,12 @@ def test_recorder_node_records_what_was_published(tmp_path):
     for tp, t, m in sorted(sent, key=key):
         assert by[(tp, t)] == m
     refused = [(tp, m.vector.x) for tp, t, m in got if tp.startswith('/im/refused')]
-    assert refused == [('/im/refused/im/measured/current', 50.0)]
+    assert sorted(refused) == [('/im/refused/im/measured/current', 50.0),
+                               ('/im/refused' + T.TRUTH_VOLTAGE, 50.0)]
     meta = info(path).metadata['recording']
-    assert meta['refused_unsigned'] == '1' and '/talker@/im/measured/current' in \
+    assert meta['refused_unsigned'] == '2' and '/talker@/im/measured/current' in \
         meta['foreign_publishers']
+    assert meta['refused_unsigned' + T.TRUTH_VOLTAGE] == '1'
 
 
 def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path):

@@ -52,16 +52,20 @@ def _batches():
     signer = Signer(bytes(32), 'run')
     shaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
     est = JointStateOut(T.ESTIMATE_NAMES, Signer.frame(''))
-    ref = JointStateOut([T.SHAFT_JOINT])
+    ref = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))     # the reports are signed too
+    power = JointStateOut(T.POWER_NAMES, Signer.frame(''))
     one = [signer.sign(T.MEAS_SHAFT, shaft.fill(k * 100_000, (0.1 * k,), (-2.0 * k,)))
            for k in range(7)]
     named = [est.fill(k * 100_000, [1.0 + k] * len(T.ESTIMATE_NAMES)) for k in range(5)]
-    refs = [ref.fill(k * 100_000, (0.5 * k,), (1.5,), (2.5 * k,)) for k in range(4)]
+    refs = [signer.sign(T.REF_SHAFT, ref.fill(k * 100_000, (0.5 * k,), (1.5,), (2.5 * k,)))
+            for k in range(4)]
+    truth = [signer.sign(T.TRUTH_POWER, power.fill(k * 1_000_000, [0.25 * k] * len(T.POWER_NAMES)))
+             for k in range(6)]
     mixed_counts = refs[:2] + [ref.fill(9, (1.0,), (), (3.0,)), ref.fill(10, (), (2.0,), ())]
     mixed_names = named[:2] + [pack_joint_state(0, 7, ('R_r', 'x'), (5.0, 6.0), (), ()),
                                pack_joint_state(0, 8, ('R_r',), (), (), ())]
     return [(T.MEAS_SHAFT, one), (T.ADAPT_ESTIMATE, named), (T.REF_SHAFT, refs),
-            (T.REF_SHAFT, mixed_counts), (T.ADAPT_ESTIMATE, mixed_names),
+            (T.TRUTH_POWER, truth), (T.REF_SHAFT, mixed_counts), (T.ADAPT_ESTIMATE, mixed_names),
             (T.TRUTH_PARAMS, [pack_joint_state(0, 1, ('a', 'b', 'a'), (1.0,), (), ())])]
 
 
@@ -84,7 +88,7 @@ def test_batch_joint_state_decoding_equals_message_by_message(topic, payloads, m
 def test_batch_joint_state_decoding_takes_one_layout_in_one_read():
     """A batch of one layout is read by the batch decoder (what keeps the summary tap cheap)."""
     from im_recording import run
-    for topic, payloads in _batches()[:3]:
+    for topic, payloads in _batches()[:4]:
         assert run._js_fixed(payloads) is not None, topic
-    assert run._js_fixed(_batches()[3][1]) is None
     assert run._js_fixed(_batches()[4][1]) is None
+    assert run._js_fixed(_batches()[5][1]) is None

@@ -68,6 +68,43 @@ def missing_in_bag(bag, period=100_000):
     return out
 
 
+#: The signed topics that are not lock-step: the reports of the graph's nodes.
+REPORTS = tuple(t for t in T.SIGNED_TOPICS if t not in T.LOCKSTEP_TOPICS)
+
+
+class _Defaults:
+    """Stand in for a node while declaring its parameters: every parameter keeps its default."""
+
+    def param(self, name, default, *args):
+        return default
+
+
+def report_stamps(topic, procs, bag, period):
+    """
+    Return the stamps one graph alone publishes a report topic at, from its nodes' parameters.
+
+    The truth every truth_decimation steps and at the plant's final step; the references with
+    the commands (as recorded: lock-step, signed) every reference_decimation steps; the observer
+    current with the flux estimates every estimate_decimation steps and from the observer's last
+    step on.
+    """
+    from im_observer.parameters import declare_observer
+    params = {p.name: p.parameters for p in procs}
+    _, step, _ = plant_end(bag)
+    if topic.startswith('/im/truth/'):
+        every = params['plant']['truth_decimation']
+        return {k * period for k in range(step + 1) if k % every == 0} | {step * period}
+    if topic.startswith('/im/reference/'):
+        every = params['controller']['reference_decimation']
+        return {t for _, _, t, _ in iter_raw(bag, [T.CMD_VOLTAGE]) if (t // period) % every == 0}
+    assert topic == T.OBS_CURRENT, topic
+    obs = params['observer']
+    every = obs.get('estimate_decimation', declare_observer(_Defaults())['estimate_decimation'])
+    last = round(obs['duration'] / obs['T_s'])
+    return {t for _, _, t, _ in iter_raw(bag, [T.OBS_FLUX])
+            if (t // period) % every == 0 or t >= last * period}
+
+
 def no_traceback(g):
     for name in g.popen:
         log = g.log(name)
@@ -430,6 +467,28 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
         # run below them (fifo:40) — a recording may lack steps, but never silently: what the
         # bag lacks is exactly what its metadata reports missing
         assert missing == {t: int(meta[f'missing_steps{t}']) for t in LOCKSTEP}, (bag, meta)
+    refused_reports = 0
+    for bag, procs in zip(bags, (a, b)):
+        # every signed report topic holds what its graph alone publishes, each stamp once (before:
+        # a free_run bag held both graphs' ground truth, 391 /im/truth/voltage where one gives
+        # 201); the other graph's reports are kept apart, counted in the metadata
+        meta = info(bag).metadata['recording']
+        n = counts(bag)
+        for topic in REPORTS:
+            stamps = [t for _, _, t, _ in iter_raw(bag, [topic])]
+            assert len(stamps) == len(set(stamps)), (bag, topic, len(stamps), len(set(stamps)))
+            expected = report_stamps(topic, procs, bag, period)
+            if topic == T.OBS_CURRENT:
+                # the observer's initial estimate (stamp 0) goes out when it adopts the run, before
+                # the run starts, on a volatile topic: a recorder whose reader matched the observer
+                # later (discovery) does not get it (seen once, in a free_run bag)
+                expected -= {0} - set(stamps)
+            assert set(stamps) == expected, (bag, topic)
+            refused = n.get(T.REFUSED_PREFIX + topic, 0)
+            assert refused == int(meta.get(f'refused_unsigned{topic}', 0)), (bag, topic, meta)
+            refused_reports += refused
+    if mode == 'lockstep':      # the runs overlap (b started 0.5 s into a's): reports refused
+        assert refused_reports > 0
     if mode == 'lockstep':
         live = run_graph(task='position', strategy='min_energy', duration=1.0)
         for bag in bags:

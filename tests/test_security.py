@@ -199,9 +199,8 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
         # DDS discovery between the rogue and the graph's new processes is usually immediate but
         # sometimes waits for the next periodic participant announcement (3 s in Fast DDS): the
         # run lasts longer than that in wall time, so the rogue is matched during it either way
-        with GraphProcesses(graph_processes('position', 'min_energy', duration=DURATION,
-                                            record=bag),
-                            str(tmp_path / 'g'), env) as g:
+        procs = graph_processes('position', 'min_energy', duration=DURATION, record=bag)
+        with GraphProcesses(procs, str(tmp_path / 'g'), env) as g:
             codes = g.start().wait(120)
             assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
             plant_log = g.log('plant')
@@ -218,6 +217,14 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     n = round(DURATION / 1e-4)
     assert c[T.CMD_VOLTAGE] == n and c[T.MEAS_CURRENT] == n + 1 and c[T.OBS_FLUX] == n + 1
     assert c[T.REFUSED_PREFIX + T.CMD_VOLTAGE] > 0
+    # the rogue's truth too (a report topic, signed): the bag's truth is the plant's alone
+    every = next(p for p in procs if p.name == 'plant').parameters['truth_decimation']
+    assert c[T.TRUTH_VOLTAGE] == len({k for k in range(n + 1) if k % every == 0} | {n})
+    assert c[T.REFUSED_PREFIX + T.TRUTH_VOLTAGE] > 0
+    from im_recording.bag import read_messages
+    from rogue import ROGUE_VOLTAGE
+    assert all(m.vector.x != ROGUE_VOLTAGE for tp, _, m in read_messages(bag)
+               if tp == T.TRUTH_VOLTAGE)
     # the summary's and the report's count of the rogue's messages are the ones the bag kept
     from im_recording.report import write_report
     assert load_run(str(bag)).refused[T.CMD_VOLTAGE] == c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]

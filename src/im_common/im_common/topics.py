@@ -20,6 +20,7 @@ class TopicSpec:
     layout: str         # how the fields are used
     critical: bool = False   # on the lock-step critical path
     recorded: bool = True    # part of a default recording
+    signed: bool = False     # a report its graph node tags (lock-step topics are tagged too)
 
 
 CLOCK = '/clock'
@@ -69,6 +70,12 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
 # sample (the figures of merit take their peaks from every step, not from the samples)
 PEAK_NAMES = ('V_max', 'i_max')
 
+
+def _report(name: str, type_: str, publisher: str, layout: str) -> TopicSpec:
+    """Return the spec of a report topic: not lock-step, but signed by its graph node."""
+    return TopicSpec(name, type_, publisher, layout, signed=True)
+
+
 TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(CLOCK, CLK, 'plant', 'simulated time (every clock_decimation steps, and the last)'),
     TopicSpec(MEAS_CURRENT, V3, 'plant', 'measured stator current i_alpha, i_beta [A]', True),
@@ -77,7 +84,7 @@ TOPICS: Tuple[TopicSpec, ...] = (
               True),
     TopicSpec(CMD_VOLTAGE, V3, 'controller', 'stator voltage command V_alpha, V_beta [V]', True),
     TopicSpec(OBS_FLUX, V3, 'observer', 'rotor-flux estimate phi_r_alpha, phi_r_beta [Wb]', True),
-    TopicSpec(OBS_CURRENT, V3, 'observer', 'stator-current estimate i_alpha, i_beta [A]'),
+    _report(OBS_CURRENT, V3, 'observer', 'stator-current estimate i_alpha, i_beta [A]'),
     TopicSpec(OBS_SPEED, JS, 'observer',
               "sensorless runs: speed estimate in place of the measured shaft: name ['rotor'], "
               'position theta_hat = integral of omega_hat [rad] (relative), velocity omega_hat '
@@ -85,27 +92,27 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(ADAPT_ESTIMATE, JS, 'adapter',
               "parameter estimates: name ['R_r', 'theta', 'L_M', 'R_R'(, 'L_sigma'(, 'R_s'))] "
               'in position [SI]', True),
-    TopicSpec(REF_SHAFT, JS, 'controller',
-              'reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]'),
-    TopicSpec(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),
-    TopicSpec(REF_FLUX, V3, 'controller',
-              'rotor-flux reference phi*_alpha, phi*_beta [Wb]; z = flux magnitude phi_d* [Wb]'),
+    _report(REF_SHAFT, JS, 'controller',
+            'reference: position theta* [rad], velocity omega* [rad/s], effort tau* [N m]'),
+    _report(REF_CURRENT, V3, 'controller', 'stator-current reference i*_alpha, i*_beta [A]'),
+    _report(REF_FLUX, V3, 'controller',
+            'rotor-flux reference phi*_alpha, phi*_beta [Wb]; z = flux magnitude phi_d* [Wb]'),
     TopicSpec(SETPOINT, JS, 'user',
               'setpoint: position [rad] or velocity [rad/s] or effort [N m] (one field set)'),
-    TopicSpec(TRUTH_VOLTAGE, V3, 'plant', 'voltage applied by the inverter (after its limit) [V]'),
-    TopicSpec(TRUTH_FLUX, V3, 'plant', 'true rotor flux phi_r_alpha, phi_r_beta [Wb]'),
-    TopicSpec(TRUTH_TORQUE, V3, 'plant',
-              'x = electromagnetic torque tau_m, y = load torque tau_L, '
-              'z = friction b*omega [N m]'),
-    TopicSpec(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
-    TopicSpec(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
-    TopicSpec(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
-    TopicSpec(TRUTH_SHAFT, JS, 'plant',
-              "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
-              '(without measurement noise)'),
-    TopicSpec(TRUTH_PEAKS, JS, 'plant',
-              f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
-              'current magnitudes over every step since the previous sample'),
+    _report(TRUTH_VOLTAGE, V3, 'plant', 'voltage applied by the inverter (after its limit) [V]'),
+    _report(TRUTH_FLUX, V3, 'plant', 'true rotor flux phi_r_alpha, phi_r_beta [Wb]'),
+    _report(TRUTH_TORQUE, V3, 'plant',
+            'x = electromagnetic torque tau_m, y = load torque tau_L, '
+            'z = friction b*omega [N m]'),
+    _report(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
+    _report(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
+    _report(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
+    _report(TRUTH_SHAFT, JS, 'plant',
+            "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
+            '(without measurement noise)'),
+    _report(TRUTH_PEAKS, JS, 'plant',
+            f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
+            'current magnitudes over every step since the previous sample'),
     TopicSpec(STATUS, DIAG, 'every node',
               'run protocol: one status per event (waiting, ready, running, parameters, finished, '
               'stopping, stopped, failed); name = node, message = state, values = details; '
@@ -117,6 +124,11 @@ TOPICS: Tuple[TopicSpec, ...] = (
 
 TOPIC_TYPES: Dict[str, str] = {t.name: t.type for t in TOPICS}
 LOCKSTEP_TOPICS: Tuple[str, ...] = tuple(t.name for t in TOPICS if t.critical)
+#: Every topic whose messages carry the graph's tag in ``header.frame_id`` (``im_common.auth``):
+#: the lock-step ones and the reports of the graph's nodes (truth, references, observer current).
+#: Receivers and the recorder refuse a message of these without their graph's tag for the run.
+#: ``/clock`` has no header to carry one; ``/im/status`` and ``/im/progress`` are tagged apart.
+SIGNED_TOPICS: Tuple[str, ...] = tuple(t.name for t in TOPICS if t.critical or t.signed)
 RECORDED_TOPICS: Tuple[str, ...] = tuple(t.name for t in TOPICS if t.recorded)
 
 
@@ -124,6 +136,6 @@ def markdown_table() -> str:
     """Return the README's topic table, generated from this module so the two cannot drift."""
     rows = ['| topic | type | publisher | content |', '| --- | --- | --- | --- |']
     for t in TOPICS:
-        crit = ' (lock-step)' if t.critical else ''
+        crit = ' (lock-step)' if t.critical else ' (signed)' if t.signed else ''
         rows.append(f'| `{t.name}` | `{t.type}` | {t.publisher}{crit} | {t.layout} |')
     return '\n'.join(rows)

@@ -75,8 +75,10 @@ class ControllerNode(LockstepNode):
         self.pub_ref_current = self.create_publisher(Vector3Stamped, T.REF_CURRENT, dq)
         self.pub_ref_flux = self.create_publisher(Vector3Stamped, T.REF_FLUX, dq)
         self.out_cmd = Vector3Out(Signer.frame('alphabeta'))
-        self.out_ri, self.out_rf = Vector3Out(), Vector3Out()
-        self.out_rs = JointStateOut([T.SHAFT_JOINT])
+        # the references are signed too (T.SIGNED_TOPICS): frames with the tag's placeholder
+        self.out_ri = Vector3Out(Signer.frame('alphabeta'))
+        self.out_rf = Vector3Out(Signer.frame('alphabeta'))
+        self.out_rs = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
         required = [T.MEAS_CURRENT, self.shaft, T.OBS_FLUX]
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
@@ -193,11 +195,13 @@ class ControllerNode(LockstepNode):
             (log.info if 'planned' in self._plan_note else log.warning)(self._plan_note)
         if k % self.ref_every == 0:
             r = self.ctl.reference
-            self.pub_ref_shaft.publish(self.out_rs.fill(ns, (r['theta_ref'],), (r['omega_ref'],),
-                                                        (r['tau_ref'],)))
-            self.pub_ref_current.publish(self.out_ri.fill(ns, r['i_alpha_ref'], r['i_beta_ref']))
-            self.pub_ref_flux.publish(self.out_rf.fill(ns, r['phi_alpha_ref'], r['phi_beta_ref'],
-                                                       r['phi_d_ref']))
+            sign = self.sign
+            self.pub_ref_shaft.publish(sign(T.REF_SHAFT, self.out_rs.fill(
+                ns, (r['theta_ref'],), (r['omega_ref'],), (r['tau_ref'],))))
+            self.pub_ref_current.publish(sign(T.REF_CURRENT, self.out_ri.fill(
+                ns, r['i_alpha_ref'], r['i_beta_ref'])))
+            self.pub_ref_flux.publish(sign(T.REF_FLUX, self.out_rf.fill(
+                ns, r['phi_alpha_ref'], r['phi_beta_ref'], r['phi_d_ref'])))
         if self.last_step is not None and k + 1 >= self.last_step:
             self.reached_last_step()
 

@@ -55,7 +55,9 @@ class ObserverNode(LockstepNode):
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
         self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, data_qos())
-        self.out_flux, self.out_current = Vector3Out(Signer.frame('alphabeta')), Vector3Out()
+        # the current estimate (a report) is signed as the flux is (T.SIGNED_TOPICS)
+        self.out_flux = Vector3Out(Signer.frame('alphabeta'))
+        self.out_current = Vector3Out(Signer.frame('alphabeta'))
         if self.sensorless:     # the speed estimate, in the measured shaft's place
             self.pub_speed = self.create_publisher(JointState, T.OBS_SPEED, lockstep_qos())
             self.out_speed = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
@@ -152,7 +154,7 @@ class ObserverNode(LockstepNode):
             self.pub_speed.publish(self.sign(T.OBS_SPEED, self.out_speed.fill(
                 ns, (self.obs.theta_hat,), (self.obs.omega_hat,))))
         if k % self.publish_every == 0 or (self.last_step is not None and k >= self.last_step):
-            self.pub_current.publish(self.out_current.fill(ns, i_a, i_b))
+            self.pub_current.publish(self.sign(T.OBS_CURRENT, self.out_current.fill(ns, i_a, i_b)))
 
 
 def main(argv=None) -> None:

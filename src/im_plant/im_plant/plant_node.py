@@ -102,15 +102,18 @@ class PlantNode(LockstepNode):
             'shaft': self.create_publisher(*_js(), T.TRUTH_SHAFT, dq),
             'peaks': self.create_publisher(*_js(), T.TRUTH_PEAKS, dq),
         }
-        self.out_tshaft = JointStateOut([T.SHAFT_JOINT])
-        self.out_peaks = JointStateOut(T.PEAK_NAMES)
+        # the truth is signed as the measurements are (T.SIGNED_TOPICS): a recorder beside another
+        # graph keeps that graph's truth apart (its frame: the tag's placeholder, filled by sign)
+        self.out_tshaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
+        self.out_peaks = JointStateOut(T.PEAK_NAMES, Signer.frame(''))
         self._peak_v = self._peak_i = 0.0       # since the last truth sample, every step
         self.out_current = Vector3Out(Signer.frame('alphabeta'))
         self.out_shaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
-        self.out_tv, self.out_tf, self.out_tt = Vector3Out(), Vector3Out(), Vector3Out()
-        self.out_par = JointStateOut(T.PARAM_NAMES)
-        self.out_pow = JointStateOut(T.POWER_NAMES)
-        self.out_en = JointStateOut(T.ENERGY_NAMES)
+        self.out_tv, self.out_tf, self.out_tt = (Vector3Out(Signer.frame('alphabeta'))
+                                                 for _ in range(3))
+        self.out_par = JointStateOut(T.PARAM_NAMES, Signer.frame(''))
+        self.out_pow = JointStateOut(T.POWER_NAMES, Signer.frame(''))
+        self.out_en = JointStateOut(T.ENERGY_NAMES, Signer.frame(''))
 
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)
         self.inputs.append(T.CMD_VOLTAGE)
@@ -477,16 +480,22 @@ class PlantNode(LockstepNode):
         self.finish()
 
     def publish_truth(self, ns: int, tr: dict) -> None:
-        pt = self.pub_truth
-        pt['voltage'].publish(self.out_tv.fill(ns, tr['v_alpha'], tr['v_beta']))
-        pt['flux'].publish(self.out_tf.fill(ns, tr['phi_r_alpha'], tr['phi_r_beta']))
-        pt['torque'].publish(self.out_tt.fill(ns, tr['tau_m'], tr['tau_L'],
-                                              self.sim.params.b * tr['omega_r']))
-        pt['params'].publish(self.out_par.fill(ns, truth_params(tr)))
-        pt['power'].publish(self.out_pow.fill(ns, [tr[n] for n in T.POWER_NAMES]))
-        pt['energy'].publish(self.out_en.fill(ns, [tr[n] for n in T.ENERGY_NAMES]))
-        pt['shaft'].publish(self.out_tshaft.fill(ns, (tr['theta_r'],), (tr['omega_r'],)))
-        pt['peaks'].publish(self.out_peaks.fill(ns, [self._peak_v, self._peak_i]))
+        pt, sign = self.pub_truth, self.sign
+        pt['voltage'].publish(sign(T.TRUTH_VOLTAGE, self.out_tv.fill(ns, tr['v_alpha'],
+                                                                     tr['v_beta'])))
+        pt['flux'].publish(sign(T.TRUTH_FLUX, self.out_tf.fill(ns, tr['phi_r_alpha'],
+                                                               tr['phi_r_beta'])))
+        pt['torque'].publish(sign(T.TRUTH_TORQUE, self.out_tt.fill(
+            ns, tr['tau_m'], tr['tau_L'], self.sim.params.b * tr['omega_r'])))
+        pt['params'].publish(sign(T.TRUTH_PARAMS, self.out_par.fill(ns, truth_params(tr))))
+        pt['power'].publish(sign(T.TRUTH_POWER, self.out_pow.fill(
+            ns, [tr[n] for n in T.POWER_NAMES])))
+        pt['energy'].publish(sign(T.TRUTH_ENERGY, self.out_en.fill(
+            ns, [tr[n] for n in T.ENERGY_NAMES])))
+        pt['shaft'].publish(sign(T.TRUTH_SHAFT, self.out_tshaft.fill(
+            ns, (tr['theta_r'],), (tr['omega_r'],))))
+        pt['peaks'].publish(sign(T.TRUTH_PEAKS, self.out_peaks.fill(
+            ns, [self._peak_v, self._peak_i])))
         self._peak_v = self._peak_i = 0.0
 
 

@@ -164,7 +164,7 @@ class RecorderNode(LockstepNode):
         self.from_start = False                  # the plant counted this recorder from step 0
         self._event_period = 0
         self._announced: Dict[str, set] = {}     # run id -> lock-step topics its nodes publish
-        self.unsigned: Dict[str, int] = {}      # lock-step / status messages not of this graph
+        self.unsigned: Dict[str, int] = {}      # signed / status messages not of this graph
         self._named_at: Dict[str, float] = {}
         self.topics = dict(topics or default_topics())
         self.parameters_asked: Dict[str, object] = {}
@@ -381,7 +381,7 @@ class RecorderNode(LockstepNode):
         write = self.writer.write_serialized
         counts = self.counts
         track = self.track.get(topic)
-        signed = topic in T.LOCKSTEP_TOPICS
+        signed = topic in T.SIGNED_TOPICS      # lock-step and report topics: the graph's tag
         if raw:
             def cb(data: bytes) -> None:
                 if signed and not self.signer.verify(topic, data):
