@@ -401,10 +401,16 @@ def _len_js(data):
 
 
 def _parse_joint_state(data):
+    """
+    Decode a JointState payload in one pass.
+
+    Returns ((sec, nanosec, names, position, velocity, effort), end of the payload, end of the
+    frame id, ((offset, count) of position, velocity, effort)).
+    """
     try:
         sec, nsec = _STAMP.unpack_from(data, 4)
         (n,) = _U32.unpack_from(data, 12)
-        pos = 16 + n
+        pos = fid_end = 16 + n
         pos += _pad(pos - 4, 4)
         (cnt,) = _U32.unpack_from(data, pos)
         pos += 4
@@ -415,7 +421,7 @@ def _parse_joint_state(data):
             pos += 4
             names.append(bytes(data[pos:pos + n - 1]).decode('utf-8'))
             pos += n
-        seqs = []
+        seqs, blocks = [], []
         for _ in range(3):
             pos += _pad(pos - 4, 4)
             (cnt,) = _U32.unpack_from(data, pos)
@@ -423,14 +429,15 @@ def _parse_joint_state(data):
             if cnt:
                 pos += _pad(pos - 4, 8)
                 seqs.append(struct.unpack_from(f'<{cnt}d', data, pos))
-                pos += 8 * cnt
             else:
                 seqs.append(())
+            blocks.append((pos, cnt))
+            pos += 8 * cnt
     except (struct.error, UnicodeDecodeError) as exc:
         raise CdrError(f'bad JointState payload: {exc}') from None
     if pos > len(data):
         raise CdrError('JointState payload shorter than its sequences')
-    return (sec, nsec, tuple(names), seqs[0], seqs[1], seqs[2]), pos
+    return (sec, nsec, tuple(names), seqs[0], seqs[1], seqs[2]), pos, fid_end, tuple(blocks)
 
 
 def joint_state_layout(data) -> Tuple[int, Tuple[Tuple[int, int], ...], int]:
@@ -442,30 +449,8 @@ def joint_state_layout(data) -> Tuple[int, Tuple[Tuple[int, int], ...], int]:
     have the same names and counts, hence their values at the same offsets (a batch decoder reads
     them in one go: :func:`im_recording.run.decode_topic`).
     """
-    try:
-        (n,) = _U32.unpack_from(data, 12)
-        pos = fid_end = 16 + n
-        pos += _pad(pos - 4, 4)
-        (cnt,) = _U32.unpack_from(data, pos)
-        pos += 4
-        for _ in range(cnt):
-            pos += _pad(pos - 4, 4)
-            (n,) = _U32.unpack_from(data, pos)
-            pos += 4 + n
-        blocks = []
-        for _ in range(3):
-            pos += _pad(pos - 4, 4)
-            (cnt,) = _U32.unpack_from(data, pos)
-            pos += 4
-            if cnt:
-                pos += _pad(pos - 4, 8)
-            blocks.append((pos, cnt))
-            pos += 8 * cnt
-    except struct.error as exc:
-        raise CdrError(f'bad JointState payload: {exc}') from None
-    if pos > len(data):
-        raise CdrError('JointState payload shorter than its sequences')
-    return fid_end, tuple(blocks), pos
+    _, end, fid_end, blocks = _parse_joint_state(data)
+    return fid_end, blocks, end
 
 
 def decode_vector3_stamped(data) -> Tuple[int, int, float, float, float]:

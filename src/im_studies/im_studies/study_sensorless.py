@@ -240,6 +240,16 @@ def run_commissioned(draws: int = 6, noise: float = 0.05) -> list:
     return rows
 
 
+def _trip_cause(trip: dict) -> str:
+    """Return a trip reason's cause without its values ('|V|' would split a table cell)."""
+    return trip['reason'].split(':')[0].split(' |')[0]
+
+
+def _trip_note(trip) -> str:
+    """Return a table row's note of a trip ('' without one)."""
+    return '' if trip is None else f' (trip: {_trip_cause(trip)})'
+
+
 def commissioned_table(rows: list) -> str:
     out = ['| motor | L_M / thesis | sensorless, thesis model | sensorless, commissioned file '
            '| sensored, true model | losses: commissioned / true |',
@@ -247,8 +257,7 @@ def commissioned_table(rows: list) -> str:
 
     def cell(r):
         if r['trip'] is not None:
-            why = r['trip']['reason'].split(':')[0].split(' |')[0]
-            return f"trip at {1e3 * r['trip']['t']:.1f} ms ({why})"
+            return f"trip at {1e3 * r['trip']['t']:.1f} ms ({_trip_cause(r['trip'])})"
         return f"{r['err']:.3f} rad/s"
     for r in rows:
         change = r['commissioned']['loss'] / r['sensored_true']['loss'] - 1.0
@@ -262,7 +271,7 @@ def torque_table(rows: list) -> str:
     out = ['| strategy | torque err RMS sensored [N·m] | sensorless [N·m] | ω̂ − ω max [rad/s] '
            '| ω at the end [rad/s] |', '| --- | --- | --- | --- | --- |']
     for r in rows:
-        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        trip = _trip_note(r['trip'])
         out.append(f"| {r['strategy']}{trip} | {r['torque_rms_sensored']:.4f} "
                    f"| {r['torque_rms_sensorless']:.4f} | {r['estimate_err_max']:.3f} "
                    f"| {r['omega_end']:+.1f} |")
@@ -274,7 +283,7 @@ def adapter_table(rows: list) -> str:
            '| E_loss sensored [J] | E_loss sensorless [J] | change | R̂_s at the end (true) [Ω] '
            '| R̂_R held |', '| --- | --- | --- | --- | --- | --- | --- |']
     for r in rows:
-        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        trip = _trip_note(r['trip'])
         out.append(f"| {r['run']}{trip} | {r['speed_err_max_sensored']:.3f} / "
                    f"{r['speed_err_max']:.3f} | {r['E_loss_sensored']:.1f} "
                    f"| {r['E_loss_sensorless']:.1f} | {100 * r['loss_change']:+.2f} % "
@@ -289,7 +298,7 @@ def table(rows: list) -> str:
            '| sensored err max | E_loss sensored [J] | E_loss sensorless [J] | change |',
            '| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |']
     for r in rows:
-        trip = '' if r['trip'] is None else f" (trip: {r['trip']['reason']})"
+        trip = _trip_note(r['trip'])
         out.append(f"| {r['run']} | {r['motor']} | {r['strategy']}{trip} | "
                    f"{r['speed_err_max']:.3f} "
                    f"| {r['speed_err_end']:+.3f} | {r['estimate_err_max']:.3f} "
