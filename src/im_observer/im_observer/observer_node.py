@@ -79,10 +79,14 @@ class ObserverNode(LockstepNode):
     def on_run_adopted(self) -> None:
         """x̂_0 for the run this node now follows (signed for it): the controller's step 0."""
         if self.k_done < 0:
-            self.publish_estimate(0)
+            # its report (/im/observer/current, volatile) goes out with the first step instead:
+            # published now, before the run starts, a recorder not matched yet would miss it
+            self.publish_estimate(0, report=False)
 
     def step(self, inputs: dict) -> None:
         k = self.gate.expected // self.period
+        if self.k_done < 0:
+            self.publish_report(0)
         try:
             while self.k_done + 1 < k:          # steps lost in free_run: predict open-loop
                 self._bridge(self.k_done + 1)
@@ -116,6 +120,8 @@ class ObserverNode(LockstepNode):
         if topic != T.MEAS_CURRENT or ns - gate.expected < STALL_STEPS * self.period:
             return
         k = ns // self.period
+        if self.k_done < 0:
+            self.publish_report(0)
         try:
             while self.k_done + 1 < k:
                 self._bridge(self.k_done + 1)
@@ -146,15 +152,22 @@ class ObserverNode(LockstepNode):
             self.get_logger().warning(f'{self.bridged} steps bridged open-loop (inputs lost)')
         super().end_run(reason, notify)
 
-    def publish_estimate(self, k: int) -> None:
+    def publish_estimate(self, k: int, report: bool = True) -> None:
         ns = k * self.period
-        i_a, i_b, f_a, f_b = self.obs.state
+        f_a, f_b = self.obs.state[2], self.obs.state[3]
         self.pub_flux.publish(self.sign(T.OBS_FLUX, self.out_flux.fill(ns, f_a, f_b)))
         if self.sensorless:
             self.pub_speed.publish(self.sign(T.OBS_SPEED, self.out_speed.fill(
                 ns, (self.obs.theta_hat,), (self.obs.omega_hat,))))
+        if report:
+            self.publish_report(k)
+
+    def publish_report(self, k: int) -> None:
+        """Publish the current estimate î_k on its report topic, every ``publish_every`` steps."""
         if k % self.publish_every == 0 or (self.last_step is not None and k >= self.last_step):
-            self.pub_current.publish(self.sign(T.OBS_CURRENT, self.out_current.fill(ns, i_a, i_b)))
+            i_a, i_b = self.obs.state[0], self.obs.state[1]
+            self.pub_current.publish(self.sign(T.OBS_CURRENT,
+                                               self.out_current.fill(k * self.period, i_a, i_b)))
 
 
 def main(argv=None) -> None:
