@@ -6,6 +6,13 @@ The graph as separate processes (how users run it), next to its yardstick in the
 2. Four processes in lock-step (plant, controller, observer, + the recorder as a lossless
    follower, started by :class:`im_bringup.processes.GraphProcesses` the way the launch file
    starts them): steps/s reported by the plant, and the ratio to the ping-pong (target >= 0.8).
+   Next to it, the CPU both loops burn: the lock-step processes' CPU time per step (all of them
+   together, start-up excluded: a short and a full run, differenced) and the ping-pong's per round
+   trip, the step's CPU in ping-pong deliveries (one publish and its take: half a round trip) —
+   the protocol delivers seven lock-step messages a step (plant 1, controller 3, observer 3) — and
+   the rate the processes could reach if that CPU were spread perfectly over this machine's cores
+   (``lockstep_processes_cpu_ceiling_vs_ping_pong``): a ratio above it needs less CPU per step,
+   not better scheduling.
 3. free_run at 1 kHz (T_s = 1 ms, the certified gains of ``config/gains_1ms.yaml``), position
    task, 2 s: fraction of steps whose command missed its deadline, latency quantiles, position
    error, against the lock-step run at the same period and gains (in-process); beside a CPU-bound
@@ -22,11 +29,13 @@ import math
 import os
 import random
 import re
+import resource
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from typing import Optional
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -49,8 +58,25 @@ def _pong_main() -> None:
         ex.spin_once(timeout_sec=0.1)
 
 
-def ping_pong_processes(n: int = 5000) -> float:
-    """Round trips per second between two processes."""
+def _children_cpu_s() -> float:
+    """Return the CPU time [s] (user + system) of this process's children that have ended."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _process_cpu_s(pid: int) -> float:
+    """Return the CPU time [s] (user + system) a running process has used so far."""
+    with open(f'/proc/{pid}/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def ping_pong_processes(n: int = 5000, cpu: Optional[list] = None) -> float:
+    """
+    Round trips per second between two processes.
+
+    ``cpu``: the CPU time of both processes over the round trips [s] is appended to it.
+    """
     import rclpy
     from geometry_msgs.msg import Vector3Stamped
     from rclpy.context import Context
@@ -81,11 +107,14 @@ def ping_pong_processes(n: int = 5000) -> float:
                 and time.monotonic() < t_wait:
             ex.spin_once(timeout_sec=0.01)
         time.sleep(0.5)
+        c0 = time.process_time() + _process_cpu_s(child.pid)
         t0 = time.perf_counter()
         pub.publish(data)
         while count[0] < n and time.perf_counter() - t0 < 60:
             ex.spin_once(timeout_sec=0.05)
         dt = time.perf_counter() - t0
+        if cpu is not None:
+            cpu.append(time.process_time() + _process_cpu_s(child.pid) - c0)
         ex.shutdown()
         node.destroy_node()
         return count[0] / dt
@@ -112,15 +141,23 @@ def _run_graph_processes(procs, tag: str, plant_may_fail: bool = False) -> str:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def lockstep_processes(duration: float, record: bool) -> float:
+def lockstep_processes(duration: float, record: bool, cpu: Optional[list] = None) -> float:
+    """
+    Steps/s of the position task in lock-step as the plant reports it.
+
+    ``cpu``: the CPU time all the processes used [s], start-up included, is appended to it.
+    """
     from im_bringup.processes import graph_processes
     tmp = tempfile.mkdtemp(prefix='bench_bag_')
+    c0 = _children_cpu_s()
     try:
         bag = os.path.join(tmp, 'run.mcap') if record else None
         log = _run_graph_processes(graph_processes('position', 'min_energy', duration=duration,
                                                    record=bag), 'lockstep')
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    if cpu is not None:
+        cpu.append(_children_cpu_s() - c0)
     m = re.search(r'\((\d+) steps/s\)', log)
     if m is None:
         raise RuntimeError(f"lockstep: no steps/s in the plant's log: {log[-500:]}")
@@ -276,17 +313,32 @@ def run(quick: bool = False) -> dict:
     """
     Full: every row.
 
-    ``quick`` (a smoke test of every path, seconds): 500 round trips, one 0.2 s lock-step run
-    without and one with the recorder, one 0.5 s free_run (real-time if allowed; the position
-    error it is compared by is still zero before 0.2 s).
+    ``quick`` (a smoke test of every path, seconds): 2,000 round trips, one 0.4 s lock-step run
+    without and one with the recorder (and a 0.1 s one, whose CPU time is subtracted: the
+    start-up's, ≈ 0.8 s a process, must not drown the steps'), one 0.5 s free_run (real-time if
+    allowed; the position error it is compared by is still zero before 0.2 s).
     """
-    d = 0.2 if quick else 2.0
-    res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(
-        500 if quick else 10000)}
-    res['lockstep_processes_steps_per_s'] = lockstep_processes(d, record=False)
+    d = 0.4 if quick else 2.0
+    n_rt = 2000 if quick else 10000
+    cpu_rt, cpu_short, cpu_full = [], [], []
+    res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(n_rt, cpu_rt)}
+    lockstep_processes(d / 4, record=False, cpu=cpu_short)
+    res['lockstep_processes_steps_per_s'] = lockstep_processes(d, record=False, cpu=cpu_full)
     res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
     res['lockstep_processes_vs_ping_pong'] = (res['lockstep_processes_steps_per_s']
                                               / res['ping_pong_two_processes_round_trips_per_s'])
+    # CPU per step without the start-up: the full run's steps beyond the short run's (T_s 100 µs)
+    extra_steps = round(d / 1e-4) - round(d / 4 / 1e-4)
+    res['lockstep_processes_cpu_us_per_step'] = 1e6 * (cpu_full[0] - cpu_short[0]) / extra_steps
+    res['ping_pong_two_processes_cpu_us_per_round_trip'] = 1e6 * cpu_rt[0] / n_rt
+    # the step's CPU counted in ping-pong deliveries (one publish and its one take: half a trip)
+    res['lockstep_processes_cpu_per_step_in_deliveries'] = (
+        res['lockstep_processes_cpu_us_per_step']
+        / (res['ping_pong_two_processes_cpu_us_per_round_trip'] / 2))
+    res['cores'] = len(os.sched_getaffinity(0))
+    res['lockstep_processes_cpu_ceiling_vs_ping_pong'] = (
+        res['cores'] * 1e6 / res['lockstep_processes_cpu_us_per_step']
+        / res['ping_pong_two_processes_round_trips_per_s'])
     res.update(free_run(0.5 if quick else d))
     if quick:
         return res

@@ -22,12 +22,19 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 if HERE not in sys.path:        # the benchmarks import each other (run standalone or from here)
     sys.path.insert(0, HERE)
 
-#: summary.json key -> (benchmark, figure): the ratios of issue 25, each from one benchmark's run.
+#: summary.json key -> (benchmark, figure): the ratios of issue 25, each from one benchmark's run,
+#: and next to them the ceilings the same run measures for them (the best ratio a graph whose step
+#: costs its computation and its signed messages can reach in one process; the best the processes'
+#: CPU per step allows on this machine's cores): docs/benchmarks.md.
 RATIOS = {
     'inprocess_over_bare': ('graph', 'inprocess_over_bare'),
+    'inprocess_ceiling_over_bare': ('graph', 'inprocess_ceiling_over_bare'),
+    'inprocess_tagged_ceiling_over_bare': ('graph', 'inprocess_tagged_ceiling_over_bare'),
     'inprocess_over_tagged_bare': ('graph', 'inprocess_over_tagged_bare'),
     'inprocess_over_kernel': ('graph', 'inprocess_over_kernel'),
     'four_processes_over_pingpong': ('processes', 'lockstep_processes_vs_ping_pong'),
+    'four_processes_cpu_ceiling_over_pingpong': ('processes',
+                                                 'lockstep_processes_cpu_ceiling_vs_ping_pong'),
     'free_run_missed_fraction_busy': ('processes', 'free_run_1kHz_busy_missed_fraction'),
 }
 

@@ -45,11 +45,16 @@ EXPECTED = {
               'bare_loop_tagged_adapter_off_path_steps_per_s', 'graph_in_process_steps_per_s',
               'graph_in_process_adaptive_steps_per_s', 'graph_in_process_recording_steps_per_s',
               'graph_in_process_start_s', 'inprocess_over_bare', 'inprocess_over_kernel',
-              'recording_slowdown'],
+              'recording_slowdown', 'computation_us_per_step', 'inprocess_ceiling_over_bare',
+              'inprocess_tagged_ceiling_over_bare'],
     'kernel': ['kernel_steps_per_s', 'kernel_chapter4_steps_per_s', 'rel_err_vs_solve_ivp_max'],
     'processes': ['ping_pong_two_processes_round_trips_per_s', 'lockstep_processes_steps_per_s',
                   'lockstep_processes_recorded_steps_per_s', 'lockstep_processes_vs_ping_pong',
-                  'free_run_1kHz_missed_fraction', 'free_run_1kHz_latency_p99_le_us'],
+                  'free_run_1kHz_missed_fraction', 'free_run_1kHz_latency_p99_le_us',
+                  'lockstep_processes_cpu_us_per_step',
+                  'ping_pong_two_processes_cpu_us_per_round_trip',
+                  'lockstep_processes_cpu_per_step_in_deliveries',
+                  'lockstep_processes_cpu_ceiling_vs_ping_pong'],
     'profile': ['steps_per_s_unprofiled', 'us_per_step_decode', 'us_per_step_tags',
                 'us_per_step_protocol', 'us_per_step_compute', 'us_per_step_publish',
                 'us_per_step_executor', 'us_per_step_plant_ready',
@@ -61,8 +66,11 @@ EXPECTED = {
              'rss_growth_after_warmup_6k_steps_mb'],
 }
 #: summary.json ratios each benchmark contributes
-SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_over_tagged_bare', 'inprocess_over_kernel'],
-           'processes': ['four_processes_over_pingpong']}
+SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_ceiling_over_bare',
+                     'inprocess_tagged_ceiling_over_bare', 'inprocess_over_tagged_bare',
+                     'inprocess_over_kernel'],
+           'processes': ['four_processes_over_pingpong',
+                         'four_processes_cpu_ceiling_over_pingpong']}
 
 
 def test_every_benchmark_is_covered():
