@@ -74,10 +74,31 @@ def lockstep_qos(depth: int = LOCKSTEP_HISTORY) -> QoSProfile:
 
 
 def data_qos(depth: int = 100) -> QoSProfile:
-    """Ground truth, references and other analysis topics: reliable, volatile."""
+    """Reliable, volatile: what a subscriber takes when any publisher must match (setpoints)."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
+
+
+#: History of the report topics' writers (ground truth, references, the observer's current): a
+#: recorder matched late still gets the last ``REPORT_HISTORY`` reports, ten times the steps at the
+#: default decimation — more than the plant may run ahead of a lossless follower.
+REPORT_HISTORY = LOCKSTEP_DEPTH
+
+
+def report_qos(depth: int = REPORT_HISTORY) -> QoSProfile:
+    """
+    Return the QoS of the report topics: reliable, transient-local, keep-last.
+
+    A recorder matched with a report writer after its first samples still records them: matching
+    is per writer, so a recorder's readiness (it has matched the run's lock-step writers) does not
+    prove it has matched every report writer — with another graph on the domain it may have seen
+    that graph's writers only, and a volatile report of the first steps was lost (the bag lacked
+    the references of steps 0, 10 and 20 in one of two runs of two launches on one domain).
+    """
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def status_qos(depth: int = 20) -> QoSProfile:

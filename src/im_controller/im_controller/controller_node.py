@@ -28,7 +28,7 @@ from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, stamp_ns,
                                    Vector3Out, xy_in)
 from im_common.lockstep import (data_qos, lockstep_qos, LockstepNode, node_main, PARAMETERS,
-                                status_qos, StepGate)
+                                report_qos, status_qos, StepGate)
 from im_common.node_params import declare_motor, declare_run
 from im_common.params import describe_defaults
 from im_controller.control_law import DriveController
@@ -70,7 +70,7 @@ class ControllerNode(LockstepNode):
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         q = lockstep_qos()
         self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, q)
-        dq = data_qos()
+        dq = report_qos()
         self.pub_ref_shaft = self.create_publisher(JointState, T.REF_SHAFT, dq)
         self.pub_ref_current = self.create_publisher(Vector3Stamped, T.REF_CURRENT, dq)
         self.pub_ref_flux = self.create_publisher(Vector3Stamped, T.REF_FLUX, dq)

@@ -19,7 +19,7 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, Vector3Out,
                                    xy_in)
-from im_common.lockstep import (data_qos, LOCKSTEP_DEPTH, lockstep_qos, LockstepNode, node_main,
+from im_common.lockstep import (LOCKSTEP_DEPTH, lockstep_qos, LockstepNode, node_main, report_qos,
                                 StepGate)
 from im_common.node_params import declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
@@ -54,7 +54,7 @@ class ObserverNode(LockstepNode):
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
-        self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, data_qos())
+        self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, report_qos())
         # the current estimate (a report) is signed as the flux is (T.SIGNED_TOPICS)
         self.out_flux = Vector3Out(Signer.frame('alphabeta'))
         self.out_current = Vector3Out(Signer.frame('alphabeta'))

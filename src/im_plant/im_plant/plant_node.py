@@ -28,9 +28,9 @@ from im_common import topics as T
 from im_common.auth import progress_payload, Signer, split_frame
 from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
-from im_common.lockstep import (data_qos, END_STATES, FINISHED, LOCKSTEP_DEPTH, lockstep_qos,
-                                LockstepNode, node_main, READY, RUNNING, stamp_text, StepGate,
-                                STOPPED, STOPPING)
+from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, lockstep_qos,
+                                LockstepNode, node_main, READY, report_qos, RUNNING, stamp_text,
+                                StepGate, STOPPED, STOPPING)
 from im_common.node_params import declare_run
 from im_common.params import describe_defaults
 from im_common.timing import LatencyHistogram
@@ -91,7 +91,7 @@ class PlantNode(LockstepNode):
         self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
         self.pub_shaft = self.create_publisher(*_js(), T.MEAS_SHAFT, q)
         self.pub_clock = self.create_publisher(ClockMsg, T.CLOCK, 10)
-        dq = data_qos()
+        dq = report_qos()
         self.pub_truth = {
             'voltage': self.create_publisher(Vector3Stamped, T.TRUTH_VOLTAGE, dq),
             'flux': self.create_publisher(Vector3Stamped, T.TRUTH_FLUX, dq),

@@ -183,7 +183,13 @@ class RecorderNode(LockstepNode):
                 reliability = ReliabilityPolicy.BEST_EFFORT
                 self.get_logger().warning(f'{topic} has a best-effort publisher: recorded '
                                           f'best-effort (samples may be lost)')
-            latched = topic in critical or topic == T.STATUS
+            # transient-local where the graph's publishers offer it (lock-step, status and report
+            # topics, lockstep.report_qos: a report writer matched late replays its last samples);
+            # a report topic with a volatile publisher already (a replay of an older bag) is read
+            # volatile, or that publisher would not match
+            latched = (topic in critical or topic == T.STATUS
+                       or (topic in T.SIGNED_TOPICS and not any(
+                           i.qos_profile.durability == DurabilityPolicy.VOLATILE for i in infos)))
             durability = (DurabilityPolicy.TRANSIENT_LOCAL if latched
                           else DurabilityPolicy.VOLATILE)
             # lock-step topics: a reader history deep enough for a few seconds of a run that had
