@@ -392,6 +392,41 @@ def test_a_flood_before_the_run_starts_cannot_push_the_graphs_own_messages_out(r
         node.destroy_node()
 
 
+@pytest.mark.parametrize('node_kind', ['observer', 'adapter'])
+def test_initial_estimates_go_out_when_the_run_runs_not_at_adoption(ros_context, node_kind):
+    """
+    x̂_0 and p̂_0 are published at the time master's ``running``, once, signed for the run.
+
+    At adoption (the plant's ``waiting``) the controller or the recorder may not follow the run
+    yet: they keep what they cannot verify among a bounded number of messages, and another graph's
+    flood on the domain filled that first — a second launch stalled at step 0, a bag lacked
+    /im/observer/flux stamped 0. The plant runs only once the nodes it waits for follow the run.
+    """
+    from im_common.run_protocol import RUNNING, WAITING
+    if node_kind == 'observer':
+        from im_observer.observer_node import ObserverNode as Node
+        topic, attr = T.OBS_FLUX, 'pub_flux'
+    else:
+        from im_adapt.adapter_node import AdapterNode as Node
+        topic, attr = T.ADAPT_ESTIMATE, 'pub'
+    key = os.urandom(32)
+    node = Node(context=ros_context, graph_key=key)
+    try:
+        sent = []
+        pub = getattr(node, attr)
+        setattr(pub, 'publish', sent.append)
+        master = {'time_master': 'true', 'run_id': 'run1', 'mode': 'lockstep'}
+        node.on_peer_status('plant', WAITING, master)
+        assert node.run_id == 'run1' and sent == []          # adopted, nothing published yet
+        node.on_peer_status('plant', RUNNING, master)
+        node.on_peer_status('plant', RUNNING, master)        # a repeated event: still once
+        assert len(sent) == 1
+        assert Signer(key, 'run1').verify(topic, sent[0])
+        assert sent[0][4:12] == bytes(8)                     # stamped t_0 = 0 s
+    finally:
+        node.destroy_node()
+
+
 def test_a_message_seen_before_verifies_only_for_its_key_topic_and_run():
     """
     Check that a message hashed once stays valid only for its key, run and topic.

@@ -69,8 +69,8 @@ class AdapterNode(LockstepNode):
         self.k_done = -1
         self.start_protocol(timeout, startup)
 
-    def on_run_adopted(self) -> None:
-        """p̂_0 for the run this node now follows (signed for it)."""
+    def on_run_running(self) -> None:
+        """p̂_0 for the run this node follows (signed for it)."""
         if self.k_done < 0:
             self.publish_estimate(0)
 

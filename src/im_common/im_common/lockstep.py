@@ -193,6 +193,7 @@ class LockstepNode(Node):
         self.protocol = RunProtocol()
         self.free_run = False
         self._foreign_said = False
+        self._running_run = ''              # the run on_run_running was called for
         self._publishers_checked = 0.0
         self._refused_asked = 0.0
         self._reported_publishers: set = set()
@@ -359,10 +360,18 @@ class LockstepNode(Node):
             self._drain_early()
 
     def on_run_adopted(self) -> None:
-        """
-        Act on following a run from now on (a hook).
+        """Act on following a run from now on (a hook)."""
 
-        Nodes publishing an initial estimate do it here, signed for that run.
+    def on_run_running(self) -> None:
+        """
+        Act on the followed run's time master running (a hook, once per run).
+
+        Nodes publishing an initial estimate (stamped at the run's first step) do it here, signed
+        for that run: not at adoption, when a lossless follower may not follow the run yet — it
+        keeps a message it cannot verify yet among a bounded number of others, and another graph's
+        flood on the domain pushed a run's x̂_0 out of a recorder's (the bag lacked
+        /im/observer/flux stamped 0). The time master runs only once its followers are ready,
+        i.e. follow the run.
         """
 
     def enter_realtime(self) -> None:
@@ -438,6 +447,9 @@ class LockstepNode(Node):
                 self.free_run = values.get('mode') == 'free_run'
                 if self.free_run and self.gate is not None:
                     self.gate.follow = True
+                if self._running_run != run:
+                    self._running_run = run
+                    self.on_run_running()
         if self.done:
             return
         following = not self.critical or (self.gate is not None and self.gate.follow)

@@ -76,11 +76,11 @@ class ObserverNode(LockstepNode):
         self.bridged = 0
         self.start_protocol(timeout, startup)
 
-    def on_run_adopted(self) -> None:
-        """x̂_0 for the run this node now follows (signed for it): the controller's step 0."""
+    def on_run_running(self) -> None:
+        """x̂_0 for the run this node follows (signed for it): the controller's step 0."""
         if self.k_done < 0:
-            # its report (/im/observer/current, volatile) goes out with the first step instead:
-            # published now, before the run starts, a recorder not matched yet would miss it
+            # its report (/im/observer/current) goes out with the first step, as every report
+            # of the run does
             self.publish_estimate(0, report=False)
 
     def step(self, inputs: dict) -> None:
