@@ -263,6 +263,13 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
         lacks += len(set(range(min(first[topic], start), k_last + 1)) - have)
     counts = {k: v for k, v in meta.items() if k.startswith(('missing', 'last'))}
     assert int(meta['missing_steps']) == lacks, counts
+    # the reports too, from the first step every lock-step topic has: their writers keep their
+    # last samples (lockstep.report_qos) as the lock-step writers do, so the recorder matched late
+    # gets those of the steps before it (before: volatile, they began where it matched)
+    for topic in REPORTS:
+        have = {t for _, _, t, _ in iter_raw(bag, [topic])}
+        want = {t for t in report_stamps(topic, procs, bag, 100_000) if t >= start * 100_000}
+        assert want <= have, (topic, start, sorted(want - have)[:5])
 
 
 def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain):
