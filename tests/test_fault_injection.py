@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 import signal
 import subprocess
+import sys
 import time
 
 from im_recording.bag import BagError, info, iter_raw, partial_path
@@ -428,3 +429,40 @@ def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(t
     assert all(c is not None for c in codes.values())
     failure = failure_line(str(tmp_path / 'logs'), codes)
     assert failure.startswith("controller: unknown parameter 'k_1'") and "'k1'" in failure
+
+
+HUNG_TEARDOWN = """
+import sys, time
+from im_common import lockstep
+from im_observer.observer_node import ObserverNode
+lockstep.EXIT_GRACE_S = 1.0
+
+
+class Hung(ObserverNode):
+    def destroy_node(self):
+        print('tearing down', file=sys.stderr, flush=True)
+        time.sleep(60)              # a middleware teardown that does not return
+
+
+sys.exit(lockstep.node_main(Hung, ['observer']))
+"""
+
+
+def test_a_node_whose_teardown_hangs_exits_with_its_stacks_instead_of_hanging(tmp_path):
+    """
+    After its run a node's flush and teardown are bounded (``lockstep.EXIT_GRACE_S``).
+
+    A teardown that does not return (seen once: an observer whose run had finished did not exit
+    in 120 s) ends the process with exit code 1 and every thread's stack on stderr, naming where
+    it hung, instead of holding its launch (or a test) until something kills it.
+    """
+    script = tmp_path / 'hung.py'
+    script.write_text(HUNG_TEARDOWN)
+    p = subprocess.Popen([sys.executable, str(script)], stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)                 # up and waiting for a plant
+    p.send_signal(signal.SIGINT)    # its run ends: flush, then the teardown that hangs
+    t0 = time.monotonic()
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 1, err[-2000:]
+    assert time.monotonic() - t0 < 20.0
+    assert 'tearing down' in err and 'destroy_node' in err and 'Timeout' in err, err[-2000:]

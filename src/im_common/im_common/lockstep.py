@@ -22,6 +22,7 @@ inputs and computes one step (:meth:`LockstepNode.step`).
 from __future__ import annotations
 
 import difflib
+import faulthandler
 import sys
 import time
 from typing import Callable, Dict, List, Optional, Sequence
@@ -64,6 +65,11 @@ LOCKSTEP_READER_HISTORY = 10 * LOCKSTEP_DEPTH
 
 #: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
 STOP_FLUSH_S = 3.0
+#: After its run, how long a node process may take to flush and tear down before it is ended
+#: with every thread's stack on stderr and exit code 1 [s]. The flushes are bounded (2 s + 3 s);
+#: the middleware's teardown is not: once (a full test run on 2026-11-26, not reproduced in 80
+#: runs of the same test alone) an observer whose run had finished did not exit in 120 s.
+EXIT_GRACE_S = 20.0
 
 
 def lockstep_qos(depth: int = LOCKSTEP_HISTORY) -> QoSProfile:
@@ -920,12 +926,19 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
         except (KeyboardInterrupt, ExternalShutdownException):
             code = 0 if node is None or not node.exit_code else node.exit_code
         finally:
-            if node is not None:
-                # a stopped node's last samples are still owed to the recorder, which the plant
-                # let lag up to follower_window steps: under load 1 s was not always enough
-                node.flush(timeout=STOP_FLUSH_S)
-                node.destroy_node()
-            rclpy.try_shutdown()
+            # bounded from here on, and diagnosable: a C-level watchdog (no GIL needed) dumps
+            # every thread's stack and exits 1 if the flush and teardown below hang
+            faulthandler.dump_traceback_later(EXIT_GRACE_S, exit=True)
+            try:
+                if node is not None:
+                    # a stopped node's last samples are still owed to the recorder, which the
+                    # plant let lag up to follower_window steps: under load 1 s was not always
+                    # enough
+                    node.flush(timeout=STOP_FLUSH_S)
+                    node.destroy_node()
+                rclpy.try_shutdown()
+            finally:
+                faulthandler.cancel_dump_traceback_later()    # node_main may run in a caller
     return code
 
 
