@@ -489,8 +489,8 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode)
         for topic in REPORTS:
             stamps = [t for _, _, t, _ in iter_raw(bag, [topic])]
             assert len(stamps) == len(set(stamps)), (bag, topic, len(stamps), len(set(stamps)))
-            # the observer's î_0 too: it goes out with step 0, not before the run starts, when a
-            # recorder might not be matched yet (it was missing from a free_run bag)
+            # the observer's î_0 too: it goes out when the run starts running, when the recorder
+            # follows the run (it was missing from a free_run bag)
             expected = report_stamps(topic, procs, bag, period)
             if mode == 'lockstep':
                 assert set(stamps) == expected, (bag, topic)

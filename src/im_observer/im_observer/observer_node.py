@@ -79,14 +79,10 @@ class ObserverNode(LockstepNode):
     def on_run_running(self) -> None:
         """x̂_0 for the run this node follows (signed for it): the controller's step 0."""
         if self.k_done < 0:
-            # its report (/im/observer/current) goes out with the first step, as every report
-            # of the run does
-            self.publish_estimate(0, report=False)
+            self.publish_estimate(0)
 
     def step(self, inputs: dict) -> None:
         k = self.gate.expected // self.period
-        if self.k_done < 0:
-            self.publish_report(0)
         try:
             while self.k_done + 1 < k:          # steps lost in free_run: predict open-loop
                 self._bridge(self.k_done + 1)
@@ -120,8 +116,6 @@ class ObserverNode(LockstepNode):
         if topic != T.MEAS_CURRENT or ns - gate.expected < STALL_STEPS * self.period:
             return
         k = ns // self.period
-        if self.k_done < 0:
-            self.publish_report(0)
         try:
             while self.k_done + 1 < k:
                 self._bridge(self.k_done + 1)
@@ -152,22 +146,17 @@ class ObserverNode(LockstepNode):
             self.get_logger().warning(f'{self.bridged} steps bridged open-loop (inputs lost)')
         super().end_run(reason, notify)
 
-    def publish_estimate(self, k: int, report: bool = True) -> None:
+    def publish_estimate(self, k: int) -> None:
+        """Publish x̂_k: flux (lock-step), current (a report) every publish_every steps."""
         ns = k * self.period
-        f_a, f_b = self.obs.state[2], self.obs.state[3]
+        i_a, i_b, f_a, f_b = self.obs.state
         self.pub_flux.publish(self.sign(T.OBS_FLUX, self.out_flux.fill(ns, f_a, f_b)))
         if self.sensorless:
             self.pub_speed.publish(self.sign(T.OBS_SPEED, self.out_speed.fill(
                 ns, (self.obs.theta_hat,), (self.obs.omega_hat,))))
-        if report:
-            self.publish_report(k)
-
-    def publish_report(self, k: int) -> None:
-        """Publish the current estimate î_k on its report topic, every ``publish_every`` steps."""
         if k % self.publish_every == 0 or (self.last_step is not None and k >= self.last_step):
-            i_a, i_b = self.obs.state[0], self.obs.state[1]
             self.pub_current.publish(self.sign(T.OBS_CURRENT,
-                                               self.out_current.fill(k * self.period, i_a, i_b)))
+                                               self.out_current.fill(ns, i_a, i_b)))
 
 
 def main(argv=None) -> None:
