@@ -187,9 +187,14 @@ class RecorderNode(LockstepNode):
             # topics, lockstep.report_qos: a report writer matched late replays its last samples);
             # a report topic with a volatile publisher already (a replay of an older bag) is read
             # volatile, or that publisher would not match
+            volatile_pub = any(i.qos_profile.durability == DurabilityPolicy.VOLATILE
+                               for i in infos)
             latched = (topic in critical or topic == T.STATUS
-                       or (topic in T.SIGNED_TOPICS and not any(
-                           i.qos_profile.durability == DurabilityPolicy.VOLATILE for i in infos)))
+                       or (topic in T.SIGNED_TOPICS and not volatile_pub))
+            if topic in T.SIGNED_TOPICS and topic not in critical and volatile_pub:
+                self.get_logger().warning(f'{topic} has a volatile publisher: recorded volatile '
+                                          f'(its reports from before the recorder matched are '
+                                          f'not replayed to it)')
             durability = (DurabilityPolicy.TRANSIENT_LOCAL if latched
                           else DurabilityPolicy.VOLATILE)
             # lock-step topics: a reader history deep enough for a few seconds of a run that had
