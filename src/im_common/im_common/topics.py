@@ -43,6 +43,8 @@ TRUTH_POWER = '/im/truth/power'
 TRUTH_ENERGY = '/im/truth/energy'
 TRUTH_SHAFT = '/im/truth/shaft'
 TRUTH_PEAKS = '/im/truth/peaks'
+TRUTH_TEMPERATURE = '/im/truth/temperature'
+TRUTH_INVERTER = '/im/truth/inverter'
 REEST_FLUX = '/im/reestimate/observer/flux'          # replay --reestimate (not a graph topic)
 REEST_CURRENT = '/im/reestimate/observer/current'
 STATUS = '/im/status'
@@ -69,6 +71,12 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
 # /im/truth/peaks: the largest |V_s| applied and true |i_s| over every step since the previous
 # sample (the figures of merit take their peaks from every step, not from the samples)
 PEAK_NAMES = ('V_max', 'i_max')
+# /im/truth/temperature (a motor with a ``thermal:`` block): winding temperatures [°C]
+TEMPERATURE_NAMES = ('T_stator', 'T_rotor')
+# /im/truth/inverter (a run with an ``inverter:`` block): the DC link [V], the true phase currents
+# at the period's end [A], the peak-to-peak phase-current ripple within the period [A] and the
+# inverter's own losses (dead time, on-state drops) [W]
+INVERTER_NAMES = ('V_dc', 'i_a', 'i_b', 'i_c', 'i_ripple_pp', 'P_inverter')
 
 
 def _report(name: str, type_: str, publisher: str, layout: str) -> TopicSpec:
@@ -113,6 +121,12 @@ TOPICS: Tuple[TopicSpec, ...] = (
     _report(TRUTH_PEAKS, JS, 'plant',
             f'peaks {list(PEAK_NAMES)} [V, A] in position: the largest applied voltage and true '
             'current magnitudes over every step since the previous sample'),
+    _report(TRUTH_TEMPERATURE, JS, 'plant',
+            f'winding temperatures {list(TEMPERATURE_NAMES)} [°C] in position (motors with a '
+            'thermal block)'),
+    _report(TRUTH_INVERTER, JS, 'plant',
+            f'inverter {list(INVERTER_NAMES)} [V, A, A, A, A, W] in position (runs with an '
+            'inverter block)'),
     TopicSpec(STATUS, DIAG, 'every node',
               'run protocol: one status per event (waiting, ready, running, parameters, finished, '
               'stopping, stopped, failed); name = node, message = state, values = details; '
