@@ -84,10 +84,11 @@ motors-drift: build
 campaign: build
 	$(RUN) python -m im_studies.campaign src/im_bringup/config/campaign.yaml --out bags/campaign $(CAMPAIGN_ARGS)
 
-# The certified 1 ms gains shipped for free_run (src/im_bringup/config/gains_1ms.yaml).
+# The certified gains shipped for free_run at each rate the pre-flight probe may name
+# (250 Hz, 500 Hz, 1 kHz, 2 kHz: src/im_bringup/config/gains_4ms.yaml ... gains_0.5ms.yaml).
 gains: build
 	$(RUN) design_gains() { "$$(python -c 'from ament_index_python.packages import get_package_prefix as p; print(p("im_controller"))')/lib/im_controller/design_gains" "$$@"; }; \
-	design_gains --period 1e-3 --out src/im_bringup/config/gains_1ms.yaml
+	for ms in 4 2 1 0.5; do design_gains --period $${ms}e-3 --out src/im_bringup/config/gains_$${ms}ms.yaml || exit 1; done
 
 # The SROS2 access-control policy, generated from the nodes (src/im_bringup/config/sros2/policy.xml).
 policy: build

@@ -133,6 +133,23 @@ def load_params_yaml(path: str) -> Dict[str, Dict[str, object]]:
     return load_parameters_file(path, nodes=node_parameters())
 
 
+def free_run_gains(T_s: float) -> str:
+    """
+    Return the shipped gains file certified at ``T_s`` (``config/gains_<ms>ms.yaml``).
+
+    One for each rate the free_run pre-flight may name (``im_common.timing.CANDIDATE_RATES_HZ``;
+    ``make gains`` designs them). A period without one is a ValueError naming the ones shipped.
+    """
+    from ament_index_python.packages import get_package_share_directory
+    from im_common.timing import CANDIDATE_RATES_HZ
+    config = os.path.join(get_package_share_directory('im_bringup'), 'config')
+    for rate in CANDIDATE_RATES_HZ:
+        if abs(T_s * rate - 1.0) < 1e-9:
+            return os.path.join(config, f'gains_{1000.0 / rate:g}ms.yaml')
+    raise ValueError(f'no certified gains shipped for T_s = {T_s:g} s: the free_run rates are '
+                     + ', '.join(f'{r} Hz (T_s = {1.0 / r:g} s)' for r in CANDIDATE_RATES_HZ))
+
+
 def executable_path(package: str, executable: str) -> str:
     from ament_index_python.packages import get_package_prefix
     return os.path.join(get_package_prefix(package), 'lib', package, executable)
