@@ -270,8 +270,9 @@ def test_a_free_run_plant_that_cannot_keep_real_time_stops_and_says_so():
     priority it held a core for minutes when a machine could not keep up); more than
     ``max_lag`` behind it stops the run, naming how far behind and why.
     """
-    res = run_graph(task='position', T_s=1e-5, duration=1.0,
-                    parameters={'plant': {'mode': 'free_run', 'max_lag': 0.05}})
+    res = run_graph(task='position', T_s=1e-5, duration=1.0,      # forced past the probe
+                    parameters={'plant': {'mode': 'free_run', 'max_lag': 0.05,
+                                          'force_rate': True, 'deadline_miss_limit': 0.0}})
     assert not res.summary['ok']
     reasons = str(res.summary['failures'])
     assert 'behind the wall clock' in reasons and 'max_lag = 0.05 s' in reasons, reasons

@@ -40,7 +40,7 @@ from .conversions import NS_PER_S
 from .params import parameter_error
 from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, is_master,  # noqa: F401
                            NOT_STATES, PARAMETERS, READY, RUNNING, RunProtocol, STOPPED, STOPPING,
-                           WAITING, WARNING, watchdog_limit)
+                           WaitClock, WAITING, WARNING, watchdog_limit)
 from .signing import allowed_publishers, foreign_publishers, NodeSigning
 from .step_gate import finite, LOCKSTEP_DEPTH, StepGate
 from .stopping import StopSignals
@@ -62,6 +62,9 @@ LOCKSTEP_HISTORY = LOCKSTEP_DEPTH
 #: lock-step run stalled (docs/security.md). Ten writer histories deep; the writers keep 100, so
 #: no writer resends more than before.
 LOCKSTEP_READER_HISTORY = 10 * LOCKSTEP_DEPTH
+
+#: Period of a node's watchdog tick [s] (start-up, input timeouts: :class:`WaitClock`).
+WATCHDOG_TICK_S = 0.1
 
 #: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
 STOP_FLUSH_S = 3.0
@@ -105,6 +108,15 @@ def report_qos(depth: int = REPORT_HISTORY) -> QoSProfile:
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def probe_qos() -> QoSProfile:
+    """Return the QoS of free_run's pre-flight probe and its echoes: reliable, volatile."""
+    return data_qos(PROBE_HISTORY)
+
+
+#: History of the probe topics: the probes of one pre-flight (``im_common.timing``) and more.
+PROBE_HISTORY = 500
 
 
 def status_qos(depth: int = 20) -> QoSProfile:
@@ -208,6 +220,7 @@ class LockstepNode(Node):
         self._since = time.monotonic()
         self._last_wait_log = 0.0
         self._watchdog = None
+        self._wait_clock = WaitClock(WATCHDOG_TICK_S)    # the input watchdog's time
         self.on_stop: Optional[Callable[['LockstepNode'], None]] = None   # set by a graph
         #: Key/values in every event of this node (the plant: its ``mode``).
         self.event_context: Dict[str, str] = {}
@@ -239,6 +252,11 @@ class LockstepNode(Node):
         self._status_pub = self.create_publisher(DiagnosticArray, _status_topic(), status_qos())
         self.create_subscription(DiagnosticArray, _status_topic(), self._on_status,
                                  status_qos(STATUS_READER_DEPTH))
+        if not self.time_master:
+            from std_msgs.msg import Header
+            from .topics import PROBE, PROBE_ECHO
+            self._echo_pub = self.create_publisher(Header, PROBE_ECHO, probe_qos())
+            self.create_subscription(Header, PROBE, self.echo_probe, probe_qos())
 
     @property
     def run_id(self) -> str:
@@ -354,6 +372,18 @@ class LockstepNode(Node):
                 f"ignoring {_status_topic()} event '{key[1]}' from '{key[0]}': not signed by "
                 f'this graph (another graph with its own key, or a foreign node'
                 + (f"; publishers not of this graph: {', '.join(pubs)}" if pubs else '') + ')')
+
+    def echo_probe(self, msg) -> None:
+        """
+        Send the time master's pre-flight probe straight back, named (free_run, before step 0).
+
+        Only a probe of the run this node follows: the plant times the round trip through this
+        node's executor (``im_common.timing.assess_probe``).
+        """
+        run = self.run_id
+        if run and msg.frame_id == run:
+            msg.frame_id = f'{run} {self.get_name()}'
+            self._echo_pub.publish(msg)
 
     def adopt_run(self, run_id: str) -> None:
         """Follow the time master's run ``run_id``: the lock-step messages of that run verify."""
@@ -483,7 +513,7 @@ class LockstepNode(Node):
         self._since = time.monotonic()
         self._missing_said = None
         self.state = WAITING
-        self._watchdog = self.create_timer(0.1, self._tick,
+        self._watchdog = self.create_timer(WATCHDOG_TICK_S, self._tick,
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._tick()
 
@@ -661,13 +691,13 @@ class LockstepNode(Node):
             return
         limit = watchdog_limit(self.state, self._timeout, self._startup_timeout,
                                self.time_master)
-        if time.monotonic() - g.since > limit:
+        if self._wait_clock.waited(g.since, time.monotonic()) > limit:
             missing = g.missing()
             gone = [t for t in missing if self.count_publishers(t) == 0]
             hint = (f' ({", ".join(gone)} no longer has a publisher)' if gone else '')
             hint += self.crosstalk_hint()
             self.fail(f"no {', '.join(missing)} stamped {stamp_text(g.expected)} "
-                      f'(step {g.step()}) within {limit:.1f} s of wall time'
+                      f'(step {g.step()}) within {limit:.1f} s of wall time this process ran'
                       f'{hint}; stopping')
 
     def crosstalk_hint(self) -> str:

@@ -158,3 +158,34 @@ def watchdog_limit(state: str, timeout: float, startup_timeout: float,
     if not time_master:
         limit = 1.5 * limit + 1.0
     return limit
+
+
+class WaitClock:
+    """
+    How long a gate has waited for its expected step, counted while this process could run.
+
+    Advanced by the node's watchdog tick (every ``tick`` s): each tick adds the wall time since
+    the previous one, but at most ``CAP_TICKS`` ticks' worth. A process starved of the CPU (a
+    loaded machine: one run in one process stopped at 15.8 steps/s with "no /im/command/voltage
+    stamped 0.114 s ... within 5.0 s of wall time") sees its ticks come late, and the time it did
+    not run does not count: the command was not lost, its delivery thread had not run yet. A
+    stalled run (a node gone, a message lost) keeps the ticks on time, and times out as before.
+    """
+
+    CAP_TICKS = 2.0
+
+    __slots__ = ('cap', '_since', '_last', '_waited')
+
+    def __init__(self, tick: float):
+        self.cap = self.CAP_TICKS * float(tick)
+        self._since = self._last = None
+        self._waited = 0.0
+
+    def waited(self, since: float, now: float) -> float:
+        """Return the wait [s] for the step expected since ``since`` (monotonic), as of ``now``."""
+        if since != self._since:            # a new step is expected: its wait starts at since
+            self._since, self._last, self._waited = since, since, 0.0
+        if now > self._last:
+            self._waited += min(now - self._last, self.cap)
+            self._last = now
+        return self._waited

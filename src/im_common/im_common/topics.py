@@ -49,6 +49,8 @@ REEST_FLUX = '/im/reestimate/observer/flux'          # replay --reestimate (not 
 REEST_CURRENT = '/im/reestimate/observer/current'
 STATUS = '/im/status'
 PROGRESS = '/im/progress'
+PROBE = '/im/probe'
+PROBE_ECHO = '/im/probe/echo'
 #: Where a recorder keeps the messages not signed by the graph it records, under their topic's
 #: name (``/im/refused/im/command/voltage``): evidence, never replayed, counted by ``report``.
 REFUSED_PREFIX = '/im/refused'
@@ -134,6 +136,12 @@ TOPICS: Tuple[TopicSpec, ...] = (
     TopicSpec(PROGRESS, HEADER, 'lossless followers (recorder)',
               'flow control: stamp = last step received completely, frame_id = node; the plant '
               'stays within follower_window steps of it', recorded=False),
+    TopicSpec(PROBE, HEADER, 'plant',
+              "free_run's pre-flight latency probe, before step 0: stamp = the probe's number, "
+              "frame_id = the run's id", recorded=False),
+    TopicSpec(PROBE_ECHO, HEADER, 'every node that follows the run',
+              "the probe's echo, sent back at once: the probe's stamp, frame_id = run id and node",
+              recorded=False),
 )
 
 TOPIC_TYPES: Dict[str, str] = {t.name: t.type for t in TOPICS}

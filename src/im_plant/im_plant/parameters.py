@@ -83,6 +83,16 @@ def declare_plant(node) -> dict:
     v['max_lag'] = p('max_lag', 1.0,
                      'free_run: stop the run when the plant is this far behind the wall clock '
                      '[s] (it cannot integrate in real time; 0: never)', 0.0, 3600.0)
+    v['force_rate'] = p('force_rate', False,
+                        'free_run: start even when the pre-flight probe measures a loop latency '
+                        'this machine cannot hold at 1/T_s (refused otherwise, naming the rate it '
+                        'holds); the deadline watchdog still stops a loop that misses')
+    v['deadline_miss_limit'] = p('deadline_miss_limit', 0.5,
+                                 'free_run: stop the run with zero voltage when more than this '
+                                 'fraction of the last deadline_window steps had no command by '
+                                 'their deadline (0: never)', 0.0, 1.0)
+    v['deadline_window'] = p('deadline_window', 100,
+                             "free_run: the deadline watchdog's window [steps]", 1, 1000000)
     v['clock_decimation'] = p('clock_decimation', 10,
                               'publish /clock every N steps (the '
                               'lock-step protocol runs on stamps; '

@@ -14,9 +14,18 @@ for that step and the step counts as *missed* (a command that arrives after its 
 and dropped). Latencies (measurement k published → command k received) go into a histogram reported
 at the end. A plant that falls behind the wall clock catches up tick after tick; more than
 ``max_lag`` behind (the machine cannot integrate in real time) it stops the run and says so.
+
+Before step 0 of a ``free_run`` the plant probes the loop: it sends :data:`PROBES` probes at the
+run's period to every critical node it waits for, which echo them at once through their executors,
+and times the round trips plus its own step (:func:`im_common.timing.assess_probe`). A rate whose
+probed latency does not fit the budget is refused with one line naming the measured latency, the
+period and the rate this machine holds (``force_rate`` starts anyway). During the run a
+:class:`im_common.timing.DeadlineWatchdog` stops the run with zero voltage (a protection trip) when
+more than ``deadline_miss_limit`` of the last ``deadline_window`` steps missed their deadline.
 """
 from __future__ import annotations
 
+import copy
 import math
 import os
 import sys
@@ -29,11 +38,11 @@ from im_common.auth import progress_payload, Signer, split_frame
 from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
 from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, lockstep_qos,
-                                LockstepNode, node_main, READY, report_qos, RUNNING, stamp_text,
-                                StepGate, STOPPED, STOPPING)
+                                LockstepNode, node_main, probe_qos, READY, report_qos, RUNNING,
+                                stamp_text, StepGate, STOPPED, STOPPING)
 from im_common.node_params import declare_run
 from im_common.params import describe_defaults
-from im_common.timing import LatencyHistogram
+from im_common.timing import assess_probe, DeadlineWatchdog, LatencyHistogram
 from im_plant.parameters import declare_plant, simulator_from_parameters
 from rosgraph_msgs.msg import Clock as ClockMsg
 
@@ -49,6 +58,9 @@ class PlantNode(LockstepNode):
         values = declare_plant(self)
         self.mode = values['mode']
         self.max_lag = values['max_lag']
+        self.force_rate = values['force_rate']
+        self.deadlines = DeadlineWatchdog(values['deadline_window'], values['deadline_miss_limit'])
+        self.probe = None                       # free_run's pre-flight (_LoopProbe)
         self.event_context = {'mode': self.mode}    # a free_run follower goes real-time early
         self.clock_every = values['clock_decimation']
         self.truth_every = values['truth_decimation']
@@ -101,6 +113,9 @@ class PlantNode(LockstepNode):
             'energy': self.create_publisher(*_js(), T.TRUTH_ENERGY, dq),
             'shaft': self.create_publisher(*_js(), T.TRUTH_SHAFT, dq),
             'peaks': self.create_publisher(*_js(), T.TRUTH_PEAKS, dq),
+            # published when the motor has a thermal block / the run an inverter block
+            'temperature': self.create_publisher(*_js(), T.TRUTH_TEMPERATURE, dq),
+            'inverter': self.create_publisher(*_js(), T.TRUTH_INVERTER, dq),
         }
         # the truth is signed as the measurements are (T.SIGNED_TOPICS): a recorder beside another
         # graph keeps that graph's truth apart (its frame: the tag's placeholder, filled by sign)
@@ -121,6 +136,8 @@ class PlantNode(LockstepNode):
         self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE, self.on_command, q, raw=True)
         from std_msgs.msg import Header
         self.create_subscription(Header, T.PROGRESS, self.on_progress, 10)
+        self.pub_probe = self.create_publisher(Header, T.PROBE, probe_qos())
+        self.create_subscription(Header, T.PROBE_ECHO, self.on_probe_echo, probe_qos())
         self.start_protocol(timeout, startup)
 
     # Startup -----------------------------------------------------------------------------
@@ -136,7 +153,58 @@ class PlantNode(LockstepNode):
             return False
         if self._ok_since is None:
             self._ok_since = now
-        return now - self._ok_since >= self.SETTLE_S
+        if now - self._ok_since < self.SETTLE_S:
+            return False
+        return self.mode != 'free_run' or self._probe_passed()
+
+    # Pre-flight probe (free_run) -------------------------------------------------------
+    #: Probes of the pre-flight, sent one a period (0.3 s at 1 kHz).
+    PROBES = 300
+
+    def _probe_passed(self) -> bool:
+        """
+        Probe the loop once before step 0 (free_run); tell whether the run may start.
+
+        False while the probe runs; then True, or the run fails with the probe's one line.
+        """
+        pr = self.probe
+        if pr is None:
+            nodes = [n for n in self.wait_for
+                     if self.peers.get(n, ('', {}))[1].get('role') == 'critical']
+            self.enter_realtime()           # probed as the run will run
+            self.probe = _LoopProbe(self, nodes, self.PROBES, self._step_cost())
+            self.get_logger().info(f'free_run: probing the loop through {", ".join(nodes)} '
+                                   f'({self.PROBES} probes at T_s = {self.T_s:g} s)')
+            return False
+        if not pr.over():
+            return False
+        if pr.verdict is None:
+            pr.verdict = v = pr.assess(self.period)
+            if v.holds:
+                self.get_logger().info(v.text())
+            elif self.force_rate:
+                self.get_logger().warning(v.text() + '; started anyway (force_rate); the '
+                                          'deadline watchdog stops a loop that misses')
+            else:
+                self.fail(v.text() + '; refusing to start (force_rate:=true starts anyway)',
+                          **pr.values())
+                return False
+        return not self.done
+
+    def _step_cost(self) -> float:
+        """Return the plant's own step [s] (median of a few on a copy: the run is untouched)."""
+        sim = copy.deepcopy(self.sim)
+        times = []
+        for _ in range(21):
+            t0 = time.perf_counter()
+            sim.step(0.0, 0.0)
+            sim.measure()
+            times.append(time.perf_counter() - t0)
+        return sorted(times)[len(times) // 2]
+
+    def on_probe_echo(self, msg) -> None:
+        if self.probe is not None:
+            self.probe.echo(msg.frame_id, msg.stamp.nanosec, time.perf_counter())
 
     def _start_condition(self) -> bool:
         for run, (name, state, _started) in self.other_masters.items():
@@ -179,7 +247,8 @@ class PlantNode(LockstepNode):
         """Publish step 0, everyone being there (and start the wall clock in free_run)."""
         self.started_at = time.time()
         self.gate.since = time.monotonic()   # step 0's command is due from now, not from startup
-        self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers))
+        self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers),
+                    **(self.probe.values() if self.probe is not None else {}))
         self.get_logger().info(
             f"starting: {', '.join(self.wait_for)} ready; {self.mode}, T_s = {self.T_s:g} s"
             + (f', lossless followers: {", ".join(self.followers)}' if self.followers else ''))
@@ -384,11 +453,16 @@ class PlantNode(LockstepNode):
             return
         k = self.sim.k
         cmd = self._free_cmd.pop(k, None)
-        if cmd is None:
+        missed = cmd is None
+        if missed:
             self.missed += 1
             cmd = self.last_cmd
         for old in [j for j in self._published_at if j < k - 1000]:   # never answered
             del self._published_at[old]
+        why = self.deadlines.add(missed)
+        if why is not None:         # a protection trip: this step and every later one at 0 V
+            self.sim.trip = (self.sim.t, f'{why}: this machine does not hold '
+                                         f'{1.0 / self.T_s:g} Hz here; zero voltage')
         self.advance(*cmd)
 
     def free_run_stats(self) -> dict:
@@ -497,6 +571,90 @@ class PlantNode(LockstepNode):
         pt['peaks'].publish(sign(T.TRUTH_PEAKS, self.out_peaks.fill(
             ns, [self._peak_v, self._peak_i])))
         self._peak_v = self._peak_i = 0.0
+
+
+class _LoopProbe:
+    """
+    The free_run pre-flight: probes sent one a period from a thread, their echoes timed.
+
+    A probe's latency is its slowest node's round trip; a probe some node never echoed within
+    the grace time after the last one was sent is lost (``assess_probe`` counts it infinitely
+    late).
+    """
+
+    #: How long the warm-up may take [s] (then the timed probes go out anyway).
+    WARMUP_S = 3.0
+
+    def __init__(self, plant: PlantNode, nodes, count: int, compute: float):
+        from std_msgs.msg import Header
+        self.nodes = frozenset(nodes)
+        self.count, self.compute = count, compute
+        self.sent: dict = {}                # probe -> wall time sent
+        self.echoes: dict = {}              # probe -> nodes that echoed it
+        self.latencies: list = []
+        self.verdict = None
+        self.run = plant.run_id
+        self._done_at = None
+        self._grace = 0.5 + 10 * plant.T_s
+        self._warm = threading.Event()
+        pub, period = plant.pub_probe, plant.T_s
+
+        def send():
+            # warm-up: the first samples of a connection took 40-60 ms more in one process (the
+            # first deliveries, not the loop): one probe a 10 ms until one comes back from every
+            # node (at most WARMUP_S), then the timed ones
+            t_end = time.monotonic() + self.WARMUP_S
+            w = count
+            while not self._warm.wait(0.01) and time.monotonic() < t_end:
+                msg = Header(frame_id=self.run)
+                msg.stamp.nanosec = w
+                self.sent[w] = time.perf_counter()
+                pub.publish(msg)
+                w += 1
+            t0 = time.perf_counter()
+            for i in range(count):
+                left = t0 + i * period - time.perf_counter()
+                if left > 0:
+                    time.sleep(left)
+                msg = Header(frame_id=self.run)
+                msg.stamp.nanosec = i
+                self.sent[i] = time.perf_counter()
+                pub.publish(msg)
+            self._done_at = time.monotonic()
+        self._thread = threading.Thread(target=send, name='plant-probe', daemon=True)
+        self._thread.start()
+
+    def echo(self, frame: str, i: int, now: float) -> None:
+        run, _, name = frame.partition(' ')
+        t = self.sent.get(i)
+        if run != self.run or name not in self.nodes or t is None:
+            return
+        got = self.echoes.setdefault(i, set())
+        if name in got:
+            return
+        got.add(name)
+        if got == self.nodes:
+            if i >= self.count:
+                self._warm.set()
+            else:
+                self.latencies.append(now - t)
+
+    def over(self) -> bool:
+        if self._done_at is None:
+            return False
+        return (len(self.latencies) == self.count
+                or time.monotonic() - self._done_at > self._grace)
+
+    def assess(self, period_ns: int):
+        return assess_probe(self.latencies, self.count, period_ns / NS_PER_S, self.compute)
+
+    def values(self) -> dict:
+        """Return the probe's figures for an event (``/im/status``)."""
+        v = self.verdict
+        if v is None:
+            return {}
+        return {'probe_latency_p50_s': f'{v.p50:.6g}', 'probe_latency_p99_s': f'{v.p99:.6g}',
+                'probe_lost': v.lost, 'rate_held_hz': v.rate_held or 0}
 
 
 def _peer_text(name: str, peer) -> str:
