@@ -164,36 +164,41 @@ def lockstep_processes(duration: float, record: bool, cpu: Optional[list] = None
     return float(m.group(1))
 
 
-def _gains():
-    from ament_index_python.packages import get_package_share_directory
-
-    from im_bringup.processes import load_params_yaml
-    return load_params_yaml(os.path.join(get_package_share_directory('im_bringup'), 'config',
-                                         'gains_1ms.yaml'))
+def _gains(rate: int = 1000):
+    from im_bringup.processes import free_run_gains, load_params_yaml
+    return load_params_yaml(free_run_gains(1.0 / rate))
 
 
-def free_run(duration: float, realtime: bool = True, busy: bool = False) -> dict:
+def rate_label(rate: int) -> str:
+    """Return '1kHz', '250Hz' ...: the rate as it stands in the keys."""
+    return f'{rate // 1000}kHz' if rate % 1000 == 0 else f'{rate}Hz'
+
+
+def free_run(duration: float, realtime: bool = True, busy: bool = False,
+             rate: int = 1000) -> dict:
     """
-    free_run at 1 kHz; ``realtime``.
+    free_run at ``rate`` [Hz] (1 kHz by default); ``realtime``.
 
     The nodes' default SCHED_FIFO (rt_priority 50) — the scheduling each node got is in the
     plant's final status — else ordinary scheduling; ``busy``: a CPU-bound process beside the
-    graph.
+    graph. The rate is forced past the plant's pre-flight probe (``force_rate``): this measures
+    what the loop does at that rate; the probe's own verdict is reported beside it.
     """
     if busy:
         hog = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
         try:
-            return free_run(duration, realtime)
+            return free_run(duration, realtime, rate=rate)
         finally:
             hog.kill()
     tmp = tempfile.mkdtemp(prefix='bench_free_')
     try:
-        return _free_run(duration, realtime, os.path.join(tmp, 'free.mcap'))
+        res = _free_run(duration, realtime, os.path.join(tmp, 'free.mcap'), rate)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    return {k.replace('free_run_1kHz', f'free_run_{rate_label(rate)}'): v for k, v in res.items()}
 
 
-def _free_run(duration: float, realtime: bool, bag: str) -> dict:
+def _free_run(duration: float, realtime: bool, bag: str, rate: int = 1000) -> dict:
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.serialization import deserialize_message
 
@@ -203,26 +208,34 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
     from im_recording.report import figures_of_merit
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
-    extra = _gains()
+    extra = _gains(rate)
+    extra.setdefault('plant', {})['force_rate'] = True
     if not realtime:
         for node in ('plant', 'controller', 'observer', 'adapter'):
             extra.setdefault(node, {})['rt_priority'] = 0
-    _run_graph_processes(graph_processes('position', 'min_energy', T_s=1e-3, duration=duration,
+    _run_graph_processes(graph_processes('position', 'min_energy', T_s=1.0 / rate,
+                                         duration=duration,
                                          mode='free_run', record=bag, extra=extra), 'free',
                          # a trip is a result: the loop lost its deadlines
                          plant_may_fail=True)
-    end, tripped = None, 0
+    end, tripped, probe = None, 0, {}
     for _, _, _, raw in iter_raw(bag, [T.STATUS]):
         st = deserialize_message(bytes(raw), DiagnosticArray).status[0]
         values = {kv.key: kv.value for kv in st.values}
         if values.get('time_master') == 'true' and st.message in ('finished', 'failed'):
             end, tripped = values, int(st.message == 'failed')
+        if values.get('time_master') == 'true' and st.message == 'running':
+            probe = values
     fig = figures_of_merit(load_run(bag))
     hist = LatencyHistogram.from_values(end)
     steps = int(end['steps'])
-    rec = recorded_fraction(bag, end)
-    ref = _lockstep_reference(duration)
+    rec = recorded_fraction(bag, end, round(1e9 / rate))
+    ref = _lockstep_reference(duration, rate)
     return {'free_run_1kHz_realtime': int(end.get('scheduling', '').startswith('fifo')),
+            # the pre-flight probe's verdict on this machine (the run itself was forced)
+            'free_run_1kHz_probe_p99_le_us':
+                float(probe.get('probe_latency_p99_s', 'nan')) * 1e6,
+            'free_run_1kHz_probe_rate_held_hz': int(probe.get('rate_held_hz', 0)),
             'free_run_1kHz_steps': steps, 'free_run_1kHz_tripped': tripped,
             'free_run_1kHz_missed_fraction': int(end['missed']) / steps,
             'free_run_1kHz_recorded_steps_fraction': rec['steps'],
@@ -241,15 +254,15 @@ def _free_run(duration: float, realtime: bool, bag: str) -> dict:
             / ref.summary['pos_err_rms_rad']}
 
 
-@functools.lru_cache(maxsize=4)
-def _lockstep_reference(duration: float):
+@functools.lru_cache(maxsize=8)
+def _lockstep_reference(duration: float, rate: int = 1000):
     """Return the in-process lock-step run free_run is compared with (one per duration)."""
     from im_bringup.testing import run_graph
-    return run_graph(task='position', strategy='min_energy', T_s=1e-3, duration=duration,
-                     parameters=_gains())
+    return run_graph(task='position', strategy='min_energy', T_s=1.0 / rate, duration=duration,
+                     parameters=_gains(rate))
 
 
-def recorded_fraction(bag: str, end: dict) -> dict:
+def recorded_fraction(bag: str, end: dict, period: int = 1_000_000) -> dict:
     """
     Return what a free_run bag holds of its run.
 
@@ -262,7 +275,6 @@ def recorded_fraction(bag: str, end: dict) -> dict:
     from im_common import topics as T
     from im_common.timing import LatencyHistogram
     steps = int(end['steps'])
-    period = 1_000_000
     got = {T.MEAS_CURRENT: set(), T.MEAS_SHAFT: set(), T.CMD_VOLTAGE: set()}
     for topic, _, t, _ in iter_raw(bag, list(got)):
         got[topic].add(t // period)
@@ -284,6 +296,34 @@ def free_run_record(duration: float, busy: bool) -> dict:
 
 #: The busy-neighbour free_run figure of issue 25: this many runs of this length, the worst one.
 BUSY_RUNS, BUSY_DURATION_S = 5, 10.0
+#: The rate the machine holds: one run of this length at each rate beside a busy process.
+RATE_HELD_DURATION_S = 5.0
+#: ... holds = at most this fraction of the deadlines missed, and no trip.
+RATE_HELD_MISSED = 0.01
+
+
+def rate_held_busy(duration: float = RATE_HELD_DURATION_S) -> dict:
+    """
+    Return the highest free_run rate this machine holds beside a CPU-bound process.
+
+    One run at each of ``CANDIDATE_RATES_HZ`` (forced past the probe), position task with the
+    gains certified at that rate; held = no trip and at most :data:`RATE_HELD_MISSED` of the
+    deadlines missed. ``free_run_rate_held_hz_busy`` is 0 when none is held; each rate's missed
+    fraction and the probe's own verdict stand beside it.
+    """
+    from im_common.timing import CANDIDATE_RATES_HZ
+    res, held = {}, 0
+    for rate in CANDIDATE_RATES_HZ:
+        r = free_run(duration, busy=True, rate=rate)
+        key = f'free_run_{rate_label(rate)}'
+        missed, tripped = r[f'{key}_missed_fraction'], r[f'{key}_tripped']
+        res[f'free_run_rate_{rate}Hz_busy_missed_fraction'] = missed
+        res[f'free_run_rate_{rate}Hz_busy_tripped'] = tripped
+        res[f'free_run_rate_{rate}Hz_busy_probe_rate_held_hz'] = r[f'{key}_probe_rate_held_hz']
+        if not tripped and missed <= RATE_HELD_MISSED:
+            held = max(held, rate)
+    res['free_run_rate_held_hz_busy'] = held
+    return res
 
 
 def free_run_busy_runs(runs: int, duration: float) -> dict:
@@ -343,6 +383,7 @@ def run(quick: bool = False) -> dict:
     if quick:
         return res
     res.update(free_run_busy_runs(BUSY_RUNS, BUSY_DURATION_S))
+    res.update(rate_held_busy())
     res.update({k.replace('free_run_1kHz', 'free_run_1kHz_normal_sched'): v
                 for k, v in free_run(d, realtime=False).items()})
     return res

@@ -36,6 +36,7 @@ RATIOS = {
     'four_processes_cpu_ceiling_over_pingpong': ('processes',
                                                  'lockstep_processes_cpu_ceiling_vs_ping_pong'),
     'free_run_missed_fraction_busy': ('processes', 'free_run_1kHz_busy_missed_fraction'),
+    'free_run_rate_held_hz_busy': ('processes', 'free_run_rate_held_hz_busy'),
 }
 
 
