@@ -561,10 +561,21 @@ def test_free_run_recording_beside_a_busy_process_holds_every_step(tmp_path, dom
     assert codes['recorder'] == 0 and codes['controller'] == 0, codes
     state, step, _ = plant_end(bag)
     assert step == 2 * free_run_rate if state == 'finished' else codes['plant'] == 1
-    missing = missing_in_bag(bag, round(1e9 / free_run_rate))
+    period = round(1e9 / free_run_rate)
+    missing = missing_in_bag(bag, period)
     assert missing[T.MEAS_CURRENT] == missing[T.MEAS_SHAFT] == 0, missing
     meta = info(bag).metadata['recording']
     assert missing == {t: int(meta[f'missing_steps{t}']) for t in LOCKSTEP}, meta
+    # the voltage applied over [t_k-1, t_k] (the truth stamped t_k) is the command stamped t_k-1,
+    # unless that command missed its deadline (the one before is held): no more samples differ
+    # than steps missed (a plant that filed each command one step late passed every check above)
+    from im_common.conversions import xy_in
+    cmd = {t: xy_in(bytes(raw))[1] for _, _, t, raw in iter_raw(bag, [T.CMD_VOLTAGE])}
+    applied = {t: xy_in(bytes(raw))[1] for _, _, t, raw in iter_raw(bag, [T.TRUTH_VOLTAGE])}
+    pairs = [(applied[t], cmd[t - period]) for t in applied if t - period in cmd]
+    assert len(pairs) >= 0.5 * len(applied), (len(pairs), len(applied))
+    differ = sum(v != c for v, c in pairs)
+    assert differ <= int(plant_end(bag)[2]['missed']), (differ, len(pairs))
 
 
 def test_scenario_runs_as_separate_processes(tmp_path):
