@@ -96,7 +96,7 @@ def test_no_machine_holds_100_khz_so_the_plant_refuses_it_before_step_0():
     why = res.summary['failures']['plant']
     assert why.startswith('free_run at 100000 Hz: measured loop latency p50 '), why
     assert 'budget 0.5 of the period = 5 µs: cannot hold it' in why
-    assert 'refusing to start (force_rate:=true starts anyway)' in why
+    assert 'refusing to start (the plant parameter force_rate: true starts anyway)' in why
 
 
 def test_a_loop_whose_echo_is_late_is_refused_before_step_0(monkeypatch):

@@ -448,7 +448,7 @@ def free_run_refused(rate, tmp_path, domain):
     log = FREE_RUN_REFUSAL[-1]
     assert 'starting:' not in log, log
     assert 'free_run at 250 Hz: measured loop latency' in log and 'cannot hold it' in log, log
-    assert 'refusing to start (force_rate:=true starts anyway)' in log, log
+    assert 'refusing to start (the plant parameter force_rate: true starts anyway)' in log, log
     return True
 
 
