@@ -239,7 +239,7 @@ class RealPlant:
         return out['i_alpha'], out['i_beta'], out['i_r_alpha'], out['i_r_beta']
 
     def measure(self):
-        """Return what the sensors give at t_k, the carrier's peak (module doc of im_common.sensors)."""
+        """Return what the sensors give at t_k, the carrier's peak (im_common.sensors)."""
         from .plant_sim import Measurement
         sim = self.sim
         i_sa, i_sb = self.model.stator_current(sim.t, sim.x)
@@ -264,7 +264,7 @@ class RealPlant:
         return Measurement(sim.t, i_sa, i_sb, theta, omega, v_dc)
 
     def truth(self) -> dict:
-        """Return the ideal plant's truth (PlantSimulator.truth) plus the blocks' quantities."""
+        """Return the ground truth: the ideal plant's keys plus the blocks' quantities."""
         sim = self.sim
         t = sim.t
         x = sim.x

@@ -72,7 +72,7 @@ class Saturation:
         return (cur[k] + self._slopes[k] * (psi - ps[k])) / psi
 
     def L_M(self, psi: float) -> float:
-        """Return the secant magnetizing inductance L_M(ψ) = ψ/i_M(ψ) [H]."""
+        """Return the secant magnetizing inductance ψ/i_M(ψ) [H]."""
         return 1.0 / self.inv_L(psi)
 
     def energy(self, psi: float) -> float:
@@ -154,4 +154,3 @@ def power_law_fit(psi_rated: float, ratio: float, S: float) -> float:
     same magnetizing current (docs/plant.md §2, the shipped motors' fit).
     """
     return (1.0 / ratio - 1.0) ** (1.0 / S) / psi_rated
-
