@@ -1,6 +1,7 @@
 """
-Real sensors: an incremental encoder, phase-current sensors with an ADC, a DC-link voltage
-measurement (docs/plant.md §5). The ``sensors:`` block of a run file, e.g.
+Real sensors: an incremental encoder, phase-current sensors with an ADC, a DC-link voltmeter.
+
+The ``sensors:`` block of a run file (docs/plant.md §5), e.g.
 ``{encoder_lines: 2048, adc_bits: 12, current_range: 20.0}``.
 
 Encoder: ``encoder_lines`` lines, quadrature decoding, so 4 N counts per revolution; the count is

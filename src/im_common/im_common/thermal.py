@@ -55,7 +55,7 @@ class Thermal:
         return self.C_r * self.R_th_r
 
     def initial(self):
-        """Return the initial (T_stator, T_rotor) [°C]."""
+        """Return the initial stator and rotor temperatures [°C]."""
         t_s = self.T_ambient if math.isnan(self.T0_s) else self.T0_s
         t_r = self.T_ambient if math.isnan(self.T0_r) else self.T0_r
         return t_s, t_r
