@@ -7,8 +7,8 @@ iron loss (k_h + k_e f) f |ψ|², the energy books; and the ideal plant when eve
 """
 import math
 
-from im_common.inverter import (clip_to_hexagon, duties, inverter_from_dict, phase_values,
-                                period_plan)
+from im_common.inverter import (clip_to_hexagon, duties, inverter_from_dict, period_plan,
+                                phase_values)
 from im_common.loads import ConstantLoad, LinearLoad
 from im_common.model import MotorModel, rk4_step
 from im_common.params import clarke, InvalidParameter, THESIS_MOTOR
