@@ -64,17 +64,17 @@ class Inverter:
 
     @property
     def T_c(self) -> float:
-        """Carrier period [s]."""
+        """Return the carrier period [s]."""
         return 1.0 / self.pwm_frequency
 
     @property
     def T_s(self) -> float:
-        """The control period synchronous with the carrier [s]."""
+        """Return the control period synchronous with the carrier [s]."""
         return self.T_c if self.update == 'single' else 0.5 * self.T_c
 
     @property
     def v_max(self) -> float:
-        """Radius of the hexagon's inscribed circle, V_dc/√2 (module doc) [V]."""
+        """Return the radius of the hexagon's inscribed circle, V_dc/√2 (module doc) [V]."""
         return self.V_dc / math.sqrt(2.0)
 
     @property
