@@ -286,7 +286,8 @@ class RealPlant:
                                    - out['E_friction'] - out['W_load'] - out['E_param']
                                    - out['dW_mag'] - out['dE_kin']
                                    - (out['E_core'] if self.iron_loss else 0.0))
-        out['iron_loss_acts'] = 1.0 if self.iron_loss else 0.0
+        if self.iron_loss:
+            out['E_iron'] = out['E_core']       # dissipated, inside the balance (topics.py)
         if self.temps is not None:
             out['T_stator'], out['T_rotor'] = self.temps
         inv = self.inverter

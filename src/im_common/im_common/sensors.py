@@ -68,10 +68,12 @@ class Sensors:
         return self.adc(self.current_gain[k] * i + self.current_offset[k], -r, r)
 
     def describe(self) -> dict:
-        return {'encoder_lines': self.encoder_lines, 'speed_window': self.speed_window,
-                'adc_bits': self.adc_bits, 'current_range': self.current_range,
-                'current_offset': list(self.current_offset),
-                'current_gain': list(self.current_gain), 'vdc_range': self.vdc_range}
+        out = {'encoder_lines': self.encoder_lines, 'speed_window': self.speed_window,
+               'adc_bits': self.adc_bits, 'current_range': self.current_range,
+               'current_offset': list(self.current_offset),
+               'current_gain': list(self.current_gain), 'vdc_range': self.vdc_range}
+        return {k: v for k, v in out.items()
+                if not (k in ('encoder_lines', 'adc_bits') and v == 0)}
 
 
 class SpeedFromCounts:
