@@ -140,14 +140,23 @@ def edges(d: float, half: int, T_c: float, T_s: float, t_d: float):
     return -big, -big, t_off, t_off + t_d
 
 
-def period_plan(d, half: int, T_c: float, T_s: float, t_d: float):
+def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0)):
     """
     Return the period's constant-switching intervals: a list of (length, states).
 
     ``states`` holds per leg 1 (on), 0 (off) or None (dead band: the current's sign decides at the
-    interval's start). The instants are computed here, once, at the start of the period.
+    interval's start). The instants are computed here, once, at the start of the period. A leg
+    whose current sign is given (``signs`` ±1; 0: not known) has its dead bands resolved: for
+    i > 0 the leg is on in [t_on + t_d, t_off), for i < 0 in [t_on, t_off + t_d).
     """
-    legs = [edges(x, half, T_c, T_s, t_d) for x in d]
+    legs = []
+    for x, sgn in zip(d, signs):
+        t_on, t_on_end, t_off, t_off_end = edges(x, half, T_c, T_s, t_d)
+        if sgn > 0:
+            t_on, t_off_end = t_on_end, t_off
+        elif sgn < 0:
+            t_on_end, t_off = t_on, t_off_end
+        legs.append((t_on, t_on_end, t_off, t_off_end))
     cuts = {0.0, T_s}
     for e in legs:
         for t in e:

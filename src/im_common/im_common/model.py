@@ -267,9 +267,19 @@ class RealMotorModel:
         self.saturation = saturation
         self.iron_loss = bool(iron_loss)
         self.r_on = float(r_on)
-        self.fs = 1.0
-        self.fr = 1.0
         self.drop = (0.0, 0.0)
+        self._const = None
+        self.set_temperature_factors(1.0, 1.0)
+
+    def set_temperature_factors(self, fs: float, fr: float) -> None:
+        """Scale R_s and R_r by ``fs``, ``fr`` (the winding temperatures; held over a period)."""
+        self.fs = fs
+        self.fr = fr
+        if self.schedule.is_constant:
+            R_s, R_r, L_s, L_r, L_sr = self.schedule.values(0.0)
+            th = L_sr / L_r
+            self._const = (R_s * fs, R_r * fr * th * th, th, 1.0 / (L_s - L_sr * th),
+                           1.0 / (L_sr * th))
 
     def _split(self, t, x):
         """Return the circuit at (t, x): R's, θ, L_σ, R_R, i_s, ψ_R, i_μ."""
@@ -288,7 +298,19 @@ class RealMotorModel:
 
     def rhs(self, t: float, x: Sequence[float], v_a: float, v_b: float) -> Tuple[float, ...]:
         """Time derivative of the 14-element augmented state (6 states + 8 energy integrals)."""
-        R_s, R_R, th, L_sig, i_sa, i_sb, pa, pb, psi2, i_ma, i_mb, _ = self._split(t, x)
+        if self._const is None:
+            R_s, R_R, th, L_sig, i_sa, i_sb, pa, pb, psi2, i_ma, i_mb, _ = self._split(t, x)
+        else:                                   # constant parameters: the hot path
+            R_s, R_R, th, inv_sig, inv_LM0 = self._const
+            pa = th * x[2]
+            pb = th * x[3]
+            i_sa = (x[0] - pa) * inv_sig
+            i_sb = (x[1] - pb) * inv_sig
+            psi2 = pa * pa + pb * pb
+            sat = self.saturation
+            m = inv_LM0 if sat is None else sat.inv_L(math.sqrt(psi2))
+            i_ma = m * pa
+            i_mb = m * pb
         p = self.params
         vp = p.pole_pairs
         omega = x[5]
@@ -356,3 +378,25 @@ class RealMotorModel:
             'R_s': R_s, 'R_r': R_r0 * self.fr, 'L_s': L_s, 'L_r': L_r,
             'L_sr': L_sr if sat is None else L_sr * sat.L_M(psi) / L_M0,
         }
+
+    def rk4(self, t: float, x: Sequence[float], h: float, v_a: float, v_b: float) -> list:
+        """
+        Return one RK4 step of :meth:`rhs` with the input held: the same as :func:`rk4_step`.
+
+        The energy integrals do not feed back, so the intermediate stages carry the six states
+        only; the 14 components combine at the end (the real plant's hot loop).
+        """
+        f = self.rhs
+        h2 = 0.5 * h
+        k1 = f(t, x, v_a, v_b)
+        x2 = [x[0] + h2 * k1[0], x[1] + h2 * k1[1], x[2] + h2 * k1[2], x[3] + h2 * k1[3],
+              x[4] + h2 * k1[4], x[5] + h2 * k1[5]]
+        k2 = f(t + h2, x2, v_a, v_b)
+        x3 = [x[0] + h2 * k2[0], x[1] + h2 * k2[1], x[2] + h2 * k2[2], x[3] + h2 * k2[3],
+              x[4] + h2 * k2[4], x[5] + h2 * k2[5]]
+        k3 = f(t + h2, x3, v_a, v_b)
+        x4 = [x[0] + h * k3[0], x[1] + h * k3[1], x[2] + h * k3[2], x[3] + h * k3[3],
+              x[4] + h * k3[4], x[5] + h * k3[5]]
+        k4 = f(t + h, x4, v_a, v_b)
+        h6 = h / 6.0
+        return [a + h6 * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]

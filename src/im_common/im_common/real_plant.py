@@ -12,10 +12,11 @@ Per control period (docs/plant.md):
    carrier comparison of :mod:`im_common.inverter` computes the period's switching instants once,
    at its start;
 2. between consecutive instants the pole voltages are constant: the interval is integrated with
-   RK4 (:func:`im_common.model.rk4_step`) on :class:`im_common.model.RealMotorModel`, one step
-   (two with saturation) per interval and at most ``max_substep`` long — a bounded number per
-   period, no zero-crossing search; a dead band's pole voltage is set by the sign of its leg's
-   current at the band's start;
+   RK4 (:meth:`im_common.model.RealMotorModel.rk4`), one step per interval, at most
+   ``max_substep`` long — a bounded number per period, no zero-crossing search. The dead bands
+   are resolved by the phase currents' signs at the period's start; if a current's sign at any
+   interval boundary differs, the period is integrated again with explicit dead bands, each
+   taking the sign of its leg's current at the band's start;
 3. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
 """
@@ -26,15 +27,17 @@ from typing import Mapping
 
 from .inverter import (check_against_motor, duties, Inverter, inverter_from_dict, period_plan,
                        phase_values)
-from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, RealMotorModel, rk4_step
+from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, RealMotorModel
 from .params import clarke
 from .saturation import Saturation, saturation_from_dict
 from .sensors import Sensors, sensors_from_dict, SpeedFromCounts
 from .thermal import first_order, Thermal, thermal_from_dict
 
 TWO_PI = 2.0 * math.pi
-#: RK4 steps per switching interval for the saturated (nonlinear) model
-SATURATED_SUBSTEPS = 2
+#: RK4 steps per switching interval for the saturated (nonlinear) model: one is enough on
+#: intervals of at most T_s (a 0.5 s DOL start through the inverter with the shipped curve: the
+#: state within 1.4e-8 relative of eight steps per interval; docs/plant.md §1)
+SATURATED_SUBSTEPS = 1
 
 
 def _sgn(x: float) -> float:
@@ -108,7 +111,7 @@ class RealPlant:
                 'iron_loss': self.iron_loss}
 
     def _set_resistances(self) -> None:
-        self.model.fs, self.model.fr = self.thermal.resistance_factors(*self.temps)
+        self.model.set_temperature_factors(*self.thermal.resistance_factors(*self.temps))
 
     # Stepping ----------------------------------------------------------------------------
     def step(self, v_a: float, v_b: float) -> None:
@@ -143,7 +146,7 @@ class RealPlant:
     def _integrate(self, x, t0: float, v_a: float, v_b: float, tripped: bool):
         sim = self.sim
         T_s = sim.T_s
-        rhs = self.model.rhs
+        rk4 = self.model.rk4
         inv = self.inverter
         if inv is None:
             if tripped:
@@ -151,17 +154,38 @@ class RealPlant:
             n = max(1, int(math.ceil(T_s / self.max_substep - 1e-9))) * self.sat_sub
             h = T_s / n
             for j in range(n):
-                x = rk4_step(rhs, t0 + j * h, x, h, v_a, v_b)
+                x = rk4(t0 + j * h, x, h, v_a, v_b)
             return x, (v_a, v_b)
         V = self.V
         if tripped:                             # every lower device on: the stator shorted
-            plan = [(T_s, (0, 0, 0))]
-        else:
-            d, _ = duties(v_a, v_b, V)
-            half = sim.k % 2 if inv.update == 'double' else 0
-            plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime)
+            return self._run_plan(x, t0, [(T_s, (0, 0, 0))], None)
+        d, _ = duties(v_a, v_b, V)
+        half = sim.k % 2 if inv.update == 'double' else 0
+        if inv.deadtime > 0.0:
+            # the dead bands resolved by the currents' signs at the period's start; if a current
+            # changes sign within the period, the period again with explicit dead bands
+            ph = phase_values(*self.model.stator_current(t0, x))
+            signs = tuple(_sgn(i) for i in ph)
+            if 0.0 not in signs:
+                plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, signs)
+                out = self._run_plan(x, t0, plan, signs)
+                if out is not None:
+                    return out
+        plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime)
+        return self._run_plan(x, t0, plan, None)
+
+    def _run_plan(self, x, t0: float, plan, signs):
+        """
+        Integrate the period's intervals in order; return (x, mean voltage).
+
+        With ``signs`` (the dead bands resolved by them), None when a phase current's sign at an
+        interval boundary differs from its assumed sign.
+        """
+        T_s = self.sim.T_s
         model = self.model
-        v_on = inv.v_on
+        rk4 = model.rk4
+        V = self.V
+        v_on = self.inverter.v_on
         sv = self._sv
         t = t0
         sa = sb = 0.0
@@ -170,6 +194,9 @@ class RealPlant:
         for length, states in plan:
             i_sa, i_sb = model.stator_current(t, x)
             ph = phase_values(i_sa, i_sb)
+            if signs is not None and (ph[0] * signs[0] <= 0.0 or ph[1] * signs[1] <= 0.0
+                                      or ph[2] * signs[2] <= 0.0):
+                return None
             lo = min(lo, ph[0])
             hi = max(hi, ph[0])
             if None in states:
@@ -187,13 +214,16 @@ class RealPlant:
             n = max(1, int(math.ceil(length / self.max_substep - 1e-9))) * self.sat_sub
             h = length / n
             for _ in range(n):
-                x = rk4_step(rhs, t, x, h, va, vb)
+                x = rk4(t, x, h, va, vb)
                 t += h
             sa += va * length
             sb += vb * length
         i_sa, i_sb = model.stator_current(t, x)
-        a = phase_values(i_sa, i_sb)[0]
-        self.ripple = max(hi, a) - min(lo, a)
+        ph = phase_values(i_sa, i_sb)
+        if signs is not None and (ph[0] * signs[0] <= 0.0 or ph[1] * signs[1] <= 0.0
+                                  or ph[2] * signs[2] <= 0.0):
+            return None
+        self.ripple = max(hi, ph[0]) - min(lo, ph[0])
         return x, (sa / T_s, sb / T_s)
 
     def _after_period(self, x0, x) -> None:
