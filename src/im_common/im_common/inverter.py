@@ -140,7 +140,8 @@ def edges(d: float, half: int, T_c: float, T_s: float, t_d: float):
     return -big, -big, t_off, t_off + t_d
 
 
-def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0)):
+def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0),
+                extra=()):
     """
     Return the period's constant-switching intervals: a list of (length, states).
 
@@ -158,6 +159,7 @@ def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0
             t_on_end, t_off = t_on, t_off_end
         legs.append((t_on, t_on_end, t_off, t_off_end))
     cuts = {0.0, T_s}
+    cuts.update(t for t in extra if 0.0 < t < T_s)
     for e in legs:
         for t in e:
             if 0.0 < t < T_s:

@@ -40,6 +40,11 @@ TWO_PI = 2.0 * math.pi
 SATURATED_SUBSTEPS = 1
 
 
+#: the pole state a dead band gives by the current's sign: the lower diode for i > 0, the upper
+#: for i < 0, and with no current (neither conducts) the middle of the rails
+_DIODE = {1.0: 0, -1.0: 1, 0.0: 0.5}
+
+
 def _sgn(x: float) -> float:
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
@@ -161,17 +166,19 @@ class RealPlant:
             return self._run_plan(x, t0, [(T_s, (0, 0, 0))], None)
         d, _ = duties(v_a, v_b, V)
         half = sim.k % 2 if inv.update == 'double' else 0
+        # with on-state drops, their signs are taken again at the carrier's valley too
+        extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
         if inv.deadtime > 0.0:
             # the dead bands resolved by the currents' signs at the period's start; if a current
             # changes sign within the period, the period again with explicit dead bands
             ph = phase_values(*self.model.stator_current(t0, x))
             signs = tuple(_sgn(i) for i in ph)
             if 0.0 not in signs:
-                plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, signs)
+                plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, signs, extra)
                 out = self._run_plan(x, t0, plan, signs)
                 if out is not None:
                     return out
-        plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime)
+        plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, extra=extra)
         return self._run_plan(x, t0, plan, None)
 
     def _run_plan(self, x, t0: float, plan, signs):
@@ -199,10 +206,10 @@ class RealPlant:
                 return None
             lo = min(lo, ph[0])
             hi = max(hi, ph[0])
-            if None in states:
-                states = tuple(s if s is not None else (0 if i > 0.0 else 1)
+            if None in states:              # a dead band: the freewheeling diode's rail
+                states = tuple(s if s is not None else _DIODE[_sgn(i)]
                                for s, i in zip(states, ph))
-            ua, ub = sv[states]
+            ua, ub = sv[states] if states in sv else clarke(*states)
             va, vb = V * ua, V * ub
             if v_on > 0.0:
                 da, db = clarke(_sgn(ph[0]), _sgn(ph[1]), _sgn(ph[2]))
