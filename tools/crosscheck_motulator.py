@@ -1,11 +1,11 @@
 """
-Cross-check the real plant's switched inverter against motulator 0.18 (docs/plant.md §9).
+Cross-check the real plant's switched inverter against motulator 0.18 (docs/plant.md §8).
 
 motulator needs Python >= 3.12 and the project runs on 3.11, so this runs from a scratch
 environment outside the repository; the project's plant (pure Python) is imported from src/::
 
-    python3.12 -m venv /tmp/mot && /tmp/mot/bin/pip install 'motulator==0.18.*'
-    /tmp/mot/bin/python tools/crosscheck_motulator.py [--duration 0.2] [--json out.json]
+    python3.12 -m venv ../mot-env && ../mot-env/bin/pip install 'motulator==0.18.*'
+    ../mot-env/bin/python tools/crosscheck_motulator.py [--duration 0.2] [--json out.json]
 
 The same motor (the thesis motor, unsaturated: motulator saturates the Γ model's L_s(|ψ_s|),
 this plant the inverse-Γ L_M(|ψ_R|), so the saturated models are not the same machine), the same
