@@ -95,3 +95,25 @@ def test_graph_equals_the_offline_loop_with_every_block_on(tmp_path):
         assert abs(s['balance_residual_J']) <= 1e-6 * s['E_in_J']
     counts = info(bag).counts
     assert counts[T.TRUTH_TEMPERATURE] > 0 and counts[T.TRUTH_INVERTER] > 0
+
+
+def test_scenario_processes_give_the_same_e_in_with_every_block_on(tmp_path):
+    """``scenario --processes`` of the run file: E_in as in one process, the truth recorded."""
+    import json
+    import subprocess
+
+    from im_bringup.processes import executable_path
+    from im_bringup.testing import run_graph
+    from im_common import topics as T
+    from im_recording.bag import info
+    run = _run_file(tmp_path, duration=0.05)
+    bag = tmp_path / 'p.mcap'
+    r = subprocess.run([executable_path('im_bringup', 'scenario'), run, '--processes', '--record',
+                        str(bag), '--no-progress'], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    s = json.loads((tmp_path / 'p.json').read_text())
+    live = run_graph(scenario=run)
+    assert s['E_in_J'] == pytest.approx(live.summary['E_in_J'], rel=1e-12)
+    assert abs(s['balance_residual_J']) <= 1e-6 * s['E_in_J']
+    counts = info(str(bag)).counts
+    assert counts[T.TRUTH_TEMPERATURE] > 0 and counts[T.TRUTH_INVERTER] > 0
