@@ -37,6 +37,8 @@ RATIOS = {
                                                  'lockstep_processes_cpu_ceiling_vs_ping_pong'),
     'free_run_missed_fraction_busy': ('processes', 'free_run_1kHz_busy_missed_fraction'),
     'free_run_rate_held_hz_busy': ('processes', 'free_run_rate_held_hz_busy'),
+    # every real-plant block on over the ideal plant (docs/plant.md)
+    'real_plant_over_ideal': ('real_plant', 'real_plant_over_ideal'),
 }
 
 

@@ -59,6 +59,9 @@ EXPECTED = {
                 'us_per_step_protocol', 'us_per_step_compute', 'us_per_step_publish',
                 'us_per_step_executor', 'us_per_step_plant_ready',
                 'us_per_step_controller_ready'],
+    'real_plant': ['offline_ideal_steps_per_s', 'offline_real_steps_per_s',
+                   'graph_ideal_steps_per_s', 'graph_real_steps_per_s', 'offline_real_over_ideal',
+                   'graph_real_over_ideal', 'real_plant_over_ideal'],
     'rclpy': ['ping_pong_events_rt_per_s', 'bare_loop_adapter_on_path_steps_per_s',
               'bare_loop_adapter_off_path_steps_per_s',
               'bare_loop_tagged_adapter_off_path_steps_per_s'],
@@ -70,7 +73,8 @@ SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_ceiling_over_bare',
                      'inprocess_tagged_ceiling_over_bare', 'inprocess_over_tagged_bare',
                      'inprocess_over_kernel'],
            'processes': ['four_processes_over_pingpong',
-                         'four_processes_cpu_ceiling_over_pingpong']}
+                         'four_processes_cpu_ceiling_over_pingpong'],
+           'real_plant': ['real_plant_over_ideal']}
 
 
 def test_every_benchmark_is_covered():

@@ -67,7 +67,8 @@ def build(sc: Scenario):
                            current_trip=limit_value(sc.current_trip),
                            speed_trip=limit_value(sc.speed_trip),
                            **({} if sc.inverter_rating is None
-                              else {'inverter_rating': sc.inverter_rating}))
+                              else {'inverter_rating': sc.inverter_rating}),
+                           **sc.plant_blocks())
     controller = DriveController(cfg)
     if sc.sensorless:
         # the drive's speed estimate starts where the drive is: at rest, or (a drive already

@@ -30,7 +30,8 @@ from typing import Dict, Mapping, Optional
 
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
 from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, InvalidParameter,
-                              load_motor_file, motor_from_dict, MotorParams, normalize_variation,
+                              load_motor_file, MOTOR_BLOCKS, motor_blocks, motor_from_dict,
+                              MotorParams, normalize_variation,
                               ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
                               variation_schedule)
 from im_controller.control_law import ControllerConfig, MODES, steady_start
@@ -72,6 +73,8 @@ def motor_parameters(motor) -> Dict[str, object]:
 CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weakening',
                      'voltage_margin', 'current_margin')
 PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
+#: the real plant's blocks (docs/plant.md), as PlantSimulator and the plant node take them
+PLANT_BLOCKS = ('inverter', 'sensors', 'saturation', 'thermal')
 
 START_MODES = ('rest', 'steady')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
@@ -152,9 +155,19 @@ class Scenario:
     gains: Optional[dict] = None              # design_gains output {controller: .., observer: ..}
     mode: str = 'lockstep'                    # the plant's stepping (graph runs)
     parameters: Optional[dict] = None         # extra node parameters, merged last (graph runs)
+    # the real plant (docs/plant.md; None / False: the ideal plant): the run file's inverter and
+    # sensors blocks, the motor's saturation and thermal blocks (a mapping, or 'motor': the
+    # motor file's own), and whether the core loss acts
+    inverter: Optional[dict] = None
+    sensors: Optional[dict] = None
+    saturation: object = None
+    thermal: object = None
+    iron_loss: bool = False
 
     def __post_init__(self):
         put = object.__setattr__
+        if isinstance(self.motor, str):           # the motor file's blocks, where asked for
+            self._motor_file_blocks(self.motor)
         for name, read in (('motor', load_motor_file), ('estimates', load_motor_file),
                            ('profile', load_profile), ('load_model', load_file)):
             if isinstance(getattr(self, name), str):
@@ -223,6 +236,51 @@ class Scenario:
                                        f'unknown node (one of {", ".join(NODES)})')
         if isinstance(self.variation, dict):     # the schedule must stay a motor over the run
             self.plant_schedule().validate(self.duration)
+        self._check_plant_blocks()
+
+    def _motor_file_blocks(self, path: str) -> None:
+        from im_common.params import load_motor_blocks
+        wanted = [b for b in MOTOR_BLOCKS if getattr(self, b) == 'motor']
+        if not wanted:
+            return
+        blocks = load_motor_blocks(path)
+        for name in wanted:
+            if name not in blocks:
+                raise InvalidParameter(name, 'motor', f'the motor file {path} has no {name} '
+                                                      'block')
+            object.__setattr__(self, name, blocks[name])
+
+    def _check_plant_blocks(self) -> None:
+        """Validate the real plant's blocks (one line naming the key) and write them resolved."""
+        from im_common.inverter import check_against_motor, inverter_from_dict
+        from im_common.saturation import saturation_from_dict
+        from im_common.sensors import sensors_from_dict
+        from im_common.thermal import thermal_from_dict
+        put = object.__setattr__
+        motor = self.plant_motor()
+        for name in MOTOR_BLOCKS:
+            if getattr(self, name) == 'motor':
+                raise InvalidParameter(name, 'motor', 'takes the block of a motor file: give the '
+                                                      'motor as a file (motor: path)')
+        if not isinstance(self.iron_loss, bool):
+            raise InvalidParameter('iron_loss', self.iron_loss, 'must be true or false')
+        if self.inverter is not None:
+            inv = inverter_from_dict(self.inverter)
+            check_against_motor(inv, motor.rated_voltage, self.T_s)
+            put(self, 'inverter', inv.describe())
+        if self.sensors is not None:
+            put(self, 'sensors', sensors_from_dict(self.sensors).describe())
+        if self.saturation is not None:
+            put(self, 'saturation', saturation_from_dict(self.saturation, motor.L_M).describe())
+        if self.thermal is not None:
+            put(self, 'thermal', thermal_from_dict(self.thermal).describe())
+
+    def plant_blocks(self) -> dict:
+        """Return the PlantSimulator keywords of the real plant's blocks ({}: the ideal plant)."""
+        out = {k: getattr(self, k) for k in PLANT_BLOCKS if getattr(self, k) is not None}
+        if self.iron_loss:
+            out['iron_loss'] = True
+        return out
 
     def _check_gains(self) -> None:
         gain_arguments_from_parameters(self.gains)
@@ -371,6 +429,8 @@ class Scenario:
         plant = dict(common, **variation, v_limit=v_limit, truth_decimation=int(truth_decimation),
                      **mine, **lp, theta0=float(self.theta0), omega0=float(self.omega0))
         plant.update({k: float(v) for k, v in protection.items()})
+        for key, value in self.plant_blocks().items():      # the real plant (docs/plant.md)
+            plant[key] = value if key == 'iron_loss' else json.dumps(value, sort_keys=True)
         if self.current_noise_std or self.speed_noise_std:
             plant.update(current_noise_std=float(self.current_noise_std),
                          speed_noise_std=float(self.speed_noise_std),
@@ -504,6 +564,7 @@ class Scenario:
             out['sensorless'] = True
         if self.mode != 'lockstep':
             out['mode'] = self.mode
+        out.update(self.plant_blocks())
         defaults = {f.name: f.default for f in fields(self)}
         for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
                      'core_loss_exponent', 'plant_substep', 'observer_substep'):
@@ -572,6 +633,7 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
     import difflib
     keys = run_keys()
     kw = {}
+    inline_blocks = {}
 
     def path(value):
         return value if base_dir is None or os.path.isabs(value) else os.path.join(base_dir, value)
@@ -596,6 +658,7 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
                 kw[NOISE_KEYS[k]] = v
             continue
         if key == 'motor' and isinstance(value, Mapping):
+            inline_blocks = motor_blocks(value, source='motor')
             value = motor_from_dict(value, source='motor')
         elif key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
                 and isinstance(value, str):
@@ -611,6 +674,9 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
                 raise InvalidParameter('profile', value, 'must be a file or {setpoints: [...]}')
             value = from_setpoints(value['setpoints'], source='profile')
         kw[RENAMED.get(key, key)] = value
+    for name in MOTOR_BLOCKS:         # 'motor' with an inline motor: its own block
+        if kw.get(name) == 'motor' and name in inline_blocks:
+            kw[name] = inline_blocks[name]
     est = kw.get('estimates')
     if isinstance(est, Mapping):      # a partial model: these values over the plant's motor
         motor = kw.get('motor')

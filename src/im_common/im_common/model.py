@@ -218,3 +218,185 @@ def rk4_step(f, t: float, x: Sequence[float], h: float, v_a: float, v_b: float) 
     k4 = f(t + h, x4, v_a, v_b)
     h6 = h / 6.0
     return [x[i] + h6 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]) for i in range(n)]
+
+
+# The real plant's model (docs/plant.md): inverse-Γ form, optional saturation and iron loss -------
+#: the real plant's augmented state: the model's 13 plus the inverter's loss integral
+E_INV = 13
+N_AUG_REAL = 14
+
+
+class RealMotorModel:
+    """
+    The plant's equations with main-flux saturation and an iron loss that acts (docs/plant.md).
+
+    The same state as :class:`MotorModel` (ψ_s, φ_r, θ_r, ω_r and the energy integrals, plus the
+    inverter's loss ``E_inv``), written in the inverse-Γ circuit of the motor's gauge θ =
+    L_sr/L_r: rotor flux ψ_R = θ φ_r on the magnetizing inductance L_M (= L_sr²/L_r, or the
+    curve of ``saturation``), leakage L_σ = L_s − L_M0, rotor resistance R_R = θ² R_r. With the
+    magnetizing current i_μ = ψ_R/L_M(|ψ_R|), i_s = (ψ_s − ψ_R)/L_σ and the branch voltage e:
+
+        dψ_s/dt = v − (R_s + r_on) i_s − d,        dψ_R/dt = e,
+        e₀ = R_R (i_s − i_μ) + j ω_e ψ_R           (e without iron loss)
+
+    ``iron_loss``: a conductance across the magnetizing branch acting on e's rotational part
+    (the part that rotates ψ_R at ω_ψ); with P = (k_h + k_e f) f |ψ_R|² (the loss the ideal plant
+    books, f = ω_ψ/2π) its conductance is g = (k_h + k_e f)/(4π² f), which solved with the branch
+    gives ω_ψ in closed form: 2π f = sgn(ω₀) max(0, (2π|ω₀| − R_R k_h)/(4π² + R_R k_e))·2π with
+    ω₀ = ψ_R × e₀/|ψ_R|² (docs/plant.md §3). The rotor current is i_R = i_s − i_μ − i_Fe and the
+    torque τ = v ψ_R × i_R. ``fs``, ``fr`` scale R_s, R_r (the winding temperatures, set per
+    period); ``drop`` (d) is the devices' on-state voltage vector and ``r_on`` their resistance,
+    whose losses integrate into E_inv.
+    """
+
+    def __init__(self, schedule, load=None, core_loss_exponent: float = 2.0,
+                 locked: bool = False, saturation=None, iron_loss: bool = False,
+                 r_on: float = 0.0):
+        base = MotorModel(schedule, load, core_loss_exponent, locked)
+        self.schedule = base.schedule
+        self.params = base.params
+        self.load = base.load
+        self.core_loss_exponent = base.core_loss_exponent
+        self.locked = base.locked
+        if not self.schedule.inductances_constant:
+            raise ValueError('the real plant takes no time-varying inductance (the variation '
+                             'of L_s, L_r or L_sr); vary R_s or R_r, or use the ideal plant')
+        if iron_loss and self.core_loss_exponent != 2.0:
+            raise ValueError('an acting iron loss needs core_loss_exponent 2 (a resistance '
+                             'dissipates |psi|^2)')
+        self.saturation = saturation
+        self.iron_loss = bool(iron_loss)
+        self.r_on = float(r_on)
+        self.drop = (0.0, 0.0)
+        self._const = None
+        self.set_temperature_factors(1.0, 1.0)
+
+    def set_temperature_factors(self, fs: float, fr: float) -> None:
+        """Scale R_s and R_r by ``fs``, ``fr`` (the winding temperatures; held over a period)."""
+        self.fs = fs
+        self.fr = fr
+        if self.schedule.is_constant:
+            R_s, R_r, L_s, L_r, L_sr = self.schedule.values(0.0)
+            th = L_sr / L_r
+            self._const = (R_s * fs, R_r * fr * th * th, th, 1.0 / (L_s - L_sr * th),
+                           1.0 / (L_sr * th))
+
+    def _split(self, t, x):
+        """Return the circuit at (t, x): R's, θ, L_σ, R_R, i_s, ψ_R, i_μ."""
+        R_s, R_r, L_s, L_r, L_sr = self.schedule.values(t)
+        th = L_sr / L_r
+        L_M0 = L_sr * th
+        L_sig = L_s - L_M0
+        pa, pb = th * x[2], th * x[3]
+        i_sa = (x[0] - pa) / L_sig
+        i_sb = (x[1] - pb) / L_sig
+        psi2 = pa * pa + pb * pb
+        sat = self.saturation
+        m = sat.inv_L(math.sqrt(psi2)) if sat is not None else 1.0 / L_M0
+        return (R_s * self.fs, R_r * self.fr * th * th, th, L_sig, i_sa, i_sb, pa, pb, psi2,
+                m * pa, m * pb, L_M0)
+
+    def rhs(self, t: float, x: Sequence[float], v_a: float, v_b: float) -> Tuple[float, ...]:
+        """Time derivative of the 14-element augmented state (6 states + 8 energy integrals)."""
+        if self._const is None:
+            R_s, R_R, th, L_sig, i_sa, i_sb, pa, pb, psi2, i_ma, i_mb, _ = self._split(t, x)
+        else:                                   # constant parameters: the hot path
+            R_s, R_R, th, inv_sig, inv_LM0 = self._const
+            pa = th * x[2]
+            pb = th * x[3]
+            i_sa = (x[0] - pa) * inv_sig
+            i_sb = (x[1] - pb) * inv_sig
+            psi2 = pa * pa + pb * pb
+            sat = self.saturation
+            m = inv_LM0 if sat is None else sat.inv_L(math.sqrt(psi2))
+            i_ma = m * pa
+            i_mb = m * pb
+        p = self.params
+        vp = p.pole_pairs
+        omega = x[5]
+        we = vp * omega
+        e_a = R_R * (i_sa - i_ma) - we * pb
+        e_b = R_R * (i_sb - i_mb) + we * pa
+        i_fa = i_fb = 0.0
+        p_core = 0.0
+        if psi2 > 1e-18:
+            w0 = (pa * e_b - pb * e_a) / psi2          # rotation rate of ψ_R without iron loss
+            if self.iron_loss:
+                c = TWO_PI * TWO_PI
+                w = max(0.0, (c * abs(w0) - TWO_PI * R_R * p.k_h) / (c + R_R * p.k_e))
+                w = math.copysign(w, w0)
+                dw = (w0 - w) / R_R
+                i_fa, i_fb = -dw * pb, dw * pa         # i_Fe = (e₀ − e)/R_R, along 𝒥ψ_R
+                e_a -= (w0 - w) * -pb
+                e_b -= (w0 - w) * pa
+                p_core = dw * w * psi2
+            else:                                      # booked, as MotorModel
+                f_e = abs(w0) / TWO_PI
+                phi_m = math.sqrt(psi2) if self.core_loss_exponent == 1.0 else psi2
+                p_core = (p.k_h + p.k_e * f_e) * f_e * phi_m
+        i_ra = i_sa - i_ma - i_fa
+        i_rb = i_sb - i_mb - i_fb
+        tau_m = vp * (pa * i_rb - pb * i_ra)
+        theta = x[4]
+        tau_l = self.load.torque(t, theta, omega)
+        d_omega = 0.0 if self.locked else (tau_m - p.b * omega - tau_l) / p.J
+        r_on = self.r_on
+        va = v_a - r_on * i_sa
+        vb = v_b - r_on * i_sb
+        i2 = i_sa * i_sa + i_sb * i_sb
+        da, db = self.drop
+        return (va - R_s * i_sa, vb - R_s * i_sb, e_a / th, e_b / th, omega, d_omega,
+                va * i_sa + vb * i_sb, R_s * i2, R_R * (i_ra * i_ra + i_rb * i_rb), p_core,
+                p.b * omega * omega, tau_l * omega, 0.0, r_on * i2 + da * i_sa + db * i_sb)
+
+    def stator_current(self, t: float, x: Sequence[float]):
+        """Return (i_sα, i_sβ) at (t, x)."""
+        c = self._split(t, x)
+        return c[4], c[5]
+
+    def outputs(self, t: float, x: Sequence[float]) -> dict:
+        """Currents, torque, stored energies and parameters at (t, x), as MotorModel.outputs."""
+        R_s, R_R, th, L_sig, i_sa, i_sb, pa, pb, psi2, i_ma, i_mb, L_M0 = self._split(t, x)
+        p = self.params
+        d = self.rhs(t, x, 0.0, 0.0)
+        # the rotor current in the model's gauge: i_r = −θ i_R (i_R from the branch balance)
+        e_a, e_b = d[2] * th, d[3] * th
+        we = p.pole_pairs * x[5]
+        i_Ra = (e_a + we * pb) / R_R
+        i_Rb = (e_b - we * pa) / R_R
+        psi = math.sqrt(psi2)
+        sat = self.saturation
+        w_m = sat.energy(psi) if sat is not None else 0.5 * psi2 / L_M0
+        R_s0, R_r0, L_s, L_r, L_sr = self.schedule.values(t)
+        return {
+            'i_alpha': i_sa, 'i_beta': i_sb, 'i_r_alpha': -th * i_Ra, 'i_r_beta': -th * i_Rb,
+            'phi_r_alpha': x[2], 'phi_r_beta': x[3], 'theta_r': x[4], 'omega_r': x[5],
+            'tau_m': p.pole_pairs * (pa * i_Rb - pb * i_Ra),
+            'tau_L': self.load.torque(t, x[4], x[5]),
+            'W_mag': 0.5 * L_sig * (i_sa * i_sa + i_sb * i_sb) + w_m,
+            'E_kin': 0.5 * p.J * x[5] * x[5],
+            'R_s': R_s, 'R_r': R_r0 * self.fr, 'L_s': L_s, 'L_r': L_r,
+            'L_sr': L_sr if sat is None else L_sr * sat.L_M(psi) / L_M0,
+        }
+
+    def rk4(self, t: float, x: Sequence[float], h: float, v_a: float, v_b: float) -> list:
+        """
+        Return one RK4 step of :meth:`rhs` with the input held: the same as :func:`rk4_step`.
+
+        The energy integrals do not feed back, so the intermediate stages carry the six states
+        only; the 14 components combine at the end (the real plant's hot loop).
+        """
+        f = self.rhs
+        h2 = 0.5 * h
+        k1 = f(t, x, v_a, v_b)
+        x2 = [x[0] + h2 * k1[0], x[1] + h2 * k1[1], x[2] + h2 * k1[2], x[3] + h2 * k1[3],
+              x[4] + h2 * k1[4], x[5] + h2 * k1[5]]
+        k2 = f(t + h2, x2, v_a, v_b)
+        x3 = [x[0] + h2 * k2[0], x[1] + h2 * k2[1], x[2] + h2 * k2[2], x[3] + h2 * k2[3],
+              x[4] + h2 * k2[4], x[5] + h2 * k2[5]]
+        k3 = f(t + h2, x3, v_a, v_b)
+        x4 = [x[0] + h * k3[0], x[1] + h * k3[1], x[2] + h * k3[2], x[3] + h * k3[3],
+              x[4] + h * k3[4], x[5] + h * k3[5]]
+        k4 = f(t + h, x4, v_a, v_b)
+        h6 = h / 6.0
+        return [a + h6 * (b + 2.0 * (c + d) + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]

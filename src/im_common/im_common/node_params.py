@@ -1,7 +1,9 @@
 """Parameters several nodes declare the same way: the motor, the period, the run length."""
 from __future__ import annotations
 
-from .params import MotorParams, THESIS_MOTOR
+from typing import Optional
+
+from .params import MOTOR_BLOCKS, MotorParams, THESIS_MOTOR
 
 _MOTOR_DOC = {
     'R_s': ('stator resistance [ohm]', 1e-6, 100.0),
@@ -23,11 +25,16 @@ _MOTOR_DOC = {
 }
 
 
-def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -> MotorParams:
+def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
+                  blocks: Optional[dict] = None) -> MotorParams:
     """
     Declare the motor parameters on ``node`` (defaults: the thesis motor) and validate them.
 
     A motor file (``--params-file motor.yaml`` with ``/**:``) sets them on every node at once.
+
+    ``blocks``, when given, receives the motor file's ``saturation`` and ``thermal`` text (the
+    real plant's blocks, docs/plant.md; '' when absent); every node declares them, since a motor
+    file reaches every node.
 
     Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
     """
@@ -36,6 +43,11 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor') -
         values[name] = node.param(name, float(getattr(base, name)), f'{what}: {doc}', lo, hi)
     values['pole_pairs'] = node.param('pole_pairs', int(base.pole_pairs),
                                       f'{what}: pole pairs v', 1, 64)
+    for name in MOTOR_BLOCKS:                   # a motor file's real-plant blocks (the plant's)
+        text = node.param(name, '', f"{what}: the real plant's {name} block as YAML text ('': "
+                                    'none; docs/plant.md)')
+        if blocks is not None:
+            blocks[name] = text
     return MotorParams(**values)
 
 

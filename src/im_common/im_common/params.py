@@ -469,6 +469,8 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
     if not isinstance(values, Mapping):
         raise InvalidParameter(f'{source}', values, 'must be a mapping of motor parameters')
     for key in values:
+        if key in MOTOR_BLOCKS:
+            continue                    # the plant's blocks: :func:`motor_blocks`
         if key in LEGACY_RATINGS:
             raise InvalidParameter(f'{source}: {key}', values[key],
                                    f'ratings are nameplate values now: write '
@@ -482,8 +484,11 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
     for key in REQUIRED_MOTOR_FIELDS:
         if key not in values:
             raise InvalidParameter(f'{source}: {key}', None, 'is missing')
+    motor_blocks(values, source)                # a bad block is refused with the motor
     clean = {}
     for key, val in values.items():
+        if key in MOTOR_BLOCKS:
+            continue
         bad = parameter_error(val, getattr(THESIS_MOTOR, key))
         if bad:
             raise InvalidParameter(f'{source}: {key}', val, bad)
@@ -492,6 +497,56 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
         return MotorParams(**clean)
     except InvalidParameter as exc:
         raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
+
+
+#: the real plant's blocks a motor file may hold (docs/plant.md): each a YAML mapping written as
+#: one string parameter (a ROS 2 parameter cannot be a mapping of lists), '' when absent
+MOTOR_BLOCKS = ('saturation', 'thermal')
+
+
+def motor_blocks(values: Mapping, source: str = 'motor') -> Dict[str, dict]:
+    """
+    Return the validated ``saturation`` / ``thermal`` blocks of a motor's values ({} if none).
+
+    Each is a mapping or its YAML text (how a motor file writes it: ``saturation: '{law: power,
+    beta: 1.3, S: 7.0}'``); an empty string is no block. Errors are one line naming the source
+    and the key.
+    """
+    import yaml
+    from .saturation import saturation_from_dict
+    from .thermal import thermal_from_dict
+    out = {}
+    for key in MOTOR_BLOCKS:
+        spec = values.get(key)
+        if spec is None or spec == '':
+            continue
+        if isinstance(spec, str):
+            try:
+                spec = yaml.safe_load(spec)
+            except yaml.YAMLError as exc:
+                raise InvalidParameter(f'{source}: {key}', spec,
+                                       f'not a YAML mapping ({str(exc).splitlines()[0]})') \
+                    from None
+        try:
+            if key == 'saturation':
+                L_M = float(values['L_sr']) ** 2 / float(values['L_r'])
+                saturation_from_dict(spec, L_M)
+            else:
+                thermal_from_dict(spec)
+        except InvalidParameter as exc:
+            raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
+        except (KeyError, TypeError, ValueError, ZeroDivisionError):
+            raise InvalidParameter(f'{source}: {key}', spec, "needs the motor's L_sr and L_r") \
+                from None
+        out[key] = dict(spec)
+    return out
+
+
+def load_motor_blocks(path: str) -> Dict[str, dict]:
+    """Return the ``saturation`` / ``thermal`` blocks of a motor file ({} if it has none)."""
+    doc = read_yaml_file(path, 'motor file')
+    load_motor_file(path)                       # the same layout and motor checks
+    return motor_blocks(doc['/**']['ros__parameters'] or {}, source=path)
 
 
 def read_yaml_file(path: str, what: str):

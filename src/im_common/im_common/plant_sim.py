@@ -56,6 +56,7 @@ class Measurement:
     i_beta: float
     theta_r: float
     omega_r: float
+    v_dc: float = math.nan      # the DC-link voltage measurement (runs with an inverter)
 
 
 class PlantSimulator:
@@ -91,7 +92,8 @@ class PlantSimulator:
                  omega0: float = 0.0, x0: Optional[Sequence[float]] = None,
                  core_loss_exponent: float = 2.0, inverter_rating: float = DEFAULT_INVERTER_RATING,
                  current_trip: Optional[float] = RATED, speed_trip: Optional[float] = RATED,
-                 locked_rotor: bool = False):
+                 locked_rotor: bool = False, inverter=None, saturation=None, thermal=None,
+                 sensors=None, iron_loss: bool = False):
         self.model = MotorModel(schedule, load, core_loss_exponent, locked=locked_rotor)
         # left at RATED: the motor's rating (im_common.params.default_limits), else none
         lim = _Protection(v_limit, current_trip, speed_trip)
@@ -143,7 +145,13 @@ class PlantSimulator:
             x[4], x[5] = float(theta0), float(omega0)
         self.x = x
         self.v_applied = (0.0, 0.0)
-        out = self.model.outputs(0.0, x)
+        self.real = None
+        if (inverter is not None or saturation is not None or thermal is not None
+                or sensors is not None or iron_loss):
+            from .real_plant import RealPlant
+            self.real = RealPlant(self, inverter, saturation, thermal, sensors, iron_loss,
+                                  core_loss_exponent, locked_rotor)
+        out = self.model.outputs(0.0, self.x)
         self.W_mag0 = out['W_mag']
         self.E_kin0 = out['E_kin']
 

@@ -70,6 +70,9 @@ PARAM_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 POWER_NAMES = ('P_in', 'P_cu_s', 'P_cu_r', 'P_core', 'P_friction', 'P_load', 'P_param')
 ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
                 'W_mag', 'E_kin')
+# appended to /im/truth/energy when the core loss acts (docs/plant.md §3): the iron loss the plant
+# dissipated [J] (= E_core), inside the energy balance then
+IRON_LOSS_NAME = 'E_iron'
 # /im/truth/peaks: the largest |V_s| applied and true |i_s| over every step since the previous
 # sample (the figures of merit take their peaks from every step, not from the samples)
 PEAK_NAMES = ('V_max', 'i_max')

@@ -10,8 +10,8 @@ from __future__ import annotations
 from im_common.loads import LOAD_KINDS, make_load
 from im_common.model import stator_flux
 from im_common.node_params import declare_motor
-from im_common.params import (ELECTRICAL_NAMES, MotorParams, ParameterSchedule, RATED, SCHEDULES,
-                              Variation, variation_schedule)
+from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, ParameterSchedule,
+                              RATED, SCHEDULES, Variation, variation_schedule)
 from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
 
 STEPPING_MODES = ('lockstep', 'free_run')
@@ -24,7 +24,9 @@ def declare_plant(node) -> dict:
     Return their values by name (``motor``: the validated :class:`MotorParams`).
     """
     p = node.param
-    v = {'motor': declare_motor(node)}
+    blocks: dict = {}
+    v = {'motor': declare_motor(node, blocks=blocks)}
+    v.update(blocks)                            # the motor file's saturation, thermal
     v['variation'] = p('variation', 'none',
                        'time variation of the true parameters (schedule: the breakpoints of '
                        'variation_schedule; custom: one parameter varied as variation_kind with '
@@ -79,6 +81,14 @@ def declare_plant(node) -> dict:
     v['noise_seed'] = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
     v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7,
                          0.1)
+    v['inverter'] = p('inverter', '',
+                      "the switched inverter: the run file's inverter block as JSON ('': the "
+                      'ideal voltage source; docs/plant.md)')
+    v['sensors'] = p('sensors', '', "real sensors: the run file's sensors block as JSON ('': the "
+                     'true state plus the noise above; docs/plant.md)')
+    v['iron_loss'] = p('iron_loss', False,
+                       'the core loss acts (an iron-loss branch dissipating the k_e, k_h loss); '
+                       'false: booked only')
     v['mode'] = p('mode', 'lockstep', 'stepping', choices=STEPPING_MODES)
     v['max_lag'] = p('max_lag', 1.0,
                      'free_run: stop the run when the plant is this far behind the wall clock '
@@ -153,7 +163,8 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
         psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
         x0 = (psi[0], psi[1], f0[0], f0[1], v['theta0'], v['omega0'])
     load = make_load(v['load'], v['load_mgl'], v['load_c1'], v['load_c2'], v['load_tau'])
-    return PlantSimulator(schedule, load, T_s, max_substep=v['max_substep'],
+    return PlantSimulator(schedule, load, T_s, **real_plant_blocks(v, motor),
+                          max_substep=v['max_substep'],
                           v_limit=v['v_limit'],
                           current_noise_std=v['current_noise_std'],
                           speed_noise_std=v['speed_noise_std'], noise_seed=v['noise_seed'],
@@ -162,3 +173,25 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
                           current_trip=v['current_trip'],
                           speed_trip=v['speed_trip'],
                           locked_rotor=v['locked_rotor'])
+
+
+def real_plant_blocks(values: dict, motor: MotorParams) -> dict:
+    """
+    Return the PlantSimulator keywords of the real plant's blocks in the parameter values.
+
+    ``inverter`` and ``sensors`` as JSON, the motor's ``saturation`` and ``thermal`` as YAML text
+    ('' for none); a bad block raises InvalidParameter naming the parameter and key.
+    """
+    import json
+    from im_common.params import motor_blocks
+    out = {'iron_loss': bool(values.get('iron_loss', False))}
+    for name in ('inverter', 'sensors'):
+        text = values.get(name) or ''
+        if text:
+            try:
+                out[name] = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"invalid parameter '{name}': not JSON ({exc.msg})") from None
+    blocks = dict(motor.as_dict(), **{k: values.get(k) or '' for k in MOTOR_BLOCKS})
+    out.update(motor_blocks(blocks, source='motor'))
+    return out

@@ -117,6 +117,14 @@ class PlantNode(LockstepNode):
             'temperature': self.create_publisher(*_js(), T.TRUTH_TEMPERATURE, dq),
             'inverter': self.create_publisher(*_js(), T.TRUTH_INVERTER, dq),
         }
+        # the real plant's truth (docs/plant.md): only with the blocks that make it
+        real = self.sim.real
+        if real is not None and real.thermal is not None:
+            self.pub_truth['temperature'] = self.create_publisher(*_js(), T.TRUTH_TEMPERATURE, dq)
+            self.out_temp = JointStateOut(T.TEMPERATURE_NAMES, Signer.frame(''))
+        if real is not None and real.inverter is not None:
+            self.pub_truth['inverter'] = self.create_publisher(*_js(), T.TRUTH_INVERTER, dq)
+            self.out_inv = JointStateOut(T.INVERTER_NAMES, Signer.frame(''))
         # the truth is signed as the measurements are (T.SIGNED_TOPICS): a recorder beside another
         # graph keeps that graph's truth apart (its frame: the tag's placeholder, filled by sign)
         self.out_tshaft = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
@@ -128,7 +136,8 @@ class PlantNode(LockstepNode):
                                                  for _ in range(3))
         self.out_par = JointStateOut(T.PARAM_NAMES, Signer.frame(''))
         self.out_pow = JointStateOut(T.POWER_NAMES, Signer.frame(''))
-        self.out_en = JointStateOut(T.ENERGY_NAMES, Signer.frame(''))
+        self.energy_names = T.ENERGY_NAMES + ((T.IRON_LOSS_NAME,) if values['iron_loss'] else ())
+        self.out_en = JointStateOut(self.energy_names, Signer.frame(''))
 
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)
         self.inputs.append(T.CMD_VOLTAGE)
@@ -565,12 +574,18 @@ class PlantNode(LockstepNode):
         pt['power'].publish(sign(T.TRUTH_POWER, self.out_pow.fill(
             ns, [tr[n] for n in T.POWER_NAMES])))
         pt['energy'].publish(sign(T.TRUTH_ENERGY, self.out_en.fill(
-            ns, [tr[n] for n in T.ENERGY_NAMES])))
+            ns, [tr[n] for n in self.energy_names])))
         pt['shaft'].publish(sign(T.TRUTH_SHAFT, self.out_tshaft.fill(
             ns, (tr['theta_r'],), (tr['omega_r'],))))
         pt['peaks'].publish(sign(T.TRUTH_PEAKS, self.out_peaks.fill(
             ns, [self._peak_v, self._peak_i])))
         self._peak_v = self._peak_i = 0.0
+        if 'temperature' in pt:
+            pt['temperature'].publish(sign(T.TRUTH_TEMPERATURE, self.out_temp.fill(
+                ns, [tr[n] for n in T.TEMPERATURE_NAMES])))
+        if 'inverter' in pt:
+            pt['inverter'].publish(sign(T.TRUTH_INVERTER, self.out_inv.fill(
+                ns, [tr[n] for n in T.INVERTER_NAMES])))
 
 
 class _LoopProbe:

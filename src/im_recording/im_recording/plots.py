@@ -260,6 +260,57 @@ def plot_voltage_current(runs: Sequence, out_dir) -> Optional[str]:
     return _save(fig, Path(out_dir), 'voltage_current.png')
 
 
+def plot_real_plant(runs: Sequence, out_dir) -> Optional[str]:
+    """
+    Plot the real plant's truth (docs/plant.md), the panels there is data for.
+
+    DC-link voltage; winding temperatures; R_s and R_r (with a thermal block); phase currents
+    over the run's last 40 ms with the within-period ripple (with an inverter).
+    """
+    panels = []
+    if any(_has(r, 'V_dc') for r in runs):
+        panels.append('vdc')
+    if any(_has(r, 'T_stator') for r in runs):
+        panels += ['temp', 'res']
+    if any(_has(r, 'i_a') for r in runs):
+        panels.append('phase')
+    if not panels:
+        return None
+    plt = _plt()
+    fig, axes = plt.subplots(len(panels), 1, figsize=(7.5, 2.6 * len(panels)), squeeze=False)
+    many = len(runs) > 1
+    for ax, panel in zip(axes[:, 0], panels):
+        for i, r in enumerate(runs):
+            c = _style(i)
+            if panel == 'vdc' and _has(r, 'V_dc'):
+                t, v = _dec(r, 'V_dc')
+                ax.plot(t, v, color=c, lw=0.9, label=_label(r, 'V_dc', many))
+                ax.set_ylabel('V_dc [V]')
+            elif panel == 'temp' and _has(r, 'T_stator'):
+                t, ts, tr_ = _dec(r, 'T_stator', 'T_rotor')
+                ax.plot(t, ts, '-', color=c, label=_label(r, 'stator winding', many))
+                ax.plot(t, tr_, '--', color=c, label=_label(r, 'rotor cage', many))
+                ax.set_ylabel('T [°C]')
+            elif panel == 'res' and _has(r, 'R_s', 'R_r', 'T_stator'):
+                t, rs, rr = _dec(r, 'R_s', 'R_r')
+                ax.plot(t, rs, '-', color=c, label=_label(r, 'R_s(T)', many))
+                ax.plot(t, rr, '--', color=c, label=_label(r, 'R_r(T)', many))
+                ax.set_ylabel('R [Ω]')
+            elif panel == 'phase' and _has(r, 'i_a', 'i_ripple_pp'):
+                t, ia, ib, ic, rip = _dec(r, 'i_a', 'i_b', 'i_c', 'i_ripple_pp')
+                zoom = t >= t[-1] - 0.04
+                for name, x, style in (('i_a', ia, '-'), ('i_b', ib, '--'), ('i_c', ic, ':')):
+                    ax.plot(t[zoom], x[zoom], style, color=c, lw=0.9, label=_label(r, name, many))
+                ax.fill_between(t[zoom], ia[zoom] - rip[zoom] / 2, ia[zoom] + rip[zoom] / 2,
+                                color=c, alpha=0.25, label=_label(r, 'i_a ripple (p-p)', many))
+                ax.set_ylabel('phase current [A]')
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0, 0].set_title('Real plant: DC link, windings, phase currents (last 40 ms)')
+    axes[-1, 0].set_xlabel('t [s]')
+    return _save(fig, Path(out_dir), 'real_plant.png')
+
+
 def all_figures(runs: Sequence, out_dir) -> List[str]:
     """Every figure the runs have data for; returns the PNG paths."""
     out = []
@@ -276,4 +327,5 @@ def all_figures(runs: Sequence, out_dir) -> List[str]:
     out.append(plot_observer(runs, out_dir))
     out.append(plot_estimates(runs, out_dir))
     out.append(plot_voltage_current(runs, out_dir))
+    out.append(plot_real_plant(runs, out_dir))
     return [p for p in out if p]

@@ -233,7 +233,8 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     md.append("Energies are the plant's integrated books over the recorded window "
               '(`/im/truth/energy`); tracking errors and peaks from `im_common.metrics`. '
               'The balance residual is E_in − copper − friction − load − parameter-variation '
-              '− ΔW_mag − ΔE_kin (core loss is an accounting model outside the balance).')
+              '− ΔW_mag − ΔE_kin (core loss is an accounting model outside the balance, '
+              'inside it as `E_iron` when the iron loss of the run acts, docs/plant.md).')
     if pngs:
         md += ['', '## Figures', '']
         md += [f'![{Path(p).stem}]({Path(p).name})' for p in pngs]

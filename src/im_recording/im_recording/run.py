@@ -81,7 +81,8 @@ JS_NAMED = {
 TRACE_TOPICS = frozenset(V3_KEYS) | frozenset(JS_FIELDS) | frozenset(JS_NAMED)
 MASTER_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.TRUTH_ENERGY,
                  T.CMD_VOLTAGE)
-ENERGY_INTEGRALS = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param')
+ENERGY_INTEGRALS = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
+                    T.IRON_LOSS_NAME)
 PARAM_KEYS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 
 _V3_DTYPE = np.dtype([('enc', 'V4'), ('sec', '<i4'), ('nsec', '<u4'), ('slen', '<u4'),
@@ -723,7 +724,8 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
             # outside the balance
             out['balance_residual'] = (out['E_in'] - out['E_cu_s'] - out['E_cu_r']
                                        - out['E_friction'] - out['W_load'] - out['E_param']
-                                       - out['dW_mag'] - out['dE_kin'])
+                                       - out['dW_mag'] - out['dE_kin']
+                                       - out.get(T.IRON_LOSS_NAME, 0.0))   # an acting core loss
         out['t_final'] = float(en['t_ns'][last]) * 1e-9
     par = series.get(T.TRUTH_PARAMS)
     if par is not None and len(par['t_ns']):

@@ -1,0 +1,233 @@
+"""
+The two-level voltage-source inverter: carrier PWM, dead time, on-state drops, DC link.
+
+Derivations in docs/plant.md §1. In short:
+
+* Three legs fed from the DC link V_dc; leg x ∈ {a, b, c} has switch state s_x ∈ {0, 1} (lower /
+  upper device conducting), so its pole voltage is s_x V_dc − V_on sgn(i_x) − r_on i_x (a device
+  conducting current i drops V_on sgn(i) + r_on i, transistor or diode alike).
+* The model's αβ frame is power-invariant (:func:`im_common.params.clarke`): a pole-voltage set
+  (V_dc, 0, 0) is the vector √(2/3) V_dc, the six active vectors span a hexagon of that
+  circumradius, and its inscribed circle — the largest rotating vector the inverter makes — has
+  radius √(2/3)·(√3/2) V_dc = V_dc/√2 (V_dc = 311 V gives 220 V, a 220 V line-to-line RMS
+  motor's rated vector magnitude).
+* PWM by comparing each phase's reference with a triangular carrier of period T_c = 1/f_sw, the
+  references shifted by the min-max zero sequence v_0 = −(max + min)/2 (equivalent to space-vector
+  PWM: the linear range is the whole hexagon). The duty of leg x is d_x = ½ + (v_x + v_0)/V_dc; a
+  command outside the hexagon (max − min > V_dc) is scaled onto its boundary, keeping its angle.
+* The carrier starts each period at its peak, where the current is sampled (the middle of the
+  zero vector: the ripple-free value). Single update: T_s = T_c, leg x is switched on during
+  [(1 − d_x) T_c/2, (1 + d_x) T_c/2]; double update: T_s = T_c/2, the first half holds the turn-on
+  edge and the second the turn-off edge, each with the command of its own period.
+* Dead time t_d: the device that turns on does so t_d late. During a dead band both devices are
+  off and the current's freewheeling diode sets the pole: s = 0 for i > 0, s = 1 for i < 0. Per
+  carrier period that loses (i > 0) or gains (i < 0) t_d of pulse width at each of the two edges,
+  the average error −sgn(i) t_d f_sw V_dc per phase.
+* Optional DC link (``C_dc`` > 0): a capacitor fed by a diode front end (the source V_dc behind
+  ``R_source``, which can only deliver), a brake chopper (``R_chopper`` across the link while V
+  > ``V_chopper``) and an over-voltage trip at ``V_trip``. Held over a period, updated at its end
+  in energy form: ½C V_{k+1}² = ½C V_k² + (P_source − P_chopper) T_s − E_dc, E_dc the energy the
+  legs drew over the period, so the DC-side books close exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Mapping
+
+from .params import check_real, InvalidParameter
+
+SQRT_2_3 = math.sqrt(2.0 / 3.0)
+HALF_SQRT3 = 0.5 * math.sqrt(3.0)
+UPDATES = ('single', 'double')
+INVERTER_KEYS = ('V_dc', 'pwm_frequency', 'deadtime', 'update', 'v_on', 'r_on', 'C_dc',
+                 'R_source', 'V_chopper', 'R_chopper', 'V_trip')
+#: the longest dead time accepted, as a share of the PWM period
+MAX_DEADTIME_SHARE = 0.1
+
+
+@dataclass(frozen=True)
+class Inverter:
+    """The ``inverter:`` block of a run file (SI)."""
+
+    V_dc: float
+    pwm_frequency: float
+    deadtime: float = 0.0
+    update: str = 'single'
+    v_on: float = 0.0
+    r_on: float = 0.0
+    C_dc: float = 0.0          # 0: a stiff DC link (V_dc constant)
+    R_source: float = 0.5      # the front end's resistance (DC link only)
+    V_chopper: float = 0.0     # 0: no brake chopper
+    R_chopper: float = 50.0
+    V_trip: float = 0.0        # 0: 1.3 V_dc (DC link only)
+
+    @property
+    def T_c(self) -> float:
+        """Return the carrier period [s]."""
+        return 1.0 / self.pwm_frequency
+
+    @property
+    def T_s(self) -> float:
+        """Return the control period synchronous with the carrier [s]."""
+        return self.T_c if self.update == 'single' else 0.5 * self.T_c
+
+    @property
+    def v_max(self) -> float:
+        """Return the radius of the hexagon's inscribed circle, V_dc/√2 (module doc) [V]."""
+        return self.V_dc / math.sqrt(2.0)
+
+    @property
+    def trip_voltage(self) -> float:
+        return self.V_trip if self.V_trip > 0 else 1.3 * self.V_dc
+
+    def describe(self) -> dict:
+        return {k: getattr(self, k) for k in INVERTER_KEYS}
+
+
+def phase_values(x_a: float, x_b: float):
+    """Return the phase values (a, b, c) of an αβ vector: the inverse power-invariant Clarke."""
+    ka = SQRT_2_3 * x_a
+    kb = SQRT_2_3 * HALF_SQRT3 * x_b
+    return ka, -0.5 * ka + kb, -0.5 * ka - kb
+
+
+def duties(v_a: float, v_b: float, V_dc: float):
+    """
+    Return each leg's duty (d_a, d_b, d_c) for the command (v_α, v_β), and the scale applied.
+
+    Min-max zero-sequence injection; a command outside the hexagon is scaled onto it (scale < 1).
+    """
+    a, b, c = phase_values(v_a, v_b)
+    hi = max(a, b, c)
+    lo = min(a, b, c)
+    spread = hi - lo
+    scale = 1.0
+    if spread > V_dc:
+        scale = V_dc / spread
+    v0 = -0.5 * (hi + lo)
+    k = scale / V_dc
+    return (0.5 + (a + v0) * k, 0.5 + (b + v0) * k, 0.5 + (c + v0) * k), scale
+
+
+def clip_to_hexagon(v_a: float, v_b: float, V_dc: float):
+    """Return the command scaled onto the hexagon when outside it (else unchanged)."""
+    _, scale = duties(v_a, v_b, V_dc)
+    return v_a * scale, v_b * scale
+
+
+def edges(d: float, half: int, T_c: float, T_s: float, t_d: float):
+    """
+    Return (t_on, t_on_end, t_off, t_off_end) of one leg in a period [0, T_s].
+
+    The leg is on in [t_on_end, t_off), off outside [t_on, t_off_end), and in the dead bands
+    between (both devices off) the current's sign decides. ``half`` is 0 for a single update or
+    the first half of a double update, 1 for the second half.
+    """
+    big = 2.0 * T_s
+    if d <= 0.0:
+        return big, big, big, big                   # off all period, no edge
+    if d >= 1.0:
+        return -big, -big, big, big                 # on all period, no edge
+    if T_s == T_c:                                  # single update
+        t_on = 0.5 * (1.0 - d) * T_c
+        t_off = 0.5 * (1.0 + d) * T_c
+        return t_on, t_on + t_d, t_off, t_off + t_d
+    if half == 0:
+        t_on = 0.5 * (1.0 - d) * T_c
+        return t_on, t_on + t_d, big, big
+    t_off = 0.5 * d * T_c
+    return -big, -big, t_off, t_off + t_d
+
+
+def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0),
+                extra=()):
+    """
+    Return the period's constant-switching intervals: a list of (length, states).
+
+    ``states`` holds per leg 1 (on), 0 (off) or None (dead band: the current's sign decides at the
+    interval's start). The instants are computed here, once, at the start of the period. A leg
+    whose current sign is given (``signs`` ±1; 0: not known) has its dead bands resolved: for
+    i > 0 the leg is on in [t_on + t_d, t_off), for i < 0 in [t_on, t_off + t_d).
+    """
+    legs = []
+    for x, sgn in zip(d, signs):
+        t_on, t_on_end, t_off, t_off_end = edges(x, half, T_c, T_s, t_d)
+        if sgn > 0:
+            t_on, t_off_end = t_on_end, t_off
+        elif sgn < 0:
+            t_on_end, t_off = t_on, t_off_end
+        legs.append((t_on, t_on_end, t_off, t_off_end))
+    cuts = {0.0, T_s}
+    cuts.update(t for t in extra if 0.0 < t < T_s)
+    for e in legs:
+        for t in e:
+            if 0.0 < t < T_s:
+                cuts.add(t)
+    ts = sorted(cuts)
+    plan = []
+    for j in range(len(ts) - 1):
+        t0, t1 = ts[j], ts[j + 1]
+        if t1 - t0 <= 1e-15:
+            continue
+        tm = 0.5 * (t0 + t1)
+        states = []
+        for t_on, t_on_end, t_off, t_off_end in legs:
+            if t_on_end <= tm < t_off:
+                states.append(1)
+            elif t_on <= tm < t_off_end:
+                states.append(None)
+            else:
+                states.append(0)
+        plan.append((t1 - t0, tuple(states)))
+    return plan
+
+
+def inverter_from_dict(spec: Mapping, where: str = 'inverter') -> Inverter:
+    """Return the :class:`Inverter` of an ``inverter:`` block; errors are one line naming it."""
+    if not isinstance(spec, Mapping):
+        raise InvalidParameter(where, spec, 'must be a mapping of ' + ', '.join(INVERTER_KEYS))
+    out = {}
+    for key, val in spec.items():
+        name = f'{where}.{key}'
+        if key not in INVERTER_KEYS:
+            raise InvalidParameter(name, val, f"unknown key (known: {', '.join(INVERTER_KEYS)})")
+        if key == 'update':
+            if val not in UPDATES:
+                raise InvalidParameter(name, val, f"must be one of {', '.join(UPDATES)}")
+            out[key] = val
+        elif key in ('V_dc', 'pwm_frequency', 'R_source', 'R_chopper'):
+            out[key] = check_real(name, val, 0.0, lo_open=True)
+        else:
+            out[key] = check_real(name, val, 0.0)
+    for key in ('V_dc', 'pwm_frequency'):
+        if key not in out:
+            raise InvalidParameter(f'{where}.{key}', None, 'is missing')
+    inv = Inverter(**out)
+    if inv.deadtime > MAX_DEADTIME_SHARE * inv.T_c:
+        raise InvalidParameter(f'{where}.deadtime', inv.deadtime,
+                               f'longer than a tenth of the PWM period 1/pwm_frequency = '
+                               f'{inv.T_c:.6g} s')
+    if inv.C_dc > 0:
+        if inv.trip_voltage <= inv.V_dc:
+            raise InvalidParameter(f'{where}.V_trip', inv.V_trip, 'must be above V_dc')
+        if inv.V_chopper and not inv.V_dc < inv.V_chopper < inv.trip_voltage:
+            raise InvalidParameter(f'{where}.V_chopper', inv.V_chopper,
+                                   'must lie between V_dc and the trip voltage V_trip')
+    return inv
+
+
+def check_against_motor(inv: Inverter, rated_voltage: float, T_s: float,
+                        where: str = 'inverter') -> None:
+    """Refuse a DC link too low for the motor's rated voltage and a period off the carrier."""
+    if rated_voltage > 0 and inv.v_max < rated_voltage * (1.0 - 1e-9):
+        raise InvalidParameter(f'{where}.V_dc', inv.V_dc,
+                               f'too low for the rated voltage {rated_voltage:g} V: the inverter '
+                               f'makes at most V_dc/sqrt(2) = {inv.v_max:.4g} V (vector '
+                               f'magnitude, power-invariant); needs V_dc >= '
+                               f'{rated_voltage * math.sqrt(2.0):.4g} V')
+    if abs(T_s - inv.T_s) > 1e-12 * max(T_s, inv.T_s):
+        raise InvalidParameter(f'{where}.pwm_frequency', inv.pwm_frequency,
+                               f'the control period T_s = {T_s:g} s must be the carrier period '
+                               f'(update single: 1/pwm_frequency) or its half (update double); '
+                               f'here {inv.T_s:g} s')

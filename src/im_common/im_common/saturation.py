@@ -1,0 +1,156 @@
+"""
+Main-flux saturation: the magnetizing curve i_M(ψ) of the inverse-Γ model (docs/plant.md §2).
+
+The curve lives in the inverse-Γ equivalent circuit, on the magnetizing inductance L_M that
+carries the rotor flux ψ_R = θ φ_r (θ = L_sr/L_r, the motor's gauge; L_M0 = L_sr²/L_r is the
+unsaturated value). The plant's state stays flux linkages, so the map the plant needs is the
+explicit one, flux → current; no inversion by iteration is ever needed:
+
+    i_μ = i_M(|ψ_R|) ψ_R/|ψ_R|,      W_M(ψ) = ∫₀^ψ i_M(ψ') dψ'   (the stored magnetic energy)
+
+Two forms, written in a motor file's ``saturation:`` block:
+
+* ``{law: power, beta: β [1/Wb], S: S}``: L_M(ψ) = L_M0 / (1 + (β ψ)^S) (the form motulator
+  uses for its Γ-model), i_M(ψ) = ψ (1 + (β ψ)^S)/L_M0 and W_M = ψ²/(2 L_M0) + β^S ψ^(S+2) /
+  ((S + 2) L_M0) in closed form.
+* ``{table: [[ψ_1, i_1], [ψ_2, i_2], ...]}``: points of the curve (ψ [Wb], i_M [A]), the origin
+  added, linear between points and beyond the last one with the last slope; both columns must
+  rise strictly (a magnetizing curve is monotonic: a falling one is refused). W_M is the exact
+  integral of the piecewise-linear curve.
+"""
+from __future__ import annotations
+
+from bisect import bisect_right
+from typing import Mapping, Optional, Sequence, Tuple
+
+from .params import check_real, InvalidParameter
+
+SATURATION_KEYS = ('law', 'beta', 'S', 'table')
+
+
+class Saturation:
+    """
+    A magnetizing curve i_M(ψ) with its energy; see the module doc.
+
+    ``inv_L(psi)`` returns i_M(ψ)/ψ (the inverse secant inductance, 1/L_M(ψ)) and
+    ``energy(psi)`` returns W_M(ψ); ``L_M(psi)`` the secant inductance.
+    """
+
+    def __init__(self, L_M0: float, beta: float = 0.0, S: float = 0.0,
+                 table: Optional[Sequence[Tuple[float, float]]] = None):
+        self.L_M0 = float(L_M0)
+        self.table = None
+        if table is not None:
+            psi = [0.0] + [float(p) for p, _ in table]
+            cur = [0.0] + [float(i) for _, i in table]
+            self.table = (psi, cur)
+            self._slopes = [(cur[k + 1] - cur[k]) / (psi[k + 1] - psi[k])
+                            for k in range(len(psi) - 1)]
+            # energy at each knot: ∫ of the piecewise-linear curve up to it
+            w = [0.0]
+            for k in range(len(psi) - 1):
+                w.append(w[-1] + 0.5 * (cur[k] + cur[k + 1]) * (psi[k + 1] - psi[k]))
+            self._w = w
+            self.beta = self.S = 0.0
+        else:
+            self.beta = float(beta)
+            self.S = float(S)
+            self._bS = self.beta ** self.S
+
+    def current(self, psi: float) -> float:
+        """Return i_M(ψ) [A] for ψ ≥ 0 [Wb]."""
+        return psi * self.inv_L(psi)
+
+    def inv_L(self, psi: float) -> float:
+        """Return 1/L_M(ψ) = i_M(ψ)/ψ [1/H] (the slope at the origin for ψ = 0)."""
+        if self.table is None:
+            return (1.0 + (self.beta * psi) ** self.S) / self.L_M0
+        ps, cur = self.table
+        if psi <= 0.0:
+            return self._slopes[0]
+        k = min(bisect_right(ps, psi) - 1, len(self._slopes) - 1)
+        return (cur[k] + self._slopes[k] * (psi - ps[k])) / psi
+
+    def L_M(self, psi: float) -> float:
+        """Return the secant magnetizing inductance ψ/i_M(ψ) [H]."""
+        return 1.0 / self.inv_L(psi)
+
+    def energy(self, psi: float) -> float:
+        """Return the stored energy W_M(ψ) = ∫₀^ψ i_M dψ [J]."""
+        if self.table is None:
+            return (0.5 * psi * psi + self._bS * psi ** (self.S + 2.0) / (self.S + 2.0)) \
+                / self.L_M0
+        ps, cur = self.table
+        k = min(bisect_right(ps, psi) - 1, len(self._slopes) - 1)
+        d = psi - ps[k]
+        return self._w[k] + cur[k] * d + 0.5 * self._slopes[k] * d * d
+
+    def flux(self, i_M: float) -> float:
+        """Return ψ with i_M(ψ) = i_M (the exact inverse, by bisection; for tests and fits)."""
+        lo, hi = 0.0, max(1e-3, i_M * self.L_M0)
+        while self.current(hi) < i_M:
+            hi *= 2.0
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            if self.current(mid) < i_M:
+                lo = mid
+            else:
+                hi = mid
+        return 0.5 * (lo + hi)
+
+    def describe(self) -> dict:
+        """Return the block as written in a motor file (the run record)."""
+        if self.table is not None:
+            return {'table': [[p, i] for p, i in zip(self.table[0][1:], self.table[1][1:])]}
+        return {'law': 'power', 'beta': self.beta, 'S': self.S}
+
+
+def saturation_from_dict(spec: Mapping, L_M0: float, where: str = 'saturation') -> Saturation:
+    """Return the :class:`Saturation` of a ``saturation:`` block; errors name the key."""
+    if not isinstance(spec, Mapping):
+        raise InvalidParameter(where, spec, 'must be a mapping: {law: power, beta, S} or '
+                                            '{table: [[psi, i_M], ...]}')
+    for key in spec:
+        if key not in SATURATION_KEYS:
+            raise InvalidParameter(f'{where}.{key}', spec[key],
+                                   f"unknown key (known: {', '.join(SATURATION_KEYS)})")
+    if 'table' in spec:
+        if 'law' in spec or 'beta' in spec or 'S' in spec:
+            raise InvalidParameter(f'{where}.table', '...', 'give either a table or a law')
+        rows = spec['table']
+        if not isinstance(rows, (list, tuple)) or len(rows) < 2:
+            raise InvalidParameter(f'{where}.table', rows, 'must list at least two [psi, i_M] '
+                                                           'points')
+        pts = []
+        prev = (0.0, 0.0)
+        for k, row in enumerate(rows):
+            if not isinstance(row, (list, tuple)) or len(row) != 2:
+                raise InvalidParameter(f'{where}.table[{k}]', row, 'must be [psi, i_M]')
+            p = check_real(f'{where}.table[{k}]', row[0], 0.0, lo_open=True)
+            i = check_real(f'{where}.table[{k}]', row[1], 0.0, lo_open=True)
+            if not (p > prev[0] and i > prev[1]):
+                raise InvalidParameter(f'{where}.table[{k}]', row,
+                                       'the magnetizing curve is not monotonic: psi and i_M '
+                                       'must both rise from one point to the next')
+            prev = (p, i)
+            pts.append((p, i))
+        return Saturation(L_M0, table=pts)
+    law = spec.get('law', 'power')
+    if law != 'power':
+        raise InvalidParameter(f'{where}.law', law, "must be 'power' (L_M0/(1 + (beta psi)^S))")
+    for key in ('beta', 'S'):
+        if key not in spec:
+            raise InvalidParameter(f'{where}.{key}', None, 'is missing')
+    beta = check_real(f'{where}.beta', spec['beta'], 0.0)
+    S = check_real(f'{where}.S', spec['S'], 0.0, lo_open=True)
+    return Saturation(L_M0, beta=beta, S=S)
+
+
+def power_law_fit(psi_rated: float, ratio: float, S: float) -> float:
+    """
+    Return β of L_M0/(1 + (βψ)^S) that puts L_M(ψ_rated)/L_M0 at ``ratio`` (e.g. 0.875).
+
+    (β ψ_rated)^S = 1/ratio − 1: the rated flux is ``ratio`` of the flux L_M0 would give at the
+    same magnetizing current (docs/plant.md §2, the shipped motors' fit).
+    """
+    return (1.0 / ratio - 1.0) ** (1.0 / S) / psi_rated

@@ -1,0 +1,133 @@
+"""
+Real sensors: an incremental encoder, phase-current sensors with an ADC, a DC-link voltmeter.
+
+The ``sensors:`` block of a run file (docs/plant.md §5), e.g.
+``{encoder_lines: 2048, adc_bits: 12, current_range: 20.0}``.
+
+Encoder: ``encoder_lines`` lines, quadrature decoding, so 4 N counts per revolution; the count is
+⌊θ 4N/2π⌋ and the measured position the count's angle (a truncation: error in [0, 2π/4N)).
+Speed from counts, the M-method over a sliding window of ``speed_window`` periods::
+
+    ω̂_k = (c_k − c_{k−W}) · 2π / (4N · W · T_s)
+
+(the mean speed over the window: resolution 2π/(4N W T_s), delay W T_s/2; before W periods have
+passed the window is the periods there are).
+
+Currents: each phase x ∈ {a, b, c} is measured as gain_x · i_x + offset_x, then converted by an
+ADC of ``adc_bits`` bits over [−current_range, current_range) (mid-tread rounding to the code,
+clamped at the ends); the three measured phases give i_αβ by the model's Clarke transform
+(:func:`im_common.params.clarke`). Sampled at the carrier's peak, which is the period's start.
+
+DC link: measured by the same ADC bits over [0, vdc_range).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Mapping, Tuple
+
+from .params import check_real, InvalidParameter
+
+SENSOR_KEYS = ('encoder_lines', 'speed_window', 'adc_bits', 'current_range', 'current_offset',
+               'current_gain', 'vdc_range')
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """The ``sensors:`` block (0 / empty: that sensor is ideal)."""
+
+    encoder_lines: int = 0
+    speed_window: int = 10
+    adc_bits: int = 0
+    current_range: float = 50.0
+    current_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    current_gain: Tuple[float, float, float] = (1.0, 1.0, 1.0)
+    vdc_range: float = 1000.0
+
+    @property
+    def counts_per_rev(self) -> int:
+        return 4 * self.encoder_lines
+
+    def count(self, theta: float) -> int:
+        """Return the encoder count of shaft angle θ [rad] (quadrature: 4 N per revolution)."""
+        return math.floor(theta * self.counts_per_rev / TWO_PI)
+
+    def adc(self, x: float, lo: float, hi: float) -> float:
+        """Return ``x`` through an ADC of ``adc_bits`` bits over [lo, hi) (ideal when 0 bits)."""
+        if self.adc_bits <= 0:
+            return x
+        n = 1 << self.adc_bits
+        lsb = (hi - lo) / n
+        code = min(max(round((x - lo) / lsb), 0), n - 1)
+        return lo + code * lsb
+
+    def phase_current(self, k: int, i: float) -> float:
+        """Return the measurement of phase k's current ``i`` [A] (gain, offset, ADC)."""
+        r = self.current_range
+        return self.adc(self.current_gain[k] * i + self.current_offset[k], -r, r)
+
+    def describe(self) -> dict:
+        out = {'encoder_lines': self.encoder_lines, 'speed_window': self.speed_window,
+               'adc_bits': self.adc_bits, 'current_range': self.current_range,
+               'current_offset': list(self.current_offset),
+               'current_gain': list(self.current_gain), 'vdc_range': self.vdc_range}
+        return {k: v for k, v in out.items()
+                if not (k in ('encoder_lines', 'adc_bits') and v == 0)}
+
+
+class SpeedFromCounts:
+    """The M-method over ``window`` periods of ``T_s`` (module doc); ``update(count)`` → ω̂."""
+
+    def __init__(self, counts_per_rev: int, window: int, T_s: float, count0: int):
+        self.scale = TWO_PI / (counts_per_rev * T_s)
+        self.window = window
+        self.hist = [count0]
+
+    def update(self, count: int) -> float:
+        h = self.hist
+        h.append(count)
+        if len(h) > self.window + 1:
+            del h[0]
+        return (count - h[0]) * self.scale / (len(h) - 1)
+
+
+def _triple(where: str, value, lo=None):
+    if isinstance(value, (list, tuple)):
+        if len(value) != 3:
+            raise InvalidParameter(where, value, 'must be one number or three (phases a, b, c)')
+        return tuple(check_real(where, v, lo) for v in value)
+    x = check_real(where, value, lo)
+    return (x, x, x)
+
+
+def sensors_from_dict(spec: Mapping, where: str = 'sensors') -> Sensors:
+    """Return the :class:`Sensors` of a ``sensors:`` block; errors are one line naming the key."""
+    if not isinstance(spec, Mapping):
+        raise InvalidParameter(where, spec, 'must be a mapping of ' + ', '.join(SENSOR_KEYS))
+    out = {}
+    for key, val in spec.items():
+        name = f'{where}.{key}'
+        if key not in SENSOR_KEYS:
+            raise InvalidParameter(name, val, f"unknown key (known: {', '.join(SENSOR_KEYS)})")
+        if key in ('encoder_lines', 'speed_window', 'adc_bits'):
+            if isinstance(val, bool) or not isinstance(val, int):
+                raise InvalidParameter(name, val, 'must be a whole number')
+            if key == 'encoder_lines' and val <= 0:
+                raise InvalidParameter(name, val, 'an encoder needs >= 1 line (leave the key out '
+                                                  'for the ideal shaft sensor)')
+            if key == 'adc_bits' and val <= 0:
+                raise InvalidParameter(name, val, 'an ADC needs >= 1 bit (leave the key out for '
+                                                  'ideal current sensors)')
+            if key == 'adc_bits' and val > 32:
+                raise InvalidParameter(name, val, 'must be <= 32')
+            if key == 'speed_window' and val < 1:
+                raise InvalidParameter(name, val, 'must be >= 1 period')
+            out[key] = val
+        elif key in ('current_offset', 'current_gain'):
+            out[key] = _triple(name, val)
+            if key == 'current_gain' and not all(g > 0 for g in out[key]):
+                raise InvalidParameter(name, val, 'must be > 0')
+        else:
+            out[key] = check_real(name, val, 0.0, lo_open=True)
+    return Sensors(**out)
