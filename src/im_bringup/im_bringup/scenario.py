@@ -94,7 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help='run every node as its own process, started as the launch file starts '
                          'them, with the recorder (needs --record); logs next to the recording')
     ap.add_argument('--domain-id', type=int, default=None,
-                    help='DDS domain (default: random 150-229)')
+                    help='ROS domain (default: $ROS_DOMAIN_ID, 0 when unset, as every ROS 2 '
+                         'tool)')
     ap.add_argument('--no-progress', action='store_true')
     return ap
 
@@ -193,7 +194,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     Run one scenario through the lock-step graph; return its summary (figures of merit).
 
     ``scenario``: the :class:`~im_bringup.run_file.Scenario` the parameters came from (the
-    bag's ``run`` record).
+    bag's ``run`` record). ``domain_id``: the ROS domain (default ``ROS_DOMAIN_ID``).
     """
     from im_bringup.graph import DriveGraph
     from im_recording.traces import Tap
@@ -373,7 +374,7 @@ def scenario_from_args(args):
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args
+    from im_common.cli import parse_args, ros_domain_id
     from im_recording.bag import BagError
     args = parse_args(build_parser(), argv)
     try:
@@ -398,6 +399,11 @@ def main(argv=None) -> int:
     if args.processes and not args.record:       # a usage error, before any file is looked at
         print('error: --processes needs --record (the figures come from the recording)',
               file=sys.stderr)
+        return 2
+    try:
+        args.domain_id = ros_domain_id(args.domain_id)
+    except ValueError as exc:
+        print(f'error: {exc}', file=sys.stderr)
         return 2
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
@@ -498,8 +504,6 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     im_bringup drive.launch.py`` starts) plus the recorder; the figures come from the
     recording, by the report's own code.
     """
-    import random
-
     from im_bringup.processes import check_processes, failure_line, graph_processes, \
         run_processes
     from im_recording.report import figures_of_merit
@@ -519,9 +523,9 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
     logs = os.path.splitext(args.record)[0] + '_logs'
-    domain = args.domain_id if args.domain_id is not None else random.randint(150, 229)
     codes = run_processes(procs, logs, timeout=24 * 3600.0,
-                          env={'ROS_DOMAIN_ID': str(domain)}, progress=not args.no_progress)
+                          env={'ROS_DOMAIN_ID': str(args.domain_id)},
+                          progress=not args.no_progress)
     summary = {'task': args.task, 'strategy': args.strategy, 'controller': args.controller,
                'variation': args.variation, 'rate_hz': round(1.0 / args.T_s, 6),
                'processes': codes, 'logs': logs, 'ok': all(c == 0 for c in codes.values())}
