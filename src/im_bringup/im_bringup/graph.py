@@ -52,7 +52,9 @@ def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
     from im_common.lockstep import build_node
     factories = node_factories()
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    # args: no ROS arguments. Without them rcl reads this process's own command line — the
+    # launch file's 'task:=speed' became "Found remap rule ... deprecated" warnings.
+    rclpy.init(args=['check_parameters'], context=ctx, domain_id=random.randint(150, 229))
     try:
         for name, values in parameters.items():
             if name in factories:
