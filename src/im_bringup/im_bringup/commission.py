@@ -60,6 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                    'unset, as every ROS 2 tool)')
     p.add_argument('--timeout', type=float, default=30.0,
                    help='wall seconds to wait for the plant (default 30)')
+    p.add_argument('--no-progress', action='store_true',
+                   help='no in-place progress line (for logs)')
     return p
 
 
@@ -222,7 +224,7 @@ def run(args) -> int:
         while not node.done and rclpy.ok(context=ctx):
             ex.spin_once(timeout_sec=0.05)
             now = time.perf_counter()
-            if now - last > 0.5:
+            if now - last > 0.5 and not args.no_progress:
                 last = now
                 status_line(f'  t = {com.k * args.T_s:7.3f} s  {com.progress:60s}')
             if any(n.exit_code for n in nodes):
@@ -231,7 +233,8 @@ def run(args) -> int:
                 break
             if node.state == 'waiting' and now - t0 > args.timeout:
                 break
-        status_line('', done=True)
+        if not args.no_progress:
+            status_line('', done=True)
         failed = [n for n in nodes if n.exit_code]
         if failed and not com.failure:
             raise NotInformative(f'{failed[0].get_name()}: {failed[0].failure}')
