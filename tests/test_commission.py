@@ -277,7 +277,7 @@ def test_tool_refuses_missing_settings_in_one_line(tmp_path, args, needle):
 @pytest.mark.parametrize('no_progress', [False, True])
 def test_tool_no_progress_writes_no_carriage_returns(tmp_path, ros_domain_id, no_progress):
     """
-    ``--no-progress``: no in-place ``\\r`` status line, only the result (for logs).
+    ``--no-progress``: no in-place status line (carriage returns), only the result (for logs).
 
     Nobody answers on the test's domain: one line after ``--timeout``, naming the domain it
     listened on (``ROS_DOMAIN_ID``).
