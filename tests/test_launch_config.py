@@ -87,3 +87,13 @@ def test_the_launch_files_parameter_check_reads_no_ros_arguments_from_its_comman
                        env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))  # this tree
     assert r.returncode == 0 and r.stdout.strip() == 'checked', r.stderr[-2000:]
     assert r.stderr == '', r.stderr
+
+
+def test_live_true_adds_the_live_view_started_first():
+    """``live:=true``: the ``live`` node on foxglove_bridge's port, started before the others."""
+    from im_bringup.processes import START_ORDER
+    from im_bringup.scenario import launch_processes
+    procs = {p.name: p for p in launch_processes({'duration': '0.1', 'live': 'true'})}
+    assert (procs['live'].package, procs['live'].executable) == ('im_bringup', 'live')
+    assert procs['live'].arguments == ['--port', '8765'] and START_ORDER[0] == 'live'
+    assert 'live' not in {p.name for p in launch_processes({'duration': '0.1', 'live': 'false'})}
