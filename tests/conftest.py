@@ -4,8 +4,20 @@ import pytest
 
 pytest_plugins = ['im_bringup.testing']
 
-#: DDS domains the in-process tests draw from (shared machine: keep clear of the default 0)
-TEST_DOMAINS = (150, 229)
+
+@pytest.fixture(autouse=True)
+def ros_domain_id(monkeypatch):
+    """
+    Run each test on a random ROS domain in 150-229 (``ROS_DOMAIN_ID``), returned as an int.
+
+    Every tool runs on ``ROS_DOMAIN_ID`` as ROS 2 does (the in-process graph, the executables
+    a test starts, their processes): here, not in the tools, tests are kept apart from each
+    other and from the user's own graph on the shared machine.
+    """
+    from im_bringup.testing import TEST_DOMAINS
+    domain = random.randint(*TEST_DOMAINS)
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    return domain
 
 
 @pytest.fixture(scope='session', autouse=True)
@@ -40,6 +52,7 @@ def ros_context():
     """
     import rclpy
     from rclpy.context import Context
+    from im_bringup.testing import TEST_DOMAINS
     ctx = Context()
     rclpy.init(context=ctx, domain_id=random.randint(*TEST_DOMAINS))
     try:

@@ -272,3 +272,24 @@ def test_tool_refuses_missing_settings_in_one_line(tmp_path, args, needle):
     assert proc.returncode == 2 and needle in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / 'm.yaml').exists()
+
+
+@pytest.mark.parametrize('no_progress', [False, True])
+def test_tool_no_progress_writes_no_carriage_returns(tmp_path, ros_domain_id, no_progress):
+    """
+    ``--no-progress``: no in-place status line (carriage returns), only the result (for logs).
+
+    Nobody answers on the test's domain: one line after ``--timeout``, naming the domain it
+    listened on (``ROS_DOMAIN_ID``).
+    """
+    proc = subprocess.run([_tool(), '--out', str(tmp_path / 'm.yaml'), '--current-limit', '8',
+                           '--voltage-limit', '220', '--test-speed', '100', '--timeout', '1.5']
+                          + (['--no-progress'] if no_progress else []),
+                          capture_output=True, timeout=120)
+    err = proc.stderr.decode()      # bytes: text mode would turn every \r into \n
+    assert proc.returncode == 1, err
+    assert err.strip().endswith(f'no plant answered within 1.5 s (ROS_DOMAIN_ID={ros_domain_id})')
+    assert ('\r' in err) is not no_progress
+    if no_progress:
+        assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / 'm.yaml').exists()

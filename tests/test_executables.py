@@ -24,6 +24,7 @@ EXECUTABLES = [
     ('im_recording', 'recover'),
     ('im_studies', 'campaign'),
     ('im_bringup', 'commission'),
+    ('im_bringup', 'live'),
 ]
 
 

@@ -100,7 +100,7 @@ def test_stop_signal_mid_run_leaves_a_complete_recording_and_summary(tmp_path, s
     r = run_tool('report', bag, '--no-plots', '--out', tmp_path / 'rep')
     assert r.returncode == 0, r.stderr
     md = (tmp_path / 'rep' / 'report.md').read_text()
-    assert f'interrupted by {sig.name}' in md and 'control instants recorded' in md
+    assert f'interrupted by {sig.name}' in md and 'steps recorded' in md
 
 
 def test_hard_kill_leaves_the_final_name_free_and_recover_finds_the_part(tmp_path):

@@ -63,3 +63,37 @@ def test_params_file_is_what_launch_ros_writes():
     text = params_file_text({'T_s': 0.001, 'mode': 'free_run'})
     expected = {'T_s': 0.001, 'mode': 'free_run'}
     assert yaml.safe_load(text) == {'/**': {'ros__parameters': expected}}
+
+
+def test_the_launch_files_parameter_check_reads_no_ros_arguments_from_its_command_line():
+    """
+    ``ros2 launch im_bringup drive.launch.py task:=speed strategy:=min_loss``: no rcl warning.
+
+    The launch file checks the nodes' parameters in the launch process itself
+    (:func:`im_bringup.processes.check_processes`); rcl must not take the launch arguments on its
+    command line for remap rules ("Found remap rule 'task:=speed'. This syntax is deprecated").
+    """
+    import subprocess
+    import sys
+    argv = ['ros2', 'launch', 'im_bringup', 'drive.launch.py', 'task:=speed',
+            'strategy:=min_loss', 'duration:=0.1']
+    code = (f'import sys; sys.argv = {argv!r}\n'
+            'from im_bringup.processes import check_processes\n'
+            'from im_bringup.scenario import launch_processes\n'
+            "a = dict(arg.split(':=') for arg in sys.argv[4:])\n"
+            'check_processes(launch_processes(a))\n'
+            "print('checked')\n")
+    r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120,
+                       env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))  # this tree
+    assert r.returncode == 0 and r.stdout.strip() == 'checked', r.stderr[-2000:]
+    assert r.stderr == '', r.stderr
+
+
+def test_live_true_adds_the_live_view_started_first():
+    """``live:=true``: the ``live`` node on foxglove_bridge's port, started before the others."""
+    from im_bringup.processes import START_ORDER
+    from im_bringup.scenario import launch_processes
+    procs = {p.name: p for p in launch_processes({'duration': '0.1', 'live': 'true'})}
+    assert (procs['live'].package, procs['live'].executable) == ('im_bringup', 'live')
+    assert procs['live'].arguments == ['--port', '8765'] and START_ORDER[0] == 'live'
+    assert 'live' not in {p.name for p in launch_processes({'duration': '0.1', 'live': 'false'})}

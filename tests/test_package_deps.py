@@ -42,10 +42,11 @@ PYTHON_KEYS = {
     'zstandard': 'python3-zstandard-pip',   # not in rosdistro: rosdep/python-pip.yaml
     'pyarrow': 'python3-pyarrow-pip',       # not in rosdistro: rosdep/python-pip.yaml
     'distributed': 'python3-distributed-pip',   # not in rosdistro: rosdep/python-pip.yaml
+    'foxglove': 'python3-foxglove-sdk-pip',     # not in rosdistro: rosdep/python-pip.yaml
 }
 #: the keys of PYTHON_KEYS that ros/rosdistro does not define (checked 2026-11 against its
 #: rosdep/python.yaml); the project's rosdep/python-pip.yaml defines them
-NOT_IN_ROSDISTRO = {'mcap', 'lz4', 'zstandard', 'pyarrow', 'distributed'}
+NOT_IN_ROSDISTRO = {'mcap', 'lz4', 'zstandard', 'pyarrow', 'distributed', 'foxglove'}
 ROOT = SRC.parent
 
 

@@ -600,6 +600,8 @@ def test_scenario_runs_as_separate_processes(tmp_path):
     live = run_graph(task='position', strategy='min_energy', duration=0.1)
     for key in ('E_in_J', 'pos_err_max_rad', 'V_max_V'):
         assert s[key] == pytest.approx(live.summary[key], rel=1e-12), key
+    # one step count on both paths: the steps the plant integrated, 0.1 s / 100 µs
+    assert s['steps'] == live.summary['steps'] == 1000
     r2 = subprocess.run([executable_path('im_bringup', 'scenario'), '--processes', '--duration',
                          '0.1'], capture_output=True, text=True, timeout=60)
     assert r2.returncode == 2 and r2.stderr.strip() == \

@@ -1,5 +1,5 @@
 """The ros_context fixture (tests/conftest.py): a private, initialized context on a test domain."""
-from conftest import TEST_DOMAINS
+from im_bringup.testing import TEST_DOMAINS
 import rclpy
 from rclpy.node import Node
 

@@ -131,6 +131,42 @@ def test_rerun_of_a_bag_without_a_run_record_is_one_line(tmp_path, capsys):
                   'by the scenario runner); cannot re-run it'
 
 
+@pytest.mark.parametrize('task', ['position', 'speed'])
+def test_the_run_record_of_a_default_run_holds_its_motor_load_and_profile(tmp_path, task):
+    """
+    A run with the default motor, load and profile: its bag's run file says what they were.
+
+    docs/running.md: "the run file, fully resolved"; it reads back as the same run.
+    """
+    import yaml
+    from im_bringup.run_file import motor_parameters
+    from im_bringup.scenario import main
+    from im_recording.bag import info
+    bag = str(tmp_path / 'default.mcap')
+    assert main(['--task', task, '--duration', '0.005', '--record', bag, '--no-progress']) == 0
+    record = yaml.safe_load(info(bag).metadata['run']['yaml'])
+    assert record['motor'] == motor_parameters(THESIS_MOTOR)
+    assert record['motor']['R_r'] == THESIS_MOTOR.R_r and record['motor']['pole_pairs'] == 2
+    assert record['load'] == ({'kind': 'pendulum', 'mgl': 10.0} if task == 'position' else
+                              {'kind': 'linear', 'c1': 1.0, 'c2': 0.001})
+    assert record['profile'] == (
+        {'kind': 'thesis_position', 'theta0': -math.pi / 2, 'amplitude': 1.2 * math.pi,
+         't0': 0.4, 'k': 10.0} if task == 'position' else
+        {'kind': 'thesis_speed', 'omega0': 135.0, 'amplitude': 45.0, 't0': 0.2, 'k': 10.0,
+         'theta0': 0.0})
+    default = Scenario.from_mapping({'task': task, 'duration': 0.005})
+    again = Scenario.from_mapping(record)
+    assert again == default and again.node_parameters() == default.node_parameters()
+    # the thesis's reference has its parameters only; another task's is refused, in one line
+    with pytest.raises(RunFileError, match='^run: profile: the thesis_\\w+ reference has the '
+                                           "thesis's parameters only"):
+        Scenario.from_mapping(dict(record, profile=dict(record['profile'], t0=0.3)), 'run')
+    other = 'speed' if task == 'position' else 'position'
+    with pytest.raises(RunFileError, match=f'^run: profile: is the thesis {task} reference; '
+                                           f'the task is {other}'):
+        Scenario.from_mapping(dict(record, task=other), 'run')
+
+
 # --- the graph: in one process, as processes, and re-run from the bag (run in a netns) ---------
 def _summary(path):
     with open(path) as f:

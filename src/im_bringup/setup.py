@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/runs', glob('config/runs/*.yaml')),
         ('share/' + package_name + '/config/sros2', glob('config/sros2/*.xml')),
+        ('share/' + package_name + '/config/foxglove', glob('config/foxglove/*.json')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
     ],
     install_requires=['setuptools'],
@@ -27,6 +28,7 @@ setup(
         'console_scripts': [
             'scenario = im_bringup.scenario:main',
             'commission = im_bringup.commission:main',
+            'live = im_bringup.live:main',
         ],
     },
 )

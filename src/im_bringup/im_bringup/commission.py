@@ -56,10 +56,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help='simulation: current measurement noise std of the plant [A]')
     p.add_argument('--speed-noise', type=float, default=0.0,
                    help='simulation: speed measurement noise std of the plant [rad/s]')
-    p.add_argument('--domain-id', type=int, help='ROS domain (default: a random one in '
-                   '150-229 with --plant-motor, else $ROS_DOMAIN_ID)')
+    p.add_argument('--domain-id', type=int, help='ROS domain (default: $ROS_DOMAIN_ID, 0 when '
+                   'unset, as every ROS 2 tool)')
     p.add_argument('--timeout', type=float, default=30.0,
                    help='wall seconds to wait for the plant (default 30)')
+    p.add_argument('--no-progress', action='store_true',
+                   help='no in-place progress line (for logs)')
     return p
 
 
@@ -194,11 +196,13 @@ def run(args) -> int:
                         test_speed=s['speed'], locked=args.locked_rotor)
     if os.path.exists(args.out) and not args.force:
         raise Refused(f'{args.out} exists: give --force to overwrite it')
-    import random
     import tempfile
+    from im_common.cli import ros_domain_id
     ctx = Context()
-    domain = args.domain_id if args.domain_id is not None else (
-        random.randint(150, 229) if args.plant_motor else None)
+    try:
+        domain = ros_domain_id(args.domain_id)
+    except ValueError as exc:
+        raise Refused(str(exc)) from None
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     nodes, plant, key = [], None, None
     workdir = tempfile.mkdtemp(prefix='commission_')
@@ -208,7 +212,7 @@ def run(args) -> int:
         key_file = graph_key_file()
         key = auth.read_key_file(key_file)
         plant = start_plant(args.plant_motor, s, args, domain, key_file, workdir)
-    rclpy.init(context=ctx, **({} if domain is None else {'domain_id': domain}))
+    rclpy.init(context=ctx, domain_id=domain)
     try:
         node = make_node(com, args.T_s, context=ctx, graph_key=key)
         nodes.append(node)
@@ -220,7 +224,7 @@ def run(args) -> int:
         while not node.done and rclpy.ok(context=ctx):
             ex.spin_once(timeout_sec=0.05)
             now = time.perf_counter()
-            if now - last > 0.5:
+            if now - last > 0.5 and not args.no_progress:
                 last = now
                 status_line(f'  t = {com.k * args.T_s:7.3f} s  {com.progress:60s}')
             if any(n.exit_code for n in nodes):
@@ -229,7 +233,8 @@ def run(args) -> int:
                 break
             if node.state == 'waiting' and now - t0 > args.timeout:
                 break
-        status_line('', done=True)
+        if not args.no_progress:
+            status_line('', done=True)
         failed = [n for n in nodes if n.exit_code]
         if failed and not com.failure:
             raise NotInformative(f'{failed[0].get_name()}: {failed[0].failure}')

@@ -3,8 +3,9 @@ The four drive nodes spun in one process, on a context of their own, in lock-ste
 
 :class:`DriveGraph` is what the scenario runner, the benchmarks and the integration tests use; it
 is also the reusable piece for users' own integration tests (see :mod:`im_bringup.testing` for the
-pytest fixture). Each graph owns its ``Context`` and a DDS domain id of its own (by default a
-random one in 150-229), so several graphs — or several test runs on one machine — never cross-talk.
+pytest fixture). Each graph owns its ``Context``; its DDS domain is ``ROS_DOMAIN_ID``, as for every
+ROS 2 tool (0 when unset), unless ``domain_id`` says otherwise. Several graphs at once — or several
+test runs on one machine — need a domain each: the test fixtures give them one.
 
 Recording in-process taps the nodes' publishers: every message a node publishes is also handed to
 the :class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot
@@ -51,7 +52,9 @@ def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
     from im_common.lockstep import build_node
     factories = node_factories()
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    # args: no ROS arguments. Without them rcl reads this process's own command line — the
+    # launch file's 'task:=speed' became "Found remap rule ... deprecated" warnings.
+    rclpy.init(args=['check_parameters'], context=ctx, domain_id=random.randint(150, 229))
     try:
         for name, values in parameters.items():
             if name in factories:
@@ -74,7 +77,7 @@ class DriveGraph:
         missing-input path: the others report what they waited for and stop.
     recorder : optional sink with ``write(topic, payload)`` (an :class:`im_recording.traces.Tap`):
         every message a node publishes is handed to it (serialized).
-    domain_id : DDS domain (default random in 150-229).
+    domain_id : DDS domain (default: ``ROS_DOMAIN_ID``, as rcl reads it; 0 when unset).
     graph_key : the key its nodes sign their messages with (default: a random one, in memory;
         ``docs/security.md``).
 
@@ -92,8 +95,9 @@ class DriveGraph:
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         # this graph's key, in memory only: its nodes accept each other's messages, nobody else's
         self.graph_key = os.urandom(32) if graph_key is None else graph_key
-        self.domain_id = random.randint(150, 229) if domain_id is None else int(domain_id)
-        rclpy.init(context=self.context, domain_id=self.domain_id)
+        rclpy.init(context=self.context,                # None: rcl reads ROS_DOMAIN_ID
+                   **({} if domain_id is None else {'domain_id': int(domain_id)}))
+        self.domain_id = self.context.get_domain_id()
         self.nodes: Dict[str, object] = {}
         self.recorder = recorder
         self._stop = None

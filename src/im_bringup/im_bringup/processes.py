@@ -11,7 +11,8 @@ One description, :func:`graph_processes`, serves ``launch/drive.launch.py`` (``r
 What is started:
 - ``plant``, ``controller``, ``observer`` always; ``adapter`` when the controller uses it
   (``controller:=adaptive`` / ``adaptive_thesis`` or ``use_adapter:=true``); ``record`` (the
-  recorder, a lossless follower) when ``record`` names a file.
+  recorder, a lossless follower) when ``record`` names a file; ``live`` (the live view,
+  :mod:`im_bringup.live`) with ``live_port``.
 - The plant waits for controller, observer (and adapter, recorder when started) before step 0.
 - ``mode`` is the plant's: ``lockstep`` (default) or ``free_run`` (wall-clock fixed rate; give it
   gains certified at that period, e.g. ``gains:=.../config/gains_1ms.yaml`` at ``T_s:=0.001``).
@@ -31,12 +32,12 @@ from typing import Dict, List, Mapping, Optional, Sequence
 
 #: Order in which the supervisor starts nodes (the time master last: it waits for the others
 #: anyway, but starting it last makes its "waiting for" log short).
-START_ORDER = ('recorder', 'controller', 'observer', 'adapter', 'plant')
+START_ORDER = ('live', 'recorder', 'controller', 'observer', 'adapter', 'plant')
 
 #: Package and executable of each node of the graph.
 EXECUTABLES = {'plant': ('im_plant', 'plant'), 'controller': ('im_controller', 'controller'),
                'observer': ('im_observer', 'observer'), 'adapter': ('im_adapt', 'adapter'),
-               'recorder': ('im_recording', 'record')}
+               'recorder': ('im_recording', 'record'), 'live': ('im_bringup', 'live')}
 
 
 @dataclass
@@ -57,7 +58,8 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                     extra: Optional[Mapping[str, Mapping[str, object]]] = None,
                     key_file: Optional[str] = None,
                     record_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
-                    scenario=None, **config) -> List[NodeProcess]:
+                    scenario=None, live_port: Optional[int] = None,
+                    **config) -> List[NodeProcess]:
     """
     Return the processes of one run (see the module docstring).
 
@@ -68,6 +70,7 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     into the bag (``record --metadata``; the scenario runner's
     :func:`im_bringup.scenario.run_metadata`). ``scenario``: a
     :class:`~im_bringup.run_file.Scenario` (a run file) instead of task ... config.
+    ``live_port``: also the live view on that port (:mod:`im_bringup.live`).
     """
     from im_bringup.config import node_parameters
     if mode not in ('lockstep', 'free_run'):
@@ -104,6 +107,9 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                                  arguments=['--out', str(record)] + (
                                      ['--metadata', json.dumps(record_metadata, sort_keys=True)]
                                      if record_metadata else [])))
+    if live_port is not None:
+        procs.append(NodeProcess('live', *EXECUTABLES['live'],
+                                 arguments=['--port', str(int(live_port))]))
     return procs
 
 

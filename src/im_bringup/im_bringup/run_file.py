@@ -37,6 +37,7 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, InvalidPar
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.flux import STRATEGIES
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
+from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
 import numpy as np
@@ -61,6 +62,15 @@ TASK_PRESETS = {
     # beyond the thesis: torque tracking of an effort profile (needs one), from rest, unloaded
     'torque': {'load': 'none', 'theta0': 0.0, 'omega0': 0.0, 'start': 'rest', 'duration': 1.0},
 }
+
+
+def task_load(task: str) -> Load:
+    """Return a task's shaft load in the thesis (:data:`TASK_PRESETS`), the run's default."""
+    p = TASK_PRESETS[task]
+    return make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
+                     c2=p.get('load_c2', 0.001))
+
+
 TORQUE_NEEDS_PROFILE = ('the torque task needs a profile of effort setpoints '
                         '(--profile FILE with setpoints: [{t: 0.0, effort: ...}, ...])')
 
@@ -323,11 +333,7 @@ class Scenario:
         return self.plant_motor()
 
     def plant_load(self) -> Load:
-        if self.load_model is not None:
-            return self.load_model
-        p = TASK_PRESETS[self.task]
-        return make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
-                         c2=p.get('load_c2', 0.001))
+        return self.load_model if self.load_model is not None else task_load(self.task)
 
     def limits(self) -> dict:
         """Return the controller limits that are set (torque/current/speed and the margins)."""
@@ -529,8 +535,10 @@ class Scenario:
         """
         Return the run file of this scenario, fully resolved.
 
-        Motor, estimates, load, profile and gains inline, so it re-runs without any other
-        file (:meth:`from_mapping` of it gives an equal Scenario).
+        Motor, estimates, load, profile and gains inline — the defaults too (the thesis motor,
+        the task's load and reference trajectory) — so it re-runs without any other file and
+        says what ran (:meth:`from_mapping` of it gives an equal Scenario: a default written
+        out reads back as the default).
         """
         if self.schedule is not None:
             raise InvalidParameter('schedule', self.schedule.name,
@@ -543,17 +551,17 @@ class Scenario:
         for name in ('start', 'theta0', 'omega0'):
             if getattr(self, name) != getattr(derived, name):
                 out[name] = getattr(self, name)
-        if self.motor is not None:
-            out['motor'] = motor_parameters(self.motor)
+        out['motor'] = motor_parameters(self.plant_motor())     # the defaults too: resolved
         if self.estimates is not None:
             out['estimates'] = motor_parameters(self.estimates)
-        if self.load_model is not None:
-            out['load'] = dict(self.load_model.describe())
+        out['load'] = dict(self.plant_load().describe())
         if self.profile is not None:
             key = MODE_KIND[self.profile.mode]
             out['profile'] = {'setpoints': [dict({'t': t, key: v},
                                                  **({} if d is None else {'duration': d}))
                                             for t, v, d in self.profile.setpoints]}
+        else:                           # the thesis's reference of the task, its parameters
+            out['profile'] = THESIS_TRAJECTORIES[self.task]().describe()
         for name in ZERO_IS_NONE + ('inverter_rating',):
             if getattr(self, name) is not None:
                 out[name] = float(getattr(self, name))
@@ -669,6 +677,8 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
                 value = load_file(value)
         elif key == 'load' and value is not None:
             value = load_from_dict(value, source='load')
+        elif key == 'profile' and isinstance(value, Mapping) and 'kind' in value:
+            value = _thesis_reference(value, doc.get('task', 'position'))   # None: the default
         elif key == 'profile' and value is not None:
             if not isinstance(value, Mapping) or set(value) != {'setpoints'}:
                 raise InvalidParameter('profile', value, 'must be a file or {setpoints: [...]}')
@@ -687,7 +697,35 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
     for key in ('gains', 'parameters'):
         if kw.get(key) is not None and not isinstance(kw[key], Mapping):
             raise InvalidParameter(key, kw[key], 'must be a file or {node: {parameter: value}}')
+    # a default written out (a run record is fully resolved) reads back as the default
+    if isinstance(kw.get('motor'), MotorParams) and kw['motor'] == THESIS_MOTOR:
+        kw['motor'] = None
+    task = kw.get('task', 'position')
+    if isinstance(kw.get('load_model'), Load) and task in TASK_PRESETS \
+            and kw['load_model'] == task_load(task):
+        kw['load_model'] = None
     return kw
+
+
+def _thesis_reference(value: Mapping, task: str) -> None:
+    """
+    Read the thesis's reference trajectory as a run record writes it: the task's default (None).
+
+    Its parameters are the thesis's (setpoints of one's own go in ``{setpoints: [...]}``).
+    """
+    kind = value.get('kind')
+    tasks = {cls().describe()['kind']: t for t, cls in THESIS_TRAJECTORIES.items()}
+    if kind not in tasks:
+        raise InvalidParameter('profile.kind', kind, f'must be one of {", ".join(tasks)} (or '
+                               'give {setpoints: [...]})')
+    if tasks[kind] != task:
+        raise InvalidParameter('profile', kind, f'is the thesis {tasks[kind]} reference; the '
+                               f'task is {task}')
+    if dict(value) != THESIS_TRAJECTORIES[task]().describe():
+        raise InvalidParameter('profile', dict(value), f'the {kind} reference has the '
+                               "thesis's parameters only; setpoints of your own go in "
+                               '{setpoints: [...]}')
+    return None
 
 
 def _read_parameters_file(path: str) -> dict:

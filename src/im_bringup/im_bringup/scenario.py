@@ -93,8 +93,14 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--processes', action='store_true',
                     help='run every node as its own process, started as the launch file starts '
                          'them, with the recorder (needs --record); logs next to the recording')
+    ap.add_argument('--live', action='store_true',
+                    help='serve the running graph to Foxglove (WebSocket, ws://127.0.0.1:8765; '
+                         'layout: share/im_bringup/config/foxglove/drive.json)')
+    ap.add_argument('--live-port', type=int, default=None, metavar='PORT',
+                    help="the live view's port (default 8765, as foxglove_bridge)")
     ap.add_argument('--domain-id', type=int, default=None,
-                    help='DDS domain (default: random 150-229)')
+                    help='ROS domain (default: $ROS_DOMAIN_ID, 0 when unset, as every ROS 2 '
+                         'tool)')
     ap.add_argument('--no-progress', action='store_true')
     return ap
 
@@ -162,7 +168,8 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
     by the scenario
     arguments given (``task``, ``strategy``, ``controller``, ``T_s``, ``duration``, ``mode``,
     ``sensorless``, ``gains``, ``params_file``), with the recorder when ``record`` names a file
-    (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`).
+    (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`) and the live view
+    when ``live`` is ``true``.
     """
     import yaml
     from im_bringup.processes import graph_processes
@@ -178,8 +185,10 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
           Scenario.from_mapping({}, source='launch arguments', overrides=over,
                                 override_source='launch arguments'))
     record = a.get('record') or None
+    from im_bringup.live import DEFAULT_PORT
+    live = a.get('live', '').lower() == 'true'
     return graph_processes(
-        scenario=sc, mode=sc.mode, record=record,
+        scenario=sc, mode=sc.mode, record=record, live_port=DEFAULT_PORT if live else None,
         use_adapter={'': None, 'true': True, 'false': False}[a.get('use_adapter', '').lower()],
         record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
                                      scenario=sc) if record else None)
@@ -188,12 +197,14 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
 def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
                  variation: str = 'none', record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,
-                 metadata: Optional[dict] = None, scenario=None) -> dict:
+                 metadata: Optional[dict] = None, scenario=None,
+                 live_port: Optional[int] = None) -> dict:
     """
     Run one scenario through the lock-step graph; return its summary (figures of merit).
 
     ``scenario``: the :class:`~im_bringup.run_file.Scenario` the parameters came from (the
-    bag's ``run`` record).
+    bag's ``run`` record). ``domain_id``: the ROS domain (default ``ROS_DOMAIN_ID``).
+    ``live_port``: serve every message live on that port too (:mod:`im_bringup.live`).
     """
     from im_bringup.graph import DriveGraph
     from im_recording.traces import Tap
@@ -204,6 +215,18 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         writer = BagWriter(record, force=force, metadata=run_metadata(
             task, strategy, controller, variation, metadata, scenario=scenario))
     sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
+    view = None
+    if live_port is not None:
+        from im_bringup.live import LiveTap, LiveView
+        try:
+            view = LiveView(port=live_port)
+        except OSError:
+            if writer is not None:
+                writer.discard()
+            raise
+        print(f'live view: {view.url} (Foxglove: Open connection, Foxglove WebSocket)',
+              file=sys.stderr, flush=True)
+        sink = LiveTap(sink, view)
     graph = None
     with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
         try:
@@ -224,6 +247,12 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
             k = plant.sim.k if plant is not None else 0
             if graph is not None:
                 graph.close()
+            if view is not None:
+                if graph is not None:       # the last messages reach the viewers
+                    import time
+                    from im_bringup.live import END_GRACE_S
+                    time.sleep(END_GRACE_S)
+                view.close()
             if writer is not None and graph is None:    # refused before the run: no file
                 writer.discard()
             elif writer is not None and not writer.failed:
@@ -373,7 +402,7 @@ def scenario_from_args(args):
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args
+    from im_common.cli import parse_args, ros_domain_id
     from im_recording.bag import BagError
     args = parse_args(build_parser(), argv)
     try:
@@ -399,6 +428,14 @@ def main(argv=None) -> int:
         print('error: --processes needs --record (the figures come from the recording)',
               file=sys.stderr)
         return 2
+    try:
+        args.domain_id = ros_domain_id(args.domain_id)
+    except ValueError as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    if args.live or args.live_port is not None:
+        from im_bringup.live import DEFAULT_PORT
+        args.live_port = DEFAULT_PORT if args.live_port is None else args.live_port
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
     inputs = [args.gains, args.params_file, args.run, args.rerun]
@@ -425,8 +462,8 @@ def main(argv=None) -> int:
                                controller=args.controller, variation=args.variation,
                                record=args.record, force=args.force,
                                progress=not args.no_progress, domain_id=args.domain_id,
-                               scenario=sc)
-    except (ValueError, FileExistsError, rclpy_errors()) as exc:
+                               scenario=sc, live_port=args.live_port)
+    except (ValueError, OSError, rclpy_errors()) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     except BagError as exc:         # the recording failed before the run started
@@ -498,15 +535,13 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     im_bringup drive.launch.py`` starts) plus the recorder; the figures come from the
     recording, by the report's own code.
     """
-    import random
-
     from im_bringup.processes import check_processes, failure_line, graph_processes, \
         run_processes
     from im_recording.report import figures_of_merit
     from im_recording.run import load_run
     from im_common.lockstep import ConfigurationError
     procs = graph_processes(scenario=sc, mode=parameters['plant'].get('mode', 'lockstep'),
-                            record=args.record, extra=parameters,
+                            record=args.record, extra=parameters, live_port=args.live_port,
                             record_metadata=run_metadata(args.task, args.strategy,
                                                          args.controller, args.variation,
                                                          scenario=sc))
@@ -519,9 +554,9 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
     logs = os.path.splitext(args.record)[0] + '_logs'
-    domain = args.domain_id if args.domain_id is not None else random.randint(150, 229)
     codes = run_processes(procs, logs, timeout=24 * 3600.0,
-                          env={'ROS_DOMAIN_ID': str(domain)}, progress=not args.no_progress)
+                          env={'ROS_DOMAIN_ID': str(args.domain_id)},
+                          progress=not args.no_progress)
     summary = {'task': args.task, 'strategy': args.strategy, 'controller': args.controller,
                'variation': args.variation, 'rate_hz': round(1.0 / args.T_s, 6),
                'processes': codes, 'logs': logs, 'ok': all(c == 0 for c in codes.values())}

@@ -9,20 +9,26 @@ Use it from a ``conftest.py``::
         result = drive_graph(task='speed', strategy='min_loss', duration=0.2)
         assert result.summary['speed_err_max_rad_s'] < 1.0
 
-Each call builds a fresh :class:`im_bringup.graph.DriveGraph` on its own ``Context`` and DDS
-domain, runs it to the end in lock-step, tears it down, and returns the summary (figures of merit)
-with the traces. Extra node parameters go in ``parameters={'plant': {...}, ...}``. A run file
-(docs/running.md) is given as ``scenario=`` (a path or an :class:`im_bringup.run_file.Scenario`)::
+Each call builds a fresh :class:`im_bringup.graph.DriveGraph` on its own ``Context`` and a random
+DDS domain in 150-229 (isolation is the fixture's job: the graph itself, like every ROS 2 tool,
+runs on ``ROS_DOMAIN_ID``), runs it to the end in lock-step, tears it down, and returns the
+summary (figures of merit) with the traces. Extra node parameters go in
+``parameters={'plant': {...}, ...}``. A run file (docs/running.md) is given as ``scenario=``
+(a path or an :class:`im_bringup.run_file.Scenario`)::
 
     result = drive_graph(scenario='runs/drift.yaml')
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+import random
 from typing import Dict, Optional
 
 import numpy as np
 import pytest
+
+#: DDS domains the fixtures draw from (clear of the default 0 and of the domains users pick)
+TEST_DOMAINS = (150, 229)
 
 
 @dataclass
@@ -65,7 +71,8 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
         writer = BagWriter(record, force=True, metadata=run_metadata(
             task, strategy, controller, variation, scenario=scenario))
     sink = Tap(writer)
-    graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink)
+    graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink,
+                       domain_id=random.randint(*TEST_DOMAINS))
     try:
         if beside is None:
             stats = graph.run()

@@ -7,6 +7,7 @@ Jazzy launch file: the drive graph as separate processes.
         [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
         [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true] [sensorless:=true]
+        [live:=true]
 
 ``run`` names a run file (docs/running.md: the run's every key, variation and noise included);
 the scenario arguments given (task, strategy, controller, T_s, duration, mode, gains, params_file,
@@ -14,12 +15,13 @@ sensorless) override its keys, as ``scenario RUN.yaml --task ...`` does.
 Which processes start, with which parameters, comes from :func:`im_bringup.processes.
 graph_processes` — the same description the project's tests start the graph from: plant,
 controller, observer; the adapter when the controller uses it; the recorder (a lossless follower)
-when ``record`` names a file, and the plant then waits for it before step 0. ``gains`` and
-``params_file`` are ROS 2 parameters files merged over the scenario's parameters (``gains`` e.g.
-``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``, which
-``mode:=free_run`` needs). The parameters are checked before any process starts, by the nodes'
-own checks (:func:`im_bringup.processes.check_processes`): a bad file or value is launch's one
-"Caught exception" line naming the node and parameter; a process that still exits with an error
+when ``record`` names a file, and the plant then waits for it before step 0; the live view
+(:mod:`im_bringup.live`, Foxglove's WebSocket protocol on port 8765) with ``live:=true``. ``gains``
+and ``params_file`` are ROS 2 parameters files merged over the scenario's parameters (``gains``
+e.g. ``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``,
+which ``mode:=free_run`` needs). The parameters are checked before any process starts, by the
+nodes' own checks (:func:`im_bringup.processes.check_processes`): a bad file or value is launch's
+one "Caught exception" line naming the node and parameter; a process that still exits with an error
 shuts the whole launch down at once. Ctrl-C stops every process cleanly (exit 0) and closes the
 recording.
 Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless that variable is
@@ -55,6 +57,8 @@ ARGUMENTS = (
     ('sensorless', '', 'true: speed-sensorless, controller/observer/adapter use the '
                        "observer's speed estimate, not the measured shaft (speed and torque "
                        'tasks; docs/sensorless.md)'),
+    ('live', 'false', 'true: serve the running graph to Foxglove on ws://127.0.0.1:8765 (layout: '
+                      'share/im_bringup/config/foxglove/drive.json; docs/commands.md)'),
     ('security', 'false', 'true: start each node in its SROS2 enclave /im_drive/<node> (needs a '
                           'keystore from config/sros2/policy.xml and a middleware with DDS '
                           'security; docs/security.md)'),

@@ -69,3 +69,28 @@ def status_line(text: str, *, done: bool = False, stream=None) -> None:
     final line (``status_line(f'{label}: done in {s:.1f} s', done=True)``).
     """
     print('\r' + text, end='\n' if done else '', file=stream or sys.stderr, flush=True)
+
+
+#: The highest DDS domain id the middleware can open (Fast DDS's port formula on Linux; ROS 2's
+#: "The ROS_DOMAIN_ID" guide).
+MAX_DOMAIN_ID = 232
+
+
+def ros_domain_id(explicit: Optional[int] = None) -> int:
+    """
+    Return the ROS domain a tool runs on, as every ROS 2 tool chooses it.
+
+    ``explicit`` (a ``--domain-id``) wins, else ``ROS_DOMAIN_ID`` from the environment, else 0.
+    A value the middleware cannot open is one ValueError line naming where it came from.
+    """
+    import os
+    if explicit is not None:
+        where, text = f'--domain-id {explicit}', str(explicit)
+    else:
+        text = os.environ.get('ROS_DOMAIN_ID', '').strip()
+        where = f'ROS_DOMAIN_ID={text!r}'
+        if not text:
+            return 0
+    if not text.isdigit() or int(text) > MAX_DOMAIN_ID:
+        raise ValueError(f'{where}: not a ROS domain (an integer 0-{MAX_DOMAIN_ID})')
+    return int(text)

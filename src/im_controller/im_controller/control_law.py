@@ -44,8 +44,7 @@ from im_common.params import (check_real, estimate_arguments, InvalidParameter, 
 
 from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, STRATEGIES
 from .reference import dq_reference, feedforward_dq, ModelCoefficients, steady_state
-from .trajectories import (SetpointPosition, SetpointSpeed, SetpointTorque, ThesisPositionProfile,
-                           ThesisSpeedProfile)
+from .trajectories import SetpointPosition, SetpointSpeed, SetpointTorque, THESIS_TRAJECTORIES
 
 MODES = ('position', 'speed', 'torque')
 #: the tasks of the thesis's tables (torque is ours)
@@ -378,8 +377,7 @@ class DriveController:
         self._live_setpoint = False  # a setpoint not in the configured profile: not known ahead
         self.plan_note = ''          # optimal: what the flux reference follows, and why
         if cfg.profile == 'thesis':
-            self._traj = (ThesisPositionProfile() if cfg.mode == 'position'
-                          else ThesisSpeedProfile())
+            self._traj = THESIS_TRAJECTORIES[cfg.mode]()
 
     def reconfigure(self, changes: dict) -> None:
         """

@@ -116,6 +116,11 @@ class ThesisSpeedProfile(Trajectory):
                 't0': self.t0, 'k': self.k, 'theta0': self.theta0}
 
 
+#: The thesis's reference of each task (seed 000 §3.4.4-3.4.5): the controller's ``profile:
+#: thesis``, and what a run record writes for it (its ``describe()``).
+THESIS_TRAJECTORIES = {'position': ThesisPositionProfile, 'speed': ThesisSpeedProfile}
+
+
 class Quintic:
     """
     A quintic polynomial p(τ), τ = t − t₀ ∈ [0, T], joining (p₀, v₀, a₀) to (p₁, 0, 0).

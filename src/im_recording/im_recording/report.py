@@ -59,7 +59,7 @@ ROWS = [
     ('V_max_V', 'voltage peak |V_s|', 'V'),
     ('i_max_A', 'current peak |i_s|', 'A'),
     ('duration_s', 'recorded duration', 's'),
-    ('steps', 'control steps', '—'),
+    ('steps', 'steps integrated by the plant', '—'),
 ]
 
 
@@ -104,7 +104,10 @@ def figures_of_merit(run) -> Dict[str, float]:
     fig.update(acc.estimates())
     if acc.steps:
         fig['duration_s'] = float(acc.t_last - acc.t_first)
-        fig['steps'] = int(acc.steps)
+        # the plant's integration steps from the first to the last control instant recorded (the
+        # instants less one: a run of 2 s at 100 µs is 20,000 steps between 20,001 instants), the
+        # count the in-process graph and the plant's 'finished' event give
+        fig['steps'] = int(acc.steps) - 1
     return fig
 
 
@@ -144,14 +147,14 @@ def run_status(run, fig: Dict[str, float]) -> dict:
                      + (f"; {rec['lost']}" if rec.get('lost') else ''))
     plant = md.get('parameters/plant', {})
     try:
-        want = int(round(float(plant['duration']) / float(plant['T_s']))) + 1
+        want = int(round(float(plant['duration']) / float(plant['T_s'])))
     except (KeyError, ValueError, ZeroDivisionError):
         want = None
     have = fig.get('steps')
     if want and have is not None and have < want:
         st['partial'] = True
         st['steps_expected'] = want
-        notes.append(f'{have} of {want} control instants recorded')
+        notes.append(f'{have} of {want} steps recorded')
     if run.running is not None:
         st['gaps'] = run.running.gaps()
         for topic, g in st['gaps'].items():

@@ -154,7 +154,8 @@ def _run_alone(spec: dict, args) -> int:
                          progress=not args.no_progress)
         print(f"recorded {args.record}; ok={s.get('ok')}, E_in = {s.get('E_in_J')}")
         return 0
-    row = run_job(job, dict(spec, mode='graph' if args.graph else spec['mode']), gains)
+    row = run_job(job, dict(spec, mode='graph' if args.graph else spec['mode']), gains,
+                  alone=True)
     for k, v in row.items():
         print(f'  {k:22s} {v}')
     return 0

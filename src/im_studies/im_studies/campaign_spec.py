@@ -393,8 +393,13 @@ def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
     return params
 
 
-def run_job(job: dict, spec: dict, gains: dict) -> dict:
-    """Execute one run; never raises: the row says ok / tripped / diverged / failed."""
+def run_job(job: dict, spec: dict, gains: dict, alone: bool = False) -> dict:
+    """
+    Execute one run; never raises: the row says ok / tripped / diverged / failed.
+
+    A graph run of the pool is on domain 150 + index mod 80 (its concurrent graphs never share
+    one); ``alone`` (``campaign --run``), on ``ROS_DOMAIN_ID`` as every ROS 2 tool.
+    """
     import re
     if job['task'] == COMMISSION_TASK:
         return commission_row(job, spec)
@@ -411,7 +416,7 @@ def run_job(job: dict, spec: dict, gains: dict) -> dict:
             s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
                              strategy=job['strategy'], controller=job['controller'],
                              progress=False,
-                             domain_id=150 + job['index'] % 80)
+                             domain_id=None if alone else 150 + job['index'] % 80)
             s.pop('_run', None)
             if not s.get('ok', True) and not s.get('trip'):
                 raise RuntimeError('; '.join(str(v) for v in (s.get('failures') or {}).values()))
