@@ -109,6 +109,11 @@ class DriveGraph:
                 self.executor.add_node(n)
             if recorder is not None:
                 self._tap_publishers()
+                if hasattr(recorder, 'flush_due') and self.nodes:
+                    # durable recording: a chunk open for a second is on disk, run or stall
+                    from rclpy.clock import Clock, ClockType
+                    next(iter(self.nodes.values())).create_timer(
+                        0.1, recorder.flush_due, clock=Clock(clock_type=ClockType.STEADY_TIME))
         except BaseException:
             self.close()
             raise

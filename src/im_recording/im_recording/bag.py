@@ -17,9 +17,12 @@ Foxglove, PlotJuggler and ``rosbags`` open:
 * run metadata (scenario, parameters, versions, git revision) as named Metadata records.
 
 Every message's log time and publish time is its stamp in simulated time (integer ns).
-Schemas, Channels and Metadata are written to the file as soon as they are declared, and each
-chunk is flushed to the OS when full, so a hard kill loses at most the open chunk and
-``recover`` can salvage the rest.
+Schemas, Channels and Metadata are written to the file as soon as they are declared, and a chunk
+is closed and flushed to the OS (and ``fsync``-ed) as soon as it holds
+:data:`FLUSH_BYTES` (4 MiB uncompressed) or has been open for :data:`FLUSH_WALL_S` (1 s of wall
+time), whichever comes first: checked on every write and by :meth:`BagWriter.flush_due`, which a
+recorder calls from a timer so that a quiet run is flushed too. A hard kill (SIGKILL, power
+loss) therefore costs at most the last second or 4 MiB, and ``recover`` salvages the rest.
 
 The per-message path is a dict lookup, one ``struct.pack`` and two ``bytearray`` appends;
 messages are encoded with :mod:`im_common.cdr` (exact-length CDR). Cost: see
@@ -41,6 +44,7 @@ import os
 from pathlib import Path
 import signal
 import struct
+from time import monotonic as _monotonic
 from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 import weakref
 import zlib
@@ -63,6 +67,11 @@ _MSG_FIXED = 2 + 4 + 8 + 8
 _REC = struct.Struct('<BQ')
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _QQ = struct.Struct('<QQ')
+
+#: A chunk is closed and flushed when it holds this many uncompressed bytes ...
+FLUSH_BYTES = 4 << 20
+#: ... or has been open this long [s of wall time], whichever comes first.
+FLUSH_WALL_S = 1.0
 
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}     # RMW_DURATION_INFINITE
 INFINITE_NS = 9223372036854775807
@@ -357,6 +366,13 @@ class _Output:
     def fileno(self) -> int:
         return self._f.fileno()
 
+    def sync(self) -> None:
+        """``fsync``: what was flushed survives a power loss (an error stops the writer)."""
+        try:
+            os.fsync(self._f.fileno())
+        except OSError as exc:
+            self._failed(exc)
+
     def close(self) -> None:
         try:
             self._f.close()
@@ -379,7 +395,11 @@ class BagWriter:
     compression : 'zstd', 'lz4' or 'none'
         Chunk compression.
     chunk_size : int
-        Uncompressed chunk size [bytes] at which a chunk is closed and flushed.
+        Uncompressed chunk size [bytes] at which a chunk is closed and flushed
+        (:data:`FLUSH_BYTES`).
+    flush_wall_s : float
+        Wall time [s] after its first message at which a chunk is closed, flushed and
+        ``fsync``-ed (:data:`FLUSH_WALL_S`; None: by size only, for files written offline).
     close_at_exit : bool
         Also close from an ``atexit`` hook (the interpreter exiting without ``close``).
     part : str or Path, optional
@@ -397,13 +417,19 @@ class BagWriter:
 
     def __init__(self, path, force: bool = False,
                  metadata: Optional[Dict[str, Dict[str, str]]] = None,
-                 compression: str = 'zstd', chunk_size: int = 1 << 20,
-                 close_at_exit: bool = True, part=None):
+                 compression: str = 'zstd', chunk_size: int = FLUSH_BYTES,
+                 close_at_exit: bool = True, part=None,
+                 flush_wall_s: Optional[float] = FLUSH_WALL_S):
         self.path = Path(path)
         self._compression, self._compress = _compressor(compression)
         if int(chunk_size) < 1024:
             raise ValueError(f'chunk_size must be >= 1024 bytes, not {chunk_size!r}')
         self._chunk_size = int(chunk_size)
+        if flush_wall_s is not None and not float(flush_wall_s) > 0:
+            raise ValueError(f'flush_wall_s must be > 0 s or None, not {flush_wall_s!r}')
+        self._flush_wall = None if flush_wall_s is None else float(flush_wall_s)
+        self._chunk_due = float('inf')      # monotonic time at which the open chunk is flushed
+        self.flushes = {'size': 0, 'time': 0}   # chunks closed by each rule (measured)
         self._closed = True
         self.part = partial_path(self.path) if part is None else Path(part)
         if self.path.is_dir():
@@ -612,9 +638,31 @@ class BagWriter:
         off = len(buf)
         buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns, stamp_ns)
         buf += data
-        self._ix.append((cid, stamp_ns, off))
-        if off >= self._chunk_size:
+        ix = self._ix
+        ix.append((cid, stamp_ns, off))
+        if len(buf) >= self._chunk_size:     # at most chunk_size + one message
+            self.flushes['size'] += 1
             self._flush_chunk()
+        elif self._flush_wall is not None:
+            now = _monotonic()
+            if not off:
+                self._chunk_due = now + self._flush_wall
+            elif now >= self._chunk_due:
+                self.flushes['time'] += 1
+                self._flush_chunk(sync=True)
+
+    def flush_due(self) -> bool:
+        """
+        Close, flush and ``fsync`` the open chunk if it has been open for ``flush_wall_s``.
+
+        For a timer of the recorder: a run that went quiet (stalled, or between its last
+        message and the end) is on disk within a second too. Returns whether it flushed.
+        """
+        if self._closed or not self._ix or _monotonic() < self._chunk_due:
+            return False
+        self.flushes['time'] += 1
+        self._flush_chunk(sync=True)
+        return True
 
     def write_vector3(self, topic: str, stamp_ns: int, x: float, y: float, z: float = 0.0) -> None:
         """
@@ -634,9 +682,10 @@ class BagWriter:
                                                           effort), stamp_ns)
 
     # -- chunks ---------------------------------------------------------------------------
-    def _flush_chunk(self) -> None:
+    def _flush_chunk(self, sync: bool = False) -> None:
         if self._closed:
             return
+        self._chunk_due = float('inf')
         ix = self._ix
         if not ix:
             self._buf = bytearray()
@@ -700,6 +749,8 @@ class BagWriter:
                 self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
                 self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
             self._f.flush()
+            if sync:                # at most once per flush_wall_s: power loss costs that too
+                self._f.sync()
         finally:
             self._flushing = False
         if self._close_pending:

@@ -28,7 +28,10 @@ threads run at ``SCHED_FIFO`` ``rt_priority`` (40), below the control loop's.
 
 It stops when the run ends (the plant's ``finished``/``stopped``/``failed``, after receiving the
 last step) unless ``--continuous``; SIGINT / SIGTERM / SIGHUP close the file (summary, footer), so
-an interrupted recording is complete up to the stop; after a hard kill use ``recover``. The
+an interrupted recording is complete up to the stop. A chunk is on disk once it holds 1 s of wall
+time or 4 MiB (:data:`im_recording.bag.FLUSH_WALL_S`, :data:`~im_recording.bag.FLUSH_BYTES`,
+checked on every message and every :data:`FLUSH_CHECK_S`), so a hard kill costs at most that
+last second; ``recover`` salvages the rest and names the missing tail. The
 in-process graph records without this node (``DriveGraph(recorder=...)``).
 """
 from __future__ import annotations
@@ -59,6 +62,9 @@ REFUSED_PREFIX = T.REFUSED_PREFIX
 #: After a stop signal, how long the recorder waits for the plant's final event (the run's other
 #: processes got the same signal) before it closes the file [s].
 STOP_WAIT_S = 1.0
+#: How often the recorder checks whether its open chunk is due (bag.FLUSH_WALL_S) [s]: a SIGKILL
+#: costs at most FLUSH_WALL_S + this of the run.
+FLUSH_CHECK_S = 0.1
 #: Reader history of the lock-step topics (samples; ≈ 100 bytes each).
 LOCKSTEP_READER_DEPTH = 5000
 
@@ -214,6 +220,16 @@ class RecorderNode(LockstepNode):
         self._progress = self.create_publisher(Header, T.PROGRESS, 10)
         self._ack_topics = [t for t in ACK_TOPICS if t in self.track]
         self.create_timer(0.02, self._maybe_ack)
+        # durable: a chunk open for FLUSH_WALL_S is on disk even when no message comes to close it
+        from rclpy.clock import Clock, ClockType
+        self.create_timer(FLUSH_CHECK_S, self._flush_due,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _flush_due(self) -> None:
+        try:
+            self.writer.flush_due()
+        except BagError:
+            return          # writer.failed: main ends the recording with that line
 
     def _fetch_parameters(self, name: str) -> None:
         """

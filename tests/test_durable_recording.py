@@ -1,0 +1,151 @@
+"""
+Durable recording (a hard kill loses seconds, not the run).
+
+The recorder and the in-process writer put a chunk on disk once it holds
+:data:`~im_recording.bag.FLUSH_WALL_S` of wall time or :data:`~im_recording.bag.FLUSH_BYTES`,
+whichever first; ``recover`` compares what it saved with the run's own record and names the
+tail it lost instead of calling the salvage complete. Counts are taken with the ``mcap``
+package's reader, which the project did not write.
+"""
+import os
+import random
+import re
+import signal
+import time
+
+from im_common import topics as T
+from im_recording import recover as rec
+from im_recording.bag import BagWriter, FLUSH_WALL_S, info, partial_path
+from im_recording.record_node import FLUSH_CHECK_S
+import pytest
+
+PERIOD = 100_000        # T_s = 1e-4 s
+
+
+@pytest.fixture
+def domain():
+    return {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+
+
+def mcap_stamps(path, topic):
+    """Log times of ``topic`` in ``path``, read with the mcap package's own reader."""
+    from mcap.reader import make_reader
+    with open(path, 'rb') as f:
+        return [m.log_time for _, ch, m in make_reader(f).iter_messages(topics=[topic])]
+
+
+def part_stamps(path, topic):
+    """Log times of ``topic`` in an unclosed ``.part``, read record by record (mcap's stream)."""
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+    out, cid = [], None
+    with open(path, 'rb') as f:
+        try:
+            for r in StreamReader(f, skip_magic=False, emit_chunks=False).records:
+                if isinstance(r, Channel) and r.topic == topic:
+                    cid = r.id
+                elif isinstance(r, Message) and r.channel_id == cid:
+                    out.append(r.log_time)
+        except Exception:       # noqa: BLE001 - the torn end of a killed file
+            pass
+    return out
+
+
+def wait_for_log(g, name, needle, timeout=60.0):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if needle in g.log(name):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_sigkill_of_the_recorder_loses_at_most_the_last_flush_interval(tmp_path, domain, capsys):
+    from im_bringup.processes import graph_processes, GraphProcesses
+    from im_bringup.run_file import Scenario
+    from im_bringup.scenario import run_metadata
+    sc = Scenario.from_mapping({'task': 'position', 'duration': 30.0}, source='test')
+    bag = tmp_path / 'killed.mcap'
+    procs = graph_processes(scenario=sc, record=bag, record_metadata=run_metadata(
+        sc.task, sc.strategy, sc.controller, sc.variation_label, scenario=sc))
+    with GraphProcesses(procs, str(tmp_path), domain) as g:
+        g.start()
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+        t_start = time.monotonic()
+        time.sleep(3.0)
+        g.send(signal.SIGKILL, ['recorder'])
+        t_kill = time.monotonic()
+        # the plant stays within follower_window steps of the recorder's last acknowledgement
+        # (every step up to it was received), then goes on without it and names that step
+        assert wait_for_log(g, 'plant', "follower 'recorder' acknowledged nothing after", 30), \
+            g.log('plant')[-2000:]
+        g.send(signal.SIGINT, [p.name for p in procs if p.name != 'recorder'])
+        g.wait(30)
+    acked = re.search(r"follower 'recorder' acknowledged nothing after ([0-9.]+) s",
+                      g.log('plant'))
+    k_ack = round(float(acked.group(1)) * 1e9) // PERIOD
+    rate = k_ack / (t_kill - t_start)                   # steps per second of wall time
+    # at most the last flush interval (and the timer's period, and a little scheduling)
+    allowed = rate * (FLUSH_WALL_S + 2 * FLUSH_CHECK_S + 0.2)
+    assert not bag.exists() and partial_path(bag).exists()
+    on_disk = part_stamps(partial_path(bag), T.MEAS_CURRENT)
+    assert on_disk, 'nothing of the run reached the disk'
+    assert max(on_disk) // PERIOD >= k_ack - allowed, (max(on_disk) // PERIOD, k_ack, rate)
+
+    out = tmp_path / 'saved.mcap'
+    code = rec.main([str(bag), '-o', str(out)])
+    cap = capsys.readouterr()
+    assert code == 1, cap
+    for topic in (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX):
+        steps = sorted(t // PERIOD for t in mcap_stamps(out, topic))
+        assert steps == list(range(steps[-1] + 1)), topic            # a prefix, no hole
+        assert steps[-1] >= k_ack - allowed - 1, (topic, steps[-1], k_ack, allowed)
+    saved = max(mcap_stamps(out, T.MEAS_CURRENT))
+    assert 'nothing lost' not in cap.out
+    # the missing tail named: from the last saved stamp to the run file's end (30 s)
+    last = max(t for topic in T.RECORDED_TOPICS for t in mcap_stamps(out, topic))
+    assert f'lost t = {last * 1e-9:.9f} .. end of run (30.000000000 s' in cap.err, cap.err
+    assert saved <= last
+    # the output's run record says what was saved, the original duration is kept beside it
+    md = info(out).metadata
+    assert rec._run_file(md['run'])['duration'] == pytest.approx(last * 1e-9)
+    assert md['recovered_from']['run_duration_s'] == '30.0'
+
+
+def _write_timed(path, n, sleep_every, **kw):
+    with BagWriter(path, **kw) as w:
+        for k in range(n):
+            w.write_vector3(T.MEAS_CURRENT, k * PERIOD, float(k), 0.0)
+            if k % sleep_every == sleep_every - 1:
+                time.sleep(0.05)
+        return dict(w.flushes)
+
+
+def test_a_chunk_is_flushed_after_a_second_of_wall_time_or_4_mib(tmp_path):
+    from mcap.reader import make_reader
+    # slow and small: 1 s of wall time closes a chunk long before 4 MiB
+    flushes = _write_timed(tmp_path / 'slow.mcap', 2000, 40, flush_wall_s=0.2)
+    assert flushes['time'] >= 8 and flushes['size'] == 0, flushes
+    # fast: 4 MiB closes it first
+    path = tmp_path / 'fast.mcap'
+    with BagWriter(path, compression='none') as w:
+        w.add_topic('/x', 'std_msgs/msg/Header')
+        data = os.urandom(4000)
+        for k in range(3000):
+            w.write_serialized('/x', data, k)
+        flushes = dict(w.flushes)
+    with open(path, 'rb') as f:
+        sizes = [c.uncompressed_size for c in make_reader(f).get_summary().chunk_indexes]
+    assert flushes['size'] == 2 and max(sizes) < (4 << 20) + 4023 + 23, (flushes, sizes)
+
+
+def test_a_quiet_writer_is_on_disk_after_flush_due(tmp_path):
+    path = tmp_path / 'quiet.mcap'
+    w = BagWriter(path, flush_wall_s=0.1)
+    w.write_vector3(T.MEAS_CURRENT, 0, 1.0, 2.0)
+    assert not w.flush_due()                    # not yet due
+    assert part_stamps(partial_path(path), T.MEAS_CURRENT) == []
+    time.sleep(0.15)
+    assert w.flush_due()
+    assert part_stamps(partial_path(path), T.MEAS_CURRENT) == [0]
+    w.close()
