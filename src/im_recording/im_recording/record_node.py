@@ -522,40 +522,90 @@ class RecorderNode(LockstepNode):
             self._acked = ack
 
     # Report ------------------------------------------------------------------------------
+    def count_span(self) -> tuple:
+        """
+        Return (first step, last step, how the last is known) the missing steps are counted over.
+
+        First: the run's first step when the plant counted this recorder from the start (its
+        ``running`` lists it), else — it joined a running run — the step it joined: the earliest
+        step it holds on any lock-step topic of the run. Last: the step of the plant's final event;
+        without one (the recorder was stopped, or the plant left, while the run went on) the last
+        step the run announced to it, the latest stamp it received on any lock-step topic.
+        Steps are None where nothing is known.
+        """
+        p = self.period
+        if not p:
+            return None, None, ''
+        topics = self.run_topics()
+        if self.from_start and self.run_start is not None:
+            first = self.run_start // p
+        else:
+            firsts = [self.track[t].first for t in topics if self.track[t].first is not None]
+            first = min(firsts) // p if firsts else None
+        if self.end_state is not None and self.end_state != 'ended':
+            return first, int(self.end_values.get('step', 0) or 0), \
+                f"the plant's final event ({self.end_state})"
+        if self.stop_at is not None:
+            return first, self.stop_at, ('the last step the run had announced when this '
+                                         'recorder was stopped; the run went on')
+        lasts = [tr.last for tr in self.track.values() if tr.last is not None]
+        if not lasts:
+            return first, None, ''
+        return first, max(lasts) // p, ('the last step the run announced to this recorder; its '
+                                         'end was not seen')
+
+    stop_at: Optional[int] = None
+
+    def cut(self) -> None:
+        """
+        Stop counting at the last step the run has announced (the recorder stops, the run not).
+
+        Messages of later steps that still arrive (while the recorder waits for the plant's
+        final event, which counts instead when it comes) are recorded but not counted.
+        """
+        if self.end_state is None and self.stop_at is None and self.period:
+            lasts = [tr.last for tr in self.track.values() if tr.last is not None]
+            if lasts:
+                self.stop_at = max(lasts) // self.period
+
+    def joined_at(self) -> Optional[int]:
+        """Return the step this recorder joined the run at, if it was not there from its start."""
+        first = self.count_span()[0]
+        if first is None or (self.from_start and self.run_start is not None):
+            return None
+        if self.run_start is not None and first * self.period <= self.run_start:
+            return None
+        return first
+
     def run_bounds(self, topic: str) -> tuple:
         """
         (first, last) stamp this recording must hold on ``topic`` (None: not known).
 
-        First: the run's first step when the plant counted this recorder from the start (its
-        ``running`` lists it), else — it joined a running run — the first step every topic of the
-        run has. Last: the step of the plant's final event; the command of that step is never
-        computed, and after a stop or a failure only the measurements of that step are sure to
-        exist (the commands and estimates up to the step before).
+        Over :meth:`count_span`. The command of the last step is never computed when the run
+        finished; after a stop, a failure or without the plant's final event only the
+        measurements of the last step are sure to exist (the commands and estimates up to the
+        step before).
         """
         p = self.period
-        if not p:
+        first, last, _ = self.count_span()
+        if first is None and last is None:
             return None, None
-        if self.from_start:
-            start = self.run_start
-        else:
-            firsts = [self.track[t].first for t in self.run_topics()
-                      if self.track[t].first is not None]
-            start = max(firsts) if firsts else None
+        start = None if first is None else first * p
         end = None
-        if self.end_state is not None:
-            step = int(self.end_values.get('step', 0) or 0)
+        if last is not None:
             measured = topic in (T.MEAS_CURRENT, T.MEAS_SHAFT)
             if self.end_state == FINISHED:
-                end = (step - 1 if topic == T.CMD_VOLTAGE else step) * p
+                end = (last - 1 if topic == T.CMD_VOLTAGE else last) * p
             else:
-                end = (step if measured else step - 1) * p
+                end = (last if measured else last - 1) * p
         return start, end
 
     def gaps(self) -> Dict[str, dict]:
         """
         Return, per tracked lock-step topic, the steps of the run it lacks and their stamp ranges.
 
-        The steps lacking are those before its first stamp, between, and after its last.
+        The steps lacking are those before its first stamp, between, and after its last, over
+        :meth:`run_bounds`; a lock-step topic of the run with nothing recorded lacks them all.
         """
         out = {}
         topics = set(self.run_topics())
@@ -567,6 +617,16 @@ class RecorderNode(LockstepNode):
             out[t] = {'missing_steps': n, 'ranges': ranges[:StampTrack.MAX_RANGES]}
         return out
 
+    def span_text(self) -> str:
+        """Say over which steps the missing steps were counted (for the last line)."""
+        first, last, how = self.count_span()
+        joined = self.joined_at()
+        if first is None:
+            return 'nothing of a run received'
+        head = (f'joined at step {joined} (the steps before are not in this recording)'
+                if joined is not None else f'from step {first}')
+        return head + (f' to step {last} ({how})' if last is not None else '')
+
     def close_metadata(self, interrupted: Optional[str]) -> dict:
         gaps = self.gaps()
         missing = sum(g['missing_steps'] for g in gaps.values())
@@ -576,10 +636,19 @@ class RecorderNode(LockstepNode):
                             if self.end_state else 'not seen'),
                 'interrupted': interrupted or '',
                 'missing_steps': str(missing),
+                'missing_counted': self.span_text(),
                 'undecodable': str(self.undecodable),
                 'refused_unsigned': str(sum(self.unsigned.values())),
                 'foreign_publishers': ' '.join(sorted({f'{n}@{t}' for t, nodes in
                                                       self.foreign.items() for n in nodes}))}
+        first, last, _ = self.count_span()
+        if first is not None:
+            meta['counted_from_step'] = str(first)
+        if last is not None:
+            meta['counted_to_step'] = str(last)
+        joined = self.joined_at()
+        if joined is not None:
+            meta['joined_at_step'] = str(joined)
         for t, n in self.unsigned.items():
             meta[f'refused_unsigned{t}'] = str(n)
         for t, g in gaps.items():
@@ -669,6 +738,8 @@ def main(argv=None) -> int:
                 if writer.failed:           # its file cannot be written: end, say why below
                     break
                 ex.spin_once(timeout_sec=0.05)
+            if not node.drained():
+                node.cut()          # stopped while the run goes on: counted to where it was
             if stop.requested:
                 node.request_stop(stop.requested)
                 # Ctrl-C on `ros2 launch` signals every process at once: keep recording until
@@ -698,19 +769,22 @@ def main(argv=None) -> int:
             if node is not None:
                 n = sum(node.counts.values())
                 gaps = node.gaps()
+                counted = set(node.run_topics())
                 missing = {t: g['missing_steps'] for t, g in gaps.items() if g['missing_steps']}
                 text = f'record: {n} messages written to {out}'
                 if node.end_state:
                     text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
+                span = node.span_text()
                 if missing:
                     first = {t: gaps[t]['ranges'][:3] for t in missing}
-                    steps = ', '.join(f'{t}: {m}' for t, m in missing.items())
+                    steps = ', '.join(f"{t}: {gaps[t]['missing_steps']}" for t in gaps
+                                      if t in counted)
                     ranges = '; '.join(
                         f'{t} ' + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}' for x, y in r)
                         for t, r in first.items())
-                    text += f'; MISSING steps {steps} (first ranges: {ranges})'
+                    text += (f'; MISSING steps, {span}: {steps} (first ranges: {ranges})')
                 else:
-                    text += '; no step missing on the lock-step topics'
+                    text += f'; no step missing on the lock-step topics, {span}'
                 print(text, file=sys.stderr)
                 node.flush(timeout=0.5)
                 node.destroy_node()
