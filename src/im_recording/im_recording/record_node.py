@@ -551,8 +551,8 @@ class RecorderNode(LockstepNode):
         lasts = [tr.last for tr in self.track.values() if tr.last is not None]
         if not lasts:
             return first, None, ''
-        return first, max(lasts) // p, ('the last step the run announced to this recorder; its '
-                                         'end was not seen')
+        how = 'the last step the run announced to this recorder; its end was not seen'
+        return first, max(lasts) // p, how
 
     stop_at: Optional[int] = None
 
