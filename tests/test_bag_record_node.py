@@ -307,3 +307,29 @@ def test_a_late_recorder_says_where_it_joined_and_counts_the_topic_it_never_got(
     assert meta['missing_steps'] == '1457'
     for t in ('/im/measured/current', '/im/measured/shaft', '/im/observer/flux'):
         assert meta[f'missing_steps{t}'] == '0', t
+
+
+def test_a_setpoint_stamped_0_is_stored_at_the_step_it_took_effect(tmp_path):
+    """
+    ``ros2 topic pub /im/setpoint`` leaves the stamp 0: the controller applies it at the step the
+    run is at. The bag stores it there (log time), with its own stamp kept as publish time; a
+    setpoint stamped in the future is stored at its stamp.
+    """
+    from mcap.reader import make_reader
+    r = _Run(tmp_path)
+    try:
+        sp = r.rec._callback(T.SETPOINT, T.TOPIC_TYPES[T.SETPOINT], True)
+        r.rec.counts[T.SETPOINT] = 0
+        r.plant('running', 0, mode='lockstep', followers='recorder')
+        for t in LOCK:
+            r.feed(t, range(0, 51))
+        sp(JointStateOut(['rotor'], '').fill(0, (), (100.0,)))
+        sp(JointStateOut(['rotor'], '').fill(80 * PERIOD, (), (50.0,)))
+        for t in LOCK:
+            r.feed(t, range(51, 101))
+    finally:
+        r.close()
+    with open(r.path, 'rb') as f:
+        got = [(m.log_time, m.publish_time) for _, ch, m in
+               make_reader(f).iter_messages(topics=[T.SETPOINT])]
+    assert got == [(50 * PERIOD, 0), (80 * PERIOD, 80 * PERIOD)]

@@ -628,15 +628,21 @@ class BagWriter:
                             f'{type(msg).__module__}.{type(msg).__name__}')
         self.write_serialized(topic, enc(msg), stamp_ns)
 
-    def write_serialized(self, topic: str, data: bytes, stamp_ns: int) -> None:
-        """Record an already serialized (CDR) message."""
+    def write_serialized(self, topic: str, data: bytes, stamp_ns: int,
+                         publish_ns: Optional[int] = None) -> None:
+        """
+        Record an already serialized (CDR) message at log time ``stamp_ns``.
+
+        ``publish_ns``: its publish time when it differs (default ``stamp_ns``).
+        """
         try:
             cid = self._chan[topic][0]
         except KeyError:
             cid = self._lookup_slow(topic)[0]
         buf = self._buf
         off = len(buf)
-        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns, stamp_ns)
+        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns,
+                             stamp_ns if publish_ns is None else publish_ns)
         buf += data
         ix = self._ix
         ix.append((cid, stamp_ns, off))

@@ -409,6 +409,7 @@ class RecorderNode(LockstepNode):
         counts = self.counts
         track = self.track.get(topic)
         signed = topic in T.SIGNED_TOPICS      # lock-step and report topics: the graph's tag
+        setpoint = topic == T.SETPOINT
         if raw:
             def cb(data: bytes) -> None:
                 if signed and not self.signer.verify(topic, data):
@@ -425,6 +426,9 @@ class RecorderNode(LockstepNode):
                     data = data[:n]
                     self.trimmed += 1
                 t = cdr.header_stamp_ns(data)
+                if setpoint:
+                    self._write_setpoint(data, t)
+                    return
                 self._write(write, topic, data, t, counts, track)
         else:
             from rclpy.serialization import serialize_message
@@ -487,6 +491,25 @@ class RecorderNode(LockstepNode):
         self._last_msg = time.monotonic()
         if track is not None:
             track.see(t, self.period)
+
+    def _write_setpoint(self, data: bytes, stamp: int) -> None:
+        """
+        Record a setpoint at the time it takes effect, with its own stamp as publish time.
+
+        The controller applies a setpoint at the first step at or after its stamp; a stamp in the
+        past (0: ``ros2 topic pub``'s unset header) means the step the run is at. Its log time is
+        therefore the later of its stamp and the latest step the run had announced to this
+        recorder when it arrived (a setpoint stamped 0 was stored at t = 0, before the steps it
+        changed); its publish time keeps its own stamp.
+        """
+        lasts = [tr.last for tr in self.track.values() if tr.last is not None]
+        effective = max([stamp] + lasts)
+        try:
+            self.writer.write_serialized(T.SETPOINT, data, effective, publish_ns=stamp)
+        except BagError:
+            return
+        self.counts[T.SETPOINT] += 1
+        self._last_msg = time.monotonic()
 
     _last_msg = 0.0
     _end_wall = 0.0
