@@ -311,6 +311,8 @@ def test_a_late_recorder_says_where_it_joined_and_counts_the_topic_it_never_got(
 
 def test_a_setpoint_stamped_0_is_stored_at_the_step_it_took_effect(tmp_path):
     """
+    Store a setpoint at the step it took effect, its own stamp as publish time.
+
     ``ros2 topic pub /im/setpoint`` leaves the stamp 0: the controller applies it at the step the
     run is at. The bag stores it there (log time), with its own stamp kept as publish time; a
     setpoint stamped in the future is stored at its stamp.
