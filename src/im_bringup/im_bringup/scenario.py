@@ -227,6 +227,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
             if writer is not None and graph is None:    # refused before the run: no file
                 writer.discard()
             elif writer is not None and not writer.failed:
+                _record_refusals(writer, graph)
                 if stop.requested:
                     writer.add_metadata('interrupted', {'signal': stop.requested,
                                                         'steps': str(k)})
@@ -245,6 +246,24 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         summary['ok'] = False
         summary.setdefault('failures', {})['recorder'] = str(writer.failed)
     return summary
+
+
+def _record_refusals(writer, graph) -> None:
+    """
+    Write the nodes' counts of messages not signed by this graph, and who sent them, to the bag.
+
+    The in-process tap records only the graph's own messages; the ``refusals`` record keeps what
+    the nodes refused (:func:`im_recording.report.refusals` reads it).
+    """
+    record = {}
+    for name, node in graph.nodes.items():
+        for topic, n in getattr(node, 'refused_by_topic', {}).items():
+            record[f'refused_unsigned/{name}{topic}'] = str(n)
+        for topic, pubs in getattr(node, 'foreign', {}).items():
+            if pubs:
+                record[f'foreign_publishers/{name}{topic}'] = ' '.join(sorted(pubs))
+    if record:
+        writer.add_metadata('refusals', record)
 
 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
@@ -293,6 +312,9 @@ def print_summary(s: dict) -> None:
     for node, topics in s.get('refused_unsigned', {}).items():
         print(f'  refused by {node} (not signed by this graph): '
               + ', '.join(f'{n} on {t}' for t, n in topics.items()))
+    for node, topics in s.get('foreign_publishers', {}).items():
+        print(f'  foreign publishers seen by {node}: '
+              + '; '.join(f"{t}: {', '.join(names)}" for t, names in topics.items()))
 
 
 #: scenario options that override the run-file key of the same name
@@ -531,8 +553,9 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     if os.path.exists(args.record):
         run = load_run(args.record)
         summary.update(figures_of_merit(run))
-        if run.refused:                 # as the in-process graph counts them, per node and topic
-            summary['refused_unsigned'] = {'recorder': run.refused}
+        from im_recording.report import refusals
+        # as the in-process graph counts them, per node and topic, and who sent them
+        summary.update({k: v for k, v in refusals(run).items() if v})
     else:
         from im_recording.bag import partial_path
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
