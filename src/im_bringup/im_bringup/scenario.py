@@ -178,11 +178,52 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
           Scenario.from_mapping({}, source='launch arguments', overrides=over,
                                 override_source='launch arguments'))
     record = a.get('record') or None
-    return graph_processes(
+    procs = graph_processes(
         scenario=sc, mode=sc.mode, record=record,
         use_adapter={'': None, 'true': True, 'false': False}[a.get('use_adapter', '').lower()],
         record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
                                      scenario=sc) if record else None)
+    if record and a.get('force', '').lower() == 'true':     # force:=true
+        for p in procs:
+            if p.name == 'recorder':
+                p.arguments.append('--force')
+    return procs
+
+
+#: launch arguments that name an output, and what each is
+LAUNCH_OUTPUTS = (('record', 'record:= file'), ('summary', 'summary:= file'),
+                  ('report', 'report:= directory'))
+
+
+def check_launch_outputs(arguments: Mapping[str, str]) -> None:
+    """
+    Refuse, before any process starts, a launch whose outputs cannot be written.
+
+    Every output the launch arguments name (``record``; ``summary`` and ``report`` where the
+    launch has them) is checked as ``scenario`` checks its own: an existing file without
+    ``force:=true`` (the recording's interrupted ``.part`` too), a directory, an output that is
+    also an input (``run``, ``gains``, ``params_file``), one that cannot be created. One
+    :class:`FileExistsError` or :class:`OSError` line naming the argument and the file; the
+    launch file raises it before it returns a single node, so ``ros2 launch`` exits non-zero
+    without starting one.
+    """
+    from im_recording.bag import check_output, partial_path
+    a = {k: str(v) for k, v in arguments.items()}
+    force = a.get('force', '').lower() == 'true'
+    inputs = [os.path.abspath(a[k]) for k in ('run', 'gains', 'params_file') if a.get(k)]
+    for key, what in LAUNCH_OUTPUTS:
+        if not a.get(key):
+            continue
+        out = a[key] if key != 'report' else os.path.join(a[key], 'report.md')
+        paths = [(out, what)]
+        if key == 'record':
+            paths.append((str(partial_path(out)), 'interrupted recording of record:= (recover '
+                                                  'it, or force:=true)'))
+        for path, name in paths:
+            if os.path.lexists(path) and not os.path.isdir(path) and not force:
+                raise FileExistsError(f'{path}: the {name} exists; refusing to overwrite it '
+                                      '(pass force:=true)')
+            check_output(path, inputs, force=True, what=name)
 
 
 def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
