@@ -299,6 +299,14 @@ builtins.open = _open_full
 """
 
 
+def assert_advice_names_existing_files(line: str) -> None:
+    """Every file a `recover` advice in ``line`` names as its input exists."""
+    advice = re.findall(r'`ros2 run im_recording recover ([^` ]+)', line)
+    assert advice, line
+    for path in advice:
+        assert os.path.exists(path), (path, line)
+
+
 def enospc_env(tmp_path, limit: int) -> dict:
     site = tmp_path / 'enospc_site'
     site.mkdir(exist_ok=True)
@@ -322,6 +330,8 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
     summary = json.loads(bag.with_suffix('.json').read_text())
     assert summary['ok'] is False and 'No space left on device' in summary['failures']['recorder']
     assert 0 < summary['steps'] < 10_000
+    assert summary['partial'] is True and summary['E_in_J'] > 0      # the figures of what ran
+    assert_advice_names_existing_files(line)
     fix = run_tool('recover', bag)
     # the run went on after the last write that reached the disk: that tail is named, exit 1
     assert fix.returncode == 1 and 'end of run (1.000000000 s' in fix.stderr, fix.stderr
@@ -329,6 +339,7 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
 
 
 def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_path):
+    import json
     bag = tmp_path / 'pfull.mcap'
     t0 = time.monotonic()
     r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '2.0', '--record',
@@ -341,6 +352,11 @@ def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_pat
     assert len(errors) == 1 and 'recorder' in errors[0], r.stderr
     assert str(partial_path(bag)) in errors[0] and 'No space left on device' in errors[0]
     assert partial_path(bag).exists()
+    assert_advice_names_existing_files(errors[0])
+    # the summary holds the figures of every step that reached the disk, marked partial
+    summary = json.loads(bag.with_suffix('.json').read_text())
+    assert summary['ok'] is False and summary['partial'] is True, summary
+    assert summary['steps'] > 0 and summary['E_in_J'] > 0, summary
     fix = run_tool('recover', bag)          # what reached the disk, and the tail it lacks
     assert fix.returncode == 1 and 'end of run (' in fix.stderr, fix.stderr
     assert bag.with_suffix('.json').exists()

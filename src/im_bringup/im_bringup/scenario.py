@@ -286,6 +286,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         summary['partial_recording'] = str(writer.part)
         summary['ok'] = False
         summary.setdefault('failures', {})['recorder'] = str(writer.failed)
+    if not summary.get('ok', True) or signal is not None:
+        summary['partial'] = True       # the figures are those of the steps that ran
     return summary
 
 
@@ -598,9 +600,19 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         # as the in-process graph counts them, per node and topic, and who sent them
         summary.update({k: v for k, v in refusals(run).items() if v})
     else:
-        from im_recording.bag import partial_path
+        from im_recording.bag import BagError, partial_path
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
             summary['partial_recording'] = str(partial_path(args.record))
+            from im_recording.recover import load_salvaged
+            try:            # the figures of every step that reached the disk
+                run, _ = load_salvaged(partial_path(args.record))
+                summary.update(figures_of_merit(run))
+                from im_recording.report import refusals
+                summary.update({k: v for k, v in refusals(run).items() if v})
+            except (BagError, OSError) as exc:
+                summary['partial_figures'] = f'none: {exc}'
+    if not summary['ok']:
+        summary['partial'] = True       # the figures are those of the steps that ran
     print_summary(summary)
     written = _write_summary(out, summary)
     if written:

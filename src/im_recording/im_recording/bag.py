@@ -439,7 +439,8 @@ class BagWriter:
                                   '(pass force=True / --force)')
         if self.part.exists() and not force:
             raise FileExistsError(f'{self.part}: an interrupted recording is in the way; salvage '
-                                  f'it with `ros2 run im_recording recover {self.path}` or pass '
+                                  f'it with `ros2 run im_recording recover {self.part} -o '
+                                  f'{self.path}` or pass '
                                   'force=True / --force to discard it')
         self.failed: Optional[BagError] = None     # the write error that stopped this writer
         try:
@@ -522,7 +523,8 @@ class BagWriter:
         """
         self.failed = BagError(self.part, f'cannot write the recording '
                                           f'({exc.strerror or exc}); what was written is kept: '
-                                          f'`ros2 run im_recording recover {self.path}`')
+                                          f'`ros2 run im_recording recover {self.part} -o '
+                                          f'{self.path}`')
         self._closed = True
         self._chan = {}
         self._f.close()
@@ -902,7 +904,7 @@ def _open_checked(path):
         if partial_path(p).exists():
             raise BagError(p, f'no such file, but an interrupted (truncated) recording is at '
                            f'{partial_path(p)}; salvage it with '
-                           f'`ros2 run im_recording recover {p}`')
+                           f'`ros2 run im_recording recover {partial_path(p)} -o {p}`')
         raise BagError(p, 'no such file')
     if p.is_dir():
         raise BagError(p, 'is a directory; expected an .mcap file')

@@ -1121,6 +1121,25 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             'first_stamp_ns': sink.t_first, 'last_stamp_ns': sink.t_last}
 
 
+def load_salvaged(path, trace: Optional[str] = None):
+    """
+    Return (the :class:`~im_recording.run.Run` of what was saved, :func:`recover`'s result).
+
+    For a recording whose writer failed or was killed (``path`` or its ``.part``): its intact
+    records are recovered into a temporary directory, read by :func:`~im_recording.run.load_run`
+    (the figures of every step the file holds, the ``recovered_from`` record) and removed; the
+    input is untouched. :class:`BagError` when nothing can be salvaged.
+    """
+    import tempfile
+    from .run import load_run
+    with tempfile.TemporaryDirectory(prefix='im_salvage_') as d:
+        out = Path(d) / 'salvaged.mcap'
+        r = recover(path, str(out))
+        run = load_run(out, trace=trace)
+    run.path = r['input']
+    return run, r
+
+
 def main(argv=None) -> int:
     from im_common.cli import parse_args
     from im_common.stopping import StopSignals, exit_code_for
