@@ -7,6 +7,7 @@ whichever first; ``recover`` compares what it saved with the run's own record an
 tail it lost instead of calling the salvage complete. Counts are taken with the ``mcap``
 package's reader, which the project did not write.
 """
+from collections import Counter
 import os
 import random
 import re
@@ -14,6 +15,7 @@ import signal
 import time
 
 from im_common import topics as T
+from im_common.step_gate import LOCKSTEP_DEPTH
 from im_recording import recover as rec
 from im_recording.bag import BagWriter, FLUSH_WALL_S, info, partial_path
 from im_recording.record_node import FLUSH_CHECK_S
@@ -85,8 +87,9 @@ def test_sigkill_of_the_recorder_loses_at_most_the_last_flush_interval(tmp_path,
                       g.log('plant'))
     k_ack = round(float(acked.group(1)) * 1e9) // PERIOD
     rate = k_ack / (t_kill - t_start)                   # steps per second of wall time
-    # at most the last flush interval (and the timer's period, and a little scheduling)
-    allowed = rate * (FLUSH_WALL_S + 2 * FLUSH_CHECK_S + 0.2)
+    # at most the last flush interval (and the timer's period, and a little scheduling), and
+    # the reorder window's steps the writer holds back for the next chunk (log-time order)
+    allowed = rate * (FLUSH_WALL_S + 2 * FLUSH_CHECK_S + 0.2) + LOCKSTEP_DEPTH
     assert not bag.exists() and partial_path(bag).exists()
     on_disk = part_stamps(partial_path(bag), T.MEAS_CURRENT)
     assert on_disk, 'nothing of the run reached the disk'
@@ -149,3 +152,76 @@ def test_a_quiet_writer_is_on_disk_after_flush_due(tmp_path):
     assert w.flush_due()
     assert part_stamps(partial_path(path), T.MEAS_CURRENT) == [0]
     w.close()
+
+
+def log_times_in_file_order(path):
+    """Every message's (log time, publish time) in the order the file holds them (mcap stream)."""
+    from mcap.records import Message
+    from mcap.stream_reader import StreamReader
+    with open(path, 'rb') as f:
+        return [(r.log_time, r.publish_time) for r in
+                StreamReader(f, skip_magic=False, emit_chunks=False).records
+                if isinstance(r, Message)]
+
+
+def assert_log_time_order(path):
+    """``mcap doctor --strict-message-order``'s rule: log times never decrease in file order."""
+    times = [t for t, _ in log_times_in_file_order(path)]
+    assert times, path
+    back = [(i, a, b) for i, (a, b) in enumerate(zip(times, times[1:])) if b < a]
+    assert not back, f'{path}: {len(back)} log times go back, first {back[:3]}'
+
+
+def test_every_recording_path_writes_log_times_in_order(tmp_path, domain):
+    """
+    The recorder of separate processes, the in-process graph, and recover's copy of either.
+
+    In one process the observer publishes x̂_{k+1} before the plant's step k+1; across processes
+    messages arrive in any order within the protocol's window. Both bags are in log-time order,
+    and every message keeps its own stamp as publish time.
+    """
+    from im_bringup.processes import graph_processes, GraphProcesses
+    from im_bringup.testing import run_graph
+    from im_common.cdr import header_stamp_ns
+    from im_recording.bag import iter_raw
+    inproc = tmp_path / 'inproc.mcap'
+    run_graph(task='position', strategy='min_energy', duration=0.05, record=str(inproc))
+    assert_log_time_order(inproc)
+    procs_bag = tmp_path / 'procs.mcap'
+    procs = graph_processes('position', 'min_energy', duration=0.3, record=procs_bag)
+    with GraphProcesses(procs, str(tmp_path / 'logs'), domain) as g:
+        codes = g.start().wait(120)
+    assert codes == dict.fromkeys(codes, 0), codes
+    assert_log_time_order(procs_bag)
+    late = int(info(procs_bag).metadata['recording']['written_late'])
+    for bag in (inproc, procs_bag):
+        pairs = log_times_in_file_order(bag)
+        moved = sum(1 for t, pub in pairs if t != pub)
+        assert moved == (late if bag == procs_bag else 0), (bag, moved)
+        # nothing lost or duplicated by the reordering: every header stamp is a publish time
+        stamps = Counter(header_stamp_ns(d) for _, _, _, d in iter_raw(bag))
+        assert stamps == Counter(pub for _, pub in pairs), bag
+        out = tmp_path / f'{bag.stem}.recovered.mcap'
+        rec.recover(bag, str(out))
+        assert_log_time_order(out)
+
+
+def test_the_writer_orders_each_chunk_within_its_window_and_clamps_what_comes_later(tmp_path):
+    path = tmp_path / 'order.mcap'
+    w = BagWriter(path, chunk_size=1024, flush_wall_s=None)
+    w.set_reorder_window(10 * PERIOD)
+    sent = []
+    for k in range(300):                  # each step's estimate of k+1 comes before step k+1
+        for t in ((k + 1) * PERIOD, k * PERIOD):
+            w.write_vector3(T.MEAS_CURRENT, t, float(k), 0.0)
+            sent.append(t)
+    w.write_vector3(T.MEAS_CURRENT, 5 * PERIOD, -1.0, 0.0)     # far later than the window
+    w.close()
+    assert w.late_messages == 1
+    assert_log_time_order(path)
+    pairs = log_times_in_file_order(path)
+    assert sorted(pub for _, pub in pairs) == sorted(sent + [5 * PERIOD])
+    moved = [i for i, (t, pub) in enumerate(pairs) if t != pub]
+    assert len(moved) == 1 and pairs[moved[0]][1] == 5 * PERIOD
+    # written at the latest log time the file held when it came, not at its stamp
+    assert pairs[moved[0]][0] == pairs[moved[0] - 1][0] > 5 * PERIOD + 10 * PERIOD

@@ -16,7 +16,10 @@ Foxglove, PlotJuggler and ``rosbags`` open:
   it;
 * run metadata (scenario, parameters, versions, git revision) as named Metadata records.
 
-Every message's log time and publish time is its stamp in simulated time (integer ns).
+Every message's log time and publish time is its stamp in simulated time (integer ns). A recorder
+sets a reorder window (:meth:`BagWriter.set_reorder_window`): each chunk is then written sorted by
+stamp, so log times never decrease in file order; a message later than the window keeps its stamp
+as publish time and is logged at the file's latest log time.
 Schemas, Channels and Metadata are written to the file as soon as they are declared, and a chunk
 is closed and flushed to the OS (and ``fsync``-ed) as soon as it holds
 :data:`FLUSH_BYTES` (4 MiB uncompressed) or has been open for :data:`FLUSH_WALL_S` (1 s of wall
@@ -690,7 +693,71 @@ class BagWriter:
                                                           effort), stamp_ns)
 
     # -- chunks ---------------------------------------------------------------------------
-    def _flush_chunk(self, sync: bool = False) -> None:
+    def set_reorder_window(self, window_ns: Optional[int]) -> None:
+        """
+        Write each chunk in log-time order, holding back the messages within ``window_ns``.
+
+        Messages may arrive out of stamp order (a recorder of separate processes; in one process
+        the observer's x̂_{k+1} before step k+1). A chunk is written sorted by stamp up to
+        ``window_ns`` before the newest stamp it holds; the newer messages stay for the next
+        chunk (all are written at :meth:`close` and :meth:`flush`). A message that still arrives
+        later than that window is written at the latest log time already written, its own stamp
+        kept as publish time (and in its header), and counted in :attr:`late_messages`: log
+        times never decrease in file order (``mcap doctor --strict-message-order``). None:
+        written as they come.
+        """
+        if window_ns is not None and int(window_ns) < 0:
+            raise ValueError(f'reorder window must be >= 0 ns, not {window_ns!r}')
+        self._reorder_ns = None if window_ns is None else int(window_ns)
+
+    _reorder_ns: Optional[int] = None
+    _written_max = 0            # the latest log time written (the file's order so far)
+    late_messages = 0           # messages that arrived later than the reorder window
+
+    def _in_order(self, buf: bytearray, ix: list, final: bool):
+        """
+        Return the chunk's (records, index) in log-time order, keeping the newest back.
+
+        The messages within the reorder window of the newest stamp go back into the open chunk
+        (unless ``final``); a message older than what the file already holds is written at that
+        time (its publish time keeps its stamp).
+        """
+        ends = [e[2] for e in ix[1:]] + [len(buf)]
+        order = sorted(range(len(ix)), key=lambda i: ix[i][1])
+        cut = len(order)
+        if not final:
+            horizon = ix[order[-1]][1] - self._reorder_ns
+            cut = next((n for n, i in enumerate(order) if ix[i][1] > horizon), len(order))
+            if cut == 0 and len(buf) < 2 * self._chunk_size:
+                self._buf, self._ix = buf, ix   # everything is within the window: keep it all
+                if self._flush_wall is not None:
+                    self._chunk_due = _monotonic() + self._flush_wall
+                return None, None
+            if cut == 0:
+                cut = len(order)
+        out, out_ix = bytearray(), []
+        floor = self._written_max
+        for i in order[:cut]:
+            cid, t, off = ix[i]
+            at = len(out)
+            out += buf[off:ends[i]]
+            if t < floor:               # later than the window: at the file's latest time
+                _U64.pack_into(out, at + 15, floor)
+                self.late_messages += 1
+                t = floor
+            floor = t
+            out_ix.append((cid, t, at))
+        self._written_max = floor
+        keep = self._buf
+        for i in order[cut:]:
+            cid, t, off = ix[i]
+            self._ix.append((cid, t, len(keep)))
+            keep += buf[off:ends[i]]
+        if self._ix and self._flush_wall is not None:
+            self._chunk_due = _monotonic() + self._flush_wall
+        return out, out_ix
+
+    def _flush_chunk(self, sync: bool = False, final: bool = False) -> None:
         if self._closed:
             return
         self._chunk_due = float('inf')
@@ -715,6 +782,10 @@ class BagWriter:
                 del buf[last_off + 9 + length:]
             if not ix:
                 return
+            if self._reorder_ns is not None:
+                buf, ix = self._in_order(buf, ix, final)
+                if not ix:
+                    return
             records = bytes(buf)
             t0 = min(e[1] for e in ix)
             t1 = max(e[1] for e in ix)
@@ -767,7 +838,7 @@ class BagWriter:
     def flush(self) -> None:
         """Close the open chunk and push it to the OS (the file stays open)."""
         if not self._closed:
-            self._flush_chunk()
+            self._flush_chunk(final=True)
             self._f.flush()
 
     # -- closing --------------------------------------------------------------------------
@@ -823,7 +894,7 @@ class BagWriter:
             return
         self._chan = {}             # later writes take the slow path and raise BagError
         try:
-            self._flush_chunk()
+            self._flush_chunk(final=True)
             if self._closed:        # the flush's pending close already finished the file
                 return
             self._closed = True

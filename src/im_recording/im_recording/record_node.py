@@ -45,6 +45,7 @@ from im_common import cdr, realtime
 from im_common import topics as T
 from im_common.lockstep import (END_STATES, FINISHED, LockstepNode, READY, RUNNING, stamp_text,
                                 WARNING)
+from im_common.step_gate import LOCKSTEP_DEPTH
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .bag import BagError, BagWriter, offered_qos_yaml
@@ -293,6 +294,19 @@ class RecorderNode(LockstepNode):
         # the period of the run is known before the messages kept for it are checked and written
         if self._event_period:
             self.period = self._event_period
+        self._order_chunks()
+
+    def _order_chunks(self) -> None:
+        """
+        Write the bag in log-time order: chunks sorted by stamp with a bounded reorder window.
+
+        The window is the protocol's bound, LOCKSTEP_DEPTH steps: the plant runs at most
+        ``follower_window`` (<= LOCKSTEP_DEPTH / 2) steps ahead of the last step this recorder
+        received on every lock-step topic, so no lock-step message arrives later than that; a
+        report that still does is written at the file's latest log time and counted.
+        """
+        if self.period:
+            self.writer.set_reorder_window(LOCKSTEP_DEPTH * self.period)
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         self._fetch_parameters(name)
@@ -308,6 +322,7 @@ class RecorderNode(LockstepNode):
                 return                          # another run's time master
             if self._event_period:
                 self.period = self._event_period
+                self._order_chunks()
             if state == RUNNING and self.run_start is None and self.period:
                 self.run_start = int(values.get('step', 0) or 0) * self.period
                 self.from_start = self.get_name() in values.get('followers', '').split()
@@ -661,6 +676,7 @@ class RecorderNode(LockstepNode):
                 'missing_steps': str(missing),
                 'missing_counted': self.span_text(),
                 'undecodable': str(self.undecodable),
+                'written_late': str(self.writer.late_messages),
                 'refused_unsigned': str(sum(self.unsigned.values())),
                 'foreign_publishers': ' '.join(sorted({f'{n}@{t}' for t, nodes in
                                                       self.foreign.items() for n in nodes}))}
