@@ -225,3 +225,43 @@ def test_the_writer_orders_each_chunk_within_its_window_and_clamps_what_comes_la
     assert len(moved) == 1 and pairs[moved[0]][1] == 5 * PERIOD
     # written at the latest log time the file held when it came, not at its stamp
     assert pairs[moved[0]][0] == pairs[moved[0] - 1][0] > 5 * PERIOD + 10 * PERIOD
+
+
+def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_path, domain):
+    """
+    The issue's recorder, by hand: started after the run, stopped (SIGINT) while it goes on.
+
+    Its metadata says where it joined and to which step it counted, and per lock-step topic the
+    missing figure equals what the bag lacks over that span, read with the mcap reader.
+    """
+    from im_bringup.processes import graph_processes, GraphProcesses
+    procs = graph_processes('position', 'min_energy', duration=30.0)
+    key = procs[0].parameters['graph_key_file']
+    bag = tmp_path / 'late.mcap'
+    recorder = graph_processes('position', 'min_energy', duration=30.0, record=bag,
+                               key_file=key)[-1]
+    with GraphProcesses(procs + [recorder], str(tmp_path), domain) as g:
+        g.start(only=['plant', 'controller', 'observer'])
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+        time.sleep(1.0)
+        g.start_one('recorder')
+        assert wait_for_log(g, 'plant', "lossless follower 'recorder' joined at step"), \
+            g.log('plant')[-2000:]
+        time.sleep(1.5)
+        g.send(signal.SIGINT, ['recorder'])
+        assert g.popen['recorder'].wait(30) == 0, g.log('recorder')[-2000:]
+        g.send(signal.SIGINT)
+        g.wait(30)
+    meta = info(bag).metadata['recording']
+    first, last = int(meta['counted_from_step']), int(meta['counted_to_step'])
+    assert meta['joined_at_step'] == str(first) and first > 0, meta
+    assert 'joined at step' in meta['missing_counted'] and meta['run_end'] == 'not seen'
+    total = 0
+    for topic in (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX):
+        have = {t // PERIOD for t in mcap_stamps(bag, topic)}
+        end = last if topic in (T.MEAS_CURRENT, T.MEAS_SHAFT) else last - 1
+        lacks = len(set(range(first, end + 1)) - have)
+        assert int(meta[f'missing_steps{topic}']) == lacks, (topic, meta)
+        total += lacks
+    assert int(meta['missing_steps']) == total
+    assert 'joined at step' in g.log('recorder')
