@@ -335,3 +335,18 @@ def test_a_setpoint_stamped_0_is_stored_at_the_step_it_took_effect(tmp_path):
         got = [(m.log_time, m.publish_time) for _, ch, m in
                make_reader(f).iter_messages(topics=[T.SETPOINT])]
     assert got == [(50 * PERIOD, 0), (80 * PERIOD, 80 * PERIOD)]
+
+
+def test_a_step_that_arrives_late_is_no_longer_counted_missing():
+    """Out-of-order arrival on one topic: the count is of what is lacking at the end."""
+    from im_recording.record_node import StampTrack
+    tr = StampTrack()
+    for k in (0, 3, 1, 2, 10, 5, 5):                   # 5 twice: a duplicate counts once
+        tr.see(k * PERIOD, PERIOD)
+    assert tr.missing == 5                              # 4, 6, 7, 8, 9
+    assert tr.ranges == [(4 * PERIOD, 4 * PERIOD), (6 * PERIOD, 9 * PERIOD)]
+    late = StampTrack()
+    for k in (5, 6, 2):                                 # an earlier step after the first
+        late.see(k * PERIOD, PERIOD)
+    assert (late.first, late.missing, late.ranges) == (2 * PERIOD, 2, [(3 * PERIOD, 4 * PERIOD)])
+    assert late.account(0, 8 * PERIOD, PERIOD)[0] == 2 + 2 + 2      # 0-1, 3-4, 7-8

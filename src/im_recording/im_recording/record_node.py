@@ -103,7 +103,7 @@ class StampTrack:
     :meth:`account`, once the run's first and last step are known.
     """
 
-    __slots__ = ('first', 'last', 'missing', 'ranges')
+    __slots__ = ('first', 'last', 'missing', 'ranges', 'overflow')
 
     MAX_RANGES = 100
 
@@ -112,6 +112,7 @@ class StampTrack:
         self.last: Optional[int] = None
         self.missing = 0
         self.ranges: List[tuple] = []
+        self.overflow = False
 
     def see(self, ns: int, period: int) -> None:
         last = self.last
@@ -123,7 +124,30 @@ class StampTrack:
                 self.missing += (ns - last) // period - 1
                 if len(self.ranges) < self.MAX_RANGES:
                     self.ranges.append((last + period, ns - period))
+                else:
+                    self.overflow = True
             self.last = ns
+        elif ns < self.first:           # an earlier step after a later one: before the first
+            if period and self.first - ns > period:
+                self.missing += (self.first - ns) // period - 1
+                if len(self.ranges) < self.MAX_RANGES:
+                    self.ranges.insert(0, (ns + period, self.first - period))
+                else:
+                    self.overflow = True
+            self.first = ns
+        elif period and ns < last:      # late into a gap counted missing: no longer missing
+            self._fill(ns, period)
+
+    def _fill(self, ns: int, period: int) -> None:
+        for i, (a, b) in enumerate(self.ranges):
+            if a <= ns <= b:
+                self.missing -= 1
+                parts = [(a, ns - period)] if ns > a else []
+                parts += [(ns + period, b)] if ns < b else []
+                self.ranges[i:i + 1] = parts
+                return
+        # not in a listed gap: a duplicate, or a gap beyond the listed ranges (overflow: then the
+        # count may stay one too high; said by the missing_ranges it lists)
 
     def account(self, start: Optional[int], end: Optional[int], period: int) -> tuple:
         """
