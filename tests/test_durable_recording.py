@@ -265,3 +265,49 @@ def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_p
         total += lacks
     assert int(meta['missing_steps']) == total
     assert 'joined at step' in g.log('recorder')
+
+
+def test_sigkill_of_the_in_process_scenario_loses_at_most_the_last_flush_interval(tmp_path):
+    """
+    The in-process writer: ``scenario --record`` SIGKILLed mid-run.
+
+    Its own progress line (every 0.5 s: the plant's step and the rate) says how far the run was
+    when killed; the ``.part`` holds every step up to at most the last flush interval before.
+    """
+    import subprocess
+    import threading
+    from im_bringup.processes import executable_path
+    bag = tmp_path / 'killed.mcap'
+    p = subprocess.Popen([executable_path('im_bringup', 'scenario'), '--task', 'speed',
+                          '--duration', '60', '--record', str(bag)],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    seen = []
+
+    def read():
+        buf = b''
+        while True:
+            c = p.stderr.read(1)
+            if not c:
+                return
+            buf += c
+            if c == b'\r' and len(buf) > 1:
+                last = buf[:-1].rsplit(b'\r', 1)[-1]
+                m = re.search(rb'step (\d+)\s+\S+ %\s+(\d+) steps/s', last)
+                if m:
+                    seen.append((int(m.group(1)), int(m.group(2))))
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and (len(seen) < 6 or seen[-1][0] < 3000):
+        time.sleep(0.05)
+    k_seen, rate = seen[-1]
+    p.kill()
+    p.wait(timeout=30)
+    reader.join(timeout=5)
+    on_disk = part_stamps(partial_path(bag), T.MEAS_CURRENT)
+    steps = sorted(t // PERIOD for t in on_disk)
+    assert steps == list(range(steps[-1] + 1))                       # a prefix, no hole
+    # the step printed last was reached before the kill; at most the flush interval (and the
+    # timer's period, the reorder window, the progress line's own 0.5 s) is not on disk
+    allowed = rate * (FLUSH_WALL_S + 2 * FLUSH_CHECK_S + 0.2) + LOCKSTEP_DEPTH
+    assert steps[-1] >= k_seen - allowed, (steps[-1], k_seen, rate)
