@@ -146,8 +146,8 @@ class StampTrack:
                 parts += [(ns + period, b)] if ns < b else []
                 self.ranges[i:i + 1] = parts
                 return
-        # not in a listed gap: a duplicate, or a gap beyond the listed ranges (overflow: then the
-        # count may stay one too high; said by the missing_ranges it lists)
+        # not in a listed gap: a duplicate, or a gap beyond the MAX_RANGES listed (overflow: the
+        # count may then stay too high; the metadata says missing_ranges_truncated<topic>)
 
     def account(self, start: Optional[int], end: Optional[int], period: int) -> tuple:
         """
@@ -720,6 +720,8 @@ class RecorderNode(LockstepNode):
                 meta[f'missing_ranges{t}'] = ' '.join(f'{a}-{b}' for a, b in g['ranges'])
             if self.track[t].last is not None:
                 meta[f'last_stamp{t}'] = str(self.track[t].last)
+            if self.track[t].overflow:      # a late step in a gap past the list stays counted
+                meta[f'missing_ranges_truncated{t}'] = 'true'
         return meta
 
 
