@@ -814,7 +814,7 @@ class _Out:
         if self.w is None:
             try:
                 self.w = BagWriter(self.out, force=self.force, part=self.part,
-                                   close_at_exit=False)
+                                   close_at_exit=False, flush_wall_s=None)   # renamed when whole
             except OSError as exc:
                 raise BagError(self.out, f'cannot write: {exc.strerror or exc}') from None
         return self.w
