@@ -255,3 +255,98 @@ def test_a_topic_with_nothing_yet_holds_the_plant_back(tmp_path):
     finally:
         r.close()
     assert r.acks and r.acks[-1] == 29 * PERIOD
+
+
+def test_a_recorder_stopped_mid_run_counts_every_topic_to_the_last_step_it_saw(tmp_path):
+    """
+    A recorder stopped (Ctrl-C) while the run goes on, counted from the run's step 0.
+
+    The commands never arrived and the shaft stopped at step 90 while the plant had announced
+    step 100: every lock-step topic is counted from step 0 to the last announced step (the
+    commands and estimates of that step are not computed yet: to the step before), the topic
+    with nothing recorded included.
+    """
+    r = _Run(tmp_path)
+    try:
+        r.plant('running', 0, mode='lockstep', followers='recorder')
+        r.feed('/im/measured/current', range(0, 101))
+        r.feed('/im/measured/shaft', range(0, 91))
+        r.feed('/im/observer/flux', range(0, 100))
+        meta = r.rec.close_metadata('SIGINT')
+    finally:
+        r.close()
+    assert meta['missing_steps/im/command/voltage'] == '100'           # 0 .. 99
+    assert meta['missing_ranges/im/command/voltage'] == f'0-{99 * PERIOD}'
+    assert meta['missing_steps/im/measured/shaft'] == '10'             # 91 .. 100
+    assert meta['missing_steps/im/observer/flux'] == '0'
+    assert meta['missing_steps/im/measured/current'] == '0'
+    assert meta['missing_steps'] == '110'
+    assert meta['counted_from_step'] == '0' and meta['counted_to_step'] == '100'
+    assert 'joined_at_step' not in meta
+
+
+def test_a_late_recorder_says_where_it_joined_and_counts_the_topic_it_never_got(tmp_path):
+    """
+    The issue's recorder: not waited for, it joined late and recorded no command at all.
+
+    It took the writers' history from step 3,683 and was stopped at step 5,140 while the run went
+    on: it says it joined at step 3,683 and counts from there to the last announced step on
+    every topic — 1,457 commands (3,683 .. 5,139), not 0.
+    """
+    r = _Run(tmp_path)
+    try:
+        r.plant('running', 0, mode='lockstep', followers='')
+        for t in ('/im/measured/current', '/im/measured/shaft', '/im/observer/flux'):
+            r.feed(t, range(3683, 5141))
+        meta = r.rec.close_metadata('SIGINT')
+    finally:
+        r.close()
+    assert meta['joined_at_step'] == '3683'
+    assert meta['counted_from_step'] == '3683' and meta['counted_to_step'] == '5140'
+    assert meta['missing_steps/im/command/voltage'] == '1457'
+    assert meta['missing_steps'] == '1457'
+    for t in ('/im/measured/current', '/im/measured/shaft', '/im/observer/flux'):
+        assert meta[f'missing_steps{t}'] == '0', t
+
+
+def test_a_setpoint_stamped_0_is_stored_at_the_step_it_took_effect(tmp_path):
+    """
+    Store a setpoint at the step it took effect, its own stamp as publish time.
+
+    ``ros2 topic pub /im/setpoint`` leaves the stamp 0: the controller applies it at the step the
+    run is at. The bag stores it there (log time), with its own stamp kept as publish time; a
+    setpoint stamped in the future is stored at its stamp.
+    """
+    from mcap.reader import make_reader
+    r = _Run(tmp_path)
+    try:
+        sp = r.rec._callback(T.SETPOINT, T.TOPIC_TYPES[T.SETPOINT], True)
+        r.rec.counts[T.SETPOINT] = 0
+        r.plant('running', 0, mode='lockstep', followers='recorder')
+        for t in LOCK:
+            r.feed(t, range(0, 51))
+        sp(JointStateOut(['rotor'], '').fill(0, (), (100.0,)))
+        sp(JointStateOut(['rotor'], '').fill(80 * PERIOD, (), (50.0,)))
+        for t in LOCK:
+            r.feed(t, range(51, 101))
+    finally:
+        r.close()
+    with open(r.path, 'rb') as f:
+        got = [(m.log_time, m.publish_time) for _, ch, m in
+               make_reader(f).iter_messages(topics=[T.SETPOINT])]
+    assert got == [(50 * PERIOD, 0), (80 * PERIOD, 80 * PERIOD)]
+
+
+def test_a_step_that_arrives_late_is_no_longer_counted_missing():
+    """Out-of-order arrival on one topic: the count is of what is lacking at the end."""
+    from im_recording.record_node import StampTrack
+    tr = StampTrack()
+    for k in (0, 3, 1, 2, 10, 5, 5):                   # 5 twice: a duplicate counts once
+        tr.see(k * PERIOD, PERIOD)
+    assert tr.missing == 5                              # 4, 6, 7, 8, 9
+    assert tr.ranges == [(4 * PERIOD, 4 * PERIOD), (6 * PERIOD, 9 * PERIOD)]
+    late = StampTrack()
+    for k in (5, 6, 2):                                 # an earlier step after the first
+        late.see(k * PERIOD, PERIOD)
+    assert (late.first, late.missing, late.ranges) == (2 * PERIOD, 2, [(3 * PERIOD, 4 * PERIOD)])
+    assert late.account(0, 8 * PERIOD, PERIOD)[0] == 2 + 2 + 2      # 0-1, 3-4, 7-8

@@ -389,3 +389,31 @@ def test_the_sensorless_axis_runs_both_ways_and_refuses_the_position_task(tmp_pa
     ref = simulate(Scenario(task='speed', duration=0.05, motor=motor, estimates=THESIS_MOTOR,
                             sensorless=True, controller_options={'sensorless': True})).summary
     assert rows[1]['E_in_J'] == ref['E_in_J'] != rows[0]['E_in_J']
+
+
+def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
+    """
+    Ctrl-C in a terminal signals the whole process group: the campaign and its Dask workers.
+
+    The campaign says "interrupted; ... the same command resumes" and nothing else — no worker's
+    KeyboardInterrupt traceback, no scheduler ERROR — and exits 130.
+    """
+    path = write_spec(tmp_path, draws=6, duration=2.0)
+    out = tmp_path / 'c'
+    cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
+           '2', '--no-progress']
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    journal = out / JOURNAL
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and p.poll() is None:
+        if journal.exists() and journal.read_text().count('\n') >= 2:
+            break
+        time.sleep(0.05)
+    assert p.poll() is None, 'the campaign ended before it could be interrupted'
+    os.killpg(p.pid, signal.SIGINT)                   # as the terminal does
+    _out, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith('interrupted;'), err
+    assert 'the same command resumes' in lines[0]

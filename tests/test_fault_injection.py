@@ -8,6 +8,7 @@ traceback, and files that are complete, readable by ``rosbags``, or untouched.
 """
 import os
 from pathlib import Path
+import re
 import signal
 import subprocess
 import sys
@@ -111,8 +112,11 @@ def test_hard_kill_leaves_the_final_name_free_and_recover_finds_the_part(tmp_pat
     r = run_tool('report', bag, '--no-plots')
     assert r.returncode == 2 and 'recover' in one_line(r.stderr)
     r = run_tool('recover', bag)
-    # 0: the kill left whole records; 1 only if it tore the chunk being written, which is said
-    assert r.returncode == 0 and r.stderr == '' or r.returncode == 1 and 'torn' in r.stderr, r
+    # the kill left whole records (or tore the chunk being written, which is said), but the run
+    # went on after the last of them: that tail is lost and named, never "nothing lost"
+    assert r.returncode == 1 and 'nothing lost' not in r.stdout, r
+    assert re.search(r'lost t = [0-9.]+ \.\. end of run \(20\.0+ s per its run file',
+                     r.stderr), r
     fixed = tmp_path / 'killed.recovered.mcap'
     assert rosbags_count(fixed) == info(fixed).message_count > 0
     status = run_tool('report', fixed, '--no-plots', '--out', tmp_path / 'rep')
@@ -295,6 +299,14 @@ builtins.open = _open_full
 """
 
 
+def assert_advice_names_existing_files(line: str) -> None:
+    """Every file a `recover` advice in ``line`` names as its input exists."""
+    advice = re.findall(r'`ros2 run im_recording recover ([^` ]+)', line)
+    assert advice, line
+    for path in advice:
+        assert os.path.exists(path), (path, line)
+
+
 def enospc_env(tmp_path, limit: int) -> dict:
     site = tmp_path / 'enospc_site'
     site.mkdir(exist_ok=True)
@@ -318,13 +330,16 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
     summary = json.loads(bag.with_suffix('.json').read_text())
     assert summary['ok'] is False and 'No space left on device' in summary['failures']['recorder']
     assert 0 < summary['steps'] < 10_000
+    assert summary['partial'] is True and summary['E_in_J'] > 0      # the figures of what ran
+    assert_advice_names_existing_files(line)
     fix = run_tool('recover', bag)
-    # the failed write may have torn the open chunk: recover then says so and exits 1
-    assert fix.returncode == 0 or (fix.returncode == 1 and 'torn' in fix.stderr), fix.stderr
+    # the run went on after the last write that reached the disk: that tail is named, exit 1
+    assert fix.returncode == 1 and 'end of run (1.000000000 s' in fix.stderr, fix.stderr
     assert rosbags_count(tmp_path / 'full.recovered.mcap') > 0
 
 
 def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_path):
+    import json
     bag = tmp_path / 'pfull.mcap'
     t0 = time.monotonic()
     r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '2.0', '--record',
@@ -336,7 +351,14 @@ def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_pat
     errors = [ln for ln in r.stderr.splitlines() if 'error' in ln]
     assert len(errors) == 1 and 'recorder' in errors[0], r.stderr
     assert str(partial_path(bag)) in errors[0] and 'No space left on device' in errors[0]
-    assert partial_path(bag).exists() and run_tool('recover', bag).returncode == 0
+    assert partial_path(bag).exists()
+    assert_advice_names_existing_files(errors[0])
+    # the summary holds the figures of every step that reached the disk, marked partial
+    summary = json.loads(bag.with_suffix('.json').read_text())
+    assert summary['ok'] is False and summary['partial'] is True, summary
+    assert summary['steps'] > 0 and summary['E_in_J'] > 0, summary
+    fix = run_tool('recover', bag)          # what reached the disk, and the tail it lacks
+    assert fix.returncode == 1 and 'end of run (' in fix.stderr, fix.stderr
     assert bag.with_suffix('.json').exists()
     assert time.monotonic() - t0 < 60
 

@@ -258,12 +258,14 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
         assert set(range(n_join, k_last + 1)) <= set(steps), (topic, n_join)
         first[topic] = steps[0]
     start = max(first.values())          # the first step every topic has
-    lacks = 0                            # per topic: from there (or its own first) to the end
+    joined = min(first.values())         # the step it joined: the earliest it has on any topic
+    lacks = 0                            # per topic: from there to the end
     for topic, k_last in last.items():
         have = {t // 100_000 for _, _, t, _ in iter_raw(bag, [topic])}
-        lacks += len(set(range(min(first[topic], start), k_last + 1)) - have)
-    counts = {k: v for k, v in meta.items() if k.startswith(('missing', 'last'))}
+        lacks += len(set(range(joined, k_last + 1)) - have)
+    counts = {k: v for k, v in meta.items() if k.startswith(('missing', 'last', 'joined'))}
     assert int(meta['missing_steps']) == lacks, counts
+    assert meta.get('joined_at_step') == str(joined) or joined == 0, counts
     # the reports too, from the first step every lock-step topic has: their writers keep their
     # last samples (lockstep.report_qos) as the lock-step writers do, so the recorder matched late
     # gets those of the steps before it (before: volatile, they began where it matched)

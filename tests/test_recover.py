@@ -246,3 +246,39 @@ def test_a_damaged_message_index_loses_no_message_and_says_so(tmp_path, capsys):
     cap = capsys.readouterr()
     assert _all(tmp_path / 'o.mcap') == _all(src)
     assert 'no messages lost' in cap.err and '0 of 800 messages lost' in cap.out
+
+
+def test_a_truncated_bag_names_the_missing_tail_and_its_run_record_says_what_was_saved(
+        tmp_path, capsys):
+    import yaml
+    src = tmp_path / 'three.mcap'
+    run = {'yaml': yaml.safe_dump({'task': 'speed', 'T_s': 0.001, 'duration': 3.0})}
+    with BagWriter(src, chunk_size=4096, metadata={'run': run}) as w:
+        for k in range(3001):
+            w.write_vector3(V3, k * 1_000_000, float(k), 0.0)
+    ci = _chunks(src)
+    cut = ci[int(len(ci) * 0.6)]
+    bad = tmp_path / 'cut.mcap'
+    bad.write_bytes(src.read_bytes()[:cut.chunk_start_offset + cut.chunk_length // 2])
+    out = tmp_path / 'saved.mcap'
+    assert rec.main([str(bad), '-o', str(out)]) == 1
+    err = capsys.readouterr().err
+    t0, t1 = cut.message_start_time, cut.message_end_time
+    assert f'lost t = {t0 * 1e-9:.9f} .. {t1 * 1e-9:.9f} s' in err              # the torn chunk
+    assert f'lost t = {t1 * 1e-9:.9f} .. end of run (3.000000000 s' in err, err  # and the tail
+    md = info(out).metadata
+    saved_last = max(t for _, _, t, _ in iter_raw(out))
+    assert saved_last < t0
+    assert yaml.safe_load(md['run']['yaml'])['duration'] == saved_last * 1e-9
+    assert md['recovered_from']['run_duration_s'] == '3.0'
+
+
+def test_a_closed_file_without_its_end_event_is_still_complete_and_an_unclosed_one_is_not(
+        tmp_path, capsys):
+    src = _many_chunks(tmp_path / 'x.mcap', steps=300)          # no run record, no status
+    part = partial_path(tmp_path / 'y.mcap')
+    data = src.read_bytes()
+    part.write_bytes(data[:_chunks(src)[-1].chunk_start_offset])  # whole chunks, not closed
+    assert rec.main([str(part), '-o', str(tmp_path / 'y.mcap')]) == 1
+    cap = capsys.readouterr()
+    assert 'nothing lost' not in cap.out and 'end of run (unknown)' in cap.err, cap

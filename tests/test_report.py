@@ -277,3 +277,64 @@ def test_refused_messages_are_counted_in_the_report_not_in_the_figures(tmp_path)
     with open(rep['markdown']) as f:
         section = f.read().split('## Refused messages')[1]
     assert f'7 on `{T.CMD_VOLTAGE}`' in section and 'clean' not in section
+
+
+def test_the_plants_refused_commands_and_the_foreign_publishers_are_in_the_report(tmp_path):
+    """
+    The issue's rogue: the plant refused 44,244 commands, the recorder named ``/rogue``.
+
+    The plant's count (its ``finished`` event) and every foreign publisher named (the
+    recorder's ``recording`` metadata) are in the report's refusal figures and section, per node
+    and topic, beside the messages the recorder kept.
+    """
+    from im_common import topics as T
+    from im_recording.report import refusals, write_report
+    path = tmp_path / 'rogue.mcap'
+    w = BagWriter(path)
+    w.write_serialized(T.STATUS, _status('plant', 'running', 0, time_master='true'), 0)
+    for k in range(11):
+        w.write_vector3(T.MEAS_CURRENT, k * 100_000, 1.0, 0.0)
+        w.write_vector3(T.CMD_VOLTAGE, k * 100_000, 10.0, 0.0)
+    w.add_topic(T.REFUSED_PREFIX + T.CMD_VOLTAGE, T.TOPIC_TYPES[T.CMD_VOLTAGE])
+    for k in range(3):
+        w.write_vector3(T.REFUSED_PREFIX + T.CMD_VOLTAGE, k * 100_000, 50.0, 0.0)
+    w.write_serialized(T.STATUS, _status('plant', 'finished', 1_000_000, time_master='true',
+                                         reason='duration reached', unsigned_commands='44244',
+                                         foreign_publishers='/rogue'), 1_000_000)
+    w.add_metadata('recording', {'run_end': 'finished (duration reached)', 'interrupted': '',
+                                 'missing_steps': '0', 'refused_unsigned': '3',
+                                 'foreign_publishers': '/rogue@/im/command/voltage'})
+    w.close()
+    rep = write_report([path], tmp_path / 'rep', plots=False)
+    got = rep['runs'][0]['status']['refusals']
+    assert got == {'refused_unsigned': {'plant': {T.CMD_VOLTAGE: 44244},
+                                        'recorder': {T.CMD_VOLTAGE: 3}},
+                   'foreign_publishers': {'plant': {T.CMD_VOLTAGE: ['/rogue']},
+                                          'recorder': {T.CMD_VOLTAGE: ['/rogue']}}}
+    from im_recording.run import load_run
+    assert refusals(load_run(path)) == got
+    with open(rep['markdown']) as f:
+        section = f.read().split('## Refused messages')[1]
+    assert (f'refused by plant: 44244 on `{T.CMD_VOLTAGE}` (foreign publishers: /rogue)'
+            in section), section
+
+
+def test_the_in_process_nodes_refusals_reach_the_bag_and_the_report(tmp_path):
+    """The in-process scenario writes its nodes' refusals; the report reads them back."""
+    from types import SimpleNamespace
+
+    from im_bringup.scenario import _record_refusals
+    from im_common import topics as T
+    from im_recording.report import refusals
+    from im_recording.run import load_run
+    path = tmp_path / 'inproc.mcap'
+    graph = SimpleNamespace(nodes={
+        'plant': SimpleNamespace(refused_by_topic={T.CMD_VOLTAGE: 120},
+                                 foreign={T.CMD_VOLTAGE: {'/rogue', '/other'}}),
+        'controller': SimpleNamespace(refused_by_topic={T.MEAS_CURRENT: 7}, foreign={})})
+    with BagWriter(path) as w:
+        w.write_vector3(T.MEAS_CURRENT, 0, 1.0, 0.0)
+        _record_refusals(w, graph)
+    assert refusals(load_run(path)) == {
+        'refused_unsigned': {'plant': {T.CMD_VOLTAGE: 120}, 'controller': {T.MEAS_CURRENT: 7}},
+        'foreign_publishers': {'plant': {T.CMD_VOLTAGE: ['/other', '/rogue']}}}

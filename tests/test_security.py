@@ -245,8 +245,14 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     rep = write_report([str(bag)], tmp_path / 'report', plots=False)
     assert rep['runs'][0]['status']['refused'][T.CMD_VOLTAGE] == \
         c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]
+    # the plant's own count of refused commands (its finished event) and the rogue named
+    refused = rep['runs'][0]['status']['refusals']
+    assert refused['refused_unsigned']['plant'][T.CMD_VOLTAGE] > 0, refused
+    assert refused['foreign_publishers']['plant'][T.CMD_VOLTAGE] == ['/rogue'], refused
     with open(rep['markdown']) as f:
-        assert f'on `{T.CMD_VOLTAGE}`' in f.read().split('## Refused messages')[1]
+        section = f.read().split('## Refused messages')[1]
+    assert f'on `{T.CMD_VOLTAGE}`' in section
+    assert 'refused by plant: ' in section and '/rogue' in section
     live = run_graph(task='position', strategy='min_energy', duration=DURATION)
     fig = figures_of_merit(load_run(str(bag)))
     for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V'):

@@ -113,6 +113,11 @@ class DriveGraph:
                 self.executor.add_node(n)
             if recorder is not None:
                 self._tap_publishers()
+                if hasattr(recorder, 'flush_due') and self.nodes:
+                    # durable recording: a chunk open for a second is on disk, run or stall
+                    from rclpy.clock import Clock, ClockType
+                    next(iter(self.nodes.values())).create_timer(
+                        0.1, recorder.flush_due, clock=Clock(clock_type=ClockType.STEADY_TIME))
         except BaseException:
             self.close()
             raise
@@ -144,6 +149,11 @@ class DriveGraph:
         writer = getattr(rec, 'writer', None)
         if writer is not None:
             self._declare_offers(writer, tapped_topics)
+            plant = self.nodes.get('plant')
+            if plant is not None and hasattr(writer, 'set_reorder_window'):
+                # log-time order: in one process the observer's x̂_{k+1} comes before step k+1
+                from im_common.step_gate import LOCKSTEP_DEPTH
+                writer.set_reorder_window(LOCKSTEP_DEPTH * plant.period)
         # The observer and adapter publish their initial estimates when they adopt the run,
         # through these tapped publishers; the plant publishes step 0 when the run starts.
 

@@ -187,11 +187,52 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
     record = a.get('record') or None
     from im_bringup.live import DEFAULT_PORT
     live = a.get('live', '').lower() == 'true'
-    return graph_processes(
+    procs = graph_processes(
         scenario=sc, mode=sc.mode, record=record, live_port=DEFAULT_PORT if live else None,
         use_adapter={'': None, 'true': True, 'false': False}[a.get('use_adapter', '').lower()],
         record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
                                      scenario=sc) if record else None)
+    if record and a.get('force', '').lower() == 'true':     # force:=true
+        for p in procs:
+            if p.name == 'recorder':
+                p.arguments.append('--force')
+    return procs
+
+
+#: launch arguments that name an output, and what each is
+LAUNCH_OUTPUTS = (('record', 'record:= file'), ('summary', 'summary:= file'),
+                  ('report', 'report:= directory'))
+
+
+def check_launch_outputs(arguments: Mapping[str, str]) -> None:
+    """
+    Refuse, before any process starts, a launch whose outputs cannot be written.
+
+    Every output the launch arguments name (``record``; ``summary`` and ``report`` where the
+    launch has them) is checked as ``scenario`` checks its own: an existing file without
+    ``force:=true`` (the recording's interrupted ``.part`` too), a directory, an output that is
+    also an input (``run``, ``gains``, ``params_file``), one that cannot be created. One
+    :class:`FileExistsError` or :class:`OSError` line naming the argument and the file; the
+    launch file raises it before it returns a single node, so ``ros2 launch`` exits non-zero
+    without starting one.
+    """
+    from im_recording.bag import check_output, partial_path
+    a = {k: str(v) for k, v in arguments.items()}
+    force = a.get('force', '').lower() == 'true'
+    inputs = [os.path.abspath(a[k]) for k in ('run', 'gains', 'params_file') if a.get(k)]
+    for key, what in LAUNCH_OUTPUTS:
+        if not a.get(key):
+            continue
+        out = a[key] if key != 'report' else os.path.join(a[key], 'report.md')
+        paths = [(out, what)]
+        if key == 'record':
+            paths.append((str(partial_path(out)), 'interrupted recording of record:= (recover '
+                                                  'it, or force:=true)'))
+        for path, name in paths:
+            if os.path.lexists(path) and not os.path.isdir(path) and not force:
+                raise FileExistsError(f'{path}: the {name} exists; refusing to overwrite it '
+                                      '(pass force:=true)')
+            check_output(path, inputs, force=True, what=name)
 
 
 def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
@@ -256,6 +297,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
             if writer is not None and graph is None:    # refused before the run: no file
                 writer.discard()
             elif writer is not None and not writer.failed:
+                _record_refusals(writer, graph)
                 if stop.requested:
                     writer.add_metadata('interrupted', {'signal': stop.requested,
                                                         'steps': str(k)})
@@ -273,7 +315,27 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         summary['partial_recording'] = str(writer.part)
         summary['ok'] = False
         summary.setdefault('failures', {})['recorder'] = str(writer.failed)
+    if not summary.get('ok', True) or signal is not None:
+        summary['partial'] = True       # the figures are those of the steps that ran
     return summary
+
+
+def _record_refusals(writer, graph) -> None:
+    """
+    Write the nodes' counts of messages not signed by this graph, and who sent them, to the bag.
+
+    The in-process tap records only the graph's own messages; the ``refusals`` record keeps what
+    the nodes refused (:func:`im_recording.report.refusals` reads it).
+    """
+    record = {}
+    for name, node in graph.nodes.items():
+        for topic, n in getattr(node, 'refused_by_topic', {}).items():
+            record[f'refused_unsigned/{name}{topic}'] = str(n)
+        for topic, pubs in getattr(node, 'foreign', {}).items():
+            if pubs:
+                record[f'foreign_publishers/{name}{topic}'] = ' '.join(sorted(pubs))
+    if record:
+        writer.add_metadata('refusals', record)
 
 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
@@ -322,6 +384,9 @@ def print_summary(s: dict) -> None:
     for node, topics in s.get('refused_unsigned', {}).items():
         print(f'  refused by {node} (not signed by this graph): '
               + ', '.join(f'{n} on {t}' for t, n in topics.items()))
+    for node, topics in s.get('foreign_publishers', {}).items():
+        print(f'  foreign publishers seen by {node}: '
+              + '; '.join(f"{t}: {', '.join(names)}" for t, names in topics.items()))
 
 
 #: scenario options that override the run-file key of the same name
@@ -566,12 +631,23 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     if os.path.exists(args.record):
         run = load_run(args.record)
         summary.update(figures_of_merit(run))
-        if run.refused:                 # as the in-process graph counts them, per node and topic
-            summary['refused_unsigned'] = {'recorder': run.refused}
+        from im_recording.report import refusals
+        # as the in-process graph counts them, per node and topic, and who sent them
+        summary.update({k: v for k, v in refusals(run).items() if v})
     else:
-        from im_recording.bag import partial_path
+        from im_recording.bag import BagError, partial_path
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
             summary['partial_recording'] = str(partial_path(args.record))
+            from im_recording.recover import load_salvaged
+            try:            # the figures of every step that reached the disk
+                run, _ = load_salvaged(partial_path(args.record))
+                summary.update(figures_of_merit(run))
+                from im_recording.report import refusals
+                summary.update({k: v for k, v in refusals(run).items() if v})
+            except (BagError, OSError) as exc:
+                summary['partial_figures'] = f'none: {exc}'
+    if not summary['ok']:
+        summary['partial'] = True       # the figures are those of the steps that ran
     print_summary(summary)
     written = _write_summary(out, summary)
     if written:

@@ -6,6 +6,7 @@ Jazzy launch file: the drive graph as separate processes.
         [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair]
         [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
+        [force:=true]
         [gains:=FILE.yaml] [params_file:=FILE.yaml] [security:=true] [sensorless:=true]
         [live:=true]
 
@@ -21,9 +22,10 @@ and ``params_file`` are ROS 2 parameters files merged over the scenario's parame
 e.g. ``$(ros2 pkg prefix im_bringup)/share/im_bringup/config/gains_1ms.yaml`` with ``T_s:=0.001``,
 which ``mode:=free_run`` needs). The parameters are checked before any process starts, by the
 nodes' own checks (:func:`im_bringup.processes.check_processes`): a bad file or value is launch's
-one "Caught exception" line naming the node and parameter; a process that still exits with an error
-shuts the whole launch down at once. Ctrl-C stops every process cleanly (exit 0) and closes the
-recording.
+one "Caught exception" line naming the node and parameter; so is an output that exists (without
+``force:=true``) or cannot be written (:func:`im_bringup.scenario.check_launch_outputs`); a
+process that still exits with an error shuts the whole launch down at once. Ctrl-C stops every
+process cleanly (exit 0) and closes the recording.
 Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless that variable is
 already set (``SUBNET`` opens the graph to other machines on purpose). Every launch makes a fresh
 graph key: the nodes refuse lock-step messages and run events of anyone else (docs/security.md).
@@ -52,6 +54,8 @@ ARGUMENTS = (
     ('use_adapter', '', 'true/false: controller and observer use the adapter (empty: as '
                         'the controller argument implies)'),
     ('record', '', 'MCAP file to record the run to (empty: no recorder)'),
+    ('force', 'false', 'true: overwrite existing outputs (record; otherwise the launch refuses '
+                       'them before any node starts)'),
     ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),
     ('params_file', '', 'extra parameters YAML merged last'),
     ('sensorless', '', 'true: speed-sensorless, controller/observer/adapter use the '
@@ -67,8 +71,9 @@ ARGUMENTS = (
 
 def _processes(context):
     from im_bringup.processes import check_processes
-    from im_bringup.scenario import launch_processes
+    from im_bringup.scenario import check_launch_outputs, launch_processes
     a = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
+    check_launch_outputs(a)     # every output writable (or force:=true), before any node starts
     procs = launch_processes(a)     # with a fresh graph key, removed when ros2 launch exits
     check_processes(procs)      # what a node would refuse, refused before any process starts
     secure = a['security'].lower() == 'true'

@@ -16,10 +16,16 @@ Foxglove, PlotJuggler and ``rosbags`` open:
   it;
 * run metadata (scenario, parameters, versions, git revision) as named Metadata records.
 
-Every message's log time and publish time is its stamp in simulated time (integer ns).
-Schemas, Channels and Metadata are written to the file as soon as they are declared, and each
-chunk is flushed to the OS when full, so a hard kill loses at most the open chunk and
-``recover`` can salvage the rest.
+Every message's log time and publish time is its stamp in simulated time (integer ns). A recorder
+sets a reorder window (:meth:`BagWriter.set_reorder_window`): each chunk is then written sorted by
+stamp, so log times never decrease in file order; a message later than the window keeps its stamp
+as publish time and is logged at the file's latest log time.
+Schemas, Channels and Metadata are written to the file as soon as they are declared, and a chunk
+is closed and flushed to the OS (and ``fsync``-ed) as soon as it holds
+:data:`FLUSH_BYTES` (4 MiB uncompressed) or has been open for :data:`FLUSH_WALL_S` (1 s of wall
+time), whichever comes first: checked on every write and by :meth:`BagWriter.flush_due`, which a
+recorder calls from a timer so that a quiet run is flushed too. A hard kill (SIGKILL, power
+loss) therefore costs at most the last second or 4 MiB, and ``recover`` salvages the rest.
 
 The per-message path is a dict lookup, one ``struct.pack`` and two ``bytearray`` appends;
 messages are encoded with :mod:`im_common.cdr` (exact-length CDR). Cost: see
@@ -41,6 +47,7 @@ import os
 from pathlib import Path
 import signal
 import struct
+from time import monotonic as _monotonic
 from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 import weakref
 import zlib
@@ -63,6 +70,11 @@ _MSG_FIXED = 2 + 4 + 8 + 8
 _REC = struct.Struct('<BQ')
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _QQ = struct.Struct('<QQ')
+
+#: A chunk is closed and flushed when it holds this many uncompressed bytes ...
+FLUSH_BYTES = 4 << 20
+#: ... or has been open this long [s of wall time], whichever comes first.
+FLUSH_WALL_S = 1.0
 
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}     # RMW_DURATION_INFINITE
 INFINITE_NS = 9223372036854775807
@@ -357,6 +369,13 @@ class _Output:
     def fileno(self) -> int:
         return self._f.fileno()
 
+    def sync(self) -> None:
+        """``fsync``: what was flushed survives a power loss (an error stops the writer)."""
+        try:
+            os.fsync(self._f.fileno())
+        except OSError as exc:
+            self._failed(exc)
+
     def close(self) -> None:
         try:
             self._f.close()
@@ -379,7 +398,11 @@ class BagWriter:
     compression : 'zstd', 'lz4' or 'none'
         Chunk compression.
     chunk_size : int
-        Uncompressed chunk size [bytes] at which a chunk is closed and flushed.
+        Uncompressed chunk size [bytes] at which a chunk is closed and flushed
+        (:data:`FLUSH_BYTES`).
+    flush_wall_s : float
+        Wall time [s] after its first message at which a chunk is closed, flushed and
+        ``fsync``-ed (:data:`FLUSH_WALL_S`; None: by size only, for files written offline).
     close_at_exit : bool
         Also close from an ``atexit`` hook (the interpreter exiting without ``close``).
     part : str or Path, optional
@@ -397,13 +420,19 @@ class BagWriter:
 
     def __init__(self, path, force: bool = False,
                  metadata: Optional[Dict[str, Dict[str, str]]] = None,
-                 compression: str = 'zstd', chunk_size: int = 1 << 20,
-                 close_at_exit: bool = True, part=None):
+                 compression: str = 'zstd', chunk_size: int = FLUSH_BYTES,
+                 close_at_exit: bool = True, part=None,
+                 flush_wall_s: Optional[float] = FLUSH_WALL_S):
         self.path = Path(path)
         self._compression, self._compress = _compressor(compression)
         if int(chunk_size) < 1024:
             raise ValueError(f'chunk_size must be >= 1024 bytes, not {chunk_size!r}')
         self._chunk_size = int(chunk_size)
+        if flush_wall_s is not None and not float(flush_wall_s) > 0:
+            raise ValueError(f'flush_wall_s must be > 0 s or None, not {flush_wall_s!r}')
+        self._flush_wall = None if flush_wall_s is None else float(flush_wall_s)
+        self._chunk_due = float('inf')      # monotonic time at which the open chunk is flushed
+        self.flushes = {'size': 0, 'time': 0}   # chunks closed by each rule (measured)
         self._closed = True
         self.part = partial_path(self.path) if part is None else Path(part)
         if self.path.is_dir():
@@ -413,7 +442,8 @@ class BagWriter:
                                   '(pass force=True / --force)')
         if self.part.exists() and not force:
             raise FileExistsError(f'{self.part}: an interrupted recording is in the way; salvage '
-                                  f'it with `ros2 run im_recording recover {self.path}` or pass '
+                                  f'it with `ros2 run im_recording recover {self.part} -o '
+                                  f'{self.path}` or pass '
                                   'force=True / --force to discard it')
         self.failed: Optional[BagError] = None     # the write error that stopped this writer
         try:
@@ -496,7 +526,8 @@ class BagWriter:
         """
         self.failed = BagError(self.part, f'cannot write the recording '
                                           f'({exc.strerror or exc}); what was written is kept: '
-                                          f'`ros2 run im_recording recover {self.path}`')
+                                          f'`ros2 run im_recording recover {self.part} -o '
+                                          f'{self.path}`')
         self._closed = True
         self._chan = {}
         self._f.close()
@@ -602,19 +633,47 @@ class BagWriter:
                             f'{type(msg).__module__}.{type(msg).__name__}')
         self.write_serialized(topic, enc(msg), stamp_ns)
 
-    def write_serialized(self, topic: str, data: bytes, stamp_ns: int) -> None:
-        """Record an already serialized (CDR) message."""
+    def write_serialized(self, topic: str, data: bytes, stamp_ns: int,
+                         publish_ns: Optional[int] = None) -> None:
+        """
+        Record an already serialized (CDR) message at log time ``stamp_ns``.
+
+        ``publish_ns``: its publish time when it differs (default ``stamp_ns``).
+        """
         try:
             cid = self._chan[topic][0]
         except KeyError:
             cid = self._lookup_slow(topic)[0]
         buf = self._buf
         off = len(buf)
-        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns, stamp_ns)
+        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns,
+                             stamp_ns if publish_ns is None else publish_ns)
         buf += data
-        self._ix.append((cid, stamp_ns, off))
-        if off >= self._chunk_size:
+        ix = self._ix
+        ix.append((cid, stamp_ns, off))
+        if len(buf) >= self._chunk_size:     # at most chunk_size + one message
+            self.flushes['size'] += 1
             self._flush_chunk()
+        elif self._flush_wall is not None:
+            now = _monotonic()
+            if not off:
+                self._chunk_due = now + self._flush_wall
+            elif now >= self._chunk_due:
+                self.flushes['time'] += 1
+                self._flush_chunk(sync=True)
+
+    def flush_due(self) -> bool:
+        """
+        Close, flush and ``fsync`` the open chunk if it has been open for ``flush_wall_s``.
+
+        For a timer of the recorder: a run that went quiet (stalled, or between its last
+        message and the end) is on disk within a second too. Returns whether it flushed.
+        """
+        if self._closed or not self._ix or _monotonic() < self._chunk_due:
+            return False
+        self.flushes['time'] += 1
+        self._flush_chunk(sync=True)
+        return True
 
     def write_vector3(self, topic: str, stamp_ns: int, x: float, y: float, z: float = 0.0) -> None:
         """
@@ -634,9 +693,74 @@ class BagWriter:
                                                           effort), stamp_ns)
 
     # -- chunks ---------------------------------------------------------------------------
-    def _flush_chunk(self) -> None:
+    def set_reorder_window(self, window_ns: Optional[int]) -> None:
+        """
+        Write each chunk in log-time order, holding back the messages within ``window_ns``.
+
+        Messages may arrive out of stamp order (a recorder of separate processes; in one process
+        the observer's x̂_{k+1} before step k+1). A chunk is written sorted by stamp up to
+        ``window_ns`` before the newest stamp it holds; the newer messages stay for the next
+        chunk (all are written at :meth:`close` and :meth:`flush`). A message that still arrives
+        later than that window is written at the latest log time already written, its own stamp
+        kept as publish time (and in its header), and counted in :attr:`late_messages`: log
+        times never decrease in file order (``mcap doctor --strict-message-order``). None:
+        written as they come.
+        """
+        if window_ns is not None and int(window_ns) < 0:
+            raise ValueError(f'reorder window must be >= 0 ns, not {window_ns!r}')
+        self._reorder_ns = None if window_ns is None else int(window_ns)
+
+    _reorder_ns: Optional[int] = None
+    _written_max = 0            # the latest log time written (the file's order so far)
+    late_messages = 0           # messages that arrived later than the reorder window
+
+    def _in_order(self, buf: bytearray, ix: list, final: bool):
+        """
+        Return the chunk's (records, index) in log-time order, keeping the newest back.
+
+        The messages within the reorder window of the newest stamp go back into the open chunk
+        (unless ``final``); a message older than what the file already holds is written at that
+        time (its publish time keeps its stamp).
+        """
+        ends = [e[2] for e in ix[1:]] + [len(buf)]
+        order = sorted(range(len(ix)), key=lambda i: ix[i][1])
+        cut = len(order)
+        if not final:
+            horizon = ix[order[-1]][1] - self._reorder_ns
+            cut = next((n for n, i in enumerate(order) if ix[i][1] > horizon), len(order))
+            if cut == 0 and len(buf) < 2 * self._chunk_size:
+                self._buf, self._ix = buf, ix   # everything is within the window: keep it all
+                if self._flush_wall is not None:
+                    self._chunk_due = _monotonic() + self._flush_wall
+                return None, None
+            if cut == 0:
+                cut = len(order)
+        out, out_ix = bytearray(), []
+        floor = self._written_max
+        for i in order[:cut]:
+            cid, t, off = ix[i]
+            at = len(out)
+            out += buf[off:ends[i]]
+            if t < floor:               # later than the window: at the file's latest time
+                _U64.pack_into(out, at + 15, floor)
+                self.late_messages += 1
+                t = floor
+            floor = t
+            out_ix.append((cid, t, at))
+        self._written_max = floor
+        keep = self._buf
+        for i in order[cut:]:
+            cid, t, off = ix[i]
+            self._ix.append((cid, t, len(keep)))
+            keep += buf[off:ends[i]]
+        if self._ix and self._flush_wall is not None:
+            self._chunk_due = _monotonic() + self._flush_wall
+        return out, out_ix
+
+    def _flush_chunk(self, sync: bool = False, final: bool = False) -> None:
         if self._closed:
             return
+        self._chunk_due = float('inf')
         ix = self._ix
         if not ix:
             self._buf = bytearray()
@@ -658,6 +782,10 @@ class BagWriter:
                 del buf[last_off + 9 + length:]
             if not ix:
                 return
+            if self._reorder_ns is not None:
+                buf, ix = self._in_order(buf, ix, final)
+                if not ix:
+                    return
             records = bytes(buf)
             t0 = min(e[1] for e in ix)
             t1 = max(e[1] for e in ix)
@@ -700,6 +828,8 @@ class BagWriter:
                 self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
                 self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
             self._f.flush()
+            if sync:                # at most once per flush_wall_s: power loss costs that too
+                self._f.sync()
         finally:
             self._flushing = False
         if self._close_pending:
@@ -708,7 +838,7 @@ class BagWriter:
     def flush(self) -> None:
         """Close the open chunk and push it to the OS (the file stays open)."""
         if not self._closed:
-            self._flush_chunk()
+            self._flush_chunk(final=True)
             self._f.flush()
 
     # -- closing --------------------------------------------------------------------------
@@ -764,7 +894,7 @@ class BagWriter:
             return
         self._chan = {}             # later writes take the slow path and raise BagError
         try:
-            self._flush_chunk()
+            self._flush_chunk(final=True)
             if self._closed:        # the flush's pending close already finished the file
                 return
             self._closed = True
@@ -845,7 +975,7 @@ def _open_checked(path):
         if partial_path(p).exists():
             raise BagError(p, f'no such file, but an interrupted (truncated) recording is at '
                            f'{partial_path(p)}; salvage it with '
-                           f'`ros2 run im_recording recover {p}`')
+                           f'`ros2 run im_recording recover {partial_path(p)} -o {p}`')
         raise BagError(p, 'no such file')
     if p.is_dir():
         raise BagError(p, 'is a directory; expected an .mcap file')

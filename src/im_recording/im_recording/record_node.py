@@ -28,7 +28,10 @@ threads run at ``SCHED_FIFO`` ``rt_priority`` (40), below the control loop's.
 
 It stops when the run ends (the plant's ``finished``/``stopped``/``failed``, after receiving the
 last step) unless ``--continuous``; SIGINT / SIGTERM / SIGHUP close the file (summary, footer), so
-an interrupted recording is complete up to the stop; after a hard kill use ``recover``. The
+an interrupted recording is complete up to the stop. A chunk is on disk once it holds 1 s of wall
+time or 4 MiB (:data:`im_recording.bag.FLUSH_WALL_S`, :data:`~im_recording.bag.FLUSH_BYTES`,
+checked on every message and every :data:`FLUSH_CHECK_S`), so a hard kill costs at most that
+last second; ``recover`` salvages the rest and names the missing tail. The
 in-process graph records without this node (``DriveGraph(recorder=...)``).
 """
 from __future__ import annotations
@@ -42,6 +45,7 @@ from im_common import cdr, realtime
 from im_common import topics as T
 from im_common.lockstep import (END_STATES, FINISHED, LockstepNode, READY, RUNNING, stamp_text,
                                 WARNING)
+from im_common.step_gate import LOCKSTEP_DEPTH
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .bag import BagError, BagWriter, offered_qos_yaml
@@ -59,6 +63,9 @@ REFUSED_PREFIX = T.REFUSED_PREFIX
 #: After a stop signal, how long the recorder waits for the plant's final event (the run's other
 #: processes got the same signal) before it closes the file [s].
 STOP_WAIT_S = 1.0
+#: How often the recorder checks whether its open chunk is due (bag.FLUSH_WALL_S) [s]: a SIGKILL
+#: costs at most FLUSH_WALL_S + this of the run.
+FLUSH_CHECK_S = 0.1
 #: Reader history of the lock-step topics (samples; ≈ 100 bytes each).
 LOCKSTEP_READER_DEPTH = 5000
 
@@ -96,7 +103,7 @@ class StampTrack:
     :meth:`account`, once the run's first and last step are known.
     """
 
-    __slots__ = ('first', 'last', 'missing', 'ranges')
+    __slots__ = ('first', 'last', 'missing', 'ranges', 'overflow')
 
     MAX_RANGES = 100
 
@@ -105,6 +112,7 @@ class StampTrack:
         self.last: Optional[int] = None
         self.missing = 0
         self.ranges: List[tuple] = []
+        self.overflow = False
 
     def see(self, ns: int, period: int) -> None:
         last = self.last
@@ -116,7 +124,30 @@ class StampTrack:
                 self.missing += (ns - last) // period - 1
                 if len(self.ranges) < self.MAX_RANGES:
                     self.ranges.append((last + period, ns - period))
+                else:
+                    self.overflow = True
             self.last = ns
+        elif ns < self.first:           # an earlier step after a later one: before the first
+            if period and self.first - ns > period:
+                self.missing += (self.first - ns) // period - 1
+                if len(self.ranges) < self.MAX_RANGES:
+                    self.ranges.insert(0, (ns + period, self.first - period))
+                else:
+                    self.overflow = True
+            self.first = ns
+        elif period and ns < last:      # late into a gap counted missing: no longer missing
+            self._fill(ns, period)
+
+    def _fill(self, ns: int, period: int) -> None:
+        for i, (a, b) in enumerate(self.ranges):
+            if a <= ns <= b:
+                self.missing -= 1
+                parts = [(a, ns - period)] if ns > a else []
+                parts += [(ns + period, b)] if ns < b else []
+                self.ranges[i:i + 1] = parts
+                return
+        # not in a listed gap: a duplicate, or a gap beyond the MAX_RANGES listed (overflow: the
+        # count may then stay too high; the metadata says missing_ranges_truncated<topic>)
 
     def account(self, start: Optional[int], end: Optional[int], period: int) -> tuple:
         """
@@ -214,6 +245,16 @@ class RecorderNode(LockstepNode):
         self._progress = self.create_publisher(Header, T.PROGRESS, 10)
         self._ack_topics = [t for t in ACK_TOPICS if t in self.track]
         self.create_timer(0.02, self._maybe_ack)
+        # durable: a chunk open for FLUSH_WALL_S is on disk even when no message comes to close it
+        from rclpy.clock import Clock, ClockType
+        self.create_timer(FLUSH_CHECK_S, self._flush_due,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _flush_due(self) -> None:
+        try:
+            self.writer.flush_due()
+        except BagError:
+            return          # writer.failed: main ends the recording with that line
 
     def _fetch_parameters(self, name: str) -> None:
         """
@@ -277,6 +318,19 @@ class RecorderNode(LockstepNode):
         # the period of the run is known before the messages kept for it are checked and written
         if self._event_period:
             self.period = self._event_period
+        self._order_chunks()
+
+    def _order_chunks(self) -> None:
+        """
+        Write the bag in log-time order: chunks sorted by stamp with a bounded reorder window.
+
+        The window is the protocol's bound, LOCKSTEP_DEPTH steps: the plant runs at most
+        ``follower_window`` (<= LOCKSTEP_DEPTH / 2) steps ahead of the last step this recorder
+        received on every lock-step topic, so no lock-step message arrives later than that; a
+        report that still does is written at the file's latest log time and counted.
+        """
+        if self.period:
+            self.writer.set_reorder_window(LOCKSTEP_DEPTH * self.period)
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
         self._fetch_parameters(name)
@@ -292,6 +346,7 @@ class RecorderNode(LockstepNode):
                 return                          # another run's time master
             if self._event_period:
                 self.period = self._event_period
+                self._order_chunks()
             if state == RUNNING and self.run_start is None and self.period:
                 self.run_start = int(values.get('step', 0) or 0) * self.period
                 self.from_start = self.get_name() in values.get('followers', '').split()
@@ -393,6 +448,7 @@ class RecorderNode(LockstepNode):
         counts = self.counts
         track = self.track.get(topic)
         signed = topic in T.SIGNED_TOPICS      # lock-step and report topics: the graph's tag
+        setpoint = topic == T.SETPOINT
         if raw:
             def cb(data: bytes) -> None:
                 if signed and not self.signer.verify(topic, data):
@@ -409,6 +465,9 @@ class RecorderNode(LockstepNode):
                     data = data[:n]
                     self.trimmed += 1
                 t = cdr.header_stamp_ns(data)
+                if setpoint:
+                    self._write_setpoint(data, t)
+                    return
                 self._write(write, topic, data, t, counts, track)
         else:
             from rclpy.serialization import serialize_message
@@ -472,6 +531,25 @@ class RecorderNode(LockstepNode):
         if track is not None:
             track.see(t, self.period)
 
+    def _write_setpoint(self, data: bytes, stamp: int) -> None:
+        """
+        Record a setpoint at the time it takes effect, with its own stamp as publish time.
+
+        The controller applies a setpoint at the first step at or after its stamp; a stamp in the
+        past (0: ``ros2 topic pub``'s unset header) means the step the run is at. Its log time is
+        therefore the later of its stamp and the latest step the run had announced to this
+        recorder when it arrived (a setpoint stamped 0 was stored at t = 0, before the steps it
+        changed); its publish time keeps its own stamp.
+        """
+        lasts = [tr.last for tr in self.track.values() if tr.last is not None]
+        effective = max([stamp] + lasts)
+        try:
+            self.writer.write_serialized(T.SETPOINT, data, effective, publish_ns=stamp)
+        except BagError:
+            return
+        self.counts[T.SETPOINT] += 1
+        self._last_msg = time.monotonic()
+
     _last_msg = 0.0
     _end_wall = 0.0
     _free_run_entered = False
@@ -506,40 +584,90 @@ class RecorderNode(LockstepNode):
             self._acked = ack
 
     # Report ------------------------------------------------------------------------------
+    def count_span(self) -> tuple:
+        """
+        Return (first step, last step, how the last is known) the missing steps are counted over.
+
+        First: the run's first step when the plant counted this recorder from the start (its
+        ``running`` lists it), else — it joined a running run — the step it joined: the earliest
+        step it holds on any lock-step topic of the run. Last: the step of the plant's final event;
+        without one (the recorder was stopped, or the plant left, while the run went on) the last
+        step the run announced to it, the latest stamp it received on any lock-step topic.
+        Steps are None where nothing is known.
+        """
+        p = self.period
+        if not p:
+            return None, None, ''
+        topics = self.run_topics()
+        if self.from_start and self.run_start is not None:
+            first = self.run_start // p
+        else:
+            firsts = [self.track[t].first for t in topics if self.track[t].first is not None]
+            first = min(firsts) // p if firsts else None
+        if self.end_state is not None and self.end_state != 'ended':
+            return first, int(self.end_values.get('step', 0) or 0), \
+                f"the plant's final event ({self.end_state})"
+        if self.stop_at is not None:
+            return first, self.stop_at, ('the last step the run had announced when this '
+                                         'recorder was stopped; the run went on')
+        lasts = [tr.last for tr in self.track.values() if tr.last is not None]
+        if not lasts:
+            return first, None, ''
+        how = 'the last step the run announced to this recorder; its end was not seen'
+        return first, max(lasts) // p, how
+
+    stop_at: Optional[int] = None
+
+    def cut(self) -> None:
+        """
+        Stop counting at the last step the run has announced (the recorder stops, the run not).
+
+        Messages of later steps that still arrive (while the recorder waits for the plant's
+        final event, which counts instead when it comes) are recorded but not counted.
+        """
+        if self.end_state is None and self.stop_at is None and self.period:
+            lasts = [tr.last for tr in self.track.values() if tr.last is not None]
+            if lasts:
+                self.stop_at = max(lasts) // self.period
+
+    def joined_at(self) -> Optional[int]:
+        """Return the step this recorder joined the run at, if it was not there from its start."""
+        first = self.count_span()[0]
+        if first is None or (self.from_start and self.run_start is not None):
+            return None
+        if self.run_start is not None and first * self.period <= self.run_start:
+            return None
+        return first
+
     def run_bounds(self, topic: str) -> tuple:
         """
         (first, last) stamp this recording must hold on ``topic`` (None: not known).
 
-        First: the run's first step when the plant counted this recorder from the start (its
-        ``running`` lists it), else — it joined a running run — the first step every topic of the
-        run has. Last: the step of the plant's final event; the command of that step is never
-        computed, and after a stop or a failure only the measurements of that step are sure to
-        exist (the commands and estimates up to the step before).
+        Over :meth:`count_span`. The command of the last step is never computed when the run
+        finished; after a stop, a failure or without the plant's final event only the
+        measurements of the last step are sure to exist (the commands and estimates up to the
+        step before).
         """
         p = self.period
-        if not p:
+        first, last, _ = self.count_span()
+        if first is None and last is None:
             return None, None
-        if self.from_start:
-            start = self.run_start
-        else:
-            firsts = [self.track[t].first for t in self.run_topics()
-                      if self.track[t].first is not None]
-            start = max(firsts) if firsts else None
+        start = None if first is None else first * p
         end = None
-        if self.end_state is not None:
-            step = int(self.end_values.get('step', 0) or 0)
+        if last is not None:
             measured = topic in (T.MEAS_CURRENT, T.MEAS_SHAFT)
             if self.end_state == FINISHED:
-                end = (step - 1 if topic == T.CMD_VOLTAGE else step) * p
+                end = (last - 1 if topic == T.CMD_VOLTAGE else last) * p
             else:
-                end = (step if measured else step - 1) * p
+                end = (last if measured else last - 1) * p
         return start, end
 
     def gaps(self) -> Dict[str, dict]:
         """
         Return, per tracked lock-step topic, the steps of the run it lacks and their stamp ranges.
 
-        The steps lacking are those before its first stamp, between, and after its last.
+        The steps lacking are those before its first stamp, between, and after its last, over
+        :meth:`run_bounds`; a lock-step topic of the run with nothing recorded lacks them all.
         """
         out = {}
         topics = set(self.run_topics())
@@ -551,6 +679,16 @@ class RecorderNode(LockstepNode):
             out[t] = {'missing_steps': n, 'ranges': ranges[:StampTrack.MAX_RANGES]}
         return out
 
+    def span_text(self) -> str:
+        """Say over which steps the missing steps were counted (for the last line)."""
+        first, last, how = self.count_span()
+        joined = self.joined_at()
+        if first is None:
+            return 'nothing of a run received'
+        head = (f'joined at step {joined} (the steps before are not in this recording)'
+                if joined is not None else f'from step {first}')
+        return head + (f' to step {last} ({how})' if last is not None else '')
+
     def close_metadata(self, interrupted: Optional[str]) -> dict:
         gaps = self.gaps()
         missing = sum(g['missing_steps'] for g in gaps.values())
@@ -560,10 +698,20 @@ class RecorderNode(LockstepNode):
                             if self.end_state else 'not seen'),
                 'interrupted': interrupted or '',
                 'missing_steps': str(missing),
+                'missing_counted': self.span_text(),
                 'undecodable': str(self.undecodable),
+                'written_late': str(self.writer.late_messages),
                 'refused_unsigned': str(sum(self.unsigned.values())),
                 'foreign_publishers': ' '.join(sorted({f'{n}@{t}' for t, nodes in
                                                       self.foreign.items() for n in nodes}))}
+        first, last, _ = self.count_span()
+        if first is not None:
+            meta['counted_from_step'] = str(first)
+        if last is not None:
+            meta['counted_to_step'] = str(last)
+        joined = self.joined_at()
+        if joined is not None:
+            meta['joined_at_step'] = str(joined)
         for t, n in self.unsigned.items():
             meta[f'refused_unsigned{t}'] = str(n)
         for t, g in gaps.items():
@@ -572,6 +720,8 @@ class RecorderNode(LockstepNode):
                 meta[f'missing_ranges{t}'] = ' '.join(f'{a}-{b}' for a, b in g['ranges'])
             if self.track[t].last is not None:
                 meta[f'last_stamp{t}'] = str(self.track[t].last)
+            if self.track[t].overflow:      # a late step in a gap past the list stays counted
+                meta[f'missing_ranges_truncated{t}'] = 'true'
         return meta
 
 
@@ -653,6 +803,8 @@ def main(argv=None) -> int:
                 if writer.failed:           # its file cannot be written: end, say why below
                     break
                 ex.spin_once(timeout_sec=0.05)
+            if not node.drained():
+                node.cut()          # stopped while the run goes on: counted to where it was
             if stop.requested:
                 node.request_stop(stop.requested)
                 # Ctrl-C on `ros2 launch` signals every process at once: keep recording until
@@ -682,19 +834,22 @@ def main(argv=None) -> int:
             if node is not None:
                 n = sum(node.counts.values())
                 gaps = node.gaps()
+                counted = set(node.run_topics())
                 missing = {t: g['missing_steps'] for t, g in gaps.items() if g['missing_steps']}
                 text = f'record: {n} messages written to {out}'
                 if node.end_state:
                     text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
+                span = node.span_text()
                 if missing:
                     first = {t: gaps[t]['ranges'][:3] for t in missing}
-                    steps = ', '.join(f'{t}: {m}' for t, m in missing.items())
+                    steps = ', '.join(f"{t}: {gaps[t]['missing_steps']}" for t in gaps
+                                      if t in counted)
                     ranges = '; '.join(
                         f'{t} ' + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}' for x, y in r)
                         for t, r in first.items())
-                    text += f'; MISSING steps {steps} (first ranges: {ranges})'
+                    text += (f'; MISSING steps, {span}: {steps} (first ranges: {ranges})')
                 else:
-                    text += '; no step missing on the lock-step topics'
+                    text += f'; no step missing on the lock-step topics, {span}'
                 print(text, file=sys.stderr)
                 node.flush(timeout=0.5)
                 node.destroy_node()

@@ -21,9 +21,14 @@ the damage, so the search is linear; a byte pattern alone is never taken for a r
 What was lost is reported exactly: the time range and the message count of the damaged chunks,
 taken from the file's chunk index when its summary is intact (CRC checked), else from the damaged
 chunk's own header and the Message Index records that follow it, else bounded by the neighbouring
-intact chunks. Exit code 0: every record of the file was read and kept; 1: the output was written
-but damaged bytes were skipped (each loss is printed on stderr and stored in the output's
-``recovered_from`` metadata); 2: nothing written (one line says why).
+intact chunks. A file its writer did not close (no Data End: killed, or its disk full) says
+nothing of what came after its last record: the tail from the last saved stamp to the end of the
+run — the time master's final event when it was saved (nothing is lost once the last saved stamp
+reaches it), else the ``run`` record's duration, else unknown — is reported as lost too, and the
+output's ``run`` record gets the duration of what was saved. Exit code 0: every record of the
+file was read and kept, and nothing is missing after it; 1: the output was written but damaged
+bytes were skipped or the run's tail is missing (each loss is printed on stderr and stored in the
+output's ``recovered_from`` metadata); 2: nothing written (one line says why).
 
 The output (default ``<name>.recovered.mcap``; never an input, an existing file only with
 ``--force``) is written to a temporary file next to it and renamed into place when complete; if
@@ -52,7 +57,7 @@ from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, BagError, BagWri
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
 
-#: a chunk larger than this (uncompressed) is taken for damage; the writer's are ~1 MiB
+#: a chunk larger than this (uncompressed) is taken for damage; the writer's are <= ~4 MiB
 MAX_CHUNK = 1 << 30
 #: records that parse but prove nothing (Message Index, Channel, ...) accepted in a row while
 #: resynchronising before a CRC-checked record or the end of the file must vouch for them
@@ -801,12 +806,15 @@ class _Out:
         self.n = 0
         self.t_first: Optional[int] = None
         self.t_last: Optional[int] = None
+        self.run_record: Optional[Dict[str, str]] = None    # written by finish (its duration)
+        self.status_cid: Optional[int] = None
+        self.statuses: List[Tuple[int, bytes]] = []        # (stamp, CDR) of /im/status
 
     def _writer(self) -> BagWriter:
         if self.w is None:
             try:
                 self.w = BagWriter(self.out, force=self.force, part=self.part,
-                                   close_at_exit=False)
+                                   close_at_exit=False, flush_wall_s=None)   # renamed when whole
             except OSError as exc:
                 raise BagError(self.out, f'cannot write: {exc.strerror or exc}') from None
         return self.w
@@ -824,6 +832,8 @@ class _Out:
             except ValueError as exc:
                 why = f'{topic}: {exc}'
         self.topics[cid] = None if why else topic
+        if topic == STATUS_TOPIC and not why:
+            self.status_cid = cid
         if why:
             self.drop_why[cid] = why
             self.dropped.setdefault(why, 0)
@@ -835,6 +845,8 @@ class _Out:
             self.dropped[why] = self.dropped.get(why, 0) + 1
             return
         self.w.write_serialized(topic, data, t)
+        if cid == self.status_cid:
+            self.statuses.append((t, bytes(data)))
         self.n += 1
         if self.t_first is None or t < self.t_first:
             self.t_first = t
@@ -860,6 +872,7 @@ class _Out:
     def _messages(self, view, msgs) -> None:
         topics = self.topics
         ws = self.w.write_serialized if self.w is not None else None
+        status = self.status_cid
         n = 0
         for cid, t, a, b in msgs:
             topic = topics.get(cid)
@@ -867,6 +880,8 @@ class _Out:
                 self.message(cid, t, view[a:b])
                 continue
             ws(topic, view[a:b], t)
+            if cid == status:
+                self.statuses.append((t, bytes(view[a:b])))
             n += 1
         if n:
             self.n += n
@@ -878,11 +893,16 @@ class _Out:
             self.t_last = t1 if self.t_last is None else max(self.t_last, t1)
 
     def metadata(self, name, md) -> None:
-        if name not in ('rosbag2', 'recovered_from'):
+        if name == 'run':
+            self.run_record = dict(md)      # written by finish, its duration what was saved
+        elif name not in ('rosbag2', 'recovered_from'):
             self._writer().add_metadata(name, md)
 
-    def finish(self, recovered_from: Dict[str, str]) -> None:
+    def finish(self, recovered_from: Dict[str, str],
+               run_record: Optional[Dict[str, str]] = None) -> None:
         w = self._writer()
+        if run_record is not None:
+            w.add_metadata('run', run_record)
         w.add_metadata('recovered_from', recovered_from)
         w.close()
 
@@ -896,6 +916,97 @@ class _Out:
             os.unlink(self.part)
         except FileNotFoundError:
             pass
+
+
+# ------------------------------------------------------------------------------------------
+# The run's own record: how far it went, against what was saved
+# ------------------------------------------------------------------------------------------
+STATUS_TOPIC = '/im/status'
+_END_STATES = ('finished', 'stopped', 'failed')
+
+
+def _run_file(record: Optional[Dict[str, str]]) -> dict:
+    """Return the ``run`` record's run file as a mapping ({} when absent or unreadable)."""
+    import yaml
+    if not record or 'yaml' not in record:
+        return {}
+    try:
+        doc = yaml.safe_load(record['yaml'])
+    except yaml.YAMLError:
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def run_end(statuses, run_file: dict) -> Tuple[Optional[int], str, bool]:
+    """
+    Return (stamp of the run's last step, where that comes from, proven) as the file knows it.
+
+    Proven: the time master's final event (finished, stopped, failed) was saved, with its step.
+    Else the run file's ``duration`` (the run was to end there; it may have ended earlier).
+    Else (None, '', False): unknown.
+    """
+    from rclpy.serialization import deserialize_message
+    from im_common import cdr
+    cls = cdr.message_class('diagnostic_msgs/msg/DiagnosticArray') if statuses else None
+    for t, data in reversed(statuses):
+        try:
+            msg = deserialize_message(data, cls)
+        except Exception:       # noqa: BLE001 - an undecodable status tells nothing
+            continue
+        for st in msg.status:
+            values = {kv.key: kv.value for kv in st.values}
+            if values.get('time_master') == 'true' and st.message in _END_STATES:
+                period = int(values.get('T_s_ns', 0) or 0)
+                step = values.get('step')
+                end = int(step) * period if step is not None and period else t
+                return end, f"the plant's final event ({st.message} at step {step})", True
+    try:
+        duration = float(run_file.get('duration'))
+    except (TypeError, ValueError):
+        return None, '', False
+    return round(duration * 1e9), "its run file's duration; it may have ended earlier", False
+
+
+def missing_tail(saved_last: Optional[int], lost_last: Optional[int], statuses,
+                 run_file: dict) -> Optional[dict]:
+    """
+    Return the tail of the run after what was saved (None if the file proves there is none).
+
+    The tail starts after the last saved stamp (or the last stamp of a damaged range at the end
+    of the file, whichever is later) and runs to the end of the run as :func:`run_end` knows it
+    (``t1_ns`` None: unknown).
+    """
+    end, source, proven = run_end(statuses, run_file)
+    last = max((t for t in (saved_last, lost_last) if t is not None), default=None)
+    if proven and last is not None and last >= end:
+        return None
+    t0 = last
+    if end is not None and last is not None and end <= last:
+        end, source = None, (source + ', but the file holds later stamps')
+
+    def s(t):
+        return f'{t * 1e-9:.9f}'
+    start = 'the start' if t0 is None else s(t0)
+    if end is None:
+        text = (f'lost t = {start} .. end of run (unknown): the writer did not close the file, '
+                'and nothing in it says how long the run went on')
+    else:
+        span = f'; {(end - (t0 or 0)) * 1e-9:.3f} s' if t0 is not None else ''
+        text = (f'lost t = {start} .. end of run ({s(end)} s per {source}{span}): the writer '
+                'did not close the file')
+    return {'t0_ns': t0, 't1_ns': end, 'proven_end': proven, 'source': source, 'text': text}
+
+
+def saved_run_record(record: Dict[str, str], saved_last: Optional[int]) -> Dict[str, str]:
+    """Return the ``run`` record with its ``duration`` set to what was saved (its last stamp)."""
+    import yaml
+    doc = _run_file(record)
+    if not doc or 'duration' not in doc:
+        return record
+    doc['duration'] = round((saved_last or 0) * 1e-9, 9)
+    out = dict(record)
+    out['yaml'] = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
+    return out
 
 
 def source_of(path) -> Path:
@@ -957,11 +1068,21 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
         n_lost = (total - sink.n if total is not None
                   else sum(x.messages for x in scan.lost)
                   if all(x.messages is not None for x in scan.lost) else None)
-        whole = not scan.lost and not scan.crc_mismatch
+        run_file = _run_file(sink.run_record)
+        tail = None
+        if not scan.complete:       # the writer did not close it: how far did the run go on?
+            lost_last = max((x.t1 for x in scan.lost if x.t1 is not None), default=None)
+            tail = missing_tail(sink.t_last, lost_last, sink.statuses, run_file)
+            if tail is not None:
+                lost.append(tail['text'])
+        whole = not scan.lost and not scan.crc_mismatch and tail is None
         if whole:
-            reason = (scan.ending if scan.complete else scan.ending
-                      + ' (no data end: the writer did not close it; whatever it had not yet '
-                        'written is not in the file)') + '; nothing lost'
+            reason = scan.ending + ('' if scan.complete else
+                                    " (no data end, but the run's final event and every stamp up "
+                                    'to it are in the file)') + '; nothing lost'
+        elif tail is not None and not scan.lost and not scan.crc_mismatch:
+            reason = ('the writer did not close the file: ' + scan.ending + '; the tail of the '
+                      'run after the last saved message is lost')
         else:
             reason = (f'{len(scan.lost)} damaged range(s) skipped ('
                       f'{sum(x.end - x.start for x in scan.lost)} bytes)' if scan.lost
@@ -972,9 +1093,19 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
                 reason += f', {n_lost} messages lost'
             else:
                 reason += ', number of messages lost unknown'
+            if tail is not None:
+                reason += ', and the tail of the run after the last saved message'
+        run_record = sink.run_record
+        recovered_from = {'path': str(src), 'reason': reason, 'lost': '; '.join(lost + notes),
+                          'messages_lost': '' if n_lost is None else str(n_lost)}
+        if tail is not None:
+            recovered_from['lost_tail_ns'] = '-'.join(
+                '' if tail[k] is None else str(tail[k]) for k in ('t0_ns', 't1_ns'))
+        if run_record is not None and not whole and 'duration' in run_file:
+            recovered_from['run_duration_s'] = str(run_file['duration'])
+            run_record = saved_run_record(run_record, sink.t_last)
         try:
-            sink.finish({'path': str(src), 'reason': reason, 'lost': '; '.join(lost + notes),
-                         'messages_lost': '' if n_lost is None else str(n_lost)})
+            sink.finish(recovered_from, run_record)
         except OSError as exc:
             raise BagError(out, f'cannot write: {exc.strerror or exc}') from None
     except BaseException:
@@ -986,8 +1117,27 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             'topics': sum(1 for t in set(sink.topics.values()) if t),
             'complete': scan.complete and whole, 'whole': whole, 'reason': reason,
             'lost': lost, 'notes': notes, 'lost_ranges': [x.as_dict() for x in scan.lost],
-            'messages_lost': n_lost, 'messages_in_file': total,
+            'messages_lost': n_lost, 'messages_in_file': total, 'lost_tail': tail,
             'first_stamp_ns': sink.t_first, 'last_stamp_ns': sink.t_last}
+
+
+def load_salvaged(path, trace: Optional[str] = None):
+    """
+    Return (the :class:`~im_recording.run.Run` of what was saved, :func:`recover`'s result).
+
+    For a recording whose writer failed or was killed (``path`` or its ``.part``): its intact
+    records are recovered into a temporary directory, read by :func:`~im_recording.run.load_run`
+    (the figures of every step the file holds, the ``recovered_from`` record) and removed; the
+    input is untouched. :class:`BagError` when nothing can be salvaged.
+    """
+    import tempfile
+    from .run import load_run
+    with tempfile.TemporaryDirectory(prefix='im_salvage_') as d:
+        out = Path(d) / 'salvaged.mcap'
+        r = recover(path, str(out))
+        run = load_run(out, trace=trace)
+    run.path = r['input']
+    return run, r
 
 
 def main(argv=None) -> int:

@@ -164,7 +164,63 @@ def run_status(run, fig: Dict[str, float]) -> dict:
     if run.late:
         notes.append(f'{run.late} messages arrived out of order and are not in the figures')
     st['refused'] = run.refused         # a rogue's or another graph's: not part of the run
+    st['refusals'] = refusals(run)
     return st
+
+
+def refusals(run) -> dict:
+    """
+    Return the messages refused as not signed by the recorded graph, and who sent them.
+
+    ``{'refused_unsigned': {node: {topic: n}}, 'foreign_publishers': {node: {topic: [names]}}}``
+    (the in-process graph's summary has the same shape), from what the recording holds: the
+    recorder's own (kept on ``/im/refused<topic>``; its ``recording`` metadata names the foreign
+    publishers), the plant's refused commands (its ``finished`` event), and the nodes' counts
+    the in-process scenario writes as a ``refusals`` metadata record.
+    """
+    counts: Dict[str, Dict[str, int]] = {}
+    foreign: Dict[str, Dict[str, List[str]]] = {}
+    if run.refused:
+        counts['recorder'] = dict(run.refused)
+    for token in run.metadata.get('recording', {}).get('foreign_publishers', '').split():
+        name, _, topic = token.rpartition('@')
+        if name and topic:
+            foreign.setdefault('recorder', {}).setdefault(topic, []).append(name)
+    for e in run.events:
+        if e.get('unsigned_commands'):
+            counts.setdefault(e['node'], {})[T.CMD_VOLTAGE] = e['unsigned_commands']
+            if e.get('foreign_publishers'):
+                foreign.setdefault(e['node'], {})[T.CMD_VOLTAGE] = list(e['foreign_publishers'])
+    for key, value in run.metadata.get('refusals', {}).items():
+        kind, _, where = key.partition('/')
+        node, _, topic = where.partition('/')
+        if not node or not topic:
+            continue
+        if kind == 'refused_unsigned':
+            counts.setdefault(node, {})['/' + topic] = int(value)
+        elif kind == 'foreign_publishers':
+            foreign.setdefault(node, {})['/' + topic] = value.split()
+    for nodes in foreign.values():
+        for topic in nodes:
+            nodes[topic] = sorted(set(nodes[topic]))
+    return {'refused_unsigned': counts, 'foreign_publishers': foreign}
+
+
+def refusal_lines(r: dict) -> List[str]:
+    """Say :func:`refusals` per node: counts per topic and the foreign publishers named."""
+    out = []
+    foreign = r['foreign_publishers']
+    for node in sorted(set(r['refused_unsigned']) | set(foreign)):
+        topics = r['refused_unsigned'].get(node, {})
+        names = foreign.get(node, {})
+        parts = []
+        for topic in sorted(set(topics) | set(names)):
+            who = ', '.join(names.get(topic, [])) or 'none named'
+            n = topics.get(topic)
+            parts.append((f'{n} on `{topic}`' if n is not None else f'`{topic}`')
+                         + f' (foreign publishers: {who})')
+        out.append(f'refused by {node}: ' + '; '.join(parts))
+    return out
 
 
 def _fmt(v) -> str:
@@ -245,15 +301,14 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
             if r['status']['notes']]
     if warn:
         md += ['', '## Incomplete runs', ''] + warn
-    refused = [f'- **{r["label"]}**: ' + '; '.join(
-        f'{n} on `{topic}` (kept on `{T.REFUSED_PREFIX}{topic}`)'
-        for topic, n in r['status']['refused'].items()) for r in results
-        if r['status']['refused']]
+    refused = [f'- **{r["label"]}**: ' + line for r in results
+               for line in refusal_lines(r['status']['refusals'])]
     if refused:
         md += ['', '## Refused messages', '',
                'Messages not signed by the recorded graph '
                '(a rogue publisher, another graph on the '
-               'domain): refused by the nodes, kept apart by the recorder, in no figure.', '']
+               'domain): refused by the nodes, kept apart by the recorder (on '
+               f'`{T.REFUSED_PREFIX}<topic>`), in no figure.', '']
         md += refused
     from .bag import write_atomic
     md_path = out / 'report.md'

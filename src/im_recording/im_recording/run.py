@@ -763,10 +763,15 @@ class RunEvents:
             if st['message'] not in self.ENDS:
                 continue
             values = {kv['key']: kv['value'] for kv in st['values']}
-            self.events.append({'node': st['name'], 'state': st['message'],
-                                't': stamp['sec'] + stamp['nanosec'] * 1e-9,
-                                'reason': values.get('reason', ''),
-                                'time_master': values.get('time_master') == 'true'})
+            e = {'node': st['name'], 'state': st['message'],
+                 't': stamp['sec'] + stamp['nanosec'] * 1e-9,
+                 'reason': values.get('reason', ''),
+                 'time_master': values.get('time_master') == 'true'}
+            # the plant's count of commands not signed by its graph, and who sent them
+            if values.get('unsigned_commands'):
+                e['unsigned_commands'] = int(values['unsigned_commands'])
+                e['foreign_publishers'] = values.get('foreign_publishers', '').split()
+            self.events.append(e)
 
 
 def lockstep_topics() -> Tuple[str, ...]:

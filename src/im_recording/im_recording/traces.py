@@ -54,13 +54,25 @@ class Tap:
             try:
                 self.writer.write_serialized(topic, data, ns)
             except BagError as exc:         # the recording's file cannot be written (disk full)
-                if not self.writer.failed:
-                    raise
-                self.writer = None          # what it wrote stays in its .part (recover)
-                self.error = str(exc)
-                if self.on_error is not None:
-                    self.on_error(self.error)
+                self._failed(exc)
         self.stream.add(topic, data)
+
+    def flush_due(self) -> None:
+        """Put the writer's open chunk on disk if it is due (:meth:`BagWriter.flush_due`)."""
+        if self.writer is None:
+            return
+        try:
+            self.writer.flush_due()
+        except BagError as exc:
+            self._failed(exc)
+
+    def _failed(self, exc) -> None:
+        if not self.writer.failed:
+            raise exc
+        self.writer = None          # what it wrote stays in its .part (recover)
+        self.error = str(exc)
+        if self.on_error is not None:
+            self.on_error(self.error)
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):
         """Return the captured run as a :class:`im_recording.run.Run` (ends the capture)."""

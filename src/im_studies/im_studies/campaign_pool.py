@@ -51,14 +51,23 @@ class Pool:
             self.cluster = None
         else:
             n = self.workers or os.cpu_count() or 1
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                        dashboard_address=':0', silence_logs=logging.ERROR)
+            with _sigint_ignored():     # the worker processes inherit it: Ctrl-C is ours
+                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                            dashboard_address=':0', silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
         self.n_workers = len(self.client.scheduler_info().get('workers', {})) or 1
         self.startup_s = time.perf_counter() - t0
         return self
 
     def __exit__(self, *exc):
+        if exc[0] is not None and issubclass(exc[0], KeyboardInterrupt):
+            # interrupted: the campaign says so in one line; the scheduler's complaints about
+            # the workers and the data it loses as the cluster closes are not news to the user
+            import logging
+            for name in _DASK_LOGGERS:
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+            with contextlib.suppress(Exception):        # and in the worker processes
+                self.client.run(_quiet_logs)
         with contextlib.suppress(Exception):
             self.client.close()
         if self.cluster is not None:
@@ -76,6 +85,38 @@ class Pool:
         finally:
             for fut in futures:
                 fut.cancel()
+
+
+_DASK_LOGGERS = ('distributed', 'distributed.scheduler', 'distributed.worker',
+                 'distributed.nanny', 'distributed.core', 'distributed.client')
+
+
+def _quiet_logs() -> None:
+    """Silence Dask's loggers in this process (a worker's, while an interrupted pool closes)."""
+    import logging
+    for name in _DASK_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """
+    Ignore SIGINT while the local cluster starts its worker processes, which inherit that.
+
+    Ctrl-C in a terminal signals the whole process group: the workers then no longer die with a
+    KeyboardInterrupt traceback each; the campaign (the main process) takes the signal, closes
+    the cluster and prints its one line. A Ctrl-C during those few seconds of start-up is lost.
+    """
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _call(item, fn):
