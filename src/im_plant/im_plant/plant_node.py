@@ -117,13 +117,13 @@ class PlantNode(LockstepNode):
             'temperature': self.create_publisher(*_js(), T.TRUTH_TEMPERATURE, dq),
             'inverter': self.create_publisher(*_js(), T.TRUTH_INVERTER, dq),
         }
-        # the real plant's truth (docs/plant.md): only with the blocks that make it
+        # the real plant's truth (docs/plant.md): published only with the blocks that make it (the
+        # publishers exist on every plant: the SROS2 policy is read off a default node)
         real = self.sim.real
+        self.out_temp = self.out_inv = None
         if real is not None and real.thermal is not None:
-            self.pub_truth['temperature'] = self.create_publisher(*_js(), T.TRUTH_TEMPERATURE, dq)
             self.out_temp = JointStateOut(T.TEMPERATURE_NAMES, Signer.frame(''))
         if real is not None and real.inverter is not None:
-            self.pub_truth['inverter'] = self.create_publisher(*_js(), T.TRUTH_INVERTER, dq)
             self.out_inv = JointStateOut(T.INVERTER_NAMES, Signer.frame(''))
         # the truth is signed as the measurements are (T.SIGNED_TOPICS): a recorder beside another
         # graph keeps that graph's truth apart (its frame: the tag's placeholder, filled by sign)
@@ -580,10 +580,10 @@ class PlantNode(LockstepNode):
         pt['peaks'].publish(sign(T.TRUTH_PEAKS, self.out_peaks.fill(
             ns, [self._peak_v, self._peak_i])))
         self._peak_v = self._peak_i = 0.0
-        if 'temperature' in pt:
+        if self.out_temp is not None:
             pt['temperature'].publish(sign(T.TRUTH_TEMPERATURE, self.out_temp.fill(
                 ns, [tr[n] for n in T.TEMPERATURE_NAMES])))
-        if 'inverter' in pt:
+        if self.out_inv is not None:
             pt['inverter'].publish(sign(T.TRUTH_INVERTER, self.out_inv.fill(
                 ns, [tr[n] for n in T.INVERTER_NAMES])))
 
