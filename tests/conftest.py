@@ -61,7 +61,6 @@ def ros_context():
         rclpy.try_shutdown(context=ctx)
 
 
-
 @pytest.fixture(scope='session')
 def free_run_rate(tmp_path_factory):
     """
@@ -78,10 +77,12 @@ def free_run_rate(tmp_path_factory):
     import sys
     from im_bringup.processes import free_run_gains, graph_processes, GraphProcesses, \
         load_params_yaml
+    from im_bringup.testing import TEST_DOMAINS
     log = ''
     for rate in (1000, 500, 250):
+        gains = load_params_yaml(free_run_gains(1.0 / rate))
         procs = graph_processes('position', 'min_energy', T_s=1.0 / rate, duration=50.0 / rate,
-                                mode='free_run', extra=load_params_yaml(free_run_gains(1.0 / rate)))
+                                mode='free_run', extra=gains)
         busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
         try:
             env = {'ROS_DOMAIN_ID': str(random.randint(*TEST_DOMAINS))}

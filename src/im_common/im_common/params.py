@@ -56,6 +56,8 @@ from dataclasses import dataclass, fields, replace
 import math
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
+from .validation import check_real, InvalidParameter
+
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: the nameplate fields of a motor file (0: not given); converted once by MotorParams' properties
 RATING_NAMES = ('rated_voltage_rms_line', 'rated_current_rms', 'rated_frequency',
@@ -68,41 +70,6 @@ LEGACY_RATINGS = {'rated_voltage': 'rated_voltage_rms_line (line-to-line RMS [V]
                   'rated_speed': 'rated_speed_rpm (rpm = the old rad/s x 60/(2 pi))',
                   'rated_torque': 'rated_power (shaft power [W] = the old torque x rated speed)'}
 INDUCTANCE_NAMES = ('L_s', 'L_r', 'L_sr')
-
-
-class InvalidParameter(ValueError):
-    """A parameter value is impossible; the message names the parameter."""
-
-    def __init__(self, name: str, value, reason: str):
-        self.name = name
-        self.value = value
-        self.reason = reason
-        super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
-
-
-def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: bool = False):
-    """
-    Return ``value`` as a finite float (≥ lo, or > lo when ``lo_open``).
-
-    Else InvalidParameter naming ``name``. The one validation helper of the stack's math
-    modules.
-    """
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool):
-        raise InvalidParameter(name, value, 'must be a real number')
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameter(name, value, 'must be a real number') from None
-    if not math.isfinite(x):
-        raise InvalidParameter(name, value, 'must be finite')
-    if lo is not None:
-        if lo_open and not x > lo:
-            raise InvalidParameter(name, value, f'must be > {lo:g}')
-        if not lo_open and not x >= lo:
-            raise InvalidParameter(name, value, f'must be >= {lo:g}')
-    return x
 
 
 def parameter_error(value, default, lo=None, hi=None) -> Optional[str]:

@@ -32,6 +32,7 @@ from .model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM,
                     rk4_step, W_LOAD)
 from .params import (InvalidParameter, MotorParams, ParameterSchedule, RATED, resolve_rated,
                      THESIS_MOTOR)
+from .sensors import Measurement  # noqa: F401 - what measure() returns; its home
 
 # The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
 # inverter (≈ 1 kV), above every shipped motor's needs; a larger command trips the plant.
@@ -45,18 +46,6 @@ class _Protection:
     v_limit: object
     current_trip: object
     speed_trip: object
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """What the drive measures at t_k: stator currents and the shaft (with optional noise)."""
-
-    t: float
-    i_alpha: float
-    i_beta: float
-    theta_r: float
-    omega_r: float
-    v_dc: float = math.nan      # the DC-link voltage measurement (runs with an inverter)
 
 
 class PlantSimulator:

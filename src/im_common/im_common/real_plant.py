@@ -30,7 +30,7 @@ from .inverter import (check_against_motor, duties, Inverter, inverter_from_dict
 from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, RealMotorModel
 from .params import clarke
 from .saturation import Saturation, saturation_from_dict
-from .sensors import Sensors, sensors_from_dict, SpeedFromCounts
+from .sensors import Measurement, Sensors, sensors_from_dict, SpeedFromCounts
 from .thermal import first_order, Thermal, thermal_from_dict
 
 TWO_PI = 2.0 * math.pi
@@ -277,7 +277,6 @@ class RealPlant:
 
     def measure(self):
         """Return what the sensors give at t_k, the carrier's peak (im_common.sensors)."""
-        from .plant_sim import Measurement
         sim = self.sim
         i_sa, i_sb = self.model.stator_current(sim.t, sim.x)
         theta, omega = sim.x[4], sim.x[5]

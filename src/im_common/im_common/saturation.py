@@ -23,7 +23,7 @@ from __future__ import annotations
 from bisect import bisect_right
 from typing import Mapping, Optional, Sequence, Tuple
 
-from .params import check_real, InvalidParameter
+from .validation import check_real, InvalidParameter
 
 SATURATION_KEYS = ('law', 'beta', 'S', 'table')
 

@@ -26,11 +26,23 @@ from dataclasses import dataclass
 import math
 from typing import Mapping, Tuple
 
-from .params import check_real, InvalidParameter
+from .validation import check_real, InvalidParameter
 
 SENSOR_KEYS = ('encoder_lines', 'speed_window', 'adc_bits', 'current_range', 'current_offset',
                'current_gain', 'vdc_range')
 TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the drive measures at t_k: stator currents and the shaft (with optional noise)."""
+
+    t: float
+    i_alpha: float
+    i_beta: float
+    theta_r: float
+    omega_r: float
+    v_dc: float = math.nan      # the DC-link voltage measurement (runs with an inverter)
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 import math
 from typing import Mapping
 
-from .params import check_real, InvalidParameter
+from .validation import check_real, InvalidParameter
 
 #: temperature coefficients of resistance at 20 °C [1/K]: annealed copper, cast aluminium
 ALPHA_COPPER = 0.00393

@@ -195,8 +195,8 @@ class PlantNode(LockstepNode):
                 self.get_logger().warning(v.text() + '; started anyway (force_rate); the '
                                           'deadline watchdog stops a loop that misses')
             else:
-                self.fail(v.text() + '; refusing to start (the plant parameter force_rate: true starts anyway)',
-                          **pr.values())
+                self.fail(v.text() + '; refusing to start (the plant parameter force_rate: true '
+                                     'starts anyway)', **pr.values())
                 return False
         return not self.done
 
