@@ -48,7 +48,7 @@ from pathlib import Path
 import signal
 import struct
 from time import monotonic as _monotonic
-from typing import Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
+from typing import Callable, Dict, Iterable, Iterator, List, Mapping, Optional, Tuple
 import weakref
 import zlib
 
@@ -693,7 +693,8 @@ class BagWriter:
                                                           effort), stamp_ns)
 
     # -- chunks ---------------------------------------------------------------------------
-    def set_reorder_window(self, window_ns: Optional[int]) -> None:
+    def set_reorder_window(self, window_ns: Optional[int],
+                           progress: Optional[Callable[[], int]] = None) -> None:
         """
         Write each chunk in log-time order, holding back the messages within ``window_ns``.
 
@@ -704,13 +705,17 @@ class BagWriter:
         later than that window is written at the latest log time already written, its own stamp
         kept as publish time (and in its header), and counted in :attr:`late_messages`: log
         times never decrease in file order (``mcap doctor --strict-message-order``). None:
-        written as they come.
+        written as they come. ``progress``: returns the stamp the recording has reached; the
+        window then trails it instead of the newest stamp held (a message stamped ahead of it,
+        e.g. another graph's, waits in the open chunk until the run reaches its stamp).
         """
         if window_ns is not None and int(window_ns) < 0:
             raise ValueError(f'reorder window must be >= 0 ns, not {window_ns!r}')
         self._reorder_ns = None if window_ns is None else int(window_ns)
+        self._progress = progress
 
     _reorder_ns: Optional[int] = None
+    _progress: Optional[Callable[[], int]] = None
     _written_max = 0            # the latest log time written (the file's order so far)
     late_messages = 0           # messages that arrived later than the reorder window
 
@@ -726,7 +731,8 @@ class BagWriter:
         order = sorted(range(len(ix)), key=lambda i: ix[i][1])
         cut = len(order)
         if not final:
-            horizon = ix[order[-1]][1] - self._reorder_ns
+            newest = ix[order[-1]][1] if self._progress is None else self._progress()
+            horizon = newest - self._reorder_ns
             cut = next((n for n, i in enumerate(order) if ix[i][1] > horizon), len(order))
             if cut == 0 and len(buf) < 2 * self._chunk_size:
                 self._buf, self._ix = buf, ix   # everything is within the window: keep it all
