@@ -53,17 +53,9 @@ def part_stamps(path, topic):
     return out
 
 
-def wait_for_log(g, name, needle, timeout=60.0):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if needle in g.log(name):
-            return True
-        time.sleep(0.05)
-    return False
-
-
 def test_sigkill_of_the_recorder_loses_at_most_the_last_flush_interval(tmp_path, domain, capsys):
     from im_bringup.processes import graph_processes, GraphProcesses
+    from test_processes import wait_for_log
     from im_bringup.run_file import Scenario
     from im_bringup.scenario import run_metadata
     sc = Scenario.from_mapping({'task': 'position', 'duration': 30.0}, source='test')
@@ -235,6 +227,7 @@ def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_p
     missing figure equals what the bag lacks over that span, read with the mcap reader.
     """
     from im_bringup.processes import graph_processes, GraphProcesses
+    from test_processes import wait_for_log
     procs = graph_processes('position', 'min_energy', duration=30.0)
     key = procs[0].parameters['graph_key_file']
     bag = tmp_path / 'late.mcap'

@@ -224,15 +224,19 @@ class PlantSimulator:
     def measure(self) -> Measurement:
         """Measured stator currents and shaft position/speed at t_k (noise added if configured)."""
         i_sa, i_sb, _, _ = self.state_currents()
-        theta, omega = self.x[4], self.x[5]
+        i_sa, i_sb, omega = self.add_noise(i_sa, i_sb, self.x[5])
+        return Measurement(self.t, i_sa, i_sb, self.x[4], omega)
+
+    def add_noise(self, i_alpha: float, i_beta: float, omega: float):
+        """Return (i_α, i_β, ω) with the configured Gaussian measurement noise added."""
         if self._rng is not None:
             if self.current_noise_std > 0:
                 n = self._rng.normal(0.0, self.current_noise_std, 2)
-                i_sa += float(n[0])
-                i_sb += float(n[1])
+                i_alpha += float(n[0])
+                i_beta += float(n[1])
             if self.speed_noise_std > 0:
                 omega += float(self._rng.normal(0.0, self.speed_noise_std))
-        return Measurement(self.t, i_sa, i_sb, theta, omega)
+        return i_alpha, i_beta, omega
 
     def truth(self) -> dict:
         """Ground truth at t_k: true state, torques, parameters, power and energy books."""

@@ -290,13 +290,7 @@ class RealPlant:
                 omega = self._omega_meas
             if self.inverter is not None:
                 v_dc = se.adc(v_dc, 0.0, se.vdc_range)
-        if sim._rng is not None:
-            if sim.current_noise_std > 0:
-                n = sim._rng.normal(0.0, sim.current_noise_std, 2)
-                i_sa += float(n[0])
-                i_sb += float(n[1])
-            if sim.speed_noise_std > 0:
-                omega += float(sim._rng.normal(0.0, sim.speed_noise_std))
+        i_sa, i_sb, omega = sim.add_noise(i_sa, i_sb, omega)
         return Measurement(sim.t, i_sa, i_sb, theta, omega, v_dc)
 
     def truth(self) -> dict:
