@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import math
 from typing import Mapping
 
-from .params import check_real, InvalidParameter
+from .validation import check_block, check_real, InvalidParameter
 
 SQRT_2_3 = math.sqrt(2.0 / 3.0)
 HALF_SQRT3 = 0.5 * math.sqrt(3.0)
@@ -185,13 +185,10 @@ def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0
 
 def inverter_from_dict(spec: Mapping, where: str = 'inverter') -> Inverter:
     """Return the :class:`Inverter` of an ``inverter:`` block; errors are one line naming it."""
-    if not isinstance(spec, Mapping):
-        raise InvalidParameter(where, spec, 'must be a mapping of ' + ', '.join(INVERTER_KEYS))
+    check_block(spec, where, INVERTER_KEYS)
     out = {}
     for key, val in spec.items():
         name = f'{where}.{key}'
-        if key not in INVERTER_KEYS:
-            raise InvalidParameter(name, val, f"unknown key (known: {', '.join(INVERTER_KEYS)})")
         if key == 'update':
             if val not in UPDATES:
                 raise InvalidParameter(name, val, f"must be one of {', '.join(UPDATES)}")

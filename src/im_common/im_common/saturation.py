@@ -23,7 +23,7 @@ from __future__ import annotations
 from bisect import bisect_right
 from typing import Mapping, Optional, Sequence, Tuple
 
-from .validation import check_real, InvalidParameter
+from .validation import check_block, check_real, InvalidParameter
 
 SATURATION_KEYS = ('law', 'beta', 'S', 'table')
 
@@ -107,13 +107,8 @@ class Saturation:
 
 def saturation_from_dict(spec: Mapping, L_M0: float, where: str = 'saturation') -> Saturation:
     """Return the :class:`Saturation` of a ``saturation:`` block; errors name the key."""
-    if not isinstance(spec, Mapping):
-        raise InvalidParameter(where, spec, 'must be a mapping: {law: power, beta, S} or '
-                                            '{table: [[psi, i_M], ...]}')
-    for key in spec:
-        if key not in SATURATION_KEYS:
-            raise InvalidParameter(f'{where}.{key}', spec[key],
-                                   f"unknown key (known: {', '.join(SATURATION_KEYS)})")
+    check_block(spec, where, SATURATION_KEYS,
+                '{law: power, beta, S} or {table: [[psi, i_M], ...]}')
     if 'table' in spec:
         if 'law' in spec or 'beta' in spec or 'S' in spec:
             raise InvalidParameter(f'{where}.table', '...', 'give either a table or a law')

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import math
 from typing import Mapping, Tuple
 
-from .validation import check_real, InvalidParameter
+from .validation import check_block, check_real, InvalidParameter
 
 SENSOR_KEYS = ('encoder_lines', 'speed_window', 'adc_bits', 'current_range', 'current_offset',
                'current_gain', 'vdc_range')
@@ -115,13 +115,10 @@ def _triple(where: str, value, lo=None):
 
 def sensors_from_dict(spec: Mapping, where: str = 'sensors') -> Sensors:
     """Return the :class:`Sensors` of a ``sensors:`` block; errors are one line naming the key."""
-    if not isinstance(spec, Mapping):
-        raise InvalidParameter(where, spec, 'must be a mapping of ' + ', '.join(SENSOR_KEYS))
+    check_block(spec, where, SENSOR_KEYS)
     out = {}
     for key, val in spec.items():
         name = f'{where}.{key}'
-        if key not in SENSOR_KEYS:
-            raise InvalidParameter(name, val, f"unknown key (known: {', '.join(SENSOR_KEYS)})")
         if key in ('encoder_lines', 'speed_window', 'adc_bits'):
             if isinstance(val, bool) or not isinstance(val, int):
                 raise InvalidParameter(name, val, 'must be a whole number')

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 import math
 from typing import Mapping
 
-from .validation import check_real, InvalidParameter
+from .validation import check_block, check_real, InvalidParameter
 
 #: temperature coefficients of resistance at 20 °C [1/K]: annealed copper, cast aluminium
 ALPHA_COPPER = 0.00393
@@ -85,12 +85,7 @@ REQUIRED_THERMAL = ('C_s', 'R_th_s', 'C_r', 'R_th_r')
 
 def thermal_from_dict(spec: Mapping, where: str = 'thermal') -> Thermal:
     """Return the :class:`Thermal` of a ``thermal:`` block; errors are one line naming the key."""
-    if not isinstance(spec, Mapping):
-        raise InvalidParameter(where, spec, 'must be a mapping of ' + ', '.join(THERMAL_KEYS))
-    for key in spec:
-        if key not in THERMAL_KEYS:
-            raise InvalidParameter(f'{where}.{key}', spec[key],
-                                   f"unknown key (known: {', '.join(THERMAL_KEYS)})")
+    check_block(spec, where, THERMAL_KEYS)
     for key in REQUIRED_THERMAL:
         if key not in spec:
             raise InvalidParameter(f'{where}.{key}', None, 'is missing')

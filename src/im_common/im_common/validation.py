@@ -44,3 +44,20 @@ def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: boo
         if not lo_open and not x >= lo:
             raise InvalidParameter(name, value, f'must be >= {lo:g}')
     return x
+
+
+def check_block(spec, where: str, keys, shape: str = '') -> None:
+    """
+    Refuse a run-file or motor-file block that is not a mapping of ``keys``.
+
+    One :class:`InvalidParameter` naming ``where`` (not a mapping; ``shape`` describes the one
+    expected, default the list of keys) or ``where.key`` (a key it does not know).
+    """
+    from collections.abc import Mapping
+    if not isinstance(spec, Mapping):
+        raise InvalidParameter(where, spec, 'must be a mapping' + (
+            f': {shape}' if shape else ' of ' + ', '.join(keys)))
+    for key in spec:
+        if key not in keys:
+            raise InvalidParameter(f'{where}.{key}', spec[key],
+                                   f"unknown key (known: {', '.join(keys)})")
