@@ -163,12 +163,11 @@ class PlantSimulator:
             return v_a * s, v_b * s
         return v_a, v_b
 
-    def step(self, v_a: float, v_b: float) -> None:
+    def admit(self, v_a: float, v_b: float):
         """
-        Integrate [t_k, t_k+1] with the command held.
+        Return the command the inverter applies: refuse a non-finite one (ValueError).
 
-        Refuse non-finite commands; trip on overcurrent, overspeed or a non-finite state
-        (module doc).
+        A command above the inverter's rating latches the trip; the rest is :meth:`limit`'s.
         """
         if not (math.isfinite(v_a) and math.isfinite(v_b)):
             raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) '
@@ -179,7 +178,16 @@ class PlantSimulator:
                 self.trip = (self.t,
                              f'voltage command |V| = {mag:.4g} V above the inverter rating '
                              f'{self.inverter_rating:g} V')
-        v_a, v_b = self.limit(v_a, v_b)
+        return self.limit(v_a, v_b)
+
+    def step(self, v_a: float, v_b: float) -> None:
+        """
+        Integrate [t_k, t_k+1] with the command held.
+
+        Refuse non-finite commands; trip on overcurrent, overspeed or a non-finite state
+        (module doc).
+        """
+        v_a, v_b = self.admit(v_a, v_b)
         x0 = self.x
         t0 = self.t
         x = self._integrate(x0, t0, v_a, v_b)

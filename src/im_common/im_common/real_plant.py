@@ -122,15 +122,7 @@ class RealPlant:
     def step(self, v_a: float, v_b: float) -> None:
         """Integrate [t_k, t_k+1] with the command (PlantSimulator.step, module doc)."""
         sim = self.sim
-        if not (math.isfinite(v_a) and math.isfinite(v_b)):
-            raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) '
-                             f'at t = {sim.t:.9f} s')
-        if sim.trip is None:
-            mag = math.hypot(v_a, v_b)
-            if mag > sim.inverter_rating:
-                sim.trip = (sim.t, f'voltage command |V| = {mag:.4g} V above the inverter '
-                                   f'rating {sim.inverter_rating:g} V')
-        v_a, v_b = sim.limit(v_a, v_b)
+        v_a, v_b = sim.admit(v_a, v_b)
         x0 = sim.x
         t0 = sim.t
         x, v_avg = self._integrate(x0, t0, v_a, v_b, sim.trip is not None)
