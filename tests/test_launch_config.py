@@ -50,7 +50,7 @@ def test_graph_processes_starts_what_the_run_needs():
     assert procs['plant'].parameters['wait_for'] == 'controller observer adapter recorder'
     assert procs['plant'].parameters['mode'] == 'free_run'
     assert procs['controller'].parameters['use_adapter'] is True
-    assert procs['recorder'].arguments == ['--out', 'x.mcap']
+    assert procs['recorder'].arguments == ['--out', 'x.mcap', '--log-time', 'wall']
     on = {p.name: p for p in graph_processes('position', 'min_energy', use_adapter=True)}
     assert 'adapter' in on and on['adapter'].parameters['enable'] is True
     with pytest.raises(ValueError, match='mode'):

@@ -59,7 +59,7 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
                     key_file: Optional[str] = None,
                     record_metadata: Optional[Mapping[str, Mapping[str, str]]] = None,
                     scenario=None, live_port: Optional[int] = None,
-                    **config) -> List[NodeProcess]:
+                    log_time: str = 'wall', **config) -> List[NodeProcess]:
     """
     Return the processes of one run (see the module docstring).
 
@@ -70,11 +70,14 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     into the bag (``record --metadata``; the scenario runner's
     :func:`im_bringup.scenario.run_metadata`). ``scenario``: a
     :class:`~im_bringup.run_file.Scenario` (a run file) instead of task ... config.
-    ``live_port``: also the live view on that port (:mod:`im_bringup.live`).
+    ``live_port``: also the live view on that port (:mod:`im_bringup.live`). ``log_time``: the
+    recording's log times, ``wall`` or ``simulated`` (``record --log-time``).
     """
     from im_bringup.config import node_parameters
     if mode not in ('lockstep', 'free_run'):
         raise ValueError(f'invalid mode {mode!r}: lockstep or free_run')
+    if log_time not in ('wall', 'simulated'):
+        raise ValueError(f'invalid log_time {log_time!r}: wall or simulated')
     if scenario is not None:
         params = scenario.node_parameters(**{k: config.pop(k) for k in (
             'truth_decimation', 'reference_decimation', 'input_timeout') if k in config})
@@ -104,7 +107,7 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     if record:
         procs.append(NodeProcess('recorder', *EXECUTABLES['recorder'],
                                  parameters={'graph_key_file': key_file},
-                                 arguments=['--out', str(record)] + (
+                                 arguments=['--out', str(record), '--log-time', log_time] + (
                                      ['--metadata', json.dumps(record_metadata, sort_keys=True)]
                                      if record_metadata else [])))
     if live_port is not None:

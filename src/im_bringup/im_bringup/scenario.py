@@ -22,6 +22,7 @@ import sys
 from typing import Mapping, Optional
 
 from im_bringup.config import CONTROLLERS, STRATEGIES, TASKS, to_yaml
+from im_common.cli import error as cli_error
 from im_common.params import SCHEDULES
 
 
@@ -83,6 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="extra node parameters to merge (the run file's parameters)")
     ap.add_argument('--record', metavar='MCAP', help='record every topic to this MCAP file')
     ap.add_argument('--force', action='store_true', help='overwrite an existing recording')
+    ap.add_argument('--log-time', choices=('wall', 'simulated'), default='wall',
+                    help="the recording's log times: wall (default) offsets them to the "
+                         'wall-clock time the recording started, so viewers show the run at its '
+                         'date; simulated: log time = stamp. Stamps are simulated time either '
+                         'way (docs/recording.md)')
     ap.add_argument('--report', metavar='DIR', help='write the report of the recording here')
     ap.add_argument('--summary', metavar='JSON',
                     help='summary file (default: next to the '
@@ -189,6 +195,7 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
     live = a.get('live', '').lower() == 'true'
     procs = graph_processes(
         scenario=sc, mode=sc.mode, record=record, live_port=DEFAULT_PORT if live else None,
+        log_time=a.get('log_time') or 'wall',
         use_adapter={'': None, 'true': True, 'false': False}[a.get('use_adapter', '').lower()],
         record_metadata=run_metadata(sc.task, sc.strategy, sc.controller, sc.variation_label,
                                      scenario=sc) if record else None)
@@ -239,9 +246,12 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                  variation: str = 'none', record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,
                  metadata: Optional[dict] = None, scenario=None,
-                 live_port: Optional[int] = None) -> dict:
+                 live_port: Optional[int] = None, log_time: str = 'wall') -> dict:
     """
     Run one scenario through the lock-step graph; return its summary (figures of merit).
+
+    ``log_time``: the recording's log times, ``wall`` or ``simulated``
+    (:func:`im_recording.bag.log_time_offset_for`).
 
     ``scenario``: the :class:`~im_bringup.run_file.Scenario` the parameters came from (the
     bag's ``run`` record). ``domain_id``: the ROS domain (default ``ROS_DOMAIN_ID``).
@@ -252,9 +262,10 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     from im_common.stopping import StopSignals
     writer = None
     if record:
-        from im_recording.bag import BagWriter
+        from im_recording.bag import BagWriter, log_time_offset_for
         writer = BagWriter(record, force=force, metadata=run_metadata(
-            task, strategy, controller, variation, metadata, scenario=scenario))
+            task, strategy, controller, variation, metadata, scenario=scenario),
+            log_time_offset_ns=log_time_offset_for(log_time))
     sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
     view = None
     if live_port is not None:
@@ -277,7 +288,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                 from im_recording.bag import parameters_metadata
                 for name, node in graph.nodes.items():
                     writer.add_metadata(f'parameters/{name}', parameters_metadata(
-                        {p: node.get_parameter(p).value for p in node._parameters}))
+                        {p: node.get_parameter(p).value
+                         for p in node.list_parameters([], 0).names}))
             if stop.requested:
                 stats = {'steps': 0, 'wall_s': 0.0, 'steps_per_s': float('nan'),
                          'failures': {}, 'ok': True}
@@ -474,8 +486,7 @@ def main(argv=None) -> int:
         sc = scenario_from_args(args)
         parameters = sc.node_parameters()
     except (ValueError, BagError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('scenario', exc)
     args.task, args.strategy, args.controller = sc.task, sc.strategy, sc.controller
     args.T_s, args.duration, args.variation = sc.T_s, sc.duration, plant_variation(parameters)
     from im_recording.bag import check_output, write_atomic
@@ -485,19 +496,16 @@ def main(argv=None) -> int:
                          what='--write-params file')
             write_atomic(args.write_params, to_yaml(parameters))
         except OSError as exc:
-            print(f'error: {_os_line(exc, args.write_params)}', file=sys.stderr)
-            return 2
+            return cli_error('scenario', _os_line(exc, args.write_params))
         print(f'parameters written to {args.write_params}')
         return 0
     if args.processes and not args.record:       # a usage error, before any file is looked at
-        print('error: --processes needs --record (the figures come from the recording)',
-              file=sys.stderr)
-        return 2
+        return cli_error('scenario',
+                         '--processes needs --record (the figures come from the recording)')
     try:
         args.domain_id = ros_domain_id(args.domain_id)
     except ValueError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('scenario', exc)
     if args.live or args.live_port is not None:
         from im_bringup.live import DEFAULT_PORT
         args.live_port = DEFAULT_PORT if args.live_port is None else args.live_port
@@ -518,8 +526,7 @@ def main(argv=None) -> int:
             check_output(os.path.join(args.report, 'report.md'), inputs + [args.record],
                          args.force, what='report')
     except OSError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('scenario', exc)
     if args.processes:
         return _run_processes(args, sc, parameters, out)
     try:
@@ -527,13 +534,12 @@ def main(argv=None) -> int:
                                controller=args.controller, variation=args.variation,
                                record=args.record, force=args.force,
                                progress=not args.no_progress, domain_id=args.domain_id,
-                               scenario=sc, live_port=args.live_port)
+                               scenario=sc, live_port=args.live_port,
+                               log_time=args.log_time)
     except (ValueError, OSError, rclpy_errors()) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('scenario', exc)
     except BagError as exc:         # the recording failed before the run started
-        print(f'error: {exc}', file=sys.stderr)
-        return 1
+        return cli_error('scenario', exc, 1)
     summary.pop('_run', None)
     print_summary(summary)          # on the console even if the summary file cannot be written
     written = _write_summary(out, summary)
@@ -547,9 +553,8 @@ def main(argv=None) -> int:
               'summary and the recording (if any) are complete up to there', file=sys.stderr)
         return exit_code_for(summary['interrupted'])
     if not summary['ok']:
-        print('error: the run stopped early: ' + '; '.join(
-            f'{n}: {r}' for n, r in summary['failures'].items()), file=sys.stderr)
-        return 1
+        return cli_error('scenario', 'the run stopped early: ' + '; '.join(
+            f'{n}: {r}' for n, r in summary['failures'].items()), 1)
     if not written:
         return 1
     if args.report and args.record:
@@ -571,8 +576,8 @@ def _write_summary(out: str, summary: dict) -> bool:
     try:
         write_atomic(out, json.dumps(jsonable(summary), indent=2, allow_nan=False))
     except OSError as exc:
-        print(f'error: the summary cannot be written: {_os_line(exc, out)} (its figures are '
-              'printed above)', file=sys.stderr)
+        cli_error('scenario', f'the summary cannot be written: {_os_line(exc, out)} (its figures '
+                  'are printed above)')
         return False
     return True
 
@@ -583,11 +588,9 @@ def _write_report(record: str, report: str) -> int:
     try:
         write_report([record], report)
     except OSError as exc:
-        print(f'error: the report cannot be written: {_os_line(exc, report)}', file=sys.stderr)
-        return 1
+        return cli_error('scenario', f'the report cannot be written: {_os_line(exc, report)}', 1)
     except BagError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 1
+        return cli_error('scenario', exc, 1)
     print(f'report: {report}/')
     return 0
 
@@ -607,14 +610,14 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     from im_common.lockstep import ConfigurationError
     procs = graph_processes(scenario=sc, mode=parameters['plant'].get('mode', 'lockstep'),
                             record=args.record, extra=parameters, live_port=args.live_port,
+                            log_time=args.log_time,
                             record_metadata=run_metadata(args.task, args.strategy,
                                                          args.controller, args.variation,
                                                          scenario=sc))
     try:            # what a node's own process would refuse, before any process starts
         check_processes(procs)
     except ConfigurationError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('scenario', exc)
     for p in procs:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
@@ -656,9 +659,7 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     if os.path.exists(args.record):
         print(f'recording: {args.record}')
     if not summary['ok']:
-        print(f'error: {failure}' if failure else
-              f'error: exit codes {codes} (see {logs}/<node>.log)', file=sys.stderr)
-        return 1
+        return cli_error('scenario', failure or f'exit codes {codes} (see {logs}/<node>.log)', 1)
     if not written:
         return 1
     if args.report:

@@ -41,12 +41,13 @@ class GraphResult:
 def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: str = 'nominal',
               variation: str = 'none', T_s: float = 1e-4, duration: Optional[float] = None,
               parameters: Optional[dict] = None, nodes=None, record: Optional[str] = None,
-              beside=None, scenario=None, **config) -> GraphResult:
+              beside=None, scenario=None, log_time: str = 'wall', **config) -> GraphResult:
     """
     Run one scenario in-process and return its summary and traces.
 
     ``scenario``: a run file path or :class:`~im_bringup.run_file.Scenario` (then task ...
-    config are not given). ``beside(domain_id)``: a context manager entered while the graph
+    config are not given). ``log_time``: the recording's log times (``scenario --log-time``).
+    ``beside(domain_id)``: a context manager entered while the graph
     runs (e.g. your own node, or a foreign one, on the graph's ROS domain).
     """
     from im_bringup.config import node_parameters
@@ -67,9 +68,10 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     variation = plant_variation(params)
     writer = None
     if record:
-        from im_recording.bag import BagWriter
+        from im_recording.bag import BagWriter, log_time_offset_for
         writer = BagWriter(record, force=True, metadata=run_metadata(
-            task, strategy, controller, variation, scenario=scenario))
+            task, strategy, controller, variation, scenario=scenario),
+            log_time_offset_ns=log_time_offset_for(log_time))
     sink = Tap(writer)
     graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink,
                        domain_id=random.randint(*TEST_DOMAINS))

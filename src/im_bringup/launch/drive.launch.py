@@ -54,6 +54,9 @@ ARGUMENTS = (
     ('use_adapter', '', 'true/false: controller and observer use the adapter (empty: as '
                         'the controller argument implies)'),
     ('record', '', 'MCAP file to record the run to (empty: no recorder)'),
+    ('log_time', 'wall', "the recording's log times: wall (offset to the wall-clock time it "
+                         'started, so viewers show the run at its date) or simulated (log time = '
+                         'stamp); stamps are simulated time either way'),
     ('force', 'false', 'true: overwrite existing outputs (record; otherwise the launch refuses '
                        'them before any node starts)'),
     ('gains', '', 'parameters YAML from design_gains (current and observer gains)'),

@@ -16,7 +16,14 @@ Foxglove, PlotJuggler and ``rosbags`` open:
   it;
 * run metadata (scenario, parameters, versions, git revision) as named Metadata records.
 
-Every message's log time and publish time is its stamp in simulated time (integer ns). A recorder
+Every message's log time and publish time is its stamp in simulated time (integer ns), plus the
+writer's log-time offset: 0 (``log_time='simulated'``: log time = stamp) or, for a recording of a
+run (``log_time='wall'``, the default of ``scenario --record``, ``launch record:=`` and the
+recorder), the wall-clock time at which the recording started, so that viewers (Foxglove,
+``ros2 bag info``) place the run at its date. The offset is written in the ``log_time`` Metadata
+record (:data:`LOG_TIME_RECORD`); the headers' stamps stay simulated time either way, and every
+reader here (:func:`iter_raw`, :func:`read_messages`, replay, recover, reports) gives stamps in
+simulated time whichever the file holds (:func:`log_time_offset`). A recorder
 sets a reorder window (:meth:`BagWriter.set_reorder_window`): each chunk is then written sorted by
 stamp, so log times never decrease in file order; a message later than the window keeps its stamp
 as publish time and is logged at the file's latest log time.
@@ -53,6 +60,7 @@ import weakref
 import zlib
 
 from im_common import cdr
+from im_common.conversions import NS_PER_S
 
 from .msgdefs import full_definition, ros_distro, type_hash
 
@@ -65,16 +73,21 @@ OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 
 OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA = 7, 8, 11, 12
 OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
 
-_MSG_HDR = struct.Struct('<BQHIQQ')     # opcode, record length, channel, sequence, log, publish
-_MSG_FIXED = 2 + 4 + 8 + 8
-_REC = struct.Struct('<BQ')
-_U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
+MSG_HDR = struct.Struct('<BQHIQQ')     # opcode, record length, channel, sequence, log, publish
+MSG_FIXED = 2 + 4 + 8 + 8
+REC = struct.Struct('<BQ')
+U16, U32, U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 _QQ = struct.Struct('<QQ')
 
 #: A chunk is closed and flushed when it holds this many uncompressed bytes ...
 FLUSH_BYTES = 4 << 20
 #: ... or has been open this long [s of wall time], whichever comes first.
 FLUSH_WALL_S = 1.0
+#: the Metadata record that states a file's log-time offset: ``clock`` (``wall``),
+#: ``offset_ns`` (log time − stamp, ns since the Unix epoch) and ``started_utc`` (ISO 8601)
+LOG_TIME_RECORD = 'log_time'
+#: the ``log_time`` choices: the stamp itself, or offset to the wall-clock start of the recording
+LOG_TIMES = ('wall', 'simulated')
 
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}     # RMW_DURATION_INFINITE
 INFINITE_NS = 9223372036854775807
@@ -108,20 +121,20 @@ class BagError(Exception):
 # ------------------------------------------------------------------------------------------
 def _s(text: str) -> bytes:
     b = text.encode('utf-8')
-    return _U32.pack(len(b)) + b
+    return U32.pack(len(b)) + b
 
 
 def _b(data: bytes) -> bytes:
-    return _U32.pack(len(data)) + data
+    return U32.pack(len(data)) + data
 
 
 def _map_str(d: Mapping[str, str]) -> bytes:
     body = b''.join(_s(str(k)) + _s(str(v)) for k, v in sorted(d.items()))
-    return _U32.pack(len(body)) + body
+    return U32.pack(len(body)) + body
 
 
 def _record(op: int, body: bytes) -> bytes:
-    return _REC.pack(op, len(body)) + body
+    return REC.pack(op, len(body)) + body
 
 
 def _time(ns: int) -> dict:
@@ -133,7 +146,7 @@ def _time(ns: int) -> dict:
     ns = int(ns)
     if ns < 0 or ns >= INFINITE_NS:
         return dict(INFINITE)
-    return {'sec': ns // 1_000_000_000, 'nsec': ns % 1_000_000_000}
+    return {'sec': ns // NS_PER_S, 'nsec': ns % NS_PER_S}
 
 
 def qos_profile_dict(profile) -> dict:
@@ -331,6 +344,48 @@ def write_atomic(path, text: str) -> None:
 PART_SUFFIX = '.part'
 
 
+def wall_clock_offset() -> int:
+    """Return the log-time offset of a recording that starts now: the wall clock [ns]."""
+    import time
+    return time.time_ns()
+
+
+def log_time_offset_for(log_time: str) -> int:
+    """Return the offset a new recording takes for ``log_time`` (:data:`LOG_TIMES`)."""
+    if log_time == 'simulated':
+        return 0
+    if log_time == 'wall':
+        return wall_clock_offset()
+    raise ValueError(f'invalid log_time {log_time!r}: one of {", ".join(LOG_TIMES)}')
+
+
+def log_time_record(offset_ns: int) -> Dict[str, str]:
+    """Return the ``log_time`` Metadata record of a file whose log times are offset."""
+    import datetime
+    started = datetime.datetime.fromtimestamp(offset_ns * 1e-9, tz=datetime.timezone.utc)
+    return {'clock': 'wall', 'offset_ns': str(int(offset_ns)),
+            'started_utc': started.isoformat(timespec='microseconds')}
+
+
+def log_time_offset(metadata: Mapping[str, Mapping[str, str]], where='recording') -> int:
+    """
+    Return a file's log-time offset [ns] from its metadata records (0 without ``log_time``).
+
+    Log time − offset is the simulated stamp; a malformed record is a BagError naming it.
+    """
+    rec = metadata.get(LOG_TIME_RECORD)
+    if not rec:
+        return 0
+    try:
+        off = int(rec.get('offset_ns', '0'))
+    except ValueError:
+        off = -1
+    if off < 0:
+        raise BagError(where, f'metadata record {LOG_TIME_RECORD!r}: offset_ns '
+                              f'{rec.get("offset_ns")!r} is not an integer >= 0')
+    return off
+
+
 def partial_path(path) -> Path:
     """
     Where :class:`BagWriter` writes ``path`` until it is closed (``run.mcap.part``).
@@ -408,6 +463,10 @@ class BagWriter:
     part : str or Path, optional
         Where the file is written until ``close`` renames it to ``path`` (default
         ``<path>.part``); ``recover`` passes its own so it never writes over its input.
+    log_time_offset_ns : int
+        Added to every stamp to give the message's log and publish time (0: log time = stamp);
+        a non-zero offset is stated in the ``log_time`` Metadata record. See
+        :func:`wall_clock_offset`.
 
     Attributes
     ----------
@@ -422,8 +481,11 @@ class BagWriter:
                  metadata: Optional[Dict[str, Dict[str, str]]] = None,
                  compression: str = 'zstd', chunk_size: int = FLUSH_BYTES,
                  close_at_exit: bool = True, part=None,
-                 flush_wall_s: Optional[float] = FLUSH_WALL_S):
+                 flush_wall_s: Optional[float] = FLUSH_WALL_S, log_time_offset_ns: int = 0):
         self.path = Path(path)
+        if int(log_time_offset_ns) < 0:
+            raise ValueError(f'log_time_offset_ns must be >= 0, not {log_time_offset_ns!r}')
+        self.log_time_offset_ns = self._off = int(log_time_offset_ns)
         self._compression, self._compress = _compressor(compression)
         if int(chunk_size) < 1024:
             raise ValueError(f'chunk_size must be >= 1024 bytes, not {chunk_size!r}')
@@ -477,8 +539,11 @@ class BagWriter:
         self._closed = False
         self._write(MAGIC)
         self._write(_record(OP_HEADER, _s(PROFILE) + _s(LIBRARY)))
+        if self._off:
+            self.add_metadata(LOG_TIME_RECORD, log_time_record(self._off))
         for name, data in (metadata or {}).items():
-            self.add_metadata(name, data)
+            if name != LOG_TIME_RECORD:         # a copied file's own: this writer states its own
+                self.add_metadata(name, data)
         self._f.flush()
         if close_at_exit:
             ref = weakref.ref(self)
@@ -567,14 +632,14 @@ class BagWriter:
         sid = self._schemas.get(type_name)
         if sid is None:
             sid = len(self._schemas) + 1
-            rec = _record(OP_SCHEMA, _U16.pack(sid) + _s(type_name) + _s('ros2msg')
+            rec = _record(OP_SCHEMA, U16.pack(sid) + _s(type_name) + _s('ros2msg')
                           + _b(full_definition(type_name).encode('utf-8')))
             self._schemas[type_name] = sid
             self._schema_recs.append(rec)
             self._write(rec)
         cid = len(self._topics) + 1
         meta = {'offered_qos_profiles': q, 'topic_type_hash': type_hash(type_name)}
-        rec = _record(OP_CHANNEL, _U16.pack(cid) + _U16.pack(sid) + _s(topic) + _s('cdr')
+        rec = _record(OP_CHANNEL, U16.pack(cid) + U16.pack(sid) + _s(topic) + _s('cdr')
                       + _map_str(meta))
         self._channel_recs.append(rec)
         self._write(rec)
@@ -636,9 +701,10 @@ class BagWriter:
     def write_serialized(self, topic: str, data: bytes, stamp_ns: int,
                          publish_ns: Optional[int] = None) -> None:
         """
-        Record an already serialized (CDR) message at log time ``stamp_ns``.
+        Record an already serialized (CDR) message stamped ``stamp_ns`` (simulated time).
 
-        ``publish_ns``: its publish time when it differs (default ``stamp_ns``).
+        Its log time is ``stamp_ns`` plus the writer's log-time offset. ``publish_ns``: its
+        publish stamp when it differs (default ``stamp_ns``), offset alike.
         """
         try:
             cid = self._chan[topic][0]
@@ -646,11 +712,12 @@ class BagWriter:
             cid = self._lookup_slow(topic)[0]
         buf = self._buf
         off = len(buf)
-        buf += _MSG_HDR.pack(OP_MESSAGE, _MSG_FIXED + len(data), cid, 0, stamp_ns,
-                             stamp_ns if publish_ns is None else publish_ns)
+        t = stamp_ns + self._off
+        buf += MSG_HDR.pack(OP_MESSAGE, MSG_FIXED + len(data), cid, 0, t,
+                            t if publish_ns is None else publish_ns + self._off)
         buf += data
         ix = self._ix
-        ix.append((cid, stamp_ns, off))
+        ix.append((cid, t, off))
         if len(buf) >= self._chunk_size:     # at most chunk_size + one message
             self.flushes['size'] += 1
             self._flush_chunk()
@@ -682,13 +749,13 @@ class BagWriter:
         Fast path: a ``Vector3Stamped`` (frame_id '') stamped ``stamp_ns`` without a message
         object. The topic must be (or default to) a Vector3Stamped topic.
         """
-        s, ns = divmod(stamp_ns, 1_000_000_000)
+        s, ns = divmod(stamp_ns, NS_PER_S)
         self.write_serialized(topic, cdr.pack_vector3_stamped(s, ns, x, y, z), stamp_ns)
 
     def write_joint_state(self, topic: str, stamp_ns: int, names, position=(), velocity=(),
                           effort=()) -> None:
         """Fast path: a ``JointState`` stamped ``stamp_ns`` without a message object."""
-        s, ns = divmod(stamp_ns, 1_000_000_000)
+        s, ns = divmod(stamp_ns, NS_PER_S)
         self.write_serialized(topic, cdr.pack_joint_state(s, ns, names, position, velocity,
                                                           effort), stamp_ns)
 
@@ -731,7 +798,7 @@ class BagWriter:
         order = sorted(range(len(ix)), key=lambda i: ix[i][1])
         cut = len(order)
         if not final:
-            newest = ix[order[-1]][1] if self._progress is None else self._progress()
+            newest = ix[order[-1]][1] if self._progress is None else self._progress() + self._off
             horizon = newest - self._reorder_ns
             cut = next((n for n, i in enumerate(order) if ix[i][1] > horizon), len(order))
             if cut == 0 and len(buf) < 2 * self._chunk_size:
@@ -748,7 +815,7 @@ class BagWriter:
             at = len(out)
             out += buf[off:ends[i]]
             if t < floor:               # later than the window: at the file's latest time
-                _U64.pack_into(out, at + 15, floor)
+                U64.pack_into(out, at + 15, floor)
                 self.late_messages += 1
                 t = floor
             floor = t
@@ -779,8 +846,8 @@ class BagWriter:
             # A signal handler may have interrupted write() between its two appends; keep only
             # complete messages.
             last_off = ix[-1][2]
-            (length,) = _U64.unpack_from(buf,
-                                         last_off + 1) if len(buf) >= last_off + 9 else (None,)
+            (length,) = U64.unpack_from(buf,
+                                        last_off + 1) if len(buf) >= last_off + 9 else (None,)
             if length is None or last_off + 9 + length > len(buf):
                 ix.pop()
                 del buf[last_off:]
@@ -801,12 +868,12 @@ class BagWriter:
             crc = zlib.crc32(records)
             data = self._compress(records) if self._compress else records
             body = (struct.pack('<QQQI', t0, t1, len(records), crc) + _s(self._compression)
-                    + _U64.pack(len(data)))
+                    + U64.pack(len(data)))
             # The chunk and its message indexes go to the file in one write, with SIGINT/SIGTERM
             # held back until the write and its bookkeeping are done: a KeyboardInterrupt or a
             # handler's SystemExit can then never leave half a chunk in the file.
             chunk_start = self._pos
-            head = _REC.pack(OP_CHUNK, len(body) + len(data)) + body
+            head = REC.pack(OP_CHUNK, len(body) + len(data)) + body
             chunk_len = len(head) + len(data)
             offsets = {}
             ix_recs = []
@@ -816,15 +883,15 @@ class BagWriter:
                 entries.sort()
                 arr = b''.join(_QQ.pack(t, o) for t, o in entries)
                 offsets[cid] = pos
-                rec = _record(OP_MESSAGE_INDEX, _U16.pack(cid) + _b(arr))
+                rec = _record(OP_MESSAGE_INDEX, U16.pack(cid) + _b(arr))
                 ix_recs.append(rec)
                 pos += len(rec)
             ix_len = pos - chunk_start - chunk_len
-            omap = b''.join(_U16.pack(c) + _U64.pack(o) for c, o in sorted(offsets.items()))
+            omap = b''.join(U16.pack(c) + U64.pack(o) for c, o in sorted(offsets.items()))
             chunk_index = _record(
                 OP_CHUNK_INDEX,
                 struct.pack('<QQQQ', t0, t1, chunk_start, chunk_len) + _b(omap)
-                + _U64.pack(ix_len) + _s(self._compression) + _QQ.pack(len(data), len(records)))
+                + U64.pack(ix_len) + _s(self._compression) + _QQ.pack(len(data), len(records)))
             blob = b''.join([head, data] + ix_recs)
             with _signals_held():
                 self._write(blob)
@@ -911,7 +978,7 @@ class BagWriter:
             self._write(rec)
             self._metadata_index.append(
                 _record(OP_METADATA_INDEX, _QQ.pack(off, len(rec)) + _s('rosbag2')))
-            self._write(_record(OP_DATA_END, _U32.pack(self._crc)))
+            self._write(_record(OP_DATA_END, U32.pack(self._crc)))
             # summary section
             summary_start = self._pos
             scrc = 0
@@ -928,7 +995,7 @@ class BagWriter:
                 groups.append((op, start, self._pos - start))
             put(OP_SCHEMA, self._schema_recs)
             put(OP_CHANNEL, self._channel_recs)
-            counts = b''.join(_U16.pack(c) + _U64.pack(n) for c, n in sorted(self._counts.items()))
+            counts = b''.join(U16.pack(c) + U64.pack(n) for c, n in sorted(self._counts.items()))
             stats = _record(OP_STATISTICS, struct.pack(
                 '<QHIIIIQQ', sum(self._counts.values()), len(self._schemas), len(self._topics), 0,
                 len(self._metadata_index), len(self._chunk_indexes), self._t_min or 0,
@@ -941,9 +1008,9 @@ class BagWriter:
                 r = _record(OP_SUMMARY_OFFSET, struct.pack('<BQQ', op, start, length))
                 self._write(r)
                 scrc = zlib.crc32(r, scrc)
-            head = _REC.pack(OP_FOOTER, 20) + _QQ.pack(summary_start, summary_offset_start)
+            head = REC.pack(OP_FOOTER, 20) + _QQ.pack(summary_start, summary_offset_start)
             scrc = zlib.crc32(head, scrc)
-            self._write(head + _U32.pack(scrc))
+            self._write(head + U32.pack(scrc))
             self._write(MAGIC)
             self._f.flush()
             try:
@@ -973,6 +1040,11 @@ class BagInfo:
     message_count: int
     metadata: Dict[str, Dict[str, str]]
     channels: dict = field(default_factory=dict, repr=False)   # cid -> (topic, type, metadata)
+
+    @property
+    def log_time_offset(self) -> int:
+        """Return log time − stamp [ns] (:func:`log_time_offset`); start/end_ns are log times."""
+        return log_time_offset(self.metadata, self.path)
 
 
 def _open_checked(path):
@@ -1005,7 +1077,7 @@ def _check_summary_crc(p: Path) -> None:
     with open(p, 'rb') as f:
         f.seek(size - 8 - 29)
         foot = f.read(29)
-        op, length = _REC.unpack_from(foot, 0)
+        op, length = REC.unpack_from(foot, 0)
         if op != OP_FOOTER or length != 20:
             raise BagError(p, 'corrupt footer (the last record is not an MCAP Footer)')
         start, _offsets, crc = struct.unpack_from('<QQI', foot, 9)
@@ -1033,10 +1105,10 @@ def check_data_crc(path) -> None:
         start = struct.unpack_from('<Q', foot, 9)[0] or (size - 8 - 29)
         f.seek(start - 13)
         end_rec = f.read(13)
-        op, length = _REC.unpack_from(end_rec, 0)
+        op, length = REC.unpack_from(end_rec, 0)
         if op != OP_DATA_END or length != 4:
             return                  # a writer that does not put Data End right before
-        (stored,) = _U32.unpack_from(end_rec, 9)
+        (stored,) = U32.unpack_from(end_rec, 9)
         if not stored:
             return
         f.seek(0)
@@ -1086,10 +1158,24 @@ def info(path) -> BagInfo:
                    metadata, channels)
 
 
-def iter_raw(path, topics: Optional[Iterable[str]] = None
+def iter_raw(path, topics: Optional[Iterable[str]] = None, log_time: bool = False
              ) -> Iterator[Tuple[str, str, int, bytes]]:
-    """(topic, type, log_time_ns, cdr bytes) in log-time order (stable within equal times)."""
-    p, summary, _ = _summary(path)
+    """
+    (topic, type, stamp_ns, cdr bytes) in log-time order (stable within equal times).
+
+    ``stamp_ns`` is simulated time: the log time less the file's log-time offset
+    (:func:`log_time_offset`); with ``log_time`` the log time as stored.
+    """
+    p, summary, metadata = _summary(path)
+    off = 0 if log_time else log_time_offset(metadata, p)
+    if off:
+        for topic, tname, t, data in _iter_raw(p, summary, topics):
+            yield topic, tname, t - off, data
+    else:
+        yield from _iter_raw(p, summary, topics)
+
+
+def _iter_raw(p, summary, topics):
     want = None if topics is None else set(topics)
     chans = {}
     for cid, ch in summary.channels.items():
@@ -1116,15 +1202,15 @@ def _chunk_messages(p, f, ci, chans):
     try:
         f.seek(ci.chunk_start_offset)
         raw = f.read(ci.chunk_length)
-        op, _length = _REC.unpack_from(raw, 0)
+        op, _length = REC.unpack_from(raw, 0)
         if op != OP_CHUNK:
             raise ValueError(f'chunk index points at opcode {op}')
         t0, t1, usize, crc = struct.unpack_from('<QQQI', raw, 9)
         pos = 9 + 28
-        (n,) = _U32.unpack_from(raw, pos)
+        (n,) = U32.unpack_from(raw, pos)
         comp = raw[pos + 4:pos + 4 + n].decode()
         pos += 4 + n
-        (clen,) = _U64.unpack_from(raw, pos)
+        (clen,) = U64.unpack_from(raw, pos)
         pos += 8
         data = _decompress(comp, raw[pos:pos + clen], usize)
         if len(data) != usize:
@@ -1136,13 +1222,13 @@ def _chunk_messages(p, f, ci, chans):
     out = []
     pos, end, seq = 0, len(data), 0
     while pos < end:
-        op, length = _REC.unpack_from(data, pos)
+        op, length = REC.unpack_from(data, pos)
         if op == OP_MESSAGE:
             cid, _, log_time, _ = struct.unpack_from('<HIQQ', data, pos + 9)
             c = chans.get(cid)
             if c is not None:
                 out.append((log_time, seq, c[0], c[1],
-                            data[pos + 9 + _MSG_FIXED:pos + 9 + length]))
+                            data[pos + 9 + MSG_FIXED:pos + 9 + length]))
                 seq += 1
         pos += 9 + length
     out.sort(key=lambda e: (e[0], e[1]))
@@ -1167,7 +1253,7 @@ def _iter_raw_mcap(p, chans):
 
 def read_messages(path, topics: Optional[Iterable[str]] = None
                   ) -> Iterator[Tuple[str, int, object]]:
-    """(topic, log_time_ns, rclpy message) in log-time order."""
+    """(topic, stamp_ns, rclpy message) in log-time order (stamps as :func:`iter_raw`)."""
     from rclpy.serialization import deserialize_message
     classes = {}
     for topic, tname, t, data in iter_raw(path, topics):

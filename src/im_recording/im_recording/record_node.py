@@ -43,12 +43,14 @@ from typing import Dict, Iterable, List, Optional
 
 from im_common import cdr, realtime
 from im_common import topics as T
+from im_common.cli import error as cli_error
+from im_common.conversions import NS_PER_S
 from im_common.lockstep import (END_STATES, FINISHED, LockstepNode, READY, RUNNING, stamp_text,
                                 WARNING)
 from im_common.step_gate import LOCKSTEP_DEPTH
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from .bag import BagError, BagWriter, offered_qos_yaml
+from .bag import BagError, BagWriter, log_time_offset_for, LOG_TIMES, offered_qos_yaml
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
 #: message objects and serialized by rclpy (rare: status events).
@@ -587,7 +589,7 @@ class RecorderNode(LockstepNode):
             name = self.get_name()
             tag = self.signer.tag_bytes(T.PROGRESS, progress_payload(name, ack))
             h = Header(frame_id=name + SEPARATOR + tag)
-            h.stamp.sec, h.stamp.nanosec = divmod(ack, 1_000_000_000)
+            h.stamp.sec, h.stamp.nanosec = divmod(ack, NS_PER_S)
             self._progress.publish(h)
             self._acked = ack
 
@@ -770,6 +772,10 @@ def main(argv=None) -> int:
                     help='named metadata records to write into the bag, as JSON '
                          '{"name": {"key": "value"}} (the scenario runner passes its scenario, '
                          'versions and git records)')
+    ap.add_argument('--log-time', choices=LOG_TIMES, default='wall',
+                    help='log times: wall (default) offset to the wall-clock time the recording '
+                         'started (viewers show the run at its date), or simulated (log time = '
+                         'stamp); stamps are simulated time either way')
     ap.add_argument('--lossy', action='store_true',
                     help='do not hold the plant back (the recording may then miss steps; they '
                          'are counted and listed)')
@@ -780,10 +786,10 @@ def main(argv=None) -> int:
         extra = parse_metadata(a.metadata)
         writer = BagWriter(out, force=a.force, metadata=dict(extra, recorder={
             'node': 'im_recording record', 'topics': ' '.join(topics),
-            'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')}))
+            'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')}),
+            log_time_offset_ns=log_time_offset_for(a.log_time))
     except (FileExistsError, ValueError, OSError) as exc:
-        print(f'record: error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('record', exc)
     node = None
     with StopSignals() as stop:
         rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO)
@@ -791,9 +797,8 @@ def main(argv=None) -> int:
             try:
                 node = RecorderNode(writer, topics, lossless=not a.lossy)
             except ValueError as exc:       # a graph key file that cannot be used
-                print(f'record: error: {exc}', file=sys.stderr)
                 writer.discard()            # nothing was recorded: leave no file behind
-                return 2
+                return cli_error('record', exc)
             except BagError:                # its file cannot be written: said below
                 if not writer.failed:
                     raise
@@ -834,7 +839,7 @@ def main(argv=None) -> int:
             except BagError:            # writer.failed: the error line below
                 pass
             if writer.failed:
-                print(f'record: error: {writer.failed}', file=sys.stderr)
+                cli_error('record', writer.failed)
                 if node is not None:
                     node.destroy_node()
                 rclpy.try_shutdown()

@@ -50,10 +50,12 @@ import sys
 from typing import Dict, List, Optional, Tuple
 import zlib
 
-from .bag import (_MSG_FIXED, _MSG_HDR, _REC, _U16, _U32, _U64, BagError, BagWriter, check_output,
-                  MAGIC, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER, OP_HEADER,
-                  OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX, OP_SCHEMA,
-                  OP_STATISTICS, OP_SUMMARY_OFFSET, partial_path)
+from im_common.cli import error as cli_error
+
+from .bag import (BagError, BagWriter, check_output, log_time_offset, LOG_TIME_RECORD, MAGIC,
+                  MSG_FIXED, MSG_HDR, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER,
+                  OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX,
+                  OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET, partial_path, REC, U16, U32, U64)
 
 OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
 
@@ -88,7 +90,7 @@ def _need(b, p: int, n: int) -> None:
 
 def _str(b, p: int) -> Tuple[str, int]:
     _need(b, p, 4)
-    (n,) = _U32.unpack_from(b, p)
+    (n,) = U32.unpack_from(b, p)
     _need(b, p + 4, n)
     try:
         return bytes(b[p + 4:p + 4 + n]).decode('utf-8'), p + 4 + n
@@ -98,14 +100,14 @@ def _str(b, p: int) -> Tuple[str, int]:
 
 def _blob32(b, p: int) -> int:
     _need(b, p, 4)
-    (n,) = _U32.unpack_from(b, p)
+    (n,) = U32.unpack_from(b, p)
     _need(b, p + 4, n)
     return p + 4 + n
 
 
 def _smap(b, p: int) -> Tuple[Dict[str, str], int]:
     _need(b, p, 4)
-    (n,) = _U32.unpack_from(b, p)
+    (n,) = U32.unpack_from(b, p)
     end = p + 4 + n
     _need(b, p + 4, n)
     p += 4
@@ -125,7 +127,7 @@ def _exact(b, p: int) -> None:
 
 def parse_schema(b) -> Tuple[int, str, str]:
     _need(b, 0, 2)
-    (sid,) = _U16.unpack_from(b, 0)
+    (sid,) = U16.unpack_from(b, 0)
     name, p = _str(b, 2)
     enc, p = _str(b, p)
     _exact(b, _blob32(b, p))
@@ -170,10 +172,10 @@ def parse_attachment(b) -> None:
     _, p = _str(b, 16)
     _, p = _str(b, p)
     _need(b, p, 8)
-    (n,) = _U64.unpack_from(b, p)
+    (n,) = U64.unpack_from(b, p)
     p += 8
     _need(b, p, n + 4)
-    (crc,) = _U32.unpack_from(b, p + n)
+    (crc,) = U32.unpack_from(b, p + n)
     _exact(b, p + n + 4)
     if crc and zlib.crc32(b[:p + n]) != crc:
         raise Damage('attachment CRC mismatch')
@@ -191,7 +193,7 @@ def chunk_header(b) -> Tuple[int, int, int, int, str, int]:
     if comp not in _COMPRESSIONS:
         raise Damage(f'unknown chunk compression {comp[:20]!r}')
     _need(b, p, 8)
-    (clen,) = _U64.unpack_from(b, p)
+    (clen,) = U64.unpack_from(b, p)
     p += 8
     if p + clen != len(b):
         raise Damage('chunk data size does not match the record length')
@@ -243,8 +245,8 @@ def chunk_records(b):
         raise Damage('chunk CRC mismatch')
     msgs, decls = [], []
     add = msgs.append
-    head, rec = _MSG_HDR.unpack_from, _REC.unpack_from
-    pos, last = 0, usize - _MSG_HDR.size
+    head, rec = MSG_HDR.unpack_from, REC.unpack_from
+    pos, last = 0, usize - MSG_HDR.size
     while pos < usize:
         if pos <= last:
             op, length, cid, _seq, t, _pub = head(inner, pos)
@@ -255,8 +257,8 @@ def chunk_records(b):
         end = pos + 9 + length
         if end > usize:
             raise Damage('a record inside the chunk runs past its end')
-        if op == OP_MESSAGE and length >= _MSG_FIXED:
-            add((cid, t, pos + 9 + _MSG_FIXED, end))
+        if op == OP_MESSAGE and length >= MSG_FIXED:
+            add((cid, t, pos + 9 + MSG_FIXED, end))
         elif op == OP_SCHEMA:
             decls.append((len(msgs), op, parse_schema(inner[pos + 9:end])))
         elif op == OP_CHANNEL:
@@ -403,7 +405,7 @@ class _Scan:
         if fstart < 8 or self.src.read(size - 8, 8) != MAGIC:
             return None
         foot = self.src.read(fstart, 29)
-        op, length = _REC.unpack_from(foot, 0)
+        op, length = REC.unpack_from(foot, 0)
         if op != OP_FOOTER or length != 20:
             return None
         start, ostart, crc = struct.unpack_from('<QQI', foot, 9)
@@ -423,7 +425,7 @@ class _Scan:
                 return None
         p = start
         while p < fstart:
-            op, length = _REC.unpack_from(self.src.read(p, 9), 0) if p + 9 <= fstart else (0, 0)
+            op, length = REC.unpack_from(self.src.read(p, 9), 0) if p + 9 <= fstart else (0, 0)
             if op not in _SUMMARY_OPS or p + 9 + length > fstart:
                 return None
             p += 9 + length
@@ -442,7 +444,7 @@ class _Scan:
         if self.summary is not None and self.summary[0] == end:
             return True
         if crc is not None:
-            (stored,) = _U32.unpack_from(self.src.read(pos + 9, 4), 0)
+            (stored,) = U32.unpack_from(self.src.read(pos + 9, 4), 0)
             return stored != 0 and stored == crc
         return False
 
@@ -450,7 +452,7 @@ class _Scan:
     def _head(self, pos: int) -> Optional[Tuple[int, int]]:
         if pos + 9 > self.size:
             return None
-        return _REC.unpack_from(self.src.read(pos, 9), 0)
+        return REC.unpack_from(self.src.read(pos, 9), 0)
 
     def _chunk_valid(self, pos: int, length: int) -> bool:
         ok = self._chunk_ok.get(pos)
@@ -549,7 +551,7 @@ class _Scan:
             comp, p = _str(head, _CHUNK_HEAD.size)
             if comp not in _COMPRESSIONS or t0 > t1 or usize > MAX_CHUNK:
                 raise Damage('bad')
-            if p + 8 <= len(head) and p + 8 + _U64.unpack_from(head, p)[0] != h[1]:
+            if p + 8 <= len(head) and p + 8 + U64.unpack_from(head, p)[0] != h[1]:
                 raise Damage('bad')
         except Damage:
             return None
@@ -610,7 +612,7 @@ class _Scan:
             return
         p, end = self.summary[0], self.summary[1]
         while p < end:
-            op, length = _REC.unpack_from(self.src.read(p, 9), 0)
+            op, length = REC.unpack_from(self.src.read(p, 9), 0)
             if op in (OP_SCHEMA, OP_CHANNEL):
                 body = self.src.read(p + 9, length)
                 try:
@@ -631,7 +633,7 @@ class _Scan:
         if self.open_loss is not None or self.last_op not in (OP_CHUNK, OP_MESSAGE_INDEX):
             return False
         head = self.src.read(pos + 9, 6)
-        if len(head) < 6 or 6 + _U32.unpack_from(head, 2)[0] != length or length % 16 != 6:
+        if len(head) < 6 or 6 + U32.unpack_from(head, 2)[0] != length or length % 16 != 6:
             return False
         return self._resync(pos + 1) is None
 
@@ -666,7 +668,7 @@ class _Scan:
             if not self._end_ok(pos, self.crc):
                 return ('data end record not followed by a valid summary, footer or end of file '
                         'and its data CRC does not match', guess)
-            (stored,) = _U32.unpack_from(body, 0)
+            (stored,) = U32.unpack_from(body, 0)
             if self.crc is not None and stored and stored != self.crc:
                 self.crc_mismatch = True
             self.complete = True
@@ -689,7 +691,7 @@ class _Scan:
             except Damage as exc:
                 return f'{_OP_NAMES.get(op, op)} record: {exc}', guess
         if self.crc is not None:
-            self.crc = zlib.crc32(body, zlib.crc32(_REC.pack(op, length), self.crc))
+            self.crc = zlib.crc32(body, zlib.crc32(REC.pack(op, length), self.crc))
         return None, None
 
     def _take(self, pos: int, op: int, body: bytes) -> None:
@@ -714,10 +716,10 @@ class _Scan:
         elif op == OP_METADATA:
             sink.metadata(*parse_metadata(body))
         elif op == OP_MESSAGE:
-            if len(body) < _MSG_FIXED:
+            if len(body) < MSG_FIXED:
                 raise Damage('shorter than its fixed fields')
             cid, _seq, t, _pub = struct.unpack_from('<HIQQ', body, 0)
-            sink.message(cid, t, body[_MSG_FIXED:])
+            sink.message(cid, t, body[MSG_FIXED:])
         elif op == OP_ATTACHMENT:
             parse_attachment(body)
             self.attachments += 1
@@ -744,14 +746,14 @@ class _Scan:
             starts = [x.start for x in self.lost]
             p, end = self.summary[0], self.summary[1]
             while p < end:
-                op, length = _REC.unpack_from(self.src.read(p, 9), 0)
+                op, length = REC.unpack_from(self.src.read(p, 9), 0)
                 indexed = indexed or op == OP_CHUNK_INDEX
                 if op in (OP_CHUNK_INDEX, OP_STATISTICS):
                     body = self.src.read(p + 9, length)
                     try:
                         if op == OP_STATISTICS:
                             _need(body, 0, 8)
-                            (total,) = _U64.unpack_from(body, 0)
+                            (total,) = U64.unpack_from(body, 0)
                         elif self.lost:
                             self._attribute(starts, body)
                     except (Damage, struct.error):
@@ -807,6 +809,7 @@ class _Out:
         self.t_first: Optional[int] = None
         self.t_last: Optional[int] = None
         self.run_record: Optional[Dict[str, str]] = None    # written by finish (its duration)
+        self.offset = 0                 # log time - stamp, from the file's log_time record
         self.status_cid: Optional[int] = None
         self.statuses: List[Tuple[int, bytes]] = []        # (stamp, CDR) of /im/status
 
@@ -892,7 +895,30 @@ class _Out:
             self.t_first = t0 if self.t_first is None else min(self.t_first, t0)
             self.t_last = t1 if self.t_last is None else max(self.t_last, t1)
 
+    def to_stamps(self, lost) -> None:
+        """
+        Turn every time gathered so far from log times into the run's simulated stamps.
+
+        Less the file's log-time offset (its ``log_time`` record; 0 without one, or when that
+        record was lost — the times are then the file's log times, as said in the notes).
+        """
+        off = self.offset
+        if not off:
+            return
+
+        def st(t):
+            return None if t is None else t - off
+        self.t_first, self.t_last = st(self.t_first), st(self.t_last)
+        self.statuses = [(t - off, d) for t, d in self.statuses]
+        for x in lost:
+            x.t0, x.t1, x.before, x.after = st(x.t0), st(x.t1), st(x.before), st(x.after)
+
     def metadata(self, name, md) -> None:
+        if name == LOG_TIME_RECORD:     # copied as is: the output keeps the file's log times
+            try:
+                self.offset = log_time_offset({name: md}, self.out)
+            except BagError:
+                self.offset = 0
         if name == 'run':
             self.run_record = dict(md)      # written by finish, its duration what was saved
         elif name not in ('rosbag2', 'recovered_from'):
@@ -1052,6 +1078,7 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
         except OSError as exc:          # the output: BagWriter writing a chunk
             raise BagError(out, f'cannot write: {exc.strerror or exc}') from None
         total = scan.settle()
+        sink.to_stamps(scan.lost)       # from here on: simulated stamps, as the run knew them
         if sink.n == 0 and not any(t for t in sink.topics.values()):
             raise BagError(src, 'nothing to recover (no intact channel or message; '
                            + (scan.lost[0].text() if scan.lost else scan.ending) + ')')
@@ -1153,8 +1180,7 @@ def main(argv=None) -> int:
         with StopSignals(raise_=True):
             r = recover(a.bag, a.out, a.force)
     except (BagError, FileExistsError, OSError) as exc:
-        print(f'recover: error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('recover', exc)
     except KeyboardInterrupt as exc:
         name = getattr(exc, 'signame', 'SIGINT')
         print(f'recover: interrupted by {name}; nothing written', file=sys.stderr)

@@ -39,6 +39,8 @@ import time
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from im_common import cdr
+from im_common.cli import error as cli_error
+from im_common.conversions import NS_PER_S
 from im_common.params import estimate_arguments
 from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
 import numpy as np
@@ -86,13 +88,13 @@ def _series(path) -> Dict[str, Dict[int, tuple]]:
         if topic == MEAS_SHAFT:
             sec, ns, _names, pos, vel, _eff = cdr.decode_joint_state(data)
             if vel:
-                out[topic][sec * 1_000_000_000 + ns] = (vel[0],)
+                out[topic][sec * NS_PER_S + ns] = (vel[0],)
         elif topic == ADAPT_ESTIMATE:
             sec, ns, names, pos, _v, _e = cdr.decode_joint_state(data)
-            out[topic][sec * 1_000_000_000 + ns] = dict(zip(names, pos))
+            out[topic][sec * NS_PER_S + ns] = dict(zip(names, pos))
         else:
             sec, ns, x, y, _z = cdr.decode_vector3_stamped(data)
-            out[topic][sec * 1_000_000_000 + ns] = (x, y)
+            out[topic][sec * NS_PER_S + ns] = (x, y)
     return out
 
 
@@ -151,7 +153,7 @@ def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
     est = reestimate_series(path, cfg, stop)
     new = []
     for t, (ia, ib, pa, pb) in est:
-        s_, ns = divmod(t, 1_000_000_000)
+        s_, ns = divmod(t, NS_PER_S)
         new.append((t, 1, REEST_FLUX, cdr.pack_vector3_stamped(s_, ns, pa, pb, 0.0)))
         new.append((t, 2, REEST_CURRENT, cdr.pack_vector3_stamped(s_, ns, ia, ib, 0.0)))
     md = {k: v for k, v in bi.metadata.items() if k != 'rosbag2'}
@@ -167,7 +169,9 @@ def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
         last = est[-1][0] if est else -1
         old = (e for e in old if e[0] <= last)
         check = None
-    with BagWriter(out_path, force=force, metadata=md) as w:
+    # the output keeps the input's log times (its log_time record and offset; stamps as read)
+    with BagWriter(out_path, force=force, metadata=md,
+                   log_time_offset_ns=bi.log_time_offset) as w:
         for topic, tname in bi.topics.items():
             meta = next((m for (tp, _, m) in bi.channels.values() if tp == topic), {})
             w.add_topic(topic, tname, qos=meta.get('offered_qos_profiles'))
@@ -276,7 +280,7 @@ class Player:
                 if last is not None and self.lockstep:
                     self._ack()
                 if self.clock_pub is not None:
-                    self.clock_pub.publish(cdr.pack_clock(*divmod(t, 1_000_000_000)))
+                    self.clock_pub.publish(cdr.pack_clock(*divmod(t, NS_PER_S)))
                 last = t
                 if t0 is None:
                     t0 = t
@@ -340,8 +344,7 @@ def main(argv=None) -> int:
             raise ValueError(f'--rate must be > 0, not {a.rate}')
         return _play(a, full)
     except (BagError, FileExistsError, ValueError, OSError) as exc:
-        print(f'replay: error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('replay', exc)
 
 
 def _play(a, full) -> int:
