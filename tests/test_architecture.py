@@ -212,3 +212,59 @@ def test_ros_free_math_imports_no_rclpy(module):
     assert module in MODULES, f'{module} is listed as ROS-free math but does not exist'
     hit = _reaches_rclpy(module)
     assert hit is None, f'{module} reaches ROS: ' + ' -> '.join(hit)
+
+
+def _private_reads(path: Path):
+    """
+    Return the private names a file reads from other modules: ``(line, what)``.
+
+    A name is private when it has one leading underscore (not a dunder). A read ``x._name`` is
+    allowed when ``_name`` is bound in the same file (its own class's attribute, its own helper);
+    ``from m import _name`` never is.
+    """
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    own = set()
+    for n in ast.walk(tree):
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            own.add(n.name)
+        elif isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store):
+            own.add(n.attr)
+        elif isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store):
+            own.add(n.id)
+        elif isinstance(n, ast.arg):
+            own.add(n.arg)
+
+    def private(name: str) -> bool:
+        return name.startswith('_') and not name.startswith('__')
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Attribute) and private(n.attr) and n.attr not in own:
+            out.append((n.lineno, f'.{n.attr}'))
+        elif isinstance(n, ast.ImportFrom):
+            out += [(n.lineno, f'import {a.name} from {n.module}') for a in n.names
+                    if private(a.name)]
+    return out
+
+
+def test_no_module_reads_another_modules_private_names():
+    """
+    What a module keeps private stays its own (issue 33): a reader uses a public name.
+
+    Covers every module of every package, its node tests, and the launch files; rclpy's private
+    attributes are covered too (``node._parameters`` is ``node.list_parameters``).
+    """
+    files = sorted(SRC.glob('*/*/*.py')) + sorted(SRC.glob('*/launch/*.py'))
+    assert len(files) > 80
+    found = [f'{p.relative_to(SRC)}:{line}: {what}' for p in files
+             for line, what in _private_reads(p)]
+    assert not found, 'private names read across modules:\n' + '\n'.join(found)
+
+
+def test_the_private_name_rule_sees_a_violation(tmp_path):
+    bad = tmp_path / 'bad.py'
+    bad.write_text('from x import _y\n\n\ndef f(obs):\n    return obs._c + 1\n')
+    assert _private_reads(bad) == [(1, 'import _y from x'), (5, '._c')]
+    ok = tmp_path / 'ok.py'
+    ok.write_text('class A:\n    def __init__(self):\n        self._c = 1\n\n'
+                  '    def f(self, other):\n        return other._c + self.__class__.__name__\n')
+    assert _private_reads(ok) == []

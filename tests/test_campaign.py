@@ -82,7 +82,8 @@ def test_the_cli_refuses_a_bad_spec_without_a_traceback(tmp_path):
     p = subprocess.run([sys.executable, '-m', 'im_studies.campaign', path], capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 2
-    assert p.stderr.strip().splitlines() == [f'error: {path}: draws = -2 must be an integer >= 1']
+    assert p.stderr.strip().splitlines() == [
+        f'campaign: error: {path}: draws = -2 must be an integer >= 1']
 
 
 def test_a_gains_file_for_another_period_is_refused(tmp_path):

@@ -174,6 +174,6 @@ def test_a_port_in_use_is_one_line_and_nothing_is_written(tmp_path, capsys):
         assert main(['--duration', '0.01', '--record', str(bag), '--live-port', str(port),
                      '--no-progress']) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith(f'error: live view: cannot serve on 127.0.0.1:{port}: ')
+    assert err.startswith(f'scenario: error: live view: cannot serve on 127.0.0.1:{port}: ')
     assert 'Address already in use' in err and '\n' not in err
     assert not bag.exists() and not out.exists() and not list(tmp_path.iterdir())

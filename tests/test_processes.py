@@ -607,7 +607,7 @@ def test_scenario_runs_as_separate_processes(tmp_path):
     r2 = subprocess.run([executable_path('im_bringup', 'scenario'), '--processes', '--duration',
                          '0.1'], capture_output=True, text=True, timeout=60)
     assert r2.returncode == 2 and r2.stderr.strip() == \
-        'error: --processes needs --record (the figures come from the recording)'
+        'scenario: error: --processes needs --record (the figures come from the recording)'
 
 
 def test_a_loaded_machine_makes_runs_slow_not_wrong(tmp_path, domain):

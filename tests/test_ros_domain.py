@@ -78,8 +78,9 @@ def test_the_in_process_graph_takes_ros_domain_id_unless_told(ros_domain_id):
 
 
 @pytest.mark.parametrize('env, option, line', [
-    ('abc', [], "error: ROS_DOMAIN_ID='abc': not a ROS domain (an integer 0-232)"),
-    ('7', ['--domain-id', '300'], 'error: --domain-id 300: not a ROS domain (an integer 0-232)'),
+    ('abc', [], "scenario: error: ROS_DOMAIN_ID='abc': not a ROS domain (an integer 0-232)"),
+    ('7', ['--domain-id', '300'],
+     'scenario: error: --domain-id 300: not a ROS domain (an integer 0-232)'),
 ])
 def test_a_domain_the_middleware_cannot_open_is_one_line(tmp_path, monkeypatch, capsys, env,
                                                          option, line):

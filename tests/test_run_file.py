@@ -108,7 +108,7 @@ def test_a_bad_run_file_is_one_line_naming_the_file_and_the_key(tmp_path, capsys
     assert msg.startswith(line) and '\n' not in msg
     assert main([str(run), '--no-progress']) == 2       # the same line on the command line
     err = capsys.readouterr().err.strip().replace(str(tmp_path) + os.sep, '')
-    assert err == f'error: {msg}'
+    assert err == f'scenario: error: {msg}'
 
 
 def test_an_override_names_the_command_line(tmp_path, capsys):
@@ -116,7 +116,8 @@ def test_an_override_names_the_command_line(tmp_path, capsys):
     assert main([DRIFT, '--set', 'variation.R_r=[{t: 0.5, scale: 2.0, shape: jump}]',
                  '--no-progress']) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith('error: command line: variation.R_r[0].shape: must be step or ramp')
+    assert err.startswith(
+        'scenario: error: command line: variation.R_r[0].shape: must be step or ramp')
     assert Scenario.from_file(DRIFT, {'noise.current': 0.0}).current_noise_std == 0.0
 
 
@@ -127,8 +128,8 @@ def test_rerun_of_a_bag_without_a_run_record_is_one_line(tmp_path, capsys):
     BagWriter(str(bag)).close()
     assert main(['--rerun', str(bag), '--no-progress']) == 2
     err = capsys.readouterr().err.strip()
-    assert err == f'error: {bag}: no "run" record (recorded before run files existed, or not ' \
-                  'by the scenario runner); cannot re-run it'
+    assert err == f'scenario: error: {bag}: no "run" record (recorded before run files existed, ' \
+                  'or not by the scenario runner); cannot re-run it'
 
 
 @pytest.mark.parametrize('task', ['position', 'speed'])

@@ -27,7 +27,7 @@ import sys
 import time
 from typing import Optional
 
-from im_common.cli import logger, parse_args, status_line
+from im_common.cli import error as cli_error, logger, parse_args, status_line
 
 _log = logger('commission')
 
@@ -316,8 +316,7 @@ def main(argv=None) -> None:
     try:
         code = run(args)
     except (Refused, InvalidParameter) as exc:
-        print(f'commission: error: {exc}', file=sys.stderr)
-        code = 2
+        code = cli_error('commission', exc)
     except NotInformative as exc:
         print(f'commission: not informative: {exc}', file=sys.stderr)
         code = 1

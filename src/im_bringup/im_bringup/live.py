@@ -26,6 +26,8 @@ import sys
 import time
 from typing import Dict, Optional
 
+from im_common.cli import error as cli_error
+
 #: The Foxglove WebSocket port, foxglove_bridge's default.
 DEFAULT_PORT = 8765
 #: Seconds the ``live`` node keeps serving after the run ended (the last messages reach the view).
@@ -229,8 +231,7 @@ def main(argv=None) -> int:
     try:
         view = LiveView(args.host, args.port)
     except OSError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('live', exc)
     ctx = Context()
     rclpy.init(args=['live'] + (sys.argv[1:] if argv is None else []), context=ctx)
     node = rclpy.create_node('live', context=ctx)

@@ -21,6 +21,9 @@ import struct
 from typing import Any, Callable, Dict, Tuple
 
 ENCAPSULATION = b'\x00\x01\x00\x00'   # CDR_LE, no options
+#: nanoseconds per second: builtin_interfaces/Time splits a stamp into sec and nanosec by it
+#: (:mod:`im_common.conversions` re-exports it: stamps are that module's subject)
+NS_PER_S = 1_000_000_000
 
 _BASIC = {
     'boolean': ('?', 1), 'octet': ('B', 1), 'char': ('B', 1), 'uint8': ('B', 1), 'int8': ('b', 1),
@@ -468,4 +471,4 @@ def decode_vector3_stamped(data) -> Tuple[int, int, float, float, float]:
 def header_stamp_ns(data) -> int:
     """Stamp of a message whose first field is a Header or a Time (offset 4): ns."""
     sec, nsec = _STAMP.unpack_from(data, 4)
-    return sec * 1_000_000_000 + nsec
+    return sec * NS_PER_S + nsec

@@ -1,6 +1,8 @@
 r"""
 Command-line helpers shared by every executable: one way to parse arguments, log, show progress.
 
+- :func:`error`: the one line ``<prog>: error: <what was wrong>`` on stderr and the exit code,
+  for every executable.
 - :func:`parse_args` strips the ROS arguments (``--ros-args ... --``) that ``ros2 run`` / launch
   append, then parses with argparse. rclpy is always installed with the stack, so a broken rclpy
   is an ImportError, not a silent fallback.
@@ -29,6 +31,18 @@ def parse_args(parser: argparse.ArgumentParser, argv: Optional[Sequence[str]] = 
     """Parse ``argv`` (default ``sys.argv[1:]``) after removing the ROS arguments."""
     raw = sys.argv[1:] if argv is None else list(argv)
     return parser.parse_args(strip_ros_args(raw, parser.prog))
+
+
+def error(prog: str, problem, code: int = 2) -> int:
+    """
+    Print the error line every executable prints, ``<prog>: error: <problem>``; return ``code``.
+
+    ``problem`` (a message or an exception) is kept on one line: a multi-line text is joined with
+    "; ". The exit code is 2 for bad input (argparse's), 1 for a run that failed.
+    """
+    lines = [line.strip() for line in str(problem).splitlines() if line.strip()]
+    print(f'{prog}: error: ' + '; '.join(lines), file=sys.stderr, flush=True)
+    return code
 
 
 def logger(prefix: Optional[str] = None, stream=None) -> Callable[[str], None]:

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from typing import Iterable, Sequence
 
-from .cdr import (decode_joint_state, decode_vector3_stamped, joint_state_packer, pack_clock,
-                  pack_joint_state, pack_vector3_stamped)
+from .cdr import (decode_joint_state, decode_vector3_stamped, joint_state_packer, NS_PER_S,
+                  pack_clock, pack_joint_state, pack_vector3_stamped)
 
-NS_PER_S = 1_000_000_000
+# NS_PER_S (imported above) is defined with the wire format, builtin_interfaces/Time's nanosec;
+# every module takes it from here.
 
 
 def period_ns(T_s: float) -> int:

@@ -36,6 +36,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from . import auth, realtime
+from .cli import error as cli_error
 from .conversions import NS_PER_S
 from .params import parameter_error
 from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, is_master,  # noqa: F401
@@ -308,7 +309,7 @@ class LockstepNode(Node):
         The error names the nearest valid one: a misspelt gain must not silently fall back to its
         default.
         """
-        declared = set(self._parameters)
+        declared = set(self.list_parameters([], 0).names)
         unknown = sorted(n for n in getattr(self, '_parameter_overrides', {}) if n not in declared
                          and not n.startswith('qos_overrides.'))
         if unknown:
@@ -506,6 +507,11 @@ class LockstepNode(Node):
             self.on_stop(self)
 
     # Protocol ----------------------------------------------------------------------------
+    @property
+    def input_timeout(self) -> float:
+        """Return how long an input may stay silent before the node fails or drops it [s]."""
+        return self._timeout
+
     def start_protocol(self, input_timeout: float, startup_timeout: float) -> None:
         """Announce ``waiting``; go ``ready`` once every input has a publisher; watch inputs."""
         self._timeout = float(input_timeout)
@@ -930,14 +936,12 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
     prog = args[0].rsplit('/', 1)[-1]
     bad = init_args_error(args)
     if bad:
-        print(f'{prog}: error: {bad}', file=sys.stderr)
-        return 2
+        return cli_error(prog, bad)
     with StopSignals() as stop:
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         except _rcl_error() as exc:
-            print(f'{prog}: error: {str(exc).splitlines()[0]}', file=sys.stderr)
-            return 2
+            return cli_error(prog, str(exc).splitlines()[0])
         node = None
         code = 0
         try:
@@ -945,8 +949,7 @@ def node_main(factory: Callable[..., LockstepNode], argv=None) -> int:
                 node = build_node(factory)
                 node.own_process = True         # free_run may make this process real-time
             except ConfigurationError as exc:
-                print(f'{prog}: error: {exc}', file=sys.stderr)
-                return 2
+                return cli_error(prog, exc)
             executor = make_executor()
             executor.add_node(node)
             spin_until_done([node], executor, stop=stop)
@@ -976,7 +979,7 @@ def parameter_table(node: Node) -> str:
     """Markdown table of a node's declared parameters (name, default, range, description)."""
     rows = ['| parameter | default | range | live | description |',
             '| --- | --- | --- | --- | --- |']
-    for name in sorted(node._parameters):
+    for name in sorted(node.list_parameters([], 0).names):
         if name in ('use_sim_time', 'start_type_description_service'):
             continue
         d = node.describe_parameter(name)

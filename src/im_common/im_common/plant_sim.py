@@ -203,7 +203,7 @@ class PlantSimulator:
         self.x = x
         self.k += 1
         if self.trip is None:
-            self._protect()
+            self.protect()
 
     def _integrate(self, x, t0: float, v_a: float, v_b: float):
         f = self.model.rhs
@@ -212,7 +212,7 @@ class PlantSimulator:
             x = rk4_step(f, t0 + j * h, x, h, v_a, v_b)
         return x
 
-    def _protect(self) -> None:
+    def protect(self) -> None:
         """Latch a trip on overcurrent or overspeed at t_k (after the period)."""
         if self.current_trip is not None:
             i_a, i_b, _, _ = self.state_currents()

@@ -138,7 +138,7 @@ class RealPlant:
         sim.k += 1
         self._after_period(x0, x)
         if sim.trip is None:
-            sim._protect()
+            sim.protect()
 
     def _integrate(self, x, t0: float, v_a: float, v_b: float, tripped: bool):
         sim = self.sim

@@ -403,6 +403,11 @@ class DriveController:
     def coefficients(self) -> ModelCoefficients:
         return self._c
 
+    @property
+    def pd_filter(self) -> LowPass2:
+        """Return the torque filter of the PD demand u_pd (its input ``u``, output ``y``)."""
+        return self._pd
+
     def set_setpoint(self, kind: str, value: float, t: float,
                      duration: float | None = None) -> None:
         """

@@ -220,8 +220,8 @@ def test_voltage_saturation_does_not_freeze_the_torque_filter():
     assert ctl.reference['saturated']
     # the PD demand of the latest step: speed error only, θ* back-calculated onto the shaft
     u_pd = -cfg.k_v * (80.0 - 100.0)
-    assert ctl._pd.u == pytest.approx(u_pd, rel=1e-3)
-    assert ctl._pd.y == pytest.approx(u_pd, rel=1e-2)
+    assert ctl.pd_filter.u == pytest.approx(u_pd, rel=1e-3)
+    assert ctl.pd_filter.y == pytest.approx(u_pd, rel=1e-2)
 
 
 def test_reconfigure_keeps_state_and_is_continuous():

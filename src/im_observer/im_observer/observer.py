@@ -123,6 +123,16 @@ class RotorFluxObserver:
     def estimates(self) -> dict:
         return {'R_r': self._R_r, 'theta': self._theta}
 
+    @property
+    def theta(self) -> float:
+        """Return the estimate θ̂ = L_sr/L_r the observer runs with."""
+        return self._theta
+
+    @property
+    def coefficients(self):
+        """Return the eq. 1.112 coefficients of the observer's plant copy (at the estimates)."""
+        return self._c
+
     def set_estimates(self, R_r: Optional[float] = None, theta: Optional[float] = None,
                       **identifiable) -> None:
         """

@@ -179,7 +179,7 @@ class SpeedAdaptiveObserver:
             # is what the adaptation integrates): ω̂ no longer lags a known acceleration
             ia, ib, pa, pb = self.flux.state
             p = self.params
-            tau = p.pole_pairs * self.flux._theta * (i_beta * pa - i_alpha * pb)
+            tau = p.pole_pairs * self.flux.theta * (i_beta * pa - i_alpha * pb)
             self.load_hat -= self.k_load * T_s * eps
             self._integral += T_s * (tau - p.b * self._integral - self.load_hat) / p.J
         w = self._integral + self.k_p * eps
@@ -213,7 +213,7 @@ class SpeedAdaptiveObserver:
         if w_e <= w0 or (c0 == 0.0 and c1 == 0.0 and c2 == 0.0):
             return 0.0, 0.0
         h = min(1.0, (w_e - w0) / (w1 - w0))
-        c = self.flux._c
+        c = self.flux.coefficients
         scale = (c.gamma + self.flux.k_e * c.inv_sigma_Ls) / c.K
         sgn = 1.0 if omega_hat >= 0.0 else -1.0
         return -scale * h * (c0 + c1 / w_e), scale * h * c2 * sgn / w_e
@@ -266,7 +266,7 @@ def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: 
     op = operating_point(p, omega_r, torque, phi)
     w_s = op['omega_s']
     fo = obs.flux
-    c = fo._c
+    c = fo.coefficients
     vp = fo.v
     i_m = (op['i_d'], op['i_q'])
     V = (op['v_d'], op['v_q'])

@@ -371,10 +371,10 @@ class PlantNode(LockstepNode):
         for name, (ack, seen) in list(self.followers.items()):
             if ack >= limit:
                 continue
-            if time.monotonic() - seen > self._timeout:
+            if time.monotonic() - seen > self.input_timeout:
                 self.get_logger().warning(
                     f"follower '{name}' acknowledged nothing after {stamp_text(ack)} for "
-                    f'{self._timeout:.1f} s; continuing without it (its recording will miss '
+                    f'{self.input_timeout:.1f} s; continuing without it (its recording will miss '
                     f'steps from there on)')
                 del self.followers[name]
                 continue

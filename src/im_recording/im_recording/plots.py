@@ -33,7 +33,8 @@ import numpy as np
 MAX_POINTS = 6000
 
 
-def _plt():
+def pyplot():
+    """Return matplotlib.pyplot on the file backend (Agg), imported on first use."""
     import matplotlib
     matplotlib.use('Agg', force=False)
     import matplotlib.pyplot as plt
@@ -91,7 +92,7 @@ def _save(fig, out_dir: Path, name: str) -> str:
     path = out_dir / name
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    _plt().close(fig)
+    pyplot().close(fig)
     return str(path)
 
 
@@ -121,7 +122,7 @@ def plot_tracking(runs: Sequence, out_dir, kind: str) -> Optional[str]:
     runs = [r for r in runs if _has(r, key, ref)]
     if not runs:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
     _ref_real(axes[0], runs, ref, key, f'{name}_r [{unit}]', f'{name}* (reference)',
               f'{name}_r (real)')
@@ -162,7 +163,7 @@ def plot_dq(runs: Sequence, out_dir, what: str) -> Optional[str]:
         views.append(_View(r, _dq_traces(r, ref_pair, real_pair, 'x')))
     if not views:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
     for ax, axis, tag in ((axes[0], 'd', '(a)'), (axes[1], 'q', '(b)')):
         _ref_real(ax, views, f'x_ref_{axis}', f'x_real_{axis}', f'{sym}_{axis} [{unit}]',
@@ -186,7 +187,7 @@ def plot_observer(runs: Sequence, out_dir) -> Optional[str]:
         views.append(_View(r, tr))
     if not views:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)
     panels = [('i', 'ih', 'd', 'i_sd [A]', '(a) stator current, d axis'),
               ('i', 'ih', 'q', 'i_sq [A]', '(b) stator current, q axis'),
@@ -202,7 +203,7 @@ def plot_energy(runs: Sequence, out_dir) -> Optional[str]:
     runs = [r for r in runs if _has(r, 'E_in')]
     if not runs:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(1, 1, figsize=(7.5, 4.5))
     many = len(runs) > 1
     for i, r in enumerate(runs):
@@ -229,7 +230,7 @@ def plot_estimates(runs: Sequence, out_dir) -> Optional[str]:
         return None
     units = {'R_r': 'Ω', 'theta': '—', 'L_M': 'H', 'R_R': 'Ω'}
     sym = {'R_r': 'R_r', 'theta': 'θ', 'L_M': 'L_M', 'R_R': 'R_R'}
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(len(names), 1, figsize=(7.5, 3.0 * len(names)), sharex=True,
                              squeeze=False)
     for ax, n, tag in zip(axes[:, 0], names, 'abcd'):
@@ -243,7 +244,7 @@ def plot_voltage_current(runs: Sequence, out_dir) -> Optional[str]:
     runs = [r for r in runs if _has(r, 'v_alpha', 'i_alpha')]
     if not runs:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(7.5, 5.5), sharex=True)
     many = len(runs) > 1
     for i, r in enumerate(runs):
@@ -276,7 +277,7 @@ def plot_real_plant(runs: Sequence, out_dir) -> Optional[str]:
         panels.append('phase')
     if not panels:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(len(panels), 1, figsize=(7.5, 2.6 * len(panels)), squeeze=False)
     many = len(runs) > 1
     for ax, panel in zip(axes[:, 0], panels):

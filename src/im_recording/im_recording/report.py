@@ -21,6 +21,7 @@ import sys
 from typing import Dict, List, Sequence
 
 from im_common import topics as T
+from im_common.cli import error as cli_error
 import numpy as np
 
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
@@ -339,11 +340,9 @@ def main(argv=None) -> int:
             check_output(Path(out) / name, a.bags, a.force, what='report')
         res = write_report(a.bags, out, plots=not a.no_plots)
     except BagError as exc:
-        print(f'report: error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('report', exc)
     except (OSError, ValueError) as exc:
-        print(f'report: error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('report', exc)
     print(markdown_table(res['runs']))
     print(f'\nreport: {res["markdown"]}\njson:   {res["json"]}')
     for p in res['figures']:

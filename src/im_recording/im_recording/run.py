@@ -43,6 +43,7 @@ from typing import Dict, List, Optional, Tuple
 
 from im_common import cdr
 from im_common import topics as T
+from im_common.conversions import NS_PER_S
 import numpy as np
 
 REEST_FLUX, REEST_CURRENT = T.REEST_FLUX, T.REEST_CURRENT
@@ -137,7 +138,7 @@ class Run:
 
 
 def _stamp_ns(sec, nsec):
-    return np.asarray(sec, dtype=np.int64) * 1_000_000_000 + np.asarray(nsec, dtype=np.int64)
+    return np.asarray(sec, dtype=np.int64) * NS_PER_S + np.asarray(nsec, dtype=np.int64)
 
 
 def _decode_v3(payloads: List[bytes]):

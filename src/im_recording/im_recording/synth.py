@@ -13,8 +13,9 @@ import math
 from typing import Optional
 
 from im_common import topics as T
+from im_common.conversions import NS_PER_S
 
-SEC = 1_000_000_000
+SEC = NS_PER_S
 
 
 def truth_params(tr: dict) -> list:

@@ -33,7 +33,7 @@ import sys
 import time
 from typing import List, Optional
 
-from im_common.cli import logger
+from im_common.cli import error as cli_error, logger
 import numpy as np
 
 from .campaign_journal import JOURNAL, Journal, prepare_out, versions
@@ -141,9 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _run_alone(spec: dict, args) -> int:
     all_jobs = jobs(spec)
     if not 0 <= args.run < len(all_jobs):
-        print(f'error: --run {args.run}: the campaign has runs 0..{len(all_jobs) - 1}',
-              file=sys.stderr)
-        return 2
+        return cli_error('campaign',
+                         f'--run {args.run}: the campaign has runs 0..{len(all_jobs) - 1}')
     job = all_jobs[args.run]
     gains = gain_arguments(spec)
     if args.record:
@@ -167,14 +166,11 @@ def main(argv=None) -> int:
     try:
         spec = read_spec(args.spec)
     except SpecError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('campaign', exc)
     if args.workers is not None and args.workers < 1:
-        print(f'error: --workers {args.workers}: must be >= 1', file=sys.stderr)
-        return 2
+        return cli_error('campaign', f'--workers {args.workers}: must be >= 1')
     if args.record and not (args.run is not None and args.graph):
-        print('error: --record needs --run INDEX --graph', file=sys.stderr)
-        return 2
+        return cli_error('campaign', '--record needs --run INDEX --graph')
     try:
         if args.run is not None:
             return _run_alone(spec, args)
@@ -182,8 +178,7 @@ def main(argv=None) -> int:
         s = run_campaign(spec, out, args.spec, workers=args.workers, address=args.address,
                          force=args.force, progress=not args.no_progress)
     except (SpecError, FileExistsError, ConnectionError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('campaign', exc)
     except KeyboardInterrupt:
         print(f'\ninterrupted; finished runs are kept in {out}/{JOURNAL}: the same command '
               'resumes the campaign', file=sys.stderr)

@@ -156,8 +156,8 @@ def _badness(r: dict) -> tuple:
 
 def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None:
     """report.md with loss and error histograms, the stability map and the worst runs."""
-    from im_recording.plots import _plt
-    plt = _plt()
+    from im_recording.plots import pyplot
+    plt = pyplot()
     rows, _ = split_commissioning(rows)
     figs = []
     sets = [g['name'] for g in spec['gain_sets']]

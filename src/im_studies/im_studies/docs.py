@@ -14,6 +14,8 @@ import random
 import re
 import sys
 
+from im_common.cli import error as cli_error
+
 #: the page holding the generated tables
 DEFAULT_PAGE = os.path.join('docs', 'parameters.md')
 
@@ -63,8 +65,7 @@ def main(argv=None) -> int:
             text = f.read()
         new = render(text)
     except (OSError, ValueError) as exc:
-        print(f'error: {path}: {getattr(exc, "strerror", None) or exc}', file=sys.stderr)
-        return 2
+        return cli_error('docs', f'{path}: {getattr(exc, "strerror", None) or exc}')
     with open(path, 'w') as f:
         f.write(new)
     print(f'{path}: tables regenerated')

@@ -24,7 +24,7 @@ import sys
 import textwrap
 from typing import List, Optional, Tuple
 
-from im_common.cli import parse_args
+from im_common.cli import error as cli_error, parse_args
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES as STRATEGIES
 from im_studies import thesis
@@ -347,8 +347,7 @@ def main(argv=None) -> int:
         parts = [(path, name, block, split_block(Path(path).read_text(), name, path))
                  for path, name, block in blocks]
     except (SummaryError, ValueError, OSError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('readme_status', exc)
     if args.check:
         stale = 0
         for path, name, block, (_, old, _) in parts:

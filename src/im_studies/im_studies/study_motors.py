@@ -43,6 +43,7 @@ import os
 import sys
 
 from im_bringup.offline import Scenario, simulate
+from im_common.cli import error as cli_error
 from im_common.loads import ConstantLoad, LinearLoad
 from im_common.model import torque
 from im_common.params import (load_motor_file, MotorParams, ParameterSchedule, ramp,
@@ -257,8 +258,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     paths = args.motor or sorted(glob.glob(os.path.join(shipped_motors_dir(), '*.yaml')))
     if not paths:
-        print(f'error: no motor files in {shipped_motors_dir()}', file=sys.stderr)
-        return 2
+        return cli_error('study_motors', f'no motor files in {shipped_motors_dir()}')
     motors, rows = {}, []
     try:
         for p in paths:
@@ -270,8 +270,7 @@ def main(argv=None) -> int:
         if args.drift:
             rows = run_drift(motors)
     except ValueError as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
+        return cli_error('study_motors', exc)
     os.makedirs(args.out, exist_ok=True)
     stem = 'drift' if args.drift else 'summary'     # the two studies never overwrite each other
     with open(os.path.join(args.out, f'{stem}.json'), 'w') as f:
