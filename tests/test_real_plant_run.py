@@ -79,13 +79,19 @@ def test_motor_block_needs_a_motor_file():
         Scenario(task='speed', saturation='motor')
 
 
-def test_graph_equals_the_offline_loop_with_every_block_on(tmp_path):
-    """The in-process graph and the ROS-free loop: the same E_in; the truth topics recorded."""
+@pytest.mark.parametrize('extra', ['', 'compensation: inverter\n'])
+def test_graph_equals_the_offline_loop_with_every_block_on(tmp_path, extra):
+    """
+    The in-process graph and the ROS-free loop: the same E_in; the truth topics recorded.
+
+    With the inverter-error compensation too: the controller, observer and adapter nodes get it
+    from the run file as the ROS-free loop does.
+    """
     from im_bringup.offline import simulate
     from im_bringup.testing import run_graph
     from im_common import topics as T
     from im_recording.bag import info
-    run = _run_file(tmp_path, duration=0.05)
+    run = _run_file(tmp_path, duration=0.05, extra=extra)
     off = simulate(Scenario.from_file(run)).summary
     bag = str(tmp_path / 'g.mcap')
     g = run_graph(scenario=run, record=bag)

@@ -22,7 +22,7 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import lockstep_qos, LockstepNode, node_main, PARAMETERS, StepGate
-from im_common.node_params import declare_motor, declare_run
+from im_common.node_params import declare_compensation, declare_motor, declare_run
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 
@@ -43,6 +43,7 @@ class AdapterNode(LockstepNode):
                         read_only=False)
         self._enable_next = None
         self.law = declare_law(self, params, R_r0, theta0)
+        self.compensation = declare_compensation(self)
         sensorless = p('sensorless', False, "take the observer's speed estimate "
                        f'({T.OBS_SPEED}) in place of the measured shaft and hold R_R '
                        '(docs/sensorless.md)')
@@ -82,6 +83,8 @@ class AdapterNode(LockstepNode):
         if self.enable:
             i_a, i_b = inputs[T.MEAS_CURRENT]
             v_a, v_b = inputs[T.CMD_VOLTAGE]
+            if self.compensation is not None:   # the voltage the motor got (observer's too)
+                v_a, v_b = self.compensation.motor_voltage(v_a, v_b, i_a, i_b)
             f_a, f_b = inputs[T.OBS_FLUX]
             try:
                 self.law.update(self.T_s, v_a, v_b, i_a, i_b, inputs[self.shaft][1],

@@ -78,12 +78,13 @@ def build(sc: Scenario):
                                          x0=obs_x0, omega0=sc.omega0 if sc.start == 'steady'
                                          else 0.0, injection_gain=gains['observer_gain'],
                                          gain_period=sc.T_s if gains['observer_gain'] is not None
-                                         else None, **sc.speed_observer_options)
+                                         else None, inverter_error=cfg.compensation,
+                                         **sc.speed_observer_options)
         return plant, controller, observer
     observer = RotorFluxObserver(cfg.params, k_e=gains['k_e'], max_substep=sc.observer_substep,
                                  x0=obs_x0, injection_gain=gains['observer_gain'],
                                  gain_period=(sc.T_s if gains['observer_gain'] is not None
-                                              else None))
+                                              else None), inverter_error=cfg.compensation)
     return plant, controller, observer
 
 
@@ -157,6 +158,7 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         raise InvalidParameter('record_every', record_every, 'must be >= 1')
     wall0 = time.perf_counter()
     plant, controller, observer = build(sc)
+    cfg_comp = controller.config.compensation
     n_steps = int(round(sc.duration / sc.T_s))
     n_rec = n_steps // record_every + 1
     tr = {k: np.empty(n_rec) for k in TRACE_KEYS}
@@ -196,7 +198,10 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             t_obs += clock() - c0
         if adapter is not None:
             # the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out
-            estimates = adapter.step(T_s, m.t, v_a, v_b, m, x_hat_k)
+            # with compensation, the voltage the motor got (the adapter node's too)
+            v_m = (v_a, v_b) if cfg_comp is None else \
+                cfg_comp.motor_voltage(v_a, v_b, m.i_alpha, m.i_beta)
+            estimates = adapter.step(T_s, m.t, v_m[0], v_m[1], m, x_hat_k)
             if estimates:
                 observer.set_estimates(**estimate_arguments(estimates))
         if progress and k % report_every == 0:

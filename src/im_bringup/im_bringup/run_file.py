@@ -173,6 +173,9 @@ class Scenario:
     saturation: object = None
     thermal: object = None
     iron_loss: bool = False
+    # the drive's inverter-error compensation (docs/compensation.md; None: off): 'inverter'
+    # (exact, from the inverter block) or {v_dead, r_on, current_band}, resolved to the latter
+    compensation: object = None
 
     def __post_init__(self):
         put = object.__setattr__
@@ -284,6 +287,15 @@ class Scenario:
             put(self, 'saturation', saturation_from_dict(self.saturation, motor.L_M).describe())
         if self.thermal is not None:
             put(self, 'thermal', thermal_from_dict(self.thermal).describe())
+        model = self.compensation_model()
+        put(self, 'compensation', None if model is None else model.describe())
+
+    def compensation_model(self):
+        """Return the drive's :class:`~im_common.compensation.InverterErrorModel` (None: off)."""
+        from im_common.compensation import compensation_from_dict
+        from im_common.inverter import inverter_from_dict
+        inv = None if self.inverter is None else inverter_from_dict(self.inverter)
+        return compensation_from_dict(self.compensation, inv)
 
     def plant_blocks(self) -> dict:
         """Return the PlantSimulator keywords of the real plant's blocks ({}: the ideal plant)."""
@@ -387,7 +399,8 @@ class Scenario:
             opts.setdefault(key, value)
         return ControllerConfig(mode=self.task, strategy=self.strategy,
                                 params=self.model_estimates(), v_limit=limit_value(self.v_limit),
-                                current_gain=g['current_gain'], T_s=self.T_s, **opts)
+                                current_gain=g['current_gain'], T_s=self.T_s,
+                                compensation=self.compensation_model(), **opts)
 
     # The graph's parameters ----------------------------------------------------------------
     def node_parameters(self, truth_decimation: int = 10, reference_decimation: int = 10,
@@ -476,6 +489,10 @@ class Scenario:
             obs['initial_speed'] = float(self.omega0) if self.start == 'steady' else 0.0
         if adaptive:
             adapter.update(ADAPTATION[self.controller])
+        comp = self.compensation_model()
+        if comp is not None:        # the controller adds ê(i); observer and adapter subtract it
+            for node in (ctl, obs, adapter):
+                node.update(comp.parameters())
         out = {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}
         for extra in (self.gains, self.parameters):
             for node, values in (extra or {}).items():
@@ -573,6 +590,8 @@ class Scenario:
         if self.mode != 'lockstep':
             out['mode'] = self.mode
         out.update(self.plant_blocks())
+        if self.compensation is not None:
+            out['compensation'] = dict(self.compensation)
         defaults = {f.name: f.default for f in fields(self)}
         for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
                      'core_loss_exponent', 'plant_substep', 'observer_substep'):

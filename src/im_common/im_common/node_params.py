@@ -51,6 +51,25 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
     return MotorParams(**values)
 
 
+def declare_compensation(node):
+    """
+    Declare the inverter-error compensation: ``comp_v_dead``, ``comp_r_on``, ``comp_current_band``.
+
+    The controller, observer and adapter declare the same three (docs/compensation.md); returns
+    the :class:`~im_common.compensation.InverterErrorModel`, or None when v_dead = r_on = 0.
+    """
+    from .compensation import compensation_from_parameters, DEFAULT_CURRENT_BAND
+    doc = {'comp_v_dead': ('inverter error per phase: dead time t_d f_sw V_dc + device drop '
+                           'v_on [V] (0 with comp_r_on 0: no compensation)', 0.0, 0.0, 1e4),
+           'comp_r_on': ("inverter error per phase: the devices' on-state resistance [ohm]",
+                         0.0, 0.0, 100.0),
+           'comp_current_band': ('inverter error: the current over which its sign ramps from -1 '
+                                 'to +1 is +-this [A]', DEFAULT_CURRENT_BAND, 0.0, 1e4)}
+    values = {name: node.param(name, default, desc, lo, hi)
+              for name, (desc, default, lo, hi) in doc.items()}
+    return compensation_from_parameters(values)
+
+
 def declare_run(node):
     """
     Declare T_s (read-only), duration and the timeouts.

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Optional
 
+from im_common.compensation import InverterErrorModel
 from im_common.loads import LOAD_KINDS, make_load
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_MOTOR)
@@ -138,6 +139,9 @@ class ControllerConfig:
     sensorless      the θ, ω given to ``compute`` are the observer's estimates (θ̂ = ∫ω̂, ω̂):
                     the field angle is the observed flux angle ∠φ̂ (direct field orientation,
                     docs/sensorless.md §4) instead of ∫(vω + ω_sl), which drifts while ω̂ lags
+    compensation    the inverter's voltage error ê(i) (an InverterErrorModel) added to the
+                    command after the voltage limit, at the measured current (None: off;
+                    docs/compensation.md)
     """
 
     mode: str = 'position'
@@ -176,6 +180,8 @@ class ControllerConfig:
     magnetizing_floor: Optional[float] = None
     horizon: Optional[float] = None
     sensorless: bool = False
+    #: the inverter's voltage error the command compensates (im_common.compensation; None: off)
+    compensation: Optional[InverterErrorModel] = None
     #: {field: (value, why)} of the fields the motor model's ratings set (RATED_FIELDS)
     from_ratings: Optional[dict] = field(default=None, compare=False)
 
@@ -788,6 +794,8 @@ class DriveController:
                 saturated = True
         self._limited = saturated or tau_limited
         self._pd.set_input(u_pd)
+        if cfg.compensation is not None:    # what the inverter loses, added (compensation.md)
+            v_a, v_b = cfg.compensation.command(v_a, v_b, i_alpha, i_beta)
 
         self._t_prev = t
         self._rho = rho

@@ -29,7 +29,7 @@ from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft
                                    Vector3Out, xy_in)
 from im_common.lockstep import (data_qos, lockstep_qos, LockstepNode, node_main, PARAMETERS,
                                 report_qos, status_qos, StepGate)
-from im_common.node_params import declare_motor, declare_run
+from im_common.node_params import declare_compensation, declare_motor, declare_run
 from im_common.params import describe_defaults
 from im_controller.control_law import DriveController
 from im_controller.parameters import (config_from_parameters, declare_controller, live_changes,
@@ -64,7 +64,8 @@ class ControllerNode(LockstepNode):
             self.get_logger().info(describe_defaults(cfg.from_ratings))
         # the run's end is the optimal strategy's planning horizon (0: open-ended)
         horizon = self.duration if self.duration > 0 else None
-        self.ctl = DriveController(replace(cfg, horizon=horizon, sensorless=self.sensorless))
+        self.ctl = DriveController(replace(cfg, horizon=horizon, sensorless=self.sensorless,
+                                           compensation=declare_compensation(self)))
         self._plan_note = ''
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None

@@ -62,10 +62,13 @@ class RotorFluxObserver:
     def __init__(self, params: MotorParams = THESIS_MOTOR, k_e: Optional[float] = None,
                  max_substep: float = 1e-4, x0: Sequence[float] = (0.0, 0.0, 0.0, 0.0),
                  injection_gain=None, gain_period: Optional[float] = None,
-                 skew_injection: bool = True):
+                 skew_injection: bool = True, inverter_error=None):
         if not isinstance(params, MotorParams):
             raise InvalidParameter('params', params, 'must be a MotorParams')
         self.params = params
+        # the inverter's voltage error (im_common.compensation): the motor got the command less
+        # ê(i); None: the command as given
+        self.inverter_error = inverter_error
         if k_e is None:
             k_e = 1.0 / params.sigma
         self.k_e = _finite('k_e', k_e)
@@ -202,6 +205,8 @@ class RotorFluxObserver:
                           ('i_beta', i_beta), ('omega_r', omega_r)):
             if not math.isfinite(val):
                 raise ValueError(f"observer input '{name}' is not finite ({val!r})")
+        if self.inverter_error is not None:     # the voltage the motor actually got
+            v_alpha, v_beta = self.inverter_error.motor_voltage(v_alpha, v_beta, i_alpha, i_beta)
         discrete = self.L is not None
         if discrete and abs(T_s - self.gain_period) > 1e-9 * self.gain_period:
             raise ValueError(f'injection_gain was designed for '

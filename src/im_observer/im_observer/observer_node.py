@@ -21,7 +21,7 @@ from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft
                                    xy_in)
 from im_common.lockstep import (LOCKSTEP_DEPTH, lockstep_qos, LockstepNode, node_main, report_qos,
                                 StepGate)
-from im_common.node_params import declare_motor, declare_run
+from im_common.node_params import declare_compensation, declare_motor, declare_run
 from im_observer.observer import RotorFluxObserver
 from im_observer.parameters import check_gain_period, declare_observer
 from im_observer.speed_observer import SpeedAdaptiveObserver
@@ -49,7 +49,7 @@ class ObserverNode(LockstepNode):
         self.obs = (SpeedAdaptiveObserver if self.sensorless else RotorFluxObserver)(
             params, k_e=v['k_e_injection'] or None, max_substep=v['max_substep'],
             x0=tuple(v['initial_state']), injection_gain=v['injection_gain'],
-            gain_period=v['gain_period'] or None,
+            gain_period=v['gain_period'] or None, inverter_error=declare_compensation(self),
             **({'omega0': v['initial_speed']} if self.sensorless else {}))
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None

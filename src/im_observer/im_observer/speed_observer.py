@@ -109,9 +109,10 @@ class SpeedAdaptiveObserver:
                  error_rotation: float = DEFAULT_ERROR_ROTATION,
                  rotation_frequency: float = DEFAULT_ROTATION_FREQUENCY, injection_gain=None,
                  gain_period: Optional[float] = None, mechanical_model: bool = True,
-                 load_bandwidth: float = DEFAULT_LOAD_BANDWIDTH):
+                 load_bandwidth: float = DEFAULT_LOAD_BANDWIDTH, inverter_error=None):
         self.flux = RotorFluxObserver(params, k_e=k_e, max_substep=max_substep, x0=x0,
-                                      injection_gain=injection_gain, gain_period=gain_period)
+                                      injection_gain=injection_gain, gain_period=gain_period,
+                                      inverter_error=inverter_error)
         self.params = params
         bw = check_real('speed_bandwidth', speed_bandwidth, 0.0, lo_open=True)
         self.speed_bandwidth = bw
