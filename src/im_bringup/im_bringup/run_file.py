@@ -383,7 +383,9 @@ class Scenario:
         if self.profile is not None:
             opts.setdefault('profile', 'setpoint')
             opts.setdefault('setpoints', self.profile.setpoints)
-        for key, value in load_parameters(self.plant_load()).items():
+        # the controller feeds forward what it can know of the load: a load of the shaft state,
+        # or the torque a load in time starts at (loads.Load.feedforward)
+        for key, value in load_parameters(self.plant_load().feedforward()).items():
             opts.setdefault(key, value)
         return ControllerConfig(mode=self.task, strategy=self.strategy,
                                 params=self.model_estimates(), v_limit=limit_value(self.v_limit),
@@ -415,11 +417,8 @@ class Scenario:
         common = {'T_s': float(self.T_s), 'duration': float(self.duration),
                   'input_timeout': float(input_timeout)}
         v_limit = limit_parameter(self.v_limit)
-        if self.load_model is not None:
-            lp = load_parameters(self.load_model)
-        else:
-            lp = {k: v for k, v in TASK_PRESETS[self.task].items()
-                  if k in ('load', 'load_mgl', 'load_c1', 'load_c2', 'load_tau')}
+        lp = load_parameters(self.plant_load())
+        lp_model = load_parameters(self.plant_load().feedforward())     # the controller's
         mine = motor_parameters(self.motor) if self.motor is not None else {}
         model_values = dict(mine)
         if self.estimates is not None:
@@ -449,7 +448,7 @@ class Scenario:
         adaptive = self.controller in ADAPTATION
         ctl = dict(common, mode=self.task, strategy=self.strategy, use_adapter=adaptive,
                    v_limit=v_limit, reference_decimation=int(reference_decimation),
-                   load_known=True, **lp, **model_values)
+                   load_known=True, **lp_model, **model_values)
         if self.profile is not None:
             ctl.update(self.profile.as_parameters())
         ctl.update({k: (v if isinstance(v, bool) else float(v)) for k, v in limits.items()})

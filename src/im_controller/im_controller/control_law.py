@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Optional
 
-from im_common.loads import LOAD_KINDS, make_load
+from im_common.loads import make_load, MODEL_KINDS
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_MOTOR)
 
@@ -210,8 +210,8 @@ class ControllerConfig:
             raise InvalidParameter('load_known', self.load_known, 'must be true or false')
         if self.load is None:
             self.load = DEFAULT_LOADS[self.mode]
-        if self.load not in LOAD_KINDS:
-            raise InvalidParameter('load', self.load, f'must be one of {", ".join(LOAD_KINDS)}')
+        if self.load not in MODEL_KINDS:
+            raise InvalidParameter('load', self.load, f'must be one of {", ".join(MODEL_KINDS)}')
         for name in ('load_mgl', 'load_c1', 'load_c2', 'load_tau'):
             setattr(self, name, _real(name, getattr(self, name)))
         self.v_limit = _real('v_limit', self.v_limit, 0.0, lo_open=True, allow_none=True)
