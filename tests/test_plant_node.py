@@ -330,3 +330,27 @@ def test_the_live_load_offset_acts_from_the_step_it_is_announced_at(ctx):
     assert sim.x == plant.sim.x
     plant.destroy_node()
     cmd.destroy_node()
+
+
+def test_a_motor_given_without_ratings_or_core_loss_is_warned_of_once_per_default(
+        ctx, capfd, monkeypatch):
+    """A motor parameters file without k_e, k_h and ratings: one warning line per default."""
+    from im_common import params
+    from im_common.params import ELECTRICAL_NAMES, THESIS_MOTOR
+    monkeypatch.setattr(params, '_WARNED', set())       # what earlier tests warned of
+    motor = {n: getattr(THESIS_MOTOR, n) for n in ELECTRICAL_NAMES}
+    plant = make_plant(ctx, duration=0.01, **motor)
+    warned = [ln for ln in capfd.readouterr().err.splitlines() if "node 'plant' motor" in ln]
+    assert len(warned) == 6 and all('WARN' in ln for ln in warned)
+    assert [ln.split('motor: ')[1].split(':')[0] for ln in warned] == [
+        'no k_e', 'no k_h', 'no rated_voltage_rms_line', 'no rated_current_rms',
+        'no rated_speed_rpm', 'no rated_flux (nor rated_voltage_rms_line, rated_frequency, '
+        'rated_speed_rpm to derive it)']
+    plant.destroy_node()
+    plant = make_plant(ctx, duration=0.01, **motor)         # once per process
+    assert "node 'plant' motor" not in capfd.readouterr().err
+    plant.destroy_node()
+    # the thesis's runs give no motor: nothing to warn of
+    plant = make_plant(ctx, duration=0.01)
+    assert "node 'plant' motor" not in capfd.readouterr().err
+    plant.destroy_node()

@@ -25,7 +25,7 @@ def declare_plant(node) -> dict:
     """
     p = node.param
     blocks: dict = {}
-    v = {'motor': declare_motor(node, blocks=blocks)}
+    v = {'motor': declare_motor(node, blocks=blocks, warn_defaults=True)}
     v.update(blocks)                            # the motor file's saturation, thermal
     v['variation'] = p('variation', 'none',
                        'time variation of the true parameters (schedule: the breakpoints of '
