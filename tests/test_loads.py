@@ -214,3 +214,25 @@ def test_a_half_rated_load_step_at_100_rad_s_sensorless_is_back_within_2_rad_s_i
     # a run without the step has no load-step figures
     assert 'speed_dip_rad_s' not in simulate(replace(sc, duration=0.01,
                                                      load_model=ConstantLoad(2.0))).summary
+
+
+def test_the_graph_and_its_recording_give_the_load_step_figures_of_the_ros_free_loop(tmp_path):
+    """
+    The same figures from the lock-step graph's summary, its bag's report and the offline loop.
+
+    The graph's come from the true shaft (/im/truth/shaft) and the reference (/im/reference/shaft):
+    published every step here (decimations 1), they are the offline loop's sample for sample.
+    """
+    from im_bringup.testing import run_graph
+    from im_recording.report import figures_of_merit
+    from im_recording.run import load_run
+    sc = replace(load_step_run(), duration=0.7)
+    offline = simulate(sc).summary
+    bag = str(tmp_path / 'step.mcap')
+    graph = run_graph(scenario=sc, record=bag, truth_decimation=1,
+                      reference_decimation=1).summary
+    recorded = figures_of_merit(load_run(bag, trace=None))
+    for fig in (graph, recorded):
+        assert fig['load_step_t'] == 0.5
+        assert fig['speed_dip_rad_s'] == pytest.approx(offline['speed_dip_rad_s'], rel=1e-6)
+        assert fig['speed_recovery_s'] == pytest.approx(offline['speed_recovery_s'], abs=1e-9)

@@ -248,6 +248,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     ``live_port``: serve every message live on that port too (:mod:`im_bringup.live`).
     """
     from im_bringup.graph import DriveGraph
+    from im_recording.run import load_step_time
     from im_recording.traces import Tap
     from im_common.stopping import StopSignals
     writer = None
@@ -255,7 +256,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         from im_recording.bag import BagWriter
         writer = BagWriter(record, force=force, metadata=run_metadata(
             task, strategy, controller, variation, metadata, scenario=scenario))
-    sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
+    # bounded memory: running figures (a load step's too), no per-step trace
+    sink = Tap(writer, keep=False, load_step=load_step_time(parameters=parameters))
     view = None
     if live_port is not None:
         from im_bringup.live import LiveTap, LiveView

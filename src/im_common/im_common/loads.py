@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 from dataclasses import dataclass
 import math
-from typing import Tuple
+from typing import Mapping, Tuple
 
 from .params import InvalidParameter, read_yaml_file
 
@@ -345,6 +345,14 @@ def load_from_dict(doc, source: str = 'load') -> Load:
     except InvalidParameter as exc:     # name the file / run-file key, not the node parameter
         name = exc.name[len('load_'):] if exc.name.startswith('load_') else exc.name
         raise InvalidParameter(f'{source}: {name}', exc.value, exc.reason) from None
+
+
+def load_from_parameters(values: Mapping) -> Load:
+    """Return the load of node parameters ``load``, ``load_<field>`` (:func:`load_parameters`)."""
+    fields = {f for kind in LOAD_FIELDS.values() for f in kind}
+    return make_load(values.get('load', 'none'),
+                     **{k[len('load_'):]: v for k, v in values.items()
+                        if k.startswith('load_') and k[len('load_'):] in fields})
 
 
 def load_file(path: str) -> Load:

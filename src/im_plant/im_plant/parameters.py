@@ -7,7 +7,7 @@ the node builds its simulator from the values with :func:`simulator_from_paramet
 """
 from __future__ import annotations
 
-from im_common.loads import LOAD_KINDS, make_load
+from im_common.loads import load_from_parameters, LOAD_KINDS
 from im_common.model import stator_flux
 from im_common.node_params import declare_motor
 from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, ParameterSchedule,
@@ -174,8 +174,7 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
         P0 = schedule.params_at(0.0)
         psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
         x0 = (psi[0], psi[1], f0[0], f0[1], v['theta0'], v['omega0'])
-    load = make_load(v['load'], v['load_mgl'], v['load_c1'], v['load_c2'], v['load_tau'],
-                     v['load_t'], v['load_tau_before'], v['load_tau_after'], v['load_points'])
+    load = load_from_parameters(v)
     sim = PlantSimulator(schedule, load, T_s, **real_plant_blocks(v, motor),
                          max_substep=v['max_substep'],
                          v_limit=v['v_limit'],
