@@ -22,6 +22,10 @@ probed latency does not fit the budget is refused with one line naming the measu
 period and the rate this machine holds (``force_rate`` starts anyway). During the run a
 :class:`im_common.timing.DeadlineWatchdog` stops the run with zero voltage (a protection trip) when
 more than ``deadline_miss_limit`` of the last ``deadline_window`` steps missed their deadline.
+
+``load_offset`` is live (``ros2 param set /plant load_offset 6.0``): added to the load's torque
+from the next step boundary on — step k, integrated over [t_k, t_k+1] after the call — and
+announced on ``/im/status`` as a ``parameters`` event stamped t_k (docs/running.md, "Loads").
 """
 from __future__ import annotations
 
