@@ -33,7 +33,7 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, InvalidPar
                               load_motor_file, MOTOR_BLOCKS, motor_blocks, motor_from_dict,
                               MotorParams, normalize_variation,
                               ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
-                              variation_schedule)
+                              variation_schedule, warn_motor_defaults)
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.flux import STRATEGIES
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
@@ -504,7 +504,7 @@ class Scenario:
             over.add(key.split('.')[0])
             _set_dotted(doc, key, value)
         try:
-            return cls(**_fields_from_mapping(doc, base_dir))
+            return cls(**_fields_from_mapping(doc, base_dir, source))
         except InvalidParameter as exc:
             key = exc.name.split(':')[0]
             top = key.split('.')[0].split('[')[0]
@@ -636,7 +636,7 @@ def run_keys() -> tuple:
     return tuple(names + ['load', 'noise'])
 
 
-def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
+def _fields_from_mapping(doc: dict, base_dir: Optional[str], source: str = 'run file') -> dict:
     import difflib
     keys = run_keys()
     kw = {}
@@ -666,7 +666,10 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
             continue
         if key == 'motor' and isinstance(value, Mapping):
             inline_blocks = motor_blocks(value, source='motor')
-            value = motor_from_dict(value, source='motor')
+            motor = motor_from_dict(value, source='motor')
+            if motor != THESIS_MOTOR:       # the built-in default (a run record's) is no file
+                warn_motor_defaults(f'{source}: motor', value, motor)
+            value = motor
         elif key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
                 and isinstance(value, str):
             value = path(value)

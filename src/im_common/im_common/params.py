@@ -519,11 +519,9 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
             raise InvalidParameter(f'{source}: {key}', val, bad)
         clean[key] = val
     try:
-        motor = MotorParams(**clean)
+        return MotorParams(**clean)
     except InvalidParameter as exc:
         raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
-    warn_motor_defaults(source, clean, motor)
-    return motor
 
 
 #: the real plant's blocks a motor file may hold (docs/plant.md): each a YAML mapping written as
@@ -603,7 +601,10 @@ def load_motor_file(path: str) -> MotorParams:
         raise InvalidParameter(f'{path}', 'layout',
                                "must be '/**:' with one 'ros__parameters:' mapping (a ROS 2 "
                                'parameters file for every node)')
-    return motor_from_dict(doc['/**']['ros__parameters'] or {}, source=path)
+    values = doc['/**']['ros__parameters'] or {}
+    motor = motor_from_dict(values, source=path)
+    warn_motor_defaults(path, values, motor)        # what the file leaves out, once each
+    return motor
 
 
 def shipped_motors_dir() -> str:
