@@ -14,7 +14,7 @@ from im_bringup.run_file import RunFileError, Scenario
 from im_common.loads import (ConstantLoad, load_file, load_parameters, make_load, ScheduleLoad,
                              StepLoad)
 from im_common.metrics import load_step_figures, LoadStepFigures
-from im_common.params import InvalidParameter, load_motor_file, shipped_motors_dir
+from im_common.params import InvalidParameter, shipped_motors_dir
 from im_common.plant_sim import PlantSimulator
 import numpy as np
 import pytest
@@ -182,28 +182,28 @@ def _bench_blocks() -> dict:
     return dict(module.BLOCKS)
 
 
-def load_step_run(real: bool = False, duration: float = 1.0) -> Scenario:
+def load_step_run(real: bool = False) -> Scenario:
     """
-    Return the 50 %-of-rated load step at 100 rad/s, sensorless, on the thesis motor file.
+    Return the 50 %-of-rated load step at 100 rad/s, sensorless (the run of docs/running.md).
 
-    2 → 8 N·m at 0.5 s (rated torque 12.0 N·m), constant rated flux, the current limit at
-    1.5 × rated (the nameplate current alone makes 5.4 N·m at rated flux: docs/running.md).
+    2 → 8 N·m at 0.5 s on the shipped thesis motor file (rated torque 12.0 N·m), constant rated
+    flux, the current limit at 1.5 × rated; ``real``: with every block of the real plant.
     """
-    motor = os.path.join(shipped_motors_dir(), 'thesis.yaml')
-    m = load_motor_file(motor)
-    doc = {'task': 'speed', 'strategy': 'constant_flux', 'motor': motor, 'sensorless': True,
-           'omega0': 100.0, 'profile': {'setpoints': [{'t': 0.0, 'velocity': 100.0}]},
-           'duration': duration, 'current_limit': 1.5 * m.rated_current,
-           'load': {'kind': 'step', 't': 0.5, 'tau_before': 2.0,
-                    'tau_after': 2.0 + 0.5 * m.rated_torque}}
-    if real:
-        doc.update(_bench_blocks())
-    return Scenario.from_mapping(doc)
+    doc = {'task': 'speed', 'strategy': 'constant_flux', 'sensorless': True,
+           'motor': os.path.join(shipped_motors_dir(), 'thesis.yaml'), 'omega0': 100.0,
+           'profile': {'setpoints': [{'t': 0.0, 'velocity': 100.0}]}, 'duration': 1.0,
+           'current_limit': 12.73,
+           'load': {'kind': 'step', 't': 0.5, 'tau_before': 2.0, 'tau_after': 8.0}}
+    return Scenario.from_mapping(dict(doc, **(_bench_blocks() if real else {})))
 
 
 def test_a_half_rated_load_step_at_100_rad_s_sensorless_is_back_within_2_rad_s_in_0_3_s():
     sc = load_step_run()
-    assert sc.plant_load().tau_after - sc.plant_load().tau_before == pytest.approx(6.0, abs=0.01)
+    m = sc.plant_motor()
+    assert sc.sensorless and sc.profile.setpoints[0][1] == 100.0 and sc.omega0 == 100.0
+    step = sc.plant_load()
+    assert step.tau_after - step.tau_before == pytest.approx(0.5 * m.rated_torque, rel=1e-3)
+    assert sc.current_limit == pytest.approx(1.5 * m.rated_current, rel=1e-3)
     res = simulate(sc)
     s = res.summary
     assert s['trip'] is None and s['load_step_t'] == 0.5
