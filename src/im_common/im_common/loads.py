@@ -244,10 +244,19 @@ class LiveLoad(Load):
 
     def __init__(self, load: Load, offset: float = 0.0):
         self.load = load
-        self.offset = float(offset)
         self.name = load.name
+        self.set_offset(offset)
 
-    def torque(self, t, theta, omega):
+    def set_offset(self, tau: float) -> None:
+        """Add ``tau`` [N·m] to the load's torque (0: the load's own, called directly)."""
+        self.offset = float(tau)
+        # the model calls ``torque`` every RK4 stage: without an offset, the load's own method
+        self.torque = self.load.torque if self.offset == 0.0 else self._offset_torque
+
+    def _offset_torque(self, t, theta, omega):
+        return self.load.torque(t, theta, omega) + self.offset
+
+    def torque(self, t, theta, omega):      # replaced per instance by set_offset
         return self.load.torque(t, theta, omega) + self.offset
 
     def rate(self, t, theta, omega, accel):

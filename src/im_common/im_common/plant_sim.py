@@ -196,7 +196,7 @@ class PlantSimulator:
         """
         if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau):
             raise InvalidParameter('load_offset', tau, 'must be a finite torque [N m]')
-        self.load.offset = float(tau)
+        self.load.set_offset(tau)
 
     def step(self, v_a: float, v_b: float) -> None:
         """
