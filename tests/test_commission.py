@@ -293,3 +293,21 @@ def test_tool_no_progress_writes_no_carriage_returns(tmp_path, ros_domain_id, no
     if no_progress:
         assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / 'm.yaml').exists()
+
+
+def test_a_commissioned_file_is_complete_and_loads_without_a_default_warning(tmp_path, caplog):
+    """A commissioned file (nameplate given) holds every motor field: no default applies."""
+    from types import SimpleNamespace
+    from im_bringup.commission import write_motor_file
+    from im_common.params import MOTOR_FIELDS, motor_defaults
+    from im_common.yamlio import read_yaml_file
+    com, ident = _identified('thesis')
+    plate = nameplate_from_dict(dict(THESIS_PLATE))
+    motor = ident.motor(plate.ratings())
+    out = str(tmp_path / 'commissioned.yaml')
+    write_motor_file(out, motor, ident, com, rated_flux(ident.values, plate, motor.theta),
+                     SimpleNamespace(locked_rotor=False, T_s=1e-4))
+    given = read_yaml_file(out, 'motor file')['/**']['ros__parameters']
+    assert set(MOTOR_FIELDS) <= set(given)
+    caplog.set_level('WARNING', logger='im_common.params')
+    assert motor_defaults(given, load_motor_file(out)) == [] and not caplog.records

@@ -253,3 +253,58 @@ def test_motor_file_integer_for_a_real_is_refused_as_the_nodes_refuse_it(tmp_pat
     with pytest.raises(InvalidParameter) as e:
         load_motor_file(str(p))
     assert 'J' in str(e.value) and 'write 1.0' in str(e.value) and str(p) in str(e.value)
+
+
+# ---------------------------------------------------------------------------------------------
+# Defaults a motor file without some fields runs with: one warning line each, once
+# ---------------------------------------------------------------------------------------------
+def _motor_file(path, **fields):
+    from im_common.yamlio import parameters_yaml
+    path.write_text(parameters_yaml({'/**': fields}))
+    return str(path)
+
+
+def test_a_motor_file_without_ratings_or_core_loss_says_each_default_once(tmp_path, caplog,
+                                                                          monkeypatch):
+    """
+    Issue: such a file ran with no limits (399 V), 1.2 Wb and k_e = k_h = 0.012, silently.
+
+    Now one warning line per default, naming the file and the field, once per process.
+    """
+    from im_common import params
+    from im_common.params import load_motor_file, REQUIRED_MOTOR_FIELDS
+    monkeypatch.setattr(params, '_WARNED', set())
+    bare = {k: getattr(THESIS_MOTOR, k) for k in REQUIRED_MOTOR_FIELDS}
+    path = _motor_file(tmp_path / 'bare.yaml', **bare)
+    caplog.set_level('WARNING', logger='im_common.params')
+    m = load_motor_file(path)
+    lines = [r.getMessage() for r in caplog.records]
+    assert all(r.levelname == 'WARNING' and '\n' not in r.getMessage() for r in caplog.records)
+    assert [ln.split(': ')[1] for ln in lines] == [
+        'no k_e', 'no k_h', 'no rated_voltage_rms_line', 'no rated_current_rms',
+        'no rated_speed_rpm', 'no rated_flux (nor rated_voltage_rms_line, rated_frequency, '
+        'rated_speed_rpm to derive it)']
+    assert all(ln.startswith(f'{path}: ') for ln in lines)
+    assert '0.012' in lines[0] and '1.2 Wb' in lines[-1]
+    assert (m.k_e, m.k_h, m.rated_voltage, m.rated_current) == (0.012, 0.012, 0.0, 0.0)
+    caplog.clear()
+    load_motor_file(path)                           # once: not again for the same file
+    assert not caplog.records
+    # written out, a core-loss coefficient is the file's own (0: no core loss): no line for it;
+    # with a nameplate, no limit line
+    plate = {'rated_voltage_rms_line': 220.0, 'rated_current_rms': 4.9, 'rated_frequency': 60.0,
+             'rated_speed_rpm': 1750.0, 'rated_power': 2200.0}
+    path = _motor_file(tmp_path / 'rated.yaml', **bare, **plate, k_e=0.0, k_h=0.0)
+    load_motor_file(path)
+    assert not caplog.records
+
+
+def test_the_shipped_motor_files_are_complete():
+    import os
+    from im_common.params import load_motor_file, motor_defaults, shipped_motors_dir
+    from im_common.yamlio import read_yaml_file
+    d = shipped_motors_dir()
+    for name in sorted(os.listdir(d)):
+        path = os.path.join(d, name)
+        given = read_yaml_file(path, 'motor file')['/**']['ros__parameters']
+        assert motor_defaults(given, load_motor_file(path)) == [], name

@@ -290,3 +290,67 @@ def test_tracking_errors_come_from_the_true_shaft_not_the_noisy_measurement():
     # the true shaft is sampled at every reference instant (both every 10 steps)
     ref = np.isfinite(tr['omega_ref'])
     assert ref.sum() > 0 and np.isfinite(tr['omega_true'][ref]).all()
+
+
+def test_the_live_load_offset_acts_from_the_step_it_is_announced_at(ctx):
+    """
+    `ros2 param set /plant load_offset 3.0` during a run.
+
+    A bad value is refused with one line naming it; a good one is staged and acts from the next
+    step boundary, announced on /im/status with its step. The run equals the ROS-free plant with
+    the offset set before that step (lock-step determinism).
+    """
+    from im_common.loads import ConstantLoad
+    from im_common.plant_sim import PlantSimulator
+    plant = make_plant(ctx, duration=0.03, load='constant', load_tau=1.0, omega0=50.0)
+    said = []
+    status = plant.status
+    plant.status = lambda state, *a, **kw: (said.append((state, kw)), status(state, *a, **kw))
+    refused = []
+
+    def voltage(ns):
+        if ns == 100 * plant.period:        # while step 100 waits for its command
+            for bad in (float('nan'), 'three'):
+                refused.append(plant.set_parameters([Parameter('load_offset', value=bad)])[0])
+            assert plant.set_parameters([Parameter('load_offset', value=3.0)])[0].successful
+            assert plant.sim.load_offset == 0.0         # staged, not yet in force
+        return (5.0, 0.0)
+    cmd, _ = _commander(ctx, voltage, plant)
+    _spin(ctx, [plant, cmd], lambda: plant.done)
+    assert plant.exit_code == 0 and plant.sim.k == 300
+    assert [r.successful for r in refused] == [False, False]
+    assert 'load_offset' in refused[0].reason and '\n' not in refused[0].reason
+    events = [kw for state, kw in said if state == 'parameters']
+    assert events == [{'stamp_ns': 100 * plant.period, 'load_offset': '3.0', 'step': 100}]
+    sim = PlantSimulator(load=ConstantLoad(1.0), T_s=plant.T_s, omega0=50.0)
+    for k in range(300):
+        if k == 100:
+            sim.set_load_offset(3.0)
+        sim.step(5.0, 0.0)
+    assert sim.x == plant.sim.x
+    plant.destroy_node()
+    cmd.destroy_node()
+
+
+def test_a_motor_given_without_ratings_or_core_loss_is_warned_of_once_per_default(
+        ctx, capfd, monkeypatch):
+    """A motor parameters file without k_e, k_h and ratings: one warning line per default."""
+    from im_common import params
+    from im_common.params import ELECTRICAL_NAMES, THESIS_MOTOR
+    monkeypatch.setattr(params, '_WARNED', set())       # what earlier tests warned of
+    motor = {n: getattr(THESIS_MOTOR, n) for n in ELECTRICAL_NAMES}
+    plant = make_plant(ctx, duration=0.01, **motor)
+    warned = [ln for ln in capfd.readouterr().err.splitlines() if "node 'plant' motor" in ln]
+    assert len(warned) == 6 and all('WARN' in ln for ln in warned)
+    assert [ln.split('motor: ')[1].split(':')[0] for ln in warned] == [
+        'no k_e', 'no k_h', 'no rated_voltage_rms_line', 'no rated_current_rms',
+        'no rated_speed_rpm', 'no rated_flux (nor rated_voltage_rms_line, rated_frequency, '
+        'rated_speed_rpm to derive it)']
+    plant.destroy_node()
+    plant = make_plant(ctx, duration=0.01, **motor)         # once per process
+    assert "node 'plant' motor" not in capfd.readouterr().err
+    plant.destroy_node()
+    # the thesis's runs give no motor: nothing to warn of
+    plant = make_plant(ctx, duration=0.01)
+    assert "node 'plant' motor" not in capfd.readouterr().err
+    plant.destroy_node()

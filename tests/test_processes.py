@@ -368,6 +368,66 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     assert {kv.key: kv.value for kv in events[0].values}['k1'] == '30.0'
 
 
+def test_the_live_load_offset_of_a_plant_process_is_applied_at_a_step_and_recorded(
+        tmp_path, domain):
+    """
+    `ros2 param set /plant load_offset 3.0` on a running plant process (docs/running.md, Loads).
+
+    An out-of-range value is refused naming it; a valid one is announced as a `parameters` event
+    with its step, and the recorded true load torque is the load's own before that step and 3 N·m
+    more after it.
+    """
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from rcl_interfaces.srv import SetParameters
+    from im_bringup.run_file import Scenario
+    from im_common.loads import ConstantLoad
+    bag = tmp_path / 'load.mcap'
+    sc = Scenario(task='speed', duration=2.0, load_model=ConstantLoad(1.0))
+    procs = graph_processes(scenario=sc, record=bag)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(domain['ROS_DOMAIN_ID']))
+    try:
+        from rclpy.executors import SingleThreadedExecutor
+        node = rclpy.create_node('operator', context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        cli = node.create_client(SetParameters, '/plant/set_parameters')
+        with GraphProcesses(procs, str(tmp_path), domain) as g:
+            g.start()
+            assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+            assert cli.wait_for_service(timeout_sec=20)
+
+            def set_(value):
+                req = SetParameters.Request(
+                    parameters=[Parameter('load_offset', value=value).to_parameter_msg()])
+                fut = cli.call_async(req)
+                ex.spin_until_future_complete(fut, timeout_sec=20)
+                return fut.result().results[0]
+            bad = set_(1e6)
+            assert not bad.successful and 'load_offset' in bad.reason
+            assert set_(3.0).successful
+            codes = g.wait(120)
+            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+            no_traceback(g)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    events = [(t, m.status[0]) for t, m in _statuses(bag) if m.status[0].message == 'parameters']
+    assert len(events) == 1 and events[0][1].name == 'plant'
+    values = {kv.key: kv.value for kv in events[0][1].values}
+    k = int(values['step'])
+    assert values['load_offset'] == '3.0' and 0 < k < 20000
+    from im_common.cdr import decode_vector3_stamped
+    tau = {}
+    for _, _, t, raw in iter_raw(bag, [T.TRUTH_TORQUE]):
+        sec, nsec, _tau_m, tau_l, _friction = decode_vector3_stamped(bytes(raw))
+        tau[(sec * 1_000_000_000 + nsec) // 100_000] = tau_l
+    assert all(v == 1.0 for j, v in tau.items() if j < k)
+    assert all(v == 4.0 for j, v in tau.items() if j > k) and any(j > k for j in tau)
+
+
 def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
     """
     Two graphs with the same key on one ROS_DOMAIN_ID (nodes started by hand share the user's key).

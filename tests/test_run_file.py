@@ -225,3 +225,19 @@ def test_the_summary_names_the_variation_the_plant_runs():
     assert custom.summary['variation'] == 'custom R_r ramp'          # was 'none'
     drift = run_graph(scenario=Scenario.from_file(DRIFT, {'duration': 0.01}))
     assert drift.summary['variation'].startswith('R_r step x2 at 0.5 s; L_sr')
+
+
+def test_an_inline_motor_without_ratings_is_warned_of_and_a_default_run_record_is_not(
+        caplog, monkeypatch):
+    from im_common import params
+    from im_common.params import REQUIRED_MOTOR_FIELDS
+    monkeypatch.setattr(params, '_WARNED', set())
+    caplog.set_level('WARNING', logger='im_common.params')
+    bare = {k: getattr(THESIS_MOTOR, k) for k in REQUIRED_MOTOR_FIELDS}
+    Scenario.from_mapping({'motor': dict(bare, R_s=0.7)}, source='run.yaml')
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 6 and said[0].startswith('run.yaml: motor: no k_e: ')
+    caplog.clear()
+    # a run record writes the built-in thesis motor out in full: it reads back as the default
+    Scenario.from_mapping(Scenario(task='speed').to_mapping(), source='record')
+    assert not caplog.records

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import time
 
 from im_common.cli import status_line
-from im_common.metrics import energy_figures, tracking_figures
+from im_common.metrics import energy_figures, load_step_figures, tracking_figures
 from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
 from im_common.params import (CHAPTER4_ESTIMATES, estimate_arguments,  # noqa: F401 (re-exported)
                               InvalidParameter, SCHEDULES, THESIS_MOTOR)
@@ -134,6 +134,10 @@ def _summary(sc: Scenario, plant, trace: dict, n_steps: int) -> dict:
                'duration_s': sc.duration, 'core_loss_exponent': sc.core_loss_exponent}
     summary.update(energy_figures(truth))
     summary.update(tracking_figures(trace, sc.task))
+    t_step = sc.plant_load().change_time()
+    if t_step is not None and sc.task == 'speed':     # a load step: the speed's figures
+        summary['load_step_t'] = t_step
+        summary.update(load_step_figures(trace, t_step))
     summary['E_loss_J'] = summary['E_copper_J'] + summary['E_core_J']
     summary['balance_relative'] = (abs(summary['balance_residual_J'])
                                    / max(abs(summary['E_in_J']), 1e-12))

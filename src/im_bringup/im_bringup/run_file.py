@@ -33,7 +33,7 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, InvalidPar
                               load_motor_file, MOTOR_BLOCKS, motor_blocks, motor_from_dict,
                               MotorParams, normalize_variation,
                               ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
-                              variation_schedule)
+                              variation_schedule, warn_motor_defaults)
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.flux import STRATEGIES
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
@@ -395,7 +395,9 @@ class Scenario:
         if self.profile is not None:
             opts.setdefault('profile', 'setpoint')
             opts.setdefault('setpoints', self.profile.setpoints)
-        for key, value in load_parameters(self.plant_load()).items():
+        # the controller feeds forward what it can know of the load: a load of the shaft state,
+        # or the torque a load in time starts at (loads.Load.feedforward)
+        for key, value in load_parameters(self.plant_load().feedforward()).items():
             opts.setdefault(key, value)
         return ControllerConfig(mode=self.task, strategy=self.strategy,
                                 params=self.model_estimates(), v_limit=limit_value(self.v_limit),
@@ -428,11 +430,8 @@ class Scenario:
         common = {'T_s': float(self.T_s), 'duration': float(self.duration),
                   'input_timeout': float(input_timeout)}
         v_limit = limit_parameter(self.v_limit)
-        if self.load_model is not None:
-            lp = load_parameters(self.load_model)
-        else:
-            lp = {k: v for k, v in TASK_PRESETS[self.task].items()
-                  if k in ('load', 'load_mgl', 'load_c1', 'load_c2', 'load_tau')}
+        lp = load_parameters(self.plant_load())
+        lp_model = load_parameters(self.plant_load().feedforward())     # the controller's
         mine = motor_parameters(self.motor) if self.motor is not None else {}
         model_values = dict(mine)
         if self.estimates is not None:
@@ -462,7 +461,7 @@ class Scenario:
         adaptive = self.controller in ADAPTATION
         ctl = dict(common, mode=self.task, strategy=self.strategy, use_adapter=adaptive,
                    v_limit=v_limit, reference_decimation=int(reference_decimation),
-                   load_known=True, **lp, **model_values)
+                   load_known=True, **lp_model, **model_values)
         if self.profile is not None:
             ctl.update(self.profile.as_parameters())
         ctl.update({k: (v if isinstance(v, bool) else float(v)) for k, v in limits.items()})
@@ -522,7 +521,7 @@ class Scenario:
             over.add(key.split('.')[0])
             _set_dotted(doc, key, value)
         try:
-            return cls(**_fields_from_mapping(doc, base_dir))
+            return cls(**_fields_from_mapping(doc, base_dir, source))
         except InvalidParameter as exc:
             key = exc.name.split(':')[0]
             top = key.split('.')[0].split('[')[0]
@@ -656,7 +655,7 @@ def run_keys() -> tuple:
     return tuple(names + ['load', 'noise'])
 
 
-def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
+def _fields_from_mapping(doc: dict, base_dir: Optional[str], source: str = 'run file') -> dict:
     import difflib
     keys = run_keys()
     kw = {}
@@ -686,7 +685,10 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str]) -> dict:
             continue
         if key == 'motor' and isinstance(value, Mapping):
             inline_blocks = motor_blocks(value, source='motor')
-            value = motor_from_dict(value, source='motor')
+            motor = motor_from_dict(value, source='motor')
+            if motor != THESIS_MOTOR:       # the built-in default (a run record's) is no file
+                warn_motor_defaults(f'{source}: motor', value, motor)
+            value = motor
         elif key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
                 and isinstance(value, str):
             value = path(value)

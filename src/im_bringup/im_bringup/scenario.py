@@ -258,6 +258,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     ``live_port``: serve every message live on that port too (:mod:`im_bringup.live`).
     """
     from im_bringup.graph import DriveGraph
+    from im_recording.run import load_step_time
     from im_recording.traces import Tap
     from im_common.stopping import StopSignals
     writer = None
@@ -266,7 +267,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         writer = BagWriter(record, force=force, metadata=run_metadata(
             task, strategy, controller, variation, metadata, scenario=scenario),
             log_time_offset_ns=log_time_offset_for(log_time))
-    sink = Tap(writer, keep=False)     # bounded memory: running figures, no per-step trace
+    # bounded memory: running figures (a load step's too), no per-step trace
+    sink = Tap(writer, keep=False, load_step=load_step_time(parameters=parameters))
     view = None
     if live_port is not None:
         from im_bringup.live import LiveTap, LiveView
@@ -386,7 +388,8 @@ def rclpy_errors():
 def print_summary(s: dict) -> None:
     keys = ['E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'W_load_J', 'E_friction_J',
             'dE_kinetic_J', 'dW_magnetic_J', 'balance_residual_J', 'pos_err_max_rad',
-            'pos_err_rms_rad', 'speed_err_max_rad_s', 'torque_err_max_Nm', 'V_max_V', 'i_max_A',
+            'pos_err_rms_rad', 'speed_err_max_rad_s', 'speed_dip_rad_s', 'speed_recovery_s',
+            'torque_err_max_Nm', 'V_max_V', 'i_max_A',
             'steps', 'wall_s', 'steps_per_s']
     print(f"{s['task']} task, {s['strategy']}, {s['controller']} controller, "
           f"{s['rate_hz']:g} Hz, variation {s['variation']}")

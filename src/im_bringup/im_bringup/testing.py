@@ -54,6 +54,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     from im_bringup.graph import DriveGraph
     from im_bringup.run_file import Scenario
     from im_bringup.scenario import plant_variation, run_metadata, summarize
+    from im_recording.run import load_step_time
     from im_recording.traces import Tap
     if isinstance(scenario, str):
         scenario = Scenario.from_file(scenario)
@@ -72,7 +73,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
         writer = BagWriter(record, force=True, metadata=run_metadata(
             task, strategy, controller, variation, scenario=scenario),
             log_time_offset_ns=log_time_offset_for(log_time))
-    sink = Tap(writer)
+    sink = Tap(writer, load_step=load_step_time(parameters=params))
     graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink,
                        domain_id=random.randint(*TEST_DOMAINS))
     try:

@@ -16,6 +16,9 @@ has no value — are left out of each figure):
     V_max, i_max (optional: the plant's peaks over every step since the previous sample; when
     present the peaks use them instead of the sampled v, i)
 
+A load step (a ``step`` or ``schedule`` load, docs/running.md "Loads") adds the speed figures of
+:func:`load_step_figures`: how deep the speed dipped and how long it took to come back.
+
 Energies come from the plant's integrated books (``truth`` dict at the final instant, see
 :func:`im_common.plant_sim.energy_summary`), not from re-integrating sampled powers.
 """
@@ -88,6 +91,76 @@ def tracking_figures(trace: Mapping[str, np.ndarray], task: Optional[str] = None
     elif 'i_alpha' in trace:
         out['i_max_A'] = _maxabs(np.hypot(trace['i_alpha'], trace['i_beta']))
     return out
+
+
+#: the speed band a drive is back in after a load step [rad/s] (the recovery time's)
+LOAD_STEP_BAND = 2.0
+
+
+class LoadStepFigures:
+    """
+    The speed figures of a load step at ``t_step``, fed in chunks of (t, ω − ω*).
+
+    ``speed_dip_rad_s``: the largest |ω − ω*| from the step on; ``speed_recovery_s``: the time
+    from the step until |ω − ω*| stays within ``band`` to the end of the run (0 if it never
+    left it; NaN if it is outside at the end: not recovered). NaN samples are left out.
+    """
+
+    def __init__(self, t_step: float, band: float = LOAD_STEP_BAND):
+        if not (math.isfinite(t_step) and math.isfinite(band) and band > 0):
+            raise ValueError(f'load step at {t_step!r} s, band {band!r} rad/s: must be finite, '
+                             'band > 0')
+        self.t_step, self.band = float(t_step), float(band)
+        self.dip = 0.0
+        self.n = 0
+        self.t_out = None           # the last instant outside the band
+        self.t_back = None          # the first instant in the band after t_out
+        self.outside = False        # the last sample is outside the band
+
+    def add(self, t, e) -> None:
+        """Take samples at instants ``t`` of the speed error ``e`` = ω − ω* [rad/s]."""
+        t = np.asarray(t, dtype=float)
+        a = np.abs(np.asarray(e, dtype=float))
+        keep = (t >= self.t_step) & np.isfinite(a)
+        t, a = t[keep], a[keep]
+        if not len(t):
+            return
+        self.n += len(t)
+        self.dip = max(self.dip, float(np.max(a)))
+        out = np.flatnonzero(a > self.band)
+        if len(out):
+            last = out[-1]
+            self.t_out = float(t[last])
+            self.outside = last == len(t) - 1
+            self.t_back = None if self.outside else float(t[last + 1])
+        elif self.outside:          # the chunk starts back in the band
+            self.t_back, self.outside = float(t[0]), False
+
+    def figures(self) -> dict:
+        """Return ``speed_dip_rad_s`` and ``speed_recovery_s`` (NaN without samples)."""
+        nan = float('nan')
+        if not self.n:
+            return {'speed_dip_rad_s': nan, 'speed_recovery_s': nan}
+        if self.t_out is None:
+            rec = 0.0
+        elif self.outside:
+            rec = nan
+        else:
+            rec = self.t_back - self.t_step
+        return {'speed_dip_rad_s': self.dip, 'speed_recovery_s': rec}
+
+
+def load_step_figures(trace: Mapping[str, np.ndarray], t_step: float,
+                      band: float = LOAD_STEP_BAND) -> dict:
+    """
+    Return the speed figures of a load step at ``t_step`` (:class:`LoadStepFigures`).
+
+    The error is the true shaft's when the trace has it (``omega_true``), else ``omega_r``.
+    """
+    omega = 'omega_true' if 'omega_true' in trace else 'omega_r'
+    acc = LoadStepFigures(t_step, band)
+    acc.add(trace['t'], np.asarray(trace[omega], dtype=float) - np.asarray(trace['omega_ref']))
+    return acc.figures()
 
 
 def energy_figures(truth_final: Mapping[str, float]) -> dict:

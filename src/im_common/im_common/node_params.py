@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from typing import Optional
 
-from .params import MOTOR_BLOCKS, MotorParams, THESIS_MOTOR
+from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, THESIS_MOTOR,
+                     warn_motor_defaults)
 
 _MOTOR_DOC = {
     'R_s': ('stator resistance [ohm]', 1e-6, 100.0),
@@ -26,7 +27,7 @@ _MOTOR_DOC = {
 
 
 def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
-                  blocks: Optional[dict] = None) -> MotorParams:
+                  blocks: Optional[dict] = None, warn_defaults: bool = False) -> MotorParams:
     """
     Declare the motor parameters on ``node`` (defaults: the thesis motor) and validate them.
 
@@ -35,6 +36,9 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
     ``blocks``, when given, receives the motor file's ``saturation`` and ``thermal`` text (the
     real plant's blocks, docs/plant.md; '' when absent); every node declares them, since a motor
     file reaches every node.
+
+    ``warn_defaults``: when a motor was given (its electrical fields), warn once, one line each,
+    of the fields it lacks and the defaults they take (:func:`im_common.params.motor_defaults`).
 
     Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
     """
@@ -48,7 +52,12 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
                                     'none; docs/plant.md)')
         if blocks is not None:
             blocks[name] = text
-    return MotorParams(**values)
+    motor = MotorParams(**values)
+    given = set(getattr(node, '_parameter_overrides', {}))
+    if warn_defaults and given.issuperset(ELECTRICAL_NAMES):
+        warn_motor_defaults(f"node '{node.get_name()}' motor", given, motor,
+                            log=node.get_logger().warning)
+    return motor
 
 
 def declare_compensation(node):

@@ -311,8 +311,10 @@ CURRENT_TRIP_MARGIN = 3.0
 #: the plant's over-speed trip as a multiple of the rated speed (field weakening runs above
 #: rated speed; twice it is where a general-purpose motor's mechanical limit usually lies)
 SPEED_TRIP_MARGIN = 2.0
+#: the thesis's flux levels [Wb] (§3.4.6): what a motor without a rated flux runs at
+THESIS_FLUX_LEVELS = {'phi_d': 1.2, 'phi_min': 0.2, 'phi_max': 1.2}
 #: φ_min/φ_max of the thesis (0.2/1.2 Wb), kept when the flux levels scale to the rated flux
-FLUX_MIN_SHARE = 0.2 / 1.2
+FLUX_MIN_SHARE = THESIS_FLUX_LEVELS['phi_min'] / THESIS_FLUX_LEVELS['phi_max']
 
 
 def rated_rotor_flux(R_s: float, L_sigma: float, L_M: float, R_R: float, theta: float,
@@ -423,6 +425,62 @@ def describe_defaults(used: Mapping[str, Tuple[float, str]]) -> str:
 
 
 REQUIRED_MOTOR_FIELDS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'pole_pairs', 'J', 'b')
+#: the fields a rated flux is derived from when ``rated_flux`` is not given (:func:`rated_flux`)
+FLUX_RATING_NAMES = ('rated_voltage_rms_line', 'rated_frequency', 'rated_speed_rpm')
+
+
+def motor_defaults(given, motor: MotorParams) -> list:
+    """
+    Return one line per default a motor description without some fields runs with.
+
+    ``given``: the field names the description (a motor file, the nodes' parameters) holds. An
+    absent core-loss coefficient is the thesis's (a written 0 is the file's: no core loss); a
+    rating absent or 0 (the file format's "not given") is no limit or trip
+    (:func:`default_limits`); without a rated flux the flux levels are the thesis's. A
+    commissioned file with a nameplate writes every field: no line.
+    """
+    given = set(given)
+    lines = []
+    for name, what in (('k_e', 'eddy-current'), ('k_h', 'hysteresis')):
+        if name not in given:
+            lines.append(f"no {name}: the thesis's {what} core-loss coefficient {name} = "
+                         f'{getattr(THESIS_MOTOR, name):g} W s/Wb^2 applies (write {name}: 0.0 '
+                         'for none)')
+    if not motor.rated_voltage_rms_line:
+        lines.append('no rated_voltage_rms_line: no voltage limit (v_limit of the controller '
+                     'and the plant off; only inverter_rating trips)')
+    if not motor.rated_current_rms:
+        lines.append('no rated_current_rms: no current limit and no over-current trip')
+    if not motor.rated_speed_rpm:
+        lines.append('no rated_speed_rpm: no over-speed trip')
+    if rated_flux(motor) is None:
+        lv = THESIS_FLUX_LEVELS
+        lines.append(f'no rated_flux (nor {", ".join(FLUX_RATING_NAMES)} to derive it): the '
+                     f"thesis's flux levels phi_d = phi_max = {lv['phi_d']:g} Wb, phi_min = "
+                     f"{lv['phi_min']:g} Wb")
+    return lines
+
+
+_WARNED: set = set()
+
+
+def warn_motor_defaults(source: str, given, motor: MotorParams, log=None) -> list:
+    """
+    Warn once per process, one line each, of the defaults :func:`motor_defaults` names.
+
+    ``log`` (a node logger's ``warning``) or the ``im_common.params`` logger. Returns the lines
+    warned now (a source already warned of is not warned of again).
+    """
+    import logging
+    out = []
+    for line in motor_defaults(given, motor):
+        text = f'{source}: {line}'
+        if text in _WARNED:
+            continue
+        _WARNED.add(text)
+        (log or logging.getLogger('im_common.params').warning)(text)
+        out.append(text)
+    return out
 
 
 def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
@@ -543,7 +601,10 @@ def load_motor_file(path: str) -> MotorParams:
         raise InvalidParameter(f'{path}', 'layout',
                                "must be '/**:' with one 'ros__parameters:' mapping (a ROS 2 "
                                'parameters file for every node)')
-    return motor_from_dict(doc['/**']['ros__parameters'] or {}, source=path)
+    values = doc['/**']['ros__parameters'] or {}
+    motor = motor_from_dict(values, source=path)
+    warn_motor_defaults(path, values, motor)        # what the file leaves out, once each
+    return motor
 
 
 def shipped_motors_dir() -> str:

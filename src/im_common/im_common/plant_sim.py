@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import math
 from typing import Optional, Sequence
 
-from .loads import Load
+from .loads import LiveLoad, Load, NoLoad
 from .model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, MotorModel, N_AUG,
                     rk4_step, W_LOAD)
 from .params import (InvalidParameter, MotorParams, ParameterSchedule, RATED, resolve_rated,
@@ -83,7 +83,9 @@ class PlantSimulator:
                  current_trip: Optional[float] = RATED, speed_trip: Optional[float] = RATED,
                  locked_rotor: bool = False, inverter=None, saturation=None, thermal=None,
                  sensors=None, iron_loss: bool = False):
-        self.model = MotorModel(schedule, load, core_loss_exponent, locked=locked_rotor)
+        # the load as given plus the live offset (set_load_offset): the object every model takes
+        self.model = MotorModel(schedule, LiveLoad(load if load is not None else NoLoad()),
+                                core_loss_exponent, locked=locked_rotor)
         # left at RATED: the motor's rating (im_common.params.default_limits), else none
         lim = _Protection(v_limit, current_trip, speed_trip)
         self.from_ratings = resolve_rated(lim, RATED_PROTECTION, self.model.schedule.base)
@@ -179,6 +181,22 @@ class PlantSimulator:
                              f'voltage command |V| = {mag:.4g} V above the inverter rating '
                              f'{self.inverter_rating:g} V')
         return self.limit(v_a, v_b)
+
+    @property
+    def load_offset(self) -> float:
+        """Return the live load torque added to the load's own [N·m]."""
+        return self.load.offset
+
+    def set_load_offset(self, tau: float) -> None:
+        """
+        Add ``tau`` [N·m] to the load's torque from the next :meth:`step` on (a step boundary).
+
+        The plant node's live ``load_offset``: a step integrates [t_k, t_k+1] with one offset,
+        so the change acts from t_k of the step that follows the call.
+        """
+        if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau):
+            raise InvalidParameter('load_offset', tau, 'must be a finite torque [N m]')
+        self.load.set_offset(tau)
 
     def step(self, v_a: float, v_b: float) -> None:
         """

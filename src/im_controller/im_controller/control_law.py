@@ -39,9 +39,9 @@ import math
 from typing import Optional
 
 from im_common.compensation import InverterErrorModel
-from im_common.loads import LOAD_KINDS, make_load
+from im_common.loads import make_load, MODEL_KINDS
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
-                              resolve_rated, THESIS_MOTOR)
+                              resolve_rated, THESIS_FLUX_LEVELS, THESIS_MOTOR)
 
 from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, STRATEGIES
 from .reference import dq_reference, feedforward_dq, ModelCoefficients, steady_state
@@ -62,8 +62,7 @@ DEFAULT_VOLTAGE_MARGIN = 0.85
 DEFAULT_CURRENT_MARGIN = 0.9
 # Fields whose default RATED takes the motor model's rating (im_common.params.default_limits),
 # and their value for a motor without that rating (the thesis's; ``from_ratings`` says which).
-RATED_FIELDS = {'v_limit': None, 'current_limit': None, 'phi_d': 1.2, 'phi_min': 0.2,
-                'phi_max': 1.2}
+RATED_FIELDS = {'v_limit': None, 'current_limit': None, **THESIS_FLUX_LEVELS}
 # |i_q*| ≤ MAGNETIZING_RATIO · i_d*/√σ: the torque a partly magnetized machine is asked for
 MAGNETIZING_RATIO = 2.0
 # Reconfigurable while running (ros2 param set on the controller node): gains, strategy, flux
@@ -216,8 +215,8 @@ class ControllerConfig:
             raise InvalidParameter('load_known', self.load_known, 'must be true or false')
         if self.load is None:
             self.load = DEFAULT_LOADS[self.mode]
-        if self.load not in LOAD_KINDS:
-            raise InvalidParameter('load', self.load, f'must be one of {", ".join(LOAD_KINDS)}')
+        if self.load not in MODEL_KINDS:
+            raise InvalidParameter('load', self.load, f'must be one of {", ".join(MODEL_KINDS)}')
         for name in ('load_mgl', 'load_c1', 'load_c2', 'load_tau'):
             setattr(self, name, _real(name, getattr(self, name)))
         self.v_limit = _real('v_limit', self.v_limit, 0.0, lo_open=True, allow_none=True)

@@ -46,7 +46,8 @@ class ControllerNode(LockstepNode):
     def __init__(self, **kwargs):
         super().__init__('controller', **kwargs)
         self.T_s, self.duration, timeout, startup = declare_run(self)
-        params = declare_motor(self, what='controller model (nominal estimates)')
+        params = declare_motor(self, what='controller model (nominal estimates)',
+                               warn_defaults=True)
         self._model = params
         self._values = values = declare_controller(self)
         self.use_adapter = self.param('use_adapter', False,

@@ -7,7 +7,7 @@ range check at declaration, or by ``ControllerConfig`` validation).
 """
 from __future__ import annotations
 
-from im_common.loads import LOAD_KINDS
+from im_common.loads import MODEL_KINDS
 from im_common.params import RATED
 
 from .control_law import (ControllerConfig, DEFAULT_CURRENT_MARGIN, DEFAULT_VOLTAGE_MARGIN,
@@ -63,7 +63,8 @@ def declare_controller(node) -> dict:
     v['k_v'] = p('k_v', -1.0, 'PD speed gain of eq. 3.1 [N m s/rad] (-1: per-mode default, '
                  'position 1, speed 3)', -1.0, 1e6)
     v['load_known'] = p('load_known', True, 'feed the load model tau_c forward in eq. 3.1')
-    v['load'] = p('load', 'pendulum', 'load model for tau_c', choices=LOAD_KINDS)
+    v['load'] = p('load', 'pendulum', 'load model for tau_c (a function of the shaft state; a '
+                  "load in time is the plant's, docs/running.md)", choices=MODEL_KINDS)
     v['load_mgl'] = p('load_mgl', 10.0, 'pendulum load model m g l [N m]', -1e4, 1e4)
     v['load_c1'] = p('load_c1', 1.0, 'linear load model c1 [N m]', -1e4, 1e4)
     v['load_c2'] = p('load_c2', 0.001, 'linear load model c2 [N m s]', -1e3, 1e3)

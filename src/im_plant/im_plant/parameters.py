@@ -7,7 +7,7 @@ the node builds its simulator from the values with :func:`simulator_from_paramet
 """
 from __future__ import annotations
 
-from im_common.loads import LOAD_KINDS, make_load
+from im_common.loads import load_from_parameters, LOAD_KINDS
 from im_common.model import stator_flux
 from im_common.node_params import declare_motor
 from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, ParameterSchedule,
@@ -25,7 +25,7 @@ def declare_plant(node) -> dict:
     """
     p = node.param
     blocks: dict = {}
-    v = {'motor': declare_motor(node, blocks=blocks)}
+    v = {'motor': declare_motor(node, blocks=blocks, warn_defaults=True)}
     v.update(blocks)                            # the motor file's saturation, thermal
     v['variation'] = p('variation', 'none',
                        'time variation of the true parameters (schedule: the breakpoints of '
@@ -54,6 +54,18 @@ def declare_plant(node) -> dict:
     v['load_c1'] = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
     v['load_c2'] = p('load_c2', 0.001, 'linear load: c2 [N m s]', -1e3, 1e3)
     v['load_tau'] = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
+    v['load_t'] = p('load_t', 0.0, 'step load: the instant of the step [s]', 0.0, 1e6)
+    v['load_tau_before'] = p('load_tau_before', 0.0, 'step load: torque before load_t [N m]',
+                             -1e4, 1e4)
+    v['load_tau_after'] = p('load_tau_after', 0.0, 'step load: torque from load_t on [N m]',
+                            -1e4, 1e4)
+    v['load_points'] = p('load_points', [0.0, 0.0],
+                         'schedule load: points t0, tau0, t1, tau1, ... [s, N m], piecewise '
+                         'linear, a time given twice is a jump (docs/running.md)')
+    v['load_offset'] = p('load_offset', 0.0,
+                         "live: load torque added to the load's own [N m]; a change acts from "
+                         'the next step boundary and is announced on /im/status', -1e4, 1e4,
+                         read_only=False)
     v['theta0'] = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
     v['omega0'] = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
     v['locked_rotor'] = p('locked_rotor', False,
@@ -162,17 +174,19 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
         P0 = schedule.params_at(0.0)
         psi = stator_flux(i0[0], i0[1], f0[0], f0[1], P0.L_s, P0.L_r, P0.L_sr)
         x0 = (psi[0], psi[1], f0[0], f0[1], v['theta0'], v['omega0'])
-    load = make_load(v['load'], v['load_mgl'], v['load_c1'], v['load_c2'], v['load_tau'])
-    return PlantSimulator(schedule, load, T_s, **real_plant_blocks(v, motor),
-                          max_substep=v['max_substep'],
-                          v_limit=v['v_limit'],
-                          current_noise_std=v['current_noise_std'],
-                          speed_noise_std=v['speed_noise_std'], noise_seed=v['noise_seed'],
-                          theta0=v['theta0'], omega0=v['omega0'], x0=x0,
-                          inverter_rating=v['inverter_rating'],
-                          current_trip=v['current_trip'],
-                          speed_trip=v['speed_trip'],
-                          locked_rotor=v['locked_rotor'])
+    load = load_from_parameters(v)
+    sim = PlantSimulator(schedule, load, T_s, **real_plant_blocks(v, motor),
+                         max_substep=v['max_substep'],
+                         v_limit=v['v_limit'],
+                         current_noise_std=v['current_noise_std'],
+                         speed_noise_std=v['speed_noise_std'], noise_seed=v['noise_seed'],
+                         theta0=v['theta0'], omega0=v['omega0'], x0=x0,
+                         inverter_rating=v['inverter_rating'],
+                         current_trip=v['current_trip'],
+                         speed_trip=v['speed_trip'],
+                         locked_rotor=v['locked_rotor'])
+    sim.set_load_offset(v['load_offset'])
+    return sim
 
 
 def real_plant_blocks(values: dict, motor: MotorParams) -> dict:

@@ -22,6 +22,10 @@ probed latency does not fit the budget is refused with one line naming the measu
 period and the rate this machine holds (``force_rate`` starts anyway). During the run a
 :class:`im_common.timing.DeadlineWatchdog` stops the run with zero voltage (a protection trip) when
 more than ``deadline_miss_limit`` of the last ``deadline_window`` steps missed their deadline.
+
+``load_offset`` is live (``ros2 param set /plant load_offset 6.0``): added to the load's torque
+from the next step boundary on — step k, integrated over [t_k, t_k+1] after the call — and
+announced on ``/im/status`` as a ``parameters`` event stamped t_k (docs/running.md, "Loads").
 """
 from __future__ import annotations
 
@@ -38,7 +42,8 @@ from im_common.auth import progress_payload, Signer, split_frame
 from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
 from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, lockstep_qos,
-                                LockstepNode, node_main, probe_qos, READY, report_qos, RUNNING,
+                                LockstepNode, node_main, PARAMETERS, probe_qos, READY,
+                                report_qos, RUNNING,
                                 stamp_text, StepGate, STOPPED, STOPPING)
 from im_common.node_params import declare_run
 from im_common.params import describe_defaults
@@ -147,7 +152,32 @@ class PlantNode(LockstepNode):
         self.create_subscription(Header, T.PROGRESS, self.on_progress, 10)
         self.pub_probe = self.create_publisher(Header, T.PROBE, probe_qos())
         self.create_subscription(Header, T.PROBE_ECHO, self.on_probe_echo, probe_qos())
+        self._load_offset_next = None       # a live load_offset staged for the next step
+        # load_offset's descriptor refuses a value of another type or out of range, one line
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self.start_protocol(timeout, startup)
+
+    # Live parameters -------------------------------------------------------------------
+    def _after_set_parameters(self, parameters) -> None:
+        """Stage an accepted ``load_offset`` for the next step boundary."""
+        for prm in parameters:
+            if prm.name == 'load_offset':
+                self._load_offset_next = float(prm.value)
+
+    def _apply_load_offset(self) -> None:
+        """
+        Put a staged ``load_offset`` in force for the step about to be integrated.
+
+        Step k integrates [t_k, t_k+1]: the offset acts from t_k on. Announced on
+        ``/im/status`` (a ``parameters`` event stamped t_k, with the step), so a recording holds
+        it.
+        """
+        tau, self._load_offset_next = self._load_offset_next, None
+        k = self.sim.k
+        self.sim.set_load_offset(tau)
+        self.get_logger().info(f'parameters applied at step {k} (t = {k * self.T_s:.9f} s): '
+                               f'load_offset = {tau!r} N m')
+        self.status(PARAMETERS, stamp_ns=k * self.period, load_offset=repr(tau), step=k)
 
     # Startup -----------------------------------------------------------------------------
     #: How long the start condition must hold before step 0: discovery is asynchronous, and a
@@ -494,6 +524,8 @@ class PlantNode(LockstepNode):
     # Stepping ----------------------------------------------------------------------------
     def advance(self, v_a: float, v_b: float) -> None:
         self.last_cmd = (v_a, v_b)
+        if self._load_offset_next is not None:
+            self._apply_load_offset()
         try:
             self.sim.step(v_a, v_b)
         except (ValueError, FloatingPointError) as exc:

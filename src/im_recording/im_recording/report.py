@@ -22,6 +22,7 @@ from typing import Dict, List, Sequence
 
 from im_common import topics as T
 from im_common.cli import error as cli_error
+from im_common.metrics import LOAD_STEP_BAND
 import numpy as np
 
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
@@ -41,6 +42,10 @@ ROWS = [
     ('pos_err_rms_rad', 'position error RMS', 'rad'),
     ('speed_err_max_rad_s', 'speed error max', 'rad/s'),
     ('speed_err_rms_rad_s', 'speed error RMS', 'rad/s'),
+    ('load_step_t', 'load step at', 's'),
+    ('speed_dip_rad_s', 'speed dip after the load step (max |ω − ω*|)', 'rad/s'),
+    ('speed_recovery_s', f'recovery: back within {LOAD_STEP_BAND:g} rad/s for good (NaN: not by '
+                         'the end)', 's'),
     ('torque_err_max_Nm', 'torque error max', 'N·m'),
     ('torque_err_rms_Nm', 'torque error RMS', 'N·m'),
     ('flux_err_max_Wb', 'flux tracking error max', 'Wb'),
@@ -97,6 +102,7 @@ def figures_of_merit(run) -> Dict[str, float]:
         acc = RunningFigures()
         acc.rows(run.trace)
     fig: Dict[str, float] = dict(acc.tracking(run.task))
+    fig.update(acc.load_step_figures())
     need = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
             'dE_kin', 'dW_mag', 'balance_residual')
     if all(k in run.truth_final for k in need):

@@ -563,7 +563,11 @@ class RunningFigures:
     lock-step topics' missing control instants (:meth:`gaps`).
     """
 
-    def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20):
+    def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20,
+                 load_step: Optional[float] = None):
+        from im_common.metrics import LoadStepFigures
+        #: the speed figures of a load step at ``load_step`` [s] (a speed run's), or None
+        self.load_step = None if load_step is None else LoadStepFigures(load_step)
         self.window = float(last_window)
         self.seen: set = set()
         self.acc = {f[2]: _Acc() for f in TRACKING}         # by the keys they need
@@ -596,6 +600,9 @@ class RunningFigures:
         for _mx, _rms, keys, fn in TRACKING:
             if all(k in tr for k in keys):
                 self.acc[keys].add(fn(full))
+        omega = 'omega_true' if 'omega_true' in tr else 'omega_r'
+        if self.load_step is not None and omega in tr and 'omega_ref' in tr:
+            self.load_step.add(t, full[omega] - full['omega_ref'])
         for n in ESTIMATED:
             if n + '_hat' in tr and n in tr:
                 self._estimate(n, t, np.asarray(tr[n + '_hat'], float), np.asarray(tr[n], float))
@@ -659,6 +666,12 @@ class RunningFigures:
             if rms_name:
                 out[rms_name] = float('nan') if position_only else acc.rms()
         return out
+
+    def load_step_figures(self) -> Dict[str, float]:
+        """Return the load step's speed figures (:class:`im_common.metrics.LoadStepFigures`)."""
+        if self.load_step is None:
+            return {}
+        return dict(self.load_step.figures(), load_step_t=self.load_step.t_step)
 
     def estimates(self) -> Dict[str, float]:
         out: Dict[str, float] = {}
@@ -780,6 +793,30 @@ def lockstep_topics() -> Tuple[str, ...]:
     return tuple(t.name for t in T.TOPICS if t.critical)
 
 
+def load_step_time(metadata: Optional[dict] = None,
+                   parameters: Optional[dict] = None) -> Optional[float]:
+    """
+    Return when a speed run's load steps [s], None if it does not (or it is not a speed run).
+
+    From a recording's ``run`` record (``metadata``) or from the nodes' ``parameters`` (the
+    plant's ``load`` and ``load_<field>``, the controller's ``mode``).
+    """
+    from im_common.loads import load_from_dict, load_from_parameters
+    if parameters is not None:
+        if parameters.get('controller', {}).get('mode') != 'speed':
+            return None
+        return load_from_parameters(parameters.get('plant', {})).change_time()
+    text = (metadata or {}).get('run', {}).get('yaml')
+    if not text:
+        return None
+    import yaml
+    record = yaml.safe_load(text)
+    if not isinstance(record, dict) or record.get('task') != 'speed' \
+            or not isinstance(record.get('load'), dict):
+        return None
+    return load_from_dict(record['load'], source='run record: load').change_time()
+
+
 def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full',
                limit: int = 10000, types: Optional[dict] = None) -> Run:
     """
@@ -789,7 +826,9 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
     ``trace='full'`` (every row kept); ``'decimated'`` keeps about ``limit``-``2·limit`` rows for
     the plots, None none. The figures always cover every control instant.
     """
-    books, figs = TruthBooks(), RunningFigures(lockstep_topics=lockstep_topics())
+    books = TruthBooks()
+    figs = RunningFigures(lockstep_topics=lockstep_topics(),
+                          load_step=load_step_time(metadata=metadata))
     sinks = [books, figs]
     keeper = None
     if trace is not None:

@@ -28,7 +28,8 @@ class Tap:
     about ``limit`` rows, False none (the figures still cover every step).
     """
 
-    def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000):
+    def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000,
+                 load_step: Optional[float] = None):
         from im_recording.run import (lockstep_topics, RunningFigures, TraceKeeper, TraceStream,
                                       TruthBooks)
         self.writer = writer
@@ -36,7 +37,7 @@ class Tap:
         self.on_error = None                # called with that line (a graph ends its run)
         self.keep = keep
         self.books = TruthBooks()
-        self.figures = RunningFigures(lockstep_topics=lockstep_topics())
+        self.figures = RunningFigures(lockstep_topics=lockstep_topics(), load_step=load_step)
         sinks = [self.books, self.figures]
         self.keeper = None
         if keep:
