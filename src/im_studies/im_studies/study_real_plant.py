@@ -1,16 +1,23 @@
 """
-``python -m im_studies.study_real_plant [--part compensation] [--json FILE] [--plots DIR]``.
+``python -m im_studies.study_real_plant [--part P ...] [--json FILE] [--plots DIR]``.
 
 The drive on the real plant (docs/compensation.md), on the ROS-free loop: each shipped motor
-(thesis, krause_3hp) fed by the switched inverter of docs/plant.md (10 kHz, 2 µs dead time,
-1 V / 20 mΩ devices, V_dc for the motor's rating), held at a low speed against half its rated
-torque, sensored and sensorless, with the inverter-error compensation off and on. Beside each
-figure the same run on the ideal plant. Prints a Markdown table; ``--json`` writes the rows,
-``--plots`` the phase current against its reference.
+(thesis, krause_3hp) on every block of docs/plant.md — the switched inverter (10 kHz, 2 µs dead
+time, 1 V / 20 mΩ devices, V_dc for the motor's rating), the motor file's saturation and thermal
+blocks, the iron loss acting, a 12-bit current ADC and a 2048-line encoder — beside the same run
+on the ideal plant. Parts (default all):
 
-Figures over the last :data:`WINDOW` s of each run (steady state): the current distortion
-``|i − i*|`` RMS [A] (the stator-current vector's distance from the controller's reference), the
-speed error RMS [rad/s] and the air-gap torque's standard deviation [N·m].
+- ``compensation``: a low-speed hold (10 rad/s, half the rated torque), sensored and
+  sensorless, the inverter-error compensation off and on;
+- ``sensorless``: with compensation, a ±150 rad/s reversal through zero under 2 N·m and a 5 s
+  hold at 10 rad/s under the rated torque;
+- ``load_step``: a step of half the rated torque at 100 rad/s, sensorless, at rated flux.
+
+Prints a Markdown table per part; ``--json`` writes the rows, ``--plots`` the phase current
+against its reference. Figures: the current distortion ``|i − i*|`` RMS [A] (the stator-current
+vector's distance from the controller's reference), the speed error [rad/s] and the air-gap
+torque's standard deviation [N·m], over the last :data:`WINDOW` s of a hold or after the
+transients; the dip and recovery of a load step (:mod:`im_common.metrics`).
 """
 from __future__ import annotations
 
@@ -22,15 +29,16 @@ import sys
 
 from im_bringup.offline import Scenario, simulate
 from im_common.cli import error as cli_error
-from im_common.loads import ConstantLoad
+from im_common.loads import ConstantLoad, StepLoad
 from im_common.params import load_motor_file, shipped_motors_dir
 from im_controller.profiles import Profile
 import numpy as np
 
-from .study_motors import scaled_options
+from .study_motors import reversal_time, scaled_options
 from .study_sensorless import USELESS_SPEED_NOISE
 
 MOTORS = ('thesis', 'krause_3hp')
+PARTS = ('compensation', 'sensorless', 'load_step')
 #: the inverter of every run: docs/plant.md's, its DC link set for the motor (V_dc_for)
 INVERTER = {'pwm_frequency': 10000.0, 'deadtime': 2.0e-6, 'v_on': 1.0, 'r_on': 0.02}
 #: the DC link over the motor's rated vector magnitude × √2 (the hexagon's inscribed circle)
@@ -39,8 +47,14 @@ DC_MARGIN = 1.1
 HOLD_SPEED, HOLD_LOAD_SHARE, HOLD_DURATION = 10.0, 0.5, 1.5
 #: the window the figures are taken over, at the end of each run [s]
 WINDOW = 0.5
-#: the load where a motor file gives no rating [N·m]
-FALLBACK_LOAD = 4.0
+#: the reversal: ±speed [rad/s] under a constant load [N·m], from 0.2 s
+REVERSAL_SPEED, REVERSAL_LOAD = 150.0, 2.0
+#: the rated-torque hold: speed [rad/s], duration [s]
+RATED_HOLD_SPEED, RATED_HOLD_DURATION = 10.0, 5.0
+#: the speed error is judged this long after a transient ends [s]
+SETTLE = 0.3
+#: the load step: speed [rad/s], share of rated torque before / after, time [s], duration [s]
+STEP_SPEED, STEP_BEFORE, STEP_AFTER, STEP_T, STEP_DURATION = 100.0, 1.0 / 6.0, 2.0 / 3.0, 0.5, 1.5
 
 
 def V_dc_for(motor) -> float:
@@ -48,35 +62,93 @@ def V_dc_for(motor) -> float:
     return float(math.ceil(DC_MARGIN * math.sqrt(2.0) * motor.rated_voltage))
 
 
-def hold(motor_name: str, sensorless: bool, compensation: bool, real: bool = True) -> Scenario:
-    """Return the low-speed hold of one motor (module doc) on the real or the ideal plant."""
+def real_plant(motor) -> dict:
+    """Return the Scenario keywords of every block of the real plant for a motor file's motor."""
+    return {'inverter': dict(INVERTER, V_dc=V_dc_for(motor)), 'saturation': 'motor',
+            'thermal': 'motor', 'iron_loss': True,
+            'sensors': {'encoder_lines': 2048, 'adc_bits': 12,
+                        'current_range': float(math.ceil(3.0 * math.sqrt(2.0)
+                                                         * motor.rated_current))}}
+
+
+def _scenario(motor_name: str, profile, load, duration: float, sensorless: bool,
+              compensation: bool, real: bool, current_limit=None,
+              strategy: str = 'min_energy') -> Scenario:
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
     m = load_motor_file(path)
-    load = HOLD_LOAD_SHARE * m.rated_torque if m.rated_torque > 0 else FALLBACK_LOAD
-    prof = Profile('speed', ((0.0, HOLD_SPEED, None),), source='low-speed hold')
     opts = dict(scaled_options(m, 'speed'), sensorless=sensorless)
+    if current_limit is not None:
+        opts['current_limit'] = current_limit * m.rated_current
     kw = {}
     if real:
-        kw['inverter'] = dict(INVERTER, V_dc=V_dc_for(m))
+        kw.update(real_plant(m))
         if compensation:
             kw['compensation'] = 'inverter'
-    return Scenario(task='speed', strategy='min_energy', motor=path, profile=prof,
-                    load_model=ConstantLoad(tau=load), duration=HOLD_DURATION,
-                    v_limit=m.rated_voltage, controller_options=opts, sensorless=sensorless,
+    return Scenario(task='speed', strategy=strategy, motor=path, profile=profile,
+                    load_model=load, duration=duration, v_limit=m.rated_voltage,
+                    omega0=profile.setpoints[0][1], controller_options=opts,
+                    sensorless=sensorless,
                     speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0, **kw)
 
 
-def figures(result) -> dict:
-    """Return the steady-state figures of a run (module doc)."""
+def hold(motor_name: str, sensorless: bool, compensation: bool, real: bool = True) -> Scenario:
+    """Return the low-speed hold of one motor (module doc) on the real or the ideal plant."""
+    m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
+    prof = Profile('speed', ((0.0, HOLD_SPEED, None),), source='low-speed hold')
+    return _scenario(motor_name, prof, ConstantLoad(tau=HOLD_LOAD_SHARE * m.rated_torque),
+                     HOLD_DURATION, sensorless, compensation, real)
+
+
+def reversal(motor_name: str, real: bool = True) -> tuple:
+    """Return (scenario, end of its ramp [s]): ±REVERSAL_SPEED through zero, sensorless."""
+    m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
+    ramp = reversal_time(m, span=2.0 * REVERSAL_SPEED / m.rated_speed)
+    prof = Profile('speed', ((0.0, REVERSAL_SPEED, None), (0.2, -REVERSAL_SPEED, ramp)),
+                   source='sensorless reversal')
+    return (_scenario(motor_name, prof, ConstantLoad(tau=REVERSAL_LOAD), 0.2 + ramp + 0.8,
+                      True, True, real), 0.2 + ramp)
+
+
+def rated_hold(motor_name: str, real: bool = True) -> Scenario:
+    """Return RATED_HOLD_SPEED held for RATED_HOLD_DURATION under the rated torque, sensorless."""
+    m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
+    prof = Profile('speed', ((0.0, RATED_HOLD_SPEED, None),), source='rated-torque hold')
+    return _scenario(motor_name, prof, ConstantLoad(tau=m.rated_torque), RATED_HOLD_DURATION,
+                     True, True, real)
+
+
+def load_step(motor_name: str, compensation: bool, real: bool = True) -> Scenario:
+    """
+    Return the load step of half the rated torque at STEP_SPEED, sensorless (module doc).
+
+    At rated flux (constant_flux: a flux that follows the torque would have to build up first)
+    and 1.5 × the rated current.
+    """
+    m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
+    prof = Profile('speed', ((0.0, STEP_SPEED, None),), source='load step')
+    load = StepLoad(t=STEP_T, tau_before=STEP_BEFORE * m.rated_torque,
+                    tau_after=STEP_AFTER * m.rated_torque)
+    return _scenario(motor_name, prof, load, STEP_DURATION, True, compensation, real,
+                     current_limit=1.5, strategy='constant_flux')
+
+
+def figures(result, after: float = None) -> dict:
+    """Return the figures of a run (module doc): the last WINDOW s, or from ``after`` on."""
     tr = result.trace
-    late = tr['t'] >= tr['t'][-1] - WINDOW
+    late = tr['t'] >= (tr['t'][-1] - WINDOW if after is None else after)
     ei = np.hypot(tr['i_alpha'][late] - tr['i_alpha_ref'][late],
                   tr['i_beta'][late] - tr['i_beta_ref'][late])
     ew = tr['omega_r'][late] - tr['omega_ref'][late]
     return {'current_distortion_A': float(np.sqrt(np.mean(ei ** 2))),
             'speed_err_rms': float(np.sqrt(np.mean(ew ** 2))),
+            'speed_err_max': float(np.max(np.abs(ew))),
             'torque_std': float(np.std(tr['tau_m'][late])),
             'trip': result.summary['trip']}
+
+
+def _ideal(row: dict, ideal: dict) -> dict:
+    row.update({f'ideal_{k}': v for k, v in ideal.items() if k != 'trip'})
+    return row
 
 
 def run_compensation(motors=MOTORS, plots=None) -> list:
@@ -89,14 +161,45 @@ def run_compensation(motors=MOTORS, plots=None) -> list:
             for comp in (False, True):
                 res = simulate(hold(mo, sensorless, comp))
                 runs[comp] = res
-                row = {'motor': mo, 'sensorless': sensorless, 'compensation': comp,
-                       **figures(res)}
-                row.update({f'ideal_{k}': v for k, v in ideal.items() if k != 'trip'})
-                rows.append(row)
+                rows.append(_ideal({'motor': mo, 'sensorless': sensorless, 'compensation': comp,
+                                    **figures(res)}, ideal))
             off, on = rows[-2], rows[-1]
             on['distortion_factor'] = off['current_distortion_A'] / on['current_distortion_A']
             if plots is not None and mo == 'thesis' and not sensorless:
                 plot_phase_current(runs, os.path.join(plots, 'compensation_phase_current.png'))
+    return rows
+
+
+def run_sensorless(motors=MOTORS) -> list:
+    """Run the reversal and the rated-torque hold of every motor, compensation on."""
+    rows = []
+    for mo in motors:
+        sc, end = reversal(mo)
+        ideal_sc, _ = reversal(mo, real=False)
+        label = f'±{REVERSAL_SPEED:g} rad/s reversal, {REVERSAL_LOAD:g} N·m'
+        rows.append(_ideal({'motor': mo, 'run': label,
+                            **figures(simulate(sc, record_every=10), after=end + SETTLE)},
+                           figures(simulate(ideal_sc, record_every=10), after=end + SETTLE)))
+        label = f'{RATED_HOLD_SPEED:g} rad/s, rated torque, {RATED_HOLD_DURATION:g} s'
+        rows.append(_ideal({'motor': mo, 'run': label,
+                            **figures(simulate(rated_hold(mo), record_every=10), after=1.0)},
+                           figures(simulate(rated_hold(mo, real=False), record_every=10),
+                                   after=1.0)))
+    return rows
+
+
+def run_load_step(motors=MOTORS) -> list:
+    """Run the load step of every motor: the ideal plant, the real one without and with."""
+    rows = []
+    for mo in motors:
+        for label, sc in (('ideal plant', load_step(mo, False, real=False)),
+                          ('real plant', load_step(mo, False)),
+                          ('real plant, compensation', load_step(mo, True))):
+            s = simulate(sc).summary
+            rows.append({'motor': mo, 'plant': label, 'dip': s['speed_dip_rad_s'],
+                         'recovery_s': s['speed_recovery_s'], 'trip': s['trip'],
+                         'step': f'{sc.plant_load().tau_before:.3g} → '
+                                 f'{sc.plant_load().tau_after:.3g} N·m'})
     return rows
 
 
@@ -129,38 +232,64 @@ def plot_phase_current(runs: dict, path: str) -> None:
     plt.close(fig)
 
 
-def markdown(rows: list) -> str:
-    """Return the rows as a Markdown table, each real-plant figure beside the ideal plant's."""
-    lines = ['| motor | speed | compensation | \\|i − i*\\| RMS [A] (ideal plant) | factor | '
-             'speed error RMS [rad/s] (ideal) | torque std [N·m] (ideal) | trip |',
-             '| --- | --- | --- | ---: | ---: | ---: | ---: | --- |']
-    for r in rows:
-        factor = f"{r['distortion_factor']:.1f}×" if 'distortion_factor' in r else ''
-        trip = '' if r['trip'] is None else r['trip']['reason']
-        lines.append(
-            f"| {r['motor']} | {'sensorless' if r['sensorless'] else 'sensored'} | "
-            f"{'on' if r['compensation'] else 'off'} | {r['current_distortion_A']:.4f} "
-            f"({r['ideal_current_distortion_A']:.4f}) | {factor} | "
-            f"{r['speed_err_rms']:.4f} ({r['ideal_speed_err_rms']:.4f}) | "
-            f"{r['torque_std']:.4f} ({r['ideal_torque_std']:.4f}) | {trip} |")
+def _trip(r) -> str:
+    return '' if r['trip'] is None else r['trip']['reason']
+
+
+def markdown(part: str, rows: list) -> str:
+    """Return a part's rows as a Markdown table, real-plant figures beside the ideal plant's."""
+    if part == 'compensation':
+        lines = ['| motor | speed | compensation | \\|i − i*\\| RMS [A] (ideal plant) | factor '
+                 '| speed error RMS [rad/s] (ideal) | torque std [N·m] (ideal) | trip |',
+                 '| --- | --- | --- | ---: | ---: | ---: | ---: | --- |']
+        for r in rows:
+            factor = f"{r['distortion_factor']:.1f}×" if 'distortion_factor' in r else ''
+            lines.append(
+                f"| {r['motor']} | {'sensorless' if r['sensorless'] else 'sensored'} | "
+                f"{'on' if r['compensation'] else 'off'} | {r['current_distortion_A']:.4f} "
+                f"({r['ideal_current_distortion_A']:.4f}) | {factor} | "
+                f"{r['speed_err_rms']:.4f} ({r['ideal_speed_err_rms']:.4f}) | "
+                f"{r['torque_std']:.4f} ({r['ideal_torque_std']:.4f}) | {_trip(r)} |")
+    elif part == 'sensorless':
+        lines = ['| motor | run | speed error max [rad/s] (ideal plant) | RMS (ideal) | '
+                 '\\|i − i*\\| RMS [A] (ideal) | trip |',
+                 '| --- | --- | ---: | ---: | ---: | --- |']
+        for r in rows:
+            lines.append(f"| {r['motor']} | {r['run']} | {r['speed_err_max']:.3f} "
+                         f"({r['ideal_speed_err_max']:.3f}) | {r['speed_err_rms']:.3f} "
+                         f"({r['ideal_speed_err_rms']:.3f}) | {r['current_distortion_A']:.3f} "
+                         f"({r['ideal_current_distortion_A']:.3f}) | {_trip(r)} |")
+    else:
+        lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
+                 '| --- | --- | --- | ---: | ---: | --- |']
+        for r in rows:
+            rec = 'not within the run' if not math.isfinite(r['recovery_s']) else \
+                f"{r['recovery_s']:.3f}"
+            lines.append(f"| {r['motor']} | {r['step']} | {r['plant']} | {r['dip']:.2f} | "
+                         f'{rec} | {_trip(r)} |')
     return '\n'.join(lines)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='study_real_plant', description=__doc__.split('\n\n')[1])
-    ap.add_argument('--part', choices=('compensation',), default='compensation')
+    ap.add_argument('--part', choices=PARTS, action='append',
+                    help='run only this part (repeatable; default: every part)')
     ap.add_argument('--json', metavar='FILE', help='write the rows as JSON')
     ap.add_argument('--plots', metavar='DIR', help='write the plots here')
     a = ap.parse_args(argv)
-    print(f'{a.part}: {len(MOTORS)} motors x sensored/sensorless x compensation off/on, '
-          f'{HOLD_DURATION:g} s each', file=sys.stderr, flush=True)
-    rows = run_compensation(plots=a.plots)
-    print(markdown(rows))
+    out = {}
+    runs = {'compensation': lambda: run_compensation(plots=a.plots),
+            'sensorless': run_sensorless, 'load_step': run_load_step}
+    for k, part in enumerate(a.part or PARTS, 1):
+        print(f'[{k}/{len(a.part or PARTS)}] {part}: {", ".join(MOTORS)}', file=sys.stderr,
+              flush=True)
+        out[part] = runs[part]()
+        print(f'\n## {part}\n\n{markdown(part, out[part])}', flush=True)
     if a.json:
         try:
             os.makedirs(os.path.dirname(a.json) or '.', exist_ok=True)
             with open(a.json, 'w') as f:
-                json.dump(rows, f, indent=2)
+                json.dump(out, f, indent=2)
         except OSError as exc:
             return cli_error('study_real_plant', f'{a.json}: {exc.strerror or exc}')
     return 0
