@@ -20,6 +20,13 @@ measures (stator current, shaft speed) and returning the voltage to apply; when 
 * the pole pairs from the same run (the flux's rotation against the measured shaft speed) when
   no nameplate gives them.
 
+Before the standstill test, the inverter's own voltage error (dead time and device drops,
+docs/compensation.md) is measured: a slow current loop holds the α current at ±LEVELS × i_max in
+turn, and the steady voltages fit V = R·I + c·sgn(I) (:func:`fit_dc_levels`): R is R_s (plus the
+devices' r_on, which acts as stator resistance), c = 2·√(2/3)·v_dead the error vector of a current
+along α. Every later test voltage is then compensated (:class:`InverterErrorModel`), and the
+fits see the voltage the motor got; on an ideal source v_dead comes out as ~0.
+
 Limits: every current stays below ``i_max`` (the standstill voltages are bounded by
 R̂_s·I: the RL network's impulse response is positive, so |i| ≤ max|v| / R_s), every voltage
 below ``v_max``; a current above 0.9·i_max zeroes the voltage and ends the test
@@ -32,6 +39,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Dict, List, Optional, Tuple
 
+from im_common.compensation import InverterErrorModel
 from im_common.params import (check_real, IDENTIFIABLE_NAMES, InvalidParameter, MotorParams,
                               rated_rotor_flux, RATING_NAMES)
 import numpy as np
@@ -46,6 +54,20 @@ TRIP_FRACTION = 0.9      # a current above this fraction of i_max ends the test
 SPEED_FRACTION = 0.5     # the speed test runs up to this fraction of the rated (test) speed
 FLUX_WINDOW = 0.01       # block length of the speed test's flux balance [s]
 OFFSET_BLOCKS = 5        # blocks per constant voltage-model offset in the flux balance
+#: the inverter-error test's α currents, as fractions of i_max (two magnitudes, both signs)
+LEVELS = (-0.25, -0.5, 0.25, 0.5)
+LEVEL_LOOP_S = 0.5       # time constant of its current loop on the probe's V/I [s] (faster on R_s)
+LEVEL_WINDOW_S = 0.1     # a level is steady when two windows this long agree to LEVEL_STEADY
+#: (the voltage creeps with the rotor time constant L_M/R_R while the loop holds the current)
+LEVEL_STEADY = 2e-4
+#: the ramp half-width of the compensation's sign, as a fraction of i_max
+COMPENSATION_BAND = 0.02
+#: with an inverter error that matters (above ERROR_SHARE of the test voltage), the standstill
+#: test runs around a DC current (BIAS ± SWING, fractions of i_max, from the last level's steady
+#: state): no phase current then crosses zero, where the dead time's error is the ripple's
+BIAS, SWING, ERROR_SHARE = 0.35, 0.15, 0.05
+#: the error vector of an α current against v_dead: every phase beyond the band, 2·√(2/3)
+ALPHA_ERROR = 2.0 * math.sqrt(2.0 / 3.0)
 
 
 class NotInformative(ValueError):
@@ -179,6 +201,8 @@ class Identified:
     std: Dict[str, float]
     notes: Dict[str, str] = field(default_factory=dict)
     rms_residual: Dict[str, float] = field(default_factory=dict)
+    #: the inverter's voltage error (v_dead, its std, R_dc, current_band; docs/compensation.md)
+    inverter: Dict[str, float] = field(default_factory=dict)
 
     def motor(self, ratings: Optional[Dict[str, float]] = None) -> MotorParams:
         """
@@ -197,10 +221,17 @@ class Identified:
                            **{k: x for k, x in (ratings or {}).items() if k in RATING_NAMES})
 
 
-def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
+def dc_state(p, i0: float) -> Tuple[float, float]:
+    """Return the standstill state (i, ψ_R) in DC steady state at the current ``i0``."""
+    return i0, float(p[2]) * i0
+
+
+def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float, i0: float = 0.0
                    ) -> Tuple[Dict[str, float], Dict[str, float], float, np.ndarray]:
     """
-    Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record from rest.
+    Output-error least squares of (R_s, L_σ, L_M, R_R) on a standstill record.
+
+    From rest, or (``i0`` ≠ 0) from the DC steady state at the current i0 (:func:`dc_state`).
 
     Returns (values, standard deviations, RMS residual [A], final state (i, ψ_R)). The start
     comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2).
@@ -211,7 +242,8 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
     p0 = _arx_start(v, i, T_s, R_s0)
 
     def resid(lp):
-        sim, _ = standstill_response(np.exp(lp), v, T_s)
+        p = np.exp(lp)
+        sim, _ = standstill_response(p, v, T_s, dc_state(p, i0))
         return sim - i
 
     best = None
@@ -232,7 +264,7 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float
     vals = np.exp(best.x)
     values = dict(zip(IDENTIFIABLE_NAMES, (float(x) for x in vals)))
     std = dict(zip(IDENTIFIABLE_NAMES, (float(x * s) for x, s in zip(vals, rel))))
-    sim, psi = standstill_response(vals, v, T_s)
+    sim, psi = standstill_response(vals, v, T_s, dc_state(vals, i0))
     return values, std, math.sqrt(s2), np.array([sim[-1], psi[-1]])
 
 
@@ -291,11 +323,11 @@ def flux_balance(ident, psi_s: np.ndarray, i: np.ndarray, v: np.ndarray, T_s: fl
 
 def fit_joint(v: np.ndarray, i: np.ndarray, T_s: float, start: Dict[str, float],
               flux_record: Tuple[np.ndarray, np.ndarray, np.ndarray, float],
-              window: int) -> Tuple[Dict[str, float], Dict[str, float], float]:
+              window: int, i0: float = 0.0) -> Tuple[Dict[str, float], Dict[str, float], float]:
     """
     Refine (R_s, L_σ, L_M, R_R) on the standstill record and the speed test's flux balance.
 
-    ``v``, ``i``: the standstill record (as :func:`fit_standstill`); ``start``: its values;
+    ``v``, ``i``, ``i0``: the standstill record (as :func:`fit_standstill`); ``start``: its values;
     ``flux_record`` = (ψ_s, i, v, R_s) of the speed test from the end of magnetizing
     (:func:`flux_balance`). The standstill sees L_M only through the slow rotor time constant;
     the turning rotor's flux balance sees m/i_d = L_M in every steady state, i.e. L_σ + L_M
@@ -324,7 +356,7 @@ def fit_joint(v: np.ndarray, i: np.ndarray, T_s: float, start: Dict[str, float],
         y, a, b, _ = flux_balance(p, psi_s, i_c, v_c, T_s, R_s_used, window)
         return project(y - a + b / p[2])
 
-    r_ss = standstill_response(p0, v, T_s)[0] - i
+    r_ss = standstill_response(p0, v, T_s, dc_state(p0, i0))[0] - i
     s_ss = math.sqrt(float(r_ss @ r_ss) / max(len(i) - 4, 1))
     # the balance's own noise: its residuals with L_M fitted to it alone (linear in 1/L_M)
     yp, ap, bp = project(y), project(a), project(b)
@@ -338,7 +370,8 @@ def fit_joint(v: np.ndarray, i: np.ndarray, T_s: float, start: Dict[str, float],
 
     def resid(lp):
         p = np.exp(lp)
-        return np.concatenate([standstill_response(p, v, T_s)[0] - i, w * balance(p)])
+        return np.concatenate([standstill_response(p, v, T_s, dc_state(p, i0))[0] - i,
+                               w * balance(p)])
 
     sol = least_squares(resid, np.log(p0), method='lm', x_scale=1.0, xtol=1e-12, ftol=1e-12,
                         gtol=1e-12, max_nfev=200)
@@ -397,6 +430,24 @@ def _arx_start(v, i, T_s, R_s0):
         return out
     except (ValueError, TypeError, np.linalg.LinAlgError, ZeroDivisionError):
         return _physical_start(v, i, T_s, R_s0)
+
+
+def fit_dc_levels(v: np.ndarray, i: np.ndarray) -> Tuple[float, float, float, float]:
+    """
+    Fit the steady (V, I) points of the inverter-error test: V = R·I + c·sgn(I).
+
+    Returns (R, c, std R, std c); least squares, the standard deviations from the residuals
+    (0 with as many points as unknowns). :class:`NotInformative` without two magnitudes.
+    """
+    v, i = np.asarray(v, float), np.asarray(i, float)
+    if len(set(np.round(np.abs(i), 9))) < 2 or np.all(i > 0) or np.all(i < 0):
+        raise NotInformative('the inverter-error test needs two current magnitudes of each sign')
+    A = np.column_stack([i, np.sign(i)])
+    x, *_ = np.linalg.lstsq(A, v, rcond=None)
+    dof = len(v) - 2
+    s2 = float(np.sum((A @ x - v) ** 2) / dof) if dof > 0 else 0.0
+    cov = s2 * np.linalg.inv(A.T @ A)
+    return float(x[0]), float(x[1]), math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
 
 
 def fit_mechanics(omega: np.ndarray, tau: np.ndarray, T_s: float, window: int
@@ -473,6 +524,12 @@ class Commissioning:
         self.electrical = None
         self.mechanical = None
         self._exc = None
+        self.inverter_error: Optional[InverterErrorModel] = None   # once the DC levels are in
+        self.excitation_bias = 0.0
+        self.inverter_fit: Dict[str, float] = {}
+        self.dc_levels: List[Tuple[float, float]] = []
+        self._level = 0
+        self._v_level = 0.0
         self.failure: Optional[str] = None
         self.done = False
         self.progress = ''
@@ -510,8 +567,10 @@ class Commissioning:
         m = math.hypot(va, vb)
         if m > self.v_max:
             va, vb = va * self.v_max / m, vb * self.v_max / m
+        self.log_v.append((va, vb))         # the voltage the motor gets: what the fits see
+        if self.inverter_error is not None:
+            va, vb = self.inverter_error.command(va, vb, i_a, i_b)
         self.peak_v = max(self.peak_v, math.hypot(va, vb))
-        self.log_v.append((va, vb))
         self.k += 1
         self.phase_k += 1
         return va, vb
@@ -519,8 +578,14 @@ class Commissioning:
     def _probe(self, i_a, i_b, w):
         """Ramp the α voltage until the current reaches PROBE_CURRENT·i_max."""
         if abs(i_a) >= PROBE_CURRENT * self.i_max:
-            self._goto('settle')
-            return self._settle(i_a, i_b, w)
+            # V/I over-estimates R_s (the rotor's transient, the inverter's error): a loop gain
+            # on the safe side for the levels, whose fit gives R_s
+            self.R_s0 = self._hold / abs(i_a)
+            self._goto('levels')
+            self._level = 0
+            self._v_level = -self._hold if LEVELS[0] < 0 else self._hold
+            self._win, self._prev_mean = [], None
+            return self._levels(i_a, i_b, w)
         self._hold = min(self._hold + 0.25 * self.v_max * self.T_s, 0.5 * self.v_max)
         if self._hold >= 0.5 * self.v_max and self.phase_k * self.T_s > 5.0:
             return self._fail(f'no current: |i_s| = {abs(i_a):.3g} A at {self._hold:.4g} V '
@@ -529,33 +594,66 @@ class Commissioning:
         self.progress = f'probe: {self._hold:.3g} V, {i_a:.3g} A'
         return self._hold, 0.0
 
-    def _settle(self, i_a, i_b, w):
-        """Hold the probe voltage until the current is steady: R_s ≈ V/I."""
-        if abs(i_a) > 0.8 * TEST_CURRENT * self.i_max:
-            self._hold *= 0.5
-            self._win, self._prev_mean = [], None
-        n = max(int(round(0.02 / self.T_s)), 10)
-        self._win.append(i_a)
+    def _levels(self, i_a, i_b, w):
+        """
+        Hold the α current at each of LEVELS × i_max; record the steady (V, I); then fit.
+
+        An integral current loop (time constant LEVEL_LOOP_S on the probe's V/I) moves the
+        voltage; a level is done when two windows of LEVEL_WINDOW_S agree to 1e-3 and sit on
+        the target within 1 %.
+        """
+        target = LEVELS[self._level] * self.i_max
+        self._v_level += self.T_s * (self.R_s0 / LEVEL_LOOP_S) * (target - i_a)
+        n = max(int(round(LEVEL_WINDOW_S / self.T_s)), 10)
+        self._win.append((self._v_level, i_a))
         if len(self._win) == n:
-            mean = sum(self._win) / n
+            v_mean = sum(x[0] for x in self._win) / n
+            i_mean = sum(x[1] for x in self._win) / n
             self._win = []
-            if self._prev_mean is not None and abs(mean - self._prev_mean) < 1e-3 * abs(mean):
-                self.R_s0 = self._hold / mean
-                self._goto('excite')
-                self._exc = self._excitation()
-                return self._excite(i_a, i_b, w)
-            self._prev_mean = mean
-        if self.phase_k * self.T_s > 10.0:
-            return self._fail(f'the probe current did not settle within 10 s '
-                              f'({i_a:.4g} A at {self._hold:.4g} V)')
-        self.progress = f'settle: {self._hold:.3g} V, {i_a:.4g} A'
-        return self._hold, 0.0
+            prev, self._prev_mean = self._prev_mean, (v_mean, i_mean)
+            if (prev is not None and abs(i_mean - prev[1]) < LEVEL_STEADY * abs(target)
+                    and abs(v_mean - prev[0]) < LEVEL_STEADY * abs(v_mean)
+                    and abs(i_mean - target) < 1e-2 * abs(target)):
+                self.dc_levels.append((v_mean, i_mean))
+                self._level += 1
+                self._prev_mean = None
+                if self._level == len(LEVELS):
+                    return self._identify_inverter(i_a, i_b, w)
+        if self.phase_k * self.T_s > 20.0 * len(LEVELS):
+            return self._fail(f'the inverter-error test did not settle at {target:.4g} A within '
+                              f'{20.0 * len(LEVELS):g} s ({i_a:.4g} A at {self._v_level:.4g} V)')
+        self.progress = f'inverter error: level {self._level + 1}/{len(LEVELS)}, {i_a:.4g} A'
+        return self._v_level, 0.0
+
+    def _identify_inverter(self, i_a, i_b, w):
+        """Fit the DC levels; compensate from here on; R_s0 from the fit; go on to excite."""
+        v, i = zip(*self.dc_levels)
+        R, c, sR, sc = fit_dc_levels(v, i)
+        v_dead = max(c, 0.0) / ALPHA_ERROR
+        self.inverter_fit = {'v_dead': v_dead, 'v_dead_std': sc / ALPHA_ERROR,
+                             'R_dc': R, 'R_dc_std': sR}
+        self.R_s0 = R
+        model = InverterErrorModel(v_dead, 0.0, COMPENSATION_BAND * self.i_max)
+        if ALPHA_ERROR * v_dead > ERROR_SHARE * R * TEST_CURRENT * self.i_max:
+            # an error that matters against the test voltage: compensated from here on, and the
+            # record so far (probe, levels) taken as the motor got it
+            self.inverter_error = model
+            self.log_v = [model.motor_voltage(va, vb, ia, ib)
+                          for (va, vb), (ia, ib) in zip(self.log_v, self.log_i)]
+        self._goto('excite')
+        self._exc = self._excitation()
+        return self._excite(i_a, i_b, w)
 
     def _excitation(self) -> List[float]:
         V = self.R_s0 * TEST_CURRENT * self.i_max
+        bias = 0.0
+        if self.inverter_error is not None:
+            # around a DC current: no phase current crosses zero (BIAS, SWING)
+            bias, V = self.R_s0 * BIAS * self.i_max, self.R_s0 * SWING * self.i_max
+        self.excitation_bias = bias
         out = []
         for level, seconds in EXCITATION:
-            out += [level * V] * max(1, int(round(seconds / self.T_s)))
+            out += [bias + level * V] * max(1, int(round(seconds / self.T_s)))
         return out
 
     def _excite(self, i_a, i_b, w):
@@ -569,15 +667,17 @@ class Commissioning:
         return self._exc[self.phase_k], 0.0
 
     def _identify_electrical(self) -> None:
-        v = np.array(self.log_v)[:, 0]
-        i = np.array(self.log_i)[: len(v), 0]
-        values, std, rms, _ = fit_standstill(v, i, self.T_s, self.R_s0)
+        # from rest, or (a biased excitation) from the last level's DC steady state
+        k0 = self.marks['excite'] if self.excitation_bias else 0
+        v = np.array(self.log_v)[k0:, 0]
+        i = np.array(self.log_i)[k0:k0 + len(v), 0]
+        i0 = float(i[0]) if k0 else 0.0
+        values, std, rms, _ = fit_standstill(v, i, self.T_s, self.R_s0, i0)
         self.electrical = (values, std, rms)
-        self._standstill_record = (v, i)
+        self._standstill_record = (v, i, i0)
         # the state at t_k of the current step: one more model step from the last logged one
-        R_s, L_s, L_M, R_R = (values[n] for n in IDENTIFIABLE_NAMES)
-        _, psi = standstill_response(np.array([R_s, L_s, L_M, R_R]),
-                                     np.append(v, 0.0), self.T_s)
+        p = np.array([values[n] for n in IDENTIFIABLE_NAMES])
+        _, psi = standstill_response(p, np.append(v, 0.0), self.T_s, dc_state(p, i0))
         self._psi_R0 = float(psi[-1])
         self._excitation_peak = float(np.max(np.abs(i)))
 
@@ -676,6 +776,9 @@ class Commissioning:
                     f'(standard deviation {std[n]:.3g}, residual {rms:.3g} A RMS at '
                     f'{self._excitation_peak:.3g} A peak): too little current against the noise')
         out = Identified(values, std, notes, {'standstill_A': rms})
+        if self.inverter_fit:                   # the inverter's error, as the drive compensates
+            out.inverter = dict(self.inverter_fit, current_band=COMPENSATION_BAND * self.i_max,
+                                compensated=self.inverter_error is not None)
         if self.locked:
             return out
         self._identify_mechanics(out)
@@ -693,8 +796,8 @@ class Commissioning:
             return
         c = (psi[:, 0] + 1j * psi[:, 1], i[:, 0] + 1j * i[:, 1], v[:, 0] + 1j * v[:, 1],
              self.R_s)
-        values, std, rms = fit_joint(*self._standstill_record, self.T_s, self.electrical[0], c,
-                                     window)
+        v_ss, i_ss, i0 = self._standstill_record
+        values, std, rms = fit_joint(v_ss, i_ss, self.T_s, self.electrical[0], c, window, i0)
         out.values.update(values)
         out.std.update(std)
         out.rms_residual['standstill_A'] = rms
