@@ -297,6 +297,14 @@ def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) 
               f'Tests: T_s = {args.T_s:g} s, limits {com.i_max:g} A / {com.v_max:g} V; peaks '
               f'{com.peak_i:.4g} A / {com.peak_v:.4g} V; RMS residuals '
               + ', '.join(f'{k} {x:.3g}' for k, x in ident.rms_residual.items()) + '.']
+    inv = ident.inverter
+    if inv:
+        how = '' if inv['compensated'] else ' (negligible: not compensated in the tests)'
+        lines.append(f'Inverter voltage error (dead time + device drop, per phase): v_dead = '
+                     f"{inv['v_dead']:.4g} +- {inv['v_dead_std']:.2g} V{how}; the drive "
+                     'compensates it with the run-file key compensation: '
+                     f"{{v_dead: {inv['v_dead']:.4g}, current_band: {inv['current_band']:.3g}}} "
+                     "(docs/compensation.md). R_s includes the devices' on-state resistance.")
     if flux is not None:
         lines.append(f'Rated rotor flux (nameplate voltage, frequency, speed; this gauge): '
                      f"{flux:.4g} Wb (the controller's phi_d for constant flux).")
