@@ -79,6 +79,15 @@ class Sensors:
         r = self.current_range
         return self.adc(self.current_gain[k] * i + self.current_offset[k], -r, r)
 
+    def phase_currents(self, i_a: float, i_b: float, i_c: float):
+        """Return the three phases' measurements: :meth:`phase_current` of each, in one call."""
+        g = self.current_gain
+        o = self.current_offset
+        r = self.current_range
+        adc = self.adc
+        return (adc(g[0] * i_a + o[0], -r, r), adc(g[1] * i_b + o[1], -r, r),
+                adc(g[2] * i_c + o[2], -r, r))
+
     def describe(self) -> dict:
         out = {'encoder_lines': self.encoder_lines, 'speed_window': self.speed_window,
                'adc_bits': self.adc_bits, 'current_range': self.current_range,
