@@ -3,20 +3,25 @@ The real plant: what :class:`im_common.plant_sim.PlantSimulator` does when a blo
 
 A :class:`PlantSimulator` given any of ``inverter``, ``saturation``, ``thermal``, ``sensors`` or
 ``iron_loss`` builds one :class:`RealPlant`, which replaces the simulator's ``step``,
-``state_currents``, ``measure`` and ``truth`` on that instance; the ideal plant (every block
-absent) never reaches this module, so its path and its numbers are unchanged.
+``state_currents``, ``stator_currents``, ``measure`` and ``truth`` on that instance; the ideal
+plant (every block absent) never reaches this module, so its path and its numbers are unchanged.
 
 Per control period (docs/plant.md):
 
 1. the command passes the ideal plant's limit and rating checks, then (with an inverter) the
    carrier comparison of :mod:`im_common.inverter` computes the period's switching instants once,
    at its start;
-2. between consecutive instants the pole voltages are constant: the interval is integrated with
-   RK4 (:meth:`im_common.model.RealMotorModel.rk4`), one step per interval, at most
-   ``max_substep`` long — a bounded number per period, no zero-crossing search. The dead bands
+2. between consecutive instants the pole voltages are constant: the interval is solved exactly,
+   two complex exponentials of the period's complex-linear electrical system (the speed, the
+   magnetizing slope and the iron loss's rotation offset held over the period at predicted
+   values, docs/plant.md §1), the energy integrals in closed form from the same solution — a
+   bounded number of intervals per period, no zero-crossing search, no sub-steps. The dead bands
    are resolved by the phase currents' signs at the period's start; if a current's sign at any
    interval boundary differs, the period is integrated again with explicit dead bands, each
-   taking the sign of its leg's current at the band's start;
+   taking the sign of its leg's current at the band's start. The shaft then takes the period's
+   mean torque (momentum), its angle the trapezoid of the speeds. ``use_reference(n)`` switches
+   to RK4 of :meth:`im_common.model.RealMotorModel.rhs`, n steps per interval (the fine-step
+   reference of the tests);
 3. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
 """
@@ -48,9 +53,10 @@ _UNIT = (_UNIT_VECTORS, tuple(u.conjugate() for u in _UNIT_VECTORS),
          tuple((u * u.conjugate()).real for u in _UNIT_VECTORS))
 
 
-#: the unit drop vector clarke(sgn i_a, sgn i_b, sgn i_c) of the phase currents' signs
-_SIGNED_UNIT = {(a, b, c): complex(*clarke(a, b, c))
-                for a in (-1.0, 1.0) for b in (-1.0, 1.0) for c in (-1.0, 1.0)}
+#: clarke(x_a, x_b, x_c) as a complex number for the triples a period's plan and the currents'
+#: signs give: switch states {0, ½, 1} (½: a dead band without current) and signs {−1, 0, 1}
+_CLARKE = {(a, b, c): complex(*clarke(a, b, c)) for vals in ((0, 0.5, 1), (-1.0, 0.0, 1.0))
+           for a in vals for b in vals for c in vals}
 
 
 def _sgn(x: float) -> float:
@@ -96,6 +102,7 @@ class RealPlant:
                         self.iron_loss, self.model.locked, self.model.r_on)
         self._prev = None                       # the last period's predictors (_solve)
         self._currents = (None, None)           # (state, state_currents()) of the last call
+        self._end_current = (None, 0j)          # (state, i_s) at the end of the last _solve
         # unit switch-state vectors: clarke of the pole voltages (s_a, s_b, s_c) for V_dc = 1
         self._sv = {(a, b, c): clarke(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)}
         self.temps = None
@@ -189,21 +196,28 @@ class RealPlant:
             # the dead bands and drops resolved by the currents' signs at the period's start;
             # if a current has another sign at an interval boundary, the period again with
             # explicit dead bands and the drops' signs taken at each interval's start
-            i_sa, i_sb = self.model.stator_current(t0, x)
+            end = self._end_current             # the last period's, if it ended here
+            if end[0] is x:
+                i_sa = end[1].real
+                i_sb = end[1].imag
+            else:
+                i_sa, i_sb = self.model.stator_current(t0, x)
             i_sb *= SQRT3
             signs = (_sgn(i_sa), _sgn(i_sb - i_sa), _sgn(-i_sb - i_sa))
             if 0.0 not in signs:
                 events, code = self._events(d, half, signs)
-                out = self._solve(x, t0, T_s, events, code, _UNIT, V,
-                                  _SIGNED_UNIT[signs] * inv.v_on, signs, None)
-                if out is not None:
-                    return out
-            # with on-state drops, their signs are taken again at the carrier's valley too
-            extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
-            plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, extra=extra)
-            return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, plan)
+                return self._solve(x, t0, T_s, events, code, _UNIT, V,
+                                   _CLARKE[signs] * inv.v_on, signs, (d, half))
+            return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, self._plan(d, half))
         events, code = self._events(d, half, (1.0, 1.0, 1.0))
         return self._solve(x, t0, T_s, events, code, _UNIT, V, 0j, None, None)
+
+    def _plan(self, d, half: int):
+        """Return the period's plan with explicit dead bands (:func:`period_plan`)."""
+        inv = self.inverter
+        # with on-state drops, their signs are taken again at the carrier's valley too
+        extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
+        return period_plan(d, half, inv.T_c, self.sim.T_s, inv.deadtime, extra=extra)
 
     def _events(self, d, half: int, signs):
         """
@@ -258,8 +272,9 @@ class RealPlant:
         predicted mean), so each constant-voltage interval is two complex exponentials of its
         eigenvalues, and the energy integrals come in closed form from the same solution.
         Either ``events`` (switching instants with the dead bands resolved by ``signs``, the
-        pole vectors ``V·table[0][code]``, the constant drop ``drop``; None when a phase
-        current has another sign at an interval boundary) or ``plan``
+        pole vectors ``V·table[0][code]``, the constant drop ``drop``; when a phase current has
+        another sign at an interval boundary, the period again from its start with ``plan`` =
+        (duties, half) turned into :meth:`_plan`) or ``plan``
         (:func:`im_common.inverter.period_plan`: dead bands and drops by the currents' signs at
         each interval's start).
         """
@@ -275,12 +290,10 @@ class RealPlant:
         # the start: ω₀ (the flux's rotation rate without iron loss) and the torque
         # v ψ_R × i_R, i_R = i_s − i_μ − i_Fe (i_μ ∥ ψ_R, i_Fe = (ω₀ − ω) j ψ_R / R_R)
         cross = pr.real * i_s.imag - pr.imag * i_s.real
-        tau0 = vp * cross
-        w00 = 0.0
+        tau0 = vp * cross                       # (the iron loss's share, ~1e-4, not needed
+        w00 = 0.0                               # for the torque's change between starts)
         if r0 > 1e-9:
             w00 = R_R * cross / (r0 * r0) + vp * omega
-            if iron:
-                tau0 -= vp * (w00 - iron_rotation(w00, R_R, k_h, k_e)) / R_R * r0 * r0
         # the period's predictions: from the start and the previous period (docs/plant.md §1)
         prev = self._prev
         if prev is not None and abs(prev[0] - t0) <= 1e-9 * T and prev[1] == T:
@@ -331,7 +344,7 @@ class RealPlant:
         z2 = z20 = (a * pr - c1 * ps) * inv
         exp = cexp
         lo = hi = i_s.real
-        if plan is None:
+        if events is not None:
             # resolved dead bands, constant drop: Σ conj(u) a = V Σ conj(û) a − conj(d) Δz; the
             # loop runs on w_i = z_i/g_i (w_i → u in steady state)
             unit, unitc, norm2 = table
@@ -366,13 +379,22 @@ class RealPlant:
                     if check:
                         ii = sq3 * i.imag
                         if ir * sa <= 0.0 or (ii - ir) * sb <= 0.0 or (-ii - ir) * sc <= 0.0:
-                            return None
+                            break
                     if ir < lo:
                         lo = ir
                     elif ir > hi:
                         hi = ir
                     tp = t_ev
                 code ^= bit
+            else:
+                plan = None
+            if plan is not None:                # a current changed sign: explicit dead bands
+                plan = self._plan(*plan)
+                z1 = z10
+                z2 = z20
+                lo = hi = i_s.real
+                drop = 0j
+        if plan is None:
             z1 = w1 * g1
             z2 = w2 * g2
             B1 *= g1
@@ -393,12 +415,15 @@ class RealPlant:
             for h, states in plan:
                 ir = i.real
                 ii = SQRT3 * i.imag
-                sg = (_sgn(ir), _sgn(ii - ir), _sgn(-ii - ir))
+                ib = ii - ir
+                ic = -ii - ir
+                sg = (1.0 if ir > 0.0 else (-1.0 if ir < 0.0 else 0.0),
+                      1.0 if ib > 0.0 else (-1.0 if ib < 0.0 else 0.0),
+                      1.0 if ic > 0.0 else (-1.0 if ic < 0.0 else 0.0))
                 if None in states:
                     states = tuple(s if s is not None else _DIODE[q] for s, q in zip(states, sg))
-                u = V * complex(*clarke(*states))
-                dk = v_on * complex(*clarke(*sg)) if v_on > 0.0 else 0j
-                u -= dk
+                dk = v_on * _CLARKE[sg] if v_on > 0.0 else 0j
+                u = V * _CLARKE[states] - dk
                 a1 = (z1 - g1 * u) * (exp(l1 * h) - 1.0)
                 a2 = (z2 - g2 * u) * (exp(l2 * h) - 1.0)
                 uc = u.conjugate()
@@ -478,6 +503,7 @@ class RealPlant:
         out = [ps.real, ps.imag, pr.real / th, pr.imag / th, theta1, omega1,
                x[6] + e_in, x[7] + R_s * Is2, x[8] + R_R * Ir2, x[9] + e_core, x[10] + e_fric,
                x[11] + w_load, x[12], x[13] + e_inv]
+        self._end_current = (out, i)            # i_s at the end: the next period's start
         return out, (U1.real / T, U1.imag / T)
 
     def _fallback(self, x, t0, T, events, code, table, V, drop, plan):
@@ -486,7 +512,7 @@ class RealPlant:
         inv = self.inverter
         t = t0
         mean = 0j
-        if plan is None:
+        if events is not None:
             plan = []
             tp = 0.0
             for t_ev, bit in events:
@@ -638,8 +664,12 @@ class RealPlant:
 
     # Outputs -----------------------------------------------------------------------------
     def stator_currents(self):
-        """Return (i_sα, i_sβ) at t_k."""
-        return self.model.stator_current(self.sim.t, self.sim.x)
+        """Return (i_sα, i_sβ) at t_k (the last period's solution gives it)."""
+        x = self.sim.x
+        end = self._end_current
+        if end[0] is x:
+            return end[1].real, end[1].imag
+        return self.model.stator_current(self.sim.t, x)
 
     def state_currents(self):
         """Return (i_sα, i_sβ, i_rα, i_rβ) at t_k (the rotor current in the model's gauge)."""
@@ -659,7 +689,7 @@ class RealPlant:
         """Return what the sensors give at t_k, the carrier's peak (im_common.sensors)."""
         sim = self.sim
         x = sim.x
-        i_sa, i_sb = self.model.stator_current(sim.t, x)
+        i_sa, i_sb = self.stator_currents()
         theta = x[4]
         omega = x[5]
         se = self.sensors

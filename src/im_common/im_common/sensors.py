@@ -67,11 +67,16 @@ class Sensors:
 
     def adc(self, x: float, lo: float, hi: float) -> float:
         """Return ``x`` through an ADC of ``adc_bits`` bits over [lo, hi) (ideal when 0 bits)."""
-        if self.adc_bits <= 0:
+        bits = self.adc_bits
+        if bits <= 0:
             return x
-        n = 1 << self.adc_bits
+        n = 1 << bits
         lsb = (hi - lo) / n
-        code = min(max(round((x - lo) / lsb), 0), n - 1)
+        code = round((x - lo) / lsb)
+        if code < 0:
+            code = 0
+        elif code >= n:
+            code = n - 1
         return lo + code * lsb
 
     def phase_current(self, k: int, i: float) -> float:
