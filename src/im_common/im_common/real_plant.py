@@ -468,9 +468,10 @@ class RealPlant:
         k2 = c2.conjugate()
         torque = vp * (k1 * q1 * M11 + k2 * q2 * M22 + k1 * q2 * M21 + k2 * q1 * M12).imag
         e_in = (s1 * X1 + s2 * X2).real - r_on * Is2
-        if Dd is None:
-            Dd = dc * (s1 * (z1 - z10 - b1 * U1) / l1 + s2 * (z2 - z20 - b2 * U1) / l2)
-        e_inv = r_on * Is2 + Dd.real            # ∫ conj(d) i_s, ∫ z_i = (Δz_i − b_i U1)/λ_i
+        ps = a * (z1 + z2)
+        if Dd is None:                          # ∫ i_s = (∫ u − Δψ_s)/(R_s + r_on)
+            Dd = dc * (U1 - ps + complex(x[0], x[1])) / (R_s + r_on)
+        e_inv = r_on * Is2 + Dd.real            # ∫ conj(d) i_s
         e_core = 0.0
         w0bar = w00
         if iron or k_h or k_e:
@@ -496,7 +497,6 @@ class RealPlant:
             e_fric = T * b_f * w_star * w_star
             w_load = T * tl * w_star
         self._prev = (t0 + T, T, r0, tau0, w00, torque / T, w0bar)
-        ps = a * (z1 + z2)
         pr = c1 * z1 + c2 * z2
         if self.inverter is not None:
             self.ripple = SQRT_2_3 * (hi - lo)
