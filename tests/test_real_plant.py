@@ -326,6 +326,35 @@ def test_thermal_first_order_response():
         20.0 + p * (1 - math.exp(-1.0)))
 
 
+def test_rotor_heats_by_the_first_order_closed_form_under_a_steady_load():
+    """
+    A shortened duty: locked rotor at 60 Hz in its steady state, the cage's loss constant.
+
+    ΔT_r(t) = R_th_r P_r (1 − e^{−t/τ_r}) (the 2-minute duties of docs/plant.md §4 with τ_r
+    scaled down to 0.1 s; α = 0 keeps the loss constant); P_r from the books.
+    """
+    w = 2.0 * math.pi * 60.0
+
+    def v(k):
+        return 60.0 * np.exp(1j * w * k * T_S)
+
+    warm = PlantSimulator(P, None, T_s=T_S, locked_rotor=True,
+                          thermal={'C_s': 1e9, 'R_th_s': 1.0, 'C_r': 1e9, 'R_th_r': 1.0})
+    for k in range(30000):                          # 3 s: the DC transient (0.22 s) is gone
+        warm.step(float(v(k).real), float(v(k).imag))
+    th = {'C_s': 1e9, 'R_th_s': 1.0, 'C_r': 2.0, 'R_th_r': 0.05, 'alpha_s': 0.0, 'alpha_r': 0.0}
+    sim = PlantSimulator(P, None, T_s=T_S, locked_rotor=True, thermal=th, x0=warm.x[:6])
+    for k in range(30000, 33000):
+        sim.step(float(v(k).real), float(v(k).imag))
+    tr = sim.truth()
+    t = sim.t
+    p_r = tr['E_cu_r'] / t
+    assert p_r > 100.0
+    want = 25.0 + 0.05 * p_r * (1.0 - math.exp(-t / 0.1))
+    assert tr['T_rotor'] == pytest.approx(want, rel=1e-6)
+    assert tr['T_rotor'] - 25.0 > 0.9 * 0.05 * p_r    # three time constants: near steady
+
+
 def test_resistances_follow_the_winding_temperatures():
     th = Thermal(C_s=0.5, R_th_s=2.0, C_r=0.5, R_th_r=2.0)
     sim = PlantSimulator(P, None, T_s=T_S, thermal=th, locked_rotor=True)
