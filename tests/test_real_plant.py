@@ -413,6 +413,10 @@ def test_energy_books_close_with_every_block_on():
         assert abs(tr['balance_residual_dc']) <= 1e-9 * tr['E_in'] + 1e-9
     assert tr['E_core'] > 0 and tr['E_inv'] > 0 and tr['T_rotor'] > 25.0
     assert tr['omega_r'] > 100.0
+    # the per-period outputs (state_currents, the protection's stator current) are the truth's
+    want = (tr['i_alpha'], tr['i_beta'], tr['i_r_alpha'], tr['i_r_beta'])
+    assert sim.state_currents() == pytest.approx(want, rel=1e-9, abs=1e-12)
+    assert sim.stator_currents() == pytest.approx(want[:2], rel=1e-9, abs=1e-12)
 
 
 # 8. Bad input: one line naming the key ---------------------------------------------------------
