@@ -211,6 +211,36 @@ def test_exact_step_of_a_locked_rotor_is_the_converged_reference():
         assert out[0][k] == pytest.approx(out[1][k], rel=1e-8)
 
 
+@pytest.mark.parametrize('detune', [1.0, 1.001])
+def test_repeated_eigenvalues_fall_back_and_agree(detune):
+    """
+    R_s = R_R (1 + L_σ/L_M) and v ω_r = 2√(ac) make the period's eigenvalues meet (§1).
+
+    Exactly there the period falls back to RK4; 0.1 % off it the modal solution holds; both
+    agree with the fine-step reference.
+    """
+    th = P.L_sr / P.L_r
+    L_M = P.L_sr * th
+    L_sig = P.L_s - L_M
+    R_R = th * th * P.R_r
+    R_s = R_R * (1.0 + L_sig / L_M)
+    omega = detune * math.sqrt(R_s / L_sig * R_R / L_sig)     # v ω = 2 √(a c), v = 2
+    m = P.with_values(R_s=R_s, J=1e9)
+    neutral = {'C_s': 1e9, 'R_th_s': 1.0, 'C_r': 1e9, 'R_th_r': 1.0, 'alpha_s': 0.0,
+               'alpha_r': 0.0}
+    out = []
+    for ref in (None, 8):
+        sim = PlantSimulator(m, None, T_s=T_S, thermal=neutral,
+                             x0=(0.3, 0.1, 0.2, 0.05, 0.0, omega))
+        if ref:
+            sim.real.use_reference(ref)
+        for _ in range(50):
+            sim.step(50.0, 20.0)
+        out.append(list(sim.x))
+    for k in (0, 1, 2, 3, 5, 6, 7, 8):
+        assert out[0][k] == pytest.approx(out[1][k], rel=1e-8), k
+
+
 def test_period_plan_has_bounded_intervals():
     """At most 13 constant-voltage intervals per period (three legs, four instants each)."""
     for d in ((0.1, 0.5, 0.9), (0.0, 1.0, 0.5), (0.5, 0.5, 0.5)):

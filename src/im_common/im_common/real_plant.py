@@ -329,7 +329,7 @@ class RealPlant:
             l1 = 0.5 * (tr - disc)
         l2 = det / l1
         dl = l2 - l1
-        if abs(dl) <= 1e-7 * abs(l1):           # (nearly) repeated eigenvalues: RK4 instead
+        if abs(dl) <= 1e-3 * abs(l1):           # (nearly) repeated eigenvalues: RK4 instead
             return self._fallback(x, t0, T, events, code, table, V, drop, plan)
         inv = 1.0 / (a * dl)
         c1 = a + l1                             # ψ_R = c1 z1 + c2 z2, ψ_s = a (z1 + z2)
