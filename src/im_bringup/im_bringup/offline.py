@@ -93,7 +93,7 @@ def _record(tr: dict, rec: int, plant, controller, x_hat, t: float, v_a: float,
     """Record one row of the traces at t_k (true state, references, applied voltage, energy)."""
     x = plant.x
     _, _, L_s, L_r, L_sr = plant.schedule.values(t)
-    i_sa, i_sb, _, _ = plant.state_currents()
+    i_sa, i_sb = plant.stator_currents()
     ref = controller.reference
     applied = plant.limit(v_a, v_b)
     vp = plant.params.pole_pairs

@@ -226,6 +226,18 @@ E_INV = 13
 N_AUG_REAL = 14
 
 
+def iron_rotation(w0: float, R_R: float, k_h: float, k_e: float) -> float:
+    """
+    Return the rotation rate ω of ψ_R with the iron loss acting, from ω₀ without it (§3).
+
+    2π f = sgn(ω₀) max(0, (4π²|ω₀| − 2π R_R k_h)/(4π² + R_R k_e)); the difference ω₀ − ω is
+    the rate the iron-loss conductance takes off the flux's rotation (docs/plant.md §3).
+    """
+    c = TWO_PI * TWO_PI
+    w = max(0.0, (c * abs(w0) - TWO_PI * R_R * k_h) / (c + R_R * k_e))
+    return math.copysign(w, w0)
+
+
 class RealMotorModel:
     """
     The plant's equations with main-flux saturation and an iron loss that acts (docs/plant.md).
@@ -269,6 +281,7 @@ class RealMotorModel:
         self.r_on = float(r_on)
         self.drop = (0.0, 0.0)
         self._const = None
+        self._base = None
         self.set_temperature_factors(1.0, 1.0)
 
     def set_temperature_factors(self, fs: float, fr: float) -> None:
@@ -276,10 +289,46 @@ class RealMotorModel:
         self.fs = fs
         self.fr = fr
         if self.schedule.is_constant:
-            R_s, R_r, L_s, L_r, L_sr = self.schedule.values(0.0)
-            th = L_sr / L_r
-            self._const = (R_s * fs, R_r * fr * th * th, th, 1.0 / (L_s - L_sr * th),
-                           1.0 / (L_sr * th))
+            if self._base is None:
+                R_s, R_r, L_s, L_r, L_sr = self.schedule.values(0.0)
+                th = L_sr / L_r
+                self._base = (R_s, R_r * th * th, th, L_s - L_sr * th, 1.0 / (L_sr * th))
+            R_s, R_R, th, L_sig, inv_LM0 = self._base
+            self._const = (R_s * fs, R_R * fr, th, 1.0 / L_sig, inv_LM0)
+            self._circuit = (R_s * fs, R_R * fr, th, L_sig, inv_LM0)
+
+    def circuit(self, t: float):
+        """Return the inverse-Γ circuit at t: (R_s, R_R, θ, L_σ, 1/L_M0), R's at temperature."""
+        if self._const is not None:
+            return self._circuit
+        R_s, R_r, L_s, L_r, L_sr = self.schedule.values(t)
+        th = L_sr / L_r
+        return R_s * self.fs, R_r * self.fr * th * th, th, L_s - L_sr * th, 1.0 / (L_sr * th)
+
+    def currents(self, t: float, x: Sequence[float]):
+        """
+        Return (i_sα, i_sβ, i_Rα, i_Rβ): the stator current and the inverse-Γ rotor current.
+
+        i_R = i_s − i_μ − i_Fe, the branch balance of :meth:`rhs` (what :meth:`outputs` gives
+        as −i_r/θ), without the energy integrands: the real plant's per-period outputs.
+        """
+        R_s, R_R, th, L_sig, inv_LM0 = self.circuit(t)
+        pa = th * x[2]
+        pb = th * x[3]
+        i_sa = (x[0] - pa) / L_sig
+        i_sb = (x[1] - pb) / L_sig
+        psi2 = pa * pa + pb * pb
+        sat = self.saturation
+        m = inv_LM0 if sat is None else sat.inv_L(math.sqrt(psi2))
+        i_ra = i_sa - m * pa
+        i_rb = i_sb - m * pb
+        if self.iron_loss and psi2 > 1e-18:
+            we = self.params.pole_pairs * x[5]
+            w0 = (pa * (R_R * i_rb + we * pa) - pb * (R_R * i_ra - we * pb)) / psi2
+            dw = (w0 - iron_rotation(w0, R_R, self.params.k_h, self.params.k_e)) / R_R
+            i_ra += dw * pb
+            i_rb -= dw * pa
+        return i_sa, i_sb, i_ra, i_rb
 
     def _split(self, t, x):
         """Return the circuit at (t, x): R's, θ, L_σ, R_R, i_s, ψ_R, i_μ."""
@@ -322,9 +371,7 @@ class RealMotorModel:
         if psi2 > 1e-18:
             w0 = (pa * e_b - pb * e_a) / psi2          # rotation rate of ψ_R without iron loss
             if self.iron_loss:
-                c = TWO_PI * TWO_PI
-                w = max(0.0, (c * abs(w0) - TWO_PI * R_R * p.k_h) / (c + R_R * p.k_e))
-                w = math.copysign(w, w0)
+                w = iron_rotation(w0, R_R, p.k_h, p.k_e)
                 dw = (w0 - w) / R_R
                 i_fa, i_fb = -dw * pb, dw * pa         # i_Fe = (e₀ − e)/R_R, along 𝒥ψ_R
                 e_a -= (w0 - w) * -pb
@@ -350,9 +397,9 @@ class RealMotorModel:
                 p.b * omega * omega, tau_l * omega, 0.0, r_on * i2 + da * i_sa + db * i_sb)
 
     def stator_current(self, t: float, x: Sequence[float]):
-        """Return (i_sα, i_sβ) at (t, x)."""
-        c = self._split(t, x)
-        return c[4], c[5]
+        """Return (i_sα, i_sβ) = (ψ_s − θ φ_r)/L_σ at (t, x)."""
+        _, _, th, L_sig, _ = self.circuit(t)
+        return (x[0] - th * x[2]) / L_sig, (x[1] - th * x[3]) / L_sig
 
     def outputs(self, t: float, x: Sequence[float]) -> dict:
         """Currents, torque, stored energies and parameters at (t, x), as MotorModel.outputs."""

@@ -233,7 +233,7 @@ class PlantSimulator:
     def protect(self) -> None:
         """Latch a trip on overcurrent or overspeed at t_k (after the period)."""
         if self.current_trip is not None:
-            i_a, i_b, _, _ = self.state_currents()
+            i_a, i_b = self.stator_currents()
             mag = math.hypot(i_a, i_b)
             if mag > self.current_trip:
                 self.trip = (self.t, f'overcurrent: |i_s| = {mag:.4g} A > {self.current_trip:g} A')
@@ -243,6 +243,11 @@ class PlantSimulator:
                                  f'{self.speed_trip:g} rad/s')
 
     # Outputs -----------------------------------------------------------------------------
+    def stator_currents(self):
+        """Return (i_sα, i_sβ) at t_k: the currents the protection watches."""
+        i_sa, i_sb, _, _ = self.state_currents()
+        return i_sa, i_sb
+
     def state_currents(self):
         R_s, R_r, L_s, L_r, L_sr = self.schedule.values(self.t)
         return currents(self.x[0], self.x[1], self.x[2], self.x[3], L_s, L_r, L_sr)

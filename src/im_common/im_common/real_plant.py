@@ -3,46 +3,60 @@ The real plant: what :class:`im_common.plant_sim.PlantSimulator` does when a blo
 
 A :class:`PlantSimulator` given any of ``inverter``, ``saturation``, ``thermal``, ``sensors`` or
 ``iron_loss`` builds one :class:`RealPlant`, which replaces the simulator's ``step``,
-``state_currents``, ``measure`` and ``truth`` on that instance; the ideal plant (every block
-absent) never reaches this module, so its path and its numbers are unchanged.
+``state_currents``, ``stator_currents``, ``measure`` and ``truth`` on that instance; the ideal
+plant (every block absent) never reaches this module, so its path and its numbers are unchanged.
 
 Per control period (docs/plant.md):
 
 1. the command passes the ideal plant's limit and rating checks, then (with an inverter) the
    carrier comparison of :mod:`im_common.inverter` computes the period's switching instants once,
    at its start;
-2. between consecutive instants the pole voltages are constant: the interval is integrated with
-   RK4 (:meth:`im_common.model.RealMotorModel.rk4`), one step per interval, at most
-   ``max_substep`` long — a bounded number per period, no zero-crossing search. The dead bands
+2. between consecutive instants the pole voltages are constant: the interval is solved exactly,
+   two complex exponentials of the period's complex-linear electrical system (the speed, the
+   magnetizing slope and the iron loss's rotation offset held over the period at predicted
+   values, docs/plant.md §1), the energy integrals in closed form from the same solution — a
+   bounded number of intervals per period, no zero-crossing search, no sub-steps. The dead bands
    are resolved by the phase currents' signs at the period's start; if a current's sign at any
    interval boundary differs, the period is integrated again with explicit dead bands, each
-   taking the sign of its leg's current at the band's start;
+   taking the sign of its leg's current at the band's start. The shaft then takes the period's
+   mean torque (momentum), its angle the trapezoid of the speeds. ``use_reference(n)`` switches
+   to RK4 of :meth:`im_common.model.RealMotorModel.rhs`, n steps per interval (the fine-step
+   reference of the tests);
 3. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
 """
 from __future__ import annotations
 
+from cmath import exp as cexp, sqrt as csqrt
 import math
 from typing import Mapping
 
-from .inverter import (check_against_motor, duties, Inverter, inverter_from_dict, period_plan,
-                       phase_values)
-from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, RealMotorModel
+from .inverter import (check_against_motor, duties, edges, Inverter, inverter_from_dict,
+                       period_plan, phase_values)
+from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
 from .params import clarke
 from .saturation import Saturation, saturation_from_dict
 from .sensors import Measurement, Sensors, sensors_from_dict, SpeedFromCounts
 from .thermal import first_order, Thermal, thermal_from_dict
 
 TWO_PI = 2.0 * math.pi
-#: RK4 steps per switching interval for the saturated (nonlinear) model: one is enough on
-#: intervals of at most T_s (a 0.5 s DOL start through the inverter with the shipped curve: the
-#: state within 1.4e-8 relative of eight steps per interval; docs/plant.md §1)
-SATURATED_SUBSTEPS = 1
-
+SQRT3 = math.sqrt(3.0)
+SQRT_2_3 = math.sqrt(2.0 / 3.0)
 
 #: the pole state a dead band gives by the current's sign: the lower diode for i > 0, the upper
 #: for i < 0, and with no current (neither conducts) the middle of the rails
 _DIODE = {1.0: 0, -1.0: 1, 0.0: 0.5}
+#: the switch states as a bit mask (leg a: 1, b: 2, c: 4): the unit stator vector clarke(s)
+#: (V_dc = 1) as a complex number, its conjugate and its squared magnitude
+_UNIT_VECTORS = tuple(complex(*clarke(c & 1, (c >> 1) & 1, (c >> 2) & 1)) for c in range(8))
+_UNIT = (_UNIT_VECTORS, tuple(u.conjugate() for u in _UNIT_VECTORS),
+         tuple((u * u.conjugate()).real for u in _UNIT_VECTORS))
+
+
+#: clarke(x_a, x_b, x_c) as a complex number for the triples a period's plan and the currents'
+#: signs give: switch states {0, ½, 1} (½: a dead band without current) and signs {−1, 0, 1}
+_CLARKE = {(a, b, c): complex(*clarke(a, b, c)) for vals in ((0, 0.5, 1), (-1.0, 0.0, 1.0))
+           for a in vals for b in vals for c in vals}
 
 
 def _sgn(x: float) -> float:
@@ -82,8 +96,13 @@ class RealPlant:
                                     inverter.r_on if inverter is not None else 0.0)
         sim.model = self.model
         sim.x = list(sim.x) + [0.0]
-        self.max_substep = sim.h
-        self.sat_sub = SATURATED_SUBSTEPS if saturation is not None else 1
+        self.reference_substeps = None          # None: exact; n: the RK4 reference
+        p = self.model.params
+        self._consts = (p.pole_pairs, p.J, p.b, p.k_h, p.k_e, self.model.load, saturation,
+                        self.iron_loss, self.model.locked, self.model.r_on)
+        self._prev = None                       # the last period's predictors (_solve)
+        self._currents = (None, None)           # (state, state_currents()) of the last call
+        self._end_current = (None, 0j)          # (state, i_s) at the end of the last _solve
         # unit switch-state vectors: clarke of the pole voltages (s_a, s_b, s_c) for V_dc = 1
         self._sv = {(a, b, c): clarke(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)}
         self.temps = None
@@ -104,6 +123,7 @@ class RealPlant:
             self._omega_meas = 0.0
         sim.step = self.step
         sim.state_currents = self.state_currents
+        sim.stator_currents = self.stator_currents
         sim.measure = self.measure
         sim.truth = self.truth
 
@@ -119,6 +139,19 @@ class RealPlant:
         self.model.set_temperature_factors(*self.thermal.resistance_factors(*self.temps))
 
     # Stepping ----------------------------------------------------------------------------
+    def use_reference(self, substeps: int) -> None:
+        """
+        Integrate with RK4 from now on: ``substeps`` steps per constant-voltage interval.
+
+        The fine-step reference the exact solution is checked against (tests, docs/plant.md
+        §1): the same switching instants, dead bands and drops, the model's right-hand side
+        (:meth:`RealMotorModel.rhs`) with the speed, saturation and iron loss acting within
+        the interval.
+        """
+        if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+            raise ValueError(f'substeps must be a whole number >= 1 (got {substeps!r})')
+        self.reference_substeps = substeps
+
     def step(self, v_a: float, v_b: float) -> None:
         """Integrate [t_k, t_k+1] with the command (PlantSimulator.step, module doc)."""
         sim = self.sim
@@ -126,7 +159,7 @@ class RealPlant:
         x0 = sim.x
         t0 = sim.t
         x, v_avg = self._integrate(x0, t0, v_a, v_b, sim.trip is not None)
-        if not all(map(math.isfinite, x)):
+        if not math.isfinite(sum(x)):           # a nan or an infinity anywhere
             sim.trip = (t0 + sim.T_s, 'non-finite state')
             x, v_avg = self._integrate(x0, t0, 0.0, 0.0, True)
             if not all(math.isfinite(v) for v in x):
@@ -141,28 +174,393 @@ class RealPlant:
             sim.protect()
 
     def _integrate(self, x, t0: float, v_a: float, v_b: float, tripped: bool):
+        if self.reference_substeps:
+            return self._integrate_rk4(x, t0, v_a, v_b, tripped)
+        sim = self.sim
+        T_s = sim.T_s
+        inv = self.inverter
+        if inv is None:                         # the command itself, held: n sub-periods
+            v = 0j if tripped else complex(v_a, v_b)
+            n = sim.n_sub
+            h = T_s / n
+            table = ((v,), (v.conjugate(),), (v.real * v.real + v.imag * v.imag,))
+            for j in range(n):
+                x, _ = self._solve(x, t0 + j * h, h, [(h, 0)], 0, table, 1.0, 0j, None, None)
+            return x, (v_a, v_b) if not tripped else (0.0, 0.0)
+        V = self.V
+        if tripped:                             # every lower device on: the stator shorted
+            return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, [(T_s, (0, 0, 0))])
+        d, _ = duties(v_a, v_b, V)
+        half = sim.k % 2 if inv.update == 'double' else 0
+        if inv.deadtime > 0.0 or inv.v_on > 0.0:
+            # the dead bands and drops resolved by the currents' signs at the period's start;
+            # if a current has another sign at an interval boundary, the period again with
+            # explicit dead bands and the drops' signs taken at each interval's start
+            end = self._end_current             # the last period's, if it ended here
+            if end[0] is x:
+                i_sa = end[1].real
+                i_sb = end[1].imag
+            else:
+                i_sa, i_sb = self.model.stator_current(t0, x)
+            i_sb *= SQRT3
+            signs = (_sgn(i_sa), _sgn(i_sb - i_sa), _sgn(-i_sb - i_sa))
+            if 0.0 not in signs:
+                events, code = self._events(d, half, signs)
+                return self._solve(x, t0, T_s, events, code, _UNIT, V,
+                                   _CLARKE[signs] * inv.v_on, signs, (d, half))
+            return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, self._plan(d, half))
+        events, code = self._events(d, half, (1.0, 1.0, 1.0))
+        return self._solve(x, t0, T_s, events, code, _UNIT, V, 0j, None, None)
+
+    def _plan(self, d, half: int):
+        """Return the period's plan with explicit dead bands (:func:`period_plan`)."""
+        inv = self.inverter
+        # with on-state drops, their signs are taken again at the carrier's valley too
+        extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
+        return period_plan(d, half, inv.T_c, self.sim.T_s, inv.deadtime, extra=extra)
+
+    def _events(self, d, half: int, signs):
+        """
+        Return the period's switching events [(t, leg bit), ..., (T_s, 0)] and the start state.
+
+        The dead bands resolved by the phase currents' signs (as
+        :func:`im_common.inverter.period_plan` with ``signs``): leg x is on in
+        [t_on + t_d, t_off) for i_x > 0 and in [t_on, t_off + t_d) for i_x < 0. The start state
+        is a bit mask (a: 1, b: 2, c: 4) of the legs on just after the period's start.
+        """
+        inv = self.inverter
+        T_s = self.sim.T_s
+        T_c = inv.T_c
+        t_d = inv.deadtime
+        single = T_s == T_c
+        code = 0
+        ev = []
+        for bit, dx, sg in ((1, d[0], signs[0]), (2, d[1], signs[1]), (4, d[2], signs[2])):
+            if single and 0.0 < dx < 1.0:       # edges() of a single update, inline
+                on0 = 0.5 * (1.0 - dx) * T_c
+                on1 = 0.5 * (1.0 + dx) * T_c
+                if sg > 0.0:
+                    on0 += t_d
+                else:
+                    on1 += t_d
+            else:
+                t_on, t_on_end, t_off, t_off_end = edges(dx, half, T_c, T_s, t_d)
+                if sg > 0.0:
+                    on0, on1 = t_on_end, t_off
+                else:
+                    on0, on1 = t_on, t_off_end
+            if on1 <= on0:
+                continue                        # a pulse narrower than the dead time: none
+            if on0 <= 0.0 < on1:
+                code |= bit
+            if 0.0 < on0 < T_s:
+                ev.append((on0, bit))
+            if 0.0 < on1 < T_s:
+                ev.append((on1, bit))
+        ev.sort()
+        ev.append((T_s, 0))
+        return ev, code
+
+    def _solve(self, x, t0: float, T: float, events, code: int, table, V: float, drop: complex,
+               signs, plan):
+        """
+        Integrate [t0, t0 + T] exactly between the switching instants; return (x, mean voltage).
+
+        The electrical model over the period is the complex-linear system of docs/plant.md §1
+        (the speed held at the period's predicted mid-point speed, the magnetizing slope at the
+        energy chord of the predicted flux change, the iron loss's rotation offset at its
+        predicted mean), so each constant-voltage interval is two complex exponentials of its
+        eigenvalues, and the energy integrals come in closed form from the same solution.
+        Either ``events`` (switching instants with the dead bands resolved by ``signs``, the
+        pole vectors ``V·table[0][code]``, the constant drop ``drop``; when a phase current has
+        another sign at an interval boundary, the period again from its start with ``plan`` =
+        (duties, half) turned into :meth:`_plan`) or ``plan``
+        (:func:`im_common.inverter.period_plan`: dead bands and drops by the currents' signs at
+        each interval's start).
+        """
+        mdl = self.model
+        vp, J, b_f, k_h, k_e, load, sat, iron, locked, r_on = self._consts
+        R_s, R_R, th, L_sig, inv_LM0 = mdl.circuit(t0 + 0.5 * T)
+        ps = complex(x[0], x[1])
+        pr = complex(th * x[2], th * x[3])
+        i_s = (ps - pr) / L_sig
+        r0 = abs(pr)
+        omega = x[5]
+        theta = x[4]
+        # the start: ω₀ (the flux's rotation rate without iron loss) and the torque
+        # v ψ_R × i_R, i_R = i_s − i_μ − i_Fe (i_μ ∥ ψ_R, i_Fe = (ω₀ − ω) j ψ_R / R_R)
+        cross = pr.real * i_s.imag - pr.imag * i_s.real
+        tau0 = vp * cross                       # (the iron loss's share, ~1e-4, not needed
+        w00 = 0.0                               # for the torque's change between starts)
+        if r0 > 1e-9:
+            w00 = R_R * cross / (r0 * r0) + vp * omega
+        # the period's predictions: from the start and the previous period (docs/plant.md §1)
+        prev = self._prev
+        if prev is not None and abs(prev[0] - t0) <= 1e-9 * T and prev[1] == T:
+            r1 = 2.0 * r0 - prev[2]
+            if r1 < 0.0:
+                r1 = 0.0
+            w0m = prev[6] + w00 - prev[4]
+            tau_hat = prev[5] + tau0 - prev[3]
+        else:
+            r1 = r0
+            w0m = w00
+            tau_hat = tau0
+        m = inv_LM0 if sat is None else sat.chord(r0, r1)
+        kappa = 0.0
+        if iron and r0 > 1e-9:
+            kappa = w0m - iron_rotation(w0m, R_R, k_h, k_e)
+        if locked:
+            w_star = tl = 0.0
+        else:
+            k2 = 0.5 * T / J
+            w_star = (omega + k2 * (tau_hat - load.torque(t0, theta, omega))) / (1.0 + k2 * b_f)
+            tl = load.torque(t0 + 0.5 * T, theta + 0.5 * T * w_star, w_star)
+        # the frozen system: d/dt (ψ_s, ψ_R) = [[−a, a], [c, −c − g + jw]] (ψ_s, ψ_R) + (u, 0)
+        a = (R_s + r_on) / L_sig
+        g = R_R * m
+        w = vp * w_star - kappa
+        tr = complex(-a - R_R / L_sig - g, w)
+        det = a * complex(g, -w)
+        disc = csqrt(tr * tr - 4.0 * det)
+        if tr.real * disc.real + tr.imag * disc.imag >= 0.0:
+            l1 = 0.5 * (tr + disc)              # the root of the larger magnitude
+        else:
+            l1 = 0.5 * (tr - disc)
+        l2 = det / l1
+        dl = l2 - l1
+        if abs(dl) <= 1e-3 * abs(l1):           # (nearly) repeated eigenvalues: RK4 instead
+            return self._fallback(x, t0, T, events, code, table, V, drop, plan)
+        inv = 1.0 / (a * dl)
+        c1 = a + l1                             # ψ_R = c1 z1 + c2 z2, ψ_s = a (z1 + z2)
+        c2 = a + l2
+        b1 = c2 * inv                           # the input's modal components
+        b2 = -c1 * inv
+        g1 = -b1 / l1                           # the modes' steady state per volt
+        g2 = -b2 / l2
+        s1 = -l1 / L_sig                        # i_s = s1 z1 + s2 z2
+        s2 = -l2 / L_sig
+        z1 = z10 = (c2 * ps - a * pr) * inv
+        z2 = z20 = (a * pr - c1 * ps) * inv
+        exp = cexp
+        lo = hi = i_s.real
+        if events is not None:
+            # resolved dead bands, constant drop: Σ conj(u) a = V Σ conj(û) a − conj(d) Δz; the
+            # loop runs on w_i = z_i/g_i (w_i → u in steady state)
+            unit, unitc, norm2 = table
+            B1 = B2 = SU = 0j
+            SU2 = 0.0
+            check = signs is not None
+            if check:
+                sa, sb, sc = signs
+            sq3 = SQRT3
+            w1 = z1 / g1
+            w2 = z2 / g2
+            t1 = s1 * g1                        # i_s = t1 w1 + t2 w2
+            t2 = s2 * g2
+            tp = 0.0
+            for t_ev, bit in events:
+                h = t_ev - tp
+                if h > 1e-15:
+                    u = V * unit[code] - drop
+                    a1 = (w1 - u) * (exp(l1 * h) - 1.0)
+                    a2 = (w2 - u) * (exp(l2 * h) - 1.0)
+                    w1 += a1
+                    w2 += a2
+                    n2 = norm2[code]
+                    if n2:
+                        uc = unitc[code]
+                        B1 += uc * a1
+                        B2 += uc * a2
+                        SU += unit[code] * h
+                        SU2 += n2 * h
+                    i = t1 * w1 + t2 * w2
+                    ir = i.real
+                    if check:
+                        ii = sq3 * i.imag
+                        if ir * sa <= 0.0 or (ii - ir) * sb <= 0.0 or (-ii - ir) * sc <= 0.0:
+                            break
+                    if ir < lo:
+                        lo = ir
+                    elif ir > hi:
+                        hi = ir
+                    tp = t_ev
+                code ^= bit
+            else:
+                plan = None
+            if plan is not None:                # a current changed sign: explicit dead bands
+                plan = self._plan(*plan)
+                z1 = z10
+                z2 = z20
+                lo = hi = i_s.real
+                drop = 0j
+        if plan is None:
+            z1 = w1 * g1
+            z2 = w2 * g2
+            B1 *= g1
+            B2 *= g2
+            dc = drop.conjugate()
+            U1 = V * SU - drop * T
+            U2 = V * V * SU2 - 2.0 * V * (dc * SU).real + (drop * dc).real * T
+            B1 = V * B1 - dc * (z1 - z10)
+            B2 = V * B2 - dc * (z2 - z20)
+            Dd = None
+        else:
+            # explicit dead bands: each takes its leg's current sign at the band's start, as do
+            # the drops at each interval's start
+            v_on = self.inverter.v_on
+            B1 = B2 = U1 = Dd = 0j
+            U2 = 0.0
+            i = i_s
+            for h, states in plan:
+                ir = i.real
+                ii = SQRT3 * i.imag
+                ib = ii - ir
+                ic = -ii - ir
+                sg = (1.0 if ir > 0.0 else (-1.0 if ir < 0.0 else 0.0),
+                      1.0 if ib > 0.0 else (-1.0 if ib < 0.0 else 0.0),
+                      1.0 if ic > 0.0 else (-1.0 if ic < 0.0 else 0.0))
+                if None in states:
+                    states = tuple(s if s is not None else _DIODE[q] for s, q in zip(states, sg))
+                dk = v_on * _CLARKE[sg] if v_on > 0.0 else 0j
+                u = V * _CLARKE[states] - dk
+                a1 = (z1 - g1 * u) * (exp(l1 * h) - 1.0)
+                a2 = (z2 - g2 * u) * (exp(l2 * h) - 1.0)
+                uc = u.conjugate()
+                B1 += uc * a1
+                B2 += uc * a2
+                U1 += u * h
+                U2 += (u * uc).real * h
+                if dk:
+                    Dd += dk.conjugate() * (s1 * (g1 * u * h + a1 / l1)
+                                            + s2 * (g2 * u * h + a2 / l2))
+                z1 += a1
+                z2 += a2
+                i = s1 * z1 + s2 * z2
+                ir = i.real
+                if ir < lo:
+                    lo = ir
+                elif ir > hi:
+                    hi = ir
+        # the period's integrals in closed form (docs/plant.md §1): the modes' first moments
+        # and, from d/dt (z_i conj z_j) integrated over the period, their second moments
+        X1 = g1 * U2 + B1 / l1                  # Σ conj(u) ∫ z_i
+        X2 = g2 * U2 + B2 / l2
+        M11 = (z1.real * z1.real + z1.imag * z1.imag - z10.real * z10.real
+               - z10.imag * z10.imag - 2.0 * (b1.real * X1.real + b1.imag * X1.imag)
+               ) / (2.0 * l1.real)
+        M22 = (z2.real * z2.real + z2.imag * z2.imag - z20.real * z20.real
+               - z20.imag * z20.imag - 2.0 * (b2.real * X2.real + b2.imag * X2.imag)
+               ) / (2.0 * l2.real)
+        M12 = (z1 * z2.conjugate() - z10 * z20.conjugate() - b1 * X2.conjugate()
+               - b2.conjugate() * X1) / (l1 + l2.conjugate())
+        M21 = M12.conjugate()
+        # ∫ conj(F) G for F, G = F1 z1 + F2 z2, ...: Σ conj(F_i) G_j ∫ conj(z_i) z_j
+        f1 = s1.conjugate()
+        f2 = s2.conjugate()
+        Is2 = ((f1 * s1).real * M11 + (f2 * s2).real * M22 + 2.0 * (s1 * f2 * M12).real)
+        mu = complex(m, kappa / R_R)            # i_R = i_s − μ ψ_R
+        q1 = s1 - mu * c1
+        q2 = s2 - mu * c2
+        Ir2 = ((q1 * q1.conjugate()).real * M11 + (q2 * q2.conjugate()).real * M22
+               + 2.0 * (q1 * q2.conjugate() * M12).real)
+        k1 = c1.conjugate()
+        k2 = c2.conjugate()
+        torque = vp * (k1 * q1 * M11 + k2 * q2 * M22 + k1 * q2 * M21 + k2 * q1 * M12).imag
+        e_in = (s1 * X1 + s2 * X2).real - r_on * Is2
+        ps = a * (z1 + z2)
+        if Dd is None:                          # ∫ i_s = (∫ u − Δψ_s)/(R_s + r_on)
+            Dd = dc * (U1 - ps + complex(x[0], x[1])) / (R_s + r_on)
+        e_inv = r_on * Is2 + Dd.real            # ∫ conj(d) i_s
+        e_core = 0.0
+        w0bar = w00
+        if iron or k_h or k_e:
+            P2 = (c1 * k1).real * M11 + (c2 * k2).real * M22 + 2.0 * (c1 * k2 * M12).real
+            # ∫ ψ_R × dψ_R/dt, with dψ_R/dt = R_R i_R + j v ω* ψ_R
+            rot = R_R * torque / vp + vp * w_star * P2
+            if P2 > 1e-18 * T:
+                w0bar = rot / P2 + kappa        # the period's mean rotation rate without loss
+            if iron:
+                e_core = kappa * rot / R_R
+            elif P2 > 1e-18 * T:                # booked: (k_h + k_e f) f |ψ_R|^n
+                f = abs(rot) / (TWO_PI * P2)
+                e_core = (k_h + k_e * f) * f * (
+                    P2 if mdl.core_loss_exponent == 2.0 else math.sqrt(P2 * T))
+        # the shaft: momentum with the period's mean torque, the work at the held speed
+        if locked:
+            omega1 = omega
+            theta1 = theta
+            e_fric = w_load = 0.0
+        else:
+            omega1 = omega + (torque - T * (b_f * w_star + tl)) / J
+            theta1 = theta + 0.5 * T * (omega + omega1)
+            e_fric = T * b_f * w_star * w_star
+            w_load = T * tl * w_star
+        self._prev = (t0 + T, T, r0, tau0, w00, torque / T, w0bar)
+        pr = c1 * z1 + c2 * z2
+        if self.inverter is not None:
+            self.ripple = SQRT_2_3 * (hi - lo)
+        out = [ps.real, ps.imag, pr.real / th, pr.imag / th, theta1, omega1,
+               x[6] + e_in, x[7] + R_s * Is2, x[8] + R_R * Ir2, x[9] + e_core, x[10] + e_fric,
+               x[11] + w_load, x[12], x[13] + e_inv]
+        self._end_current = (out, i)            # i_s at the end: the next period's start
+        return out, (U1.real / T, U1.imag / T)
+
+    def _fallback(self, x, t0, T, events, code, table, V, drop, plan):
+        """Integrate the period by RK4 (one step per interval): repeated eigenvalues (rare)."""
+        model = self.model
+        inv = self.inverter
+        t = t0
+        mean = 0j
+        if events is not None:
+            plan = []
+            tp = 0.0
+            for t_ev, bit in events:
+                if t_ev - tp > 1e-15:
+                    plan.append((t_ev - tp, table[0][code]))
+                    tp = t_ev
+                code ^= bit
+        for h, states in plan:
+            if isinstance(states, complex):
+                u = V * states
+                dk = drop
+            else:
+                i_sa, i_sb = model.stator_current(t, x)
+                sg = tuple(_sgn(q) for q in phase_values(i_sa, i_sb))
+                if None in states:
+                    states = tuple(s if s is not None else _DIODE[q]
+                                   for s, q in zip(states, sg))
+                u = V * complex(*clarke(*states))
+                dk = inv.v_on * complex(*clarke(*sg)) if inv is not None else 0j
+            u -= dk
+            model.drop = (dk.real, dk.imag)
+            x = model.rk4(t, x, h, u.real, u.imag)
+            t += h
+            mean += u * h
+        model.drop = (0.0, 0.0)
+        return x, (mean.real / T, mean.imag / T)
+
+    # The fine-step reference: RK4 between the same instants ------------------------------
+    def _integrate_rk4(self, x, t0: float, v_a: float, v_b: float, tripped: bool):
         sim = self.sim
         T_s = sim.T_s
         rk4 = self.model.rk4
         inv = self.inverter
+        n_ref = self.reference_substeps
         if inv is None:
             if tripped:
                 v_a = v_b = 0.0
-            n = max(1, int(math.ceil(T_s / self.max_substep - 1e-9))) * self.sat_sub
+            n = sim.n_sub * n_ref
             h = T_s / n
             for j in range(n):
                 x = rk4(t0 + j * h, x, h, v_a, v_b)
             return x, (v_a, v_b)
-        V = self.V
         if tripped:                             # every lower device on: the stator shorted
             return self._run_plan(x, t0, [(T_s, (0, 0, 0))], None)
-        d, _ = duties(v_a, v_b, V)
+        d, _ = duties(v_a, v_b, self.V)
         half = sim.k % 2 if inv.update == 'double' else 0
-        # with on-state drops, their signs are taken again at the carrier's valley too
         extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
         if inv.deadtime > 0.0:
-            # the dead bands resolved by the currents' signs at the period's start; if a current
-            # changes sign within the period, the period again with explicit dead bands
             ph = phase_values(*self.model.stator_current(t0, x))
             signs = tuple(_sgn(i) for i in ph)
             if 0.0 not in signs:
@@ -175,7 +573,7 @@ class RealPlant:
 
     def _run_plan(self, x, t0: float, plan, signs):
         """
-        Integrate the period's intervals in order; return (x, mean voltage).
+        Integrate the period's intervals in order by RK4; return (x, mean voltage).
 
         With ``signs`` (the dead bands resolved by them), None when a phase current's sign at an
         interval boundary differs from its assumed sign.
@@ -186,6 +584,7 @@ class RealPlant:
         V = self.V
         v_on = self.inverter.v_on
         sv = self._sv
+        n = self.reference_substeps
         t = t0
         sa = sb = 0.0
         lo = math.inf
@@ -210,13 +609,13 @@ class RealPlant:
                 model.drop = (da, db)
                 va -= da
                 vb -= db
-            n = max(1, int(math.ceil(length / self.max_substep - 1e-9))) * self.sat_sub
             h = length / n
             for _ in range(n):
                 x = rk4(t, x, h, va, vb)
                 t += h
             sa += va * length
             sb += vb * length
+        model.drop = (0.0, 0.0)
         i_sa, i_sb = model.stator_current(t, x)
         ph = phase_values(i_sa, i_sb)
         if signs is not None and (ph[0] * signs[0] <= 0.0 or ph[1] * signs[1] <= 0.0
@@ -235,23 +634,25 @@ class RealPlant:
                 p_s += x[E_CORE] - x0[E_CORE]
             p_r = (x[E_CU_R] - x0[E_CU_R]) / T_s
             ds, dr = self._decay
-            self.temps = [first_order(self.temps[0], th.T_ambient, th.R_th_s, p_s / T_s, ds),
-                          first_order(self.temps[1], th.T_ambient, th.R_th_r, p_r, dr)]
-            self._set_resistances()
+            T_st = first_order(self.temps[0], th.T_ambient, th.R_th_s, p_s / T_s, ds)
+            T_rt = first_order(self.temps[1], th.T_ambient, th.R_th_r, p_r, dr)
+            self.temps = [T_st, T_rt]
+            self.model.set_temperature_factors(*th.resistance_factors(T_st, T_rt))
         inv = self.inverter
         if inv is not None:
             e_inv = x[E_INV] - x0[E_INV]
             self.P_inverter = e_inv / T_s
             e_dc = x[E_IN] - x0[E_IN] + e_inv
-            if inv.C_dc > 0:
+            C_dc = inv.C_dc
+            if C_dc > 0:
                 V = self.V
-                e_src = max(0.0, (inv.V_dc - V) / inv.R_source) * V * T_s
+                e_src = (inv.V_dc - V) / inv.R_source * V * T_s if V < inv.V_dc else 0.0
                 e_ch = (V * V / inv.R_chopper * T_s
                         if inv.V_chopper > 0 and V > inv.V_chopper else 0.0)
                 self.E_source += e_src
                 self.E_chopper += e_ch
-                w = 0.5 * inv.C_dc * V * V + e_src - e_ch - e_dc
-                self.V = math.sqrt(max(0.0, 2.0 * w / inv.C_dc))
+                w = 0.5 * C_dc * V * V + e_src - e_ch - e_dc
+                self.V = math.sqrt(2.0 * w / C_dc) if w > 0.0 else 0.0
                 if sim.trip is None and self.V > inv.trip_voltage:
                     sim.trip = (sim.t, f'DC-link over-voltage: V_dc = {self.V:.4g} V > V_trip '
                                        f'{inv.trip_voltage:g} V (regeneration the brake chopper '
@@ -262,27 +663,46 @@ class RealPlant:
             self._omega_meas = self._speed.update(self.sensors.count(x[4]))
 
     # Outputs -----------------------------------------------------------------------------
+    def stator_currents(self):
+        """Return (i_sα, i_sβ) at t_k (the last period's solution gives it)."""
+        x = self.sim.x
+        end = self._end_current
+        if end[0] is x:
+            return end[1].real, end[1].imag
+        return self.model.stator_current(self.sim.t, x)
+
     def state_currents(self):
         """Return (i_sα, i_sβ, i_rα, i_rβ) at t_k (the rotor current in the model's gauge)."""
-        out = self.model.outputs(self.sim.t, self.sim.x)
-        return out['i_alpha'], out['i_beta'], out['i_r_alpha'], out['i_r_beta']
+        sim = self.sim
+        x = sim.x
+        cached = self._currents
+        if cached[0] is x:                      # the same state: computed once a period
+            return cached[1]
+        t = sim.t
+        i_sa, i_sb, i_Ra, i_Rb = self.model.currents(t, x)
+        th = self.model.circuit(t)[2]
+        out = (i_sa, i_sb, -th * i_Ra, -th * i_Rb)
+        self._currents = (x, out)
+        return out
 
     def measure(self):
         """Return what the sensors give at t_k, the carrier's peak (im_common.sensors)."""
         sim = self.sim
-        i_sa, i_sb = self.model.stator_current(sim.t, sim.x)
-        theta, omega = sim.x[4], sim.x[5]
+        x = sim.x
+        i_sa, i_sb = self.stator_currents()
+        theta = x[4]
+        omega = x[5]
         se = self.sensors
         v_dc = self.V
         if se is not None:
-            ph = phase_values(i_sa, i_sb)
-            i_sa, i_sb = clarke(*(se.phase_current(k, ph[k]) for k in range(3)))
+            i_sa, i_sb = clarke(*se.phase_currents(*phase_values(i_sa, i_sb)))
             if se.encoder_lines > 0:
                 theta = se.count(theta) * TWO_PI / se.counts_per_rev
                 omega = self._omega_meas
             if self.inverter is not None:
                 v_dc = se.adc(v_dc, 0.0, se.vdc_range)
-        i_sa, i_sb, omega = sim.add_noise(i_sa, i_sb, omega)
+        if sim._rng is not None:
+            i_sa, i_sb, omega = sim.add_noise(i_sa, i_sb, omega)
         return Measurement(sim.t, i_sa, i_sb, theta, omega, v_dc)
 
     def truth(self) -> dict:

@@ -85,6 +85,20 @@ class Saturation:
         d = psi - ps[k]
         return self._w[k] + cur[k] * d + 0.5 * self._slopes[k] * d * d
 
+    def chord(self, psi0: float, psi1: float) -> float:
+        """
+        Return the energy chord of the curve between two flux magnitudes [1/H].
+
+        (W_M(ψ₁) − W_M(ψ₀))/(½ψ₁² − ½ψ₀²): the constant m for which i_μ = m ψ stores
+        exactly the curve's energy change between the two magnitudes (a discrete gradient);
+        1/L_M at the middle when they nearly coincide (there the two agree to (ψ₁ − ψ₀)²,
+        docs/plant.md §1).
+        """
+        d = psi1 - psi0
+        if abs(d) <= 1e-6 * (psi0 + psi1) or psi0 + psi1 <= 0.0:
+            return self.inv_L(0.5 * (psi0 + psi1))
+        return (self.energy(psi1) - self.energy(psi0)) / (0.5 * d * (psi0 + psi1))
+
     def flux(self, i_M: float) -> float:
         """Return ψ with i_M(ψ) = i_M (the exact inverse, by bisection; for tests and fits)."""
         lo, hi = 0.0, max(1e-3, i_M * self.L_M0)

@@ -67,17 +67,31 @@ class Sensors:
 
     def adc(self, x: float, lo: float, hi: float) -> float:
         """Return ``x`` through an ADC of ``adc_bits`` bits over [lo, hi) (ideal when 0 bits)."""
-        if self.adc_bits <= 0:
+        bits = self.adc_bits
+        if bits <= 0:
             return x
-        n = 1 << self.adc_bits
+        n = 1 << bits
         lsb = (hi - lo) / n
-        code = min(max(round((x - lo) / lsb), 0), n - 1)
+        code = round((x - lo) / lsb)
+        if code < 0:
+            code = 0
+        elif code >= n:
+            code = n - 1
         return lo + code * lsb
 
     def phase_current(self, k: int, i: float) -> float:
         """Return the measurement of phase k's current ``i`` [A] (gain, offset, ADC)."""
         r = self.current_range
         return self.adc(self.current_gain[k] * i + self.current_offset[k], -r, r)
+
+    def phase_currents(self, i_a: float, i_b: float, i_c: float):
+        """Return the three phases' measurements: :meth:`phase_current` of each, in one call."""
+        g = self.current_gain
+        o = self.current_offset
+        r = self.current_range
+        adc = self.adc
+        return (adc(g[0] * i_a + o[0], -r, r), adc(g[1] * i_b + o[1], -r, r),
+                adc(g[2] * i_c + o[2], -r, r))
 
     def describe(self) -> dict:
         out = {'encoder_lines': self.encoder_lines, 'speed_window': self.speed_window,
