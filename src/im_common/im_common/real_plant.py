@@ -701,8 +701,7 @@ class RealPlant:
                 omega = self._omega_meas
             if self.inverter is not None:
                 v_dc = se.adc(v_dc, 0.0, se.vdc_range)
-        if sim._rng is not None:
-            i_sa, i_sb, omega = sim.add_noise(i_sa, i_sb, omega)
+        i_sa, i_sb, omega = sim.add_noise(i_sa, i_sb, omega)     # unchanged without noise
         return Measurement(sim.t, i_sa, i_sb, theta, omega, v_dc)
 
     def truth(self) -> dict:
