@@ -54,6 +54,7 @@ TRIP_FRACTION = 0.9      # a current above this fraction of i_max ends the test
 SPEED_FRACTION = 0.5     # the speed test runs up to this fraction of the rated (test) speed
 FLUX_WINDOW = 0.01       # block length of the speed test's flux balance [s]
 OFFSET_BLOCKS = 5        # blocks per constant voltage-model offset in the flux balance
+MECHANICS_WINDOW_S = 0.1  # the speed test's J, b regression windows [s]
 #: the inverter-error test's α currents, as fractions of i_max (two magnitudes, both signs)
 LEVELS = (-0.25, -0.5, 0.25, 0.5)
 LEVEL_LOOP_S = 0.5       # time constant of its current loop on the probe's V/I [s] (faster on R_s)
@@ -839,7 +840,10 @@ class Commissioning:
         else:
             out.notes['pole_pairs'] = f'nameplate (measured ratio {ratio:.4f})'
         tau = vp * cross
-        window = max(int(round(0.02 / T_s)), 5)
+        # 0.1 s windows: an encoder's speed is quantized (2048 lines, 10-period M-method: 0.77
+        # rad/s steps), and noise on each window's Δω biases J low (errors in variables): at
+        # 20 ms J came out 23 % low on krause_3hp, at 0.1 s within 0.5 % (docs/commissioning.md)
+        window = max(int(round(MECHANICS_WINDOW_S / T_s)), 5)
         J, b, sJ, sb, rms = fit_mechanics(w, tau, T_s, window)
         if not (J > 0 and sJ < 0.05 * J):
             raise NotInformative(f'J = {J:.4g} kg·m² is not determined by the speed test '

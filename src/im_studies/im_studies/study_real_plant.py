@@ -11,7 +11,9 @@ on the ideal plant. Parts (default all):
   sensorless, the inverter-error compensation off and on;
 - ``sensorless``: with compensation, a ±150 rad/s reversal through zero under 2 N·m and a 5 s
   hold at 10 rad/s under the rated torque;
-- ``load_step``: a step of half the rated torque at 100 rad/s, sensorless, at rated flux.
+- ``load_step``: a step of half the rated torque at 100 rad/s, sensorless, at rated flux;
+- ``commissioning``: the self-commissioning (docs/commissioning.md) on the ideal plant, behind
+  the inverter alone, and on every block, against the motor file's values.
 
 Prints a Markdown table per part; ``--json`` writes the rows, ``--plots`` the phase current
 against its reference. Figures: the current distortion ``|i − i*|`` RMS [A] (the stator-current
@@ -38,7 +40,7 @@ from .study_motors import reversal_time, scaled_options
 from .study_sensorless import USELESS_SPEED_NOISE
 
 MOTORS = ('thesis', 'krause_3hp')
-PARTS = ('compensation', 'sensorless', 'load_step')
+PARTS = ('compensation', 'sensorless', 'load_step', 'commissioning')
 #: the inverter of every run: docs/plant.md's, its DC link set for the motor (V_dc_for)
 INVERTER = {'pwm_frequency': 10000.0, 'deadtime': 2.0e-6, 'v_on': 1.0, 'r_on': 0.02}
 #: the DC link over the motor's rated vector magnitude × √2 (the hexagon's inscribed circle)
@@ -232,6 +234,46 @@ def plot_phase_current(runs: dict, path: str) -> None:
     plt.close(fig)
 
 
+def commission(motor_name: str, blocks: dict) -> dict:
+    """Commission a shipped motor behind ``blocks``; return the errors [%] and the inverter fit."""
+    from im_adapt.commissioning import Commissioning, simulate_commissioning
+    from im_common.params import load_motor_blocks
+    from im_common.plant_sim import PlantSimulator
+    from .commission_sim import COMPARED, plate_of
+    path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
+    m = load_motor_file(path)
+    kw = dict(blocks)
+    for name in ('saturation', 'thermal'):
+        if kw.get(name) == 'motor':
+            kw[name] = load_motor_blocks(path)[name]
+    plant = PlantSimulator(m, T_s=1e-4, current_trip=m.rated_current, v_limit=m.rated_voltage,
+                           **kw)
+    com = Commissioning(1e-4, m.rated_current, m.rated_voltage,
+                        pole_pairs=plate_of(m).pole_pairs, test_speed=m.rated_speed)
+    ident = simulate_commissioning(plant, com).result()
+    truth = dict(m.identifiable(), J=m.J)
+    out = {f'{n}_err_pct': 100.0 * (ident.values[n] / truth[n] - 1.0) for n in COMPARED}
+    r_on = blocks.get('inverter', {}).get('r_on', 0.0)
+    out['R_s_r_on_err_pct'] = 100.0 * (ident.values['R_s'] / (truth['R_s'] + r_on) - 1.0)
+    inv = blocks.get('inverter')
+    v_dead = inv['deadtime'] * inv['pwm_frequency'] * inv['V_dc'] + inv['v_on'] if inv else 0.0
+    out['v_dead'] = ident.inverter.get('v_dead', 0.0)
+    out['v_dead_err_pct'] = 100.0 * (out['v_dead'] / v_dead - 1.0) if v_dead else None
+    return out
+
+
+def run_commissioning(motors=MOTORS) -> list:
+    """Commission every motor on the ideal plant, behind the inverter, and on every block."""
+    rows = []
+    for mo in motors:
+        m = load_motor_file(os.path.join(shipped_motors_dir(), f'{mo}.yaml'))
+        full = real_plant(m)
+        for label, blocks in (('ideal', {}), ('inverter', {'inverter': full['inverter']}),
+                              ('every block', full)):
+            rows.append({'motor': mo, 'plant': label, **commission(mo, blocks)})
+    return rows
+
+
 def _trip(r) -> str:
     return '' if r['trip'] is None else r['trip']['reason']
 
@@ -259,6 +301,15 @@ def markdown(part: str, rows: list) -> str:
                          f"({r['ideal_speed_err_max']:.3f}) | {r['speed_err_rms']:.3f} "
                          f"({r['ideal_speed_err_rms']:.3f}) | {r['current_distortion_A']:.3f} "
                          f"({r['ideal_current_distortion_A']:.3f}) | {_trip(r)} |")
+    elif part == 'commissioning':
+        lines = ['| plant | motor | v_dead | R_s (R_s + r_on) | σL_s | L_M | R_R | J |',
+                 '|---|---|---:|---:|---:|---:|---:|---:|']
+        for r in rows:
+            vd = ('~0' if r['v_dead_err_pct'] is None else f"{r['v_dead_err_pct']:+.1f} %")
+            lines.append(f"| {r['plant']} | {r['motor']} | {vd} | {r['R_s_err_pct']:+.2f} % "
+                         f"({r['R_s_r_on_err_pct']:+.2f} %) | {r['L_sigma_err_pct']:+.2f} % | "
+                         f"{r['L_M_err_pct']:+.2f} % | {r['R_R_err_pct']:+.2f} % | "
+                         f"{r['J_err_pct']:+.2f} % |")
     else:
         lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
                  '| --- | --- | --- | ---: | ---: | --- |']
@@ -279,7 +330,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     out = {}
     runs = {'compensation': lambda: run_compensation(plots=a.plots),
-            'sensorless': run_sensorless, 'load_step': run_load_step}
+            'sensorless': run_sensorless, 'load_step': run_load_step,
+            'commissioning': run_commissioning}
     for k, part in enumerate(a.part or PARTS, 1):
         print(f'[{k}/{len(a.part or PARTS)}] {part}: {", ".join(MOTORS)}', file=sys.stderr,
               flush=True)
