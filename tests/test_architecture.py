@@ -268,3 +268,52 @@ def test_the_private_name_rule_sees_a_violation(tmp_path):
     ok.write_text('class A:\n    def __init__(self):\n        self._c = 1\n\n'
                   '    def f(self, other):\n        return other._c + self.__class__.__name__\n')
     assert _private_reads(ok) == []
+
+
+def _rclpy_method_names() -> set:
+    """Return the method names of the rclpy classes a node uses (Node, Publisher, Subscription)."""
+    from rclpy.node import Node
+    from rclpy.publisher import Publisher
+    from rclpy.subscription import Subscription
+    return {n for cls in (Node, Publisher, Subscription) for n in dir(cls)
+            if not n.startswith('__') and callable(getattr(cls, n, None))}
+
+
+def _patches(path: Path, names: set):
+    """Return (line, what) where a file assigns an rclpy method name on an object not ``self``."""
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    out = []
+    for n in ast.walk(tree):
+        targets = n.targets if isinstance(n, ast.Assign) else []
+        for t in targets:
+            if (isinstance(t, ast.Attribute) and t.attr in names
+                    and not (isinstance(t.value, ast.Name) and t.value.id == 'self')):
+                out.append((n.lineno, f'.{t.attr} = ...'))
+        if (isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == 'setattr'
+                and len(n.args) > 1 and isinstance(n.args[1], ast.Constant)
+                and n.args[1].value in names):
+            out.append((n.lineno, f'setattr(..., {n.args[1].value!r}, ...)'))
+    return out
+
+
+def test_no_rclpy_method_is_monkeypatched():
+    """
+    Recording in one process uses the nodes' own tap (LockstepNode.tap), not a patched publish.
+
+    Every module, node test and test file: no assignment of an rclpy Node / Publisher /
+    Subscription method name on another object (issue 33).
+    """
+    names = _rclpy_method_names()
+    assert {'publish', 'create_publisher', 'create_subscription'} <= names
+    files = (sorted(SRC.glob('*/*/*.py')) + sorted(SRC.glob('*/test/*.py'))
+             + sorted((SRC.parent / 'tests').glob('*.py')))
+    found = [f'{p.relative_to(SRC.parent)}:{line}: {what}' for p in files
+             for line, what in _patches(p, names)]
+    assert not found, 'rclpy methods patched:\n' + '\n'.join(found)
+
+
+def test_the_patch_rule_sees_one(tmp_path):
+    bad = tmp_path / 'bad.py'
+    bad.write_text("pub.publish = print\nsetattr(node, 'spin_once', None)\nself.publish = 1\n")
+    assert [w for _, w in _patches(bad, {'publish', 'spin_once'})] == [
+        '.publish = ...', "setattr(..., 'spin_once', ...)"]

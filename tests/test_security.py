@@ -434,8 +434,8 @@ def test_initial_estimates_go_out_when_the_run_runs_not_at_adoption(ros_context,
     node = Node(context=ros_context, graph_key=key)
     try:
         sent = []
-        pub = getattr(node, attr)
-        setattr(pub, 'publish', sent.append)
+        assert getattr(node, attr).topic_name == topic
+        node.tap = lambda t, msg: sent.append(msg) if t == topic else None   # what it publishes
         master = {'time_master': 'true', 'run_id': 'run1', 'mode': 'lockstep'}
         node.on_peer_status('plant', WAITING, master)
         assert node.run_id == 'run1' and sent == []          # adopted, nothing published yet

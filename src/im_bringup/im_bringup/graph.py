@@ -7,10 +7,12 @@ pytest fixture). Each graph owns its ``Context``; its DDS domain is ``ROS_DOMAIN
 ROS 2 tool (0 when unset), unless ``domain_id`` says otherwise. Several graphs at once — or several
 test runs on one machine — need a domain each: the test fixtures give them one.
 
-Recording in-process taps the nodes' publishers: every message a node publishes is also handed to
-the :class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot
-path. Each tapped topic is declared with the QoS profiles its publishers offer, as the ROS graph
-reports them (``get_publishers_info_by_topic``, what rosbag2's recorder and ``record`` store).
+Recording in-process takes every message a node publishes from the node's own tap
+(:attr:`im_common.lockstep.LockstepNode.tap`, called by its publishers after publishing) to the
+:class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot
+path and without changing rclpy's classes. Each tapped topic is declared with the QoS profiles
+its publishers offer, as the ROS graph reports them (``get_publishers_info_by_topic``, what
+rosbag2's recorder and ``record`` store).
 """
 from __future__ import annotations
 
@@ -138,14 +140,15 @@ class DriveGraph:
                 if topic.startswith('/rosout') or topic.startswith('/parameter_events'):
                     continue
                 tapped_topics.setdefault(topic, (node, pub.msg_type))
-                original = pub.publish
+        topics = frozenset(tapped_topics)
 
-                def tapped(msg, _orig=original, _topic=topic, _write=rec.write):
-                    _orig(msg)
-                    if not isinstance(msg, bytes):     # status events: rare, not on the hot path
-                        msg = serialize_message(msg)
-                    _write(_topic, msg)
-                pub.publish = tapped
+        def tap(topic, msg, _write=rec.write, _topics=topics):
+            if topic in _topics:
+                if not isinstance(msg, bytes):     # status events: rare, not on the hot path
+                    msg = serialize_message(msg)
+                _write(topic, msg)
+        for node in self.nodes.values():        # the nodes' own hook (LockstepNode.tap)
+            node.tap = tap
         writer = getattr(rec, 'writer', None)
         if writer is not None:
             self._declare_offers(writer, tapped_topics)

@@ -180,6 +180,32 @@ def stamp_text(ns: int) -> str:
     return f'{ns / NS_PER_S:.9f} s'
 
 
+class TappedPublisher:
+    """
+    A node's publisher that also hands what it publishes to the node's :attr:`~LockstepNode.tap`.
+
+    The in-process graph records through it (:mod:`im_bringup.graph`): a designed hook of the
+    node, not a change of rclpy's classes. Everything but :meth:`publish` is the rclpy
+    publisher's own.
+    """
+
+    __slots__ = ('_pub', '_node', 'topic_name')
+
+    def __init__(self, pub, node: 'LockstepNode'):
+        self._pub = pub
+        self._node = node
+        self.topic_name = pub.topic_name
+
+    def publish(self, msg) -> None:
+        self._pub.publish(msg)
+        tap = self._node.tap
+        if tap is not None:
+            tap(self.topic_name, msg)
+
+    def __getattr__(self, name):
+        return getattr(self._pub, name)
+
+
 class LockstepNode(Node):
     """
     Base of the drive nodes: parameters with descriptors, the run protocol, the watchdog.
@@ -198,6 +224,13 @@ class LockstepNode(Node):
     realtime_capable = True
     #: Default of ``rt_priority`` (the recorder's is below the loop's).
     default_rt_priority = realtime.DEFAULT_PRIORITY
+    #: ``tap(topic, msg)`` receives every message this node publishes (serialized or a message
+    #: object), after it was published; None: none (an in-process recorder sets it)
+    tap = None
+
+    def create_publisher(self, *args, **kwargs) -> TappedPublisher:
+        """Create the rclpy publisher, returned with the node's recording tap on it."""
+        return TappedPublisher(super().create_publisher(*args, **kwargs), self)
 
     def __init__(self, name: str, graph_key: Optional[bytes] = None, **kwargs):
         super().__init__(name, **kwargs)
