@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign gains policy clean distclean
+.PHONY: all setup build demo test test-fast bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign gains policy clean distclean
 
 all: demo
 
@@ -38,6 +38,11 @@ demo: build
 
 test: build
 	$(RUN) python -m pytest -q tests src
+
+# The edit-test loop: every test but those that start processes or take 3 s or more (the marks
+# in pytest.ini); CI runs make test, all of them.
+test-fast: build
+	$(RUN) python -m pytest -q tests src -m "not processes and not slow"
 
 # Benchmark-only dependencies (Ray, measured against Dask) go into the same venv.
 bench: build

@@ -1,6 +1,45 @@
+import importlib
+import os
 import random
 
 import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def source_packages():
+    """Return ``{name: directory}`` of every Python package under src/ (src/PKG/PKG)."""
+    src = os.path.join(ROOT, 'src')
+    return {name: os.path.join(src, name, name) for name in sorted(os.listdir(src))
+            if os.path.isfile(os.path.join(src, name, name, '__init__.py'))}
+
+
+def not_from_source(modules):
+    """
+    Return one line per module of ``modules`` ({name: module}) not imported from src/.
+
+    A package imported from anywhere else (install/ after ``colcon build``) is a copy of the
+    source as it was at the last build: the suite would test that instead of the edit.
+    """
+    packages = source_packages()
+    out = []
+    for name, module in modules.items():
+        top = name.split('.')[0]
+        if top not in packages:
+            continue
+        where = os.path.realpath(getattr(module, '__file__', None) or '?')
+        home = os.path.realpath(packages[top]) + os.sep
+        if not where.startswith(home):
+            out.append(f'{name} is imported from {where}, not from {home} (pytest.ini pythonpath)')
+    return out
+
+
+# Every package of src/ is imported here, before any test module: from then on each one's
+# submodules come from the same directory, and a package that pytest.ini leaves off the path
+# fails the session at once instead of testing install/'s stale copy.
+_STALE = not_from_source({n: importlib.import_module(n) for n in source_packages()})
+if _STALE:
+    raise pytest.UsageError('the suite must test the source tree:\n' + '\n'.join(_STALE))
 
 pytest_plugins = ['im_bringup.testing']
 

@@ -49,6 +49,7 @@ def test_improved_law_leaves_a_nominal_drive_alone():
         assert math.isclose(ada[f'{k}_hat_final'], ada[f'{k}_true_final'], rel_tol=0.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('strategy', ['constant_flux', 'min_loss'])
 def test_the_truth_fed_bound_and_the_inverse_gamma_feed(strategy):
     """

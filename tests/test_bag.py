@@ -252,6 +252,7 @@ def _child(path):
                             env=env, text=True)
 
 
+@pytest.mark.processes
 def test_sigint_to_a_writing_process_leaves_a_valid_file(tmp_path):
     path = tmp_path / 'int.mcap'
     p = _child(path)
@@ -263,6 +264,7 @@ def test_sigint_to_a_writing_process_leaves_a_valid_file(tmp_path):
     assert stamps == list(range(len(stamps)))      # every message up to the stop, in order
 
 
+@pytest.mark.processes
 def test_hard_kill_then_recover_salvages_the_prefix(tmp_path):
     from im_recording.recover import recover
     path = tmp_path / 'killed.mcap'

@@ -81,6 +81,8 @@ def test_every_benchmark_is_covered():
     assert sorted(_run_all().benchmark_names()) == sorted(EXPECTED)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 @pytest.mark.parametrize('name', sorted(EXPECTED))
 def test_benchmark_quick_run_writes_its_figures(name, tmp_path):
     run_all = _run_all()

@@ -77,6 +77,7 @@ def test_a_bad_spec_is_one_line_naming_the_key(tmp_path, over, needle):
     assert needle in msg and path in msg and '\n' not in msg
 
 
+@pytest.mark.processes
 def test_the_cli_refuses_a_bad_spec_without_a_traceback(tmp_path):
     path = write_spec(tmp_path, draws=-2)
     p = subprocess.run([sys.executable, '-m', 'im_studies.campaign', path], capture_output=True,
@@ -222,6 +223,8 @@ def test_unstable_and_failed_runs_are_rows(tmp_path):
 
 
 # ----------------------------------------------------------------------------------- pool
+@pytest.mark.processes
+@pytest.mark.slow
 def test_same_rows_on_one_and_two_workers_of_a_real_dask_cluster(tmp_path):
     path = write_spec(tmp_path, draws=4)
     spec = read_spec(path)
@@ -237,6 +240,7 @@ def test_same_rows_on_one_and_two_workers_of_a_real_dask_cluster(tmp_path):
     assert one['gain_sets']['thesis']['unstable_draws'] == [0, 1, 2, 3]
 
 
+@pytest.mark.processes
 def test_the_parquet_file_carries_spec_seed_and_versions(tmp_path):
     import pyarrow.parquet as pq
     path = write_spec(tmp_path, draws=1)
@@ -253,6 +257,7 @@ def test_the_parquet_file_carries_spec_seed_and_versions(tmp_path):
     assert (tmp_path / 'c' / 'stability_map.png').stat().st_size > 0
 
 
+@pytest.mark.processes
 def test_another_spec_is_refused_in_the_same_folder_unless_forced(tmp_path):
     path = write_spec(tmp_path, draws=1)
     run_campaign(read_spec(path), str(tmp_path / 'c'), path, workers=1, progress=False)
@@ -274,6 +279,8 @@ def test_a_torn_last_journal_line_is_cut_and_that_run_only_is_redone(tmp_path):
     assert j.read_text().endswith('{"index": 1}\n')
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
     path = write_spec(tmp_path, draws=6, duration=2.0)
     out = tmp_path / 'c'
@@ -306,11 +313,14 @@ def test_a_killed_campaign_resumes_without_running_anything_twice(tmp_path):
     same_rows(read_rows(out / 'runs.parquet'), read_rows(tmp_path / 'whole' / 'runs.parquet'))
 
 
+@pytest.mark.processes
 def test_pool_map_returns_results_in_order():
     assert pool_map(math.sqrt, [4.0, 9.0, 16.0], workers=2, progress=False) == [2.0, 3.0, 4.0]
 
 
 # ------------------------------------------------------------------------- commissioning axis
+@pytest.mark.processes
+@pytest.mark.slow
 def test_commissioning_axis_identifies_each_drawn_motor_and_reports_its_errors(tmp_path):
     """
     ``commission: true`` (docs/campaign.md).
@@ -392,6 +402,7 @@ def test_the_sensorless_axis_runs_both_ways_and_refuses_the_position_task(tmp_pa
     assert rows[1]['E_in_J'] == ref['E_in_J'] != rows[0]['E_in_J']
 
 
+@pytest.mark.processes
 def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
     """
     Ctrl-C in a terminal signals the whole process group: the campaign and its Dask workers.

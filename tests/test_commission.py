@@ -165,6 +165,7 @@ def _box_motor(name):
     return dict(motors(16))[name]       # box draws 1 ... 36 are the first 16 with σ < 0.15
 
 
+@pytest.mark.slow
 def test_the_turning_rotor_pins_the_magnetizing_inductance_to_a_few_hundredths_of_a_percent():
     """
     L_M is what the tracking is most sensitive to (docs/commissioning.md §6).
@@ -192,6 +193,7 @@ def test_without_noise_the_identification_is_exact():
             assert abs(err[n + '_err_pct']) < 1e-4, (n, err)      # 10⁻⁶
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['thesis', 'box draw 9', 'box draw 36'])
 def test_min_loss_speed_run_with_the_identified_file_tracks_like_the_true_one(name):
     """
@@ -222,6 +224,8 @@ def _tool():
     return os.path.join(get_package_prefix('im_bringup'), 'lib', 'im_bringup', 'commission')
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_tool_commissions_a_plant_it_only_sees_through_topics(tmp_path):
     plate = tmp_path / 'plate.yaml'
     plate.write_text(''.join(f'{k}: {v}\n' for k, v in THESIS_PLATE.items()))
@@ -246,6 +250,8 @@ def test_tool_commissions_a_plant_it_only_sees_through_topics(tmp_path):
     assert len(proc.stderr.strip().splitlines()) == 1 and out.read_text() == before
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_tool_locked_rotor_variant_writes_the_given_mechanics(tmp_path):
     plate = tmp_path / 'plate.yaml'
     plate.write_text(''.join(f'{k}: {v}\n' for k, v in THESIS_PLATE.items()))
@@ -266,6 +272,7 @@ def test_tool_locked_rotor_variant_writes_the_given_mechanics(tmp_path):
     (['--current-limit', '8', '--voltage-limit', '220'], 'no speed for the speed test'),
     (['--current-limit', '8', '--voltage-limit', '220', '--locked-rotor'], 'give --J and --b'),
 ])
+@pytest.mark.processes
 def test_tool_refuses_missing_settings_in_one_line(tmp_path, args, needle):
     proc = subprocess.run([_tool(), '--out', str(tmp_path / 'm.yaml')] + args,
                           capture_output=True, text=True, timeout=120)
@@ -274,6 +281,7 @@ def test_tool_refuses_missing_settings_in_one_line(tmp_path, args, needle):
     assert not (tmp_path / 'm.yaml').exists()
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('no_progress', [False, True])
 def test_tool_no_progress_writes_no_carriage_returns(tmp_path, ros_domain_id, no_progress):
     """

@@ -89,6 +89,7 @@ def test_a_run_file_resolves_it_and_refuses_what_it_cannot_use():
     assert compensation_from_dict(False) is None
 
 
+@pytest.mark.slow
 def test_compensation_removes_the_low_speed_current_distortion():
     """
     10 rad/s against half the rated torque, thesis motor, real plant: the study's first rows.

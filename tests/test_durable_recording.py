@@ -44,6 +44,8 @@ def part_stamps(path, topic):
     from mcap.records import Channel, Message, Metadata
     from mcap.stream_reader import StreamReader
     out, cid, off = [], None, 0
+    if not os.path.exists(path):          # not created yet
+        return out
     with open(path, 'rb') as f:
         try:
             for r in StreamReader(f, skip_magic=False, emit_chunks=False).records:
@@ -58,9 +60,11 @@ def part_stamps(path, topic):
     return out
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_sigkill_of_the_recorder_loses_at_most_the_last_flush_interval(tmp_path, domain, capsys):
     from im_bringup.processes import graph_processes, GraphProcesses
-    from test_processes import wait_for_log
+    from im_bringup.testing import wait_for_log, wait_until
     from im_bringup.run_file import Scenario
     from im_bringup.scenario import run_metadata
     sc = Scenario.from_mapping({'task': 'position', 'duration': 30.0}, source='test')
@@ -71,7 +75,14 @@ def test_sigkill_of_the_recorder_loses_at_most_the_last_flush_interval(tmp_path,
         g.start()
         assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
         t_start = time.monotonic()
-        time.sleep(3.0)
+        # killed in the recorder's steady state: once two chunks of the run are on disk
+        flushed = set()
+
+        def two_chunks_on_disk():
+            on_disk = part_stamps(partial_path(bag), T.MEAS_CURRENT)
+            flushed.add(max(on_disk, default=None))
+            return len(flushed - {None}) >= 2
+        assert wait_until(two_chunks_on_disk, 60, 0.2), g.log('recorder')[-2000:]
         g.send(signal.SIGKILL, ['recorder'])
         t_kill = time.monotonic()
         # the plant stays within follower_window steps of the recorder's last acknowledgement
@@ -169,6 +180,8 @@ def assert_log_time_order(path):
     assert not back, f'{path}: {len(back)} log times go back, first {back[:3]}'
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_every_recording_path_writes_log_times_in_order(tmp_path, domain):
     """
     The recorder of separate processes, the in-process graph, and recover's copy of either.
@@ -226,6 +239,8 @@ def test_the_writer_orders_each_chunk_within_its_window_and_clamps_what_comes_la
     assert pairs[moved[0]][0] == pairs[moved[0] - 1][0] > 5 * PERIOD + 10 * PERIOD
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_path, domain):
     """
     The issue's recorder, by hand: started after the run, stopped (SIGINT) while it goes on.
@@ -234,7 +249,7 @@ def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_p
     missing figure equals what the bag lacks over that span, read with the mcap reader.
     """
     from im_bringup.processes import graph_processes, GraphProcesses
-    from test_processes import wait_for_log
+    from im_bringup.testing import wait_for_log, wait_until
     procs = graph_processes('position', 'min_energy', duration=30.0)
     key = procs[0].parameters['graph_key_file']
     bag = tmp_path / 'late.mcap'
@@ -242,12 +257,13 @@ def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_p
                                key_file=key)[-1]
     with GraphProcesses(procs + [recorder], str(tmp_path), domain) as g:
         g.start(only=['plant', 'controller', 'observer'])
-        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
-        time.sleep(1.0)
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')     # mid-run from here
         g.start_one('recorder')
         assert wait_for_log(g, 'plant', "lossless follower 'recorder' joined at step"), \
             g.log('plant')[-2000:]
-        time.sleep(1.5)
+        # stopped once it has put part of the run on disk
+        assert wait_until(lambda: part_stamps(partial_path(bag), T.MEAS_CURRENT), 60, 0.2), \
+            g.log('recorder')[-2000:]
         g.send(signal.SIGINT, ['recorder'])
         assert g.popen['recorder'].wait(30) == 0, g.log('recorder')[-2000:]
         g.send(signal.SIGINT)
@@ -267,6 +283,8 @@ def test_a_late_recorder_stopped_mid_run_counts_exactly_what_its_bag_lacks(tmp_p
     assert 'joined at step' in g.log('recorder')
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_sigkill_of_the_in_process_scenario_loses_at_most_the_last_flush_interval(tmp_path):
     """
     The in-process writer: ``scenario --record`` SIGKILLed mid-run.

@@ -39,6 +39,7 @@ def ros2_run_path(package: str, executable: str) -> str:
     return os.path.join(prefix, 'lib', package, executable)
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('package,executable', EXECUTABLES)
 def test_executable_resolves_and_starts(package, executable):
     path = ros2_run_path(package, executable)
@@ -48,6 +49,7 @@ def test_executable_resolves_and_starts(package, executable):
     assert 'usage' in proc.stdout.lower(), proc.stdout[:500]
 
 
+@pytest.mark.processes
 def test_plant_process_loads_the_thesis_yaml_and_reports_a_missing_controller():
     """
     Check that the installed plant starts with the shipped parameters.
@@ -69,6 +71,7 @@ def test_plant_process_loads_the_thesis_yaml_and_reports_a_missing_controller():
     assert 'controller (not seen' in proc.stderr and 'Traceback' not in proc.stderr
 
 
+@pytest.mark.processes
 def test_node_process_refuses_an_impossible_parameter_by_name():
     proc = subprocess.run([ros2_run_path('im_plant', 'plant'), '--ros-args', '-p', 'L_sr:=0.09'],
                           capture_output=True, text=True, timeout=60)
@@ -82,6 +85,7 @@ def test_node_process_refuses_an_impossible_parameter_by_name():
     ('plant: {ros__parameters: {T_s: [1, 2}', 'is not valid YAML'),
     ('- just\n- a list\n', 'is not a ROS 2 parameters file'),
 ])
+@pytest.mark.processes
 def test_bad_params_file_is_one_line_without_traceback(tmp_path, content, needle):
     path = tmp_path / 'p.yaml'
     if content is not None:
@@ -94,6 +98,7 @@ def test_bad_params_file_is_one_line_without_traceback(tmp_path, content, needle
         assert 'Traceback' not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.processes
 def test_misspelt_parameter_is_refused_with_the_nearest_name(tmp_path):
     path = tmp_path / 'p.yaml'
     path.write_text('controller:\n  ros__parameters:\n    K1: 30.0\n')

@@ -82,6 +82,7 @@ def _start_long(tmp_path, name='long.mcap'):
     pytest.fail('scenario wrote no chunk within 90 s')
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_stop_signal_mid_run_leaves_a_complete_recording_and_summary(tmp_path, sig):
     import json
@@ -104,6 +105,8 @@ def test_stop_signal_mid_run_leaves_a_complete_recording_and_summary(tmp_path, s
     assert f'interrupted by {sig.name}' in md and 'steps recorded' in md
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_hard_kill_leaves_the_final_name_free_and_recover_finds_the_part(tmp_path):
     p, bag = _start_long(tmp_path, 'killed.mcap')
     p.kill()
@@ -124,6 +127,7 @@ def test_hard_kill_leaves_the_final_name_free_and_recover_finds_the_part(tmp_pat
     assert 'recovered from' in (tmp_path / 'rep' / 'report.md').read_text()
 
 
+@pytest.mark.processes
 def test_reestimate_onto_its_own_input_is_refused_and_the_input_is_byte_identical(short_bag):
     before = short_bag.read_bytes()
     r = run_tool('replay', short_bag, '--reestimate', '--out', short_bag, '--force')
@@ -137,6 +141,7 @@ def test_reestimate_onto_its_own_input_is_refused_and_the_input_is_byte_identica
     assert short_bag.read_bytes() == before
 
 
+@pytest.mark.processes
 def test_scenario_outputs_never_overwrite_without_force(short_bag, tmp_path):
     victim = tmp_path / 'precious.mcap'
     victim.write_bytes(short_bag.read_bytes())
@@ -156,6 +161,7 @@ def test_scenario_outputs_never_overwrite_without_force(short_bag, tmp_path):
 
 @pytest.mark.parametrize('text', [None, 'plant: {ros__parameters: {T_s: [1,\n', '- a\n- b\n',
                                   'plant: 3\n'])
+@pytest.mark.processes
 def test_scenario_bad_params_file_is_one_line(tmp_path, text):
     f = tmp_path / 'p.yaml'
     if text is not None:
@@ -165,6 +171,7 @@ def test_scenario_bad_params_file_is_one_line(tmp_path, text):
     assert str(f) in one_line(r.stderr)
 
 
+@pytest.mark.processes
 def test_corrupt_middle_chunk_recover_keeps_the_rest(short_bag, tmp_path):
     from mcap.reader import make_reader
     from im_recording.bag import BagWriter
@@ -193,6 +200,8 @@ def test_corrupt_middle_chunk_recover_keeps_the_rest(short_bag, tmp_path):
         load_run(bad)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_sigterm_during_reestimate_leaves_a_complete_output(tmp_path):
     bag = tmp_path / 'two_s.mcap'
     r = run_tool('scenario', '--task', 'speed', '--duration', '2', '--record', bag,
@@ -217,6 +226,7 @@ def test_sigterm_during_reestimate_leaves_a_complete_output(tmp_path):
     assert reest and max(meas) <= max(reest)     # nothing recorded past the last finished step
 
 
+@pytest.mark.processes
 def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
     """
     Check that the live summary equals the report of the recorded bag.
@@ -239,6 +249,7 @@ def test_summary_equals_the_report_of_its_recording(short_bag, tmp_path):
     assert status['notes'] == [] and status['interrupted'] is None     # a whole run
 
 
+@pytest.mark.processes
 def test_report_refuses_to_replace_a_report_or_write_into_a_bag(short_bag, tmp_path):
     out = tmp_path / 'rep'
     assert run_tool('report', short_bag, '--no-plots', '--out', out).returncode == 0
@@ -316,6 +327,8 @@ def enospc_env(tmp_path, limit: int) -> dict:
     return env
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary_is_written(
         tmp_path):
     import json
@@ -338,6 +351,8 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
     assert rosbags_count(tmp_path / 'full.recovered.mcap') > 0
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_path):
     import json
     bag = tmp_path / 'pfull.mcap'
@@ -378,6 +393,7 @@ def _read_only(directory: Path, argv: list) -> list:
             f'"{d}" "{d}" && exec "$@"', '_'] + argv
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('option', ['--record', '--summary', '--report', '--write-params'])
 def test_read_only_output_is_refused_before_the_run(tmp_path, option):
     ro = tmp_path / 'ro'
@@ -408,6 +424,7 @@ PARAMS_FAULTS = {
 }
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('fault', sorted(PARAMS_FAULTS))
 @pytest.mark.parametrize('processes', [False, True], ids=['in_process', 'processes'])
 def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, processes):
@@ -432,6 +449,8 @@ def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, pro
     assert one_line(node.stderr).split('error: ', 1)[1] == line.split('error: ', 1)[1]
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(tmp_path):
     """
     Check that a node's own configuration error ends every process.
@@ -470,6 +489,8 @@ sys.exit(lockstep.node_main(Hung, ['observer']))
 """
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_node_whose_teardown_hangs_exits_with_its_stacks_instead_of_hanging(tmp_path):
     """
     After its run a node's flush and teardown are bounded (``lockstep.EXIT_GRACE_S``).
@@ -478,13 +499,19 @@ def test_a_node_whose_teardown_hangs_exits_with_its_stacks_instead_of_hanging(tm
     in 120 s) ends the process with exit code 1 and every thread's stack on stderr, naming where
     it hung, instead of holding its launch (or a test) until something kills it.
     """
+    from im_bringup.testing import wait_until
     script = tmp_path / 'hung.py'
     script.write_text(HUNG_TEARDOWN)
-    p = subprocess.Popen([sys.executable, str(script)], stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)                 # up and waiting for a plant
+    log = tmp_path / 'hung.log'
+    with open(log, 'w') as f:
+        p = subprocess.Popen([sys.executable, str(script)], stderr=f, text=True)
+    # up and waiting for a plant: its "waiting (2 s): no publisher yet of ..." line
+    assert wait_until(lambda: 'waiting (' in log.read_text() or p.poll() is not None, 60) \
+        and p.poll() is None, log.read_text()[-2000:]
     p.send_signal(signal.SIGINT)    # its run ends: flush, then the teardown that hangs
     t0 = time.monotonic()
-    _, err = p.communicate(timeout=30)
+    p.wait(timeout=30)
+    err = log.read_text()
     assert p.returncode == 1, err[-2000:]
     assert time.monotonic() - t0 < 20.0
     assert 'tearing down' in err and 'destroy_node' in err and 'Timeout' in err, err[-2000:]

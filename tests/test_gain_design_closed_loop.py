@@ -25,6 +25,7 @@ def gains_100us():
     return drive.design_drive_gains(1e-4, observer_param_points=SMALL_OBS)
 
 
+@pytest.mark.slow
 def test_offline_1ms_certified_bounded_thesis_diverges(gains_1ms):
     p = design_gains.node_overrides(gains_1ms)
     K = np.array(p['controller']['current_gain']).reshape(2, 2).tolist()
@@ -39,6 +40,7 @@ def test_offline_1ms_certified_bounded_thesis_diverges(gains_1ms):
     assert abs(s['balance_relative']) < 1e-3
 
 
+@pytest.mark.slow
 def test_offline_100us_certified_no_worse_than_thesis(gains_100us):
     """Same gains through the certified path: equal speed error up to rounding (1e-9 relative)."""
     p = design_gains.node_overrides(gains_100us)

@@ -65,6 +65,7 @@ def test_missing_observer_is_reported_and_the_run_stops():
     assert 'controller (waiting for a publisher of /im/observer/flux)' in msg
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('strategy', ['min_energy', 'constant_flux', 'min_loss'])
 def test_each_strategy_tracks_through_the_graph(drive_graph, strategy):
     res = drive_graph(task='position', strategy=strategy, duration=0.6)

@@ -65,6 +65,7 @@ def test_params_file_is_what_launch_ros_writes():
     assert yaml.safe_load(text) == {'/**': {'ros__parameters': expected}}
 
 
+@pytest.mark.processes
 def test_the_launch_files_parameter_check_reads_no_ros_arguments_from_its_command_line():
     """
     ``ros2 launch im_bringup drive.launch.py task:=speed strategy:=min_loss``: no rcl warning.

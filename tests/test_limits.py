@@ -285,6 +285,7 @@ def test_shipped_profiles_and_loads_load():
     assert load_file(os.path.join(root, 'loads', 'fan.yaml')).describe()['c2'] == 0.02
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('motor_file', MOTOR_FILES)
 def test_scaled_chapter4_drift_and_the_adaptive_position_rows(motor_file):
     """

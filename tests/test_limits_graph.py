@@ -115,6 +115,7 @@ def _message_from_yaml(msg_type, text: str):
     return msg
 
 
+@pytest.mark.slow
 def test_a_setpoint_sent_the_readme_way_moves_the_reference_from_where_it_is():
     """
     Check that a setpoint sent the README's way moves the reference from where it is.

@@ -22,6 +22,7 @@ import warnings
 
 import pydocstyle
 from pydocstyle.violations import ErrorRegistry
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 TREES = ('src', 'tests', 'benchmarks', 'tools')
@@ -82,6 +83,7 @@ def _pep257():
     return out
 
 
+@pytest.mark.processes
 def test_the_linters_see_the_tree():
     # guards the lint tests against passing on an empty file list or a missing plugin
     files = _python_files()
@@ -100,11 +102,14 @@ def test_every_pending_entry_names_files():
     assert not stale, f'PENDING entries matching no file (delete them): {stale}'
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_flake8_with_ament_config_finds_nothing():
     failing, _ = _split(_flake8())
     assert not failing, f'{len(failing)} flake8 findings:\n' + '\n'.join(failing)
 
 
+@pytest.mark.slow
 def test_pep257_with_ament_ignore_list_finds_nothing():
     failing, _ = _split(_pep257())
     assert not failing, f'{len(failing)} pep257 findings:\n' + '\n'.join(failing)

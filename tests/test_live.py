@@ -88,6 +88,8 @@ async def _watch(port: int, proc: subprocess.Popen, limit_s: float):
     return channels, got
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 @pytest.mark.parametrize('processes', [False, True], ids=['in_process', 'processes'])
 def test_a_foxglove_client_receives_and_decodes_every_topic_of_a_running_graph(tmp_path,
                                                                                processes):

@@ -24,6 +24,7 @@ P = 100_000          # T_s = 1e-4 s in ns
 A, B = '/a', '/b'
 
 
+@pytest.mark.processes
 def test_the_parts_import_without_ros():
     code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing; '
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")

@@ -30,6 +30,7 @@ def thesis_runs():
             for task in ('position', 'speed') for st in STRATEGIES}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('task', ['position', 'speed'])
 def test_no_strategy_beats_the_bound_and_optimal_reaches_it(thesis_runs, task):
     for st in STRATEGIES:
@@ -73,6 +74,7 @@ def test_the_plan_uses_the_current_limit_and_the_run_keeps_to_it():
 
 @pytest.mark.parametrize('motor_file', sorted(glob.glob(os.path.join(
     ROOT, 'src', 'im_common', 'config', 'motors', '*.yaml'))))
+@pytest.mark.slow
 def test_every_shipped_motor_plans_within_its_limits(motor_file):
     """
     Check ``optimal`` on the rating-scaled tasks of make motors.
@@ -125,6 +127,7 @@ def test_the_plan_uses_the_controllers_estimates():
     assert np.max(np.abs(plan.phi - nominal.phi)) > 0.01
 
 
+@pytest.mark.slow
 def test_the_adaptive_controller_runs_optimal_under_the_chapter4_drift():
     from im_studies.study_ch4 import run_case
     opt = run_case('position', 'optimal', 'adaptive', 'chapter4')

@@ -20,8 +20,9 @@ import sys
 import time
 
 from im_bringup.processes import graph_processes, GraphProcesses
+from im_bringup.testing import wait_for_log, wait_until
 from im_common import topics as T
-from im_recording.bag import info, iter_raw
+from im_recording.bag import info, iter_raw, partial_path
 import pytest
 
 LOCKSTEP = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
@@ -117,15 +118,19 @@ def no_traceback(g):
         assert 'Traceback' not in log and 'FATAL' not in log, f'{name}:\n{log[-3000:]}'
 
 
-def wait_for_log(g, name, needle, timeout=60.0):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if needle in g.log(name):
-            return True
-        time.sleep(0.05)
-    return False
+#: A step the run has passed when a test stops it "mid-run" (0.01 s of the 30 s lock-step runs)
+MID_RUN_STEP = 100
 
 
+def recorded_past(bag, step, period=100_000):
+    """Return True once the recording's ``.part`` on disk holds a measurement past ``step``."""
+    from test_durable_recording import part_stamps
+    stamps = part_stamps(partial_path(bag), T.MEAS_CURRENT)
+    return bool(stamps) and max(stamps) > step * period
+
+
+@pytest.mark.processes
+@pytest.mark.slow
 def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path, domain):
     """
     Three short runs in a row, one CPU-bound process beside them.
@@ -161,6 +166,8 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
         assert fig[key] == pytest.approx(live.summary[key], rel=1e-12), key
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 @pytest.mark.parametrize('target', ['all', 'controller', 'plant', 'recorder'])
 def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
     """
@@ -174,13 +181,13 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
     with GraphProcesses(procs, str(tmp_path), domain) as g:
         g.start()
         assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
-        time.sleep(1.0)
+        # mid-run: the recorder has put steps past MID_RUN_STEP on disk
+        assert wait_until(lambda: recorded_past(bag, MID_RUN_STEP), 60, 0.2), g.log('recorder')
         g.send(signal.SIGINT, None if target == 'all' else [target])
         if target == 'recorder':        # off the critical path: the run goes on without it
             assert g.popen['recorder'].wait(30) == 0
-            time.sleep(1.0)
+            assert wait_for_log(g, 'plant', "follower 'recorder' stopping", 30), g.log('plant')
             assert all(p.poll() is None for n, p in g.popen.items() if n != 'recorder')
-            assert "follower 'recorder' stopping" in g.log('plant')
             g.send(signal.SIGINT)
         codes = g.wait(30)
         no_traceback(g)
@@ -205,12 +212,13 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
         assert missing_in_bag(bag) == dict.fromkeys(LOCKSTEP, 0)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
     procs = graph_processes('position', 'min_energy', duration=30.0, input_timeout=1.0)
     with GraphProcesses(procs, str(tmp_path), domain) as g:
         g.start()
-        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
-        time.sleep(0.5)
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')     # mid-run from here
         g.send(signal.SIGKILL, ['observer'])
         codes = g.wait(30)
         assert None not in codes.values(), codes
@@ -221,6 +229,8 @@ def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
         no_traceback(g)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, domain):
     """
     A recorder started while the run goes on.
@@ -239,8 +249,7 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
     g = GraphProcesses(procs + [rec], str(tmp_path), domain)
     with g:
         g.start(only=['plant', 'controller', 'observer'])
-        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
-        time.sleep(0.5)
+        assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')     # mid-run from here
         g.start_one('recorder')
         codes = g.wait(120)
         no_traceback(g)
@@ -275,6 +284,8 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
         assert want <= have, (topic, start, sorted(want - have)[:5])
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain, free_run_rate):
     """
     free_run at the rate this machine holds (1 kHz on most) with the gains certified for it.
@@ -322,6 +333,8 @@ def _statuses(bag):
             for _, _, t, raw in iter_raw(bag, [T.STATUS])]
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     """
     `ros2 param set /controller k1 ...` on a running controller process.
@@ -368,6 +381,8 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     assert {kv.key: kv.value for kv in events[0].values}['k1'] == '30.0'
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_the_live_load_offset_of_a_plant_process_is_applied_at_a_step_and_recorded(
         tmp_path, domain):
     """
@@ -428,6 +443,8 @@ def test_the_live_load_offset_of_a_plant_process_is_applied_at_a_step_and_record
     assert all(v == 4.0 for j, v in tau.items() if j > k) and any(j > k for j in tau)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
     """
     Two graphs with the same key on one ROS_DOMAIN_ID (nodes started by hand share the user's key).
@@ -445,6 +462,8 @@ def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
         g.start_one('plant2')
         assert g.popen['plant2'].wait(60) == 1
         assert 'ROS_DOMAIN_ID' in g.log('plant2') and "another plant ('plant'" in g.log('plant2')
+        # not disturbed: an absence has no event to wait on, so the first graph is given a
+        # second (its nodes hear plant2's last status within it) to show it goes on
         time.sleep(1.0)
         assert all(g.popen[n].poll() is None for n in ('plant', 'controller', 'observer'))
         codes = g.stop()
@@ -452,6 +471,8 @@ def test_second_graph_on_the_same_domain_is_refused_by_name(tmp_path, domain):
         assert codes == dict.fromkeys(('plant', 'controller', 'observer'), 0) | {'plant2': 1}
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_path, domain):
     """
     Each launch makes its own key.
@@ -514,6 +535,8 @@ def free_run_refused(rate, tmp_path, domain):
     return True
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 @pytest.mark.parametrize('mode', ['lockstep', 'free_run'])
 def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode, free_run_rate):
     """
@@ -544,8 +567,6 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode,
         ga.start()
         # b starts while a runs: a's plant has started (a free_run lasts 2 s of wall time)
         assert wait_for_log(ga, 'plant', 'starting:'), ga.log('plant')
-        if mode == 'lockstep':
-            time.sleep(0.5)
         gb.start()
         codes = [ga.wait(300), gb.wait(300)]
         for g, c in zip((ga, gb), codes):
@@ -586,7 +607,7 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode,
             refused = n.get(T.REFUSED_PREFIX + topic, 0)
             assert refused == int(meta.get(f'refused_unsigned{topic}', 0)), (bag, topic, meta)
             refused_reports += refused
-    if mode == 'lockstep':      # the runs overlap (b started 0.5 s into a's): reports refused
+    if mode == 'lockstep':      # the runs overlap (b started once a's plant had): reports refused
         assert refused_reports > 0
     if mode == 'lockstep':
         live = run_graph(task='position', strategy='min_energy', duration=1.0)
@@ -596,6 +617,8 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode,
                 assert fig[key] == pytest.approx(live.summary[key], rel=1e-12), (bag, key)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_free_run_recording_beside_a_busy_process_holds_every_step(tmp_path, domain,
                                                                    free_run_rate):
     """
@@ -640,6 +663,8 @@ def test_free_run_recording_beside_a_busy_process_holds_every_step(tmp_path, dom
     assert differ <= int(plant_end(bag)[2]['missed']), (differ, len(pairs))
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_scenario_runs_as_separate_processes(tmp_path):
     """
     ``scenario --processes``.
@@ -670,6 +695,8 @@ def test_scenario_runs_as_separate_processes(tmp_path):
         'scenario: error: --processes needs --record (the figures come from the recording)'
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_loaded_machine_makes_runs_slow_not_wrong(tmp_path, domain):
     """
     Two CPU-bound processes beside the graph: five runs in one process, five as processes.

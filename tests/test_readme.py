@@ -102,6 +102,7 @@ def _ros2_run_path(package: str, executable: str) -> str:
     return os.path.join(get_package_prefix(package), 'lib', package, executable)
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('page', COMMAND_PAGES)
 def test_every_ros2_run_shown_runs_with_the_options_shown(page):
     """
@@ -142,6 +143,7 @@ def test_every_ros2_launch_argument_shown_is_declared(page):
         assert used <= declared, f'{page}: ros2 launch: undeclared arguments {used - declared}'
 
 
+@pytest.mark.processes
 def test_readme_ros2_stand_in_runs_an_executable(tmp_path):
     """
     Check that the README's ``ros2`` stand-in runs an installed executable.

@@ -103,6 +103,8 @@ def test_graph_equals_the_offline_loop_with_every_block_on(tmp_path, extra):
     assert counts[T.TRUTH_TEMPERATURE] > 0 and counts[T.TRUTH_INVERTER] > 0
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_scenario_processes_give_the_same_e_in_with_every_block_on(tmp_path):
     """``scenario --processes`` of the run file: E_in as in one process, the truth recorded."""
     import json

@@ -7,6 +7,8 @@ go back. Run in a child process so the test runner's own scheduling never change
 import subprocess
 import sys
 
+import pytest
+
 _CHILD = """
 import os, threading, time
 from im_common import realtime
@@ -25,6 +27,7 @@ stop.set(); t.join()
 """
 
 
+@pytest.mark.processes
 def test_enter_moves_every_thread_or_says_what_to_grant():
     r = subprocess.run([sys.executable, '-c', _CHILD], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr

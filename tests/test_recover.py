@@ -11,6 +11,7 @@ import os
 from im_common import cdr
 from im_recording import recover as rec
 from im_recording.bag import BagWriter, info, iter_raw, partial_path
+import pytest
 
 V3, JS = '/im/measured/current', '/im/measured/shaft'
 
@@ -55,6 +56,7 @@ def _corrupt(data: bytearray, ci, mode: int) -> None:
         data[a:a + n] = bytes(n)
 
 
+@pytest.mark.slow
 def test_corrupting_each_chunk_in_turn_loses_exactly_that_chunk(tmp_path):
     src = _many_chunks(tmp_path / 'long.mcap')
     ci = _chunks(src)

@@ -1,10 +1,13 @@
 """`make reproduce` writes, per run, the keys the issues ask for (short runs here)."""
 from im_studies.reproduce import CH3_KEYS, markdown, run_all
+import pytest
 
 CH4_KEYS = ('variation', 'R_r_hat_final', 'R_r_true_final', 'theta_hat_final', 'theta_true_final',
             'L_M_hat_final', 'L_M_true_final', 'R_R_hat_final', 'R_R_true_final')
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_summary_rows_carry_the_chapter3_and_chapter4_keys(tmp_path):
     specs = [{'task': 'position', 'strategy': 'min_loss', 'controller': 'nominal', 'T_s': 1e-4,
               'duration': 0.02},
@@ -22,6 +25,7 @@ def test_summary_rows_carry_the_chapter3_and_chapter4_keys(tmp_path):
     assert table.count('\n') == 2 + len(rows)
 
 
+@pytest.mark.slow
 def test_bound_rows_give_each_run_its_own_start_and_ratio():
     """
     Per task one bound row.

@@ -37,6 +37,8 @@ def _topics_seen_on(domain: int, proc: subprocess.Popen, want: str, limit_s: flo
         rclpy.try_shutdown(context=ctx)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 @pytest.mark.parametrize('processes', [False, True], ids=['in_process', 'processes'])
 def test_scenario_runs_on_ros_domain_id_and_an_explicit_domain_id_wins(tmp_path, ros_domain_id,
                                                                        processes):

@@ -129,6 +129,8 @@ def scenario_bags(tmp_path_factory):
     return bags
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 @pytest.mark.parametrize('path', ['in_process', 'processes'])
 def test_scenario_bags_decode_with_the_qos_the_publishers_offer(scenario_bags, path):
     md = read_metadata(scenario_bags[path])
@@ -152,6 +154,7 @@ def _schema(path, topic):
     return s.schemas[ch.schema_id].data.decode()
 
 
+@pytest.mark.processes
 def test_both_recording_paths_write_the_same_run_metadata(scenario_bags):
     a = info(scenario_bags['in_process']).metadata
     b = info(scenario_bags['processes']).metadata
@@ -170,6 +173,7 @@ def test_both_recording_paths_write_the_same_run_metadata(scenario_bags):
     assert b['recording']['parameters_not_received'] == ''
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('path', ['in_process', 'processes'])
 def test_rosbags_reads_the_scenario_bags(scenario_bags, path):
     from rosbags.highlevel import AnyReader

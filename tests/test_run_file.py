@@ -30,6 +30,7 @@ def old_chapter4():
                                             'L_sr': sinusoid(0.097, 0.016, math.pi)})
 
 
+@pytest.mark.slow
 def test_the_shipped_chapter4_run_file_is_the_chapter4_profile():
     sc = Scenario.from_file(CHAPTER4)
     new, old = sc.plant_schedule(), old_chapter4()
@@ -174,6 +175,8 @@ def _summary(path):
         return json.load(f)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_drift_runs_identically_in_one_process_with_processes_and_rerun(tmp_path):
     from im_bringup.scenario import main
     from im_recording.bag import info
@@ -192,6 +195,7 @@ def test_drift_runs_identically_in_one_process_with_processes_and_rerun(tmp_path
         assert abs(other['pos_err_rms_rad'] - s[0]['pos_err_rms_rad']) <= 1e-9
 
 
+@pytest.mark.slow
 def test_the_adaptive_controller_holds_the_position_under_the_drift_the_nominal_loses_it():
     from im_bringup.testing import run_graph
     sc = Scenario.from_file(DRIFT)        # 4 s, noise on

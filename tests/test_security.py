@@ -87,6 +87,7 @@ def test_key_files_are_private_and_errors_name_the_file(tmp_path):
     assert not os.path.exists(os.path.dirname(fresh))
 
 
+@pytest.mark.processes
 def test_a_node_with_an_unusable_key_file_says_so_in_one_line(tmp_path):
     from im_bringup.processes import executable_path
     bad = tmp_path / 'open.key'
@@ -99,6 +100,7 @@ def test_a_node_with_an_unusable_key_file_says_so_in_one_line(tmp_path):
     assert len(lines) == 1 and 'chmod 600' in lines[0] and 'Traceback' not in r.stderr
 
 
+@pytest.mark.processes
 def test_a_malformed_allow_list_item_is_refused_by_name():
     from im_bringup.processes import executable_path
     r = subprocess.run([executable_path('im_plant', 'plant'), '--ros-args', '-p',
@@ -186,6 +188,8 @@ def test_a_rogue_changes_nothing_in_free_run():
     assert s['pos_err_max_rad'] < 0.2          # 300 steps of the rogue's 50 V would spin it away
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     """
     Check the graph as separate processes with a rogue process beside it.
@@ -209,7 +213,6 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
                              env=dict(os.environ, **env), stdout=subprocess.PIPE, text=True)
     try:
         assert rogue.stdout.readline().startswith('rogue: up')
-        time.sleep(1.0)
         # DDS discovery between the rogue and the graph's new processes is usually immediate but
         # sometimes waits for the next periodic participant announcement (3 s in Fast DDS): the
         # run lasts longer than that in wall time, so the rogue is matched during it either way
@@ -352,6 +355,8 @@ def _seen_from(host, env, seconds=5.0):
                           env=dict(os.environ, **env)).stdout.split()
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(
         tmp_path, other_host):
     """
@@ -375,6 +380,8 @@ def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(
         assert ('plant' in seen) == opened, (opened, seen)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_the_in_process_graph_is_invisible_from_another_host(other_host, monkeypatch):
     from im_bringup.config import node_parameters
     from im_bringup.graph import DriveGraph

@@ -102,6 +102,7 @@ def _speed_task(strategy, sensorless):
                              speed_noise_std=50.0 if sensorless else 0.0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('strategy', ['min_energy', 'constant_flux', 'min_loss'])
 def test_thesis_speed_task_sensorless_with_a_useless_speed_measurement(strategy):
     """
@@ -182,6 +183,7 @@ def test_sensorless_torque_task_tracks_the_torque_like_the_sensored_drive(strate
     assert torque_error_rms(r) <= 2.0 * sensored
 
 
+@pytest.mark.slow
 def test_sensorless_adapter_holds_the_rotor_resistance_and_matches_the_sensored_adaptive_run():
     """
     With ω̂ in place of ω, R_R and the speed meet only in the slip.
@@ -218,6 +220,7 @@ def test_sensorless_adapter_finds_the_stator_resistance_at_low_speed_under_load(
     assert np.max(np.abs(tr['omega_r'][late] - tr['omega_ref'][late])) < 0.2
 
 
+@pytest.mark.slow
 def test_a_commissioned_model_lets_the_sensorless_drive_run_a_motor_the_nominal_model_trips_on():
     """
     Commission first, then run sensorless (docs/sensorless.md §4, "Model errors").

@@ -48,6 +48,8 @@ def test_position_task_is_refused_in_sensorless_mode():
         node_parameters('position', sensorless=True)
 
 
+@pytest.mark.processes
+@pytest.mark.slow
 def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_speed(tmp_path):
     """
     Check the sensorless graph with every node its own process.

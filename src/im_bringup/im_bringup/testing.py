@@ -22,13 +22,43 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import random
-from typing import Dict, Optional
+import time
+from typing import Callable, Dict, Optional, TypeVar
 
 import numpy as np
 import pytest
 
 #: DDS domains the fixtures draw from (clear of the default 0 and of the domains users pick)
 TEST_DOMAINS = (150, 229)
+
+
+_T = TypeVar('_T')
+
+
+def wait_until(condition: Callable[[], _T], timeout: float = 60.0,
+               interval: float = 0.05) -> Optional[_T]:
+    """
+    Return ``condition()``'s first true value, polled every ``interval`` [s] (None: timed out).
+
+    A bounded wait on an event (a log line, what a file holds, a process's state) where a fixed
+    sleep would guess how long it takes: as quick as the event on an idle machine, as patient as
+    ``timeout`` on a loaded one. The condition is checked once more at the deadline.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value or time.monotonic() >= deadline:
+            return value or None
+        time.sleep(interval)
+
+
+def wait_for_log(graph, name: str, needle: str, timeout: float = 60.0) -> bool:
+    """
+    Return True once process ``name`` of ``graph`` has logged ``needle``; False after ``timeout``.
+
+    ``graph``: an :class:`im_bringup.processes.GraphProcesses` (its ``log(name)``).
+    """
+    return bool(wait_until(lambda: needle in graph.log(name), timeout))
 
 
 @dataclass

@@ -31,6 +31,7 @@ def _floats(text, key):
     return [float(x) for x in m.group(1).split(',')]
 
 
+@pytest.mark.slow
 def test_1ms_current_gain_certified_and_thesis_gain_rejected(gains_1ms):
     cur = gains_1ms.current
     assert cur.certified and gains_1ms.certified
@@ -56,6 +57,7 @@ def test_observer_injection_certified_over_the_speed_range(gains_1ms):
     assert L.shape == (4, 2) and np.allclose(L[2:], 0.0)
 
 
+@pytest.mark.slow
 def test_writes_parameters_yaml_with_certificate(tmp_path):
     out = tmp_path / 'gains.yaml'
     rc = design_gains.main(['--period', '1e-3', '--omega-max', '0', '--out', str(out)])
@@ -70,6 +72,7 @@ def test_writes_parameters_yaml_with_certificate(tmp_path):
     assert cert['current']['dense_spectral_radius'] < 1
 
 
+@pytest.mark.slow
 def test_no_yaml_without_certificate(tmp_path):
     out = tmp_path / 'gains.yaml'
     # 1000 1/s at 1 ms is beyond the largest feasible current-error rate (about 155 1/s)
@@ -120,6 +123,7 @@ def test_thesis_observer_error_map_is_the_observers_own():
     assert np.abs(M - Mz).max() < 1e-5 * np.abs(M).max()
 
 
+@pytest.mark.slow
 def test_100us_thesis_observer_certified_1ms_not(gains_100us):
     c = gains_100us.thesis_observer
     assert gains_100us.observer_structure == 'thesis' and c.certified

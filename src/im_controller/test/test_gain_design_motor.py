@@ -64,6 +64,7 @@ def test_observer_dual_gain_maps_back():
     assert np.abs(np.linalg.eigvals(A_d - d.gain @ motor.C_CURRENT)).max() < 1.0
 
 
+@pytest.mark.slow
 def test_thesis_gain_limit_over_the_box_is_the_scalar_current_loop_closed_form():
     """
     The 210 µs the README quotes.
