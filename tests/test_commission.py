@@ -49,6 +49,7 @@ def _identified(name):
     return _CACHE[name]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', MOTORS)
 def test_identifies_every_shipped_motor_within_its_limits(name):
     m = _motor(name)
@@ -184,6 +185,7 @@ def test_the_turning_rotor_pins_the_magnetizing_inductance_to_a_few_hundredths_o
         assert abs(err['L_sigma_err_pct']) < 4.0 * err['L_sigma_std_pct'], (seed, err)
 
 
+@pytest.mark.slow
 def test_without_noise_the_identification_is_exact():
     """The standstill model is exact and the flux balance's quadrature is corrected (§2, §3)."""
     from im_studies.commission_sim import identification_errors
@@ -321,6 +323,7 @@ def test_a_commissioned_file_is_complete_and_loads_without_a_default_warning(tmp
     assert motor_defaults(given, load_motor_file(out)) == [] and not caplog.records
 
 
+@pytest.mark.slow
 def test_on_a_real_inverter_the_voltage_error_is_measured_and_removed_before_r_s():
     """
     The thesis motor behind the real plant's inverter (10 kHz, 2 µs, 1 V / 20 mΩ, 340 V).

@@ -108,6 +108,7 @@ def test_compensation_removes_the_low_speed_current_distortion():
     assert on['speed_err_rms'] < off['speed_err_rms'] / 4.0
 
 
+@pytest.mark.slow
 def test_on_the_real_plant_with_compensation_a_load_step_and_a_reversal_hold_sensorless():
     """
     Check the study's load-step and reversal rows (thesis motor; docs/compensation.md).

@@ -223,6 +223,7 @@ def test_a_half_rated_load_step_at_100_rad_s_sensorless_is_back_within_2_rad_s_i
                                                      load_model=ConstantLoad(2.0))).summary
 
 
+@pytest.mark.slow
 def test_the_graph_and_its_recording_give_the_load_step_figures_of_the_ros_free_loop(tmp_path):
     """
     The same figures from the lock-step graph's summary, its bag's report and the offline loop.

@@ -49,6 +49,7 @@ def test_1ms_current_gain_certified_and_thesis_gain_rejected(gains_1ms):
     assert abs(a[0] - cur.gain[0, 0] * b[0]) < 1.0
 
 
+@pytest.mark.slow
 def test_observer_injection_certified_over_the_speed_range(gains_1ms):
     o = gains_1ms.observer
     assert o.certified and o.omega_max == 200.0
@@ -138,6 +139,7 @@ def test_100us_thesis_observer_certified_1ms_not(gains_100us):
     assert not bad.certified and bad.worst_spectral_radius > 1.0
 
 
+@pytest.mark.slow
 def test_100us_overrides_keep_the_thesis_gains(gains_100us, monkeypatch):
     cur = gains_100us.current
     assert cur.source == 'thesis gain' and np.allclose(cur.gain, 40.0 * np.eye(2))
