@@ -144,3 +144,13 @@ def test_a_recorded_run_is_at_its_date_and_replay_keeps_it(tmp_path):
         return [(tp, t, cdr.decode_vector3_stamped(d)[2:])
                 for tp, _, t, d in iter_raw(path, [V3, '/im/command/voltage'])]
     assert physics(sim) == physics(wall)
+
+
+def test_recover_says_so_when_the_log_time_record_cannot_be_read(tmp_path):
+    src = tmp_path / 'odd.mcap'
+    with BagWriter(src, chunk_size=4096) as w:
+        w.add_metadata(LOG_TIME_RECORD, {'clock': 'wall', 'offset_ns': 'soon'})
+        for k in range(500):
+            w.write_vector3(V3, k * 1_000_000, float(k), 0.0)
+    r = rec.recover(src, str(tmp_path / 'out.mcap'))
+    assert any("offset_ns 'soon'" in n and 'log times, not stamps' in n for n in r['notes']), r

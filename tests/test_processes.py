@@ -334,6 +334,45 @@ def _statuses(bag):
 
 
 @pytest.mark.processes
+def _set_live(procs, tmp_path, domain, target: str, name: str, values) -> list:
+    """
+    Run ``procs`` and set ``target``'s parameter ``name`` to each of ``values`` while it runs.
+
+    As ``ros2 param set`` does (the node's set_parameters service); returns each SetParameters
+    result; every process must then finish with exit code 0 and no traceback.
+    """
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rcl_interfaces.srv import SetParameters
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(domain['ROS_DOMAIN_ID']))
+    try:
+        node = rclpy.create_node('operator', context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        cli = node.create_client(SetParameters, f'/{target}/set_parameters')
+        results = []
+        with GraphProcesses(procs, str(tmp_path), domain) as g:
+            g.start()
+            assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
+            assert cli.wait_for_service(timeout_sec=20)
+            for value in values:
+                req = SetParameters.Request(
+                    parameters=[Parameter(name, value=value).to_parameter_msg()])
+                fut = cli.call_async(req)
+                ex.spin_until_future_complete(fut, timeout_sec=20)
+                results.append(fut.result().results[0])
+            codes = g.wait(120)
+            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+            no_traceback(g)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    return results
+
+
 @pytest.mark.slow
 def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     """
@@ -342,40 +381,11 @@ def test_live_parameter_is_validated_applied_and_recorded(tmp_path, domain):
     An invalid value is refused with a reason, a valid one is applied at a step boundary and
     recorded.
     """
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-    from rcl_interfaces.srv import SetParameters
     bag = tmp_path / 'live.mcap'
     procs = graph_processes('position', 'min_energy', duration=2.0, record=bag)
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(domain['ROS_DOMAIN_ID']))
-    try:
-        from rclpy.executors import SingleThreadedExecutor
-        node = rclpy.create_node('tuner', context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
-        cli = node.create_client(SetParameters, '/controller/set_parameters')
-        with GraphProcesses(procs, str(tmp_path), domain) as g:
-            g.start()
-            assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
-            assert cli.wait_for_service(timeout_sec=20)
-
-            def set_(value):
-                req = SetParameters.Request(
-                    parameters=[Parameter('k1', value=value).to_parameter_msg()])
-                fut = cli.call_async(req)
-                ex.spin_until_future_complete(fut, timeout_sec=20)
-                return fut.result().results[0]
-            bad = set_(-5.0)
-            assert not bad.successful and 'k1' in bad.reason
-            assert set_(30.0).successful
-            codes = g.wait(120)
-            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
-            no_traceback(g)
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
+    bad, good = _set_live(procs, tmp_path, domain, 'controller', 'k1', (-5.0, 30.0))
+    assert not bad.successful and 'k1' in bad.reason
+    assert good.successful
     events = [m.status[0] for t, m in _statuses(bag) if m.status[0].message == 'parameters']
     assert events and events[0].name == 'controller'
     assert {kv.key: kv.value for kv in events[0].values}['k1'] == '30.0'
@@ -392,53 +402,24 @@ def test_the_live_load_offset_of_a_plant_process_is_applied_at_a_step_and_record
     with its step, and the recorded true load torque is the load's own before that step and 3 N·m
     more after it.
     """
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-    from rcl_interfaces.srv import SetParameters
     from im_bringup.run_file import Scenario
     from im_common.loads import ConstantLoad
     bag = tmp_path / 'load.mcap'
     sc = Scenario(task='speed', duration=2.0, load_model=ConstantLoad(1.0))
     procs = graph_processes(scenario=sc, record=bag)
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(domain['ROS_DOMAIN_ID']))
-    try:
-        from rclpy.executors import SingleThreadedExecutor
-        node = rclpy.create_node('operator', context=ctx)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
-        cli = node.create_client(SetParameters, '/plant/set_parameters')
-        with GraphProcesses(procs, str(tmp_path), domain) as g:
-            g.start()
-            assert wait_for_log(g, 'plant', 'starting:'), g.log('plant')
-            assert cli.wait_for_service(timeout_sec=20)
-
-            def set_(value):
-                req = SetParameters.Request(
-                    parameters=[Parameter('load_offset', value=value).to_parameter_msg()])
-                fut = cli.call_async(req)
-                ex.spin_until_future_complete(fut, timeout_sec=20)
-                return fut.result().results[0]
-            bad = set_(1e6)
-            assert not bad.successful and 'load_offset' in bad.reason
-            assert set_(3.0).successful
-            codes = g.wait(120)
-            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
-            no_traceback(g)
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
+    bad, good = _set_live(procs, tmp_path, domain, 'plant', 'load_offset', (1e6, 3.0))
+    assert not bad.successful and 'load_offset' in bad.reason
+    assert good.successful
     events = [(t, m.status[0]) for t, m in _statuses(bag) if m.status[0].message == 'parameters']
     assert len(events) == 1 and events[0][1].name == 'plant'
     values = {kv.key: kv.value for kv in events[0][1].values}
     k = int(values['step'])
     assert values['load_offset'] == '3.0' and 0 < k < 20000
-    from im_common.cdr import decode_vector3_stamped
+    from im_common.cdr import decode_vector3_stamped, NS_PER_S
     tau = {}
     for _, _, t, raw in iter_raw(bag, [T.TRUTH_TORQUE]):
         sec, nsec, _tau_m, tau_l, _friction = decode_vector3_stamped(bytes(raw))
-        tau[(sec * 1_000_000_000 + nsec) // 100_000] = tau_l
+        tau[(sec * NS_PER_S + nsec) // 100_000] = tau_l
     assert all(v == 1.0 for j, v in tau.items() if j < k)
     assert all(v == 4.0 for j, v in tau.items() if j > k) and any(j > k for j in tau)
 

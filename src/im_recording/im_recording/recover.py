@@ -810,6 +810,7 @@ class _Out:
         self.t_last: Optional[int] = None
         self.run_record: Optional[Dict[str, str]] = None    # written by finish (its duration)
         self.offset = 0                 # log time - stamp, from the file's log_time record
+        self.offset_problem: Optional[str] = None
         self.status_cid: Optional[int] = None
         self.statuses: List[Tuple[int, bytes]] = []        # (stamp, CDR) of /im/status
 
@@ -917,8 +918,9 @@ class _Out:
         if name == LOG_TIME_RECORD:     # copied as is: the output keeps the file's log times
             try:
                 self.offset = log_time_offset({name: md}, self.out)
-            except BagError:
+            except BagError as exc:     # said in the notes: the times stay the file's log times
                 self.offset = 0
+                self.offset_problem = f'{exc.problem}; times below are log times, not stamps'
         if name == 'run':
             self.run_record = dict(md)      # written by finish, its duration what was saved
         elif name not in ('rosbag2', 'recovered_from'):
@@ -1090,6 +1092,8 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
                          'read)')
         for why, n in sorted(sink.dropped.items()):
             notes.append(f'{n} message(s) not copied ({why})')
+        if sink.offset_problem:
+            notes.append(sink.offset_problem)
         if scan.attachments:
             notes.append(f'{scan.attachments} attachment(s) not copied')
         n_lost = (total - sink.n if total is not None

@@ -19,9 +19,11 @@ def plate_of(motor):
 
 
 def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = False,
-                   seed: int = 0):
+                   seed: int = 0, blocks=None):
     """
     Commission ``motor`` on the ROS-free plant (limits: its ratings).
+
+    ``blocks``: the real plant's blocks (PlantSimulator keywords, docs/plant.md; none: ideal).
 
     Returns (Commissioning, Identified) — Identified raises NotInformative from ``result``.
     """
@@ -30,7 +32,8 @@ def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = 
     plate = plate_of(motor)
     i_max, v_max = motor.rated_current, motor.rated_voltage
     plant = PlantSimulator(motor, T_s=T_s, current_trip=i_max, v_limit=v_max,
-                           current_noise_std=noise, noise_seed=seed, locked_rotor=locked)
+                           current_noise_std=noise, noise_seed=seed, locked_rotor=locked,
+                           **(blocks or {}))
     com = Commissioning(T_s, i_max, v_max, pole_pairs=plate.pole_pairs,
                         test_speed=motor.rated_speed, locked=locked)
     simulate_commissioning(plant, com)

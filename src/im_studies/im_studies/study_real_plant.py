@@ -236,27 +236,23 @@ def plot_phase_current(runs: dict, path: str) -> None:
 
 def commission(motor_name: str, blocks: dict) -> dict:
     """Commission a shipped motor behind ``blocks``; return the errors [%] and the inverter fit."""
-    from im_adapt.commissioning import Commissioning, simulate_commissioning
     from im_common.params import load_motor_blocks
-    from im_common.plant_sim import PlantSimulator
-    from .commission_sim import COMPARED, plate_of
+    from .commission_sim import commission_sim, COMPARED
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
     m = load_motor_file(path)
     kw = dict(blocks)
     for name in ('saturation', 'thermal'):
         if kw.get(name) == 'motor':
             kw[name] = load_motor_blocks(path)[name]
-    plant = PlantSimulator(m, T_s=1e-4, current_trip=m.rated_current, v_limit=m.rated_voltage,
-                           **kw)
-    com = Commissioning(1e-4, m.rated_current, m.rated_voltage,
-                        pole_pairs=plate_of(m).pole_pairs, test_speed=m.rated_speed)
-    ident = simulate_commissioning(plant, com).result()
+    ident = commission_sim(m, blocks=kw).result()
     truth = dict(m.identifiable(), J=m.J)
     out = {f'{n}_err_pct': 100.0 * (ident.values[n] / truth[n] - 1.0) for n in COMPARED}
     r_on = blocks.get('inverter', {}).get('r_on', 0.0)
     out['R_s_r_on_err_pct'] = 100.0 * (ident.values['R_s'] / (truth['R_s'] + r_on) - 1.0)
+    from im_common.compensation import from_inverter
+    from im_common.inverter import inverter_from_dict
     inv = blocks.get('inverter')
-    v_dead = inv['deadtime'] * inv['pwm_frequency'] * inv['V_dc'] + inv['v_on'] if inv else 0.0
+    v_dead = from_inverter(inverter_from_dict(inv)).v_dead if inv else 0.0
     out['v_dead'] = ident.inverter.get('v_dead', 0.0)
     out['v_dead_err_pct'] = 100.0 * (out['v_dead'] / v_dead - 1.0) if v_dead else None
     return out
