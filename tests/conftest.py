@@ -118,7 +118,7 @@ def free_run_rate(tmp_path_factory):
         load_params_yaml
     from im_bringup.testing import TEST_DOMAINS
     log = ''
-    for rate in (1000, 500, 250):
+    for rate in FREE_RUN_RATES:
         gains = load_params_yaml(free_run_gains(1.0 / rate))
         procs = graph_processes('position', 'min_energy', T_s=1.0 / rate, duration=50.0 / rate,
                                 mode='free_run', extra=gains)
@@ -136,6 +136,9 @@ def free_run_rate(tmp_path_factory):
     FREE_RUN_REFUSAL.append(log)
     return None
 
+
+#: The free_run rates [Hz] the suite tries, fastest first.
+FREE_RUN_RATES = (1000, 500, 250)
 
 #: The plant's log of the refused 250 Hz run when :func:`free_run_rate` is None.
 FREE_RUN_REFUSAL: list = []
