@@ -18,7 +18,9 @@ measures (stator current, shaft speed) and returning the voltage to apply; when 
   built on the identified model: J Δω + b ∫ω dt = ∫τ̂ dt over windows, with the torque from the
   voltage-model stator flux, τ̂ = v (ψ_sα i_β − ψ_sβ i_α), ψ_s = ∫(V − R̂_s i) dt;
 * the pole pairs from the same run (the flux's rotation against the measured shaft speed) when
-  no nameplate gives them.
+  no nameplate gives them;
+* the magnetizing curve i_M(ψ_R) at several flux levels from a no-load test after the speed test
+  (:mod:`im_adapt.magnetizing`, rotor free, ``magnetizing=True``).
 
 Before the standstill test, the inverter's own voltage error (dead time and device drops,
 docs/compensation.md) is measured: a slow current loop holds the α current at ±LEVELS × i_max in
@@ -39,6 +41,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Dict, List, Optional, Tuple
 
+from im_adapt.magnetizing import MIN_POINTS, NoLoadTest
 from im_common.compensation import InverterErrorModel
 from im_common.params import (check_real, IDENTIFIABLE_NAMES, InvalidParameter, MotorParams,
                               rated_rotor_flux, RATING_NAMES)
@@ -205,6 +208,8 @@ class Identified:
     rms_residual: Dict[str, float] = field(default_factory=dict)
     #: the inverter's voltage error (v_dead, its std, R_dc, current_band; docs/compensation.md)
     inverter: Dict[str, float] = field(default_factory=dict)
+    #: the no-load test's points of the magnetizing curve (psi, i_M, their std, w_e; rising)
+    magnetizing: List[Dict[str, float]] = field(default_factory=list)
 
     def motor(self, ratings: Optional[Dict[str, float]] = None) -> MotorParams:
         """
@@ -492,13 +497,16 @@ class Commissioning:
     test_speed : top speed of the speed test [rad/s] (the nameplate's: half the rated speed)
     locked : the rotor is locked: the standstill tests only; J and b must come from elsewhere
     flux : magnetizing flux of the speed test [Wb] (None: 0.4·i_max·L_M, capped)
+    magnetizing : run the no-load test after the speed test (the magnetizing curve)
 
     """
 
     def __init__(self, T_s: float, i_max: float, v_max: float, pole_pairs: Optional[int] = None,
                  test_speed: Optional[float] = None, locked: bool = False,
-                 flux: Optional[float] = None):
+                 flux: Optional[float] = None, magnetizing: bool = True):
         self.T_s = check_real('T_s', T_s, 0.0, lo_open=True)
+        self.magnetizing = bool(magnetizing)
+        self._nl: Optional[NoLoadTest] = None
         self.i_max = check_real('current limit', i_max, 0.0, lo_open=True)
         self.v_max = check_real('voltage limit', v_max, 0.0, lo_open=True)
         self.pole_pairs = pole_pairs
@@ -748,12 +756,30 @@ class Commissioning:
                 iq = 0.0
         elif self.phase == 'rest':
             if t >= 0.05:
-                return None
+                # the no-load test needs a rotor that turns (the speed test saw it turn)
+                turned = self.w_peak >= 0.05 * SPEED_FRACTION * self.test_speed
+                return self._start_noload(i_a, i_b, w) if self.magnetizing and turned else None
             return 0.0, 0.0
         self.progress = f'{self.phase}: omega_r = {w:.4g} rad/s'
         return self._speed_cmd(i_a, i_b, c, s, e_a, e_b, iq)
 
     _magnetize = _accelerate = _coast = _brake = _rest = _speed
+
+    # ----------------------------------------------------------------------- no-load test
+    def _start_noload(self, i_a, i_b, w):
+        """Start the no-load test (:mod:`im_adapt.magnetizing`) from rest."""
+        e, sd = self.electrical[0], self.electrical[1]
+        w_e_max = (self.pole_pairs or 1) * SPEED_FRACTION * self.test_speed
+        self._nl = NoLoadTest(self.T_s, self.i_max, self.v_max, e['R_s'], e['L_sigma'],
+                              e['L_M'], e['R_R'], w_e_max, self.t_mag,
+                              max(0.5, 3.0 * self.t_accel), R_s_std=sd['R_s'])
+        self._goto('noload')
+        return self._noload(i_a, i_b, w)
+
+    def _noload(self, i_a, i_b, w):
+        cmd = self._nl.step(i_a, i_b)
+        self.progress = self._nl.progress
+        return cmd
 
     def _speed_cmd(self, i_a, i_b, c, s, e_a, e_b, iq):
         ra = self.i_d * c - iq * s
@@ -790,6 +816,14 @@ class Commissioning:
             return out
         self._identify_mechanics(out)
         self._refine_electrical(out)
+        if self._nl is not None:
+            out.magnetizing = sorted(self._nl.points, key=lambda p: p['psi'])
+            if self._nl.stopped:
+                out.notes['saturation'] = self._nl.stopped
+            elif len(out.magnetizing) < MIN_POINTS:
+                out.notes['saturation'] = (
+                    f'{len(out.magnetizing)} points of the magnetizing curve (fewer than '
+                    f'{MIN_POINTS}: the current limit came first)')
         return out
 
     def _refine_electrical(self, out: Identified) -> None:

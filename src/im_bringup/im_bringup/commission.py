@@ -305,10 +305,19 @@ def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) 
                      'compensates it with the run-file key compensation: '
                      f"{{v_dead: {inv['v_dead']:.4g}, current_band: {inv['current_band']:.3g}}} "
                      "(docs/compensation.md). R_s includes the devices' on-state resistance.")
+    values = motor.as_dict()
+    if ident.magnetizing:
+        from im_adapt.magnetizing import curve_table
+        lines.append('Magnetizing curve (no-load test, inverse-Gamma psi_R [Wb], i_M [A], value '
+                     '+- standard deviation; the saturation block below is these points):')
+        lines += [f"  psi_R = {p['psi']:.5g} +- {p['psi_std']:.2g} Wb, i_M = {p['i_M']:.5g} "
+                  f"+- {p['i_M_std']:.2g} A (L_M = {p['psi'] / p['i_M']:.5g} H, omega_e = "
+                  f"{p['w_e']:.4g} rad/s)" for p in ident.magnetizing]
+        rows = ', '.join(f'[{psi:g}, {i:g}]' for psi, i in curve_table(ident.magnetizing))
+        values['saturation'] = f'{{table: [{rows}]}}'
     if flux is not None:
         lines.append(f'Rated rotor flux (nameplate voltage, frequency, speed; this gauge): '
                      f"{flux:.4g} Wb (the controller's phi_d for constant flux).")
-    values = motor.as_dict()
     text = parameters_yaml({'/**': values}, header='\n'.join(lines))
     tmp = path + '.tmp'
     with open(tmp, 'w') as f:

@@ -19,11 +19,13 @@ def plate_of(motor):
 
 
 def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = False,
-                   seed: int = 0, blocks=None):
+                   seed: int = 0, blocks=None, magnetizing: bool = False):
     """
     Commission ``motor`` on the ROS-free plant (limits: its ratings).
 
     ``blocks``: the real plant's blocks (PlantSimulator keywords, docs/plant.md; none: ideal).
+    ``magnetizing``: with the no-load test (the magnetizing curve; off for the studies of the
+    standstill and speed tests, which it would only lengthen).
 
     Returns (Commissioning, Identified) — Identified raises NotInformative from ``result``.
     """
@@ -35,7 +37,7 @@ def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = 
                            current_noise_std=noise, noise_seed=seed, locked_rotor=locked,
                            **(blocks or {}))
     com = Commissioning(T_s, i_max, v_max, pole_pairs=plate.pole_pairs,
-                        test_speed=motor.rated_speed, locked=locked)
+                        test_speed=motor.rated_speed, locked=locked, magnetizing=magnetizing)
     simulate_commissioning(plant, com)
     return com
 

@@ -13,7 +13,8 @@ on the ideal plant. Parts (default all):
   hold at 10 rad/s under the rated torque;
 - ``load_step``: a step of half the rated torque at 100 rad/s, sensorless, at rated flux;
 - ``commissioning``: the self-commissioning (docs/commissioning.md) on the ideal plant, behind
-  the inverter alone, and on every block, against the motor file's values.
+  the inverter alone, and on every block, against the motor file's values; the no-load test's
+  magnetizing curve against the plant's (its worst L_M(ψ) over the points).
 
 Prints a Markdown table per part; ``--json`` writes the rows, ``--plots`` the phase current
 against its reference. Figures: the current distortion ``|i − i*|`` RMS [A] (the stator-current
@@ -244,9 +245,10 @@ def commission(motor_name: str, blocks: dict) -> dict:
     for name in ('saturation', 'thermal'):
         if kw.get(name) == 'motor':
             kw[name] = load_motor_blocks(path)[name]
-    ident = commission_sim(m, blocks=kw).result()
+    ident = commission_sim(m, blocks=kw, magnetizing=True).result()
     truth = dict(m.identifiable(), J=m.J)
     out = {f'{n}_err_pct': 100.0 * (ident.values[n] / truth[n] - 1.0) for n in COMPARED}
+    out.update(magnetizing_errors(ident.magnetizing, m, kw.get('saturation')))
     r_on = blocks.get('inverter', {}).get('r_on', 0.0)
     out['R_s_r_on_err_pct'] = 100.0 * (ident.values['R_s'] / (truth['R_s'] + r_on) - 1.0)
     from im_common.compensation import from_inverter
@@ -256,6 +258,24 @@ def commission(motor_name: str, blocks: dict) -> dict:
     out['v_dead'] = ident.inverter.get('v_dead', 0.0)
     out['v_dead_err_pct'] = 100.0 * (out['v_dead'] / v_dead - 1.0) if v_dead else None
     return out
+
+
+def magnetizing_errors(points, motor, saturation) -> dict:
+    """
+    Return the no-load test's points and their worst L_M(ψ) error [%] against the plant's curve.
+
+    The plant's curve: its ``saturation`` block, or the constant L_M0 without one.
+    """
+    from im_common.saturation import saturation_from_dict
+    L_M0 = motor.L_sr ** 2 / motor.L_r
+    curve = saturation_from_dict(saturation, L_M0) if saturation else None
+    errs = []
+    for p in points:
+        true_i = curve.current(p['psi']) if curve else p['psi'] / L_M0
+        errs.append(100.0 * (true_i / p['i_M'] - 1.0))      # L_M = ψ/i_M at the same ψ
+    worst = max(errs, key=abs) if errs else None
+    return {'L_M_curve_points': len(points), 'L_M_curve_err_max_pct': worst,
+            'L_M_curve_psi_max': max((p['psi'] for p in points), default=None)}
 
 
 def run_commissioning(motors=MOTORS) -> list:
@@ -298,14 +318,16 @@ def markdown(part: str, rows: list) -> str:
                          f"({r['ideal_speed_err_rms']:.3f}) | {r['current_distortion_A']:.3f} "
                          f"({r['ideal_current_distortion_A']:.3f}) | {_trip(r)} |")
     elif part == 'commissioning':
-        lines = ['| plant | motor | v_dead | R_s (R_s + r_on) | σL_s | L_M | R_R | J |',
-                 '|---|---|---:|---:|---:|---:|---:|---:|']
+        lines = ['| plant | motor | v_dead | R_s (R_s + r_on) | σL_s | L_M | R_R | J | '
+                 'L_M(ψ): points up to ψ_R [Wb], worst |',
+                 '|---|---|---:|---:|---:|---:|---:|---:|---:|']
         for r in rows:
             vd = ('~0' if r['v_dead_err_pct'] is None else f"{r['v_dead_err_pct']:+.1f} %")
             lines.append(f"| {r['plant']} | {r['motor']} | {vd} | {r['R_s_err_pct']:+.2f} % "
                          f"({r['R_s_r_on_err_pct']:+.2f} %) | {r['L_sigma_err_pct']:+.2f} % | "
                          f"{r['L_M_err_pct']:+.2f} % | {r['R_R_err_pct']:+.2f} % | "
-                         f"{r['J_err_pct']:+.2f} % |")
+                         f"{r['J_err_pct']:+.2f} % | {r['L_M_curve_points']} up to "
+                         f"{r['L_M_curve_psi_max']:.3f}, {r['L_M_curve_err_max_pct']:+.2f} % |")
     else:
         lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
                  '| --- | --- | --- | ---: | ---: | --- |']
