@@ -333,6 +333,22 @@ def smooth_floor(phi: float, dphi: float, ddphi: float, eps: float):
     return f, f1 * s * dphi, f2 * dphi * dphi + f1 * s * ddphi
 
 
+def sample_path(traj, schedule, times, setpoint_duration: float):
+    """
+    Return (θ*, ω*, a*) of a reference generator at rising ``times``, its setpoints applied.
+
+    ``schedule``: (t, value, duration) rows, consumed as their times come (pass a copy).
+    """
+    import numpy as np
+    theta, omega, acc = (np.empty(len(times)) for _ in range(3))
+    for j, t in enumerate(times):
+        while schedule and schedule[0][0] <= t:
+            t_i, value, duration = schedule.pop(0)
+            traj.set(value, t_i, duration or setpoint_duration)
+        theta[j], omega[j], acc[j], _ = traj.sample(t)
+    return theta, omega, acc
+
+
 class DriveController:
     """Stateful controller: call :meth:`compute` once per period with increasing t."""
 
@@ -596,15 +612,9 @@ class DriveController:
             return
         n = max(2, int(math.ceil((t1 - t0) / PLAN_STEP - 1e-9)))
         times = np.linspace(t0, t1, 2 * n + 1)      # nodes (even) and midpoints (odd)
-        tau = np.empty(2 * n + 1)
-        omega = np.empty(2 * n + 1)
-        for j, t in enumerate(times):
-            while sched and sched[0][0] <= t:
-                t_i, value, duration = sched.pop(0)
-                traj.set(value, t_i, duration or cfg.setpoint_duration)
-            theta, w, acc, _ = traj.sample(t)
-            tau[j] = c.J * acc + c.b * w + self._load.torque(t, theta + self._theta_offset, w)
-            omega[j] = w
+        theta, omega, acc = sample_path(traj, sched, times, cfg.setpoint_duration)
+        tau = np.array([c.J * a + c.b * w + self._load.torque(t, th + self._theta_offset, w)
+                        for t, th, w, a in zip(times, theta, omega, acc)])
         if cfg.torque_limit is not None:
             np.clip(tau, -cfg.torque_limit, cfg.torque_limit, out=tau)
         cap = np.array([min(cfg.phi_max, self.flux_cap(w)) for w in omega[::2]])
@@ -629,6 +639,25 @@ class DriveController:
                           + (f', bound by the {" and ".join(limits)}' if limits else '')
                           + (f'; the limits leave {plan.torque_shortfall:.3g} N·m·s of the torque '
                              f'undelivered' if plan.torque_shortfall > 1e-9 else ''))
+
+    def reference_preview(self, times, theta_r: float = 0.0, omega_r: float = 0.0):
+        """
+        Return (θ*, ω*, a*) at ``times`` of the reference this controller will follow.
+
+        From a start at (θ_r, ω_r) at times[0], the configured profile and its setpoints (θ*
+        with the speed task's anchor, as the load sees it); no run state of this controller is
+        touched (a copy runs). The torque task has no reference path: ValueError.
+        """
+        import copy
+        if self.config.mode == 'torque':
+            raise ValueError('the torque task has no reference path (its speed is not known '
+                             'ahead)')
+        ctl = copy.deepcopy(self)
+        ctl.reset()
+        ctl._init_run(float(times[0]), theta_r, omega_r, 0.0, 0.0)
+        theta, omega, acc = sample_path(ctl._traj, ctl._schedule, times,
+                                        self.config.setpoint_duration)
+        return theta + ctl._theta_offset, omega, acc
 
     def flux_cap(self, omega_r: float) -> float:
         """

@@ -60,42 +60,16 @@ def start_flux(task: str, strategy: str) -> float:
     return 0.0 if flux is None else math.hypot(*flux)
 
 
-def task_path(task: str):
-    """
-    Return (τ(t), ω(t)) of exact tracking of the task's reference.
-
-    With the plant's own motor and load: τ = J θ̈* + b θ̇* + τ_L(t, θ*, θ̇*).
-    """
-    from im_bringup.config import TASK_PRESETS
-    from im_common.loads import make_load
-    from im_common.params import THESIS_MOTOR
-    from im_controller.trajectories import ThesisPositionProfile, ThesisSpeedProfile
-    p = TASK_PRESETS[task]
-    load = make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
-                     c2=p.get('load_c2', 0.001))
-    traj = ThesisPositionProfile() if task == 'position' else ThesisSpeedProfile()
-    offset = p['theta0'] - traj.sample(0.0)[0]
-    m = THESIS_MOTOR
-
-    def path(t: float):
-        theta, w, a, _ = traj.sample(t)
-        return m.J * a + m.b * w + load.torque(t, theta + offset, w), w
-    return path
-
-
 def loss_bound(task: str, phi0: float, step: float = 1e-3, core: bool = True):
     """
-    Return the convex lower bound (im_controller.flux_plan) on the losses of the task, a FluxPlan.
+    Return the convex lower bound on the losses of a thesis task, a FluxPlan.
 
-    The task runs over [0, duration] from the start flux φ0, end flux free.
+    The task's run (thesis motor, load, reference) over [0, duration] from the start flux φ0,
+    end flux free: :func:`im_studies.loss_bound.run_loss_bound`, the floor of any run file.
     """
-    from im_bringup.config import TASK_PRESETS
-    from im_common.params import THESIS_MOTOR as m
-    from im_controller.flux_plan import plan_along
-    from im_controller.reference import ModelCoefficients
-    c = ModelCoefficients.from_params(m)
-    k = {'k_e': m.k_e, 'k_h': m.k_h} if core else {}
-    return plan_along(c, task_path(task), 0.0, TASK_PRESETS[task]['duration'], phi0, step, **k)
+    from im_bringup.offline import Scenario
+    from .loss_bound import run_loss_bound
+    return run_loss_bound(Scenario(task=task), step, core=core, phi0=phi0)
 
 
 def bound_rows(results: List[dict], step: float = 1e-3) -> List[dict]:
