@@ -411,6 +411,27 @@ def test_encoder_position_and_speed_quantization():
             assert abs(est - w) <= q / (se.speed_window * T) + 1e-9
 
 
+def test_a_shaft_turning_at_the_start_reads_its_speed_from_the_first_sample():
+    """
+    A steady start at 100 rad/s behind a 2048-line encoder: ω̂ at t_0 is 100 rad/s (quantized).
+
+    The window holds the counts of the periods before t_0, as at any later step. Before, ω̂ read
+    0 at t_0; the speed task's setpoint reference started from it and a sensored ±100 rad/s
+    reversal on krause_3hp ran away to 211 rad/s.
+    """
+    from im_common.plant_sim import PlantSimulator
+    from im_common.params import THESIS_MOTOR
+    se = sensors_from_dict({'encoder_lines': 2048})
+    res = 2.0 * math.pi / (se.counts_per_rev * se.speed_window * 1e-4)
+    for w0 in (100.0, -37.0, 0.0):
+        plant = PlantSimulator(THESIS_MOTOR, T_s=1e-4, omega0=w0, theta0=0.3,
+                               sensors={'encoder_lines': 2048})
+        first = plant.measure().omega_r
+        assert abs(first - w0) <= res + 1e-9, (w0, first)
+        plant.step(0.0, 0.0)
+        assert abs(plant.measure().omega_r - w0) <= res + 0.01 * abs(w0) + 1e-9
+
+
 def test_adc_quantization_and_plant_measurement():
     spec = {'adc_bits': 10, 'current_range': 20.0, 'encoder_lines': 2048}
     se = sensors_from_dict(spec)

@@ -118,9 +118,14 @@ class RealPlant:
         self._speed = None
         self._omega_meas = sim.x[5]
         if sensors is not None and sensors.encoder_lines > 0:
-            self._speed = SpeedFromCounts(sensors.counts_per_rev, sensors.speed_window, sim.T_s,
-                                          sensors.count(sim.x[4]))
-            self._omega_meas = 0.0
+            # a shaft already turning at t_0 (a steady start) was counted before it: the window
+            # holds the W periods before t_0, as at any later step (before, ω̂ read 0 at a
+            # steady start of 100 rad/s, the speed task anchored its reference at rest and the
+            # drive lost the run)
+            th0, w0, W = sim.x[4], sim.x[5], sensors.speed_window
+            past = [sensors.count(th0 - w0 * (W - j) * sim.T_s) for j in range(W + 1)]
+            self._speed = SpeedFromCounts(sensors.counts_per_rev, W, sim.T_s, past)
+            self._omega_meas = self._speed.value()
         sim.step = self.step
         sim.state_currents = self.state_currents
         sim.stator_currents = self.stator_currents

@@ -103,12 +103,23 @@ class Sensors:
 
 
 class SpeedFromCounts:
-    """The M-method over ``window`` periods of ``T_s`` (module doc); ``update(count)`` → ω̂."""
+    """
+    The M-method over ``window`` periods of ``T_s`` (module doc); ``update(count)`` → ω̂.
 
-    def __init__(self, counts_per_rev: int, window: int, T_s: float, count0: int):
+    ``count0``: the count at t_0, or the counts of the periods up to it, oldest first (a shaft
+    already turning at t_0 has been counted before it; :meth:`value` is then its speed at t_0).
+    """
+
+    def __init__(self, counts_per_rev: int, window: int, T_s: float, count0):
         self.scale = TWO_PI / (counts_per_rev * T_s)
         self.window = window
-        self.hist = [count0]
+        self.hist = list(count0)[-(window + 1):] if isinstance(count0, (list, tuple)) \
+            else [count0]
+
+    def value(self) -> float:
+        """Return ω̂ of the counts so far (0 with one count: no period has passed)."""
+        h = self.hist
+        return (h[-1] - h[0]) * self.scale / (len(h) - 1) if len(h) > 1 else 0.0
 
     def update(self, count: int) -> float:
         h = self.hist
