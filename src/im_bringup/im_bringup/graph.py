@@ -9,8 +9,10 @@ test runs on one machine — need a domain each: the test fixtures give them one
 
 Recording in-process takes every message a node publishes from the node's own tap
 (:attr:`im_common.lockstep.LockstepNode.tap`, called by its publishers after publishing) to the
-:class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot
-path and without changing rclpy's classes. Each tapped topic is declared with the QoS profiles
+recording's :class:`im_recording.session.RecordingSession` (the same the ``record`` node feeds:
+the same metadata records) with its stamp, without an extra subscription on the hot path and
+without changing rclpy's classes; the plant's run events and the run's nodes' parameters go to
+it too. Each tapped topic is declared with the QoS profiles
 its publishers offer, as the ROS graph reports them (``get_publishers_info_by_topic``, what
 rosbag2's recorder and ``record`` store).
 """
