@@ -448,10 +448,12 @@ class RecorderNode(LockstepNode):
         self.lock_run()
 
     def _write(self, topic, data, t) -> None:
-        # refused when closed by a signal while a callback was pending, or when its file cannot
-        # be written (writer.failed: main ends the recording with that line)
-        if self.session.write(topic, data, t):
-            self._last_msg = time.monotonic()
+        try:
+            self.session.write(topic, data, t)
+        except BagError:
+            return          # closed by a signal while a callback was pending, or its file
+            # cannot be written (writer.failed: main ends the recording with that line)
+        self._last_msg = time.monotonic()
 
     def _write_setpoint(self, data: bytes, stamp: int) -> None:
         """

@@ -159,23 +159,19 @@ class RecordingSession:
             'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')})
 
     # Messages ---------------------------------------------------------------------------
-    def write(self, topic: str, data: bytes, ns: int) -> bool:
+    def write(self, topic: str, data: bytes, ns: int) -> None:
         """
         Write one serialized message stamped ``ns``, count it and check its step.
 
-        False when the writer refused it (closed, or its file cannot be written:
-        ``writer.failed``).
+        The writer's :class:`~im_recording.bag.BagError` (closed, or its file cannot be
+        written: ``writer.failed``) goes to the caller; the message is then not counted.
         """
-        try:
-            self._write(topic, data, ns)
-        except BagError:
-            return False
+        self._write(topic, data, ns)
         counts = self.counts
         counts[topic] = counts.get(topic, 0) + 1
         tr = self._track(topic)
         if tr is not None:
             tr.see(ns, self.period)
-        return True
 
     def refused(self, topic: str, publishers: Iterable[str] = ()) -> int:
         """Count a message not signed by the graph on ``topic``; returns the count so far."""
