@@ -6,6 +6,10 @@ write path of :class:`~im_recording.bag.BagWriter` into a temporary file and pri
 (including chunk compression and the final close), plus the reference cost of
 ``rclpy.serialization.serialize_message``. ``--json FILE`` also writes the table as JSON.
 
+Decode rows: reading 40,000 signed payloads of one topic into arrays with the batch decoder
+(:func:`im_common.cdr.vector3_stamped_batch`, :func:`~im_common.cdr.joint_state_batch`, what the
+summary tap and ``load_run`` use) against decoding each message.
+
 Recover rows (``--recover-steps 100000,400000``; ``--only-recover`` skips the rest): a synthetic
 recording of that many lock-step steps (6 messages each, zstd, 1 MiB chunks) with 4 KiB zeroed in
 its middle chunk, salvaged by ``im_recording.recover.recover`` in a fresh subprocess: wall time,
@@ -94,6 +98,35 @@ def _bench_serialize(n: int) -> float:
     for _ in range(n):
         serialize_message(m)
     return (time.perf_counter() - t0) / n * 1e6
+
+
+def _bench_decode(n: int) -> dict:
+    """
+    µs per message of reading a topic's payloads into arrays: in one read or one by one.
+
+    The summary tap and ``load_run`` decode each topic's batch with the batch decoder
+    (:func:`im_common.cdr.vector3_stamped_batch`, :func:`~im_common.cdr.joint_state_batch`) and
+    fall back to decoding each message only for payloads of mixed layouts: these rows show why.
+    Payloads signed as the graph signs them (a tag of fixed length in the frame id).
+    """
+    from im_common import cdr
+    v3 = [cdr.pack_vector3_stamped(k // 10000, k % 10000 * 100000, 0.1 * k, 0.2, 0.0,
+                                   frame_id=f'plant|{k:032x}') for k in range(n)]
+    js = [cdr.pack_joint_state(k // 10000, k % 10000 * 100000, ('rotor',), (0.1 * k,), (1.0,),
+                               ()) for k in range(n)]
+    ways = {'us_per_msg_decode_v3_batch': lambda: cdr.vector3_stamped_batch(v3),
+            'us_per_msg_decode_v3_each': lambda: [cdr.decode_vector3_stamped(p) for p in v3],
+            'us_per_msg_decode_js_batch': lambda: cdr.joint_state_batch(js),
+            'us_per_msg_decode_js_each': lambda: [cdr.decode_joint_state(p) for p in js]}
+    out = {}
+    for key, way in ways.items():
+        best = float('inf')
+        for _ in range(3):
+            t0 = time.perf_counter()
+            way()
+            best = min(best, time.perf_counter() - t0)
+        out[key] = best / n * 1e6
+    return out
 
 
 def _messages(n_steps: int):
@@ -263,6 +296,7 @@ def run(quick: bool = False) -> dict:
         out[f'recover_peak_rss_mb_{r["steps"]}_steps'] = r['peak_rss_mb']
     out['recover_peak_rss_mb_baseline'] = rec[0]['peak_rss_mb']
     out['us_rclpy_serialize_message_v3'] = _bench_serialize(1000 if quick else 50000)
+    out.update(_bench_decode(2000 if quick else 40000))
     return out
 
 
@@ -299,9 +333,13 @@ def main(argv=None) -> int:
     print('\nsame serialized messages, zstd, 1 MiB chunks: own code vs the mcap library')
     for k, v in lib.items():
         print(f'{k[11:]:42s} {v:8.2f} µs/message')
+    dec = _bench_decode(40000)
+    print('\nreading payloads into arrays (signed, one layout): batch decoder vs one by one')
+    for k, v in dec.items():
+        print(f'{k[11:]:42s} {v:8.3f} µs/message')
     if a.json:
         with open(a.json, 'w') as f:
-            json.dump({'rows': rows, 'fill_us': fill, 'serialize_message_us': ser, **lib,
+            json.dump({'rows': rows, 'fill_us': fill, 'serialize_message_us': ser, **lib, **dec,
                        'recover': rec,
                        'steps': a.steps, 'python': sys.version}, f, indent=1)
     return 0

@@ -74,9 +74,10 @@ def test_batch_joint_state_decoding_equals_message_by_message(topic, payloads, m
     """The one-layout batch decoder of the recording/summary gives what decoding each gives."""
     import numpy as np
 
+    from im_common import cdr
     from im_recording import run
     fast = run.decode_topic(topic, payloads)
-    monkeypatch.setattr(run, '_js_fixed', lambda _payloads: None)
+    monkeypatch.setattr(cdr, 'joint_state_batch', lambda _payloads: None)
     slow = run.decode_topic(topic, payloads)
     np.testing.assert_array_equal(fast[0], slow[0])
     assert list(fast[1]) == list(slow[1])
@@ -87,8 +88,27 @@ def test_batch_joint_state_decoding_equals_message_by_message(topic, payloads, m
 
 def test_batch_joint_state_decoding_takes_one_layout_in_one_read():
     """A batch of one layout is read by the batch decoder (what keeps the summary tap cheap)."""
-    from im_recording import run
+    from im_common.cdr import joint_state_batch
     for topic, payloads in _batches()[:4]:
-        assert run._js_fixed(payloads) is not None, topic
-    assert run._js_fixed(_batches()[4][1]) is None
-    assert run._js_fixed(_batches()[5][1]) is None
+        assert joint_state_batch(payloads) is not None, topic
+    assert joint_state_batch(_batches()[4][1]) is None
+    assert joint_state_batch(_batches()[5][1]) is None
+
+
+@pytest.mark.parametrize('frame_id', ['', 'plant|' + 'ab' * 16])
+def test_batch_vector3_decoding_equals_message_by_message(frame_id):
+    """One read of a batch of one layout gives each payload's own stamp and values."""
+    import numpy as np
+
+    from im_common import cdr
+    payloads = [cdr.pack_vector3_stamped(k // 3, 7 * k, 0.5 * k, -k, 2.0 ** -k, frame_id=frame_id)
+                for k in range(9)]
+    st, x, y, z = cdr.vector3_stamped_batch(payloads)
+    each = [cdr.decode_vector3_stamped(p) for p in payloads]
+    np.testing.assert_array_equal(st, [s * 1_000_000_000 + n for s, n, *_ in each])
+    for col, got in zip(zip(*each), (None, None, x, y, z)):
+        if got is not None:
+            np.testing.assert_array_equal(got, col)
+    # a frame id of another length in the batch: no common layout, decoded one by one
+    assert cdr.vector3_stamped_batch(payloads + [cdr.pack_vector3_stamped(0, 0, 1, 2, 3, 'x')]) \
+        is None

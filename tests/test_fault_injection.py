@@ -335,7 +335,7 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
     bag = tmp_path / 'full.mcap'
     r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '1.0', '--record',
                         str(bag), '--no-progress'], capture_output=True, text=True, timeout=300,
-                       env=enospc_env(tmp_path, 1_500_000))
+                       env=enospc_env(tmp_path, 1_000_000))
     assert r.returncode == 1, r.stderr
     line = one_line('\n'.join(ln for ln in r.stderr.splitlines() if not ln.startswith('[INFO]')))
     assert str(partial_path(bag)) in line and 'No space left on device' in line, line

@@ -9,7 +9,7 @@ parameters YAML (``ros__parameters`` added by :func:`to_yaml`).
 """
 from __future__ import annotations
 
-from typing import Dict, Optional, Sequence
+from typing import Dict, List, Optional, Sequence
 
 from im_controller.flux import STRATEGIES  # noqa: F401 (re-exported; the one home of the names)
 
@@ -71,3 +71,14 @@ def to_yaml(parameters: Dict[str, Dict[str, object]], use_sim_time: bool = True)
             vals['use_sim_time'] = True
         doc[node] = vals
     return parameters_yaml(doc)
+
+
+def run_nodes(parameters: Dict[str, Dict[str, object]]) -> List[str]:
+    """
+    Return the drive nodes of a run with these parameters, the plant first.
+
+    The adapter is one only when the controller uses its estimates (``use_adapter``): the
+    processes of a run start no other, and a recording holds the parameters of these alone.
+    """
+    adaptive = bool(parameters.get('controller', {}).get('use_adapter', False))
+    return ['plant', 'controller', 'observer'] + (['adapter'] if adaptive else [])

@@ -9,8 +9,10 @@ test runs on one machine — need a domain each: the test fixtures give them one
 
 Recording in-process takes every message a node publishes from the node's own tap
 (:attr:`im_common.lockstep.LockstepNode.tap`, called by its publishers after publishing) to the
-:class:`im_recording.bag.BagWriter` with its stamp, without an extra subscription on the hot
-path and without changing rclpy's classes. Each tapped topic is declared with the QoS profiles
+recording's :class:`im_recording.session.RecordingSession` (the same the ``record`` node feeds:
+the same metadata records) with its stamp, without an extra subscription on the hot path and
+without changing rclpy's classes; the plant's run events and the run's nodes' parameters go to
+it too. Each tapped topic is declared with the QoS profiles
 its publishers offer, as the ROS graph reports them (``get_publishers_info_by_topic``, what
 rosbag2's recorder and ``record`` store).
 """
@@ -22,6 +24,7 @@ import time
 from typing import Dict, Mapping, Optional
 
 from im_common.cli import status_line
+from im_common.topics import STATUS
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
@@ -75,8 +78,9 @@ class DriveGraph:
     parameters : mapping node name -> {parameter: value}
         The same structure as a ROS 2 parameters YAML (``plant``, ``controller``, ``observer``,
         ``adapter``); see :func:`im_bringup.config.node_parameters`.
-    nodes : which nodes to start (default: all four). Leaving one out exercises the
-        missing-input path: the others report what they waited for and stop.
+    nodes : which nodes to start (default: the run's, :func:`im_bringup.config.run_nodes`: the
+        adapter only when the controller uses it, as for the processes of a run). Leaving one
+        out exercises the missing-input path: the others report what they waited for and stop.
     recorder : optional sink with ``write(topic, payload)`` (an :class:`im_recording.traces.Tap`):
         every message a node publishes is handed to it (serialized).
     domain_id : DDS domain (default: ``ROS_DOMAIN_ID``, as rcl reads it; 0 when unset).
@@ -88,10 +92,13 @@ class DriveGraph:
     NODE_NAMES = ('plant', 'controller', 'observer', 'adapter')
 
     def __init__(self, parameters: Mapping[str, Mapping[str, object]],
-                 nodes=NODE_NAMES, recorder=None, domain_id: Optional[int] = None,
+                 nodes=None, recorder=None, domain_id: Optional[int] = None,
                  graph_key: Optional[bytes] = None):
+        from im_bringup.config import run_nodes
         from im_common.lockstep import build_node
         factories = node_factories()
+        if nodes is None:
+            nodes = run_nodes(parameters)
         self.context = Context()
         # closed by default (docs/security.md): discovery on this host unless the user chose
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -101,6 +108,7 @@ class DriveGraph:
                    **({} if domain_id is None else {'domain_id': int(domain_id)}))
         self.domain_id = self.context.get_domain_id()
         self.nodes: Dict[str, object] = {}
+        self.parameters = parameters
         self.recorder = recorder
         self._stop = None
         self._failures: Dict[str, str] = {}
@@ -142,9 +150,14 @@ class DriveGraph:
                 tapped_topics.setdefault(topic, (node, pub.msg_type))
         topics = frozenset(tapped_topics)
 
+        session = getattr(rec, 'session', None)
+        master_event = None if session is None else self._master_events(session)
+
         def tap(topic, msg, _write=rec.write, _topics=topics):
             if topic in _topics:
                 if not isinstance(msg, bytes):     # status events: rare, not on the hot path
+                    if master_event is not None and topic == STATUS:
+                        master_event(msg)
                     msg = serialize_message(msg)
                 _write(topic, msg)
         for node in self.nodes.values():        # the nodes' own hook (LockstepNode.tap)
@@ -157,8 +170,43 @@ class DriveGraph:
                 # log-time order: in one process the observer's x̂_{k+1} comes before step k+1
                 from im_common.step_gate import LOCKSTEP_DEPTH
                 writer.set_reorder_window(LOCKSTEP_DEPTH * plant.period)
+        if session is not None:
+            self._record_parameters(session)
         # The observer and adapter publish their initial estimates when they adopt the run,
         # through these tapped publishers; the plant publishes step 0 when the run starts.
+
+    def _master_events(self, session):
+        """
+        Return the tap's hook that hands the plant's run events to the recording session.
+
+        The session learns the run's period, its first step and its end as the recorder node
+        does from ``/im/status``; here from the start (the tap is there before the first step).
+        """
+        plant = self.nodes.get('plant')
+        if plant is not None:
+            session.period = plant.period
+        master = None if plant is None else plant.get_name()
+
+        def master_event(msg) -> None:
+            for st in msg.status:
+                if st.name == master:
+                    session.master_event(st.message, {kv.key: kv.value for kv in st.values},
+                                         counted=True)
+        return master_event
+
+    def _record_parameters(self, session) -> None:
+        """
+        Record the parameters of the run's nodes (every one, defaults included).
+
+        The run's nodes: :func:`im_bringup.config.run_nodes` (not the adapter when it is off,
+        as no adapter process is started then).
+        """
+        from im_bringup.config import run_nodes
+        for name in run_nodes(self.parameters):
+            node = self.nodes.get(name)
+            if node is not None:
+                session.add_parameters(name, {p: node.get_parameter(p).value
+                                              for p in node.list_parameters([], 0).names})
 
     def _declare_offers(self, writer, topics) -> None:
         """
@@ -230,7 +278,10 @@ class DriveGraph:
         t_end = time.perf_counter()
         self.wall_s = t_end - t0
         first = getattr(plant, 'wall_start', None)     # the plant's first step (lock-step)
-        if any(n.exit_code for n in nodes):
+        if any(n.exit_code for n in nodes) or self.recorder is not None:
+            # after a failure the others get up to a second to report theirs; after the plant's
+            # end the followers compute and publish their last step (the observer's estimate
+            # of the final step), which a recording holds as the recorder node's does
             t_fail = time.perf_counter()
             while not all(n.done for n in nodes) and time.perf_counter() - t_fail < 1.0:
                 self.executor.spin_once(timeout_sec=0.05)

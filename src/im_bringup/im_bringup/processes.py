@@ -73,7 +73,7 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     ``live_port``: also the live view on that port (:mod:`im_bringup.live`). ``log_time``: the
     recording's log times, ``wall`` or ``simulated`` (``record --log-time``).
     """
-    from im_bringup.config import node_parameters
+    from im_bringup.config import node_parameters, run_nodes
     if mode not in ('lockstep', 'free_run'):
         raise ValueError(f'invalid mode {mode!r}: lockstep or free_run')
     if log_time not in ('wall', 'simulated'):
@@ -97,7 +97,7 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
             raise ValueError(f"unknown node '{node}' in the extra parameters (expected one of "
                              f"{', '.join(params)})")
         params[node].update(values)
-    names = ['controller', 'observer'] + (['adapter'] if adaptive else [])
+    names = run_nodes(params)[1:]
     params['plant']['mode'] = mode
     params['plant']['wait_for'] = ' '.join(names + (['recorder'] if record else []))
     if key_file is None:

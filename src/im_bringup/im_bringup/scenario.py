@@ -154,8 +154,8 @@ def run_metadata(task: str, strategy: str, controller: str, variation: str,
     ``scenario``, ``run`` (the resolved run file, ``{'yaml': text}``, when ``scenario`` is
     given), ``versions``, ``git`` (and ``extra``) — as strings: the one source for the
     in-process bag and for the ``--processes`` recorder (``record --metadata``).
-    ``parameters/<node>`` come from the running nodes
-    (:func:`im_recording.bag.parameters_metadata`).
+    ``parameters/<node>`` come from the running nodes, ``recorder`` and ``recording`` from the
+    recording itself (:class:`im_recording.session.RecordingSession`).
     """
     meta = {'scenario': {'task': task, 'strategy': strategy, 'controller': controller,
                          'variation': variation},
@@ -286,20 +286,12 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         try:
             graph = DriveGraph(parameters, recorder=sink, domain_id=domain_id)
             sink.on_error = lambda line: graph.fail('recorder', line)   # e.g. the disk is full
-            if writer is not None:      # every parameter of every node, defaults included
-                from im_recording.bag import parameters_metadata
-                for name, node in graph.nodes.items():
-                    writer.add_metadata(f'parameters/{name}', parameters_metadata(
-                        {p: node.get_parameter(p).value
-                         for p in node.list_parameters([], 0).names}))
             if stop.requested:
                 stats = {'steps': 0, 'wall_s': 0.0, 'steps_per_s': float('nan'),
                          'failures': {}, 'ok': True}
             else:
                 stats = graph.run(progress=progress, stop=stop)
         finally:
-            plant = graph.nodes.get('plant') if graph is not None else None
-            k = plant.sim.k if plant is not None else 0
             if graph is not None:
                 graph.close()
             if view is not None:
@@ -312,10 +304,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                 writer.discard()
             elif writer is not None and not writer.failed:
                 _record_refusals(writer, graph)
-                if stop.requested:
-                    writer.add_metadata('interrupted', {'signal': stop.requested,
-                                                        'steps': str(k)})
-                writer.close()
+                sink.close(stop.requested)      # the 'recording' record: interrupted or not
         signal = stop.requested
     summary = summarize(parameters, stats, sink, task=task, strategy=strategy,
                         controller=controller, variation=variation)

@@ -104,7 +104,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
             task, strategy, controller, variation, scenario=scenario),
             log_time_offset_ns=log_time_offset_for(log_time))
     sink = Tap(writer, load_step=load_step_time(parameters=params))
-    graph = DriveGraph(params, nodes=nodes or DriveGraph.NODE_NAMES, recorder=sink,
+    graph = DriveGraph(params, nodes=nodes, recorder=sink,
                        domain_id=random.randint(*TEST_DOMAINS))
     try:
         if beside is None:
@@ -114,8 +114,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
                 stats = graph.run()
     finally:
         graph.close()
-        if writer is not None:
-            writer.close()
+        sink.close()            # the recording's 'recording' record, then its file
     summary = summarize(params, stats, sink, task=task, strategy=strategy,
                         controller=controller, variation=variation)
     run = summary.pop('_run')

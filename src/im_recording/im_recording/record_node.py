@@ -45,12 +45,13 @@ from im_common import cdr, realtime
 from im_common import topics as T
 from im_common.cli import error as cli_error
 from im_common.conversions import NS_PER_S
-from im_common.lockstep import (END_STATES, FINISHED, LockstepNode, READY, RUNNING, stamp_text,
+from im_common.lockstep import (END_STATES, LockstepNode, READY, RUNNING, stamp_text,
                                 WARNING)
 from im_common.step_gate import LOCKSTEP_DEPTH
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .bag import BagError, BagWriter, log_time_offset_for, LOG_TIMES, offered_qos_yaml
+from .session import RecordingSession, StampTrack  # noqa: F401 (StampTrack: its old home)
 
 #: Types written raw (exact CDR length known without a full decode); others are taken as
 #: message objects and serialized by rclpy (rare: status events).
@@ -96,83 +97,6 @@ def parse_topics(items: Optional[Iterable[str]]) -> Dict[str, str]:
     return out
 
 
-class StampTrack:
-    """
-    Per-topic continuity check of a lock-step topic.
-
-    It keeps the first and last stamp received and the steps missing between received stamps (cheap
-    enough for every message); the steps missing before the first and after the last are added by
-    :meth:`account`, once the run's first and last step are known.
-    """
-
-    __slots__ = ('first', 'last', 'missing', 'ranges', 'overflow')
-
-    MAX_RANGES = 100
-
-    def __init__(self):
-        self.first: Optional[int] = None
-        self.last: Optional[int] = None
-        self.missing = 0
-        self.ranges: List[tuple] = []
-        self.overflow = False
-
-    def see(self, ns: int, period: int) -> None:
-        last = self.last
-        if last is None:
-            self.first = self.last = ns
-            return
-        if ns > last:
-            if period and ns > last + period:
-                self.missing += (ns - last) // period - 1
-                if len(self.ranges) < self.MAX_RANGES:
-                    self.ranges.append((last + period, ns - period))
-                else:
-                    self.overflow = True
-            self.last = ns
-        elif ns < self.first:           # an earlier step after a later one: before the first
-            if period and self.first - ns > period:
-                self.missing += (self.first - ns) // period - 1
-                if len(self.ranges) < self.MAX_RANGES:
-                    self.ranges.insert(0, (ns + period, self.first - period))
-                else:
-                    self.overflow = True
-            self.first = ns
-        elif period and ns < last:      # late into a gap counted missing: no longer missing
-            self._fill(ns, period)
-
-    def _fill(self, ns: int, period: int) -> None:
-        for i, (a, b) in enumerate(self.ranges):
-            if a <= ns <= b:
-                self.missing -= 1
-                parts = [(a, ns - period)] if ns > a else []
-                parts += [(ns + period, b)] if ns < b else []
-                self.ranges[i:i + 1] = parts
-                return
-        # not in a listed gap: a duplicate, or a gap beyond the MAX_RANGES listed (overflow: the
-        # count may then stay too high; the metadata says missing_ranges_truncated<topic>)
-
-    def account(self, start: Optional[int], end: Optional[int], period: int) -> tuple:
-        """
-        Return (steps missing, their ranges) from ``start`` to ``end``.
-
-        ``start`` and ``end`` are stamps, both included (None: not known, nothing counted on that
-        side). The steps are those before the first stamp received, between received stamps, and
-        after the last.
-        """
-        if self.first is None:
-            if start is None or end is None or not period or end < start:
-                return 0, []
-            return (end - start) // period + 1, [(start, end)]
-        n, ranges = self.missing, list(self.ranges)
-        if start is not None and period and self.first > start:
-            n += (self.first - start) // period
-            ranges.insert(0, (start, self.first - period))
-        if end is not None and period and self.last < end:
-            n += (end - self.last) // period
-            ranges.append((self.last + period, end))
-        return n, ranges
-
-
 class RecorderNode(LockstepNode):
     """Subscribes to ``topics`` and writes every message to ``writer``; a lossless follower."""
 
@@ -182,26 +106,23 @@ class RecorderNode(LockstepNode):
     def __init__(self, writer: BagWriter, topics: Optional[Dict[str, str]] = None,
                  node_name: str = 'recorder', depth: int = 1000, lossless: bool = True,
                  **kwargs):
+        self.topics = dict(topics or default_topics())
+        # the recording's bookkeeping (counts, stamp tracks, the run's span, the metadata
+        # records): the same session the in-process graph feeds
+        self.session = RecordingSession(
+            writer, self.topics, recorder='im_recording record', always=ACK_TOPICS,
+            announced=lambda: self._announced.get(self.run_id, ()))
         super().__init__(node_name, **kwargs)
         self.writer = writer
         self.lossless = lossless
-        self.counts: Dict[str, int] = {}
         self.trimmed = 0
-        self.undecodable = 0
-        self.track: Dict[str, StampTrack] = {}
-        self.end_state: Optional[str] = None
-        self.end_values: dict = {}
         self._acked = -1
         self._subs = []
-        self.run_start: Optional[int] = None     # stamp of the followed run's first step
-        self.from_start = False                  # the plant counted this recorder from step 0
         self._event_period = 0
         self._announced: Dict[str, set] = {}     # run id -> lock-step topics its nodes publish
-        self.unsigned: Dict[str, int] = {}      # signed / status messages not of this graph
         self._named_at: Dict[str, float] = {}
-        self.topics = dict(topics or default_topics())
-        self.parameters_asked: Dict[str, object] = {}
-        self.parameters_written: List[str] = []
+        self._parameter_clients: Dict[str, object] = {}
+        self.session.foreign = self.foreign      # the node's own: LockstepNode names them
         # Announce the lossless follower before subscribing: from the moment the plant sees it,
         # the plant stays within follower_window steps of the recorder's acknowledgements.
         self.start_protocol(input_timeout=5.0, startup_timeout=1e9)
@@ -236,9 +157,6 @@ class RecorderNode(LockstepNode):
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=history,
                              reliability=reliability, durability=durability)
             writer.expect_topic(topic, tname)   # declared with its publishers' offers
-            self.counts[topic] = 0
-            if topic in critical:
-                self.track[topic] = StampTrack()
             raw = tname in RAW_TYPES
             cls = cdr.message_class(tname)
             self._subs.append(self.create_subscription(
@@ -262,27 +180,21 @@ class RecorderNode(LockstepNode):
         """
         Fetch each peer's parameters once, over its parameter services.
 
-        Every parameter with its value (defaults included) goes into ``parameters/<name>`` — what
-        the in-process scenario records from the nodes themselves.
+        Every parameter with its value (defaults included) goes into ``parameters/<name>``
+        (:meth:`RecordingSession.add_parameters`, what the in-process graph records from the
+        nodes themselves).
         """
-        if name in self.parameters_asked or name == self.get_name():
+        if name == self.get_name() or not self.session.expect_parameters(name):
             return
         from rclpy.parameter import parameter_value_to_python
         from rclpy.parameter_client import AsyncParameterClient
-        from .bag import parameters_metadata
-        client = AsyncParameterClient(self, name)
-        self.parameters_asked[name] = client
+        client = self._parameter_clients[name] = AsyncParameterClient(self, name)
 
         def got_values(names, future) -> None:
             res = future.result()
-            if res is None or len(res.values) != len(names):
-                return
-            try:
-                self.writer.add_metadata(f'parameters/{name}', parameters_metadata(
-                    {n: parameter_value_to_python(v) for n, v in zip(names, res.values)}))
-                self.parameters_written.append(name)
-            except BagError:
-                pass                # closed meanwhile: the 'recording' record names it
+            if res is not None and len(res.values) == len(names):
+                self.session.add_parameters(name, {n: parameter_value_to_python(v)
+                                                   for n, v in zip(names, res.values)})
 
         def got_names(future) -> None:
             res = future.result()
@@ -292,24 +204,32 @@ class RecorderNode(LockstepNode):
                     lambda f: got_values(names, f))
         client.list_parameters().add_done_callback(got_names)
 
-    parameters_asked: dict
-    parameters_written: list
+    # The recording's bookkeeping lives in the session; the run protocol reads and sets it here.
+    def _session_attribute(name: str, doc: str):       # noqa: N805 - a class-body helper
+        return property(lambda self: getattr(self.session, name),
+                        lambda self, value: setattr(self.session, name, value), doc=doc)
+
+    counts = _session_attribute('counts', 'messages written per topic')
+    track = _session_attribute('track', 'the lock-step topics: their stamp tracks')
+    period = _session_attribute('period', "the run's period [ns]")
+    run_start = _session_attribute('run_start', "stamp of the followed run's first step")
+    from_start = _session_attribute('from_start', 'the plant counted this recorder from step 0')
+    end_state = _session_attribute('end_state', "the time master's final event")
+    end_values = _session_attribute('end_values', 'its values')
+    stop_at = _session_attribute('stop_at', 'see cut()')
+    undecodable = _session_attribute('undecodable', 'messages not recorded: not decodable')
+    unsigned = _session_attribute('unsigned', 'messages not signed by this graph, per topic')
+    parameters_asked = _session_attribute('parameters_asked', 'nodes whose parameters are due')
+    parameters_written = _session_attribute('parameters_written', 'nodes whose are recorded')
+    del _session_attribute
 
     def offered_qos(self, topic: str) -> str:
         """Return ``topic``'s ``offered_qos_profiles``: one profile per publisher listed."""
         return offered_qos_yaml(i.qos_profile for i in self.get_publishers_info_by_topic(topic))
 
     def run_topics(self) -> List[str]:
-        """
-        Return the lock-step topics of the followed run this recorder tracks.
-
-        Those are the ones every graph has
-        (:data:`ACK_TOPICS`), those a node of the run announced (``publishes`` of its ``ready``:
-        the adapter's estimates), and any that brought data of the run.
-        """
-        announced = self._announced.get(self.run_id, ())
-        return [t for t, tr in self.track.items()
-                if t in ACK_TOPICS or t in announced or tr.first is not None]
+        """Return the lock-step topics of the run (:meth:`RecordingSession.run_topics`)."""
+        return self.session.run_topics()
 
     # Protocol ---------------------------------------------------------------------------
     def on_ready(self) -> None:
@@ -449,9 +369,6 @@ class RecorderNode(LockstepNode):
     # Messages ---------------------------------------------------------------------------
     def _callback(self, topic: str, tname: str, raw: bool):
         stamped = tname in STAMPED_TYPES
-        write = self.writer.write_serialized
-        counts = self.counts
-        track = self.track.get(topic)
         signed = topic in T.SIGNED_TOPICS      # lock-step and report topics: the graph's tag
         setpoint = topic == T.SETPOINT
         if raw:
@@ -473,7 +390,7 @@ class RecorderNode(LockstepNode):
                 if setpoint:
                     self._write_setpoint(data, t)
                     return
-                self._write(write, topic, data, t, counts, track)
+                self._write(topic, data, t)
         else:
             from rclpy.serialization import serialize_message
 
@@ -483,7 +400,7 @@ class RecorderNode(LockstepNode):
                     return
                 data = serialize_message(msg)
                 t = cdr.header_stamp_ns(data) if stamped else self.get_clock().now().nanoseconds
-                self._write(write, topic, data, t, counts, track)
+                self._write(topic, data, t)
         return cb
 
     EARLY_MAX = LOCKSTEP_READER_DEPTH
@@ -498,7 +415,7 @@ class RecorderNode(LockstepNode):
 
         It is evidence, never mixed with the run's data; it is counted and its publisher named.
         """
-        n = self.unsigned[topic] = self.unsigned.get(topic, 0) + 1
+        n = self.session.refused(topic)
         now = time.monotonic()
         if not self.foreign.get(topic) and now - self._named_at.get(topic, 0.0) > 0.2:
             self._named_at[topic] = now         # ask the graph until the sender has a name
@@ -530,16 +447,13 @@ class RecorderNode(LockstepNode):
         """
         self.lock_run()
 
-    def _write(self, write, topic, data, t, counts, track) -> None:
+    def _write(self, topic, data, t) -> None:
         try:
-            write(topic, data, t)
+            self.session.write(topic, data, t)
         except BagError:
             return          # closed by a signal while a callback was pending, or its file
             # cannot be written (writer.failed: main ends the recording with that line)
-        counts[topic] += 1
         self._last_msg = time.monotonic()
-        if track is not None:
-            track.see(t, self.period)
 
     def _write_setpoint(self, data: bytes, stamp: int) -> None:
         """
@@ -593,146 +507,34 @@ class RecorderNode(LockstepNode):
             self._progress.publish(h)
             self._acked = ack
 
-    # Report ------------------------------------------------------------------------------
+    # Report (the session's) -------------------------------------------------------------
     def count_span(self) -> tuple:
-        """
-        Return (first step, last step, how the last is known) the missing steps are counted over.
-
-        First: the run's first step when the plant counted this recorder from the start (its
-        ``running`` lists it), else — it joined a running run — the step it joined: the earliest
-        step it holds on any lock-step topic of the run. Last: the step of the plant's final event;
-        without one (the recorder was stopped, or the plant left, while the run went on) the last
-        step the run announced to it, the latest stamp it received on any lock-step topic.
-        Steps are None where nothing is known.
-        """
-        p = self.period
-        if not p:
-            return None, None, ''
-        topics = self.run_topics()
-        if self.from_start and self.run_start is not None:
-            first = self.run_start // p
-        else:
-            firsts = [self.track[t].first for t in topics if self.track[t].first is not None]
-            first = min(firsts) // p if firsts else None
-        if self.end_state is not None and self.end_state != 'ended':
-            return first, int(self.end_values.get('step', 0) or 0), \
-                f"the plant's final event ({self.end_state})"
-        if self.stop_at is not None:
-            return first, self.stop_at, ('the last step the run had announced when this '
-                                         'recorder was stopped; the run went on')
-        lasts = [tr.last for tr in self.track.values() if tr.last is not None]
-        if not lasts:
-            return first, None, ''
-        how = 'the last step the run announced to this recorder; its end was not seen'
-        return first, max(lasts) // p, how
-
-    stop_at: Optional[int] = None
+        """Return (first step, last step, how) (:meth:`RecordingSession.count_span`)."""
+        return self.session.count_span()
 
     def cut(self) -> None:
-        """
-        Stop counting at the last step the run has announced (the recorder stops, the run not).
-
-        Messages of later steps that still arrive (while the recorder waits for the plant's
-        final event, which counts instead when it comes) are recorded but not counted.
-        """
-        if self.end_state is None and self.stop_at is None and self.period:
-            lasts = [tr.last for tr in self.track.values() if tr.last is not None]
-            if lasts:
-                self.stop_at = max(lasts) // self.period
+        """Stop counting at the last step announced (:meth:`RecordingSession.cut`)."""
+        self.session.cut()
 
     def joined_at(self) -> Optional[int]:
-        """Return the step this recorder joined the run at, if it was not there from its start."""
-        first = self.count_span()[0]
-        if first is None or (self.from_start and self.run_start is not None):
-            return None
-        if self.run_start is not None and first * self.period <= self.run_start:
-            return None
-        return first
+        """Return the step this recorder joined the run at (:meth:`RecordingSession.joined_at`)."""
+        return self.session.joined_at()
 
     def run_bounds(self, topic: str) -> tuple:
-        """
-        (first, last) stamp this recording must hold on ``topic`` (None: not known).
-
-        Over :meth:`count_span`. The command of the last step is never computed when the run
-        finished; after a stop, a failure or without the plant's final event only the
-        measurements of the last step are sure to exist (the commands and estimates up to the
-        step before).
-        """
-        p = self.period
-        first, last, _ = self.count_span()
-        if first is None and last is None:
-            return None, None
-        start = None if first is None else first * p
-        end = None
-        if last is not None:
-            measured = topic in (T.MEAS_CURRENT, T.MEAS_SHAFT)
-            if self.end_state == FINISHED:
-                end = (last - 1 if topic == T.CMD_VOLTAGE else last) * p
-            else:
-                end = (last if measured else last - 1) * p
-        return start, end
+        """(first, last) stamp due on ``topic`` (:meth:`RecordingSession.run_bounds`)."""
+        return self.session.run_bounds(topic)
 
     def gaps(self) -> Dict[str, dict]:
-        """
-        Return, per tracked lock-step topic, the steps of the run it lacks and their stamp ranges.
-
-        The steps lacking are those before its first stamp, between, and after its last, over
-        :meth:`run_bounds`; a lock-step topic of the run with nothing recorded lacks them all.
-        """
-        out = {}
-        topics = set(self.run_topics())
-        for t, tr in self.track.items():
-            if t in topics:
-                n, ranges = tr.account(*self.run_bounds(t), self.period)
-            else:
-                n, ranges = 0, []
-            out[t] = {'missing_steps': n, 'ranges': ranges[:StampTrack.MAX_RANGES]}
-        return out
+        """Return the steps missing per lock-step topic (:meth:`RecordingSession.gaps`)."""
+        return self.session.gaps()
 
     def span_text(self) -> str:
-        """Say over which steps the missing steps were counted (for the last line)."""
-        first, last, how = self.count_span()
-        joined = self.joined_at()
-        if first is None:
-            return 'nothing of a run received'
-        head = (f'joined at step {joined} (the steps before are not in this recording)'
-                if joined is not None else f'from step {first}')
-        return head + (f' to step {last} ({how})' if last is not None else '')
+        """Say over which steps the missing were counted (:meth:`RecordingSession.span_text`)."""
+        return self.session.span_text()
 
     def close_metadata(self, interrupted: Optional[str]) -> dict:
-        gaps = self.gaps()
-        missing = sum(g['missing_steps'] for g in gaps.values())
-        meta = {'messages': str(sum(self.counts.values())),
-                'period_ns': str(self.period),
-                'run_end': (f"{self.end_state} ({self.end_values.get('reason', '')})"
-                            if self.end_state else 'not seen'),
-                'interrupted': interrupted or '',
-                'missing_steps': str(missing),
-                'missing_counted': self.span_text(),
-                'undecodable': str(self.undecodable),
-                'written_late': str(self.writer.late_messages),
-                'refused_unsigned': str(sum(self.unsigned.values())),
-                'foreign_publishers': ' '.join(sorted({f'{n}@{t}' for t, nodes in
-                                                      self.foreign.items() for n in nodes}))}
-        first, last, _ = self.count_span()
-        if first is not None:
-            meta['counted_from_step'] = str(first)
-        if last is not None:
-            meta['counted_to_step'] = str(last)
-        joined = self.joined_at()
-        if joined is not None:
-            meta['joined_at_step'] = str(joined)
-        for t, n in self.unsigned.items():
-            meta[f'refused_unsigned{t}'] = str(n)
-        for t, g in gaps.items():
-            meta[f'missing_steps{t}'] = str(g['missing_steps'])
-            if g['ranges']:
-                meta[f'missing_ranges{t}'] = ' '.join(f'{a}-{b}' for a, b in g['ranges'])
-            if self.track[t].last is not None:
-                meta[f'last_stamp{t}'] = str(self.track[t].last)
-            if self.track[t].overflow:      # a late step in a gap past the list stays counted
-                meta[f'missing_ranges_truncated{t}'] = 'true'
-        return meta
+        """Return the ``recording`` record (:meth:`RecordingSession.close_metadata`)."""
+        return self.session.close_metadata(interrupted)
 
 
 def parse_metadata(text: Optional[str]) -> Dict[str, Dict[str, str]]:
@@ -784,10 +586,8 @@ def main(argv=None) -> int:
     try:
         topics = parse_topics(a.topics)
         extra = parse_metadata(a.metadata)
-        writer = BagWriter(out, force=a.force, metadata=dict(extra, recorder={
-            'node': 'im_recording record', 'topics': ' '.join(topics),
-            'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')}),
-            log_time_offset_ns=log_time_offset_for(a.log_time))
+        writer = BagWriter(out, force=a.force, metadata=extra,
+                           log_time_offset_ns=log_time_offset_for(a.log_time))
     except (FileExistsError, ValueError, OSError) as exc:
         return cli_error('record', exc)
     node = None
@@ -831,10 +631,7 @@ def main(argv=None) -> int:
                 if node is not None:
                     node.flush_unverified()
                     writer.declare_expected()   # topics that had no message, while the node lives
-                    meta = node.close_metadata(stop.requested)
-                    meta['parameters_not_received'] = ' '.join(
-                        sorted(set(node.parameters_asked) - set(node.parameters_written)))
-                    writer.add_metadata('recording', meta)
+                    node.session.close(stop.requested)
                 writer.close()
             except BagError:            # writer.failed: the error line below
                 pass

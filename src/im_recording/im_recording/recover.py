@@ -52,20 +52,20 @@ import zlib
 
 from im_common.cli import error as cli_error
 
-from .bag import (BagError, BagWriter, check_output, log_time_offset, LOG_TIME_RECORD, MAGIC,
-                  MSG_FIXED, MSG_HDR, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER,
-                  OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA, OP_METADATA_INDEX,
-                  OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET, partial_path, REC, U16, U32, U64)
+from .bag import (BagError, BagWriter, check_output, log_time_offset, LOG_TIME_RECORD,
+                  partial_path)
+from .mcap_records import (CHUNK_HEAD, chunk_records, COMPRESSIONS, Damage, exact, MAGIC,
+                           MAX_CHUNK, MSG_FIXED, need, OP_ATTACHMENT, OP_ATTACHMENT_INDEX,
+                           OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END, OP_FOOTER,
+                           OP_HEADER, OP_MESSAGE, OP_MESSAGE_INDEX, OP_METADATA,
+                           OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET,
+                           parse_attachment, parse_channel, parse_message_index, parse_metadata,
+                           parse_schema, read_string, REC, U32, U64)
 
-OP_ATTACHMENT, OP_ATTACHMENT_INDEX = 9, 10
-
-#: a chunk larger than this (uncompressed) is taken for damage; the writer's are <= ~4 MiB
-MAX_CHUNK = 1 << 30
 #: records that parse but prove nothing (Message Index, Channel, ...) accepted in a row while
 #: resynchronising before a CRC-checked record or the end of the file must vouch for them
 MAX_CHAIN = 4096
 _WINDOW = 1 << 20
-_COMPRESSIONS = ('', 'zstd', 'lz4')
 _DATA_OPS = frozenset((OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX,
                        OP_ATTACHMENT, OP_METADATA, OP_DATA_END))
 _SUMMARY_OPS = frozenset((OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_ATTACHMENT_INDEX,
@@ -73,200 +73,6 @@ _SUMMARY_OPS = frozenset((OP_SCHEMA, OP_CHANNEL, OP_CHUNK_INDEX, OP_ATTACHMENT_I
 # where a resynchronisation may start: a record of these kinds with a length below 2**40
 # (a Message may not: it carries no check and a damaged uncompressed chunk is full of them)
 _CANDIDATE = re.compile(rb'(?=[\x03\x04\x06\x07\x09\x0c\x0f][\x00-\xff]{5}\x00\x00\x00)', re.S)
-_CHUNK_HEAD = struct.Struct('<QQQI')
-
-
-class Damage(ValueError):
-    """A record that does not validate (the message says why)."""
-
-
-# ------------------------------------------------------------------------------------------
-# Record bodies: each parser consumes exactly the body or raises Damage
-# ------------------------------------------------------------------------------------------
-def _need(b, p: int, n: int) -> None:
-    if p + n > len(b):
-        raise Damage('a field runs past the end of its record')
-
-
-def _str(b, p: int) -> Tuple[str, int]:
-    _need(b, p, 4)
-    (n,) = U32.unpack_from(b, p)
-    _need(b, p + 4, n)
-    try:
-        return bytes(b[p + 4:p + 4 + n]).decode('utf-8'), p + 4 + n
-    except UnicodeDecodeError:
-        raise Damage('a string field is not UTF-8') from None
-
-
-def _blob32(b, p: int) -> int:
-    _need(b, p, 4)
-    (n,) = U32.unpack_from(b, p)
-    _need(b, p + 4, n)
-    return p + 4 + n
-
-
-def _smap(b, p: int) -> Tuple[Dict[str, str], int]:
-    _need(b, p, 4)
-    (n,) = U32.unpack_from(b, p)
-    end = p + 4 + n
-    _need(b, p + 4, n)
-    p += 4
-    out = {}
-    while p < end:
-        k, p = _str(b, p)
-        out[k], p = _str(b, p)
-    if p != end:
-        raise Damage('a map field does not end where its length says')
-    return out, p
-
-
-def _exact(b, p: int) -> None:
-    if p != len(b):
-        raise Damage(f'{len(b) - p} bytes left over after the last field')
-
-
-def parse_schema(b) -> Tuple[int, str, str]:
-    _need(b, 0, 2)
-    (sid,) = U16.unpack_from(b, 0)
-    name, p = _str(b, 2)
-    enc, p = _str(b, p)
-    _exact(b, _blob32(b, p))
-    if sid == 0 or not name:
-        raise Damage('schema id 0 or an empty schema name')
-    return sid, name, enc
-
-
-def parse_channel(b) -> Tuple[int, int, str, str, Dict[str, str]]:
-    _need(b, 0, 4)
-    cid, sid = struct.unpack_from('<HH', b, 0)
-    topic, p = _str(b, 4)
-    enc, p = _str(b, p)
-    meta, p = _smap(b, p)
-    _exact(b, p)
-    if not topic:
-        raise Damage('a channel with an empty topic name')
-    return cid, sid, topic, enc, meta
-
-
-def parse_metadata(b) -> Tuple[str, Dict[str, str]]:
-    name, p = _str(b, 0)
-    md, p = _smap(b, p)
-    _exact(b, p)
-    return name, md
-
-
-def parse_message_index(b) -> Tuple[int, int, Optional[int], Optional[int]]:
-    """(channel, entries, first stamp, last stamp) of a Message Index record."""
-    _need(b, 0, 6)
-    cid, n = struct.unpack_from('<HI', b, 0)
-    if n % 16 or 6 + n != len(b):
-        raise Damage('message index array length does not match the record')
-    if n == 0:
-        return cid, 0, None, None
-    stamps = [t for t, _ in struct.iter_unpack('<QQ', b[6:])]
-    return cid, len(stamps), min(stamps), max(stamps)
-
-
-def parse_attachment(b) -> None:
-    _need(b, 0, 16)
-    _, p = _str(b, 16)
-    _, p = _str(b, p)
-    _need(b, p, 8)
-    (n,) = U64.unpack_from(b, p)
-    p += 8
-    _need(b, p, n + 4)
-    (crc,) = U32.unpack_from(b, p + n)
-    _exact(b, p + n + 4)
-    if crc and zlib.crc32(b[:p + n]) != crc:
-        raise Damage('attachment CRC mismatch')
-
-
-def chunk_header(b) -> Tuple[int, int, int, int, str, int]:
-    """
-    (start, end, uncompressed size, CRC, compression, offset of the records) of a Chunk body.
-
-    Damage unless its fields are consistent with each other and with the record's length.
-    """
-    _need(b, 0, _CHUNK_HEAD.size)
-    t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(b, 0)
-    comp, p = _str(b, _CHUNK_HEAD.size)
-    if comp not in _COMPRESSIONS:
-        raise Damage(f'unknown chunk compression {comp[:20]!r}')
-    _need(b, p, 8)
-    (clen,) = U64.unpack_from(b, p)
-    p += 8
-    if p + clen != len(b):
-        raise Damage('chunk data size does not match the record length')
-    if t0 > t1 or usize > MAX_CHUNK or (comp == '' and usize != clen):
-        raise Damage('inconsistent chunk header')
-    return t0, t1, usize, crc, comp, p
-
-
-_zstd = None
-
-
-def _inflate(comp: str, raw, usize: int) -> bytes:
-    global _zstd
-    if comp == '':
-        return bytes(raw)
-    try:
-        if comp == 'zstd':
-            import zstandard
-            if _zstd is None:
-                _zstd = zstandard.ZstdDecompressor()
-            declared = zstandard.frame_content_size(raw)
-            if declared not in (-1, usize):
-                raise Damage('zstd frame size differs from the chunk header')
-            return _zstd.decompress(raw, max_output_size=usize)
-        import lz4.frame
-        d = lz4.frame.LZ4FrameDecompressor()
-        out = d.decompress(bytes(raw), max_length=usize + 1)
-        if not d.eof:
-            raise Damage('lz4 frame does not end where the chunk does')
-        return out
-    except Damage:
-        raise
-    except Exception as exc:    # noqa: BLE001 - the libraries raise many kinds on bad input
-        raise Damage(f'chunk does not decompress ({type(exc).__name__})') from None
-
-
-def chunk_records(b):
-    """
-    Validate a whole Chunk body and everything in it.
-
-    Returns (uncompressed records, messages as [(channel, log time, data start, data end)],
-    declarations as [(number of messages before it, opcode, parsed Schema or Channel)]).
-    """
-    _t0, _t1, usize, crc, comp, p = chunk_header(b)
-    inner = _inflate(comp, memoryview(b)[p:], usize)
-    if len(inner) != usize:
-        raise Damage('chunk size differs from its header after decompression')
-    if crc and zlib.crc32(inner) != crc:
-        raise Damage('chunk CRC mismatch')
-    msgs, decls = [], []
-    add = msgs.append
-    head, rec = MSG_HDR.unpack_from, REC.unpack_from
-    pos, last = 0, usize - MSG_HDR.size
-    while pos < usize:
-        if pos <= last:
-            op, length, cid, _seq, t, _pub = head(inner, pos)
-        elif pos + 9 <= usize:
-            op, length = rec(inner, pos)
-        else:
-            raise Damage('torn record inside a chunk')
-        end = pos + 9 + length
-        if end > usize:
-            raise Damage('a record inside the chunk runs past its end')
-        if op == OP_MESSAGE and length >= MSG_FIXED:
-            add((cid, t, pos + 9 + MSG_FIXED, end))
-        elif op == OP_SCHEMA:
-            decls.append((len(msgs), op, parse_schema(inner[pos + 9:end])))
-        elif op == OP_CHANNEL:
-            decls.append((len(msgs), op, parse_channel(inner[pos + 9:end])))
-        else:
-            raise Damage(f'record of opcode {op} inside a chunk')
-        pos = end
-    return inner, msgs, decls
 
 
 # ------------------------------------------------------------------------------------------
@@ -545,11 +351,11 @@ class _Scan:
         end = pos + 9 + h[1]
         head = self.src.read(pos + 9, min(h[1], 64))
         try:
-            if len(head) < _CHUNK_HEAD.size + 4:
+            if len(head) < CHUNK_HEAD.size + 4:
                 raise Damage('short')
-            t0, t1, usize, _ = _CHUNK_HEAD.unpack_from(head, 0)
-            comp, p = _str(head, _CHUNK_HEAD.size)
-            if comp not in _COMPRESSIONS or t0 > t1 or usize > MAX_CHUNK:
+            t0, t1, usize, _ = CHUNK_HEAD.unpack_from(head, 0)
+            comp, p = read_string(head, CHUNK_HEAD.size)
+            if comp not in COMPRESSIONS or t0 > t1 or usize > MAX_CHUNK:
                 raise Damage('bad')
             if p + 8 <= len(head) and p + 8 + U64.unpack_from(head, p)[0] != h[1]:
                 raise Damage('bad')
@@ -657,8 +463,8 @@ class _Scan:
         if op == OP_HEADER and pos == 8:
             body = self.src.read(pos + 9, length)
             try:
-                _, p = _str(body, 0)
-                _exact(body, _str(body, p)[1])
+                _, p = read_string(body, 0)
+                exact(body, read_string(body, p)[1])
             except Damage as exc:
                 return f'header record: {exc}', guess
         elif op == OP_DATA_END:
@@ -752,7 +558,7 @@ class _Scan:
                     body = self.src.read(p + 9, length)
                     try:
                         if op == OP_STATISTICS:
-                            _need(body, 0, 8)
+                            need(body, 0, 8)
                             (total,) = U64.unpack_from(body, 0)
                         elif self.lost:
                             self._attribute(starts, body)
@@ -766,9 +572,9 @@ class _Scan:
         return total
 
     def _attribute(self, starts: List[int], body: bytes) -> None:
-        _need(body, 0, 40)
+        need(body, 0, 40)
         t0, t1, cstart, clen, n = struct.unpack_from('<QQQQI', body, 0)
-        _need(body, 36, n)
+        need(body, 36, n)
         offsets = {o for _, o in struct.iter_unpack('<HQ', body[36:36 + n])} if n % 10 == 0 \
             else set()
         k = bisect.bisect_right(starts, cstart + clen - 1) - 1     # last loss starting inside

@@ -130,20 +130,21 @@ def run_status(run, fig: Dict[str, float]) -> dict:
     note per finding in ``notes``.
     """
     md = run.metadata
+    recording = md.get('recording', {})     # im_recording.session: the same on both paths
     notes: List[str] = []
     st: dict = {'interrupted': None, 'partial': False, 'ended': [], 'gaps': {}, 'notes': notes}
-    if 'interrupted' in md:
-        st['interrupted'] = md['interrupted'].get('signal', 'yes')
+    if recording.get('interrupted'):
+        st['interrupted'] = recording['interrupted']
         st['partial'] = True
-        notes.append(f"interrupted by {st['interrupted']} after "
-                     f"{md['interrupted'].get('steps', '?')} steps")
+        notes.append(f"interrupted by {st['interrupted']} at step "
+                     f"{recording.get('counted_to_step', '?')}")
     for e in run.events:
         if e['state'] in ('failed', 'stopped'):
             st['partial'] = True
             st['ended'].append(e)
             notes.append(f"{e['node']} {e['state']} at t = {e['t']:.6f} s"
                          + (f": {e['reason']}" if e['reason'] else ''))
-    run_end = md.get('recording', {}).get('run_end')
+    run_end = recording.get('run_end')
     if run_end and not run_end.startswith('finished') and not st['ended']:
         st['partial'] = True          # the recorder saw no normal end (and no failed event)
         notes.append(f'run end: {run_end}')

@@ -86,9 +86,6 @@ ENERGY_INTEGRALS = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load'
                     T.IRON_LOSS_NAME)
 PARAM_KEYS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 
-_V3_DTYPE = np.dtype([('enc', 'V4'), ('sec', '<i4'), ('nsec', '<u4'), ('slen', '<u4'),
-                      ('pad', 'V4'), ('x', '<f8'), ('y', '<f8'), ('z', '<f8')])
-
 
 @dataclass
 class Run:
@@ -142,19 +139,9 @@ def _stamp_ns(sec, nsec):
 
 
 def _decode_v3(payloads: List[bytes]):
-    if payloads and all(len(p) == cdr.V3_EMPTY_SIZE for p in payloads):
-        a = np.frombuffer(b''.join(payloads), dtype=_V3_DTYPE)
-        return _stamp_ns(a['sec'], a['nsec']), a['x'].copy(), a['y'].copy(), a['z'].copy()
-    if payloads:
-        n = len(payloads[0])
-        head = payloads[0][12:16]
-        if n >= 44 and all(len(p) == n and p[12:16] == head for p in payloads):
-            # one frame_id length throughout (the tag changes, not its length): fixed layout
-            dt = np.dtype({'names': ['sec', 'nsec', 'x', 'y', 'z'],
-                           'formats': ['<i4', '<u4', '<f8', '<f8', '<f8'],
-                           'offsets': [4, 8, n - 24, n - 16, n - 8], 'itemsize': n})
-            a = np.frombuffer(b''.join(payloads), dtype=dt)
-            return _stamp_ns(a['sec'], a['nsec']), a['x'].copy(), a['y'].copy(), a['z'].copy()
+    batch = cdr.vector3_stamped_batch(payloads)     # one layout: one read
+    if batch is not None:
+        return batch
     rows = [cdr.decode_vector3_stamped(p) for p in payloads]
     if not rows:
         e = np.zeros(0)
@@ -182,45 +169,8 @@ def _align(master: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> np.nda
     return out
 
 
-def _js_fixed(payloads: List[bytes]):
-    """
-    Return (stamps ns, names, [position, velocity, effort] arrays) of JointStates of one layout.
-
-    None unless every payload has the first one's length, frame id length, names and counts
-    (:func:`im_common.cdr.joint_state_layout`; the tag in the frame id may differ): then one
-    ``frombuffer`` reads them all, the same doubles the message-by-message decoder reads.
-    """
-    p0 = payloads[0]
-    n = len(p0)
-    try:
-        fid_end, blocks, end = cdr.joint_state_layout(p0)
-    except cdr.CdrError:
-        return None
-    if end != n:
-        return None
-    cuts, at = [], fid_end
-    for off, cnt in blocks:
-        cuts.append((at, off))
-        at = off + 8 * cnt
-    same = [(a, b, p0[a:b]) for a, b in cuts]
-    head = p0[12:16]
-    for p in payloads:
-        if len(p) != n or p[12:16] != head:
-            return None
-        for a, b, ref in same:
-            if p[a:b] != ref:
-                return None
-    names = ['sec', 'nsec'] + [f'q{j}' for j in range(3) if blocks[j][1]]
-    formats = ['<i4', '<u4'] + [('<f8', (c,)) for _, c in blocks if c]
-    offsets = [4, 8] + [off for off, c in blocks if c]
-    a = np.frombuffer(b''.join(payloads), dtype=np.dtype(
-        {'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': n}))
-    seqs = [a[f'q{j}'] if blocks[j][1] else None for j in range(3)]
-    return _stamp_ns(a['sec'], a['nsec']), cdr.decode_joint_state(p0)[2], seqs
-
-
 def _decode_js(topic: str, payloads: List[bytes]):
-    fixed = _js_fixed(payloads) if payloads else None
+    fixed = cdr.joint_state_batch(payloads)        # one layout: one read
     if fixed is not None:
         st, row_names, seqs = fixed
         cols = {}

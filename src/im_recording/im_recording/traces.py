@@ -15,7 +15,12 @@ from __future__ import annotations
 from typing import Optional, Union
 
 from im_common.cdr import encode, header_stamp_ns
+from im_common.topics import RECORDED_TOPICS
 from im_recording.bag import BagError
+from im_recording.session import RecordingSession
+
+#: the ``recorder`` record's ``node`` of a recording made in-process (im_bringup.graph)
+IN_PROCESS = 'in-process graph (im_bringup.graph.DriveGraph)'
 
 
 class Tap:
@@ -33,6 +38,10 @@ class Tap:
         from im_recording.run import (lockstep_topics, RunningFigures, TraceKeeper, TraceStream,
                                       TruthBooks)
         self.writer = writer
+        #: the recording's bookkeeping and metadata records, as the recorder node's (the graph
+        #: feeds it the run's period, events and parameters; :meth:`close` ends it)
+        self.session = None if writer is None else RecordingSession(
+            writer, RECORDED_TOPICS, recorder=IN_PROCESS)
         self.error: Optional[str] = None    # why the writer stopped (its file cannot be written)
         self.on_error = None                # called with that line (a graph ends its run)
         self.keep = keep
@@ -53,10 +62,19 @@ class Tap:
             if ns is None:
                 ns = header_stamp_ns(data)
             try:
-                self.writer.write_serialized(topic, data, ns)
+                self.session.write(topic, data, ns)
             except BagError as exc:         # the recording's file cannot be written (disk full)
                 self._failed(exc)
         self.stream.add(topic, data)
+
+    def close(self, interrupted: Optional[str] = None) -> None:
+        """
+        End the recording: its ``recording`` record, then the file (nothing without a writer).
+
+        ``interrupted``: the stop signal's name, if one ended the run.
+        """
+        if self.session is not None:
+            self.session.close(interrupted)
 
     def flush_due(self) -> None:
         """Put the writer's open chunk on disk if it is due (:meth:`BagWriter.flush_due`)."""
