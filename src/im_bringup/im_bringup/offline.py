@@ -168,6 +168,7 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     tr = {k: np.empty(n_rec) for k in TRACE_KEYS}
     T_s = sc.T_s
     estimates = None
+    saturated = sc.saturated_model()      # the drive on the magnetizing curve (None: linear)
     x_hat = observer.state
     rec = 0
     report_every = max(1, n_steps // 20)
@@ -200,6 +201,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)   # uses p̂_k
         if timing:
             t_obs += clock() - c0
+        if saturated is not None:   # the next step's models at the flux the observer now has
+            estimates = saturated.estimates(x_hat[2], x_hat[3])
+            observer.set_estimates(**estimates)
         if adapter is not None:
             # the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out
             # with compensation, the voltage the motor got (the adapter node's too)

@@ -176,6 +176,9 @@ class Scenario:
     # the drive's inverter-error compensation (docs/compensation.md; None: off): 'inverter'
     # (exact, from the inverter block) or {v_dead, r_on, current_band}, resolved to the latter
     compensation: object = None
+    # the drive's observer and controller on the magnetizing curve of ``saturation`` (the
+    # motor file's): im_common.saturation.SaturatedModel; the ROS-free loop only, for now
+    saturation_model: bool = False
 
     def __post_init__(self):
         put = object.__setattr__
@@ -289,6 +292,23 @@ class Scenario:
             put(self, 'thermal', thermal_from_dict(self.thermal).describe())
         model = self.compensation_model()
         put(self, 'compensation', None if model is None else model.describe())
+        if not isinstance(self.saturation_model, bool):
+            raise InvalidParameter('saturation_model', self.saturation_model,
+                                   'must be true or false')
+        if self.saturation_model and self.saturation is None:
+            raise InvalidParameter('saturation_model', True, 'needs the magnetizing curve: give '
+                                   'saturation (motor: the block of the motor file)')
+        if self.saturation_model and self.controller != 'nominal':
+            raise InvalidParameter('saturation_model', True, f'with the {self.controller} '
+                                   'controller: its adapter tracks L_M itself; choose one')
+
+    def saturated_model(self):
+        """Return the drive's :class:`~im_common.saturation.SaturatedModel` (None: linear)."""
+        if not self.saturation_model:
+            return None
+        from im_common.saturation import saturation_from_dict, SaturatedModel
+        model = self.model_estimates()
+        return SaturatedModel(saturation_from_dict(self.saturation, model.L_M), model)
 
     def compensation_model(self):
         """Return the drive's :class:`~im_common.compensation.InverterErrorModel` (None: off)."""
@@ -417,6 +437,11 @@ class Scenario:
             raise InvalidParameter('schedule', self.schedule.name,
                                    'a schedule object runs on the ROS-free loop only; write it '
                                    'as a variation mapping for the graph')
+        if self.saturation_model:
+            raise InvalidParameter('saturation_model', True,
+                                   'runs on the ROS-free loop only (im_bringup.offline.simulate, '
+                                   'loss_bound --run, the studies): the observer and controller '
+                                   'nodes of the graph do not take the curve yet')
         unknown = [k for k in self.controller_options if k not in CONTROLLER_LIMITS
                    and k != 'flux_coupling']
         if unknown:

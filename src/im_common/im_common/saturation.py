@@ -21,6 +21,7 @@ Two forms, written in a motor file's ``saturation:`` block:
 from __future__ import annotations
 
 from bisect import bisect_right
+import math
 from typing import Mapping, Optional, Sequence, Tuple
 
 from .validation import check_block, check_real, InvalidParameter
@@ -163,3 +164,41 @@ def power_law_fit(psi_rated: float, ratio: float, S: float) -> float:
     same magnetizing current (docs/plant.md §2, the shipped motors' fit).
     """
     return (1.0 / ratio - 1.0) ** (1.0 / S) / psi_rated
+
+
+class SaturatedModel:
+    """
+    The drive's model on the magnetizing curve: the inverse-Γ set at the present rotor flux.
+
+    In the inverse-Γ circuit only the magnetizing branch is nonlinear (docs/plant.md §2): i_μ =
+    ψ_R/L_M(|ψ_R|) with the secant L_M. The linear model with L_M set to the secant at the
+    present |ψ_R| therefore has exactly the saturated model's right-hand side at that flux, so
+    an observer and a controller fed :meth:`estimates` each step (the adapter's interface,
+    docs/adaptation.md §7) run on the curve (docs/plant.md §2, "The drive on the curve").
+
+    ``params``: the drive's motor (its gauge θ = L_sr/L_r reads ψ_R = θ|φ̂_r| from the
+    observer's rotor flux); ``resolution``: L_M moves in relative (logarithmic) steps of this
+    size, so the models rebuild their coefficients only when the flux has moved (a relative
+    error of half a step at most).
+    """
+
+    def __init__(self, curve: Saturation, params, resolution: float = 1e-4):
+        self.curve = curve
+        self.theta = params.L_sr / params.L_r
+        ident = params.identifiable()
+        self.L_M0 = ident['L_M']
+        self.base = {'R_s': ident['R_s'], 'L_sigma': ident['L_sigma'], 'R_R': ident['R_R']}
+        self.resolution = float(resolution)
+
+    def L_M(self, phi_a: float, phi_b: float) -> float:
+        """Return the secant L_M [H] at the rotor flux φ̂_r = (φ_a, φ_b) (the drive's gauge)."""
+        psi = self.theta * math.hypot(phi_a, phi_b)
+        ratio = self.curve.L_M(psi) / self.L_M0 if math.isfinite(psi) else 0.0
+        if not ratio > 1e-6:
+            raise ValueError(f"the observer's rotor flux |psi_R| = {psi:.4g} Wb is off the "
+                             'magnetizing curve (L_M below 1e-6 L_M0): the run diverged')
+        return self.L_M0 * math.exp(round(math.log(ratio) / self.resolution) * self.resolution)
+
+    def estimates(self, phi_a: float, phi_b: float) -> dict:
+        """Return the inverse-Γ set (R_s, L_sigma, L_M, R_R) at the rotor flux (φ_a, φ_b)."""
+        return dict(self.base, L_M=self.L_M(phi_a, phi_b))

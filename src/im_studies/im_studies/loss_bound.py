@@ -106,7 +106,10 @@ def main(argv=None) -> int:
         if phi0 not in floors:
             floors[phi0] = run_loss_bound(run, a.step)
         floor = floors[phi0].loss_J
-        s = simulate(run).summary
+        try:
+            s = simulate(run).summary
+        except (InvalidParameter, ValueError, ArithmeticError) as exc:
+            return cli_error('loss_bound', f'{a.run_file} with {st}: {exc or type(exc).__name__}')
         out['runs'][st] = {'E_loss_J': s['E_loss_J'], 'E_copper_J': s['E_copper_J'],
                            'start_flux_Wb': phi0, 'E_loss_bound_J': floor,
                            'ratio_loss': s['E_loss_J'] / floor, 'trip': s['trip']}
