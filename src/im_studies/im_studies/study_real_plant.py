@@ -14,7 +14,9 @@ on the ideal plant. Parts (default all):
 - ``load_step``: a step of half the rated torque at 100 rad/s, sensorless, at rated flux;
 - ``commissioning``: the self-commissioning (docs/commissioning.md) on the ideal plant, behind
   the inverter alone, and on every block, against the motor file's values; the no-load test's
-  magnetizing curve against the plant's (its worst L_M(ψ) over the points).
+  magnetizing curve against the plant's (its worst L_M(ψ) over the points);
+- ``identified``: min_loss on every block (the motor's rated-speed reversal) with the drive's
+  model from the motor file and from the file the commissioning wrote: the losses side by side.
 
 Prints a Markdown table per part; ``--json`` writes the rows, ``--plots`` the phase current
 against its reference. Figures: the current distortion ``|i − i*|`` RMS [A] (the stator-current
@@ -41,7 +43,7 @@ from .study_motors import reversal_time, scaled_options
 from .study_sensorless import USELESS_SPEED_NOISE
 
 MOTORS = ('thesis', 'krause_3hp')
-PARTS = ('compensation', 'sensorless', 'load_step', 'commissioning')
+PARTS = ('compensation', 'sensorless', 'load_step', 'commissioning', 'identified')
 #: the inverter of every run: docs/plant.md's, its DC link set for the motor (V_dc_for)
 INVERTER = {'pwm_frequency': 10000.0, 'deadtime': 2.0e-6, 'v_on': 1.0, 'r_on': 0.02}
 #: the DC link over the motor's rated vector magnitude × √2 (the hexagon's inscribed circle)
@@ -235,17 +237,34 @@ def plot_phase_current(runs: dict, path: str) -> None:
     plt.close(fig)
 
 
-def commission(motor_name: str, blocks: dict) -> dict:
-    """Commission a shipped motor behind ``blocks``; return the errors [%] and the inverter fit."""
+def identify(motor_name: str, blocks: dict):
+    """
+    Commission a shipped motor behind ``blocks`` (no-load test too); return (Identified, blocks).
+
+    Deterministic, so kept for the process: the commissioning and identified parts share it.
+    """
     from im_common.params import load_motor_blocks
-    from .commission_sim import commission_sim, COMPARED
+    from .commission_sim import commission_sim
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
-    m = load_motor_file(path)
     kw = dict(blocks)
     for name in ('saturation', 'thermal'):
         if kw.get(name) == 'motor':
             kw[name] = load_motor_blocks(path)[name]
-    ident = commission_sim(m, blocks=kw, magnetizing=True).result()
+    key = (motor_name, json.dumps(kw, sort_keys=True))
+    if key not in _IDENTIFIED:
+        m = load_motor_file(path)
+        _IDENTIFIED[key] = commission_sim(m, blocks=kw, magnetizing=True).result()
+    return _IDENTIFIED[key], kw
+
+
+_IDENTIFIED: dict = {}
+
+
+def commission(motor_name: str, blocks: dict) -> dict:
+    """Commission a shipped motor behind ``blocks``; return the errors [%] and the inverter fit."""
+    from .commission_sim import COMPARED
+    m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
+    ident, kw = identify(motor_name, blocks)
     truth = dict(m.identifiable(), J=m.J)
     out = {f'{n}_err_pct': 100.0 * (ident.values[n] / truth[n] - 1.0) for n in COMPARED}
     out.update(magnetizing_errors(ident.magnetizing, m, kw.get('saturation')))
@@ -290,6 +309,46 @@ def run_commissioning(motors=MOTORS) -> list:
     return rows
 
 
+def identified_drive(motor_name: str, ident=None) -> list:
+    """
+    min_loss on every block, the drive's model from the true file and from the commissioned one.
+
+    The rated-speed reversal of the motor's speed task (:func:`study_motors.scaled_scenario`),
+    sensored, compensation on: with the motor file (its compensation from the inverter's
+    data) and with the file the commissioning on every block wrote (its parameters, ratings,
+    v_dead; k_e = k_h = 0, the core loss is not identified). Returns one row per file.
+    """
+    import dataclasses
+    from im_common.params import RATING_NAMES
+    from .study_motors import scaled_scenario
+    path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
+    m = load_motor_file(path)
+    if ident is None:
+        ident, _ = identify(motor_name, real_plant(m))
+    est = ident.motor({n: getattr(m, n) for n in RATING_NAMES})
+    rows = []
+    base = scaled_scenario(m, 'speed', 'min_loss')
+    for label, model, comp in (
+            ('motor file', None, 'inverter'),
+            ('commissioned', est, {'v_dead': ident.inverter['v_dead'],
+                                   'current_band': ident.inverter['current_band']})):
+        sc = dataclasses.replace(base, motor=path, estimates=model, compensation=comp,
+                                 controller_options=scaled_options(model or m, 'speed'),
+                                 **real_plant(m))
+        res = simulate(sc)
+        s = res.summary
+        rows.append({'motor': motor_name, 'file': label, 'E_loss_J': s['E_loss_J'],
+                     'E_in_J': s['E_in_J'], 'speed_err_rms': s['speed_err_rms_rad_s'],
+                     'trip': s['trip']})
+    rows[1]['E_loss_vs_file_pct'] = 100.0 * (rows[1]['E_loss_J'] / rows[0]['E_loss_J'] - 1.0)
+    return rows
+
+
+def run_identified(motors=MOTORS) -> list:
+    """Run :func:`identified_drive` for every motor."""
+    return [r for mo in motors for r in identified_drive(mo)]
+
+
 def _trip(r) -> str:
     return '' if r['trip'] is None else r['trip']['reason']
 
@@ -328,6 +387,13 @@ def markdown(part: str, rows: list) -> str:
                          f"{r['L_M_err_pct']:+.2f} % | {r['R_R_err_pct']:+.2f} % | "
                          f"{r['J_err_pct']:+.2f} % | {r['L_M_curve_points']} up to "
                          f"{r['L_M_curve_psi_max']:.3f}, {r['L_M_curve_err_max_pct']:+.2f} % |")
+    elif part == 'identified':
+        lines = ['| motor | drive file | motor losses [J] | vs the motor file | speed error '
+                 'RMS [rad/s] | trip |', '| --- | --- | ---: | ---: | ---: | --- |']
+        for r in rows:
+            vs = f"{r['E_loss_vs_file_pct']:+.2f} %" if 'E_loss_vs_file_pct' in r else ''
+            lines.append(f"| {r['motor']} | {r['file']} | {r['E_loss_J']:.1f} | {vs} | "
+                         f"{r['speed_err_rms']:.4f} | {_trip(r)} |")
     else:
         lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
                  '| --- | --- | --- | ---: | ---: | --- |']
@@ -349,7 +415,7 @@ def main(argv=None) -> int:
     out = {}
     runs = {'compensation': lambda: run_compensation(plots=a.plots),
             'sensorless': run_sensorless, 'load_step': run_load_step,
-            'commissioning': run_commissioning}
+            'commissioning': run_commissioning, 'identified': run_identified}
     for k, part in enumerate(a.part or PARTS, 1):
         print(f'[{k}/{len(a.part or PARTS)}] {part}: {", ".join(MOTORS)}', file=sys.stderr,
               flush=True)
