@@ -556,5 +556,8 @@ def test_saturation_model_refusals_name_the_key():
     with pytest.raises(InvalidParameter, match='saturation_model.*adaptive.*choose one'):
         _reversal_on_the_curve(saturation_model=True, controller='adaptive')
     sc = _reversal_on_the_curve(saturation_model=True)
-    with pytest.raises(InvalidParameter, match='saturation_model.*ROS-free loop only'):
-        sc.node_parameters()
+    assert Scenario.from_mapping(sc.to_mapping()).saturation_model      # the run record keeps it
+    params = sc.node_parameters()
+    for node in ('controller', 'observer'):     # the graph's nodes get the curve as text
+        assert 'beta' in params[node]['saturation_model'], node
+    assert 'saturation_model' not in params['adapter']

@@ -170,6 +170,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     estimates = None
     saturated = sc.saturated_model()      # the drive on the magnetizing curve (None: linear)
     x_hat = observer.state
+    if saturated is not None:               # from the start: the model at the initial flux
+        estimates = saturated.estimates(x_hat[2], x_hat[3])
+        observer.set_estimates(**estimates)
     rec = 0
     report_every = max(1, n_steps // 20)
     label = f'{sc.task}/{sc.strategy} T_s={sc.T_s:g}'

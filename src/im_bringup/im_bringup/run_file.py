@@ -177,7 +177,7 @@ class Scenario:
     # (exact, from the inverter block) or {v_dead, r_on, current_band}, resolved to the latter
     compensation: object = None
     # the drive's observer and controller on the magnetizing curve of ``saturation`` (the
-    # motor file's): im_common.saturation.SaturatedModel; the ROS-free loop only, for now
+    # motor file's): im_common.saturation.SaturatedModel
     saturation_model: bool = False
 
     def __post_init__(self):
@@ -437,11 +437,6 @@ class Scenario:
             raise InvalidParameter('schedule', self.schedule.name,
                                    'a schedule object runs on the ROS-free loop only; write it '
                                    'as a variation mapping for the graph')
-        if self.saturation_model:
-            raise InvalidParameter('saturation_model', True,
-                                   'runs on the ROS-free loop only (im_bringup.offline.simulate, '
-                                   'loss_bound --run, the studies): the observer and controller '
-                                   'nodes of the graph do not take the curve yet')
         unknown = [k for k in self.controller_options if k not in CONTROLLER_LIMITS
                    and k != 'flux_coupling']
         if unknown:
@@ -513,6 +508,9 @@ class Scenario:
             obs['initial_speed'] = float(self.omega0) if self.start == 'steady' else 0.0
         if adaptive:
             adapter.update(ADAPTATION[self.controller])
+        if self.saturation_model:   # the drive's observer and controller on the curve
+            ctl['saturation_model'] = obs['saturation_model'] = json.dumps(self.saturation,
+                                                                           sort_keys=True)
         comp = self.compensation_model()
         if comp is not None:        # the controller adds ê(i); observer and adapter subtract it
             for node in (ctl, obs, adapter):
@@ -616,6 +614,8 @@ class Scenario:
         out.update(self.plant_blocks())
         if self.compensation is not None:
             out['compensation'] = dict(self.compensation)
+        if self.saturation_model:
+            out['saturation_model'] = True
         defaults = {f.name: f.default for f in fields(self)}
         for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
                      'core_loss_exponent', 'plant_substep', 'observer_substep'):

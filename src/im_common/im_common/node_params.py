@@ -79,6 +79,22 @@ def declare_compensation(node):
     return compensation_from_parameters(values)
 
 
+def declare_saturation_model(node, params):
+    """
+    Declare ``saturation_model``: the drive's magnetizing curve ('' : the linear model).
+
+    The observer and controller declare it (docs/plant.md §2, "The drive on the curve"): a
+    ``saturation`` block as text (``{law: power, beta, S}`` or ``{table: [[psi, i_M], ...]}``,
+    a motor file's form). Returns the :class:`~im_common.saturation.SaturatedModel` of
+    ``params`` on it, or None; a bad block is one error naming the parameter.
+    """
+    import yaml
+    from .saturation import saturated_model_from_text
+    text = node.param('saturation_model', '', "the drive's magnetizing curve, a saturation block "
+                      "as text ('': the linear model; docs/plant.md section 2)")
+    return saturated_model_from_text(text, params, 'saturation_model', yaml.safe_load)
+
+
 def declare_run(node):
     """
     Declare T_s (read-only), duration and the timeouts.

@@ -202,3 +202,23 @@ class SaturatedModel:
     def estimates(self, phi_a: float, phi_b: float) -> dict:
         """Return the inverse-Γ set (R_s, L_sigma, L_M, R_R) at the rotor flux (φ_a, φ_b)."""
         return dict(self.base, L_M=self.L_M(phi_a, phi_b))
+
+
+def saturated_model_from_text(text: str, params, where: str, load) -> Optional[SaturatedModel]:
+    """
+    Return the :class:`SaturatedModel` of ``params`` on a saturation block written as text.
+
+    None for ''; ``load`` parses the text (a YAML loader); errors are one InvalidParameter
+    naming ``where``.
+    """
+    if not text:
+        return None
+    try:
+        spec = load(text)
+    except Exception as exc:        # the YAML loader's own error types
+        raise InvalidParameter(where, text, f'not a YAML mapping ({str(exc).splitlines()[0]})') \
+            from None
+    if not isinstance(spec, Mapping):
+        raise InvalidParameter(where, text, 'must be a saturation block {law: power, beta, S} '
+                                            'or {table: [[psi, i_M], ...]}')
+    return SaturatedModel(saturation_from_dict(spec, params.L_M, where), params)

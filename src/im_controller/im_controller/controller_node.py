@@ -29,7 +29,8 @@ from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft
                                    Vector3Out, xy_in)
 from im_common.lockstep import (data_qos, lockstep_qos, LockstepNode, node_main, PARAMETERS,
                                 report_qos, status_qos, StepGate)
-from im_common.node_params import declare_compensation, declare_motor, declare_run
+from im_common.node_params import (declare_compensation, declare_motor, declare_run,
+                                   declare_saturation_model)
 from im_common.params import describe_defaults
 from im_controller.control_law import DriveController
 from im_controller.parameters import (config_from_parameters, declare_controller, live_changes,
@@ -68,6 +69,11 @@ class ControllerNode(LockstepNode):
         self.ctl = DriveController(replace(cfg, horizon=horizon, sensorless=self.sensorless,
                                            compensation=declare_compensation(self)))
         self._plan_note = ''
+        # the drive on the magnetizing curve: the model at the observer's flux of the step
+        self.saturated = declare_saturation_model(self, params)
+        if self.saturated is not None and self.use_adapter:
+            raise ValueError("invalid parameter 'saturation_model': with use_adapter the "
+                             'adapter tracks L_M itself; choose one')
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         q = lockstep_qos()
@@ -185,6 +191,8 @@ class ControllerNode(LockstepNode):
         theta, omega = inputs[self.shaft]
         f_a, f_b = inputs[T.OBS_FLUX]
         est = inputs[T.ADAPT_ESTIMATE] if self.use_adapter else None
+        if self.saturated is not None:
+            est = self.saturated.estimates(f_a, f_b)
         try:
             v_a, v_b = self.ctl.compute(ns / 1e9, i_a, i_b, theta, omega, f_a, f_b, est)
         except (ValueError, ArithmeticError) as exc:

@@ -21,7 +21,8 @@ from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft
                                    xy_in)
 from im_common.lockstep import (LOCKSTEP_DEPTH, lockstep_qos, LockstepNode, node_main, report_qos,
                                 StepGate)
-from im_common.node_params import declare_compensation, declare_motor, declare_run
+from im_common.node_params import (declare_compensation, declare_motor, declare_run,
+                                   declare_saturation_model)
 from im_observer.observer import RotorFluxObserver
 from im_observer.parameters import check_gain_period, declare_observer
 from im_observer.speed_observer import SpeedAdaptiveObserver
@@ -51,6 +52,14 @@ class ObserverNode(LockstepNode):
             x0=tuple(v['initial_state']), injection_gain=v['injection_gain'],
             gain_period=v['gain_period'] or None, inverter_error=declare_compensation(self),
             **({'omega0': v['initial_speed']} if self.sensorless else {}))
+        # the drive on the magnetizing curve: the next step's model at the flux it now has
+        self.saturated = declare_saturation_model(self, params)
+        if self.saturated is not None and self.use_adapter:
+            raise ValueError("invalid parameter 'saturation_model': with use_adapter the "
+                             'adapter tracks L_M itself; choose one')
+        if self.saturated is not None:      # from the start: the model at the initial flux
+            x0 = self.obs.state
+            self.obs.set_estimates(**self.saturated.estimates(x0[2], x0[3]))
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
@@ -137,9 +146,11 @@ class ObserverNode(LockstepNode):
 
     def _step(self, v_a, v_b, i_a, i_b, omega) -> None:
         if self.sensorless:
-            self.obs.step(self.T_s, v_a, v_b, i_a, i_b)
+            x = self.obs.step(self.T_s, v_a, v_b, i_a, i_b)
         else:
-            self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
+            x = self.obs.step(self.T_s, v_a, v_b, i_a, i_b, omega)
+        if self.saturated is not None:
+            self.obs.set_estimates(**self.saturated.estimates(x[2], x[3]))
 
     def end_run(self, reason: str, notify: bool = False) -> None:
         if not self.done and self.bridged:
