@@ -419,10 +419,12 @@ class Scenario:
         # or the torque a load in time starts at (loads.Load.feedforward)
         for key, value in load_parameters(self.plant_load().feedforward()).items():
             opts.setdefault(key, value)
+        sat = self.saturated_model()
         return ControllerConfig(mode=self.task, strategy=self.strategy,
                                 params=self.model_estimates(), v_limit=limit_value(self.v_limit),
                                 current_gain=g['current_gain'], T_s=self.T_s,
-                                compensation=self.compensation_model(), **opts)
+                                compensation=self.compensation_model(),
+                                magnetizing=None if sat is None else sat.curve, **opts)
 
     # The graph's parameters ----------------------------------------------------------------
     def node_parameters(self, truth_decimation: int = 10, reference_decimation: int = 10,

@@ -141,6 +141,9 @@ class ControllerConfig:
     compensation    the inverter's voltage error ê(i) (an InverterErrorModel) added to the
                     command after the voltage limit, at the measured current (None: off;
                     docs/compensation.md)
+    magnetizing     the motor's magnetizing curve (an im_common.saturation.Saturation, power
+                    law): ``optimal`` plans on it (docs/controller.md §10); the drive's model
+                    follows it through the estimates (SaturatedModel, docs/plant.md §2)
     """
 
     mode: str = 'position'
@@ -181,6 +184,8 @@ class ControllerConfig:
     sensorless: bool = False
     #: the inverter's voltage error the command compensates (im_common.compensation; None: off)
     compensation: Optional[InverterErrorModel] = None
+    #: the magnetizing curve ``optimal`` plans on (im_common.saturation.Saturation; None: linear)
+    magnetizing: object = field(default=None, compare=False)
     #: {field: (value, why)} of the fields the motor model's ratings set (RATED_FIELDS)
     from_ratings: Optional[dict] = field(default=None, compare=False)
 
@@ -365,10 +370,16 @@ class DriveController:
     def _apply_config(self, cfg: ControllerConfig) -> None:
         """Build the derived objects of the reconfigurable fields (no run state touched)."""
         self.config = cfg
+        curve = None
+        if cfg.magnetizing is not None and cfg.core_loss_exponent == 2.0:
+            from .flux_plan import saturation_terms
+            c0 = ModelCoefficients.from_params(cfg.params)
+            curve = (c0, saturation_terms(c0, cfg.magnetizing))
         self._strategy = FluxStrategy(
             cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max, cfg.params.k_e, cfg.params.k_h,
             cfg.core_loss_exponent,
-            i_max=None if cfg.current_limit is None else cfg.current_margin * cfg.current_limit)
+            i_max=None if cfg.current_limit is None else cfg.current_margin * cfg.current_limit,
+            curve=curve)
         self._load = make_load(cfg.load if cfg.load_known else 'none', mgl=cfg.load_mgl,
                                c1=cfg.load_c1, c2=cfg.load_c2, tau=cfg.load_tau)
         if cfg.current_gain is None:
@@ -624,9 +635,15 @@ class DriveController:
             phi_end = min(static_loss_optimal_flux(c, tau[-1], omega[-1], cfg.params.k_e,
                                                    cfg.params.k_h), cap[-1])
         phi0 = max(self._flux.y, 0.0)
+        sat = None
+        if cfg.magnetizing is not None:     # on the curve: from the unsaturated model
+            from .flux_plan import saturation_terms
+            c = self._c_nominal
+            sat = saturation_terms(c, cfg.magnetizing)
         try:
             plan = plan_flux(c, times[::2], tau[1::2], omega[1::2], phi0, k_e=cfg.params.k_e,
-                             k_h=cfg.params.k_h, phi_end=phi_end, phi_cap=cap, i_max=i_max)
+                             k_h=cfg.params.k_h, phi_end=phi_end, phi_cap=cap, i_max=i_max,
+                             sat=sat)
         except PlanError as exc:
             self.plan_note = f'optimal: {exc}: min_loss (the best causal plan)'
             return

@@ -66,11 +66,13 @@ class ControllerNode(LockstepNode):
             self.get_logger().info(describe_defaults(cfg.from_ratings))
         # the run's end is the optimal strategy's planning horizon (0: open-ended)
         horizon = self.duration if self.duration > 0 else None
-        self.ctl = DriveController(replace(cfg, horizon=horizon, sensorless=self.sensorless,
-                                           compensation=declare_compensation(self)))
-        self._plan_note = ''
         # the drive on the magnetizing curve: the model at the observer's flux of the step
         self.saturated = declare_saturation_model(self, params)
+        self.ctl = DriveController(replace(
+            cfg, horizon=horizon, sensorless=self.sensorless,
+            compensation=declare_compensation(self),
+            magnetizing=None if self.saturated is None else self.saturated.curve))
+        self._plan_note = ''
         if self.saturated is not None and self.use_adapter:
             raise ValueError("invalid parameter 'saturation_model': with use_adapter the "
                              'adapter tracks L_M itself; choose one')

@@ -139,9 +139,36 @@ def flux_range_within_current(c: ModelCoefficients, tau: float, i_max: float):
     return math.sqrt(2.0 * b / r), c.L_sr * math.sqrt(0.5 * r)
 
 
+def _on_the_curve(A: float, Ct2: float, Kt2: float, b: float, S: float, y: float) -> float:
+    """
+    Return y = φ² minimizing A y (1 + b y^(S/2))² + Cτ²/y + Kθ² y (the steady loss on the curve).
+
+    Convex in y > 0: Newton from ``y`` (the linear optimum, which lies above the curve's), kept
+    positive; 8 steps reach 1e-12 relative on the shipped curves.
+    """
+    k = 0.5 * S
+    for _ in range(8):
+        yk = y ** k
+        g = 1.0 + b * yk
+        g1 = b * k * yk / y
+        g2 = g1 * (k - 1.0) / y
+        d1 = A * (g * g + 2.0 * y * g * g1) - Ct2 / (y * y) + Kt2
+        d2 = A * (4.0 * g * g1 + 2.0 * y * g1 * g1 + 2.0 * y * g * g2) + 2.0 * Ct2 / (y * y * y)
+        step = d1 / d2
+        y = max(y - step, 0.25 * y)
+        if abs(step) <= 1e-12 * y:
+            break
+    return y
+
+
 def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: float, phi_max: float,
-                  k_e: float, k_h: float, core_exponent: float = 2.0) -> float:
-    """Steady-state loss-minimizing flux (see module docstring), clipped to [φ_min, φ_max]."""
+                  k_e: float, k_h: float, core_exponent: float = 2.0, sat=None) -> float:
+    """
+    Steady-state loss-minimizing flux (see module docstring), clipped to [φ_min, φ_max].
+
+    ``sat`` (b, S) of :func:`~im_controller.flux_plan.saturation_terms`: on the magnetizing
+    curve, the copper term A φ²(1 + b φ^S)² (``c`` then the unsaturated model's, exponent 2).
+    """
     A = c.R_s / (c.L_sr * c.L_sr)
     C = (c.R_s * c.L_r * c.L_r / (c.L_sr * c.L_sr) + c.R_r) / (c.v * c.v)
     th = c.theta
@@ -155,6 +182,9 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
         K = (k_h + k_e * f_e) * f_e
         if core_exponent == 2.0:
             phi = (C * tau2 / (A + K * th * th)) ** 0.25
+            if sat is not None and tau2 > 0.0:
+                phi = math.sqrt(_on_the_curve(A, C * tau2, K * th * th, sat[0], sat[1],
+                                              phi * phi))
         else:
             x = (C * tau2 / A) ** 0.25   # h(x) = 2A x⁴ + Kθ x³ − 2Cτ² ≥ 0 here; Newton descends
             for _ in range(5):
@@ -181,19 +211,26 @@ class FluxStrategy:
 
     def __init__(self, name: str, phi_d: float = 1.2, phi_min: float = 0.2, phi_max: float = 1.2,
                  k_e: float = 0.012, k_h: float = 0.012, core_exponent: float = 2.0,
-                 i_max: Optional[float] = None):
+                 i_max: Optional[float] = None, curve=None):
         if name not in STRATEGIES:
             raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {name!r}")
         self.name = name
         self.phi_d, self.phi_min, self.phi_max = float(phi_d), float(phi_min), float(phi_max)
         self.k_e, self.k_h, self.core_exponent = float(k_e), float(k_h), float(core_exponent)
         self.i_max = i_max
+        #: on the magnetizing curve: (unsaturated coefficients, (b, S)) — min_loss's optimum
+        #: is the curve's (the secant coefficients the model runs on are not its derivative)
+        self.curve = curve
 
     def target(self, c: ModelCoefficients, tau: float, omega_r: float) -> float:
         if self.name == 'constant_flux':
             return self.phi_d
         if self.name == 'min_energy':
             phi = flux_min_energy(c, tau, self.phi_min, self.phi_max)
+        elif self.curve is not None:
+            c0, sat = self.curve
+            phi = flux_min_loss(c0, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
+                                self.core_exponent, sat)
         else:
             phi = flux_min_loss(c, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
                                 self.core_exponent)

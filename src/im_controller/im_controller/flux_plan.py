@@ -57,8 +57,13 @@ def loss_constants(c: ModelCoefficients, k_e: float = 0.0, k_h: float = 0.0) -> 
             'Te': th * th * k_e / (TWO_PI * TWO_PI), 'Th': th * th * k_h / TWO_PI}
 
 
-def loss_rates(c: ModelCoefficients, y, ydot, tau, omega, k_e: float = 0.0, k_h: float = 0.0):
-    """(copper, core) loss rates [W] at y = φ², ẏ, τ, ω (arrays; y > 0 where τ ≠ 0)."""
+def loss_rates(c: ModelCoefficients, y, ydot, tau, omega, k_e: float = 0.0, k_h: float = 0.0,
+               sat=None):
+    """
+    (copper, core) loss rates [W] at y = φ², ẏ, τ, ω (arrays; y > 0 where τ ≠ 0).
+
+    ``sat``: the magnetizing curve as (b, S) of :func:`saturation_terms` (None: linear).
+    """
     y = np.asarray(y, float)
     ydot = np.asarray(ydot, float)
     tau = np.asarray(tau, float)
@@ -67,10 +72,26 @@ def loss_rates(c: ModelCoefficients, y, ydot, tau, omega, k_e: float = 0.0, k_h:
     with np.errstate(divide='ignore', invalid='ignore'):
         inv = np.where(y > 0.0, 1.0 / np.where(y > 0.0, y, 1.0), 0.0)
         drive = y + 0.5 * c.T_r * ydot
+        if sat is not None:
+            drive = drive + sat[0] * np.maximum(y, 0.0) ** (0.5 * sat[1] + 1.0)
         copper = (k['A'] * drive * drive + ydot * ydot / (4.0 * c.R_r) + k['C'] * tau * tau) * inv
         rot = c.v * omega * y + c.R_r * tau / c.v           # 2π f_e y (signed)
         core = k['Te'] * rot * rot * inv + k['Th'] * np.abs(rot)
     return copper, core
+
+
+def saturation_terms(c: ModelCoefficients, curve) -> tuple:
+    """
+    Return (b, S) of a power-law magnetizing curve in the plan's variable y = φ² (φ = ψ_R/θ).
+
+    With L_M(ψ) = L_M0/(1 + (βψ)^S) the stator d-current is i_ds = (φ(1 + b φ^S) + T_r φ̇)/L_sr,
+    b = (βθ)^S, so L_sr i_ds √y = y + b y^(S/2+1) + T_r ẏ/2: the linear drive term plus a convex
+    power of y (docs/controller.md §10). ValueError for a table curve.
+    """
+    if getattr(curve, 'table', None) is not None:
+        raise ValueError('the flux plan takes a power-law magnetizing curve {law: power, beta, '
+                         'S}, not a table')
+    return (curve.beta * c.theta) ** curve.S, curve.S
 
 
 def static_loss_optimal_flux(c: ModelCoefficients, tau: float, omega: float, k_e: float = 0.0,
@@ -150,7 +171,7 @@ class FluxPlan:
 def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float],
               omega_mid: Sequence[float], phi0: float, *, k_e: float = 0.0, k_h: float = 0.0,
               phi_end: Optional[float] = None, phi_cap: Optional[Sequence[float]] = None,
-              i_max: Optional[float] = None) -> FluxPlan:
+              i_max: Optional[float] = None, sat=None) -> FluxPlan:
     """
     Plan the loss-optimal flux trajectory for given torques and speeds on a grid.
 
@@ -159,7 +180,9 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
     (N interval midpoints), from φ(t_0) = ``phi0``; the end flux is free unless ``phi_end``.
     ``phi_cap`` (a number or N+1 node values) bounds φ; ``i_max`` bounds the stator current. Where
     the limits make the exact torque impossible, the program is re-solved delivering as much of it
-    as they allow (``torque_shortfall``). Raises :class:`PlanError` when no solution is found.
+    as they allow (``torque_shortfall``). ``sat``: the motor's magnetizing curve as (b, S) of
+    :func:`saturation_terms` (None: the linear model). Raises :class:`PlanError` when no solution
+    is found.
     """
     t = np.asarray(t, float)
     tau = np.asarray(tau_mid, float)
@@ -175,23 +198,26 @@ def plan_flux(c: ModelCoefficients, t: Sequence[float], tau_mid: Sequence[float]
     if phi_cap is not None:
         cap = np.array(np.broadcast_to(np.asarray(phi_cap, float), (n + 1,)))
     try:
-        plan = _solve(c, t, h, tau, om, phi0, k_e, k_h, phi_end, cap, i_max, exact=True)
+        plan = _solve(c, t, h, tau, om, phi0, k_e, k_h, phi_end, cap, i_max, True, sat)
     except PlanError:
         if i_max is None and cap is None:
             raise
         # the limits leave part of the torque undeliverable (a load on a demagnetized machine,
         # a torque beyond the current limit): re-solve delivering as much of it as they allow
-        plan = _solve(c, t, h, tau, om, phi0, k_e, k_h, phi_end, cap, i_max, exact=False)
+        plan = _solve(c, t, h, tau, om, phi0, k_e, k_h, phi_end, cap, i_max, False, sat)
     return plan
 
 
-def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: bool) -> FluxPlan:
+def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: bool,
+           sat=None) -> FluxPlan:
     """
     One second-order-cone program of :func:`plan_flux`.
 
     ``exact``: the torque is delivered exactly; else it is a variable between 0 and the demand
     (same sign) whose shortfall costs 1000 × the least steady copper loss per N·m (2√(AC)), so
-    every achievable torque is delivered.
+    every achievable torque is delivered. ``sat`` (b, S): the drive term gets b y^(S/2+1) through
+    an epigraph variable u ≥ drive + b y_m^(S/2+1) (a relaxation where the d-current would be
+    negative; exact elsewhere, and the books below are the exact ones).
     """
     import warnings
     import cvxpy as cp
@@ -203,6 +229,10 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
     yd = cp.multiply(1.0 / h, y[1:] - y[:-1])
     drive = ym + 0.5 * c.T_r * yd
     cons = [y[0] == phi0 * phi0]
+    if sat is not None:
+        u = cp.Variable(n)
+        cons.append(u >= drive + sat[0] * cp.power(ym, 0.5 * sat[1] + 1.0))
+        drive = u
     penalty = 0.0
     if exact:
         tau = cp.Constant(tau_ref)
@@ -253,13 +283,15 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
     yv[0] = phi0 * phi0
     ymv = 0.5 * (yv[:-1] + yv[1:])
     ydv = np.diff(yv) / h
-    cu, co = loss_rates(c, ymv, ydv, tau_v, om, k_e, k_h)
+    cu, co = loss_rates(c, ymv, ydv, tau_v, om, k_e, k_h, sat)
     plan = FluxPlan(t=t, y=yv, copper_J=float(h @ cu), core_J=float(h @ co) if core else 0.0,
                     solve_s=solve_s, status=prob.status,
                     torque_shortfall=float(h @ np.abs(tau_ref - tau_v)))
     if i_max is not None:
-        i2 = ((ymv + 0.5 * c.T_r * ydv) ** 2 + (c.L_r * tau_v / c.v) ** 2) / (
-            c.L_sr ** 2 * np.maximum(ymv, 1e-300))
+        dv = ymv + 0.5 * c.T_r * ydv
+        if sat is not None:
+            dv = dv + sat[0] * ymv ** (0.5 * sat[1] + 1.0)
+        i2 = (dv ** 2 + (c.L_r * tau_v / c.v) ** 2) / (c.L_sr ** 2 * np.maximum(ymv, 1e-300))
         plan.current_limit_active = bool(np.max(i2) > (1.0 - 1e-4) * i_max * i_max)
     if cap is not None:
         plan.flux_cap_active = bool(np.any(yv > (1.0 - 1e-4) * cap * cap))

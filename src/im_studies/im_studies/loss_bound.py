@@ -58,9 +58,13 @@ def run_loss_bound(sc, step: float = None, core: bool = True, phi0: float = None
     tau = np.array([m.J * a + m.b * w + load.torque(t, th, w) for t, th, w, a in
                     zip(times[mid], theta[mid], omega[mid], acc[mid])])
     k = {'k_e': m.k_e, 'k_h': m.k_h} if core else {}
-    return plan_flux(ModelCoefficients.from_params(m), nodes, tau, omega[mid],
-                     start_flux(sc) if phi0 is None else phi0, i_max=i_max, phi_cap=phi_cap,
-                     **k)
+    c = ModelCoefficients.from_params(m)
+    if sc.saturation is not None:       # the plant's magnetizing curve
+        from im_common.saturation import saturation_from_dict
+        from im_controller.flux_plan import saturation_terms
+        k['sat'] = saturation_terms(c, saturation_from_dict(sc.saturation, m.L_M))
+    return plan_flux(c, nodes, tau, omega[mid], start_flux(sc) if phi0 is None else phi0,
+                     i_max=i_max, phi_cap=phi_cap, **k)
 
 
 def main(argv=None) -> int:
