@@ -67,6 +67,20 @@ def run_loss_bound(sc, step: float = None, core: bool = True, phi0: float = None
                      i_max=i_max, phi_cap=phi_cap, **k)
 
 
+def drive_floor(sc, step: float = None):
+    """
+    Return the floor within the run's own drive limits (its current limit and flux cap φ_max).
+
+    The floor of this drive rather than of the motor: a drive that may not raise the flux above
+    φ_max cannot reach the unconstrained floor. None when the drive has neither limit.
+    """
+    cfg = sc.controller_config()
+    cap = cfg.phi_max if math.isfinite(cfg.phi_max) else None
+    if cfg.current_limit is None and cap is None:
+        return None
+    return run_loss_bound(sc, step, i_max=cfg.current_limit, phi_cap=cap)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='loss_bound', description=__doc__.split('\n\n')[1])
     ap.add_argument('run_file', help='a run file (docs/running.md)')
@@ -92,16 +106,15 @@ def main(argv=None) -> int:
           f'{out["start_flux_Wb"]:.4g} Wb): {tot.loss_J:.4f} J with the core loss, '
           f'{cu.copper_J:.4f} J copper only')
     cfg = sc.controller_config()
-    if cfg.current_limit is not None or math.isfinite(cfg.phi_max):   # can the drive do it?
-        short = run_loss_bound(sc, a.step, i_max=cfg.current_limit,
-                               phi_cap=cfg.phi_max).torque_shortfall
-        out['torque_shortfall_Nms'] = short
-        if short > 1e-9:
-            print(f"  the drive's limits (current {cfg.current_limit:.4g} A, flux "
-                  f'{cfg.phi_max:.4g} '
-                  f"Wb) cannot deliver this run's torque exactly ({short:.3g} N·m·s short): "
-                  f'the floor is for a task this drive does not do, and its runs track less '
-                  f'closely')
+    lim = drive_floor(sc, a.step)
+    if lim is not None:
+        out['E_loss_drive_floor_J'] = lim.loss_J
+        out['torque_shortfall_Nms'] = lim.torque_shortfall
+        print(f"  within the drive's limits (current {cfg.current_limit} A, flux cap "
+              f'{cfg.phi_max:.4g} Wb): {lim.loss_J:.4f} J')
+        if lim.torque_shortfall > 1e-9:
+            print(f"  those limits cannot deliver this run's torque exactly "
+                  f'({lim.torque_shortfall:.3g} N·m·s short): its runs track less closely')
     floors = {round(out['start_flux_Wb'], 12): tot}
     for st in a.run:
         print(f'  simulating {st} ...', file=sys.stderr, flush=True)
@@ -112,14 +125,18 @@ def main(argv=None) -> int:
         floor = floors[phi0].loss_J
         try:
             s = simulate(run).summary
+            dfl = None if lim is None else drive_floor(run, a.step).loss_J
         except (InvalidParameter, ValueError, ArithmeticError) as exc:
             return cli_error('loss_bound', f'{a.run_file} with {st}: {exc or type(exc).__name__}')
         out['runs'][st] = {'E_loss_J': s['E_loss_J'], 'E_copper_J': s['E_copper_J'],
                            'start_flux_Wb': phi0, 'E_loss_bound_J': floor,
                            'ratio_loss': s['E_loss_J'] / floor, 'trip': s['trip']}
-        print(f'  {st}: {s["E_loss_J"]:.4f} J = {s["E_loss_J"] / floor:.4f} x the floor from its '
-              f'start flux {phi0:.4g} Wb ({floor:.4f} J)'
-              + ('' if s['trip'] is None else f' (tripped: {s["trip"]["reason"]})'))
+        text = (f'  {st}: {s["E_loss_J"]:.4f} J = {s["E_loss_J"] / floor:.4f} x the floor from '
+                f'its start flux {phi0:.4g} Wb ({floor:.4f} J)')
+        if dfl is not None:
+            out['runs'][st].update(E_loss_drive_floor_J=dfl, ratio_drive_floor=s['E_loss_J'] / dfl)
+            text += f', {s["E_loss_J"] / dfl:.4f} x the floor within its limits'
+        print(text + ('' if s['trip'] is None else f' (tripped: {s["trip"]["reason"]})'))
     if a.json:
         try:
             with open(a.json, 'w') as f:
