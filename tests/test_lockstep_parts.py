@@ -26,7 +26,8 @@ A, B = '/a', '/b'
 
 @pytest.mark.processes
 def test_the_parts_import_without_ros():
-    code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing; '
+    code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing, '
+            'im_common.lockstep_parts, im_common.topics; '
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")
     assert subprocess.run([sys.executable, '-c', code]).returncode == 0
 
