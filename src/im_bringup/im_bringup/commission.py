@@ -191,6 +191,7 @@ def run(args) -> int:
     from rclpy.context import Context
     from im_adapt.commissioning import Commissioning, NotInformative, rated_flux
     from im_common.host import flush, make_executor
+    from im_common.run_protocol import WAITING
     s = settings(args)
     plate = s['plate']
     com = Commissioning(args.T_s, s['i_max'], s['v_max'],
@@ -233,7 +234,7 @@ def run(args) -> int:
                 break
             if plant is not None and plant.returncodes()['plant'] is not None:
                 break
-            if node.state == 'waiting' and now - t0 > args.timeout:
+            if node.state == WAITING and now - t0 > args.timeout:
                 break
         if not args.no_progress:
             status_line('', done=True)

@@ -45,7 +45,7 @@ from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, is_master,  
                            NOT_STATES, PARAMETERS, READY, RUNNING, RunProtocol, STARTING, STOPPED,
                            STOPPING, WAITING, WARNING)
 from .signing import NodeSigning
-from .status_channel import status_message, StatusChannel  # noqa: F401
+from .status_channel import StatusChannel
 from .step_gate import finite, LOCKSTEP_DEPTH, StepGate  # noqa: F401
 from .topics import CLOCK, JS, LOCKSTEP_QOS, LOCKSTEP_TOPICS, REPORT_QOS, STATUS, STATUS_QOS
 from .topics import TOPIC_TYPES
@@ -81,10 +81,6 @@ class TappedPublisher:
 
     def __getattr__(self, name):
         return getattr(self._pub, name)
-
-
-def _status_topic() -> str:
-    return STATUS
 
 
 class LockstepNode(Node):
