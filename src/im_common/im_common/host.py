@@ -90,7 +90,8 @@ class ProcessHost:
             return
         ok, text = realtime.enter(node.rt_priority)
         if ok:
-            realtime.quiet_gc()
+            if not below_loop:          # the loop's collection pauses short (not the recorder's)
+                realtime.quiet_gc()
             self.scheduling = node.scheduling = text
             log.info(f'{what} at real-time priority {text}, below the control loop' if below_loop
                      else f'free_run: real-time scheduling ({text})')
