@@ -31,6 +31,8 @@ import time
 CATEGORIES = ('decode', 'tags', 'protocol', 'compute', 'publish', 'tap', 'executor', 'other')
 NODE_FILES = {'plant_node.py': 'plant', 'controller_node.py': 'controller',
               'observer_node.py': 'observer', 'adapter_node.py': 'adapter'}
+#: The run protocol's code on the step's path: the node adapter, its input path, the roles.
+PROTOCOL_FILES = ('lockstep.py', 'lockstep_parts.py', 'run_protocol.py')
 
 
 def category(func) -> str:
@@ -49,7 +51,7 @@ def category(func) -> str:
         return 'decode' if name.startswith('decode') or name.startswith('_decode') else 'publish'
     if base == 'params.py' and name == 'estimate_arguments':
         return 'decode'
-    if base == 'lockstep.py' or base in NODE_FILES:
+    if base in PROTOCOL_FILES or base in NODE_FILES:
         return 'protocol'
     if os.sep + 'rclpy' + os.sep in path:
         return 'publish' if base == 'publisher.py' else 'other'

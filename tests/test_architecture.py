@@ -28,7 +28,8 @@ def _layer(pkg: str) -> int:
 ROS_FREE = [
     'im_common.model', 'im_common.params', 'im_common.loads', 'im_common.plant_sim',
     'im_common.metrics', 'im_common.steady_state', 'im_common.step_gate', 'im_common.run_protocol',
-    'im_common.signing', 'im_common.compensation', 'im_observer.observer',
+    'im_common.signing', 'im_common.lockstep_parts', 'im_common.topics',
+    'im_common.compensation', 'im_observer.observer',
     'im_controller.control_law', 'im_controller.flux', 'im_controller.reference',
     'im_controller.trajectories', 'im_adapt.adaptation',
 ] + sorted(f'im_robust.{p.stem}' for p in (SRC / 'im_robust' / 'im_robust').glob('*.py')

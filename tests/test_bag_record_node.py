@@ -140,7 +140,7 @@ def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path)
             rec.unsigned_input('/im/measured/current', data, handled.append)
         assert rec.unsigned['/im/measured/current'] == 15
         rec.adopt_run('run1')
-        rec._drain_early()
+        rec.signing.drain()
         assert handled == sent[15:]
     finally:
         writer.close()

@@ -474,9 +474,9 @@ def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(t
 
 HUNG_TEARDOWN = """
 import sys, time
-from im_common import lockstep
+from im_common import host, lockstep
 from im_observer.observer_node import ObserverNode
-lockstep.EXIT_GRACE_S = 1.0
+host.EXIT_GRACE_S = 1.0
 
 
 class Hung(ObserverNode):
@@ -493,7 +493,7 @@ sys.exit(lockstep.node_main(Hung, ['observer']))
 @pytest.mark.slow
 def test_a_node_whose_teardown_hangs_exits_with_its_stacks_instead_of_hanging(tmp_path):
     """
-    After its run a node's flush and teardown are bounded (``lockstep.EXIT_GRACE_S``).
+    After its run a node's flush and teardown are bounded (``host.EXIT_GRACE_S``).
 
     A teardown that does not return (seen once: an observer whose run had finished did not exit
     in 120 s) ends the process with exit code 1 and every thread's stack on stderr, naming where

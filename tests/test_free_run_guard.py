@@ -101,13 +101,15 @@ def test_no_machine_holds_100_khz_so_the_plant_refuses_it_before_step_0():
 
 def test_a_loop_whose_echo_is_late_is_refused_before_step_0(monkeypatch):
     """Injected: the controller answers every probe 5 ms late; 250 Hz allows 2 ms."""
+    from im_common.status_channel import StatusChannel
     from im_controller.controller_node import ControllerNode
-    echo = ControllerNode.echo_probe
+    echo = StatusChannel.echo
 
     def late(self, msg):
-        time.sleep(5e-3)
+        if isinstance(self.node, ControllerNode):
+            time.sleep(5e-3)
         echo(self, msg)
-    monkeypatch.setattr(ControllerNode, 'echo_probe', late)
+    monkeypatch.setattr(StatusChannel, 'echo', late)
     t0 = time.monotonic()
     res = _free_run()
     assert not res.summary['ok'] and res.summary['steps'] == 0

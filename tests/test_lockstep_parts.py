@@ -26,7 +26,8 @@ A, B = '/a', '/b'
 
 @pytest.mark.processes
 def test_the_parts_import_without_ros():
-    code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing; '
+    code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing, '
+            'im_common.lockstep_parts, im_common.topics; '
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")
     assert subprocess.run([sys.executable, '-c', code]).returncode == 0
 
@@ -256,3 +257,62 @@ def test_the_step_loop_has_one_home():
     for cls in (AdapterNode, ControllerNode, ObserverNode, PlantNode):
         assert 'ready' not in vars(cls) and 'step' in vars(cls), cls.__name__
     assert 'ready' in vars(LockstepNode)
+
+
+# Hosting ---------------------------------------------------------------------------------------
+class _Logger:
+    """A node's log, kept."""
+
+    def __init__(self):
+        self.lines = []
+
+    def info(self, text):
+        self.lines.append(('info', text))
+
+    def warning(self, text):
+        self.lines.append(('warning', text))
+
+
+class _Hosted:
+    """What a ProcessHost uses of a node: its priority, log, scheduling and events."""
+
+    realtime_capable = True
+
+    def __init__(self, rt_priority):
+        self.rt_priority = rt_priority
+        self.scheduling = 'normal'
+        self.logger = _Logger()
+        self.events = []
+
+    def get_logger(self):
+        return self.logger
+
+    def status(self, state, level=0, **values):
+        self.events.append((state, values['reason']))
+
+
+def test_a_process_host_enters_real_time_once_and_says_when_it_cannot(monkeypatch):
+    """The node asks at every free_run event; the process tries once, a refusal is a warning."""
+    from im_common import host, realtime
+    tries = []
+
+    def refused(priority):
+        tries.append(priority)
+        return False, 'no permission'
+    monkeypatch.setattr(realtime, 'enter', refused)
+    loop, process = _Hosted(50), host.ProcessHost()
+    process.enter_realtime(loop)
+    process.enter_realtime(loop)
+    assert tries == [50] and loop.scheduling == process.scheduling == 'normal (refused)'
+    assert loop.events == [(WARNING, 'free_run without real-time scheduling: no permission; '
+                                     'deadlines may be missed')]
+    monkeypatch.setattr(realtime, 'enter', lambda priority: (True, f'fifo:{priority}'))
+    monkeypatch.setattr(realtime, 'quiet_gc', lambda: tries.append('gc'))
+    recorder = _Hosted(40)
+    host.ProcessHost().enter_realtime(recorder, below_loop=True)
+    assert recorder.scheduling == 'fifo:40' and 'gc' not in tries
+    assert recorder.logger.lines == [('info', 'free_run: recording at real-time priority fifo:40, '
+                                              'below the control loop')]
+    ordinary = _Hosted(0)
+    host.ProcessHost().enter_realtime(ordinary)
+    assert ordinary.scheduling == 'normal' and 'rt_priority 0' in ordinary.logger.lines[0][1]

@@ -193,7 +193,7 @@ def test_a_peers_warning_does_not_undo_its_ready(ctx):
     """
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from im_common.auth import status_payload
-    from im_common.lockstep import PARAMETERS, READY, WARNING, _status_topic
+    from im_common.lockstep import PARAMETERS, READY, WARNING
     plant = make_plant(ctx, wait_for='controller', duration=0.01)
 
     def event(state, **values):
@@ -203,16 +203,16 @@ def test_a_peers_warning_does_not_undo_its_ready(ctx):
                                        hardware_id='im_drive',
                                        values=[KeyValue(key=k, value=str(v))
                                                for k, v in values.items()])]
-        msg.header.frame_id = plant.status_signer.tag_bytes(_status_topic(), status_payload(msg))
-        plant._on_status(msg)
+        msg.header.frame_id = plant.status_signer.tag_bytes(T.STATUS, status_payload(msg))
+        plant.events.receive(msg)
 
-    assert not plant._start_condition()
+    assert not plant.master.start_condition(plant.peers)[0]
     event(READY)
-    assert plant._start_condition()
+    assert plant.master.start_condition(plant.peers)[0]
     event(WARNING, reason="ignoring /im/status event 'waiting' from 'controller_b'")
     event(PARAMETERS, k1='2.0')
     assert plant.peers['controller'][0] == READY
-    assert plant._start_condition()
+    assert plant.master.start_condition(plant.peers)[0]
     plant.destroy_node()
 
 

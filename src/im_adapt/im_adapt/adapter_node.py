@@ -21,8 +21,9 @@ from im_adapt.parameters import declare_law
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
-from im_common.lockstep import lockstep_qos, LockstepNode, node_main, PARAMETERS, StepGate
+from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import declare_compensation, declare_motor, declare_run
+from im_common.qos import writer
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 
@@ -57,7 +58,7 @@ class AdapterNode(LockstepNode):
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
-        self.pub = self.create_publisher(JointState, T.ADAPT_ESTIMATE, lockstep_qos())
+        self.pub = self.create_publisher(JointState, T.ADAPT_ESTIMATE, writer(T.ADAPT_ESTIMATE))
         # the law's estimates, in the topic's order (feed 'inverse_gamma' adds L_sigma)
         self.names = tuple(n for n in T.ESTIMATE_NAMES if n in self.law.estimates())
         self.out = JointStateOut(self.names, Signer.frame(''))

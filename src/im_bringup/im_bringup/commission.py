@@ -109,7 +109,8 @@ def make_node(com, T_s: float, **kwargs):
     from im_common import topics as T
     from im_common.auth import Signer
     from im_common.conversions import Vector3Out, period_ns, shaft_in, xy_in
-    from im_common.lockstep import FINISHED, LockstepNode, StepGate, lockstep_qos
+    from im_common.lockstep import FINISHED, LockstepNode, StepGate
+    from im_common.qos import writer
     from rclpy.parameter import Parameter
 
     class CommissionNode(LockstepNode):
@@ -121,7 +122,8 @@ def make_node(com, T_s: float, **kwargs):
             self.T_s = self.param('T_s', 1e-4, 'control period [s]', 1e-6, 0.1)
             self.period = period_ns(self.T_s)
             self.com = com
-            self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, lockstep_qos())
+            self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE,
+                                                 writer(T.CMD_VOLTAGE))
             self.out_cmd = Vector3Out(Signer.frame('alphabeta'))
             self.gate = StepGate([T.MEAS_CURRENT, T.MEAS_SHAFT], self.period)
             self.gate_input(T.MEAS_CURRENT, xy_in)
@@ -188,7 +190,8 @@ def run(args) -> int:
     import rclpy
     from rclpy.context import Context
     from im_adapt.commissioning import Commissioning, NotInformative, rated_flux
-    from im_common.lockstep import make_executor
+    from im_common.host import flush, make_executor
+    from im_common.run_protocol import WAITING
     s = settings(args)
     plate = s['plate']
     com = Commissioning(args.T_s, s['i_max'], s['v_max'],
@@ -231,7 +234,7 @@ def run(args) -> int:
                 break
             if plant is not None and plant.returncodes()['plant'] is not None:
                 break
-            if node.state == 'waiting' and now - t0 > args.timeout:
+            if node.state == WAITING and now - t0 > args.timeout:
                 break
         if not args.no_progress:
             status_line('', done=True)
@@ -245,7 +248,7 @@ def run(args) -> int:
         if not com.done:
             raise NotInformative(f'no plant answered within {args.timeout:g} s '
                                  f'(ROS_DOMAIN_ID={ctx.get_domain_id()})')
-        node.flush(1.0)
+        flush(node, 1.0)
     finally:
         for n in nodes:
             n.destroy_node()

@@ -191,7 +191,7 @@ class DriveGraph:
             for st in msg.status:
                 if st.name == master:
                     session.master_event(st.message, {kv.key: kv.value for kv in st.values},
-                                         counted=True)
+                                         counted=True, node=master)
         return master_event
 
     def _record_parameters(self, session) -> None:

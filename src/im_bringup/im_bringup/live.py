@@ -192,11 +192,10 @@ def write_layout(path: str) -> None:
 def _run_ended(payload: bytes) -> Optional[str]:
     """Return the time master's end state in a serialized ``/im/status`` message, else None."""
     from diagnostic_msgs.msg import DiagnosticArray
+    from im_common.run_protocol import END_STATES, is_master
     from rclpy.serialization import deserialize_message
     for st in deserialize_message(payload, DiagnosticArray).status:
-        values = {kv.key: kv.value for kv in st.values}
-        if values.get('time_master') == 'true' and st.message in ('finished', 'stopped',
-                                                                  'failed'):
+        if st.message in END_STATES and is_master({kv.key: kv.value for kv in st.values}):
             return st.message
     return None
 

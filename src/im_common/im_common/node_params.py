@@ -111,3 +111,63 @@ def declare_run(node):
     startup = node.param('startup_timeout', 30.0,
                          'wall-clock seconds to wait for the first step (discovery)', 0.01, 3600.0)
     return T_s, duration, timeout, startup
+
+
+class ConfigurationError(ValueError):
+    """
+    A node refuses its configuration (a parameter unknown, of the wrong type or out of range).
+
+    The message is the one line every path prints (:func:`im_common.host.build_node`).
+    """
+
+
+def describe(description: str, lo=None, hi=None, read_only: bool = False, integer: bool = False,
+             step=None):
+    """Return the ``ParameterDescriptor`` of a parameter (its range, if ``lo`` and ``hi``)."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+    d = ParameterDescriptor(description=description, read_only=read_only)
+    if lo is not None and hi is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi),
+                                            step=int(step or 1))]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
+                                                         step=float(step or 0.0))]
+    return d
+
+
+def declare(node, name: str, default, description: str, lo=None, hi=None,
+            read_only: bool = True, choices=None):
+    """
+    Declare a parameter of ``node`` with a descriptor and return its value (validated).
+
+    A value given of the wrong type, out of range or not one of ``choices`` is refused with one
+    :class:`ConfigurationError` line naming node and parameter (docs/architecture.md).
+    """
+    from .params import parameter_error
+    integer = isinstance(default, int) and not isinstance(default, bool)
+    desc = describe(description + (f' (one of: {", ".join(choices)})' if choices else ''),
+                    lo, hi, read_only=read_only, integer=integer)
+    given = getattr(node, '_parameter_overrides', {}).get(name)
+    bad = parameter_error(given.value, default, lo, hi) if given is not None else None
+    value = given.value if bad else node.declare_parameter(name, default, desc).value
+    if not bad and choices is not None and value not in choices:
+        bad = f'must be one of {", ".join(choices)}'
+    if bad:
+        raise ConfigurationError(f"invalid parameter '{name}' = {value!r} for node "
+                                 f"'{node.get_name()}': {bad}")
+    return value
+
+
+def declare_lockstep(node) -> tuple:
+    """Declare every lock-step node's own parameters: (rt_priority, graph_key_file, allowed)."""
+    return (
+        node.param('rt_priority', node.default_rt_priority,
+                   'free_run, this node as its own process: SCHED_FIFO priority of its threads '
+                   '(0: ordinary scheduling); needs root, CAP_SYS_NICE or an rtprio limit', 0, 99),
+        node.param('graph_key_file', '',
+                   "file holding the graph's key (empty: $IM_GRAPH_KEY_FILE, else "
+                   '$ROS_HOME/im_drive/graph.key, created on first use); see docs/security.md'),
+        node.param('allowed_publishers', '',
+                   "publishers allowed on this node's inputs besides the topic table's: "
+                   'space-separated topic=node items (e.g. /im/command/voltage=/ctl2)'))

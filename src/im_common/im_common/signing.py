@@ -106,10 +106,30 @@ class NodeSigning:
             return old_topic, old_data
         return None
 
+    def unsigned(self, topic: str, data: bytes, handler: Callable, protocol,
+                 time_master: bool) -> Optional[Tuple[str, bytes]]:
+        """
+        Take ``data``, which does not verify for the run followed now: return what is refused.
+
+        Before that run is running (``protocol.locked``) it may belong to the run this node is
+        about to follow: kept (:meth:`keep_early`), handed to ``handler`` again when a run is
+        adopted or locked; a time master follows no other run. Returns (topic, data) refused, or
+        None.
+        """
+        if protocol.locked or time_master:
+            return topic, data
+        return self.keep_early(topic, data, handler,
+                               protocol.other_live_runs() if protocol.masters else None)
+
     def take_early(self) -> List[tuple]:
         """Return and clear the messages kept so far, (topic, data, handler), oldest first."""
         early, self.early = self.early, []
         return early
+
+    def drain(self) -> None:
+        """Hand every message kept so far to its handler again, oldest first (a run changed)."""
+        for _topic, data, handler in self.take_early():
+            handler(data)
 
 
 def allowed_publishers(namespace: str, text: str) -> Dict[str, set]:

@@ -27,11 +27,11 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, stamp_ns,
                                    Vector3Out, xy_in)
-from im_common.lockstep import (data_qos, lockstep_qos, LockstepNode, node_main, PARAMETERS,
-                                report_qos, status_qos, StepGate)
+from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import (declare_compensation, declare_motor, declare_run,
                                    declare_saturation_model)
 from im_common.params import describe_defaults
+from im_common.qos import reader, writer
 from im_controller.control_law import DriveController
 from im_controller.parameters import (config_from_parameters, declare_controller, live_changes,
                                       LIVE_PARAMETERS, SENTINEL_DEFAULTS)
@@ -78,12 +78,11 @@ class ControllerNode(LockstepNode):
                              'adapter tracks L_M itself; choose one')
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
-        q = lockstep_qos()
-        self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, q)
-        dq = report_qos()
-        self.pub_ref_shaft = self.create_publisher(JointState, T.REF_SHAFT, dq)
-        self.pub_ref_current = self.create_publisher(Vector3Stamped, T.REF_CURRENT, dq)
-        self.pub_ref_flux = self.create_publisher(Vector3Stamped, T.REF_FLUX, dq)
+        self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, writer(T.CMD_VOLTAGE))
+        self.pub_ref_shaft = self.create_publisher(JointState, T.REF_SHAFT, writer(T.REF_SHAFT))
+        self.pub_ref_current = self.create_publisher(Vector3Stamped, T.REF_CURRENT,
+                                                     writer(T.REF_CURRENT))
+        self.pub_ref_flux = self.create_publisher(Vector3Stamped, T.REF_FLUX, writer(T.REF_FLUX))
         self.out_cmd = Vector3Out(Signer.frame('alphabeta'))
         # the references are signed too (T.SIGNED_TOPICS): frames with the tag's placeholder
         self.out_ri = Vector3Out(Signer.frame('alphabeta'))
@@ -105,10 +104,10 @@ class ControllerNode(LockstepNode):
         # (`ros2 topic pub` twice: same stamp 0, same value) is a new command
         self._seen_setpoints = []
         self.create_subscription(JointState, T.SETPOINT,
-                                 lambda msg: self.on_setpoint(msg, 'volatile'), data_qos(10))
+                                 lambda msg: self.on_setpoint(msg, 'volatile'), reader(T.SETPOINT))
         self.create_subscription(  # a volatile publisher does not match it: that is expected
             JointState, T.SETPOINT, lambda msg: self.on_setpoint(msg, 'transient_local'),
-            status_qos(),
+            reader(T.SETPOINT, latched=True),
             event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _event: None))
         self._pending_changes = None
         self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -19,10 +19,10 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, Vector3Out,
                                    xy_in)
-from im_common.lockstep import (LOCKSTEP_DEPTH, lockstep_qos, LockstepNode, node_main, report_qos,
-                                StepGate)
+from im_common.lockstep import LOCKSTEP_DEPTH, LockstepNode, node_main, StepGate
 from im_common.node_params import (declare_compensation, declare_motor, declare_run,
                                    declare_saturation_model)
+from im_common.qos import writer
 from im_observer.observer import RotorFluxObserver
 from im_observer.parameters import check_gain_period, declare_observer
 from im_observer.speed_observer import SpeedAdaptiveObserver
@@ -62,13 +62,14 @@ class ObserverNode(LockstepNode):
             self.obs.set_estimates(**self.saturated.estimates(x0[2], x0[3]))
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
-        self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, lockstep_qos())
-        self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT, report_qos())
+        self.pub_flux = self.create_publisher(Vector3Stamped, T.OBS_FLUX, writer(T.OBS_FLUX))
+        self.pub_current = self.create_publisher(Vector3Stamped, T.OBS_CURRENT,
+                                                 writer(T.OBS_CURRENT))
         # the current estimate (a report) is signed as the flux is (T.SIGNED_TOPICS)
         self.out_flux = Vector3Out(Signer.frame('alphabeta'))
         self.out_current = Vector3Out(Signer.frame('alphabeta'))
         if self.sensorless:     # the speed estimate, in the measured shaft's place
-            self.pub_speed = self.create_publisher(JointState, T.OBS_SPEED, lockstep_qos())
+            self.pub_speed = self.create_publisher(JointState, T.OBS_SPEED, writer(T.OBS_SPEED))
             self.out_speed = JointStateOut([T.SHAFT_JOINT], Signer.frame(''))
         required = [T.MEAS_CURRENT, T.CMD_VOLTAGE] + ([] if self.sensorless else [T.MEAS_SHAFT])
         if self.use_adapter:

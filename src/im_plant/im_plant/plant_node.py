@@ -41,12 +41,14 @@ from im_common import topics as T
 from im_common.auth import progress_payload, Signer, split_frame
 from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
-from im_common.lockstep import (END_STATES, FINISHED, LOCKSTEP_DEPTH, lockstep_qos,
-                                LockstepNode, node_main, PARAMETERS, probe_qos, READY,
-                                report_qos, RUNNING,
-                                stamp_text, StepGate, STOPPED, STOPPING)
+from im_common.lockstep import LockstepNode, node_main, stamp_text, StepGate
 from im_common.node_params import declare_run
 from im_common.params import describe_defaults
+from im_common.qos import reader, writer
+from im_common.run_protocol import (DRAINING, FINISHED, JOINED, LEFT, MASTER_STEPPING,
+                                    PARAMETERS, RUNNING, STOP, STOPPED, TimeMaster, WAITING,
+                                    YIELD)
+from im_common.step_gate import LOCKSTEP_DEPTH
 from im_common.timing import assess_probe, DeadlineWatchdog, LatencyHistogram
 from im_plant.parameters import declare_plant, simulator_from_parameters
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -84,10 +86,10 @@ class PlantNode(LockstepNode):
                                  LOCKSTEP_DEPTH // 2)
         self.run_id = os.urandom(4).hex()       # tells this run's events from another graph's
         self.signer.set_run(self.run_id)        # ... and its lock-step messages (their tags)
-        # run id -> (name, state, started_at) of another plant
-        self.other_masters: dict = {}
-        self.started_at = None                  # wall time of step 0 (which of two plants yields)
-        self.rejected = 0
+        # the time master's decisions: step 0, lossless followers, the end, another plant
+        self.master = TimeMaster(self.run_id, self.period, self.wait_for, self.window,
+                                 timeout, self.context.get_domain_id())
+        self.master.on_dropped = self._follower_dropped
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
         self.wall_start = None      # wall time of the first step (for the steps/s report)
         # free_run deadline accounting
@@ -98,30 +100,21 @@ class PlantNode(LockstepNode):
         self._published_at: dict = {}
         self._free_cmd: dict = {}
         self._tick_lock = threading.Lock()
-        # lossless followers: name -> [acked stamp ns, wall time of the last ack]
-        self.followers: dict = {}
-        self._parked = None
         self._ok_since = None
         self._after_end_said = False
 
-        q = lockstep_qos()
-        self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT, q)
-        self.pub_shaft = self.create_publisher(*_js(), T.MEAS_SHAFT, q)
-        self.pub_clock = self.create_publisher(ClockMsg, T.CLOCK, 10)
-        dq = report_qos()
-        self.pub_truth = {
-            'voltage': self.create_publisher(Vector3Stamped, T.TRUTH_VOLTAGE, dq),
-            'flux': self.create_publisher(Vector3Stamped, T.TRUTH_FLUX, dq),
-            'torque': self.create_publisher(Vector3Stamped, T.TRUTH_TORQUE, dq),
-            'params': self.create_publisher(*_js(), T.TRUTH_PARAMS, dq),
-            'power': self.create_publisher(*_js(), T.TRUTH_POWER, dq),
-            'energy': self.create_publisher(*_js(), T.TRUTH_ENERGY, dq),
-            'shaft': self.create_publisher(*_js(), T.TRUTH_SHAFT, dq),
-            'peaks': self.create_publisher(*_js(), T.TRUTH_PEAKS, dq),
+        self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT,
+                                                 writer(T.MEAS_CURRENT))
+        self.pub_shaft = self.create_publisher(*_js(), T.MEAS_SHAFT, writer(T.MEAS_SHAFT))
+        self.pub_clock = self.create_publisher(ClockMsg, T.CLOCK, writer(T.CLOCK))
+        v3, js = Vector3Stamped, _js()[0]
+        self.pub_truth = {key: self.create_publisher(cls, t, writer(t)) for key, cls, t in (
+            ('voltage', v3, T.TRUTH_VOLTAGE), ('flux', v3, T.TRUTH_FLUX),
+            ('torque', v3, T.TRUTH_TORQUE), ('params', js, T.TRUTH_PARAMS),
+            ('power', js, T.TRUTH_POWER), ('energy', js, T.TRUTH_ENERGY),
+            ('shaft', js, T.TRUTH_SHAFT), ('peaks', js, T.TRUTH_PEAKS),
             # published when the motor has a thermal block / the run an inverter block
-            'temperature': self.create_publisher(*_js(), T.TRUTH_TEMPERATURE, dq),
-            'inverter': self.create_publisher(*_js(), T.TRUTH_INVERTER, dq),
-        }
+            ('temperature', js, T.TRUTH_TEMPERATURE), ('inverter', js, T.TRUTH_INVERTER))}
         # the real plant's truth (docs/plant.md): published only with the blocks that make it (the
         # publishers exist on every plant: the SROS2 policy is read off a default node)
         real = self.sim.real
@@ -145,13 +138,15 @@ class PlantNode(LockstepNode):
         self.out_en = JointStateOut(self.energy_names, Signer.frame(''))
 
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)
-        self.inputs.append(T.CMD_VOLTAGE)
         self.last_cmd = (0.0, 0.0)
-        self.create_subscription(Vector3Stamped, T.CMD_VOLTAGE, self.on_command, q, raw=True)
+        # the command input: verified, decoded, finite (else the previous command is held; before
+        # any, zero volts) as every lock-step input; then on_command takes it
+        self.gate_input(T.CMD_VOLTAGE, xy_in, take=self.on_command, hold=self.last_cmd)
         from std_msgs.msg import Header
-        self.create_subscription(Header, T.PROGRESS, self.on_progress, 10)
-        self.pub_probe = self.create_publisher(Header, T.PROBE, probe_qos())
-        self.create_subscription(Header, T.PROBE_ECHO, self.on_probe_echo, probe_qos())
+        self.create_subscription(Header, T.PROGRESS, self.on_progress, reader(T.PROGRESS))
+        self.pub_probe = self.create_publisher(Header, T.PROBE, writer(T.PROBE))
+        self.create_subscription(Header, T.PROBE_ECHO, self.on_probe_echo,
+                                 reader(T.PROBE_ECHO))
         self._load_offset_next = None       # a live load_offset staged for the next step
         # load_offset's descriptor refuses a value of another type or out of range, one line
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -184,6 +179,16 @@ class PlantNode(LockstepNode):
     #: second graph on the domain is seen a moment after the nodes of one's own.
     SETTLE_S = 0.3
 
+    @property
+    def followers(self) -> dict:
+        """Return the lossless followers: name -> [acked stamp ns, monotonic time of the ack]."""
+        return self.master.followers
+
+    @property
+    def started_at(self):
+        """Return the wall time of step 0 (None before)."""
+        return self.master.started_at
+
     def ready_to_start(self) -> bool:
         ok = self._start_condition()
         now = time.monotonic()
@@ -210,7 +215,7 @@ class PlantNode(LockstepNode):
         if pr is None:
             nodes = [n for n in self.wait_for
                      if self.peers.get(n, ('', {}))[1].get('role') == 'critical']
-            self.enter_realtime()           # probed as the run will run
+            self.go_realtime()              # probed as the run will run
             self.probe = _LoopProbe(self, nodes, self.PROBES, self._step_cost())
             self.get_logger().info(f'free_run: probing the loop through {", ".join(nodes)} '
                                    f'({self.PROBES} probes at T_s = {self.T_s:g} s)')
@@ -246,26 +251,10 @@ class PlantNode(LockstepNode):
             self.probe.echo(msg.frame_id, msg.stamp.nanosec, time.perf_counter())
 
     def _start_condition(self) -> bool:
-        for run, (name, state, _started) in self.other_masters.items():
-            if state not in END_STATES:
-                self._yield_to(name, run)
-                return False
-        for name in self.wait_for:
-            state, values = self.peers.get(name, ('', {}))
-            if state != READY and state != RUNNING or values.get('run_id') != self.run_id:
-                return False
-            t_s = int(values.get('T_s_ns', 0) or 0)
-            if t_s and t_s != self.period:        # 0: a node without a period (the recorder)
-                self.fail(f"node '{name}' runs at T_s = {t_s / 1e9:g} s, the plant at "
-                          f'{self.T_s:g} s: give every node the same T_s')
-                return False
-        return True
-
-    def _yield_to(self, name: str, run: str) -> None:
-        self.fail(f"another plant ('{name}', run {run}) of this graph's key is on this "
-                  f'ROS domain (ROS_DOMAIN_ID={self.context.get_domain_id()}): the nodes '
-                  f'started by hand would not know which run to follow — give each '
-                  f'graph its own ROS_DOMAIN_ID or its own graph_key_file')
+        ok, fault = self.master.start_condition(self.peers)
+        if fault is not None:
+            self.fail(fault)
+        return ok
 
     def status(self, state: str, level: int = 0, stamp_ns=None, **values) -> None:
         if self.started_at is not None:     # every event after step 0 says when it was taken
@@ -273,7 +262,7 @@ class PlantNode(LockstepNode):
         super().status(state, level, stamp_ns, **values)
 
     def waiting_text(self, missing) -> str:
-        nodes = [n for n in self.wait_for if self.peers.get(n, ('',))[0] not in (READY, RUNNING)]
+        nodes = self.master.not_ready(self.peers)
         parts = []
         if missing:
             parts.append('no publisher yet of ' + ', '.join(missing))
@@ -284,7 +273,7 @@ class PlantNode(LockstepNode):
 
     def on_ready(self) -> None:
         """Publish step 0, everyone being there (and start the wall clock in free_run)."""
-        self.started_at = time.time()
+        self.master.started_at = time.time()
         self.gate.since = time.monotonic()   # step 0's command is due from now, not from startup
         self.status(RUNNING, mode=self.mode, followers=' '.join(self.followers),
                     **(self.probe.values() if self.probe is not None else {}))
@@ -293,7 +282,7 @@ class PlantNode(LockstepNode):
             + (f', lossless followers: {", ".join(self.followers)}' if self.followers else ''))
         if self.mode == 'free_run':
             self.gate.follow = True
-            self.enter_realtime()
+            self.go_realtime()
             self._t0 = time.perf_counter()
             self.wall_start = self._t0
             self.publish_step()
@@ -340,107 +329,62 @@ class PlantNode(LockstepNode):
 
     # Peers -------------------------------------------------------------------------------
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
-        if values.get('time_master') == 'true':
-            run = values.get('run_id', '')
-            if run != self.run_id:
-                started = _float(values.get('started_at'))
-                if started is None and run in self.other_masters:
-                    started = self.other_masters[run][2]
-                self.other_masters[run] = (name, state, started)
-                # Discovery is asynchronous: a plant may start before it sees one of the same key
-                # that is already running. The later of the two yields (the first run goes on).
-                if (not self.done and self.started_at is not None and state not in END_STATES
-                        and started is not None and (started, run) < (self.started_at,
-                                                                      self.run_id)):
-                    self._yield_to(name, run)
-            return
-        if values.get('run_id') != self.run_id:
-            return                  # a node that does not follow this run (yet)
-        if state == READY and values.get('lossless') == 'true' and name not in self.followers:
-            base = self.current_ns() if self.state == RUNNING else 0
-            self.followers[name] = [base, time.monotonic()]
-            if self.state == RUNNING:
-                self.get_logger().info(f"lossless follower '{name}' joined at step "
-                                       f'{self.sim.k}; keeping within {self.window} steps of it')
-            return
-        if state in (STOPPING, STOPPED) + END_STATES and name in self.followers:
-            del self.followers[name]
-            self.get_logger().info(f"follower '{name}' {state}")
+        """Act on the time master's decision about a peer's event (:meth:`TimeMaster.on_peer`)."""
+        running = self.state == RUNNING
+        what, text = self.master.on_peer(name, state, values, time.monotonic(),
+                                         self.current_ns(), running, self.providers)
+        if what == YIELD:
+            if not self.done:
+                self.fail(text)
+        elif what == JOINED:
+            self.get_logger().info(f"lossless follower '{name}' joined at step {self.sim.k}; "
+                                   f'keeping within {self.window} steps of it')
+        elif what == LEFT:
+            self.get_logger().info(text)
             self._resume()
-            return
-        if self.done or state not in (STOPPING, STOPPED) + END_STATES:
-            return
-        if name in self.wait_for or name in self.providers:
-            reason = f'{name} {state}' + (f" ({values['reason']})" if values.get('reason') else '')
-            self.get_logger().warning(f'run stopped at step {self.sim.k}: {reason}')
-            self.status(STOPPED, level=1, reason=reason)
+        elif what == STOP and not self.done:
+            self.get_logger().warning(f'run stopped at step {self.sim.k}: {text}')
+            self.status(STOPPED, level=1, reason=text)
             self.finish()
 
     def on_progress(self, msg) -> None:
         name, tag = split_frame(msg.frame_id)
-        f = self.followers.get(name)
-        if f is None:
+        if name not in self.master.followers:
             return
         ns = msg.stamp.sec * NS_PER_S + msg.stamp.nanosec
         if not self.signer.check_bytes(T.PROGRESS, progress_payload(name, ns), tag):
             self.refuse_unsigned(T.PROGRESS, b'')
             return
-        if ns > f[0]:
-            f[0] = ns
-        f[1] = time.monotonic()
+        self.master.ack(name, ns, time.monotonic())
         self._resume()
 
-    def _follower_lag(self, next_ns: int):
-        """
-        Return the first follower more than ``follower_window`` steps behind ``next_ns``.
-
-        None if there is none. A follower silent for ``input_timeout`` is dropped with a warning
-        (its recording will show the gap) — it is off the critical path and must not stop the run.
-        """
-        limit = next_ns - self.window * self.period
-        for name, (ack, seen) in list(self.followers.items()):
-            if ack >= limit:
-                continue
-            if time.monotonic() - seen > self.input_timeout:
-                self.get_logger().warning(
-                    f"follower '{name}' acknowledged nothing after {stamp_text(ack)} for "
-                    f'{self.input_timeout:.1f} s; continuing without it (its recording will miss '
-                    f'steps from there on)')
-                del self.followers[name]
-                continue
-            return name
-        return None
+    def _follower_dropped(self, name: str, acked: int) -> None:
+        self.get_logger().warning(
+            f"follower '{name}' acknowledged nothing after {stamp_text(acked)} for "
+            f'{self.input_timeout:.1f} s; continuing without it (its recording will miss '
+            f'steps from there on)')
 
     def _resume(self) -> None:
-        if self._parked is not None and not self.done:
-            ready, self._parked = self._parked, None
-            self.ready(ready)
-        elif self.state == 'draining':
+        parked = self.master.resume()
+        if parked is not None and not self.done:
+            self.ready(parked)
+        elif self.state == DRAINING:
             self._try_finish()
 
     def check_inputs(self) -> None:
-        if self._parked is not None or self.state == 'draining':
+        if self.master.parked is not None or self.state == DRAINING:
             self._resume()
             return
         super().check_inputs()
 
     # Lock-step ---------------------------------------------------------------------------
-    def on_command(self, data: bytes) -> None:
-        if not self.signer.verify(T.CMD_VOLTAGE, data):
-            self.refuse_unsigned(T.CMD_VOLTAGE, data)
-            return
-        try:
-            ns, (vx, vy) = xy_in(data)
-        except ValueError as exc:
-            self.rejected += 1
-            self.refuse(T.CMD_VOLTAGE, None, f'malformed: {exc}')
-            return
-        if not (math.isfinite(vx) and math.isfinite(vy)):
-            self.rejected += 1
-            self.refuse(T.CMD_VOLTAGE, ns, f'non-finite voltage ({vx!r}, {vy!r}); holding the '
-                        f'previous command')
-            vx, vy = self.last_cmd
-        if self.state not in (RUNNING, 'draining'):
+    def on_command(self, ns: int, value) -> bool:
+        """
+        Take a verified, finite command stamped ``ns``; tell whether it goes to the step gate.
+
+        Not before step 0 nor after the run; in free_run it waits for its step's tick instead.
+        """
+        if self.state not in MASTER_STEPPING:
             if self.started_at is None:         # before step 0: not a command of this run
                 self.refuse(T.CMD_VOLTAGE, ns, 'arrived before the run started (no step '
                                                'published)')
@@ -448,11 +392,11 @@ class PlantNode(LockstepNode):
                 self._after_end_said = True
                 self.get_logger().info(f'{T.CMD_VOLTAGE} stamped {stamp_text(ns)} arrived '
                                        f'after the run ended ({self.state}); not used')
-            return
+            return False
         if self.mode == 'free_run':
-            self._free_command(ns, vx, vy)
-            return
-        self.ready(self.gate.put(T.CMD_VOLTAGE, ns, (vx, vy)))
+            self._free_command(ns, *value)
+            return False
+        return True
 
     def hold_step(self, inputs) -> bool:
         """
@@ -460,10 +404,9 @@ class PlantNode(LockstepNode):
 
         The step resumes when the follower acknowledges (:meth:`_resume`).
         """
-        if self.followers and self._follower_lag((self.sim.k + 1) * self.period):
-            self._parked = inputs
-            return True
-        return False
+        m = self.master
+        return bool(m.followers) and m.hold(inputs, (self.sim.k + 1) * self.period,
+                                            time.monotonic())
 
     def step(self, inputs: dict) -> None:
         if self.wall_start is None:
@@ -563,16 +506,15 @@ class PlantNode(LockstepNode):
             if (self.truth_every and k % self.truth_every == 0) or truth:
                 self.publish_truth(ns, tr)
         if final:
-            self.state = 'draining'
-            self._since = time.monotonic()
+            self.state = DRAINING
+            self.watchdog.since = time.monotonic()
             self._try_finish()
 
     def _try_finish(self) -> None:
         """Wait after the last step for lossless followers to acknowledge it, then finish."""
         if self.done:
             return
-        final_ns = self.sim.k * self.period
-        if self.followers and self._follower_lag(final_ns + (self.window - 1) * self.period):
+        if not self.master.drained(self.sim.k * self.period, time.monotonic()):
             return
         wall = time.perf_counter() - (self.wall_start or time.perf_counter())
         k = self.sim.k
@@ -708,7 +650,7 @@ def _peer_text(name: str, peer) -> str:
     if peer is None:
         return f'{name} (not seen on this ROS domain)'
     state, values = peer
-    if state == 'waiting' and values.get('waiting_for'):
+    if state == WAITING and values.get('waiting_for'):
         return f"{name} (waiting for a publisher of {values['waiting_for']})"
     return f'{name} ({state})'
 
@@ -723,19 +665,6 @@ def truth_params(tr: dict) -> list:
 def _js():
     from sensor_msgs.msg import JointState
     return (JointState,)
-
-
-def _float(text):
-    """
-    Return a status value as a number, None if absent or not a number.
-
-    A plant whose events carry no ``started_at`` has not reached step 0: a running plant does
-    not yield to it (that plant refuses to start when it sees this one).
-    """
-    try:
-        return float(text)
-    except (TypeError, ValueError):
-        return None
 
 
 def main(argv=None) -> None:

@@ -45,10 +45,11 @@ from im_common import cdr, realtime
 from im_common import topics as T
 from im_common.cli import error as cli_error
 from im_common.conversions import NS_PER_S
-from im_common.lockstep import (END_STATES, LockstepNode, READY, RUNNING, stamp_text,
-                                WARNING)
+from im_common.lockstep import LockstepNode, READY, stamp_text
+from im_common.qos import recorder as recorder_qos, writer as writer_qos
+from im_common.run_protocol import is_master, LosslessFollower
 from im_common.step_gate import LOCKSTEP_DEPTH
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
 from .bag import BagError, BagWriter, log_time_offset_for, LOG_TIMES, offered_qos_yaml
 from .session import RecordingSession, StampTrack  # noqa: F401 (StampTrack: its old home)
@@ -59,9 +60,6 @@ RAW_TYPES = {T.V3, T.JS, T.CLK}
 #: Types whose first field is a header stamp (or a time): their log time is that stamp; other
 #: types are logged at the recorder's clock.
 STAMPED_TYPES = RAW_TYPES | {T.DIAG, T.HEADER}
-#: Lock-step topics whose progress the recorder acknowledges (the adapter's estimates follow the
-#: run and are recorded as they come, but do not hold the plant back).
-ACK_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
 REFUSED_PREFIX = T.REFUSED_PREFIX
 #: After a stop signal, how long the recorder waits for the plant's final event (the run's other
 #: processes got the same signal) before it closes the file [s].
@@ -69,8 +67,6 @@ STOP_WAIT_S = 1.0
 #: How often the recorder checks whether its open chunk is due (bag.FLUSH_WALL_S) [s]: a SIGKILL
 #: costs at most FLUSH_WALL_S + this of the run.
 FLUSH_CHECK_S = 0.1
-#: Reader history of the lock-step topics (samples; ≈ 100 bytes each).
-LOCKSTEP_READER_DEPTH = 5000
 
 
 def default_topics() -> Dict[str, str]:
@@ -107,63 +103,58 @@ class RecorderNode(LockstepNode):
                  node_name: str = 'recorder', depth: int = 1000, lossless: bool = True,
                  **kwargs):
         self.topics = dict(topics or default_topics())
+        critical = set(T.LOCKSTEP_TOPICS)
+        # the lossless follower's part of the run protocol: what it acknowledges, the run's start
+        # and end — the one home of them, which the recording's bookkeeping reads
+        self.follower = LosslessFollower(T.ACKED_TOPICS, [t for t in self.topics if t in critical])
         # the recording's bookkeeping (counts, stamp tracks, the run's span, the metadata
         # records): the same session the in-process graph feeds
         self.session = RecordingSession(
-            writer, self.topics, recorder='im_recording record', always=ACK_TOPICS,
-            announced=lambda: self._announced.get(self.run_id, ()))
+            writer, self.topics, recorder='im_recording record', always=T.ACKED_TOPICS,
+            announced=lambda: self.follower.announced.get(self.run_id, ()), run=self.follower)
         super().__init__(node_name, **kwargs)
         self.writer = writer
         self.lossless = lossless
         self.trimmed = 0
-        self._acked = -1
         self._subs = []
-        self._event_period = 0
-        self._announced: Dict[str, set] = {}     # run id -> lock-step topics its nodes publish
         self._named_at: Dict[str, float] = {}
         self._parameter_clients: Dict[str, object] = {}
         self.session.foreign = self.foreign      # the node's own: LockstepNode names them
         # Announce the lossless follower before subscribing: from the moment the plant sees it,
         # the plant stays within follower_window steps of the recorder's acknowledgements.
         self.start_protocol(input_timeout=5.0, startup_timeout=1e9)
-        critical = set(T.LOCKSTEP_TOPICS)
         # a topic's channel is written on its first message, when its publishers are known:
         # the profiles they offer, as the ROS graph lists them (what rosbag2's recorder stores)
         writer.offered_qos = self.offered_qos
         for topic, tname in self.topics.items():
-            reliability = ReliabilityPolicy.RELIABLE
+            # the topic table's delivery and recorder history (im_common.topics.Qos), as far as
+            # the graph's publishers offer it
             infos = self.get_publishers_info_by_topic(topic)
-            if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
-                reliability = ReliabilityPolicy.BEST_EFFORT
+            reliable = not any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+                               for i in infos)
+            if not reliable:
                 self.get_logger().warning(f'{topic} has a best-effort publisher: recorded '
                                           f'best-effort (samples may be lost)')
-            # transient-local where the graph's publishers offer it (lock-step, status and report
-            # topics, lockstep.report_qos: a report writer matched late replays its last samples);
-            # a report topic with a volatile publisher already (a replay of an older bag) is read
+            # a report topic (transient-local: a report writer matched late replays its last
+            # samples) with a volatile publisher already (a replay of an older bag) is read
             # volatile, or that publisher would not match
-            volatile_pub = any(i.qos_profile.durability == DurabilityPolicy.VOLATILE
-                               for i in infos)
-            latched = (topic in critical or topic == T.STATUS
-                       or (topic in T.SIGNED_TOPICS and not volatile_pub))
-            if topic in T.SIGNED_TOPICS and topic not in critical and volatile_pub:
+            spec = T.SPECS.get(topic)
+            volatile_report = (spec is not None and spec.signed and any(
+                i.qos_profile.durability == DurabilityPolicy.VOLATILE for i in infos))
+            if volatile_report:
                 self.get_logger().warning(f'{topic} has a volatile publisher: recorded volatile '
                                           f'(its reports from before the recorder matched are '
                                           f'not replayed to it)')
-            durability = (DurabilityPolicy.TRANSIENT_LOCAL if latched
-                          else DurabilityPolicy.VOLATILE)
-            # lock-step topics: a reader history deep enough for a few seconds of a run that had
-            # not yet seen the recorder (joining late, or slow to start): no overwrite meanwhile
-            history = max(depth, LOCKSTEP_READER_DEPTH) if topic in critical else depth
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=history,
-                             reliability=reliability, durability=durability)
+            qos = recorder_qos(topic, reliable, latched=False if volatile_report else None)
+            if spec is None:        # a topic outside the table: the depth asked for
+                qos.depth = depth
             writer.expect_topic(topic, tname)   # declared with its publishers' offers
             raw = tname in RAW_TYPES
             cls = cdr.message_class(tname)
             self._subs.append(self.create_subscription(
                 cls, topic, self._callback(topic, tname, raw), qos, raw=raw))
         from std_msgs.msg import Header
-        self._progress = self.create_publisher(Header, T.PROGRESS, 10)
-        self._ack_topics = [t for t in ACK_TOPICS if t in self.track]
+        self._progress = self.create_publisher(Header, T.PROGRESS, writer_qos(T.PROGRESS))
         self.create_timer(0.02, self._maybe_ack)
         # durable: a chunk open for FLUSH_WALL_S is on disk even when no message comes to close it
         from rclpy.clock import Clock, ClockType
@@ -212,10 +203,6 @@ class RecorderNode(LockstepNode):
     counts = _session_attribute('counts', 'messages written per topic')
     track = _session_attribute('track', 'the lock-step topics: their stamp tracks')
     period = _session_attribute('period', "the run's period [ns]")
-    run_start = _session_attribute('run_start', "stamp of the followed run's first step")
-    from_start = _session_attribute('from_start', 'the plant counted this recorder from step 0')
-    end_state = _session_attribute('end_state', "the time master's final event")
-    end_values = _session_attribute('end_values', 'its values')
     stop_at = _session_attribute('stop_at', 'see cut()')
     undecodable = _session_attribute('undecodable', 'messages not recorded: not decodable')
     unsigned = _session_attribute('unsigned', 'messages not signed by this graph, per topic')
@@ -231,6 +218,16 @@ class RecorderNode(LockstepNode):
         """Return the lock-step topics of the run (:meth:`RecordingSession.run_topics`)."""
         return self.session.run_topics()
 
+    # The run's followed state, the lossless follower's (the recording's bookkeeping reads it)
+    end_state = property(lambda self: self.follower.end_state,
+                         doc="The run's end as seen (None: not yet; ENDED: the plant left).")
+    end_values = property(lambda self: self.follower.end_values,
+                          doc="The key/values of the run's end event (and ``node``).")
+    run_start = property(lambda self: self.follower.run_start,
+                         doc="Stamp of the followed run's first step (None: not running yet).")
+    from_start = property(lambda self: self.follower.from_start,
+                          doc='Whether the plant counted this recorder from step 0.')
+
     # Protocol ---------------------------------------------------------------------------
     def on_ready(self) -> None:
         self.status(READY, lossless='true' if self.lossless else 'false',
@@ -238,8 +235,8 @@ class RecorderNode(LockstepNode):
 
     def on_run_adopted(self) -> None:
         # the period of the run is known before the messages kept for it are checked and written
-        if self._event_period:
-            self.period = self._event_period
+        if self.follower.event_period:
+            self.period = self.follower.event_period
         self._order_chunks()
 
     def _order_chunks(self) -> None:
@@ -258,38 +255,29 @@ class RecorderNode(LockstepNode):
             self.writer.set_reorder_window(LOCKSTEP_DEPTH * self.period, progress=self.current_ns)
 
     def on_peer_status(self, name: str, state: str, values: dict) -> None:
+        """Feed the lossless follower: the run's nodes' topics, its time master's events."""
         self._fetch_parameters(name)
-        if values.get('time_master') != 'true':
+        f = self.follower
+        if not is_master(values):
             topics = values.get('publishes')
             if topics and values.get('run_id'):
-                self._announced.setdefault(values['run_id'], set()).update(topics.split())
-                self._set_ack_topics()
+                f.announce(values['run_id'], topics)
+                f.set_run(self.run_id)
             return
-        if values.get('time_master') == 'true':
-            self._event_period = int(values.get('T_s_ns', 0) or 0)
-            if not self.follow_master(state, values.get('run_id', '')):
-                return                          # another run's time master
-            if self._event_period:
-                self.period = self._event_period
-                self._order_chunks()
-            if state == RUNNING and self.run_start is None and self.period:
-                self.run_start = int(values.get('step', 0) or 0) * self.period
-                self.from_start = self.get_name() in values.get('followers', '').split()
-                self._set_ack_topics()
-            if values.get('mode') == 'free_run':   # from its 'waiting' on (lockstep.py)
-                self._enter_free_run()
-            if state in END_STATES:
-                self.end_state = state
-                self.end_values = dict(values, node=name)
-                self._end_wall = time.monotonic()
-
-    def _set_ack_topics(self) -> None:
-        announced = self._announced.get(self.run_id, ())
-        self._ack_topics = [t for t in self.track if t in ACK_TOPICS or t in announced]
+        f.event_period = int(values.get('T_s_ns', 0) or 0)
+        if not self.follow_master(state, values.get('run_id', '')):
+            return                          # another run's time master
+        if f.event_period:
+            self.period = f.event_period
+            self._order_chunks()
+        if f.master_event(name, state, values, self.period, self.get_name(), time.monotonic()):
+            f.set_run(self.run_id)          # the run started: its topics are known
+        if values.get('mode') == 'free_run':   # from its 'waiting' on (lockstep.py)
+            self._enter_free_run()
 
     def _enter_free_run(self) -> None:
         """
-        Enter free_run: SCHED_FIFO below the loop's priority.
+        Enter free_run: SCHED_FIFO below the loop's priority (as its own process).
 
         The loop has deadlines, the recorder has none but must keep up with 1/T_s steps, which the
         plant does not wait for. Its threads go to SCHED_FIFO *below* the loop's
@@ -297,24 +285,8 @@ class RecorderNode(LockstepNode):
         recorder preempts every ordinary process (a busy neighbour can no longer starve it until
         the publishers' histories overflow).
         """
-        if self._free_run_entered:
-            return
-        self._free_run_entered = True
-        if not self.own_process:
-            return
-        if self.rt_priority <= 0:
-            self.get_logger().info('free_run: recording with ordinary scheduling (rt_priority 0)')
-            return
-        ok, text = realtime.enter(self.rt_priority)
-        self.scheduling = text if ok else 'normal (refused)'
-        if ok:
-            self.get_logger().info(f'free_run: recording at real-time priority {text}, below '
-                                   f'the control loop')
-        else:
-            msg = (f'free_run: recording without real-time scheduling: {text}; a busy machine '
-                   f'may starve the recorder (its missing steps are counted)')
-            self.get_logger().warning(msg)
-            self.status(WARNING, level=1, reason=msg)
+        if self.host is not None:
+            self.host.enter_realtime(self, below_loop=True)
 
     def current_ns(self) -> int:
         """Return the last step recorded on the measured current (its own position in the run)."""
@@ -324,24 +296,6 @@ class RecorderNode(LockstepNode):
     def check_inputs(self) -> None:      # a follower has no watchdog
         return
 
-    def _check_master_left(self) -> None:
-        now = time.monotonic()
-        if now - self._master_checked < 0.5 or not self.counts.get(T.MEAS_CURRENT):
-            return
-        self._master_checked = now
-        if self.count_publishers(T.MEAS_CURRENT) > 0:
-            self._master_gone_since = None
-        elif self._master_gone_since is None:
-            self._master_gone_since = now
-        elif now - self._master_gone_since > 2.0:
-            self.get_logger().warning('the plant left the graph without a final status; '
-                                      'closing the recording')
-            self.end_state = 'ended'
-            self.end_values = {'reason': 'the plant left the graph without a final status',
-                               'step': str((self.track[T.MEAS_CURRENT].last or 0)
-                                           // max(self.period, 1))}
-            self._end_wall = now
-
     def drained(self) -> bool:
         """
         Tell whether the recording is complete after the run's end.
@@ -350,21 +304,23 @@ class RecorderNode(LockstepNode):
         a second). A plant that left the graph without a final status (its
         last event lost, or killed) also ends the recording, and the bag says so.
         """
-        if self.end_state is None:
-            self._check_master_left()
-        if self.end_state is None:
-            return False
-        behind = []
+        f, now = self.follower, time.monotonic()
+        if f.end_state is None:
+            tr = self.track.get(T.MEAS_CURRENT)
+            if f.master_left(now, bool(self.counts.get(T.MEAS_CURRENT)),
+                             lambda: self.count_publishers(T.MEAS_CURRENT),
+                             tr.last if tr is not None else None, self.period):
+                self.get_logger().warning('the plant left the graph without a final status; '
+                                          'closing the recording')
+            if f.end_state is None:
+                return False
+        behind = False
         for t in self.run_topics():
             end = self.run_bounds(t)[1]
             last = self.track[t].last
             if end is not None and (last is None or last < end):
-                behind.append(t)
-        now = time.monotonic()
-        quiet = now - max(self._end_wall, self._last_msg) > 1.0
-        # a short grace after the end event, so that the event itself (delivered to the
-        # recording subscription separately) and the last steps' messages are written too
-        return (not behind and now - self._end_wall > 0.3) or quiet
+                behind = True
+        return f.drained(now, behind, self._last_msg)
 
     # Messages ---------------------------------------------------------------------------
     def _callback(self, topic: str, tname: str, raw: bool):
@@ -403,7 +359,7 @@ class RecorderNode(LockstepNode):
                 self._write(topic, data, t)
         return cb
 
-    EARLY_MAX = LOCKSTEP_READER_DEPTH
+    EARLY_MAX = T.LOCKSTEP_QOS.record_history
     EARLY_KEEP_NEWEST = True     # a late recorder: no gap between what it kept and what follows
 
     def refuse_unsigned(self, topic: str, data: bytes) -> None:
@@ -475,10 +431,6 @@ class RecorderNode(LockstepNode):
         self._last_msg = time.monotonic()
 
     _last_msg = 0.0
-    _end_wall = 0.0
-    _free_run_entered = False
-    _master_checked = 0.0
-    _master_gone_since = None
 
     def _maybe_ack(self) -> None:
         """
@@ -486,18 +438,13 @@ class RecorderNode(LockstepNode):
 
         A topic that has brought nothing yet (its publisher not yet matched) holds the
         acknowledgement — and so the plant — back, while its samples wait in the publisher's
-        history.
+        history (:meth:`LosslessFollower.next_ack`).
         """
-        if not self._ack_topics:
+        f = self.follower
+        if not f.ack_topics:
             return
-        ack = None
-        for t in self._ack_topics:
-            last = self.track[t].last
-            if last is None:
-                return
-            if ack is None or last < ack:
-                ack = last
-        if ack > self._acked:
+        ack = f.next_ack([self.track[t].last for t in f.ack_topics])
+        if ack is not None:
             from std_msgs.msg import Header
             from im_common.auth import SEPARATOR, progress_payload
             name = self.get_name()
@@ -505,7 +452,6 @@ class RecorderNode(LockstepNode):
             h = Header(frame_id=name + SEPARATOR + tag)
             h.stamp.sec, h.stamp.nanosec = divmod(ack, NS_PER_S)
             self._progress.publish(h)
-            self._acked = ack
 
     # Report (the session's) -------------------------------------------------------------
     def count_span(self) -> tuple:
@@ -555,7 +501,7 @@ def main(argv=None) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from im_common.lockstep import make_executor
+    from im_common.host import flush, make_executor, ProcessHost, request_stop
     from im_common.stopping import StopSignals
     from im_common.cli import parse_args
     full = list(sys.argv if argv is None else ['record'] + list(argv))
@@ -603,7 +549,7 @@ def main(argv=None) -> int:
                 if not writer.failed:
                     raise
                 return 1
-            node.own_process = True         # free_run may make this process real-time
+            node.host = ProcessHost()       # free_run may make this process real-time
             node.get_logger().info(f'recording {len(topics)} topics to {out}')
             ex = make_executor()
             ex.add_node(node)
@@ -619,7 +565,7 @@ def main(argv=None) -> int:
             if not node.drained():
                 node.cut()          # stopped while the run goes on: counted to where it was
             if stop.requested:
-                node.request_stop(stop.requested)
+                request_stop(node, stop.requested)
                 # Ctrl-C on `ros2 launch` signals every process at once: keep recording until
                 # the plant's own stop event and the last steps are in (bounded: a signal to the
                 # recorder alone does not end the run)
@@ -661,7 +607,7 @@ def main(argv=None) -> int:
                 else:
                     text += f'; no step missing on the lock-step topics, {span}'
                 print(text, file=sys.stderr)
-                node.flush(timeout=0.5)
+                flush(node, timeout=0.5)
                 node.destroy_node()
             rclpy.try_shutdown()
     return 0

@@ -23,6 +23,7 @@ from typing import Dict, List, Sequence
 from im_common import topics as T
 from im_common.cli import error as cli_error
 from im_common.metrics import LOAD_STEP_BAND
+from im_common.run_protocol import FAILED, FINISHED, STOPPED
 import numpy as np
 
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
@@ -139,13 +140,13 @@ def run_status(run, fig: Dict[str, float]) -> dict:
         notes.append(f"interrupted by {st['interrupted']} at step "
                      f"{recording.get('counted_to_step', '?')}")
     for e in run.events:
-        if e['state'] in ('failed', 'stopped'):
+        if e['state'] in (FAILED, STOPPED):
             st['partial'] = True
             st['ended'].append(e)
             notes.append(f"{e['node']} {e['state']} at t = {e['t']:.6f} s"
                          + (f": {e['reason']}" if e['reason'] else ''))
     run_end = recording.get('run_end')
-    if run_end and not run_end.startswith('finished') and not st['ended']:
+    if run_end and not run_end.startswith(FINISHED) and not st['ended']:
         st['partial'] = True          # the recorder saw no normal end (and no failed event)
         notes.append(f'run end: {run_end}')
     rec = md.get('recovered_from')

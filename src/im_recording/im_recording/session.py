@@ -24,7 +24,7 @@ import time
 from typing import Callable, Dict, Iterable, List, Mapping, Optional
 
 from im_common import topics as T
-from im_common.run_protocol import END_STATES, FINISHED, RUNNING
+from im_common.run_protocol import ENDED, FINISHED, LosslessFollower
 
 from .bag import BagError, parameters_metadata
 
@@ -127,11 +127,15 @@ class RecordingSession:
         Lock-step topics every run has (counted even when nothing came on them).
     announced : callable returning the lock-step topics the run's nodes announced
         (also counted when nothing came).
+    run : the run's start and end as followed (:class:`~im_common.run_protocol.LosslessFollower`,
+        the one home of them: a recorder node passes its own; default a new one fed by
+        :meth:`master_event`).
 
     """
 
     def __init__(self, writer, topics: Iterable[str], recorder: str,
-                 always: Iterable[str] = (), announced: Callable[[], Iterable[str]] = tuple):
+                 always: Iterable[str] = (), announced: Callable[[], Iterable[str]] = tuple,
+                 run: Optional[LosslessFollower] = None):
         self.writer = writer
         self.topics = list(topics)
         self.counts: Dict[str, int] = dict.fromkeys(self.topics, 0)
@@ -141,10 +145,7 @@ class RecordingSession:
         self.always = tuple(always)
         self.announced = announced
         self.period = 0                          # of the run [ns], from the time master
-        self.run_start: Optional[int] = None     # stamp of the run's first step
-        self.from_start = False                  # the plant counted this recording from step 0
-        self.end_state: Optional[str] = None     # the time master's final event
-        self.end_values: dict = {}
+        self.run = run if run is not None else LosslessFollower(self.always, list(self.track))
         self.stop_at: Optional[int] = None       # see cut()
         self.undecodable = 0
         self.unsigned: Dict[str, int] = {}       # topic -> messages not signed by the graph
@@ -157,6 +158,15 @@ class RecordingSession:
         writer.add_metadata(RECORDER_RECORD, {
             'node': recorder, 'topics': ' '.join(self.topics),
             'started_wall': time.strftime('%Y-%m-%dT%H:%M:%S%z')})
+
+    # The run as followed (its one home: self.run) ---------------------------------------------
+    run_start = property(lambda self: self.run.run_start,
+                         doc="Stamp of the run's first step (None: not running yet).")
+    from_start = property(lambda self: self.run.from_start,
+                          doc='Whether the time master counted this recording from step 0.')
+    end_state = property(lambda self: self.run.end_state,
+                         doc="The time master's final event (ENDED: it left without one).")
+    end_values = property(lambda self: self.run.end_values, doc='Its values.')
 
     # Messages ---------------------------------------------------------------------------
     def write(self, topic: str, data: bytes, ns: int) -> None:
@@ -181,7 +191,7 @@ class RecordingSession:
 
     # The run ----------------------------------------------------------------------------
     def master_event(self, state: str, values: Mapping[str, str],
-                     counted: bool = True) -> None:
+                     counted: bool = True, node: str = 'plant') -> None:
         """
         Take an event of the run's time master (its ``/im/status`` values, strings).
 
@@ -192,12 +202,8 @@ class RecordingSession:
         period = int(values.get('T_s_ns', 0) or 0)
         if period:
             self.period = period
-        if state == RUNNING and self.run_start is None and self.period:
-            self.run_start = int(values.get('step', 0) or 0) * self.period
-            self.from_start = counted
-        if state in END_STATES:
-            self.end_state = state
-            self.end_values = dict(values)
+        self.run.master_event(node, state, values, self.period, '', time.monotonic(),
+                              counted=counted)
 
     def run_topics(self) -> List[str]:
         """
@@ -230,7 +236,7 @@ class RecordingSession:
             firsts = [self.track[t].first for t in self.run_topics()
                       if self.track[t].first is not None]
             first = min(firsts) // p if firsts else None
-        if self.end_state is not None and self.end_state != 'ended':
+        if self.end_state is not None and self.end_state != ENDED:
             return first, int(self.end_values.get('step', 0) or 0), \
                 f"the plant's final event ({self.end_state})"
         if self.stop_at is not None:

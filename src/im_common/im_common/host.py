@@ -1,0 +1,274 @@
+"""
+Hosting a drive node: its process, real-time scheduling, stop signals, the spin, ``main``.
+
+A node (:class:`im_common.lockstep.LockstepNode`) computes and speaks the run protocol; where it
+runs is decided here. :func:`node_main` runs one node as its own process (Jazzy shutdown idiom,
+stop signals, one-line errors) and gives it a :class:`ProcessHost`, which may move the process to
+real-time scheduling in free_run; the in-process graph (:mod:`im_bringup.graph`) hosts nodes
+without one (it never changes its scheduling). :func:`build_node` is the one place every path
+constructs a node and checks its configuration.
+"""
+from __future__ import annotations
+
+import faulthandler
+import sys
+from typing import Callable, List, Optional
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+
+from . import realtime
+from .cli import error as cli_error
+from .lockstep_parts import unknown_parameter
+from .node_params import ConfigurationError
+from .run_protocol import STOPPED, STOPPING, WARNING
+from .stopping import StopSignals
+
+#: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
+STOP_FLUSH_S = 3.0
+#: After its run, how long a node process may take to flush and tear down before it is ended
+#: with every thread's stack on stderr and exit code 1 [s]. The flushes are bounded (2 s + 3 s);
+#: the middleware's teardown is not: once (a full test run on 2026-11-26, not reproduced in 80
+#: runs of the same test alone) an observer whose run had finished did not exit in 120 s.
+EXIT_GRACE_S = 20.0
+
+
+def build_node(factory: Callable, **kwargs):
+    """
+    Construct a drive node and check its configuration.
+
+    Checked: every declared parameter's type and range (``LockstepNode.param``) and no parameter
+    given that it does not declare (:func:`im_common.lockstep_parts.unknown_parameter`). A node
+    executable
+    (:func:`node_main`), the in-process graph and the check a supervisor makes before starting
+    processes all build nodes here, so a configuration is refused with the same
+    :class:`ConfigurationError` line on every path.
+    """
+    node = None
+    try:
+        node = factory(**kwargs)
+        bad = unknown_parameter(node.get_name(), getattr(node, '_parameter_overrides', {}),
+                                node.list_parameters([], 0).names)
+        if bad:                 # a misspelt gain must not silently fall back to its default
+            raise ValueError(bad)
+        return node
+    except (ValueError, rclpy.exceptions.ParameterException) as exc:
+        if node is not None:
+            node.destroy_node()
+        raise ConfigurationError(str(exc).splitlines()[0]) from None
+
+
+class ProcessHost:
+    """
+    The process of a node that runs alone in it: its scheduling (free_run may make it real-time).
+
+    ``scheduling`` says what it got ('normal', 'fifo:50', 'normal (refused)').
+    """
+
+    __slots__ = ('scheduling', 'tried')
+
+    def __init__(self):
+        self.scheduling = 'normal'
+        self.tried = False
+
+    def enter_realtime(self, node, below_loop: bool = False) -> None:
+        """
+        Enter free_run: SCHED_FIFO ``node.rt_priority`` for every thread of this process (once).
+
+        ``below_loop``: the recorder's priority, below the control loop's (it has no deadlines,
+        but must keep up). If that fails, one warning says why (also on /im/status: the run then
+        has no real-time guarantee).
+        """
+        if self.tried or not node.realtime_capable:
+            return
+        self.tried = True
+        log = node.get_logger()
+        what = 'free_run: recording' if below_loop else 'free_run'
+        if node.rt_priority <= 0:
+            log.info(f'{what} with ordinary scheduling (rt_priority 0)')
+            return
+        ok, text = realtime.enter(node.rt_priority)
+        if ok:
+            if not below_loop:          # the loop's collection pauses short (not the recorder's)
+                realtime.quiet_gc()
+            self.scheduling = node.scheduling = text
+            log.info(f'{what} at real-time priority {text}, below the control loop' if below_loop
+                     else f'free_run: real-time scheduling ({text})')
+            return
+        self.scheduling = node.scheduling = 'normal (refused)'
+        msg = (f'{what} without real-time scheduling: {text}; '
+               + ('a busy machine may starve the recorder (its missing steps are counted)'
+                  if below_loop else 'deadlines may be missed'))
+        log.warning(msg)
+        node.status(WARNING, level=1, reason=msg)
+
+
+def request_stop(node, signame: str) -> None:
+    """
+    Take a stop signal for ``node``: say so on /im/status and end it (exit code 0).
+
+    The time master's stop ends the run (``stopped``); any other node's is news for the others
+    (``stopping``).
+    """
+    if node.done:
+        return
+    where = f' at step {node.current_ns() // node.period}' if node.period else ''
+    node.get_logger().info(f'{signame}: stopping' + (' the run' if node.time_master else '')
+                           + where)
+    node.status(STOPPED if node.time_master else STOPPING, level=1, reason=signame)
+    node.done = True
+
+
+def flush(node, timeout: float = 2.0) -> None:
+    """Wait (bounded) until every reliable publisher's data of ``node`` has been acknowledged."""
+    import time
+    deadline = time.monotonic() + timeout
+    for pub in list(node.publishers):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return
+        try:
+            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        except Exception:  # noqa: BLE001 - context already shut down: nothing to wait for
+            return
+
+
+def make_executor(context=None):
+    """Return an EventsExecutor (≈5× the SingleThreadedExecutor's message rate here)."""
+    from rclpy.experimental import EventsExecutor
+    return EventsExecutor(context=context)
+
+
+def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] = None) -> None:
+    """
+    Spin until every node in ``nodes`` is done, one failed, or a stop signal arrived.
+
+    After a stop signal every node is asked to stop and spun a little longer so that it can say so.
+    """
+    while rclpy.ok(context=context):
+        if any(n.exit_code for n in nodes) or all(n.done for n in nodes):
+            return
+        if stop is not None and stop.requested:
+            for n in nodes:
+                request_stop(n, stop.requested)
+            return
+        executor.spin_once(timeout_sec=0.05)
+
+
+def _rcl_error():
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+    return _rclpy.RCLError
+
+
+def init_args_error(args: List[str]) -> Optional[str]:
+    """
+    Return a readable line for a bad ``--params-file`` (missing, unreadable, malformed).
+
+    That is before ``rclpy.init`` turns it into a traceback; None when the files look loadable. The
+    file is read by :func:`im_common.yamlio.load_parameters_file`, as on every other path.
+    """
+    from im_common.yamlio import ParametersFileError, load_parameters_file
+    for i, a in enumerate(args):
+        if a == '--params-file':
+            if i + 1 >= len(args):
+                return '--params-file needs a file name'
+            try:
+                load_parameters_file(args[i + 1])
+            except ParametersFileError as exc:
+                return str(exc)
+    return None
+
+
+def node_main(factory: Callable, argv=None) -> int:
+    """
+    Run a drive node (its ``main``): Jazzy shutdown idiom, stop signals, one-line errors.
+
+    Exit codes: 0 finished or stopped (signal, or the run ended elsewhere), 1 failed, 2 refused
+    configuration.
+    """
+    from rclpy.signals import SignalHandlerOptions
+    args = list(sys.argv if argv is None else argv)
+    user_args = args[1:args.index('--ros-args')] if '--ros-args' in args else args[1:]
+    if '-h' in user_args or '--help' in user_args:
+        return print_node_help(factory, args[0])
+    prog = args[0].rsplit('/', 1)[-1]
+    bad = init_args_error(args)
+    if bad:
+        return cli_error(prog, bad)
+    with StopSignals() as stop:
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        except _rcl_error() as exc:
+            return cli_error(prog, str(exc).splitlines()[0])
+        node = None
+        code = 0
+        try:
+            try:
+                node = build_node(factory)
+                node.host = ProcessHost()       # free_run may make this process real-time
+            except ConfigurationError as exc:
+                return cli_error(prog, exc)
+            executor = make_executor()
+            executor.add_node(node)
+            spin_until_done([node], executor, stop=stop)
+            code = node.exit_code
+            if not stop.requested:      # let the end of the run reach the others
+                flush(node)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            code = 0 if node is None or not node.exit_code else node.exit_code
+        finally:
+            # bounded from here on, and diagnosable: a C-level watchdog (no GIL needed) dumps
+            # every thread's stack and exits 1 if the flush and teardown below hang
+            faulthandler.dump_traceback_later(EXIT_GRACE_S, exit=True)
+            try:
+                if node is not None:
+                    # a stopped node's last samples are still owed to the recorder, which the
+                    # plant let lag up to follower_window steps: under load 1 s was not always
+                    # enough
+                    flush(node, timeout=STOP_FLUSH_S)
+                    node.destroy_node()
+                rclpy.try_shutdown()
+            finally:
+                faulthandler.cancel_dump_traceback_later()    # node_main may run in a caller
+    return code
+
+
+def parameter_table(node) -> str:
+    """Markdown table of a node's declared parameters (name, default, range, description)."""
+    rows = ['| parameter | default | range | live | description |',
+            '| --- | --- | --- | --- | --- |']
+    for name in sorted(node.list_parameters([], 0).names):
+        if name in ('use_sim_time', 'start_type_description_service'):
+            continue
+        d = node.describe_parameter(name)
+        rng = ''
+        if d.floating_point_range:
+            r = d.floating_point_range[0]
+            rng = f'[{r.from_value:g}, {r.to_value:g}]'
+        elif d.integer_range:
+            r = d.integer_range[0]
+            rng = f'[{r.from_value}, {r.to_value}]'
+        value = node.get_parameter(name).value
+        live = '' if d.read_only else 'yes'
+        rows.append(f'| `{name}` | `{value!r}` | {rng} | {live} | {d.description} |')
+    return '\n'.join(rows)
+
+
+def print_node_help(factory, prog: str) -> int:
+    """``--help``: build the node in a private context and print its parameters."""
+    import os
+    import random
+    from rclpy.context import Context
+    ctx = Context()
+    rclpy.init(args=[prog], context=ctx, domain_id=random.randint(150, 229))
+    try:
+        node = factory(context=ctx, graph_key=bytes(32))    # --help signs nothing
+        print(f'usage: {os.path.basename(prog)} [--ros-args -p name:=value ... '
+              f'--params-file FILE.yaml]\n')
+        print((node.__doc__ or '').strip().splitlines()[0] if node.__doc__ else '')
+        print(parameter_table(node))
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    return 0
