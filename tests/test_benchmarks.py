@@ -73,9 +73,10 @@ EXPECTED = {
 #: summary.json ratios each benchmark contributes
 SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_ceiling_over_bare',
                      'inprocess_tagged_ceiling_over_bare', 'inprocess_over_tagged_bare',
-                     'inprocess_over_kernel'],
+                     'inprocess_over_kernel', 'inprocess_over_ceiling'],
            'processes': ['four_processes_over_pingpong',
-                         'four_processes_cpu_ceiling_over_pingpong'],
+                         'four_processes_cpu_ceiling_over_pingpong',
+                         'four_processes_over_cpu_ceiling'],
            'real_plant': ['real_plant_over_ideal']}
 
 
