@@ -268,7 +268,8 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
             task, strategy, controller, variation, metadata, scenario=scenario),
             log_time_offset_ns=log_time_offset_for(log_time))
     # bounded memory: running figures (a load step's too), no per-step trace
-    sink = Tap(writer, keep=False, load_step=load_step_time(parameters=parameters))
+    sink = Tap(writer, keep=False, load_step=load_step_time(parameters=parameters),
+               held=held_estimates(parameters))
     view = None
     if live_port is not None:
         from im_bringup.live import LiveTap, LiveView
@@ -339,6 +340,19 @@ def _record_refusals(writer, graph) -> None:
                 record[f'foreign_publishers/{name}{topic}'] = ' '.join(sorted(pubs))
     if record:
         writer.add_metadata('refusals', record)
+
+
+def held_estimates(parameters: dict) -> dict:
+    """
+    Return the estimates a run without an adapter holds: its controller's model ({}: adaptive).
+
+    The summary then compares them with the truth as an adaptive run's (``<n>_hat_final``,
+    ``<n>_true_final``, :func:`im_recording.run.held_model_estimates`), so rows compare.
+    """
+    from im_recording.run import held_model_estimates
+    if parameters.get('controller', {}).get('use_adapter'):
+        return {}
+    return held_model_estimates(parameters['controller'])
 
 
 def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,

@@ -103,7 +103,8 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
         writer = BagWriter(record, force=True, metadata=run_metadata(
             task, strategy, controller, variation, scenario=scenario),
             log_time_offset_ns=log_time_offset_for(log_time))
-    sink = Tap(writer, load_step=load_step_time(parameters=params))
+    from im_bringup.scenario import held_estimates
+    sink = Tap(writer, load_step=load_step_time(parameters=params), held=held_estimates(params))
     graph = DriveGraph(params, nodes=nodes, recorder=sink,
                        domain_id=random.randint(*TEST_DOMAINS))
     try:

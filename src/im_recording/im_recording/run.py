@@ -504,6 +504,23 @@ class _Acc:
         return float(np.sqrt(self.ss / self.n)) if self.n else float('nan')
 
 
+def held_model_estimates(model) -> Dict[str, float]:
+    """
+    Return the estimates a controller without an adapter holds: its model's, as ESTIMATED.
+
+    ``model``: its motor parameters (R_r, L_r, L_sr; a node's parameters — those not given are
+    the node's defaults, the thesis motor's — or MotorParams-like).
+    """
+    from im_common.params import THESIS_MOTOR
+
+    def get(k):
+        v = model.get(k) if isinstance(model, dict) else getattr(model, k, None)
+        return getattr(THESIS_MOTOR, k) if v is None else v
+    th = float(get('L_sr')) / float(get('L_r'))
+    R_r = float(get('R_r'))
+    return {'R_r': R_r, 'theta': th, 'L_M': float(get('L_sr')) * th, 'R_R': R_r * th * th}
+
+
 class RunningFigures:
     """
     Sink of a :class:`TraceStream` (or fed a whole trace with :meth:`rows`).
@@ -514,7 +531,7 @@ class RunningFigures:
     """
 
     def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20,
-                 load_step: Optional[float] = None):
+                 load_step: Optional[float] = None, held: Optional[Dict[str, float]] = None):
         from im_common.metrics import LoadStepFigures
         #: the speed figures of a load step at ``load_step`` [s] (a speed run's), or None
         self.load_step = None if load_step is None else LoadStepFigures(load_step)
@@ -522,6 +539,8 @@ class RunningFigures:
         self.seen: set = set()
         self.acc = {f[2]: _Acc() for f in TRACKING}         # by the keys they need
         self.est = {n: _Acc() for n in ESTIMATED}
+        #: estimates held where no adapter publishes any (a nominal controller's model)
+        self.held = dict(held or {})
         self.est_last: Dict[str, tuple] = {}
         self.est_win: Dict[str, List[np.ndarray]] = {n: [] for n in ESTIMATED}
         self.t_first: Optional[float] = None
@@ -554,8 +573,12 @@ class RunningFigures:
         if self.load_step is not None and omega in tr and 'omega_ref' in tr:
             self.load_step.add(t, full[omega] - full['omega_ref'])
         for n in ESTIMATED:
-            if n + '_hat' in tr and n in tr:
+            if n not in tr:
+                continue
+            if n + '_hat' in tr:
                 self._estimate(n, t, np.asarray(tr[n + '_hat'], float), np.asarray(tr[n], float))
+            elif n in self.held:
+                self._estimate(n, t, np.full(len(t), self.held[n]), np.asarray(tr[n], float))
         for topic in self.lockstep:
             self._gaps(topic, t, tr.get('present:' + topic))
 

@@ -30,11 +30,12 @@ class Tap:
     Folds each published payload into the run's figures and, if given, writes it to a bag.
 
     ``keep``: True keeps the whole per-step trace (memory grows with the run), 'decimated'
-    about ``limit`` rows, False none (the figures still cover every step).
+    about ``limit`` rows, False none (the figures still cover every step). ``held``: the
+    estimates a run without an adapter holds (its controller's model, RunningFigures.held).
     """
 
     def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000,
-                 load_step: Optional[float] = None):
+                 load_step: Optional[float] = None, held: Optional[dict] = None):
         from im_recording.run import (lockstep_topics, RunningFigures, TraceKeeper, TraceStream,
                                       TruthBooks)
         self.writer = writer
@@ -46,7 +47,8 @@ class Tap:
         self.on_error = None                # called with that line (a graph ends its run)
         self.keep = keep
         self.books = TruthBooks()
-        self.figures = RunningFigures(lockstep_topics=lockstep_topics(), load_step=load_step)
+        self.figures = RunningFigures(lockstep_topics=lockstep_topics(), load_step=load_step,
+                                      held=held)
         sinks = [self.books, self.figures]
         self.keeper = None
         if keep:
