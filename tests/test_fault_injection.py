@@ -333,23 +333,25 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
         tmp_path):
     import json
     bag = tmp_path / 'full.mcap'
-    # 3 s: the bag's chunks reach the disk during the run (a 1 s in-process run of three nodes
-    # can end before its first chunk is written, and the disk fills only at the close)
-    r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '3.0', '--record',
+    # the disk holds 2.5 MB, the 5 s run's bag about 4.6 MB: chunks reach the disk about every
+    # second of wall time (BagWriter.flush_due), each well under 2.5 MB, so the disk fills in the
+    # middle of the run with whole chunks before it (at 1 MB the first chunk itself could fill it,
+    # and a 1 s run of three nodes ended before the disk was full)
+    r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '5.0', '--record',
                         str(bag), '--no-progress'], capture_output=True, text=True, timeout=300,
-                       env=enospc_env(tmp_path, 1_000_000))
+                       env=enospc_env(tmp_path, 2_500_000))
     assert r.returncode == 1, r.stderr
     line = one_line('\n'.join(ln for ln in r.stderr.splitlines() if not ln.startswith('[INFO]')))
     assert str(partial_path(bag)) in line and 'No space left on device' in line, line
     assert not bag.exists() and partial_path(bag).exists()
     summary = json.loads(bag.with_suffix('.json').read_text())
     assert summary['ok'] is False and 'No space left on device' in summary['failures']['recorder']
-    assert 0 < summary['steps'] < 30_000
+    assert 0 < summary['steps'] < 50_000
     assert summary['partial'] is True and summary['E_in_J'] > 0      # the figures of what ran
     assert_advice_names_existing_files(line)
     fix = run_tool('recover', bag)
     # the run went on after the last write that reached the disk: that tail is named, exit 1
-    assert fix.returncode == 1 and 'end of run (3.000000000 s' in fix.stderr, fix.stderr
+    assert fix.returncode == 1 and 'end of run (5.000000000 s' in fix.stderr, fix.stderr
     assert rosbags_count(tmp_path / 'full.recovered.mcap') > 0
 
 
