@@ -1,42 +1,9 @@
 """
 Runs recorded to MCAP (ROS 2 profile) and read back.
 
-Writing
--------
-:class:`BagWriter` writes an MCAP file that rosbag2's MCAP storage (``ros2 bag info/play``),
-Foxglove, PlotJuggler and ``rosbags`` open:
-
-* profile ``ros2``; one Schema per type, encoding ``ros2msg`` with the full dependency text
-  (:mod:`im_recording.msgdefs`); one Channel per topic, message encoding ``cdr``, channel metadata
-  ``offered_qos_profiles`` (rosbag2 metadata version 9 YAML) and ``topic_type_hash``
-  (``RIHS01_...``);
-* messages in chunks (zstd, lz4 or none), each followed by its Message Index records; a summary
-  section with Schemas, Channels, Chunk Indexes, Metadata Indexes and Statistics, Summary Offsets,
-  CRCs; a ``rosbag2`` Metadata record with ``serialized_metadata`` as ``ros2 bag record`` writes
-  it;
-* run metadata (scenario, parameters, versions, git revision) as named Metadata records.
-
-Every message's log time and publish time is its stamp in simulated time (integer ns), plus the
-writer's log-time offset: 0 (``log_time='simulated'``: log time = stamp) or, for a recording of a
-run (``log_time='wall'``, the default of ``scenario --record``, ``launch record:=`` and the
-recorder), the wall-clock time at which the recording started, so that viewers (Foxglove,
-``ros2 bag info``) place the run at its date. The offset is written in the ``log_time`` Metadata
-record (:data:`LOG_TIME_RECORD`); the headers' stamps stay simulated time either way, and every
-reader here (:func:`iter_raw`, :func:`read_messages`, replay, recover, reports) gives stamps in
-simulated time whichever the file holds (:func:`log_time_offset`). A recorder
-sets a reorder window (:meth:`BagWriter.set_reorder_window`): each chunk is then written sorted by
-stamp, so log times never decrease in file order; a message later than the window keeps its stamp
-as publish time and is logged at the file's latest log time.
-Schemas, Channels and Metadata are written to the file as soon as they are declared, and a chunk
-is closed and flushed to the OS (and ``fsync``-ed) as soon as it holds
-:data:`FLUSH_BYTES` (4 MiB uncompressed) or has been open for :data:`FLUSH_WALL_S` (1 s of wall
-time), whichever comes first: checked on every write and by :meth:`BagWriter.flush_due`, which a
-recorder calls from a timer so that a quiet run is flushed too. A hard kill (SIGKILL, power
-loss) therefore costs at most the last second or 4 MiB, and ``recover`` salvages the rest.
-
-The per-message path is a dict lookup, one ``struct.pack`` and two ``bytearray`` appends;
-messages are encoded with :mod:`im_common.cdr` (exact-length CDR). Cost: see
-``benchmarks/bench_bag.py`` and ``docs/recording.md``.
+Writing: :class:`BagWriter` (:mod:`~im_recording.writer`, whose docstring says what it writes:
+the ``ros2`` profile rosbag2, Foxglove and ``rosbags`` open, log times, chunk flushing and what a
+hard kill costs).
 
 Reading
 -------

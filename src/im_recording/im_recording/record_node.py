@@ -208,6 +208,11 @@ class RecorderNode(LockstepNode):
     unsigned = _session_attribute('unsigned', 'messages not signed by this graph, per topic')
     parameters_asked = _session_attribute('parameters_asked', 'nodes whose parameters are due')
     parameters_written = _session_attribute('parameters_written', 'nodes whose are recorded')
+    # the run as followed: the lossless follower's, which the session reads (read-only)
+    run_start = _session_attribute('run_start', "stamp of the followed run's first step")
+    from_start = _session_attribute('from_start', 'the plant counted this recorder from step 0')
+    end_state = _session_attribute('end_state', "the run's end (ENDED: the plant left)")
+    end_values = _session_attribute('end_values', 'its values')
     del _session_attribute
 
     def offered_qos(self, topic: str) -> str:
@@ -217,16 +222,6 @@ class RecorderNode(LockstepNode):
     def run_topics(self) -> List[str]:
         """Return the lock-step topics of the run (:meth:`RecordingSession.run_topics`)."""
         return self.session.run_topics()
-
-    # The run's followed state, the lossless follower's (the recording's bookkeeping reads it)
-    end_state = property(lambda self: self.follower.end_state,
-                         doc="The run's end as seen (None: not yet; ENDED: the plant left).")
-    end_values = property(lambda self: self.follower.end_values,
-                          doc="The key/values of the run's end event (and ``node``).")
-    run_start = property(lambda self: self.follower.run_start,
-                         doc="Stamp of the followed run's first step (None: not running yet).")
-    from_start = property(lambda self: self.follower.from_start,
-                          doc='Whether the plant counted this recorder from step 0.')
 
     # Protocol ---------------------------------------------------------------------------
     def on_ready(self) -> None:
