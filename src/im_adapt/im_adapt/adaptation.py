@@ -80,10 +80,12 @@ LAWS = ('thesis', 'improved')
 #: only feed); 'auto' — the law's default
 FEEDS = ('auto', 'inverse_gamma', 'thesis_pair')
 FEED_DEFAULT = 'auto'
+#: the start offset of the voltage-model flux estimated ('auto': unless R_s is estimated)
+START_OFFSETS = ('auto', 'on', 'off')
 TWO_PI = 2.0 * math.pi
-#: sensorless, improved law: the stator frequency [rad/s] below which R_s is estimated and L_M
-#: held, above which L_M is estimated and R_s held (docs/sensorless.md §3)
-SENSORLESS_SPLIT_FREQUENCY = 100.0
+#: improved law estimating R_s (always sensorless): the stator frequency [rad/s] below which R_s
+#: is estimated and L_M held, above which L_M is estimated and R_s held (docs/sensorless.md §3)
+SPLIT_FREQUENCY = 100.0
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,15 @@ class AdaptationGains:
     """Current rate [A/s] whose information is always present (holds L̂_σ when unexcited)."""
     estimate_leakage: bool = True
     """Estimate the leakage L_σ = σL_s as well (else hold it at ``L_sigma``)."""
+    estimate_stator_resistance: bool = False
+    """Sensored: estimate R_s beside L_σ, R_R, L_M (sensorless always does, in R_R's place)."""
+    stator_memory: float = 2.0
+    """Time constant [s] of the forgetting in the R_s direction (R_s drifts with temperature)."""
+    start_offset: str = 'auto'
+    """Estimate the offset the voltage-model flux starts with in a drive started magnetised (a
+    model's flux is never the motor's; it decays with the blend, and left out of the least squares
+    it is read as L_σ, R_R and L_M): 'on', 'off', or 'auto' = on unless R_s is estimated (R_s's
+    own start transient is the same decaying mode; docs/adaptation.md §4)."""
     L_sigma: Optional[float] = None
     """Initial (or fixed) leakage L_σ = σL_s [H] (None: L̂_s − L̂_sr θ̂_0)."""
     L_sigma_min: Optional[float] = None
@@ -169,7 +180,10 @@ class AdaptationGains:
         if self.feed != 'thesis_pair' and self.law == 'thesis':
             raise InvalidParameter('feed', self.feed, "needs law 'improved' (the thesis law "
                                    'estimates only R_r and theta)')
-        for name in ('freeze', 'estimate_leakage'):
+        if self.start_offset not in START_OFFSETS:
+            raise InvalidParameter('start_offset', self.start_offset,
+                                   f'must be one of {", ".join(START_OFFSETS)}')
+        for name in ('freeze', 'estimate_leakage', 'estimate_stator_resistance'):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameter(name, getattr(self, name), 'must be true or false')
         d = self.decimation
@@ -177,7 +191,8 @@ class AdaptationGains:
             raise InvalidParameter('decimation', d, 'must be a whole number >= 1')
         for name in ('gamma_t', 'gamma_r', 'flux_corner', 'flux_corner_ratio', 'flux_corner_min'):
             _finite(name, getattr(self, name), lo=0.0)
-        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'i_floor',
+        for name in ('epsilon', 'filter_corner', 'memory', 'leakage_memory', 'stator_memory',
+                     'i_floor',
                      'phi_floor', 'didt_floor',
                      'theta_min', 'theta_max'):
             _finite(name, getattr(self, name), lo=0.0, strict=True)
@@ -269,6 +284,43 @@ def _solve_sym3(R, e):
             (A13 * e1 + A23 * e2 + A33 * e3) / det)
 
 
+def _solve_sym(R, e, n):
+    """
+    R⁻¹ e for a symmetric positive-definite n×n R stored packed by rows (upper triangle).
+
+    Gaussian elimination without pivoting (R is positive definite); n = 2 and 3 in closed form.
+    """
+    if n == 3:
+        return _solve_sym3(R, e)
+    if n == 2:
+        a, b, d = R
+        det = a * d - b * b
+        return ((d * e[0] - b * e[1]) / det, (a * e[1] - b * e[0]) / det)
+    A = [[0.0] * n for _ in range(n)]
+    k = 0
+    for i in range(n):
+        for j in range(i, n):
+            A[i][j] = A[j][i] = R[k]
+            k += 1
+    x = list(e)
+    for p in range(n):
+        piv = A[p][p]
+        for r in range(p + 1, n):
+            f = A[r][p] / piv
+            if f:
+                Ar, Ap = A[r], A[p]
+                for c in range(p, n):
+                    Ar[c] -= f * Ap[c]
+                x[r] -= f * x[p]
+    for p in range(n - 1, -1, -1):
+        acc = x[p]
+        Ap = A[p]
+        for c in range(p + 1, n):
+            acc -= Ap[c] * x[c]
+        x[p] = acc / Ap[p]
+    return x
+
+
 class ParameterAdapter:
     """
     Online estimates of R_r and θ = L_sr/L_r (and of the identifiable L_M, R_R).
@@ -338,11 +390,20 @@ class ParameterAdapter:
         self._u_prev = (0j, 0j)
         self._rho = 0.0
         self._omega_prev = 0.0
-        self._S = [0.0] * 6
-        self._b = [0.0] * 3
-        self._R = None
+        # The least squares' parameters: L_σ; R_R (sensorless: R_s, R̂_R held); c = R_R/L_M;
+        # sensored with estimate_stator_resistance, R_s; a drive started magnetised, the start
+        # offset of ψ̂ (its real and imaginary parts, while it still matters).
+        self.estimate_R_s = sensorless or g.estimate_stator_resistance
+        self._names = ['L_sigma', 'R_s' if sensorless else 'R_R', 'c']
+        if self.estimate_R_s and not sensorless:
+            self._names.append('R_s')
+        self._S = self._b = self._R = None
         self._c = self.R_R / self.L_M        # c = R_R/L_M = 1/T_r [1/s]
-        self._z = self._Hz = self._uz = 0j  # sensorless: −∂ψ̂/∂R_s and its rotor-frame filter
+        self._z = self._Hz = self._uz = 0j  # R_s estimated: −∂ψ̂/∂R_s and its rotor-frame filter
+        self._w = 0.0                       # ∂ψ̂/∂(start offset) (real: the blend's decay)
+        self._Hw = self._uw = 0j            # its rotor-frame filter
+        self._w_floor = 0.0                 # w below which the start offset no longer matters
+        self._hold_L_M = False              # R_s estimated below SPLIT_FREQUENCY: L̂_M held
         self.R_s_lo, self.R_s_hi = 0.25 * params.R_s, 4.0 * params.R_s
         self._filter_T = None     # period for which the filter coefficients are computed
         self.last = {}            # diagnostics of the last step (for tests and plots)
@@ -374,7 +435,7 @@ class ParameterAdapter:
         e = {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
         if self.improved and self.gains.feed == 'inverse_gamma':
             e['L_sigma'] = self.L_sigma
-            if self.sensorless:
+            if self.estimate_R_s:
                 e['R_s'] = self.R_s
         return e
 
@@ -415,8 +476,10 @@ class ParameterAdapter:
             psi_cm = (self.L_s - self.L_sr * self.theta) * i_prev + self.theta * self._phi_obs_prev
             self._phi_obs_prev = complex(phi_hat_a, phi_hat_b)
         w_c = self._corner()
-        if self.sensorless:     # ψ̂ = … − R_s z: its sensitivity to R_s, integrated alike
+        if self.estimate_R_s:   # ψ̂ = … − R_s z: its sensitivity to R_s, integrated alike
             self._z += T_s * (0.5 * (i + i_prev) - w_c * self._z)
+        if self._w:             # ψ̂ = … + δ w: its sensitivity to the start offset δ
+            self._w *= 1.0 - T_s * w_c
         self._psi += T_s * (self._v_prev - self.R_s * 0.5 * (i + i_prev)
                             + w_c * (psi_cm - self._psi))
         V_prev = self._v_prev
@@ -496,6 +559,19 @@ class ParameterAdapter:
         # Filters start at their steady state for the first sample (no start-up transient).
         self._Hi, self._Hpsi = i, self._psi
         self._u_prev = (i, self._psi)
+        # A drive started magnetised: ψ̂(t_0) comes from the model, and the motor's flux differs
+        # by an unknown offset δ that the blend removes as w(t) = Π(1 − T_s ω_c) (w's filter
+        # starts like ψ̂'s, at its first sample). Estimated with
+        # the rest while w|ψ̂(t_0)| is above the flux floor (then it no longer matters); a drive
+        # started demagnetised starts exact (ψ = 0).
+        g = self.gains
+        use = g.start_offset == 'on' or (g.start_offset == 'auto' and not self.estimate_R_s)
+        if use and abs(self._psi) > g.phi_floor:
+            self._w = 1.0
+            self._Hw = self._uw = 1.0 + 0j
+            self._w_floor = g.phi_floor / abs(self._psi)
+            self._names += ['offset_re', 'offset_im']
+        self._size()
 
     def _set_filter(self, T_s):
         g = self.gains
@@ -504,21 +580,44 @@ class ParameterAdapter:
         self._fa = (2.0 - wT) / (2.0 + wT)
         self._fb = wT / (2.0 + wT)
         self._filter_T = T_s
-        # Forgetting per period of (L_σ, R_R, c), its N-period factors for the stored
-        # [11, 12, 13, 22, 23, 33] entries, and the floor's share of N periods.
-        lam = (math.exp(-T_s / g.leakage_memory),
-               math.exp(-T_s / (g.leakage_memory if self.sensorless else g.memory)),
-               math.exp(-T_s / g.memory))
-        N = self.N
-        self._lamN = tuple(math.sqrt(lam[a] * lam[b]) ** N
-                           for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
-        self._share = tuple((1.0 - lk ** N) / (1.0 - lk) for lk in lam)
-        # Information floor per period (one equation per parameter with the floor's regressor).
-        self._floor = (g.didt_floor ** 2, g.i_floor ** 2, g.phi_floor ** 2)
-        if self._R is None:
-            f = self._floor
-            self._R = [f[0] / (1.0 - lam[0]), 0.0, 0.0, f[1] / (1.0 - lam[1]), 0.0,
-                       f[2] / (1.0 - lam[2])]
+        self._size()
+
+    #: per parameter: its forgetting time constant (a gains field; None: a constant, never
+    #: forgotten, its information starting at the floor's over ``memory``)
+    _MEMORY = {'L_sigma': 'leakage_memory', 'R_R': 'memory', 'c': 'memory',
+               'R_s': 'stator_memory', 'offset_re': None, 'offset_im': None}
+
+    def _size(self):
+        """
+        Forgetting, floors and the information of the parameters in ``_names``.
+
+        Per parameter the forgetting per period, its N-period factors for the stored upper
+        triangle (packed by rows) and the floor's share of N periods; the information of a new
+        parameter starts at its floor's steady state f/(1 − λ), of a dropped one is removed.
+        """
+        g = self.gains
+        T_s, N, names = self._filter_T, self.N, self._names
+        if T_s is None:
+            return
+        n = len(names)
+        mem = [self._MEMORY[p] for p in names]
+        lam = [1.0 if m is None else math.exp(-T_s / getattr(g, m)) for m in mem]
+        wf = self._wf
+        floor = {'L_sigma': g.didt_floor ** 2, 'R_R': g.i_floor ** 2, 'R_s': g.i_floor ** 2,
+                 'c': g.phi_floor ** 2}
+        off = (wf * self._w_floor) ** 2       # the offset's regressor ≈ ω_f w at w = w_floor
+        self._floor = [floor.get(p, off) for p in names]
+        self._pairs = [(a, b) for a in range(n) for b in range(a, n)]
+        self._lamN = [math.sqrt(lam[a] * lam[b]) ** N for a, b in self._pairs]
+        self._share = [N if lk == 1.0 else (1.0 - lk ** N) / (1.0 - lk) for lk in lam]
+        start = [f * (g.memory / T_s if lk == 1.0 else 1.0 / (1.0 - lk))
+                 for f, lk in zip(self._floor, lam)]
+        old = {} if self._R is None else dict(zip(self._pairs_names, self._R))
+        self._pairs_names = [(names[a], names[b]) for a, b in self._pairs]
+        self._R = [old.get(pq, start[a] if a == b else 0.0)
+                   for pq, (a, b) in zip(self._pairs_names, self._pairs)]
+        self._S = [0.0] * len(self._pairs)
+        self._b = [0.0] * n
 
     def _improved_step(self, T_s, i, omega_r, i_prev):
         if T_s != self._filter_T:
@@ -554,31 +653,42 @@ class ParameterAdapter:
         r1 = wf * (i_r - Hi)
         Hphi = Hpsi - L_sig * Hi
         e = y - (L_sig * r1 + self.R_R * Hi - c * Hphi)
+        # The regressors −∂e/∂p of the parameters in _names, as complex numbers x + jy.
         g1 = r1 + c * Hi
-        x1, y1, x2, y2, x3, y3 = g1.real, g1.imag, Hi.real, Hi.imag, -Hphi.real, -Hphi.imag
-        if self.sensorless:     # R_s in R_R's place: −∂e/∂R_s = ω_f(z − Hz) + c Hz (rotor frame)
+        cols = [g1, Hi, -Hphi]
+        if self.estimate_R_s:   # R_s: −∂e/∂R_s = ω_f(z − Hz) + c Hz (rotor frame)
             z_r = self._z * rot
             Hz = self._Hz = fa * self._Hz + fb * (z_r + self._uz)
             self._uz = z_r
             gz = wf * (z_r - Hz) + c * Hz
-            x2, y2 = gz.real, gz.imag
             # R_s moves ψ̂ by ~R̃_s|i|/ω_e, L_M by ~L̃_M i_d: one steady operating point cannot
-            # tell them apart, a changing stator frequency can. Below SENSORLESS_SPLIT_FREQUENCY
-            # (where R_s dominates) L_M is held (docs/sensorless.md §3).
-            if abs(self._omega_e) < SENSORLESS_SPLIT_FREQUENCY:
-                x3 = y3 = 0.0
-        S = self._S
-        S[0] += x1 * x1 + y1 * y1
-        S[1] += x1 * x2 + y1 * y2
-        S[2] += x1 * x3 + y1 * y3
-        S[3] += x2 * x2 + y2 * y2
-        S[4] += x2 * x3 + y2 * y3
-        S[5] += x3 * x3 + y3 * y3
-        b = self._b
+            # tell them apart, a changing stator frequency can. Below SPLIT_FREQUENCY (where R_s
+            # dominates) L_M is held and R_s learnt, above it the reverse (docs/sensorless.md §3,
+            # docs/adaptation.md §4).
+            self._hold_L_M = low = abs(self._omega_e) < SPLIT_FREQUENCY
+            if self.sensorless:     # in R_R's place (R̂_R held, so c held is L_M held)
+                cols[1] = gz
+                if low:
+                    cols[2] = 0j
+            else:                   # R_R with c = R_R/L̂_M: −∂e/∂R_R = Hi − Hφ/L̂_M
+                if low:
+                    cols[1] = Hi - Hphi / self.L_M
+                    cols[2] = 0j
+                cols.append(gz if low else 0j)
+        if self._w:             # the start offset δ (complex): ψ̂ = … + δ w, e = … − δ g_w
+            w_r = self._w * rot
+            Hw = self._Hw = fa * self._Hw + fb * (w_r + self._uw)
+            self._uw = w_r
+            gw = wf * (w_r - Hw) + c * Hw
+            cols += [gw, 1j * gw]
+        S, b = self._S, self._b
+        X = [q.real for q in cols]
+        Y = [q.imag for q in cols]
+        for k, (p, q) in enumerate(self._pairs):
+            S[k] += X[p] * X[q] + Y[p] * Y[q]
         er, ei = e.real, e.imag
-        b[0] += x1 * er + y1 * ei
-        b[1] += x2 * er + y2 * ei
-        b[2] += x3 * er + y3 * ei
+        for p in range(len(cols)):
+            b[p] += X[p] * er + Y[p] * ei
         self.k += 1
         if self.k % self.N:
             return
@@ -587,44 +697,69 @@ class ParameterAdapter:
     def _ls_update(self):
         f = self._floor
         S, b, R = self._S, self._b, self._R
+        n = len(b)
         # Per-parameter exponential forgetting over N periods: R_ij ← √(λ_i λ_j)^N R_ij, plus the
         # information floor's share of those N periods.
         lam = self._lamN
         share = self._share
-        for j in range(6):
+        for j in range(len(R)):
             R[j] = lam[j] * R[j] + S[j]
             S[j] = 0.0
-        R[0] += share[0] * f[0]
-        R[3] += share[1] * f[1]
-        R[5] += share[2] * f[2]
-        g = (b[0], b[1], b[2])
-        b[0] = b[1] = b[2] = 0.0
+        diag = 0
+        for p in range(n):
+            R[diag] += share[p] * f[p]
+            diag += n - p
+        g = list(b)
+        for p in range(n):
+            b[p] = 0.0
         if self.freeze:
             return
         c = self._c
         L_sig = self.L_sigma
         if self.estimate_leakage:
-            d = _solve_sym3(R, g)
+            d = _solve_sym(R, g, n)
             L_sig = _clip(L_sig + d[0], self.L_sigma_lo, self.L_sigma_hi)
-            d1 = d[1]
-            c = c + d[2]
-        else:
-            R22, R23, R33 = R[3], R[4], R[5]
-            det = R22 * R33 - R23 * R23
-            d1 = (R33 * g[1] - R23 * g[2]) / det
-            c = c + (R22 * g[2] - R23 * g[1]) / det
+        else:                   # L_σ held: the solve in the others (row and column 0 left out)
+            d = [0.0] + list(_solve_sym(R[n:], g[1:], n - 1))
+        d1 = d[1]
+        c = c + d[2]
+        names = self._names
         if self.sensorless:      # the second parameter is R_s; R̂_R held
             R_s = _clip(self.R_s + d1, self.R_s_lo, self.R_s_hi)
             self._shift_stator_resistance(R_s - self.R_s)
             R_R = self.R_R
         else:
             R_R = _clip(self.R_R + d1, self.R_R_lo, self.R_R_hi)
+            if self.estimate_R_s:
+                R_s = _clip(self.R_s + d[3], self.R_s_lo, self.R_s_hi)
+                self._shift_stator_resistance(R_s - self.R_s)
+                if self._hold_L_M:      # R_R moved with c = R_R/L̂_M
+                    c = R_R / self.L_M
+        if self._w:
+            k = names.index('offset_re')
+            self._shift_start_offset(complex(d[k], d[k + 1]))
         L_M = _clip(R_R / max(c, 1e-12), self.L_M_lo, self.L_M_hi)
         self.L_sigma = L_sig
         self.R_R = R_R
         self.L_M = L_M
         self._c = R_R / L_M
         self._publish_pair(R_R, self._c)
+
+    def _shift_start_offset(self, d: complex) -> None:
+        """
+        Remove the estimated part d of the start offset from ψ̂ and its filter states.
+
+        ψ̂ is linear in the offset (∂ψ̂/∂δ = w), so the next residuals see the corrected flux.
+        Once w|ψ̂(t_0)| is 1 % of the flux floor the offset is gone and leaves the least squares.
+        """
+        self._psi -= d * self._w
+        self._Hpsi -= d * self._Hw
+        ui, upsi = self._u_prev
+        self._u_prev = (ui, upsi - d * self._uw)
+        if self._w < 0.01 * self._w_floor:
+            self._w = 0.0
+            self._names = self._names[:-2]
+            self._size()
 
     def _shift_stator_resistance(self, dR: float) -> None:
         """

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from im_common.params import MotorParams
 
-from .adaptation import AdaptationGains, FEED_DEFAULT, FEEDS, LAWS, ParameterAdapter
+from .adaptation import (AdaptationGains, FEED_DEFAULT, FEEDS, LAWS, ParameterAdapter,
+                         START_OFFSETS)
 
 _DOC = {
     'gamma_t': 'thesis law: gain gamma_t of eq. 4.4 for theta [1/(N m A s)]',
@@ -24,6 +25,7 @@ _DOC = {
     'filter_corner': 'improved law: corner [rad/s] of the regression filter',
     'memory': 'improved law: forgetting time constant of the least squares for R_R, L_M [s]',
     'leakage_memory': 'improved law: forgetting time constant for the leakage sigma*L_s [s]',
+    'stator_memory': 'improved law: forgetting time constant for the stator resistance R_s [s]',
     'didt_floor': 'improved law: current rate [A/s] of the information floor for the leakage',
     'i_floor': 'improved law: current [A] of the information floor (holds unexcited directions)',
     'phi_floor': 'improved law: flux [Wb] of the information floor',
@@ -43,8 +45,8 @@ _RANGES = {
     'gamma_t': (0.0, 1e3), 'gamma_r': (0.0, 1e4), 'epsilon': (1e-9, 1e6),
     'flux_corner': (0.0, 1e3), 'flux_corner_ratio': (0.0, 100.0), 'flux_corner_min': (0.0, 1e3),
     'filter_corner': (1.0, 1e5), 'memory': (1e-4, 1e3),
-    'leakage_memory': (1e-4, 1e4), 'didt_floor': (1e-6, 1e6), 'L_sigma_min': (0.0, 10.0),
-    'L_sigma_max': (0.0, 10.0),
+    'leakage_memory': (1e-4, 1e4), 'stator_memory': (1e-4, 1e4), 'didt_floor': (1e-6, 1e6),
+    'L_sigma_min': (0.0, 10.0), 'L_sigma_max': (0.0, 10.0),
     'i_floor': (1e-6, 1e3), 'phi_floor': (1e-9, 10.0), 'L_sigma': (0.0, 10.0),
     'R_r_min': (1e-6, 100.0), 'R_r_max': (1e-6, 100.0), 'theta_min': (1e-3, 10.0),
     'theta_max': (1e-3, 10.0), 'sigma_min': (1e-6, 0.999), 'L_M_min': (1e-6, 10.0),
@@ -69,6 +71,14 @@ def declare_law(node, params: MotorParams, R_r0: float, theta0: float) -> Parame
         'freeze': node.param('freeze', d.freeze, 'hold the estimates (signals keep running)'),
         'estimate_leakage': node.param('estimate_leakage', d.estimate_leakage,
                                        'improved law: estimate sigma*L_s too (else hold L_sigma)'),
+        'estimate_stator_resistance': node.param(
+            'estimate_stator_resistance', d.estimate_stator_resistance,
+            'improved law, sensored: estimate R_s too (learnt below 100 rad/s stator frequency, '
+            'where L_M is held; sensorless always estimates it)'),
+        'start_offset': node.param('start_offset', d.start_offset,
+                                   'improved law: estimate the start offset of the voltage-model '
+                                   'flux of a drive started magnetised; auto = unless R_s is '
+                                   'estimated', choices=list(START_OFFSETS)),
         'decimation': node.param('decimation', d.decimation,
                                  'update the estimates every N control periods', 1, 100000),
     }

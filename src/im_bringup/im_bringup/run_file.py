@@ -179,6 +179,9 @@ class Scenario:
     # the drive's observer and controller on the magnetizing curve of ``saturation`` (the
     # motor file's): im_common.saturation.SaturatedModel
     saturation_model: bool = False
+    # a steady start with the plant's rotor flux this factor times the controller's steady state
+    # (the model's steady state is never exactly the motor's; docs/adaptation.md §6)
+    start_flux: float = 1.0
 
     def __post_init__(self):
         put = object.__setattr__
@@ -292,6 +295,12 @@ class Scenario:
             put(self, 'thermal', thermal_from_dict(self.thermal).describe())
         model = self.compensation_model()
         put(self, 'compensation', None if model is None else model.describe())
+        if (isinstance(self.start_flux, bool) or not isinstance(self.start_flux, (int, float))
+                or not (math.isfinite(self.start_flux) and self.start_flux > 0.0)):
+            raise InvalidParameter('start_flux', self.start_flux, 'must be a factor > 0')
+        if self.start_flux != 1.0 and self.start != 'steady':
+            raise InvalidParameter('start_flux', self.start_flux, 'scales the rotor flux of a '
+                                   'steady start; this run starts at rest (start: rest)')
         if not isinstance(self.saturation_model, bool):
             raise InvalidParameter('saturation_model', self.saturation_model,
                                    'must be true or false')
@@ -400,7 +409,7 @@ class Scenario:
         if self.start != 'steady':
             return None, (0.0, 0.0, 0.0, 0.0)
         return steady_start(self.controller_config(), self.plant_schedule().params_at(0.0),
-                            self.theta0, self.omega0)
+                            self.theta0, self.omega0, flux_scale=float(self.start_flux))
 
     def controller_config(self) -> ControllerConfig:
         g = self.gain_arguments()
@@ -620,7 +629,7 @@ class Scenario:
             out['saturation_model'] = True
         defaults = {f.name: f.default for f in fields(self)}
         for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
-                     'core_loss_exponent', 'plant_substep', 'observer_substep'):
+                     'core_loss_exponent', 'plant_substep', 'observer_substep', 'start_flux'):
             if getattr(self, name) is not None and getattr(self, name) != defaults[name]:
                 out[name] = getattr(self, name)
         for name in ('controller_options', 'speed_observer_options'):

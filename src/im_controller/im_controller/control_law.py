@@ -883,7 +883,8 @@ def steady_operating_point(config: ControllerConfig, t0: float, theta0: float,
     return out
 
 
-def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, omega0: float):
+def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, omega0: float,
+                 flux_scale: float = 1.0):
     """
     Return (plant x₀, observer x̂₀) of a run started in the controller's steady state (θ₀, ω₀).
 
@@ -891,11 +892,13 @@ def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, om
     the same inverse-Γ rotor flux ψ_R = θφ_r (θ = L_sr/L_r) — written in the plant's gauge (φ_r
     scaled by θ_model/θ_plant, ψ_s from the plant's inductances); the observer on the
     reference, in the model's gauge. A model written in another rotor gauge (same inverse-Γ
-    set, docs/commissioning.md §1) thus starts the plant in the same state.
+    set, docs/commissioning.md §1) thus starts the plant in the same state. ``flux_scale``
+    scales the plant's rotor flux (its stator flux follows; the currents and the observer stay):
+    a drive whose model's steady state is not exactly the motor's.
     """
     from im_common.model import stator_flux
     op = steady_operating_point(config, 0.0, theta0, omega0)
-    gauge = config.params.theta / plant.theta
+    gauge = flux_scale * config.params.theta / plant.theta
     phi_a, phi_b = gauge * op['phi_alpha'], gauge * op['phi_beta']
     psi_a, psi_b = stator_flux(op['i_alpha'], op['i_beta'], phi_a, phi_b,
                                plant.L_s, plant.L_r, plant.L_sr)
