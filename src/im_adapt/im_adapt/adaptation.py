@@ -67,6 +67,7 @@ Projection
 """
 from __future__ import annotations
 
+import cmath
 from dataclasses import dataclass, fields, replace
 import math
 from typing import Optional
@@ -83,9 +84,10 @@ FEED_DEFAULT = 'auto'
 #: the start offset of the voltage-model flux estimated ('auto': unless R_s is estimated)
 START_OFFSETS = ('auto', 'on', 'off')
 TWO_PI = 2.0 * math.pi
-#: improved law estimating R_s (always sensorless): the stator frequency [rad/s] below which R_s
-#: is estimated and L_M held, above which L_M is estimated and R_s held (docs/sensorless.md §3)
-SPLIT_FREQUENCY = 100.0
+#: improved law estimating R_s (always sensorless): R_s is estimated and L_M held where the stator
+#: resistance's voltage R_s|i| exceeds this share of the flux's ω_e|φ|, elsewhere L_M is estimated
+#: and R_s held (the thesis motor at 8 A and 0.5 Wb: below ω_e ≈ 110 rad/s; docs/sensorless.md §3)
+SPLIT_RATIO = 0.1
 
 
 @dataclass(frozen=True)
@@ -340,7 +342,7 @@ class ParameterAdapter:
     """
 
     def __init__(self, params: MotorParams, gains: AdaptationGains, R_r0: float, theta0: float,
-                 sensorless: bool = False):
+                 sensorless: bool = False, thermal=None):
         _finite('R_r_initial', R_r0, lo=0.0, strict=True)
         _finite('theta_initial', theta0, lo=0.0, strict=True)
         self.params = params
@@ -403,7 +405,19 @@ class ParameterAdapter:
         self._w = 0.0                       # ∂ψ̂/∂(start offset) (real: the blend's decay)
         self._Hw = self._uw = 0j            # its rotor-frame filter
         self._w_floor = 0.0                 # w below which the start offset no longer matters
-        self._hold_L_M = False              # R_s estimated below SPLIT_FREQUENCY: L̂_M held
+        self._hold_L_M = False              # R_s learnt where it weighs (SPLIT_RATIO): L̂_M held
+        # sensorless with the motor's thermal block: R̂_s and R̂_R follow the windings'
+        # temperatures, which the drive's own losses give (thermal_tracking; docs/adaptation.md
+        # §9); the least squares keep L_σ and L_M
+        self.temperatures = None
+        if thermal is not None:
+            if not sensorless or not self.improved:
+                raise InvalidParameter('thermal', 'given', 'tracks R_R from the temperatures '
+                                       'in the sensorless improved law only (sensored, R_R is '
+                                       'estimated)')
+            from .thermal_tracking import tracking_for
+            self.temperatures = tracking_for(thermal, params)
+            self.temperatures.R_s_ref, self.temperatures.R_R_ref = self.R_s, self.R_R
         self.R_s_lo, self.R_s_hi = 0.25 * params.R_s, 4.0 * params.R_s
         self._filter_T = None     # period for which the filter coefficients are computed
         self.last = {}            # diagnostics of the last step (for tests and plots)
@@ -485,6 +499,10 @@ class ParameterAdapter:
         V_prev = self._v_prev
         self._i_prev = i
         self._v_prev = V
+        if self.temperatures is not None:     # the windings heated by the period's losses
+            i_R = i_prev - self._phi_cm / self.L_M
+            self.temperatures.step(T_s, 0.5 * self.R_s * (abs(i) ** 2 + abs(i_prev) ** 2),
+                                   self.R_R * (i_R.real * i_R.real + i_R.imag * i_R.imag))
         if self.improved:
             phi_before = self._phi_cm
             self._improved_step(T_s, i, omega_r, i_prev)
@@ -556,8 +574,19 @@ class ParameterAdapter:
         # Rotor frame: electrical rotor angle ρ = ∫ v ω_r dt from 0 (any start angle will do).
         self._rho = 0.0
         self._omega_prev = omega_r
-        # Filters start at their steady state for the first sample (no start-up transient).
-        self._Hi, self._Hpsi = i, self._psi
+        # Filters start in their steady state. In the rotor frame a loaded drive's currents and
+        # flux turn at the slip frequency, s = (R_R i − c φ)/φ of the model's rotor equation, so
+        # each sample is z = e^{s T_s} times the last and the Tustin filter's steady gain is
+        # G = f_b (1 + 1/z)/(1 − f_a/z); starting at the sample itself (G = 1) is a start-up
+        # transient the regression reads as data (10 % at 20 rad/s of slip: R̂_R fell from
+        # 0.77 to 0.05 Ω within 3 ms at a loaded steady start).
+        G = 1.0
+        phi = self._phi_cm
+        if abs(phi) > self.gains.phi_floor:
+            z = cmath.exp((self.R_R * i - self._c * phi) / phi * T_s)
+            G = self._fb * (1.0 + 1.0 / z) / (1.0 - self._fa / z)
+        self._G0 = G
+        self._Hi, self._Hpsi = G * i, G * self._psi
         self._u_prev = (i, self._psi)
         # A drive started magnetised: ψ̂(t_0) comes from the model, and the motor's flux differs
         # by an unknown offset δ that the blend removes as w(t) = Π(1 − T_s ω_c) (w's filter
@@ -568,7 +597,7 @@ class ParameterAdapter:
         use = g.start_offset == 'on' or (g.start_offset == 'auto' and not self.estimate_R_s)
         if use and abs(self._psi) > g.phi_floor:
             self._w = 1.0
-            self._Hw = self._uw = 1.0 + 0j
+            self._Hw, self._uw = self._G0, 1.0 + 0j     # the offset's share of Hψ̂(t_0)
             self._w_floor = g.phi_floor / abs(self._psi)
             self._names += ['offset_re', 'offset_im']
         self._size()
@@ -662,12 +691,14 @@ class ParameterAdapter:
             self._uz = z_r
             gz = wf * (z_r - Hz) + c * Hz
             # R_s moves ψ̂ by ~R̃_s|i|/ω_e, L_M by ~L̃_M i_d: one steady operating point cannot
-            # tell them apart, a changing stator frequency can. Below SPLIT_FREQUENCY (where R_s
-            # dominates) L_M is held and R_s learnt, above it the reverse (docs/sensorless.md §3,
-            # docs/adaptation.md §4).
-            self._hold_L_M = low = abs(self._omega_e) < SPLIT_FREQUENCY
+            # tell them apart, a changing operating point can. Where R_s weighs more than
+            # SPLIT_RATIO of the flux's rate (R_s|i| > SPLIT_RATIO·|ω_e||φ|: low stator
+            # frequency, low flux) L_M is held and R_s learnt, elsewhere the reverse
+            # (docs/sensorless.md §3, docs/adaptation.md §4).
+            self._hold_L_M = low = (self.R_s * abs(i)
+                                    > SPLIT_RATIO * abs(self._omega_e) * abs(self._phi_cm))
             if self.sensorless:     # in R_R's place (R̂_R held, so c held is L_M held)
-                cols[1] = gz
+                cols[1] = 0j if self.temperatures is not None else gz   # (or its temperature)
                 if low:
                     cols[2] = 0j
             else:                   # R_R with c = R_R/L̂_M: −∂e/∂R_R = Hi − Hφ/L̂_M
@@ -713,6 +744,8 @@ class ParameterAdapter:
         for p in range(n):
             b[p] = 0.0
         if self.freeze:
+            if self.temperatures is not None:     # the windings still warm
+                self._follow_temperatures()
             return
         c = self._c
         L_sig = self.L_sigma
@@ -743,6 +776,18 @@ class ParameterAdapter:
         self.R_R = R_R
         self.L_M = L_M
         self._c = R_R / L_M
+        self._publish_pair(R_R, self._c)
+        if self.temperatures is not None:     # R_s, R_R at the windings' temperatures
+            self._follow_temperatures()
+
+    def _follow_temperatures(self) -> None:
+        """R̂_s and R̂_R at the windings' estimated temperatures, L̂_M and L̂_σ unchanged."""
+        t = self.temperatures
+        R_s = _clip(t.R_s, self.R_s_lo, self.R_s_hi)
+        self._shift_stator_resistance(R_s - self.R_s)
+        R_R = _clip(t.R_R, self.R_R_lo, self.R_R_hi)
+        self.R_R = R_R
+        self._c = R_R / self.L_M
         self._publish_pair(R_R, self._c)
 
     def _shift_start_offset(self, d: complex) -> None:

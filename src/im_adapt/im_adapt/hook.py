@@ -39,15 +39,18 @@ class LockstepAdapter:
 
     @classmethod
     def build(cls, params, gains: Optional[AdaptationGains] = None, R_r0: Optional[float] = None,
-              theta0: Optional[float] = None, record_every: int = 10, sensorless: bool = False):
+              theta0: Optional[float] = None, record_every: int = 10, sensorless: bool = False,
+              thermal=None):
         """
         Adapter with the given gains (default: :class:`AdaptationGains`) from ``params``.
 
-        ``sensorless``: the speed it is given is the observer's ω̂ (R̂_R held).
+        ``sensorless``: the speed it is given is the observer's ω̂ (R̂_R held; with the motor's
+        ``thermal`` block, at the cage's estimated temperature).
         """
         gains = gains if gains is not None else AdaptationGains()
         ad = ParameterAdapter(params, gains, params.R_r if R_r0 is None else R_r0,
-                              params.theta if theta0 is None else theta0, sensorless=sensorless)
+                              params.theta if theta0 is None else theta0, sensorless=sensorless,
+                              thermal=thermal)
         return cls(ad, record_every)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:

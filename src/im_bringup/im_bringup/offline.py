@@ -153,7 +153,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
 
     ``adapter`` (optional, chapter 4): an object with ``step(T_s, t, v_alpha, v_beta, meas,
     x_hat) -> dict`` returning estimates (e.g. {'R_r': ..., 'theta': ...}) for the next step;
-    they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13).
+    they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13). An adapter
+    that is a bound (the truth handed to the drive, not a controller) has ``bind(plant)``, called
+    once with the plant before the first step.
     ``timing`` adds the mean wall time per ``compute`` and per ``observer.step`` [µs] to the
     summary.
     """
@@ -162,6 +164,8 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         raise InvalidParameter('record_every', record_every, 'must be >= 1')
     wall0 = time.perf_counter()
     plant, controller, observer = build(sc)
+    if adapter is not None and hasattr(adapter, 'bind'):
+        adapter.bind(plant)     # a bound, not a controller, may read the plant's truth
     cfg_comp = controller.config.compensation
     n_steps = int(round(sc.duration / sc.T_s))
     n_rec = n_steps // record_every + 1

@@ -114,15 +114,16 @@ def gains_for(controller: str, **overrides) -> Optional[AdaptationGains]:
 def run_case(task: str, strategy: str, controller: str, variation: str,
              gains: Optional[AdaptationGains] = None, T_s: float = 1e-4,
              duration: Optional[float] = None, record_every: int = 10,
-             schedule: Optional[ParameterSchedule] = None) -> dict:
+             schedule: Optional[ParameterSchedule] = None, start_flux: float = 1.0) -> dict:
     """
     Run one closed loop; return the summary plus estimates against truth (see module docstring).
 
-    ``schedule`` overrides the named variation (``variation`` is then only a label).
+    ``schedule`` overrides the named variation (``variation`` is then only a label);
+    ``start_flux`` scales a steady start's rotor flux (the speed task's).
     """
     ctl_label = controller if controller in offline.CONTROLLERS else 'nominal'
     sc = Scenario(task=task, strategy=strategy, variation=variation, T_s=T_s, duration=duration,
-                  schedule=schedule, controller=ctl_label)
+                  schedule=schedule, controller=ctl_label, start_flux=start_flux)
     est_params = CHAPTER4_ESTIMATES if variation == 'chapter4' else THESIS_MOTOR
     hook = None
     if controller == TRUTH_FED:

@@ -22,7 +22,11 @@ on the ideal plant. Parts (default all):
   the inverter alone, and on every block, against the motor file's values; the no-load test's
   magnetizing curve against the plant's (its worst L_M(ψ) over the points);
 - ``identified``: min_loss on every block (the motor's rated-speed reversal) with the drive's
-  model from the motor file and from the file the commissioning wrote: the losses side by side.
+  model from the motor file and from the file the commissioning wrote: the losses side by side;
+- ``thermal``, ``drift``, ``start``: the adapter on a 2-minute duty that warms the cage by 50 K
+  (the motor file's thermal block; R̂_s, R̂_R at the end, tracking and losses against the drive
+  handed the true resistances), on an R_s ramp with a leakage sine, and on the chapter-4 rows
+  with the start flux scaled (:mod:`im_studies.study_adaptation`).
 
 Prints a Markdown table per part; ``--json`` writes the rows, ``--plots`` the phase current
 against its reference. Figures: the current distortion ``|i − i*|`` RMS [A] (the stator-current
@@ -45,11 +49,13 @@ from im_common.params import load_motor_file, shipped_motors_dir
 from im_controller.profiles import Profile
 import numpy as np
 
+from . import study_adaptation
 from .study_motors import reversal_time, scaled_options
 from .study_sensorless import USELESS_SPEED_NOISE
 
 MOTORS = ('thesis', 'krause_3hp')
-PARTS = ('compensation', 'sensorless', 'load_step', 'losses', 'commissioning', 'identified')
+PARTS = ('compensation', 'sensorless', 'load_step', 'losses', 'commissioning', 'identified',
+         'thermal', 'drift', 'start')
 #: the inverter of every run: docs/plant.md's, its DC link set for the motor (V_dc_for)
 INVERTER = {'pwm_frequency': 10000.0, 'deadtime': 2.0e-6, 'v_on': 1.0, 'r_on': 0.02}
 #: the DC link over the motor's rated vector magnitude × √2 (the hexagon's inscribed circle)
@@ -444,6 +450,34 @@ def markdown(part: str, rows: list) -> str:
             vs = f"{r['E_loss_vs_file_pct']:+.2f} %" if 'E_loss_vs_file_pct' in r else ''
             lines.append(f"| {r['motor']} | {r['file']} | {r['E_loss_J']:.1f} | {vs} | "
                          f"{r['speed_err_rms']:.4f} | {_trip(r)} |")
+    elif part == 'thermal':
+        lines = ['| motor | drive | ΔT cage / stator [K] | R̂_s − R_s | R̂_R − R_R | speed error '
+                 'RMS [rad/s] | × true-R run | losses vs true-R run | trip |',
+                 '| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
+        for r in rows:
+            lines.append(f"| {r['motor']} | {r['run']} | {r['dT_rotor_K']:.1f} / "
+                         f"{r['dT_stator_K']:.1f} | {100 * r['R_s_err_end']:+.2f} % | "
+                         f"{100 * r['R_R_err_end']:+.2f} % | {r['speed_err_rms_rad_s']:.4f} | "
+                         f"{r['speed_err_over_true']:.2f} | "
+                         f"{100 * (r['E_loss_over_true'] - 1):+.2f} % | {_trip(r)} |")
+    elif part == 'drift':
+        lines = ['| drive | speed error RMS [rad/s] | R̂_s at the end (true) [Ω] | L̂_M error at '
+                 'the end | trip |', '| --- | ---: | ---: | ---: | --- |']
+        for r in rows:
+            rs = f"{r['R_s_end']:.4f} ({r['R_s_true_end']:.4f})" if 'R_s_end' in r else ''
+            lm = f"{100 * r['L_M_err_end']:+.1f} %" if 'L_M_err_end' in r else ''
+            lines.append(f"| {r['run']} | {r['speed_err_rms_rad_s']:.4f} | {rs} | {lm} | "
+                         f'{_trip(r)} |')
+    elif part == 'start':
+        from .study_adaptation import START_FLUXES
+        lines = ['| task | strategy | ' + ' | '.join(f'start flux ×{f:g}' for f in START_FLUXES)
+                 + ' | target | met |', '| --- | --- |' + ' ---: |' * len(START_FLUXES)
+                 + ' ---: | --- |']
+        for r in rows:
+            cells = [f"{r['errors'][f]:.4f}" if f in r['errors'] else '(at rest)'
+                     for f in START_FLUXES]
+            lines.append(f"| {r['task']} | {r['strategy']} | {' | '.join(cells)} | "
+                         f"{r['target']} | {'yes' if r['met'] else 'no'} |")
     else:
         lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
                  '| --- | --- | --- | ---: | ---: | --- |']
@@ -465,7 +499,9 @@ def main(argv=None) -> int:
     out = {}
     runs = {'compensation': lambda: run_compensation(plots=a.plots),
             'sensorless': run_sensorless, 'load_step': run_load_step, 'losses': run_losses,
-            'commissioning': run_commissioning, 'identified': run_identified}
+            'commissioning': run_commissioning, 'identified': run_identified,
+            'thermal': study_adaptation.run_thermal, 'drift': study_adaptation.run_drift,
+            'start': study_adaptation.run_start}
     for k, part in enumerate(a.part or PARTS, 1):
         print(f'[{k}/{len(a.part or PARTS)}] {part}: {", ".join(MOTORS)}', file=sys.stderr,
               flush=True)

@@ -1,0 +1,266 @@
+"""
+The adapter on a warming motor and on drifts it never saw (docs/adaptation.md §9).
+
+Three parts, each a table ``python -m im_studies.study_real_plant --part NAME`` prints:
+
+``thermal``
+    A 2-minute duty on each shipped motor with its ``thermal`` block: the speed task repeated
+    (:data:`DUTY_HIGH` rad/s for 3 s, down to :data:`DUTY_LOW` rad/s for 3 s, back; 2 s
+    transitions; 12 cycles) under a constant load that warms the cage by 40 K or more. The drive
+    runs min_loss with its current limit at 2.5 × the rated current. Sensored: the drive handed the
+    plant's true R_s and R_R every step (:class:`TrueResistances`, the bound), the nominal drive
+    (the motor file's cold resistances), the sensored adapter estimating R_s with R_R, L_M, L_σ;
+    and sensorless the same three, the adapter there taking R_s and R_R from the windings'
+    temperatures (:mod:`im_adapt.thermal_tracking`, the least squares held), once more with the
+    cage's thermal resistance 20 % off. Reported: R̂_s and R̂_R against the plant's at the end,
+    speed error RMS over the run against the true-resistance run's (same sensing), losses against
+    its.
+``drift``
+    The plant's R_s ramping to 1.3× over 2 s with a ±15 % sine on both leakages (speed task,
+    min_energy, thesis motor): nominal against the adapter without and with R_s.
+``start``
+    The chapter-4 rows of ``make reproduce`` (adaptive) with the speed task's start flux scaled
+    by 0.98 … 1.02 (``start_flux``); the position task starts at rest, demagnetised, where there
+    is no start flux to scale.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+from im_adapt.adaptation import AdaptationGains
+from im_adapt.hook import LockstepAdapter
+from im_bringup.offline import Scenario, simulate
+from im_common.loads import ConstantLoad
+from im_common.params import (load_motor_file, ParameterSchedule, ramp, shipped_motors_dir,
+                              sinusoid, THESIS_MOTOR)
+from im_controller.profiles import Profile
+import numpy as np
+
+#: the duty: high and low speed [rad/s], their holds [s], the transition [s], cycles
+DUTY_HIGH, DUTY_LOW, DUTY_HOLD_HIGH, DUTY_HOLD_LOW, DUTY_RAMP, DUTY_CYCLES = (
+    150.0, 20.0, 3.0, 3.0, 2.0, 12)
+#: the duty's load over the motor's rated torque (the cage warms >= 40 K in 2 min)
+DUTY_LOAD = {'thesis': 14.0 / 12.0, 'krause_3hp': 1.15}
+#: the duty's current limit over the rated current (the load plus the transitions' J dω/dt)
+DUTY_CURRENT = 2.5
+#: the duty's runs, sensored then sensorless: the drive handed the true resistances (the bound),
+#: the nominal drive, the adapter; sensorless also the adapter whose thermal block is off
+#: (the cage's R_th × THERMAL_OFF, its C / THERMAL_OFF: the same time constant, 20 % more rise)
+DUTY_RUNS = ('true_resistances', 'nominal', 'adaptive', 'true_resistances_sensorless',
+             'nominal_sensorless', 'adaptive_sensorless', 'adaptive_sensorless_off')
+THERMAL_OFF = 1.2
+#: the start fluxes of the ``start`` part
+START_FLUXES = (0.98, 0.99, 1.0, 1.01, 1.02)
+
+
+def duty_profile(cycles: int = DUTY_CYCLES) -> Profile:
+    """Return the duty's speed setpoints: high, down to low, back up, ``cycles`` times."""
+    period = DUTY_HOLD_HIGH + DUTY_HOLD_LOW + 2.0 * DUTY_RAMP
+    pts = [(0.0, DUTY_HIGH, None)]
+    for k in range(cycles):
+        t0 = k * period
+        pts.append((t0 + DUTY_HOLD_HIGH, DUTY_LOW, DUTY_RAMP))
+        pts.append((t0 + DUTY_HOLD_HIGH + DUTY_RAMP + DUTY_HOLD_LOW, DUTY_HIGH, DUTY_RAMP))
+    return Profile('speed', tuple(pts), source='thermal duty')
+
+
+def duty(motor_name: str, sensorless: bool = False, duration: float = None,
+         cycles: int = DUTY_CYCLES) -> Scenario:
+    """Return the duty of one shipped motor (module doc): its thermal block, min_loss."""
+    from .study_motors import scaled_options
+    from .study_sensorless import USELESS_SPEED_NOISE
+    path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
+    m = load_motor_file(path)
+    prof = duty_profile(cycles)
+    period = DUTY_HOLD_HIGH + DUTY_HOLD_LOW + 2.0 * DUTY_RAMP
+    opts = dict(scaled_options(m, 'speed'), sensorless=sensorless,
+                current_limit=DUTY_CURRENT * m.rated_current)
+    return Scenario(task='speed', strategy='min_loss', motor=path, profile=prof,
+                    load_model=ConstantLoad(tau=DUTY_LOAD[motor_name] * m.rated_torque),
+                    duration=cycles * period if duration is None else duration,
+                    v_limit=m.rated_voltage, omega0=DUTY_HIGH, controller_options=opts,
+                    sensorless=sensorless, thermal='motor',
+                    speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0)
+
+
+class TrueResistances:
+    """
+    Hand the drive the plant's R_s and R_R of the present winding temperatures (a bound).
+
+    The model's L_σ and L_M stay the motor file's: the run a perfect resistance adapter would
+    give. ``bind`` is given the plant by the ROS-free loop.
+    """
+
+    def __init__(self, model, record_every: int = 10):
+        self.model = model
+        self.plant = None
+        self.record_every = record_every
+        self.k = 0
+        self.t, self.samples = [], []
+
+    def bind(self, plant) -> None:
+        self.plant = plant
+
+    def truth(self) -> tuple:
+        """Return the plant's (R_s, R_R) now."""
+        mdl = self.plant.real.model
+        return self.model.R_s * mdl.fs, self.model.R_R * mdl.fr
+
+    def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
+        R_s, R_R = self.truth()
+        m = self.model
+        self.k += 1
+        if self.k % self.record_every == 0:
+            self.t.append(t + T_s)
+            self.samples.append((R_R / m.theta ** 2, m.theta, m.L_M, R_R, m.L_sigma, R_s))
+        return {'R_s': R_s, 'L_sigma': m.L_sigma, 'L_M': m.L_M, 'R_R': R_R}
+
+
+class Truth:
+    """Follow the plant's true R_s and R_R beside an adapter (``bind`` as above)."""
+
+    def __init__(self, hook, model, record_every: int = 10):
+        self.hook, self.model = hook, model
+        self.truth = TrueResistances(model)
+        self.record_every = record_every
+        self.k = 0
+        self.true = []
+
+    def bind(self, plant) -> None:
+        self.truth.bind(plant)
+
+    def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
+        self.k += 1
+        if self.k % self.record_every == 0:
+            self.true.append(self.truth.truth())
+        return self.hook.step(T_s, t, v_alpha, v_beta, meas, x_hat)
+
+
+def duty_run(motor_name: str, run: str, duration: float = None,
+             cycles: int = DUTY_CYCLES, progress: bool = False) -> dict:
+    """Run one of :data:`DUTY_RUNS` on one motor; return its figures."""
+    sensorless = run.endswith('_sensorless') or '_sensorless_' in run
+    sc = duty(motor_name, sensorless, duration, cycles)
+    model = sc.model_estimates()
+    if run.startswith('true_resistances'):
+        hook = TrueResistances(model)
+    elif run.startswith('nominal'):
+        hook = Truth(_Nominal(), model)
+    elif sensorless:            # R_s, R_R from the windings' temperatures, L_σ and L_M held
+        thermal = dict(sc.plant_blocks()['thermal'])
+        if run.endswith('_off'):
+            thermal.update(R_th_r=THERMAL_OFF * thermal['R_th_r'],
+                           C_r=thermal['C_r'] / THERMAL_OFF)
+        hook = Truth(LockstepAdapter.build(model, AdaptationGains(freeze=True), sensorless=True,
+                                           thermal=thermal), model)
+    else:
+        gains = AdaptationGains(estimate_stator_resistance=True)
+        hook = Truth(LockstepAdapter.build(model, gains), model)
+    res = simulate(sc, adapter=hook, record_every=100, progress=progress)
+    tr = res.trace
+    e = tr['omega_r'] - tr['omega_ref']
+    real = (hook.plant if isinstance(hook, TrueResistances) else hook.truth.plant).real
+    t_amb = real.thermal.T_ambient
+    out = {'motor': motor_name, 'run': run, 'trip': res.summary.get('trip'),
+           'speed_err_rms_rad_s': float(np.sqrt(np.mean(e ** 2))),
+           'E_loss_J': res.summary['E_loss_J'], 'duration_s': sc.duration,
+           'dT_stator_K': real.temps[0] - t_amb, 'dT_rotor_K': real.temps[1] - t_amb,
+           'wall_s': res.summary['wall_s']}
+    if isinstance(hook, TrueResistances):
+        R_s, R_R = hook.truth()
+        out.update(R_s_end=R_s, R_R_end=R_R, R_s_true_end=R_s, R_R_true_end=R_R)
+    else:
+        R_s_true, R_R_true = hook.truth.truth()
+        est = ({'R_R': model.R_R, 'R_s': model.R_s} if run.startswith('nominal')
+               else hook.hook.adapter.estimates())
+        out.update(R_s_end=est.get('R_s', model.R_s), R_R_end=est['R_R'],
+                   R_s_true_end=R_s_true, R_R_true_end=R_R_true)
+    out['R_s_err_end'] = out['R_s_end'] / out['R_s_true_end'] - 1.0
+    out['R_R_err_end'] = out['R_R_end'] / out['R_R_true_end'] - 1.0
+    return out
+
+
+class _Nominal:
+    """No adaptation: the drive keeps the motor file's values."""
+
+    def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
+        return {}
+
+
+def run_thermal(motors=('thesis', 'krause_3hp'), runs=DUTY_RUNS, duration: float = None) -> list:
+    """Return every duty run of every motor beside its true-resistance run (same sensing)."""
+    rows = []
+    for motor in motors:
+        base = {}
+        for k, run in enumerate(runs, 1):
+            print(f'  {motor}: {run} ({k}/{len(runs)})', file=sys.stderr, flush=True)
+            r = duty_run(motor, run, duration, progress=True)
+            sensing = 'sensorless' if 'sensorless' in run else 'sensored'
+            if run.startswith('true_resistances'):
+                base[sensing] = r
+            b = base[sensing]
+            r['speed_err_over_true'] = r['speed_err_rms_rad_s'] / b['speed_err_rms_rad_s']
+            r['E_loss_over_true'] = r['E_loss_J'] / b['E_loss_J']
+            rows.append(r)
+    return rows
+
+
+def drift_schedule(motor=THESIS_MOTOR, duration: float = 2.0) -> ParameterSchedule:
+    """R_s ramping to 1.3× over ``duration``, both leakages ±15 % in a 0.5 Hz sine."""
+    ls, lr = motor.L_s - motor.L_sr, motor.L_r - motor.L_sr
+    return ParameterSchedule(motor, {
+        'R_s': ramp(motor.R_s, 0.3 * motor.R_s / duration),
+        'L_s': sinusoid(motor.L_s, 0.15 * ls, math.pi),
+        'L_r': sinusoid(motor.L_r, 0.15 * lr, math.pi)}, name='R_s ramp + leakage sine')
+
+
+#: the drift part's runs: the nominal drive, the adapter without and with R_s
+DRIFT_RUNS = ('nominal', 'adaptive', 'adaptive_R_s')
+
+
+def drift_run(run: str, strategy: str = 'min_energy', duration: float = 2.0) -> dict:
+    """Run the R_s-ramp-and-leakage drift (module doc) with one of :data:`DRIFT_RUNS`."""
+    sched = drift_schedule(THESIS_MOTOR, duration)
+    sc = Scenario(task='speed', strategy=strategy, schedule=sched, duration=duration,
+                  controller='nominal' if run == 'nominal' else 'adaptive')
+    hook = None
+    if run != 'nominal':
+        gains = AdaptationGains(estimate_stator_resistance=run == 'adaptive_R_s')
+        hook = LockstepAdapter.build(sc.model_estimates(), gains)
+    res = simulate(sc, adapter=hook, record_every=10)
+    truth = sched.params_at(duration)
+    out = {'run': run, 'strategy': strategy, 'trip': res.summary.get('trip'),
+           'speed_err_rms_rad_s': res.summary['speed_err_rms_rad_s'],
+           'R_s_true_end': truth.R_s, 'L_M_true_end': truth.L_M}
+    if hook is not None:
+        est = hook.adapter.estimates()
+        out.update(R_s_end=est.get('R_s', THESIS_MOTOR.R_s), L_M_end=est['L_M'],
+                   R_R_end=est['R_R'], R_R_true_end=truth.R_R)
+        out['L_M_err_end'] = est['L_M'] / truth.L_M - 1.0
+    return out
+
+
+def run_drift() -> list:
+    return [drift_run(r) for r in DRIFT_RUNS]
+
+
+#: the chapter-4 targets of make reproduce: position RMS [rad], speed RMS [rad/s]
+CH4_TARGETS = {'position': 0.015, 'speed': 0.1}
+
+
+def run_start(strategies=('min_energy', 'constant_flux', 'min_loss')) -> list:
+    """Return the chapter-4 adaptive rows, the speed task's at every start flux."""
+    from .study_ch4 import gains_for, run_case
+    rows = []
+    for task in ('position', 'speed'):
+        for st in strategies:
+            key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
+            fluxes = START_FLUXES if task == 'speed' else (1.0,)
+            errs = {f: run_case(task, st, 'adaptive', 'chapter4', gains=gains_for('adaptive'),
+                                start_flux=f)[key] for f in fluxes}
+            rows.append({'task': task, 'strategy': st, 'errors': errs,
+                         'target': CH4_TARGETS[task],
+                         'met': all(e <= CH4_TARGETS[task] for e in errs.values())})
+    return rows
