@@ -23,6 +23,7 @@ from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import declare_compensation, declare_motor, declare_run
+from im_common.params import InvalidParameter, motor_blocks
 from im_common.qos import writer
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
@@ -36,7 +37,8 @@ class AdapterNode(LockstepNode):
     def __init__(self, **kwargs):
         super().__init__('adapter', **kwargs)
         self.T_s, self.duration, timeout, startup = declare_run(self)
-        params = declare_motor(self, what='adapter model (nominal estimates)')
+        blocks = {}
+        params = declare_motor(self, what='adapter model (nominal estimates)', blocks=blocks)
         p = self.param
         R_r0 = p('R_r_initial', float(params.R_r), 'initial estimate of R_r [ohm]', 1e-6, 100.0)
         theta0 = p('theta_initial', float(params.theta), 'initial estimate of L_sr/L_r', 1e-3, 1.0)
@@ -48,12 +50,26 @@ class AdapterNode(LockstepNode):
         sensorless = p('sensorless', False, "take the observer's speed estimate "
                        f'({T.OBS_SPEED}) in place of the measured shaft and hold R_R '
                        '(docs/sensorless.md)')
+        tracking = p('thermal_tracking', False, "sensorless: R_s and R_R from the windings' "
+                     "temperatures, heated by the drive's losses through the motor file's thermal "
+                     'block (docs/adaptation.md §9)')
+        if tracking and not (sensorless and blocks.get('thermal')):
+            raise InvalidParameter('thermal_tracking', True, 'needs sensorless: true and the '
+                                   "motor file's thermal block")
         if sensorless:      # R_R and the speed meet only in the slip: R̂_R held
-            self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0, sensorless=True)
+            thermal = (motor_blocks({'thermal': blocks['thermal']}, 'adapter motor')['thermal']
+                       if tracking else None)
+            self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0, sensorless=True,
+                                        thermal=thermal)
             held = ('R_R' if self.law.improved else 'R_r')
             est = ('R_s, L_sigma, L_M' if self.law.improved else 'theta')
-            self.get_logger().info(f'sensorless: {held} held at {getattr(self.law, held):.6g}, '
-                                   f'estimating {est} (docs/sensorless.md §3)')
+            if tracking:
+                self.get_logger().info("sensorless: R_s, R_R at the windings' temperatures, "
+                                       'estimating L_sigma, L_M (docs/adaptation.md §9)')
+            else:
+                self.get_logger().info(f'sensorless: {held} held at '
+                                       f'{getattr(self.law, held):.6g}, estimating {est} '
+                                       '(docs/sensorless.md §3)')
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self.period = period_ns(self.T_s)
