@@ -13,8 +13,8 @@ The graph as separate processes (how users run it), next to its yardstick in the
    the rate the processes could reach if that CPU were spread perfectly over this machine's cores
    (``lockstep_processes_cpu_ceiling_vs_ping_pong``): a ratio above it needs less CPU per step,
    not better scheduling. Each process's CPU per step (``..._cpu_us_per_step_plant`` ...) and the
-   rate the step's chain allows if the plant's and the controller's CPU came one after the other
-   (:func:`critical_path`); the cores other jobs kept busy during the run beside them.
+   rate if the plant's and the controller's CPU of a step came one after the other
+   (:func:`serial_chain`); the cores other jobs kept busy during the run beside them.
 3. free_run at 1 kHz (T_s = 1 ms, the certified gains of ``config/gains_1ms.yaml``), position
    task, 2 s: fraction of steps whose command missed its deadline, latency quantiles, position
    error, against the lock-step run at the same period and gains (in-process); beside a CPU-bound
@@ -207,28 +207,27 @@ def lockstep_processes(duration: float, record: bool, cpu: Optional[list] = None
     return float(m.group(1))
 
 
-def critical_path(by_short: dict, by_full: dict, extra_steps: int, res: dict) -> dict:
+def serial_chain(by_short: dict, by_full: dict, extra_steps: int, res: dict) -> dict:
     """
-    Each lock-step process's CPU per step, and the rate the step's chain of them allows.
+    Each lock-step process's CPU per step, and the rate if the plant and controller took turns.
 
     A step is a chain across processes: the plant takes V_k, integrates and publishes the
     measurement; the controller takes it (and the observer's x̂_k, computed meanwhile) and
-    publishes V_k+1. The observer runs beside the chain. If the plant's and the controller's
-    CPU of a step came one after the other whole, a step would last at least their sum
-    (``lockstep_processes_critical_path_us_per_step``), and the machine's cores could not give
-    more than the CPU ceiling either: ``..._critical_path_ceiling_vs_ping_pong`` is the lower of
-    the two rates over the ping-pong's. Part of the controller's CPU (taking the observer's
-    estimate, publishing its references) overlaps the plant's, so a run can come out above it
-    (docs/benchmarks.md: the chain timed inside the processes).
+    publishes V_k+1; the observer runs beside the chain. If the plant's and the controller's CPU
+    of a step came one after the other whole, a step would last their sum
+    (``lockstep_processes_serial_us_per_step``); ``..._serial_rate_vs_ping_pong`` is that rate
+    (or the CPU ceiling's, if lower) over the ping-pong's. Not a bound: part of the controller's
+    CPU (taking the observer's estimate, its references) overlaps the plant's, so a run can come
+    out above it (docs/benchmarks.md times the chain inside the processes).
     """
     per = {name: 1e6 * (by_full[name] - by_short.get(name, 0.0)) / extra_steps
            for name in sorted(by_full)}
     out = {f'lockstep_processes_cpu_us_per_step_{name}': v for name, v in per.items()}
-    path = per['plant'] + per['controller']
-    out['lockstep_processes_critical_path_us_per_step'] = path
+    serial = per['plant'] + per['controller']
+    out['lockstep_processes_serial_us_per_step'] = serial
     rate = min(res['cores'] * 1e6 / res['lockstep_processes_cpu_us_per_step'],
-               1e6 / path if path > 0 else math.inf)
-    out['lockstep_processes_critical_path_ceiling_vs_ping_pong'] = (
+               1e6 / serial if serial > 0 else math.inf)
+    out['lockstep_processes_serial_rate_vs_ping_pong'] = (
         rate / res['ping_pong_two_processes_round_trips_per_s'])
     return out
 
@@ -450,7 +449,7 @@ def run(quick: bool = False) -> dict:
     res['lockstep_processes_cpu_ceiling_vs_ping_pong'] = (
         res['cores'] * 1e6 / res['lockstep_processes_cpu_us_per_step']
         / res['ping_pong_two_processes_round_trips_per_s'])
-    res.update(critical_path(by_short, by_full, extra_steps, res))
+    res.update(serial_chain(by_short, by_full, extra_steps, res))
     # the cores the rest of the machine kept busy during the full run: other jobs take CPU the
     # lock-step processes then wait for, and the ratios fall with it
     res['lockstep_processes_other_load_cores'] = others[0]

@@ -60,8 +60,8 @@ EXPECTED = {
                   'lockstep_processes_cpu_us_per_step_plant',
                   'lockstep_processes_cpu_us_per_step_controller',
                   'lockstep_processes_cpu_us_per_step_observer',
-                  'lockstep_processes_critical_path_us_per_step',
-                  'lockstep_processes_critical_path_ceiling_vs_ping_pong',
+                  'lockstep_processes_serial_us_per_step',
+                  'lockstep_processes_serial_rate_vs_ping_pong',
                   'lockstep_processes_other_load_cores'],
     'profile': ['steps_per_s_unprofiled', 'us_per_step_decode', 'us_per_step_tags',
                 'us_per_step_protocol', 'us_per_step_compute', 'us_per_step_publish',
@@ -83,9 +83,9 @@ SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_ceiling_over_bare',
            'processes': ['four_processes_over_pingpong',
                          'four_processes_cpu_ceiling_over_pingpong',
                          'four_processes_over_cpu_ceiling',
-                         'four_processes_critical_path_ceiling_over_pingpong',
-                         'four_processes_critical_path_over_cpu_ceiling',
-                         'four_processes_over_critical_path_ceiling'],
+                         'four_processes_serial_rate_over_pingpong',
+                         'four_processes_serial_over_cpu_ceiling',
+                         'four_processes_over_serial_rate'],
            'real_plant': ['real_plant_over_ideal']}
 
 
