@@ -12,7 +12,9 @@ The graph as separate processes (how users run it), next to its yardstick in the
    the protocol delivers seven lock-step messages a step (plant 1, controller 3, observer 3) — and
    the rate the processes could reach if that CPU were spread perfectly over this machine's cores
    (``lockstep_processes_cpu_ceiling_vs_ping_pong``): a ratio above it needs less CPU per step,
-   not better scheduling.
+   not better scheduling. Each process's CPU per step (``..._cpu_us_per_step_plant`` ...) and the
+   rate if the plant's and the controller's CPU of a step came one after the other
+   (:func:`serial_chain`); the cores other jobs kept busy during the run beside them.
 3. free_run at 1 kHz (T_s = 1 ms, the certified gains of ``config/gains_1ms.yaml``), position
    task, 2 s: fraction of steps whose command missed its deadline, latency quantiles, position
    error, against the lock-step run at the same period and gains (in-process); beside a CPU-bound
@@ -124,14 +126,47 @@ def ping_pong_processes(n: int = 5000, cpu: Optional[list] = None) -> float:
         child.wait()
 
 
-def _run_graph_processes(procs, tag: str, plant_may_fail: bool = False) -> str:
-    """Run the processes (logs in a temporary folder, removed after); the plant's log."""
+def _machine_busy_s() -> float:
+    """Return the CPU time [s] every process of this machine has used so far (/proc/stat)."""
+    with open('/proc/stat') as f:
+        ticks = [int(v) for v in f.readline().split()[1:]]
+    idle = ticks[3] + ticks[4]                  # idle, iowait
+    return (sum(ticks[:8]) - idle) / os.sysconf('SC_CLK_TCK')
+
+
+def _wait_each(g, timeout: float, cpu_by_name: dict) -> dict:
+    """
+    Wait for the graph's processes like ``GraphProcesses.wait``; each one's CPU time [s] too.
+
+    Each is reaped with ``os.wait4``, which returns its own resource usage (user + system).
+    """
+    deadline = time.monotonic() + timeout
+    left = dict(g.popen)
+    while left and time.monotonic() < deadline:
+        for name, proc in list(left.items()):
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                proc.returncode = os.waitstatus_to_exitcode(status)
+                cpu_by_name[name] = usage.ru_utime + usage.ru_stime
+                del left[name]
+        time.sleep(0.01)
+    return g.returncodes()
+
+
+def _run_graph_processes(procs, tag: str, plant_may_fail: bool = False,
+                         cpu_by_name: Optional[dict] = None) -> str:
+    """
+    Run the processes (logs in a temporary folder, removed after); the plant's log.
+
+    ``cpu_by_name``: each process's CPU time [s], start-up included, goes into it.
+    """
     from im_bringup.processes import GraphProcesses
     tmp = tempfile.mkdtemp(prefix=f'bench_{tag}_')
     env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
     try:
         with GraphProcesses(procs, tmp, env) as g:
-            codes = g.start().wait(600)
+            g.start()
+            codes = g.wait(600) if cpu_by_name is None else _wait_each(g, 600, cpu_by_name)
             bad = {n: c for n, c in codes.items()
                    if c != 0 and not (plant_may_fail and n == 'plant')}
             if bad:
@@ -141,27 +176,60 @@ def _run_graph_processes(procs, tag: str, plant_may_fail: bool = False) -> str:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def lockstep_processes(duration: float, record: bool, cpu: Optional[list] = None) -> float:
+def lockstep_processes(duration: float, record: bool, cpu: Optional[list] = None,
+                       cpu_by_name: Optional[dict] = None,
+                       others: Optional[list] = None) -> float:
     """
     Steps/s of the position task in lock-step as the plant reports it.
 
-    ``cpu``: the CPU time all the processes used [s], start-up included, is appended to it.
+    ``cpu``: the CPU time all the processes used [s], start-up included, is appended to it;
+    ``cpu_by_name``: each one's (plant, controller, observer ...); ``others``: the cores the
+    rest of the machine kept busy meanwhile (its CPU time over the wall time) is appended.
     """
     from im_bringup.processes import graph_processes
     tmp = tempfile.mkdtemp(prefix='bench_bag_')
-    c0 = _children_cpu_s()
+    c0, busy0, t0 = _children_cpu_s(), _machine_busy_s(), time.monotonic()
     try:
         bag = os.path.join(tmp, 'run.mcap') if record else None
         log = _run_graph_processes(graph_processes('position', 'min_energy', duration=duration,
-                                                   record=bag), 'lockstep')
+                                                   record=bag), 'lockstep',
+                                   cpu_by_name=cpu_by_name)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    ours = _children_cpu_s() - c0
     if cpu is not None:
-        cpu.append(_children_cpu_s() - c0)
+        cpu.append(ours)
+    if others is not None:
+        others.append(max(_machine_busy_s() - busy0 - ours, 0.0) / (time.monotonic() - t0))
     m = re.search(r'\((\d+) steps/s\)', log)
     if m is None:
         raise RuntimeError(f"lockstep: no steps/s in the plant's log: {log[-500:]}")
     return float(m.group(1))
+
+
+def serial_chain(by_short: dict, by_full: dict, extra_steps: int, res: dict) -> dict:
+    """
+    Each lock-step process's CPU per step, and the rate if the plant and controller took turns.
+
+    A step is a chain across processes: the plant takes V_k, integrates and publishes the
+    measurement; the controller takes it (and the observer's x̂_k, computed meanwhile) and
+    publishes V_k+1; the observer runs beside the chain. If the plant's and the controller's CPU
+    of a step came one after the other whole, a step would last their sum
+    (``lockstep_processes_serial_us_per_step``); ``..._serial_rate_vs_ping_pong`` is that rate
+    (or the CPU ceiling's, if lower) over the ping-pong's. Not a bound: part of the controller's
+    CPU (taking the observer's estimate, its references) overlaps the plant's, so a run can come
+    out above it (docs/benchmarks.md times the chain inside the processes).
+    """
+    per = {name: 1e6 * (by_full[name] - by_short.get(name, 0.0)) / extra_steps
+           for name in sorted(by_full)}
+    out = {f'lockstep_processes_cpu_us_per_step_{name}': v for name, v in per.items()}
+    serial = per['plant'] + per['controller']
+    out['lockstep_processes_serial_us_per_step'] = serial
+    rate = min(res['cores'] * 1e6 / res['lockstep_processes_cpu_us_per_step'],
+               1e6 / serial if serial > 0 else math.inf)
+    out['lockstep_processes_serial_rate_vs_ping_pong'] = (
+        rate / res['ping_pong_two_processes_round_trips_per_s'])
+    return out
 
 
 def _gains(rate: int = 1000):
@@ -360,10 +428,12 @@ def run(quick: bool = False) -> dict:
     """
     d = 0.4 if quick else 2.0
     n_rt = 2000 if quick else 10000
-    cpu_rt, cpu_short, cpu_full = [], [], []
+    cpu_rt, cpu_short, cpu_full, others = [], [], [], []
+    by_short, by_full = {}, {}
     res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(n_rt, cpu_rt)}
-    lockstep_processes(d / 4, record=False, cpu=cpu_short)
-    res['lockstep_processes_steps_per_s'] = lockstep_processes(d, record=False, cpu=cpu_full)
+    lockstep_processes(d / 4, record=False, cpu=cpu_short, cpu_by_name=by_short)
+    res['lockstep_processes_steps_per_s'] = lockstep_processes(
+        d, record=False, cpu=cpu_full, cpu_by_name=by_full, others=others)
     res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
     res['lockstep_processes_vs_ping_pong'] = (res['lockstep_processes_steps_per_s']
                                               / res['ping_pong_two_processes_round_trips_per_s'])
@@ -379,6 +449,10 @@ def run(quick: bool = False) -> dict:
     res['lockstep_processes_cpu_ceiling_vs_ping_pong'] = (
         res['cores'] * 1e6 / res['lockstep_processes_cpu_us_per_step']
         / res['ping_pong_two_processes_round_trips_per_s'])
+    res.update(serial_chain(by_short, by_full, extra_steps, res))
+    # the cores the rest of the machine kept busy during the full run: other jobs take CPU the
+    # lock-step processes then wait for, and the ratios fall with it
+    res['lockstep_processes_other_load_cores'] = others[0]
     res.update(free_run(0.5 if quick else d))
     if quick:
         return res

@@ -35,6 +35,9 @@ RATIOS = {
     'four_processes_over_pingpong': ('processes', 'lockstep_processes_vs_ping_pong'),
     'four_processes_cpu_ceiling_over_pingpong': ('processes',
                                                  'lockstep_processes_cpu_ceiling_vs_ping_pong'),
+    # the rate if the plant's and the controller's CPU of a step came one after the other whole
+    'four_processes_serial_rate_over_pingpong': (
+        'processes', 'lockstep_processes_serial_rate_vs_ping_pong'),
     'free_run_missed_fraction_busy': ('processes', 'free_run_1kHz_busy_missed_fraction'),
     'free_run_rate_held_hz_busy': ('processes', 'free_run_rate_held_hz_busy'),
     # every real-plant block on over the ideal plant (docs/plant.md)
@@ -47,6 +50,12 @@ CEILING_SHARES = {
     'inprocess_over_ceiling': ('inprocess_over_bare', 'inprocess_tagged_ceiling_over_bare'),
     'four_processes_over_cpu_ceiling': ('four_processes_over_pingpong',
                                         'four_processes_cpu_ceiling_over_pingpong'),
+    # what four_processes_over_cpu_ceiling would be if they did (not a bound: part of the
+    # controller's CPU overlaps the plant's), and the reached rate over that one
+    'four_processes_serial_over_cpu_ceiling': ('four_processes_serial_rate_over_pingpong',
+                                               'four_processes_cpu_ceiling_over_pingpong'),
+    'four_processes_over_serial_rate': ('four_processes_over_pingpong',
+                                        'four_processes_serial_rate_over_pingpong'),
 }
 
 
@@ -161,7 +170,7 @@ def main(argv=None) -> int:
     print('\nsummary (ratios within this run):')
     for k in list(RATIOS) + list(CEILING_SHARES):
         if k in summ:
-            print(f'  {k:40s} {summ[k]:8.3f}')
+            print(f'  {k:48s} {summ[k]:8.3f}')
     print(f'\nJSON written to {args.out}/')
     for name, why in failed.items():
         print(f'run_all: error: benchmark {name} failed: {why}', file=sys.stderr)

@@ -140,12 +140,35 @@ def make_executor(context=None):
     return EventsExecutor(context=context)
 
 
+#: How often the spin comes back to look for a stop signal [s] (a node's end returns at once).
+SPIN_SLICE_S = 0.05
+
+
 def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] = None) -> None:
     """
     Spin until every node in ``nodes`` is done, one failed, or a stop signal arrived.
 
-    After a stop signal every node is asked to stop and spun a little longer so that it can say so.
+    The executor takes the events natively (``spin_until_future_complete``) in slices of
+    :data:`SPIN_SLICE_S`, not one ``spin_once`` each: the events of a step follow each other
+    without a pass through a Python loop (≈ 5 µs of CPU less an event: the two-process ping-pong
+    ran 8 % faster on 7 % less CPU, docs/benchmarks.md). A node's end (``finish``, its
+    ``on_stop``) completes the slice's future, so the loop sees it at once; a stop signal is seen
+    at the slice's end. After a stop signal every node is asked to stop and spun a little longer
+    so that it can say so.
     """
+    from rclpy.task import Future
+    ended = [Future()]
+
+    def hook(chained):
+        def on_stop(node):
+            if chained is not None:
+                chained(node)
+            if not ended[0].done():
+                ended[0].set_result(node.get_name())
+        return on_stop
+
+    for n in nodes:
+        n.on_stop = hook(n.on_stop)
     while rclpy.ok(context=context):
         if any(n.exit_code for n in nodes) or all(n.done for n in nodes):
             return
@@ -153,7 +176,9 @@ def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] =
             for n in nodes:
                 request_stop(n, stop.requested)
             return
-        executor.spin_once(timeout_sec=0.05)
+        if ended[0].done():             # one node of several ended: spin on for the others
+            ended[0] = Future()
+        executor.spin_until_future_complete(ended[0], timeout_sec=SPIN_SLICE_S)
 
 
 def _rcl_error():
@@ -211,6 +236,10 @@ def node_main(factory: Callable, argv=None) -> int:
                 return cli_error(prog, exc)
             executor = make_executor()
             executor.add_node(node)
+            # the start-up's heap (modules, the node, the middleware's objects) out of the
+            # collector's way: a lock-step process paused 12-14 ms once a 2 s run for a full
+            # collection of it (free_run freezes again on entering real time)
+            realtime.quiet_gc()
             spin_until_done([node], executor, stop=stop)
             code = node.exit_code
             if not stop.requested:      # let the end of the run reach the others
