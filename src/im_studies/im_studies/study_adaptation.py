@@ -35,6 +35,8 @@ from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad
 from im_common.params import (load_motor_file, ParameterSchedule, ramp, shipped_motors_dir,
                               sinusoid, THESIS_MOTOR)
+from im_controller.control_law import THESIS_TASKS
+from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 import numpy as np
 
@@ -250,11 +252,11 @@ def run_drift() -> list:
 CH4_TARGETS = {'position': 0.015, 'speed': 0.1}
 
 
-def run_start(strategies=('min_energy', 'constant_flux', 'min_loss')) -> list:
+def run_start(strategies=COMPARED_STRATEGIES) -> list:
     """Return the chapter-4 adaptive rows, the speed task's at every start flux."""
     from .study_ch4 import gains_for, run_case
     rows = []
-    for task in ('position', 'speed'):
+    for task in THESIS_TASKS:
         for st in strategies:
             key = 'pos_err_rms_rad' if task == 'position' else 'speed_err_rms_rad_s'
             fluxes = START_FLUXES if task == 'speed' else (1.0,)
