@@ -6,15 +6,15 @@ Three parts, each a table ``python -m im_studies.study_real_plant --part NAME`` 
 ``thermal``
     A 2-minute duty on each shipped motor with its ``thermal`` block: the speed task repeated
     (:data:`DUTY_HIGH` rad/s for 3 s, down to :data:`DUTY_LOW` rad/s for 3 s, back; 2 s
-    transitions; 12 cycles) under a constant load that warms the cage by 40 K or more. The drive
-    runs min_loss with its current limit at 2.5 × the rated current. Sensored: the drive handed the
-    plant's true R_s and R_R every step (:class:`TrueResistances`, the bound), the nominal drive
-    (the motor file's cold resistances), the sensored adapter estimating R_s with R_R, L_M, L_σ;
-    and sensorless the same three, the adapter there taking R_s and R_R from the windings'
-    temperatures (:mod:`im_adapt.thermal_tracking`, the least squares held), once more with the
-    cage's thermal resistance 20 % off. Reported: R̂_s and R̂_R against the plant's at the end,
-    speed error RMS over the run against the true-resistance run's (same sensing), losses against
-    its.
+    transitions, 4 s on krause_3hp; 2 minutes) under a constant load that warms the cage by 40 K or
+    more. The drive runs min_loss with its current limit at 2.5 × the rated current. Sensored: the
+    drive handed the plant's true R_s and R_R every step (:class:`TrueResistances`, the bound), the
+    nominal drive (the motor file's cold resistances), the sensored adapter estimating R_s with
+    R_R, L_M, L_σ; and sensorless the same three, the adapter there taking R_s and R_R from the
+    windings' temperatures (:mod:`im_adapt.thermal_tracking`, the least squares held), once more
+    with the cage's thermal resistance 20 % off. Reported: R̂_s and R̂_R against the plant's at the
+    end, speed error RMS over the run against the true-resistance run's (same sensing), losses
+    against its.
 ``drift``
     The plant's R_s ramping to 1.3× over 2 s with a ±15 % sine on both leakages (speed task,
     min_energy, thesis motor): nominal against the adapter without and with R_s.
@@ -41,10 +41,13 @@ from im_controller.profiles import Profile
 import numpy as np
 
 #: the duty: high and low speed [rad/s], their holds [s], the transition [s], cycles
-DUTY_HIGH, DUTY_LOW, DUTY_HOLD_HIGH, DUTY_HOLD_LOW, DUTY_RAMP, DUTY_CYCLES = (
-    150.0, 20.0, 3.0, 3.0, 2.0, 12)
-#: the duty's load over the motor's rated torque (the cage warms >= 40 K in 2 min)
-DUTY_LOAD = {'thesis': 14.0 / 12.0, 'krause_3hp': 1.15}
+DUTY_HIGH, DUTY_LOW, DUTY_HOLD_HIGH, DUTY_HOLD_LOW = 150.0, 20.0, 3.0, 3.0
+#: the duty's length [s]
+DUTY_DURATION = 120.0
+#: per motor: the load over its rated torque (the cage warms >= 40 K in 2 min) and the
+#: transitions [s] (the load plus J dω/dt within the current limit)
+DUTY_LOAD = {'thesis': 14.0 / 12.0, 'krause_3hp': 1.4}
+DUTY_RAMP = {'thesis': 2.0, 'krause_3hp': 4.0}
 #: the duty's current limit over the rated current (the load plus the transitions' J dω/dt)
 DUTY_CURRENT = 2.5
 #: the duty's runs, sensored then sensorless: the drive handed the true resistances (the bound),
@@ -57,33 +60,46 @@ THERMAL_OFF = 1.2
 START_FLUXES = (0.98, 0.99, 1.0, 1.01, 1.02)
 
 
-def duty_profile(cycles: int = DUTY_CYCLES) -> Profile:
+def duty_period(motor_name: str) -> float:
+    """Return one cycle of a motor's duty [s]."""
+    return DUTY_HOLD_HIGH + DUTY_HOLD_LOW + 2.0 * DUTY_RAMP[motor_name]
+
+
+def duty_profile(motor_name: str, cycles: int) -> Profile:
     """Return the duty's speed setpoints: high, down to low, back up, ``cycles`` times."""
-    period = DUTY_HOLD_HIGH + DUTY_HOLD_LOW + 2.0 * DUTY_RAMP
+    ramp, period = DUTY_RAMP[motor_name], duty_period(motor_name)
     pts = [(0.0, DUTY_HIGH, None)]
     for k in range(cycles):
         t0 = k * period
-        pts.append((t0 + DUTY_HOLD_HIGH, DUTY_LOW, DUTY_RAMP))
-        pts.append((t0 + DUTY_HOLD_HIGH + DUTY_RAMP + DUTY_HOLD_LOW, DUTY_HIGH, DUTY_RAMP))
+        pts.append((t0 + DUTY_HOLD_HIGH, DUTY_LOW, ramp))
+        pts.append((t0 + DUTY_HOLD_HIGH + ramp + DUTY_HOLD_LOW, DUTY_HIGH, ramp))
     return Profile('speed', tuple(pts), source='thermal duty')
 
 
 def duty(motor_name: str, sensorless: bool = False, duration: float = None,
-         cycles: int = DUTY_CYCLES) -> Scenario:
-    """Return the duty of one shipped motor (module doc): its thermal block, min_loss."""
+         cycles: int = None) -> Scenario:
+    """
+    Return the duty of one shipped motor (module doc): its thermal block, min_loss.
+
+    ``cycles`` (default: as many as :data:`DUTY_DURATION` holds) sets the profile, ``duration``
+    (default: :data:`DUTY_DURATION`, or ``cycles`` whole cycles) the run.
+    """
     from .study_motors import scaled_options
     from .study_sensorless import USELESS_SPEED_NOISE
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
     m = load_motor_file(path)
-    prof = duty_profile(cycles)
-    period = DUTY_HOLD_HIGH + DUTY_HOLD_LOW + 2.0 * DUTY_RAMP
+    period = duty_period(motor_name)
+    if duration is None:
+        duration = DUTY_DURATION if cycles is None else cycles * period
+    if cycles is None:
+        cycles = math.ceil(duration / period)
     opts = dict(scaled_options(m, 'speed'), sensorless=sensorless,
                 current_limit=DUTY_CURRENT * m.rated_current)
-    return Scenario(task='speed', strategy='min_loss', motor=path, profile=prof,
+    return Scenario(task='speed', strategy='min_loss', motor=path,
+                    profile=duty_profile(motor_name, cycles),
                     load_model=ConstantLoad(tau=DUTY_LOAD[motor_name] * m.rated_torque),
-                    duration=cycles * period if duration is None else duration,
-                    v_limit=m.rated_voltage, omega0=DUTY_HIGH, controller_options=opts,
-                    sensorless=sensorless, thermal='motor',
+                    duration=duration, v_limit=m.rated_voltage, omega0=DUTY_HIGH,
+                    controller_options=opts, sensorless=sensorless, thermal='motor',
                     speed_noise_std=USELESS_SPEED_NOISE if sensorless else 0.0)
 
 
@@ -121,27 +137,37 @@ class TrueResistances:
 
 
 class Truth:
-    """Follow the plant's true R_s and R_R beside an adapter (``bind`` as above)."""
+    """
+    Follow the plant's true R_s and R_R beside an adapter (``bind`` as above).
 
-    def __init__(self, hook, model, record_every: int = 10):
+    ``true`` holds them every ``record_every`` steps; ``series`` every ``series_every``: (t, R̂_s,
+    R_s, R̂_R, R_R) with the estimates the adapter hands the drive.
+    """
+
+    def __init__(self, hook, model, record_every: int = 10, series_every: int = 10000):
         self.hook, self.model = hook, model
         self.truth = TrueResistances(model)
-        self.record_every = record_every
+        self.record_every, self.series_every = record_every, series_every
         self.k = 0
-        self.true = []
+        self.true, self.series = [], []
 
     def bind(self, plant) -> None:
         self.truth.bind(plant)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
         self.k += 1
+        est = self.hook.step(T_s, t, v_alpha, v_beta, meas, x_hat)
         if self.k % self.record_every == 0:
             self.true.append(self.truth.truth())
-        return self.hook.step(T_s, t, v_alpha, v_beta, meas, x_hat)
+        if self.k % self.series_every == 0:
+            R_s, R_R = self.truth.truth()
+            self.series.append((t + T_s, est.get('R_s', self.model.R_s), R_s,
+                                est.get('R_R', self.model.R_R), R_R))
+        return est
 
 
 def duty_run(motor_name: str, run: str, duration: float = None,
-             cycles: int = DUTY_CYCLES, progress: bool = False) -> dict:
+             cycles: int = None, progress: bool = False) -> dict:
     """Run one of :data:`DUTY_RUNS` on one motor; return its figures."""
     sensorless = run.endswith('_sensorless') or '_sensorless_' in run
     sc = duty(motor_name, sensorless, duration, cycles)
@@ -179,6 +205,8 @@ def duty_run(motor_name: str, run: str, duration: float = None,
                else hook.hook.adapter.estimates())
         out.update(R_s_end=est.get('R_s', model.R_s), R_R_end=est['R_R'],
                    R_s_true_end=R_s_true, R_R_true_end=R_R_true)
+    if isinstance(hook, Truth):
+        out['series'] = [list(row) for row in hook.series]
     out['R_s_err_end'] = out['R_s_end'] / out['R_s_true_end'] - 1.0
     out['R_R_err_end'] = out['R_R_end'] / out['R_R_true_end'] - 1.0
     return out
@@ -191,7 +219,8 @@ class _Nominal:
         return {}
 
 
-def run_thermal(motors=('thesis', 'krause_3hp'), runs=DUTY_RUNS, duration: float = None) -> list:
+def run_thermal(motors=('thesis', 'krause_3hp'), runs=DUTY_RUNS, duration: float = None,
+                plots: str = None) -> list:
     """Return every duty run of every motor beside its true-resistance run (same sensing)."""
     rows = []
     for motor in motors:
@@ -206,6 +235,9 @@ def run_thermal(motors=('thesis', 'krause_3hp'), runs=DUTY_RUNS, duration: float
             r['speed_err_over_true'] = r['speed_err_rms_rad_s'] / b['speed_err_rms_rad_s']
             r['E_loss_over_true'] = r['E_loss_J'] / b['E_loss_J']
             rows.append(r)
+    if plots:
+        os.makedirs(plots, exist_ok=True)
+        plot_thermal(rows, os.path.join(plots, 'thermal_duty.png'))
     return rows
 
 
@@ -266,3 +298,29 @@ def run_start(strategies=COMPARED_STRATEGIES) -> list:
                          'target': CH4_TARGETS[task],
                          'met': all(e <= CH4_TARGETS[task] for e in errs.values())})
     return rows
+
+
+def plot_thermal(rows: list, path: str) -> None:
+    """Plot R̂_s and R̂_R against the plant's through each motor's duty (the adapter's runs)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    motors = sorted({r['motor'] for r in rows})
+    fig, axes = plt.subplots(2, len(motors), figsize=(6 * len(motors), 6), squeeze=False)
+    for j, motor in enumerate(motors):
+        for r in rows:
+            if r['motor'] != motor or not r.get('series') or r['run'].startswith('nominal'):
+                continue
+            s = np.asarray(r['series'])
+            for i, (hat, true, name) in enumerate(((1, 2, 'R_s'), (3, 4, 'R_R'))):
+                ax = axes[i][j]
+                if r['run'] == 'adaptive':
+                    ax.plot(s[:, 0], s[:, true], 'k-', lw=2, label='plant')
+                ax.plot(s[:, 0], s[:, hat], '--', label=r['run'])
+                ax.set_ylabel(f'{name} [Ω]')
+                ax.set_title(f'{motor}: {name}')
+        axes[1][j].set_xlabel('t [s]')
+        axes[0][j].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

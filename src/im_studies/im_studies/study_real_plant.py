@@ -500,7 +500,8 @@ def main(argv=None) -> int:
     runs = {'compensation': lambda: run_compensation(plots=a.plots),
             'sensorless': run_sensorless, 'load_step': run_load_step, 'losses': run_losses,
             'commissioning': run_commissioning, 'identified': run_identified,
-            'thermal': study_adaptation.run_thermal, 'drift': study_adaptation.run_drift,
+            'thermal': lambda: study_adaptation.run_thermal(plots=a.plots),
+            'drift': study_adaptation.run_drift,
             'start': study_adaptation.run_start}
     for k, part in enumerate(a.part or PARTS, 1):
         print(f'[{k}/{len(a.part or PARTS)}] {part}: {", ".join(MOTORS)}', file=sys.stderr,
