@@ -474,8 +474,8 @@ def markdown(part: str, rows: list) -> str:
                  + ' | target | met |', '| --- | --- |' + ' ---: |' * len(START_FLUXES)
                  + ' ---: | --- |']
         for r in rows:
-            cells = [f"{r['errors'][f]:.4f}" if f in r['errors'] else '(at rest)'
-                     for f in START_FLUXES]
+            errs = {float(f): e for f, e in r['errors'].items()}     # JSON keys are text
+            cells = [f'{errs[f]:.4f}' if f in errs else '(at rest)' for f in START_FLUXES]
             lines.append(f"| {r['task']} | {r['strategy']} | {' | '.join(cells)} | "
                          f"{r['target']} | {'yes' if r['met'] else 'no'} |")
     else:
