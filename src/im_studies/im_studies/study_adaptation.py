@@ -302,9 +302,8 @@ def run_start(strategies=COMPARED_STRATEGIES) -> list:
 
 def plot_thermal(rows: list, path: str) -> None:
     """Plot R̂_s and R̂_R against the plant's through each motor's duty (the adapter's runs)."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
+    from im_recording.plots import pyplot
+    plt = pyplot()
     motors = sorted({r['motor'] for r in rows})
     fig, axes = plt.subplots(2, len(motors), figsize=(6 * len(motors), 6), squeeze=False)
     for j, motor in enumerate(motors):
