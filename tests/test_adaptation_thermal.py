@@ -71,7 +71,7 @@ def test_sensored_adapter_follows_the_stator_and_the_rotor_as_they_warm():
     res = simulate(sc, adapter=hook, record_every=100)
     nominal = simulate(sc, adapter=None, record_every=100)
     assert res.summary['trip'] is None
-    R_s_true, R_R_true = hook.true[-1]
+    R_s_true, R_R_true = hook.truth.truth()
     assert R_R_true / m.R_R - 1.0 > 0.12                 # the cage warmed > 30 K
     est = hook.hook.adapter.estimates()
     assert est['R_R'] == pytest.approx(R_R_true, rel=0.03)
@@ -96,7 +96,7 @@ def test_sensorless_drive_takes_its_resistances_from_the_windings_temperatures()
                                        thermal=FAST), m)
     res = simulate(sc, adapter=hook, record_every=100)
     assert res.summary['trip'] is None
-    R_s_true, R_R_true = hook.true[-1]
+    R_s_true, R_R_true = hook.truth.truth()
     assert R_R_true / m.R_R - 1.0 > 0.12
     est = hook.hook.adapter.estimates()
     assert est['R_s'] == pytest.approx(R_s_true, rel=0.01)

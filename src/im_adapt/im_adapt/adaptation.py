@@ -713,13 +713,26 @@ class ParameterAdapter:
             gw = wf * (w_r - Hw) + c * Hw
             cols += [gw, 1j * gw]
         S, b = self._S, self._b
-        X = [q.real for q in cols]
-        Y = [q.imag for q in cols]
-        for k, (p, q) in enumerate(self._pairs):
-            S[k] += X[p] * X[q] + Y[p] * Y[q]
         er, ei = e.real, e.imag
-        for p in range(len(cols)):
-            b[p] += X[p] * er + Y[p] * ei
+        if len(cols) == 3:      # the usual set, unrolled: the loop below costs 1.5 µs a period
+            g1, g2, g3 = cols
+            x1, y1, x2, y2, x3, y3 = g1.real, g1.imag, g2.real, g2.imag, g3.real, g3.imag
+            S[0] += x1 * x1 + y1 * y1
+            S[1] += x1 * x2 + y1 * y2
+            S[2] += x1 * x3 + y1 * y3
+            S[3] += x2 * x2 + y2 * y2
+            S[4] += x2 * x3 + y2 * y3
+            S[5] += x3 * x3 + y3 * y3
+            b[0] += x1 * er + y1 * ei
+            b[1] += x2 * er + y2 * ei
+            b[2] += x3 * er + y3 * ei
+        else:
+            X = [q.real for q in cols]
+            Y = [q.imag for q in cols]
+            for k, (p, q) in enumerate(self._pairs):
+                S[k] += X[p] * X[q] + Y[p] * Y[q]
+            for p in range(len(cols)):
+                b[p] += X[p] * er + Y[p] * ei
         self.k += 1
         if self.k % self.N:
             return

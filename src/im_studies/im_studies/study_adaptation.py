@@ -111,12 +111,9 @@ class TrueResistances:
     give. ``bind`` is given the plant by the ROS-free loop.
     """
 
-    def __init__(self, model, record_every: int = 10):
+    def __init__(self, model):
         self.model = model
         self.plant = None
-        self.record_every = record_every
-        self.k = 0
-        self.t, self.samples = [], []
 
     def bind(self, plant) -> None:
         self.plant = plant
@@ -129,10 +126,6 @@ class TrueResistances:
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
         R_s, R_R = self.truth()
         m = self.model
-        self.k += 1
-        if self.k % self.record_every == 0:
-            self.t.append(t + T_s)
-            self.samples.append((R_R / m.theta ** 2, m.theta, m.L_M, R_R, m.L_sigma, R_s))
         return {'R_s': R_s, 'L_sigma': m.L_sigma, 'L_M': m.L_M, 'R_R': R_R}
 
 
@@ -140,16 +133,16 @@ class Truth:
     """
     Follow the plant's true R_s and R_R beside an adapter (``bind`` as above).
 
-    ``true`` holds them every ``record_every`` steps; ``series`` every ``series_every``: (t, R̂_s,
+    ``truth.truth()`` gives them now; ``series`` holds, every ``series_every`` steps, (t, R̂_s,
     R_s, R̂_R, R_R) with the estimates the adapter hands the drive.
     """
 
-    def __init__(self, hook, model, record_every: int = 10, series_every: int = 10000):
+    def __init__(self, hook, model, series_every: int = 10000):
         self.hook, self.model = hook, model
         self.truth = TrueResistances(model)
-        self.record_every, self.series_every = record_every, series_every
+        self.series_every = series_every
         self.k = 0
-        self.true, self.series = [], []
+        self.series = []
 
     def bind(self, plant) -> None:
         self.truth.bind(plant)
@@ -157,8 +150,6 @@ class Truth:
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
         self.k += 1
         est = self.hook.step(T_s, t, v_alpha, v_beta, meas, x_hat)
-        if self.k % self.record_every == 0:
-            self.true.append(self.truth.truth())
         if self.k % self.series_every == 0:
             R_s, R_R = self.truth.truth()
             self.series.append((t + T_s, est.get('R_s', self.model.R_s), R_s,
@@ -182,10 +173,10 @@ def duty_run(motor_name: str, run: str, duration: float = None,
             thermal.update(R_th_r=THERMAL_OFF * thermal['R_th_r'],
                            C_r=thermal['C_r'] / THERMAL_OFF)
         hook = Truth(LockstepAdapter.build(model, AdaptationGains(freeze=True), sensorless=True,
-                                           thermal=thermal), model)
+                                           thermal=thermal, record_every=0), model)
     else:
         gains = AdaptationGains(estimate_stator_resistance=True)
-        hook = Truth(LockstepAdapter.build(model, gains), model)
+        hook = Truth(LockstepAdapter.build(model, gains, record_every=0), model)
     res = simulate(sc, adapter=hook, record_every=100, progress=progress)
     tr = res.trace
     e = tr['omega_r'] - tr['omega_ref']
