@@ -513,6 +513,8 @@ class Scenario:
         if self.k_e is not None:
             obs['k_e_injection'] = float(self.k_e)
         adapter = dict(common, enable=adaptive, **model_values)
+        if 'thermal' in plant:      # the motor's networks: the adapter's thermal_tracking takes
+            adapter['thermal'] = plant['thermal']       # them (docs/adaptation.md §9)
         # controller, observer, adapter: the observer's ω̂ replaces the shaft
         if self.sensorless:
             ctl['sensorless'] = obs['sensorless'] = adapter['sensorless'] = True
