@@ -406,15 +406,15 @@ class ParameterAdapter:
         self._Hw = self._uw = 0j            # its rotor-frame filter
         self._w_floor = 0.0                 # w below which the start offset no longer matters
         self._hold_L_M = False              # R_s learnt where it weighs (SPLIT_RATIO): L̂_M held
-        # sensorless with the motor's thermal block: R̂_s and R̂_R follow the windings'
-        # temperatures, which the drive's own losses give (thermal_tracking; docs/adaptation.md
-        # §9); the least squares keep L_σ and L_M
+        # with the motor's thermal block (thermal_tracking; docs/adaptation.md §9) the windings'
+        # temperatures, which the drive's own losses give, carry R̂_s and R̂_R: sensorless they
+        # are R̂_s and R̂_R (the least squares keep L_σ and L_M); sensored they move the least
+        # squares' estimates between updates and are re-anchored to them at each
         self.temperatures = None
         if thermal is not None:
-            if not sensorless or not self.improved:
-                raise InvalidParameter('thermal', 'given', 'tracks R_R from the temperatures '
-                                       'in the sensorless improved law only (sensored, R_R is '
-                                       'estimated)')
+            if not self.improved:
+                raise InvalidParameter('thermal', 'given', "tracks the windings' temperatures "
+                                       "in the improved law only (law 'thesis' has no R_s)")
             from .thermal_tracking import tracking_for
             self.temperatures = tracking_for(thermal, params)
             self.temperatures.R_s_ref, self.temperatures.R_R_ref = self.R_s, self.R_R
@@ -756,10 +756,18 @@ class ParameterAdapter:
         g = list(b)
         for p in range(n):
             b[p] = 0.0
+        t = self.temperatures
         if self.freeze:
-            if self.temperatures is not None:     # the windings still warm
-                self._follow_temperatures()
+            if t is not None:     # the windings still warm
+                if self.sensorless:
+                    self._follow_temperatures()
+                else:
+                    self._carry(t.R_s - self.R_s, t.R_R / self.R_R)
             return
+        if t is not None and not self.sensorless:
+            # what the networks moved since the last anchor: the prediction the increments
+            # below correct (their residuals were taken at the old estimates over N periods)
+            self._carry(t.R_s - self.R_s, t.R_R / self.R_R)
         c = self._c
         L_sig = self.L_sigma
         if self.estimate_leakage:
@@ -790,8 +798,20 @@ class ParameterAdapter:
         self.L_M = L_M
         self._c = R_R / L_M
         self._publish_pair(R_R, self._c)
-        if self.temperatures is not None:     # R_s, R_R at the windings' temperatures
-            self._follow_temperatures()
+        if t is not None:
+            if self.sensorless:     # R_s, R_R at the windings' temperatures
+                self._follow_temperatures()
+            else:                   # the windings at the temperatures of the estimates
+                t.anchor(self.R_s, self.R_R)
+
+    def _carry(self, dR_s: float, scale: float) -> None:
+        """Move R̂_s by dR_s and R̂_R by the factor ``scale`` (L̂_M held), as the windings warm."""
+        R_s = _clip(self.R_s + dR_s, self.R_s_lo, self.R_s_hi)
+        self._shift_stator_resistance(R_s - self.R_s)
+        R_R = _clip(self.R_R * scale, self.R_R_lo, self.R_R_hi)
+        self.R_R = R_R
+        self._c = R_R / self.L_M
+        self._publish_pair(R_R, self._c)
 
     def _follow_temperatures(self) -> None:
         """R̂_s and R̂_R at the windings' estimated temperatures, L̂_M and L̂_σ unchanged."""

@@ -50,17 +50,22 @@ class AdapterNode(LockstepNode):
         sensorless = p('sensorless', False, "take the observer's speed estimate "
                        f'({T.OBS_SPEED}) in place of the measured shaft and hold R_R '
                        '(docs/sensorless.md)')
-        tracking = p('thermal_tracking', False, "sensorless: R_s and R_R from the windings' "
-                     "temperatures, heated by the drive's losses through the motor file's thermal "
-                     'block (docs/adaptation.md §9)')
-        if tracking and not (sensorless and blocks.get('thermal')):
-            raise InvalidParameter('thermal_tracking', True, 'needs sensorless: true and the '
-                                   "motor file's thermal block")
-        if sensorless:      # R_R and the speed meet only in the slip: R̂_R held
-            thermal = (motor_blocks({'thermal': blocks['thermal']}, 'adapter motor')['thermal']
-                       if tracking else None)
-            self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0, sensorless=True,
-                                        thermal=thermal)
+        tracking = p('thermal_tracking', False, "the windings' temperatures, heated by the "
+                     "drive's losses through the motor file's thermal block, carry R_s and R_R: "
+                     'sensorless they are the estimates, sensored they move the least-squares '
+                     'estimates between updates (law improved; docs/adaptation.md §9)')
+        if tracking and not blocks.get('thermal'):
+            raise InvalidParameter('thermal_tracking', True, "needs the motor file's thermal "
+                                   'block (run-file key thermal: motor)')
+        if tracking and not self.law.improved:
+            raise InvalidParameter('thermal_tracking', True, "needs law 'improved' (law "
+                                   "'thesis' estimates neither R_s nor R_R's temperature)")
+        thermal = (motor_blocks({'thermal': blocks['thermal']}, 'adapter motor')['thermal']
+                   if tracking else None)
+        if sensorless or tracking:  # sensorless: R_R and the speed meet only in the slip
+            self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0,
+                                        sensorless=sensorless, thermal=thermal)
+        if sensorless:
             held = ('R_R' if self.law.improved else 'R_r')
             est = ('R_s, L_sigma, L_M' if self.law.improved else 'theta')
             if tracking:

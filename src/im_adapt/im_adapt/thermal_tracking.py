@@ -13,6 +13,12 @@ cage's R̂_R|i − φ̂_M/L̂_M|² (the inverse-Γ rotor current) — and reads 
 windings' temperatures. The networks start where the block says (T0_s, T0_r, else the ambient):
 a motor that starts warmer than that, or a block whose constants are off, is an error the
 networks carry (docs/adaptation.md §9 measures one).
+
+Sensored, the least squares measure R_s (where it weighs) and R_R; the networks are then the
+process model between measurements: after each update the temperatures are set to those the
+estimates imply (:meth:`WindingTemperatures.anchor`), and until the next the estimates move as
+the networks warm or cool them. Where the data pins the resistances the block's errors do not
+accumulate; where it does not (R_s at high speed) the estimates still follow the windings.
 """
 from __future__ import annotations
 
@@ -46,6 +52,17 @@ class WindingTemperatures:
             self._decay = th.decay(h)
         self.T_s = first_order(self.T_s, th.T_ambient, th.R_th_s, P_s, self._decay[0])
         self.T_r = first_order(self.T_r, th.T_ambient, th.R_th_r, P_r, self._decay[1])
+
+    def anchor(self, R_s: float, R_R: float) -> None:
+        """
+        Set the windings' temperatures to those the resistances R_s, R_R imply.
+
+        The sensored adapter's least squares measure the resistances; the networks then carry
+        them from there, heated by the losses, until the next measurement.
+        """
+        th = self.thermal
+        self.T_s = th.T_ref + (R_s / self.R_s_ref - 1.0) / th.alpha_s
+        self.T_r = th.T_ref + (R_R / self.R_R_ref - 1.0) / th.alpha_r
 
     @property
     def R_R(self) -> float:

@@ -10,9 +10,11 @@ Three parts, each a table ``python -m im_studies.study_real_plant --part NAME`` 
     more. The drive runs min_loss with its current limit at 2.5 × the rated current. Sensored: the
     drive handed the plant's true R_s and R_R every step (:class:`TrueResistances`, the bound), the
     nominal drive (the motor file's cold resistances), the sensored adapter estimating R_s with
-    R_R, L_M, L_σ; and sensorless the same three, the adapter there taking R_s and R_R from the
-    windings' temperatures (:mod:`im_adapt.thermal_tracking`, the least squares held), once more
-    with the cage's thermal resistance 20 % off. Reported: R̂_s and R̂_R against the plant's at the
+    R_R, L_M, L_σ (alone, then carried between its updates by the motor's thermal networks
+    re-anchored at each, :mod:`im_adapt.thermal_tracking`, then by networks whose thermal
+    resistances are 20 % off); and sensorless the same three, the adapter there taking R_s and
+    R_R from the windings' temperatures (the least squares held), once more with the cage's
+    thermal resistance 20 % off. Reported: R̂_s and R̂_R against the plant's at the
     end, speed error RMS over the run against the true-resistance run's (same sensing), losses
     against its.
 ``drift``
@@ -51,10 +53,14 @@ DUTY_RAMP = {'thesis': 2.0, 'krause_3hp': 4.0}
 #: the duty's current limit over the rated current (the load plus the transitions' J dω/dt)
 DUTY_CURRENT = 2.5
 #: the duty's runs, sensored then sensorless: the drive handed the true resistances (the bound),
-#: the nominal drive, the adapter; sensorless also the adapter whose thermal block is off
-#: (the cage's R_th × THERMAL_OFF, its C / THERMAL_OFF: the same time constant, 20 % more rise)
-DUTY_RUNS = ('true_resistances', 'nominal', 'adaptive', 'true_resistances_sensorless',
-             'nominal_sensorless', 'adaptive_sensorless', 'adaptive_sensorless_off')
+#: the nominal drive, the adapter (sensored: the least squares alone, then carried by the
+#: motor's thermal networks, then by networks whose block is off); sensorless also the adapter
+#: whose thermal block is off. Off: the cage's R_th × THERMAL_OFF, its C / THERMAL_OFF (the same
+#: time constant, 20 % more rise); sensored the stator's too (R_s is what the least squares
+#: learn least often)
+DUTY_RUNS = ('true_resistances', 'nominal', 'adaptive', 'adaptive_thermal',
+             'adaptive_thermal_off', 'true_resistances_sensorless', 'nominal_sensorless',
+             'adaptive_sensorless', 'adaptive_sensorless_off')
 THERMAL_OFF = 1.2
 #: the start fluxes of the ``start`` part
 START_FLUXES = (0.98, 0.99, 1.0, 1.01, 1.02)
@@ -168,15 +174,14 @@ def duty_run(motor_name: str, run: str, duration: float = None,
     elif run.startswith('nominal'):
         hook = Truth(_Nominal(), model)
     elif sensorless:            # R_s, R_R from the windings' temperatures, L_σ and L_M held
-        thermal = dict(sc.plant_blocks()['thermal'])
-        if run.endswith('_off'):
-            thermal.update(R_th_r=THERMAL_OFF * thermal['R_th_r'],
-                           C_r=thermal['C_r'] / THERMAL_OFF)
         hook = Truth(LockstepAdapter.build(model, AdaptationGains(freeze=True), sensorless=True,
-                                           thermal=thermal, record_every=0), model)
-    else:
+                                           thermal=_block(sc, run, ('r',)), record_every=0),
+                     model)
+    else:                       # the least squares (carried by the networks: '_thermal')
         gains = AdaptationGains(estimate_stator_resistance=True)
-        hook = Truth(LockstepAdapter.build(model, gains, record_every=0), model)
+        thermal = _block(sc, run, ('s', 'r')) if '_thermal' in run else None
+        hook = Truth(LockstepAdapter.build(model, gains, thermal=thermal, record_every=0),
+                     model)
     res = simulate(sc, adapter=hook, record_every=100, progress=progress)
     tr = res.trace
     e = tr['omega_r'] - tr['omega_ref']
@@ -201,6 +206,16 @@ def duty_run(motor_name: str, run: str, duration: float = None,
     out['R_s_err_end'] = out['R_s_end'] / out['R_s_true_end'] - 1.0
     out['R_R_err_end'] = out['R_R_end'] / out['R_R_true_end'] - 1.0
     return out
+
+
+def _block(sc: Scenario, run: str, windings) -> dict:
+    """Return the plant's thermal block as the drive gets it: off (``_off``) in ``windings``."""
+    thermal = dict(sc.plant_blocks()['thermal'])
+    if run.endswith('_off'):
+        for w in windings:
+            thermal.update({f'R_th_{w}': THERMAL_OFF * thermal[f'R_th_{w}'],
+                            f'C_{w}': thermal[f'C_{w}'] / THERMAL_OFF})
+    return thermal
 
 
 class _Nominal:
