@@ -65,6 +65,9 @@ class AdapterNode(LockstepNode):
         if sensorless or tracking:  # sensorless: R_R and the speed meet only in the slip
             self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0,
                                         sensorless=sensorless, thermal=thermal)
+        if tracking and not sensorless:
+            self.get_logger().info("R_s, R_R carried by the windings' temperatures between the "
+                                   "least squares' updates (docs/adaptation.md §9)")
         if sensorless:
             held = ('R_R' if self.law.improved else 'R_r')
             est = ('R_s, L_sigma, L_M' if self.law.improved else 'theta')
