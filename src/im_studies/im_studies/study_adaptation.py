@@ -1,7 +1,7 @@
 """
 The adapter on a warming motor and on drifts it never saw (docs/adaptation.md §9).
 
-Three parts, each a table ``python -m im_studies.study_real_plant --part NAME`` prints:
+Four parts, each a table ``python -m im_studies.study_real_plant --part NAME`` prints:
 
 ``thermal``
     A 2-minute duty on each shipped motor with its ``thermal`` block: the speed task repeated
@@ -20,6 +20,9 @@ Three parts, each a table ``python -m im_studies.study_real_plant --part NAME`` 
 ``drift``
     The plant's R_s ramping to 1.3× over 2 s with a ±15 % sine on both leakages (speed task,
     min_energy, thesis motor): nominal against the adapter without and with R_s.
+``stator_error``
+    The drift part's task with the plant's R_s a constant 0 … 30 % above the model's, every
+    strategy: the nominal drive against the adapter that takes R_s from the model.
 ``start``
     The chapter-4 rows of ``make reproduce`` (adaptive) with the speed task's start flux scaled
     by 0.98 … 1.02 (``start_flux``); the position task starts at rest, demagnetised, where there
@@ -35,8 +38,8 @@ from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad
-from im_common.params import (load_motor_file, ParameterSchedule, ramp, shipped_motors_dir,
-                              sinusoid, THESIS_MOTOR)
+from im_common.params import (constant, load_motor_file, ParameterSchedule, ramp,
+                              shipped_motors_dir, sinusoid, THESIS_MOTOR)
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
@@ -284,6 +287,41 @@ def drift_run(run: str, strategy: str = 'min_energy', duration: float = 2.0) -> 
 
 def run_drift() -> list:
     return [drift_run(r) for r in DRIFT_RUNS]
+
+
+#: the ``stator_error`` part's plant R_s over the model's, minus one
+STATOR_ERRORS = (0.0, 0.02, 0.05, 0.1, 0.3)
+
+
+def run_stator_error(strategies=COMPARED_STRATEGIES, errors=STATOR_ERRORS,
+                     duration: float = 2.0) -> list:
+    """
+    Return the drift part's speed task with the plant's R_s off by a constant, per strategy.
+
+    The nominal drive against the sensored adapter (default gains, R_s the model's): what the
+    adapter's rotor estimates owe to R_s (docs/adaptation.md §9).
+    """
+    rows = []
+    for st in strategies:
+        for err in errors:
+            row = {'strategy': st, 'R_s_error': err}
+            for run in ('nominal', 'adaptive'):
+                sched = ParameterSchedule(THESIS_MOTOR,
+                                          {'R_s': constant((1.0 + err) * THESIS_MOTOR.R_s)},
+                                          name=f'R_s {1.0 + err:g} x')
+                sc = Scenario(task='speed', strategy=st, schedule=sched, duration=duration,
+                              controller=run)
+                hook = (None if run == 'nominal'
+                        else LockstepAdapter.build(sc.model_estimates(), record_every=0))
+                res = simulate(sc, adapter=hook, record_every=10)
+                row[f'{run}_speed_err_rms_rad_s'] = res.summary['speed_err_rms_rad_s']
+                row[f'{run}_trip'] = res.summary.get('trip')
+                if hook is not None:
+                    est = hook.adapter.estimates()
+                    row['R_R_err_end'] = est['R_R'] / THESIS_MOTOR.R_R - 1.0
+                    row['L_M_err_end'] = est['L_M'] / THESIS_MOTOR.L_M - 1.0
+            rows.append(row)
+    return rows
 
 
 #: the chapter-4 targets of make reproduce: position RMS [rad], speed RMS [rad/s]
