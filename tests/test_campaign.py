@@ -414,8 +414,12 @@ def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
     out = tmp_path / 'c'
     cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
            '2', '--no-progress']
+    # started as a terminal's foreground job is: SIGINT at its default. A suite run from a
+    # script's background job (`make test &`) inherits it ignored, and Python then installs no
+    # KeyboardInterrupt: the campaign would run on to the end (exit 0, nothing to test)
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True)
+                         start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     journal = out / JOURNAL
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and p.poll() is None:
