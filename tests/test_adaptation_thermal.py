@@ -48,6 +48,8 @@ def test_the_improved_law_takes_a_thermal_block_sensored_and_sensorless():
     for sensorless in (False, True):
         ad = LockstepAdapter.build(THESIS_MOTOR, thermal=FAST, sensorless=sensorless).adapter
         assert ad.temperatures.T_r == 25.0
+        assert 'R_s' in ad.estimates()     # the networks move R̂_s: the controller takes it
+    assert 'R_s' not in LockstepAdapter.build(THESIS_MOTOR).adapter.estimates()
 
 
 def test_anchor_sets_the_temperatures_the_resistances_imply():

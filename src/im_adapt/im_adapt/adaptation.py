@@ -444,12 +444,13 @@ class ParameterAdapter:
         'thesis': L_M = L̂_sr θ̂, R_R = R̂_r θ̂²; law 'improved': the least-squares estimates). Law
         'improved' with ``feed='inverse_gamma'`` adds 'L_sigma': the controller and observer then
         take the inverse-Γ set (L̂_σ, L̂_M, R̂_R) whole (every coefficient follows it,
-        docs/adaptation.md §7).
+        docs/adaptation.md §7), and 'R_s' where R̂_s moves: estimated (sensorless,
+        ``estimate_stator_resistance``) or carried by the thermal networks.
         """
         e = {'R_r': self.R_r, 'theta': self.theta, 'L_M': self.L_M, 'R_R': self.R_R}
         if self.improved and self.gains.feed == 'inverse_gamma':
             e['L_sigma'] = self.L_sigma
-            if self.estimate_R_s:
+            if self.estimate_R_s or self.temperatures is not None:  # learnt, or the networks'
                 e['R_s'] = self.R_s
         return e
 

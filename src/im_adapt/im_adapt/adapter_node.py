@@ -53,7 +53,8 @@ class AdapterNode(LockstepNode):
         tracking = p('thermal_tracking', False, "the windings' temperatures, heated by the "
                      "drive's losses through the motor file's thermal block, carry R_s and R_R: "
                      'sensorless they are the estimates, sensored they move the least-squares '
-                     'estimates between updates (law improved; docs/adaptation.md §9)')
+                     "estimates between updates (R_s the stator network's alone unless "
+                     'estimate_stator_resistance; law improved; docs/adaptation.md §9)')
         if tracking and not blocks.get('thermal'):
             raise InvalidParameter('thermal_tracking', True, "needs the motor file's thermal "
                                    'block (run-file key thermal: motor)')

@@ -56,14 +56,16 @@ DUTY_RAMP = {'thesis': 2.0, 'krause_3hp': 4.0}
 #: the duty's current limit over the rated current (the load plus the transitions' J dω/dt)
 DUTY_CURRENT = 2.5
 #: the duty's runs, sensored then sensorless: the drive handed the true resistances (the bound),
-#: the nominal drive, the adapter (sensored: the least squares alone, then carried by the
-#: motor's thermal networks, then by networks whose block is off); sensorless also the adapter
+#: the nominal drive, the adapter (sensored: the least squares with R_s alone, then carried by
+#: the motor's thermal networks, then by networks whose block is off; ``_networks``: R_s from the
+#: networks alone, R_R from the least squares re-anchoring the cage's); sensorless also the adapter
 #: whose thermal block is off. Off: the cage's R_th × THERMAL_OFF, its C / THERMAL_OFF (the same
 #: time constant, 20 % more rise); sensored the stator's too (R_s is what the least squares
 #: learn least often)
 DUTY_RUNS = ('true_resistances', 'nominal', 'adaptive', 'adaptive_thermal',
-             'adaptive_thermal_off', 'true_resistances_sensorless', 'nominal_sensorless',
-             'adaptive_sensorless', 'adaptive_sensorless_off')
+             'adaptive_thermal_off', 'adaptive_networks', 'adaptive_networks_off',
+             'true_resistances_sensorless', 'nominal_sensorless', 'adaptive_sensorless',
+             'adaptive_sensorless_off')
 THERMAL_OFF = 1.2
 #: the start fluxes of the ``start`` part
 START_FLUXES = (0.98, 0.99, 1.0, 1.01, 1.02)
@@ -180,9 +182,11 @@ def duty_run(motor_name: str, run: str, duration: float = None,
         hook = Truth(LockstepAdapter.build(model, AdaptationGains(freeze=True), sensorless=True,
                                            thermal=_block(sc, run, ('r',)), record_every=0),
                      model)
-    else:                       # the least squares (carried by the networks: '_thermal')
-        gains = AdaptationGains(estimate_stator_resistance=True)
-        thermal = _block(sc, run, ('s', 'r')) if '_thermal' in run else None
+    else:                       # the least squares (carried by the networks: '_thermal'; R_s
+        #                         the networks' alone: '_networks')
+        gains = AdaptationGains(estimate_stator_resistance='_networks' not in run)
+        thermal = (_block(sc, run, ('s', 'r')) if '_thermal' in run or '_networks' in run
+                   else None)
         hook = Truth(LockstepAdapter.build(model, gains, thermal=thermal, record_every=0),
                      model)
     res = simulate(sc, adapter=hook, record_every=100, progress=progress)
