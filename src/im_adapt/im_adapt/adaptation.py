@@ -758,17 +758,13 @@ class ParameterAdapter:
         for p in range(n):
             b[p] = 0.0
         t = self.temperatures
+        if t is not None and (self.freeze or not self.sensorless):
+            # the windings still warm; sensored, what the networks moved since the last anchor
+            # is the prediction the increments below correct (their residuals were taken at the
+            # old estimates over N periods)
+            self._follow_temperatures()
         if self.freeze:
-            if t is not None:     # the windings still warm
-                if self.sensorless:
-                    self._follow_temperatures()
-                else:
-                    self._carry(t.R_s - self.R_s, t.R_R / self.R_R)
             return
-        if t is not None and not self.sensorless:
-            # what the networks moved since the last anchor: the prediction the increments
-            # below correct (their residuals were taken at the old estimates over N periods)
-            self._carry(t.R_s - self.R_s, t.R_R / self.R_R)
         c = self._c
         L_sig = self.L_sigma
         if self.estimate_leakage:
@@ -804,15 +800,6 @@ class ParameterAdapter:
                 self._follow_temperatures()
             else:                   # the windings at the temperatures of the estimates
                 t.anchor(self.R_s, self.R_R)
-
-    def _carry(self, dR_s: float, scale: float) -> None:
-        """Move R̂_s by dR_s and R̂_R by the factor ``scale`` (L̂_M held), as the windings warm."""
-        R_s = _clip(self.R_s + dR_s, self.R_s_lo, self.R_s_hi)
-        self._shift_stator_resistance(R_s - self.R_s)
-        R_R = _clip(self.R_R * scale, self.R_R_lo, self.R_R_hi)
-        self.R_R = R_R
-        self._c = R_R / self.L_M
-        self._publish_pair(R_R, self._c)
 
     def _follow_temperatures(self) -> None:
         """R̂_s and R̂_R at the windings' estimated temperatures, L̂_M and L̂_σ unchanged."""

@@ -267,9 +267,14 @@ def drift_schedule(motor=THESIS_MOTOR, duration: float = 2.0) -> ParameterSchedu
 DRIFT_RUNS = ('nominal', 'adaptive', 'adaptive_R_s')
 
 
-def drift_run(run: str, strategy: str = 'min_energy', duration: float = 2.0) -> dict:
-    """Run the R_s-ramp-and-leakage drift (module doc) with one of :data:`DRIFT_RUNS`."""
-    sched = drift_schedule(THESIS_MOTOR, duration)
+def drift_run(run: str, strategy: str = 'min_energy', duration: float = 2.0,
+              schedule: ParameterSchedule = None) -> dict:
+    """
+    Run the R_s-ramp-and-leakage drift (module doc) with one of :data:`DRIFT_RUNS`.
+
+    ``schedule`` replaces the drift (another plant under the same task).
+    """
+    sched = schedule if schedule is not None else drift_schedule(THESIS_MOTOR, duration)
     sc = Scenario(task='speed', strategy=strategy, schedule=sched, duration=duration,
                   controller='nominal' if run == 'nominal' else 'adaptive')
     hook = None
@@ -308,22 +313,16 @@ def run_stator_error(strategies=COMPARED_STRATEGIES, errors=STATOR_ERRORS,
     rows = []
     for st in strategies:
         for err in errors:
+            sched = ParameterSchedule(THESIS_MOTOR,
+                                      {'R_s': constant((1.0 + err) * THESIS_MOTOR.R_s)},
+                                      name=f'R_s {1.0 + err:g} x')
             row = {'strategy': st, 'R_s_error': err}
             for run in ('nominal', 'adaptive'):
-                sched = ParameterSchedule(THESIS_MOTOR,
-                                          {'R_s': constant((1.0 + err) * THESIS_MOTOR.R_s)},
-                                          name=f'R_s {1.0 + err:g} x')
-                sc = Scenario(task='speed', strategy=st, schedule=sched, duration=duration,
-                              controller=run)
-                hook = (None if run == 'nominal'
-                        else LockstepAdapter.build(sc.model_estimates(), record_every=0))
-                res = simulate(sc, adapter=hook, record_every=10)
-                row[f'{run}_speed_err_rms_rad_s'] = res.summary['speed_err_rms_rad_s']
-                row[f'{run}_trip'] = res.summary.get('trip')
-                if hook is not None:
-                    est = hook.adapter.estimates()
-                    row['R_R_err_end'] = est['R_R'] / THESIS_MOTOR.R_R - 1.0
-                    row['L_M_err_end'] = est['L_M'] / THESIS_MOTOR.L_M - 1.0
+                r = drift_run(run, st, duration, schedule=sched)
+                row[f'{run}_speed_err_rms_rad_s'] = r['speed_err_rms_rad_s']
+                row[f'{run}_trip'] = r['trip']
+            row['R_R_err_end'] = r['R_R_end'] / r['R_R_true_end'] - 1.0
+            row['L_M_err_end'] = r['L_M_err_end']
             rows.append(row)
     return rows
 
