@@ -191,7 +191,7 @@ def test_every_recording_path_writes_log_times_in_order(tmp_path, domain):
     and every message keeps its own stamp as publish time.
     """
     from im_bringup.processes import graph_processes, GraphProcesses
-    from im_bringup.testing import run_graph
+    from im_bringup.testing import assert_all_ended, run_graph
     from im_common.cdr import header_stamp_ns
     from im_recording.bag import iter_raw
     inproc = tmp_path / 'inproc.mcap'
@@ -200,8 +200,7 @@ def test_every_recording_path_writes_log_times_in_order(tmp_path, domain):
     procs_bag = tmp_path / 'procs.mcap'
     procs = graph_processes('position', 'min_energy', duration=0.3, record=procs_bag)
     with GraphProcesses(procs, str(tmp_path / 'logs'), domain) as g:
-        codes = g.start().wait(120)
-    assert codes == dict.fromkeys(codes, 0), codes
+        assert_all_ended(g, g.start().wait(120))
     assert_log_time_order(procs_bag)
     late = int(info(procs_bag).metadata['recording']['written_late'])
     for bag in (inproc, procs_bag):

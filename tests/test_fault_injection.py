@@ -519,3 +519,56 @@ def test_a_node_whose_teardown_hangs_exits_with_its_stacks_instead_of_hanging(tm
     assert p.returncode == 1, err[-2000:]
     assert time.monotonic() - t0 < 20.0
     assert 'tearing down' in err and 'destroy_node' in err and 'Timeout' in err, err[-2000:]
+
+
+@pytest.mark.processes
+@pytest.mark.slow
+def test_a_process_that_did_not_end_is_asked_for_its_stacks_and_goes_on(tmp_path):
+    """
+    ``kill -USR1`` on a node process writes every thread's stack to its log; the node goes on.
+
+    The harness's report of a graph that did not end (``assert_all_ended``) asks the processes
+    still running for their stacks first, so a hang says where it is; the process is not harmed
+    by being asked, and still stops cleanly on SIGINT.
+    """
+    import random
+    from im_bringup.processes import GraphProcesses, graph_processes
+    from im_bringup.testing import assert_all_ended, wait_for_log
+    procs = [p for p in graph_processes('position', duration=0.02) if p.name == 'observer']
+    with GraphProcesses(procs, str(tmp_path), {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+                        ) as g:
+        g.start()
+        assert wait_for_log(g, 'observer', 'waiting ('), g.log('observer')    # no plant: waits
+        with pytest.raises(AssertionError) as err:
+            assert_all_ended(g, g.returncodes())
+        text = str(err.value)
+        assert "{'observer': None}" in text and '--- observer: still running ---' in text
+        assert 'most recent call first' in text and 'spin_until_done' in text, text[-2000:]
+        assert g.popen['observer'].poll() is None           # asked, not ended
+        assert g.stop() == {'observer': 0}, g.log('observer')[-2000:]
+
+
+def test_the_teardown_yields_to_the_middleware_and_restores_the_scheduling():
+    """
+    Inside ``yielding_to_middleware`` every thread runs on one CPU and the caller at SCHED_IDLE.
+
+    That is what lets Fast DDS's starved discovery thread finish while the participant's teardown
+    spins (docs/guarantees.md, "Ending is bounded"); on leaving, the caller's policy and every
+    thread's CPUs are what they were.
+    """
+    import threading
+    from im_common.host import yielding_to_middleware
+    before = (os.sched_getaffinity(0), os.sched_getscheduler(0))
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, daemon=True)
+    other.start()
+    try:
+        with yielding_to_middleware():
+            assert os.sched_getscheduler(0) == os.SCHED_IDLE
+            assert len(os.sched_getaffinity(0)) == 1
+            assert os.sched_getaffinity(other.native_id) == os.sched_getaffinity(0)
+        assert (os.sched_getaffinity(0), os.sched_getscheduler(0)) == before
+        assert os.sched_getaffinity(other.native_id) == before[0]
+    finally:
+        stop.set()
+        other.join()

@@ -21,7 +21,7 @@ import time
 
 from conftest import FREE_RUN_RATES
 from im_bringup.processes import graph_processes, GraphProcesses
-from im_bringup.testing import wait_for_log, wait_until
+from im_bringup.testing import assert_all_ended, wait_for_log, wait_until
 from im_common import topics as T
 from im_recording.bag import info, iter_raw, partial_path
 import pytest
@@ -151,7 +151,7 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
                                 domain) as g:
                 codes = g.start().wait(120)
                 no_traceback(g)
-                assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
+                assert_all_ended(g, codes)
             c = counts(bag)
             for topic in LOCKSTEP:
                 expected = 2000 if topic == T.CMD_VOLTAGE else 2001      # steps 0..2000
@@ -192,7 +192,7 @@ def test_sigint_ends_every_process_cleanly(tmp_path, domain, target):
             g.send(signal.SIGINT)
         codes = g.wait(30)
         no_traceback(g)
-        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+        assert_all_ended(g, codes)
         if target == 'controller':
             assert 'controller stopping (SIGINT)' in g.log('plant')
     from rosbags.highlevel import AnyReader
@@ -254,7 +254,7 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
         g.start_one('recorder')
         codes = g.wait(120)
         no_traceback(g)
-        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+        assert_all_ended(g, codes)
     joined = re.search(r"lossless follower 'recorder' joined at step (\d+)", g.log('plant'))
     assert joined, g.log('plant')[-2000:]
     n_join = int(joined.group(1))
@@ -366,7 +366,7 @@ def _set_live(procs, tmp_path, domain, target: str, name: str, values) -> list:
                 ex.spin_until_future_complete(fut, timeout_sec=20)
                 results.append(fut.result().results[0])
             codes = g.wait(120)
-            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+            assert_all_ended(g, codes)
             no_traceback(g)
         node.destroy_node()
     finally:
@@ -476,7 +476,7 @@ def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_pat
     with GraphProcesses(a + b, str(tmp_path), domain) as g:
         codes = g.start().wait(180)
         no_traceback(g)
-        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+        assert_all_ended(g, codes)
     assert 'not signed by this graph' in g.log('controller') + g.log('observer')
     live = run_graph(task='position', strategy='min_energy', duration=0.1)
     for bag in bags:
@@ -727,7 +727,7 @@ def test_a_loaded_machine_makes_runs_slow_not_wrong(tmp_path, domain):
             with GraphProcesses(procs, str(tmp_path / f'p{i}'), domain) as g:
                 codes = g.start().wait(180)
                 no_traceback(g)
-            assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-1500:] for n in codes}
+            assert_all_ended(g, codes)
             assert figures_of_merit(load_run(str(bag)))['E_in_J'] == pytest.approx(
                 quiet['E_in_J'], rel=1e-12), i
     finally:

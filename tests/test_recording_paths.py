@@ -9,7 +9,7 @@ import random
 
 from im_bringup.processes import graph_processes, GraphProcesses
 from im_bringup.scenario import run_metadata
-from im_bringup.testing import run_graph
+from im_bringup.testing import assert_all_ended, run_graph
 from im_common import topics as T
 from im_recording.bag import info
 import pytest
@@ -30,7 +30,7 @@ def record_both(tmp_path, controller):
                                         record_metadata=meta), str(tmp_path / 'logs'),
                         domain) as g:
         codes = g.start().wait(120)
-        assert codes == dict.fromkeys(codes, 0), {n: g.log(n)[-2000:] for n in codes}
+        assert_all_ended(g, codes)
     return info(inproc).metadata, info(procs).metadata
 
 

@@ -231,6 +231,8 @@ def main(argv=None) -> int:
         view = LiveView(args.host, args.port)
     except OSError as exc:
         return cli_error('live', exc)
+    from im_common.host import enable_stack_dump
+    enable_stack_dump()
     ctx = Context()
     rclpy.init(args=['live'] + (sys.argv[1:] if argv is None else []), context=ctx)
     node = rclpy.create_node('live', context=ctx)

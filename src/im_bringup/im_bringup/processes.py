@@ -246,6 +246,38 @@ class GraphProcesses:
             codes = self.wait(5.0)
         return codes
 
+    def stacks(self, names: Optional[Sequence[str]] = None, wait: float = 2.0) -> None:
+        """
+        Ask each running process in ``names`` (default: all) for every thread's stack.
+
+        It writes them to its log and goes on (:func:`im_common.host.enable_stack_dump`): where
+        a process that does not end is, before it is stopped. Waits up to ``wait`` seconds for
+        the stacks to appear.
+        """
+        from im_common.host import STACK_SIGNAL
+        asked = [n for n, p in self.popen.items()
+                 if (names is None or n in names) and p.poll() is None]
+        before = {n: len(self.log(n)) for n in asked}
+        self.send(STACK_SIGNAL, asked)
+        deadline = time.monotonic() + wait
+        while asked and time.monotonic() < deadline:
+            if all('most recent call first' in self.log(n)[before[n]:] for n in asked):
+                break
+            time.sleep(0.05)
+
+    def ended_text(self, codes: Mapping[str, Optional[int]], tail: int = 3000) -> str:
+        """
+        Say which processes did not end with exit code 0, each with its log's end.
+
+        A process still running (code None) is first asked for its stacks (:meth:`stacks`), so
+        its log ends where it hangs.
+        """
+        bad = {n: c for n, c in codes.items() if c != 0}
+        self.stacks([n for n, c in bad.items() if c is None])
+        return '\n'.join(
+            f'--- {n}: ' + ('still running' if c is None else f'exit code {c}')
+            + f' ---\n{self.log(n)[-tail:]}' for n, c in bad.items())
+
     def log(self, name: str) -> str:
         try:
             with open(os.path.join(self.workdir, f'{name}.log')) as f:

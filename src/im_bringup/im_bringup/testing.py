@@ -61,6 +61,18 @@ def wait_for_log(graph, name: str, needle: str, timeout: float = 60.0) -> bool:
     return bool(wait_until(lambda: needle in graph.log(name), timeout))
 
 
+def assert_all_ended(graph, codes) -> None:
+    """
+    Assert that every process of ``graph`` ended with exit code 0.
+
+    Else one message: the codes, then each other process with its log's end; one still running
+    first writes its threads' stacks there
+    (:meth:`im_bringup.processes.GraphProcesses.ended_text`), so a hang says where it is.
+    """
+    if any(c != 0 for c in codes.values()):
+        raise AssertionError(f'exit codes {codes}\n{graph.ended_text(codes)}')
+
+
 @dataclass
 class GraphResult:
     summary: dict

@@ -10,7 +10,9 @@ constructs a node and checks its configuration.
 """
 from __future__ import annotations
 
+import contextlib
 import faulthandler
+import signal
 import sys
 from typing import Callable, List, Optional
 
@@ -27,11 +29,102 @@ from .stopping import StopSignals
 
 #: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
 STOP_FLUSH_S = 3.0
-#: After its run, how long a node process may take to flush and tear down before it is ended
-#: with every thread's stack on stderr and exit code 1 [s]. The flushes are bounded (2 s + 3 s);
-#: the middleware's teardown is not: once (a full test run on 2026-11-26, not reproduced in 80
-#: runs of the same test alone) an observer whose run had finished did not exit in 120 s.
+#: After its run, how long a node process may take to flush, tear down and exit before it is
+#: ended with every thread's stack on stderr and exit code 1 [s]. The flushes are bounded
+#: (2 s + 3 s); the middleware's and the executor's teardown are not: twice (full test runs on
+#: 2026-11-26 and 2026-11-28, not reproduced in hundreds of runs of the same graph alone) a node
+#: whose run had finished did not exit in 120 s.
 EXIT_GRACE_S = 20.0
+#: How long the executor's shutdown may wait for its spin to stop [s] (it is not spinning then).
+EXECUTOR_SHUTDOWN_S = 2.0
+
+
+def guard_exit(grace: float) -> None:
+    """
+    From here on this process ends within ``grace`` seconds, or is ended.
+
+    A C-level watchdog (it needs no GIL) writes every thread's stack to stderr and exits with
+    code 1 if the process has not exited by then. It stays armed through the interpreter's own
+    finalization (where the middleware's and the executor's C++ objects are destroyed), so it is
+    for a process's main only (:func:`node_main`), never for code that goes on afterwards.
+    """
+    faulthandler.dump_traceback_later(grace, exit=True)
+
+
+@contextlib.contextmanager
+def yielding_to_middleware():
+    """
+    While a process tears its middleware down: every thread on one CPU, the calling one below them.
+
+    Fast DDS 2.14's participant teardown (``DomainParticipant::set_listener(nullptr)``, called by
+    ``rmw_destroy_node`` for the process's last node) waits for a discovery callback in flight
+    with a condition wait that, as built in the wheels, returns at once: it spins, taking its
+    mutex again and again, and the callback thread, which needs that mutex once to say it is
+    done, almost never gets it. When another process of the graph tore down at the same moment
+    (the removal of its endpoints is a discovery callback here) a process hung there for good:
+    in stress runs of the 0.02 s graph 3 of about 250 runs, none in 200 with this
+    (docs/guarantees.md, "Ending is bounded"). With every thread on one CPU and the spinning one
+    at ``SCHED_IDLE``, the callback thread runs as soon as the spinner lets the mutex go, and the
+    wait ends. The scheduling is restored on leaving. Best effort: where these calls are refused,
+    :func:`guard_exit` still bounds the teardown.
+    """
+    import os
+    saved = None
+    try:
+        saved = (os.sched_getaffinity(0), os.sched_getscheduler(0), os.sched_getparam(0))
+        cpu = min(saved[0])
+        for tid in os.listdir('/proc/self/task'):
+            try:
+                os.sched_setaffinity(int(tid), {cpu})
+            except OSError:         # a thread that ended meanwhile
+                pass
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
+    try:
+        yield
+    finally:
+        if saved is not None:
+            try:
+                os.sched_setscheduler(0, saved[1], saved[2])
+                for tid in os.listdir('/proc/self/task'):
+                    try:
+                        os.sched_setaffinity(int(tid), saved[0])
+                    except OSError:
+                        pass
+            except OSError:
+                pass
+
+
+def end_process(node, executor) -> None:
+    """
+    Tear a process's middleware down, bounded: its executor, its node (the last one), rclpy.
+
+    For a process's main only: from here the process exits within :data:`EXIT_GRACE_S` or is
+    ended with its stacks (:func:`guard_exit`); the teardown yields to the middleware's threads
+    (:func:`yielding_to_middleware`). Either may be None.
+    """
+    guard_exit(EXIT_GRACE_S)
+    with yielding_to_middleware():
+        if executor is not None:
+            executor.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
+        if node is not None:
+            node.destroy_node()     # the process's last node: its participant goes with it
+        rclpy.try_shutdown()
+
+
+#: The signal on which a node process writes every thread's stack to stderr and goes on.
+STACK_SIGNAL = signal.SIGUSR1
+
+
+def enable_stack_dump() -> None:
+    """
+    Make ``kill -USR1 <pid>`` write every thread's Python stack to stderr (the process's log).
+
+    A process that does not end can be asked where it is before it is stopped
+    (:meth:`im_bringup.processes.GraphProcesses.stacks`); the process goes on.
+    """
+    faulthandler.register(STACK_SIGNAL, all_threads=True)
 
 
 def build_node(factory: Callable, **kwargs):
@@ -210,7 +303,8 @@ def node_main(factory: Callable, argv=None) -> int:
     Run a drive node (its ``main``): Jazzy shutdown idiom, stop signals, one-line errors.
 
     Exit codes: 0 finished or stopped (signal, or the run ended elsewhere), 1 failed, 2 refused
-    configuration.
+    configuration. It is a process's main (``sys.exit(node_main(...))``): once the run is over the
+    process exits within :data:`EXIT_GRACE_S` or is ended with its stacks (:func:`guard_exit`).
     """
     from rclpy.signals import SignalHandlerOptions
     args = list(sys.argv if argv is None else argv)
@@ -221,12 +315,13 @@ def node_main(factory: Callable, argv=None) -> int:
     bad = init_args_error(args)
     if bad:
         return cli_error(prog, bad)
+    enable_stack_dump()
     with StopSignals() as stop:
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         except _rcl_error() as exc:
             return cli_error(prog, str(exc).splitlines()[0])
-        node = None
+        node = executor = None
         code = 0
         try:
             try:
@@ -242,24 +337,21 @@ def node_main(factory: Callable, argv=None) -> int:
             realtime.quiet_gc()
             spin_until_done([node], executor, stop=stop)
             code = node.exit_code
+            guard_exit(EXIT_GRACE_S)    # the run is over: everything below is bounded
             if not stop.requested:      # let the end of the run reach the others
                 flush(node)
         except (KeyboardInterrupt, ExternalShutdownException):
             code = 0 if node is None or not node.exit_code else node.exit_code
         finally:
-            # bounded from here on, and diagnosable: a C-level watchdog (no GIL needed) dumps
-            # every thread's stack and exits 1 if the flush and teardown below hang
-            faulthandler.dump_traceback_later(EXIT_GRACE_S, exit=True)
-            try:
-                if node is not None:
-                    # a stopped node's last samples are still owed to the recorder, which the
-                    # plant let lag up to follower_window steps: under load 1 s was not always
-                    # enough
-                    flush(node, timeout=STOP_FLUSH_S)
-                    node.destroy_node()
-                rclpy.try_shutdown()
-            finally:
-                faulthandler.cancel_dump_traceback_later()    # node_main may run in a caller
+            # bounded from here to the process's exit, and diagnosable (guard_exit): a teardown
+            # or an interpreter exit that hangs ends the process with its stacks and code 1
+            guard_exit(EXIT_GRACE_S)
+            if node is not None:
+                # a stopped node's last samples are still owed to the recorder, which the
+                # plant let lag up to follower_window steps: under load 1 s was not always
+                # enough
+                flush(node, timeout=STOP_FLUSH_S)
+            end_process(node, executor)
     return code
 
 

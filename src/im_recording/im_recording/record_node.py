@@ -496,7 +496,8 @@ def main(argv=None) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from im_common.host import flush, make_executor, ProcessHost, request_stop
+    from im_common.host import (enable_stack_dump, end_process, flush, make_executor,
+                                ProcessHost, request_stop)
     from im_common.stopping import StopSignals
     from im_common.cli import parse_args
     full = list(sys.argv if argv is None else ['record'] + list(argv))
@@ -531,7 +532,8 @@ def main(argv=None) -> int:
                            log_time_offset_ns=log_time_offset_for(a.log_time))
     except (FileExistsError, ValueError, OSError) as exc:
         return cli_error('record', exc)
-    node = None
+    node = ex = None
+    enable_stack_dump()
     with StopSignals() as stop:
         rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO)
         try:
@@ -578,9 +580,7 @@ def main(argv=None) -> int:
                 pass
             if writer.failed:
                 cli_error('record', writer.failed)
-                if node is not None:
-                    node.destroy_node()
-                rclpy.try_shutdown()
+                end_process(node, ex)
                 return 1
             if node is not None:
                 n = sum(node.counts.values())
@@ -603,6 +603,5 @@ def main(argv=None) -> int:
                     text += f'; no step missing on the lock-step topics, {span}'
                 print(text, file=sys.stderr)
                 flush(node, timeout=0.5)
-                node.destroy_node()
-            rclpy.try_shutdown()
+            end_process(node, ex)   # the bag is closed: bounded from here, as a node's
     return 0
