@@ -174,9 +174,16 @@ def test_a_follower_ends_after_a_grace_when_complete_or_when_nothing_more_comes(
     f = _follower()
     f.master_event('plant', FINISHED, {'step': '100'}, P, 'recorder', 10.0)
     assert not f.drained(10.2, False, 10.2)
-    assert f.drained(10.31, False, 10.2)          # complete: after the end's grace
+    assert f.drained(10.51, False, 10.2)          # complete: after the end's grace
+    # the last lock-step message came late, after the end's grace: the reports of its step,
+    # published right after it, still get the grace
+    assert not f.drained(10.9, False, 10.8)
+    assert f.drained(11.11, False, 10.8)
     assert not f.drained(11.0, True, 10.5)        # behind: messages still coming
     assert f.drained(11.6, True, 10.5)            # behind, but quiet for a second
+    # complete, and this graph's messages keep coming: ended after END_LIMIT_S all the same
+    assert not f.drained(12.9, False, 12.85)
+    assert f.drained(13.01, False, 12.95)
 
 
 def test_a_time_master_that_leaves_without_a_final_event_ends_the_run_for_the_follower():

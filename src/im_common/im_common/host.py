@@ -62,7 +62,7 @@ def yielding_to_middleware():
     mutex again and again, and the callback thread, which needs that mutex once to say it is
     done, almost never gets it. When another process of the graph tore down at the same moment
     (the removal of its endpoints is a discovery callback here) a process hung there for good:
-    in stress runs of the 0.02 s graph 3 of about 250 runs, none in 200 with this
+    in stress runs of the 0.02 s graph 3 of about 250 runs, none in 320 with this
     (docs/guarantees.md, "Ending is bounded"). With every thread on one CPU and the spinning one
     at ``SCHED_IDLE``, the callback thread runs as soon as the spinner lets the mutex go, and the
     wait ends. The scheduling is restored on leaving. Best effort: where these calls are refused,

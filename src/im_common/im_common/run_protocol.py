@@ -406,8 +406,14 @@ class LosslessFollower:
 
     #: How long the time master's measurements may have no publisher before it counts as gone [s].
     MASTER_GONE_S = 2.0
-    #: The end's grace [s]: the end event (recorded by another subscription) and the last steps.
+    #: The end's grace [s]: once complete, nothing new of this graph for this long after the
+    #: later of the end event and the last message (a node's reports of its last step follow its
+    #: lock-step message, which completes the recording: counted from the end event alone, a
+    #: free_run observer that came late lost them, two graphs on a 2-core machine)
     END_GRACE_S = 0.3
+    #: Once complete, the recording ends this long after the end event [s] even if messages of
+    #: this graph keep coming (a setpoint published on and on).
+    END_LIMIT_S = 3.0
     #: After the end, nothing new for this long [s] ends the recording even if it is behind.
     QUIET_S = 1.0
 
@@ -501,10 +507,12 @@ class LosslessFollower:
         """
         Tell whether the part of this follower is over after the run's end.
 
-        Over: nothing ``behind`` the time master's last step and the end's grace passed, or
+        Over: nothing ``behind`` the time master's last step and the end's grace passed since
+        the later of the end and ``last_msg`` (at most :data:`END_LIMIT_S` after the end), or
         nothing new came for :data:`QUIET_S`.
         """
         if self.end_state is None:
             return False
-        quiet = now - max(self.end_wall, last_msg) > self.QUIET_S
-        return (not behind and now - self.end_wall > self.END_GRACE_S) or quiet
+        since = now - max(self.end_wall, last_msg)
+        settled = since > self.END_GRACE_S or now - self.end_wall > self.END_LIMIT_S
+        return (not behind and settled) or since > self.QUIET_S
