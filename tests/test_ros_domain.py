@@ -16,8 +16,14 @@ from im_common import topics as T
 import pytest
 
 
-def _topics_seen_on(domain: int, proc: subprocess.Popen, want: str, limit_s: float = 120.0):
-    """Return the topics a node on ``domain`` lists once ``want`` is among them (or proc ends)."""
+def _topics_seen_on(domain: int, proc: subprocess.Popen, *want: str, limit_s: float = 120.0):
+    """
+    Return the topics a node on ``domain`` lists once all of ``want`` are among them.
+
+    Or once ``proc`` ended, or after ``limit_s``. Discovery is incremental: one topic of the
+    graph may be listed a moment before another (a run failed once asserting the command
+    topic right after the current had appeared).
+    """
     import rclpy
     from rclpy.context import Context
     ctx = Context()
@@ -28,7 +34,7 @@ def _topics_seen_on(domain: int, proc: subprocess.Popen, want: str, limit_s: flo
         names = set()
         while time.monotonic() - t0 < limit_s and proc.poll() is None:
             names = {n for n, _ in node.get_topic_names_and_types()}
-            if want in names:
+            if names.issuperset(want):
                 break
             time.sleep(0.2)
         node.destroy_node()
@@ -57,7 +63,7 @@ def test_scenario_runs_on_ros_domain_id_and_an_explicit_domain_id_wins(tmp_path,
     assert os.environ['ROS_DOMAIN_ID'] == str(ros_domain_id)
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        seen = _topics_seen_on(domain, proc, T.MEAS_CURRENT)
+        seen = _topics_seen_on(domain, proc, T.MEAS_CURRENT, T.CMD_VOLTAGE)
         assert T.MEAS_CURRENT in seen and T.CMD_VOLTAGE in seen, (seen, proc.poll())
         if processes:       # nothing of the run on the environment's domain
             elsewhere = _topics_seen_on(ros_domain_id, proc, T.MEAS_CURRENT, limit_s=3.0)
