@@ -563,12 +563,33 @@ def test_the_teardown_yields_to_the_middleware_and_restores_the_scheduling():
     other = threading.Thread(target=stop.wait, daemon=True)
     other.start()
     try:
-        with yielding_to_middleware():
+        with yielding_to_middleware() as refused:
             assert os.sched_getscheduler(0) == os.SCHED_IDLE
             assert len(os.sched_getaffinity(0)) == 1
             assert os.sched_getaffinity(other.native_id) == os.sched_getaffinity(0)
         assert (os.sched_getaffinity(0), os.sched_getscheduler(0)) == before
         assert os.sched_getaffinity(other.native_id) == before[0]
+        assert refused == []
     finally:
         stop.set()
         other.join()
+
+
+def test_a_refused_yield_is_reported_not_raised(monkeypatch):
+    """
+    Where the scheduler refuses (no ``SCHED_IDLE`` for this process), the teardown goes on.
+
+    The refusal is in the context's list, one line naming the call and the error, which
+    ``end_process`` logs; the threads' CPUs are still restored.
+    """
+    from im_common.host import yielding_to_middleware
+    before = os.sched_getaffinity(0)
+
+    def refuse(pid, policy, param):
+        raise PermissionError(1, 'Operation not permitted')
+    monkeypatch.setattr(os, 'sched_setscheduler', refuse)
+    with yielding_to_middleware() as refused:
+        assert len(os.sched_getaffinity(0)) == 1
+    assert os.sched_getaffinity(0) == before
+    assert refused == ['yielding to the middleware: [Errno 1] Operation not permitted',
+                       'restoring the scheduling policy: [Errno 1] Operation not permitted']

@@ -66,9 +66,12 @@ def yielding_to_middleware():
     (docs/guarantees.md, "Ending is bounded"). With every thread on one CPU and the spinning one
     at ``SCHED_IDLE``, the callback thread runs as soon as the spinner lets the mutex go, and the
     wait ends. The scheduling is restored on leaving. Best effort: where these calls are refused,
-    :func:`guard_exit` still bounds the teardown.
+    :func:`guard_exit` still bounds the teardown. The context's value is a list of what was
+    refused (one line each, e.g. an unprivileged process may not leave ``SCHED_IDLE``), filled
+    on entering and on leaving, for the caller to report.
     """
     import os
+    refused: List[str] = []
     saved = None
     try:
         saved = (os.sched_getaffinity(0), os.sched_getscheduler(0), os.sched_getparam(0))
@@ -79,21 +82,21 @@ def yielding_to_middleware():
             except OSError:         # a thread that ended meanwhile
                 pass
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    except (AttributeError, OSError):
-        pass
+    except (AttributeError, OSError) as exc:
+        refused.append(f'yielding to the middleware: {exc}')
     try:
-        yield
+        yield refused
     finally:
         if saved is not None:
             try:
                 os.sched_setscheduler(0, saved[1], saved[2])
-                for tid in os.listdir('/proc/self/task'):
-                    try:
-                        os.sched_setaffinity(int(tid), saved[0])
-                    except OSError:
-                        pass
-            except OSError:
-                pass
+            except OSError as exc:
+                refused.append(f'restoring the scheduling policy: {exc}')
+            for tid in os.listdir('/proc/self/task'):
+                try:
+                    os.sched_setaffinity(int(tid), saved[0])
+                except OSError:     # a thread that ended meanwhile
+                    pass
 
 
 def end_process(node, executor) -> None:
@@ -105,12 +108,16 @@ def end_process(node, executor) -> None:
     (:func:`yielding_to_middleware`). Either may be None.
     """
     guard_exit(EXIT_GRACE_S)
-    with yielding_to_middleware():
+    name = node.get_name() if node is not None else 'process'
+    with yielding_to_middleware() as refused:
         if executor is not None:
             executor.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
         if node is not None:
             node.destroy_node()     # the process's last node: its participant goes with it
         rclpy.try_shutdown()
+    from rclpy.logging import get_logger
+    for line in refused:            # not a fault (guard_exit bounds the end), but never silent
+        get_logger(name).debug(f'teardown: refused {line}')
 
 
 #: The signal on which a node process writes every thread's stack to stderr and goes on.
