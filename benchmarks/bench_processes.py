@@ -23,6 +23,9 @@ The graph as separate processes (how users run it), next to its yardstick in the
    [--busy] [--runs N]``; in ``make bench`` the 2 s runs of 3.): the fraction of the steps the
    plant integrated whose measurements are in the recorder's bag, and of the commands the plant
    received, next to the missed-deadline fraction of the same run.
+5. ``four_processes_over_cpu_ceiling`` alone (``python benchmarks/bench_processes.py --key
+   [--runs N]``, about 20 s a run): the ping-pong and the lock-step pair of 2., one line a run
+   with the key, steps/s and each process's CPU per step (docs/benchmarks.md, 2026-12-04).
 """
 from __future__ import annotations
 
@@ -427,14 +430,32 @@ def run(quick: bool = False) -> dict:
     allowed; the position error it is compared by is still zero before 0.2 s).
     """
     d = 0.4 if quick else 2.0
-    n_rt = 2000 if quick else 10000
+    res = cpu_ceiling(d, 2000 if quick else 10000)
+    res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
+    res.update(free_run(0.5 if quick else d))
+    if quick:
+        return res
+    res.update(free_run_busy_runs(BUSY_RUNS, BUSY_DURATION_S))
+    res.update(rate_held_busy())
+    res.update({k.replace('free_run_1kHz', 'free_run_1kHz_normal_sched'): v
+                for k, v in free_run(d, realtime=False).items()})
+    return res
+
+
+def cpu_ceiling(d: float, n_rt: int) -> dict:
+    """
+    Run the ping-pong, a lock-step run of ``d`` / 4 and one of ``d`` [s]: rates, CPU, ceilings.
+
+    Everything ``four_processes_over_cpu_ceiling`` is made of (``run_all.CEILING_SHARES``): the
+    ping-pong's round trips and CPU, the lock-step processes' steps/s, CPU per step (the two runs
+    differenced), each process's, the ceilings, and the cores other jobs kept busy meanwhile.
+    """
     cpu_rt, cpu_short, cpu_full, others = [], [], [], []
     by_short, by_full = {}, {}
     res = {'ping_pong_two_processes_round_trips_per_s': ping_pong_processes(n_rt, cpu_rt)}
     lockstep_processes(d / 4, record=False, cpu=cpu_short, cpu_by_name=by_short)
     res['lockstep_processes_steps_per_s'] = lockstep_processes(
         d, record=False, cpu=cpu_full, cpu_by_name=by_full, others=others)
-    res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
     res['lockstep_processes_vs_ping_pong'] = (res['lockstep_processes_steps_per_s']
                                               / res['ping_pong_two_processes_round_trips_per_s'])
     # CPU per step without the start-up: the full run's steps beyond the short run's (T_s 100 µs)
@@ -453,19 +474,36 @@ def run(quick: bool = False) -> dict:
     # the cores the rest of the machine kept busy during the full run: other jobs take CPU the
     # lock-step processes then wait for, and the ratios fall with it
     res['lockstep_processes_other_load_cores'] = others[0]
-    res.update(free_run(0.5 if quick else d))
-    if quick:
-        return res
-    res.update(free_run_busy_runs(BUSY_RUNS, BUSY_DURATION_S))
-    res.update(rate_held_busy())
-    res.update({k.replace('free_run_1kHz', 'free_run_1kHz_normal_sched'): v
-                for k, v in free_run(d, realtime=False).items()})
     return res
+
+
+def key_runs(runs: int, d: float = 2.0) -> None:
+    """
+    ``--key [--runs N]``: ``four_processes_over_cpu_ceiling`` alone, N times (about 25 s each).
+
+    One line a run: the key (steps/s × CPU per step over the cores: how busy the lock-step
+    processes keep the machine), steps/s, CPU per step and each process's, and the serial
+    chain's share (the plant's and the controller's CPU of a step one after the other).
+    """
+    for i in range(runs):
+        r = cpu_ceiling(d, 10000)
+        key = (r['lockstep_processes_vs_ping_pong']
+               / r['lockstep_processes_cpu_ceiling_vs_ping_pong'])
+        pre = 'lockstep_processes_'
+        per = ' '.join('%s %.0f' % (n, r[f'{pre}cpu_us_per_step_{n}'])
+                       for n in ('plant', 'controller', 'observer'))
+        print('run %d: four_processes_over_cpu_ceiling %.3f  %.0f steps/s  %.0f µs CPU/step '
+              '(%s)  serial plant+controller %.0f µs  other jobs %.2f cores'
+              % (i, key, r[f'{pre}steps_per_s'], r[f'{pre}cpu_us_per_step'], per,
+                 r[f'{pre}serial_us_per_step'], r[f'{pre}other_load_cores']), flush=True)
 
 
 if __name__ == '__main__':
     if '--pong' in sys.argv:
         _pong_main()
+    elif '--key' in sys.argv:
+        a = sys.argv
+        key_runs(int(a[a.index('--runs') + 1]) if '--runs' in a else 1)
     elif '--free-run-record' in sys.argv:
         a = sys.argv
         dur = float(a[a.index('--free-run-record') + 1])
