@@ -550,24 +550,29 @@ def test_a_process_that_did_not_end_is_asked_for_its_stacks_and_goes_on(tmp_path
 
 def test_the_teardown_yields_to_the_middleware_and_restores_the_scheduling():
     """
-    Inside ``yielding_to_middleware`` every thread runs on one CPU and the caller at SCHED_IDLE.
+    Inside ``yielding_to_middleware`` every thread runs on one CPU and the caller at nice 19.
 
     That is what lets Fast DDS's starved discovery thread finish while the participant's teardown
-    spins (docs/guarantees.md, "Ending is bounded"); on leaving, the caller's policy and every
-    thread's CPUs are what they were.
+    spins (docs/guarantees.md, "Ending is bounded"); on leaving, the caller's policy, nice value
+    and every thread's CPUs are what they were.
     """
     import threading
-    from im_common.host import yielding_to_middleware
-    before = (os.sched_getaffinity(0), os.sched_getscheduler(0))
+    from im_common.host import YIELD_NICE, yielding_to_middleware
+    me = threading.get_native_id()
+    before = (os.sched_getaffinity(0), os.sched_getscheduler(0),
+              os.getpriority(os.PRIO_PROCESS, me))
     stop = threading.Event()
     other = threading.Thread(target=stop.wait, daemon=True)
     other.start()
     try:
         with yielding_to_middleware() as refused:
-            assert os.sched_getscheduler(0) == os.SCHED_IDLE
+            assert os.sched_getscheduler(0) == os.SCHED_OTHER
+            assert os.getpriority(os.PRIO_PROCESS, me) == YIELD_NICE
+            assert os.getpriority(os.PRIO_PROCESS, other.native_id) == before[2]
             assert len(os.sched_getaffinity(0)) == 1
             assert os.sched_getaffinity(other.native_id) == os.sched_getaffinity(0)
-        assert (os.sched_getaffinity(0), os.sched_getscheduler(0)) == before
+        assert (os.sched_getaffinity(0), os.sched_getscheduler(0),
+                os.getpriority(os.PRIO_PROCESS, me)) == before
         assert os.sched_getaffinity(other.native_id) == before[0]
         assert refused == []
     finally:
@@ -577,7 +582,7 @@ def test_the_teardown_yields_to_the_middleware_and_restores_the_scheduling():
 
 def test_a_refused_yield_is_reported_not_raised(monkeypatch):
     """
-    Where the scheduler refuses (no ``SCHED_IDLE`` for this process), the teardown goes on.
+    Where the scheduler refuses (no policy change for this process), the teardown goes on.
 
     The refusal is in the context's list, one line naming the call and the error, which
     ``end_process`` logs; the threads' CPUs are still restored.

@@ -64,30 +64,41 @@ def yielding_to_middleware():
     (the removal of its endpoints is a discovery callback here) a process hung there for good:
     in stress runs of the 0.02 s graph 3 of about 250 runs, none in 320 with this
     (docs/guarantees.md, "Ending is bounded"). With every thread on one CPU and the spinning one
-    at ``SCHED_IDLE``, the callback thread runs as soon as the spinner lets the mutex go, and the
-    wait ends. The scheduling is restored on leaving. Best effort: where these calls are refused,
-    :func:`guard_exit` still bounds the teardown. The context's value is a list of what was
-    refused (one line each, e.g. an unprivileged process may not leave ``SCHED_IDLE``), filled
-    on entering and on leaving, for the caller to report.
+    below the others (ordinary scheduling at nice 19, also when the process ran real-time), the
+    callback thread runs as soon as the spinner lets the mutex go, and the wait ends. Not
+    ``SCHED_IDLE``: beside CPU-bound processes on that CPU an idle-class thread hardly ran, and a
+    recorder took over 20 s to destroy its node. The scheduling is restored on leaving. Best
+    effort: where these calls are refused, :func:`guard_exit` still bounds the teardown. The
+    context's value is a list of what was refused (one line each, e.g. an unprivileged process
+    may not lower its nice value again), filled on entering and on leaving, for the caller to
+    report.
     """
     import os
+    import threading
     refused: List[str] = []
     saved = None
+    me = threading.get_native_id()
     try:
-        saved = (os.sched_getaffinity(0), os.sched_getscheduler(0), os.sched_getparam(0))
+        saved = (os.sched_getaffinity(0), os.sched_getscheduler(0), os.sched_getparam(0),
+                 os.getpriority(os.PRIO_PROCESS, me))
         cpu = min(saved[0])
         for tid in os.listdir('/proc/self/task'):
             try:
                 os.sched_setaffinity(int(tid), {cpu})
             except OSError:         # a thread that ended meanwhile
                 pass
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.setpriority(os.PRIO_PROCESS, me, YIELD_NICE)
     except (AttributeError, OSError) as exc:
         refused.append(f'yielding to the middleware: {exc}')
     try:
         yield refused
     finally:
         if saved is not None:
+            try:
+                os.setpriority(os.PRIO_PROCESS, me, saved[3])
+            except OSError as exc:
+                refused.append(f'restoring the nice value: {exc}')
             try:
                 os.sched_setscheduler(0, saved[1], saved[2])
             except OSError as exc:
@@ -99,25 +110,47 @@ def yielding_to_middleware():
                     pass
 
 
+#: The nice value of the thread that tears the participant down (:func:`yielding_to_middleware`).
+YIELD_NICE = 19
+
+
 def end_process(node, executor) -> None:
     """
     Tear a process's middleware down, bounded: its executor, its node (the last one), rclpy.
 
     For a process's main only: from here the process exits within :data:`EXIT_GRACE_S` or is
-    ended with its stacks (:func:`guard_exit`); the teardown yields to the middleware's threads
-    (:func:`yielding_to_middleware`). Either may be None.
+    ended with its stacks (:func:`guard_exit`). The executor and the node's publishers,
+    subscriptions, services, clients and timers go first, with the process's own scheduling;
+    then the node and rclpy, which take the participant down, yielding to the middleware's
+    threads (:func:`yielding_to_middleware`). Either may be None.
     """
     guard_exit(EXIT_GRACE_S)
     name = node.get_name() if node is not None else 'process'
+    if executor is not None:
+        executor.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
+    if node is not None:
+        destroy_entities(node)
     with yielding_to_middleware() as refused:
-        if executor is not None:
-            executor.shutdown(timeout_sec=EXECUTOR_SHUTDOWN_S)
         if node is not None:
             node.destroy_node()     # the process's last node: its participant goes with it
         rclpy.try_shutdown()
     from rclpy.logging import get_logger
     for line in refused:            # not a fault (guard_exit bounds the end), but never silent
         get_logger(name).debug(f'teardown: refused {line}')
+
+
+def destroy_entities(node) -> None:
+    """Destroy a node's publishers, subscriptions, services, clients and timers (rclpy's API)."""
+    for timer in list(node.timers):
+        node.destroy_timer(timer)
+    for sub in list(node.subscriptions):
+        node.destroy_subscription(sub)
+    for srv in list(node.services):
+        node.destroy_service(srv)
+    for cli in list(node.clients):
+        node.destroy_client(cli)
+    for pub in list(node.publishers):
+        node.destroy_publisher(pub)
 
 
 #: The signal on which a node process writes every thread's stack to stderr and goes on.
