@@ -479,7 +479,7 @@ def cpu_ceiling(d: float, n_rt: int) -> dict:
 
 def key_runs(runs: int, d: float = 2.0) -> None:
     """
-    ``--key [--runs N]``: ``four_processes_over_cpu_ceiling`` alone, N times (about 25 s each).
+    ``--key [--runs N]``: ``four_processes_over_cpu_ceiling`` alone, N times (about 20 s each).
 
     One line a run: the key (steps/s × CPU per step over the cores: how busy the lock-step
     processes keep the machine), steps/s, CPU per step and each process's, and the serial
