@@ -455,22 +455,46 @@ def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, pro
 
 @pytest.mark.processes
 @pytest.mark.slow
-def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(tmp_path):
+def test_a_node_refusing_its_configuration_at_run_time_stops_the_graph_at_once(
+        tmp_path, monkeypatch):
     """
     Check that a node's own configuration error ends every process.
 
     A configuration only the node's own process sees (here a parameter given to the controller on
     its command line) still ends every process at once, with the node's line.
+
+    "At once" is counted in the runner's polls of the exit codes, not in seconds: the graph is
+    stopped in the poll that first sees the refusal — not :data:`FAILURE_GRACE` later, not when the
+    others give up waiting for the controller, not at the hang guard.
     """
-    from im_bringup.processes import failure_line, graph_processes, run_processes
+    from im_bringup.processes import (failure_line, FAILURE_GRACE, graph_processes,
+                                      GraphProcesses, REFUSED, run_processes)
     procs = graph_processes('speed', duration=0.02)
     for p in procs:
         if p.name == 'controller':
             p.parameters['k_1'] = 30.0
-    t0 = time.monotonic()
-    codes = run_processes(procs, str(tmp_path / 'logs'), timeout=120,
+    polls, stopped_after = [], []       # the codes each poll saw; the polls before the stop
+    returncodes, stop = GraphProcesses.returncodes, GraphProcesses.stop
+
+    def poll(self):
+        codes = returncodes(self)
+        if not stopped_after:
+            polls.append(codes)
+        return codes
+
+    def stopping(self, *args, **kwargs):
+        stopped_after.append(len(polls))
+        return stop(self, *args, **kwargs)
+    monkeypatch.setattr(GraphProcesses, 'returncodes', poll)
+    monkeypatch.setattr(GraphProcesses, 'stop', stopping)
+    codes = run_processes(procs, str(tmp_path / 'logs'), timeout=120,   # a hang guard
                           env={'ROS_DOMAIN_ID': '177'})
-    assert codes['controller'] == 2 and time.monotonic() - t0 < 15, codes
+    assert codes['controller'] == REFUSED, codes
+    seen = next(i for i, c in enumerate(polls) if c['controller'] == REFUSED)
+    assert stopped_after == [seen + 1], (
+        f'the refusal was seen in poll {seen + 1} of {len(polls)}, the graph stopped '
+        + (f'after poll {stopped_after[0]}' if stopped_after else 'never (each ended on its own)')
+        + f": not at once (a {FAILURE_GRACE} s grace, the others' startup timeout, a hang)")
     assert all(c is not None for c in codes.values())
     failure = failure_line(str(tmp_path / 'logs'), codes)
     assert failure.startswith("controller: unknown parameter 'k_1'") and "'k1'" in failure
