@@ -120,16 +120,22 @@ def _rogue_in_process():
 
 
 def _clean_and_attacked(**kw):
+    """Return the summaries of a clean and an attacked run, and the commands the rogue sent."""
     from im_bringup.testing import run_graph
+    rogue, rogues = _rogue_in_process(), []
+
+    def beside(domain_id):
+        rogues.append(rogue(domain_id))
+        return rogues[-1]
     clean = run_graph(**kw)
-    attacked = run_graph(beside=_rogue_in_process(), **kw)
-    return clean.summary, attacked.summary
+    attacked = run_graph(beside=beside, **kw)
+    return clean.summary, attacked.summary, rogues[0].node.answered
 
 
 @pytest.mark.parametrize('controller', ['nominal', 'adaptive'])
 def test_a_rogue_changes_nothing_in_lockstep_and_is_named(controller):
-    clean, s = _clean_and_attacked(task='position', strategy='min_energy', controller=controller,
-                                   duration=0.05)
+    clean, s, sent = _clean_and_attacked(task='position', strategy='min_energy',
+                                         controller=controller, duration=0.05)
     assert s['ok'], s['failures']
     for key in ('E_in_J', 'E_loss_J', 'pos_err_max_rad', 'V_max_V', 'steps'):
         assert s[key] == pytest.approx(clean[key], rel=1e-12), key
@@ -142,9 +148,12 @@ def test_a_rogue_changes_nothing_in_lockstep_and_is_named(controller):
     assert foreign['controller'][T.CLOCK] == ['/rogue']      # reported; ROS time is never used
     if controller == 'adaptive':
         assert foreign['controller'][T.ADAPT_ESTIMATE] == ['/rogue']
-    # the rogue answers the measurements its thread gets to (a share of the GIL): 45 of the 500
-    # steps in a fresh-clone run whose graph made 6,983 steps/s, 50 or more before
-    assert s['refused_unsigned']['plant'][T.CMD_VOLTAGE] >= 10
+    # the rogue answers the measurements its thread gets to (a share of the GIL: 45 of the 500
+    # steps in one fresh-clone run, 254-501 in others), so its own count of the commands it sent
+    # is the measure: the plant refused some, and never more than the rogue sent (a few are still
+    # in flight when the run ends: 1-18 of them in four runs)
+    refused = s['refused_unsigned']['plant'][T.CMD_VOLTAGE]
+    assert 0 < refused <= sent, (refused, sent)
 
 
 def test_a_rogue_changes_nothing_in_free_run():
@@ -228,7 +237,9 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     finally:
         rogue.send_signal(2)
         out = rogue.communicate(timeout=30)[0]
-    assert 'answered' in out and int(out.split('answered ')[1].split()[0]) > 0
+    assert 'answered' in out
+    sent = int(out.split('answered ')[1].split()[0])    # the rogue's own count of its commands
+    assert sent > 0
     meta = info(bag).metadata['recording']
     assert int(meta['refused_unsigned']) > 0 and '/rogue@/im/command/voltage' in \
         meta['foreign_publishers']
@@ -252,7 +263,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
         c[T.REFUSED_PREFIX + T.CMD_VOLTAGE]
     # the plant's own count of refused commands (its finished event) and the rogue named
     refused = rep['runs'][0]['status']['refusals']
-    assert refused['refused_unsigned']['plant'][T.CMD_VOLTAGE] > 0, refused
+    assert 0 < refused['refused_unsigned']['plant'][T.CMD_VOLTAGE] <= sent, (refused, sent)
     assert refused['foreign_publishers']['plant'][T.CMD_VOLTAGE] == ['/rogue'], refused
     with open(rep['markdown']) as f:
         section = f.read().split('## Refused messages')[1]
