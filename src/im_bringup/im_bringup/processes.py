@@ -295,6 +295,49 @@ class GraphProcesses:
 
 #: Exit code of a node that refused its configuration (``im_common.lockstep.node_main``).
 REFUSED = 2
+#: The processes off the run's critical path (docs/guarantees.md, "Off the critical path"): the
+#: recorder and the live view. One that dies during the run does not end it: the run goes on
+#: without it (unrecorded: the plant drops a lossless follower that acknowledged nothing for its
+#: ``input_timeout``, 5 s by default, and steps on) and :func:`lost_line` says so once. One that
+#: refuses its configuration (exit code 2) still stops the graph at once, as any node's refusal:
+#: nothing has run yet, and the run asked for cannot be made.
+OFF_CRITICAL_PATH = ('recorder', 'live')
+
+
+def ends_graph(name: str, code: Optional[int]) -> bool:
+    """Tell whether process ``name`` exiting with ``code`` ends the graph (OFF_CRITICAL_PATH)."""
+    if code in (None, 0):
+        return False
+    return code == REFUSED or name not in OFF_CRITICAL_PATH
+
+
+def exit_text(code: int) -> str:
+    """Say how a process ended: ``exit code 1``, or ``killed by SIGKILL (exit code -9)``."""
+    if code < 0:
+        try:
+            return f'killed by {signal.Signals(-code).name} (exit code {code})'
+        except ValueError:
+            pass
+    return f'exit code {code}'
+
+
+def lost_line(name: str, code: int, arguments: Sequence[str] = ()) -> str:
+    """
+    Say in one line that a process off the critical path ended with an error and the run goes on.
+
+    For the recorder: the run goes on unrecorded, and where what it wrote is (its ``--out``'s
+    ``.part``, for ``recover``). ``arguments``: the process's own (:attr:`NodeProcess.arguments`).
+    """
+    if name == 'recorder':
+        args = list(arguments)
+        out = args[args.index('--out') + 1] if '--out' in args[:-1] else None
+        where = (f'; what it wrote up to then is in {out}.part: ros2 run im_recording recover '
+                 f'{out}.part' if out else '')
+        return (f'recorder {exit_text(code)}: the run goes on UNRECORDED (the plant stops '
+                f'waiting for its acknowledgements after its input_timeout){where}')
+    return f'{name} {exit_text(code)}: the run goes on without it'
+
+
 #: Seconds the others get to end on their own after a node failed at run time (they see its
 #: ``failed`` event) before they are stopped; a refused configuration stops them at once.
 FAILURE_GRACE = 2.0
@@ -309,10 +352,13 @@ def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float
     SIGINT/SIGTERM to this process stop the graph cleanly. A process that exits
     with an error stops the graph: at once when it refused its configuration (exit code 2),
     after :data:`FAILURE_GRACE` otherwise — nobody waits out a startup timeout for a node that
-    is gone. :func:`failure_line` says which and why.
+    is gone. :func:`failure_line` says which and why. A process off the critical path (the
+    recorder, the live view: :data:`OFF_CRITICAL_PATH`) that dies during the run does not stop
+    it: :func:`lost_line` is printed once (stderr) and the run goes on to its end.
     """
     from im_common.stopping import StopSignals
     g = GraphProcesses(processes, workdir, env)
+    said = set()
     with StopSignals() as stop:
         g.start()
         t0 = time.monotonic()
@@ -323,7 +369,12 @@ def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float
             codes = g.returncodes()
             if all(c is not None for c in codes.values()):
                 return codes
-            failed = [c for c in codes.values() if c not in (None, 0)]
+            for name, c in codes.items():
+                if c not in (None, 0) and not ends_graph(name, c) and name not in said:
+                    said.add(name)
+                    print(('\n' if progress else '') + lost_line(
+                        name, c, g.processes[name].arguments), file=sys.stderr, flush=True)
+            failed = [c for n, c in codes.items() if ends_graph(n, c)]
             if failed and stop_at is None:
                 stop_at = time.monotonic() + (0.0 if REFUSED in failed else FAILURE_GRACE)
             if stop_at is not None and time.monotonic() >= stop_at:
@@ -342,14 +393,15 @@ def failure_line(workdir: str, codes: Mapping[str, Optional[int]]) -> Optional[s
     """
     Return ``'<node>: <its error line>'`` for the process that ended the graph.
 
-    A refused configuration first, then in start order, from its log in ``workdir``; None when
-    every process exited 0.
+    A refused configuration first, then a process that ends the graph (:func:`ends_graph`), in
+    start order, from its log in ``workdir``; None when every process exited 0.
     """
     failed = [n for n, c in codes.items() if c not in (None, 0)]
     if not failed:
         return None
     order = list(START_ORDER)
-    failed.sort(key=lambda n: (codes[n] != REFUSED, order.index(n) if n in order else 99))
+    failed.sort(key=lambda n: (codes[n] != REFUSED, not ends_graph(n, codes[n]),
+                               order.index(n) if n in order else 99))
     name = failed[0]
     try:
         with open(os.path.join(workdir, f'{name}.log')) as f:
@@ -359,7 +411,7 @@ def failure_line(workdir: str, codes: Mapping[str, Optional[int]]) -> Optional[s
     said = [ln for ln in lines if 'error: ' in ln and not ln.startswith('[')]
     said = said or [ln for ln in lines if ln.startswith('[ERROR]') or ln.startswith('[FATAL]')]
     if not said:
-        return f'{name}: exit code {codes[name]} (see {workdir}/{name}.log)'
+        return f'{name}: {exit_text(codes[name])} (see {workdir}/{name}.log)'
     line = said[0]
     if line.startswith('['):                        # a ROS log line: [LEVEL] [stamp] [node]: text
         line = line.split(']: ', 1)[-1]

@@ -609,8 +609,9 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     im_bringup drive.launch.py`` starts) plus the recorder; the figures come from the
     recording, by the report's own code.
     """
-    from im_bringup.processes import check_processes, failure_line, graph_processes, \
-        run_processes
+    from im_bringup.processes import check_processes, ends_graph, exit_text, failure_line, \
+        graph_processes, run_processes
+    from im_recording.bag import partial_path
     from im_recording.report import figures_of_merit
     from im_recording.run import load_run
     from im_common.lockstep import ConfigurationError
@@ -637,6 +638,15 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     failure = failure_line(logs, codes)
     if failure:
         summary['failures'] = {failure.split(':', 1)[0]: failure.split(': ', 1)[-1]}
+    lost = {n: c for n, c in codes.items() if c not in (None, 0) and not ends_graph(n, c)}
+    if lost and not any(ends_graph(n, c) for n, c in codes.items()):
+        # the run went on to its end without them (docs/guarantees.md): said once during the
+        # run; the summary and the exit code say that its recording is not the whole run
+        failure = 'the run went on to its end, but ' + '; '.join(
+            f'{n} {exit_text(c)} during it' for n, c in lost.items()) + (
+            f': {args.record} is not written; what the recorder wrote up to then is in '
+            f'{partial_path(args.record)} (ros2 run im_recording recover it)'
+            if 'recorder' in lost else '')
     if os.path.exists(args.record):
         run = load_run(args.record)
         summary.update(figures_of_merit(run))
@@ -644,7 +654,7 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         # as the in-process graph counts them, per node and topic, and who sent them
         summary.update({k: v for k, v in refusals(run).items() if v})
     else:
-        from im_recording.bag import BagError, partial_path
+        from im_recording.bag import BagError
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
             summary['partial_recording'] = str(partial_path(args.record))
             from im_recording.recover import load_salvaged

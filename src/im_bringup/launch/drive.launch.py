@@ -24,7 +24,9 @@ which ``mode:=free_run`` needs). The parameters are checked before any process s
 nodes' own checks (:func:`im_bringup.processes.check_processes`): a bad file or value is launch's
 one "Caught exception" line naming the node and parameter; so is an output that exists (without
 ``force:=true``) or cannot be written (:func:`im_bringup.scenario.check_launch_outputs`); a
-process that still exits with an error shuts the whole launch down at once. Ctrl-C stops every
+process that still exits with an error shuts the whole launch down at once, but for the recorder
+and the live view (off the critical path): one that dies during the run is one line, and the run
+goes on without it (unrecorded, docs/guarantees.md). Ctrl-C stops every
 process cleanly (exit 0) and closes the recording.
 Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless that variable is
 already set (``SUBNET`` opens the graph to other machines on purpose). Every launch makes a fresh
@@ -34,8 +36,8 @@ Needs a full ROS 2 Jazzy install (``launch``/``launch_ros`` are not on PyPI); no
 suite imports this file.
 """
 from launch import LaunchDescription
-from launch.actions import (DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler,
-                            SetEnvironmentVariable)
+from launch.actions import (DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction,
+                            RegisterEventHandler, SetEnvironmentVariable)
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration
@@ -87,16 +89,30 @@ def _processes(context):
             for p in procs]
 
 
+def _node_name(event) -> str:
+    """Return the graph's name of the node whose process exited (``recorder``), or its process."""
+    try:
+        return event.action.node_name.rsplit('/', 1)[-1]
+    except (AttributeError, RuntimeError):
+        return getattr(event, 'process_name', None) or 'a node'
+
+
 def _stop_on_failure(event, _context):
     """
     End the launch at once when a node exits with an error (a refused configuration: 2).
 
-    The others do not wait out their startup timeout for it.
+    The others do not wait out their startup timeout for it. A process off the critical path
+    (the recorder, the live view: :func:`im_bringup.processes.ends_graph`) that dies during the
+    run does not end it: one line says so and the run goes on to its end (docs/guarantees.md).
     """
-    if event.returncode:
-        name = getattr(event, 'process_name', None) or 'a node'
-        return [EmitEvent(event=Shutdown(reason=f'{name} exited with code {event.returncode}'))]
-    return None
+    from im_bringup.processes import ends_graph, lost_line
+    if not event.returncode:
+        return None
+    name = _node_name(event)
+    if not ends_graph(name, event.returncode):
+        return [LogInfo(msg=lost_line(name, event.returncode,
+                                      [str(a) for a in (getattr(event, 'cmd', None) or [])]))]
+    return [EmitEvent(event=Shutdown(reason=f'{name} exited with code {event.returncode}'))]
 
 
 def generate_launch_description():

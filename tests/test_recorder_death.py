@@ -1,0 +1,133 @@
+"""
+The recorder dies during a run of processes: the run goes on to its end, unrecorded, and says so.
+
+docs/guarantees.md ("Off the critical path, never fatal"): the recorder is off the critical path.
+A recorder killed outright (SIGKILL) during ``scenario --processes --record`` — the processes the
+launch file starts, by the same supervisor policy (:func:`im_bringup.processes.ends_graph`) —
+leaves the run going: the plant stops waiting for its acknowledgements after its
+``input_timeout``, every drive node ends with exit code 0 at the run's end, one line says that the
+run goes on unrecorded, ``scenario`` exits 1 naming the ``.part`` and ``recover`` salvages every
+step the recorder had on disk when it was killed.
+"""
+import json
+import os
+import shutil
+import signal
+import subprocess
+
+from im_bringup.processes import ends_graph, exit_text, lost_line
+from im_bringup.testing import wait_until
+from im_common import topics as T
+from im_recording.bag import iter_raw
+import pytest
+
+#: A hang guard, not a speed target: the run and its ends take well under a minute.
+HANG_GUARD_S = 600.0
+PERIOD_NS = 100_000
+
+
+def test_only_a_refusal_of_a_process_off_the_critical_path_ends_the_graph():
+    assert not ends_graph('recorder', -signal.SIGKILL)
+    assert not ends_graph('live', 1)
+    assert ends_graph('recorder', 2)            # a refused --out: nothing ran yet
+    assert ends_graph('controller', -signal.SIGKILL)
+    assert not ends_graph('plant', 0)
+    assert exit_text(-9) == 'killed by SIGKILL (exit code -9)'
+    line = lost_line('recorder', -9, ['--out', 'bags/a.mcap', '--log-time', 'wall'])
+    assert 'UNRECORDED' in line and 'bags/a.mcap.part' in line and '\n' not in line
+
+
+def _exe(package, name):
+    from im_bringup.processes import executable_path
+    return executable_path(package, name)
+
+
+def _children(pid):
+    """Return {pid: command line} of the processes whose parent is ``pid``."""
+    out = {}
+    for p in os.listdir('/proc'):
+        if not p.isdigit():
+            continue
+        try:
+            with open(f'/proc/{p}/stat') as f:
+                ppid = int(f.read().rsplit(')', 1)[1].split()[1])
+            if ppid == pid:
+                with open(f'/proc/{p}/cmdline', 'rb') as f:
+                    out[int(p)] = f.read().replace(b'\0', b' ').decode()
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def _steps(bag):
+    """Return the sorted steps of the measured current in ``bag``."""
+    return sorted(stamp // PERIOD_NS for _, _, stamp, _ in iter_raw(bag, [T.MEAS_CURRENT]))
+
+
+@pytest.mark.processes
+@pytest.mark.slow
+def test_killed_recorder_the_run_goes_on_unrecorded_and_its_part_is_recoverable(tmp_path):
+    bag = tmp_path / 'run.mcap'
+    part = tmp_path / 'run.mcap.part'
+    logs = tmp_path / 'run_logs'
+    proc = subprocess.Popen(
+        [_exe('im_bringup', 'scenario'), '--task', 'speed', '--duration', '3.0', '--processes',
+         '--record', str(bag), '--no-progress', '--domain-id', os.environ['ROS_DOMAIN_ID']],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        # mid-run: the plant started and the recorder put a chunk of its steps on disk (the
+        # file's head, written before step 0, holds the run's metadata)
+        assert wait_until(lambda: 'starting:' in _read(logs / 'plant.log') and part.exists(),
+                          timeout=HANG_GUARD_S), _read(logs / 'plant.log')
+        head = part.stat().st_size
+        assert wait_until(lambda: part.stat().st_size > head + 10_000,
+                          timeout=HANG_GUARD_S), _read(logs / 'recorder.log')
+        recorder = [pid for pid, cmd in _children(proc.pid).items()
+                    if '/lib/im_recording/record ' in cmd]
+        assert len(recorder) == 1, _children(proc.pid)
+        snapshot = tmp_path / 'at_kill.mcap.part'
+        shutil.copyfile(part, snapshot)         # what was on disk before the kill
+        os.kill(recorder[0], signal.SIGKILL)
+        out, err = proc.communicate(timeout=HANG_GUARD_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 1, (out, err)
+    assert 'Traceback' not in out + err, err
+    # one line during the run, one error line at the end, both naming the recorder's death
+    lost = [ln for ln in err.splitlines() if 'the run goes on UNRECORDED' in ln]
+    assert len(lost) == 1, err
+    assert lost[0].startswith('recorder killed by SIGKILL (exit code -9)'), lost
+    assert str(part) in lost[0]
+    error = [ln for ln in err.splitlines() if ln.startswith('scenario: error: ')]
+    assert len(error) == 1, err
+    assert 'the run went on to its end, but recorder killed by SIGKILL' in error[0], error
+    summary = json.loads((tmp_path / 'run.json').read_text())
+    assert summary['processes'] == {'recorder': -9, 'controller': 0, 'observer': 0,
+                                    'plant': 0}, summary
+    assert summary['partial'] is True
+    plant_log = _read(logs / 'plant.log')
+    assert "follower 'recorder' acknowledged nothing" in plant_log, plant_log
+    assert 'continuing without it' in plant_log
+    assert 'run stopped' not in plant_log, plant_log      # not stopped: it ran to its end
+    assert not bag.exists()
+    # everything already written is kept: recover salvages at least what was on disk at the kill
+    saved, before = tmp_path / 'saved.mcap', tmp_path / 'before.mcap'
+    for src, dst in ((part, saved), (snapshot, before)):
+        r = subprocess.run([_exe('im_recording', 'recover'), str(src), '-o', str(dst)],
+                           capture_output=True, text=True, timeout=HANG_GUARD_S)
+        # 1: written, and the run's tail after the kill named as lost (no damaged chunk)
+        assert r.returncode == 1 and dst.exists(), r.stderr
+        assert 'the writer did not close the file' in r.stderr and 'damaged' not in r.stderr
+    steps, steps_before = _steps(saved), _steps(before)
+    assert steps_before and steps[:len(steps_before)] == steps_before
+    assert steps == list(range(steps[-1] + 1)), 'a gap inside what the recorder wrote'
+    assert steps[-1] < 30_000, 'the recorder could not have recorded the whole run'
+
+
+def _read(path) -> str:
+    try:
+        return path.read_text()
+    except OSError:
+        return ''
