@@ -43,6 +43,20 @@ if _STALE:
 
 pytest_plugins = ['im_bringup.testing']
 
+# Property-based fuzzing (tests/test_fuzz_*.py): one set of hypothesis profiles for every reader.
+# 'ci' (the default, `make test`): a few hundred seeded cases a property, the same ones every run;
+# 'fuzz' (`make fuzz`, HYPOTHESIS_PROFILE=fuzz): at least 1,000 fresh cases a property. No
+# deadline (a loaded 2-core machine is slow, not wrong); no example database (nothing written
+# into the tree: a failure prints its reproduction blob and the shrunk input instead).
+from hypothesis import HealthCheck, settings as hypothesis_settings  # noqa: E402, I100
+
+_FUZZ_COMMON = {'deadline': None, 'database': None, 'print_blob': True,
+                'suppress_health_check': [HealthCheck.too_slow, HealthCheck.data_too_large,
+                                          HealthCheck.filter_too_much]}
+hypothesis_settings.register_profile('ci', max_examples=200, derandomize=True, **_FUZZ_COMMON)
+hypothesis_settings.register_profile('fuzz', max_examples=1000, **_FUZZ_COMMON)
+hypothesis_settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
+
 
 @pytest.fixture(autouse=True)
 def ros_domain_id(monkeypatch):
