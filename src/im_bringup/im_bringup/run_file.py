@@ -29,11 +29,12 @@ import os
 from typing import Dict, Mapping, Optional
 
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
-from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, InvalidParameter,
-                              load_motor_file, MOTOR_BLOCKS, motor_blocks, motor_from_dict,
-                              MotorParams, normalize_variation,
+from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE_NAMES,
+                              InvalidParameter, load_motor_file, MOTOR_BLOCKS, motor_blocks,
+                              motor_from_dict, MotorParams, normalize_variation,
                               ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
                               variation_schedule, warn_motor_defaults)
+from im_common.validation import one_line
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.flux import STRATEGIES
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
@@ -115,7 +116,7 @@ class RunFileError(ValueError):
 
     def __init__(self, source: str, key: str, reason: str):
         self.source, self.key, self.reason = source, key, reason
-        super().__init__(f'{source}: {key}: {reason}')
+        super().__init__(f'{one_line(source)}: {one_line(key)}: {one_line(reason)}')
 
 
 @dataclass(frozen=True)
@@ -293,6 +294,7 @@ class Scenario:
             put(self, 'saturation', saturation_from_dict(self.saturation, motor.L_M).describe())
         if self.thermal is not None:
             put(self, 'thermal', thermal_from_dict(self.thermal).describe())
+        self._check_real_plant_model()
         model = self.compensation_model()
         put(self, 'compensation', None if model is None else model.describe())
         if (isinstance(self.start_flux, bool) or not isinstance(self.start_flux, (int, float))
@@ -310,6 +312,33 @@ class Scenario:
         if self.saturation_model and self.controller != 'nominal':
             raise InvalidParameter('saturation_model', True, f'with the {self.controller} '
                                    'controller: its adapter tracks L_M itself; choose one')
+
+    def _check_real_plant_model(self) -> None:
+        """
+        Refuse what the real plant's model cannot run, here and not when the plant is built.
+
+        im_common.model.RealMotorModel takes no time-varying inductance and an acting iron loss
+        only with core_loss_exponent 2: named by the run file's key (variation.L_s, ...).
+        """
+        blocks = [k for k in PLANT_BLOCKS if getattr(self, k) is not None] \
+            + (['iron_loss'] if self.iron_loss else [])
+        if not blocks:
+            return
+        real = f'the real plant ({", ".join(blocks)}) takes no time-varying inductance; vary ' \
+            'R_s or R_r, or use the ideal plant'
+        if self.schedule is not None:
+            if not self.schedule.inductances_constant:
+                raise InvalidParameter('schedule', self.schedule.name, real)
+        elif isinstance(self.variation, dict):
+            varied = [n for n in INDUCTANCE_NAMES if n in self.variation]
+            if varied:
+                raise InvalidParameter(f'variation.{varied[0]}', None, real)
+        elif not self.plant_schedule().inductances_constant:
+            raise InvalidParameter('variation', self.variation, real)
+        if self.iron_loss and self.core_loss_exponent != 2.0:
+            raise InvalidParameter('core_loss_exponent', self.core_loss_exponent,
+                                   'must be 2 with an acting iron loss (iron_loss: true; a '
+                                   'resistance dissipates |psi|^2)')
 
     def saturated_model(self):
         """Return the drive's :class:`~im_common.saturation.SaturatedModel` (None: linear)."""
@@ -559,14 +588,15 @@ class Scenario:
         try:
             return cls(**_fields_from_mapping(doc, base_dir, source))
         except InvalidParameter as exc:
-            key = exc.name.split(':')[0]
+            # 'key: inner' is an error inside a referenced file or block (it names itself); a
+            # key of the file's own may hold ':' too (unknown: its text is given back as it is)
+            key, _, inner = exc.name.partition(': ')
             top = key.split('.')[0].split('[')[0]
             where = override_source if top in over else source
             reason = exc.reason if exc.value is None or f'{exc.value!r}' in exc.reason \
                 else f'{exc.reason} (got {exc.value!r})'
-            if ':' in exc.name:     # an error inside a referenced file: the file names itself
-                reason = f'{exc.name.split(": ", 1)[1]}: {reason}'
-                key = exc.name.split(': ', 1)[0]
+            if inner:
+                reason = f'{inner}: {reason}'
             raise RunFileError(where, _key_name(key), reason) from None
         except (TypeError, ValueError) as exc:
             raise RunFileError(source, 'run file', str(exc).splitlines()[0]) from None

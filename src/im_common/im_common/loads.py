@@ -325,7 +325,7 @@ def load_from_dict(doc, source: str = 'load') -> Load:
     if not isinstance(doc, dict):
         raise InvalidParameter(f'{source}', doc, 'must be a mapping with a kind')
     kind = doc.get('kind')
-    if kind not in LOAD_FIELDS:
+    if not isinstance(kind, str) or kind not in LOAD_FIELDS:     # [linear] is no kind either
         raise InvalidParameter(f'{source}: kind', kind, f'must be one of {", ".join(LOAD_KINDS)}')
     allowed = LOAD_FIELDS[kind]
     values = {}

@@ -11,14 +11,25 @@ from __future__ import annotations
 import math
 
 
+def one_line(text) -> str:
+    r"""
+    Return ``text`` on one line: a name with a line break or another control character escaped.
+
+    Error lines echo what the user wrote (a YAML key "a\nb", ``--set 'k=1\n...'``); the
+    command line prints one line per error.
+    """
+    text = str(text)
+    return text if text.isprintable() else repr(text)[1:-1]
+
+
 class InvalidParameter(ValueError):
-    """A parameter value is impossible; the message names the parameter."""
+    """A parameter value is impossible; the message (one line) names the parameter."""
 
     def __init__(self, name: str, value, reason: str):
         self.name = name
         self.value = value
         self.reason = reason
-        super().__init__(f"invalid parameter '{name}' = {value!r}: {reason}")
+        super().__init__(f"invalid parameter '{one_line(name)}' = {value!r}: {one_line(reason)}")
 
 
 def check_real(name: str, value, lo=None, lo_open: bool = False, allow_none: bool = False):

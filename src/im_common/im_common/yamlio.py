@@ -95,15 +95,47 @@ def _loader():
 
 def _read(path: str, what: str, error: type, loader):
     try:
-        with open(path) as f:
-            return yaml.load(f, Loader=loader)
+        with open(path, encoding='utf-8') as f:
+            doc = yaml.load(f, Loader=loader)
     except OSError as exc:
         raise error(f'cannot read {what} {path}: {exc.strerror}') from None
+    except UnicodeDecodeError as exc:
+        raise error(f'{what} {path} is not UTF-8 text (byte {exc.start}: '
+                    f'{exc.object[exc.start:exc.start + 1]!r})') from None
+    except RecursionError:
+        raise error(f'{what} {path} is nested too deeply to be read') from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, 'problem_mark', None)
         where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
         problem = getattr(exc, 'problem', None) or type(exc).__name__
         raise error(f'{what} {path} is not valid YAML{where}: {problem}') from None
+    if _contains_itself(doc):
+        raise error(f'{what} {path}: an alias refers to a collection it is inside '
+                    '(a recursive document, e.g. a: &x [*x])')
+    return doc
+
+
+def _contains_itself(doc) -> bool:
+    """Return whether a loaded document holds a collection inside itself (a recursive alias)."""
+    state = {}                          # id -> 1 on the current path, 2 done
+    stack = [(doc, False)]
+    while stack:
+        node, leaving = stack.pop()
+        if not isinstance(node, (dict, list)):
+            continue
+        if leaving:
+            state[id(node)] = 2
+            continue
+        seen = state.get(id(node))
+        if seen == 1:
+            return True
+        if seen == 2:
+            continue
+        state[id(node)] = 1
+        stack.append((node, True))
+        stack.extend((child, False) for child in (node.values() if isinstance(node, dict)
+                                                  else node))
+    return False
 
 
 def read_yaml_file(path: str, what: str = 'YAML file', error=YamlFileError):

@@ -166,10 +166,15 @@ def load_profile(path: str) -> Profile:
 
 def _load_csv(path: str) -> Profile:
     try:
-        with open(path, newline='') as f:
+        with open(path, newline='', encoding='utf-8') as f:
             rows = [r for r in csv.reader(f) if r and not r[0].lstrip().startswith('#')]
     except OSError as exc:
         raise InvalidParameter('profile file', path, f'cannot be read ({exc.strerror})') from None
+    except UnicodeDecodeError as exc:
+        raise InvalidParameter(f'{path}', exc.object[exc.start:exc.start + 1],
+                               f'is not UTF-8 text (byte {exc.start})') from None
+    except csv.Error as exc:
+        raise InvalidParameter(f'{path}', 'CSV', f'is not CSV ({exc})') from None
     if not rows:
         raise InvalidParameter(f'{path}', 'empty',
                                f"needs a header t,<{'|'.join(KINDS)}> and rows")

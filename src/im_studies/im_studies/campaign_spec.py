@@ -117,7 +117,7 @@ def _distribution(name: str, value, where: str) -> dict:
              'hi': num(w[1], 'within')}
     extra = set(value) - {'uniform', 'normal', 'fixed', 'within'}
     if extra:
-        raise SpecError(f'{where}: box.{name}: unknown key {sorted(extra)[0]!r}')
+        raise SpecError(f'{where}: box.{name}: unknown key {sorted(extra, key=str)[0]!r}')
     if not 0 < d['lo'] <= d['hi']:
         raise SpecError(f'{where}: box.{name} range [{d["lo"]:g}, {d["hi"]:g}] must be positive '
                         'and increasing')
@@ -129,7 +129,7 @@ def _gain_set(entry, i: int, where: str, base: Path) -> dict:
         raise SpecError(f'{where}: gain_sets[{i}] = {entry!r}: give {{name, gains, T_s}}')
     unknown = set(entry) - {'name', 'gains', 'T_s'}
     if unknown:
-        raise SpecError(f'{where}: gain_sets[{i}]: unknown key {sorted(unknown)[0]!r} '
+        raise SpecError(f'{where}: gain_sets[{i}]: unknown key {sorted(unknown, key=str)[0]!r} '
                         '(name, gains, T_s)')
     T_s = entry.get('T_s')
     if isinstance(T_s, bool) or not isinstance(T_s, (int, float)) or not (
@@ -182,7 +182,7 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
         raise SpecError(f'{where}: a campaign spec is a mapping of {", ".join(SPEC_KEYS)}')
     unknown = set(raw) - set(SPEC_KEYS)
     if unknown:
-        raise SpecError(f'{where}: unknown key {sorted(unknown)[0]!r} (one of '
+        raise SpecError(f'{where}: unknown key {sorted(unknown, key=str)[0]!r} (one of '
                         f'{", ".join(SPEC_KEYS)})')
     spec: dict = {'name': str(raw.get('name', Path(where).stem))}
     for key, default, lo in (('seed', 0, 0), ('draws', 100, 1), ('worst', 10, 0),
