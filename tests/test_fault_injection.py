@@ -360,7 +360,6 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
 def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_path):
     import json
     bag = tmp_path / 'pfull.mcap'
-    t0 = time.monotonic()
     r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '2.0', '--record',
                         str(bag), '--processes', '--no-progress'], capture_output=True,
                        text=True, timeout=300, env=enospc_env(tmp_path, 1_500_000))
@@ -379,7 +378,6 @@ def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_pat
     fix = run_tool('recover', bag)          # what reached the disk, and the tail it lacks
     assert fix.returncode == 1 and 'end of run (' in fix.stderr, fix.stderr
     assert bag.with_suffix('.json').exists()
-    assert time.monotonic() - t0 < 60
 
 
 def _read_only(directory: Path, argv: list) -> list:
@@ -408,13 +406,12 @@ def test_read_only_output_is_refused_before_the_run(tmp_path, option):
             str(target)]
     if option == '--report':
         argv += ['--record', str(tmp_path / 'r.mcap')]
-    t0 = time.monotonic()
     r = subprocess.run(_read_only(ro, argv), capture_output=True, text=True, timeout=120)
     try:
         assert r.returncode == 2, r.stderr
         line = one_line(r.stderr)
         assert str(ro) in line and ('Read-only' in line or 'Permission denied' in line), line
-        assert time.monotonic() - t0 < 20         # refused before any simulation
+        assert 'starting:' not in r.stderr      # refused before any simulation (the plant's line)
         assert not (tmp_path / 'r.mcap').exists() and not list(ro.iterdir())
     finally:
         ro.chmod(0o755)
@@ -437,12 +434,12 @@ def test_params_file_faults_are_the_node_line_on_every_path(tmp_path, fault, pro
     f.write_text(f'controller:\n  ros__parameters:\n    {text}\n')
     argv = ['scenario', '--task', 'speed', '--duration', '0.02', '--no-progress',
             '--params-file', f, '--record', tmp_path / 'x.mcap']
-    t0 = time.monotonic()
     r = run_tool(*argv, *(['--processes'] if processes else []))
     assert r.returncode == 2, r.stderr
     line = one_line(r.stderr)
     assert "node 'controller'" in line and all(w in line for w in wanted), line
-    assert time.monotonic() - t0 < 20          # no 30 s startup wait, no run
+    # no run (the plant's 'starting:' line), no process started to wait out its startup timeout
+    assert 'starting:' not in r.stderr and not (tmp_path / 'x_logs').exists()
     assert not (tmp_path / 'x.mcap').exists() and not partial_path(tmp_path / 'x.mcap').exists()
     # the node executable itself says the same thing about the same file
     from ament_index_python.packages import get_package_prefix
@@ -537,11 +534,11 @@ def test_a_node_whose_teardown_hangs_exits_with_its_stacks_instead_of_hanging(tm
     assert wait_until(lambda: 'waiting (' in log.read_text() or p.poll() is not None, 60) \
         and p.poll() is None, log.read_text()[-2000:]
     p.send_signal(signal.SIGINT)    # its run ends: flush, then the teardown that hangs
-    t0 = time.monotonic()
-    p.wait(timeout=30)
+    # longer than the hung teardown's 60 s: without the exit guard the teardown returns and the
+    # process exits 0 without stacks; with it, code 1 and the stacks, EXIT_GRACE_S after the run
+    p.wait(timeout=120)
     err = log.read_text()
     assert p.returncode == 1, err[-2000:]
-    assert time.monotonic() - t0 < 20.0
     assert 'tearing down' in err and 'destroy_node' in err and 'Timeout' in err, err[-2000:]
 
 
