@@ -110,14 +110,12 @@ def test_a_loop_whose_echo_is_late_is_refused_before_step_0(monkeypatch):
             time.sleep(5e-3)
         echo(self, msg)
     monkeypatch.setattr(StatusChannel, 'echo', late)
-    t0 = time.monotonic()
     res = _free_run()
     assert not res.summary['ok'] and res.summary['steps'] == 0
     why = res.summary['failures']['plant']
     assert 'free_run at 1000 Hz: measured loop latency' in why and 'cannot hold it' in why, why
     assert 'holds none of 250, 500, 1000, 2000 Hz' in why, why
     assert 'v_cmd_alpha' not in res.trace or len(res.trace['v_cmd_alpha']) == 0
-    assert time.monotonic() - t0 < 30
 
 
 def test_a_forced_rate_that_misses_is_stopped_at_zero_voltage_within_0_1_s(monkeypatch):
