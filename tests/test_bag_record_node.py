@@ -45,11 +45,12 @@ def test_recorder_node_records_what_was_published(tmp_path):
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(rec)
         ex.add_node(pub_node)
-        deadline = time.monotonic() + 10
-        while (p_cur.get_subscription_count() == 0 or p_sh.get_subscription_count() == 0
-               or p_clk.get_subscription_count() == 0 or p_tv.get_subscription_count() == 0) \
-                and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.05)
+        from im_bringup.testing import wait_until
+
+        def spun_until(condition):          # events, each with a generous hang guard
+            return wait_until(lambda: ex.spin_once(timeout_sec=0.05) or condition(), 60, 0.0)
+        assert spun_until(lambda: all(p.get_subscription_count() for p in (
+            p_cur, p_sh, p_clk, p_tv))), 'hang: the recorder never matched the talker in 60 s'
         # the talker is the graph's plant: it signs the lock-step and truth topics for its run
         rec.adopt_run('run1')
         sign = Signer(rec.signer.key, 'run1').sign
@@ -79,10 +80,9 @@ def test_recorder_node_records_what_was_published(tmp_path):
         rogue.vector.x = 50.0
         p_cur.publish(rogue)
         p_tv.publish(rogue)             # and on a report topic: another graph's ground truth
-        while (sum(rec.counts.values()) < len(sent)
-               or sum(rec.unsigned.values()) + len(rec.signing.early) < 2) \
-                and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.05)
+        assert spun_until(lambda: sum(rec.counts.values()) >= len(sent) and sum(
+            rec.unsigned.values()) + len(rec.signing.early) >= 2), \
+            f'hang: the recorder got {sum(rec.counts.values())} of {len(sent)} messages in 60 s'
         rec.flush_unverified()          # the run never started: what did not verify is refused
         rec.writer.add_metadata('recording', rec.close_metadata(None))
     finally:
@@ -197,6 +197,12 @@ class _Run:
         while time.monotonic() < t_end:
             self.ex.spin_once(timeout_sec=0.02)
 
+    def spin_until(self, condition, hang_s=60.0):
+        """Spin until ``condition()`` holds (True) or ``hang_s`` passed (False: a hang)."""
+        from im_bringup.testing import wait_until
+        return bool(wait_until(lambda: self.ex.spin_once(timeout_sec=0.02) or condition(),
+                               hang_s, 0.0))
+
     def close(self):
         self.writer.close()
         self.rec.destroy_node()
@@ -242,19 +248,19 @@ def test_a_topic_with_nothing_yet_holds_the_plant_back(tmp_path):
     """
     r = _Run(tmp_path)
     try:
-        deadline = time.monotonic() + 10
-        while r.rec.count_subscribers('/im/progress') < 1 and time.monotonic() < deadline:
-            r.spin(0.05)
+        assert r.spin_until(lambda: r.rec.count_subscribers('/im/progress') >= 1), \
+            'hang: the listener never matched /im/progress'
         r.plant('running', 0, mode='lockstep', followers='recorder')
         for t in ('/im/measured/current', '/im/measured/shaft', '/im/observer/flux'):
             r.feed(t, range(0, 40))
-        r.spin(0.5)
+        r.spin(0.5)     # an absence has no event: 25 periods of the recorder's ack timer
         assert r.acks == []
         r.feed('/im/command/voltage', range(0, 30))
-        r.spin(0.5)
+        # the acknowledgement is an event: waited for, not counted after a fixed spin
+        r.spin_until(lambda: r.acks and r.acks[-1] >= 29 * PERIOD)
     finally:
         r.close()
-    assert r.acks and r.acks[-1] == 29 * PERIOD
+    assert r.acks and r.acks[-1] == 29 * PERIOD, r.acks[-3:]
 
 
 def test_a_recorder_stopped_mid_run_counts_every_topic_to_the_last_step_it_saw(tmp_path):
