@@ -156,3 +156,23 @@ FREE_RUN_RATES = (1000, 500, 250)
 
 #: The plant's log of the refused 250 Hz run when :func:`free_run_rate` is None.
 FREE_RUN_REFUSAL: list = []
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """
+    Say that a command the suite gave up waiting for hung: its ``timeout=`` is a hang guard.
+
+    Every ``timeout=`` of a ``subprocess`` call in the suite bounds a command that ends on its own
+    (a run to its duration, a refusal, a stop after a signal) and is many times what the command
+    takes on a loaded 2-core machine: no test asserts how fast it was. One that fires is reported
+    as a hang, with the command and its guard, instead of as a bare ``TimeoutExpired``.
+    """
+    import subprocess
+    outcome = yield
+    if call.excinfo is not None and call.excinfo.errisinstance(subprocess.TimeoutExpired):
+        exc = call.excinfo.value
+        cmd = exc.cmd if isinstance(exc.cmd, str) else ' '.join(map(str, exc.cmd))
+        outcome.get_result().sections.append((
+            'hang guard', f'HANG: {cmd[:300]} did not end within its hang guard of {exc.timeout:g}'
+            ' s, many times what it takes on a loaded machine: a hang, not slowness'))
