@@ -22,7 +22,8 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
-from im_common.node_params import declare_compensation, declare_motor, declare_run
+from im_common.node_params import (declare_compensation, declare_motor, declare_run,
+                                   live_refusal)
 from im_common.params import InvalidParameter, motor_blocks
 from im_common.qos import writer
 from rcl_interfaces.msg import SetParametersResult
@@ -131,6 +132,9 @@ class AdapterNode(LockstepNode):
 
     def _on_set_parameters(self, parameters):
         """``enable`` may be switched at run time (validated here, applied at the next step)."""
+        refused = live_refusal(self, parameters)    # its type, naming it
+        if refused is not None:
+            return refused
         for prm in parameters:
             if prm.name == 'enable' and not isinstance(prm.value, bool):
                 return SetParametersResult(successful=False,

@@ -148,6 +148,7 @@ def declare(node, name: str, default, description: str, lo=None, hi=None,
     integer = isinstance(default, int) and not isinstance(default, bool)
     desc = describe(description + (f' (one of: {", ".join(choices)})' if choices else ''),
                     lo, hi, read_only=read_only, integer=integer)
+    desc.dynamic_typing = not read_only     # a live value's type is checked by name (below)
     given = getattr(node, '_parameter_overrides', {}).get(name)
     bad = parameter_error(given.value, default, lo, hi) if given is not None else None
     value = given.value if bad else node.declare_parameter(name, default, desc).value
@@ -156,7 +157,55 @@ def declare(node, name: str, default, description: str, lo=None, hi=None,
     if bad:
         raise ConfigurationError(f"invalid parameter '{name}' = {value!r} for node "
                                  f"'{node.get_name()}': {bad}")
+    if not read_only:
+        _live_checks(node)[name] = (default, lo, hi, choices)
     return value
+
+
+def _live_checks(node) -> dict:
+    """
+    Return ``{name: (default, lo, hi, choices)}`` of the node's live parameters.
+
+    The first call registers the node's first set-parameters callback: a value set while the node
+    runs (``ros2 param set``) gets the start-up's type, range and choice rules, refused in one
+    line naming the parameter. rclpy's own type check (before any callback) names none ("Wrong
+    parameter type, expected 'Type.DOUBLE' got 'Type.STRING'"), so a live parameter is declared
+    with dynamic typing and its type checked here.
+    """
+    checks = getattr(node, '_live_parameter_checks', None)
+    if checks is None:
+        checks = node._live_parameter_checks = {}
+        node.add_on_set_parameters_callback(lambda params: live_refusal(node, params)
+                                            or _accepted())
+    return checks
+
+
+def _accepted():
+    from rcl_interfaces.msg import SetParametersResult
+    return SetParametersResult(successful=True)
+
+
+def live_refusal(node, parameters):
+    """
+    Return the refusal (a failed ``SetParametersResult``) of live values that break their rules.
+
+    None when every value has its declared type, range and choices. rclpy calls the callback
+    registered last first: a node's own set-parameters callback calls this before its checks.
+    """
+    from rcl_interfaces.msg import SetParametersResult
+    from .params import parameter_error
+    checks = getattr(node, '_live_parameter_checks', {})
+    for prm in parameters:
+        if prm.name not in checks:
+            continue
+        default, lo, hi, choices = checks[prm.name]
+        bad = parameter_error(prm.value, default, lo, hi)
+        if not bad and choices is not None and prm.value not in choices:
+            bad = f'must be one of {", ".join(choices)}'
+        if bad:
+            return SetParametersResult(successful=False, reason='invalid parameter '
+                                       f"'{prm.name}' = {prm.value!r}: {bad}")
+    return None
 
 
 def declare_lockstep(node) -> tuple:

@@ -98,6 +98,12 @@ def parameter_error(value, default, lo=None, hi=None) -> Optional[str]:
         return None
     if isinstance(default, str) and not isinstance(value, str):
         return f'must be a string, not {type(value).__name__}'
+    if isinstance(default, (list, tuple)):
+        if isinstance(value, (str, bytes)) or not hasattr(value, '__len__'):
+            return f'must be a list, not {type(value).__name__}'
+        if default and isinstance(default[0], float) and any(
+                isinstance(v, bool) or not isinstance(v, float) for v in value):
+            return 'must be a list of real numbers'
     return None
 
 

@@ -29,7 +29,7 @@ from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft
                                    Vector3Out, xy_in)
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import (declare_compensation, declare_motor, declare_run,
-                                   declare_saturation_model)
+                                   declare_saturation_model, live_refusal)
 from im_common.params import describe_defaults
 from im_common.qos import reader, writer
 from im_controller.control_law import DriveController
@@ -120,6 +120,9 @@ class ControllerNode(LockstepNode):
         changes = {p.name: p.value for p in parameters if p.name in LIVE_PARAMETERS}
         if not changes:
             return SetParametersResult(successful=True)
+        refused = live_refusal(self, parameters)    # types and ranges, naming the parameter
+        if refused is not None:
+            return refused
         try:
             live_changes(self._model, self._values, dict(self._pending_changes or {}, **changes),
                          self.T_s)
