@@ -144,6 +144,17 @@ def test_fuzz_live_parameters_on_a_running_node(running, declared, data, which):
     assert _applied(node, which, names) == []
 
 
+@pytest.mark.parametrize('which,name,value', [
+    ('plant', 'load_offset', 'three'),      # rclpy's type line named no parameter
+    ('controller', 'phi_d', 'x'),           # TypeError text: "'<' not supported between ..."
+    ('controller', 'current_gain', 'x'),
+    ('adapter', 'enable', 3)])
+def test_a_live_value_of_the_wrong_type_is_refused_naming_it(running, which, name, value):
+    res = running[which].set_parameters([Parameter(name, value=value)])[0]
+    assert not res.successful
+    assert res.reason.startswith(f"invalid parameter '{name}' = {value!r}: must be "), res.reason
+
+
 # End to end: the set_parameters service, as ros2 param set calls it ----------------------
 @given(data=st.data())
 def test_fuzz_set_parameters_service_of_a_live_controller(running, declared, context, data):
