@@ -612,6 +612,7 @@ class _Out:
         self.drop_why: Dict[int, str] = {}      # channel id -> why its messages are dropped
         self.dropped: Dict[str, int] = {}       # why -> messages dropped
         self.n = 0
+        self.saved_topics: set = set()          # the topics it wrote a message on
         self.t_first: Optional[int] = None
         self.t_last: Optional[int] = None
         self.run_record: Optional[Dict[str, str]] = None    # written by finish (its duration)
@@ -658,6 +659,7 @@ class _Out:
         if cid == self.status_cid:
             self.statuses.append((t, bytes(data)))
         self.n += 1
+        self.saved_topics.add(topic)
         if self.t_first is None or t < self.t_first:
             self.t_first = t
         if self.t_last is None or t > self.t_last:
@@ -683,6 +685,7 @@ class _Out:
         topics = self.topics
         ws = self.w.write_serialized if self.w is not None else None
         status = self.status_cid
+        saved = self.saved_topics.add
         n = 0
         for cid, t, a, b in msgs:
             topic = topics.get(cid)
@@ -690,6 +693,7 @@ class _Out:
                 self.message(cid, t, view[a:b])
                 continue
             ws(topic, view[a:b], t)
+            saved(topic)
             if cid == status:
                 self.statuses.append((t, bytes(view[a:b])))
             n += 1
@@ -951,7 +955,7 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
     finally:
         source.close()
     return {'input': str(src), 'output': str(out), 'messages': sink.n,
-            'topics': sum(1 for t in set(sink.topics.values()) if t),
+            'topics': len(sink.saved_topics),
             'complete': scan.complete and whole, 'whole': whole, 'reason': reason,
             'lost': lost, 'notes': notes, 'lost_ranges': [x.as_dict() for x in scan.lost],
             'messages_lost': n_lost, 'messages_in_file': total, 'lost_tail': tail,
