@@ -26,6 +26,8 @@ from .mcap_records import (chunk_records, Damage, MAGIC, OP_CHUNK, OP_DATA_END, 
 from .metadata import log_time_offset
 
 _LOG_TIME = itemgetter(1)
+#: the shortest closed file: magic, a Footer record (opcode, length, 20 bytes), magic
+_CLOSED_MIN = 8 + 9 + 20 + 8
 
 
 @dataclass
@@ -63,7 +65,7 @@ def _open_checked(path):
                            if size >= 8 else f'not an MCAP file (only {size} bytes)')
         f.seek(max(0, size - 8))
         tail = f.read(8)
-    if size < 16 or tail != MAGIC:
+    if size < _CLOSED_MIN or tail != MAGIC:
         raise BagError(p, 'truncated: no MCAP footer (the writer did not close the file - killed?)'
                        f'; salvage it with `ros2 run im_recording recover {p}`')
     return p
