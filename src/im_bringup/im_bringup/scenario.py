@@ -437,15 +437,25 @@ def rerun_mapping(bag: str) -> dict:
     Return the run file a bag carries (its ``run`` record), as a mapping.
 
     One ValueError line when the bag has none (recorded before run files, or not by this
-    stack).
+    stack) or when it does not parse; a BagError line when the bag's data section, where the
+    record lives, fails its CRC (a damaged record is never re-run as if it were the run).
     """
     import yaml
-    from im_recording.bag import info
+    from im_recording.bag import check_data_crc, info
     meta = info(bag).metadata
+    check_data_crc(bag)
     if 'run' not in meta or 'yaml' not in meta['run']:
         raise ValueError(f'{bag}: no "run" record (recorded before run files existed, or not by '
                          'the scenario runner); cannot re-run it')
-    return yaml.safe_load(meta['run']['yaml'])
+    try:
+        doc = yaml.safe_load(meta['run']['yaml'])
+    except yaml.YAMLError as exc:
+        raise ValueError(f'{bag}: its "run" record is not YAML '
+                         f'({str(exc).splitlines()[0]}); cannot re-run it') from None
+    if not isinstance(doc, dict):
+        raise ValueError(f'{bag}: its "run" record is not a mapping of run-file keys; '
+                         'cannot re-run it')
+    return doc
 
 
 def scenario_from_args(args):

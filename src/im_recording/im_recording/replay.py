@@ -45,7 +45,7 @@ from im_common.params import estimate_arguments
 from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
 import numpy as np
 
-from .bag import BagError, BagWriter, check_output, info, iter_raw
+from .bag import BagError, BagWriter, check_data_crc, check_output, info, iter_raw
 from .run import REEST_CURRENT, REEST_FLUX
 
 
@@ -147,6 +147,7 @@ def reestimate(path, out_path, overrides: Optional[Dict[str, float]] = None,
     """
     check_output(out_path, [path], force, what='--out file')
     bi = info(path)
+    check_data_crc(path)    # the observer's parameters are a record of the data section
     cfg = observer_config(bi.metadata, overrides)
     if use_adapter is not None:
         cfg['use_adapter'] = use_adapter
@@ -235,6 +236,7 @@ class Player:
         self.node, self.path = node, path
         self.rate, self.lockstep, self.clock = float(rate), lockstep, clock
         self.ack_timeout = ack_timeout
+        self.published = 0          # messages sent so far by play()
         bi = info(path)
         sel = list(bi.topics) if not topics else list(topics)
         missing = [t for t in sel if t not in bi.topics]
@@ -271,7 +273,7 @@ class Player:
                 p.wait_for_all_acked(Duration(seconds=self.ack_timeout))
 
     def play(self, spin=None) -> int:
-        n = 0
+        self.published = n = 0
         t0 = None
         wall0 = time.monotonic()
         last = None
@@ -292,6 +294,7 @@ class Player:
                     spin()
             self.pubs[topic].publish(data)
             n += 1
+            self.published = n
         if self.lockstep:
             self._ack()
         return n
@@ -354,7 +357,7 @@ def _play(a, full) -> int:
     remap = parse_remaps(a.remap)
     info(a.bag)   # fail with BagError before starting ROS
     rclpy.init(args=full)
-    node = None
+    node = player = None
     n = 0
     try:
         node = Node('replay')
@@ -363,12 +366,15 @@ def _play(a, full) -> int:
         player.wait_for_subscribers(timeout=a.wait_subscribers)
         n = player.play()
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        n = player.published if player is not None else 0
+    except BagError as exc:     # damage found while playing: one line, with what was sent
+        n = player.published if player is not None else 0
+        raise BagError(exc.path, f'{exc.problem} (after {n} messages published)') from None
     finally:
-        print(f'replay: {n} messages published from {a.bag}', file=sys.stderr)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    print(f'replay: {n} messages published from {a.bag}', file=sys.stderr)
     return 0
 
 
