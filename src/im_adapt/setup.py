@@ -22,7 +22,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'adapter = im_adapt.adapter_node:main'
+            'adapter = im_adapt.entry:adapter'
         ],
     },
 )

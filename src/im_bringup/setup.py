@@ -26,9 +26,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'scenario = im_bringup.scenario:main',
-            'commission = im_bringup.commission:main',
-            'live = im_bringup.live:main',
+            'scenario = im_bringup.entry:scenario',
+            'commission = im_bringup.entry:commission',
+            'live = im_bringup.entry:live',
         ],
     },
 )

@@ -22,8 +22,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'controller = im_controller.controller_node:main',
-            'design_gains = im_controller.design_gains:main',
+            'controller = im_controller.entry:controller',
+            'design_gains = im_controller.entry:design_gains',
         ],
     },
 )

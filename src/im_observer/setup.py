@@ -23,7 +23,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'observer = im_observer.observer_node:main'
+            'observer = im_observer.entry:observer'
         ],
     },
 )

@@ -22,7 +22,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'plant = im_plant.plant_node:main'
+            'plant = im_plant.entry:plant'
         ],
     },
 )

@@ -19,10 +19,10 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'record = im_recording.record_node:main',
-            'replay = im_recording.replay:main',
-            'report = im_recording.report:main',
-            'recover = im_recording.recover:main',
+            'record = im_recording.entry:record',
+            'replay = im_recording.entry:replay',
+            'report = im_recording.entry:report',
+            'recover = im_recording.entry:recover',
         ],
     },
 )

@@ -23,7 +23,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'robust_examples = im_robust.cli:main'
+            'robust_examples = im_robust.entry:robust_examples'
         ],
     },
 )

@@ -19,8 +19,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'campaign = im_studies.campaign:main',
-            'robust_study = im_studies.robust_study:main',
+            'campaign = im_studies.entry:campaign',
+            'robust_study = im_studies.entry:robust_study',
         ],
     },
 )

@@ -525,16 +525,18 @@ def main(argv=None) -> int:
                          'are counted and listed)')
     a = parse_args(ap, full[1:])
     out = a.out or time.strftime('bags/run_%Y%m%d_%H%M%S.mcap')
-    try:
-        topics = parse_topics(a.topics)
-        extra = parse_metadata(a.metadata)
-        writer = BagWriter(out, force=a.force, metadata=extra,
-                           log_time_offset_ns=log_time_offset_for(a.log_time))
-    except (FileExistsError, ValueError, OSError) as exc:
-        return cli_error('record', exc)
-    node = ex = None
-    enable_stack_dump()
+    # a stop signal from here on, during the start-up too, is a flag the loop acts on: the
+    # file is opened and closed complete (an empty, interrupted recording), never left a .part
     with StopSignals() as stop:
+        try:
+            topics = parse_topics(a.topics)
+            extra = parse_metadata(a.metadata)
+            writer = BagWriter(out, force=a.force, metadata=extra,
+                               log_time_offset_ns=log_time_offset_for(a.log_time))
+        except (FileExistsError, ValueError, OSError) as exc:
+            return cli_error('record', exc)
+        node = ex = None
+        enable_stack_dump()
         rclpy.init(args=full, signal_handler_options=SignalHandlerOptions.NO)
         try:
             try:

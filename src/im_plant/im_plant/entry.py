@@ -1,0 +1,9 @@
+"""
+The executables of im_plant: the console scripts of its ``setup.py``.
+
+Each is started by :func:`im_common.startup.entry`, which takes the stop signals before the
+heavy imports; light on purpose, this module imports nothing but :mod:`im_common.startup`.
+"""
+from im_common.startup import entry
+
+plant = entry('im_plant.plant_node:main')
