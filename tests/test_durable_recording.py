@@ -317,6 +317,7 @@ def test_sigkill_of_the_in_process_scenario_loses_at_most_the_last_flush_interva
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and (len(seen) < 6 or seen[-1][0] < 3000):
         time.sleep(0.05)
+    assert seen, f'hang: no progress line from the scenario in 120 s (exit code {p.poll()})'
     k_seen, rate = seen[-1]
     p.kill()
     p.wait(timeout=30)
