@@ -1,6 +1,5 @@
 """Replay: re-estimation reproduces the recorded observer; publishing delivers the recording."""
 import random
-import time
 
 from geometry_msgs.msg import Vector3Stamped
 from im_observer import observer
@@ -83,13 +82,16 @@ def test_player_lockstep_publishes_the_recording_with_clock_and_remap(observed_b
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(sub)
         ex.add_node(node)
-        assert player.wait_for_subscribers(timeout=10, spin=lambda: ex.spin_once(timeout_sec=0.01))
-        while player.clock_pub.get_subscription_count() == 0:
-            ex.spin_once(timeout_sec=0.01)
+        from im_bringup.testing import wait_until     # events, each with a 60 s hang guard
+        assert player.wait_for_subscribers(timeout=60, spin=lambda: ex.spin_once(
+            timeout_sec=0.01)), 'hang: the listener never matched the player in 60 s'
+        assert wait_until(lambda: ex.spin_once(timeout_sec=0.01)
+                          or player.clock_pub.get_subscription_count(), 60, 0.0), \
+            'hang: the listener never matched /clock in 60 s'
         n = player.play(spin=lambda: ex.spin_once(timeout_sec=0.0))
-        deadline = time.monotonic() + 10
-        while len(got['cur']) + len(got['shaft']) < n and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.02)
+        assert wait_until(lambda: ex.spin_once(timeout_sec=0.02)
+                          or len(got['cur']) + len(got['shaft']) >= n, 60, 0.0), \
+            f"hang: {len(got['cur']) + len(got['shaft'])} of {n} messages arrived in 60 s"
     finally:
         for nd in (node, sub):
             if nd is not None:
