@@ -27,6 +27,7 @@ import time
 from typing import Dict, Optional
 
 from im_common.cli import error as cli_error
+from im_common.topics import STATUS
 
 #: The Foxglove WebSocket port, foxglove_bridge's default.
 DEFAULT_PORT = 8765
@@ -44,12 +45,27 @@ class LiveView:
 
     def __init__(self, host: str = '127.0.0.1', port: int = DEFAULT_PORT,
                  name: str = 'im_drive'):
+        import threading
         import foxglove
+        from foxglove.websocket import ServerListener
         self._foxglove = foxglove
         self.context = foxglove.Context()
+        #: The latest /im/status event of each node (name -> payload), in the order they came:
+        #: what a client that subscribes later is sent, as a latched topic would give it.
+        self.latest_status: Dict[str, bytes] = {}
+        self._lock = threading.Lock()
+        view = self
+
+        class _Listener(ServerListener):
+
+            def on_subscribe(self, client, channel) -> None:
+                if channel.topic == STATUS:
+                    view._resend_status()
+
         try:
             self.server = foxglove.start_server(name=name, host=host, port=port,
-                                                context=self.context)
+                                                context=self.context,
+                                                server_listener=_Listener())
         except Exception as exc:  # noqa: BLE001 - the SDK's error for a port in use, one line
             raise OSError(f'live view: cannot serve on {host}:{port}: '
                           f'{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}'
@@ -83,8 +99,37 @@ class LiveView:
 
     def write(self, topic: str, payload: bytes) -> None:
         ch = self.channels.get(topic) or self.channel(topic)
+        if topic == STATUS:
+            self._keep_status(bytes(payload))
         if ch is not None and ch.has_sinks():
             ch.log(bytes(payload))
+
+    def _keep_status(self, payload: bytes) -> None:
+        """Keep ``payload`` as the latest /im/status event of its node (rare: not the hot path)."""
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.serialization import deserialize_message
+        try:
+            names = [st.name for st in deserialize_message(payload, DiagnosticArray).status]
+        except Exception:  # noqa: BLE001 - not a DiagnosticArray: served, never kept
+            return
+        with self._lock:
+            for name in names:
+                self.latest_status.pop(name, None)      # the newest last, as they came
+                self.latest_status[name] = payload
+
+    def _resend_status(self) -> None:
+        """
+        Serve the latest /im/status event of each node again: a client has just subscribed.
+
+        The SDK (foxglove-sdk 0.30) logs to every subscriber of a channel, not to one client:
+        a client subscribed before receives these events once more (states, not counts).
+        """
+        ch = self.channels.get(STATUS)
+        with self._lock:
+            events = list(self.latest_status.values())
+        if ch is not None:
+            for payload in dict.fromkeys(events):
+                ch.log(payload)
 
     def close(self) -> None:
         self.server.stop()
