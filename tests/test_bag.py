@@ -264,8 +264,6 @@ def test_sigint_to_a_writing_process_leaves_a_valid_file(tmp_path):
     assert stamps == list(range(len(stamps)))      # every message up to the stop, in order
 
 
-@pytest.mark.xfail(strict=True, reason='writer bug (issue 47): a stop signal between '
-                   "_flush_chunk's buffer swap and its signal-held write drops that chunk")
 def test_a_stop_signal_during_a_chunk_flush_loses_no_accepted_message(tmp_path, monkeypatch):
     """
     A stop signal that lands while a chunk is being flushed costs no message written before it.

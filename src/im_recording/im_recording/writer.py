@@ -499,51 +499,58 @@ class BagWriter:
     _written_max = 0            # the latest log time written (the file's order so far)
     late_messages = 0           # messages that arrived later than the reorder window
 
-    def _in_order(self, buf: bytearray, ix: list, final: bool):
+    def _in_order(self, buf: bytearray, end: int, ix: list, final: bool):
         """
-        Return the chunk's (records, index) in log-time order, keeping the newest back.
+        Return the chunk in log-time order, keeping the newest back; changes nothing.
 
-        The messages within the reorder window of the newest stamp go back into the open chunk
-        (unless ``final``); a message older than what the file already holds is written at that
-        time (its publish time keeps its stamp).
+        ``buf[:end]`` holds the messages ``ix`` indexes. The messages within the reorder window
+        of the newest stamp go back into the open chunk (unless ``final``); a message older than
+        what the file already holds is written at that time (its publish time keeps its stamp).
+        Returns ``(records, index, kept records, kept index, latest time written, late count)``,
+        or None when every message is within the window (the chunk stays open whole).
         """
-        ends = [e[2] for e in ix[1:]] + [len(buf)]
+        ends = [e[2] for e in ix[1:]] + [end]
         order = sorted(range(len(ix)), key=lambda i: ix[i][1])
         cut = len(order)
         if not final:
             newest = ix[order[-1]][1] if self._progress is None else self._progress() + self._off
             horizon = newest - self._reorder_ns
             cut = next((n for n, i in enumerate(order) if ix[i][1] > horizon), len(order))
-            if cut == 0 and len(buf) < 2 * self._chunk_size:
-                self._buf, self._ix = buf, ix   # everything is within the window: keep it all
-                if self._flush_wall is not None:
-                    self._chunk_due = _monotonic() + self._flush_wall
-                return None, None
+            if cut == 0 and end < 2 * self._chunk_size:
+                return None
             if cut == 0:
                 cut = len(order)
         out, out_ix = bytearray(), []
         floor = self._written_max
+        late = 0
         for i in order[:cut]:
             cid, t, off = ix[i]
             at = len(out)
             out += buf[off:ends[i]]
             if t < floor:               # later than the window: at the file's latest time
                 U64.pack_into(out, at + 15, floor)
-                self.late_messages += 1
+                late += 1
                 t = floor
             floor = t
             out_ix.append((cid, t, at))
-        self._written_max = floor
-        keep = self._buf
+        keep, keep_ix = bytearray(), []
         for i in order[cut:]:
             cid, t, off = ix[i]
-            self._ix.append((cid, t, len(keep)))
+            keep_ix.append((cid, t, len(keep)))
             keep += buf[off:ends[i]]
-        if self._ix and self._flush_wall is not None:
-            self._chunk_due = _monotonic() + self._flush_wall
-        return out, out_ix
+        return bytes(out), out_ix, keep, keep_ix, floor, late
 
     def _flush_chunk(self, sync: bool = False, final: bool = False) -> None:
+        """
+        Write the open chunk (or, reordering, its part older than the window) to the file.
+
+        Nothing of the writer's state changes until the chunk is in the file: a stop signal's
+        exception (KeyboardInterrupt, a handler's SystemExit or ``Interrupted``) raised anywhere
+        before that leaves every message in the open chunk, for the closing flush to write.
+        Holding SIGINT/SIGTERM with ``pthread_sigmask`` alone does not do it: a signal sent to
+        the process goes to any thread that does not block it (numpy's, rclpy's), and the main
+        thread runs the Python handler at once; it only narrows the commit below further.
+        """
         if self._closed:
             return
         self._chunk_due = float('inf')
@@ -554,25 +561,36 @@ class BagWriter:
         self._flushing = True
         try:
             buf = self._buf
-            self._buf = bytearray()
-            self._ix = []
             # A signal handler may have interrupted write() between its two appends; keep only
             # complete messages.
+            n = len(ix)
             last_off = ix[-1][2]
             (length,) = U64.unpack_from(buf,
                                         last_off + 1) if len(buf) >= last_off + 9 else (None,)
             if length is None or last_off + 9 + length > len(buf):
-                ix.pop()
-                del buf[last_off:]
-            elif last_off + 9 + length < len(buf):
-                del buf[last_off + 9 + length:]
+                n -= 1
+                end = last_off
+            else:
+                end = last_off + 9 + length
+            if n < len(ix):
+                ix = ix[:n]
+            keep, keep_ix = bytearray(), []
+            written_max, late = self._written_max, 0
             if not ix:
-                return
-            if self._reorder_ns is not None:
-                buf, ix = self._in_order(buf, ix, final)
-                if not ix:
+                records = None
+            elif self._reorder_ns is not None:
+                ordered = self._in_order(buf, end, ix, final)
+                if ordered is None:     # everything is within the window: keep it all open
+                    if self._flush_wall is not None:
+                        self._chunk_due = _monotonic() + self._flush_wall
                     return
-            records = bytes(buf)
+                records, ix, keep, keep_ix, written_max, late = ordered
+            else:
+                with memoryview(buf) as view:
+                    records = bytes(view[:end])
+            if not ix:                  # only an incomplete message: dropped
+                self._buf, self._ix = keep, keep_ix
+                return
             t0 = min(e[1] for e in ix)
             t1 = max(e[1] for e in ix)
             per_chan: Dict[int, list] = {}
@@ -582,9 +600,7 @@ class BagWriter:
             data = self._compress(records) if self._compress else records
             body = (struct.pack('<QQQI', t0, t1, len(records), crc) + string(self._compression)
                     + U64.pack(len(data)))
-            # The chunk and its message indexes go to the file in one write, with SIGINT/SIGTERM
-            # held back until the write and its bookkeeping are done: a KeyboardInterrupt or a
-            # handler's SystemExit can then never leave half a chunk in the file.
+            # The chunk and its message indexes go to the file in one write.
             chunk_start = self._pos
             head = REC.pack(OP_CHUNK, len(body) + len(data)) + body
             chunk_len = len(head) + len(data)
@@ -606,13 +622,19 @@ class BagWriter:
                 struct.pack('<QQQQ', t0, t1, chunk_start, chunk_len) + blob(omap)
                 + U64.pack(ix_len) + string(self._compression) + QQ.pack(len(data), len(records)))
             out = b''.join([head, data] + ix_recs)
+            # The commit: the write, then the state that says it happened.
             with _signals_held():
                 self._write(out)
+                self._buf, self._ix = keep, keep_ix
+                self._written_max = written_max
+                self.late_messages += late
                 for cid in per_chan:
                     self._counts[cid] = self._counts.get(cid, 0) + len(per_chan[cid])
                 self._chunk_indexes.append(chunk_index)
                 self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
                 self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
+            if keep_ix and self._flush_wall is not None:
+                self._chunk_due = _monotonic() + self._flush_wall
             self._f.flush()
             if sync:                # at most once per flush_wall_s: power loss costs that too
                 self._f.sync()
