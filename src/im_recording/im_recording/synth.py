@@ -26,7 +26,8 @@ def truth_params(tr: dict) -> list:
 
 def make_synthetic_bag(path, steps: int = 400, T_s: float = 1e-3, V: float = 60.0,
                        f: float = 20.0, observer=None, metadata: Optional[dict] = None,
-                       force: bool = False, load_tau: float = 0.5):
+                       force: bool = False, load_tau: float = 0.5,
+                       chunk_size: Optional[int] = None):
     from im_common.loads import ConstantLoad
     from im_common.plant_sim import PlantSimulator
     from .bag import BagWriter
@@ -35,7 +36,8 @@ def make_synthetic_bag(path, steps: int = 400, T_s: float = 1e-3, V: float = 60.
     md = {'scenario': {'task': 'speed', 'strategy': 'open_loop', 'T_s': repr(T_s),
                        'V': repr(V), 'f': repr(f)}}
     md.update(metadata or {})
-    w = BagWriter(path, force=force, metadata=md)
+    w = BagWriter(path, force=force, metadata=md,
+                  **({} if chunk_size is None else {'chunk_size': chunk_size}))
     try:
         for k in range(steps + 1):
             t = k * dt_ns
