@@ -102,7 +102,9 @@ def test_killed_recorder_the_run_goes_on_unrecorded_and_its_part_is_recoverable(
     assert str(part) in lost[0]
     error = [ln for ln in err.splitlines() if ln.startswith('scenario: error: ')]
     assert len(error) == 1, err
-    assert 'the run went on to its end, but recorder killed by SIGKILL' in error[0], error
+    assert error[0].startswith('scenario: error: the run went on to its end without it: '
+                               'recorder: killed by SIGKILL (exit code -9)'), error
+    assert f'`ros2 run im_recording recover {part}`' in error[0], error
     summary = json.loads((tmp_path / 'run.json').read_text())
     assert summary['processes'] == {'recorder': -9, 'controller': 0, 'observer': 0,
                                     'plant': 0}, summary

@@ -619,7 +619,7 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     im_bringup drive.launch.py`` starts) plus the recorder; the figures come from the
     recording, by the report's own code.
     """
-    from im_bringup.processes import check_processes, ends_graph, exit_text, failure_line, \
+    from im_bringup.processes import check_processes, ends_graph, failure_line, \
         graph_processes, run_processes
     from im_recording.bag import partial_path
     from im_recording.report import figures_of_merit
@@ -652,11 +652,11 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     if lost and not any(ends_graph(n, c) for n, c in codes.items()):
         # the run went on to its end without them (docs/guarantees.md): said once during the
         # run; the summary and the exit code say that its recording is not the whole run
-        failure = 'the run went on to its end, but ' + '; '.join(
-            f'{n} {exit_text(c)} during it' for n, c in lost.items()) + (
-            f': {args.record} is not written; what the recorder wrote up to then is in '
-            f'{partial_path(args.record)} (ros2 run im_recording recover it)'
-            if 'recorder' in lost else '')
+        part = str(partial_path(args.record))
+        failure = f'the run went on to its end without it: {failure}'
+        if 'recorder' in lost and part not in failure and os.path.exists(part):
+            failure += (f'; what the recorder wrote up to then is in {part}: '
+                        f'`ros2 run im_recording recover {part}`')
     if os.path.exists(args.record):
         run = load_run(args.record)
         summary.update(figures_of_merit(run))
