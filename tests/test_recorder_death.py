@@ -37,6 +37,56 @@ def test_only_a_refusal_of_a_process_off_the_critical_path_ends_the_graph():
     assert 'UNRECORDED' in line and 'bags/a.mcap.part' in line and '\n' not in line
 
 
+def _launch_file(monkeypatch):
+    """
+    Load ``launch/drive.launch.py`` with stand-ins for ``launch``/``launch_ros``.
+
+    Those are not on PyPI (a full ROS 2 install brings them); each action stand-in keeps its
+    keyword arguments.
+    """
+    import importlib.util
+    import sys
+    import types
+
+    class Action:
+        def __init__(self, *args, **kw):
+            self.args, self.kw = args, kw
+    names = {'launch': ['LaunchDescription'],
+             'launch.actions': ['DeclareLaunchArgument', 'EmitEvent', 'LogInfo',
+                                'OpaqueFunction', 'RegisterEventHandler',
+                                'SetEnvironmentVariable'],
+             'launch.event_handlers': ['OnProcessExit'], 'launch.events': ['Shutdown'],
+             'launch.substitutions': ['EnvironmentVariable', 'LaunchConfiguration'],
+             'launch_ros': [], 'launch_ros.actions': ['Node']}
+    for module, classes in names.items():
+        m = types.ModuleType(module)
+        for c in classes:
+            setattr(m, c, Action)
+        monkeypatch.setitem(sys.modules, module, m)
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'src',
+                        'im_bringup', 'launch', 'drive.launch.py')
+    spec = importlib.util.spec_from_file_location('drive_launch', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_ros2_launch_follows_the_same_policy(monkeypatch):
+    """The launch file's exit handler: a dead recorder is one line, a dead controller the end."""
+    from types import SimpleNamespace
+    launch = _launch_file(monkeypatch)
+
+    def exited(process, code, cmd=()):
+        return launch._stop_on_failure(SimpleNamespace(
+            returncode=code, process_name=process, cmd=list(cmd), action=None), None)
+    said = exited('record-5', -9, ['/lib/record', '--out', 'bags/a.mcap'])
+    assert type(said[0]).__name__ == 'Action' and 'msg' in said[0].kw, said
+    assert said[0].kw['msg'] == lost_line('recorder', -9, ['--out', 'bags/a.mcap'])
+    assert 'event' in exited('record-5', 2)[0].kw           # a refusal ends the launch
+    assert 'event' in exited('controller-2', -9)[0].kw
+    assert exited('plant-1', 0) is None
+
+
 def _exe(package, name):
     from im_bringup.processes import executable_path
     return executable_path(package, name)

@@ -91,10 +91,13 @@ def _processes(context):
 
 def _node_name(event) -> str:
     """Return the graph's name of the node whose process exited (``recorder``), or its process."""
+    from im_bringup.processes import EXECUTABLES
     try:
         return event.action.node_name.rsplit('/', 1)[-1]
     except (AttributeError, RuntimeError):
-        return getattr(event, 'process_name', None) or 'a node'
+        process = getattr(event, 'process_name', None) or 'a node'     # e.g. 'record-5'
+        exe = process.rsplit('-', 1)[0]
+        return next((n for n, (_, e) in EXECUTABLES.items() if e == exe), process)
 
 
 def _stop_on_failure(event, _context):
