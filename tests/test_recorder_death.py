@@ -49,6 +49,7 @@ def _launch_file(monkeypatch):
     import types
 
     class Action:
+
         def __init__(self, *args, **kw):
             self.args, self.kw = args, kw
     names = {'launch': ['LaunchDescription'],
