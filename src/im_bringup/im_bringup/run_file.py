@@ -192,6 +192,23 @@ class Scenario:
                            ('profile', load_profile), ('load_model', load_file)):
             if isinstance(getattr(self, name), str):
                 put(self, name, read(getattr(self, name)))
+        for name, cls, what in (('motor', MotorParams, 'a motor file or a mapping of its fields'),
+                                ('estimates', MotorParams, 'a motor file or a mapping of values'),
+                                ('profile', Profile, 'a file or {setpoints: [...]}'),
+                                ('load_model', Load, 'a load file or a mapping with a kind')):
+            if getattr(self, name) is not None and not isinstance(getattr(self, name), cls):
+                raise InvalidParameter(name, getattr(self, name), f'must be {what}')
+        for name in ('sensorless', 'iron_loss', 'saturation_model'):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidParameter(name, getattr(self, name), 'must be true or false')
+        for name in ('controller_options', 'speed_observer_options'):
+            if not isinstance(getattr(self, name), Mapping):
+                raise InvalidParameter(name, getattr(self, name), 'must be a mapping')
+        for name, shape in (('current_gain', (2, 2)), ('observer_gain', (4, 2))):
+            v = getattr(self, name)
+            if v is not None and not _matrix(v, shape):
+                raise InvalidParameter(name, v, f'must be a {shape[0]}x{shape[1]} matrix of '
+                                       'finite numbers (a list of rows)')
         if self.task not in TASKS:
             raise InvalidParameter('task', self.task, f'must be one of {", ".join(TASKS)}')
         if self.strategy not in STRATEGIES:
@@ -209,8 +226,15 @@ class Scenario:
             raise InvalidParameter('variation', self.variation,
                                    f'must be one of {", ".join(SCHEDULES)} or a mapping '
                                    '{parameter: [breakpoints]}')
-        if not (isinstance(self.T_s, (int, float)) and math.isfinite(self.T_s) and self.T_s > 0):
+        if not _real(self.T_s) or not self.T_s > 0:
             raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
+        for name, low in (('theta0', None), ('omega0', None), ('k_e', 0.0),
+                          ('core_loss_exponent', 0.0), ('plant_substep', 0.0),
+                          ('observer_substep', 0.0)):
+            v = getattr(self, name)
+            if v is not None and (not _real(v) or (low is not None and not v > low)):
+                raise InvalidParameter(name, v, 'must be a finite number' if low is None
+                                       else f'must be a finite number > {low:g}')
         if self.sensorless and self.task == 'position':
             raise InvalidParameter('sensorless', True, POSITION_NEEDS_SENSOR)
         if self.task == 'torque' and self.profile is None:
@@ -233,8 +257,7 @@ class Scenario:
         if self.duration is None:
             put(self, 'duration', DEFAULT_DURATION[self.task] if self.profile is None
                 else self.profile.end_time + 1.0)
-        if not (isinstance(self.duration, (int, float)) and math.isfinite(self.duration)
-                and self.duration > 0):
+        if not _real(self.duration) or not self.duration > 0:
             raise InvalidParameter('duration', self.duration, 'must be > 0 s')
         preset = TASK_PRESETS[self.task]
         if self.start is None:
@@ -257,6 +280,9 @@ class Scenario:
         if isinstance(self.variation, dict):     # the schedule must stay a motor over the run
             self.plant_schedule().validate(self.duration)
         self._check_plant_blocks()
+        # the drive's own checks of the whole run (limits against the motor's magnetizing
+        # current, ...): here, naming the key, not when the drive is built (cheap: ~0.1 ms)
+        self.controller_config()
 
     def _motor_file_blocks(self, path: str) -> None:
         from im_common.params import load_motor_blocks
@@ -821,6 +847,20 @@ def _read_parameters_file(path: str) -> dict:
     from im_common.yamlio import load_parameters_file
     return {node: dict(values) for node, values in
             load_parameters_file(path, nodes={n: {} for n in NODES}).items()}
+
+
+def _real(value) -> bool:
+    """Return whether ``value`` is a finite real number as a run file writes one (no bool)."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def _matrix(value, shape) -> bool:
+    """Return whether ``value`` is a matrix of ``shape`` (rows) of finite real numbers."""
+    rows = value.tolist() if isinstance(value, np.ndarray) else value
+    return (isinstance(rows, (list, tuple)) and len(rows) == shape[0]
+            and all(isinstance(r, (list, tuple)) and len(r) == shape[1]
+                    and all(_real(x) for x in r) for r in rows))
 
 
 def _set_dotted(doc: dict, key: str, value) -> None:

@@ -148,10 +148,29 @@ def _gain_set(entry, i: int, where: str, base: Path) -> dict:
             raise SpecError(f'{where}: gain_sets[{i}].gains = {gains!r}: no such file (looked '
                             f'at {path})')
         g['gains'] = path
+        for n, p in _gains_file(path).items():      # designed for this set's period
+            period = p.get('gain_period')
+            if period is not None and not (isinstance(period, (int, float))
+                                           and abs(float(period) - g['T_s']) <= 1e-12):
+                raise SpecError(f'{where}: gain_sets[{i}].T_s = {T_s!r}: its gains file {path} '
+                                f'was designed for another period ({n}.gain_period = '
+                                f'{period!r} s)')
     else:
         raise SpecError(f'{where}: gain_sets[{i}].gains = {gains!r}: thesis, certified or a '
                         'gains file (design_gains --out)')
     return g
+
+
+def _gains_file(path: str) -> Dict[str, dict]:
+    """Return ``{'controller': {...}, 'observer': {...}}`` of a gains file (design_gains --out)."""
+    from im_common.yamlio import ParametersFileError, load_parameters_file
+    params: dict = {'controller': {}, 'observer': {}}
+    try:
+        for node, values in load_parameters_file(path, nodes=params).items():
+            params[node].update(values)
+    except ParametersFileError as exc:
+        raise SpecError(str(exc)) from None
+    return params
 
 
 def _files(spec: dict, key: str, where: str, base: Path) -> List[str]:
@@ -327,20 +346,8 @@ def gain_arguments(spec: dict) -> Dict[str, dict]:
             out[g['name']] = {}
         elif g['gains'] == 'certified':
             out[g['name']] = design_for_scenario(g['T_s'])
-        else:
-            from im_common.yamlio import ParametersFileError, load_parameters_file
-            params: dict = {'controller': {}, 'observer': {}}
-            try:
-                for node, values in load_parameters_file(g['gains'], nodes=params).items():
-                    params[node].update(values)
-            except ParametersFileError as exc:
-                raise SpecError(str(exc)) from None
-            for n, p in params.items():
-                period = p.get('gain_period')
-                if period is not None and abs(float(period) - g['T_s']) > 1e-12:
-                    raise SpecError(f"{g['gains']}: {n}.gain_period = {period} s but gain set "
-                                    f"{g['name']!r} runs at T_s = {g['T_s']:g} s")
-            out[g['name']] = params
+        else:               # its gain_period checked against T_s by normalize_spec
+            out[g['name']] = _gains_file(g['gains'])
     return out
 
 
