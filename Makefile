@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test test-fast bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign gains policy clean distclean
+.PHONY: all setup build demo test test-fast fuzz bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign gains policy clean distclean
 
 all: demo
 
@@ -43,6 +43,13 @@ test: build
 # in pytest.ini); CI runs make test, all of them.
 test-fast: build
 	$(RUN) python -m pytest -q tests src -m "not processes and not slow"
+
+# Property-based fuzzing of every reader of user input (tests/test_fuzz_*.py) with the 'fuzz'
+# hypothesis profile (tests/conftest.py): at least 1,000 fresh cases a property instead of make
+# test's 200 seeded ones; one line a property as it ends, then the cases each one ran.
+fuzz: build
+	$(RUN) HYPOTHESIS_PROFILE=fuzz python -m pytest -v tests/test_fuzz_*.py \
+	    --hypothesis-show-statistics
 
 # Benchmark-only dependencies (Ray, measured against Dask) go into the same venv.
 bench: build

@@ -233,6 +233,7 @@ def test_an_inductance_varied_on_the_real_plant_is_refused_by_the_run_file(doc):
     assert 'variation' in str(err.value) and 'real plant' in str(err.value)
 
 
+@pytest.mark.slow
 @given(data=st.data(), seed=st.sampled_from(range(len(SEEDS['run']))))
 def test_fuzz_run_file_structured(data, seed):
     check_run(_write(_dump(mutate(SEEDS['run'][seed], data)), 'run.yaml'))
@@ -248,6 +249,7 @@ def test_fuzz_run_file_raw(text):
     check_run(_write(text, 'run.yaml'))
 
 
+@pytest.mark.slow
 @given(data=st.data(), seed=st.sampled_from(range(len(SEEDS['run']))))
 def test_fuzz_run_file_set_overrides(data, seed):
     """``scenario RUN.yaml --set KEY=VALUE ...``: a usable Scenario, or one line."""
@@ -338,6 +340,7 @@ def check_load(path):
     check_run(_write(_dump({'load': path, 'duration': 0.01}), 'load_run.yaml'))
 
 
+@pytest.mark.slow
 @given(data=st.data(), seed=st.sampled_from(range(len(SEEDS['load']))))
 def test_fuzz_load_file_structured(data, seed):
     check_load(_write(_dump(mutate(SEEDS['load'][seed], data)), 'load.yaml'))
@@ -400,6 +403,7 @@ def check_campaign(path):
         one_line(exc, 'invalid parameter')
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_fuzz_campaign_spec_structured(data):
     check_campaign(_write(_dump(mutate(SEEDS['campaign'][0], data)), 'campaign.yaml'))

@@ -156,6 +156,7 @@ def test_a_live_value_of_the_wrong_type_is_refused_naming_it(running, which, nam
 
 
 # End to end: the set_parameters service, as ros2 param set calls it ----------------------
+@pytest.mark.slow
 @given(data=st.data())
 def test_fuzz_set_parameters_service_of_a_live_controller(running, declared, context, data):
     from rclpy.executors import SingleThreadedExecutor
