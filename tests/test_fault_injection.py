@@ -357,7 +357,8 @@ def test_disk_full_while_recording_is_one_line_the_part_recovers_and_the_summary
 
 @pytest.mark.processes
 @pytest.mark.slow
-def test_disk_full_in_the_recorder_process_stops_the_graph_with_its_line(tmp_path):
+def test_disk_full_in_the_recorder_process_is_one_error_line_and_a_partial_summary(tmp_path):
+    """A full disk ends the recorder, not the run: its ENOSPC line, the summary marked partial."""
     import json
     bag = tmp_path / 'pfull.mcap'
     r = subprocess.run([exe('scenario'), '--task', 'speed', '--duration', '2.0', '--record',
