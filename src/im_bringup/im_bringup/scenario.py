@@ -441,6 +441,7 @@ def rerun_mapping(bag: str) -> dict:
     record lives, fails its CRC (a damaged record is never re-run as if it were the run).
     """
     import yaml
+    from im_common.yamlio import yaml_problem
     from im_recording.bag import check_data_crc, info
     meta = info(bag).metadata
     check_data_crc(bag)
@@ -450,8 +451,8 @@ def rerun_mapping(bag: str) -> dict:
     try:
         doc = yaml.safe_load(meta['run']['yaml'])
     except yaml.YAMLError as exc:
-        raise ValueError(f'{bag}: its "run" record is not YAML '
-                         f'({str(exc).splitlines()[0]}); cannot re-run it') from None
+        raise ValueError(f'{bag}: its "run" record is {yaml_problem(exc)}; cannot re-run it') \
+            from None
     if not isinstance(doc, dict):
         raise ValueError(f'{bag}: its "run" record is not a mapping of run-file keys; '
                          'cannot re-run it')

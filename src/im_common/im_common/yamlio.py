@@ -93,6 +93,14 @@ def _loader():
     return Loader
 
 
+def yaml_problem(exc: Exception) -> str:
+    """Return a YAML error in one line: 'not valid YAML (line L, column C): problem'."""
+    mark = getattr(exc, 'problem_mark', None)
+    where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
+    problem = getattr(exc, 'problem', None) or type(exc).__name__
+    return f'not valid YAML{where}: {problem}'
+
+
 def _read(path: str, what: str, error: type, loader):
     try:
         with open(path, encoding='utf-8') as f:
@@ -105,10 +113,7 @@ def _read(path: str, what: str, error: type, loader):
     except RecursionError:
         raise error(f'{what} {path} is nested too deeply to be read') from None
     except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f' (line {mark.line + 1}, column {mark.column + 1})' if mark else ''
-        problem = getattr(exc, 'problem', None) or type(exc).__name__
-        raise error(f'{what} {path} is not valid YAML{where}: {problem}') from None
+        raise error(f'{what} {path} is {yaml_problem(exc)}') from None
     if _contains_itself(doc):
         raise error(f'{what} {path}: an alias refers to a collection it is inside '
                     '(a recursive document, e.g. a: &x [*x])')

@@ -67,12 +67,13 @@ def parse_qos_yaml(text: Optional[str], topic: str = '?') -> list:
     throw).
     """
     import yaml
+    from im_common.yamlio import yaml_problem
     if not text:
         return []
     try:
         items = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f'{topic}: offered_qos_profiles is not YAML ({exc})') from None
+        raise ValueError(f'{topic}: offered_qos_profiles is {yaml_problem(exc)}') from None
     if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
         raise ValueError(f'{topic}: offered_qos_profiles must be a YAML list of profiles '
                          f'(rosbag2 metadata version 9), not {text[:60]!r}')

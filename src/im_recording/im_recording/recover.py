@@ -27,8 +27,10 @@ run — the time master's final event when it was saved (nothing is lost once th
 reaches it), else the ``run`` record's duration, else unknown — is reported as lost too, and the
 output's ``run`` record gets the duration of what was saved. Exit code 0: every record of the
 file was read and kept, and nothing is missing after it; 1: the output was written but damaged
-bytes were skipped or the run's tail is missing (each loss is printed on stderr and stored in the
-output's ``recovered_from`` metadata); 2: nothing written (one line says why).
+bytes were skipped, messages were read but not copied (a channel in another encoding, its schema
+lost, its QoS metadata that does not parse) or the run's tail is missing (each loss is printed on
+stderr and stored in the output's ``recovered_from`` metadata); 2: nothing written (one line
+says why).
 
 The output (default ``<name>.recovered.mcap``; never an input, an existing file only with
 ``--force``) is written to a temporary file next to it and renamed into place when complete; if
@@ -640,8 +642,8 @@ class _Out:
         if why is None:
             try:
                 self._writer().add_topic(topic, name, qos=meta.get('offered_qos_profiles'))
-            except ValueError as exc:
-                why = f'{topic}: {exc}'
+            except ValueError as exc:     # its QoS metadata does not parse, ...: one line
+                why = str(exc) if topic in str(exc) else f'{topic}: {exc}'
         self.topics[cid] = None if why else topic
         if topic == STATUS_TOPIC and not why:
             self.status_cid = cid
@@ -906,8 +908,9 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             notes.append(sink.offset_problem)
         if scan.attachments:
             notes.append(f'{scan.attachments} attachment(s) not copied')
+        dropped = sum(sink.dropped.values())    # read intact, but not copied (said in notes)
         n_lost = (total - sink.n if total is not None
-                  else sum(x.messages for x in scan.lost)
+                  else sum(x.messages for x in scan.lost) + dropped
                   if all(x.messages is not None for x in scan.lost) else None)
         run_file = _run_file(sink.run_record)
         tail = None
@@ -916,18 +919,19 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             tail = missing_tail(sink.t_last, lost_last, sink.statuses, run_file)
             if tail is not None:
                 lost.append(tail['text'])
-        whole = not scan.lost and not scan.crc_mismatch and tail is None
+        whole = not scan.lost and not scan.crc_mismatch and tail is None and not dropped
         if whole:
             reason = scan.ending + ('' if scan.complete else
                                     " (no data end, but the run's final event and every stamp up "
                                     'to it are in the file)') + '; nothing lost'
-        elif tail is not None and not scan.lost and not scan.crc_mismatch:
+        elif tail is not None and not scan.lost and not scan.crc_mismatch and not dropped:
             reason = ('the writer did not close the file: ' + scan.ending + '; the tail of the '
                       'run after the last saved message is lost')
         else:
             reason = (f'{len(scan.lost)} damaged range(s) skipped ('
                       f'{sum(x.end - x.start for x in scan.lost)} bytes)' if scan.lost
-                      else 'data section CRC mismatch')
+                      else 'data section CRC mismatch' if scan.crc_mismatch
+                      else f'{dropped} message(s) not copied')
             if total is not None:
                 reason += f', {n_lost} of {total} messages lost'
             elif n_lost is not None:
