@@ -1,7 +1,7 @@
 """
 Property-based fuzzing of the four readers of a recording: replay, report, ``--rerun``, recover.
 
-One small valid bag (a synthetic run in a dozen chunks, with a ``run`` record and the observer's
+One small valid bag (a synthetic run in ten chunks, with a ``run`` record and the observer's
 parameters) is made once, then damaged the ways a disk, a kill or a copy damage files: truncated,
 bits flipped, a byte range or a whole chunk zeroed, a record duplicated, two records swapped,
 garbage with or without the MCAP magic, an empty file. Every reader either succeeds and what it
@@ -12,8 +12,9 @@ output it was given (``--force``) as it was.
 ``recover`` never claims a message its output does not hold, counts the topics it saved messages
 on, and never says "nothing lost" when a message of the undamaged bag is missing from its output.
 
-Cases: the 'ci' hypothesis profile of tests/conftest.py runs a seeded few dozen per mutation kind
-(every reader on each); ``make fuzz`` ('fuzz' profile) at least 1,000 per kind.
+Cases: the 'ci' hypothesis profile of tests/conftest.py runs 100 seeded ones per kind of damage
+(every reader on each); ``make fuzz`` ('fuzz' profile) 1,000 fresh ones per kind, and 25 per
+installed executable.
 """
 from collections import Counter
 import contextlib
@@ -36,10 +37,10 @@ KINDS = ('truncate', 'bit_flip', 'zero_range', 'zero_chunk', 'duplicate_record',
 SENTINEL = b'an earlier output, not to be overwritten by a refusal\n'
 RUN_YAML = 'task: speed\nstrategy: min_energy\nT_s: 0.001\nduration: 0.03\n'
 OBSERVER = {'R_s': '0.687', 'R_r': '0.842', 'k_e_injection': '0.0'}
-# the 'ci' profile: a few dozen seeded cases per kind, each through all four readers (< 60 s)
+# the 'ci' profile: 100 seeded cases per kind, each through all four readers (~30 s on 2 cores)
 _FUZZ = settings.get_current_profile_name() == 'fuzz'
 _CASES = settings(deadline=None, max_examples=settings().max_examples if _FUZZ
-                  else min(settings().max_examples, 40))
+                  else min(settings().max_examples, 100))
 
 
 # ------------------------------------------------------------------------------------------
@@ -274,6 +275,7 @@ def work(tmp_path_factory):
     return tmp_path_factory.mktemp('fuzz_work')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('kind', KINDS)
 def test_every_reader_succeeds_truthfully_or_refuses_in_one_line(kind, good, work):
     @_CASES
@@ -308,6 +310,7 @@ def _command(tool, bag, out):
             'replay': [exe, str(bag), '--lockstep', '--wait-subscribers', '0']}[tool]
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize('tool', ['recover', 'report', 'replay', 'scenario'])
 def test_the_installed_executables_on_a_sample(tool, good, tmp_path):
     """Exit code 0, or 1/2 with one line naming the file; never a traceback; no output lost."""
