@@ -320,7 +320,10 @@ def test_a_run_the_drive_cannot_hold_is_refused_when_the_run_file_is_read():
                                                                 'sensorless'),
                                      ({'current_gain': ''}, 'current_gain'),
                                      ({'observer_gain': []}, 'observer_gain'),
-                                     ({'omega0': '1'}, 'omega0')])
+                                     ({'omega0': '1'}, 'omega0'),
+                                     ({'plant_substep': None}, 'plant_substep'),
+                                     ({'motor': ['thesis.yaml'], 'estimates': {'R_r': 1.0}},
+                                      'motor')])
 def test_a_run_file_value_of_the_wrong_type_is_refused_naming_its_key(doc, key):
     path = _write(_dump(doc), 'run.yaml')
     with pytest.raises(RunFileError) as err:

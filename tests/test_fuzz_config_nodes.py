@@ -90,6 +90,14 @@ def test_fuzz_node_start_up_parameters(context, declared, data, which):
     node.destroy_node()
 
 
+def test_a_graph_key_file_that_cannot_be_read_is_refused_naming_the_parameter(context):
+    # the line named the file alone: 'graph key file 0: No such file or directory'
+    with pytest.raises(ConfigurationError) as err:
+        build_node(ControllerNode, context=context,
+                   parameter_overrides=[Parameter('graph_key_file', value='0')])
+    one_line_naming(str(err.value), ["invalid parameter 'graph_key_file' = '0': graph key file"])
+
+
 # A running node: ros2 param set, through the node's own checks ---------------------------
 @pytest.fixture(scope='module')
 def running(context):

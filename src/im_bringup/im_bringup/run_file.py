@@ -231,8 +231,9 @@ class Scenario:
         for name, low in (('theta0', None), ('omega0', None), ('k_e', 0.0),
                           ('core_loss_exponent', 0.0), ('plant_substep', 0.0),
                           ('observer_substep', 0.0)):
-            v = getattr(self, name)
-            if v is not None and (not _real(v) or (low is not None and not v > low)):
+            v = getattr(self, name)     # None: the default of theta0, omega0, k_e (below)
+            if (v is not None or name not in ('theta0', 'omega0', 'k_e')) \
+                    and (not _real(v) or (low is not None and not v > low)):
                 raise InvalidParameter(name, v, 'must be a finite number' if low is None
                                        else f'must be a finite number > {low:g}')
         if self.sensorless and self.task == 'position':
@@ -764,6 +765,9 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str], source: str = 'run 
             raise InvalidParameter(str(key), value, f'unknown run-file key; did you mean '
                                    f"'{near[0]}'?" if near else 'unknown run-file key (see '
                                    'docs/running.md)')
+        if key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
+                and value is not None and not isinstance(value, (str, Mapping)):
+            raise InvalidParameter(key, value, 'must be a file or a mapping')
         if key == 'noise':
             if not isinstance(value, Mapping):
                 raise InvalidParameter('noise', value, 'must be a mapping {current, speed, seed}')

@@ -121,8 +121,14 @@ class LockstepNode(Node):
         self.watch = PublisherWatch(self.get_namespace(), allowed)
         self.allowed, self.foreign = self.watch.allowed, self.watch.foreign
         if graph_key is None:
-            graph_key = auth.read_key_file(key_file or auth.default_key_file(),
-                                           create=not key_file)
+            try:
+                graph_key = auth.read_key_file(key_file or auth.default_key_file(),
+                                               create=not key_file)
+            except auth.GraphKeyError as exc:
+                if not key_file:
+                    raise
+                raise auth.GraphKeyError(f"invalid parameter 'graph_key_file' = {key_file!r}: "
+                                         f'{exc}') from None
         self.signing = NodeSigning(graph_key, STATUS, self.EARLY_MAX, self.EARLY_KEEP_NEWEST)
         self.signer = self.signing.signer               # the followed run's (set_run in place)
         self.sign = self.signer.sign                    # tag a lock-step message for that run
