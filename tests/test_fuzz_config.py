@@ -331,6 +331,21 @@ def test_a_run_file_value_of_the_wrong_type_is_refused_naming_its_key(doc, key):
     one_line(err.value, f'{path}: {key}: ')
 
 
+# a motor file took values its nodes refuse (the nodes' ranges had no motor-file twin): L_r 1e300
+# (ZeroDivisionError building the drive), R_r 1e-320 (a filter time constant inf), L_sr -1e300
+# beside a huge L_s, L_r (OverflowError)
+@pytest.mark.parametrize('key,value', [('L_r', 1e300), ('R_r', 1e-320), ('L_sr', -1e300),
+                                       ('J', 1e12), ('pole_pairs', 1000)])
+def test_a_motor_file_value_out_of_the_nodes_range_is_refused_naming_it(key, value):
+    doc = copy.deepcopy(SEEDS['motor'][sorted(os.listdir(MOTORS)).index('thesis.yaml')])
+    doc['/**']['ros__parameters'][key] = value
+    path = _write(_dump(doc), 'motor.yaml')
+    with pytest.raises(InvalidParameter) as err:
+        load_motor_file(path)
+    one_line(err.value, f"'{path}: {key}' = ")
+    assert 'out of range' in str(err.value)
+
+
 def check_load(path):
     try:
         load = load_file(path)

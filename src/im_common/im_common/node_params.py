@@ -3,26 +3,25 @@ from __future__ import annotations
 
 from typing import Optional
 
-from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, THESIS_MOTOR,
+from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MOTOR_RANGES, MotorParams, THESIS_MOTOR,
                      warn_motor_defaults)
 
 _MOTOR_DOC = {
-    'R_s': ('stator resistance [ohm]', 1e-6, 100.0),
-    'R_r': ('rotor resistance referred to the stator [ohm]', 1e-6, 100.0),
-    'L_s': ('stator self inductance [H]', 1e-6, 10.0),
-    'L_r': ('rotor self inductance [H]', 1e-6, 10.0),
-    'L_sr': ('stator-rotor mutual inductance [H]', 1e-6, 10.0),
-    'J': ('inertia of motor and load [kg m^2]', 1e-6, 1e9),
-    'b': ('viscous friction [N m s]', 0.0, 100.0),
-    'k_e': ('eddy-current core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
-    'k_h': ('hysteresis core-loss coefficient [W s/Wb^2]', 0.0, 10.0),
-    'rated_voltage_rms_line': ('nameplate voltage, line-to-line RMS [V] (0: not given)', 0.0, 1e5),
-    'rated_current_rms': ('nameplate current, line RMS [A] (0: not given)', 0.0, 1e5),
-    'rated_frequency': ('nameplate frequency [Hz] (0: not given)', 0.0, 1e4),
-    'rated_speed_rpm': ('nameplate shaft speed [rpm] (0: not given)', 0.0, 1e6),
-    'rated_power': ('nameplate shaft power [W] (0: not given)', 0.0, 1e9),
-    'rated_flux': ('rated rotor flux [Wb] (0: from rated voltage, frequency and speed)', 0.0,
-                   100.0),
+    'R_s': 'stator resistance [ohm]',
+    'R_r': 'rotor resistance referred to the stator [ohm]',
+    'L_s': 'stator self inductance [H]',
+    'L_r': 'rotor self inductance [H]',
+    'L_sr': 'stator-rotor mutual inductance [H]',
+    'J': 'inertia of motor and load [kg m^2]',
+    'b': 'viscous friction [N m s]',
+    'k_e': 'eddy-current core-loss coefficient [W s/Wb^2]',
+    'k_h': 'hysteresis core-loss coefficient [W s/Wb^2]',
+    'rated_voltage_rms_line': 'nameplate voltage, line-to-line RMS [V] (0: not given)',
+    'rated_current_rms': 'nameplate current, line RMS [A] (0: not given)',
+    'rated_frequency': 'nameplate frequency [Hz] (0: not given)',
+    'rated_speed_rpm': 'nameplate shaft speed [rpm] (0: not given)',
+    'rated_power': 'nameplate shaft power [W] (0: not given)',
+    'rated_flux': 'rated rotor flux [Wb] (0: from rated voltage, frequency and speed)',
 }
 
 
@@ -43,10 +42,11 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
     Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
     """
     values = {}
-    for name, (doc, lo, hi) in _MOTOR_DOC.items():
-        values[name] = node.param(name, float(getattr(base, name)), f'{what}: {doc}', lo, hi)
+    for name, doc in _MOTOR_DOC.items():
+        values[name] = node.param(name, float(getattr(base, name)), f'{what}: {doc}',
+                                  *MOTOR_RANGES[name])
     values['pole_pairs'] = node.param('pole_pairs', int(base.pole_pairs),
-                                      f'{what}: pole pairs v', 1, 64)
+                                      f'{what}: pole pairs v', *MOTOR_RANGES['pole_pairs'])
     for name in MOTOR_BLOCKS:                   # a motor file's real-plant blocks (the plant's)
         text = node.param(name, '', f"{what}: the real plant's {name} block as YAML text ('': "
                                     'none; docs/plant.md)')

@@ -489,6 +489,16 @@ def warn_motor_defaults(source: str, given, motor: MotorParams, log=None) -> lis
     return out
 
 
+#: the range of each motor field a motor file, a run file's motor mapping and a node take
+#: (one home: im_common.node_params.declare_motor declares the nodes' parameters with them)
+MOTOR_RANGES = {
+    'R_s': (1e-6, 100.0), 'R_r': (1e-6, 100.0), 'L_s': (1e-6, 10.0), 'L_r': (1e-6, 10.0),
+    'L_sr': (1e-6, 10.0), 'J': (1e-6, 1e9), 'b': (0.0, 100.0), 'k_e': (0.0, 10.0),
+    'k_h': (0.0, 10.0), 'rated_voltage_rms_line': (0.0, 1e5), 'rated_current_rms': (0.0, 1e5),
+    'rated_frequency': (0.0, 1e4), 'rated_speed_rpm': (0.0, 1e6), 'rated_power': (0.0, 1e9),
+    'rated_flux': (0.0, 100.0), 'pole_pairs': (1, 64)}
+
+
 def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
     """
     Return a :class:`MotorParams` from a mapping of the motor fields.
@@ -515,15 +525,15 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
     for key in REQUIRED_MOTOR_FIELDS:
         if key not in values:
             raise InvalidParameter(f'{source}: {key}', None, 'is missing')
-    motor_blocks(values, source)                # a bad block is refused with the motor
     clean = {}
     for key, val in values.items():
         if key in MOTOR_BLOCKS:
             continue
-        bad = parameter_error(val, getattr(THESIS_MOTOR, key))
+        bad = parameter_error(val, getattr(THESIS_MOTOR, key), *MOTOR_RANGES[key])
         if bad:
             raise InvalidParameter(f'{source}: {key}', val, bad)
         clean[key] = val
+    motor_blocks(values, source)    # a bad block is refused with the motor (on checked L_sr, L_r)
     try:
         return MotorParams(**clean)
     except InvalidParameter as exc:
