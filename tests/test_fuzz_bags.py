@@ -464,3 +464,30 @@ def test_recover_never_calls_a_file_whole_when_it_did_not_copy_its_messages(tmp_
     assert "/as_json: message encoding 'json', not cdr" in err
     assert '/bad_qos: offered_qos_profiles is not valid YAML (line 2, column 10)' in err
     assert sum(independent(out).values()) == 1
+
+
+def test_recover_keeps_the_summarys_channel_over_an_altered_one(good, tmp_path):
+    """One zeroed byte in a channel's topic name put 31 messages under a NUL-mangled name."""
+    data = good['bytes']
+    at = data.index(b'/im/measured/shaft') + 1          # the data section's Channel record
+    bag, out = tmp_path / 'renamed.mcap', tmp_path / 'fixed.mcap'
+    bag.write_bytes(data[:at] + b'\x00' + data[at + 1:])
+    r = rec.recover(bag, str(out))
+    assert not r['whole'] and r['messages_lost'] == 0
+    assert "channel 3 (/im/measured/shaft): the data section's record differs from the " \
+           "summary's, which was kept" in r['notes']
+    assert independent(out) == good['messages']
+
+
+def test_recover_counts_a_lost_tail_as_at_least(good, tmp_path):
+    """A damaged chunk, then the file cut: 'N messages lost' counted the chunk's, not the tail."""
+    chunks = [r for r in good['records'] if r[2] == 6]
+    (a, b, _), cut = chunks[0], chunks[3][0]
+    data = good['bytes']
+    bag, out = tmp_path / 'cut.mcap', tmp_path / 'fixed.mcap'
+    bag.write_bytes(data[:a + 9] + bytes(b - a - 9) + data[b:cut])
+    r = rec.recover(bag, str(out))
+    held = sum(independent(out).values())
+    missing = sum(good['messages'].values()) - held
+    assert r['messages_lost'] is None and 0 < r['messages_lost_at_least'] < missing
+    assert f", at least {r['messages_lost_at_least']} messages lost, and the tail" in r['reason']

@@ -428,7 +428,8 @@ class _Scan:
                 except Damage:
                     pass
                 else:
-                    (self.sink.schema if op == OP_SCHEMA else self.sink.channel)(*rec)
+                    declare = self.sink.schema if op == OP_SCHEMA else self.sink.channel
+                    declare(*rec, vouched=True)
             p += 9 + length
 
     def _torn_index(self, pos: int, length: int) -> bool:
@@ -615,6 +616,8 @@ class _Out:
         self.dropped: Dict[str, int] = {}       # why -> messages dropped
         self.n = 0
         self.saved_topics: set = set()          # the topics it wrote a message on
+        self.vouched: Dict[tuple, tuple] = {}   # the summary's Schemas and Channels by id
+        self.overruled: set = set()             # data-section records that contradict them
         self.t_first: Optional[int] = None
         self.t_last: Optional[int] = None
         self.run_record: Optional[Dict[str, str]] = None    # written by finish (its duration)
@@ -632,10 +635,33 @@ class _Out:
                 raise BagError(self.out, f'cannot write: {exc.strerror or exc}') from None
         return self.w
 
-    def schema(self, sid, name, enc) -> None:
+    def _overruled(self, key, rec, vouched: bool, what: str) -> bool:
+        """
+        Tell whether a declaration contradicts the summary's record of the same id.
+
+        The summary's (declared first, ``vouched``) is kept: a record of the data section that
+        differs from it was altered (one zeroed byte in a channel's topic name put its messages
+        under a name nothing records, and recover said 0 messages lost).
+        """
+        if vouched:
+            self.vouched[key] = rec
+            return False
+        known = self.vouched.get(key)
+        if known is None or known == rec:
+            return False
+        self.overruled.add(what)
+        return True
+
+    def schema(self, sid, name, enc, vouched: bool = False) -> None:
+        if self._overruled(('schema', sid), (name, enc), vouched, f'schema {sid}'):
+            return
         self.schemas[sid] = (name, enc)
 
-    def channel(self, cid, sid, topic, enc, meta) -> None:
+    def channel(self, cid, sid, topic, enc, meta, vouched: bool = False) -> None:
+        known = self.vouched.get(('channel', cid))
+        if self._overruled(('channel', cid), (sid, topic, enc, meta), vouched,
+                           f'channel {cid} ({known[1] if known else topic})'):
+            return
         name = self.schemas.get(sid, ('', ''))[0]
         why = (f'{topic}: message encoding {enc!r}, not cdr' if enc != 'cdr'
                else f'{topic}: its schema record was lost' if not name else None)
@@ -908,6 +934,9 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             notes.append(sink.offset_problem)
         if scan.attachments:
             notes.append(f'{scan.attachments} attachment(s) not copied')
+        if sink.overruled:
+            notes.append(', '.join(sorted(sink.overruled)) + ": the data section's record "
+                         "differs from the summary's, which was kept")
         dropped = sum(sink.dropped.values())    # read intact, but not copied (said in notes)
         n_lost = (total - sink.n if total is not None
                   else sum(x.messages for x in scan.lost) + dropped
@@ -934,15 +963,22 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
                       else f'{dropped} message(s) not copied')
             if total is not None:
                 reason += f', {n_lost} of {total} messages lost'
+            elif n_lost is not None and tail is not None:   # and the tail's, not counted
+                reason += f', at least {n_lost} messages lost'
             elif n_lost is not None:
                 reason += f', {n_lost} messages lost'
             else:
                 reason += ', number of messages lost unknown'
             if tail is not None:
                 reason += ', and the tail of the run after the last saved message'
+        at_least = None
+        if tail is not None and total is None and n_lost is not None:
+            at_least, n_lost = n_lost, None     # the tail's messages are not counted
         run_record = sink.run_record
         recovered_from = {'path': str(src), 'reason': reason, 'lost': '; '.join(lost + notes),
                           'messages_lost': '' if n_lost is None else str(n_lost)}
+        if at_least is not None:
+            recovered_from['messages_lost_at_least'] = str(at_least)
         if tail is not None:
             recovered_from['lost_tail_ns'] = '-'.join(
                 '' if tail[k] is None else str(tail[k]) for k in ('t0_ns', 't1_ns'))
@@ -962,7 +998,8 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             'topics': len(sink.saved_topics),
             'complete': scan.complete and whole, 'whole': whole, 'reason': reason,
             'lost': lost, 'notes': notes, 'lost_ranges': [x.as_dict() for x in scan.lost],
-            'messages_lost': n_lost, 'messages_in_file': total, 'lost_tail': tail,
+            'messages_lost': n_lost, 'messages_lost_at_least': at_least,
+            'messages_in_file': total, 'lost_tail': tail,
             'first_stamp_ns': sink.t_first, 'last_stamp_ns': sink.t_last}
 
 
