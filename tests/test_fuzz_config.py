@@ -11,9 +11,11 @@ exception type. The live nodes' parameter checks: tests/test_fuzz_config_nodes.p
 
 ``make test`` runs the seeded 'ci' profile (tests/conftest.py); ``make fuzz`` the 'fuzz' one.
 """
+import atexit
 import copy
 import math
 import os
+import shutil
 import subprocess
 import tempfile
 
@@ -35,6 +37,7 @@ MOTORS = os.path.join(CONFIG, 'motors')
 CAMPAIGN = os.path.join(ROOT, 'src', 'im_bringup', 'config', 'campaign.yaml')
 # every file a relative path of a fuzzed file may name resolves where the shipped one's does
 WORK = tempfile.mkdtemp(prefix='fuzz_config_')
+atexit.register(shutil.rmtree, WORK, True)
 
 
 def _read(path):
