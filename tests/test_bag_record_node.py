@@ -356,3 +356,29 @@ def test_a_step_that_arrives_late_is_no_longer_counted_missing():
         late.see(k * PERIOD, PERIOD)
     assert (late.first, late.missing, late.ranges) == (2 * PERIOD, 2, [(3 * PERIOD, 4 * PERIOD)])
     assert late.account(0, 8 * PERIOD, PERIOD)[0] == 2 + 2 + 2      # 0-1, 3-4, 7-8
+
+
+def test_only_the_counted_span_is_counted_missing():
+    """
+    Gaps between stamps received outside the counted span are not the span's.
+
+    A late recorder stopped mid-run on a crowded machine: its observer-flux subscription matched
+    after the step it was stopped at, so the flux it holds is one stamp before its span and the
+    ones after; the span lacks every flux step, no more (it said 590 for a span of 531).
+    """
+    from im_recording.record_node import StampTrack
+    flux = StampTrack()
+    for k in (430, 1020, 1021):
+        flux.see(k * PERIOD, PERIOD)
+    assert flux.missing == 1020 - 430 - 1                           # between what it received
+    n, ranges = flux.account(437 * PERIOD, 967 * PERIOD, PERIOD)
+    assert (n, ranges) == (531, [(437 * PERIOD, 967 * PERIOD)])
+    after = StampTrack()                                            # all after the span
+    for k in (1000, 1003):
+        after.see(k * PERIOD, PERIOD)
+    assert after.account(437 * PERIOD, 967 * PERIOD, PERIOD) == (531, [(437 * PERIOD,
+                                                                        967 * PERIOD)])
+    inside = StampTrack()                       # within the span: counted as before
+    for k in (440, 445, 1000):
+        inside.see(k * PERIOD, PERIOD)
+    assert inside.account(437 * PERIOD, 967 * PERIOD, PERIOD)[0] == 3 + 4 + (967 - 445)

@@ -95,7 +95,8 @@ class StampTrack:
 
         ``start`` and ``end`` are stamps, both included (None: not known, nothing counted on that
         side). The steps are those before the first stamp received, between received stamps, and
-        after the last.
+        after the last, within ``start``-``end`` only: a gap between stamps received outside it
+        (a late recorder's observer flux that first came after it was stopped) is not the span's.
         """
         if self.first is None:
             if start is None or end is None or not period or end < start:
@@ -108,7 +109,17 @@ class StampTrack:
         if end is not None and period and self.last < end:
             n += (end - self.last) // period
             ranges.append((self.last + period, end))
-        return n, ranges
+        if not period or (start is None and end is None):
+            return n, ranges
+        lo = start if start is not None else ranges[0][0] if ranges else 0
+        hi = end if end is not None else ranges[-1][1] if ranges else 0
+        inside = []
+        for a, b in ranges:
+            a2, b2 = max(a, lo), min(b, hi)
+            n -= (b - a) // period + 1 - ((b2 - a2) // period + 1 if b2 >= a2 else 0)
+            if b2 >= a2:
+                inside.append((a2, b2))
+        return n, inside
 
 
 class RecordingSession:
