@@ -434,3 +434,57 @@ def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith('interrupted;'), err
     assert 'the same command resumes' in lines[0]
+
+
+def _session(sid: int) -> dict:
+    """The processes of session ``sid`` that have not ended: pid -> command line (from /proc)."""
+    out = {}
+    for d in os.listdir('/proc'):
+        if d.isdigit():
+            try:
+                with open(f'/proc/{d}/stat') as f:
+                    fields = f.read().rsplit(')', 1)[1].split()
+                with open(f'/proc/{d}/cmdline') as f:
+                    cmdline = f.read().replace('\0', ' ')
+            except (OSError, IndexError):
+                continue
+            if int(fields[3]) == sid and fields[0] != 'Z':
+                out[int(d)] = cmdline
+    return out
+
+
+@pytest.mark.processes
+def test_ctrl_c_while_the_campaign_starts_its_workers_is_not_lost(tmp_path):
+    """
+    Ctrl-C that arrives while the Dask cluster starts its worker processes stops the campaign.
+
+    The workers are started with SIGINT held so that the terminal's Ctrl-C reaches the campaign
+    only; the signal that arrives during that start is kept and acted on once the cluster is up:
+    exit 130, one line, no journal row run, no worker process left.
+    """
+    path = write_spec(tmp_path, draws=6, duration=2.0)
+    out = tmp_path / 'c'
+    cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
+           '2', '--no-progress']
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    spawned = {}
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and p.poll() is None and not spawned:
+        # the cluster has begun to spawn its worker processes, and is not up yet
+        spawned = {pid: c for pid, c in _session(p.pid).items() if 'multiprocessing.spawn' in c}
+        time.sleep(0.005)
+    assert p.poll() is None and spawned, 'the campaign started no worker process'
+    os.killpg(p.pid, signal.SIGINT)                   # as the terminal does
+    _out, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith('interrupted;'), err
+    journal = out / JOURNAL
+    rows = journal.read_text().splitlines()[1:] if journal.exists() else []
+    assert len(rows) < 6, 'the campaign ran on to its end'
+    deadline = time.monotonic() + 60     # what the campaign left ends on its own, soon or never
+    while _session(p.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _session(p.pid), f'left running: {_session(p.pid)}'

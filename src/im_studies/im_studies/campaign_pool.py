@@ -51,9 +51,13 @@ class Pool:
             self.cluster = None
         else:
             n = self.workers or os.cpu_count() or 1
-            with _sigint_ignored():     # the worker processes inherit it: Ctrl-C is ours
+            with _sigint_held() as interrupted:     # the workers inherit it: Ctrl-C is ours
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                             dashboard_address=':0', silence_logs=logging.ERROR)
+            if interrupted:                 # Ctrl-C while it started: stop now, as later
+                self.client = None
+                self.__exit__(KeyboardInterrupt, None, None)
+                raise KeyboardInterrupt
             self.client = Client(self.cluster)
         self.n_workers = len(self.client.scheduler_info().get('workers', {})) or 1
         self.startup_s = time.perf_counter() - t0
@@ -67,9 +71,11 @@ class Pool:
             for name in _DASK_LOGGERS:
                 logging.getLogger(name).setLevel(logging.CRITICAL + 1)
             with contextlib.suppress(Exception):        # and in the worker processes
-                self.client.run(_quiet_logs)
+                if self.client is not None:
+                    self.client.run(_quiet_logs)
         with contextlib.suppress(Exception):
-            self.client.close()
+            if self.client is not None:
+                self.client.close()
         if self.cluster is not None:
             with contextlib.suppress(Exception):
                 self.cluster.close()
@@ -99,23 +105,35 @@ def _quiet_logs() -> None:
 
 
 @contextlib.contextmanager
-def _sigint_ignored():
+def _sigint_held():
     """
-    Ignore SIGINT while the local cluster starts its worker processes, which inherit that.
+    Hold SIGINT while the local cluster starts its worker processes; yield a list it marks.
 
-    Ctrl-C in a terminal signals the whole process group: the workers then no longer die with a
-    KeyboardInterrupt traceback each; the campaign (the main process) takes the signal, closes
-    the cluster and prints its one line. A Ctrl-C during those few seconds of start-up is lost.
+    Ctrl-C in a terminal signals the whole process group. The workers are started with SIGINT
+    blocked (a thread's signal mask is inherited by the threads it starts and the processes they
+    spawn, across exec), so they never die with a KeyboardInterrupt traceback each: the campaign
+    (the main process) takes the signal, closes the cluster and prints its one line. A Ctrl-C that
+    arrives during start-up is kept, not lost: the caller checks the list once the cluster is up
+    and stops then.
     """
     import signal
     import threading
+    got: list = []
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield got
         return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # multiprocessing's resource tracker, when the first worker's start starts it, unblocks
+    # SIGINT in the starting thread once it has spawned (resource_tracker.ensure_running): start
+    # it here, so that the workers spawned after it keep SIGINT blocked
+    from multiprocessing import resource_tracker
+    resource_tracker.ensure_running()
+    old = signal.signal(signal.SIGINT, lambda *_: got.append(signal.SIGINT))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        yield
+        yield got
     finally:
+        # a SIGINT pending for this thread is delivered here, to the handler that keeps it
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         signal.signal(signal.SIGINT, old)
 
 
