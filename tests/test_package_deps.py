@@ -33,6 +33,7 @@ PYTHON_KEYS = {
     'numpy': 'python3-numpy',
     'scipy': 'python3-scipy',
     'yaml': 'python3-yaml',
+    'pydantic': 'python3-pydantic',         # in rosdistro (requirements.txt pins pydantic 2)
     'matplotlib': 'python3-matplotlib',
     'pytest': 'python3-pytest',
     'rosbags': 'python3-rosbags-pip',       # in rosdistro (pip)
