@@ -8,7 +8,7 @@ import math
 
 from im_bringup.run_file import RunFileError, Scenario
 from im_common.compensation import (compensation_from_dict, from_inverter, InverterErrorModel)
-from im_common.inverter import inverter_from_dict, phase_values
+from im_common.inverter import Inverter, phase_values
 from im_common.params import clarke
 from im_common.validation import InvalidParameter
 import pytest
@@ -48,8 +48,8 @@ def test_the_exact_model_is_what_the_switched_inverter_loses():
     """
     from im_common.plant_sim import PlantSimulator
     spec = dict(INV, r_on=0.0)
-    assert from_inverter(inverter_from_dict(INV)).r_on == 0.02
-    model = from_inverter(inverter_from_dict(spec))
+    assert from_inverter(Inverter.from_block(INV)).r_on == 0.02
+    model = from_inverter(Inverter.from_block(spec))
     assert model.v_dead == pytest.approx(2e-6 * 1e4 * 340.0 + 1.0)
     sim = PlantSimulator(T_s=1e-4, locked_rotor=True, inverter=spec, v_limit=None,
                          current_trip=None, x0=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
@@ -85,7 +85,7 @@ def test_a_run_file_resolves_it_and_refuses_what_it_cannot_use():
             Scenario.from_mapping({'task': 'speed', 'compensation': spec})
         assert where in str(exc.value) and '\n' not in str(exc.value)
     with pytest.raises(InvalidParameter, match='must be false, inverter'):
-        compensation_from_dict(3.0, inverter_from_dict(INV))
+        compensation_from_dict(3.0, Inverter.from_block(INV))
     assert compensation_from_dict(False) is None
 
 

@@ -7,14 +7,13 @@ iron loss (k_h + k_e f) f |ψ|², the energy books; and the ideal plant when eve
 """
 import math
 
-from im_common.inverter import (clip_to_hexagon, duties, inverter_from_dict, period_plan,
-                                phase_values)
+from im_common.inverter import clip_to_hexagon, duties, Inverter, period_plan, phase_values
 from im_common.loads import ConstantLoad, LinearLoad
 from im_common.model import MotorModel, rk4_step
 from im_common.params import clarke, InvalidParameter, THESIS_MOTOR
 from im_common.plant_sim import PlantSimulator
 from im_common.saturation import power_law_fit, saturation_from_dict
-from im_common.sensors import sensors_from_dict, SpeedFromCounts
+from im_common.sensors import Sensors, SpeedFromCounts
 from im_common.steady_state import zoh_gain
 from im_common.thermal import first_order, Thermal, thermal_from_dict
 import numpy as np
@@ -397,7 +396,7 @@ def test_resistances_follow_the_winding_temperatures():
 
 # 6. Sensors ------------------------------------------------------------------------------------
 def test_encoder_position_and_speed_quantization():
-    se = sensors_from_dict({'encoder_lines': 1024, 'speed_window': 10})
+    se = Sensors.from_block({'encoder_lines': 1024, 'speed_window': 10})
     q = 2.0 * math.pi / se.counts_per_rev
     T = 1e-4
     w = 37.3
@@ -421,7 +420,7 @@ def test_a_shaft_turning_at_the_start_reads_its_speed_from_the_first_sample():
     """
     from im_common.plant_sim import PlantSimulator
     from im_common.params import THESIS_MOTOR
-    se = sensors_from_dict({'encoder_lines': 2048})
+    se = Sensors.from_block({'encoder_lines': 2048})
     res = 2.0 * math.pi / (se.counts_per_rev * se.speed_window * 1e-4)
     for w0 in (100.0, -37.0, 0.0):
         plant = PlantSimulator(THESIS_MOTOR, T_s=1e-4, omega0=w0, theta0=0.3,
@@ -434,7 +433,7 @@ def test_a_shaft_turning_at_the_start_reads_its_speed_from_the_first_sample():
 
 def test_adc_quantization_and_plant_measurement():
     spec = {'adc_bits': 10, 'current_range': 20.0, 'encoder_lines': 2048}
-    se = sensors_from_dict(spec)
+    se = Sensors.from_block(spec)
     lsb = 40.0 / 1024
     for x in np.linspace(-19.9, 19.9, 101):
         assert abs(se.adc(x, -20.0, 20.0) - x) <= 0.5 * lsb + 1e-12
@@ -491,8 +490,8 @@ def test_bad_block_is_one_line_naming_the_key(kind, spec, key):
 
 
 def test_block_parsers_refuse_unknown_keys():
-    for fn, where in ((inverter_from_dict, 'inverter'), (thermal_from_dict, 'thermal'),
-                      (sensors_from_dict, 'sensors')):
+    for fn, where in ((Inverter.from_block, 'inverter'), (thermal_from_dict, 'thermal'),
+                      (Sensors.from_block, 'sensors')):
         with pytest.raises(InvalidParameter, match=f"'{where}.bogus'"):
             fn({'bogus': 1})
 

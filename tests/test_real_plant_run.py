@@ -50,10 +50,12 @@ def test_run_record_holds_every_block_and_round_trips(tmp_path):
     again = Scenario.from_mapping(rec)
     assert again.to_mapping() == rec and again.node_parameters() == sc.node_parameters()
     plant = sc.node_parameters()['plant']
-    assert plant['iron_loss'] is True and '"deadtime": 2e-06' in plant['inverter']
+    assert plant['iron_loss'] is True and plant['inverter.enabled'] is True
+    assert plant['inverter.deadtime'] == 2e-06 and plant['sensors.encoder_lines'] == 2048
     # without the keys the plant's parameters are the ideal plant's, unchanged
     ideal = Scenario(task='speed').node_parameters()['plant']
     assert not {'inverter', 'sensors', 'saturation', 'thermal', 'iron_loss'} & set(ideal)
+    assert not [k for k in ideal if k.startswith(('inverter.', 'sensors.'))]
 
 
 @pytest.mark.parametrize('extra, key', [

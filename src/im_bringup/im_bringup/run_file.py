@@ -28,12 +28,15 @@ import math
 import os
 from typing import Dict, Mapping, Optional
 
+from im_common.inverter import Inverter
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
+from im_common.node_params import block_parameters
 from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE_NAMES,
                               InvalidParameter, load_motor_file, MOTOR_BLOCKS, motor_blocks,
                               motor_from_dict, MotorParams, normalize_variation,
                               ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
                               variation_schedule, warn_motor_defaults)
+from im_common.sensors import Sensors
 from im_common.validation import one_line
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.flux import STRATEGIES
@@ -86,6 +89,8 @@ CONTROLLER_LIMITS = ('torque_limit', 'current_limit', 'speed_limit', 'field_weak
 PLANT_PROTECTION = ('inverter_rating', 'current_trip', 'speed_trip')
 #: the real plant's blocks (docs/plant.md), as PlantSimulator and the plant node take them
 PLANT_BLOCKS = ('inverter', 'sensors', 'saturation', 'thermal')
+#: the blocks held as typed models (pydantic; the plant node takes them as <block>.<field>)
+TYPED_BLOCKS = ('inverter', 'sensors')
 
 START_MODES = ('rest', 'steady')
 DEFAULT_DURATION = {task: p['duration'] for task, p in TASK_PRESETS.items()}
@@ -167,10 +172,11 @@ class Scenario:
     mode: str = 'lockstep'                    # the plant's stepping (graph runs)
     parameters: Optional[dict] = None         # extra node parameters, merged last (graph runs)
     # the real plant (docs/plant.md; None / False: the ideal plant): the run file's inverter and
-    # sensors blocks, the motor's saturation and thermal blocks (a mapping, or 'motor': the
-    # motor file's own), and whether the core loss acts
-    inverter: Optional[dict] = None
-    sensors: Optional[dict] = None
+    # sensors blocks (an Inverter, a Sensors: a mapping given is parsed once, in __post_init__),
+    # the motor's saturation and thermal blocks (a mapping, or 'motor': the motor file's own),
+    # and whether the core loss acts
+    inverter: Optional[Inverter] = None
+    sensors: Optional[Sensors] = None
     saturation: object = None
     thermal: object = None
     iron_loss: bool = False
@@ -299,9 +305,8 @@ class Scenario:
 
     def _check_plant_blocks(self) -> None:
         """Validate the real plant's blocks (one line naming the key) and write them resolved."""
-        from im_common.inverter import check_against_motor, inverter_from_dict
+        from im_common.inverter import check_against_motor
         from im_common.saturation import saturation_from_dict
-        from im_common.sensors import sensors_from_dict
         from im_common.thermal import thermal_from_dict
         put = object.__setattr__
         motor = self.plant_motor()
@@ -311,12 +316,11 @@ class Scenario:
                                                       'motor as a file (motor: path)')
         if not isinstance(self.iron_loss, bool):
             raise InvalidParameter('iron_loss', self.iron_loss, 'must be true or false')
-        if self.inverter is not None:
-            inv = inverter_from_dict(self.inverter)
-            check_against_motor(inv, motor.rated_voltage, self.T_s)
-            put(self, 'inverter', inv.describe())
+        if self.inverter is not None:       # the typed blocks, parsed here once
+            put(self, 'inverter', Inverter.from_block(self.inverter))
+            check_against_motor(self.inverter, motor.rated_voltage, self.T_s)
         if self.sensors is not None:
-            put(self, 'sensors', sensors_from_dict(self.sensors).describe())
+            put(self, 'sensors', Sensors.from_block(self.sensors))
         if self.saturation is not None:
             put(self, 'saturation', saturation_from_dict(self.saturation, motor.L_M).describe())
         if self.thermal is not None:
@@ -378,12 +382,15 @@ class Scenario:
     def compensation_model(self):
         """Return the drive's :class:`~im_common.compensation.InverterErrorModel` (None: off)."""
         from im_common.compensation import compensation_from_dict
-        from im_common.inverter import inverter_from_dict
-        inv = None if self.inverter is None else inverter_from_dict(self.inverter)
-        return compensation_from_dict(self.compensation, inv)
+        return compensation_from_dict(self.compensation, self.inverter)
 
     def plant_blocks(self) -> dict:
-        """Return the PlantSimulator keywords of the real plant's blocks ({}: the ideal plant)."""
+        """
+        Return the PlantSimulator keywords of the real plant's blocks ({}: the ideal plant).
+
+        The inverter and sensors as their models (:class:`Inverter`, :class:`Sensors`), the
+        saturation and thermal blocks as mappings.
+        """
         out = {k: getattr(self, k) for k in PLANT_BLOCKS if getattr(self, k) is not None}
         if self.iron_loss:
             out['iron_loss'] = True
@@ -535,7 +542,10 @@ class Scenario:
                      **mine, **lp, theta0=float(self.theta0), omega0=float(self.omega0))
         plant.update({k: float(v) for k, v in protection.items()})
         for key, value in self.plant_blocks().items():      # the real plant (docs/plant.md)
-            plant[key] = value if key == 'iron_loss' else json.dumps(value, sort_keys=True)
+            if key in TYPED_BLOCKS:         # inverter.enabled, inverter.<field>, ...
+                plant.update(block_parameters(value, key))
+            else:
+                plant[key] = value if key == 'iron_loss' else json.dumps(value, sort_keys=True)
         if self.current_noise_std or self.speed_noise_std:
             plant.update(current_noise_std=float(self.current_noise_std),
                          speed_noise_std=float(self.speed_noise_std),
@@ -681,7 +691,8 @@ class Scenario:
             out['sensorless'] = True
         if self.mode != 'lockstep':
             out['mode'] = self.mode
-        out.update(self.plant_blocks())
+        out.update({k: v.describe() if k in TYPED_BLOCKS else v
+                    for k, v in self.plant_blocks().items()})
         if self.compensation is not None:
             out['compensation'] = dict(self.compensation)
         if self.saturation_model:

@@ -31,36 +31,63 @@ Derivations in docs/plant.md §1. In short:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
-from typing import Mapping
+from typing import Literal
 
-from .validation import check_block, check_real, InvalidParameter
+from pydantic import BaseModel, Field, model_validator
+
+from .validation import BLOCK_CONFIG, InvalidParameter, parse_block
 
 SQRT_2_3 = math.sqrt(2.0 / 3.0)
 HALF_SQRT3 = 0.5 * math.sqrt(3.0)
-UPDATES = ('single', 'double')
-INVERTER_KEYS = ('V_dc', 'pwm_frequency', 'deadtime', 'update', 'v_on', 'r_on', 'C_dc',
-                 'R_source', 'V_chopper', 'R_chopper', 'V_trip')
 #: the longest dead time accepted, as a share of the PWM period
 MAX_DEADTIME_SHARE = 0.1
 
 
-@dataclass(frozen=True)
-class Inverter:
-    """The ``inverter:`` block of a run file (SI)."""
+class Inverter(BaseModel):
+    """The ``inverter:`` block of a run file (SI; the module doc, docs/plant.md §1)."""
 
-    V_dc: float
-    pwm_frequency: float
-    deadtime: float = 0.0
-    update: str = 'single'
-    v_on: float = 0.0
-    r_on: float = 0.0
-    C_dc: float = 0.0          # 0: a stiff DC link (V_dc constant)
-    R_source: float = 0.5      # the front end's resistance (DC link only)
-    V_chopper: float = 0.0     # 0: no brake chopper
-    R_chopper: float = 50.0
-    V_trip: float = 0.0        # 0: 1.3 V_dc (DC link only)
+    model_config = BLOCK_CONFIG
+
+    V_dc: float = Field(gt=0, description='DC-link voltage V_dc [V] (with C_dc > 0: the '
+                        'source behind the diode front end)')
+    pwm_frequency: float = Field(gt=0, description='switching (carrier) frequency f_sw [Hz]')
+    deadtime: float = Field(0.0, ge=0, description='dead time t_d [s], at most a tenth of the '
+                            'PWM period 1/pwm_frequency')
+    update: Literal['single', 'double'] = Field(
+        'single', description='control update per carrier period: single (T_s = 1/f_sw) or '
+        'double (T_s = 1/(2 f_sw))')
+    v_on: float = Field(0.0, ge=0, description="the devices' on-state voltage drop [V]")
+    r_on: float = Field(0.0, ge=0, description="the devices' on-state resistance [ohm]")
+    C_dc: float = Field(0.0, ge=0, description='DC-link capacitance [F] (0: a stiff DC link, '
+                        'V_dc constant)')
+    R_source: float = Field(0.5, gt=0, description="the diode front end's source resistance "
+                            '[ohm] (DC link only)')
+    V_chopper: float = Field(0.0, ge=0, description='brake-chopper threshold [V], between V_dc '
+                             'and the trip voltage (0: no brake chopper; DC link only)')
+    R_chopper: float = Field(50.0, gt=0, description='brake-chopper resistance [ohm]')
+    V_trip: float = Field(0.0, ge=0, description='over-voltage trip [V], above V_dc (0: 1.3 '
+                          'V_dc; DC link only)')
+
+    @model_validator(mode='after')
+    def _rules(self) -> 'Inverter':
+        """Refuse what breaks the rules across fields: the dead time, the DC link's voltages."""
+        if self.deadtime > MAX_DEADTIME_SHARE * self.T_c:
+            raise InvalidParameter('deadtime', self.deadtime,
+                                   f'longer than a tenth of the PWM period 1/pwm_frequency = '
+                                   f'{self.T_c:.6g} s')
+        if self.C_dc > 0:
+            if self.trip_voltage <= self.V_dc:
+                raise InvalidParameter('V_trip', self.V_trip, 'must be above V_dc')
+            if self.V_chopper and not self.V_dc < self.V_chopper < self.trip_voltage:
+                raise InvalidParameter('V_chopper', self.V_chopper,
+                                       'must lie between V_dc and the trip voltage V_trip')
+        return self
+
+    @classmethod
+    def from_block(cls, spec, where: str = 'inverter') -> 'Inverter':
+        """Return the Inverter of an ``inverter:`` block; errors are one line naming the key."""
+        return parse_block(cls, spec, where)
 
     @property
     def T_c(self) -> float:
@@ -82,7 +109,8 @@ class Inverter:
         return self.V_trip if self.V_trip > 0 else 1.3 * self.V_dc
 
     def describe(self) -> dict:
-        return {k: getattr(self, k) for k in INVERTER_KEYS}
+        """Return the block as a run file writes it (every field)."""
+        return self.model_dump()
 
 
 def phase_values(x_a: float, x_b: float):
@@ -181,37 +209,6 @@ def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0
                 states.append(0)
         plan.append((t1 - t0, tuple(states)))
     return plan
-
-
-def inverter_from_dict(spec: Mapping, where: str = 'inverter') -> Inverter:
-    """Return the :class:`Inverter` of an ``inverter:`` block; errors are one line naming it."""
-    check_block(spec, where, INVERTER_KEYS)
-    out = {}
-    for key, val in spec.items():
-        name = f'{where}.{key}'
-        if key == 'update':
-            if val not in UPDATES:
-                raise InvalidParameter(name, val, f"must be one of {', '.join(UPDATES)}")
-            out[key] = val
-        elif key in ('V_dc', 'pwm_frequency', 'R_source', 'R_chopper'):
-            out[key] = check_real(name, val, 0.0, lo_open=True)
-        else:
-            out[key] = check_real(name, val, 0.0)
-    for key in ('V_dc', 'pwm_frequency'):
-        if key not in out:
-            raise InvalidParameter(f'{where}.{key}', None, 'is missing')
-    inv = Inverter(**out)
-    if inv.deadtime > MAX_DEADTIME_SHARE * inv.T_c:
-        raise InvalidParameter(f'{where}.deadtime', inv.deadtime,
-                               f'longer than a tenth of the PWM period 1/pwm_frequency = '
-                               f'{inv.T_c:.6g} s')
-    if inv.C_dc > 0:
-        if inv.trip_voltage <= inv.V_dc:
-            raise InvalidParameter(f'{where}.V_trip', inv.V_trip, 'must be above V_dc')
-        if inv.V_chopper and not inv.V_dc < inv.V_chopper < inv.trip_voltage:
-            raise InvalidParameter(f'{where}.V_chopper', inv.V_chopper,
-                                   'must lie between V_dc and the trip voltage V_trip')
-    return inv
 
 
 def check_against_motor(inv: Inverter, rated_voltage: float, T_s: float,

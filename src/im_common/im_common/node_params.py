@@ -1,4 +1,9 @@
-"""Parameters several nodes declare the same way: the motor, the period, the run length."""
+"""
+Parameters several nodes declare the same way: the motor, the period, the run length.
+
+Also a run-file block's parameters, generated from its pydantic model (:func:`declare_block`,
+:func:`block_parameters`: the plant's ``inverter.*`` and ``sensors.*``).
+"""
 from __future__ import annotations
 
 from typing import Optional
@@ -93,6 +98,87 @@ def declare_saturation_model(node, params):
     text = node.param('saturation_model', '', "the drive's magnetizing curve, a saturation block "
                       "as text ('': the linear model; docs/plant.md section 2)")
     return saturated_model_from_text(text, params, 'saturation_model', yaml.safe_load)
+
+
+#: the value of a block's parameter for a field that has no default (required): 'not given'.
+#: ROS 2 has parameters without a value (statically typed, NOT_SET), but its parameter services
+#: answer none of a get_parameters request naming one: ros2 param dump and the recorder would
+#: get no parameter of the plant. 0 is no usable value of the fields without a default (V_dc,
+#: pwm_frequency: > 0), so it stands for 'not given'.
+NOT_GIVEN = {float: 0.0, int: 0, str: ''}
+
+
+def _block_fields(model_cls):
+    """
+    Yield each field of a block's model as a parameter: (field, default, choices, text).
+
+    The default has the parameter's type (a float, an int, a string, a list of floats for a
+    tuple); a field without one (required) gets :data:`NOT_GIVEN` of its type. The text is the
+    field's description and its bounds (gt/ge/lt/le).
+    """
+    from typing import get_args, get_origin, Literal
+    signs = {'gt': '>', 'ge': '>=', 'lt': '<', 'le': '<='}
+    for name, info in model_cls.model_fields.items():
+        kind = info.annotation
+        choices = get_args(kind) if get_origin(kind) is Literal else None
+        required = info.is_required()
+        default = NOT_GIVEN[kind] if required else info.default
+        if isinstance(default, tuple):
+            default = [float(x) for x in default]
+        bounds = ', '.join(f'{signs[k]} {getattr(m, k):g}' for m in info.metadata for k in signs
+                           if getattr(m, k, None) is not None)
+        text = info.description + (f'; {bounds}' if bounds else '')
+        if required:
+            text += f'; required ({default!r}: not given)'
+        yield name, default, choices, text
+
+
+def declare_block(node, model_cls, prefix: str, description: str):
+    """
+    Declare a run-file block's parameters, generated from its pydantic model; return it or None.
+
+    ``<prefix>.enabled`` (false, the default: no block, None) and one typed parameter per field of
+    ``model_cls`` (:class:`im_common.inverter.Inverter`, :class:`im_common.sensors.Sensors`),
+    ``<prefix>.<field>``: the field's type (a tuple of numbers: a double array), default,
+    description (unit, meaning) and bounds. Enabled, the values are parsed into the model: an
+    error is one line naming ``<prefix>.<field>`` (:func:`im_common.validation.parse_block`, the
+    run file's lines), a required field left at :data:`NOT_GIVEN` is missing ('is missing'). A
+    value equal to the field's default is that default (as if left out).
+    """
+    from .validation import InvalidParameter, parse_block
+    enabled = node.param(f'{prefix}.enabled', False, description)
+    spec = {}
+    for name, default, choices, text in _block_fields(model_cls):
+        value = node.param(f'{prefix}.{name}', default, f'{prefix}: {text}', choices=choices)
+        if isinstance(default, list):
+            value = list(value)                 # rclpy gives an array.array for a double array
+        if value != default:
+            spec[name] = value
+    if not enabled:
+        return None
+    try:
+        return parse_block(model_cls, spec, prefix)
+    except InvalidParameter as exc:
+        if exc.reason != 'is missing':
+            raise
+        raise InvalidParameter(exc.name, exc.value, f'is missing ({prefix}.enabled is true)') \
+            from None
+
+
+def block_parameters(block, prefix: str) -> dict:
+    """
+    Return the node parameters of a block's model (:func:`declare_block`'s, flattened).
+
+    ``{<prefix>.enabled: True, <prefix>.<field>: value, ...}``, every field; no ROS import.
+    """
+    out = {f'{prefix}.enabled': True}
+    for name, value in block.model_dump().items():
+        if isinstance(value, tuple):
+            value = [float(x) for x in value]
+        elif isinstance(value, float):
+            value = float(value)
+        out[f'{prefix}.{name}'] = value
+    return out
 
 
 def declare_run(node):

@@ -31,12 +31,11 @@ from cmath import exp as cexp, sqrt as csqrt
 import math
 from typing import Mapping
 
-from .inverter import (check_against_motor, duties, edges, Inverter, inverter_from_dict,
-                       period_plan, phase_values)
+from .inverter import check_against_motor, duties, edges, Inverter, period_plan, phase_values
 from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
 from .params import clarke
 from .saturation import Saturation, saturation_from_dict
-from .sensors import Measurement, Sensors, sensors_from_dict, SpeedFromCounts
+from .sensors import Measurement, Sensors, SpeedFromCounts
 from .thermal import first_order, Thermal, thermal_from_dict
 
 TWO_PI = 2.0 * math.pi
@@ -71,13 +70,13 @@ class RealPlant:
                  locked_rotor: bool = False):
         base = sim.schedule.base
         if isinstance(inverter, Mapping):
-            inverter = inverter_from_dict(inverter)
+            inverter = Inverter.from_block(inverter)
         if isinstance(saturation, Mapping):
             saturation = saturation_from_dict(saturation, base.L_M)
         if isinstance(thermal, Mapping):
             thermal = thermal_from_dict(thermal)
         if isinstance(sensors, Mapping):
-            sensors = sensors_from_dict(sensors)
+            sensors = Sensors.from_block(sensors)
         for name, obj, cls in (('inverter', inverter, Inverter),
                                ('saturation', saturation, Saturation),
                                ('thermal', thermal, Thermal), ('sensors', sensors, Sensors)):

@@ -24,13 +24,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
-from typing import Mapping, Tuple
+from typing import Annotated, Tuple
 
-from .validation import check_block, check_real, InvalidParameter
+from pydantic import BaseModel, Field, field_validator
 
-SENSOR_KEYS = ('encoder_lines', 'speed_window', 'adc_bits', 'current_range', 'current_offset',
-               'current_gain', 'vdc_range')
+from .validation import BLOCK_CONFIG, parse_block
+
 TWO_PI = 2.0 * math.pi
+#: one number per phase (a, b, c); a block may give one number for all three
+PhaseValues = Tuple[float, float, float]
+_Gain = Annotated[float, Field(gt=0)]
+#: the largest ADC resolution accepted [bits]
+MAX_ADC_BITS = 32
 
 
 @dataclass(frozen=True)
@@ -45,17 +50,59 @@ class Measurement:
     v_dc: float = math.nan      # the DC-link voltage measurement (runs with an inverter)
 
 
-@dataclass(frozen=True)
-class Sensors:
-    """The ``sensors:`` block (0 / empty: that sensor is ideal)."""
+class Sensors(BaseModel):
+    """The ``sensors:`` block of a run file (0 / left out: that sensor is ideal; module doc)."""
 
-    encoder_lines: int = 0
-    speed_window: int = 10
-    adc_bits: int = 0
-    current_range: float = 50.0
-    current_offset: Tuple[float, float, float] = (0.0, 0.0, 0.0)
-    current_gain: Tuple[float, float, float] = (1.0, 1.0, 1.0)
-    vdc_range: float = 1000.0
+    model_config = BLOCK_CONFIG
+
+    encoder_lines: int = Field(0, description='incremental encoder lines N, >= 1 (quadrature: '
+                               '4 N counts per revolution; 0: the ideal shaft sensor)')
+    speed_window: int = Field(10, ge=1, description='speed from counts: the M-method window '
+                              '[periods]')
+    adc_bits: int = Field(0, description='ADC resolution of the current and DC-link sensors '
+                          f'[bits], 1 to {MAX_ADC_BITS} (0: ideal)')
+    current_range: float = Field(50.0, gt=0, description='current ADC range: '
+                                 '[-current_range, current_range) [A]')
+    current_offset: PhaseValues = Field((0.0, 0.0, 0.0), description="current sensors' offset "
+                                        'per phase a, b, c [A] (one number: all three)')
+    current_gain: Tuple[_Gain, _Gain, _Gain] = Field(
+        (1.0, 1.0, 1.0), description="current sensors' gain per phase a, b, c, > 0 (one "
+        'number: all three)')
+    vdc_range: float = Field(1000.0, gt=0, description='DC-link voltmeter ADC range: '
+                             '[0, vdc_range) [V]')
+
+    @field_validator('encoder_lines')
+    @classmethod
+    def _encoder(cls, value: int) -> int:
+        if value <= 0:
+            raise ValueError('an encoder needs >= 1 line (leave the key out for the ideal shaft '
+                             'sensor)')
+        return value
+
+    @field_validator('adc_bits')
+    @classmethod
+    def _adc(cls, value: int) -> int:
+        if value <= 0:
+            raise ValueError('an ADC needs >= 1 bit (leave the key out for ideal current '
+                             'sensors)')
+        if value > MAX_ADC_BITS:
+            raise ValueError(f'must be <= {MAX_ADC_BITS}')
+        return value
+
+    @field_validator('current_offset', 'current_gain', mode='before')
+    @classmethod
+    def _phases(cls, value):
+        """Take one number for all three phases; a list must hold three."""
+        if isinstance(value, (list, tuple)):
+            if len(value) != 3:
+                raise ValueError('must be one number or three (phases a, b, c)')
+            return tuple(value)
+        return (value, value, value)
+
+    @classmethod
+    def from_block(cls, spec, where: str = 'sensors') -> 'Sensors':
+        """Return the Sensors of a ``sensors:`` block; errors are one line naming the key."""
+        return parse_block(cls, spec, where)
 
     @property
     def counts_per_rev(self) -> int:
@@ -94,10 +141,10 @@ class Sensors:
                 adc(g[2] * i_c + o[2], -r, r))
 
     def describe(self) -> dict:
-        out = {'encoder_lines': self.encoder_lines, 'speed_window': self.speed_window,
-               'adc_bits': self.adc_bits, 'current_range': self.current_range,
-               'current_offset': list(self.current_offset),
-               'current_gain': list(self.current_gain), 'vdc_range': self.vdc_range}
+        """Return the block as a run file writes it (an ideal encoder or ADC left out)."""
+        out = self.model_dump()
+        for key in ('current_offset', 'current_gain'):
+            out[key] = list(out[key])
         return {k: v for k, v in out.items()
                 if not (k in ('encoder_lines', 'adc_bits') and v == 0)}
 
@@ -127,41 +174,3 @@ class SpeedFromCounts:
         if len(h) > self.window + 1:
             del h[0]
         return (count - h[0]) * self.scale / (len(h) - 1)
-
-
-def _triple(where: str, value, lo=None):
-    if isinstance(value, (list, tuple)):
-        if len(value) != 3:
-            raise InvalidParameter(where, value, 'must be one number or three (phases a, b, c)')
-        return tuple(check_real(where, v, lo) for v in value)
-    x = check_real(where, value, lo)
-    return (x, x, x)
-
-
-def sensors_from_dict(spec: Mapping, where: str = 'sensors') -> Sensors:
-    """Return the :class:`Sensors` of a ``sensors:`` block; errors are one line naming the key."""
-    check_block(spec, where, SENSOR_KEYS)
-    out = {}
-    for key, val in spec.items():
-        name = f'{where}.{key}'
-        if key in ('encoder_lines', 'speed_window', 'adc_bits'):
-            if isinstance(val, bool) or not isinstance(val, int):
-                raise InvalidParameter(name, val, 'must be a whole number')
-            if key == 'encoder_lines' and val <= 0:
-                raise InvalidParameter(name, val, 'an encoder needs >= 1 line (leave the key out '
-                                                  'for the ideal shaft sensor)')
-            if key == 'adc_bits' and val <= 0:
-                raise InvalidParameter(name, val, 'an ADC needs >= 1 bit (leave the key out for '
-                                                  'ideal current sensors)')
-            if key == 'adc_bits' and val > 32:
-                raise InvalidParameter(name, val, 'must be <= 32')
-            if key == 'speed_window' and val < 1:
-                raise InvalidParameter(name, val, 'must be >= 1 period')
-            out[key] = val
-        elif key in ('current_offset', 'current_gain'):
-            out[key] = _triple(name, val)
-            if key == 'current_gain' and not all(g > 0 for g in out[key]):
-                raise InvalidParameter(name, val, 'must be > 0')
-        else:
-            out[key] = check_real(name, val, 0.0, lo_open=True)
-    return Sensors(**out)

@@ -4,7 +4,8 @@ The one validation helper of the stack's math modules and the error it raises.
 ``InvalidParameter`` names the parameter, its value and why it is refused (one line, every error
 of a motor, load, plant block or run file). Its home is here, below every math module
 (``im_common.params`` and the real plant's blocks import it), so none of them imports another in
-a circle.
+a circle. :func:`parse_block` turns a run-file block's pydantic model (the inverter's, the
+sensors') and its errors into the same lines.
 """
 from __future__ import annotations
 
@@ -72,3 +73,93 @@ def check_block(spec, where: str, keys, shape: str = '') -> None:
         if key not in keys:
             raise InvalidParameter(f'{where}.{key}', spec[key],
                                    f"unknown key (known: {', '.join(keys)})")
+
+
+#: the ``model_config`` of a run-file block's pydantic model (a ConfigDict, as a plain dict:
+#: this module imports no pydantic until a block is parsed): frozen, no key it does not know, a
+#: bool or a string is no number, a number is finite
+BLOCK_CONFIG = {'frozen': True, 'extra': 'forbid', 'strict': True, 'allow_inf_nan': False}
+#: pydantic's bound errors and the comparison each one states
+_BOUNDS = {'greater_than': ('gt', '>'), 'greater_than_equal': ('ge', '>='),
+           'less_than': ('lt', '<'), 'less_than_equal': ('le', '<=')}
+#: pydantic's type errors and the line each one gives
+_TYPES = {'float_type': 'must be a real number', 'int_type': 'must be a whole number',
+          'bool_type': 'must be true or false', 'string_type': 'must be a string',
+          'finite_number': 'must be finite'}
+
+
+def parse_block(model_cls, spec, where: str):
+    """
+    Return the ``model_cls`` (a pydantic model) of a run-file block ``spec``, or one error line.
+
+    Every error of the model — not a mapping, an unknown key, a key missing, a value of the wrong
+    type, not finite or out of its bound, a rule of the model's validators — is one
+    :class:`InvalidParameter` naming ``where`` or ``where.key`` (e.g. ``inverter.deadtime``), the
+    value as written and why, the lines the blocks gave before they were models. A validator
+    states its rule by raising ``InvalidParameter(field, value, reason)`` (or a ValueError, which
+    names the field it validates). A model instance is returned as it is.
+    """
+    from collections.abc import Mapping
+    from pydantic import ValidationError
+    if isinstance(spec, model_cls):
+        return spec
+    try:
+        return model_cls.model_validate(dict(spec) if isinstance(spec, Mapping) else spec)
+    except ValidationError as exc:
+        raise block_error(model_cls, spec, where, exc.errors()) from None
+
+
+def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:
+    """
+    Return the one :class:`InvalidParameter` of a block's pydantic ``errors``.
+
+    The first of: not a mapping; an unknown key (in the order written); a bad value (in the order
+    written); a missing key (in the model's order); a rule across fields.
+    """
+    from collections.abc import Mapping
+    from typing import get_args
+    keys = list(model_cls.model_fields)
+    written = list(spec) if isinstance(spec, Mapping) else []
+
+    def rank(err):
+        loc, kind = err['loc'], err['type']
+        if not loc:
+            return (4 if kind == 'value_error' else 0, 0)
+        key = loc[0]
+        at = written.index(key) if key in written else len(written)
+        if kind in ('extra_forbidden', 'invalid_key'):
+            return (1, at)
+        if kind == 'missing':
+            return (3, keys.index(key) if key in keys else 0)
+        return (2, at)
+
+    err = min(errors, key=rank)
+    loc, kind, ctx = err['loc'], err['type'], err.get('ctx') or {}
+    key = loc[0] if loc else None
+    name = where if key is None else f'{where}.{key}'
+    value = spec.get(key) if isinstance(spec, Mapping) and key is not None else (
+        spec if key is None else None)
+    if kind == 'value_error' and isinstance(ctx.get('error'), InvalidParameter):
+        rule = ctx['error']
+        return InvalidParameter(f'{where}.{rule.name}' if rule.name else where, rule.value,
+                                rule.reason)
+    if kind == 'value_error':
+        return InvalidParameter(name, value, str(ctx.get('error', err['msg'])))
+    if key is None:
+        return InvalidParameter(where, spec, 'must be a mapping of ' + ', '.join(keys))
+    if kind in ('extra_forbidden', 'invalid_key'):
+        return InvalidParameter(name, value, f"unknown key (known: {', '.join(keys)})")
+    if kind == 'missing':
+        return InvalidParameter(name, None, 'is missing')
+    if kind in _BOUNDS:
+        bound, sign = _BOUNDS[kind]
+        return InvalidParameter(name, value, f'must be {sign} {ctx[bound]:g}')
+    if kind == 'float_type' and isinstance(err['input'], int) \
+            and not isinstance(err['input'], bool):
+        return InvalidParameter(name, value, 'must be finite')    # an int beyond a float's range
+    if kind in _TYPES:
+        return InvalidParameter(name, value, _TYPES[kind])
+    if kind == 'literal_error' and key in model_cls.model_fields:
+        choices = get_args(model_cls.model_fields[key].annotation)
+        return InvalidParameter(name, value, f"must be one of {', '.join(map(str, choices))}")
+    return InvalidParameter(name, value, err['msg'])

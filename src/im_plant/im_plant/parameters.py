@@ -7,12 +7,14 @@ the node builds its simulator from the values with :func:`simulator_from_paramet
 """
 from __future__ import annotations
 
+from im_common.inverter import Inverter
 from im_common.loads import load_from_parameters, LOAD_KINDS
 from im_common.model import stator_flux
-from im_common.node_params import declare_motor
+from im_common.node_params import declare_block, declare_motor
 from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, ParameterSchedule,
                               RATED, SCHEDULES, Variation, variation_schedule)
 from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
+from im_common.sensors import Sensors
 
 STEPPING_MODES = ('lockstep', 'free_run')
 
@@ -93,11 +95,14 @@ def declare_plant(node) -> dict:
     v['noise_seed'] = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
     v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7,
                          0.1)
-    v['inverter'] = p('inverter', '',
-                      "the switched inverter: the run file's inverter block as JSON ('': the "
-                      'ideal voltage source; docs/plant.md)')
-    v['sensors'] = p('sensors', '', "real sensors: the run file's sensors block as JSON ('': the "
-                     'true state plus the noise above; docs/plant.md)')
+    # the run file's inverter and sensors blocks (docs/plant.md): <block>.enabled and one
+    # parameter per field of the block's model; None when not enabled
+    v['inverter'] = declare_block(node, Inverter, 'inverter',
+                                  "the switched inverter of the run file's inverter block, "
+                                  'inverter.* (false: the ideal voltage source; docs/plant.md)')
+    v['sensors'] = declare_block(node, Sensors, 'sensors',
+                                 "real sensors, the run file's sensors block, sensors.* (false: "
+                                 'the true state plus the noise above; docs/plant.md)')
     v['iron_loss'] = p('iron_loss', False,
                        'the core loss acts (an iron-loss branch dissipating the k_e, k_h loss); '
                        'false: booked only')
@@ -193,19 +198,15 @@ def real_plant_blocks(values: dict, motor: MotorParams) -> dict:
     """
     Return the PlantSimulator keywords of the real plant's blocks in the parameter values.
 
-    ``inverter`` and ``sensors`` as JSON, the motor's ``saturation`` and ``thermal`` as YAML text
-    ('' for none); a bad block raises InvalidParameter naming the parameter and key.
+    ``inverter`` and ``sensors`` as :func:`declare_plant` parsed them (an Inverter, a Sensors or
+    None), the motor's ``saturation`` and ``thermal`` as YAML text ('' for none); a bad block
+    raises InvalidParameter naming the parameter and key.
     """
-    import json
     from im_common.params import motor_blocks
     out = {'iron_loss': bool(values.get('iron_loss', False))}
     for name in ('inverter', 'sensors'):
-        text = values.get(name) or ''
-        if text:
-            try:
-                out[name] = json.loads(text)
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"invalid parameter '{name}': not JSON ({exc.msg})") from None
+        if values.get(name) is not None:
+            out[name] = values[name]
     blocks = dict(motor.as_dict(), **{k: values.get(k) or '' for k in MOTOR_BLOCKS})
     out.update(motor_blocks(blocks, source='motor'))
     return out

@@ -45,8 +45,10 @@ import sys
 
 from im_bringup.offline import Scenario, simulate
 from im_common.cli import error as cli_error
+from im_common.inverter import Inverter
 from im_common.loads import ConstantLoad, StepLoad
 from im_common.params import load_motor_file, shipped_motors_dir
+from im_common.sensors import Sensors
 from im_controller.profiles import Profile
 import numpy as np
 
@@ -85,12 +87,16 @@ def V_dc_for(motor) -> float:
 
 
 def real_plant(motor) -> dict:
-    """Return the Scenario keywords of every block of the real plant for a motor file's motor."""
-    return {'inverter': dict(INVERTER, V_dc=V_dc_for(motor)), 'saturation': 'motor',
-            'thermal': 'motor', 'iron_loss': True,
-            'sensors': {'encoder_lines': 2048, 'adc_bits': 12,
-                        'current_range': float(math.ceil(3.0 * math.sqrt(2.0)
-                                                         * motor.rated_current))}}
+    """
+    Return the Scenario keywords of every block of the real plant for a motor file's motor.
+
+    The inverter and sensors as their typed models (:class:`Inverter`, :class:`Sensors`).
+    """
+    return {'inverter': Inverter.from_block(dict(INVERTER, V_dc=V_dc_for(motor))),
+            'saturation': 'motor', 'thermal': 'motor', 'iron_loss': True,
+            'sensors': Sensors.from_block({'encoder_lines': 2048, 'adc_bits': 12,
+                                           'current_range': float(math.ceil(
+                                               3.0 * math.sqrt(2.0) * motor.rated_current))})}
 
 
 def _scenario(motor_name: str, profile, load, duration: float, sensorless: bool,
@@ -301,7 +307,7 @@ def identify(motor_name: str, blocks: dict):
     for name in ('saturation', 'thermal'):
         if kw.get(name) == 'motor':
             kw[name] = load_motor_blocks(path)[name]
-    key = (motor_name, json.dumps(kw, sort_keys=True))
+    key = (motor_name, json.dumps(kw, sort_keys=True, default=lambda block: block.describe()))
     if key not in _IDENTIFIED:
         m = load_motor_file(path)
         _IDENTIFIED[key] = commission_sim(m, blocks=kw, magnetizing=True).result()
@@ -319,12 +325,11 @@ def commission(motor_name: str, blocks: dict) -> dict:
     truth = dict(m.identifiable(), J=m.J)
     out = {f'{n}_err_pct': 100.0 * (ident.values[n] / truth[n] - 1.0) for n in COMPARED}
     out.update(magnetizing_errors(ident.magnetizing, m, kw.get('saturation')))
-    r_on = blocks.get('inverter', {}).get('r_on', 0.0)
+    inv = blocks.get('inverter')            # an Inverter (real_plant) or None
+    r_on = inv.r_on if inv is not None else 0.0
     out['R_s_r_on_err_pct'] = 100.0 * (ident.values['R_s'] / (truth['R_s'] + r_on) - 1.0)
     from im_common.compensation import from_inverter
-    from im_common.inverter import inverter_from_dict
-    inv = blocks.get('inverter')
-    v_dead = from_inverter(inverter_from_dict(inv)).v_dead if inv else 0.0
+    v_dead = from_inverter(inv).v_dead if inv is not None else 0.0
     out['v_dead'] = ident.inverter.get('v_dead', 0.0)
     out['v_dead_err_pct'] = 100.0 * (out['v_dead'] / v_dead - 1.0) if v_dead else None
     return out
