@@ -173,11 +173,8 @@ def block_parameters(block, prefix: str) -> dict:
     """
     out = {f'{prefix}.enabled': True}
     for name, value in block.model_dump().items():
-        if isinstance(value, tuple):
-            value = [float(x) for x in value]
-        elif isinstance(value, float):
-            value = float(value)
-        out[f'{prefix}.{name}'] = value
+        out[f'{prefix}.{name}'] = [float(x) for x in value] if isinstance(value, tuple) \
+            else value              # a tuple of numbers: a double array
     return out
 
 
