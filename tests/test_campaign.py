@@ -437,7 +437,7 @@ def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
 
 
 def _session(sid: int) -> dict:
-    """The processes of session ``sid`` that have not ended: pid -> command line (from /proc)."""
+    """Return the processes of session ``sid`` that have not ended: pid -> command line."""
     out = {}
     for d in os.listdir('/proc'):
         if d.isdigit():
