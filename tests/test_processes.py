@@ -518,6 +518,11 @@ def free_run_refused(rate, tmp_path, domain):
     return True
 
 
+#: the lock-step pair's run: 5,000 steps a graph, still many seconds after the second starts (a
+#: graph's processes start in 1-3 s; the pair steps at 1-5 ms)
+LOCKSTEP_PAIR_S = 0.5
+
+
 @pytest.mark.processes
 @pytest.mark.slow
 @pytest.mark.parametrize('mode', ['lockstep', 'free_run'])
@@ -545,7 +550,7 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode,
     # or stopped by the deadline watchdog, loudly; the pair then runs again at the next lower rate
     rates = [1000] if mode == 'lockstep' else [r for r in FREE_RUN_RATES if r <= free_run_rate]
     for rate in rates:
-        kw = ({'duration': 1.0} if mode == 'lockstep' else
+        kw = ({'duration': LOCKSTEP_PAIR_S} if mode == 'lockstep' else
               dict(duration=2.0, **_free_run_kw(rate, force=False)))
         a = graph_processes('position', 'min_energy', record=bags[0], **kw)
         b = graph_processes('position', 'min_energy', record=bags[1], **kw)
@@ -614,7 +619,7 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode,
     if mode == 'lockstep':      # the runs overlap (b started once a's plant had): reports refused
         assert refused_reports > 0
     if mode == 'lockstep':
-        live = run_graph(task='position', strategy='min_energy', duration=1.0)
+        live = run_graph(task='position', strategy='min_energy', duration=LOCKSTEP_PAIR_S)
         for bag in bags:
             fig = figures_of_merit(load_run(str(bag)))
             for key in ('E_in_J', 'pos_err_max_rad', 'V_max_V'):
