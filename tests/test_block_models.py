@@ -152,6 +152,26 @@ def test_run_file_to_plant_node_parameters_gives_the_models_back(context, tmp_pa
         ideal.destroy_node()
 
 
+def test_a_parameters_file_may_nest_a_block_as_ros_2_reads_it(context, tmp_path):
+    """A ``ros__parameters`` block written nested is read as its dotted names, as rcl reads it."""
+    from im_common.yamlio import load_parameters_file
+    flat = tmp_path / 'flat.yaml'
+    flat.write_text('plant:\n  ros__parameters:\n    inverter.enabled: true\n'
+                    '    inverter.V_dc: 400.0\n    inverter.pwm_frequency: 10000.0\n'
+                    '    inverter.deadtime: 2.0e-6\n')
+    nested = tmp_path / 'nested.yaml'
+    nested.write_text('plant:\n  ros__parameters:\n    inverter:\n      enabled: true\n'
+                      '      V_dc: 400.0\n      pwm_frequency: 10000.0\n'
+                      '      deadtime: 2.0e-6\n')
+    values = load_parameters_file(str(nested), nodes=['plant'])
+    assert values == load_parameters_file(str(flat), nodes=['plant'])
+    node = _plant(context, values['plant'])
+    try:
+        assert node.sim.real.inverter == Inverter(V_dc=400.0, pwm_frequency=1e4, deadtime=2e-6)
+    finally:
+        node.destroy_node()
+
+
 def test_the_plant_declares_no_json_text_for_the_blocks(context):
     node = build_node(PlantNode, context=context)
     try:

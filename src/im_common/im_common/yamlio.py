@@ -190,11 +190,29 @@ def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Di
                 hint = f"; did you mean '{near[0]}'?" if near else ''
                 raise ParametersFileError(f"parameters file {path}: unknown node '{key}'{hint} "
                                           f"(expected one of {', '.join(known)})")
-        out.setdefault(name, {}).update(values)
+        out.setdefault(name, {}).update(flat_parameters(values))
+    return out
+
+
+def flat_parameters(values: dict, prefix: str = '') -> dict:
+    """
+    Return a ``ros__parameters`` mapping with its nested mappings as dotted names.
+
+    ``{inverter: {enabled: true, V_dc: 540.0}}`` is ``{inverter.enabled: true, inverter.V_dc:
+    540.0}``, as ROS 2 reads a parameters file (a parameter's value is never a mapping).
+    """
+    out = {}
+    for key, value in values.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            out.update(flat_parameters(value, name + '.'))
+        else:
+            out[name] = value
     return out
 
 
 def read_parameters(text: str) -> Dict[str, dict]:
     """``{node: {param: value}}`` from parameter YAML (the inverse of :func:`parameters_yaml`)."""
     doc = yaml.safe_load(text) or {}
-    return {node: dict((body or {}).get('ros__parameters', {})) for node, body in doc.items()}
+    return {node: flat_parameters((body or {}).get('ros__parameters', {}))
+            for node, body in doc.items()}
