@@ -2,7 +2,8 @@
 Parameters several nodes declare the same way: the motor, the period, the run length.
 
 Also a run-file block's parameters, generated from its pydantic model (:func:`declare_block`,
-:func:`block_parameters`: the plant's ``inverter.*`` and ``sensors.*``).
+:func:`block_parameters`: the plant's ``inverter.*`` and ``sensors.*``), and a node's
+configuration model's (:func:`declare_model`, :func:`model_arguments`: the controller's).
 """
 from __future__ import annotations
 
@@ -108,29 +109,104 @@ def declare_saturation_model(node, params):
 NOT_GIVEN = {float: 0.0, int: 0, str: ''}
 
 
+def _parameter_spec(info):
+    """
+    Return a model field's node parameter: {'default'?, 'range', 'sentinels'}, {} or None.
+
+    ``json_schema_extra={'parameter': ...}`` of the field (e.g.
+    :class:`im_controller.control_law.ControllerConfig`'s); {} when the field says nothing (a
+    block's fields: the parameter is the field); None when the field is no node parameter.
+    """
+    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+    return extra.get('parameter', {})
+
+
+def _shown(value) -> str:
+    """Return a sentinel as a parameter description writes it (-1, 0, [0.0])."""
+    return f'{value:g}' if isinstance(value, float) else repr(value)
+
+
 def _block_fields(model_cls):
     """
-    Yield each field of a block's model as a parameter: (field, default, choices, text).
+    Yield each field of a model that is a node parameter: (field, default, choices, text, lo, hi).
 
     The default has the parameter's type (a float, an int, a string, a list of floats for a
-    tuple); a field without one (required) gets :data:`NOT_GIVEN` of its type. The text is the
-    field's description and its bounds (gt/ge/lt/le).
+    tuple); a field without one (required) gets :data:`NOT_GIVEN` of its type; a field whose
+    metadata names the parameter's own default (a sentinel, :func:`_parameter_spec`) gets that.
+    The text is the field's description, what each sentinel stands for and the field's bounds
+    (gt/ge/lt/le); lo, hi the parameter's range (the metadata's; None: none).
     """
-    from typing import get_args, get_origin, Literal
+    from .validation import literal_choices
     signs = {'gt': '>', 'ge': '>=', 'lt': '<', 'le': '<='}
     for name, info in model_cls.model_fields.items():
+        spec = _parameter_spec(info)
+        if spec is None:
+            continue
         kind = info.annotation
-        choices = get_args(kind) if get_origin(kind) is Literal else None
+        choices = literal_choices(kind)
         required = info.is_required()
-        default = NOT_GIVEN[kind] if required else info.default
+        default = NOT_GIVEN[kind] if required else spec.get('default', info.default)
         if isinstance(default, tuple):
             default = [float(x) for x in default]
         bounds = ', '.join(f'{signs[k]} {getattr(m, k):g}' for m in info.metadata for k in signs
                            if getattr(m, k, None) is not None)
-        text = info.description + (f'; {bounds}' if bounds else '')
+        notes = '; '.join(f'{_shown(given)}: {meaning}'
+                          for given, _, meaning in spec.get('sentinels', ()))
+        text = info.description + (f' ({notes})' if notes else '') + (
+            f"; {'otherwise ' if notes else ''}{bounds}" if bounds else '')
         if required:
             text += f'; required ({default!r}: not given)'
-        yield name, default, choices, text
+        lo, hi = spec.get('range', (None, None))
+        yield name, default, choices, text, lo, hi
+
+
+def declare_model(node, model_cls, live=()) -> dict:
+    """
+    Declare a node's parameters generated from its configuration model; return their values.
+
+    One parameter per field of ``model_cls`` that is a node parameter (:func:`_block_fields`: the
+    field's name, type, default or the sentinel its metadata gives, description, choices and the
+    metadata's range), read-only unless named in ``live``. The values are the parameters', as
+    declared: :func:`model_arguments` turns them into the model's.
+    """
+    return {name: node.param(name, default, text, lo, hi, read_only=name not in live,
+                             choices=choices)
+            for name, default, choices, text, lo, hi in _block_fields(model_cls)}
+
+
+def model_arguments(model_cls, values: dict) -> dict:
+    """
+    Return the model's field values of node-parameter ``values`` (:func:`declare_model`'s).
+
+    A sentinel (a field's metadata: -1, 0, [0.0]) is the value it stands for (None: the model's
+    default, RATED, no limit, ...); a field whose sentinel is -1 refuses another negative value
+    (:class:`~im_common.validation.InvalidParameter` naming it: it would never be read as the
+    sentinel quietly). Names that are no field of the model pass as they are.
+    """
+    from .validation import InvalidParameter
+    out = dict(values)
+    for name, value in values.items():
+        info = model_cls.model_fields.get(name)
+        spec = _parameter_spec(info) if info is not None else None
+        for given, stands_for, meaning in (spec or {}).get('sentinels', ()):
+            if _is_sentinel(value, given):
+                out[name] = stands_for
+                break
+            if given == -1.0 and _is_number(value) and value < 0:
+                raise InvalidParameter(name, value, f'must be >= 0, or -1: {meaning}')
+    return out
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_sentinel(value, given) -> bool:
+    """Tell whether a parameter's value is the sentinel ``given`` (a number, or a list)."""
+    if isinstance(given, list):
+        return not isinstance(value, (str, bytes)) and hasattr(value, '__iter__') \
+            and list(value) == given
+    return _is_number(value) and value == given
 
 
 def declare_block(node, model_cls, prefix: str, description: str):
@@ -148,7 +224,7 @@ def declare_block(node, model_cls, prefix: str, description: str):
     from .validation import InvalidParameter, parse_block
     enabled = node.param(f'{prefix}.enabled', False, description)
     spec = {}
-    for name, default, choices, text in _block_fields(model_cls):
+    for name, default, choices, text, _, _ in _block_fields(model_cls):
         value = node.param(f'{prefix}.{name}', default, f'{prefix}: {text}', choices=choices)
         if isinstance(default, list):
             value = list(value)                 # rclpy gives an array.array for a double array

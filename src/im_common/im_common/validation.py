@@ -109,15 +109,36 @@ def parse_block(model_cls, spec, where: str):
         raise block_error(model_cls, spec, where, exc.errors()) from None
 
 
+def literal_choices(annotation):
+    """Return the names a field's type allows (a ``Literal``, or an optional one), or None."""
+    from typing import get_args, get_origin, Literal
+    if get_origin(annotation) is Literal:
+        return get_args(annotation)
+    inner = [a for a in get_args(annotation) if get_origin(a) is Literal]
+    return get_args(inner[0]) if len(inner) == 1 else None
+
+
+def check_choice(name: str, value, choices) -> None:
+    """
+    Refuse ``value`` unless it is one of ``choices`` (the names, or a ``Literal`` type of them).
+
+    The one line a choice's refusal gives, a model's field (:func:`block_error`) or not.
+    """
+    names = tuple(choices) if isinstance(choices, (tuple, list)) else literal_choices(choices)
+    if value not in names:
+        raise InvalidParameter(name, value, f"must be one of {', '.join(map(str, names))}")
+
+
 def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:
     """
     Return the one :class:`InvalidParameter` of a block's pydantic ``errors``.
 
     The first of: not a mapping; an unknown key (in the order written); a bad value (in the order
-    written); a missing key (in the model's order); a rule across fields.
+    written); a missing key (in the model's order); a rule across fields. An empty ``where``
+    names the key alone (a configuration that is no run-file block: ``strategy``, not
+    ``.strategy``); a value not written (a default the model chose) is the one it refused.
     """
     from collections.abc import Mapping
-    from typing import get_args
     keys = list(model_cls.model_fields)
     written = list(spec) if isinstance(spec, Mapping) else []
 
@@ -136,12 +157,16 @@ def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:
     err = min(errors, key=rank)
     loc, kind, ctx = err['loc'], err['type'], err.get('ctx') or {}
     key = loc[0] if loc else None
-    name = where if key is None else f'{where}.{key}'
-    value = spec.get(key) if isinstance(spec, Mapping) and key is not None else (
-        spec if key is None else None)
+    name = where if key is None else _dotted(where, key)
+    if key is None:
+        value = spec
+    elif isinstance(spec, Mapping) and key in spec:
+        value = spec[key]
+    else:
+        value = err.get('input') if kind != 'missing' else None
     if kind == 'value_error' and isinstance(ctx.get('error'), InvalidParameter):
         rule = ctx['error']
-        return InvalidParameter(f'{where}.{rule.name}' if rule.name else where, rule.value,
+        return InvalidParameter(_dotted(where, rule.name) if rule.name else where, rule.value,
                                 rule.reason)
     if kind == 'value_error':
         return InvalidParameter(name, value, str(ctx.get('error', err['msg'])))
@@ -160,6 +185,13 @@ def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:
     if kind in _TYPES:
         return InvalidParameter(name, value, _TYPES[kind])
     if kind == 'literal_error' and key in model_cls.model_fields:
-        choices = get_args(model_cls.model_fields[key].annotation)
-        return InvalidParameter(name, value, f"must be one of {', '.join(map(str, choices))}")
+        try:
+            check_choice(name, value, literal_choices(model_cls.model_fields[key].annotation))
+        except InvalidParameter as exc:
+            return exc
     return InvalidParameter(name, value, err['msg'])
+
+
+def _dotted(where: str, key) -> str:
+    """Return ``where.key``, or ``key`` alone when ``where`` is empty."""
+    return f'{where}.{key}' if where else str(key)
