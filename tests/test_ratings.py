@@ -88,8 +88,7 @@ def test_the_ratings_are_the_drives_defaults_and_an_explicit_value_overrides():
     assert (own.v_limit, own.current_limit, own.phi_d) == (300.0, None, 0.5)
     assert set(own.from_ratings) == {'phi_min', 'phi_max'}
     # a copy with a new value no longer claims it came from the ratings
-    from dataclasses import replace
-    assert 'current_limit' not in replace(cfg, current_limit=12.0).from_ratings
+    assert 'current_limit' not in cfg.replace(current_limit=12.0).from_ratings
     plant = PlantSimulator(RATED)
     assert plant.v_limit == 220.0
     assert plant.current_trip == pytest.approx(CURRENT_TRIP_MARGIN * math.sqrt(3.0) * 5.0)

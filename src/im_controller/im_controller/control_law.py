@@ -34,24 +34,32 @@ Everything per call is scalar Python.
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass, field
 import math
-from typing import Optional
+from types import SimpleNamespace
+from typing import Any, List, Literal, Optional, Tuple
 
 from im_common.compensation import InverterErrorModel
 from im_common.loads import make_load, MODEL_KINDS
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_FLUX_LEVELS, THESIS_MOTOR)
+from im_common.validation import BLOCK_CONFIG, block_error
+from pydantic import BaseModel, Field, field_validator, model_validator, ValidationError
 
-from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, STRATEGIES
+from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, Strategy
 from .reference import dq_reference, feedforward_dq, ModelCoefficients, steady_state
 from .trajectories import SetpointPosition, SetpointSpeed, SetpointTorque, THESIS_TRAJECTORIES
 
+#: the tasks' names, their one home (the run file's ``task``); :data:`Mode` is their type
 MODES = ('position', 'speed', 'torque')
+Mode = Literal[MODES]
 #: the tasks of the thesis's tables (torque is ours)
 THESIS_TASKS = ('position', 'speed')
 PROFILES = ('thesis', 'setpoint')
+Profile = Literal[PROFILES]
 FLUX_COUPLINGS = ('cancel', 'thesis', 'none')
+FluxCoupling = Literal[FLUX_COUPLINGS]
+#: the controller's load models (their home: im_common.loads)
+LoadKind = Literal[MODEL_KINDS]
 DEFAULT_FLUX_PREVIEW = 0.06
 # Field weakening keeps the steady stator voltage ω_e (L_s/L_sr) φ below this share of the voltage
 # limit; the rest is headroom for the resistive drop, the q-axis leakage drop and the transients.
@@ -80,223 +88,319 @@ DEFAULT_LOADS = {'position': 'pendulum', 'speed': 'linear', 'torque': 'none'}
 
 _real = check_real
 
+#: the model's configuration: a bool or a string is no number, a number is finite, no field it
+#: does not know; not frozen, as the dataclass it replaces was not: its last validator fills in
+#: the defaults that depend on other fields. Nothing else assigns to a field: a change is a new
+#: configuration (:meth:`ControllerConfig.replace`), validated as a whole
+_CONFIG = {**BLOCK_CONFIG, 'frozen': False, 'arbitrary_types_allowed': True}
 
-@dataclass
-class ControllerConfig:
+
+def _node(default=None, lo=None, hi=None, sentinels=()):
     """
-    Configuration of :class:`DriveController` (SI units).
+    Return a field's ``json_schema_extra``: the controller node's parameter of that field.
 
-    Validated on construction; every error names the field.
+    ``default``: the parameter's default when it is not the field's (a sentinel); ``lo``, ``hi``:
+    the parameter's range; ``sentinels``: (parameter value, the field value it stands for, what
+    it means) — the one place a -1 / 0 / [0.0] of a node parameter is given its meaning
+    (:func:`im_common.node_params.declare_model`, :func:`im_common.node_params.model_arguments`).
+    """
+    spec = {'range': (lo, hi), 'sentinels': tuple(sentinels)}
+    if default is not None:
+        spec['default'] = default
+    return {'parameter': spec}
 
-    mode            'position' | 'speed' | 'torque'
-    profile         'thesis' (§3.4.4 trajectories) | 'setpoint' (``set_setpoint``)
-    strategy        'min_energy' (eq. 3.19/3.25) | 'constant_flux' (φ_d) | 'min_loss' |
-                    'optimal' (the loss-optimal flux trajectory planned over a reference known
-                    ahead, docs/controller.md §10; else min_loss, and ``plan_note`` says so)
-    phi_d, phi_min, phi_max   [Wb] constant-flux level and the strategy bounds (§3.4.6);
-                    RATED (default) → the model's rated flux, φ_min = 1/6 of it
-                    (im_common.params.default_limits), else the thesis's 1.2, 0.2, 1.2 Wb
-    k1              [V/A] > 0, current gain K₁ = k₁ I (§3.4.6 "k1 = −40", sign see module doc)
-    k_p, k_v        [N·m/rad], [N·m·s/rad] PD gains of eq. 3.1; None → per-mode defaults
-                    (position 10, 1; speed 1, 3; torque unused)
-    load_known      use the load model τ_c(θ, ω) in eq. 3.1 (else τ_c = 0)
-    load            'pendulum' | 'linear' | 'constant' | 'none' | None (per-mode default)
-    load_mgl, load_c1, load_c2, load_tau   load-model coefficients (τ = mgl cos θ, c1 + c2 ω, τ)
-    params          nominal motor parameters (the controller's estimates)
-    v_limit         [V] magnitude limit of the voltage vector, or None; RATED (default) → the
-                    model's rated voltage (line-to-line RMS), None without one
-    current_gain    2×2 K₁ (ΔV = −K₁ (i − i*)) overriding k1·I, or None
-    flux_coupling   'cancel' | 'thesis' | 'none' (see module doc)
-    T_s             [s] control period (hold compensation and the first step)
-    hold_compensation  rotate V* to the middle of the hold interval
-    torque_filter_bandwidth  [rad/s] of the PD-part filter (critically damped)
-    flux_time_constants  (τ₁, τ₂) [s] of the flux-reference filter; None → (T_r, 1 ms): the flux
-                    follows its target like the rotor's own response to a d-current step
-    core_loss_exponent  1 | 2, the loss model the ``min_loss`` map minimizes
-    flux_preview    [s] look-ahead of the flux target: the strategy sees τ* plus the change of
-                    the reference-path torque J θ̈* + b θ̇* + τ_c(θ*, θ̇*) over this horizon
-                    (compensates the flux filter's lag; 0 = off; position/speed profiles only).
-                    None → 0.06 s for ``min_loss`` (≈ 0.6 T_r, from the sweep in
-                    docs/controller.md), 0 for the thesis strategies
-    setpoint_duration  [s] of quintic setpoint transitions (torque: /10)
-    setpoints       ((t, value, duration), ...) applied by the controller itself at t (profile
-                    'setpoint'): a profile file reaches the node through its parameters;
-                    duration None → ``setpoint_duration``
-    torque_limit    [N·m] |τ*| bound, or None
-    current_limit   [A] stator-current magnitude the torque demand may ask for, or None;
-                    RATED (default) → the model's rated current (√3 × line RMS), None without one
-    speed_limit     [rad/s] beyond it no torque pushes the shaft further, or None
-    field_weakening cap the flux target above base speed (needs v_limit)
-    voltage_margin  share of v_limit the steady voltage may use under field weakening
-    current_margin  share of current_limit the steady current of min_energy / min_loss may use:
-                    their flux is clipped into the range that fits (docs/limits.md)
-    horizon         [s] the run's end on the controller's clock: ``optimal`` plans up to it
-                    with the end flux free; None → open-ended (the plan ends on the steady
-                    loss-optimal flux of the final reference)
-    magnetizing_floor  [Wb] the smallest flux the reference model uses (a smooth floor, C²:
-                    the start-up from a demagnetized machine needs no step); None → 0.1 φ_min
-    sensorless      the θ, ω given to ``compute`` are the observer's estimates (θ̂ = ∫ω̂, ω̂):
-                    the field angle is the observed flux angle ∠φ̂ (direct field orientation,
-                    docs/sensorless.md §4) instead of ∫(vω + ω_sl), which drifts while ω̂ lags
-    compensation    the inverter's voltage error ê(i) (an InverterErrorModel) added to the
-                    command after the voltage limit, at the measured current (None: off;
-                    docs/compensation.md)
-    magnetizing     the motor's magnetizing curve (an im_common.saturation.Saturation, power
-                    law): ``optimal`` plans on it (docs/controller.md §10); the drive's model
-                    follows it through the estimates (SaturatedModel, docs/plant.md §2)
+
+#: the field is no parameter of the controller node (the node sets it itself, or has none)
+_NOT_A_PARAMETER = {'parameter': None}
+_PER_MODE = (-1.0, None, 'per-mode default')
+_NONE = (0.0, None, 'none')
+
+
+def _rated(what: str):
+    return (-1.0, RATED, what)
+
+
+class ControllerConfig(BaseModel):
+    """
+    Configuration of :class:`DriveController` (SI units; each field's meaning in its Field).
+
+    Validated on construction and as a whole on every change (:meth:`replace`,
+    :meth:`DriveController.reconfigure`); every error is one :class:`InvalidParameter` line
+    naming the field (:func:`im_common.validation.block_error`). After validation every default
+    is resolved: the RATED fields (:data:`RATED_FIELDS`: v_limit, current_limit and the flux
+    levels, RATED by default) hold the motor model's ratings (im_common.params.default_limits:
+    phi_min 1/6 of the rated flux), else None or the thesis's 1.2, 0.2, 1.2 Wb
+    (``from_ratings`` says which); k_p/k_v/load their task's, flux_preview its strategy's,
+    magnetizing_floor 0.1 phi_min. Each field's ``json_schema_extra`` says how the controller
+    node declares it (:func:`_node`; im_controller.parameters).
     """
 
-    mode: str = 'position'
-    profile: str = 'thesis'
-    strategy: str = 'min_energy'
-    phi_d: float = RATED
-    phi_min: float = RATED
-    phi_max: float = RATED
-    k1: float = 40.0
-    k_p: Optional[float] = None
-    k_v: Optional[float] = None
-    load_known: bool = True
-    load: Optional[str] = None
-    load_mgl: float = 10.0
-    load_c1: float = 1.0
-    load_c2: float = 0.001
-    load_tau: float = 0.0
-    params: MotorParams = field(default_factory=lambda: THESIS_MOTOR)
-    v_limit: Optional[float] = RATED
-    current_gain: Optional[list] = None
-    flux_coupling: str = 'cancel'
-    T_s: float = 1e-4
-    hold_compensation: bool = True
-    torque_filter_bandwidth: float = 1000.0
-    flux_time_constants: Optional[tuple] = None
-    core_loss_exponent: float = 2.0
-    setpoint_duration: float = 0.5
-    flux_preview: Optional[float] = None
-    setpoints: tuple = ()
-    torque_limit: Optional[float] = None
-    current_limit: Optional[float] = RATED
-    speed_limit: Optional[float] = None
-    field_weakening: bool = True
-    voltage_margin: float = DEFAULT_VOLTAGE_MARGIN
-    current_margin: float = DEFAULT_CURRENT_MARGIN
-    magnetizing_floor: Optional[float] = None
-    horizon: Optional[float] = None
-    sensorless: bool = False
-    #: the inverter's voltage error the command compensates (im_common.compensation; None: off)
-    compensation: Optional[InverterErrorModel] = None
-    #: the magnetizing curve ``optimal`` plans on (im_common.saturation.Saturation; None: linear)
-    magnetizing: object = field(default=None, compare=False)
-    #: {field: (value, why)} of the fields the motor model's ratings set (RATED_FIELDS)
-    from_ratings: Optional[dict] = field(default=None, compare=False)
+    model_config = _CONFIG
 
-    def __post_init__(self):
-        for name, allowed in (('mode', MODES), ('profile', PROFILES), ('strategy', STRATEGIES),
-                              ('flux_coupling', FLUX_COUPLINGS)):
-            if getattr(self, name) not in allowed:
-                raise InvalidParameter(name, getattr(self, name),
-                                       f'must be one of {", ".join(allowed)}')
+    mode: Mode = Field('position', description='tracking task',
+                       json_schema_extra=_node())
+    profile: Profile = Field(
+        'thesis', description='reference source: the thesis trajectories (seed 000 §3.4.4) or '
+        'setpoints (set_setpoint, /im/setpoint, the setpoints field) turned into smooth '
+        'references',
+        json_schema_extra=_node())
+    strategy: Strategy = Field(
+        'min_energy', description='flux strategy: min_energy (eq. 3.19/3.25), constant_flux '
+        '(phi_d), min_loss, or optimal (the loss-optimal flux trajectory planned over a reference '
+        'known ahead, docs/controller.md section 10; else min_loss, and plan_note says so)',
+        json_schema_extra=_node())
+    phi_d: float = Field(RATED, gt=0, description='constant-flux level [Wb]',
+                         json_schema_extra=_node(-1.0, -1.0, 10.0, [_rated(
+                             "the motor's rated flux, else the thesis's 1.2")]))
+    phi_min: float = Field(RATED, gt=0, description='lower flux bound of min_energy / min_loss '
+                           '[Wb] (section 3.4.6)', json_schema_extra=_node(-1.0, -1.0, 10.0, [
+                               _rated('1/6 of the rated flux, else 0.2')]))
+    phi_max: float = Field(RATED, gt=0, description='upper flux bound (saturation) [Wb], >= '
+                           'phi_min', json_schema_extra=_node(-1.0, -1.0, 10.0, [
+                               _rated('the rated flux, else 1.2')]))
+    k1: float = Field(40.0, gt=0, description='current feedback gain K1 = k1 I [V/A] (Delta V = '
+                      '-K1 (i - i*); the thesis\'s "k1 = -40" with the sign of Delta V = K (x - '
+                      'x*))', json_schema_extra=_node(lo=1e-6, hi=1e6))
+    k_p: Optional[float] = Field(None, ge=0, description='PD position gain of eq. 3.1 [N m/rad], '
+                                 '> 0 in position mode; per-mode default: position 10, speed 1, '
+                                 'torque unused', json_schema_extra=_node(
+                                     -1.0, -1.0, 1e6, [_PER_MODE]))
+    k_v: Optional[float] = Field(None, ge=0, description='PD speed gain of eq. 3.1 [N m s/rad], '
+                                 '> 0 in speed mode; per-mode default: position 1, speed 3, '
+                                 'torque unused', json_schema_extra=_node(
+                                     -1.0, -1.0, 1e6, [_PER_MODE]))
+    load_known: bool = Field(True, description='feed the load model tau_c forward in eq. 3.1 '
+                             '(else tau_c = 0)', json_schema_extra=_node())
+    load: Optional[LoadKind] = Field(
+        None, description='load model for tau_c (a function of the shaft state; a load in time '
+        "is the plant's, docs/running.md); the per-mode default (position pendulum, speed "
+        'linear, torque none) when not given', json_schema_extra=_node('pendulum'))
+    load_mgl: float = Field(10.0, description='pendulum load model m g l [N m] (tau = mgl cos '
+                            'theta)', json_schema_extra=_node(lo=-1e4, hi=1e4))
+    load_c1: float = Field(1.0, description='linear load model c1 [N m] (tau = c1 + c2 omega)',
+                           json_schema_extra=_node(lo=-1e4, hi=1e4))
+    load_c2: float = Field(0.001, description='linear load model c2 [N m s]',
+                           json_schema_extra=_node(lo=-1e3, hi=1e3))
+    load_tau: float = Field(0.0, description='constant load model [N m]',
+                            json_schema_extra=_node(lo=-1e4, hi=1e4))
+    params: MotorParams = Field(default_factory=lambda: THESIS_MOTOR,
+                                description="nominal motor parameters (the controller's "
+                                'estimates)', json_schema_extra=_NOT_A_PARAMETER)
+    v_limit: Optional[float] = Field(
+        RATED, gt=0, description='voltage-vector limit with anti-windup [V]',
+        json_schema_extra=_node(-1.0, -1.0, 1e5, [
+            _NONE, _rated("the motor's rated voltage (line-to-line RMS), none without one")]))
+    current_gain: Optional[List[List[float]]] = Field(
+        None, description='full 2x2 current gain K1 (Delta V = -K1 (i - i*)), K1 + K1^T '
+        'positive definite, overriding k1 I; the node parameter is row-major, from design_gains',
+        json_schema_extra=_node([0.0], sentinels=[([0.0], None, 'k1 I')]))
+    flux_coupling: FluxCoupling = Field(
+        'cancel', description="flux term of the current feedback: 'cancel' (cancels the speed "
+        "coupling, docs/controller.md section 5), 'thesis' (K2 of eq. 3.30) or 'none'",
+        json_schema_extra=_node())
+    T_s: float = Field(1e-4, gt=0, description='control period [s] (hold compensation and the '
+                       'first step)', json_schema_extra=_NOT_A_PARAMETER)
+    hold_compensation: bool = Field(True, description='rotate the feedforward to the middle of '
+                                    'the hold interval', json_schema_extra=_node())
+    torque_filter_bandwidth: float = Field(
+        1000.0, gt=0, description='bandwidth of the PD-part torque filter [rad/s] (critically '
+        'damped)', json_schema_extra=_node(lo=1.0, hi=1e6))
+    flux_time_constants: Optional[Tuple[float, float]] = Field(
+        None, description='(tau1, tau2) [s] of the flux-reference filter; None: (T_r, 1 ms), the '
+        "flux follows its target like the rotor's own response to a d-current step",
+        json_schema_extra=_NOT_A_PARAMETER)
+    core_loss_exponent: float = Field(
+        2.0, description='flux exponent of the core-loss model min_loss minimizes (1 or 2)',
+        json_schema_extra=_node(lo=1.0, hi=2.0))
+    setpoint_duration: float = Field(
+        0.5, gt=0, description='duration of the smooth (quintic) transition to a new setpoint '
+        '[s] (torque: a tenth of it)', json_schema_extra=_node(lo=1e-3, hi=100.0))
+    flux_preview: Optional[float] = Field(
+        None, ge=0, description='look-ahead of the flux target [s]: the strategy sees tau* plus '
+        'the change of the reference-path torque over this horizon (0: off; position/speed '
+        'profiles only); strategy default: 0.06 s for min_loss and optimal (about 0.6 T_r, the '
+        'sweep of docs/controller.md section 6), 0 for the thesis strategies',
+        json_schema_extra=_node(-1.0, -1.0, 10.0, [(-1.0, None, 'strategy default')]))
+    setpoints: tuple = Field(
+        (), description="profile 'setpoint': setpoints the controller applies itself at their "
+        't, (t [s], value, transition duration [s] or None: setpoint_duration); the node '
+        'parameter is flat triples, duration 0: setpoint_duration (im_controller.profiles '
+        'writes them from a profile file)',
+        json_schema_extra=_node([0.0], sentinels=[([0.0], (), 'none')]))
+    torque_limit: Optional[float] = Field(None, gt=0, description='bound on |tau*| [N m]',
+                                          json_schema_extra=_node(0.0, 0.0, 1e7, [_NONE]))
+    current_limit: Optional[float] = Field(
+        RATED, gt=0, description='stator-current magnitude the torque demand may ask for [A], '
+        'above the magnetizing current phi_max/L_sr', json_schema_extra=_node(-1.0, -1.0, 1e6, [
+            _NONE, _rated("the motor's rated current (sqrt 3 x line RMS), none without one")]))
+    speed_limit: Optional[float] = Field(
+        None, gt=0, description='beyond this |omega_r| no torque pushes further [rad/s]',
+        json_schema_extra=_node(0.0, 0.0, 1e5, [_NONE]))
+    field_weakening: bool = Field(True, description='cap the flux above base speed so the steady '
+                                  'voltage fits v_limit (needs v_limit)',
+                                  json_schema_extra=_node())
+    voltage_margin: float = Field(
+        DEFAULT_VOLTAGE_MARGIN, gt=0, le=1, description='share of v_limit the steady voltage may '
+        'use under field weakening', json_schema_extra=_node(lo=0.05, hi=1.0))
+    current_margin: float = Field(
+        DEFAULT_CURRENT_MARGIN, gt=0, le=1, description='share of current_limit the steady '
+        'current of min_energy/min_loss may use (their flux moves into the range that fits, '
+        'docs/limits.md)', json_schema_extra=_node(lo=0.05, hi=1.0))
+    magnetizing_floor: Optional[float] = Field(
+        None, gt=0, description='the smallest flux the reference model uses [Wb], <= phi_min (a '
+        'smooth floor, C2: the start-up from a demagnetized machine needs no step); None: 0.1 '
+        'phi_min', json_schema_extra=_NOT_A_PARAMETER)
+    horizon: Optional[float] = Field(
+        None, gt=0, description="the run's end on the controller's clock [s]: optimal plans up "
+        'to it with the end flux free; None: open-ended (the plan ends on the steady '
+        'loss-optimal flux of the final reference)', json_schema_extra=_NOT_A_PARAMETER)
+    sensorless: bool = Field(
+        False, description="the theta, omega given to compute are the observer's estimates: the "
+        'field angle is the observed flux angle (direct field orientation, docs/sensorless.md '
+        'section 4) instead of the integral of v omega + omega_sl, which drifts while the '
+        'estimate lags', json_schema_extra=_NOT_A_PARAMETER)
+    compensation: Optional[InverterErrorModel] = Field(
+        None, description="the inverter's voltage error (an InverterErrorModel) added to the "
+        'command after the voltage limit, at the measured current (None: off; '
+        'docs/compensation.md)', json_schema_extra=_NOT_A_PARAMETER)
+    magnetizing: Any = Field(
+        None, description="the motor's magnetizing curve (an im_common.saturation.Saturation, "
+        "power law): optimal plans on it (docs/controller.md section 10); the drive's model "
+        'follows it through the estimates (SaturatedModel, docs/plant.md section 2)',
+        json_schema_extra=_NOT_A_PARAMETER)
+    from_ratings: Optional[dict] = Field(
+        None, description="{field: (value, why)} of the fields the motor model's ratings set "
+        '(RATED_FIELDS)', json_schema_extra=_NOT_A_PARAMETER)
+
+    def __init__(self, **values):
+        """Validate ``values``; an error is one :class:`InvalidParameter` naming the field."""
+        try:
+            super().__init__(**values)
+        except ValidationError as exc:
+            raise block_error(type(self), values, '', exc.errors()) from None
+
+    def fields(self) -> dict:
+        """Return {field: value} of every field, as it is (no copy, no dump of the motor)."""
+        return {name: getattr(self, name) for name in type(self).model_fields}
+
+    def replace(self, **changes) -> 'ControllerConfig':
+        """
+        Return a copy with ``changes``, validated as a whole (``dataclasses.replace``'s role).
+
+        The other fields keep their resolved values (a task's gains stay those of the task;
+        ``from_ratings`` still names the ratings whose values are kept).
+        """
+        return type(self)(**dict(self.fields(), **changes))
+
+    @model_validator(mode='before')
+    @classmethod
+    def _from_ratings(cls, values):
+        """Resolve the RATED fields from the motor model's ratings (else their fallbacks)."""
+        if not isinstance(values, dict):
+            return values
+        params = values.get('params', THESIS_MOTOR)
+        if not isinstance(params, MotorParams):
+            return values                   # refused by the params field
+        owner = SimpleNamespace(**{k: values.get(k, RATED) for k in RATED_FIELDS})
+        used = resolve_rated(owner, RATED_FIELDS, params, values.get('from_ratings'))
+        return dict(values, **vars(owner), from_ratings=used)
+
+    @field_validator('params', mode='before')
+    @classmethod
+    def _motor(cls, value):
+        if not isinstance(value, MotorParams):
+            raise ValueError('must be a MotorParams')
+        return value
+
+    @field_validator('current_gain', mode='before')
+    @classmethod
+    def _gain_matrix(cls, g):
+        """Return a 2x2 K1 as rows of floats (a nested sequence, a numpy array)."""
+        if g is None:
+            return None
+        try:
+            rows = [[_number(x) for x in r] for r in g]
+        except (TypeError, ValueError):
+            raise ValueError('must be a 2x2 matrix of numbers') from None
+        if len(rows) != 2 or any(len(r) != 2 for r in rows) or \
+                not all(math.isfinite(x) for r in rows for x in r):
+            raise ValueError('must be a 2x2 matrix of finite numbers')
+        # ΔV = −K e: the symmetric part of K must be positive definite for the dissipation
+        # argument (K + Kᵀ > 0).
+        a, b2, c2, d = rows[0][0], rows[0][1], rows[1][0], rows[1][1]
+        s12 = 0.5 * (b2 + c2)
+        if not (a > 0 and a * d - s12 * s12 > 0):
+            raise ValueError('K + K^T must be positive definite (Delta V = -K (i - i*))')
+        return rows
+
+    @field_validator('flux_time_constants', mode='before')
+    @classmethod
+    def _time_constants(cls, tc):
+        if tc is None:
+            return None
+        try:
+            tc = tuple(_number(x) for x in tc)
+        except (TypeError, ValueError):
+            raise ValueError('must be two time constants in seconds') from None
+        if len(tc) != 2 or not all(math.isfinite(x) and x > 0 for x in tc):
+            raise ValueError('must be two positive, finite time constants in seconds')
+        return tc
+
+    @field_validator('core_loss_exponent')
+    @classmethod
+    def _exponent(cls, m):
+        if m not in (1.0, 2.0):
+            raise ValueError('must be 1 or 2')
+        return m
+
+    @field_validator('setpoints', mode='before')
+    @classmethod
+    def _setpoint_rows(cls, rows):
+        return tuple(rows) if isinstance(rows, (list, tuple)) else (() if rows is None else rows)
+
+    @model_validator(mode='after')
+    def _rules(self) -> 'ControllerConfig':
+        """Apply the rules across fields and resolve the defaults that depend on other fields."""
         if self.mode == 'torque' and self.profile == 'thesis':
             raise InvalidParameter('profile', self.profile,
                                    'the thesis profiles are position/speed trajectories; '
                                    "mode 'torque' needs profile 'setpoint'")
-        if not isinstance(self.params, MotorParams):
-            raise InvalidParameter('params', self.params, 'must be a MotorParams')
-        self.from_ratings = resolve_rated(self, RATED_FIELDS, self.params, self.from_ratings)
-        self.phi_d = _real('phi_d', self.phi_d, 0.0, lo_open=True)
-        self.phi_min = _real('phi_min', self.phi_min, 0.0, lo_open=True)
-        self.phi_max = _real('phi_max', self.phi_max, 0.0, lo_open=True)
         if self.phi_max < self.phi_min:
             raise InvalidParameter('phi_max', self.phi_max,
                                    f'must be >= phi_min = {self.phi_min:g}')
-        self.k1 = _real('k1', self.k1, 0.0, lo_open=True)
         kp0, kv0 = DEFAULT_GAINS[self.mode]
-        self.k_p = kp0 if self.k_p is None else _real('k_p', self.k_p, 0.0)
-        self.k_v = kv0 if self.k_v is None else _real('k_v', self.k_v, 0.0)
+        if self.k_p is None:
+            self.k_p = kp0
+        if self.k_v is None:
+            self.k_v = kv0
         if self.mode == 'position' and self.k_p <= 0.0:
             raise InvalidParameter('k_p', self.k_p, 'must be > 0 in position mode')
         if self.mode == 'speed' and self.k_v <= 0.0:
             raise InvalidParameter('k_v', self.k_v, 'must be > 0 in speed mode')
-        if not isinstance(self.load_known, bool):
-            raise InvalidParameter('load_known', self.load_known, 'must be true or false')
         if self.load is None:
             self.load = DEFAULT_LOADS[self.mode]
-        if self.load not in MODEL_KINDS:
-            raise InvalidParameter('load', self.load, f'must be one of {", ".join(MODEL_KINDS)}')
-        for name in ('load_mgl', 'load_c1', 'load_c2', 'load_tau'):
-            setattr(self, name, _real(name, getattr(self, name)))
-        self.v_limit = _real('v_limit', self.v_limit, 0.0, lo_open=True, allow_none=True)
-        if self.current_gain is not None:
-            g = self.current_gain
-            try:
-                rows = [[float(x) for x in r] for r in g]
-            except (TypeError, ValueError):
-                raise InvalidParameter('current_gain', g,
-                                       'must be a 2x2 matrix of numbers') from None
-            if len(rows) != 2 or any(len(r) != 2 for r in rows) or \
-                    not all(math.isfinite(x) for r in rows for x in r):
-                raise InvalidParameter('current_gain', g, 'must be a 2x2 matrix of finite numbers')
-            # ΔV = −K e: the symmetric part of K must be positive definite for the dissipation
-            # argument (K + Kᵀ > 0).
-            a, b2, c2, d = rows[0][0], rows[0][1], rows[1][0], rows[1][1]
-            s12 = 0.5 * (b2 + c2)
-            if not (a > 0 and a * d - s12 * s12 > 0):
-                raise InvalidParameter('current_gain', g,
-                                       'K + K^T must be positive definite (Delta V = -K (i - i*))')
-            self.current_gain = rows
-        self.T_s = _real('T_s', self.T_s, 0.0, lo_open=True)
-        if not isinstance(self.hold_compensation, bool):
-            raise InvalidParameter('hold_compensation', self.hold_compensation,
-                                   'must be true or false')
-        self.torque_filter_bandwidth = _real('torque_filter_bandwidth',
-                                             self.torque_filter_bandwidth,
-                                             0.0, lo_open=True)
-        if self.flux_time_constants is not None:
-            try:
-                tc = tuple(float(x) for x in self.flux_time_constants)
-            except (TypeError, ValueError):
-                raise InvalidParameter('flux_time_constants', self.flux_time_constants,
-                                       'must be two time constants in seconds') from None
-            if len(tc) != 2 or not all(math.isfinite(x) and x > 0 for x in tc):
-                raise InvalidParameter('flux_time_constants', self.flux_time_constants,
-                                       'must be two positive, finite time constants in seconds')
-            self.flux_time_constants = tc
-        if self.core_loss_exponent not in (1, 2, 1.0, 2.0):
-            raise InvalidParameter('core_loss_exponent', self.core_loss_exponent, 'must be 1 or 2')
-        self.core_loss_exponent = float(self.core_loss_exponent)
-        self.setpoint_duration = _real('setpoint_duration', self.setpoint_duration, 0.0,
-                                       lo_open=True)
         if self.flux_preview is None:
             self.flux_preview = DEFAULT_FLUX_PREVIEW if self.strategy in LOSS_OPTIMAL else 0.0
-        self.flux_preview = _real('flux_preview', self.flux_preview, 0.0)
-        for name in ('torque_limit', 'current_limit', 'speed_limit'):
-            setattr(self, name,
-                    _real(name, getattr(self, name), 0.0, lo_open=True, allow_none=True))
-        if not isinstance(self.field_weakening, bool):
-            raise InvalidParameter('field_weakening', self.field_weakening,
-                                   'must be true or false')
-        self.voltage_margin = _real('voltage_margin', self.voltage_margin, 0.0, lo_open=True)
-        if self.voltage_margin > 1.0:
-            raise InvalidParameter('voltage_margin', self.voltage_margin, 'must be <= 1')
-        self.current_margin = _real('current_margin', self.current_margin, 0.0, lo_open=True)
-        if self.current_margin > 1.0:
-            raise InvalidParameter('current_margin', self.current_margin, 'must be <= 1')
         if self.magnetizing_floor is None:
             self.magnetizing_floor = 0.1 * self.phi_min
-        self.magnetizing_floor = _real('magnetizing_floor', self.magnetizing_floor, 0.0,
-                                       lo_open=True)
         if self.magnetizing_floor > self.phi_min:
             raise InvalidParameter('magnetizing_floor', self.magnetizing_floor,
                                    f'must be <= phi_min = {self.phi_min:g}')
         self.setpoints = _check_setpoints(self.setpoints, self.profile)
-        if not isinstance(self.sensorless, bool):
-            raise InvalidParameter('sensorless', self.sensorless, 'must be true or false')
-        self.horizon = _real('horizon', self.horizon, 0.0, lo_open=True, allow_none=True)
         if self.current_limit is not None:
             i_mag = self.phi_max / self.params.L_sr
             if self.current_limit <= i_mag:
                 raise InvalidParameter('current_limit', self.current_limit,
                                        f'must exceed the magnetizing current phi_max/L_sr = '
                                        f'{i_mag:.4g} A (no torque would be left)')
+        return self
+
+
+def _number(x) -> float:
+    """Return ``x`` as a float; a bool or a string is no number (ValueError)."""
+    if isinstance(x, (bool, str, bytes)):
+        raise ValueError(x)
+    return float(x)
 
 
 def _check_setpoints(setpoints, profile: str) -> tuple:
@@ -420,7 +524,6 @@ class DriveController:
         angle, reference generator, estimates), so the next step continues from where this
         one left off.
         """
-        from dataclasses import replace
         bad = [k for k in changes if k not in LIVE_FIELDS]
         if bad:
             raise InvalidParameter(bad[0], changes[bad[0]],
@@ -428,7 +531,7 @@ class DriveController:
         values = dict(changes)
         if 'phi_min' in values and self.config.magnetizing_floor == 0.1 * self.config.phi_min:
             values['magnetizing_floor'] = None     # the default floor follows phi_min
-        cfg = replace(self.config, **values)       # __post_init__ validates the whole
+        cfg = self.config.replace(**values)        # validated as a whole, by the same rules
         self._apply_config(cfg)
 
     @property

@@ -18,7 +18,6 @@ on ``/im/status`` with the step it took effect, so a recording holds it.
 """
 from __future__ import annotations
 
-from dataclasses import replace
 import sys
 import time
 
@@ -68,8 +67,8 @@ class ControllerNode(LockstepNode):
         horizon = self.duration if self.duration > 0 else None
         # the drive on the magnetizing curve: the model at the observer's flux of the step
         self.saturated = declare_saturation_model(self, params)
-        self.ctl = DriveController(replace(
-            cfg, horizon=horizon, sensorless=self.sensorless,
+        self.ctl = DriveController(cfg.replace(
+            horizon=horizon, sensorless=self.sensorless,
             compensation=declare_compensation(self),
             magnetizing=None if self.saturated is None else self.saturated.curve))
         self._plan_note = ''

@@ -34,11 +34,14 @@ differentiation, so measurement noise enters the voltage only through bounded fi
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Literal, Optional
 
 from .reference import ModelCoefficients
 
+#: the flux strategies' names, their one home; :data:`Strategy` is their type (the controller
+#: configuration's ``strategy`` field validates a name against it, the one check)
 STRATEGIES = ('min_energy', 'constant_flux', 'min_loss', 'optimal')
+Strategy = Literal[STRATEGIES]
 #: the causal strategies every study compares (the thesis's two and ours); ``optimal`` plans ahead
 COMPARED_STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 # the strategies whose causal target is the steady loss-optimal flux (optimal falls back to it)
@@ -207,13 +210,13 @@ class FluxStrategy:
 
     ``i_max`` (A, None: no bound): the optimizing strategies' flux is clipped into
     :func:`flux_range_within_current` of it, then into [φ_min, φ_max]; constant flux keeps φ_d.
+    ``name`` is one of :data:`STRATEGIES`, validated by the configuration that chose it
+    (:class:`im_controller.control_law.ControllerConfig`).
     """
 
-    def __init__(self, name: str, phi_d: float = 1.2, phi_min: float = 0.2, phi_max: float = 1.2,
-                 k_e: float = 0.012, k_h: float = 0.012, core_exponent: float = 2.0,
-                 i_max: Optional[float] = None, curve=None):
-        if name not in STRATEGIES:
-            raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {name!r}")
+    def __init__(self, name: Strategy, phi_d: float = 1.2, phi_min: float = 0.2,
+                 phi_max: float = 1.2, k_e: float = 0.012, k_h: float = 0.012,
+                 core_exponent: float = 2.0, i_max: Optional[float] = None, curve=None):
         self.name = name
         self.phi_d, self.phi_min, self.phi_max = float(phi_d), float(phi_min), float(phi_max)
         self.k_e, self.k_h, self.core_exponent = float(k_e), float(k_h), float(core_exponent)
