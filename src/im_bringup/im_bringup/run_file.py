@@ -37,9 +37,8 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE
                               ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
                               variation_schedule, warn_motor_defaults)
 from im_common.sensors import Sensors
-from im_common.validation import one_line
+from im_common.validation import check_choice, one_line
 from im_controller.control_law import ControllerConfig, MODES, steady_start
-from im_controller.flux import STRATEGIES
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
 from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
@@ -215,14 +214,10 @@ class Scenario:
             if v is not None and not _matrix(v, shape):
                 raise InvalidParameter(name, v, f'must be a {shape[0]}x{shape[1]} matrix of '
                                        'finite numbers (a list of rows)')
-        if self.task not in TASKS:
-            raise InvalidParameter('task', self.task, f'must be one of {", ".join(TASKS)}')
-        if self.strategy not in STRATEGIES:
-            raise InvalidParameter('strategy', self.strategy,
-                                   f'must be one of {", ".join(STRATEGIES)}')
-        if self.controller not in CONTROLLERS:
-            raise InvalidParameter('controller', self.controller,
-                                   f'must be one of {", ".join(CONTROLLERS)}')
+        # the task at once (its presets are read below); the strategy is the controller
+        # configuration's to refuse (controller_config(), at the end: ControllerConfig's type)
+        check_choice('task', self.task, TASKS)
+        check_choice('controller', self.controller, CONTROLLERS)
         if self.mode not in STEPPING_MODES:
             raise InvalidParameter('mode', self.mode,
                                    f'must be one of {", ".join(STEPPING_MODES)}')
