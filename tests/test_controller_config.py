@@ -39,8 +39,8 @@ class RecordingNode:
         self.declared = {}
 
     def param(self, name, default, description, lo=None, hi=None, read_only=True, choices=None):
-        self.declared[name] = dict(default=default, description=description, lo=lo, hi=hi,
-                                   read_only=read_only, choices=choices)
+        self.declared[name] = {'default': default, 'description': description, 'lo': lo,
+                               'hi': hi, 'read_only': read_only, 'choices': choices}
         return self.given.get(name, default)
 
 
