@@ -73,6 +73,7 @@ import math
 from typing import Optional
 
 from im_common.params import check_real, InvalidParameter, MotorParams
+from im_common.validation import check_choice
 
 LAWS = ('thesis', 'improved')
 #: what the controller and observer take from the adapter (docs/adaptation.md §7):
@@ -172,19 +173,15 @@ class AdaptationGains:
     """Upper bound of L̂_M [H] (None: twice the nominal L_sr²/L_r)."""
 
     def __post_init__(self):
-        if self.law not in LAWS:
-            raise InvalidParameter('law', self.law, f'must be one of {", ".join(LAWS)}')
-        if self.feed not in FEEDS:
-            raise InvalidParameter('feed', self.feed, f'must be one of {", ".join(FEEDS)}')
+        check_choice('law', self.law, LAWS)
+        check_choice('feed', self.feed, FEEDS)
         if self.feed == 'auto':
             object.__setattr__(self, 'feed',
                                'inverse_gamma' if self.law == 'improved' else 'thesis_pair')
         if self.feed != 'thesis_pair' and self.law == 'thesis':
             raise InvalidParameter('feed', self.feed, "needs law 'improved' (the thesis law "
                                    'estimates only R_r and theta)')
-        if self.start_offset not in START_OFFSETS:
-            raise InvalidParameter('start_offset', self.start_offset,
-                                   f'must be one of {", ".join(START_OFFSETS)}')
+        check_choice('start_offset', self.start_offset, START_OFFSETS)
         for name in ('freeze', 'estimate_leakage', 'estimate_stator_resistance'):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameter(name, getattr(self, name), 'must be true or false')

@@ -218,9 +218,7 @@ class Scenario:
         # configuration's to refuse (controller_config(), at the end: ControllerConfig's type)
         check_choice('task', self.task, TASKS)
         check_choice('controller', self.controller, CONTROLLERS)
-        if self.mode not in STEPPING_MODES:
-            raise InvalidParameter('mode', self.mode,
-                                   f'must be one of {", ".join(STEPPING_MODES)}')
+        check_choice('mode', self.mode, STEPPING_MODES)
         if isinstance(self.variation, Mapping):
             put(self, 'variation', normalize_variation(self.variation) or 'none')
         elif self.schedule is None and self.variation not in SCHEDULES:
@@ -264,8 +262,7 @@ class Scenario:
         preset = TASK_PRESETS[self.task]
         if self.start is None:
             put(self, 'start', preset['start'])
-        if self.start not in START_MODES:
-            raise InvalidParameter('start', self.start, f'must be one of {", ".join(START_MODES)}')
+        check_choice('start', self.start, START_MODES)
         start_value = self.profile.start_value if self.profile is not None else None
         if self.theta0 is None:
             put(self, 'theta0', start_value if self.task == 'position' and start_value is not None

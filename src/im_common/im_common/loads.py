@@ -15,6 +15,7 @@ import math
 from typing import Mapping, Tuple
 
 from .params import InvalidParameter, read_yaml_file
+from .validation import choice_error
 
 
 class Load:
@@ -305,7 +306,7 @@ def make_load(kind: str, mgl: float = 10.0, c1: float = 1.0, c2: float = 0.001,
                                        'must hold pairs t, tau (an even count)')
             flat = [flat[i:i + 2] for i in range(0, len(flat), 2)]
         return ScheduleLoad(flat)
-    raise InvalidParameter('load', kind, f'must be one of {", ".join(LOAD_KINDS)}')
+    raise InvalidParameter('load', kind, choice_error(kind, LOAD_KINDS))
 
 
 LOAD_FIELDS = {'none': (), 'constant': ('tau',), 'pendulum': ('mgl',), 'linear': ('c1', 'c2'),
@@ -326,7 +327,7 @@ def load_from_dict(doc, source: str = 'load') -> Load:
         raise InvalidParameter(f'{source}', doc, 'must be a mapping with a kind')
     kind = doc.get('kind')
     if not isinstance(kind, str) or kind not in LOAD_FIELDS:     # [linear] is no kind either
-        raise InvalidParameter(f'{source}: kind', kind, f'must be one of {", ".join(LOAD_KINDS)}')
+        raise InvalidParameter(f'{source}: kind', kind, choice_error(kind, LOAD_KINDS))
     allowed = LOAD_FIELDS[kind]
     values = {}
     for key, val in doc.items():

@@ -11,6 +11,7 @@ from typing import Optional
 
 from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MOTOR_RANGES, MotorParams, THESIS_MOTOR,
                      warn_motor_defaults)
+from .validation import choice_error
 
 _MOTOR_DOC = {
     'R_s': 'stator resistance [ohm]',
@@ -311,8 +312,8 @@ def declare(node, name: str, default, description: str, lo=None, hi=None,
     given = getattr(node, '_parameter_overrides', {}).get(name)
     bad = parameter_error(given.value, default, lo, hi) if given is not None else None
     value = given.value if bad else node.declare_parameter(name, default, desc).value
-    if not bad and choices is not None and value not in choices:
-        bad = f'must be one of {", ".join(choices)}'
+    if not bad and choices is not None:
+        bad = choice_error(value, choices)
     if bad:
         raise ConfigurationError(f"invalid parameter '{name}' = {value!r} for node "
                                  f"'{node.get_name()}': {bad}")
@@ -359,8 +360,8 @@ def live_refusal(node, parameters):
             continue
         default, lo, hi, choices = checks[prm.name]
         bad = parameter_error(prm.value, default, lo, hi)
-        if not bad and choices is not None and prm.value not in choices:
-            bad = f'must be one of {", ".join(choices)}'
+        if not bad and choices is not None:
+            bad = choice_error(prm.value, choices)
         if bad:
             return SetParametersResult(successful=False, reason='invalid parameter '
                                        f"'{prm.name}' = {prm.value!r}: {bad}")

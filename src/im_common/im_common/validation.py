@@ -118,15 +118,25 @@ def literal_choices(annotation):
     return get_args(inner[0]) if len(inner) == 1 else None
 
 
-def check_choice(name: str, value, choices) -> None:
+def choice_error(value, choices):
     """
-    Refuse ``value`` unless it is one of ``choices`` (the names, or a ``Literal`` type of them).
+    Return why ``value`` is not one of ``choices`` (the names, or a ``Literal`` type), or None.
 
-    The one line a choice's refusal gives, a model's field (:func:`block_error`) or not.
+    The one text a choice's refusal gives: a run file's, a model field's (:func:`block_error`),
+    a node parameter's (im_common.node_params).
     """
-    names = tuple(choices) if isinstance(choices, (tuple, list)) else literal_choices(choices)
-    if value not in names:
-        raise InvalidParameter(name, value, f"must be one of {', '.join(map(str, names))}")
+    names = literal_choices(choices)
+    names = tuple(choices) if names is None else names     # a tuple, a dict's keys, ...
+    if value in names:
+        return None
+    return f"must be one of {', '.join(map(str, names))}"
+
+
+def check_choice(name: str, value, choices) -> None:
+    """Refuse ``value`` unless it is one of ``choices``: one :class:`InvalidParameter` line."""
+    why = choice_error(value, choices)
+    if why is not None:
+        raise InvalidParameter(name, value, why)
 
 
 def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:

@@ -31,6 +31,7 @@ import math
 from typing import Optional, Sequence, Tuple
 
 from im_common.params import InvalidParameter, read_yaml_file
+from im_common.validation import check_choice
 
 # the field names of /im/setpoint (sensor_msgs/JointState) → controller modes
 KINDS = {'position': 'position', 'velocity': 'speed', 'effort': 'torque'}
@@ -132,8 +133,7 @@ def from_samples(kind: str, samples: Sequence[Tuple[float, float]],
 
     The reference reaches each value at its time (see module doc).
     """
-    if kind not in KINDS:
-        raise InvalidParameter(f'{source}: kind', kind, f"must be one of {', '.join(KINDS)}")
+    check_choice(f'{source}: kind', kind, KINDS)
     if len(samples) < 1:
         raise InvalidParameter(f'{source}', len(samples), 'needs at least one sample')
     times = [s[0] for s in samples]
