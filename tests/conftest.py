@@ -176,3 +176,14 @@ def pytest_runtest_makereport(item, call):
         outcome.get_result().sections.append((
             'hang guard', f'HANG: {cmd[:300]} did not end within its hang guard of {exc.timeout:g}'
             ' s, many times what it takes on a loaded machine: a hang, not slowness'))
+
+
+@pytest.fixture(scope='module')
+def context():
+    """Yield an rclpy context of its own (a random domain 150-229) for a module's nodes."""
+    import rclpy
+    from rclpy.context import Context
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    yield ctx
+    rclpy.try_shutdown(context=ctx)

@@ -9,7 +9,6 @@ the plant node takes the block as typed parameters ``inverter.<field>``, ``senso
 """
 import dataclasses
 import math
-import random
 
 from im_bringup.run_file import Scenario
 from im_common.host import build_node
@@ -20,8 +19,6 @@ from im_common.validation import InvalidParameter
 from im_plant.plant_node import PlantNode
 from pydantic import ValidationError
 import pytest
-import rclpy
-from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 INV = {'V_dc': 340.0, 'pwm_frequency': 10000.0}
@@ -118,14 +115,6 @@ def test_a_scenario_parses_each_block_once_and_keeps_the_model(monkeypatch):
 
 
 # The plant node's parameters -------------------------------------------------------------
-@pytest.fixture(scope='module')
-def context():
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
 def _plant(context, values):
     return build_node(PlantNode, context=context,
                       parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])

@@ -403,6 +403,24 @@ def test_the_sensorless_axis_runs_both_ways_and_refuses_the_position_task(tmp_pa
     assert rows[1]['E_in_J'] == ref['E_in_J'] != rows[0]['E_in_J']
 
 
+def _campaign_in_a_terminal(tmp_path):
+    """
+    Start a two-worker campaign of 6 draws in a session of its own; return (process, out dir).
+
+    Started as a terminal's foreground job is: SIGINT at its default. A suite run from a
+    script's background job (`make test &`) inherits it ignored, and Python then installs no
+    KeyboardInterrupt: the campaign would run on to the end (exit 0, nothing to test).
+    """
+    path = write_spec(tmp_path, draws=6, duration=2.0)
+    out = tmp_path / 'c'
+    cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
+           '2', '--no-progress']
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    return p, out
+
+
 @pytest.mark.processes
 def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
     """
@@ -411,16 +429,7 @@ def test_ctrl_c_on_a_campaign_prints_one_line(tmp_path):
     The campaign says "interrupted; ... the same command resumes" and nothing else — no worker's
     KeyboardInterrupt traceback, no scheduler ERROR — and exits 130.
     """
-    path = write_spec(tmp_path, draws=6, duration=2.0)
-    out = tmp_path / 'c'
-    cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
-           '2', '--no-progress']
-    # started as a terminal's foreground job is: SIGINT at its default. A suite run from a
-    # script's background job (`make test &`) inherits it ignored, and Python then installs no
-    # KeyboardInterrupt: the campaign would run on to the end (exit 0, nothing to test)
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    p, out = _campaign_in_a_terminal(tmp_path)
     journal = out / JOURNAL
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and p.poll() is None:
@@ -462,13 +471,7 @@ def test_ctrl_c_while_the_campaign_starts_its_workers_is_not_lost(tmp_path):
     only; the signal that arrives during that start is kept and acted on once the cluster is up:
     exit 130, one line, no journal row run, no worker process left.
     """
-    path = write_spec(tmp_path, draws=6, duration=2.0)
-    out = tmp_path / 'c'
-    cmd = [sys.executable, '-m', 'im_studies.campaign', path, '--out', str(out), '--workers',
-           '2', '--no-progress']
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    p, out = _campaign_in_a_terminal(tmp_path)
     spawned = {}
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and p.poll() is None and not spawned:

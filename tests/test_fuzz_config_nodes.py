@@ -11,7 +11,6 @@ SetParametersResult while running). Never another exception.
 """
 import json
 import math
-import random
 
 from hypothesis import given, strategies as st
 from im_adapt.adapter_node import AdapterNode
@@ -23,7 +22,6 @@ from im_observer.observer_node import ObserverNode
 from im_plant.plant_node import PlantNode
 import pytest
 import rclpy
-from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 
@@ -48,14 +46,6 @@ VALUES = st.one_of(
     st.lists(FLOATS, min_size=1, max_size=9), st.lists(INTS, min_size=1, max_size=9),
     st.lists(st.booleans(), min_size=1, max_size=4),
     st.lists(st.text(max_size=5), min_size=1, max_size=4))
-
-
-@pytest.fixture(scope='module')
-def context():
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 @pytest.fixture(scope='module')
