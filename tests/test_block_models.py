@@ -205,6 +205,8 @@ def test_block_parameters_are_every_field_flattened():
      "invalid parameter 'sensors.current_gain' = [1.0, 0.0, 1.0]: must be > 0"),
     ({'sensors.enabled': True, 'sensors.current_offset': [0.1, 0.2]},
      "invalid parameter 'sensors.current_offset' = [0.1, 0.2]: must be one number or three"),
+    ({'inverter.V_dc': 540.0, 'inverter.pwm_frequency': 1e4},      # the block left off
+     "invalid parameter 'inverter.V_dc' = 540.0: set, but inverter.enabled is false"),
 ])
 def test_a_bad_block_parameter_on_the_plant_is_one_line_naming_it(context, given, line):
     with pytest.raises(ConfigurationError) as err:

@@ -220,7 +220,8 @@ def declare_block(node, model_cls, prefix: str, description: str):
     description (unit, meaning) and bounds. Enabled, the values are parsed into the model: an
     error is one line naming ``<prefix>.<field>`` (:func:`im_common.validation.parse_block`, the
     run file's lines), a required field left at :data:`NOT_GIVEN` is missing ('is missing'). A
-    value equal to the field's default is that default (as if left out).
+    value equal to the field's default is that default (as if left out). Disabled, a field set
+    to anything else is refused in one line: it would silently act on nothing.
     """
     from .validation import InvalidParameter, parse_block
     enabled = node.param(f'{prefix}.enabled', False, description)
@@ -232,6 +233,11 @@ def declare_block(node, model_cls, prefix: str, description: str):
         if value != default:
             spec[name] = value
     if not enabled:
+        if spec:                # a setting given for a block that is off would act on nothing
+            name = next(iter(spec))
+            raise InvalidParameter(f'{prefix}.{name}', spec[name],
+                                   f'set, but {prefix}.enabled is false (the block is off): '
+                                   f'set {prefix}.enabled true, or leave {prefix}.{name} out')
         return None
     try:
         return parse_block(model_cls, spec, prefix)
