@@ -1,6 +1,5 @@
 import importlib
 import os
-import random
 
 import pytest
 
@@ -61,14 +60,14 @@ hypothesis_settings.load_profile(os.environ.get('HYPOTHESIS_PROFILE', 'ci'))
 @pytest.fixture(autouse=True)
 def ros_domain_id(monkeypatch):
     """
-    Run each test on a random ROS domain in 150-229 (``ROS_DOMAIN_ID``), returned as an int.
+    Run each test on a random ROS domain of its own (``ROS_DOMAIN_ID``), returned as an int.
 
     Every tool runs on ``ROS_DOMAIN_ID`` as ROS 2 does (the in-process graph, the executables
     a test starts, their processes): here, not in the tools, tests are kept apart from each
     other and from the user's own graph on the shared machine.
     """
-    from im_bringup.testing import TEST_DOMAINS
-    domain = random.randint(*TEST_DOMAINS)
+    from im_bringup.testing import random_domain
+    domain = random_domain()
     monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
     return domain
 
@@ -98,16 +97,16 @@ def ros_context():
     """
     Return an initialized rclpy ``Context`` on a random DDS domain.
 
-    The domain is in 150-229; the context is shut down afterwards.
+    The domain is one of im_bringup.testing's; the context is shut down afterwards.
 
     Every in-process ROS test takes its context from here instead of calling ``rclpy.init``
     itself, so no test shares the global context or a domain with another run on the machine.
     """
     import rclpy
     from rclpy.context import Context
-    from im_bringup.testing import TEST_DOMAINS
+    from im_bringup.testing import random_domain
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(*TEST_DOMAINS))
+    rclpy.init(context=ctx, domain_id=random_domain())
     try:
         yield ctx
     finally:
@@ -130,7 +129,7 @@ def free_run_rate(tmp_path_factory):
     import sys
     from im_bringup.processes import free_run_gains, graph_processes, GraphProcesses, \
         load_params_yaml
-    from im_bringup.testing import TEST_DOMAINS
+    from im_bringup.testing import random_domain
     log = ''
     for rate in FREE_RUN_RATES:
         gains = load_params_yaml(free_run_gains(1.0 / rate))
@@ -138,7 +137,7 @@ def free_run_rate(tmp_path_factory):
                                 mode='free_run', extra=gains)
         busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
         try:
-            env = {'ROS_DOMAIN_ID': str(random.randint(*TEST_DOMAINS))}
+            env = {'ROS_DOMAIN_ID': str(random_domain())}
             with GraphProcesses(procs, str(tmp_path_factory.mktemp('probe')), env) as g:
                 codes = g.start().wait(120)
                 log = g.log('plant')
@@ -180,10 +179,11 @@ def pytest_runtest_makereport(item, call):
 
 @pytest.fixture(scope='module')
 def context():
-    """Yield an rclpy context of its own (a random domain 150-229) for a module's nodes."""
+    """Yield an rclpy context of its own (a random test domain) for a module's nodes."""
     import rclpy
     from rclpy.context import Context
+    from im_bringup.testing import random_domain
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=random_domain())
     yield ctx
     rclpy.try_shutdown(context=ctx)

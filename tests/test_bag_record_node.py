@@ -1,8 +1,8 @@
 """The recorder node, in-process on its own context: what is published is what is recorded."""
-import random
 import time
 
 from geometry_msgs.msg import Vector3Stamped
+from im_bringup.testing import random_domain
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, Vector3Out
@@ -27,7 +27,7 @@ def test_parse_topics():
 
 def test_recorder_node_records_what_was_published(tmp_path):
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=random_domain())
     path = tmp_path / 'rec.mcap'
     writer = BagWriter(path)
     pub_node = rec = None
@@ -126,7 +126,7 @@ def test_a_late_recorder_keeps_the_newest_of_what_it_cannot_verify_yet(tmp_path)
     s).
     """
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=random_domain())
     writer = BagWriter(tmp_path / 'late.mcap')
     rec = None
     try:
@@ -163,7 +163,7 @@ class _Run:
 
     def __init__(self, tmp_path):
         self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=random.randint(150, 229))
+        rclpy.init(context=self.ctx, domain_id=random_domain())
         self.path = tmp_path / 'rec.mcap'
         self.writer = BagWriter(self.path)
         self.rec = RecorderNode(self.writer, parse_topics(LOCK + ['/im/status']), context=self.ctx)

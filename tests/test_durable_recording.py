@@ -9,11 +9,11 @@ package's reader, which the project did not write.
 """
 from collections import Counter
 import os
-import random
 import re
 import signal
 import time
 
+from im_bringup.testing import random_domain
 from im_common import topics as T
 from im_common.step_gate import LOCKSTEP_DEPTH
 from im_recording import recover as rec
@@ -26,7 +26,7 @@ PERIOD = 100_000        # T_s = 1e-4 s
 
 @pytest.fixture
 def domain():
-    return {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    return {'ROS_DOMAIN_ID': str(random_domain())}
 
 
 def mcap_stamps(path, topic, field='log_time'):

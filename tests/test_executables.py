@@ -57,11 +57,11 @@ def test_plant_process_loads_the_thesis_yaml_and_reports_a_missing_controller():
     `ros2 run im_plant plant --ros-args --params-file .../thesis_motor.yaml` starts with the
     shipped parameters; with no controller it says who it waited for and exits 1.
     """
-    import random
+    from im_bringup.testing import random_domain
     from ament_index_python.packages import get_package_share_directory
     yml = os.path.join(get_package_share_directory('im_plant'), 'config', 'thesis_motor.yaml')
     assert os.path.exists(yml)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(150, 229)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random_domain()))
     proc = subprocess.run([ros2_run_path('im_plant', 'plant'), '--ros-args', '--params-file', yml,
                            '-p', 'startup_timeout:=0.5', '-p', 'input_timeout:=0.5'],
                           capture_output=True, text=True, timeout=60, env=env)

@@ -553,11 +553,11 @@ def test_a_process_that_did_not_end_is_asked_for_its_stacks_and_goes_on(tmp_path
     still running for their stacks first, so a hang says where it is; the process is not harmed
     by being asked, and still stops cleanly on SIGINT.
     """
-    import random
+    from im_bringup.testing import random_domain
     from im_bringup.processes import GraphProcesses, graph_processes
     from im_bringup.testing import assert_all_ended, wait_for_log
     procs = [p for p in graph_processes('position', duration=0.02) if p.name == 'observer']
-    with GraphProcesses(procs, str(tmp_path), {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    with GraphProcesses(procs, str(tmp_path), {'ROS_DOMAIN_ID': str(random_domain())}
                         ) as g:
         g.start()
         assert wait_for_log(g, 'observer', 'waiting ('), g.log('observer')    # no plant: waits

@@ -98,7 +98,7 @@ def test_adapter_enable_switches_at_run_time():
     Validated in the callback, applied at the next step (not inside the callback), announced on
     /im/status; a non-boolean is refused.
     """
-    import random
+    from im_bringup.testing import random_domain
 
     import rclpy
     from rclpy.context import Context
@@ -107,7 +107,7 @@ def test_adapter_enable_switches_at_run_time():
     from im_adapt.adapter_node import AdapterNode
     from im_common import topics as T
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=random_domain())
     try:
         node = AdapterNode(context=ctx)
         said = []

@@ -13,7 +13,6 @@ nothing hangs; a recorder that joins late records without a gap from where it jo
 closes the loop in wall-clock time; live parameters are validated, applied and recorded.
 """
 from collections import Counter
-import random
 import signal
 import subprocess
 import sys
@@ -21,7 +20,7 @@ import time
 
 from conftest import FREE_RUN_RATES
 from im_bringup.processes import graph_processes, GraphProcesses
-from im_bringup.testing import assert_all_ended, wait_for_log, wait_until
+from im_bringup.testing import assert_all_ended, random_domain, wait_for_log, wait_until
 from im_common import topics as T
 from im_recording.bag import info, iter_raw, partial_path
 import pytest
@@ -31,7 +30,7 @@ LOCKSTEP = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.CMD_VOLTAGE, T.OBS_FLUX)
 
 @pytest.fixture
 def domain():
-    return {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    return {'ROS_DOMAIN_ID': str(random_domain())}
 
 
 def counts(bag):

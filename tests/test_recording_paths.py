@@ -5,11 +5,10 @@ Both feed :class:`im_recording.session.RecordingSession`, so a run recorded eith
 the same metadata records with the same keys (the values of a pid, a wall time or a graph key
 differ), and only the parameters of the run's own nodes.
 """
-import random
 
 from im_bringup.processes import graph_processes, GraphProcesses
 from im_bringup.scenario import run_metadata
-from im_bringup.testing import assert_all_ended, run_graph
+from im_bringup.testing import assert_all_ended, random_domain, run_graph
 from im_common import topics as T
 from im_recording.bag import info
 import pytest
@@ -24,7 +23,7 @@ def record_both(tmp_path, controller):
     run_graph('position', 'min_energy', controller, duration=DURATION, record=str(inproc))
     procs = tmp_path / 'processes.mcap'
     meta = run_metadata('position', 'min_energy', controller, 'none')
-    domain = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    domain = {'ROS_DOMAIN_ID': str(random_domain())}
     with GraphProcesses(graph_processes('position', 'min_energy', controller,
                                         duration=DURATION, record=procs,
                                         record_metadata=meta), str(tmp_path / 'logs'),

@@ -1,7 +1,7 @@
 """Replay: re-estimation reproduces the recorded observer; publishing delivers the recording."""
-import random
 
 from geometry_msgs.msg import Vector3Stamped
+from im_bringup.testing import random_domain
 from im_observer import observer
 from im_recording.bag import iter_raw, read_messages
 from im_recording.replay import main as replay_main, Player, reestimate
@@ -65,7 +65,7 @@ def test_replay_cli_errors_are_one_line(tmp_path, capsys):
 
 def test_player_lockstep_publishes_the_recording_with_clock_and_remap(observed_bag):
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=random_domain())
     got = {'cur': [], 'shaft': [], 'clock': []}
     node = sub = None
     try:

@@ -209,7 +209,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     process: same numbers as the in-process graph, every process exits 0, the plant's log and the
     recording name the rogue, the bag holds only the graph's own lock-step messages.
     """
-    import random
+    from im_bringup.testing import random_domain
     from collections import Counter
 
     from im_recording.bag import info, iter_raw
@@ -217,7 +217,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     from im_recording.report import figures_of_merit
     from im_recording.run import load_run
     from im_bringup.testing import assert_all_ended, run_graph
-    env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    env = {'ROS_DOMAIN_ID': str(random_domain())}
     bag = tmp_path / 'run.mcap'
     DURATION = 1.2       # ≈ 5 s of wall time at 2400 steps/s, longer than a discovery period
     rogue = subprocess.Popen([sys.executable, os.path.join(HERE, 'rogue.py')],
@@ -379,10 +379,10 @@ def test_a_graph_started_with_the_default_range_is_invisible_from_another_host(
     subnet; started with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET (on purpose) it can — the control
     that shows the other host would see it.
     """
-    import random
+    from im_bringup.testing import random_domain
     from im_bringup.processes import GraphProcesses, graph_processes
     for opened in (False, True):
-        env = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+        env = {'ROS_DOMAIN_ID': str(random_domain())}
         if opened:
             env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
         with GraphProcesses(graph_processes('position', 'min_energy', duration=1.0),

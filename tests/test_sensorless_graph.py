@@ -58,14 +58,14 @@ def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_
     measured speed made useless: every process exits 0, the recording holds the speed estimate at
     every step, and the numbers equal the in-process run without any noise.
     """
-    import random
+    from im_bringup.testing import random_domain
 
     from im_recording.bag import iter_raw
     from im_bringup.processes import GraphProcesses, graph_processes
     from im_recording.report import figures_of_merit
     from im_recording.run import load_run
     bag = tmp_path / 'sensorless.mcap'
-    domain = {'ROS_DOMAIN_ID': str(random.randint(150, 229))}
+    domain = {'ROS_DOMAIN_ID': str(random_domain())}
     with GraphProcesses(graph_processes('speed', 'min_energy', duration=0.02, record=bag,
                                         extra=NOISE, sensorless=True),
                         str(tmp_path / 'logs'), domain) as g:

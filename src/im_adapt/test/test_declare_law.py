@@ -4,10 +4,10 @@ im_adapt.parameters.declare_law: the adaptation gains as declared node parameter
 Every gain is a declared parameter with a description and a range, overrides reach the adapter, and
 bad values are refused naming the parameter (ROS-free stand-in and the real node).
 """
-import random
 
 from im_adapt.adaptation import AdaptationGains, ParameterAdapter
 from im_adapt.parameters import declare_law
+from im_common.host import private_domain
 from im_common.params import InvalidParameter, THESIS_MOTOR
 import pytest
 
@@ -74,7 +74,7 @@ def test_adapter_node_declares_the_law():
 
     from im_adapt.adapter_node import AdapterNode
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=private_domain())
     try:
         node = AdapterNode(context=ctx, parameter_overrides=[
             Parameter('law', Parameter.Type.STRING, 'thesis'),

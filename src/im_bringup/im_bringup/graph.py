@@ -19,11 +19,11 @@ rosbag2's recorder and ``record`` store).
 from __future__ import annotations
 
 import os
-import random
 import time
 from typing import Dict, Mapping, Optional
 
 from im_common.cli import status_line
+from im_common.host import private_domain
 from im_common.topics import STATUS
 import rclpy
 from rclpy.context import Context
@@ -59,7 +59,7 @@ def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
     ctx = Context()
     # args: no ROS arguments. Without them rcl reads this process's own command line — the
     # launch file's 'task:=speed' became "Found remap rule ... deprecated" warnings.
-    rclpy.init(args=['check_parameters'], context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(args=['check_parameters'], context=ctx, domain_id=private_domain())
     try:
         for name, values in parameters.items():
             if name in factories:

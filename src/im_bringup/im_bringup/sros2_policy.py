@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import sys
 from typing import Dict, List, Tuple
 from xml.sax.saxutils import escape
+
+from im_common.host import private_domain
 
 ENCLAVE_ROOT = '/im_drive'
 POLICY_VERSION = '0.2.0'
@@ -52,7 +53,7 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
     from im_recording.record_node import RecorderNode
     import tempfile
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(context=ctx, domain_id=private_domain())
     out = {}
     tmp = tempfile.mkdtemp(prefix='im_policy_')
     writer = BagWriter(os.path.join(tmp, 'x.mcap'))

@@ -10,9 +10,9 @@ Use it from a ``conftest.py``::
         assert result.summary['speed_err_max_rad_s'] < 1.0
 
 Each call builds a fresh :class:`im_bringup.graph.DriveGraph` on its own ``Context`` and a random
-DDS domain in 150-229 (isolation is the fixture's job: the graph itself, like every ROS 2 tool,
-runs on ``ROS_DOMAIN_ID``), runs it to the end in lock-step, tears it down, and returns the
-summary (figures of merit) with the traces. Extra node parameters go in
+DDS domain of :data:`TEST_DOMAINS` (isolation is the fixture's job: the graph itself, like
+every ROS 2 tool, runs on ``ROS_DOMAIN_ID``), runs it to the end in lock-step, tears it down, and
+returns the summary (figures of merit) with the traces. Extra node parameters go in
 ``parameters={'plant': {...}, ...}``. A run file (docs/running.md) is given as ``scenario=``
 (a path or an :class:`im_bringup.run_file.Scenario`)::
 
@@ -23,13 +23,37 @@ from __future__ import annotations
 from dataclasses import dataclass
 import random
 import time
-from typing import Callable, Dict, Optional, TypeVar
+from typing import Callable, Dict, Optional, Tuple, TypeVar
 
+from im_common.host import PRIVATE_DOMAINS
 import numpy as np
 import pytest
 
 #: DDS domains the fixtures draw from (clear of the default 0 and of the domains users pick)
-TEST_DOMAINS = (150, 229)
+TEST_DOMAINS = PRIVATE_DOMAINS
+
+
+def worker_domains() -> Tuple[int, int]:
+    """
+    Return the range of :data:`TEST_DOMAINS` this test process draws from.
+
+    Under pytest-xdist (``make test`` runs ``-n 2``) each worker gets a disjoint share, so two
+    tests running at once never meet on one domain; otherwise the whole range.
+    """
+    import os
+    worker, count = os.environ.get('PYTEST_XDIST_WORKER'), os.environ.get(
+        'PYTEST_XDIST_WORKER_COUNT')
+    if not worker or not count:
+        return TEST_DOMAINS
+    lo, hi = TEST_DOMAINS
+    width = (hi - lo + 1) // int(count)
+    start = lo + int(worker.lstrip('gw')) * width
+    return start, start + width - 1
+
+
+def random_domain() -> int:
+    """Return a random domain of :func:`worker_domains` (a test's graph, context or processes)."""
+    return random.randint(*worker_domains())
 
 
 _T = TypeVar('_T')
@@ -118,7 +142,7 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     from im_bringup.scenario import held_estimates
     sink = Tap(writer, load_step=load_step_time(parameters=params), held=held_estimates(params))
     graph = DriveGraph(params, nodes=nodes, recorder=sink,
-                       domain_id=random.randint(*TEST_DOMAINS))
+                       domain_id=random_domain())
     try:
         if beside is None:
             stats = graph.run()

@@ -416,13 +416,23 @@ def parameter_table(node) -> str:
     return '\n'.join(rows)
 
 
+#: DDS domains for a context that joins no graph (a node built only to read its parameters) and
+#: for the test suite's graphs (im_bringup.testing): clear of the default 0 and of users' domains.
+PRIVATE_DOMAINS = (150, 229)
+
+
+def private_domain() -> int:
+    """Return a random domain of :data:`PRIVATE_DOMAINS`."""
+    import random
+    return random.randint(*PRIVATE_DOMAINS)
+
+
 def print_node_help(factory, prog: str) -> int:
     """``--help``: build the node in a private context and print its parameters."""
     import os
-    import random
     from rclpy.context import Context
     ctx = Context()
-    rclpy.init(args=[prog], context=ctx, domain_id=random.randint(150, 229))
+    rclpy.init(args=[prog], context=ctx, domain_id=private_domain())
     try:
         node = factory(context=ctx, graph_key=bytes(32))    # --help signs nothing
         print(f'usage: {os.path.basename(prog)} [--ros-args -p name:=value ... '

@@ -10,11 +10,11 @@ the page no longer matches what the nodes declare.
 from __future__ import annotations
 
 import os
-import random
 import re
 import sys
 
 from im_common.cli import error as cli_error
+from im_common.host import private_domain
 
 #: the page holding the generated tables
 DEFAULT_PAGE = os.path.join('docs', 'parameters.md')
@@ -35,7 +35,7 @@ def parameter_tables() -> str:
                            ('observer (`ros2 run im_observer observer`)', ObserverNode),
                            ('adapter (`ros2 run im_adapt adapter`)', AdapterNode)):
         ctx = Context()
-        rclpy.init(context=ctx, domain_id=random.randint(150, 229))
+        rclpy.init(context=ctx, domain_id=private_domain())
         try:
             node = factory(context=ctx, graph_key=bytes(32))
             parts.append(f'### {title}\n\n{parameter_table(node)}\n')
