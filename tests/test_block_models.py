@@ -53,7 +53,7 @@ def _refused(cls, spec):
                                'period'),
     (dict(INV, C_dc=1e-3, V_trip=300.0), "'inverter.V_trip' = 300.0: must be above V_dc"),
     (dict(INV, C_dc=1e-3, V_chopper=500.0), "'inverter.V_chopper' = 500.0: must lie between"),
-    ([340.0], "'inverter' = [340.0]: must be a mapping of V_dc, pwm_frequency, deadtime, "),
+    ([340.0], "'inverter' = [340.0]: must be a mapping of V_dc, pwm_frequency, delay, deadtime, "),
 ])
 def test_the_inverter_refuses_in_one_line_naming_the_key(spec, line):
     assert line in _refused(Inverter, spec)
@@ -192,7 +192,8 @@ def test_block_parameters_are_every_field_flattened():
     ({'inverter.enabled': True, 'inverter.V_dc': 340.0, 'inverter.pwm_frequency': 1e4,
       'inverter.deadtime': 2e-5}, "invalid parameter 'inverter.deadtime' = 2e-05: longer than"),
     ({'inverter.enabled': True, 'inverter.pwm_frequency': 1e4},
-     "invalid parameter 'inverter.V_dc' = None: is missing (inverter.enabled is true)"),
+     "invalid parameter 'inverter.V_dc' = None: is missing: V_dc and pwm_frequency make the "
+     'switched inverter together'),
     ({'inverter.enabled': True, 'inverter.V_dc': 340.0, 'inverter.pwm_frequency': 1e4,
       'inverter.v_on': -1.0}, "invalid parameter 'inverter.v_on' = -1.0: must be >= 0"),
     ({'inverter.V_dc': 'x'}, "invalid parameter 'inverter.V_dc' = 'x' for node 'plant': must be "

@@ -10,7 +10,9 @@ estimates they wait for them, so it is on the critical path without needing a wa
 when nobody uses them it is off the critical path, and if it falls behind or joins late it takes
 what arrives, skips the steps it lost (counted and reported at the end, estimates held across the
 gap) and never stops the run. With ``enable`` false it holds its estimates; ``enable`` can be
-switched while running (``ros2 param set /adapter enable true``), from the next step on.
+switched while running (``ros2 param set /adapter enable true``), from the next step on. With the
+plant's computational ``delay`` d it takes the command of step k − d, the voltage the motor got
+(im_common.delay); a step it skipped leaves its command out of that line.
 """
 from __future__ import annotations
 
@@ -22,8 +24,8 @@ from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
-from im_common.node_params import (declare_compensation, declare_motor, declare_run,
-                                   live_refusal)
+from im_common.node_params import (declare_compensation, declare_delay, declare_motor,
+                                   declare_run, live_refusal)
 from im_common.params import InvalidParameter, motor_blocks
 from im_common.qos import writer
 from rcl_interfaces.msg import SetParametersResult
@@ -48,6 +50,7 @@ class AdapterNode(LockstepNode):
         self._enable_next = None
         self.law = declare_law(self, params, R_r0, theta0)
         self.compensation = declare_compensation(self)
+        self.delay = declare_delay(self)
         sensorless = p('sensorless', False, "take the observer's speed estimate "
                        f'({T.OBS_SPEED}) in place of the measured shaft and hold R_R '
                        '(docs/sensorless.md)')
@@ -107,9 +110,10 @@ class AdapterNode(LockstepNode):
         if self._enable_next is not None:
             self.enable, self._enable_next = self._enable_next, None
             self.status(PARAMETERS, enable=self.enable)
+        # every command enters the delay line, enabled or not: the one acting over this step
+        v_a, v_b = self.delay.push(*inputs[T.CMD_VOLTAGE])
         if self.enable:
             i_a, i_b = inputs[T.MEAS_CURRENT]
-            v_a, v_b = inputs[T.CMD_VOLTAGE]
             if self.compensation is not None:   # the voltage the motor got (observer's too)
                 v_a, v_b = self.compensation.motor_voltage(v_a, v_b, i_a, i_b)
             f_a, f_b = inputs[T.OBS_FLUX]

@@ -10,6 +10,10 @@ protocol, startup and shutdown"):
     x̂_k+1  = observer.step(T_s, V_k, meas_k.i, meas_k.ω) # observer predicts from the same data
     p̂_k+1  = adapter.step(..., x̂_k)  (optional hook, chapter 4; used from step k+1 on)
 
+With the run's computational delay d (``inverter: {delay: d}``, im_common.delay) the plant applies
+V_{k−d} over step k, and the observer, the adapter and the traces take that voltage too: the
+drive's own line of commands, the one its nodes hold.
+
 So results of the ROS graph and of this loop are comparable sample by sample.
 
 Scenarios (seed 000 §3.4): the position task starts at rest, θ₀ = −π/2, demagnetized (pendulum
@@ -24,6 +28,7 @@ from dataclasses import dataclass, replace
 import time
 
 from im_common.cli import status_line
+from im_common.delay import CommandDelay
 from im_common.metrics import energy_figures, load_step_figures, tracking_figures
 from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
 from im_common.params import (CHAPTER4_ESTIMATES, estimate_arguments,  # noqa: F401 (re-exported)
@@ -167,6 +172,7 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     if adapter is not None and hasattr(adapter, 'bind'):
         adapter.bind(plant)     # a bound, not a controller, may read the plant's truth
     cfg_comp = controller.config.compensation
+    line = CommandDelay(plant.delay.d)      # the drive's copy of the plant's delay line
     n_steps = int(round(sc.duration / sc.T_s))
     n_rec = n_steps // record_every + 1
     tr = {k: np.empty(n_rec) for k in TRACE_KEYS}
@@ -192,8 +198,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
                                       x_hat[2], x_hat[3], estimates)
         if timing:
             t_ctl += clock() - c0
+        v_act = line.push(v_a, v_b) if line.d else (v_a, v_b)    # what acts over step k
         if k % record_every == 0 and rec < n_rec:
-            _record(tr, rec, plant, controller, x_hat, m.t, v_a, v_b)
+            _record(tr, rec, plant, controller, x_hat, m.t, *v_act)
             tr['omega_hat'][rec] = m.omega_r     # the speed the controller used
             rec += 1
         if k == n_steps:
@@ -203,9 +210,9 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             c0 = clock()
         x_hat_k = x_hat
         if sc.sensorless:
-            x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta)   # ω̂ from V and i only
+            x_hat = observer.step(T_s, *v_act, m.i_alpha, m.i_beta)   # ω̂ from V and i only
         else:
-            x_hat = observer.step(T_s, v_a, v_b, m.i_alpha, m.i_beta, m.omega_r)   # uses p̂_k
+            x_hat = observer.step(T_s, *v_act, m.i_alpha, m.i_beta, m.omega_r)   # uses p̂_k
         if timing:
             t_obs += clock() - c0
         if saturated is not None:   # the next step's models at the flux the observer now has
@@ -214,8 +221,8 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         if adapter is not None:
             # the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out
             # with compensation, the voltage the motor got (the adapter node's too)
-            v_m = (v_a, v_b) if cfg_comp is None else \
-                cfg_comp.motor_voltage(v_a, v_b, m.i_alpha, m.i_beta)
+            v_m = v_act if cfg_comp is None else \
+                cfg_comp.motor_voltage(*v_act, m.i_alpha, m.i_beta)
             estimates = adapter.step(T_s, m.t, v_m[0], v_m[1], m, x_hat_k)
             if estimates:
                 observer.set_estimates(**estimate_arguments(estimates))

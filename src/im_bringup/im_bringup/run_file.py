@@ -343,7 +343,8 @@ class Scenario:
         im_common.model.RealMotorModel takes no time-varying inductance and an acting iron loss
         only with core_loss_exponent 2: named by the run file's key (variation.L_s, ...).
         """
-        blocks = [k for k in PLANT_BLOCKS if getattr(self, k) is not None] \
+        blocks = [k for k in PLANT_BLOCKS if getattr(self, k) is not None
+                  and (k != 'inverter' or self.inverter.switched)] \
             + (['iron_loss'] if self.iron_loss else [])
         if not blocks:
             return
@@ -374,7 +375,8 @@ class Scenario:
     def compensation_model(self):
         """Return the drive's :class:`~im_common.compensation.InverterErrorModel` (None: off)."""
         from im_common.compensation import compensation_from_dict
-        return compensation_from_dict(self.compensation, self.inverter)
+        switched = self.inverter if self.inverter is not None and self.inverter.switched else None
+        return compensation_from_dict(self.compensation, switched)
 
     def plant_blocks(self) -> dict:
         """
@@ -398,6 +400,11 @@ class Scenario:
                                        f'T_s = {self.T_s:g} s')
 
     # The model of the run ------------------------------------------------------------------
+    @property
+    def delay(self) -> int:
+        """Return the plant's computational delay [control periods] (``inverter.delay``; 0)."""
+        return 0 if self.inverter is None else self.inverter.delay
+
     @property
     def variation_label(self) -> str:
         """Return what the summary and the console header say about the variation."""
@@ -582,6 +589,8 @@ class Scenario:
         if self.saturation_model:   # the drive's observer and controller on the curve
             ctl['saturation_model'] = obs['saturation_model'] = json.dumps(self.saturation,
                                                                            sort_keys=True)
+        if self.delay:              # observer and adapter take the voltage the motor got
+            obs['delay'] = adapter['delay'] = self.delay
         comp = self.compensation_model()
         if comp is not None:        # the controller adds ê(i); observer and adapter subtract it
             for node in (ctl, obs, adapter):

@@ -28,30 +28,49 @@ Derivations in docs/plant.md §1. In short:
   > ``V_chopper``) and an over-voltage trip at ``V_trip``. Held over a period, updated at its end
   in energy form: ½C V_{k+1}² = ½C V_k² + (P_source − P_chopper) T_s − E_dc, E_dc the energy the
   legs drew over the period, so the DC-side books close exactly.
+* Computational delay (``delay``, :mod:`im_common.delay`): the command computed from the
+  measurement of step k acts over step k + delay. It needs no carrier: a block with neither
+  ``V_dc`` nor ``pwm_frequency`` is the ideal voltage source with that delay, ``inverter: {delay:
+  1}`` (docs/plant.md §10).
 """
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Literal, Optional
 
 from pydantic import BaseModel, Field, model_validator
 
-from .validation import BLOCK_CONFIG, InvalidParameter, parse_block
+from .delay import MAX_DELAY
+from .validation import BLOCK_CONFIG, InvalidParameter, parameter_spec, parse_block
 
 SQRT_2_3 = math.sqrt(2.0 / 3.0)
 HALF_SQRT3 = 0.5 * math.sqrt(3.0)
 #: the longest dead time accepted, as a share of the PWM period
 MAX_DEADTIME_SHARE = 0.1
+#: the plant node's parameter of V_dc and pwm_frequency: 0 for 'not given' (the ideal source)
+_NOT_GIVEN = parameter_spec(0.0, sentinels=((0.0, None, 'not given'),))
 
 
 class Inverter(BaseModel):
-    """The ``inverter:`` block of a run file (SI; the module doc, docs/plant.md §1)."""
+    """
+    The ``inverter:`` block of a run file (SI; the module doc, docs/plant.md §1).
+
+    With ``V_dc`` and ``pwm_frequency`` the switched inverter; with neither, the ideal voltage
+    source, which takes only ``delay`` (:attr:`switched`).
+    """
 
     model_config = BLOCK_CONFIG
 
-    V_dc: float = Field(gt=0, description='DC-link voltage V_dc [V] (with C_dc > 0: the '
-                        'source behind the diode front end)')
-    pwm_frequency: float = Field(gt=0, description='switching (carrier) frequency f_sw [Hz]')
+    V_dc: Optional[float] = Field(None, gt=0, description='DC-link voltage V_dc [V] (with C_dc > '
+                                  '0: the source behind the diode front end); with '
+                                  'pwm_frequency, or neither for the ideal voltage source',
+                                  json_schema_extra=_NOT_GIVEN)
+    pwm_frequency: Optional[float] = Field(None, gt=0, description='switching (carrier) '
+                                           'frequency f_sw [Hz]; with V_dc',
+                                           json_schema_extra=_NOT_GIVEN)
+    delay: int = Field(0, ge=0, le=MAX_DELAY, description='computational delay [control '
+                       'periods]: the command computed from the measurement of step k acts over '
+                       'step k + delay (0: at once, the theses; 1: a DSP)')
     deadtime: float = Field(0.0, ge=0, description='dead time t_d [s], at most a tenth of the '
                             'PWM period 1/pwm_frequency')
     update: Literal['single', 'double'] = Field(
@@ -71,7 +90,21 @@ class Inverter(BaseModel):
 
     @model_validator(mode='after')
     def _rules(self) -> 'Inverter':
-        """Refuse what breaks the rules across fields: the dead time, the DC link's voltages."""
+        """Refuse what breaks the rules across fields: the pair, the dead time, the DC link."""
+        if (self.V_dc is None) != (self.pwm_frequency is None):
+            missing = 'pwm_frequency' if self.pwm_frequency is None else 'V_dc'
+            raise InvalidParameter(missing, None, 'is missing: V_dc and pwm_frequency make the '
+                                   'switched inverter together (neither: the ideal voltage '
+                                   'source, which takes only delay)')
+        if not self.switched:
+            extra = [k for k in self.model_fields_set if k != 'delay'
+                     and getattr(self, k) != type(self).model_fields[k].default]
+            if extra:
+                key = min(extra, key=list(type(self).model_fields).index)
+                raise InvalidParameter(key, getattr(self, key), 'needs the switched inverter: '
+                                       'give V_dc and pwm_frequency (the ideal voltage source '
+                                       'takes only delay)')
+            return self
         if self.deadtime > MAX_DEADTIME_SHARE * self.T_c:
             raise InvalidParameter('deadtime', self.deadtime,
                                    f'longer than a tenth of the PWM period 1/pwm_frequency = '
@@ -88,6 +121,11 @@ class Inverter(BaseModel):
     def from_block(cls, spec, where: str = 'inverter') -> 'Inverter':
         """Return the Inverter of an ``inverter:`` block; errors are one line naming the key."""
         return parse_block(cls, spec, where)
+
+    @property
+    def switched(self) -> bool:
+        """Return True for the switched inverter (V_dc and pwm_frequency given)."""
+        return self.V_dc is not None
 
     @property
     def T_c(self) -> float:
@@ -109,7 +147,9 @@ class Inverter(BaseModel):
         return self.V_trip if self.V_trip > 0 else 1.3 * self.V_dc
 
     def describe(self) -> dict:
-        """Return the block as a run file writes it (every field)."""
+        """Return the block as a run file writes it (every field; the ideal source: delay only)."""
+        if not self.switched:
+            return {'delay': self.delay}
         return self.model_dump()
 
 
@@ -214,6 +254,8 @@ def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0
 def check_against_motor(inv: Inverter, rated_voltage: float, T_s: float,
                         where: str = 'inverter') -> None:
     """Refuse a DC link too low for the motor's rated voltage and a period off the carrier."""
+    if not inv.switched:
+        return
     if rated_voltage > 0 and inv.v_max < rated_voltage * (1.0 - 1e-9):
         raise InvalidParameter(f'{where}.V_dc', inv.V_dc,
                                f'too low for the rated voltage {rated_voltage:g} V: the inverter '

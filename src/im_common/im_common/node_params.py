@@ -105,8 +105,8 @@ def declare_saturation_model(node, params):
 #: the value of a block's parameter for a field that has no default (required): 'not given'.
 #: ROS 2 has parameters without a value (statically typed, NOT_SET), but its parameter services
 #: answer none of a get_parameters request naming one: ros2 param dump and the recorder would
-#: get no parameter of the plant. 0 is no usable value of the fields without a default (V_dc,
-#: pwm_frequency: > 0), so it stands for 'not given'.
+#: get no parameter of the plant. 0 is no usable value of a positive field without a default, so
+#: it stands for 'not given' (an optional field says its own in its metadata: the inverter's V_dc).
 NOT_GIVEN = {float: 0.0, int: 0, str: ''}
 
 
@@ -239,13 +239,7 @@ def declare_block(node, model_cls, prefix: str, description: str):
                                    f'set, but {prefix}.enabled is false (the block is off): '
                                    f'set {prefix}.enabled true, or leave {prefix}.{name} out')
         return None
-    try:
-        return parse_block(model_cls, spec, prefix)
-    except InvalidParameter as exc:
-        if exc.reason != 'is missing':
-            raise
-        raise InvalidParameter(exc.name, exc.value, f'is missing ({prefix}.enabled is true)') \
-            from None
+    return parse_block(model_cls, spec, prefix)
 
 
 def block_parameters(block, prefix: str) -> dict:
@@ -255,10 +249,27 @@ def block_parameters(block, prefix: str) -> dict:
     ``{<prefix>.enabled: True, <prefix>.<field>: value, ...}``, every field; no ROS import.
     """
     out = {f'{prefix}.enabled': True}
-    for name, value in block.model_dump().items():
+    for name, default, _, _, _, _ in _block_fields(type(block)):
+        value = getattr(block, name)
+        if value is None:           # not given: the parameter's sentinel
+            value = default
         out[f'{prefix}.{name}'] = [float(x) for x in value] if isinstance(value, tuple) \
             else value              # a tuple of numbers: a double array
     return out
+
+
+def declare_delay(node):
+    """
+    Declare ``delay`` (read-only) and return the node's :class:`~im_common.delay.CommandDelay`.
+
+    The plant's computational delay (the run file's ``inverter.delay``): the drive's parts that
+    integrate the voltage the motor got (observer, adapter) hold the same line of commands.
+    """
+    from .delay import CommandDelay, MAX_DELAY
+    d = node.param('delay', 0, 'computational delay [control periods] of the plant (the run '
+                   "file's inverter.delay): the command of step k acts over step k + delay, and "
+                   'this node integrates that voltage', 0, MAX_DELAY)
+    return CommandDelay(d)
 
 
 def declare_run(node):

@@ -23,10 +23,13 @@ are part of the integration and not computed after the fact.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 import math
 from typing import Optional, Sequence
 
+from .delay import CommandDelay
+from .inverter import Inverter
 from .loads import LiveLoad, Load, NoLoad
 from .model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, MotorModel, N_AUG,
                     rk4_step, W_LOAD)
@@ -71,6 +74,14 @@ class PlantSimulator:
         ``x0`` (the 6-element state ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r) is given.
     locked_rotor : bool
         The shaft is held where it starts (a locked-rotor test); the speed must start at 0.
+    inverter, saturation, thermal, sensors, iron_loss
+        The real plant's blocks (:mod:`im_common.real_plant`); an inverter block without V_dc is
+        the ideal voltage source with its ``delay`` only.
+
+    The inverter's ``delay`` (:mod:`im_common.delay`): the command given to :meth:`step` k acts
+    over step k + delay (the first command from t_0). Its checks (finite, the inverter's
+    rating) act on the command as given, at once; the limits (trip, v_limit) on the command
+    that acts.
 
     """
 
@@ -136,6 +147,11 @@ class PlantSimulator:
             x[4], x[5] = float(theta0), float(omega0)
         self.x = x
         self.v_applied = (0.0, 0.0)
+        if isinstance(inverter, Mapping):
+            inverter = Inverter.from_block(inverter)
+        self.delay = CommandDelay(inverter.delay if isinstance(inverter, Inverter) else 0)
+        if isinstance(inverter, Inverter) and not inverter.switched:
+            inverter = None                     # the ideal voltage source: the delay only
         self.real = None
         if (inverter is not None or saturation is not None or thermal is not None
                 or sensors is not None or iron_loss):
@@ -171,6 +187,11 @@ class PlantSimulator:
 
         A command above the inverter's rating latches the trip; the rest is :meth:`limit`'s.
         """
+        self.check(v_a, v_b)
+        return self.limit(v_a, v_b)
+
+    def check(self, v_a: float, v_b: float) -> None:
+        """Refuse a non-finite command (ValueError); latch the trip above the inverter's rating."""
         if not (math.isfinite(v_a) and math.isfinite(v_b)):
             raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) '
                              f'at t = {self.t:.9f} s')
@@ -180,7 +201,6 @@ class PlantSimulator:
                 self.trip = (self.t,
                              f'voltage command |V| = {mag:.4g} V above the inverter rating '
                              f'{self.inverter_rating:g} V')
-        return self.limit(v_a, v_b)
 
     @property
     def load_offset(self) -> float:
@@ -203,9 +223,17 @@ class PlantSimulator:
         Integrate [t_k, t_k+1] with the command held.
 
         Refuse non-finite commands; trip on overcurrent, overspeed or a non-finite state
-        (module doc).
+        (module doc). With a delay the command that acts is the one given ``delay`` steps
+        before (class doc).
         """
-        v_a, v_b = self.admit(v_a, v_b)
+        if self.delay.d:
+            self.check(v_a, v_b)
+            v_a, v_b = self.limit(*self.delay.push(v_a, v_b))
+        else:
+            v_a, v_b = self.admit(v_a, v_b)
+        if self.real is not None:
+            self.real.advance(v_a, v_b)
+            return
         x0 = self.x
         t0 = self.t
         x = self._integrate(x0, t0, v_a, v_b)
@@ -245,15 +273,22 @@ class PlantSimulator:
     # Outputs -----------------------------------------------------------------------------
     def stator_currents(self):
         """Return (i_sα, i_sβ) at t_k: the currents the protection watches."""
+        if self.real is not None:
+            return self.real.stator_currents()
         i_sa, i_sb, _, _ = self.state_currents()
         return i_sa, i_sb
 
     def state_currents(self):
+        """Return (i_sα, i_sβ, i_rα, i_rβ) at t_k."""
+        if self.real is not None:
+            return self.real.state_currents()
         R_s, R_r, L_s, L_r, L_sr = self.schedule.values(self.t)
         return currents(self.x[0], self.x[1], self.x[2], self.x[3], L_s, L_r, L_sr)
 
     def measure(self) -> Measurement:
         """Measured stator currents and shaft position/speed at t_k (noise added if configured)."""
+        if self.real is not None:
+            return self.real.measure()
         i_sa, i_sb, _, _ = self.state_currents()
         i_sa, i_sb, omega = self.add_noise(i_sa, i_sb, self.x[5])
         return Measurement(self.t, i_sa, i_sb, self.x[4], omega)
@@ -271,6 +306,8 @@ class PlantSimulator:
 
     def truth(self) -> dict:
         """Ground truth at t_k: true state, torques, parameters, power and energy books."""
+        if self.real is not None:
+            return self.real.truth()
         t = self.t
         out = self.model.outputs(t, self.x)
         x = self.x

@@ -1,10 +1,11 @@
 """
 The real plant: what :class:`im_common.plant_sim.PlantSimulator` does when a block is on.
 
-A :class:`PlantSimulator` given any of ``inverter``, ``saturation``, ``thermal``, ``sensors`` or
-``iron_loss`` builds one :class:`RealPlant`, which replaces the simulator's ``step``,
-``state_currents``, ``stator_currents``, ``measure`` and ``truth`` on that instance; the ideal
-plant (every block absent) never reaches this module, so its path and its numbers are unchanged.
+A :class:`PlantSimulator` given any of ``inverter`` (the switched one), ``saturation``,
+``thermal``, ``sensors`` or ``iron_loss`` builds one :class:`RealPlant` and hands it each period's
+admitted command (:meth:`RealPlant.advance`) and its questions (``state_currents``,
+``stator_currents``, ``measure``, ``truth``); the ideal plant (every block absent) never reaches
+this module, so its path and its numbers are unchanged.
 
 Per control period (docs/plant.md):
 
@@ -69,8 +70,6 @@ class RealPlant:
                  iron_loss: bool = False, core_loss_exponent: float = 2.0,
                  locked_rotor: bool = False):
         base = sim.schedule.base
-        if isinstance(inverter, Mapping):
-            inverter = Inverter.from_block(inverter)
         if isinstance(saturation, Mapping):
             saturation = saturation_from_dict(saturation, base.L_M)
         if isinstance(thermal, Mapping):
@@ -125,11 +124,6 @@ class RealPlant:
             past = [sensors.count(th0 - w0 * (W - j) * sim.T_s) for j in range(W + 1)]
             self._speed = SpeedFromCounts(sensors.counts_per_rev, W, sim.T_s, past)
             self._omega_meas = self._speed.value()
-        sim.step = self.step
-        sim.state_currents = self.state_currents
-        sim.stator_currents = self.stator_currents
-        sim.measure = self.measure
-        sim.truth = self.truth
 
     def describe(self) -> dict:
         """Return the blocks as written in the run and motor files (the run record)."""
@@ -156,10 +150,9 @@ class RealPlant:
             raise ValueError(f'substeps must be a whole number >= 1 (got {substeps!r})')
         self.reference_substeps = substeps
 
-    def step(self, v_a: float, v_b: float) -> None:
-        """Integrate [t_k, t_k+1] with the command (PlantSimulator.step, module doc)."""
+    def advance(self, v_a: float, v_b: float) -> None:
+        """Integrate [t_k, t_k+1] with the admitted command (PlantSimulator.step, module doc)."""
         sim = self.sim
-        v_a, v_b = sim.admit(v_a, v_b)
         x0 = sim.x
         t0 = sim.t
         x, v_avg = self._integrate(x0, t0, v_a, v_b, sim.trip is not None)

@@ -88,6 +88,22 @@ _TYPES = {'float_type': 'must be a real number', 'int_type': 'must be a whole nu
           'finite_number': 'must be finite'}
 
 
+def parameter_spec(default=None, lo=None, hi=None, sentinels=()):
+    """
+    Return a model field's ``json_schema_extra``: the node parameter of that field.
+
+    ``default``: the parameter's default when it is not the field's (a sentinel); ``lo``, ``hi``:
+    the parameter's range; ``sentinels``: (parameter value, the field value it stands for, what
+    it means) — the one place a -1 / 0 / [0.0] of a node parameter is given its meaning
+    (:func:`im_common.node_params.declare_model`, :func:`im_common.node_params.declare_block`,
+    :func:`im_common.node_params.model_arguments`).
+    """
+    spec = {'range': (lo, hi), 'sentinels': tuple(sentinels)}
+    if default is not None:
+        spec['default'] = default
+    return {'parameter': spec}
+
+
 def parse_block(model_cls, spec, where: str):
     """
     Return the ``model_cls`` (a pydantic model) of a run-file block ``spec``, or one error line.

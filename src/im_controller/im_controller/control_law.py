@@ -42,7 +42,7 @@ from im_common.compensation import InverterErrorModel
 from im_common.loads import make_load, MODEL_KINDS
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_FLUX_LEVELS, THESIS_MOTOR)
-from im_common.validation import BLOCK_CONFIG, block_error
+from im_common.validation import BLOCK_CONFIG, block_error, parameter_spec as _node
 from pydantic import BaseModel, Field, field_validator, model_validator, ValidationError
 
 from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, Strategy
@@ -93,21 +93,6 @@ _real = check_real
 #: the defaults that depend on other fields. Nothing else assigns to a field: a change is a new
 #: configuration (:meth:`ControllerConfig.replace`), validated as a whole
 _CONFIG = {**BLOCK_CONFIG, 'frozen': False, 'arbitrary_types_allowed': True}
-
-
-def _node(default=None, lo=None, hi=None, sentinels=()):
-    """
-    Return a field's ``json_schema_extra``: the controller node's parameter of that field.
-
-    ``default``: the parameter's default when it is not the field's (a sentinel); ``lo``, ``hi``:
-    the parameter's range; ``sentinels``: (parameter value, the field value it stands for, what
-    it means) — the one place a -1 / 0 / [0.0] of a node parameter is given its meaning
-    (:func:`im_common.node_params.declare_model`, :func:`im_common.node_params.model_arguments`).
-    """
-    spec = {'range': (lo, hi), 'sentinels': tuple(sentinels)}
-    if default is not None:
-        spec['default'] = default
-    return {'parameter': spec}
 
 
 #: the field is no parameter of the controller node (the node sets it itself, or has none)

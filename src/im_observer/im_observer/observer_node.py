@@ -4,7 +4,9 @@
 A thin shell around :class:`im_observer.observer.RotorFluxObserver`. At step k it takes the
 measured current and speed and the voltage command stamped t_k (and the adapter's estimates
 stamped t_k when ``use_adapter``), integrates the observer over [t_k, t_k+1] and publishes the
-estimate x̂_k+1 stamped t_k+1 — in parallel with the plant's own integration.
+estimate x̂_k+1 stamped t_k+1 — in parallel with the plant's own integration. With the plant's
+computational ``delay`` d it integrates the command of step k − d, the voltage the motor got
+(im_common.delay).
 
 In lock-step every step is taken in order. When the plant runs in ``free_run`` the observer
 follows: a step whose inputs never came (a command that missed its deadline) is bridged by
@@ -20,8 +22,8 @@ from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, Vector3Out,
                                    xy_in)
 from im_common.lockstep import LOCKSTEP_DEPTH, LockstepNode, node_main, StepGate
-from im_common.node_params import (declare_compensation, declare_motor, declare_run,
-                                   declare_saturation_model)
+from im_common.node_params import (declare_compensation, declare_delay, declare_motor,
+                                   declare_run, declare_saturation_model)
 from im_common.qos import writer
 from im_observer.observer import RotorFluxObserver
 from im_observer.parameters import check_gain_period, declare_observer
@@ -52,6 +54,7 @@ class ObserverNode(LockstepNode):
             x0=tuple(v['initial_state']), injection_gain=v['injection_gain'],
             gain_period=v['gain_period'] or None, inverter_error=declare_compensation(self),
             **({'omega0': v['initial_speed']} if self.sensorless else {}))
+        self.delay = declare_delay(self)
         # the drive on the magnetizing curve: the next step's model at the flux it now has
         self.saturated = declare_saturation_model(self, params)
         if self.saturated is not None and self.use_adapter:
@@ -146,6 +149,7 @@ class ObserverNode(LockstepNode):
         self.publish_estimate(j + 1)
 
     def _step(self, v_a, v_b, i_a, i_b, omega) -> None:
+        v_a, v_b = self.delay.push(v_a, v_b)        # the command that acts over this step
         if self.sensorless:
             x = self.obs.step(self.T_s, v_a, v_b, i_a, i_b)
         else:

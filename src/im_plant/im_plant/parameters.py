@@ -98,8 +98,10 @@ def declare_plant(node) -> dict:
     # the run file's inverter and sensors blocks (docs/plant.md): <block>.enabled and one
     # parameter per field of the block's model; None when not enabled
     v['inverter'] = declare_block(node, Inverter, 'inverter',
-                                  "the switched inverter of the run file's inverter block, "
-                                  'inverter.* (false: the ideal voltage source; docs/plant.md)')
+                                  "the run file's inverter block, inverter.*: the switched "
+                                  'inverter (V_dc, pwm_frequency) or the ideal voltage source '
+                                  'with a computational delay (false: the ideal voltage source '
+                                  'at once; docs/plant.md)')
     v['sensors'] = declare_block(node, Sensors, 'sensors',
                                  "real sensors, the run file's sensors block, sensors.* (false: "
                                  'the true state plus the noise above; docs/plant.md)')
