@@ -6,6 +6,7 @@ that integrates the voltage the motor got: the ideal and the switched plant, the
 the graph agree to the last bit, and what the delay does to the thesis's law is the closed form's.
 """
 import math
+import os
 
 from im_bringup.offline import simulate
 from im_bringup.run_file import RunFileError, Scenario
@@ -140,3 +141,59 @@ def test_the_graph_and_the_rosfree_loop_agree_with_the_delay(tmp_path):
     # and the delay acted: the same run without it is another run
     undelayed = simulate(Scenario.from_mapping(dict(sc.to_mapping(), inverter=None)))
     assert abs(undelayed.summary['E_in_J'] - off.summary['E_in_J']) > 1e-6
+
+
+# ------------------------------------------------------------------------------ the thesis's law
+def _nominal_subsystem(m=THESIS_MOTOR):
+    """The current error's (R_eq, σL_s) of the nominal motor."""
+    return np.array([[m.R_s + m.R_r * (m.L_sr / m.L_r) ** 2, m.L_s - m.L_sr ** 2 / m.L_r]])
+
+
+def test_one_period_of_delay_halves_the_stable_period_of_the_thesis_current_loop():
+    from im_controller.gain_design.drive import current_error_limit, current_error_radius, \
+        subsystem_ab
+    pts = _nominal_subsystem()
+    R_eq, sLs = pts[0]
+    K = 40.0 * np.eye(2)
+    a, b = subsystem_ab(pts, 1e-4)
+    # d = 1: the roots of z^2 - a z + b k; d = 0: the one root a - b k
+    roots = np.roots([1.0, -a[0], 40.0 * b[0]])
+    assert current_error_radius(pts, 1e-4, K, 1)[0] == pytest.approx(abs(roots).max(), rel=1e-12)
+    assert current_error_radius(pts, 1e-4, K, 0)[0] == pytest.approx(abs(a[0] - 40.0 * b[0]),
+                                                                      rel=1e-12)
+    assert current_error_radius(pts, 1e-4, K, 1)[0] == pytest.approx(0.78917, abs=1e-5)
+    # the limits in closed form: a - b k = -1 without the delay, b k = 1 with it
+    no_delay, delayed = current_error_limit(pts, K, 0), current_error_limit(pts, K, 1)
+    assert delayed == pytest.approx(-sLs / R_eq * math.log(1.0 - R_eq / 40.0), rel=1e-5)
+    assert no_delay == pytest.approx(-sLs / R_eq * math.log((40.0 - R_eq) / (40.0 + R_eq)),
+                                     rel=1e-5)
+    assert no_delay * 1e6 == pytest.approx(317.63, abs=0.01)
+    assert delayed * 1e6 == pytest.approx(161.70, abs=0.01)
+
+
+def test_the_certified_1ms_gain_loses_its_box_under_one_period_of_delay():
+    """docs/robust.md §7's 1 ms gain: stable on its whole box without the delay, not with it."""
+    from im_bringup.processes import load_params_yaml
+    from im_controller.gain_design.drive import current_error_radius, subsystem_points, \
+        SUBSYSTEM_CERTIFY_POINTS
+    gains = load_params_yaml(os.path.join(os.path.dirname(__file__), '..', 'src', 'im_bringup',
+                                          'config', 'gains_1ms.yaml'))
+    K = np.reshape(gains['controller']['current_gain'], (2, 2))
+    box = subsystem_points(SUBSYSTEM_CERTIFY_POINTS)
+    assert current_error_radius(box, 1e-3, K, 0).max() < 0.87
+    assert current_error_radius(box, 1e-3, K, 1).max() > 1.2
+    assert 0.99 < current_error_radius(_nominal_subsystem(), 1e-3, K, 1)[0] < 1.0
+
+
+@pytest.mark.parametrize('T_s, delay, trips', [(1.5e-4, 1, False), (2e-4, 1, True),
+                                                (2e-4, 0, False)])
+def test_past_the_delayed_limit_the_thesis_drive_trips_and_before_it_holds(T_s, delay, trips):
+    """The closed loop agrees with the closed form: 161.7 µs with the delay, 317.6 µs without."""
+    sc = Scenario(task='speed', T_s=T_s, duration=0.05,
+                  inverter={'delay': delay} if delay else None)
+    s = simulate(sc).summary
+    assert (s['trip'] is not None) == trips, s['trip']
+    if not trips:
+        assert s['speed_err_max_rad_s'] < 0.05
+    else:
+        assert 'above the inverter rating' in s['trip']['reason']

@@ -56,8 +56,8 @@ from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
 import numpy as np
 
-from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, parameter_grid, sampled_models, Scaling,
-                    THESIS_K1, zoh)
+from .motor import (C_CURRENT, DEFAULT_SIGMA_MIN, delayed_closed_loop, parameter_grid,
+                    sampled_models, Scaling, THESIS_K1, zoh)
 
 #: parameter grid of the (R_eq, σL_s) vertex models and of the dense certificate grid
 SUBSYSTEM_VERTEX_POINTS = {'R_r': 2, 'L_s': 3, 'L_r': 3, 'L_sr': 5, 'omega_r': 1}
@@ -92,6 +92,41 @@ def subsystem_ab(pts: np.ndarray, T_s: float):
     R_eq, sLs = pts[:, 0], pts[:, 1]
     a = np.exp(-R_eq * T_s / sLs)
     return a, -np.expm1(-R_eq * T_s / sLs) / R_eq
+
+
+def current_error_radius(pts: np.ndarray, T_s: float, K, delay: int = 0) -> np.ndarray:
+    """
+    Return the spectral radius of the sampled current-error loop at each row (R_eq, σL_s).
+
+    e_{k+1} = a e_k − b K e_{k−d}, a = e^{−R_eq T_s/σL_s}, b = (1 − a)/R_eq (:func:`subsystem_ab`),
+    K the 2×2 voltage gain [V/A] (the thesis's 40 I, a certified one) and d the plant's
+    computational delay (docs/plant.md §10): the roots of z^{d+1} − a z^d + b k for K = k I. One
+    delay halves the stable period: b k < 1 instead of a − b k > −1 (docs/robust.md, "Delay").
+    """
+    a, b = subsystem_ab(np.atleast_2d(pts), T_s)
+    eye = np.eye(2)
+    M = delayed_closed_loop(a[:, None, None] * eye, b[:, None, None] * eye,
+                            np.asarray(K, dtype=float), delay)
+    return np.abs(np.linalg.eigvals(M)).max(axis=1)
+
+
+def current_error_limit(pts: np.ndarray, K, delay: int = 0, *, T_min: float = 1e-6,
+                        T_max: float = 1e-2, tol: float = 1e-9) -> float:
+    """
+    Return the longest period [s] at which the current-error loop is stable at every row of pts.
+
+    Bisection on :func:`current_error_radius` < 1 (stable at T_min, unstable at T_max assumed,
+    else ValueError); ``tol`` [s].
+    """
+    def stable(T):
+        return bool(current_error_radius(pts, T, K, delay).max() < 1.0)
+    lo, hi = T_min, T_max
+    if not stable(lo) or stable(hi):
+        raise ValueError(f'no stability limit between {T_min:g} s and {T_max:g} s')
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+    return lo
 
 
 def current_error_system(pts: np.ndarray, T_s: float, *, injection: str = 'voltage',

@@ -334,18 +334,45 @@ def thesis_gains_sampled(T_s: float, motor: MotorParams = THESIS_MOTOR
     return K_c, Gamma_L
 
 
+def delayed_closed_loop(A_d: np.ndarray, B_d: np.ndarray, F: np.ndarray, delay: int = 0
+                        ) -> np.ndarray:
+    """
+    Return the closed loop of x_{k+1} = A_d x_k + B_d u_{k−d}, u_k = −F x_k as one matrix.
+
+    The computational delay d (docs/plant.md §10) as states: z_k = [x_k; u_{k−1}; ...; u_{k−d}]
+    (what the DSP has already sent), so z_{k+1} = M z_k with the first block row [A_d, 0, ..., B_d],
+    the second [−F, 0, ...] and the shift below; d = 0 is A_d − B_d F. A_d, B_d may carry
+    leading batch dimensions.
+    """
+    if delay == 0:
+        return A_d - B_d @ F
+    n, m = A_d.shape[-1], B_d.shape[-1]
+    M = np.zeros(A_d.shape[:-2] + (n + delay * m, n + delay * m))
+    M[..., :n, :n] = A_d
+    M[..., :n, n + (delay - 1) * m:] = B_d
+    M[..., n:n + m, :n] = -F
+    for j in range(1, delay):
+        M[..., n + j * m:n + (j + 1) * m, n + (j - 1) * m:n + j * m] = np.eye(m)
+    return M
+
+
 def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0,
                           motor: MotorParams = THESIS_MOTOR,
-                          points=None, sigma_min: float = DEFAULT_SIGMA_MIN) -> Dict[str, float]:
+                          points=None, sigma_min: float = DEFAULT_SIGMA_MIN,
+                          delay: int = 0, K: Optional[np.ndarray] = None) -> Dict[str, float]:
     """
     Return the worst spectral radius of the sampled loop with the thesis's gains.
 
-    Of the current loop and of the observer error.
+    Of the current loop and of the observer error. ``delay``: the plant's computational delay
+    [periods] (:func:`delayed_closed_loop`); the observer, fed the voltage the motor got, keeps
+    its error dynamics. ``K``: another current gain (2×2, e.g. a certified one) in the thesis's.
     """
     grid = parameter_grid(points or DEFAULT_CERTIFY_POINTS, omega_max, sigma_min=sigma_min)
     A_d, B_d = sampled_models(grid, T_s, motor)
-    K, L = thesis_gains_sampled(T_s, motor)
-    r_cur = float(np.abs(np.linalg.eigvals(A_d - B_d @ (K @ C_CURRENT))).max())
+    K_t, L = thesis_gains_sampled(T_s, motor)
+    K = K_t if K is None else np.asarray(K, dtype=float)
+    r_cur = float(np.abs(np.linalg.eigvals(delayed_closed_loop(A_d, B_d, K @ C_CURRENT,
+                                                               delay))).max())
     r_obs = float(np.abs(np.linalg.eigvals(A_d - L @ C_CURRENT)).max())
     return {'T_s': T_s, 'current_loop_rho': r_cur, 'observer_rho': r_obs,
             'stable': bool(r_cur < 1.0 and r_obs < 1.0)}
@@ -353,9 +380,12 @@ def thesis_gain_stability(T_s: float, *, omega_max: float = 200.0,
 
 def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams = THESIS_MOTOR,
                                 T_min: float = 1e-5, T_max: float = 2e-3, samples: int = 60,
-                                points=None, refine_steps: int = 12) -> Dict[str, object]:
+                                points=None, refine_steps: int = 12,
+                                delay: int = 0) -> Dict[str, object]:
     """
     Largest T_s at which the thesis's gains (K = 40 I, k_e = 1/σ) keep every model stable.
+
+    ``delay``: the plant's computational delay [periods] (:func:`thesis_gain_stability`).
 
     Grid search over log-spaced T_s in [T_min, T_max], then bisection between the last stable and
     the first unstable sample, separately for the current loop and the observer. "Stable" means
@@ -363,8 +393,8 @@ def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams 
     this is not a quadratic-stability certificate, and it says nothing between grid points).
     """
     grid_T = np.geomspace(T_min, T_max, samples)
-    table = [thesis_gain_stability(float(T), omega_max=omega_max, motor=motor, points=points)
-             for T in grid_T]
+    table = [thesis_gain_stability(float(T), omega_max=omega_max, motor=motor, points=points,
+                                   delay=delay) for T in grid_T]
     out: Dict[str, object] = {'omega_max': omega_max, 'table': table}
     for key in ('current_loop_rho', 'observer_rho'):
         stable = [row[key] < 1.0 for row in table]
@@ -379,7 +409,7 @@ def thesis_gain_stability_limit(*, omega_max: float = 200.0, motor: MotorParams 
         for _ in range(refine_steps):
             mid = math.sqrt(lo * hi)
             if thesis_gain_stability(mid, omega_max=omega_max, motor=motor,
-                                     points=points)[key] < 1.0:
+                                     points=points, delay=delay)[key] < 1.0:
                 lo = mid
             else:
                 hi = mid
