@@ -197,3 +197,22 @@ def test_past_the_delayed_limit_the_thesis_drive_trips_and_before_it_holds(T_s, 
         assert s['speed_err_max_rad_s'] < 0.05
     else:
         assert 'above the inverter rating' in s['trip']['reason']
+
+
+def test_the_delay_study_tabulates_the_current_loop_of_every_shipped_motor(tmp_path):
+    """``python -m im_studies.study_delay --part 'current loop'``: docs/plant.md §10's rows."""
+    import json
+    from im_studies import study_delay
+    out = tmp_path / 'delay.json'
+    assert study_delay.main(['--part', 'current loop', '--json', str(out)]) == 0
+    rows = json.loads(out.read_text())['current loop']
+    assert {r['motor'] for r in rows} == set(study_delay.shipped_motors())
+    shipped = rows[0]
+    assert shipped['gains'].endswith('(shipped)')
+    assert shipped['rho_nominal_d1'] == pytest.approx(0.78917, abs=1e-5)
+    assert shipped['limit_s_d1'] * 1e6 == pytest.approx(161.70, abs=0.01)
+    assert rows[-1]['rho_box_d1'] > 1.0 > rows[-1]['rho_box_d0']       # the certified 1 ms gain
+    for r in rows:        # one delay halves the stable period on every motor
+        assert 0.49 < r['limit_s_d1'] / r['limit_s_d0'] < 0.56, r
+    with pytest.raises(SystemExit):
+        study_delay.main(['--part', 'nothing'])

@@ -101,7 +101,7 @@ def current_error_radius(pts: np.ndarray, T_s: float, K, delay: int = 0) -> np.n
     e_{k+1} = a e_k − b K e_{k−d}, a = e^{−R_eq T_s/σL_s}, b = (1 − a)/R_eq (:func:`subsystem_ab`),
     K the 2×2 voltage gain [V/A] (the thesis's 40 I, a certified one) and d the plant's
     computational delay (docs/plant.md §10): the roots of z^{d+1} − a z^d + b k for K = k I. One
-    delay halves the stable period: b k < 1 instead of a − b k > −1 (docs/robust.md, "Delay").
+    delay halves the stable period: b k < 1 instead of a − b k > −1 (docs/plant.md §10).
     """
     a, b = subsystem_ab(np.atleast_2d(pts), T_s)
     eye = np.eye(2)
