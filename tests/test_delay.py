@@ -145,7 +145,7 @@ def test_the_graph_and_the_rosfree_loop_agree_with_the_delay(tmp_path):
 
 # ------------------------------------------------------------------------------ the thesis's law
 def _nominal_subsystem(m=THESIS_MOTOR):
-    """The current error's (R_eq, σL_s) of the nominal motor."""
+    """Return the current error's (R_eq, σL_s) of the nominal motor."""
     return np.array([[m.R_s + m.R_r * (m.L_sr / m.L_r) ** 2, m.L_s - m.L_sr ** 2 / m.L_r]])
 
 
@@ -159,8 +159,8 @@ def test_one_period_of_delay_halves_the_stable_period_of_the_thesis_current_loop
     # d = 1: the roots of z^2 - a z + b k; d = 0: the one root a - b k
     roots = np.roots([1.0, -a[0], 40.0 * b[0]])
     assert current_error_radius(pts, 1e-4, K, 1)[0] == pytest.approx(abs(roots).max(), rel=1e-12)
-    assert current_error_radius(pts, 1e-4, K, 0)[0] == pytest.approx(abs(a[0] - 40.0 * b[0]),
-                                                                      rel=1e-12)
+    undelayed = abs(a[0] - 40.0 * b[0])
+    assert current_error_radius(pts, 1e-4, K, 0)[0] == pytest.approx(undelayed, rel=1e-12)
     assert current_error_radius(pts, 1e-4, K, 1)[0] == pytest.approx(0.78917, abs=1e-5)
     # the limits in closed form: a - b k = -1 without the delay, b k = 1 with it
     no_delay, delayed = current_error_limit(pts, K, 0), current_error_limit(pts, K, 1)
@@ -185,8 +185,8 @@ def test_the_certified_1ms_gain_loses_its_box_under_one_period_of_delay():
     assert 0.99 < current_error_radius(_nominal_subsystem(), 1e-3, K, 1)[0] < 1.0
 
 
-@pytest.mark.parametrize('T_s, delay, trips', [(1.5e-4, 1, False), (2e-4, 1, True),
-                                                (2e-4, 0, False)])
+@pytest.mark.parametrize('T_s, delay, trips',
+                         [(1.5e-4, 1, False), (2e-4, 1, True), (2e-4, 0, False)])
 def test_past_the_delayed_limit_the_thesis_drive_trips_and_before_it_holds(T_s, delay, trips):
     """The closed loop agrees with the closed form: 161.7 µs with the delay, 317.6 µs without."""
     sc = Scenario(task='speed', T_s=T_s, duration=0.05,

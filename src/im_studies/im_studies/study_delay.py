@@ -1,5 +1,5 @@
 """
-``python -m im_studies.study_delay [--json FILE]``: what one period of delay does to the thesis's law.
+``python -m im_studies.study_delay [--json FILE]``: one period of delay and the thesis's law.
 
 The computational delay (docs/plant.md §10: the command computed at step k acts over step k + 1, as
 on a DSP) against the theses' plant, which acts at once. Two parts, each a Markdown table:
@@ -28,7 +28,7 @@ from im_common.cli import error as cli_error
 from im_common.params import load_motor_file, MotorParams, shipped_motors_dir, THESIS_MOTOR
 from im_controller.control_law import ControllerConfig
 from im_controller.gain_design.drive import (current_error_limit, current_error_radius,
-                                             subsystem_points, SUBSYSTEM_CERTIFY_POINTS)
+                                             SUBSYSTEM_CERTIFY_POINTS, subsystem_points)
 import numpy as np
 
 from .study_motors import scaled_options, scaled_scenario
@@ -108,8 +108,8 @@ def run_rows(progress=print) -> list:
             run = replace(sc, inverter={'delay': d} if d else None)
             row = dict({'motor': name, 'task': task, 'gains': gains, 'delay': d},
                        **_figures(run))
-            progress(f'  {name} {task} {gains} delay {d}: '
-                     + ('trip ' + row['trip'] if row['trip'] else f"max error {row['err_max']:.4g}"))
+            what = 'trip ' + row['trip'] if row['trip'] else f"max error {row['err_max']:.4g}"
+            progress(f'  {name} {task} {gains} delay {d}: {what}')
             rows.append(row)
     return rows
 

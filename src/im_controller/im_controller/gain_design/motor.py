@@ -340,9 +340,9 @@ def delayed_closed_loop(A_d: np.ndarray, B_d: np.ndarray, F: np.ndarray, delay: 
     Return the closed loop of x_{k+1} = A_d x_k + B_d u_{k−d}, u_k = −F x_k as one matrix.
 
     The computational delay d (docs/plant.md §10) as states: z_k = [x_k; u_{k−1}; ...; u_{k−d}]
-    (what the DSP has already sent), so z_{k+1} = M z_k with the first block row [A_d, 0, ..., B_d],
-    the second [−F, 0, ...] and the shift below; d = 0 is A_d − B_d F. A_d, B_d may carry
-    leading batch dimensions.
+    (what the DSP has already sent), so z_{k+1} = M z_k with the first block row
+    [A_d, 0, ..., B_d], the second [−F, 0, ...] and the shift below; d = 0 is A_d − B_d F.
+    A_d, B_d may carry leading batch dimensions.
     """
     if delay == 0:
         return A_d - B_d @ F
