@@ -216,3 +216,39 @@ def test_the_delay_study_tabulates_the_current_loop_of_every_shipped_motor(tmp_p
         assert 0.49 < r['limit_s_d1'] / r['limit_s_d0'] < 0.56, r
     with pytest.raises(SystemExit):
         study_delay.main(['--part', 'nothing'])
+
+
+@pytest.mark.processes
+@pytest.mark.slow
+def test_as_processes_the_recorded_truth_is_the_command_one_period_late(tmp_path):
+    """
+    ``scenario RUN --processes --record``: the plant's truth is the recorded command, shifted.
+
+    The truth stamped t_k is the voltage applied over [t_{k-1}, t_k]: the command stamped
+    t_{k-2} with one period of delay (t_{k-1} without), and the run's E_in is the ROS-free loop's.
+    """
+    import json
+    import subprocess
+
+    from im_bringup.processes import executable_path
+    from im_common import topics as T
+    from im_recording.reader import read_messages
+    run = tmp_path / 'run.yaml'
+    run.write_text(RUN.format(duration=0.05))
+    bag = tmp_path / 'p.mcap'
+    r = subprocess.run([executable_path('im_bringup', 'scenario'), str(run), '--processes',
+                        '--record', str(bag), '--no-progress'], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    s = json.loads((tmp_path / 'p.json').read_text())
+    off = simulate(Scenario.from_file(str(run))).summary
+    assert s['E_in_J'] == pytest.approx(off['E_in_J'], rel=1e-12)
+    cmd, truth = {}, {}
+    for topic, stamp, msg in read_messages(str(bag), [T.CMD_VOLTAGE, T.TRUTH_VOLTAGE]):
+        (cmd if topic == T.CMD_VOLTAGE else truth)[stamp] = (msg.vector.x, msg.vector.y)
+    period = 100_000
+    late = [t for t in truth if t - 2 * period in cmd]
+    assert len(late) > 30
+    for t in late:
+        assert truth[t] == cmd[t - 2 * period], t
+    assert any(truth[t] != cmd[t - period] for t in late)      # not the undelayed one
