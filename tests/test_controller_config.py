@@ -29,6 +29,8 @@ DECLARED_BEFORE = {
     'core_loss_exponent': 2.0, 'setpoint_duration': 0.5, 'setpoints': [0.0],
     'torque_limit': 0.0, 'current_limit': -1.0, 'speed_limit': 0.0, 'field_weakening': True,
     'voltage_margin': 0.85, 'current_margin': 0.9}
+#: the parameters added since, with their defaults (issue 43: the plant's computational delay)
+ADDED_SINCE = {'delay': 0}
 
 
 class RecordingNode:
@@ -147,8 +149,9 @@ def test_each_vocabulary_has_one_home_and_its_type_is_the_fields():
 def test_every_parameter_is_declared_as_before():
     node = RecordingNode()
     values = declare_controller(node)
-    assert {k: v['default'] for k, v in node.declared.items()} == DECLARED_BEFORE
-    for name, default in DECLARED_BEFORE.items():
+    assert {k: v['default'] for k, v in node.declared.items()} == dict(DECLARED_BEFORE,
+                                                                       **ADDED_SINCE)
+    for name, default in dict(DECLARED_BEFORE, **ADDED_SINCE).items():
         assert type(values[name]) is type(default), name
 
 

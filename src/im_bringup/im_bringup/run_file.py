@@ -479,6 +479,7 @@ class Scenario:
         opts.setdefault('core_loss_exponent', self.core_loss_exponent)
         opts.setdefault('horizon', self.duration)   # the run's end: the optimal strategy's plan
         opts.setdefault('sensorless', self.sensorless)  # orient on the observed flux
+        opts.setdefault('delay', self.delay)    # predict across the plant's delay (0: as printed)
         opts.setdefault('current_limit', limit_value(self.current_limit))
         for key in ('torque_limit', 'speed_limit'):
             if getattr(self, key) is not None:
@@ -589,8 +590,8 @@ class Scenario:
         if self.saturation_model:   # the drive's observer and controller on the curve
             ctl['saturation_model'] = obs['saturation_model'] = json.dumps(self.saturation,
                                                                            sort_keys=True)
-        if self.delay:              # observer and adapter take the voltage the motor got
-            obs['delay'] = adapter['delay'] = self.delay
+        if self.delay:              # the controller predicts across it; observer and adapter
+            ctl['delay'] = obs['delay'] = adapter['delay'] = self.delay     # take what acts
         comp = self.compensation_model()
         if comp is not None:        # the controller adds ê(i); observer and adapter subtract it
             for node in (ctl, obs, adapter):

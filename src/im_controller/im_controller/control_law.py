@@ -39,6 +39,7 @@ from types import SimpleNamespace
 from typing import Any, List, Literal, Optional, Tuple
 
 from im_common.compensation import InverterErrorModel
+from im_common.delay import MAX_DELAY
 from im_common.loads import make_load, MODEL_KINDS
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_FLUX_LEVELS, THESIS_MOTOR)
@@ -187,6 +188,10 @@ class ControllerConfig(BaseModel):
                        'first step)', json_schema_extra=_NOT_A_PARAMETER)
     hold_compensation: bool = Field(True, description='rotate the feedforward to the middle of '
                                     'the hold interval', json_schema_extra=_node())
+    delay: int = Field(0, ge=0, le=MAX_DELAY, description="the plant's computational delay "
+                       "[control periods] (the run file's inverter.delay): the command acts "
+                       'delay periods late, so the law predicts across them (docs/plant.md '
+                       'section 10)', json_schema_extra=_node(lo=0, hi=MAX_DELAY))
     torque_filter_bandwidth: float = Field(
         1000.0, gt=0, description='bandwidth of the PD-part torque filter [rad/s] (critically '
         'damped)', json_schema_extra=_node(lo=1.0, hi=1e6))
@@ -489,6 +494,7 @@ class DriveController:
         self._rho_dot = 0.0
         self._theta_offset = 0.0
         self._limited = False
+        self._sent = []              # delay: the feedback parts ΔV of the commands not yet acting
         self._traj = None
         self._torque_sp = None
         self._schedule = list(cfg.setpoints)
@@ -825,8 +831,10 @@ class DriveController:
         p_a_ref = cr * phi
         p_b_ref = sr * phi
         v_d, v_q = feedforward_dq(c, i_ds, i_qs, di_ds, di_qs, phi, rho_dot, omega_r)
-        if cfg.hold_compensation:
-            rm = rho + 0.5 * (dt if dt > 0.0 else cfg.T_s) * rho_dot
+        T = dt if dt > 0.0 else cfg.T_s
+        d = cfg.delay
+        if cfg.hold_compensation:       # the middle of the period the command acts over
+            rm = rho + (d + 0.5) * T * rho_dot
             cm, sm = math.cos(rm), math.sin(rm)
         else:
             cm, sm = cr, sr
@@ -834,11 +842,13 @@ class DriveController:
         v_b_ff = sm * v_d + cm * v_q
         ea = i_alpha - i_a_ref
         eb = i_beta - i_b_ref
+        fa = phi_alpha_hat - p_a_ref
+        fb = phi_beta_hat - p_b_ref
+        if d:
+            ea, eb, fa, fb = self._predicted_errors(c, T, d * T * rho_dot, ea, eb, fa, fb)
         K11, K12, K21, K22 = self._K
         dva = -(K11 * ea + K12 * eb)
         dvb = -(K21 * ea + K22 * eb)
-        fa = phi_alpha_hat - p_a_ref
-        fb = phi_beta_hat - p_b_ref
         coupling = cfg.flux_coupling
         if coupling == 'cancel':
             g = v * omega_r * c.theta          # + g 𝒥 (φ̂ − φ*)
@@ -850,6 +860,24 @@ class DriveController:
             dvb += g * fa
         refs = (i_a_ref, i_b_ref, p_a_ref, p_b_ref, v_a_ff, v_b_ff)
         return v_a_ff + dva, v_b_ff + dvb, refs
+
+    def _predicted_errors(self, c, T, turn, ea, eb, fa, fb):
+        """
+        Return the current and flux errors predicted to when the command acts (delay d).
+
+        The current error e_{k+d} of the nominal sampled model, e_{j+1} = a₀ e_j + b₀ ΔV_{j-d}
+        (a₀ = e^{−R_eq T/σL_s}, b₀ = (1 − a₀)/R_eq; ΔV the feedback parts of the commands sent
+        but not yet acting: the feedforward is aimed at their periods), and the flux error
+        turned by ρ̇ d T. With ΔV_k = −K ê_{k+d} the nominal loop's poles are a₀ − b₀K and d
+        zeros: the undelayed loop's (docs/plant.md §10).
+        """
+        a0 = math.exp(-c.R_eq * T / c.sigma_L_s)
+        b0 = (1.0 - a0) / c.R_eq
+        # the first step: what acts until the line moves is this step's own command, not known yet
+        for dva, dvb in self._sent or [(0.0, 0.0)] * self.config.delay:
+            ea, eb = a0 * ea + b0 * dva, a0 * eb + b0 * dvb
+        ct, st = math.cos(turn), math.sin(turn)
+        return ea, eb, ct * fa - st * fb, st * fa + ct * fb
 
     def _observed_angle(self, rho: float, phi_a: float, phi_b: float) -> float:
         """
@@ -926,6 +954,12 @@ class DriveController:
                 v_b *= s
                 saturated = True
         self._limited = saturated or tau_limited
+        if cfg.delay:       # the feedback part of what the motor will get, for the prediction
+            dv = (v_a - refs[4], v_b - refs[5])
+            if not self._sent:              # the plant's line starts with the first command
+                self._sent = [dv] * cfg.delay
+            self._sent.append(dv)
+            del self._sent[0]
         self._pd.set_input(u_pd)
         if cfg.compensation is not None:    # what the inverter loses, added (compensation.md)
             v_a, v_b = cfg.compensation.command(v_a, v_b, i_alpha, i_beta)

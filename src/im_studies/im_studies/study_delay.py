@@ -12,7 +12,8 @@ on a DSP) against the theses' plant, which acts at once. Two parts, each a Markd
 * ``runs`` — the closed loop on the ROS-free loop, ideal plant: every shipped motor's
   rating-scaled position and speed tasks (:func:`im_studies.study_motors.scaled_scenario`,
   min_loss) at 100 µs with the shipped gains, and the thesis's own speed task at 1 ms with the
-  certified gains, each without and with the delay: trip, tracking error (max, RMS), losses.
+  certified gains, each without the delay, with it and the law as printed, and with it and the
+  law told the delay (:data:`LAWS`): trip, tracking error (max, RMS), losses.
 """
 from __future__ import annotations
 
@@ -35,6 +36,9 @@ from .study_motors import scaled_options, scaled_scenario
 
 PARTS = ('current loop', 'runs')
 DELAYS = (0, 1)
+#: the runs' (delay, law): the law as printed (told no delay: controller_options {delay: 0}) and
+#: the law told the delay (it predicts across it, im_controller.control_law)
+LAWS = ((0, 'as printed'), (1, 'as printed'), (1, 'predicting'))
 STRATEGY = 'min_loss'
 #: the certified gains of docs/robust.md §7 (the thesis motor's box)
 GAINS_1MS = os.path.join(os.path.dirname(__file__), '..', '..', 'im_bringup', 'config',
@@ -104,12 +108,13 @@ def run_rows(progress=print) -> list:
                            gains=load_params_yaml(gains_1ms_path()))))
     rows = []
     for name, task, gains, sc in cases:
-        for d in DELAYS:
-            run = replace(sc, inverter={'delay': d} if d else None)
-            row = dict({'motor': name, 'task': task, 'gains': gains, 'delay': d},
+        for d, law in LAWS:
+            opts = dict(sc.controller_options, **({'delay': 0} if law == 'as printed' else {}))
+            run = replace(sc, inverter={'delay': d} if d else None, controller_options=opts)
+            row = dict({'motor': name, 'task': task, 'gains': gains, 'delay': d, 'law': law},
                        **_figures(run))
             what = 'trip ' + row['trip'] if row['trip'] else f"max error {row['err_max']:.4g}"
-            progress(f'  {name} {task} {gains} delay {d}: {what}')
+            progress(f'  {name} {task} {gains} delay {d} {law}: {what}')
             rows.append(row)
     return rows
 
@@ -126,15 +131,15 @@ def markdown(part: str, rows: list) -> str:
                        f"{r['rho_nominal_d1']:.4f} | {box} | {r['limit_s_d0'] * 1e6:.1f} → "
                        f"{r['limit_s_d1'] * 1e6:.1f} µs |")
         return '\n'.join(out)
-    out = ['| motor | task | gains | delay | tracking error, max / RMS | motor losses [J] |',
-           '|---|---|---|---:|---|---:|']
+    out = ['| motor | task | gains | delay | law | tracking error, max / RMS | motor losses [J] |',
+           '|---|---|---|---:|---|---|---:|']
     for r in rows:
         unit = 'mrad' if r['task'] == 'position' else 'rad/s'
         scale = 1e3 if r['task'] == 'position' else 1.0
         err = (f"trip at {r['trip']}" if r['trip'] else
                f"{r['err_max'] * scale:.4g} / {r['err_rms'] * scale:.4g} {unit}")
-        out.append(f"| {r['motor']} | {r['task']} | {r['gains']} | {r['delay']} | {err} | "
-                   f"{r['E_loss_J']:.4g} |")
+        out.append(f"| {r['motor']} | {r['task']} | {r['gains']} | {r['delay']} | {r['law']} | "
+                   f"{err} | {r['E_loss_J']:.4g} |")
     return '\n'.join(out)
 
 
