@@ -107,11 +107,15 @@ class ReducedOrderFluxObserver:
         self.omega_c = self.omega_m + w_r
         return self.psi_R * cmath.exp(1j * self.theta_c)
 
+    def correction(self, err: complex) -> complex:
+        """Return the voltage model's correction by the current model's mismatch ``err``."""
+        w_m = self.omega_m
+        return (1.0 + K_DAMP * abs(w_m) / (self.alpha - 1j * w_m)) * err
+
     def update(self, u_zoh: complex) -> None:
         """Correct, then predict to t_{k+1} with the voltage u_zoh (αβ) held over the period."""
         T_s, w_m, w_c, i = self.T_s, self.omega_m, self.omega_c, self.i
-        k_o = 1.0 + K_DAMP * abs(w_m) / (self.alpha - 1j * w_m)
-        psi_s = self.psi_s + k_o * (self.psi_R_pred - self.psi_R)
+        psi_s = self.psi_s + self.correction(self.psi_R_pred - self.psi_R)
         psi_R = psi_s - self.L_sigma * i
         u = u_zoh * cmath.exp(-1j * self.theta_c)
         phi, gam = hold_equivalent(w_c, T_s)

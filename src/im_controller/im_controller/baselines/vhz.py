@@ -63,7 +63,7 @@ from im_common.params import MotorParams, THESIS_FLUX_LEVELS
 from im_common.validation import BLOCK_CONFIG, check_real, InvalidParameter, parse_block
 from pydantic import BaseModel, Field
 
-from .current_vector import hold_equivalent, K_DAMP, ReducedOrderFluxObserver
+from .current_vector import K_DAMP, ReducedOrderFluxObserver
 
 #: the flux channel's bandwidth α_ψ, 2π·100 rad/s (a.7)
 DEFAULT_ALPHA_PSI = 2.0 * math.pi * 100.0
@@ -160,21 +160,11 @@ class VHzFluxObserver(ReducedOrderFluxObserver):
     error does not bend the flux estimate.
     """
 
-    def update(self, u_zoh: complex) -> None:
-        """Correct, then predict to t_{k+1} with the voltage u_zoh (αβ) held over the period."""
-        T_s, w_m, w_c, i = self.T_s, self.omega_m, self.omega_c, self.i
-        k_o = sensorless_k_o(self.alpha, w_m)
-        err = self.psi_R_pred - self.psi_R
-        mag = abs(self.psi_R)
-        rot = self.psi_R / self.psi_R.conjugate() if mag > 0.0 else 1.0
-        psi_s = self.psi_s + k_o * err + k_o * rot * err.conjugate()
-        psi_R = psi_s - self.L_sigma * i
-        u = u_zoh * cmath.exp(-1j * self.theta_c)
-        phi, gam = hold_equivalent(w_c, T_s)
-        self.psi_s = phi * (psi_s + T_s * u) - gam * self.R_s * i
-        phi_r, gam_r = hold_equivalent(w_c - w_m, T_s)
-        self.psi_R_pred = phi_r * psi_R + gam_r * (self.R_R * i - self.alpha * psi_R)
-        self.theta_c = math.remainder(self.theta_c + T_s * w_c, 2.0 * math.pi)
+    def correction(self, err: complex) -> complex:
+        """Return k_o e + k_o (ψ̂_R/ψ̂_R*) e* (the class doc), the sensorless k_o."""
+        k_o = sensorless_k_o(self.alpha, self.omega_m)
+        rot = self.psi_R / self.psi_R.conjugate() if abs(self.psi_R) > 0.0 else 1.0
+        return k_o * err + k_o * rot * err.conjugate()
 
     def torque(self) -> float:
         """Return the torque estimate τ̂ = n_p Im(i ψ̂_s*) at t_k (after :meth:`output`)."""
