@@ -24,10 +24,10 @@ import os
 import sys
 
 from im_bringup.offline import Scenario, simulate
-from im_bringup.processes import load_params_yaml
 from im_common.cli import error as cli_error
 from im_common.params import load_motor_file, MotorParams, shipped_motors_dir, THESIS_MOTOR
-from im_controller.control_law import ControllerConfig
+from im_common.yamlio import load_parameters_file
+from im_controller.control_law import ControllerConfig, THESIS_TASKS
 from im_controller.gain_design.drive import (current_error_limit, current_error_radius,
                                              SUBSYSTEM_CERTIFY_POINTS, subsystem_points)
 import numpy as np
@@ -62,6 +62,12 @@ def gains_1ms_path() -> str:
     return path if os.path.isfile(path) else os.path.normpath(GAINS_1MS)
 
 
+def gains_1ms() -> dict:
+    """Return the shipped 1 ms gains, {node: {parameter: value}}."""
+    return {node: dict(values) for node, values in load_parameters_file(
+        gains_1ms_path(), nodes=('controller', 'observer')).items()}
+
+
 def _nominal(m: MotorParams) -> np.ndarray:
     return np.array([[m.R_s + m.R_r * (m.L_sr / m.L_r) ** 2, m.L_s - m.L_sr ** 2 / m.L_r]])
 
@@ -74,7 +80,7 @@ def current_loop_rows() -> list:
              for name, m in shipped_motors().items() if name != 'thesis']
     cases[0:0] = [('thesis', THESIS_MOTOR, '100 µs, k₁ = 40 (shipped)', 1e-4,
                    ControllerConfig().k1 * np.eye(2), subsystem_points(SUBSYSTEM_CERTIFY_POINTS))]
-    K1 = np.reshape(load_params_yaml(gains_1ms_path())['controller']['current_gain'], (2, 2))
+    K1 = np.reshape(gains_1ms()['controller']['current_gain'], (2, 2))
     cases.append(('thesis', THESIS_MOTOR, '1 ms, certified (robust.md §7)', 1e-3, K1,
                   subsystem_points(SUBSYSTEM_CERTIFY_POINTS)))
     for name, m, gains, T_s, K, box in cases:
@@ -102,10 +108,10 @@ def _figures(sc: Scenario) -> dict:
 def run_rows(progress=print) -> list:
     """Return the closed-loop rows (module doc)."""
     cases = [(name, task, '100 µs, shipped', scaled_scenario(m, task, STRATEGY))
-             for name, m in shipped_motors().items() for task in ('position', 'speed')]
+             for name, m in shipped_motors().items() for task in THESIS_TASKS]
     cases.append(('thesis', 'speed', '1 ms, certified',
                   Scenario(task='speed', strategy=STRATEGY, T_s=1e-3,
-                           gains=load_params_yaml(gains_1ms_path()))))
+                           gains=gains_1ms())))
     rows = []
     for name, task, gains, sc in cases:
         for d, law in LAWS:
