@@ -13,6 +13,7 @@ nothing hangs; a recorder that joins late records without a gap from where it jo
 closes the loop in wall-clock time; live parameters are validated, applied and recorded.
 """
 from collections import Counter
+import os
 import signal
 import subprocess
 import sys
@@ -701,6 +702,58 @@ def test_scenario_runs_as_separate_processes(tmp_path):
                          '0.1'], capture_output=True, text=True, timeout=60)
     assert r2.returncode == 2 and r2.stderr.strip() == \
         'scenario: error: --processes needs --record (the figures come from the recording)'
+
+
+@pytest.mark.processes
+@pytest.mark.slow
+@pytest.mark.parametrize('target', ['observer', 'scenario'])
+def test_scenario_processes_stopped_by_one_node_is_partial_and_ctrl_c_is_an_interrupt(
+        tmp_path, target):
+    """
+    ``scenario --processes`` stopped mid-run: by a Ctrl-C to one node, or to itself.
+
+    A node that stopped the run (every process still exits 0) makes it partial: one
+    ``scenario: error: the run stopped early: …`` line naming the node, exit 1, the summary
+    partial. A Ctrl-C to ``scenario`` is the user's stop, as in one process: the shell's code
+    (130) and the summary ``interrupted``. Either way the recording holds the run up to there.
+    """
+    import json
+
+    from im_bringup.processes import executable_path
+    bag = tmp_path / 's.mcap'
+    proc = subprocess.Popen([executable_path('im_bringup', 'scenario'), '--processes',
+                             '--task', 'speed', '--duration', '30', '--record', str(bag),
+                             '--no-progress'], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert wait_until(lambda: recorded_past(bag, MID_RUN_STEP) or proc.poll() is not None,
+                          120, 0.2) and proc.poll() is None
+        if target == 'scenario':
+            proc.send_signal(signal.SIGINT)
+        else:
+            logs = tmp_path / 's_logs'
+            pid = [line.split()[0] for line in subprocess.run(
+                ['pgrep', '-af', '__node:=observer'], capture_output=True, text=True
+            ).stdout.splitlines() if f'--params-file {logs}' in line]
+            assert len(pid) == 1, pid
+            os.kill(int(pid[0]), signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    s = json.loads((tmp_path / 's.json').read_text())
+    assert set(s['processes'].values()) == {0} and s['partial'] is True
+    assert 0 < s['steps'] < 300_000
+    assert 'Traceback' not in err
+    if target == 'scenario':
+        assert proc.returncode == 128 + signal.SIGINT, err[-2000:]
+        assert s['interrupted'] == 'SIGINT'
+    else:
+        assert proc.returncode == 1, err[-2000:]
+        line, = [x for x in err.splitlines() if x.startswith('scenario: error:')]
+        assert line.startswith('scenario: error: the run stopped early: plant stopped at t = ')
+        assert 'observer stopping (SIGINT)' in line and s['ok'] is False
+    assert info(bag).metadata['recording']['missing_steps'] == '0'
 
 
 @pytest.mark.processes

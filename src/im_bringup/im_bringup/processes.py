@@ -344,8 +344,8 @@ FAILURE_GRACE = 2.0
 
 
 def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float,
-                  env: Optional[Mapping[str, str]] = None, progress: bool = False
-                  ) -> Dict[str, Optional[int]]:
+                  env: Optional[Mapping[str, str]] = None, progress: bool = False,
+                  stop=None) -> Dict[str, Optional[int]]:
     """
     Start the graph, wait for every process to exit, stop it after ``timeout``; return the codes.
 
@@ -355,11 +355,14 @@ def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float
     is gone. :func:`failure_line` says which and why. A process off the critical path (the
     recorder, the live view: :data:`OFF_CRITICAL_PATH`) that dies during the run does not stop
     it: :func:`lost_line` is printed once (stderr) and the run goes on to its end.
+    ``stop``: the caller's :class:`im_common.stopping.StopSignals` (so it knows it was asked to
+    stop); by default one of its own.
     """
+    from contextlib import nullcontext
     from im_common.stopping import StopSignals
     g = GraphProcesses(processes, workdir, env)
     said = set()
-    with StopSignals() as stop:
+    with (StopSignals() if stop is None else nullcontext(stop)) as stop:
         g.start()
         t0 = time.monotonic()
         stop_at = None

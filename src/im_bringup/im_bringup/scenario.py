@@ -640,12 +640,17 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
     logs = os.path.splitext(args.record)[0] + '_logs'
-    codes = run_processes(procs, logs, timeout=24 * 3600.0,
-                          env={'ROS_DOMAIN_ID': str(args.domain_id)},
-                          progress=not args.no_progress)
+    from im_common.stopping import exit_code_for, StopSignals
+    with StopSignals() as stop:
+        codes = run_processes(procs, logs, timeout=24 * 3600.0,
+                              env={'ROS_DOMAIN_ID': str(args.domain_id)},
+                              progress=not args.no_progress, stop=stop)
     summary = {'task': args.task, 'strategy': args.strategy, 'controller': args.controller,
                'variation': args.variation, 'rate_hz': round(1.0 / args.T_s, 6),
                'processes': codes, 'logs': logs, 'ok': all(c == 0 for c in codes.values())}
+    if stop.requested:              # as in one process; the figures are those of the steps run
+        summary.update(interrupted=stop.requested, partial=True,
+                       failures={'run': f'interrupted by {stop.requested}'})
     failure = failure_line(logs, codes)
     if failure:
         summary['failures'] = {failure.split(':', 1)[0]: failure.split(': ', 1)[-1]}
@@ -660,10 +665,18 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
                         f'`ros2 run im_recording recover {part}`')
     if os.path.exists(args.record):
         run = load_run(args.record)
-        summary.update(figures_of_merit(run))
-        from im_recording.report import refusals
+        fig = figures_of_merit(run)
+        summary.update(fig)
+        from im_recording.report import refusals, run_status
         # as the in-process graph counts them, per node and topic, and who sent them
         summary.update({k: v for k, v in refusals(run).items() if v})
+        status = run_status(run, fig)
+        if summary['ok'] and status['partial'] and not stop.requested:
+            # every process ended cleanly, but before the run's end: a node stopped it (a Ctrl-C
+            # to one of them) — the recording says so, and so do the summary and the exit code
+            summary['ok'] = False
+            failure = 'the run stopped early: ' + '; '.join(status['notes'])
+            summary['failures'] = {'run': failure}
     else:
         from im_recording.bag import BagError
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
@@ -687,6 +700,10 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         print(f'recording: {args.record}')
     if not summary['ok']:
         return cli_error('scenario', failure or f'exit codes {codes} (see {logs}/<node>.log)', 1)
+    if stop.requested:          # as in one process: the user's stop, not a failure
+        print(f'interrupted by {stop.requested}; the summary and the recording (if any) are '
+              'complete up to there', file=sys.stderr)
+        return exit_code_for(stop.requested)
     if not written:
         return 1
     if args.report:
