@@ -6,7 +6,6 @@ that integrates the voltage the motor got: the ideal and the switched plant, the
 the graph agree to the last bit, and what the delay does to the thesis's law is the closed form's.
 """
 import math
-import os
 
 from im_bringup.offline import simulate
 from im_bringup.run_file import RunFileError, Scenario
@@ -173,12 +172,10 @@ def test_one_period_of_delay_halves_the_stable_period_of_the_thesis_current_loop
 
 def test_the_certified_1ms_gain_loses_its_box_under_one_period_of_delay():
     """docs/robust.md §7's 1 ms gain: stable on its whole box without the delay, not with it."""
-    from im_bringup.processes import load_params_yaml
     from im_controller.gain_design.drive import current_error_radius, subsystem_points, \
         SUBSYSTEM_CERTIFY_POINTS
-    gains = load_params_yaml(os.path.join(os.path.dirname(__file__), '..', 'src', 'im_bringup',
-                                          'config', 'gains_1ms.yaml'))
-    K = np.reshape(gains['controller']['current_gain'], (2, 2))
+    from im_studies.study_delay import gains_1ms
+    K = np.reshape(gains_1ms()['controller']['current_gain'], (2, 2))
     box = subsystem_points(SUBSYSTEM_CERTIFY_POINTS)
     assert current_error_radius(box, 1e-3, K, 0).max() < 0.87
     assert current_error_radius(box, 1e-3, K, 1).max() > 1.2

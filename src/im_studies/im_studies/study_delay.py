@@ -24,6 +24,7 @@ import os
 import sys
 
 from im_bringup.offline import Scenario, simulate
+from im_bringup.processes import free_run_gains
 from im_common.cli import error as cli_error
 from im_common.params import load_motor_file, MotorParams, shipped_motors_dir, THESIS_MOTOR
 from im_common.yamlio import load_parameters_file
@@ -40,9 +41,6 @@ DELAYS = (0, 1)
 #: the law told the delay (it predicts across it, im_controller.control_law)
 LAWS = ((0, 'as printed'), (1, 'as printed'), (1, 'predicting'))
 STRATEGY = 'min_loss'
-#: the certified gains of docs/robust.md §7 (the thesis motor's box)
-GAINS_1MS = os.path.join(os.path.dirname(__file__), '..', '..', 'im_bringup', 'config',
-                         'gains_1ms.yaml')
 
 
 def shipped_motors() -> dict:
@@ -52,20 +50,10 @@ def shipped_motors() -> dict:
             if f.endswith('.yaml')}
 
 
-def gains_1ms_path() -> str:
-    """Return the shipped 1 ms gains file (installed share/, else the source tree's)."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        path = os.path.join(get_package_share_directory('im_bringup'), 'config', 'gains_1ms.yaml')
-    except (ImportError, LookupError):
-        path = GAINS_1MS
-    return path if os.path.isfile(path) else os.path.normpath(GAINS_1MS)
-
-
 def gains_1ms() -> dict:
-    """Return the shipped 1 ms gains, {node: {parameter: value}}."""
+    """Return the shipped gains certified at 1 ms (docs/robust.md §7): {node: {name: value}}."""
     return {node: dict(values) for node, values in load_parameters_file(
-        gains_1ms_path(), nodes=('controller', 'observer')).items()}
+        free_run_gains(1e-3), nodes=('controller', 'observer')).items()}
 
 
 def _nominal(m: MotorParams) -> np.ndarray:
