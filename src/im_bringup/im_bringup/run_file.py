@@ -38,6 +38,7 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE
                               variation_schedule, warn_motor_defaults)
 from im_common.sensors import Sensors
 from im_common.validation import check_choice, one_line
+from im_controller.baselines.drive import check_law_task, gains_model, LAWS
 from im_controller.control_law import ControllerConfig, MODES, steady_start
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
 from im_controller.trajectories import THESIS_TRAJECTORIES
@@ -46,7 +47,10 @@ from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (o
 import numpy as np
 
 TASKS = MODES                                      # the task names' one home: the control law
-CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust')
+#: the controllers: the thesis law at nominal estimates, adapted or with certified gains, or a
+#: drive industry's baseline law in its place (im_controller.baselines, docs/baselines.md)
+CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust',
+               'current_vector', 'vhz')
 # the adaptive controllers: the adapter's law and what the controller and observer take from it
 # (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
 ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},
@@ -154,6 +158,7 @@ class Scenario:
     plant_substep: float = 1e-4
     observer_substep: float = 1e-4
     controller_options: dict = field(default_factory=dict)
+    baseline: Optional[dict] = None           # a baseline controller's gains (its gains model)
     schedule: Optional[ParameterSchedule] = None   # overrides ``variation`` (ROS-free loop only)
     motor: Optional[MotorParams] = None       # the plant's motor (None: the thesis motor)
     estimates: Optional[MotorParams] = None   # the controller/observer model (None: = motor)
@@ -218,6 +223,13 @@ class Scenario:
         # configuration's to refuse (controller_config(), at the end: ControllerConfig's type)
         check_choice('task', self.task, TASKS)
         check_choice('controller', self.controller, CONTROLLERS)
+        check_law_task(self.law, self.task, field='controller')
+        if self.baseline is not None:
+            if self.law == 'thesis':
+                raise InvalidParameter('baseline', self.baseline, 'the gains of a baseline '
+                                       f'controller, but the controller is {self.controller!r} '
+                                       '(current_vector or vhz take them)')
+            put(self, 'baseline', gains_model(self.law).from_block(self.baseline))
         check_choice('mode', self.mode, STEPPING_MODES)
         if isinstance(self.variation, Mapping):
             put(self, 'variation', normalize_variation(self.variation) or 'none')
@@ -332,9 +344,12 @@ class Scenario:
         if self.saturation_model and self.saturation is None:
             raise InvalidParameter('saturation_model', True, 'needs the magnetizing curve: give '
                                    'saturation (motor: the block of the motor file)')
-        if self.saturation_model and self.controller != 'nominal':
+        if self.saturation_model and self.controller in ADAPTATION:
             raise InvalidParameter('saturation_model', True, f'with the {self.controller} '
                                    'controller: its adapter tracks L_M itself; choose one')
+        if self.saturation_model and self.controller != 'nominal':
+            raise InvalidParameter('saturation_model', True, f'with the {self.controller} '
+                                   'controller: only the nominal thesis law takes the curve')
 
     def _check_real_plant_model(self) -> None:
         """
@@ -473,9 +488,17 @@ class Scenario:
         return steady_start(self.controller_config(), self.plant_schedule().params_at(0.0),
                             self.theta0, self.omega0, flux_scale=float(self.start_flux))
 
+    @property
+    def law(self) -> str:
+        """Return the control law the controller runs: the thesis's, or a baseline's."""
+        return self.controller if self.controller in LAWS else 'thesis'
+
     def controller_config(self) -> ControllerConfig:
         g = self.gain_arguments()
         opts = dict(g['controller_options'])
+        opts.setdefault('law', self.law)
+        if self.baseline is not None:
+            opts.setdefault('baseline', self.baseline)
         opts.setdefault('core_loss_exponent', self.core_loss_exponent)
         opts.setdefault('horizon', self.duration)   # the run's end: the optimal strategy's plan
         opts.setdefault('sensorless', self.sensorless)  # orient on the observed flux
@@ -564,6 +587,10 @@ class Scenario:
         ctl.update({k: (v if isinstance(v, bool) else float(v)) for k, v in limits.items()})
         if 'flux_coupling' in self.controller_options:
             ctl['flux_coupling'] = self.controller_options['flux_coupling']
+        if self.law != 'thesis':        # a baseline law in the thesis law's place
+            ctl['law'] = self.law
+            if self.baseline is not None:
+                ctl.update(block_parameters(self.baseline, 'baseline'))
         if self.current_gain is not None:
             ctl['current_gain'] = [float(g) for g in _flat(self.current_gain)]
             ctl['gain_period'] = float(self.T_s)

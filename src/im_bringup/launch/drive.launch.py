@@ -3,7 +3,7 @@ Jazzy launch file: the drive graph as separate processes.
 
     ros2 launch im_bringup drive.launch.py [run:=RUN.yaml] [task:=position|speed]
         [strategy:=min_energy|...]
-        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair]
+        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair|robust|current_vector|vhz]
         [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
         [force:=true]
@@ -48,8 +48,9 @@ ARGUMENTS = (
     ('task', '', 'position (default), speed or torque (seed 000 §3.4.4-3.4.5)'),
     ('strategy', '', 'flux strategy: min_energy (default), constant_flux, min_loss or optimal'),
     ('controller', '', 'nominal (default), adaptive (improved law, inverse-Gamma feed), '
-                   'adaptive_thesis (thesis law) or adaptive_thesis_pair (improved law, thesis '
-                   'pair feed)'),
+                   'adaptive_thesis (thesis law), adaptive_thesis_pair (improved law, thesis '
+                   "pair feed), robust, or a baseline law in the thesis law's place: "
+                   'current_vector, vhz (docs/baselines.md)'),
     ('T_s', '', 'control period [s] (default 0.0001)'),
     ('duration', '', 'simulated seconds (empty: the task length)'),
     ('mode', '', 'lockstep (default, simulated time) or free_run (wall-clock fixed rate)'),

@@ -46,6 +46,7 @@ from im_common.params import (check_real, estimate_arguments, InvalidParameter, 
 from im_common.validation import BLOCK_CONFIG, block_error, parameter_spec as _node
 from pydantic import BaseModel, Field, field_validator, model_validator, ValidationError
 
+from .baselines.drive import BaselineDrive, check_law_task, gains_model, LAWS
 from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, Strategy
 from .reference import dq_reference, feedforward_dq, ModelCoefficients, steady_state
 from .trajectories import SetpointPosition, SetpointSpeed, SetpointTorque, THESIS_TRAJECTORIES
@@ -59,6 +60,7 @@ PROFILES = ('thesis', 'setpoint')
 Profile = Literal[PROFILES]
 FLUX_COUPLINGS = ('cancel', 'thesis', 'none')
 FluxCoupling = Literal[FLUX_COUPLINGS]
+Law = Literal[LAWS]
 #: the controller's load models (their home: im_common.loads)
 LoadKind = Literal[MODEL_KINDS]
 DEFAULT_FLUX_PREVIEW = 0.06
@@ -125,6 +127,15 @@ class ControllerConfig(BaseModel):
 
     mode: Mode = Field('position', description='tracking task',
                        json_schema_extra=_node())
+    law: Law = Field('thesis', description="control law: the thesis's (seed 000 ch. 3-4), or a "
+                     "drive industry's baseline in its place, current_vector (rotor-flux-oriented "
+                     'PI current and speed loops) or vhz (observer-based V/Hz, speed only), with '
+                     'the same references, flux strategy and limits (docs/baselines.md)',
+                     json_schema_extra=_node())
+    baseline: Any = Field(None, description="the baseline law's gains, its run-file baseline: "
+                          'block (im_controller.baselines: BaselineGains, VHzGains; None: their '
+                          'defaults); the node parameters baseline.*',
+                          json_schema_extra=_NOT_A_PARAMETER)
     profile: Profile = Field(
         'thesis', description='reference source: the thesis trajectories (seed 000 §3.4.4) or '
         'setpoints (set_setpoint, /im/setpoint, the setpoints field) turned into smooth '
@@ -355,6 +366,14 @@ class ControllerConfig(BaseModel):
             raise InvalidParameter('profile', self.profile,
                                    'the thesis profiles are position/speed trajectories; '
                                    "mode 'torque' needs profile 'setpoint'")
+        if self.law == 'thesis':
+            if self.baseline is not None:
+                raise InvalidParameter('baseline', self.baseline, 'the gains of a baseline law, '
+                                       "but the law is the thesis's: choose one, or leave it out")
+        else:
+            check_law_task(self.law, self.mode)
+            if self.baseline is not None:
+                self.baseline = gains_model(self.law).from_block(self.baseline)
         if self.phi_max < self.phi_min:
             raise InvalidParameter('phi_max', self.phi_max,
                                    f'must be >= phi_min = {self.phi_min:g}')
@@ -505,6 +524,11 @@ class DriveController:
         self.plan_note = ''          # optimal: what the flux reference follows, and why
         if cfg.profile == 'thesis':
             self._traj = THESIS_TRAJECTORIES[cfg.mode]()
+        # a baseline law makes the voltage in the thesis law's place (docs/baselines.md)
+        self._baseline = None if cfg.law == 'thesis' else BaselineDrive(
+            cfg.law, cfg.params, cfg.T_s, cfg.baseline, delay=cfg.delay, mode=cfg.mode,
+            phi_max=cfg.phi_max, v_limit=cfg.v_limit, current_limit=cfg.current_limit,
+            torque_limit=cfg.torque_limit, speed_limit=cfg.speed_limit)
 
     def reconfigure(self, changes: dict) -> None:
         """
@@ -924,6 +948,9 @@ class DriveController:
                 self._theta_offset += dt * (omega_r - self.reference['omega_ref'])
         if self._schedule:
             self._apply_schedule(t)
+        if self._baseline is not None:
+            return self._compute_baseline(t, first, i_alpha, i_beta, theta_r, omega_r,
+                                          phi_alpha_hat, phi_beta_hat)
 
         # 1. mechanical loop, eq. 3.1
         theta_ref, omega_ref, tau_fc, dtau_fc, u_pd = self._mechanical(t, theta_r, omega_r, c)
@@ -976,6 +1003,35 @@ class DriveController:
             'rho': rho, 'v_alpha_ff': v_a_ff, 'v_beta_ff': v_b_ff, 'saturated': saturated,
             'torque_limited': tau_limited,
         }
+        return v_a, v_b
+
+    def _compute_baseline(self, t, first, i_alpha, i_beta, theta_r, omega_r, phi_alpha_hat,
+                          phi_beta_hat):
+        """
+        Return a baseline law's voltage (docs/baselines.md): the drive's references, its law.
+
+        The references and their feedforward torque (stage 1 without the PD: the law has its
+        own loops), the strategy's flux for the torque the law asked for (stage 2), then the
+        law; the compensation after its voltage limit, as the thesis law's.
+        """
+        cfg, c, b = self.config, self._c, self._baseline
+        theta_ref, omega_ref, tau_ff, dtau_ff, _ = self._mechanical(t, theta_r, omega_r, c)
+        phi_tgt, phi, _, _ = self._flux_reference(t, tau_ff if first else b.torque, omega_r, c)
+        i_s = complex(i_alpha, i_beta)
+        if first:       # from the drive's state: the observer's rotor flux, ψ_R = θ φ̂
+            b.preset(cfg.params.theta * complex(phi_alpha_hat, phi_beta_hat), i_s, theta_r,
+                     omega_r, theta_ref, omega_ref, tau_ff)
+        v_a, v_b = b.voltage(t, i_s, theta_r, omega_r, theta_ref, omega_ref, tau_ff, phi)
+        saturated = cfg.v_limit is not None and math.hypot(v_a, v_b) >= cfg.v_limit * (1 - 1e-12)
+        if cfg.compensation is not None:    # what the inverter loses, added (compensation.md)
+            v_a, v_b = cfg.compensation.command(v_a, v_b, i_alpha, i_beta)
+        self._t_prev = t
+        refs = b.references()
+        self._rho = refs['rho']
+        self.reference = dict(
+            refs, t=t, theta_ref=theta_ref, omega_ref=omega_ref, tau_ref=b.torque,
+            dtau_ref=dtau_ff, phi_d_ref=phi, phi_target=phi_tgt, v_alpha_ff=0.0,
+            v_beta_ff=0.0, saturated=saturated, torque_limited=False)
         return v_a, v_b
 
 

@@ -1,10 +1,11 @@
 """
 ``ros2 run im_controller controller``: tracking with minimum magnetic energy (seed 000 ch. 3-4).
 
-A thin shell around :class:`im_controller.control_law.DriveController`. At step k it waits for the
-measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the adapter's
-estimates stamped t_k when ``use_adapter``), computes V_k and publishes it stamped t_k. References
-are published every ``reference_decimation`` steps for analysis. Setpoints on ``/im/setpoint``
+A thin shell around :class:`im_controller.control_law.DriveController` (``law``: the thesis's, or
+a baseline's in its place with its ``baseline.*`` gains, docs/baselines.md). At step k it waits
+for the measured current and shaft stamped t_k, the observer's flux estimate stamped t_k (and the
+adapter's estimates stamped t_k when ``use_adapter``), computes V_k and publishes it stamped t_k;
+the references every ``reference_decimation`` steps for analysis. Setpoints on ``/im/setpoint``
 (profile ``setpoint``) take effect at the first step at or after their stamp — a stamp in the past,
 0 included (``ros2 topic pub``'s unset header), means now: the reference moves on from where it is,
 continuous in position and speed; the topic takes both
@@ -27,10 +28,11 @@ from im_common.auth import Signer
 from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, stamp_ns,
                                    Vector3Out, xy_in)
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
-from im_common.node_params import (declare_compensation, declare_motor, declare_run,
-                                   declare_saturation_model, live_refusal)
+from im_common.node_params import (declare_block, declare_compensation, declare_motor,
+                                   declare_run, declare_saturation_model, live_refusal)
 from im_common.params import describe_defaults
 from im_common.qos import reader, writer
+from im_controller.baselines.drive import gains_model
 from im_controller.control_law import DriveController
 from im_controller.parameters import (config_from_parameters, declare_controller, live_changes,
                                       LIVE_PARAMETERS, SENTINEL_DEFAULTS)
@@ -50,6 +52,11 @@ class ControllerNode(LockstepNode):
                                warn_defaults=True)
         self._model = params
         self._values = values = declare_controller(self)
+        gains = gains_model(values['law'])
+        if gains is not None:       # a baseline law: its gains, the run file's baseline: block
+            values['baseline'] = declare_block(
+                self, gains, 'baseline', f"take the baseline.* gains of the {values['law']} law "
+                '(false: its defaults from the bandwidths, docs/baselines.md)')
         self.use_adapter = self.param('use_adapter', False,
                                       'wait for and use the adapter estimates (eq. 4.10-4.12)')
         self.ref_every = self.param('reference_decimation', 10,

@@ -40,9 +40,31 @@ def parameter_tables() -> str:
             node = factory(context=ctx, graph_key=bytes(32))
             parts.append(f'### {title}\n\n{parameter_table(node)}\n')
             node.destroy_node()
+            if factory is ControllerNode:
+                parts += _baseline_tables(ctx)
         finally:
             rclpy.shutdown(context=ctx)
     return '\n'.join(parts)
+
+
+def _baseline_tables(ctx) -> list:
+    """Return the controller's ``baseline.*`` rows of each baseline law (declared with it)."""
+    from rclpy.parameter import Parameter
+
+    from im_common.lockstep import parameter_table
+    from im_controller.baselines.drive import GAINS
+    from im_controller.controller_node import ControllerNode
+    parts = []
+    for law in GAINS:
+        task = [Parameter('mode', value='speed')] if law == 'vhz' else []
+        node = ControllerNode(context=ctx, graph_key=bytes(32), parameter_overrides=[
+            Parameter('law', value=law)] + task)
+        lines = parameter_table(node).splitlines()
+        node.destroy_node()
+        rows = [ln for ln in lines if ln.startswith('| `baseline.')]
+        parts.append(f"#### controller `law: {law}`: its gains (the run file's `baseline:` "
+                     f'block)\n\n' + '\n'.join(lines[:2] + rows) + '\n')
+    return parts
 
 
 def render(text: str) -> str:

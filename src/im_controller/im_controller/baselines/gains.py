@@ -9,6 +9,7 @@ the gains in V/A and N·m·s are the same as motulator's):
   i/i* = α_c/(s + α_c) on the plant L_σ di/dt = u − jω_c L_σ i;
 * speed loop, 2DOF PI on the inertia J: k_t = α_s J, k_p = 2 α_s J, k_i = α_s² J, so that
   ω/ω* = α_s/(s + α_s) on J dω/dt = τ;
+* position loop (position task), P on the angle: ω_cmd = ω* + α_p (θ* − θ), α_p = α_s/4;
 * the angle advance of the output voltage, e^{j k_comp T_s ω_c}: k_comp = delay + ½ (the
   computational delay plus half a period of the zero-order hold) unless given.
 """
@@ -17,13 +18,18 @@ from __future__ import annotations
 import math
 from typing import Optional, Tuple
 
-from im_common.validation import BLOCK_CONFIG, parse_block
+from im_common.validation import BLOCK_CONFIG, parameter_spec, parse_block
 from pydantic import BaseModel, Field
 
 #: motulator's default current-loop bandwidth, 2π·200 rad/s
 DEFAULT_ALPHA_C = 2.0 * math.pi * 200.0
 #: the thesis's speed gain k_v = 3 N·m·s on J = 0.03 kg·m² as a bandwidth α_s = k_v/J [rad/s]
 DEFAULT_ALPHA_S = 100.0
+#: the position loop's bandwidth, a quarter of the speed loop's (a cascade's usual separation)
+DEFAULT_ALPHA_P = DEFAULT_ALPHA_S / 4.0
+#: node parameters of the optional fields: 0 (alpha_i) / -1 (k_comp, where 0 is a value) = None
+ALPHA_I_SENTINEL = parameter_spec(0.0, sentinels=((0.0, None, 'alpha_c'),))
+K_COMP_SENTINEL = parameter_spec(-1.0, sentinels=((-1.0, None, 'delay + 0.5'),))
 
 
 class BaselineGains(BaseModel):
@@ -34,11 +40,21 @@ class BaselineGains(BaseModel):
     alpha_c: float = Field(DEFAULT_ALPHA_C, gt=0, description='current-loop bandwidth alpha_c '
                            '[rad/s]: the reference-tracking pole of the current loop')
     alpha_i: Optional[float] = Field(None, gt=0, description='integral bandwidth of the current '
-                                     'controller [rad/s] (None: alpha_c)')
+                                     'controller [rad/s] (None: alpha_c)',
+                                     json_schema_extra=ALPHA_I_SENTINEL)
     alpha_s: float = Field(DEFAULT_ALPHA_S, gt=0, description='speed-loop bandwidth alpha_s '
                            '[rad/s] (100: the thesis speed gain k_v = 3 N m s on J = 0.03)')
+    alpha_p: float = Field(DEFAULT_ALPHA_P, gt=0, description='position-loop bandwidth alpha_p '
+                           '[rad/s] of the position task (omega* + alpha_p (theta* - theta) to '
+                           'the speed PI)')
     k_comp: Optional[float] = Field(None, ge=0, le=5, description='angle advance of the output '
-                                    'voltage [control periods] (None: delay + 0.5)')
+                                    'voltage [control periods] (None: delay + 0.5)',
+                                    json_schema_extra=K_COMP_SENTINEL)
+    feedforward: bool = Field(True, description="feed the drive's reference forward to the "
+                              'speed PI: its torque J theta_ddot* + b theta_dot* + load model and '
+                              'the P path on the error, (k_p - k_t)(omega* - omega) (a ramp is '
+                              "followed without lag); false: motulator's 2DOF PI as shipped, no "
+                              'feedforward (it lags a ramp by its acceleration / alpha_s)')
 
     @classmethod
     def from_block(cls, spec, where: str = 'baseline') -> 'BaselineGains':

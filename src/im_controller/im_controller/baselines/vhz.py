@@ -60,10 +60,12 @@ from typing import Optional, Tuple
 
 from im_common.delay import check_delay, CommandDelay
 from im_common.params import MotorParams, THESIS_FLUX_LEVELS
-from im_common.validation import BLOCK_CONFIG, check_real, InvalidParameter, parse_block
+from im_common.validation import (BLOCK_CONFIG, check_real, InvalidParameter, parameter_spec,
+                                  parse_block)
 from pydantic import BaseModel, Field
 
 from .current_vector import K_DAMP, ReducedOrderFluxObserver
+from .gains import K_COMP_SENTINEL
 
 #: the flux channel's bandwidth α_ψ, 2π·100 rad/s (a.7)
 DEFAULT_ALPHA_PSI = 2.0 * math.pi * 100.0
@@ -91,9 +93,12 @@ class VHzGains(BaseModel):
     alpha_i: float = Field(0.0, ge=0, description='integral bandwidth of the flux and torque '
                            'channels [rad/s] (V/Hz: 0)')
     slew_rate: Optional[float] = Field(None, gt=0, description='rate limit of the speed '
-                                       'reference [rad/s^2] (None: none)')
+                                       'reference [rad/s^2] (None: none)',
+                                       json_schema_extra=parameter_spec(
+                                           0.0, sentinels=((0.0, None, 'none'),)))
     k_comp: Optional[float] = Field(None, ge=0, le=5, description='angle advance of the output '
-                                    'voltage [control periods] (None: delay + 0.5)')
+                                    'voltage [control periods] (None: delay + 0.5)',
+                                    json_schema_extra=K_COMP_SENTINEL)
     k_u: float = Field(0.9, gt=0, le=1, description='share of v_limit the field weakening '
                        'allows')
     k_b: float = Field(0.9, gt=0, le=1, description='share of the breakdown torque the torque '
