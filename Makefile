@@ -73,11 +73,13 @@ readme: build
 	$(RUN) python -m im_studies.docs docs/parameters.md
 
 # Chapter-3 study on the ROS-free loop (energy table, sampled-data limit, core-loss exponent),
-# the drive on the real plant (docs/compensation.md) and under the delay (docs/plant.md §10).
+# the drive on the real plant (docs/compensation.md), under the delay (docs/plant.md §10), and
+# the thesis law beside the drive industry's (docs/baselines.md).
 study: build
 	$(RUN) python -m im_studies.study --out bags/study
 	$(RUN) python -m im_studies.study_real_plant --json bags/study/real_plant.json --plots bags/study
 	$(RUN) python -m im_studies.study_delay --json bags/study/delay.json
+	$(RUN) python -m im_studies.study_compare --json bags/study/compare.json --plot bags/study/compare.png
 
 # Seed 000 §4.2.1 sensitivity of the nominal controller, and §4.3 nominal vs adaptive (offline).
 sensitivity: build

@@ -1,0 +1,60 @@
+"""
+``python -m im_studies.study_compare``: every law × strategy on the same drive (docs/baselines.md).
+
+Its runs are the run files a user writes (``controller:``, the real plant's blocks, the drift),
+its verdicts name the law that wins each row, and it runs as a command.
+"""
+import json
+import subprocess
+import sys
+
+from im_studies import study_compare as sc
+import pytest
+
+
+def test_the_cases_are_every_law_and_strategy_but_vhz_positioning():
+    cases = list(sc.cases())
+    assert len(cases) == len(sc.PLANTS) * len(sc.DRIFTS) * len(sc.STRATEGIES) * (2 + 3 + 3)
+    assert not [c for c in cases if c[0] == 'vhz' and c[2] == 'position']
+
+
+def test_the_real_plant_is_switched_delayed_and_drifts_in_its_resistance_only():
+    real = sc.scenario('current_vector', 'min_loss', 'load_step', 'real, delay 1', 'chapter4')
+    assert real.delay == 1 and real.inverter.switched and real.iron_loss
+    assert set(real.variation) == {'R_r'}
+    assert real.law == 'current_vector' and real.current_limit == sc.CURRENT_LIMIT
+    ideal = sc.scenario('nominal', 'min_loss', 'position', 'ideal', 'chapter4')
+    assert ideal.inverter is None and ideal.variation == 'chapter4' and ideal.law == 'thesis'
+
+
+def test_verdicts_name_the_lowest_loss_and_error_and_skip_a_trip():
+    rows = [{'plant': 'ideal', 'drift': 'none', 'task': 'speed', 'strategy': 'min_loss',
+             'law': law, 'err_max': e, 'err_rms': e, 'E_loss_J': loss, 'E_in_J': 0.0,
+             'i_max_A': 1.0, 'trip': trip}
+            for law, e, loss, trip in (('nominal', 0.01, 80.0, ''),
+                                       ('current_vector', 0.005, 84.0, ''),
+                                       ('vhz', 0.001, 10.0, 'at 0.500 s, overcurrent'))]
+    v, = sc.verdicts(rows)
+    assert (v['lowest_loss'], v['lowest_error']) == ('nominal', 'current_vector')
+    assert v['thesis_loss_ratio'] == 1.0 and v['thesis_error_ratio'] == pytest.approx(2.0)
+    assert '| trip at 0.500 s, overcurrent |' in sc.markdown(rows)
+    assert sc.figures({'pos_err_max_rad': 1.0, 'pos_err_rms_rad': 0.5, 'E_loss_J': 1.0,
+                       'E_in_J': 2.0, 'i_max_A': 3.0,
+                       'trip': {'t': 0.25, 'reason': 'overcurrent'}},
+                      'position')['trip'] == 'at 0.250 s, overcurrent'
+
+
+@pytest.mark.slow
+def test_the_study_runs_as_a_command_and_writes_its_rows_and_plot(tmp_path):
+    out, png = tmp_path / 'c.json', tmp_path / 'c.png'
+    r = subprocess.run([sys.executable, '-m', 'im_studies.study_compare', '--task', 'speed',
+                        '--plant', 'ideal', '--drift', 'none', '--json', str(out), '--plot',
+                        str(png)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads(out.read_text())
+    assert len(doc['rows']) == 3 * 3 and len(doc['verdicts']) == 3
+    assert '[9/9' in r.stderr and png.stat().st_size > 10_000
+    rows = {(x['law'], x['strategy']): x for x in doc['rows']}
+    # the same references: the current-vector controller, fed forward, tracks as the thesis law
+    assert rows['current_vector', 'constant_flux']['err_max'] < 0.01
+    assert rows['nominal', 'min_loss']['E_loss_J'] < rows['nominal', 'constant_flux']['E_loss_J']
