@@ -79,7 +79,7 @@ study: build
 	$(RUN) python -m im_studies.study --out bags/study
 	$(RUN) python -m im_studies.study_real_plant --json bags/study/real_plant.json --plots bags/study
 	$(RUN) python -m im_studies.study_delay --json bags/study/delay.json
-	$(RUN) python -m im_studies.study_compare --json bags/study/compare.json --plot bags/study/compare.png
+	$(RUN) python -m im_studies.study_compare --json docs/data/compare.json --plot docs/figures/compare.png --doc docs/comparison.md
 
 # Seed 000 §4.2.1 sensitivity of the nominal controller, and §4.3 nominal vs adaptive (offline).
 sensitivity: build

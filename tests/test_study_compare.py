@@ -39,7 +39,7 @@ def test_verdicts_name_the_lowest_loss_and_error_and_skip_a_trip():
     assert v['thesis_loss_ratio'] == 1.0 and v['thesis_error_ratio'] == pytest.approx(2.0)
     assert '| trip at 0.500 s, overcurrent |' in sc.markdown(rows)
     assert sc.figures({'pos_err_max_rad': 1.0, 'pos_err_rms_rad': 0.5, 'E_loss_J': 1.0,
-                       'E_in_J': 2.0, 'i_max_A': 3.0,
+                       'E_in_J': 2.0, 'i_max_A': 3.0, 'V_max_V': 4.0,
                        'trip': {'t': 0.25, 'reason': 'overcurrent'}},
                       'position')['trip'] == 'at 0.250 s, overcurrent'
 
@@ -58,3 +58,24 @@ def test_the_study_runs_as_a_command_and_writes_its_rows_and_plot(tmp_path):
     # the same references: the current-vector controller, fed forward, tracks as the thesis law
     assert rows['current_vector', 'constant_flux']['err_max'] < 0.01
     assert rows['nominal', 'min_loss']['E_loss_J'] < rows['nominal', 'constant_flux']['E_loss_J']
+
+
+def test_the_comparison_page_holds_the_committed_rows():
+    """docs/comparison.md's tables are docs/data/compare.json's, rendered by the study's code."""
+    import os
+    root = os.path.join(os.path.dirname(__file__), '..')
+    rows = sc.load_rows(os.path.join(root, 'docs', 'data', 'compare.json'))
+    assert len(rows) == len(list(sc.cases()))
+    page = open(os.path.join(root, 'docs', 'comparison.md')).read()
+    assert sc.markdown(rows) in page, ('docs/comparison.md is stale: python -m '
+                                       'im_studies.study_compare --from-json '
+                                       'docs/data/compare.json --doc docs/comparison.md')
+
+
+def test_a_file_that_is_no_study_output_is_one_line(tmp_path):
+    bad = tmp_path / 'x.json'
+    bad.write_text('{"rows": 3}')
+    r = subprocess.run([sys.executable, '-m', 'im_studies.study_compare', '--from-json',
+                        str(bad)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip() == \
+        f'study_compare: error: {bad}: not a study_compare --json (no rows)'

@@ -121,7 +121,8 @@ def figures(summary: dict, task: str) -> dict:
     out = {'err_max': summary[f'{key}_err_max_{unit}'],
            'err_rms': summary[f'{key}_err_rms_{unit}'],
            'E_loss_J': summary['E_loss_J'], 'E_in_J': summary['E_in_J'],
-           'i_max_A': summary['i_max_A'], 'trip': _trip(summary.get('trip'))}
+           'i_max_A': summary['i_max_A'], 'V_max_V': summary['V_max_V'],
+           'trip': _trip(summary.get('trip'))}
     if task == 'load_step':
         out.update(dip=summary.get('speed_dip_rad_s'), recovery_s=summary.get('speed_recovery_s'))
     return out
@@ -185,11 +186,12 @@ def _err(r) -> str:
 def markdown(rows: list) -> str:
     """Return the rows and the verdicts as Markdown tables."""
     out = ['| plant | drift | task | strategy | law | error max / RMS | losses [J] | '
-           'input [J] | peak current [A] |', '|---|---|---|---|---|---|---:|---:|---:|']
+           'input [J] | peak current [A] | peak voltage [V] |',
+           '|---|---|---|---|---|---|---:|---:|---:|---:|']
     for r in rows:
         out.append(f"| {r['plant']} | {r['drift']} | {r['task']} | {r['strategy']} | "
                    f"{r['law']} | {_err(r)} | {r['E_loss_J']:.4g} | {r['E_in_J']:.4g} | "
-                   f"{r['i_max_A']:.3g} |")
+                   f"{r['i_max_A']:.3g} | {r.get('V_max_V', math.nan):.4g} |")
     out += ['', '| plant | drift | task | strategy | lowest losses | thesis / lowest | lowest '
                 'error | thesis / lowest |', '|---|---|---|---|---|---:|---|---:|']
     for v in verdicts(rows):
@@ -246,21 +248,58 @@ def main(argv=None) -> int:
     ap.add_argument('--drift', choices=DRIFTS, action='append', help='only this drift')
     ap.add_argument('--json', metavar='FILE', help='write the rows and verdicts as JSON')
     ap.add_argument('--plot', metavar='PNG', help='draw the losses and errors (drift: none)')
+    ap.add_argument('--doc', metavar='MD', help='write the tables into this page, between '
+                    '<!-- compare:begin --> and <!-- compare:end --> (docs/comparison.md)')
+    ap.add_argument('--from-json', metavar='FILE', help='take the rows of an earlier --json '
+                    'instead of running (re-render the tables and the plot)')
     a = ap.parse_args(argv)
     sel = {k: tuple(v) for k, v in (('tasks', a.task), ('plants', a.plant), ('drifts', a.drift))
            if v}
-    rows = run_rows(lambda line: print(line, file=sys.stderr, flush=True), **sel)
-    print(markdown(rows))
     try:
+        if a.from_json:
+            rows = load_rows(a.from_json)
+        else:
+            rows = run_rows(lambda line: print(line, file=sys.stderr, flush=True), **sel)
+        print(markdown(rows))
         if a.json:
             os.makedirs(os.path.dirname(a.json) or '.', exist_ok=True)
             with open(a.json, 'w') as f:
-                json.dump({'rows': rows, 'verdicts': verdicts(rows)}, f, indent=2)
+                json.dump({'rows': rows, 'verdicts': verdicts(rows)}, f, indent=1)
+                f.write('\n')
         if a.plot:
             plot(rows, a.plot)
+        if a.doc:
+            write_doc(a.doc, rows)
     except OSError as exc:
         return cli_error('study_compare', f'{exc.filename}: {exc.strerror or exc}')
+    except ValueError as exc:       # not a --json of this study; a page without the section
+        return cli_error('study_compare', exc)
     return 0
+
+
+def load_rows(path: str) -> list:
+    """Return the rows of an earlier ``--json`` (ValueError naming the file if it is none)."""
+    with open(path) as f:
+        try:
+            doc = json.load(f)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f'{path}: not JSON ({exc.msg}, line {exc.lineno})') from None
+    if not isinstance(doc, dict) or not isinstance(doc.get('rows'), list):
+        raise ValueError(f'{path}: not a study_compare --json (no rows)')
+    return doc['rows']
+
+
+def write_doc(path: str, rows: list) -> None:
+    """Write the tables of ``rows`` into the page's ``compare`` section (ValueError: none)."""
+    from .docs import replace_section
+    with open(path) as f:
+        text = f.read()
+    try:
+        new = replace_section(text, 'compare', markdown(rows))
+    except ValueError as exc:
+        raise ValueError(f'{path}: {exc}') from None
+    with open(path, 'w') as f:
+        f.write(new)
 
 
 if __name__ == '__main__':
