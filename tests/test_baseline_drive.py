@@ -150,3 +150,13 @@ def test_the_graph_runs_a_baseline_as_the_ros_free_loop(controller, task):
     default = simulate(Scenario(task=task, strategy='min_loss', controller=controller,
                                 duration=0.05))
     assert not math.isclose(default.summary['E_in_J'], off.summary['E_in_J'], rel_tol=1e-9)
+
+
+def test_a_baseline_runs_sensorless_on_the_stacks_speed_estimate():
+    """``sensorless: true``: the current-vector controller takes the speed observer's ω̂."""
+    sensored = _run(task='speed', strategy='min_loss', controller='current_vector').summary
+    s = _run(task='speed', strategy='min_loss', controller='current_vector',
+             sensorless=True).summary
+    assert not s['trip'] and s['speed_err_max_rad_s'] < 0.5
+    assert s['speed_err_max_rad_s'] > sensored['speed_err_max_rad_s']    # the estimate lags
+    assert s['E_loss_J'] == pytest.approx(sensored['E_loss_J'], rel=0.02)
