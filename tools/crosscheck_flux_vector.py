@@ -1,0 +1,272 @@
+"""
+Cross-check the ROS-free flux-vector controller against motulator 0.18's FluxVectorController.
+
+The sibling of tools/crosscheck_baselines.py (the current-vector controller) and
+tools/crosscheck_vhz.py (V/Hz), with their structure, plant setup and helpers. motulator needs
+Python >= 3.12 and the project runs on 3.11, so this runs from a scratch environment outside the
+repository; the project's controller and plant (pure Python, with pydantic) are imported from
+src/::
+
+    python3.12 -m venv ../mot-env && ../mot-env/bin/pip install 'motulator==0.18.*' pydantic
+    ../mot-env/bin/python tools/crosscheck_flux_vector.py [--duration 0.8] [--json out.json]
+
+Both sides run the same closed speed loop: :class:`im_controller.baselines.flux_vector.
+FluxVectorController` on :class:`im_common.plant_sim.PlantSimulator`, and motulator's sensored
+``FluxVectorController`` with its ``SpeedController`` in a ``VectorControlSystem`` on its
+``Drive``. The same motor (the thesis motor, unsaturated, inverse-Γ L_σ, L_M, R_R), the same shaft
+(J, viscous b as motulator's B_L), T_s = 100 µs, a computational delay of one period on both, the
+same gains (motulator's defaults, which are the project's ``FluxVectorGains`` defaults: α_τ = α_ψ
+= α_i = 2π·100 rad/s, k_u = k_b = 0.9, k_comp = 1.5 = delay + ½; speed α_s = 100 rad/s), the
+sensored observer gain k_o = 1 + 0.2|ω_m|/(α − jω_m) (h = 1), the same nominal stator flux and
+current limit. Both start at rest and unmagnetized (all states zero) and magnetize identically
+from t = 0 at ω_M* = 0; the speed reference steps 0 → ``--speed`` at ``--speed-step-time``
+(a step: the torque reference then rides on motulator's limits, the breakdown torque k_b τ_b and
+τ_cl of the current limit, which the run counts), the load torque 0 → ``--load`` at
+``--load-step-time``.
+
+The convention differences, each removed in the inputs or the setup (none after the runs):
+
+* Scaling: motulator's space vectors are peak-value scaled, the project's power-invariant
+  (×√(3/2) = K). motulator's torques carry the factor 3/2 (estimate, breakdown torque, τ_cl, the
+  flux-torque directions, the integral state x_τ's gain); with peak-scaled fluxes and currents
+  its torques are the same N·m, so α_τ, α_i, k_b and the speed gains carry over as they are.
+  ψ_s,nom and the current limit are given to motulator /K, the samples of its currents are ×K.
+* Field weakening: motulator's reference generator weakens the flux when ψ_s,nom|ω_s| nears
+  k_u u_dc/√3; the project weakens it only with a v_limit, given none here. motulator's DC bus is
+  set high (``--u-dc``, default 10 kV), so its ψ_s* stays at ψ_s,nom (or the current-limit cap)
+  and the PWM never limits.
+* The first period: motulator's delay line and its PWM's record of the realized voltage start at
+  zero duties; the project's CommandDelay is filled by the first command. Both the plant's line
+  and the controller's own line are primed with one zero command (as the siblings do).
+* The speed feedback: motulator's sensored mode feeds its speed observer's output ŵ (ŵ ← ŵ +
+  T_s k_w (ω_meas − ŵ), k_w = (1 − e^{−α_o T_s})/T_s, α_o = 2π·400 rad/s, read before the update)
+  to the flux observer and the speed PI; the project's controller is given the same ŵ
+  (:func:`crosscheck_baselines.speed_filter_gain`).
+* No speed-controller feedforward in motulator: the project's SpeedPI gets τ_ff = 0.
+* Events on the period grid and integration: as the siblings (speed reference switched at
+  t_step − T_s/2, the load between periods; motulator's solver at rtol 1e-10, atol 1e-12, the
+  project's RK4 sub-steps of ``--max-substep``).
+
+What is the same already and needs nothing: the observer, the flux-torque controller a.6 with its
+integral states and their anti-windup on the realized voltage ½(V_{k−1} + V_k), the reference
+generator's ψ_s* = min(ψ_s,nom, L_σ i_max + |ψ̂_R|) and its torque limits (k_b τ_b, τ_cl; no τ_max
+here), the limited torque fed back to the speed PI, the angle advance.
+
+``--leave NAME`` (repeatable) leaves one difference in place, to see what it alone is worth.
+
+Printed: the relative RMS difference rms(ours − motulator)/rms(motulator) of the stator current
+(α and β together) and of the shaft speed, sampled at every period start, over the whole run and
+its segments (magnetizing, speed step, load step; no speed figure while both shafts are at rest),
+how many periods motulator's torque reference was bound by τ_b or τ_cl, and the wall times.
+
+Measured (motulator 0.18.0, defaults: thesis motor, from rest, 40 A, ω_M* 0 → 78.54 rad/s at
+0.1 s, 10 N·m at 0.4 s, 0.8 s): current 1.5e-10, speed 8.3e-13 over the run (magnetizing 3.7e-13,
+speed step 9.4e-11 / 1.3e-12, load step 2.4e-10 / 4.3e-14); motulator's τ_cl bound its torque
+reference for 203 periods (the speed step rides on the current limit, peak |i_s| 39.9 A), the
+breakdown torque never. ``--current-limit 1e5`` (the breakdown torque binds instead, 52 periods,
+peak 134.9 A): 1.3e-10 / 6.1e-13. What is left is the project's plant's RK4 error (5.9e-8 /
+2.4e-10 with one sub-step per period). Wall time: ours 0.5 s, motulator 3.1 s. Left in place one
+at a time (current / speed, whole run): first-period 4.1e-3 / 2.0e-7, speed-feedback 1.1e-2 /
+6.1e-4, flux-scaling 2.6e-1 / 1.3e-2, solver (motulator's default tolerances) no change
+(1.5e-10 / 8.3e-13).
+
+Not exercised here, so unverified: field weakening and the voltage limit (v_limit; motulator's
+PWM overmodulation), τ_max, motulator's sensorless mode (the project's law is sensored only), the
+fallback directions near c_τ = 0 (the module doc of flux_vector.py lists the differences).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_common'))
+sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_controller'))
+
+from crosscheck_baselines import K, rel_rms, speed_filter_gain, speed_ref  # noqa: E402
+
+
+#: the convention differences ``--leave`` can leave in place (module doc)
+LEAVE = {'first-period': "the project's first command acts from t_0 (its CommandDelay's fill)",
+         'speed-feedback': 'the project gets the measured speed, motulator its speed observer',
+         'flux-scaling': "motulator's psi_s_nom = the project's psi_s_nom as is (not /K)",
+         'solver': "motulator's default solver tolerances (rtol 1e-3, atol 1e-6)"}
+
+
+def run_ours(motor, case: dict):
+    from im_common.loads import NoLoad
+    from im_common.plant_sim import PlantSimulator
+    from im_controller.baselines.flux_vector import FluxVectorController, FluxVectorGains
+    T_s, n = case['T_s'], case['n']
+    gains = FluxVectorGains(alpha_s=case['alpha_s'])
+    ctrl = FluxVectorController(motor, T_s, gains, delay=1, psi_s_nom=case['psi_s_nom'],
+                                current_limit=case['i_max'], v_limit=None, tau_max=None)
+    sim = PlantSimulator(motor, NoLoad(), T_s=T_s, max_substep=case['max_substep'],
+                         v_limit=None, current_trip=None, speed_trip=None,
+                         inverter_rating=1e9, inverter={'delay': 1})
+    if 'first-period' not in case['leave']:
+        # the zero vector over [t_0, t_1], as motulator's delay line (module doc)
+        sim.delay.push(0.0, 0.0)
+        ctrl.line.push(0.0, 0.0)
+    measured = 'speed-feedback' in case['leave']
+    k_w = speed_filter_gain(case['alpha_o'], T_s)
+    w_hat = 0.0                         # motulator's speed observer, its initial value
+    k_load = int(round(case['t_load'] / T_s))
+    out = []
+    t0 = time.perf_counter()
+    for k in range(n):
+        m = sim.measure()
+        out.append((m.i_alpha, m.i_beta, m.omega_r))
+        if k == k_load:
+            sim.set_load_offset(case['tau_load'])
+        v = ctrl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r if measured else w_hat,
+                         speed_ref(m.t, case), 0.0)
+        w_hat += T_s * (k_w * (m.omega_r - w_hat))
+        sim.step(*v)
+        if sim.trip is not None:
+            raise RuntimeError(f'the plant tripped: {sim.trip}')
+    return out, time.perf_counter() - t0
+
+
+def run_motulator(motor, case: dict):
+    import motulator.drive.control.im as control
+    import motulator.drive.model as model
+    from motulator.common.model import Simulation, SolverCfg
+
+    T_s, n = case['T_s'], case['n']
+    par = model.InductionMachineInvGammaPars(n_p=motor.pole_pairs, R_s=motor.R_s, R_R=motor.R_R,
+                                             L_sgm=motor.L_sigma, L_M=motor.L_M)
+    machine = model.InductionMachine(par)
+    mech = model.MechanicalSystem(J=motor.J, B_L=motor.b)
+    load = {'tau': 0.0}
+    mech.set_external_load_torque(lambda t: load['tau'])
+    conv = model.VoltageSourceConverter(u_dc=case['u_dc'])
+    mdl = model.Drive(machine, mech, conv, delay=1)      # ZOH, one period's delay (defaults)
+    psi_s_nom = case['psi_s_nom']
+    if 'flux-scaling' not in case['leave']:
+        psi_s_nom /= K
+    cfg = control.FluxVectorControllerCfg(psi_s_nom=psi_s_nom, i_s_max=case['i_max'] / K,
+                                          alpha_o=case['alpha_o'], sensorless=False, T_s=T_s)
+    fvc = control.FluxVectorController(par, cfg)
+    bound = {'tau_cl': 0, 'tau_b': 0}
+    gen = fvc.reference_gen
+    inner_gen = gen.compute_output
+
+    def counted(tau_M_ref, w_s, psi_R, u_dc):
+        """Count the periods where τ_cl or the breakdown torque bound the torque reference."""
+        psi_s_ref, tau = inner_gen(tau_M_ref, w_s, psi_R, u_dc)
+        if abs(tau) < abs(tau_M_ref):
+            k = gen.k_b * par.L_M / (par.L_M + par.L_sgm)      # motulator's expression
+            tau_b = 0.75 * par.n_p * k * psi_s_ref ** 2 / par.L_sgm
+            bound['tau_b' if abs(tau) == tau_b else 'tau_cl'] += 1
+        return psi_s_ref, tau
+
+    gen.compute_output = counted
+    speed_ctrl = control.SpeedController(J=motor.J, alpha_s=case['alpha_s'])
+    ctrl = control.VectorControlSystem(fvc, speed_ctrl)
+    ctrl.set_speed_ref(lambda t: speed_ref(t, case))
+    k_load = int(round(case['t_load'] / T_s))
+    samples = []
+
+    class Sampled:
+        """motulator's control system, with the samples and the load step at each period start."""
+
+        def __init__(self, inner):
+            self.inner = inner
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+        def __call__(self, m):
+            if len(samples) == k_load:
+                load['tau'] = case['tau_load']
+            i_s = m.machine.out.i_s_ab
+            samples.append((K * float(i_s.real), K * float(i_s.imag),
+                            float(m.mechanics.out.w_M)))
+            return self.inner(m)
+
+    solver = SolverCfg() if 'solver' in case['leave'] else SolverCfg(rtol=1e-10, atol=1e-12)
+    sim = Simulation(mdl, Sampled(ctrl), show_progress=False, cfg=solver)
+    t0 = time.perf_counter()
+    sim.simulate(t_stop=(n - 0.5) * T_s)     # its last controller call is at (n - 1) T_s
+    if len(samples) != n:
+        raise RuntimeError(f'motulator gave {len(samples)} samples, not {n}')
+    return samples, time.perf_counter() - t0, bound
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n')[1])
+    ap.add_argument('--duration', type=float, default=0.8, help='simulated time [s]')
+    ap.add_argument('--T-s', dest='T_s', type=float, default=1e-4, help='control period [s]')
+    ap.add_argument('--speed', type=float, default=0.5 * 2 * math.pi * 50 / 2,
+                    help='speed reference after the step [mechanical rad/s] (default: half the '
+                         'synchronous speed of 50 Hz)')
+    ap.add_argument('--speed-step-time', type=float, default=0.1, help='[s]')
+    ap.add_argument('--load', type=float, default=10.0, help='load torque after the step [N m]')
+    ap.add_argument('--load-step-time', type=float, default=0.4, help='[s]')
+    ap.add_argument('--current-limit', type=float, default=40.0,
+                    help='current-vector limit [A], power-invariant, on both (motulator: '
+                         '/sqrt(3/2))')
+    ap.add_argument('--alpha-o', type=float, default=2 * math.pi * 400,
+                    help="motulator's sensored speed-observer pole [rad/s] (its default; inf: "
+                         'a pure one-period delay), applied on both sides')
+    ap.add_argument('--u-dc', type=float, default=1e4,
+                    help="motulator's DC bus [V] (high: no PWM limit, no field weakening)")
+    ap.add_argument('--max-substep', type=float, default=2.5e-5,
+                    help="the project's plant RK4 sub-step [s]")
+    ap.add_argument('--leave', action='append', default=[], choices=LEAVE,
+                    help='leave this convention difference in place, to see its size '
+                         '(repeatable): ' + '; '.join(f'{k}: {v}' for k, v in LEAVE.items()))
+    ap.add_argument('--json', default=None, help='write the numbers here')
+    args = ap.parse_args(argv)
+    from im_common.params import THESIS_MOTOR
+    from im_controller.baselines.vhz import nominal_stator_flux
+    motor = THESIS_MOTOR
+    T_s = args.T_s
+    n = int(round(args.duration / T_s))
+    case = {'n': n, 'T_s': T_s, 'w_ref': args.speed, 't_speed': args.speed_step_time,
+            'tau_load': args.load, 't_load': args.load_step_time, 'i_max': args.current_limit,
+            'alpha_s': 100.0, 'alpha_o': args.alpha_o,
+            'psi_s_nom': nominal_stator_flux(motor), 'u_dc': args.u_dc,
+            'max_substep': args.max_substep, 'leave': args.leave}
+    ours, t_ours = run_ours(motor, case)
+    theirs, t_mot, bound = run_motulator(motor, case)
+    k_s = int(round(args.speed_step_time / T_s))
+    k_l = int(round(args.load_step_time / T_s))
+    segments = {'whole run': (0, n), 'magnetizing': (0, min(k_s, n)),
+                'speed step': (k_s, min(k_l, n)), 'load step': (k_l, n)}
+    table = {name: {'current_rel_rms': rel_rms(ours, theirs, (0, 1), lo, hi),
+                    'speed_rel_rms': rel_rms(ours, theirs, (2,), lo, hi) if hi > k_s else None}
+             for name, (lo, hi) in segments.items() if min(hi, n) > lo}
+    last = {'ours': [round(x, 9) for x in ours[-1]],
+            'motulator': [round(x, 9) for x in theirs[-1]]}
+    i_peak = max(math.hypot(x[0], x[1]) for x in ours)
+    print(f'{"segment":14s} {"i_s rel RMS":>12s} {"speed rel RMS":>14s}')
+    for name, r in table.items():
+        sp = '-' if r['speed_rel_rms'] is None else f'{r["speed_rel_rms"]:.3e}'
+        print(f'{name:14s} {r["current_rel_rms"]:12.3e} {sp:>14s}')
+    print(f'final sample (i_a, i_b, w_M): ours {last["ours"]}, motulator {last["motulator"]}')
+    print(f'peak |i_s| (ours, power-invariant): {i_peak:.2f} A; periods where motulator’s '
+          f'torque reference was bound: tau_cl {bound["tau_cl"]}, breakdown {bound["tau_b"]}')
+    print(f'wall time: ours {t_ours:.2f} s, motulator {t_mot:.2f} s')
+    res = {'duration_s': args.duration, 'T_s': T_s, 'periods': n, 'speed_ref_rad_s': args.speed,
+           'speed_step_time_s': args.speed_step_time, 'load_Nm': args.load,
+           'load_step_time_s': args.load_step_time, 'current_limit_A': args.current_limit,
+           'psi_s_nom_Wb': case['psi_s_nom'], 'alpha_o': args.alpha_o, 'u_dc_V': args.u_dc,
+           'max_substep_s': args.max_substep, 'left_in_place': args.leave,
+           'segments': table, 'final_sample': last, 'peak_current_A': i_peak,
+           'motulator_torque_ref_bound_periods': bound,
+           'wall_s_ours': t_ours, 'wall_s_motulator': t_mot}
+    if args.json:
+        with open(args.json, 'w') as fh:
+            json.dump(res, fh, indent=1)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
