@@ -39,7 +39,8 @@ One call per control period t_k (:meth:`FluxVectorController.compute`):
 Differences from motulator, by design: the stator-flux cap L_σ i_max + |ψ̂_R| and τ_cl apply
 only when a current limit is given (motulator always has one); field weakening is
 k_u v_limit/|ω_c| with a circular voltage clip (motulator: k_u u_dc/√3 and its PWM's
-overmodulation; the same ψ_s* when v_limit = √(3/2) u_dc/√3); the torque limit τ_max acts in the
+overmodulation; the same ψ_s* when v_limit = √(3/2) u_dc/√3, as the cross-check's
+``--voltage-limit`` shows while the voltage is not clipped); the torque limit τ_max acts in the
 reference generator (as motulator's ``tau_M_max``) in both modes, the speed PI itself has no
 clip; the fallback directions without flux are :func:`~.vhz.flux_torque_directions`' (for
 |c_τ| ≤ 1e-12; motulator's for c_τ ≤ 0). tools/crosscheck_flux_vector.py measures the rest.
