@@ -50,7 +50,7 @@ TASKS = MODES                                      # the task names' one home: t
 #: the controllers: the thesis law at nominal estimates, adapted or with certified gains, or a
 #: drive industry's baseline law in its place (im_controller.baselines, docs/baselines.md)
 CONTROLLERS = ('nominal', 'adaptive_thesis', 'adaptive', 'adaptive_thesis_pair', 'robust',
-               'current_vector', 'vhz')
+               'current_vector', 'flux_vector', 'vhz')
 # the adaptive controllers: the adapter's law and what the controller and observer take from it
 # (im_adapt.adaptation.FEEDS, docs/adaptation.md §7)
 ADAPTATION = {'adaptive_thesis': {'law': 'thesis', 'feed': 'thesis_pair'},

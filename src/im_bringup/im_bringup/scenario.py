@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument('--strategy', choices=STRATEGIES, default=None, help='default: min_energy')
     ap.add_argument('--controller', choices=CONTROLLERS, default=None,
                     help='nominal (default), adaptive with the thesis law or the improved law, '
-                         'or a baseline law: current_vector, vhz (docs/baselines.md)')
+                         'or a baseline law: current_vector, flux_vector, vhz (docs/baselines.md)')
     ap.add_argument('--variation', choices=tuple(SCHEDULES), default=None,
                     help='a named time variation of the true motor parameters (chapter4: seed '
                          '000 §4.3); breakpoints of your own go in the run file')

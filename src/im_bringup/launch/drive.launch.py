@@ -3,7 +3,7 @@ Jazzy launch file: the drive graph as separate processes.
 
     ros2 launch im_bringup drive.launch.py [run:=RUN.yaml] [task:=position|speed]
         [strategy:=min_energy|...]
-        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair|robust|current_vector|vhz]
+        [controller:=nominal|adaptive|adaptive_thesis|adaptive_thesis_pair|robust|current_vector|flux_vector|vhz]
         [T_s:=0.0001] [duration:=2.0]
         [mode:=lockstep|free_run] [use_adapter:=true|false] [record:=bags/run.mcap]
         [force:=true]
@@ -50,7 +50,7 @@ ARGUMENTS = (
     ('controller', '', 'nominal (default), adaptive (improved law, inverse-Gamma feed), '
                    'adaptive_thesis (thesis law), adaptive_thesis_pair (improved law, thesis '
                    "pair feed), robust, or a baseline law in the thesis law's place: "
-                   'current_vector, vhz (docs/baselines.md)'),
+                   'current_vector, flux_vector, vhz (docs/baselines.md)'),
     ('T_s', '', 'control period [s] (default 0.0001)'),
     ('duration', '', 'simulated seconds (empty: the task length)'),
     ('mode', '', 'lockstep (default, simulated time) or free_run (wall-clock fixed rate)'),

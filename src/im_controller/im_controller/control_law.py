@@ -129,8 +129,9 @@ class ControllerConfig(BaseModel):
                        json_schema_extra=_node())
     law: Law = Field('thesis', description="control law: the thesis's (seed 000 ch. 3-4), or a "
                      "drive industry's baseline in its place, current_vector (rotor-flux-oriented "
-                     'PI current and speed loops) or vhz (observer-based V/Hz, speed only), with '
-                     'the same references, flux strategy and limits (docs/baselines.md)',
+                     'PI current and speed loops), flux_vector (stator flux and torque controlled '
+                     'directly) or vhz (observer-based V/Hz, speed only), with the same '
+                     'references, flux strategy and limits (docs/baselines.md)',
                      json_schema_extra=_node())
     baseline: Any = Field(None, description="the baseline law's gains, its run-file baseline: "
                           'block (im_controller.baselines: BaselineGains, VHzGains; None: their '

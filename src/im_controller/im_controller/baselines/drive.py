@@ -14,6 +14,10 @@ after them. What changes is how the voltage is made (docs/baselines.md):
   torque task gives τ* straight to the current reference. The rotor-flux reference is the
   strategy's, ψ_R* = θ φ*; the torque the strategy sizes the flux for is the one the law asked
   for at the previous step.
+* ``flux_vector`` (:class:`~.flux_vector.FluxVectorController`): the stator flux and the torque
+  controlled directly, no current loop; the speed and position loops and the feedforward as the
+  current-vector controller's; the stator-flux reference is the unloaded stator flux of the
+  strategy's rotor flux, (L_s/L_sr) φ*, sized for the torque the law asked for.
 * ``vhz`` (:class:`~.vhz.ObserverBasedVHz`): the speed task only (ω* clipped to ±speed_limit;
   no torque_limit: it makes no torque reference); the stator-flux reference is
   the unloaded stator flux of the strategy's rotor flux, (L_s/L_sr) φ*, sized for the law's
@@ -31,13 +35,16 @@ from im_common.params import MotorParams, THESIS_FLUX_LEVELS
 from im_common.validation import InvalidParameter
 
 from .current_vector import CurrentVectorController
+from .flux_vector import FluxVectorController, FluxVectorGains
 from .gains import BaselineGains
 from .vhz import nominal_stator_flux, ObserverBasedVHz, VHZ_TASKS, VHzGains
 
 #: the control laws a drive can run: the thesis's and the baselines (ControllerConfig.law)
-LAWS = ('thesis', 'current_vector', 'vhz')
+LAWS = ('thesis', 'current_vector', 'flux_vector', 'vhz')
 #: each baseline's gains, the ``baseline:`` block of a run file (node parameters baseline.*)
-GAINS = {'current_vector': BaselineGains, 'vhz': VHzGains}
+GAINS = {'current_vector': BaselineGains, 'flux_vector': FluxVectorGains, 'vhz': VHzGains}
+#: the baselines whose speed loop is a speed PI (the position loop and feedforward around it)
+SPEED_PI_LAWS = ('current_vector', 'flux_vector')
 #: the tasks of the baselines that cannot do every task (one refuses another in one line)
 TASKS = {'vhz': VHZ_TASKS}
 
@@ -75,10 +82,10 @@ class BaselineDrive:
         check_law_task(law, mode)
         self.law, self.mode, self.motor = law, mode, motor
         self.speed_limit = speed_limit
-        if law == 'current_vector':
-            self.ctl = CurrentVectorController(motor, T_s, gains, delay=delay, phi_r_ref=phi_max,
-                                               current_limit=current_limit, v_limit=v_limit,
-                                               tau_max=torque_limit)
+        if law in SPEED_PI_LAWS:
+            cls = CurrentVectorController if law == 'current_vector' else FluxVectorController
+            self.ctl = cls(motor, T_s, gains, delay=delay, phi_r_ref=phi_max,
+                           current_limit=current_limit, v_limit=v_limit, tau_max=torque_limit)
         else:
             if torque_limit is not None:
                 raise InvalidParameter('torque_limit', torque_limit, 'vhz makes no torque '
@@ -91,7 +98,7 @@ class BaselineDrive:
     @property
     def torque(self) -> float:
         """Return the torque the law asks for now [N·m] (what the flux strategy sizes for)."""
-        return self.ctl.tau_ref if self.law == 'current_vector' else self.ctl.tau_lpf
+        return self.ctl.tau_lpf if self.law == 'vhz' else self.ctl.tau_ref
 
     @property
     def rotor_flux(self) -> complex:
@@ -144,7 +151,10 @@ class BaselineDrive:
         if self.law == 'vhz':
             ctl.psi_s_nom = nominal_stator_flux(m, phi_ref)
             return ctl.compute(t, i_s.real, i_s.imag, w_cmd)
-        ctl.psi_R_ref = m.theta * phi_ref
+        if self.law == 'current_vector':
+            ctl.psi_R_ref = m.theta * phi_ref
+        else:           # flux-vector: the unloaded stator flux of the strategy's rotor flux
+            ctl.psi_s_nom = nominal_stator_flux(m, phi_ref)
         if self.mode == 'torque':
             return ctl.compute_torque(t, i_s.real, i_s.imag, theta, omega, tau_ff)
         return ctl.compute(t, i_s.real, i_s.imag, theta, omega, w_cmd,
@@ -159,7 +169,7 @@ class BaselineDrive:
         if self.law == 'current_vector':
             i_dq = self.ctl.i_ref
             phi = self.ctl.psi_R_ref / m.theta
-        else:       # V/Hz has no current reference: the magnetizing current of its flux's
+        else:       # no current reference: the magnetizing current of its stator flux's
             i_dq = complex(self.ctl.psi_ref / (m.L_M + m.L_sigma))
             phi = self.ctl.psi_ref * m.L_M / (m.theta * (m.L_M + m.L_sigma))
         i_ref = i_dq * turn
