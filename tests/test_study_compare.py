@@ -14,7 +14,7 @@ import pytest
 
 def test_the_cases_are_every_law_and_strategy_but_vhz_positioning():
     cases = list(sc.cases())
-    assert len(cases) == len(sc.PLANTS) * len(sc.DRIFTS) * len(sc.STRATEGIES) * (2 + 3 + 3)
+    assert len(cases) == len(sc.PLANTS) * len(sc.DRIFTS) * len(sc.STRATEGIES) * (3 + 4 + 4)
     assert not [c for c in cases if c[0] == 'vhz' and c[2] == 'position']
 
 
@@ -52,8 +52,8 @@ def test_the_study_runs_as_a_command_and_writes_its_rows_and_plot(tmp_path):
                         str(png)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     doc = json.loads(out.read_text())
-    assert len(doc['rows']) == 3 * 3 and len(doc['verdicts']) == 3
-    assert '[9/9' in r.stderr and png.stat().st_size > 10_000
+    assert len(doc['rows']) == 4 * 3 and len(doc['verdicts']) == 3
+    assert '[12/12' in r.stderr and png.stat().st_size > 10_000
     rows = {(x['law'], x['strategy']): x for x in doc['rows']}
     # the same references: the current-vector controller, fed forward, tracks as the thesis law
     assert rows['current_vector', 'constant_flux']['err_max'] < 0.01

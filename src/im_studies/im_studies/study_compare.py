@@ -4,8 +4,9 @@ The thesis law beside the drive industry's: every law × flux strategy on the sa
 ``python -m im_studies.study_compare`` (in ``make study``; docs/baselines.md) runs the thesis's
 position and speed tasks and a load step of half the rated torque (100 rad/s, 1/6 → 2/3 of the
 rated torque at 0.5 s, sensored) on the thesis motor's file, for each control law — the thesis's
-(``nominal``), the current-vector controller and observer-based V/Hz (speed and load step only:
-it sets a frequency) — with each flux strategy of :data:`STRATEGIES`, on two plants:
+(``nominal``), the current-vector controller, the flux-vector controller and observer-based V/Hz
+(speed and load step only: it sets a frequency) — with each flux strategy of
+:data:`STRATEGIES`, on two plants:
 
 * ``ideal``: the ideal voltage source, no delay;
 * ``real, delay 1``: the switched inverter (10 kHz, 2 µs dead time, 1 V + 20 mΩ devices, a
@@ -47,7 +48,7 @@ from .study_real_plant import INVERTER, STEP_AFTER, STEP_BEFORE, STEP_DURATION, 
 
 #: the laws compared (the run file's controller: the thesis's at nominal estimates, then the
 #: baselines, docs/baselines.md)
-LAWS = ('nominal', 'current_vector', 'vhz')
+LAWS = ('nominal', 'current_vector', 'flux_vector', 'vhz')
 STRATEGIES = COMPARED_STRATEGIES
 TASKS = ('position', 'speed', 'load_step')
 PLANTS = ('ideal', 'real, delay 1')
