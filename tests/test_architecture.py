@@ -33,7 +33,10 @@ ROS_FREE = [
     'im_controller.control_law', 'im_controller.flux', 'im_controller.reference',
     'im_controller.trajectories', 'im_adapt.adaptation',
 ] + sorted(f'im_robust.{p.stem}' for p in (SRC / 'im_robust' / 'im_robust').glob('*.py')
-           if p.stem not in ('__init__', 'cli'))
+           if p.stem not in ('__init__', 'cli')) + sorted(
+    f'im_controller.baselines.{p.stem}'
+    for p in (SRC / 'im_controller' / 'im_controller' / 'baselines').glob('*.py')
+    if p.stem != '__init__')
 # im_robust.cli is the command-line entry point (it strips ROS arguments when rclpy is present);
 # the synthesis library it drives is in the list above.
 
