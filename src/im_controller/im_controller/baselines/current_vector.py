@@ -187,7 +187,24 @@ class SpeedPI:
         self.u_i += self.T_s * self.alpha_i * (tau_real - self.v)
 
 
-class CurrentVectorController:
+class SpeedLoop:
+    """
+    The speed PI around a law's torque mode: τ* from ω*, the law, the realized τ back (a mixin).
+
+    Of :class:`CurrentVectorController` and the flux-vector controller: it reads ``speed`` (a
+    :class:`SpeedPI`), ``compute_torque`` and the ``tau_ref`` the law realized.
+    """
+
+    def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
+                omega_ref: float, tau_ff: float = 0.0) -> Tuple[float, float]:
+        """Return the voltage command (v_α, v_β) of step k (speed mode; τ_ff the PI's u_ff)."""
+        tau = self.speed.output(omega_ref, omega_r, tau_ff)
+        out = self.compute_torque(t, i_alpha, i_beta, theta_r, omega_r, tau)
+        self.speed.update(self.tau_ref)
+        return out
+
+
+class CurrentVectorController(SpeedLoop):
     """
     The sensored current-vector controller: speed PI → current reference → complex PI (module doc).
 
@@ -273,14 +290,6 @@ class CurrentVectorController:
             i_sq_max = min(i_sq_max, math.sqrt(self.current_limit ** 2 - i_sd * i_sd))
         i_sq = max(-i_sq_max, min(i_sq_max, i_sq))
         return complex(i_sd, i_sq), self.n_p * psi_R_mag * i_sq
-
-    def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
-                omega_ref: float, tau_ff: float = 0.0) -> Tuple[float, float]:
-        """Return the voltage command (v_α, v_β) of step k (speed mode; τ_ff the PI's u_ff)."""
-        tau = self.speed.output(omega_ref, omega_r, tau_ff)
-        out = self.compute_torque(t, i_alpha, i_beta, theta_r, omega_r, tau)
-        self.speed.update(self.tau_ref)
-        return out
 
     def compute_torque(self, t: float, i_alpha: float, i_beta: float, theta_r: float,
                        omega_r: float, tau_ref: float) -> Tuple[float, float]:

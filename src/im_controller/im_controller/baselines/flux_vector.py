@@ -53,13 +53,12 @@ from typing import Optional, Tuple
 
 from im_common.delay import check_delay, CommandDelay
 from im_common.params import MotorParams, THESIS_FLUX_LEVELS
-from im_common.validation import (BLOCK_CONFIG, check_real, InvalidParameter, parameter_spec,
-                                  parse_block)
-from pydantic import BaseModel, Field
+from im_common.validation import check_real, InvalidParameter, parameter_spec
+from pydantic import Field
 
-from .current_vector import ReducedOrderFluxObserver, SpeedPI
-from .gains import DEFAULT_ALPHA_P, DEFAULT_ALPHA_S, K_COMP_SENTINEL
-from .vhz import FluxTorqueController, nominal_stator_flux
+from .current_vector import ReducedOrderFluxObserver, SpeedLoop, SpeedPI
+from .gains import SpeedLoopGains
+from .vhz import FluxTorqueController, nominal_stator_flux, StatorFluxReference
 
 #: the torque channel's bandwidth α_τ, 2π·100 rad/s (motulator's FVC default; α_ψ, α_i = α_τ)
 DEFAULT_ALPHA_TAU = 2.0 * math.pi * 100.0
@@ -68,10 +67,8 @@ ALPHA_PSI_SENTINEL = parameter_spec(0.0, sentinels=((0.0, None, 'alpha_tau'),))
 ALPHA_I_SENTINEL = parameter_spec(-1.0, sentinels=((-1.0, None, 'alpha_tau'),))
 
 
-class FluxVectorGains(BaseModel):
+class FluxVectorGains(SpeedLoopGains):
     """The ``baseline:`` block of the flux-vector controller (SI, rad/s; the module doc)."""
-
-    model_config = BLOCK_CONFIG
 
     alpha_tau: float = Field(DEFAULT_ALPHA_TAU, gt=0, description='torque-channel bandwidth '
                              'alpha_tau [rad/s]')
@@ -81,28 +78,10 @@ class FluxVectorGains(BaseModel):
     alpha_i: Optional[float] = Field(None, ge=0, description='integral bandwidth of the flux and '
                                      'torque channels [rad/s] (None: alpha_tau; 0: no integral '
                                      'action)', json_schema_extra=ALPHA_I_SENTINEL)
-    alpha_s: float = Field(DEFAULT_ALPHA_S, gt=0, description='speed-loop bandwidth alpha_s '
-                           '[rad/s] (100: the thesis speed gain k_v = 3 N m s on J = 0.03)')
-    alpha_p: float = Field(DEFAULT_ALPHA_P, gt=0, description='position-loop bandwidth alpha_p '
-                           '[rad/s] of the position task (omega* + alpha_p (theta* - theta) to '
-                           'the speed PI)')
-    k_comp: Optional[float] = Field(None, ge=0, le=5, description='angle advance of the output '
-                                    'voltage [control periods] (None: delay + 0.5)',
-                                    json_schema_extra=K_COMP_SENTINEL)
-    feedforward: bool = Field(True, description="feed the drive's reference forward to the "
-                              'speed PI: its torque J theta_ddot* + b theta_dot* + load model and '
-                              'the P path on the error, (k_p - k_t)(omega* - omega) (a ramp is '
-                              "followed without lag); false: motulator's 2DOF PI as shipped, no "
-                              'feedforward (it lags a ramp by its acceleration / alpha_s)')
     k_u: float = Field(0.9, gt=0, le=1, description='share of v_limit the field weakening '
                        'allows')
     k_b: float = Field(0.9, gt=0, le=1, description='share of the breakdown torque the torque '
                        'reference may reach')
-
-    @classmethod
-    def from_block(cls, spec, where: str = 'baseline') -> 'FluxVectorGains':
-        """Return the gains of a ``baseline:`` block; errors are one line naming the key."""
-        return parse_block(cls, spec, where)
 
     @property
     def alpha_psi_value(self) -> float:
@@ -113,15 +92,6 @@ class FluxVectorGains(BaseModel):
     def alpha_i_value(self) -> float:
         """Return the integral bandwidth of the flux and torque channels [rad/s]."""
         return self.alpha_tau if self.alpha_i is None else self.alpha_i
-
-    def speed_gains(self, J: float) -> Tuple[float, float, float]:
-        """Return (k_t, k_p, k_i) of the speed controller [N·m·s, N·m·s, N·m]."""
-        a = self.alpha_s
-        return a * J, 2.0 * a * J, a * a * J
-
-    def k_comp_for(self, delay: int) -> float:
-        """Return the angle advance [control periods] for a delay of ``delay`` periods."""
-        return delay + 0.5 if self.k_comp is None else self.k_comp
 
 
 def current_limited_torque(psi_s: float, psi_R: float, L_sigma: float, n_p: int,
@@ -141,7 +111,7 @@ def current_limited_torque(psi_s: float, psi_R: float, L_sigma: float, n_p: int,
     return n_p * psi_R * psi_sq / L_sigma
 
 
-class FluxVectorController:
+class FluxVectorController(SpeedLoop, StatorFluxReference):
     """
     The sensored flux-vector controller: speed PI → flux and torque references → a.6 (module doc).
 
@@ -222,20 +192,6 @@ class FluxVectorController:
         self.control.x_tau = a_i * tau
         self.speed.u_i = tau + (self.speed.k_p - self.speed.k_t) * omega_M
 
-    def flux_reference(self, omega_c: float, psi_R_mag: float) -> float:
-        """Return ψ_s* = min(ψ_s,nom, k_u v_limit/|ω_c|, L_σ i_max + |ψ̂_R|) [Wb]."""
-        psi = self.psi_s_nom
-        if self.v_limit is not None and omega_c != 0.0:
-            psi = min(psi, self.gains.k_u * self.v_limit / abs(omega_c))
-        if self.current_limit is not None:
-            psi = min(psi, self.L_sigma * self.current_limit + psi_R_mag)
-        return psi
-
-    def breakdown_torque(self, psi_s: float) -> float:
-        """Return k_b τ_b = k_b ½ n_p (L_M/(L_M + L_σ)) ψ_s²/L_σ [N·m] (power-invariant units)."""
-        return (0.5 * self.n_p * self.gains.k_b * self.L_M / (self.L_M + self.L_sigma)
-                * psi_s * psi_s / self.L_sigma)
-
     def limit_torque(self, tau_ref: float, psi_s: float, psi_R_mag: float) -> float:
         """Return τ* limited in magnitude by τ_max, k_b τ_b and τ_cl (module doc) [N·m]."""
         lim = min(self.tau_max, self.breakdown_torque(psi_s))
@@ -243,14 +199,6 @@ class FluxVectorController:
             lim = min(lim, current_limited_torque(psi_s, psi_R_mag, self.L_sigma, self.n_p,
                                                   self.current_limit))
         return math.copysign(min(abs(tau_ref), lim), tau_ref) if tau_ref != 0.0 else 0.0
-
-    def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
-                omega_ref: float, tau_ff: float = 0.0) -> Tuple[float, float]:
-        """Return the voltage command (v_α, v_β) of step k (speed mode; τ_ff the PI's u_ff)."""
-        tau = self.speed.output(omega_ref, omega_r, tau_ff)
-        out = self.compute_torque(t, i_alpha, i_beta, theta_r, omega_r, tau)
-        self.speed.update(self.tau_ref)
-        return out
 
     def compute_torque(self, t: float, i_alpha: float, i_beta: float, theta_r: float,
                        omega_r: float, tau_ref: float) -> Tuple[float, float]:

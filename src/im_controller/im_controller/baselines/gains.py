@@ -32,34 +32,53 @@ ALPHA_I_SENTINEL = parameter_spec(0.0, sentinels=((0.0, None, 'alpha_c'),))
 K_COMP_SENTINEL = parameter_spec(-1.0, sentinels=((-1.0, None, 'delay + 0.5'),))
 
 
-class BaselineGains(BaseModel):
-    """The ``baseline:`` block: the bandwidths of the current-vector controller (module doc)."""
+class LawGains(BaseModel):
+    """What every baseline law's gains block has: the angle advance, and its parsing."""
 
     model_config = BLOCK_CONFIG
 
-    alpha_c: float = Field(DEFAULT_ALPHA_C, gt=0, description='current-loop bandwidth alpha_c '
-                           '[rad/s]: the reference-tracking pole of the current loop')
-    alpha_i: Optional[float] = Field(None, gt=0, description='integral bandwidth of the current '
-                                     'controller [rad/s] (None: alpha_c)',
-                                     json_schema_extra=ALPHA_I_SENTINEL)
+    k_comp: Optional[float] = Field(None, ge=0, le=5, description='angle advance of the output '
+                                    'voltage [control periods] (None: delay + 0.5)',
+                                    json_schema_extra=K_COMP_SENTINEL)
+
+    @classmethod
+    def from_block(cls, spec, where: str = 'baseline'):
+        """Return the gains of a ``baseline:`` block; errors are one line naming the key."""
+        return parse_block(cls, spec, where)
+
+    def k_comp_for(self, delay: int) -> float:
+        """Return the angle advance [control periods] for a delay of ``delay`` periods."""
+        return delay + 0.5 if self.k_comp is None else self.k_comp
+
+
+class SpeedLoopGains(LawGains):
+    """The gains of a law with a speed PI (and a position loop around it): the module doc."""
+
     alpha_s: float = Field(DEFAULT_ALPHA_S, gt=0, description='speed-loop bandwidth alpha_s '
                            '[rad/s] (100: the thesis speed gain k_v = 3 N m s on J = 0.03)')
     alpha_p: float = Field(DEFAULT_ALPHA_P, gt=0, description='position-loop bandwidth alpha_p '
                            '[rad/s] of the position task (omega* + alpha_p (theta* - theta) to '
                            'the speed PI)')
-    k_comp: Optional[float] = Field(None, ge=0, le=5, description='angle advance of the output '
-                                    'voltage [control periods] (None: delay + 0.5)',
-                                    json_schema_extra=K_COMP_SENTINEL)
     feedforward: bool = Field(True, description="feed the drive's reference forward to the "
                               'speed PI: its torque J theta_ddot* + b theta_dot* + load model and '
                               'the P path on the error, (k_p - k_t)(omega* - omega) (a ramp is '
                               "followed without lag); false: motulator's 2DOF PI as shipped, no "
                               'feedforward (it lags a ramp by its acceleration / alpha_s)')
 
-    @classmethod
-    def from_block(cls, spec, where: str = 'baseline') -> 'BaselineGains':
-        """Return the gains of a ``baseline:`` block; errors are one line naming the key."""
-        return parse_block(cls, spec, where)
+    def speed_gains(self, J: float) -> Tuple[float, float, float]:
+        """Return (k_t, k_p, k_i) of the speed controller [N·m·s, N·m·s, N·m]."""
+        a = self.alpha_s
+        return a * J, 2.0 * a * J, a * a * J
+
+
+class BaselineGains(SpeedLoopGains):
+    """The ``baseline:`` block: the bandwidths of the current-vector controller (module doc)."""
+
+    alpha_c: float = Field(DEFAULT_ALPHA_C, gt=0, description='current-loop bandwidth alpha_c '
+                           '[rad/s]: the reference-tracking pole of the current loop')
+    alpha_i: Optional[float] = Field(None, gt=0, description='integral bandwidth of the current '
+                                     'controller [rad/s] (None: alpha_c)',
+                                     json_schema_extra=ALPHA_I_SENTINEL)
 
     @property
     def alpha_i_value(self) -> float:
@@ -70,12 +89,3 @@ class BaselineGains(BaseModel):
         """Return (k_t, k_p, k_i) of the current controller [V/A, V/A, V/(A·s)]."""
         a_c, a_i = self.alpha_c, self.alpha_i_value
         return a_c * L_sigma, (a_c + a_i) * L_sigma, a_c * a_i * L_sigma
-
-    def speed_gains(self, J: float) -> Tuple[float, float, float]:
-        """Return (k_t, k_p, k_i) of the speed controller [N·m·s, N·m·s, N·m]."""
-        a = self.alpha_s
-        return a * J, 2.0 * a * J, a * a * J
-
-    def k_comp_for(self, delay: int) -> float:
-        """Return the angle advance [control periods] for a delay of ``delay`` periods."""
-        return delay + 0.5 if self.k_comp is None else self.k_comp

@@ -60,12 +60,11 @@ from typing import Optional, Tuple
 
 from im_common.delay import check_delay, CommandDelay
 from im_common.params import MotorParams, THESIS_FLUX_LEVELS
-from im_common.validation import (BLOCK_CONFIG, check_real, InvalidParameter, parameter_spec,
-                                  parse_block)
-from pydantic import BaseModel, Field
+from im_common.validation import check_real, InvalidParameter, parameter_spec
+from pydantic import Field
 
 from .current_vector import K_DAMP, ReducedOrderFluxObserver
-from .gains import K_COMP_SENTINEL
+from .gains import LawGains
 
 #: the flux channel's bandwidth α_ψ, 2π·100 rad/s (a.7)
 DEFAULT_ALPHA_PSI = 2.0 * math.pi * 100.0
@@ -79,10 +78,8 @@ VHZ_TASKS = ('speed',)
 MIN_C_TAU = 1e-12
 
 
-class VHzGains(BaseModel):
+class VHzGains(LawGains):
     """The V/Hz laws' gains, a ``baseline:`` block (SI, rad/s; the module doc)."""
-
-    model_config = BLOCK_CONFIG
 
     alpha_psi: float = Field(DEFAULT_ALPHA_PSI, gt=0, description='flux-channel bandwidth '
                              'alpha_psi [rad/s]')
@@ -96,22 +93,10 @@ class VHzGains(BaseModel):
                                        'reference [rad/s^2] (None: none)',
                                        json_schema_extra=parameter_spec(
                                            0.0, sentinels=((0.0, None, 'none'),)))
-    k_comp: Optional[float] = Field(None, ge=0, le=5, description='angle advance of the output '
-                                    'voltage [control periods] (None: delay + 0.5)',
-                                    json_schema_extra=K_COMP_SENTINEL)
     k_u: float = Field(0.9, gt=0, le=1, description='share of v_limit the field weakening '
                        'allows')
     k_b: float = Field(0.9, gt=0, le=1, description='share of the breakdown torque the torque '
                        'reference may reach')
-
-    @classmethod
-    def from_block(cls, spec, where: str = 'baseline') -> 'VHzGains':
-        """Return the gains of a ``baseline:`` block; errors are one line naming the key."""
-        return parse_block(cls, spec, where)
-
-    def k_comp_for(self, delay: int) -> float:
-        """Return the angle advance [control periods] for a delay of ``delay`` periods."""
-        return delay + 0.5 if self.k_comp is None else self.k_comp
 
 
 def check_task(task: str) -> str:
@@ -266,6 +251,29 @@ def _limit(v: complex, v_limit: Optional[float]) -> complex:
     return v * (v_limit / mag) if v_limit is not None and mag > v_limit else v
 
 
+class StatorFluxReference:
+    """
+    The stator-flux reference and torque bound of the laws that set the stator flux (motulator's).
+
+    A mixin of :class:`ObserverBasedVHz` and the flux-vector controller: it reads ``psi_s_nom``,
+    ``v_limit``, ``current_limit``, ``gains.k_u``, ``gains.k_b``, ``L_sigma``, ``L_M``, ``n_p``.
+    """
+
+    def flux_reference(self, omega_c: float, psi_R_mag: float) -> float:
+        """Return ψ_s* = min(ψ_s,nom, k_u v_limit/|ω_c|, L_σ i_max + |ψ̂_R|) [Wb]."""
+        psi = self.psi_s_nom
+        if self.v_limit is not None and omega_c != 0.0:
+            psi = min(psi, self.gains.k_u * self.v_limit / abs(omega_c))
+        if self.current_limit is not None:
+            psi = min(psi, self.L_sigma * self.current_limit + psi_R_mag)
+        return psi
+
+    def breakdown_torque(self, psi_s: float) -> float:
+        """Return k_b τ_b = k_b ½ n_p (L_M/(L_M + L_σ)) ψ_s²/L_σ [N·m] (power-invariant units)."""
+        return (0.5 * self.n_p * self.gains.k_b * self.L_M / (self.L_M + self.L_sigma)
+                * psi_s * psi_s / self.L_sigma)
+
+
 class _VHzBase:
     """What both V/Hz laws share: the checks, the rate limiter, the angle advance."""
 
@@ -290,7 +298,7 @@ class _VHzBase:
         return cls(*args, **kwargs)
 
 
-class ObserverBasedVHz(_VHzBase):
+class ObserverBasedVHz(_VHzBase, StatorFluxReference):
     """
     The observer-based V/Hz controller: slip-compensated, actively damped (the module doc).
 
@@ -341,20 +349,6 @@ class ObserverBasedVHz(_VHzBase):
         obs.output(i_s, omega_M)
         self.tau_lpf = obs.torque()
         self.limiter.y = self.omega_ref = omega_M
-
-    def flux_reference(self, omega_c: float, psi_R_mag: float) -> float:
-        """Return ψ_s* = min(ψ_s,nom, k_u v_limit/|ω_c|, L_σ i_max + |ψ̂_R|) [Wb]."""
-        psi = self.psi_s_nom
-        if self.v_limit is not None and omega_c != 0.0:
-            psi = min(psi, self.gains.k_u * self.v_limit / abs(omega_c))
-        if self.current_limit is not None:
-            psi = min(psi, self.L_sigma * self.current_limit + psi_R_mag)
-        return psi
-
-    def breakdown_torque(self, psi_s: float) -> float:
-        """Return k_b τ_b = k_b ½ n_p (L_M/(L_M + L_σ)) ψ_s²/L_σ [N·m] (power-invariant units)."""
-        return (0.5 * self.n_p * self.gains.k_b * self.L_M / (self.L_M + self.L_sigma)
-                * psi_s * psi_s / self.L_sigma)
 
     def compute(self, t: float, i_alpha: float, i_beta: float,
                 omega_ref: float) -> Tuple[float, float]:
