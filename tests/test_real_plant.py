@@ -11,7 +11,7 @@ from im_common.inverter import clip_to_hexagon, duties, Inverter, period_plan, p
 from im_common.loads import ConstantLoad, LinearLoad
 from im_common.model import MotorModel, rk4_step
 from im_common.params import clarke, InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
+from im_common.plant_sim import energy_summary, PlantSimulator
 from im_common.saturation import power_law_fit, saturation_from_dict
 from im_common.sensors import Sensors, SpeedFromCounts
 from im_common.steady_state import zoh_gain
@@ -418,7 +418,6 @@ def test_a_shaft_turning_at_the_start_reads_its_speed_from_the_first_sample():
     0 at t_0; the speed task's setpoint reference started from it and a sensored ±100 rad/s
     reversal on krause_3hp ran away to 211 rad/s.
     """
-    from im_common.plant_sim import PlantSimulator
     from im_common.params import THESIS_MOTOR
     se = Sensors.from_block({'encoder_lines': 2048})
     res = 2.0 * math.pi / (se.counts_per_rev * se.speed_window * 1e-4)
@@ -463,6 +462,13 @@ def test_energy_books_close_with_every_block_on():
         assert abs(tr['balance_residual_dc']) <= 1e-9 * tr['E_in'] + 1e-9
     assert tr['E_core'] > 0 and tr['E_inv'] > 0 and tr['T_rotor'] > 25.0
     assert tr['omega_r'] > 100.0
+    # the summary's DC-link energy is what the link gave the inverter: source − chopper − the
+    # capacitor's gain, the motor's input plus the inverter's losses
+    s = energy_summary(tr)
+    assert s['E_inverter_J'] == tr['E_inv'] and s['E_inverter_J'] < 0.1 * s['E_in_J']
+    assert s['E_dc_J'] == pytest.approx(tr['E_source'] - tr['E_chopper'] - tr['dW_cap'],
+                                        rel=1e-9)
+    assert 'E_dc_J' not in energy_summary(_dol(PlantSimulator(P, T_s=T_S), 1)[-1])
     # the per-period outputs (state_currents, the protection's stator current) are the truth's
     want = (tr['i_alpha'], tr['i_beta'], tr['i_r_alpha'], tr['i_r_beta'])
     assert sim.state_currents() == pytest.approx(want, rel=1e-9, abs=1e-12)

@@ -331,7 +331,12 @@ class PlantSimulator:
 
 
 def energy_summary(truth: dict) -> dict:
-    """Return the figures of merit of the energy books (J) from a ``truth()`` dict."""
+    """
+    Return the figures of merit of the energy books (J) from a ``truth()`` dict.
+
+    Behind an inverter (the real plant's truth has ``E_inv``) also its losses ``E_inverter_J``
+    and the energy drawn from the DC link, ``E_dc_J`` = E_in + E_inv.
+    """
     e_cu = truth['E_cu_s'] + truth['E_cu_r']
     return {
         'E_in_J': truth['E_in'], 'E_copper_J': e_cu, 'E_core_J': truth['E_core'],
@@ -339,4 +344,6 @@ def energy_summary(truth: dict) -> dict:
         'E_friction_J': truth['E_friction'], 'dE_kinetic_J': truth['dE_kin'],
         'dW_magnetic_J': truth['dW_mag'], 'E_param_J': truth['E_param'],
         'balance_residual_J': truth['balance_residual'],
+        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv']}
+           if 'E_inv' in truth else {}),
     }

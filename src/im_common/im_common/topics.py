@@ -134,6 +134,9 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
 # appended to /im/truth/energy when the core loss acts (docs/plant.md §3): the iron loss the plant
 # dissipated [J] (= E_core), inside the energy balance then
 IRON_LOSS_NAME = 'E_iron'
+# appended to /im/truth/energy behind an inverter (docs/plant.md §1): the inverter's conduction
+# losses [J], outside the motor's balance (E_in + E_inv is what the DC link gave)
+INVERTER_LOSS_NAME = 'E_inv'
 # /im/truth/peaks: the largest |V_s| applied and true |i_s| over every step since the previous
 # sample (the figures of merit take their peaks from every step, not from the samples)
 PEAK_NAMES = ('V_max', 'i_max')
