@@ -98,6 +98,8 @@ def test_the_run_file_round_trips_and_gives_the_same_node_parameters(tmp_path):
     ('noise: {current: -0.1}', 'run.yaml: noise.current: must be a standard deviation >= 0'),
     ('strategy: fastest', 'run.yaml: strategy: must be one of'),
     ('motor: {R_s: 1.0}', 'run.yaml: motor: R_r: is missing'),
+    ('motor: krause_5hp', 'run.yaml: motor: is no motor file and no shipped motor (shipped: '
+     "krause_3hp, krause_50hp, thesis) (got 'krause_5hp')"),
 ])
 def test_a_bad_run_file_is_one_line_naming_the_file_and_the_key(tmp_path, capsys, text, line):
     from im_bringup.scenario import main
@@ -110,6 +112,24 @@ def test_a_bad_run_file_is_one_line_naming_the_file_and_the_key(tmp_path, capsys
     assert main([str(run), '--no-progress']) == 2       # the same line on the command line
     err = capsys.readouterr().err.strip().replace(str(tmp_path) + os.sep, '')
     assert err == f'scenario: error: {msg}'
+
+
+def test_a_shipped_motor_by_name_is_its_file_unless_a_file_is_so_named(tmp_path):
+    from im_bringup.scenario import main
+    from im_common.params import load_motor_file, shipped_motors_dir
+    krause = load_motor_file(os.path.join(shipped_motors_dir(), 'krause_3hp.yaml'))
+    run = tmp_path / 'run.yaml'
+    run.write_text('task: speed\nmotor: krause_3hp\nestimates: krause_3hp\nsaturation: motor\n')
+    sc = Scenario.from_file(str(run))
+    assert sc.motor == sc.estimates == krause and sc.saturation['S'] == 7.0
+    (tmp_path / 'krause_3hp').write_text(open(os.path.join(shipped_motors_dir(), 'thesis.yaml'))
+                                         .read())
+    thesis = load_motor_file(os.path.join(shipped_motors_dir(), 'thesis.yaml'))
+    assert Scenario.from_file(str(run)).motor == thesis != krause    # the file beside the run
+    out = tmp_path / 's.json'
+    assert main(['--task', 'speed', '--motor', 'krause_3hp', '--duration', '0.002',
+                 '--no-progress', '--summary', str(out)]) == 0
+    assert json.loads(out.read_text())['steps'] == 20
 
 
 def test_an_override_names_the_command_line(tmp_path, capsys):

@@ -32,9 +32,9 @@ from im_common.inverter import Inverter
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
 from im_common.node_params import block_parameters
 from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE_NAMES,
-                              InvalidParameter, load_motor_file, MOTOR_BLOCKS, motor_blocks,
-                              motor_from_dict, MotorParams, normalize_variation,
-                              ParameterSchedule, RATED, SCHEDULES, THESIS_MOTOR,
+                              InvalidParameter, is_motor_name, load_motor_file, MOTOR_BLOCKS,
+                              motor_blocks, motor_from_dict, MotorParams, normalize_variation,
+                              ParameterSchedule, RATED, SCHEDULES, shipped_motor, THESIS_MOTOR,
                               variation_schedule, warn_motor_defaults)
 from im_common.sensors import Sensors
 from im_common.validation import check_choice, one_line
@@ -829,7 +829,10 @@ def _fields_from_mapping(doc: dict, base_dir: Optional[str], source: str = 'run 
             value = motor
         elif key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
                 and isinstance(value, str):
-            value = path(value)
+            # a motor by name (motor: krause_3hp): the shipped file, unless a file is so named
+            value = (shipped_motor(value, key) if key in ('motor', 'estimates')
+                     and is_motor_name(value) and not os.path.isfile(path(value))
+                     else path(value))
             if key in ('gains', 'parameters'):
                 value = _read_parameters_file(value)
             elif key == 'load':

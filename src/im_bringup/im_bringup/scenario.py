@@ -23,7 +23,7 @@ from typing import Mapping, Optional
 
 from im_bringup.config import CONTROLLERS, STRATEGIES, TASKS, to_yaml
 from im_common.cli import error as cli_error
-from im_common.params import SCHEDULES
+from im_common.params import is_motor_name, SCHEDULES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,8 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help='inverter voltage limit [V] shared by plant and controller (0: none)')
     ap.add_argument('--motor', metavar='YAML',
                     help='motor file (ROS 2 parameters, /**: ros__parameters: R_s, R_r, L_s, L_r, '
-                         'L_sr, pole_pairs, J, b, ...); every node uses it (default: the thesis '
-                         'motor; shipped: share/im_common/config/motors/)')
+                         'L_sr, pole_pairs, J, b, ...) or a shipped motor by name (thesis, '
+                         'krause_3hp, krause_50hp: share/im_common/config/motors/); every node '
+                         'uses it (default: the thesis motor)')
     ap.add_argument('--estimates', metavar='YAML',
                     help='a different motor file for the controller/observer/adapter model '
                          '(an explicit model mismatch; default: --motor)')
@@ -390,7 +391,7 @@ def rclpy_errors():
 
 
 def print_summary(s: dict) -> None:
-    keys = ['E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'W_load_J', 'E_friction_J',
+    keys = ['E_in_J', 'E_dc_J', 'E_inverter_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'W_load_J', 'E_friction_J',
             'dE_kinetic_J', 'dW_magnetic_J', 'balance_residual_J', 'pos_err_max_rad',
             'pos_err_rms_rad', 'speed_err_max_rad_s', 'speed_dip_rad_s', 'speed_recovery_s',
             'torque_err_max_Nm', 'V_max_V', 'i_max_A',
@@ -474,7 +475,8 @@ def scenario_from_args(args):
         value = getattr(args, key, None)
         if value is None:
             continue
-        if key in FILE_OPTIONS:
+        if key in FILE_OPTIONS and not (key in ('motor', 'estimates') and is_motor_name(value)
+                                        and not os.path.isfile(value)):   # a shipped motor
             value = os.path.abspath(value)
         over['parameters' if key == 'params_file' else key] = value
     for item in args.set:

@@ -637,6 +637,28 @@ def shipped_motors_dir() -> str:
                         'motors')
 
 
+def shipped_motor(name: str, key: str = 'motor') -> str:
+    """
+    Return the path of the shipped motor file a bare name stands for (``krause_3hp``).
+
+    InvalidParameter naming ``key`` and the shipped motors if there is none of that name.
+    """
+    import os
+    d = shipped_motors_dir()
+    path = os.path.join(d, f'{name}.yaml')
+    if not os.path.isfile(path):
+        names = sorted(f[:-5] for f in os.listdir(d) if f.endswith('.yaml'))
+        raise InvalidParameter(key, name, 'is no motor file and no shipped motor (shipped: '
+                               f'{", ".join(names)})')
+    return path
+
+
+def is_motor_name(value: object) -> bool:
+    """Return whether a motor value is a bare name (no directory, no extension): a shipped one."""
+    import re
+    return isinstance(value, str) and re.fullmatch(r'[A-Za-z0-9_-]+', value) is not None
+
+
 # Seed 000 §4.3: the controller's fixed estimates under the chapter-4 variation profile
 # (R̂_s 0.687, L̂_s 0.084, L̂_sr 0.081, initial R̂_r 0.842 and θ̂ = L̂_sr/L̂_r = 0.952941).
 CHAPTER4_ESTIMATES = THESIS_MOTOR.with_values(R_s=0.687, L_s=0.084, L_sr=0.081, R_r=0.842,
