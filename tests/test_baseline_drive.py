@@ -8,7 +8,9 @@ does, and without it lags the ramp by its acceleration over the speed bandwidth 
 of a type-1 loop); V/Hz's slip compensation holds the speed under load; a law refuses a task it
 cannot do, and its gains block, in one line.
 """
+from dataclasses import replace
 import math
+import os
 
 from im_bringup.offline import simulate
 from im_bringup.run_file import RunFileError, Scenario
@@ -178,3 +180,44 @@ def test_a_baseline_runs_sensorless_on_the_stacks_speed_estimate():
     assert not s['trip'] and s['speed_err_max_rad_s'] < 0.5
     assert s['speed_err_max_rad_s'] > sensored['speed_err_max_rad_s']    # the estimate lags
     assert s['E_loss_J'] == pytest.approx(sensored['E_loss_J'], rel=0.02)
+
+
+RUNS = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'src', 'im_bringup',
+                    'config', 'runs')
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('motor', ['thesis', 'krause_3hp'])
+def test_the_shipped_baseline_run_files_hold_a_load_step_on_the_real_plant(motor):
+    """
+    Each baseline runs ``config/runs/baseline_real_<motor>.yaml`` (docs/comparison.md §2).
+
+    Sensored and sensorless, behind the switched inverter with one period of delay, the
+    compensation on. No run trips; the PI laws never leave ±2 rad/s of the reference after the
+    step, V/Hz (no speed loop) comes back within it by its slip compensation.
+    """
+    base = Scenario.from_file(os.path.join(RUNS, f'baseline_real_{motor}.yaml'))
+    assert base.delay == 1 and base.inverter.switched and base.compensation is not None
+    assert base.law == 'current_vector' and base.iron_loss and base.sensors is not None
+    for law in ('current_vector', 'flux_vector', 'vhz'):
+        for sensorless in (False, True):
+            s = simulate(replace(base, controller=law, sensorless=sensorless)).summary
+            what = f'{motor}, {law}, sensorless={sensorless}: {s}'
+            assert not s['trip'] and s['balance_relative'] < 1e-6, what
+            assert s['E_dc_J'] > s['E_in_J'] and s['load_step_t'] == 0.5, what
+            if law == 'vhz':
+                assert 0.0 < s['speed_recovery_s'] < 0.3 and s['speed_err_rms_rad_s'] < 2.0, what
+            else:
+                assert s['speed_recovery_s'] == 0.0 and s['speed_err_rms_rad_s'] < 0.4, what
+
+
+def test_the_graph_books_the_dc_link_as_the_ros_free_loop():
+    """A shipped run file's 50 ms on the graph: the inverter's losses and the DC link's energy."""
+    sc = replace(Scenario.from_file(os.path.join(RUNS, 'baseline_real_krause_3hp.yaml')),
+                 duration=0.05)
+    g = run_graph(scenario=sc)
+    off = simulate(sc)
+    assert g.summary['ok'], g.summary['failures']
+    for key in ('E_in_J', 'E_inverter_J', 'E_dc_J'):
+        assert g.summary[key] == pytest.approx(off.summary[key], rel=1e-9), key
+    assert g.summary['E_dc_J'] == pytest.approx(g.summary['E_in_J'] + g.summary['E_inverter_J'])

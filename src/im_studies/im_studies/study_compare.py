@@ -22,10 +22,19 @@ run summary's: tracking error (position: max, RMS; speed and load step: max, RMS
 the step and its recovery), the motor's losses and the input energy, the peak current. The
 verdict table names, per plant, drift, task and strategy, the law with the lowest losses and the
 one with the lowest tracking error.
+
+The drive check (``--part check``, :func:`check_cases`) runs every law on both shipped motors
+(:data:`CHECK_MOTORS`) on the real plant with one period of delay and the inverter-error
+compensation, sensored and sensorless, ``constant_flux`` and ``min_loss``: the speed task (the
+thesis motor's, or a motor's rated-speed reversal) and the load step; its table adds each run's
+speed error RMS over the thesis law's in the same run and the energy drawn from the DC link, and
+its verdict line counts the trips and the PI laws' runs within 2× the thesis law's error.
+``--quick`` runs each case for :data:`QUICK_DURATION` s.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -43,8 +52,9 @@ from im_common.sensors import Sensors
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 
-from .study_real_plant import INVERTER, STEP_AFTER, STEP_BEFORE, STEP_DURATION, STEP_SPEED, \
-    STEP_T
+from .study_motors import scaled_options, scaled_scenario
+from .study_real_plant import INVERTER, real_plant, STEP_AFTER, STEP_BEFORE, STEP_DURATION, \
+    STEP_SPEED, STEP_T
 
 #: the laws compared (the run file's controller: the thesis's at nominal estimates, then the
 #: baselines, docs/baselines.md)
@@ -61,8 +71,22 @@ CURRENT_LIMIT = 22.5
 MOTOR = 'thesis'
 
 
-def motor_path() -> str:
-    return os.path.join(shipped_motors_dir(), f'{MOTOR}.yaml')
+#: the drive check (docs/comparison.md §2): both shipped motors on the real plant with one
+#: period of delay and the inverter-error compensation, every law sensored and sensorless
+CHECK_MOTORS = ('thesis', 'krause_3hp')
+CHECK_TASKS = ('speed', 'load_step')
+CHECK_STRATEGIES = ('constant_flux', 'min_loss')
+SENSING = ('sensored', 'sensorless')
+#: the part of the rating-scaled options (study_motors.scaled_options) that is the thesis law's
+#: gains: a baseline law takes its gains from its bandwidths and the motor file
+THESIS_LAW_GAINS = ('k_p', 'k_v', 'k1')
+#: --quick: every run this long [s]
+QUICK_DURATION = 0.3
+PARTS = ('compare', 'check')
+
+
+def motor_path(name: str = MOTOR) -> str:
+    return os.path.join(shipped_motors_dir(), f'{name}.yaml')
 
 
 def plant_keywords(plant: str) -> dict:
@@ -94,6 +118,49 @@ def scenario(law: str, strategy: str, task: str, plant: str, drift: str,
     return Scenario(task='speed', profile=prof, load_model=load, omega0=STEP_SPEED, **kw)
 
 
+def check_scenario(motor: str, law: str, strategy: str, task: str, sensing: str,
+                   duration: Optional[float] = None) -> Scenario:
+    """
+    Return one run of the drive check (``motor``: a name of :data:`CHECK_MOTORS`).
+
+    The real plant with one period of delay and ``compensation: inverter``, sensored or
+    sensorless. The thesis motor runs the comparison's tasks on its 700 V link; another motor
+    its rated-speed reversal (:func:`im_studies.study_motors.scaled_scenario`) or the same load
+    step (100 rad/s, 1/6 → 2/3 of its rated torque) on the link for its rating, with the
+    rating-scaled flux and limits (a 2× overload current limit) and, for the thesis law, the
+    rating-scaled gains.
+    """
+    sensorless = sensing == 'sensorless'
+    if motor == MOTOR:
+        base = scenario(law, strategy, task, 'real, delay 1', 'none', duration)
+        return dataclasses.replace(base, compensation='inverter', sensorless=sensorless)
+    m = load_motor_file(motor_path(motor))
+    opts = {k: v for k, v in scaled_options(m, 'speed').items()
+            if law == 'nominal' or k not in THESIS_LAW_GAINS}
+    kw = dict(real_plant(m, delay=1), motor=motor_path(motor), controller=law,
+              controller_options=opts, compensation='inverter', sensorless=sensorless)
+    if task == 'speed':
+        base = scaled_scenario(m, 'speed', strategy)
+        return dataclasses.replace(base, duration=duration or base.duration, **kw)
+    prof = Profile('speed', ((0.0, STEP_SPEED, None),), source='load step')
+    load = StepLoad(t=STEP_T, tau_before=STEP_BEFORE * m.rated_torque,
+                    tau_after=STEP_AFTER * m.rated_torque)
+    return Scenario(task='speed', strategy=strategy, profile=prof, load_model=load,
+                    omega0=STEP_SPEED, duration=duration or STEP_DURATION,
+                    v_limit=m.rated_voltage, **kw)
+
+
+def check_cases(motors=CHECK_MOTORS, tasks=CHECK_TASKS, strategies=CHECK_STRATEGIES,
+                laws=LAWS):
+    """Yield (motor, law, strategy, task, sensing) of every run of the drive check."""
+    for motor in motors:
+        for task in tasks:
+            for strategy in strategies:
+                for law in laws:
+                    for sensing in SENSING:
+                        yield motor, law, strategy, task, sensing
+
+
 def cases(tasks=TASKS, plants=PLANTS, drifts=DRIFTS, laws=LAWS, strategies=STRATEGIES):
     """Yield (law, strategy, task, plant, drift) of every run (V/Hz: no position task)."""
     for plant in plants:
@@ -122,6 +189,7 @@ def figures(summary: dict, task: str) -> dict:
     out = {'err_max': summary[f'{key}_err_max_{unit}'],
            'err_rms': summary[f'{key}_err_rms_{unit}'],
            'E_loss_J': summary['E_loss_J'], 'E_in_J': summary['E_in_J'],
+           'E_dc_J': summary.get('E_dc_J'),
            'i_max_A': summary['i_max_A'], 'V_max_V': summary['V_max_V'],
            'trip': _trip(summary.get('trip'))}
     if task == 'load_step':
@@ -144,6 +212,67 @@ def run_rows(progress: Callable[[str], None] = lambda line: None, duration=None,
                  f'{strategy}, {law}: error max {row["err_max"]:.4g}, losses '
                  f'{row["E_loss_J"]:.4g} J' + (f', trip {row["trip"]}' if row['trip'] else ''))
     return rows
+
+
+def run_check_rows(progress: Callable[[str], None] = lambda line: None, duration=None,
+                   **selection) -> list:
+    """Run every case of :func:`check_cases` (``selection``: its keywords); return the rows."""
+    rows = []
+    todo = list(check_cases(**selection))
+    t0 = time.monotonic()
+    for n, (motor, law, strategy, task, sensing) in enumerate(todo, 1):
+        s = simulate(check_scenario(motor, law, strategy, task, sensing, duration)).summary
+        row = dict(motor=motor, law=law, strategy=strategy, task=task, sensing=sensing,
+                   **figures(s, task))
+        rows.append(row)
+        progress(f'  [{n}/{len(todo)} {time.monotonic() - t0:5.0f} s] check {motor}, {task}, '
+                 f'{strategy}, {law}, {sensing}: speed error RMS {row["err_rms"]:.4g} rad/s'
+                 + (f', trip {row["trip"]}' if row['trip'] else ''))
+    return rows
+
+
+def rms_over_thesis(rows: list) -> dict:
+    """
+    Return {id(row): its speed error RMS over the thesis law's} for the drive check's rows.
+
+    The thesis law's row is the one of the same motor, task, strategy and sensing; None where it
+    or the row tripped.
+    """
+    thesis = {(r['motor'], r['task'], r['strategy'], r['sensing']): r for r in rows
+              if r['law'] == 'nominal'}
+    out = {}
+    for r in rows:
+        t = thesis.get((r['motor'], r['task'], r['strategy'], r['sensing']))
+        out[id(r)] = (None if t is None or t['trip'] or r['trip'] or not t['err_rms'] > 0
+                      else r['err_rms'] / t['err_rms'])
+    return out
+
+
+def check_markdown(rows: list) -> str:
+    """Return the drive check's rows as a Markdown table and its verdict as one line."""
+    ratio = rms_over_thesis(rows)
+    out = ['| motor | task | strategy | law | sensing | speed error max / RMS | RMS / thesis '
+           'law | losses [J] | DC link [J] | peak current [A] |',
+           '|---|---|---|---|---|---|---:|---:|---:|---:|']
+    for r in rows:
+        q = ratio[id(r)]
+        out.append(f"| {r['motor']} | {r['task']} | {r['strategy']} | {r['law']} | "
+                   f"{r['sensing']} | {_err(r)} | {'' if q is None else f'{q:.3g}'} | "
+                   f"{r['E_loss_J']:.4g} | {_dc(r)} | "
+                   f"{r['i_max_A']:.3g} |")
+    trips = [r for r in rows if r['trip']]
+    pi = [r for r in rows if r['law'] in ('current_vector', 'flux_vector')]
+    worse = [r for r in pi if ratio[id(r)] is None or ratio[id(r)] > 2.0]
+
+    def names(rs):
+        return '; '.join(f"{r['motor']} {r['task']} {r['strategy']} {r['law']} {r['sensing']}"
+                         for r in rs)
+    out += ['', f'{len(rows)} runs, {len(trips)} tripped'
+            + (f' ({names(trips)})' if trips else '')
+            + "; the current- and flux-vector controllers' speed error RMS within 2× the thesis "
+            f"law's in {len(pi) - len(worse)} of {len(pi)} runs"
+            + (f' (beyond: {names(worse)})' if worse else '') + '.']
+    return '\n'.join(out)
 
 
 def _key(r) -> tuple:
@@ -176,7 +305,7 @@ def _err(r) -> str:
     if r['task'] == 'position':
         return f"{r['err_max'] * 1e3:.3g} / {r['err_rms'] * 1e3:.3g} mrad"
     text = f"{r['err_max']:.3g} / {r['err_rms']:.3g} rad/s"
-    if r['task'] == 'load_step' and r.get('dip') is not None:
+    if r['task'] == 'load_step' and r.get('dip') is not None and math.isfinite(r['dip']):
         rec = r.get('recovery_s')
         back = ('not back' if rec is None or not math.isfinite(rec) else
                 'never out' if rec == 0 else f'back in {rec * 1e3:.0f} ms')
@@ -184,15 +313,20 @@ def _err(r) -> str:
     return text
 
 
+def _dc(r) -> str:
+    """Return a row's DC-link energy as text ('—' on the ideal source, which has no link)."""
+    return '—' if r.get('E_dc_J') is None else f"{r['E_dc_J']:.4g}"
+
+
 def markdown(rows: list) -> str:
     """Return the rows and the verdicts as Markdown tables."""
     out = ['| plant | drift | task | strategy | law | error max / RMS | losses [J] | '
-           'input [J] | peak current [A] | peak voltage [V] |',
-           '|---|---|---|---|---|---|---:|---:|---:|---:|']
+           'input [J] | DC link [J] | peak current [A] | peak voltage [V] |',
+           '|---|---|---|---|---|---|---:|---:|---:|---:|---:|']
     for r in rows:
         out.append(f"| {r['plant']} | {r['drift']} | {r['task']} | {r['strategy']} | "
                    f"{r['law']} | {_err(r)} | {r['E_loss_J']:.4g} | {r['E_in_J']:.4g} | "
-                   f"{r['i_max_A']:.3g} | {r.get('V_max_V', math.nan):.4g} |")
+                   f"{_dc(r)} | {r['i_max_A']:.3g} | {r.get('V_max_V', math.nan):.4g} |")
     out += ['', '| plant | drift | task | strategy | lowest losses | thesis / lowest | lowest '
                 'error | thesis / lowest |', '|---|---|---|---|---|---:|---|---:|']
     for v in verdicts(rows):
@@ -244,33 +378,53 @@ def plot(rows: list, path: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='study_compare', description=__doc__.split('\n\n')[0])
-    ap.add_argument('--task', choices=TASKS, action='append', help='only this task (repeatable)')
+    ap.add_argument('--part', choices=PARTS, action='append', help='compare: the thesis tasks '
+                    'on the thesis motor; check: both shipped motors, sensored and sensorless '
+                    '(default both; repeatable)')
+    ap.add_argument('--task', choices=TASKS, action='append', help='only this task (repeatable; '
+                    'the check has speed and load_step)')
     ap.add_argument('--plant', choices=PLANTS, action='append', help='only this plant')
     ap.add_argument('--drift', choices=DRIFTS, action='append', help='only this drift')
+    ap.add_argument('--motor', choices=CHECK_MOTORS, action='append',
+                    help='the drive check on this motor only')
+    ap.add_argument('--quick', action='store_true', help=f'every run {QUICK_DURATION:g} s long '
+                    '(a look at the machinery, not the figures)')
     ap.add_argument('--json', metavar='FILE', help='write the rows and verdicts as JSON')
     ap.add_argument('--plot', metavar='PNG', help='draw the losses and errors (drift: none)')
     ap.add_argument('--doc', metavar='MD', help='write the tables into this page, between '
-                    '<!-- compare:begin --> and <!-- compare:end --> (docs/comparison.md)')
+                    '<!-- compare:begin --> and <!-- compare:end --> and between <!-- '
+                    'check:begin --> and <!-- check:end --> (docs/comparison.md)')
     ap.add_argument('--from-json', metavar='FILE', help='take the rows of an earlier --json '
                     'instead of running (re-render the tables and the plot)')
     a = ap.parse_args(argv)
+    parts = tuple(a.part or PARTS)
     sel = {k: tuple(v) for k, v in (('tasks', a.task), ('plants', a.plant), ('drifts', a.drift))
            if v}
+    duration = QUICK_DURATION if a.quick else None
+    progress = lambda line: print(line, file=sys.stderr, flush=True)    # noqa: E731
     try:
         if a.from_json:
-            rows = load_rows(a.from_json)
+            rows, check = load_rows(a.from_json), load_check_rows(a.from_json)
         else:
-            rows = run_rows(lambda line: print(line, file=sys.stderr, flush=True), **sel)
-        print(markdown(rows))
+            rows = run_rows(progress, duration, **sel) if 'compare' in parts else []
+            csel = {k: v for k, v in (('motors', tuple(a.motor or ())), ('tasks', tuple(
+                t for t in a.task or () if t in CHECK_TASKS))) if v}
+            if a.task and 'tasks' not in csel:
+                parts = tuple(p for p in parts if p != 'check')   # no task of the check's
+            check = run_check_rows(progress, duration, **csel) if 'check' in parts else []
+        if rows:
+            print(markdown(rows))
+        if check:
+            print(check_markdown(check))
         if a.json:
             os.makedirs(os.path.dirname(a.json) or '.', exist_ok=True)
             with open(a.json, 'w') as f:
-                json.dump({'rows': rows, 'verdicts': verdicts(rows)}, f, indent=1)
+                json.dump({'rows': rows, 'verdicts': verdicts(rows), 'check': check}, f, indent=1)
                 f.write('\n')
-        if a.plot:
+        if a.plot and rows:
             plot(rows, a.plot)
         if a.doc:
-            write_doc(a.doc, rows)
+            write_doc(a.doc, rows, check)
     except OSError as exc:
         return cli_error('study_compare', f'{exc.filename}: {exc.strerror or exc}')
     except ValueError as exc:       # not a --json of this study; a page without the section
@@ -278,8 +432,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def load_rows(path: str) -> list:
-    """Return the rows of an earlier ``--json`` (ValueError naming the file if it is none)."""
+def _load(path: str) -> dict:
     with open(path) as f:
         try:
             doc = json.load(f)
@@ -287,20 +440,40 @@ def load_rows(path: str) -> list:
             raise ValueError(f'{path}: not JSON ({exc.msg}, line {exc.lineno})') from None
     if not isinstance(doc, dict) or not isinstance(doc.get('rows'), list):
         raise ValueError(f'{path}: not a study_compare --json (no rows)')
-    return doc['rows']
+    return doc
 
 
-def write_doc(path: str, rows: list) -> None:
-    """Write the tables of ``rows`` into the page's ``compare`` section (ValueError: none)."""
+def load_rows(path: str) -> list:
+    """Return the rows of an earlier ``--json`` (ValueError naming the file if it is none)."""
+    return _load(path)['rows']
+
+
+def load_check_rows(path: str) -> list:
+    """Return the drive check's rows of an earlier ``--json`` ([] if it ran none)."""
+    check = _load(path).get('check', [])
+    if not isinstance(check, list):
+        raise ValueError(f'{path}: not a study_compare --json (its check is no list)')
+    return check
+
+
+def write_doc(path: str, rows: list, check: list = ()) -> None:
+    """
+    Write the tables into the page's ``compare`` and ``check`` sections (ValueError: none).
+
+    A part with no rows leaves its section as it is.
+    """
     from .docs import replace_section
     with open(path) as f:
         text = f.read()
     try:
-        new = replace_section(text, 'compare', markdown(rows))
+        if rows:
+            text = replace_section(text, 'compare', markdown(rows))
+        if check:
+            text = replace_section(text, 'check', check_markdown(check))
     except ValueError as exc:
         raise ValueError(f'{path}: {exc}') from None
     with open(path, 'w') as f:
-        f.write(new)
+        f.write(text)
 
 
 if __name__ == '__main__':

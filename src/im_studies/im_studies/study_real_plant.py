@@ -86,13 +86,14 @@ def V_dc_for(motor) -> float:
     return float(math.ceil(DC_MARGIN * math.sqrt(2.0) * motor.rated_voltage))
 
 
-def real_plant(motor) -> dict:
+def real_plant(motor, delay: int = 0) -> dict:
     """
     Return the Scenario keywords of every block of the real plant for a motor file's motor.
 
-    The inverter and sensors as their typed models (:class:`Inverter`, :class:`Sensors`).
+    The inverter and sensors as their typed models (:class:`Inverter`, :class:`Sensors`);
+    ``delay``: the inverter's computational delay in sampling periods.
     """
-    return {'inverter': Inverter.from_block(dict(INVERTER, V_dc=V_dc_for(motor))),
+    return {'inverter': Inverter.from_block(dict(INVERTER, V_dc=V_dc_for(motor), delay=delay)),
             'saturation': 'motor', 'thermal': 'motor', 'iron_loss': True,
             'sensors': Sensors.from_block({'encoder_lines': 2048, 'adc_bits': 12,
                                            'current_range': float(math.ceil(
