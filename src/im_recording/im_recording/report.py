@@ -29,7 +29,7 @@ import numpy as np
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
 ROWS = [
     ('E_in_J', 'energy drawn E_in', 'J'),
-    ('E_dc_J', 'energy drawn from the DC link (E_in + the inverter\'s losses)', 'J'),
+    ('E_dc_J', "energy drawn from the DC link (E_in + the inverter's losses)", 'J'),
     ('E_inverter_J', 'inverter losses (conduction)', 'J'),
     ('E_loss_J', 'losses (copper + core)', 'J'),
     ('E_copper_J', 'copper losses', 'J'),

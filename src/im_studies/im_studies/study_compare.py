@@ -197,38 +197,33 @@ def figures(summary: dict, task: str) -> dict:
     return out
 
 
+def _run_cases(todo: list, fields: tuple, build: Callable, progress, duration) -> list:
+    """Run each case (a tuple of ``fields``, ``build``'s arguments); return its figures' rows."""
+    rows = []
+    t0 = time.monotonic()
+    for n, case in enumerate(todo, 1):
+        row = dict(zip(fields, case))
+        row.update(figures(simulate(build(*case, duration)).summary, row['task']))
+        rows.append(row)
+        progress(f'  [{n}/{len(todo)} {time.monotonic() - t0:5.0f} s] {", ".join(case)}: error '
+                 f'max {row["err_max"]:.4g}, RMS {row["err_rms"]:.4g}, losses '
+                 f'{row["E_loss_J"]:.4g} J' + (f', trip {row["trip"]}' if row['trip'] else ''))
+    return rows
+
+
 def run_rows(progress: Callable[[str], None] = lambda line: None, duration=None,
              **selection) -> list:
     """Run every case of :func:`cases` (``selection``: its keywords); return the rows."""
-    rows = []
-    todo = list(cases(**selection))
-    t0 = time.monotonic()
-    for n, (law, strategy, task, plant, drift) in enumerate(todo, 1):
-        s = simulate(scenario(law, strategy, task, plant, drift, duration)).summary
-        row = dict(law=law, strategy=strategy, task=task, plant=plant, drift=drift,
-                   **figures(s, task))
-        rows.append(row)
-        progress(f'  [{n}/{len(todo)} {time.monotonic() - t0:5.0f} s] {plant}, {drift}, {task}, '
-                 f'{strategy}, {law}: error max {row["err_max"]:.4g}, losses '
-                 f'{row["E_loss_J"]:.4g} J' + (f', trip {row["trip"]}' if row['trip'] else ''))
-    return rows
+    return _run_cases(list(cases(**selection)), ('law', 'strategy', 'task', 'plant', 'drift'),
+                      scenario, progress, duration)
 
 
 def run_check_rows(progress: Callable[[str], None] = lambda line: None, duration=None,
                    **selection) -> list:
     """Run every case of :func:`check_cases` (``selection``: its keywords); return the rows."""
-    rows = []
-    todo = list(check_cases(**selection))
-    t0 = time.monotonic()
-    for n, (motor, law, strategy, task, sensing) in enumerate(todo, 1):
-        s = simulate(check_scenario(motor, law, strategy, task, sensing, duration)).summary
-        row = dict(motor=motor, law=law, strategy=strategy, task=task, sensing=sensing,
-                   **figures(s, task))
-        rows.append(row)
-        progress(f'  [{n}/{len(todo)} {time.monotonic() - t0:5.0f} s] check {motor}, {task}, '
-                 f'{strategy}, {law}, {sensing}: speed error RMS {row["err_rms"]:.4g} rad/s'
-                 + (f', trip {row["trip"]}' if row['trip'] else ''))
-    return rows
+    return _run_cases(list(check_cases(**selection)),
+                      ('motor', 'law', 'strategy', 'task', 'sensing'), check_scenario, progress,
+                      duration)
 
 
 def rms_over_thesis(rows: list) -> dict:
