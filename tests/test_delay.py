@@ -182,6 +182,67 @@ def test_the_certified_1ms_gain_loses_its_box_under_one_period_of_delay():
     assert 0.99 < current_error_radius(_nominal_subsystem(), 1e-3, K, 1)[0] < 1.0
 
 
+def test_the_law_told_the_delay_has_the_undelayed_poles_at_the_nominal_point_and_zeros():
+    """
+    The predicting law on the delayed subsystem (commands sent as states): a₀ − b₀k and d zeros.
+
+    docs/plant.md §10: ΔV_k = −K ê_{k+d} on the nominal model puts the nominal loop's poles where
+    the undelayed loop has them; d = 0 is the undelayed subsystem and the plain gain.
+    """
+    from im_controller.gain_design.drive import current_error_system, \
+        delayed_current_error_system, nominal_point, predicting_gain, subsystem_ab
+    from im_controller.gain_design.motor import Scaling
+    T_s, k = 1e-4, 40.0
+    a, b = subsystem_ab(nominal_point(), T_s)
+    pole = abs(a[0] - b[0] * k)
+    for d in (1, 2):
+        (A, B), = delayed_current_error_system(nominal_point(), T_s, d).models
+        M = A - B @ predicting_gain(k * np.eye(2), T_s, d)
+        assert sorted(abs(np.linalg.eigvals(M))) == pytest.approx(
+            [0.0] * (2 * d) + [pole, pole], abs=1e-6)
+    (A0, B0), = delayed_current_error_system(nominal_point(), T_s, 0).models
+    (A1, B1), = current_error_system(nominal_point(), T_s).models
+    assert np.array_equal(A0, A1) and np.array_equal(B0, B1)
+    sc = Scaling.for_motor()
+    plain = k * np.eye(2) * sc.i_base / sc.v_base
+    assert np.allclose(predicting_gain(k * np.eye(2), T_s, 0), plain)
+
+
+def test_told_the_delay_the_certified_1ms_gain_keeps_its_whole_box():
+    """As printed it is unstable at its box's corner under the delay (above); predicting, not."""
+    from im_controller.gain_design.drive import delayed_current_error_system, predicting_gain, \
+        subsystem_points, SUBSYSTEM_CERTIFY_POINTS
+    from im_studies.study_delay import gains_1ms
+    K = np.reshape(gains_1ms()['controller']['current_gain'], (2, 2))
+    G = predicting_gain(K, 1e-3, 1)
+    box = delayed_current_error_system(subsystem_points(SUBSYSTEM_CERTIFY_POINTS), 1e-3, 1)
+    radius = max(abs(np.linalg.eigvals(A - B @ G)).max() for A, B in box.models)
+    assert 0.9 < radius < 0.95
+
+
+@pytest.mark.slow
+def test_the_delay_design_certifies_the_predicting_law_below_the_synthesis_bound():
+    """
+    The certified 1 ms gain told the delay: a certificate, slower than without the delay.
+
+    The best k certifies at least as fast, and the synthesis over every gain on the error and the
+    past commands at least as fast again (a coarse box, for speed).
+    """
+    from im_controller.gain_design.drive import delayed_current_design, \
+        delayed_current_error_system, predicting_gain, subsystem_points
+    from im_studies.study_delay import gains_1ms
+    coarse = {'R_r': 2, 'L_s': 2, 'L_r': 2, 'L_sr': 3, 'omega_r': 1}
+    K = np.reshape(gains_1ms()['controller']['current_gain'], (2, 2))
+    d = delayed_current_design(K, 1e-3, 1, vertex_points=coarse, certify_points=coarse)
+    assert 0.0 < d.rate < 0.5 * d.rate_undelayed
+    assert d.rate_best >= 0.99 * d.rate and d.rate_bound >= 0.98 * d.rate_best
+    G = predicting_gain(d.k_best * np.eye(2), 1e-3, 1)
+    for A, B in delayed_current_error_system(subsystem_points(coarse), 1e-3, 1).models:
+        assert abs(np.linalg.eigvals(A - B @ G)).max() < np.exp(-d.rate_best * 1e-3) + 1e-9
+    with pytest.raises(ValueError, match='delay = 0 must be an integer >= 1'):
+        delayed_current_design(K, 1e-3, 0)
+
+
 @pytest.mark.parametrize('T_s, delay, trips',
                          [(1.5e-4, 1, False), (2e-4, 1, True), (2e-4, 0, False)])
 def test_past_the_delayed_limit_the_thesis_drive_trips_and_before_it_holds(T_s, delay, trips):

@@ -13,7 +13,13 @@ on a DSP) against the theses' plant, which acts at once. Two parts, each a Markd
   rating-scaled position and speed tasks (:func:`im_studies.study_motors.scaled_scenario`,
   min_loss) at 100 µs with the shipped gains, and the thesis's own speed task at 1 ms with the
   certified gains, each without the delay, with it and the law as printed, and with it and the
-  law told the delay (:data:`LAWS`): trip, tracking error (max, RMS), losses.
+  law told the delay (:data:`LAWS`): trip, tracking error (max, RMS), losses;
+* ``certificate`` — the thesis motor's two shipped current gains (100 µs, k₁ = 40; the certified
+  1 ms gain) with the law told the delay: the decay rate one quadratic Lyapunov function
+  certifies over the box's vertex models with the commands already sent as states, without and
+  with one period, the predicting law's best K = k I for the delay and its rate, and the best
+  rate seed 001's synthesis certifies for any gain on the error and the past commands
+  (:func:`im_controller.gain_design.drive.delayed_current_design`).
 """
 from __future__ import annotations
 
@@ -30,12 +36,13 @@ from im_common.params import load_motor_file, MotorParams, shipped_motors_dir, T
 from im_common.yamlio import load_parameters_file
 from im_controller.control_law import ControllerConfig, THESIS_TASKS
 from im_controller.gain_design.drive import (current_error_limit, current_error_radius,
-                                             SUBSYSTEM_CERTIFY_POINTS, subsystem_points)
+                                             delayed_current_design, SUBSYSTEM_CERTIFY_POINTS,
+                                             subsystem_points)
 import numpy as np
 
 from .study_motors import scaled_options, scaled_scenario
 
-PARTS = ('current loop', 'runs')
+PARTS = ('current loop', 'certificate', 'runs')
 DELAYS = (0, 1)
 #: the runs' (delay, law): the law as printed (told no delay: controller_options {delay: 0}) and
 #: the law told the delay (it predicts across it, im_controller.control_law)
@@ -82,6 +89,20 @@ def current_loop_rows() -> list:
     return rows
 
 
+def certificate_rows(progress=print) -> list:
+    """Return the certificate part's rows (module doc)."""
+    rows = []
+    for gains, T_s, K in (('100 µs, k₁ = 40 (shipped)', 1e-4, ControllerConfig().k1 * np.eye(2)),
+                          ('1 ms, certified (robust.md §7)', 1e-3,
+                           np.reshape(gains_1ms()['controller']['current_gain'], (2, 2)))):
+        d = delayed_current_design(K, T_s, 1)
+        progress(f'  {gains}: {d.rate:.1f} 1/s with the delay (undelayed '
+                 f'{d.rate_undelayed:.1f}), best k {d.k_best:.4g} V/A at {d.rate_best:.1f}, '
+                 f'bound {d.rate_bound:.1f}')
+        rows.append(dict({'motor': 'thesis', 'gains': gains}, **d.summary()))
+    return rows
+
+
 def _figures(sc: Scenario) -> dict:
     r = simulate(sc, record_every=10)
     s, tr = r.summary, r.trace
@@ -125,6 +146,16 @@ def markdown(part: str, rows: list) -> str:
                        f"{r['rho_nominal_d1']:.4f} | {box} | {r['limit_s_d0'] * 1e6:.1f} → "
                        f"{r['limit_s_d1'] * 1e6:.1f} µs |")
         return '\n'.join(out)
+    if part == 'certificate':
+        out = ['| motor | gains | certified rate, d = 0 → 1 (predicting) | its spectral radius '
+               'over the box, d = 1 | best k for d = 1: k, rate | any gain on the error and '
+               'past commands, d = 1 |', '|---|---|---|---:|---|---:|']
+        for r in rows:
+            out.append(f"| {r['motor']} | {r['gains']} | {r['rate_undelayed']:.1f} → "
+                       f"{r['rate']:.1f} 1/s | {r['dense_spectral_radius']:.4f} | "
+                       f"{r['k_best']:.4g} V/A, {r['rate_best']:.1f} 1/s | "
+                       f"{r['rate_bound']:.1f} 1/s |")
+        return '\n'.join(out)
     out = ['| motor | task | gains | delay | law | tracking error, max / RMS | motor losses [J] |',
            '|---|---|---|---:|---|---|---:|']
     for r in rows:
@@ -140,14 +171,15 @@ def markdown(part: str, rows: list) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog='study_delay', description=__doc__.split('\n\n')[0])
     ap.add_argument('--part', choices=PARTS, action='append',
-                    help='run only this part (repeatable; default: both)')
+                    help='run only this part (repeatable; default: all)')
     ap.add_argument('--json', metavar='FILE', help='write the rows as JSON')
     a = ap.parse_args(argv)
     out = {}
     for part in a.part or PARTS:
         print(f'{part}:', file=sys.stderr)
-        out[part] = current_loop_rows() if part == 'current loop' else run_rows(
-            lambda line: print(line, file=sys.stderr, flush=True))
+        progress = lambda line: print(line, file=sys.stderr, flush=True)    # noqa: E731
+        out[part] = (current_loop_rows() if part == 'current loop' else
+                     certificate_rows(progress) if part == 'certificate' else run_rows(progress))
         print(f'\n### {part}\n\n{markdown(part, out[part])}\n')
     if a.json:
         try:

@@ -347,6 +347,172 @@ def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
 
 
 # ---------------------------------------------------------------------------------------------
+# The current-error subsystem with the computational delay (docs/plant.md §10)
+# ---------------------------------------------------------------------------------------------
+def delayed_current_error_system(pts: np.ndarray, T_s: float, delay: int, *,
+                                 motor: MotorParams = THESIS_MOTOR) -> UncertainSystem:
+    """
+    Per-unit models of the current error with ``delay`` periods, the commands sent as states.
+
+    z_k = [e_k; u_{k−1}; ...; u_{k−d}] (what the DSP has sent and the motor has not yet got):
+    e_{k+1} = a e_k + b u_{k−d}, the new command u_k enters the second block, the rest shift
+    (:func:`im_controller.gain_design.motor.delayed_closed_loop`'s state). d = 0 is
+    :func:`current_error_system`. A gain on z is any law that may use its own past commands.
+    """
+    if delay == 0:
+        return current_error_system(pts, T_s, motor=motor)
+    sc = Scaling.for_motor(motor)
+    a, b = subsystem_ab(pts, T_s)
+    b = b * sc.v_base / sc.i_base
+    n = 2 + 2 * delay
+    I = np.eye(2)  # noqa: E741 (the identity matrix, as in the equations)
+    B = np.zeros((n, 2))
+    B[2:4] = I
+    models = []
+    for ak, bk in zip(a, b):
+        A = np.zeros((n, n))
+        A[:2, :2], A[:2, n - 2:] = ak * I, bk * I
+        for j in range(1, delay):
+            A[2 + 2 * j:4 + 2 * j, 2 * j:2 + 2 * j] = I
+        models.append((A, B))
+    return UncertainSystem(models, None, discrete=True,
+                           name=f'current error, delay {delay}, T_s={T_s:g}')
+
+
+def nominal_point(motor: MotorParams = THESIS_MOTOR) -> np.ndarray:
+    """Return the row (R_eq, σL_s) of a motor's nominal parameters."""
+    return np.array([[motor.R_s + motor.R_r * (motor.L_sr / motor.L_r) ** 2,
+                      motor.L_s - motor.L_sr ** 2 / motor.L_r]])
+
+
+def predicting_gain(K, T_s: float, delay: int, *, motor: MotorParams = THESIS_MOTOR
+                    ) -> np.ndarray:
+    """
+    Return the thesis law told the delay as a per-unit gain on z_k.
+
+    z_k as in :func:`delayed_current_error_system`. The law (im_controller.control_law,
+    docs/plant.md §10) acts on the error predicted to the moment its command acts,
+    ê_{k+d} = a₀^d e_k + Σ_{j=1..d} a₀^{j−1} b₀ u_{k−j} on the nominal model (a₀, b₀) of
+    ``motor``: u_k = −K ê_{k+d}, the gain K [a₀^d, b₀, a₀b₀, ..., a₀^{d−1}b₀].
+    """
+    sc = Scaling.for_motor(motor)
+    a0, b0 = subsystem_ab(nominal_point(motor), T_s)
+    a0, b0 = float(a0[0]), float(b0[0]) * sc.v_base / sc.i_base
+    G = np.asarray(K, dtype=float) * (sc.i_base / sc.v_base)
+    row = [a0 ** delay] + [a0 ** (j - 1) * b0 for j in range(1, delay + 1)]
+    return np.hstack([c * G for c in row])
+
+
+@dataclass
+class DelayedCurrentLoop:
+    """What the delay leaves of a current gain's certificate (:func:`delayed_current_design`)."""
+
+    T_s: float
+    delay: int
+    K: np.ndarray                   # the gain examined [V/A]
+    rate: float                     # its certified decay rate, the law predicting [1/s] (0: none)
+    rate_undelayed: float           # the same gain without the delay [1/s]
+    k_best: float                   # the predicting law's best K = k I [V/A]
+    rate_best: float                # its certified rate [1/s]
+    rate_bound: float               # the best any gain on z certifies (synthesis) [1/s]
+    dense_spectral_radius: float    # of K predicting, over the dense grid
+    notes: List[str] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        return {'T_s': self.T_s, 'delay': self.delay, 'K': np.asarray(self.K).tolist(),
+                'rate': self.rate, 'rate_undelayed': self.rate_undelayed,
+                'k_best': self.k_best, 'rate_best': self.rate_best,
+                'rate_bound': self.rate_bound,
+                'dense_spectral_radius': self.dense_spectral_radius, 'notes': self.notes}
+
+
+def _rate(rho: float, T_s: float) -> float:
+    return -math.log(rho) / T_s if math.isfinite(rho) and 0.0 < rho < 1.0 else 0.0
+
+
+def predicting_rate(K, T_s: float, delay: int, *, motor: MotorParams = THESIS_MOTOR,
+                    vertex_points=None, sigma_min: float = DEFAULT_SIGMA_MIN,
+                    iterations: int = 20) -> float:
+    """
+    Return the decay rate [1/s] certified for K with the law predicting across ``delay``.
+
+    One quadratic Lyapunov function over the vertex models of the delayed subsystem
+    (:func:`im_robust.certificate.best_rate`); 0 when none exists even at ρ = 1.
+    """
+    from im_robust.certificate import best_rate
+    vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
+    sysm = delayed_current_error_system(vp, T_s, delay, motor=motor)
+    return _rate(best_rate(sysm, predicting_gain(K, T_s, delay, motor=motor),
+                           iterations=iterations), T_s)
+
+
+def delayed_rate_bound(T_s: float, delay: int, *, motor: MotorParams = THESIS_MOTOR,
+                       vertex_points=None, sigma_min: float = DEFAULT_SIGMA_MIN,
+                       iterations: int = 12) -> float:
+    """
+    Return the best decay rate [1/s] seed 001's synthesis certifies on the delayed subsystem.
+
+    Any static gain on z_k = [e_k; past commands]: the bound for every law that acts on the
+    current error and its own commands, the predicting thesis law among them.
+    """
+    vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
+    return best_feasible_rate(delayed_current_error_system(vp, T_s, delay, motor=motor), T_s,
+                              iterations=iterations)
+
+
+def delayed_current_design(K, T_s: float, delay: int = 1, *, motor: MotorParams = THESIS_MOTOR,
+                           k_range: Optional[Sequence[float]] = None, vertex_points=None,
+                           certify_points=None, sigma_min: float = DEFAULT_SIGMA_MIN,
+                           progress: bool = False) -> DelayedCurrentLoop:
+    """
+    Certify a current gain K under ``delay`` and design the predicting law's K = k I for it.
+
+    K's certified rate with and without the delay; the k in ``k_range`` (default: 0.05-2 × the
+    diagonal mean of K) that certifies the fastest decay with the delay (golden section on log k
+    of :func:`predicting_rate`; a k with no certificate scores 0); the synthesis bound
+    (:func:`delayed_rate_bound`); K's spectral radius over the dense grid.
+    """
+    if not (isinstance(delay, int) and delay >= 1):
+        raise ValueError(f'delay = {delay!r} must be an integer >= 1 (periods)')
+    K = np.asarray(K, dtype=float)
+    kw = {'motor': motor, 'vertex_points': vertex_points, 'sigma_min': sigma_min}
+    k0 = float(np.trace(K)) / 2.0
+    lo, hi = (0.05 * k0, 2.0 * k0) if k_range is None else map(float, k_range)
+    if not 0.0 < lo < hi:
+        raise ValueError(f'k_range = ({lo!r}, {hi!r}) must be 0 < low < high [V/A]')
+
+    def score(log_k):
+        return predicting_rate(math.exp(log_k) * np.eye(2), T_s, delay, iterations=14, **kw)
+    x0, x1 = math.log(lo), math.log(hi)
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    c, d = x1 - g * (x1 - x0), x0 + g * (x1 - x0)
+    fc, fd = score(c), score(d)
+    for _ in range(14):
+        if fc >= fd:
+            x1, d, fd = d, c, fc
+            c = x1 - g * (x1 - x0)
+            fc = score(c)
+        else:
+            x0, c, fc = c, d, fd
+            d = x0 + g * (x1 - x0)
+            fd = score(d)
+    k_best = math.exp(c if fc >= fd else d)
+    cp = subsystem_points(certify_points or SUBSYSTEM_CERTIFY_POINTS, sigma_min=sigma_min,
+                          motor=motor)
+    G = predicting_gain(K, T_s, delay, motor=motor)
+    dense = delayed_current_error_system(cp, T_s, delay, motor=motor).models
+    out = DelayedCurrentLoop(
+        T_s, delay, K, predicting_rate(K, T_s, delay, **kw), predicting_rate(K, T_s, 0, **kw),
+        k_best, predicting_rate(k_best * np.eye(2), T_s, delay, **kw),
+        delayed_rate_bound(T_s, delay, **kw),
+        float(max(np.abs(np.linalg.eigvals(A - B @ G)).max() for A, B in dense)))
+    _log(progress, f'current T_s = {T_s:g}, delay {delay}: K certified at {out.rate:.1f} 1/s '
+                   f'(undelayed {out.rate_undelayed:.1f}); best k = {k_best:.4g} V/A at '
+                   f'{out.rate_best:.1f} 1/s; bound {out.rate_bound:.1f} 1/s')
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
 # The observer's 4-state error with a discrete injection
 # ---------------------------------------------------------------------------------------------
 def _observer_system(A_d: np.ndarray, sc: Scaling, name: str) -> UncertainSystem:
