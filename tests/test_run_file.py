@@ -265,3 +265,21 @@ def test_an_inline_motor_without_ratings_is_warned_of_and_a_default_run_record_i
     # a run record writes the built-in thesis motor out in full: it reads back as the default
     Scenario.from_mapping(Scenario(task='speed').to_mapping(), source='record')
     assert not caplog.records
+
+
+def test_simulate_runs_the_adapter_an_adaptive_run_file_describes():
+    """
+    ``simulate(sc)`` of ``controller: adaptive`` adapts, as the graph does, to the last bit.
+
+    Not the nominal drive under the adaptive name: the adapter node's parameters build the same
+    adapter on the ROS-free loop (docs/running.md).
+    """
+    from im_bringup.testing import run_graph
+    sc = replace(Scenario.from_file(DRIFT), duration=0.3)
+    off = simulate(sc).summary
+    g = run_graph(scenario=sc).summary
+    assert g['ok'], g['failures']
+    assert off['E_in_J'] == pytest.approx(g['E_in_J'], rel=1e-12)
+    nominal = simulate(replace(sc, controller='nominal')).summary
+    assert abs(nominal['E_in_J'] - off['E_in_J']) > 1e-3 * off['E_in_J']
+    assert off['controller'] == 'adaptive'

@@ -12,7 +12,10 @@ k+1 — what the adapter node does with the topics stamped t_k. The offline loop
 """
 from __future__ import annotations
 
-from typing import Optional
+from dataclasses import fields
+from typing import Mapping, Optional
+
+from im_common.params import motor_blocks
 
 from .adaptation import AdaptationGains, ParameterAdapter
 
@@ -52,6 +55,26 @@ class LockstepAdapter:
                               params.theta if theta0 is None else theta0, sensorless=sensorless,
                               thermal=thermal)
         return cls(ad, record_every)
+
+    @classmethod
+    def from_node_parameters(cls, params, values: Mapping, record_every: int = 10):
+        """
+        Return the adapter the adapter node builds from its parameters ``values``.
+
+        ``params``: its model (the drive's estimates). The gains' fields, ``R_r_initial``,
+        ``theta_initial``, ``sensorless`` and ``thermal_tracking`` with the motor file's
+        ``thermal`` block, as the node reads them (``im_adapt.adapter_node``); what is not in
+        ``values`` is the node's default. Compensation and delay are the loop's (the voltage it
+        hands :meth:`step` is the one the motor got).
+        """
+        names = {f.name for f in fields(AdaptationGains)}
+        gains = AdaptationGains(**{k: v for k, v in values.items() if k in names})
+        thermal = None
+        if values.get('thermal_tracking'):
+            thermal = motor_blocks({'thermal': values['thermal']}, 'adapter motor')['thermal']
+        return cls.build(params, gains, R_r0=values.get('R_r_initial'),
+                         theta0=values.get('theta_initial'), record_every=record_every,
+                         sensorless=bool(values.get('sensorless')), thermal=thermal)
 
     def step(self, T_s, t, v_alpha, v_beta, meas, x_hat) -> dict:
         """Update the adapter with the data of step k (and the observer's x̂_k); return p̂_k+1."""

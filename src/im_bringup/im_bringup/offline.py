@@ -39,7 +39,7 @@ from im_observer.observer import RotorFluxObserver
 from im_observer.speed_observer import SpeedAdaptiveObserver
 import numpy as np
 
-from .config import CONTROLLERS, TASK_PRESETS, TASKS  # noqa: F401 (re-exported)
+from .config import ADAPTATION, CONTROLLERS, TASK_PRESETS, TASKS  # noqa: F401 (re-exported)
 from .run_file import (DEFAULT_DURATION, gain_arguments_from_parameters,  # noqa: F401
                        GAIN_PARAMETERS, limit_value, Scenario, START_MODES)
 
@@ -156,9 +156,12 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     """
     Run ``scenario`` in the lock-step order; return figures of merit and traces.
 
-    ``adapter`` (optional, chapter 4): an object with ``step(T_s, t, v_alpha, v_beta, meas,
+    ``adapter`` (chapter 4): an object with ``step(T_s, t, v_alpha, v_beta, meas,
     x_hat) -> dict`` returning estimates (e.g. {'R_r': ..., 'theta': ...}) for the next step;
-    they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13). An adapter
+    they are passed to the controller (eq. 4.10-4.12) and the observer (eq. 4.13). None with an
+    adaptive ``controller`` (``adaptive``, ``adaptive_thesis``, ...): the adapter the run file
+    describes, as the graph's adapter node builds it from the same node parameters
+    (:meth:`im_adapt.hook.LockstepAdapter.from_node_parameters`). An adapter
     that is a bound (the truth handed to the drive, not a controller) has ``bind(plant)``, called
     once with the plant before the first step.
     ``timing`` adds the mean wall time per ``compute`` and per ``observer.step`` [µs] to the
@@ -169,6 +172,10 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         raise InvalidParameter('record_every', record_every, 'must be >= 1')
     wall0 = time.perf_counter()
     plant, controller, observer = build(sc)
+    if adapter is None and sc.controller in ADAPTATION:    # the run's own adapter, not none
+        from im_adapt.hook import LockstepAdapter      # im_adapt only where a run adapts
+        adapter = LockstepAdapter.from_node_parameters(
+            controller.config.params, sc.node_parameters()['adapter'], record_every=0)
     if adapter is not None and hasattr(adapter, 'bind'):
         adapter.bind(plant)     # a bound, not a controller, may read the plant's truth
     cfg_comp = controller.config.compensation
