@@ -73,17 +73,15 @@ default tolerances) no change (1.7e-10 / 8.4e-13).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
-import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_common'))
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_controller'))
-
-K = math.sqrt(1.5)          # power-invariant vector = sqrt(3/2) x peak-value vector
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # tools/: motulator_common
+from motulator_common import (  # noqa: E402
+    add_alpha_o_arg, add_common_args, base_case, compare, K, motulator_drive, prime_first_period,
+    print_comparison, project_plant, run_closed_loop, simulate_motulator, speed_ref,
+    SpeedObserver, write_json)
 
 
 #: the convention differences ``--leave`` can leave in place (module doc)
@@ -93,162 +91,61 @@ LEAVE = {'first-period': "the project's first command acts from t_0 (its Command
          'solver': "motulator's default solver tolerances (rtol 1e-3, atol 1e-6)"}
 
 
-def speed_filter_gain(alpha_o: float, T_s: float) -> float:
-    """Return motulator's sensored speed-observer gain k_w = (1 − e^{−α_o T_s})/T_s [1/s]."""
-    return -math.expm1(-alpha_o * T_s) / T_s
-
-
-def speed_ref(t: float, case: dict) -> float:
-    """Return the speed reference at the sampling instant t (mechanical rad/s)."""
-    return case['w_ref'] if t >= case['t_speed'] - 0.5 * case['T_s'] else 0.0
-
-
 def run_ours(motor, case: dict):
-    from im_common.loads import NoLoad
-    from im_common.plant_sim import PlantSimulator
     from im_controller.baselines.current_vector import CurrentVectorController
     from im_controller.baselines.gains import BaselineGains
-    T_s, n = case['T_s'], case['n']
+    T_s = case['T_s']
     gains = BaselineGains(alpha_c=case['alpha_c'], alpha_s=case['alpha_s'])
     ctrl = CurrentVectorController(motor, T_s, gains, delay=1, phi_r_ref=case['phi_r_ref'],
                                    current_limit=case['i_max'], v_limit=None, tau_max=None)
-    sim = PlantSimulator(motor, NoLoad(), T_s=T_s, max_substep=case['max_substep'],
-                         v_limit=None, current_trip=None, speed_trip=None,
-                         inverter_rating=1e9, inverter={'delay': 1})
-    if 'first-period' not in case['leave']:
-        # the zero vector over [t_0, t_1], as motulator's delay line (module doc)
-        sim.delay.push(0.0, 0.0)
-        ctrl.line.push(0.0, 0.0)
+    sim = project_plant(motor, case)
+    prime_first_period(sim, ctrl, case)
     measured = 'speed-feedback' in case['leave']
-    k_w = speed_filter_gain(case['alpha_o'], T_s)
-    w_hat = 0.0                         # motulator's speed observer, its initial value
-    k_load = int(round(case['t_load'] / T_s))
-    out = []
-    t0 = time.perf_counter()
-    for k in range(n):
-        m = sim.measure()
-        out.append((m.i_alpha, m.i_beta, m.omega_r))
-        if k == k_load:
-            sim.set_load_offset(case['tau_load'])
-        v = ctrl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r if measured else w_hat,
-                         speed_ref(m.t, case), 0.0)
-        w_hat += T_s * (k_w * (m.omega_r - w_hat))
-        sim.step(*v)
-        if sim.trip is not None:
-            raise RuntimeError(f'the plant tripped: {sim.trip}')
-    return out, time.perf_counter() - t0
+    obs = SpeedObserver(case['alpha_o'], T_s)
+
+    def law(m):
+        v = ctrl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r,
+                         m.omega_r if measured else obs.w_hat, speed_ref(m.t, case), 0.0)
+        obs.update(m.omega_r)
+        return v
+
+    return run_closed_loop(sim, case, law)
 
 
 def run_motulator(motor, case: dict):
     import motulator.drive.control.im as control
-    import motulator.drive.model as model
-    from motulator.common.model import Simulation, SolverCfg
 
-    T_s, n = case['T_s'], case['n']
-    par = model.InductionMachineInvGammaPars(n_p=motor.pole_pairs, R_s=motor.R_s, R_R=motor.R_R,
-                                             L_sgm=motor.L_sigma, L_M=motor.L_M)
-    machine = model.InductionMachine(par)
-    mech = model.MechanicalSystem(J=motor.J, B_L=motor.b)
-    load = {'tau': 0.0}
-    mech.set_external_load_torque(lambda t: load['tau'])
-    conv = model.VoltageSourceConverter(u_dc=case['u_dc'])
-    mdl = model.Drive(machine, mech, conv, delay=1)      # ZOH, one period's delay (defaults)
+    par, mdl, load = motulator_drive(motor, case['u_dc'])
     i_sd = case['phi_r_ref'] * motor.theta / motor.L_M  # the project's i_sd* (power-invariant)
     psi_s_nom = i_sd / K * (motor.L_M + motor.L_sigma)
     if 'flux-reference' in case['leave']:
         psi_s_nom = case['phi_r_ref'] * motor.theta / K     # ψ_R* taken for ψ_s,nom
     cfg = control.CurrentVectorControllerCfg(
         psi_s_nom=psi_s_nom, i_s_max=case['i_max'] / K,
-        alpha_c=case['alpha_c'], alpha_o=case['alpha_o'], sensorless=False, T_s=T_s)
+        alpha_c=case['alpha_c'], alpha_o=case['alpha_o'], sensorless=False, T_s=case['T_s'])
     vector_ctrl = control.CurrentVectorController(par, cfg)
     speed_ctrl = control.SpeedController(J=motor.J, alpha_s=case['alpha_s'])
     ctrl = control.VectorControlSystem(vector_ctrl, speed_ctrl)
-    ctrl.set_speed_ref(lambda t: speed_ref(t, case))
-    k_load = int(round(case['t_load'] / T_s))
-    samples = []
-
-    class Sampled:
-        """motulator's control system, with the samples and the load step at each period start."""
-
-        def __init__(self, inner):
-            self.inner = inner
-
-        def __getattr__(self, name):
-            return getattr(self.inner, name)
-
-        def __call__(self, m):
-            if len(samples) == k_load:
-                load['tau'] = case['tau_load']
-            i_s = m.machine.out.i_s_ab
-            samples.append((K * float(i_s.real), K * float(i_s.imag),
-                            float(m.mechanics.out.w_M)))
-            return self.inner(m)
-
-    solver = SolverCfg() if 'solver' in case['leave'] else SolverCfg(rtol=1e-10, atol=1e-12)
-    sim = Simulation(mdl, Sampled(ctrl), show_progress=False, cfg=solver)
-    t0 = time.perf_counter()
-    sim.simulate(t_stop=(n - 0.5) * T_s)     # its last controller call is at (n - 1) T_s
-    if len(samples) != n:
-        raise RuntimeError(f'motulator gave {len(samples)} samples, not {n}')
-    return samples, time.perf_counter() - t0
-
-
-def rel_rms(a, b, cols, lo=0, hi=None):
-    a, b = a[lo:hi], b[lo:hi]
-    num = sum((x[c] - y[c]) ** 2 for x, y in zip(a, b) for c in cols)
-    den = sum(y[c] ** 2 for y in b for c in cols)
-    return math.sqrt(num / den)
+    return simulate_motulator(mdl, ctrl, load, case)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[1])
-    ap.add_argument('--duration', type=float, default=0.8, help='simulated time [s]')
-    ap.add_argument('--T-s', dest='T_s', type=float, default=1e-4, help='control period [s]')
-    ap.add_argument('--speed', type=float, default=0.5 * 2 * math.pi * 50 / 2,
-                    help='speed reference after the step [mechanical rad/s] (default: half the '
-                         'synchronous speed of 50 Hz)')
-    ap.add_argument('--speed-step-time', type=float, default=0.1, help='[s]')
-    ap.add_argument('--load', type=float, default=10.0, help='load torque after the step [N m]')
-    ap.add_argument('--load-step-time', type=float, default=0.4, help='[s]')
+    add_common_args(ap, duration=0.8, load=10.0, load_step_time=0.4, leave=LEAVE)
     ap.add_argument('--current-limit', type=float, default=40.0,
                     help='current-vector limit [A], power-invariant (motulator: /sqrt(3/2))')
-    ap.add_argument('--alpha-o', type=float, default=2 * math.pi * 400,
-                    help="motulator's sensored speed-observer pole [rad/s] (its default; inf: "
-                         'a pure one-period delay), applied on both sides')
-    ap.add_argument('--u-dc', type=float, default=1e4,
-                    help="motulator's DC bus [V] (high: no PWM limit, no field weakening)")
-    ap.add_argument('--max-substep', type=float, default=2.5e-5,
-                    help="the project's plant RK4 sub-step [s]")
-    ap.add_argument('--leave', action='append', default=[], choices=LEAVE,
-                    help='leave this convention difference in place, to see its size '
-                         '(repeatable): ' + '; '.join(f'{k}: {v}' for k, v in LEAVE.items()))
-    ap.add_argument('--json', default=None, help='write the numbers here')
+    add_alpha_o_arg(ap)
     args = ap.parse_args(argv)
     from im_common.params import THESIS_FLUX_LEVELS, THESIS_MOTOR
     motor = THESIS_MOTOR
-    T_s = args.T_s
-    n = int(round(args.duration / T_s))
-    case = {'n': n, 'T_s': T_s, 'w_ref': args.speed, 't_speed': args.speed_step_time,
-            'tau_load': args.load, 't_load': args.load_step_time, 'i_max': args.current_limit,
+    case = {**base_case(args), 'i_max': args.current_limit,
             'alpha_c': 2 * math.pi * 200, 'alpha_s': 100.0, 'alpha_o': args.alpha_o,
-            'phi_r_ref': THESIS_FLUX_LEVELS['phi_d'], 'u_dc': args.u_dc,
-            'max_substep': args.max_substep, 'leave': args.leave}
+            'phi_r_ref': THESIS_FLUX_LEVELS['phi_d']}
+    T_s, n = case['T_s'], case['n']
     ours, t_ours = run_ours(motor, case)
     theirs, t_mot = run_motulator(motor, case)
-    k_s = int(round(args.speed_step_time / T_s))
-    k_l = int(round(args.load_step_time / T_s))
-    segments = {'whole run': (0, n), 'magnetizing': (0, min(k_s, n)),
-                'speed step': (k_s, min(k_l, n)), 'load step': (k_l, n)}
-    table = {name: {'current_rel_rms': rel_rms(ours, theirs, (0, 1), lo, hi),
-                    'speed_rel_rms': rel_rms(ours, theirs, (2,), lo, hi) if hi > k_s else None}
-             for name, (lo, hi) in segments.items() if min(hi, n) > lo}
-    last = {'ours': [round(x, 9) for x in ours[-1]],
-            'motulator': [round(x, 9) for x in theirs[-1]]}
-    print(f'{"segment":14s} {"i_s rel RMS":>12s} {"speed rel RMS":>14s}')
-    for name, r in table.items():
-        sp = '-' if r['speed_rel_rms'] is None else f'{r["speed_rel_rms"]:.3e}'
-        print(f'{name:14s} {r["current_rel_rms"]:12.3e} {sp:>14s}')
-    print(f'final sample (i_a, i_b, w_M): ours {last["ours"]}, motulator {last["motulator"]}')
+    table, last = compare(ours, theirs, args)
+    print_comparison(table, last)
     print(f'wall time: ours {t_ours:.2f} s, motulator {t_mot:.2f} s')
     res = {'duration_s': args.duration, 'T_s': T_s, 'periods': n, 'speed_ref_rad_s': args.speed,
            'speed_step_time_s': args.speed_step_time, 'load_Nm': args.load,
@@ -257,9 +154,7 @@ def main(argv=None) -> int:
            'left_in_place': args.leave,
            'segments': table, 'final_sample': last,
            'wall_s_ours': t_ours, 'wall_s_motulator': t_mot}
-    if args.json:
-        with open(args.json, 'w') as fh:
-            json.dump(res, fh, indent=1)
+    write_json(args.json, res)
     return 0
 
 

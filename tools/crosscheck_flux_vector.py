@@ -2,10 +2,10 @@
 Cross-check the ROS-free flux-vector controller against motulator 0.18's FluxVectorController.
 
 The sibling of tools/crosscheck_baselines.py (the current-vector controller) and
-tools/crosscheck_vhz.py (V/Hz), with their structure, plant setup and helpers. motulator needs
-Python >= 3.12 and the project runs on 3.11, so this runs from a scratch environment outside the
-repository; the project's controller and plant (pure Python, with pydantic) are imported from
-src/::
+tools/crosscheck_vhz.py (V/Hz), with their structure; the plant setup and helpers all three
+share are in tools/motulator_common.py. motulator needs Python >= 3.12 and the project runs on
+3.11, so this runs from a scratch environment outside the repository; the project's controller
+and plant (pure Python, with pydantic) are imported from src/::
 
     python3.12 -m venv ../mot-env && ../mot-env/bin/pip install 'motulator==0.18.*' pydantic
     ../mot-env/bin/python tools/crosscheck_flux_vector.py [--duration 0.8] [--json out.json]
@@ -44,7 +44,7 @@ The convention differences, each removed in the inputs or the setup (none after 
 * The speed feedback: motulator's sensored mode feeds its speed observer's output ŵ (ŵ ← ŵ +
   T_s k_w (ω_meas − ŵ), k_w = (1 − e^{−α_o T_s})/T_s, α_o = 2π·400 rad/s, read before the update)
   to the flux observer and the speed PI; the project's controller is given the same ŵ
-  (:func:`crosscheck_baselines.speed_filter_gain`).
+  (:class:`motulator_common.SpeedObserver`).
 * No speed-controller feedforward in motulator: the project's SpeedPI gets τ_ff = 0.
 * The speed reference: a step by default; ``--slew-rate`` ramps it (the same function of the
   sampling instant on both sides: motulator's reference function, not its rate limiter).
@@ -90,18 +90,16 @@ differences).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
-import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_common'))
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_controller'))
-
-from crosscheck_baselines import K, rel_rms, speed_filter_gain  # noqa: E402
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # tools/: motulator_common
+from motulator_common import (  # noqa: E402
+    add_alpha_o_arg, add_common_args, base_case, compare, count_torque_bounds, K, motulator_drive,
+    motulator_psi_s_nom, prime_first_period, print_comparison, print_peak_and_bounds,
+    project_plant, run_closed_loop, simulate_motulator, speed_ref as step_speed_ref,
+    SpeedObserver, write_json)
 
 
 #: the convention differences ``--leave`` can leave in place (module doc)
@@ -113,180 +111,81 @@ LEAVE = {'first-period': "the project's first command acts from t_0 (its Command
 
 def speed_ref(t: float, case: dict) -> float:
     """Return the speed reference at the sampling instant t: a step, or a ramp at the slew rate."""
-    t0 = case['t_speed'] - 0.5 * case['T_s']
     if case['slew_rate'] is None:
-        return case['w_ref'] if t >= t0 else 0.0
+        return step_speed_ref(t, case)
+    t0 = case['t_speed'] - 0.5 * case['T_s']
     return min(max(t - t0, 0.0) * case['slew_rate'], case['w_ref'])
 
 
 def run_ours(motor, case: dict):
-    from im_common.loads import NoLoad
-    from im_common.plant_sim import PlantSimulator
     from im_controller.baselines.flux_vector import FluxVectorController, FluxVectorGains
-    T_s, n = case['T_s'], case['n']
+    T_s = case['T_s']
     gains = FluxVectorGains(alpha_s=case['alpha_s'])
     ctrl = FluxVectorController(motor, T_s, gains, delay=1, psi_s_nom=case['psi_s_nom'],
                                 current_limit=case['i_max'], v_limit=case['v_limit'], tau_max=None)
-    sim = PlantSimulator(motor, NoLoad(), T_s=T_s, max_substep=case['max_substep'],
-                         v_limit=None, current_trip=None, speed_trip=None,
-                         inverter_rating=1e9, inverter={'delay': 1})
-    if 'first-period' not in case['leave']:
-        # the zero vector over [t_0, t_1], as motulator's delay line (module doc)
-        sim.delay.push(0.0, 0.0)
-        ctrl.line.push(0.0, 0.0)
+    sim = project_plant(motor, case)
+    prime_first_period(sim, ctrl, case)
     measured = 'speed-feedback' in case['leave']
-    k_w = speed_filter_gain(case['alpha_o'], T_s)
-    w_hat = 0.0                         # motulator's speed observer, its initial value
-    k_load = int(round(case['t_load'] / T_s))
-    out = []
+    obs = SpeedObserver(case['alpha_o'], T_s)
     bound = {'field_weakening': 0, 'v_limit': 0}
-    t0 = time.perf_counter()
-    for k in range(n):
-        m = sim.measure()
-        out.append((m.i_alpha, m.i_beta, m.omega_r))
-        if k == k_load:
-            sim.set_load_offset(case['tau_load'])
-        v = ctrl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r, m.omega_r if measured else w_hat,
-                         speed_ref(m.t, case), 0.0)
+
+    def law(m):
+        v = ctrl.compute(m.t, m.i_alpha, m.i_beta, m.theta_r,
+                         m.omega_r if measured else obs.w_hat, speed_ref(m.t, case), 0.0)
         if ctrl.v_limit is not None:
             w_c = abs(ctrl.observer.omega_c)
             bound['field_weakening'] += (w_c > 0.0 and ctrl.gains.k_u * ctrl.v_limit / w_c
                                          <= ctrl.psi_ref)
             bound['v_limit'] += math.hypot(*v) >= ctrl.v_limit * (1.0 - 1e-12)
-        w_hat += T_s * (k_w * (m.omega_r - w_hat))
-        sim.step(*v)
-        if sim.trip is not None:
-            raise RuntimeError(f'the plant tripped: {sim.trip}')
-    return out, time.perf_counter() - t0, bound
+        obs.update(m.omega_r)
+        return v
+
+    out, wall = run_closed_loop(sim, case, law)
+    return out, wall, bound
 
 
 def run_motulator(motor, case: dict):
     import motulator.drive.control.im as control
-    import motulator.drive.model as model
-    from motulator.common.model import Simulation, SolverCfg
 
-    T_s, n = case['T_s'], case['n']
-    par = model.InductionMachineInvGammaPars(n_p=motor.pole_pairs, R_s=motor.R_s, R_R=motor.R_R,
-                                             L_sgm=motor.L_sigma, L_M=motor.L_M)
-    machine = model.InductionMachine(par)
-    mech = model.MechanicalSystem(J=motor.J, B_L=motor.b)
-    load = {'tau': 0.0}
-    mech.set_external_load_torque(lambda t: load['tau'])
-    conv = model.VoltageSourceConverter(u_dc=case['u_dc'])
-    mdl = model.Drive(machine, mech, conv, delay=1)      # ZOH, one period's delay (defaults)
-    psi_s_nom = case['psi_s_nom']
-    if 'flux-scaling' not in case['leave']:
-        psi_s_nom /= K
+    par, mdl, load = motulator_drive(motor, case['u_dc'])
+    psi_s_nom = motulator_psi_s_nom(case)
     cfg = control.FluxVectorControllerCfg(psi_s_nom=psi_s_nom, i_s_max=case['i_max'] / K,
-                                          alpha_o=case['alpha_o'], sensorless=False, T_s=T_s)
+                                          alpha_o=case['alpha_o'], sensorless=False,
+                                          T_s=case['T_s'])
     fvc = control.FluxVectorController(par, cfg)
-    bound = {'tau_cl': 0, 'tau_b': 0}
-    gen = fvc.reference_gen
-    inner_gen = gen.compute_output
-
-    def counted(tau_M_ref, w_s, psi_R, u_dc):
-        """Count the periods where τ_cl or the breakdown torque bound the torque reference."""
-        psi_s_ref, tau = inner_gen(tau_M_ref, w_s, psi_R, u_dc)
-        if abs(tau) < abs(tau_M_ref):
-            k = gen.k_b * par.L_M / (par.L_M + par.L_sgm)      # motulator's expression
-            tau_b = 0.75 * par.n_p * k * psi_s_ref ** 2 / par.L_sgm
-            bound['tau_b' if abs(tau) == tau_b else 'tau_cl'] += 1
-        return psi_s_ref, tau
-
-    gen.compute_output = counted
+    bound = count_torque_bounds(fvc, par)
     speed_ctrl = control.SpeedController(J=motor.J, alpha_s=case['alpha_s'])
     ctrl = control.VectorControlSystem(fvc, speed_ctrl)
-    ctrl.set_speed_ref(lambda t: speed_ref(t, case))
-    k_load = int(round(case['t_load'] / T_s))
-    samples = []
-
-    class Sampled:
-        """motulator's control system, with the samples and the load step at each period start."""
-
-        def __init__(self, inner):
-            self.inner = inner
-
-        def __getattr__(self, name):
-            return getattr(self.inner, name)
-
-        def __call__(self, m):
-            if len(samples) == k_load:
-                load['tau'] = case['tau_load']
-            i_s = m.machine.out.i_s_ab
-            samples.append((K * float(i_s.real), K * float(i_s.imag),
-                            float(m.mechanics.out.w_M)))
-            return self.inner(m)
-
-    solver = SolverCfg() if 'solver' in case['leave'] else SolverCfg(rtol=1e-10, atol=1e-12)
-    sim = Simulation(mdl, Sampled(ctrl), show_progress=False, cfg=solver)
-    t0 = time.perf_counter()
-    sim.simulate(t_stop=(n - 0.5) * T_s)     # its last controller call is at (n - 1) T_s
-    if len(samples) != n:
-        raise RuntimeError(f'motulator gave {len(samples)} samples, not {n}')
-    return samples, time.perf_counter() - t0, bound
+    samples, wall = simulate_motulator(mdl, ctrl, load, case, speed_ref)
+    return samples, wall, bound
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[1])
-    ap.add_argument('--duration', type=float, default=0.8, help='simulated time [s]')
-    ap.add_argument('--T-s', dest='T_s', type=float, default=1e-4, help='control period [s]')
-    ap.add_argument('--speed', type=float, default=0.5 * 2 * math.pi * 50 / 2,
-                    help='speed reference after the step [mechanical rad/s] (default: half the '
-                         'synchronous speed of 50 Hz)')
-    ap.add_argument('--speed-step-time', type=float, default=0.1, help='[s]')
+    add_common_args(ap, duration=0.8, load=10.0, load_step_time=0.4, leave=LEAVE)
     ap.add_argument('--slew-rate', type=float, default=0.0,
                     help='ramp the speed reference at this rate [rad/s^2], on both (0: a step)')
-    ap.add_argument('--load', type=float, default=10.0, help='load torque after the step [N m]')
-    ap.add_argument('--load-step-time', type=float, default=0.4, help='[s]')
     ap.add_argument('--current-limit', type=float, default=40.0,
                     help='current-vector limit [A], power-invariant, on both (motulator: '
                          '/sqrt(3/2))')
-    ap.add_argument('--alpha-o', type=float, default=2 * math.pi * 400,
-                    help="motulator's sensored speed-observer pole [rad/s] (its default; inf: "
-                         'a pure one-period delay), applied on both sides')
-    ap.add_argument('--u-dc', type=float, default=1e4,
-                    help="motulator's DC bus [V] (high: no PWM limit, no field weakening)")
+    add_alpha_o_arg(ap)
     ap.add_argument('--voltage-limit', action='store_true',
                     help="give the project v_limit = sqrt(3/2) u_dc/sqrt(3), motulator's linear "
                          'modulation range: both weaken the field alike (with --u-dc low enough)')
-    ap.add_argument('--max-substep', type=float, default=2.5e-5,
-                    help="the project's plant RK4 sub-step [s]")
-    ap.add_argument('--leave', action='append', default=[], choices=LEAVE,
-                    help='leave this convention difference in place, to see its size '
-                         '(repeatable): ' + '; '.join(f'{k}: {v}' for k, v in LEAVE.items()))
-    ap.add_argument('--json', default=None, help='write the numbers here')
     args = ap.parse_args(argv)
     from im_common.params import THESIS_MOTOR
     from im_controller.baselines.vhz import nominal_stator_flux
     motor = THESIS_MOTOR
-    T_s = args.T_s
-    n = int(round(args.duration / T_s))
-    case = {'n': n, 'T_s': T_s, 'w_ref': args.speed, 't_speed': args.speed_step_time,
-            'tau_load': args.load, 't_load': args.load_step_time, 'i_max': args.current_limit,
-            'alpha_s': 100.0, 'alpha_o': args.alpha_o,
-            'psi_s_nom': nominal_stator_flux(motor), 'u_dc': args.u_dc,
-            'max_substep': args.max_substep, 'leave': args.leave,
+    case = {**base_case(args), 'i_max': args.current_limit,
+            'alpha_s': 100.0, 'alpha_o': args.alpha_o, 'psi_s_nom': nominal_stator_flux(motor),
             'slew_rate': args.slew_rate or None,
             'v_limit': K * args.u_dc / math.sqrt(3.0) if args.voltage_limit else None}
+    T_s, n = case['T_s'], case['n']
     ours, t_ours, ours_bound = run_ours(motor, case)
     theirs, t_mot, bound = run_motulator(motor, case)
-    k_s = int(round(args.speed_step_time / T_s))
-    k_l = int(round(args.load_step_time / T_s))
-    segments = {'whole run': (0, n), 'magnetizing': (0, min(k_s, n)),
-                'speed step': (k_s, min(k_l, n)), 'load step': (k_l, n)}
-    table = {name: {'current_rel_rms': rel_rms(ours, theirs, (0, 1), lo, hi),
-                    'speed_rel_rms': rel_rms(ours, theirs, (2,), lo, hi) if hi > k_s else None}
-             for name, (lo, hi) in segments.items() if min(hi, n) > lo}
-    last = {'ours': [round(x, 9) for x in ours[-1]],
-            'motulator': [round(x, 9) for x in theirs[-1]]}
-    i_peak = max(math.hypot(x[0], x[1]) for x in ours)
-    print(f'{"segment":14s} {"i_s rel RMS":>12s} {"speed rel RMS":>14s}')
-    for name, r in table.items():
-        sp = '-' if r['speed_rel_rms'] is None else f'{r["speed_rel_rms"]:.3e}'
-        print(f'{name:14s} {r["current_rel_rms"]:12.3e} {sp:>14s}')
-    print(f'final sample (i_a, i_b, w_M): ours {last["ours"]}, motulator {last["motulator"]}')
-    print(f'peak |i_s| (ours, power-invariant): {i_peak:.2f} A; periods where motulator’s '
-          f'torque reference was bound: tau_cl {bound["tau_cl"]}, breakdown {bound["tau_b"]}')
+    table, last = compare(ours, theirs, args)
+    print_comparison(table, last)
+    i_peak = print_peak_and_bounds(ours, bound)
     if case['v_limit'] is not None:
         print(f'periods where ours weakened the field: {ours_bound["field_weakening"]}, clipped '
               f'the voltage to v_limit = {case["v_limit"]:.1f} V: {ours_bound["v_limit"]}')
@@ -300,9 +199,7 @@ def main(argv=None) -> int:
            'motulator_torque_ref_bound_periods': bound, 'slew_rate_rad_s2': args.slew_rate,
            'v_limit_V': case['v_limit'], 'ours_bound_periods': ours_bound,
            'wall_s_ours': t_ours, 'wall_s_motulator': t_mot}
-    if args.json:
-        with open(args.json, 'w') as fh:
-            json.dump(res, fh, indent=1)
+    write_json(args.json, res)
     return 0
 
 

@@ -23,16 +23,13 @@ sampled at every period start (the carrier peak), and the wall time of both simu
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_common'))
-
-K = math.sqrt(1.5)          # power-invariant vector = sqrt(3/2) x peak-value vector
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # tools/: motulator_common
+from motulator_common import K, rel_rms, write_json  # noqa: E402
 
 
 def command(k: int, T_s: float, V: float, f: float):
@@ -102,12 +99,6 @@ def run_motulator(motor, n: int, T_s: float, V_dc: float, t_d: float, v_on: floa
     return samples[:n], time.perf_counter() - t0
 
 
-def rel_rms(a, b, cols):
-    num = sum((x[c] - y[c]) ** 2 for x, y in zip(a, b) for c in cols)
-    den = sum(y[c] ** 2 for y in b for c in cols)
-    return math.sqrt(num / den)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[1])
     ap.add_argument('--duration', type=float, default=0.2, help='simulated time [s]')
@@ -135,9 +126,7 @@ def main(argv=None) -> int:
            'motulator_over_ours_wall': t_mot / t_ours}
     for k, v in res.items():
         print(f'{k:28s} {v:.6g}' if isinstance(v, float) else f'{k:28s} {v}')
-    if args.json:
-        with open(args.json, 'w') as fh:
-            json.dump(res, fh, indent=1)
+    write_json(args.json, res)
     return 0
 
 

@@ -1,10 +1,11 @@
 """
 Cross-check the ROS-free observer-based V/Hz controller against motulator 0.18.
 
-The sibling of tools/crosscheck_baselines.py (the current-vector controller), with its structure,
-plant setup and helpers. motulator needs Python >= 3.12 and the project runs on 3.11, so this runs
-from a scratch environment outside the repository; the project's controller and plant (pure
-Python, with pydantic) are imported from src/::
+The sibling of tools/crosscheck_baselines.py (the current-vector controller), with its structure;
+the plant setup and helpers they share are in tools/motulator_common.py. motulator needs Python
+>= 3.12 and the project runs on 3.11, so this runs from a scratch environment outside the
+repository; the project's controller and plant (pure Python, with pydantic) are imported from
+src/::
 
     python3.12 -m venv ../mot-env && ../mot-env/bin/pip install 'motulator==0.18.*' pydantic
     ../mot-env/bin/python tools/crosscheck_vhz.py [--duration 1.0] [--json out.json]
@@ -92,18 +93,15 @@ projection is 0, the project's 1.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
-import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_common'))
-sys.path.insert(0, os.path.join(HERE, '..', 'src', 'im_controller'))
-
-from crosscheck_baselines import K, rel_rms, speed_ref  # noqa: E402
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # tools/: motulator_common
+from motulator_common import (  # noqa: E402
+    add_common_args, base_case, compare, count_torque_bounds, K, motulator_drive,
+    motulator_psi_s_nom, prime_first_period, print_comparison, print_peak_and_bounds,
+    project_plant, run_closed_loop, simulate_motulator, speed_ref, write_json)
 
 
 #: the convention differences ``--leave`` can leave in place (module doc)
@@ -113,156 +111,53 @@ LEAVE = {'first-period': "the project's first command acts from t_0 (its Command
 
 
 def run_ours(motor, case: dict):
-    from im_common.loads import NoLoad
-    from im_common.plant_sim import PlantSimulator
     from im_controller.baselines.vhz import ObserverBasedVHz, VHzGains
-    T_s, n = case['T_s'], case['n']
     gains = VHzGains(slew_rate=case['slew_rate'])
-    ctrl = ObserverBasedVHz(motor, T_s, gains, delay=1, psi_s_nom=case['psi_s_nom'],
+    ctrl = ObserverBasedVHz(motor, case['T_s'], gains, delay=1, psi_s_nom=case['psi_s_nom'],
                             v_limit=None, current_limit=case['i_max_ours'])
-    sim = PlantSimulator(motor, NoLoad(), T_s=T_s, max_substep=case['max_substep'],
-                         v_limit=None, current_trip=None, speed_trip=None,
-                         inverter_rating=1e9, inverter={'delay': 1})
-    if 'first-period' not in case['leave']:
-        # the zero vector over [t_0, t_1], as motulator's delay line (module doc)
-        sim.delay.push(0.0, 0.0)
-        ctrl.line.push(0.0, 0.0)
-    k_load = int(round(case['t_load'] / T_s))
-    out = []
-    t0 = time.perf_counter()
-    for k in range(n):
-        m = sim.measure()
-        out.append((m.i_alpha, m.i_beta, m.omega_r))
-        if k == k_load:
-            sim.set_load_offset(case['tau_load'])
-        v = ctrl.compute(m.t, m.i_alpha, m.i_beta, speed_ref(m.t, case))
-        sim.step(*v)
-        if sim.trip is not None:
-            raise RuntimeError(f'the plant tripped: {sim.trip}')
-    return out, time.perf_counter() - t0
+    sim = project_plant(motor, case)
+    prime_first_period(sim, ctrl, case)
+    return run_closed_loop(
+        sim, case, lambda m: ctrl.compute(m.t, m.i_alpha, m.i_beta, speed_ref(m.t, case)))
 
 
 def run_motulator(motor, case: dict):
     import motulator.drive.control.im as control
-    import motulator.drive.model as model
-    from motulator.common.model import Simulation, SolverCfg
 
-    T_s, n = case['T_s'], case['n']
-    par = model.InductionMachineInvGammaPars(n_p=motor.pole_pairs, R_s=motor.R_s, R_R=motor.R_R,
-                                             L_sgm=motor.L_sigma, L_M=motor.L_M)
-    machine = model.InductionMachine(par)
-    mech = model.MechanicalSystem(J=motor.J, B_L=motor.b)
-    load = {'tau': 0.0}
-    mech.set_external_load_torque(lambda t: load['tau'])
-    conv = model.VoltageSourceConverter(u_dc=case['u_dc'])
-    mdl = model.Drive(machine, mech, conv, delay=1)      # ZOH, one period's delay (defaults)
-    psi_s_nom = case['psi_s_nom']
-    if 'flux-scaling' not in case['leave']:
-        psi_s_nom /= K
+    par, mdl, load = motulator_drive(motor, case['u_dc'])
+    psi_s_nom = motulator_psi_s_nom(case)
     cfg = control.ObserverBasedVHzControllerCfg(psi_s_nom=psi_s_nom, i_s_max=case['i_max'] / K,
-                                                T_s=T_s)
+                                                T_s=case['T_s'])
     vhz = control.ObserverBasedVHzController(par, cfg)
-    bound = {'tau_cl': 0, 'tau_b': 0}
-    gen = vhz.reference_gen
-    inner_gen = gen.compute_output
-
-    def counted(tau_M_ref, w_s, psi_R, u_dc):
-        """Count the periods where τ_cl or the breakdown torque bound the torque reference."""
-        psi_s_ref, tau = inner_gen(tau_M_ref, w_s, psi_R, u_dc)
-        if abs(tau) < abs(tau_M_ref):
-            k = gen.k_b * par.L_M / (par.L_M + par.L_sgm)      # motulator's expression
-            tau_b = 0.75 * par.n_p * k * psi_s_ref ** 2 / par.L_sgm
-            bound['tau_b' if abs(tau) == tau_b else 'tau_cl'] += 1
-        return psi_s_ref, tau
-
-    gen.compute_output = counted
+    bound = count_torque_bounds(vhz, par)
     ctrl = control.VHzControlSystem(vhz, slew_rate=(math.inf if case['slew_rate'] is None
                                                     else case['slew_rate']))
-    ctrl.set_speed_ref(lambda t: speed_ref(t, case))
-    k_load = int(round(case['t_load'] / T_s))
-    samples = []
-
-    class Sampled:
-        """motulator's control system, with the samples and the load step at each period start."""
-
-        def __init__(self, inner):
-            self.inner = inner
-
-        def __getattr__(self, name):
-            return getattr(self.inner, name)
-
-        def __call__(self, m):
-            if len(samples) == k_load:
-                load['tau'] = case['tau_load']
-            i_s = m.machine.out.i_s_ab
-            samples.append((K * float(i_s.real), K * float(i_s.imag),
-                            float(m.mechanics.out.w_M)))
-            return self.inner(m)
-
-    solver = SolverCfg() if 'solver' in case['leave'] else SolverCfg(rtol=1e-10, atol=1e-12)
-    sim = Simulation(mdl, Sampled(ctrl), show_progress=False, cfg=solver)
-    t0 = time.perf_counter()
-    sim.simulate(t_stop=(n - 0.5) * T_s)     # its last controller call is at (n - 1) T_s
-    if len(samples) != n:
-        raise RuntimeError(f'motulator gave {len(samples)} samples, not {n}')
-    return samples, time.perf_counter() - t0, bound
+    samples, wall = simulate_motulator(mdl, ctrl, load, case)
+    return samples, wall, bound
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[1])
-    ap.add_argument('--duration', type=float, default=1.0, help='simulated time [s]')
-    ap.add_argument('--T-s', dest='T_s', type=float, default=1e-4, help='control period [s]')
-    ap.add_argument('--speed', type=float, default=0.5 * 2 * math.pi * 50 / 2,
-                    help='speed reference after the step [mechanical rad/s] (default: half the '
-                         'synchronous speed of 50 Hz)')
-    ap.add_argument('--speed-step-time', type=float, default=0.1, help='[s]')
+    add_common_args(ap, duration=1.0, load=5.0, load_step_time=0.5, leave=LEAVE)
     ap.add_argument('--slew-rate', type=float, default=400.0,
                     help='rate limit of the speed reference [rad/s^2], on both (0: none)')
-    ap.add_argument('--load', type=float, default=5.0, help='load torque after the step [N m]')
-    ap.add_argument('--load-step-time', type=float, default=0.5, help='[s]')
     ap.add_argument('--current-limit', type=float, default=None,
                     help='current-vector limit [A], power-invariant, on both (motulator: '
                          '/sqrt(3/2)); default: none (motulator: 1e6 A)')
-    ap.add_argument('--u-dc', type=float, default=1e4,
-                    help="motulator's DC bus [V] (high: no PWM limit, no field weakening)")
-    ap.add_argument('--max-substep', type=float, default=2.5e-5,
-                    help="the project's plant RK4 sub-step [s]")
-    ap.add_argument('--leave', action='append', default=[], choices=LEAVE,
-                    help='leave this convention difference in place, to see its size '
-                         '(repeatable): ' + '; '.join(f'{k}: {v}' for k, v in LEAVE.items()))
-    ap.add_argument('--json', default=None, help='write the numbers here')
     args = ap.parse_args(argv)
     from im_common.params import THESIS_MOTOR
     from im_controller.baselines.vhz import nominal_stator_flux
     motor = THESIS_MOTOR
-    T_s = args.T_s
-    n = int(round(args.duration / T_s))
-    case = {'n': n, 'T_s': T_s, 'w_ref': args.speed, 't_speed': args.speed_step_time,
-            'slew_rate': args.slew_rate or None,
-            'tau_load': args.load, 't_load': args.load_step_time,
+    case = {**base_case(args), 'slew_rate': args.slew_rate or None,
             'i_max_ours': args.current_limit,
             'i_max': 1e6 if args.current_limit is None else args.current_limit,
-            'psi_s_nom': nominal_stator_flux(motor), 'u_dc': args.u_dc,
-            'max_substep': args.max_substep, 'leave': args.leave}
+            'psi_s_nom': nominal_stator_flux(motor)}
+    T_s, n = case['T_s'], case['n']
     ours, t_ours = run_ours(motor, case)
     theirs, t_mot, bound = run_motulator(motor, case)
-    k_s = int(round(args.speed_step_time / T_s))
-    k_l = int(round(args.load_step_time / T_s))
-    segments = {'whole run': (0, n), 'magnetizing': (0, min(k_s, n)),
-                'speed step': (k_s, min(k_l, n)), 'load step': (k_l, n)}
-    table = {name: {'current_rel_rms': rel_rms(ours, theirs, (0, 1), lo, hi),
-                    'speed_rel_rms': rel_rms(ours, theirs, (2,), lo, hi) if hi > k_s else None}
-             for name, (lo, hi) in segments.items() if min(hi, n) > lo}
-    last = {'ours': [round(x, 9) for x in ours[-1]],
-            'motulator': [round(x, 9) for x in theirs[-1]]}
-    i_peak = max(math.hypot(x[0], x[1]) for x in ours)
-    print(f'{"segment":14s} {"i_s rel RMS":>12s} {"speed rel RMS":>14s}')
-    for name, r in table.items():
-        sp = '-' if r['speed_rel_rms'] is None else f'{r["speed_rel_rms"]:.3e}'
-        print(f'{name:14s} {r["current_rel_rms"]:12.3e} {sp:>14s}')
-    print(f'final sample (i_a, i_b, w_M): ours {last["ours"]}, motulator {last["motulator"]}')
-    print(f'peak |i_s| (ours, power-invariant): {i_peak:.2f} A; periods where motulator’s '
-          f'torque reference was bound: tau_cl {bound["tau_cl"]}, breakdown {bound["tau_b"]}')
+    table, last = compare(ours, theirs, args)
+    print_comparison(table, last)
+    i_peak = print_peak_and_bounds(ours, bound)
     print(f'wall time: ours {t_ours:.2f} s, motulator {t_mot:.2f} s')
     res = {'duration_s': args.duration, 'T_s': T_s, 'periods': n, 'speed_ref_rad_s': args.speed,
            'speed_step_time_s': args.speed_step_time, 'slew_rate_rad_s2': args.slew_rate,
@@ -273,9 +168,7 @@ def main(argv=None) -> int:
            'segments': table, 'final_sample': last, 'peak_current_A': i_peak,
            'motulator_torque_ref_bound_periods': bound,
            'wall_s_ours': t_ours, 'wall_s_motulator': t_mot}
-    if args.json:
-        with open(args.json, 'w') as fh:
-            json.dump(res, fh, indent=1)
+    write_json(args.json, res)
     return 0
 
 
