@@ -129,6 +129,11 @@ def test_a_law_refuses_a_task_it_cannot_do_in_one_line():
     ({'controller': 'current_vector', 'baseline': {'alpha_s': -1.0}}, 'baseline.alpha_s'),
     ({'controller': 'vhz', 'task': 'speed', 'baseline': {'alpha_c': 10.0}}, 'baseline.alpha_c'),
     ({'controller': 'nominal', 'baseline': {'alpha_s': 10.0}}, 'baseline'),
+    # the thesis law's gains would be ignored by a baseline: refused, not dropped
+    ({'controller': 'current_vector', 'controller_options': {'k_v': 3.0}},
+     'controller_options.k_v: is a gain of the thesis law; controller current_vector takes its '
+     "gains from 'baseline:'"),
+    ({'controller': 'flux_vector', 'current_gain': [[40.0, 0.0], [0.0, 40.0]]}, 'current_gain'),
 ])
 def test_a_bad_baseline_block_is_one_line_naming_its_key(doc, key):
     with pytest.raises(RunFileError) as err:

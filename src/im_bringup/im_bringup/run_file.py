@@ -39,7 +39,7 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE
 from im_common.sensors import Sensors
 from im_common.validation import check_choice, one_line
 from im_controller.baselines.drive import check_law_task, gains_model, LAWS
-from im_controller.control_law import ControllerConfig, MODES, steady_start
+from im_controller.control_law import ControllerConfig, MODES, steady_start, THESIS_LAW_GAINS
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
 from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
@@ -230,6 +230,15 @@ class Scenario:
                                        f'controller, but the controller is {self.controller!r} '
                                        '(current_vector or vhz take them)')
             put(self, 'baseline', gains_model(self.law).from_block(self.baseline))
+        if self.law != 'thesis':        # a baseline law would ignore the thesis law's gains
+            given = [f'controller_options.{k}' for k in THESIS_LAW_GAINS
+                     if k in self.controller_options] + (['current_gain']
+                                                         if self.current_gain is not None else [])
+            if given:
+                raise InvalidParameter(given[0], self.controller_options.get(
+                    given[0].split('.')[-1], self.current_gain), 'is a gain of the thesis law; '
+                    f"controller {self.controller} takes its gains from 'baseline:' "
+                    '(docs/baselines.md)')
         check_choice('mode', self.mode, STEPPING_MODES)
         if isinstance(self.variation, Mapping):
             put(self, 'variation', normalize_variation(self.variation) or 'none')

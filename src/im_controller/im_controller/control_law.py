@@ -76,6 +76,9 @@ DEFAULT_CURRENT_MARGIN = 0.9
 RATED_FIELDS = {'v_limit': None, 'current_limit': None, **THESIS_FLUX_LEVELS}
 # |i_q*| ≤ MAGNETIZING_RATIO · i_d*/√σ: the torque a partly magnetized machine is asked for
 MAGNETIZING_RATIO = 2.0
+#: the thesis law's own gains: a baseline law (docs/baselines.md) takes its gains from its
+#: ``baseline`` block and refuses these
+THESIS_LAW_GAINS = ('k1', 'k_p', 'k_v', 'current_gain', 'flux_coupling')
 # Reconfigurable while running (ros2 param set on the controller node): gains, strategy, flux
 # levels and limits. Everything else (mode, profile, motor model, period) is fixed for a run.
 LIVE_FIELDS = ('strategy', 'phi_d', 'phi_min', 'phi_max', 'k1', 'k_p', 'k_v', 'current_gain',

@@ -49,6 +49,7 @@ from im_common.loads import StepLoad
 from im_common.metrics import LOAD_STEP_BAND
 from im_common.params import CHAPTER4_VARIATION, load_motor_file, shipped_motors_dir
 from im_common.sensors import Sensors
+from im_controller.control_law import THESIS_LAW_GAINS
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 
@@ -77,9 +78,6 @@ CHECK_MOTORS = ('thesis', 'krause_3hp')
 CHECK_TASKS = ('speed', 'load_step')
 CHECK_STRATEGIES = ('constant_flux', 'min_loss')
 SENSING = ('sensored', 'sensorless')
-#: the part of the rating-scaled options (study_motors.scaled_options) that is the thesis law's
-#: gains: a baseline law takes its gains from its bandwidths and the motor file
-THESIS_LAW_GAINS = ('k_p', 'k_v', 'k1')
 #: --quick: every run this long [s]
 QUICK_DURATION = 0.3
 PARTS = ('compare', 'check')
@@ -135,7 +133,7 @@ def check_scenario(motor: str, law: str, strategy: str, task: str, sensing: str,
         base = scenario(law, strategy, task, 'real, delay 1', 'none', duration)
         return dataclasses.replace(base, compensation='inverter', sensorless=sensorless)
     m = load_motor_file(motor_path(motor))
-    opts = {k: v for k, v in scaled_options(m, 'speed').items()
+    opts = {k: v for k, v in scaled_options(m, 'speed').items()    # a baseline: its own gains
             if law == 'nominal' or k not in THESIS_LAW_GAINS}
     kw = dict(real_plant(m, delay=1), motor=motor_path(motor), controller=law,
               controller_options=opts, compensation='inverter', sensorless=sensorless)
