@@ -14,6 +14,7 @@ closes the loop in wall-clock time; live parameters are validated, applied and r
 """
 from collections import Counter
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -224,9 +225,18 @@ def test_killed_node_is_reported_and_nothing_hangs(tmp_path, domain):
         codes = g.wait(30)
         assert None not in codes.values(), codes
         assert codes['observer'] == -signal.SIGKILL
-        assert codes['plant'] == 1
-        assert 'no /im/command/voltage stamped' in g.log('plant')
-        assert codes['controller'] in (0, 1)
+        # the stall is diagnosed in one line by the first watchdog to fire: the plant's (1 s),
+        # or, on a crowded machine where the plant's process ran less than the controller's
+        # (the wait counts only the time a process ran), the controller's (2.5 s), whose
+        # failure then ends the plant's part as its provider's
+        plant, controller = g.log('plant'), g.log('controller')
+        if codes['plant'] == 1:
+            assert 'no /im/command/voltage stamped' in plant, plant
+            assert codes['controller'] in (0, 1)
+        else:
+            assert codes['plant'] == 0 and "input provider 'controller' failed" in plant, plant
+            assert codes['controller'] == 1, controller
+            assert re.search(r'no [^\n]*/im/observer/flux[^\n]* stamped', controller), controller
         no_traceback(g)
 
 
@@ -242,7 +252,6 @@ def test_late_recorder_records_without_a_gap_from_where_it_joined(tmp_path, doma
     machine the plant may run more than the history ahead before it sees the recorder) is
     counted in the metadata exactly as the bag lacks it.
     """
-    import re
     bag = tmp_path / 'late.mcap'
     procs = graph_processes('position', 'min_energy', duration=1.5)
     key = procs[0].parameters['graph_key_file']          # the recorder of this graph
@@ -297,7 +306,6 @@ def test_free_run_closes_the_loop_in_wall_clock_time(tmp_path, domain, free_run_
     tripped because this machine could not keep the deadlines (how many it meets is a benchmark
     figure: benchmarks/bench_processes.py).
     """
-    import re
     if free_run_refused(free_run_rate, tmp_path, domain):
         return
     T_s = 1.0 / free_run_rate
