@@ -90,7 +90,7 @@ def prime_first_period(sim, ctrl, case: dict) -> None:
     if 'first-period' not in case['leave']:
         # the zero vector over [t_0, t_1], as motulator's delay line (module doc)
         sim.delay.push(0.0, 0.0)
-        ctrl.line.push(0.0, 0.0)
+        ctrl.out.line.push(0.0, 0.0)
 
 
 def run_closed_loop(sim, case: dict, law):

@@ -158,6 +158,39 @@ class ComplexPICurrentController:
         self.u_i = u + (self.k_p - self.k_t) * i
 
 
+def limit_to_circle(v: complex, v_limit: Optional[float]) -> complex:
+    """Return v scaled onto the v_limit circle when beyond it (None: no limit)."""
+    mag = abs(v)
+    return v * (v_limit / mag) if v_limit is not None and mag > v_limit else v
+
+
+class CommandOutput:
+    """
+    A law's voltage out, the one path of every baseline law (current-vector, flux-vector, V/Hz).
+
+    :meth:`emit` rotates the observer-frame voltage u to αβ with the angle advance (the frame's
+    turn over k_comp periods), limits it to the v_limit circle, and keeps the commands over the
+    computational delay (:class:`im_common.delay.CommandDelay`). It returns (v, v_now, u_real):
+    the command of step k (αβ), the command that acts over [t_k, t_k+1] (V_{k−d}, what the
+    observer integrates) and the realized voltage centred on t_k in observer coordinates,
+    ½(V_{k−d−1} + V_{k−d}) e^{−jθ_c} (what the integral states take).
+    """
+
+    def __init__(self, delay: int):
+        self.line = CommandDelay(delay)
+        self._v_prev: Optional[complex] = None     # V_{k-d-1}, the command that acted before
+
+    def emit(self, u: complex, theta_c: float, advance: float,
+             v_limit: Optional[float]) -> Tuple[complex, complex, complex]:
+        """Return (v, v_now, u_real) of the voltage u (observer frame at θ_c; the class doc)."""
+        v = limit_to_circle(u * cmath.exp(1j * (theta_c + advance)), v_limit)
+        v_a, v_b = self.line.push(v.real, v.imag)
+        v_now = complex(v_a, v_b)
+        v_prev = v_now if self._v_prev is None else self._v_prev
+        self._v_prev = v_now
+        return v, v_now, 0.5 * (v_prev + v_now) * cmath.exp(-1j * theta_c)
+
+
 class SpeedPI:
     """
     2DOF speed PI with anti-windup on the limited torque (motulator's speed controller).
@@ -254,8 +287,7 @@ class CurrentVectorController(SpeedLoop):
         self.current = ComplexPICurrentController(*self.gains.current_gains(self.L_sigma),
                                                   self.T_s)
         self.speed = SpeedPI(*self.gains.speed_gains(motor.J), self.T_s, tau_max)
-        self.line = CommandDelay(self.delay)
-        self._v_prev: Optional[complex] = None     # V_{k-d-1}, the command that acted before
+        self.out = CommandOutput(self.delay)
         # the last step's figures, for traces and tests
         self.i_ref = 0j             # i_s* in estimated rotor-flux coordinates [A]
         self.tau_ref = 0.0          # the torque the current reference realizes [N·m]
@@ -314,16 +346,9 @@ class CurrentVectorController(SpeedLoop):
         psi_R = obs.psi_R
         to_obs = psi_R / abs(psi_R) if psi_R != 0 else 1.0   # rotor-flux → observer coordinates
         u = self.current.output(i_ref * to_obs, obs.i)
-        v = u * cmath.exp(1j * (obs.theta_c + self.k_comp * self.T_s * obs.omega_c))
-        mag = abs(v)
-        if self.v_limit is not None and mag > self.v_limit:
-            v *= self.v_limit / mag
-        v_a, v_b = self.line.push(v.real, v.imag)
-        v_now = complex(v_a, v_b)                        # V_{k-d}, acting over [t_k, t_k+1]
-        v_prev = v_now if self._v_prev is None else self._v_prev
-        self._v_prev = v_now
-        u_real = 0.5 * (v_prev + v_now) * cmath.exp(-1j * obs.theta_c)
         omega_c = obs.omega_c
+        v, v_now, u_real = self.out.emit(u, obs.theta_c, self.k_comp * self.T_s * omega_c,
+                                         self.v_limit)
         obs.update(v_now)
         self.current.update(u_real, omega_c)
         return v.real, v.imag

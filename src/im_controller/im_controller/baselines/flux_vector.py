@@ -47,16 +47,15 @@ clip; the fallback directions without flux are :func:`~.vhz.flux_torque_directio
 """
 from __future__ import annotations
 
-import cmath
 import math
 from typing import Optional, Tuple
 
-from im_common.delay import check_delay, CommandDelay
+from im_common.delay import check_delay
 from im_common.params import MotorParams, THESIS_FLUX_LEVELS
 from im_common.validation import check_real, InvalidParameter, parameter_spec
 from pydantic import Field
 
-from .current_vector import ReducedOrderFluxObserver, SpeedLoop, SpeedPI
+from .current_vector import CommandOutput, ReducedOrderFluxObserver, SpeedLoop, SpeedPI
 from .gains import SpeedLoopGains
 from .vhz import FluxTorqueController, nominal_stator_flux, StatorFluxReference
 
@@ -168,8 +167,7 @@ class FluxVectorController(SpeedLoop, StatorFluxReference):
         self.control = FluxTorqueController(motor, self.T_s, g.alpha_psi_value, g.alpha_tau,
                                             g.alpha_i_value)
         self.speed = SpeedPI(*g.speed_gains(motor.J), self.T_s)
-        self.line = CommandDelay(self.delay)
-        self._v_prev: Optional[complex] = None     # V_{k-d-1}, the command that acted before
+        self.out = CommandOutput(self.delay)
         # the last step's figures, for traces and tests
         self.tau_hat = 0.0          # τ̂ = n_p Im(i ψ̂_s*) at t_k [N·m]
         self.tau_ref = 0.0          # the limited torque reference [N·m]
@@ -212,15 +210,8 @@ class FluxVectorController(SpeedLoop, StatorFluxReference):
         self.tau_ref = self.limit_torque(tau_ref, self.psi_ref, psi_R_mag)
         u = self.control.output(obs.i, obs.psi_s, obs.psi_R, omega_c, self.psi_ref,
                                 self.tau_ref)
-        v = u * cmath.exp(1j * (obs.theta_c + self.k_comp * self.T_s * omega_c))
-        mag = abs(v)
-        if self.v_limit is not None and mag > self.v_limit:
-            v *= self.v_limit / mag
-        v_a, v_b = self.line.push(v.real, v.imag)
-        v_now = complex(v_a, v_b)                        # V_{k-d}, acting over [t_k, t_k+1]
-        v_prev = v_now if self._v_prev is None else self._v_prev
-        self._v_prev = v_now
-        u_real = 0.5 * (v_prev + v_now) * cmath.exp(-1j * obs.theta_c)
+        v, v_now, u_real = self.out.emit(u, obs.theta_c, self.k_comp * self.T_s * omega_c,
+                                         self.v_limit)
         obs.update(v_now)
         self.control.update(u_real)
         return v.real, v.imag

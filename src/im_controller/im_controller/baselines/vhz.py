@@ -58,12 +58,12 @@ import cmath
 import math
 from typing import Optional, Tuple
 
-from im_common.delay import check_delay, CommandDelay
+from im_common.delay import check_delay
 from im_common.params import MotorParams, THESIS_FLUX_LEVELS
 from im_common.validation import check_real, InvalidParameter, parameter_spec
 from pydantic import Field
 
-from .current_vector import K_DAMP, ReducedOrderFluxObserver
+from .current_vector import CommandOutput, K_DAMP, limit_to_circle, ReducedOrderFluxObserver
 from .gains import LawGains
 
 #: the flux channel's bandwidth α_ψ, 2π·100 rad/s (a.7)
@@ -245,12 +245,6 @@ class RateLimiter:
         return self.y
 
 
-def _limit(v: complex, v_limit: Optional[float]) -> complex:
-    """Return v scaled onto the v_limit circle when beyond it."""
-    mag = abs(v)
-    return v * (v_limit / mag) if v_limit is not None and mag > v_limit else v
-
-
 class StatorFluxReference:
     """
     The stator-flux reference and torque bound of the laws that set the stator flux (motulator's).
@@ -333,8 +327,7 @@ class ObserverBasedVHz(_VHzBase, StatorFluxReference):
         self.observer = VHzFluxObserver(motor, self.T_s)
         self.control = FluxTorqueController(motor, self.T_s, g.alpha_psi, g.alpha_tau,
                                             g.alpha_i)
-        self.line = CommandDelay(self.delay)
-        self._v_prev: Optional[complex] = None     # V_{k-d-1}, the command that acted before
+        self.out = CommandOutput(self.delay)
         self.tau_lpf = 0.0          # τ̂_lpf, the torque reference [N·m]
         # the last step's figures, for traces and tests
         self.tau_hat = 0.0          # τ̂ at t_k [N·m]
@@ -363,13 +356,8 @@ class ObserverBasedVHz(_VHzBase, StatorFluxReference):
         self.tau_ref = max(-tau_b, min(tau_b, self.tau_lpf))
         u = self.control.output(obs.i, obs.psi_s, obs.psi_R, omega_c, self.psi_ref,
                                 self.tau_ref)
-        v = _limit(u * cmath.exp(1j * (obs.theta_c + self.k_comp * self.T_s * omega_c)),
-                   self.v_limit)
-        v_a, v_b = self.line.push(v.real, v.imag)
-        v_now = complex(v_a, v_b)                        # V_{k-d}, acting over [t_k, t_k+1]
-        v_prev = v_now if self._v_prev is None else self._v_prev
-        self._v_prev = v_now
-        u_real = 0.5 * (v_prev + v_now) * cmath.exp(-1j * obs.theta_c)
+        v, v_now, u_real = self.out.emit(u, obs.theta_c, self.k_comp * self.T_s * omega_c,
+                                         self.v_limit)
         obs.update(v_now)
         self.control.update(u_real)
         self.tau_lpf += self.T_s * self.gains.alpha_f * (self.tau_hat - self.tau_lpf)
@@ -413,7 +401,7 @@ class OpenLoopVHz(_VHzBase):
         rot = cmath.exp(-1j * self.theta_c)
         i = complex(i_alpha, i_beta) * rot
         u = self.R_s * i + 1j * omega_c * self.psi_s_nom
-        v = _limit(u * cmath.exp(1j * (self.theta_c + self.k_comp * self.T_s * omega_c)),
-                   self.v_limit)
+        advance = self.k_comp * self.T_s * omega_c
+        v = limit_to_circle(u * cmath.exp(1j * (self.theta_c + advance)), self.v_limit)
         self.theta_c = math.remainder(self.theta_c + self.T_s * omega_c, 2.0 * math.pi)
         return v.real, v.imag
