@@ -190,7 +190,9 @@ TOPICS: Tuple[TopicSpec, ...] = (
             'z = friction b*omega [N m]'),
     _report(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     _report(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
-    _report(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position'),
+    _report(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position '
+            f'(+ {IRON_LOSS_NAME!r} when the core loss acts, + {INVERTER_LOSS_NAME!r} behind an '
+            'inverter)'),
     _report(TRUTH_SHAFT, JS, 'plant',
             "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
             '(without measurement noise)'),
