@@ -185,7 +185,9 @@ def test_block_parameters_are_every_field_flattened():
     inv = Inverter.from_block(INV)
     out = block_parameters(inv, 'inverter')
     assert out.pop('inverter.enabled') is True
-    assert out == {f'inverter.{k}': v for k, v in inv.describe().items()}
+    # every field, those not given (None) at their parameter's sentinel 0
+    assert out == {f'inverter.{k}': 0.0 if v is None else v
+                   for k, v in inv.model_dump().items()}
 
 
 @pytest.mark.parametrize('given, line', [

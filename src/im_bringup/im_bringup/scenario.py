@@ -391,8 +391,8 @@ def rclpy_errors():
 
 
 def print_summary(s: dict) -> None:
-    keys = ['E_in_J', 'E_dc_J', 'E_inverter_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'W_load_J',
-            'E_friction_J',
+    keys = ['E_in_J', 'E_dc_J', 'E_inverter_J', 'E_switching_J', 'E_loss_J', 'E_copper_J',
+            'E_core_J', 'W_load_J', 'E_friction_J',
             'dE_kinetic_J', 'dW_magnetic_J', 'balance_residual_J', 'pos_err_max_rad',
             'pos_err_rms_rad', 'speed_err_max_rad_s', 'speed_dip_rad_s', 'speed_recovery_s',
             'torque_err_max_Nm', 'V_max_V', 'i_max_A',

@@ -22,7 +22,20 @@ Derivations in docs/plant.md §1. In short:
 * Dead time t_d: the device that turns on does so t_d late. During a dead band both devices are
   off and the current's freewheeling diode sets the pole: s = 0 for i > 0, s = 1 for i < 0. Per
   carrier period that loses (i > 0) or gains (i < 0) t_d of pulse width at each of the two edges,
-  the average error −sgn(i) t_d f_sw V_dc per phase.
+  the average error −sgn(i) t_d f_sw V_dc per phase. A lower device whose turn-on falls past the
+  period's end (its leg switched off less than t_d before it, or on all period) is still waiting
+  at the next period's start: that period's first off interval begins in a dead band of that
+  length, the ``carry`` (:func:`carry_after`), so that a pulse of the lower device narrower than
+  the dead time vanishes as an upper one does.
+* Switching losses (``e_sw`` at ``v_sw``, ``i_sw``): each hard-switched edge of a leg — the
+  transistor taking the current from the opposite diode or giving it back — dissipates
+  ½ e_sw (V_dc/v_sw)(|i_x|/i_sw), i_x the leg's current at that instant: e_sw is the energy of
+  one turn-on plus one turn-off at the reference point, scaled linearly in the voltage and the
+  current switched (the datasheet model E_sw(V, I) = E_ref (V/V_ref)^K_v (I/I_ref)^K_i with
+  K_v = K_i = 1; docs/plant.md §1). The edges are the pole transitions of the carrier's exact
+  instants with the dead bands resolved (a pulse narrower than the dead time makes none), so a
+  leg carrying a constant current i at duty 0 < d < 1 loses f_sw e_sw (V_dc/v_sw)(|i|/i_sw).
+  Drawn from the DC link beside the conduction losses.
 * Optional DC link (``C_dc`` > 0): a capacitor fed by a diode front end (the source V_dc behind
   ``R_source``, which can only deliver), a brake chopper (``R_chopper`` across the link while V
   > ``V_chopper``) and an over-voltage trip at ``V_trip``. Held over a period, updated at its end
@@ -78,6 +91,13 @@ class Inverter(BaseModel):
         'double (T_s = 1/(2 f_sw))')
     v_on: float = Field(0.0, ge=0, description="the devices' on-state voltage drop [V]")
     r_on: float = Field(0.0, ge=0, description="the devices' on-state resistance [ohm]")
+    e_sw: float = Field(0.0, ge=0, description="one leg's switching energy [J]: a turn-on plus "
+                        'a turn-off at v_sw and i_sw, scaled linearly in V_dc and the current '
+                        'switched (0: no switching losses)')
+    v_sw: Optional[float] = Field(None, gt=0, description="e_sw's reference voltage [V]; with "
+                                  'e_sw', json_schema_extra=_NOT_GIVEN)
+    i_sw: Optional[float] = Field(None, gt=0, description="e_sw's reference current [A]; with "
+                                  'e_sw', json_schema_extra=_NOT_GIVEN)
     C_dc: float = Field(0.0, ge=0, description='DC-link capacitance [F] (0: a stiff DC link, '
                         'V_dc constant)')
     R_source: float = Field(0.5, gt=0, description="the diode front end's source resistance "
@@ -105,6 +125,14 @@ class Inverter(BaseModel):
                                        'give V_dc and pwm_frequency (the ideal voltage source '
                                        'takes only delay)')
             return self
+        if self.e_sw > 0 and (self.v_sw is None or self.i_sw is None):
+            missing = 'v_sw' if self.v_sw is None else 'i_sw'
+            raise InvalidParameter(missing, None, 'is missing: e_sw is the switching energy at '
+                                   'the reference point (v_sw, i_sw); give both')
+        if self.e_sw == 0 and (self.v_sw is not None or self.i_sw is not None):
+            key = 'v_sw' if self.v_sw is not None else 'i_sw'
+            raise InvalidParameter(key, getattr(self, key), 'is the reference point of e_sw, '
+                                   'which is not given (or 0): give e_sw too, or neither')
         if self.deadtime > MAX_DEADTIME_SHARE * self.T_c:
             raise InvalidParameter('deadtime', self.deadtime,
                                    f'longer than a tenth of the PWM period 1/pwm_frequency = '
@@ -143,6 +171,17 @@ class Inverter(BaseModel):
         return self.V_dc / math.sqrt(2.0)
 
     @property
+    def switching_coefficient(self) -> float:
+        """
+        Return k = e_sw/(v_sw i_sw) [J/(V A)]: an edge switching i at V dissipates ½ k V |i|.
+
+        0 without switching losses (module doc).
+        """
+        if not self.e_sw:
+            return 0.0
+        return self.e_sw / (self.v_sw * self.i_sw)
+
+    @property
     def trip_voltage(self) -> float:
         return self.V_trip if self.V_trip > 0 else 1.3 * self.V_dc
 
@@ -150,6 +189,8 @@ class Inverter(BaseModel):
         """Return the block as a run file writes it (every field; the ideal source: delay only)."""
         if not self.switched:
             return {'delay': self.delay}
+        if not self.e_sw:                       # no switching losses: the block as before them
+            return self.model_dump(exclude={'e_sw', 'v_sw', 'i_sw'})
         return self.model_dump()
 
 
@@ -208,28 +249,48 @@ def edges(d: float, half: int, T_c: float, T_s: float, t_d: float):
     return -big, -big, t_off, t_off + t_d
 
 
+def carry_after(d: float, half: int, T_c: float, T_s: float, t_d: float) -> float:
+    """
+    Return how long into the next period a leg's lower device still waits for its turn-on [s].
+
+    The device turns on t_d after the leg's turn-off: past the period's end when the turn-off
+    came less than t_d before it, or t_d into the next period when the leg was on at the end (on
+    all period, or the first half of a double update) — 0 when it was already on.
+    """
+    if t_d <= 0.0 or d <= 0.0:
+        return 0.0
+    if d >= 1.0 or (T_s != T_c and half == 0):
+        return t_d
+    t_off_end = edges(d, half, T_c, T_s, t_d)[3]
+    return t_off_end - T_s if t_off_end > T_s else 0.0
+
+
 def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0),
-                extra=()):
+                extra=(), carry=(0.0, 0.0, 0.0)):
     """
     Return the period's constant-switching intervals: a list of (length, states).
 
     ``states`` holds per leg 1 (on), 0 (off) or None (dead band: the current's sign decides at the
     interval's start). The instants are computed here, once, at the start of the period. A leg
     whose current sign is given (``signs`` ±1; 0: not known) has its dead bands resolved: for
-    i > 0 the leg is on in [t_on + t_d, t_off), for i < 0 in [t_on, t_off + t_d).
+    i > 0 the leg is on in [t_on + t_d, t_off), for i < 0 in [t_on, t_off + t_d). ``carry``
+    (:func:`carry_after` of the last period) turns the start of a leg's first off interval into
+    a dead band.
     """
     legs = []
-    for x, sgn in zip(d, signs):
+    for x, sgn, c in zip(d, signs, carry):
         t_on, t_on_end, t_off, t_off_end = edges(x, half, T_c, T_s, t_d)
+        c_end = min(c, t_on, T_s) if t_on > 0.0 else 0.0    # the waiting lower device
         if sgn > 0:
             t_on, t_off_end = t_on_end, t_off
+            c_end = 0.0                         # the lower diode: off, as the device would be
         elif sgn < 0:
             t_on_end, t_off = t_on, t_off_end
-        legs.append((t_on, t_on_end, t_off, t_off_end))
+        legs.append((t_on, t_on_end, t_off, t_off_end, c_end, sgn < 0))
     cuts = {0.0, T_s}
     cuts.update(t for t in extra if 0.0 < t < T_s)
     for e in legs:
-        for t in e:
+        for t in e[:5]:
             if 0.0 < t < T_s:
                 cuts.add(t)
     ts = sorted(cuts)
@@ -240,9 +301,11 @@ def period_plan(d, half: int, T_c: float, T_s: float, t_d: float, signs=(0, 0, 0
             continue
         tm = 0.5 * (t0 + t1)
         states = []
-        for t_on, t_on_end, t_off, t_off_end in legs:
+        for t_on, t_on_end, t_off, t_off_end, c_end, upper in legs:
             if t_on_end <= tm < t_off:
                 states.append(1)
+            elif tm < c_end:                    # the lower device still waiting
+                states.append(1 if upper else None)
             elif t_on <= tm < t_off_end:
                 states.append(None)
             else:

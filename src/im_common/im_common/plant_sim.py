@@ -335,7 +335,8 @@ def energy_summary(truth: dict) -> dict:
     Return the figures of merit of the energy books (J) from a ``truth()`` dict.
 
     Behind an inverter (the real plant's truth has ``E_inv``) also its losses ``E_inverter_J``
-    and the energy drawn from the DC link, ``E_dc_J`` = E_in + E_inv.
+    (conduction and switching), their switching share ``E_switching_J`` and the energy drawn
+    from the DC link, ``E_dc_J`` = E_in + E_inv.
     """
     e_cu = truth['E_cu_s'] + truth['E_cu_r']
     return {
@@ -344,6 +345,7 @@ def energy_summary(truth: dict) -> dict:
         'E_friction_J': truth['E_friction'], 'dE_kinetic_J': truth['dE_kin'],
         'dW_magnetic_J': truth['dW_mag'], 'E_param_J': truth['E_param'],
         'balance_residual_J': truth['balance_residual'],
-        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv']}
+        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv'],
+            'E_switching_J': truth.get('E_switching', 0.0)}
            if 'E_inv' in truth else {}),
     }

@@ -23,7 +23,12 @@ Per control period (docs/plant.md):
    mean torque (momentum), its angle the trapezoid of the speeds. ``use_reference(n)`` switches
    to RK4 of :meth:`im_common.model.RealMotorModel.rhs`, n steps per interval (the fine-step
    reference of the tests);
-3. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
+3. the switching losses (``e_sw``, :mod:`im_common.inverter`): every pole transition of the
+   period — its instants with the dead bands resolved, and a leg's state at the period's start
+   against the last period's end — costs ½ k V_dc |i_x| with the leg's current at that instant
+   (the exact solution's at the interval boundary), booked with the conduction losses in
+   ``E_inv`` (drawn from the DC link) and apart in ``E_switching``;
+4. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
 """
 from __future__ import annotations
@@ -32,7 +37,8 @@ from cmath import exp as cexp, sqrt as csqrt
 import math
 from typing import Mapping
 
-from .inverter import check_against_motor, duties, edges, Inverter, period_plan, phase_values
+from .inverter import (carry_after, check_against_motor, duties, edges, Inverter, period_plan,
+                       phase_values)
 from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
 from .params import clarke
 from .saturation import Saturation, saturation_from_dict
@@ -61,6 +67,30 @@ _CLARKE = {(a, b, c): complex(*clarke(a, b, c)) for vals in ((0, 0.5, 1), (-1.0,
 
 def _sgn(x: float) -> float:
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+#: the legs' pole states (a, b, c) of a switch-state bit mask
+_POLES = tuple((c & 1, (c >> 1) & 1, (c >> 2) & 1) for c in range(8))
+#: a leg's bit → its index in (a, b, c)
+_LEG = {1: 0, 2: 1, 4: 2}
+
+
+def _leg_current(i: complex, bit: int) -> float:
+    """Return |i_x| of the leg ``bit`` (1: a, 2: b, 4: c) from the stator current i_sα + j i_sβ."""
+    return abs(phase_values(i.real, i.imag)[_LEG[bit]])
+
+
+def _edge_currents(before, after, i: complex) -> float:
+    """
+    Return Σ |Δs_x| |i_x| over the legs whose pole state changes from ``before`` to ``after``.
+
+    ``i`` is the stator current at that instant; ``before`` None (no period yet): no edge.
+    """
+    if before is None or before == after:
+        return 0.0
+    ph = phase_values(i.real, i.imag)
+    return (abs(after[0] - before[0]) * abs(ph[0]) + abs(after[1] - before[1]) * abs(ph[1])
+            + abs(after[2] - before[2]) * abs(ph[2]))
 
 
 class RealPlant:
@@ -112,6 +142,15 @@ class RealPlant:
         self.E_source = self.E_chopper = 0.0
         self.W_cap0 = (0.5 * inverter.C_dc * self.V ** 2) if inverter is not None else 0.0
         self.P_inverter = 0.0
+        # the switching losses (module doc, step 3): ½ k per edge, the legs' pole states at the
+        # last period's end, Σ|i_x| over the edges of the period being integrated
+        self._k_edge = 0.5 * inverter.switching_coefficient if inverter is not None else 0.0
+        self._poles = None                      # committed with the period (advance)
+        self._end_poles = None                  # the last integration's end states
+        # the dead bands that cross into the next period (inverter.carry_after), per leg
+        self._carry = self._next_carry = (0.0, 0.0, 0.0)
+        self._edges = 0.0
+        self.E_switching = self.P_switching = 0.0
         self.ripple = 0.0
         self._speed = None
         self._omega_meas = sim.x[5]
@@ -164,6 +203,13 @@ class RealPlant:
                     f'plant state became non-finite at t = {t0 + sim.T_s:.9f} s '
                     'even at zero voltage')
         sim.v_applied = v_avg
+        if self._k_edge:                        # the period's switching losses (module doc)
+            e_sw = self._k_edge * self.V * self._edges
+            x[E_INV] += e_sw
+            self.E_switching += e_sw
+            self.P_switching = e_sw / sim.T_s
+            self._poles = self._end_poles
+        self._carry = self._next_carry
         sim.x = x
         sim.k += 1
         self._after_period(x0, x)
@@ -186,9 +232,15 @@ class RealPlant:
             return x, (v_a, v_b) if not tripped else (0.0, 0.0)
         V = self.V
         if tripped:                             # every lower device on: the stator shorted
+            self._next_carry = (0.0, 0.0, 0.0)
             return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, [(T_s, (0, 0, 0))])
         d, _ = duties(v_a, v_b, V)
         half = sim.k % 2 if inv.update == 'double' else 0
+        if inv.deadtime > 0.0:
+            t_d = inv.deadtime
+            self._next_carry = (carry_after(d[0], half, inv.T_c, T_s, t_d),
+                                carry_after(d[1], half, inv.T_c, T_s, t_d),
+                                carry_after(d[2], half, inv.T_c, T_s, t_d))
         if inv.deadtime > 0.0 or inv.v_on > 0.0:
             # the dead bands and drops resolved by the currents' signs at the period's start;
             # if a current has another sign at an interval boundary, the period again with
@@ -214,7 +266,8 @@ class RealPlant:
         inv = self.inverter
         # with on-state drops, their signs are taken again at the carrier's valley too
         extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
-        return period_plan(d, half, inv.T_c, self.sim.T_s, inv.deadtime, extra=extra)
+        return period_plan(d, half, inv.T_c, self.sim.T_s, inv.deadtime, extra=extra,
+                           carry=self._carry)
 
     def _events(self, d, half: int, signs):
         """
@@ -223,7 +276,9 @@ class RealPlant:
         The dead bands resolved by the phase currents' signs (as
         :func:`im_common.inverter.period_plan` with ``signs``): leg x is on in
         [t_on + t_d, t_off) for i_x > 0 and in [t_on, t_off + t_d) for i_x < 0. The start state
-        is a bit mask (a: 1, b: 2, c: 4) of the legs on just after the period's start.
+        is a bit mask (a: 1, b: 2, c: 4) of the legs on just after the period's start. A leg
+        with i_x < 0 whose lower device is still waiting at the start (the carry,
+        :func:`im_common.inverter.carry_after`) is on until it turns on.
         """
         inv = self.inverter
         T_s = self.sim.T_s
@@ -232,7 +287,9 @@ class RealPlant:
         single = T_s == T_c
         code = 0
         ev = []
-        for bit, dx, sg in ((1, d[0], signs[0]), (2, d[1], signs[1]), (4, d[2], signs[2])):
+        carry = self._carry
+        for bit, dx, sg, c in ((1, d[0], signs[0], carry[0]), (2, d[1], signs[1], carry[1]),
+                               (4, d[2], signs[2], carry[2])):
             if single and 0.0 < dx < 1.0:       # edges() of a single update, inline
                 on0 = 0.5 * (1.0 - dx) * T_c
                 on1 = 0.5 * (1.0 + dx) * T_c
@@ -246,6 +303,14 @@ class RealPlant:
                     on0, on1 = t_on_end, t_off
                 else:
                     on0, on1 = t_on, t_off_end
+            if c > 0.0 and sg < 0.0 and on0 > 0.0:     # on until the lower device turns on
+                code |= bit
+                if on1 > on0 and on0 <= c:      # ... which it never does before the pulse
+                    c = on1 if on1 > c else c
+                    if c < T_s:
+                        ev.append((c, bit))
+                    continue
+                ev.append((c, bit))
             if on1 <= on0:
                 continue                        # a pulse narrower than the dead time: none
             if on0 <= 0.0 < on1:
@@ -341,6 +406,8 @@ class RealPlant:
         z2 = z20 = (a * pr - c1 * ps) * inv
         exp = cexp
         lo = hi = i_s.real
+        ksw = self._k_edge
+        sw = 0.0
         if events is not None:
             # resolved dead bands, constant drop: Σ conj(u) a = V Σ conj(û) a − conj(d) Δz; the
             # loop runs on w_i = z_i/g_i (w_i → u in steady state)
@@ -356,6 +423,9 @@ class RealPlant:
             t1 = s1 * g1                        # i_s = t1 w1 + t2 w2
             t2 = s2 * g2
             tp = 0.0
+            i = i_s
+            if ksw:                             # a leg's state at the start against the end
+                sw = _edge_currents(self._poles, _POLES[code], i_s)
             for t_ev, bit in events:
                 h = t_ev - tp
                 if h > 1e-15:
@@ -382,9 +452,12 @@ class RealPlant:
                     elif ir > hi:
                         hi = ir
                     tp = t_ev
+                if ksw and bit:                 # the edge at t_ev, with the current there
+                    sw += _leg_current(i, bit)
                 code ^= bit
             else:
                 plan = None
+                self._end_poles = _POLES[code]
             if plan is not None:                # a current changed sign: explicit dead bands
                 plan = self._plan(*plan)
                 z1 = z10
@@ -409,6 +482,8 @@ class RealPlant:
             B1 = B2 = U1 = Dd = 0j
             U2 = 0.0
             i = i_s
+            sw = 0.0
+            poles = self._poles
             for h, states in plan:
                 ir = i.real
                 ii = SQRT3 * i.imag
@@ -419,6 +494,9 @@ class RealPlant:
                       1.0 if ic > 0.0 else (-1.0 if ic < 0.0 else 0.0))
                 if None in states:
                     states = tuple(s if s is not None else _DIODE[q] for s, q in zip(states, sg))
+                if ksw:
+                    sw += _edge_currents(poles, states, i)
+                poles = states
                 dk = v_on * _CLARKE[sg] if v_on > 0.0 else 0j
                 u = V * _CLARKE[states] - dk
                 a1 = (z1 - g1 * u) * (exp(l1 * h) - 1.0)
@@ -439,6 +517,8 @@ class RealPlant:
                     lo = ir
                 elif ir > hi:
                     hi = ir
+            self._end_poles = poles
+        self._edges = sw
         # the period's integrals in closed form (docs/plant.md §1): the modes' first moments
         # and, from d/dt (z_i conj z_j) integrated over the period, their second moments
         X1 = g1 * U2 + B1 / l1                  # Σ conj(u) ∫ z_i
@@ -514,13 +594,17 @@ class RealPlant:
             tp = 0.0
             for t_ev, bit in events:
                 if t_ev - tp > 1e-15:
-                    plan.append((t_ev - tp, table[0][code]))
+                    plan.append((t_ev - tp, table[0][code], _POLES[code]))
                     tp = t_ev
                 code ^= bit
-        for h, states in plan:
-            if isinstance(states, complex):
+        ksw = self._k_edge
+        sw = 0.0
+        poles = self._poles
+        for h, states, *held in plan:
+            if held:                            # the events' (resolved) states, their vector
                 u = V * states
                 dk = drop
+                states = held[0]
             else:
                 i_sa, i_sb = model.stator_current(t, x)
                 sg = tuple(_sgn(q) for q in phase_values(i_sa, i_sb))
@@ -529,12 +613,17 @@ class RealPlant:
                                    for s, q in zip(states, sg))
                 u = V * complex(*clarke(*states))
                 dk = inv.v_on * complex(*clarke(*sg)) if inv is not None else 0j
+            if ksw:
+                sw += _edge_currents(poles, states, complex(*model.stator_current(t, x)))
+            poles = states
             u -= dk
             model.drop = (dk.real, dk.imag)
             x = model.rk4(t, x, h, u.real, u.imag)
             t += h
             mean += u * h
         model.drop = (0.0, 0.0)
+        self._edges = sw
+        self._end_poles = poles
         return x, (mean.real / T, mean.imag / T)
 
     # The fine-step reference: RK4 between the same instants ------------------------------
@@ -553,19 +642,25 @@ class RealPlant:
                 x = rk4(t0 + j * h, x, h, v_a, v_b)
             return x, (v_a, v_b)
         if tripped:                             # every lower device on: the stator shorted
+            self._next_carry = (0.0, 0.0, 0.0)
             return self._run_plan(x, t0, [(T_s, (0, 0, 0))], None)
         d, _ = duties(v_a, v_b, self.V)
         half = sim.k % 2 if inv.update == 'double' else 0
         extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
         if inv.deadtime > 0.0:
+            t_d = inv.deadtime
+            self._next_carry = (carry_after(d[0], half, inv.T_c, T_s, t_d),
+                                carry_after(d[1], half, inv.T_c, T_s, t_d),
+                                carry_after(d[2], half, inv.T_c, T_s, t_d))
             ph = phase_values(*self.model.stator_current(t0, x))
             signs = tuple(_sgn(i) for i in ph)
             if 0.0 not in signs:
-                plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, signs, extra)
+                plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, signs, extra,
+                                   self._carry)
                 out = self._run_plan(x, t0, plan, signs)
                 if out is not None:
                     return out
-        plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, extra=extra)
+        plan = period_plan(d, half, inv.T_c, T_s, inv.deadtime, extra=extra, carry=self._carry)
         return self._run_plan(x, t0, plan, None)
 
     def _run_plan(self, x, t0: float, plan, signs):
@@ -586,6 +681,8 @@ class RealPlant:
         sa = sb = 0.0
         lo = math.inf
         hi = -math.inf
+        sw = 0.0
+        poles = self._poles
         for length, states in plan:
             i_sa, i_sb = model.stator_current(t, x)
             ph = phase_values(i_sa, i_sb)
@@ -597,6 +694,8 @@ class RealPlant:
             if None in states:              # a dead band: the freewheeling diode's rail
                 states = tuple(s if s is not None else _DIODE[_sgn(i)]
                                for s, i in zip(states, ph))
+            sw += _edge_currents(poles, states, complex(i_sa, i_sb))
+            poles = states
             ua, ub = sv[states] if states in sv else clarke(*states)
             va, vb = V * ua, V * ub
             if v_on > 0.0:
@@ -619,6 +718,8 @@ class RealPlant:
                                   or ph[2] * signs[2] <= 0.0):
             return None
         self.ripple = max(hi, ph[0]) - min(lo, ph[0])
+        self._edges = sw
+        self._end_poles = poles
         return x, (sa / T_s, sb / T_s)
 
     def _after_period(self, x0, x) -> None:
@@ -715,6 +816,8 @@ class RealPlant:
             'E_in': x[E_IN], 'E_cu_s': x[E_CU_S], 'E_cu_r': x[E_CU_R], 'E_core': x[E_CORE],
             'E_friction': x[10], 'W_load': x[11], 'E_param': x[12], 'E_inv': x[E_INV],
         })
+        if self.inverter is not None:
+            out['E_switching'] = self.E_switching
         out['tripped'] = 0.0 if sim.trip is None else 1.0
         out['trip_t'] = math.nan if sim.trip is None else sim.trip[0]
         out['trip_reason'] = '' if sim.trip is None else sim.trip[1]
@@ -734,6 +837,7 @@ class RealPlant:
             w_cap = 0.5 * inv.C_dc * self.V ** 2
             out.update({'V_dc': self.V, 'i_a': i_a, 'i_b': i_b, 'i_c': i_c,
                         'i_ripple_pp': self.ripple, 'P_inverter': self.P_inverter,
+                        'P_switching': self.P_switching,
                         'E_source': self.E_source, 'E_chopper': self.E_chopper,
                         'dW_cap': w_cap - self.W_cap0})
             out['balance_residual_dc'] = (self.E_source - self.E_chopper - out['dW_cap']

@@ -134,18 +134,21 @@ ENERGY_NAMES = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E
 # appended to /im/truth/energy when the core loss acts (docs/plant.md §3): the iron loss the plant
 # dissipated [J] (= E_core), inside the energy balance then
 IRON_LOSS_NAME = 'E_iron'
-# appended to /im/truth/energy behind an inverter (docs/plant.md §1): the inverter's conduction
-# losses [J], outside the motor's balance (E_in + E_inv is what the DC link gave)
+# appended to /im/truth/energy behind an inverter (docs/plant.md §1): the inverter's losses [J]
+# (conduction and switching), outside the motor's balance (E_in + E_inv is what the DC link gave),
+# then its switching losses alone [J] (a share of E_inv; 0 without e_sw)
 INVERTER_LOSS_NAME = 'E_inv'
+SWITCHING_LOSS_NAME = 'E_switching'
 # /im/truth/peaks: the largest |V_s| applied and true |i_s| over every step since the previous
 # sample (the figures of merit take their peaks from every step, not from the samples)
 PEAK_NAMES = ('V_max', 'i_max')
 # /im/truth/temperature (a motor with a ``thermal:`` block): winding temperatures [°C]
 TEMPERATURE_NAMES = ('T_stator', 'T_rotor')
 # /im/truth/inverter (a run with an ``inverter:`` block): the DC link [V], the true phase currents
-# at the period's end [A], the peak-to-peak phase-current ripple within the period [A] and the
-# inverter's own losses (dead time, on-state drops) [W]
-INVERTER_NAMES = ('V_dc', 'i_a', 'i_b', 'i_c', 'i_ripple_pp', 'P_inverter')
+# at the period's end [A], the peak-to-peak phase-current ripple within the period [A], the
+# inverter's own losses over the last period (dead time, on-state drops, switching) [W] and their
+# switching share [W]
+INVERTER_NAMES = ('V_dc', 'i_a', 'i_b', 'i_c', 'i_ripple_pp', 'P_inverter', 'P_switching')
 
 
 def _lockstep(name: str, type_: str, publisher: str, layout: str,
@@ -191,8 +194,8 @@ TOPICS: Tuple[TopicSpec, ...] = (
     _report(TRUTH_PARAMS, JS, 'plant', f'true parameters {list(PARAM_NAMES)} in position'),
     _report(TRUTH_POWER, JS, 'plant', f'power rates {list(POWER_NAMES)} [W] in position'),
     _report(TRUTH_ENERGY, JS, 'plant', f'energy integrals {list(ENERGY_NAMES)} [J] in position '
-            f'(+ {IRON_LOSS_NAME!r} when the core loss acts, + {INVERTER_LOSS_NAME!r} behind an '
-            'inverter)'),
+            f'(+ {IRON_LOSS_NAME!r} when the core loss acts, + {INVERTER_LOSS_NAME!r} and '
+            f'{SWITCHING_LOSS_NAME!r} behind an inverter)'),
     _report(TRUTH_SHAFT, JS, 'plant',
             "true shaft: name ['rotor'], position theta_r [rad], velocity omega_r [rad/s] "
             '(without measurement noise)'),

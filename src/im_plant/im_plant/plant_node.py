@@ -135,7 +135,8 @@ class PlantNode(LockstepNode):
         self.out_par = JointStateOut(T.PARAM_NAMES, Signer.frame(''))
         self.out_pow = JointStateOut(T.POWER_NAMES, Signer.frame(''))
         self.energy_names = (T.ENERGY_NAMES + ((T.IRON_LOSS_NAME,) if values['iron_loss'] else ())
-                             + ((T.INVERTER_LOSS_NAME,) if self.out_inv is not None else ()))
+                             + ((T.INVERTER_LOSS_NAME, T.SWITCHING_LOSS_NAME)
+                                if self.out_inv is not None else ()))
         self.out_en = JointStateOut(self.energy_names, Signer.frame(''))
 
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)

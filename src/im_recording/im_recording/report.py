@@ -30,7 +30,8 @@ import numpy as np
 ROWS = [
     ('E_in_J', 'energy drawn E_in', 'J'),
     ('E_dc_J', "energy drawn from the DC link (E_in + the inverter's losses)", 'J'),
-    ('E_inverter_J', 'inverter losses (conduction)', 'J'),
+    ('E_inverter_J', 'inverter losses (conduction + switching)', 'J'),
+    ('E_switching_J', 'inverter switching losses', 'J'),
     ('E_loss_J', 'losses (copper + core)', 'J'),
     ('E_copper_J', 'copper losses', 'J'),
     ('E_core_J', 'core losses', 'J'),

@@ -83,7 +83,7 @@ TRACE_TOPICS = frozenset(V3_KEYS) | frozenset(JS_FIELDS) | frozenset(JS_NAMED)
 MASTER_TOPICS = (T.MEAS_CURRENT, T.MEAS_SHAFT, T.TRUTH_ENERGY,
                  T.CMD_VOLTAGE)
 ENERGY_INTEGRALS = ('E_in', 'E_cu_s', 'E_cu_r', 'E_core', 'E_friction', 'W_load', 'E_param',
-                    T.IRON_LOSS_NAME, T.INVERTER_LOSS_NAME)
+                    T.IRON_LOSS_NAME, T.INVERTER_LOSS_NAME, T.SWITCHING_LOSS_NAME)
 PARAM_KEYS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 
 
