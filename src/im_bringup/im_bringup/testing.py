@@ -25,6 +25,7 @@ import random
 import time
 from typing import Callable, Dict, Optional, Tuple, TypeVar
 
+from im_common.conversions import s_to_ns_array
 from im_common.host import PRIVATE_DOMAINS
 import numpy as np
 import pytest
@@ -165,9 +166,9 @@ def assert_samples_match(graph_trace: Dict[str, np.ndarray], offline_trace: Dict
 
     Stamps are matched in integer ns; NaN samples of decimated topics are skipped.
     """
-    t_off = np.round(np.asarray(offline_trace['t']) * 1e9).astype(np.int64)
+    t_off = s_to_ns_array(np.asarray(offline_trace['t']))
     idx = {ns: i for i, ns in enumerate(t_off)}
-    stamps = np.round(np.asarray(graph_trace['t']) * 1e9).astype(np.int64)
+    stamps = s_to_ns_array(np.asarray(graph_trace['t']))
     shared = [(i, idx[ns]) for i, ns in enumerate(stamps) if ns in idx]
     assert len(shared) >= min_shared, f'only {len(shared)} shared instants'
     for key in keys:

@@ -33,6 +33,28 @@ def set_stamp(stamp, ns: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(ns), NS_PER_S)
 
 
+def ns_to_s(ns):
+    """
+    Return integer nanoseconds ``ns`` as float seconds, ``ns / NS_PER_S``.
+
+    The one conversion of a stamp (or a span of stamps) to seconds. The division is correctly
+    rounded, so a period's ns give back the period itself, ``ns_to_s(period_ns(1e-6)) == 1e-6``
+    (multiplying by 1e-9 does not always: 1e-9 is not exact in binary). Also element-wise for a
+    numpy array of ns.
+    """
+    return ns / NS_PER_S
+
+
+def s_to_ns(t: float) -> int:
+    """Return float seconds ``t`` as the nearest integer nanoseconds, ``round(t * NS_PER_S)``."""
+    return round(t * NS_PER_S)
+
+
+def s_to_ns_array(t):
+    """Return a numpy array of float seconds ``t`` as the nearest int64 ns, element-wise."""
+    return (t * NS_PER_S).round().astype('int64')
+
+
 class Vector3Out:
     """
     Serialized Vector3Stamped for ``Publisher.publish(bytes)``: ``fill(ns, x, y, z=0.0)``.

@@ -22,6 +22,7 @@ from rclpy.executors import ExternalShutdownException
 
 from . import realtime
 from .cli import error as cli_error
+from .conversions import s_to_ns
 from .lockstep_parts import unknown_parameter
 from .node_params import ConfigurationError
 from .run_protocol import STOPPED, STOPPING, WARNING
@@ -262,7 +263,7 @@ def flush(node, timeout: float = 2.0) -> None:
         if left <= 0:
             return
         try:
-            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+            pub.wait_for_all_acked(Duration(nanoseconds=s_to_ns(left)))
         except Exception:  # noqa: BLE001 - context already shut down: nothing to wait for
             return
 

@@ -31,6 +31,8 @@ from __future__ import annotations
 
 from typing import Callable, Dict, Iterable, List, Optional, Sequence, Tuple
 
+from .conversions import ns_to_s
+
 # Run states published on /im/status.
 WAITING, READY, RUNNING, FINISHING = 'waiting', 'ready', 'running', 'finishing'
 #: A node's state before it announced anything (never published).
@@ -294,8 +296,8 @@ class TimeMaster:
                 return False, None
             t_s = int(values.get('T_s_ns', 0) or 0)
             if t_s and t_s != self.period:        # 0: a node without a period (the recorder)
-                return False, (f"node '{name}' runs at T_s = {t_s / 1e9:g} s, the plant at "
-                               f'{self.period / 1e9:g} s: give every node the same T_s')
+                return False, (f"node '{name}' runs at T_s = {ns_to_s(t_s):g} s, the plant at "
+                               f'{ns_to_s(self.period):g} s: give every node the same T_s')
         return True, None
 
     def not_ready(self, peers: Dict[str, tuple]) -> List[str]:

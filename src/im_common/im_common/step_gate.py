@@ -19,6 +19,10 @@ import math
 import time
 from typing import Dict, List, Optional, Sequence
 
+# NS_PER_S from its definition: conversions (its usual source) reaches this module through
+# topics, so importing it here would close a circle (tests/test_architecture.py)
+from .cdr import NS_PER_S
+
 #: Bound of the lock-step protocol's windows: a lossless follower stays within half of it
 #: (``follower_window``), a node keeps that many early or pending steps.
 LOCKSTEP_DEPTH = 100
@@ -142,7 +146,8 @@ class StepGate:
 
     def gap_text(self, n: int = 5) -> str:
         """Return the first ``n`` stamp ranges jumped over, as ``a-b s`` items (end report)."""
-        return ', '.join(f'{a / 1e9:.4f}-{b / 1e9:.4f} s' for a, b in self.gap_ranges[:n])
+        return ', '.join(f'{a / NS_PER_S:.4f}-{b / NS_PER_S:.4f} s'
+                         for a, b in self.gap_ranges[:n])
 
 
 def finite(value, _isfinite=math.isfinite) -> bool:

@@ -25,8 +25,8 @@ import time
 from geometry_msgs.msg import Vector3Stamped
 from im_common import topics as T
 from im_common.auth import Signer
-from im_common.conversions import (estimates_in, JointStateOut, period_ns, shaft_in, stamp_ns,
-                                   Vector3Out, xy_in)
+from im_common.conversions import (estimates_in, JointStateOut, ns_to_s, period_ns, shaft_in,
+                                   stamp_ns, Vector3Out, xy_in)
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import (declare_block, declare_compensation, declare_motor,
                                    declare_run, declare_saturation_model, live_refusal)
@@ -180,15 +180,16 @@ class ControllerNode(LockstepNode):
                             ('torque', msg.effort)):
             if len(field):
                 try:
-                    self.ctl.set_setpoint(kind, float(field[0]), ns / 1e9)
+                    self.ctl.set_setpoint(kind, float(field[0]), ns_to_s(ns))
                 except ValueError as exc:
                     self.get_logger().error(
-                        f'rejected {T.SETPOINT} stamped {ns / 1e9:.9f} s: {exc}')
+                        f'rejected {T.SETPOINT} stamped {ns_to_s(ns):.9f} s: {exc}')
                     return
                 start = max(ns, self.gate.expected)
                 self.get_logger().info(
-                    f'{T.SETPOINT}: {kind} {float(field[0])!r} stamped {ns / 1e9:.9f} s, from the '
-                    f'step at {start / 1e9:.9f} s' + (' (now)' if ns < self.gate.expected else ''))
+                    f'{T.SETPOINT}: {kind} {float(field[0])!r} stamped {ns_to_s(ns):.9f} s, '
+                    f'from the step at {ns_to_s(start):.9f} s'
+                    + (' (now)' if ns < self.gate.expected else ''))
                 return
         self.get_logger().error(f'rejected {T.SETPOINT}: no position, velocity or effort value')
 
@@ -204,9 +205,9 @@ class ControllerNode(LockstepNode):
         if self.saturated is not None:
             est = self.saturated.estimates(f_a, f_b)
         try:
-            v_a, v_b = self.ctl.compute(ns / 1e9, i_a, i_b, theta, omega, f_a, f_b, est)
+            v_a, v_b = self.ctl.compute(ns_to_s(ns), i_a, i_b, theta, omega, f_a, f_b, est)
         except (ValueError, ArithmeticError) as exc:
-            self.fail(f'controller failed at step {k} (t = {ns / 1e9:.9f} s): {exc}')
+            self.fail(f'controller failed at step {k} (t = {ns_to_s(ns):.9f} s): {exc}')
             return
         self.pub_cmd.publish(self.sign(T.CMD_VOLTAGE, self.out_cmd.fill(ns, v_a, v_b)))
         if self.ctl.plan_note != self._plan_note:     # optimal: what the flux follows, and why

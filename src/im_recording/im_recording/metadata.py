@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Dict, Mapping
 
+from im_common.conversions import ns_to_s
+
 from .files import BagError
 
 #: the Metadata record that states a file's log-time offset: ``clock`` (``wall``),
@@ -50,7 +52,7 @@ def log_time_offset_for(log_time: str) -> int:
 def log_time_record(offset_ns: int) -> Dict[str, str]:
     """Return the ``log_time`` Metadata record of a file whose log times are offset."""
     import datetime
-    started = datetime.datetime.fromtimestamp(offset_ns * 1e-9, tz=datetime.timezone.utc)
+    started = datetime.datetime.fromtimestamp(ns_to_s(offset_ns), tz=datetime.timezone.utc)
     return {'clock': 'wall', 'offset_ns': str(int(offset_ns)),
             'started_utc': started.isoformat(timespec='microseconds')}
 

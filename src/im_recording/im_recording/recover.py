@@ -53,6 +53,7 @@ from typing import Dict, List, Optional, Tuple
 import zlib
 
 from im_common.cli import error as cli_error
+from im_common.conversions import ns_to_s, s_to_ns
 
 from .bag import (BagError, BagWriter, check_output, log_time_offset, LOG_TIME_RECORD,
                   partial_path)
@@ -141,13 +142,13 @@ class Lost:
         n = (f'{self.messages} message{"s" if self.messages != 1 else ""}'
              if self.messages is not None else 'an unknown number of messages')
         if self.t0 is not None:
-            return f'lost t = {self.t0 * 1e-9:.9f} .. {self.t1 * 1e-9:.9f} s, {n} ' \
+            return f'lost t = {ns_to_s(self.t0):.9f} .. {ns_to_s(self.t1):.9f} s, {n} ' \
                    f'({self.source}; {where})'
         if self.messages == 0:
             return f'no messages lost ({self.source}; {where})'
 
         def s(t):
-            return f'{t * 1e-9:.9f} s'
+            return f'{ns_to_s(t):.9f} s'
         span = ('between ' + s(self.before) + ' and ' + s(self.after)
                 if self.before is not None and self.after is not None
                 else f'after {s(self.before)}' if self.before is not None
@@ -830,7 +831,7 @@ def run_end(statuses, run_file: dict) -> Tuple[Optional[int], str, bool]:
         duration = float(run_file.get('duration'))
     except (TypeError, ValueError):
         return None, '', False
-    return round(duration * 1e9), "its run file's duration; it may have ended earlier", False
+    return s_to_ns(duration), "its run file's duration; it may have ended earlier", False
 
 
 def missing_tail(saved_last: Optional[int], lost_last: Optional[int], statuses,
@@ -851,13 +852,13 @@ def missing_tail(saved_last: Optional[int], lost_last: Optional[int], statuses,
         end, source = None, (source + ', but the file holds later stamps')
 
     def s(t):
-        return f'{t * 1e-9:.9f}'
+        return f'{ns_to_s(t):.9f}'
     start = 'the start' if t0 is None else s(t0)
     if end is None:
         text = (f'lost t = {start} .. end of run (unknown): the writer did not close the file, '
                 'and nothing in it says how long the run went on')
     else:
-        span = f'; {(end - (t0 or 0)) * 1e-9:.3f} s' if t0 is not None else ''
+        span = f'; {ns_to_s(end - (t0 or 0)):.3f} s' if t0 is not None else ''
         text = (f'lost t = {start} .. end of run ({s(end)} s per {source}{span}): the writer '
                 'did not close the file')
     return {'t0_ns': t0, 't1_ns': end, 'proven_end': proven, 'source': source, 'text': text}
@@ -869,7 +870,7 @@ def saved_run_record(record: Dict[str, str], saved_last: Optional[int]) -> Dict[
     doc = _run_file(record)
     if not doc or 'duration' not in doc:
         return record
-    doc['duration'] = round((saved_last or 0) * 1e-9, 9)
+    doc['duration'] = round(ns_to_s(saved_last or 0), 9)
     out = dict(record)
     out['yaml'] = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
     return out
@@ -1044,7 +1045,7 @@ def main(argv=None) -> int:
         print(f'recover: {line}', file=sys.stderr)
 
     def s(t):
-        return f'{t * 1e-9:.9f}' if t is not None else '-'
+        return f'{ns_to_s(t):.9f}' if t is not None else '-'
     print(f"recover: saved {r['messages']} messages on {r['topics']} topics "
           f"(t = {s(r['first_stamp_ns'])} .. {s(r['last_stamp_ns'])} s) into {r['output']}; "
           f"{r['reason']}")

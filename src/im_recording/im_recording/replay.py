@@ -40,7 +40,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from im_common import cdr
 from im_common.cli import error as cli_error
-from im_common.conversions import NS_PER_S
+from im_common.conversions import NS_PER_S, ns_to_s
 from im_common.params import estimate_arguments
 from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
 import numpy as np
@@ -130,7 +130,7 @@ def reestimate_series(path, config: dict, stop=None
         va, vb = s[CMD_VOLTAGE][t]
         ia, ib = s[MEAS_CURRENT][t]
         (w,) = s[MEAS_SHAFT][t]
-        x = obs.step((t1 - t) * 1e-9, va, vb, ia, ib, w)
+        x = obs.step(ns_to_s(t1 - t), va, vb, ia, ib, w)
         out.append((t1, tuple(x)))
     return out
 
@@ -287,7 +287,7 @@ class Player:
                 if t0 is None:
                     t0 = t
                 if not self.lockstep and self.rate > 0:
-                    delay = wall0 + (t - t0) * 1e-9 / self.rate - time.monotonic()
+                    delay = wall0 + ns_to_s(t - t0) / self.rate - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
                 if spin:

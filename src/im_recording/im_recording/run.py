@@ -43,7 +43,7 @@ from typing import Dict, List, Optional, Tuple
 
 from im_common import cdr
 from im_common import topics as T
-from im_common.conversions import NS_PER_S
+from im_common.conversions import NS_PER_S, ns_to_s
 import numpy as np
 
 REEST_FLUX, REEST_CURRENT = T.REEST_FLUX, T.REEST_CURRENT
@@ -303,7 +303,7 @@ class TraceStream:
         else:
             cutoff = int(ms[-self.margin])
             ms = ms[ms < cutoff]
-        chunk: Dict[str, np.ndarray] = {'t_ns': ms, 't': ms.astype(float) * 1e-9}
+        chunk: Dict[str, np.ndarray] = {'t_ns': ms, 't': ns_to_s(ms.astype(float))}
         sent: Dict[str, dict] = {}
         for topic, (st, cols) in series.items():
             now = np.ones(len(st), bool) if cutoff is None else st < cutoff
@@ -713,7 +713,7 @@ def truth_final_from(series: Dict[str, dict]) -> Dict[str, float]:
                                        - out['E_friction'] - out['W_load'] - out['E_param']
                                        - out['dW_mag'] - out['dE_kin']
                                        - out.get(T.IRON_LOSS_NAME, 0.0))   # an acting core loss
-        out['t_final'] = float(en['t_ns'][last]) * 1e-9
+        out['t_final'] = ns_to_s(float(en['t_ns'][last]))
     par = series.get(T.TRUTH_PARAMS)
     if par is not None and len(par['t_ns']):
         last = int(np.argmax(par['t_ns']))
@@ -751,7 +751,7 @@ class RunEvents:
                 continue
             values = {kv['key']: kv['value'] for kv in st['values']}
             e = {'node': st['name'], 'state': st['message'],
-                 't': stamp['sec'] + stamp['nanosec'] * 1e-9,
+                 't': stamp['sec'] + ns_to_s(stamp['nanosec']),
                  'reason': values.get('reason', ''),
                  'time_master': values.get('time_master') == 'true'}
             # the plant's count of commands not signed by its graph, and who sent them
