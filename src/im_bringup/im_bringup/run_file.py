@@ -40,6 +40,7 @@ from im_common.sensors import Sensors
 from im_common.validation import check_choice, one_line
 from im_controller.baselines.drive import check_law_task, gains_model, LAWS
 from im_controller.control_law import ControllerConfig, MODES, steady_start, THESIS_LAW_GAINS
+from im_controller.flux import LOSS_SCOPES
 from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
 from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
@@ -193,6 +194,10 @@ class Scenario:
     # a steady start with the plant's rotor flux this factor times the controller's steady state
     # (the model's steady state is never exactly the motor's; docs/adaptation.md §6)
     start_flux: float = 1.0
+    # what the loss-optimizing strategies minimize: the motor's losses, or the drive's (the
+    # inverter's conduction and switching losses added, from the inverter block;
+    # docs/efficiency.md)
+    loss_scope: str = 'motor'
 
     def __post_init__(self):
         put = object.__setattr__
@@ -300,6 +305,7 @@ class Scenario:
         if isinstance(self.variation, dict):     # the schedule must stay a motor over the run
             self.plant_schedule().validate(self.duration)
         self._check_plant_blocks()
+        self.drive_loss()
         # the drive's own checks of the whole run (limits against the motor's magnetizing
         # current, ...): here, naming the key, not when the drive is built (cheap: ~0.1 ms)
         self.controller_config()
@@ -387,6 +393,17 @@ class Scenario:
             raise InvalidParameter('core_loss_exponent', self.core_loss_exponent,
                                    'must be 2 with an acting iron loss (iron_loss: true; a '
                                    'resistance dissipates |psi|^2)')
+
+    def drive_loss(self):
+        """Return the inverter's (r, c) the drive's strategies add ((0, 0): loss_scope motor)."""
+        check_choice('loss_scope', self.loss_scope, LOSS_SCOPES)
+        if self.loss_scope == 'motor':
+            return 0.0, 0.0
+        if self.inverter is None or not self.inverter.switched:
+            raise InvalidParameter('loss_scope', self.loss_scope, "takes the inverter's losses "
+                                   "from the run's switched inverter block (V_dc, "
+                                   'pwm_frequency, ...), and this run has none')
+        return self.inverter.steady_loss_coefficients()
 
     def saturated_model(self):
         """Return the drive's :class:`~im_common.saturation.SaturatedModel` (None: linear)."""
@@ -513,6 +530,10 @@ class Scenario:
         opts.setdefault('sensorless', self.sensorless)  # orient on the observed flux
         opts.setdefault('delay', self.delay)    # predict across the plant's delay (0: as printed)
         opts.setdefault('current_limit', limit_value(self.current_limit))
+        r_inv, c_inv = self.drive_loss()
+        if r_inv or c_inv:
+            opts.setdefault('drive_loss_r', r_inv)
+            opts.setdefault('drive_loss_c', c_inv)
         for key in ('torque_limit', 'speed_limit'):
             if getattr(self, key) is not None:
                 opts.setdefault(key, getattr(self, key) or None)
@@ -628,6 +649,9 @@ class Scenario:
                                                                            sort_keys=True)
         if self.delay:              # the controller predicts across it; observer and adapter
             ctl['delay'] = obs['delay'] = adapter['delay'] = self.delay     # take what acts
+        r_inv, c_inv = self.drive_loss()
+        if r_inv or c_inv:          # loss_scope drive: the strategies add the inverter's losses
+            ctl.update(drive_loss_r=float(r_inv), drive_loss_c=float(c_inv))
         comp = self.compensation_model()
         if comp is not None:        # the controller adds ê(i); observer and adapter subtract it
             for node in (ctl, obs, adapter):
@@ -737,7 +761,8 @@ class Scenario:
             out['saturation_model'] = True
         defaults = {f.name: f.default for f in fields(self)}
         for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
-                     'core_loss_exponent', 'plant_substep', 'observer_substep', 'start_flux'):
+                     'core_loss_exponent', 'plant_substep', 'observer_substep', 'start_flux',
+                     'loss_scope'):
             if getattr(self, name) is not None and getattr(self, name) != defaults[name]:
                 out[name] = getattr(self, name)
         for name in ('controller_options', 'speed_observer_options'):

@@ -181,6 +181,23 @@ class Inverter(BaseModel):
             return 0.0
         return self.e_sw / (self.v_sw * self.i_sw)
 
+    def steady_loss_coefficients(self):
+        """
+        Return (r, c): the inverter's mean losses at a sinusoidal current vector |i|, r|i|² + c|i|.
+
+        A phase current of amplitude Î = √(2/3)|i| (power-invariant vector) has the mean
+        |i_x| = 2Î/π; one device of each leg conducts at any instant, so the on-state drops lose
+        3 (v_on · 2Î/π) + 3 r_on Î²/2 = c_on|i| + r_on|i|², and each leg switches i_x on and off
+        once a carrier period, f_sw (e_sw/(v_sw i_sw)) V_dc · 2Î/π a leg. With
+        κ = 3·(2/π)·√(2/3) = 1.5594: c = κ (v_on + f_sw V_dc e_sw/(v_sw i_sw)), r = r_on. The
+        dead time changes the voltage, not the losses (docs/efficiency.md §2).
+        """
+        if not self.switched:
+            return 0.0, 0.0
+        kappa = 6.0 / math.pi * SQRT_2_3
+        return self.r_on, kappa * (self.v_on + self.pwm_frequency * self.V_dc
+                                   * self.switching_coefficient)
+
     @property
     def trip_voltage(self) -> float:
         return self.V_trip if self.V_trip > 0 else 1.3 * self.V_dc

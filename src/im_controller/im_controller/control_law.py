@@ -264,6 +264,13 @@ class ControllerConfig(BaseModel):
         'field angle is the observed flux angle (direct field orientation, docs/sensorless.md '
         'section 4) instead of the integral of v omega + omega_sl, which drifts while the '
         'estimate lags', json_schema_extra=_NOT_A_PARAMETER)
+    drive_loss_r: float = Field(
+        0.0, ge=0, description="the inverter's loss r|i|^2 [ohm] the loss-optimizing strategies "
+        "add to the motor's (the run file's loss_scope: drive; 0: the motor's losses alone; "
+        'docs/efficiency.md)')
+    drive_loss_c: float = Field(
+        0.0, ge=0, description="the inverter's loss c|i| [W/A] (on-state drops and switching) "
+        "the loss-optimizing strategies add to the motor's (loss_scope: drive)")
     compensation: Optional[InverterErrorModel] = Field(
         None, description="the inverter's voltage error (an InverterErrorModel) added to the "
         'command after the voltage limit, at the measured current (None: off; '
@@ -496,7 +503,7 @@ class DriveController:
             cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max, cfg.params.k_e, cfg.params.k_h,
             cfg.core_loss_exponent,
             i_max=None if cfg.current_limit is None else cfg.current_margin * cfg.current_limit,
-            curve=curve)
+            curve=curve, inverter=(cfg.drive_loss_r, cfg.drive_loss_c))
         self._load = make_load(cfg.load if cfg.load_known else 'none', mgl=cfg.load_mgl,
                                c1=cfg.load_c1, c2=cfg.load_c2, tau=cfg.load_tau)
         if cfg.current_gain is None:

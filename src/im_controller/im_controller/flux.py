@@ -46,6 +46,10 @@ Strategy = Literal[STRATEGIES]
 COMPARED_STRATEGIES = ('min_energy', 'constant_flux', 'min_loss')
 # the strategies whose causal target is the steady loss-optimal flux (optimal falls back to it)
 LOSS_OPTIMAL = ('min_loss', 'optimal')
+#: what the loss-optimizing strategies minimize (the run file's ``loss_scope``): the motor's
+#: losses, or the drive's — the motor's plus the inverter's conduction and switching losses
+#: r|i|² + c|i| (:meth:`im_common.inverter.Inverter.steady_loss_coefficients`)
+LOSS_SCOPES = ('motor', 'drive')
 TWO_PI = 2.0 * math.pi
 
 
@@ -165,12 +169,15 @@ def _on_the_curve(A: float, Ct2: float, Kt2: float, b: float, S: float, y: float
 
 
 def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: float, phi_max: float,
-                  k_e: float, k_h: float, core_exponent: float = 2.0, sat=None) -> float:
+                  k_e: float, k_h: float, core_exponent: float = 2.0, sat=None,
+                  inverter=None) -> float:
     """
     Steady-state loss-minimizing flux (see module docstring), clipped to [φ_min, φ_max].
 
     ``sat`` (b, S) of :func:`~im_controller.flux_plan.saturation_terms`: on the magnetizing
     curve, the copper term A φ²(1 + b φ^S)² (``c`` then the unsaturated model's, exponent 2).
+    ``inverter`` (r, c_i): the drive's losses, the inverter's r|i|² + c_i|i| added
+    (:func:`_drive_min_loss`).
     """
     A = c.R_s / (c.L_sr * c.L_sr)
     C = (c.R_s * c.L_r * c.L_r / (c.L_sr * c.L_sr) + c.R_r) / (c.v * c.v)
@@ -180,6 +187,9 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
     phi = (C * tau2 / A) ** 0.25  # copper-only optimum: the starting point
     if phi < phi_min:
         phi = phi_min
+    if inverter is not None and (inverter[0] > 0.0 or inverter[1] > 0.0):
+        return _drive_min_loss(c, tau, omega_r, phi_min, phi_max, k_e, k_h, core_exponent, sat,
+                               inverter, phi)
     for _ in range(2):  # refresh f_e with the slip of the current solution
         f_e = abs(ve + c.R_r * tau / (c.v * phi * phi)) / TWO_PI
         K = (k_h + k_e * f_e) * f_e
@@ -204,6 +214,62 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
     return phi
 
 
+def _drive_loss(c: ModelCoefficients, tau: float, omega_r: float, k_e: float, k_h: float,
+                core_exponent: float, sat, inverter, phi: float) -> float:
+    """
+    Return the drive's steady loss at the rotor flux φ: the motor's plus the inverter's [W].
+
+    i_d = φ(1 + bφ^S)/L_sr (on the curve; b = 0 off it), i_q = L_r τ/(v L_sr φ): copper
+    R_s|i|² + R_r τ²/(vφ)², core (k_h + k_e f_e) f_e (θφ)^m, inverter r|i|² + c_i|i|.
+    """
+    g = 1.0 if sat is None else 1.0 + sat[0] * phi ** sat[1]
+    i_d = phi * g / c.L_sr
+    i_q = c.L_r * tau / (c.v * c.L_sr * phi)
+    i2 = i_d * i_d + i_q * i_q
+    r, ci = inverter
+    f_e = abs(c.v * omega_r + c.R_r * tau / (c.v * phi * phi)) / TWO_PI
+    core = (k_h + k_e * f_e) * f_e * (c.theta * phi) ** core_exponent
+    return ((c.R_s + r) * i2 + c.R_r * (tau / (c.v * phi)) ** 2 + core + ci * math.sqrt(i2))
+
+
+def _drive_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: float,
+                    phi_max: float, k_e: float, k_h: float, core_exponent: float, sat, inverter,
+                    phi0: float) -> float:
+    """
+    Return the flux minimizing :func:`_drive_loss` in [φ_min, φ_max].
+
+    The inverter's c_i|i| is not quadratic in φ, so no closed form: Newton on u = ln φ with
+    central differences, from the copper-only optimum, each step kept within a factor 1.5 and
+    taken only while the loss falls (the loss is unimodal in φ between its copper terms' rise
+    at both ends); 6 steps reach 1e-6 of φ.
+    """
+    lo, hi = math.log(phi_min), math.log(phi_max)
+    u = min(max(math.log(phi0), lo), hi)
+
+    def f(x):
+        return _drive_loss(c, tau, omega_r, k_e, k_h, core_exponent, sat, inverter,
+                           math.exp(x))
+    h = 1e-3
+    fu = f(u)
+    for _ in range(6):
+        fp, fm = f(u + h), f(u - h)
+        d1 = (fp - fm) / (2.0 * h)
+        d2 = (fp - 2.0 * fu + fm) / (h * h)
+        step = -d1 / d2 if d2 > 0.0 else -math.copysign(0.4, d1)
+        step = max(-0.4, min(0.4, step))
+        while True:
+            un = min(max(u + step, lo), hi)
+            fn = f(un)
+            if fn <= fu or abs(step) < 1e-7:
+                break
+            step *= 0.5
+        done = abs(un - u) < 1e-6
+        u, fu = un, min(fn, fu)
+        if done:
+            break
+    return math.exp(u)
+
+
 class FluxStrategy:
     """
     Target rotor flux for a torque demand: ``target(coefficients, tau, omega_r)``.
@@ -216,7 +282,8 @@ class FluxStrategy:
 
     def __init__(self, name: Strategy, phi_d: float = 1.2, phi_min: float = 0.2,
                  phi_max: float = 1.2, k_e: float = 0.012, k_h: float = 0.012,
-                 core_exponent: float = 2.0, i_max: Optional[float] = None, curve=None):
+                 core_exponent: float = 2.0, i_max: Optional[float] = None, curve=None,
+                 inverter=None):
         self.name = name
         self.phi_d, self.phi_min, self.phi_max = float(phi_d), float(phi_min), float(phi_max)
         self.k_e, self.k_h, self.core_exponent = float(k_e), float(k_h), float(core_exponent)
@@ -224,6 +291,9 @@ class FluxStrategy:
         #: on the magnetizing curve: (unsaturated coefficients, (b, S)) — min_loss's optimum
         #: is the curve's (the secant coefficients the model runs on are not its derivative)
         self.curve = curve
+        #: the inverter's (r, c_i) the loss-optimizing strategies add (loss_scope drive; None:
+        #: the motor's losses alone)
+        self.inverter = inverter if inverter and (inverter[0] or inverter[1]) else None
 
     def target(self, c: ModelCoefficients, tau: float, omega_r: float) -> float:
         if self.name == 'constant_flux':
@@ -233,10 +303,10 @@ class FluxStrategy:
         elif self.curve is not None:
             c0, sat = self.curve
             phi = flux_min_loss(c0, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
-                                self.core_exponent, sat)
+                                self.core_exponent, sat, self.inverter)
         else:
             phi = flux_min_loss(c, tau, omega_r, self.phi_min, self.phi_max, self.k_e, self.k_h,
-                                self.core_exponent)
+                                self.core_exponent, inverter=self.inverter)
         if self.i_max is None:
             return phi
         lo, hi = flux_range_within_current(c, tau, self.i_max)
