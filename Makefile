@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test test-fast fuzz bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign gains policy clean distclean
+.PHONY: all setup build demo test test-fast fuzz bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign efficiency gains policy clean distclean
 
 all: demo
 
@@ -105,6 +105,13 @@ motors-drift: build
 # interrupted; CAMPAIGN_ARGS passes more options (e.g. --address tcp://HOST:8786, --force).
 campaign: build
 	$(RUN) python -m im_studies.campaign src/im_bringup/config/campaign.yaml --out bags/campaign $(CAMPAIGN_ARGS)
+
+# The whole drive's efficiency maps of both shipped motors, 10 x 10 and the IEC 61800-9-2
+# points, every drive of the run files' compare lists (docs/efficiency.md; resumable)
+efficiency: build
+	$(RUN) for m in thesis krause_3hp; do python -m im_studies.efficiency_map \
+	    src/im_bringup/config/runs/efficiency_$$m.yaml --speeds 10 --torques 10 \
+	    --out bags/efficiency_$$m || exit 1; done
 
 # The certified gains shipped for free_run at each rate the pre-flight probe may name
 # (250 Hz, 500 Hz, 1 kHz, 2 kHz: src/im_bringup/config/gains_4ms.yaml ... gains_0.5ms.yaml).

@@ -15,6 +15,7 @@ import os
 from im_bringup.offline import simulate
 from im_bringup.run_file import RunFileError, Scenario
 from im_bringup.testing import assert_samples_match, run_graph
+from im_common.inverter import Inverter
 from im_common.validation import InvalidParameter
 from im_controller.baselines.drive import BaselineDrive
 from im_controller.baselines.gains import BaselineGains
@@ -217,12 +218,19 @@ def test_the_shipped_baseline_run_files_hold_a_load_step_on_the_real_plant(motor
 
 
 def test_the_graph_books_the_dc_link_as_the_ros_free_loop():
-    """A shipped run file's 50 ms on the graph: the inverter's losses and the DC link's energy."""
-    sc = replace(Scenario.from_file(os.path.join(RUNS, 'baseline_real_krause_3hp.yaml')),
-                 duration=0.05)
+    """
+    A shipped run file's 50 ms on the graph: the inverter's losses and the DC link's energy.
+
+    With switching losses on (e_sw): the plant node appends E_switching to /im/truth/energy and
+    the recording's summary books it as the ROS-free loop does.
+    """
+    base = Scenario.from_file(os.path.join(RUNS, 'baseline_real_krause_3hp.yaml'))
+    inv = Inverter.from_block(dict(base.inverter.describe(), e_sw=2e-4, v_sw=300.0, i_sw=10.0))
+    sc = replace(base, duration=0.05, inverter=inv)
     g = run_graph(scenario=sc)
     off = simulate(sc)
     assert g.summary['ok'], g.summary['failures']
-    for key in ('E_in_J', 'E_inverter_J', 'E_dc_J'):
+    for key in ('E_in_J', 'E_inverter_J', 'E_dc_J', 'E_switching_J'):
         assert g.summary[key] == pytest.approx(off.summary[key], rel=1e-9), key
+    assert 0.0 < g.summary['E_switching_J'] < g.summary['E_inverter_J']
     assert g.summary['E_dc_J'] == pytest.approx(g.summary['E_in_J'] + g.summary['E_inverter_J'])

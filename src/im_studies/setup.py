@@ -20,6 +20,7 @@ setup(
     entry_points={
         'console_scripts': [
             'campaign = im_studies.entry:campaign',
+            'efficiency_map = im_studies.entry:efficiency_map',
             'robust_study = im_studies.entry:robust_study',
         ],
     },

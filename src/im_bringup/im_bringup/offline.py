@@ -152,7 +152,7 @@ def _summary(sc: Scenario, plant, trace: dict, n_steps: int) -> dict:
 
 
 def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
-             adapter=None, timing: bool = False) -> RunResult:
+             adapter=None, timing: bool = False, truth_at=()) -> RunResult:
     """
     Run ``scenario`` in the lock-step order; return figures of merit and traces.
 
@@ -165,7 +165,8 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     that is a bound (the truth handed to the drive, not a controller) has ``bind(plant)``, called
     once with the plant before the first step.
     ``timing`` adds the mean wall time per ``compute`` and per ``observer.step`` [µs] to the
-    summary.
+    summary. ``truth_at`` (times [s]): the plant's whole truth at the step nearest each, in the
+    summary's ``truth_at`` (a list in that order): the energy books over a window.
     """
     sc = scenario
     if record_every < 1:
@@ -195,7 +196,11 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
     label = f'{sc.task}/{sc.strategy} T_s={sc.T_s:g}'
     clock = time.perf_counter
     t_ctl = t_obs = 0.0
+    snap_steps = [min(max(int(round(t / T_s)), 0), n_steps) for t in truth_at]
+    snaps = {}
     for k in range(n_steps + 1):
+        if k in snap_steps and k not in snaps:
+            snaps[k] = plant.truth()
         m = plant.measure()
         if sc.sensorless:   # the shaft is not measured: the observer's ω̂ and θ̂ = ∫ω̂ instead
             m = replace(m, theta_r=observer.theta_hat, omega_r=observer.omega_hat)
@@ -239,6 +244,8 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         status_line(f'{label}: done in {time.perf_counter() - wall0:.1f} s', done=True)
     trace = {k: v[:rec] for k, v in tr.items()}
     summary = _summary(sc, plant, trace, n_steps)
+    if snap_steps:
+        summary['truth_at'] = [snaps[k] for k in snap_steps]
     if timing:
         summary['us_per_compute'] = 1e6 * t_ctl / (n_steps + 1)
         summary['us_per_observer_step'] = 1e6 * t_obs / max(n_steps, 1)

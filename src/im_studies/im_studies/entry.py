@@ -7,4 +7,5 @@ heavy imports; light on purpose, this module imports nothing but :mod:`im_common
 from im_common.startup import entry
 
 campaign = entry('im_studies.campaign:main')
+efficiency_map = entry('im_studies.efficiency_map:main')
 robust_study = entry('im_studies.robust_study:main')
