@@ -30,7 +30,7 @@ DECLARED_BEFORE = {
     'torque_limit': 0.0, 'current_limit': -1.0, 'speed_limit': 0.0, 'field_weakening': True,
     'voltage_margin': 0.85, 'current_margin': 0.9}
 #: the parameters added since, with their defaults (issue 43: the plant's computational delay)
-ADDED_SINCE = {'delay': 0, 'law': 'thesis'}
+ADDED_SINCE = {'delay': 0, 'law': 'thesis', 'drive_loss_r': 0.0, 'drive_loss_c': 0.0}
 
 
 class RecordingNode:

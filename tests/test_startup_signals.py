@@ -42,6 +42,7 @@ EXECUTABLES = {
     'commission': ('im_bringup', ['--out', '{tmp}/motor.yaml']),
     'live': ('im_bringup', ['--port', '0']),
     'campaign': ('im_studies', ['--help']),
+    'efficiency_map': ('im_studies', ['--help']),
     'robust_study': ('im_studies', ['--out', '{tmp}/robust_study']),
     'robust_examples': ('im_robust', ['examples', '--out', '{tmp}/robust']),
 }
