@@ -188,9 +188,10 @@ class Scenario:
     # the drive's inverter-error compensation (docs/compensation.md; None: off): 'inverter'
     # (exact, from the inverter block) or {v_dead, r_on, current_band}, resolved to the latter
     compensation: object = None
-    # the drive's observer and controller on the magnetizing curve of ``saturation`` (the
-    # motor file's): im_common.saturation.SaturatedModel
-    saturation_model: bool = False
+    # the drive's observer and controller on a magnetizing curve (im_common.saturation.
+    # SaturatedModel): true, the plant's ``saturation``; or a curve block of the drive's own
+    # ({table: [[psi, i_M], ...]}, what commissioning writes, or {law: power, ...})
+    saturation_model: object = False
     # a steady start with the plant's rotor flux this factor times the controller's steady state
     # (the model's steady state is never exactly the motor's; docs/adaptation.md §6)
     start_flux: float = 1.0
@@ -213,7 +214,7 @@ class Scenario:
                                 ('load_model', Load, 'a load file or a mapping with a kind')):
             if getattr(self, name) is not None and not isinstance(getattr(self, name), cls):
                 raise InvalidParameter(name, getattr(self, name), f'must be {what}')
-        for name in ('sensorless', 'iron_loss', 'saturation_model'):
+        for name in ('sensorless', 'iron_loss'):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameter(name, getattr(self, name), 'must be true or false')
         for name in ('controller_options', 'speed_observer_options'):
@@ -353,10 +354,17 @@ class Scenario:
         if self.start_flux != 1.0 and self.start != 'steady':
             raise InvalidParameter('start_flux', self.start_flux, 'scales the rotor flux of a '
                                    'steady start; this run starts at rest (start: rest)')
-        if not isinstance(self.saturation_model, bool):
+        if isinstance(self.saturation_model, Mapping):      # the drive's own curve
+            from im_common.saturation import saturation_from_dict
+            curve = saturation_from_dict(self.saturation_model, self.model_estimates().L_M,
+                                         'saturation_model')
+            object.__setattr__(self, 'saturation_model', curve.describe())
+        elif not isinstance(self.saturation_model, bool):
             raise InvalidParameter('saturation_model', self.saturation_model,
-                                   'must be true or false')
-        if self.saturation_model and self.saturation is None:
+                                   "must be true (the plant's saturation curve), false, or a "
+                                   "curve of the drive's own: {table: [[psi, i_M], ...]} or "
+                                   '{law: power, beta, S}')
+        if self.saturation_model is True and self.saturation is None:
             raise InvalidParameter('saturation_model', True, 'needs the magnetizing curve: give '
                                    'saturation (motor: the block of the motor file)')
         if self.saturation_model and self.controller in ADAPTATION:
@@ -411,7 +419,13 @@ class Scenario:
             return None
         from im_common.saturation import saturation_from_dict, SaturatedModel
         model = self.model_estimates()
-        return SaturatedModel(saturation_from_dict(self.saturation, model.L_M), model)
+        return SaturatedModel(saturation_from_dict(self.drive_curve(), model.L_M), model)
+
+    def drive_curve(self) -> Optional[dict]:
+        """Return the curve block the drive runs on: the plant's, or its own (None: linear)."""
+        if self.saturation_model is True:
+            return self.saturation
+        return self.saturation_model or None
 
     def compensation_model(self):
         """Return the drive's :class:`~im_common.compensation.InverterErrorModel` (None: off)."""
@@ -645,7 +659,7 @@ class Scenario:
         if adaptive:
             adapter.update(ADAPTATION[self.controller])
         if self.saturation_model:   # the drive's observer and controller on the curve
-            ctl['saturation_model'] = obs['saturation_model'] = json.dumps(self.saturation,
+            ctl['saturation_model'] = obs['saturation_model'] = json.dumps(self.drive_curve(),
                                                                            sort_keys=True)
         if self.delay:              # the controller predicts across it; observer and adapter
             ctl['delay'] = obs['delay'] = adapter['delay'] = self.delay     # take what acts
@@ -758,7 +772,8 @@ class Scenario:
         if self.compensation is not None:
             out['compensation'] = dict(self.compensation)
         if self.saturation_model:
-            out['saturation_model'] = True
+            out['saturation_model'] = True if self.saturation_model is True \
+                else dict(self.saturation_model)
         defaults = {f.name: f.default for f in fields(self)}
         for name in ('current_gain', 'observer_gain', 'k_e', 'gains', 'parameters',
                      'core_loss_exponent', 'plant_substep', 'observer_substep', 'start_flux',

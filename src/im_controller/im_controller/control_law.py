@@ -267,10 +267,11 @@ class ControllerConfig(BaseModel):
     drive_loss_r: float = Field(
         0.0, ge=0, description="the inverter's loss r|i|^2 [ohm] the loss-optimizing strategies "
         "add to the motor's (the run file's loss_scope: drive; 0: the motor's losses alone; "
-        'docs/efficiency.md)')
+        'docs/efficiency.md)', json_schema_extra=_node())
     drive_loss_c: float = Field(
         0.0, ge=0, description="the inverter's loss c|i| [W/A] (on-state drops and switching) "
-        "the loss-optimizing strategies add to the motor's (loss_scope: drive)")
+        "the loss-optimizing strategies add to the motor's (loss_scope: drive)",
+        json_schema_extra=_node())
     compensation: Optional[InverterErrorModel] = Field(
         None, description="the inverter's voltage error (an InverterErrorModel) added to the "
         'command after the voltage limit, at the measured current (None: off; '
@@ -496,9 +497,9 @@ class DriveController:
         self.config = cfg
         curve = None
         if cfg.magnetizing is not None and cfg.core_loss_exponent == 2.0:
-            from .flux_plan import saturation_terms
+            from .flux_plan import curve_shape
             c0 = ModelCoefficients.from_params(cfg.params)
-            curve = (c0, saturation_terms(c0, cfg.magnetizing))
+            curve = (c0, curve_shape(c0, cfg.magnetizing))
         self._strategy = FluxStrategy(
             cfg.strategy, cfg.phi_d, cfg.phi_min, cfg.phi_max, cfg.params.k_e, cfg.params.k_h,
             cfg.core_loss_exponent,

@@ -175,7 +175,8 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
     Steady-state loss-minimizing flux (see module docstring), clipped to [φ_min, φ_max].
 
     ``sat`` (b, S) of :func:`~im_controller.flux_plan.saturation_terms`: on the magnetizing
-    curve, the copper term A φ²(1 + b φ^S)² (``c`` then the unsaturated model's, exponent 2).
+    curve, the copper term A φ²(1 + b φ^S)² (``c`` then the unsaturated model's, exponent 2);
+    or g(φ) of a table curve (:func:`~im_controller.flux_plan.curve_shape`), A φ² g(φ)².
     ``inverter`` (r, c_i): the drive's losses, the inverter's r|i|² + c_i|i| added
     (:func:`_drive_min_loss`).
     """
@@ -187,9 +188,10 @@ def flux_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: flo
     phi = (C * tau2 / A) ** 0.25  # copper-only optimum: the starting point
     if phi < phi_min:
         phi = phi_min
-    if inverter is not None and (inverter[0] > 0.0 or inverter[1] > 0.0):
+    if (inverter is not None and (inverter[0] > 0.0 or inverter[1] > 0.0)) or callable(sat):
+        # the inverter's losses, or a table curve: no closed form
         return _drive_min_loss(c, tau, omega_r, phi_min, phi_max, k_e, k_h, core_exponent, sat,
-                               inverter, phi)
+                               inverter or (0.0, 0.0), phi)
     for _ in range(2):  # refresh f_e with the slip of the current solution
         f_e = abs(ve + c.R_r * tau / (c.v * phi * phi)) / TWO_PI
         K = (k_h + k_e * f_e) * f_e
@@ -219,10 +221,16 @@ def _drive_loss(c: ModelCoefficients, tau: float, omega_r: float, k_e: float, k_
     """
     Return the drive's steady loss at the rotor flux φ: the motor's plus the inverter's [W].
 
-    i_d = φ(1 + bφ^S)/L_sr (on the curve; b = 0 off it), i_q = L_r τ/(v L_sr φ): copper
+    i_d = φ g(φ)/L_sr (g = 1 + bφ^S on a power-law curve, a table's own, 1 off the curve),
+    i_q = L_r τ/(v L_sr φ): copper
     R_s|i|² + R_r τ²/(vφ)², core (k_h + k_e f_e) f_e (θφ)^m, inverter r|i|² + c_i|i|.
     """
-    g = 1.0 if sat is None else 1.0 + sat[0] * phi ** sat[1]
+    if sat is None:
+        g = 1.0
+    elif callable(sat):                         # a table curve (flux_plan.curve_shape)
+        g = sat(phi)
+    else:
+        g = 1.0 + sat[0] * phi ** sat[1]
     i_d = phi * g / c.L_sr
     i_q = c.L_r * tau / (c.v * c.L_sr * phi)
     i2 = i_d * i_d + i_q * i_q
@@ -241,7 +249,7 @@ def _drive_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: f
     The inverter's c_i|i| is not quadratic in φ, so no closed form: Newton on u = ln φ with
     central differences, from the copper-only optimum, each step kept within a factor 1.5 and
     taken only while the loss falls (the loss is unimodal in φ between its copper terms' rise
-    at both ends); 6 steps reach 1e-6 of φ.
+    at both ends); at most 12 steps (from a far start on a steep curve 7 reach 1e-9 of φ).
     """
     lo, hi = math.log(phi_min), math.log(phi_max)
     u = min(max(math.log(phi0), lo), hi)
@@ -251,7 +259,7 @@ def _drive_min_loss(c: ModelCoefficients, tau: float, omega_r: float, phi_min: f
                            math.exp(x))
     h = 1e-3
     fu = f(u)
-    for _ in range(6):
+    for _ in range(12):
         fp, fm = f(u + h), f(u - h)
         d1 = (fp - fm) / (2.0 * h)
         d2 = (fp - 2.0 * fu + fm) / (h * h)

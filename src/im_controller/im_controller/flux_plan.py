@@ -86,12 +86,43 @@ def saturation_terms(c: ModelCoefficients, curve) -> tuple:
 
     With L_M(ψ) = L_M0/(1 + (βψ)^S) the stator d-current is i_ds = (φ(1 + b φ^S) + T_r φ̇)/L_sr,
     b = (βθ)^S, so L_sr i_ds √y = y + b y^(S/2+1) + T_r ẏ/2: the linear drive term plus a convex
-    power of y (docs/controller.md §10). ValueError for a table curve.
+    power of y (docs/controller.md §10). A table curve (what commissioning writes) is fitted:
+    g(φ) = L_sr i_d(φ)/φ at its points, log(g − 1) = log b + S log φ by least squares over
+    the points where it saturates (g > 1); b = 0 (linear) when fewer than two do — the convex
+    program needs a power (the causal min_loss takes the table itself, :func:`curve_shape`).
     """
-    if getattr(curve, 'table', None) is not None:
-        raise ValueError('the flux plan takes a power-law magnetizing curve {law: power, beta, '
-                         'S}, not a table')
-    return (curve.beta * c.theta) ** curve.S, curve.S
+    if getattr(curve, 'table', None) is None:
+        return (curve.beta * c.theta) ** curve.S, curve.S
+    g = curve_shape(c, curve)
+    pts = [(math.log(psi / c.theta), math.log(g(psi / c.theta) - 1.0))
+           for psi in curve.table[0][1:] if g(psi / c.theta) > 1.0 + 1e-9]
+    if len(pts) < 2:
+        return 0.0, 2.0
+    n = len(pts)
+    mx = sum(x for x, _ in pts) / n
+    my = sum(y for _, y in pts) / n
+    sxx = sum((x - mx) ** 2 for x, _ in pts)
+    S = sum((x - mx) * (y - my) for x, y in pts) / sxx if sxx > 0.0 else 2.0
+    if not S > 0.0:
+        return 0.0, 2.0
+    return math.exp(my - S * mx), S
+
+
+def curve_shape(c: ModelCoefficients, curve):
+    """
+    Return the curve's shape for the causal min_loss: (b, S) of a power law, or g(φ) of a table.
+
+    g(φ) = L_sr i_d(φ)/φ with the steady d-current i_d(φ) = i_M(θφ) of the curve (1 + bφ^S for
+    the power law; any positive function for a table, whose slope at the origin need not be the
+    model's 1/L_M0): the stator copper on the curve is R_s (φ g(φ)/L_sr)².
+    """
+    if getattr(curve, 'table', None) is None:
+        return saturation_terms(c, curve)
+    th, L_sr = c.theta, c.L_sr
+
+    def g(phi: float) -> float:
+        return L_sr * th * curve.inv_L(th * phi)
+    return g
 
 
 def static_loss_optimal_flux(c: ModelCoefficients, tau: float, omega: float, k_e: float = 0.0,
