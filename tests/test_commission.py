@@ -252,6 +252,64 @@ def test_tool_commissions_a_plant_it_only_sees_through_topics(tmp_path):
     assert len(proc.stderr.strip().splitlines()) == 1 and out.read_text() == before
 
 
+RUN_FILE = """task: speed
+motor: thesis
+load: {kind: none}
+inverter: {V_dc: 340.0, pwm_frequency: 10000.0, deadtime: 2.0e-6, v_on: 1.0, r_on: 0.02}
+sensors: {encoder_lines: 2048, adc_bits: 12, current_range: 61.0}
+"""
+
+
+def test_a_run_file_gives_the_plant_scenario_would_start_at_rest(tmp_path):
+    """The plant of ``commission RUN_FILE`` is the run file's: blocks only where it asks."""
+    from im_bringup.commission import build_parser, Refused, run_plant_parameters
+    run = tmp_path / 'run.yaml'
+    run.write_text(RUN_FILE)
+    args = build_parser().parse_args([str(run), '--out', str(tmp_path / 'm.yaml')])
+    plant = run_plant_parameters(args)
+    assert args.T_s == 1e-4
+    assert plant['inverter.enabled'] is True and plant['inverter.deadtime'] == 2e-6
+    assert plant['sensors.adc_bits'] == 12 and plant['omega0'] == 0.0
+    assert 'initial_flux' not in plant
+    # the motor file's saturation and thermal blocks: not asked for, not applied
+    assert 'saturation' not in plant and 'thermal' not in plant
+    run.write_text(RUN_FILE + 'saturation: motor\n')
+    assert 'law: power' in run_plant_parameters(args)['saturation'].replace('"', '')
+    # another period, both plants, a bad file: one line each
+    for argv, needle in (([str(run), '--T-s', '2e-4'], 'runs at T_s = 0.0001'),
+                         ([str(run), '--plant-motor', str(run)], 'not both')):
+        with pytest.raises(Refused, match=needle):
+            run_plant_parameters(build_parser().parse_args(argv + ['--out', 'x']))
+    run.write_text('task: speed\ninverter: {V_dc: 340.0}\n')
+    with pytest.raises(Refused, match='inverter'):
+        run_plant_parameters(build_parser().parse_args([str(run), '--out', 'x']))
+
+
+@pytest.mark.processes
+@pytest.mark.slow
+def test_tool_commissions_the_plant_of_a_run_file(tmp_path):
+    """
+    ``commission RUN_FILE``: behind the run file's inverter and 12-bit ADCs.
+
+    The inverter's voltage error is measured (v_dead = t_d f_sw V_dc + v_on = 7.8 V) and R_s
+    comes out with the devices' r_on in series, as on the ROS-free plant of the same blocks.
+    (Before, a 12-bit ADC sent the standstill fit's search off the models: a LinAlgError.)
+    """
+    plate = tmp_path / 'plate.yaml'
+    plate.write_text(''.join(f'{k}: {v}\n' for k, v in THESIS_PLATE.items()))
+    run = tmp_path / 'run.yaml'
+    run.write_text(RUN_FILE)
+    out = tmp_path / 'motor.yaml'
+    proc = subprocess.run([_tool(), str(run), '--out', str(out), '--nameplate', str(plate),
+                           '--no-progress'], capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    m, w = _motor('thesis'), load_motor_file(str(out))
+    assert w.identifiable()['R_s'] == pytest.approx(m.R_s + 0.02, rel=0.01)
+    for n in ('L_sigma', 'L_M', 'R_R'):
+        assert w.identifiable()[n] == pytest.approx(m.identifiable()[n], rel=0.03), n
+    assert 'v_dead = 7.8' in out.read_text()
+
+
 @pytest.mark.processes
 @pytest.mark.slow
 def test_tool_locked_rotor_variant_writes_the_given_mechanics(tmp_path):

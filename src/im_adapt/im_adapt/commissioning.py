@@ -248,10 +248,20 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float, i0: fl
     i = np.asarray(i, dtype=float)
     p0 = _arx_start(v, i, T_s, R_s0)
 
+    miss = np.full(len(i), 1e6)             # a step of the search off every model: refused
+
     def resid(lp):
+        # a trial step of the search may leave the models (an overflowing exp, a state matrix
+        # of infinities): a large residual sends it back, instead of a LinAlgError out of eig
+        if not np.all(np.abs(lp) < 50.0):
+            return miss
         p = np.exp(lp)
-        sim, _ = standstill_response(p, v, T_s, dc_state(p, i0))
-        return sim - i
+        try:
+            sim, _ = standstill_response(p, v, T_s, dc_state(p, i0))
+        except np.linalg.LinAlgError:
+            return miss
+        r = sim - i
+        return r if np.all(np.isfinite(r)) else miss
 
     best = None
     for start in (p0, _physical_start(v, i, T_s, R_s0)):

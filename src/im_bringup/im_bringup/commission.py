@@ -5,6 +5,7 @@ It measures the motor's parameters through the graph's own topics (docs/commissi
 
     commission --out MOTOR.yaml --nameplate PLATE.yaml [--locked-rotor --J J --b B]
     commission --out MOTOR.yaml --plant-motor TRUE.yaml --nameplate PLATE.yaml   # in simulation
+    commission RUN.yaml --out MOTOR.yaml --nameplate PLATE.yaml          # the run file's plant
 
 The tool joins the lock-step graph as the node ``commission``: at each step it takes the plant's
 ``/im/measured/current`` and ``/im/measured/shaft``, and publishes the test voltage on
@@ -12,7 +13,11 @@ The tool joins the lock-step graph as the node ``commission``: at each step it t
 sequence and the estimators are :mod:`im_adapt.commissioning`. With ``--plant-motor`` it starts the
 simulated plant as a process of its own with that motor file as a ``--params-file`` (the tool never
 opens it: the plant node reads it), the drive's limits as the plant's protection (``current_trip``,
-``v_limit``) and waits for the tool; without it, a plant (the real drive) must run with ``wait_for:
+``v_limit``) and waits for the tool. With a run file (docs/running.md) instead it starts the
+plant ``scenario`` would start for that file — its motor, its inverter and sensors blocks, the
+motor file's saturation and thermal blocks and the iron loss only where the file asks for them,
+its noise, its load — at rest, with the same protection and waiting; the file's ``T_s`` is the
+tests' period. Without either, a plant (the real drive) must run with ``wait_for:
 commission``, ``allowed_publishers: /im/command/voltage=commission`` and an ``input_timeout`` long
 enough for the fit between the tests (:data:`FIT_WAIT_S`).
 
@@ -34,6 +39,9 @@ _log = logger('commission')
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='commission', description=__doc__.split('\n\n')[0])
+    p.add_argument('run_file', nargs='?',
+                   help='simulation: start the plant this run file describes, as scenario does '
+                   '(its motor, inverter, sensors and the blocks it asks for)')
     p.add_argument('--out', required=True, help='motor file to write (ROS 2 parameters YAML)')
     p.add_argument('--force', action='store_true', help='overwrite --out if it exists')
     p.add_argument('--nameplate', help='YAML with voltage [V line RMS], current [A line RMS], '
@@ -50,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='the rotor is locked: standstill tests only; give --J and --b')
     p.add_argument('--J', type=float, help='inertia [kg m^2] to write with --locked-rotor')
     p.add_argument('--b', type=float, help='viscous friction [N m s] to write with --locked-rotor')
-    p.add_argument('--T-s', type=float, default=1e-4, help='control period [s] (default 1e-4)')
+    p.add_argument('--T-s', type=float, default=None,
+                   help="control period [s] (default 1e-4, or the run file's T_s)")
     p.add_argument('--plant-motor', help='simulation: start the plant with this motor file')
     p.add_argument('--current-noise', type=float, default=0.0,
                    help='simulation: current measurement noise std of the plant [A]')
@@ -67,6 +76,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 class Refused(ValueError):
     """Bad input: one line."""
+
+
+def run_plant_parameters(args) -> Optional[dict]:
+    """
+    Return the plant parameters of ``args.run_file`` (None without one), at rest; set ``T_s``.
+
+    The parameters ``scenario`` gives the plant of that file (``Scenario.node_parameters``):
+    its motor, blocks, noise and load; the steady start's state is dropped (the tests start the
+    motor at rest). Refused, in one line, with ``--plant-motor`` or another ``--T-s``.
+    """
+    if not args.run_file:
+        if args.T_s is None:
+            args.T_s = 1e-4
+        return None
+    if args.plant_motor:
+        raise Refused('give the plant as a run file or as --plant-motor, not both')
+    from .run_file import RunFileError, Scenario
+    try:
+        sc = Scenario.from_file(args.run_file)
+        plant = sc.node_parameters()['plant']
+    except (RunFileError, OSError) as exc:
+        raise Refused(str(exc)) from None
+    if args.T_s is not None and abs(args.T_s - sc.T_s) > 1e-12 * sc.T_s:
+        raise Refused(f'--T-s {args.T_s:g}: the run file {args.run_file} runs at T_s = '
+                      f'{sc.T_s:g} s (the tests take its period)')
+    args.T_s = sc.T_s
+    for key in ('initial_current', 'initial_flux'):
+        plant.pop(key, None)
+    plant.update(theta0=0.0, omega0=0.0)
+    return plant
 
 
 def settings(args) -> dict:
@@ -154,33 +193,39 @@ def plant_parameters(s: dict, args) -> dict:
     """
     Return the simulated plant's parameters besides its motor file (the plant process reads it).
 
-    The drive's limits as its protection, waiting for the tool, no end of its own.
+    The drive's limits as its protection, waiting for the tool, no end of its own; the noise of
+    --current-noise, --speed-noise (a run file's own noise when they are not given).
     """
-    return {'T_s': args.T_s, 'duration': 0.0, 'wait_for': 'commission',
-            'allowed_publishers': '/im/command/voltage=commission',
-            'current_trip': s['i_max'], 'v_limit': s['v_max'],
-            'locked_rotor': bool(args.locked_rotor),
-            'current_noise_std': args.current_noise, 'speed_noise_std': args.speed_noise,
-            'truth_decimation': 0, 'input_timeout': FIT_WAIT_S}
+    out = {'T_s': args.T_s, 'duration': 0.0, 'wait_for': 'commission',
+           'allowed_publishers': '/im/command/voltage=commission',
+           'current_trip': s['i_max'], 'v_limit': s['v_max'],
+           'locked_rotor': bool(args.locked_rotor),
+           'truth_decimation': 0, 'input_timeout': FIT_WAIT_S}
+    if not args.run_file or args.current_noise or args.speed_noise:
+        out.update(current_noise_std=args.current_noise, speed_noise_std=args.speed_noise)
+    return out
 
 
-def start_plant(motor_file: str, s: dict, args, domain: int, key_file: str, workdir: str):
+def start_plant(motor_file: Optional[str], s: dict, args, domain: int, key_file: str,
+                workdir: str, run_plant: Optional[dict] = None):
     """
     Start the simulated plant as a process of its own (processes.GraphProcesses).
 
     ``ros2 run im_plant plant --ros-args --params-file <ours> --params-file MOTOR``: the tool
-    never opens the motor file.
+    never opens the motor file. With ``run_plant`` (a run file's plant parameters, motor
+    included) no motor file: ours holds them, the tests' settings over them.
     """
     from .processes import GraphProcesses, NodeProcess
 
     class PlantProcess(GraphProcesses):
 
         def command(self, p):
-            return super().command(p) + ['--params-file', os.path.abspath(motor_file)]
+            extra = ['--params-file', os.path.abspath(motor_file)] if motor_file else []
+            return super().command(p) + extra
 
-    if not os.path.isfile(motor_file):
+    if motor_file and not os.path.isfile(motor_file):
         raise Refused(f'--plant-motor {motor_file}: no such file')
-    params = dict(plant_parameters(s, args), graph_key_file=key_file)
+    params = dict(run_plant or {}, **plant_parameters(s, args), graph_key_file=key_file)
     g = PlantProcess([NodeProcess('plant', 'im_plant', 'plant', parameters=params)], workdir,
                      env={'ROS_DOMAIN_ID': str(domain)})
     return g.start()
@@ -192,6 +237,7 @@ def run(args) -> int:
     from im_adapt.commissioning import Commissioning, NotInformative, rated_flux
     from im_common.host import flush, make_executor
     from im_common.run_protocol import WAITING
+    run_plant = run_plant_parameters(args)
     s = settings(args)
     plate = s['plate']
     com = Commissioning(args.T_s, s['i_max'], s['v_max'],
@@ -209,12 +255,12 @@ def run(args) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     nodes, plant, key = [], None, None
     workdir = tempfile.mkdtemp(prefix='commission_')
-    if args.plant_motor:
+    if args.plant_motor or run_plant is not None:
         from im_common import auth
         from .processes import graph_key_file
         key_file = graph_key_file()
         key = auth.read_key_file(key_file)
-        plant = start_plant(args.plant_motor, s, args, domain, key_file, workdir)
+        plant = start_plant(args.plant_motor, s, args, domain, key_file, workdir, run_plant)
     rclpy.init(context=ctx, domain_id=domain)
     try:
         node = make_node(com, args.T_s, context=ctx, graph_key=key)
