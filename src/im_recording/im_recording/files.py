@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 from pathlib import Path
+import tempfile
 from typing import Iterable
 
 
@@ -63,7 +64,6 @@ def check_writable(out, what: str = 'output') -> None:
     directory without write permission or a path through a file is one :class:`OSError` line
     naming the output.
     """
-    import tempfile
     o = Path(out)
     d = o.parent if str(o.parent) else Path('.')
     while not d.exists() and d != d.parent:
@@ -81,7 +81,6 @@ def check_writable(out, what: str = 'output') -> None:
 
 def write_atomic(path, text: str) -> None:
     """Write ``text`` to a temporary file in ``path``'s directory and rename it into place."""
-    import tempfile
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix='.' + p.name + '.', suffix='.tmp', dir=str(p.parent))

@@ -12,6 +12,9 @@ import struct
 from typing import Dict, Mapping, Optional, Tuple
 import zlib
 
+import lz4.frame
+import zstandard
+
 MAGIC = b'\x89MCAP0\r\n'
 
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -204,14 +207,12 @@ def inflate(comp: str, raw, usize: int) -> bytes:
         return bytes(raw)
     try:
         if comp == 'zstd':
-            import zstandard
             if _zstd is None:
                 _zstd = zstandard.ZstdDecompressor()
             declared = zstandard.frame_content_size(raw)
             if declared not in (-1, usize):
                 raise Damage('zstd frame size differs from the chunk header')
             return _zstd.decompress(raw, max_output_size=usize)
-        import lz4.frame
         d = lz4.frame.LZ4FrameDecompressor()
         out = d.decompress(bytes(raw), max_length=usize + 1)
         if not d.eof:

@@ -7,6 +7,8 @@ The named Metadata records a recording states itself in: ``log_time`` and ``para
 """
 from __future__ import annotations
 
+import datetime
+import time
 from typing import Dict, Mapping
 
 from im_common.conversions import ns_to_s
@@ -36,7 +38,6 @@ def parameters_metadata(values: Mapping[str, object]) -> Dict[str, str]:
 
 def wall_clock_offset() -> int:
     """Return the log-time offset of a recording that starts now: the wall clock [ns]."""
-    import time
     return time.time_ns()
 
 
@@ -51,7 +52,6 @@ def log_time_offset_for(log_time: str) -> int:
 
 def log_time_record(offset_ns: int) -> Dict[str, str]:
     """Return the ``log_time`` Metadata record of a file whose log times are offset."""
-    import datetime
     started = datetime.datetime.fromtimestamp(ns_to_s(offset_ns), tz=datetime.timezone.utc)
     return {'clock': 'wall', 'offset_ns': str(int(offset_ns)),
             'started_utc': started.isoformat(timespec='microseconds')}

@@ -20,10 +20,11 @@ import os
 import re
 import sys
 
+from rosbags.typesys import get_typestore, Stores
+
 
 @functools.lru_cache(maxsize=1)
 def typestore():
-    from rosbags.typesys import Stores, get_typestore
     return get_typestore(Stores.ROS2_JAZZY)
 
 

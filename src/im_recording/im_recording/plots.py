@@ -35,9 +35,9 @@ MAX_POINTS = 6000
 
 def pyplot():
     """Return matplotlib.pyplot on the file backend (Agg), imported on first use."""
-    import matplotlib
+    import matplotlib       # heavy: matplotlib, only when a figure is drawn
     matplotlib.use('Agg', force=False)
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt     # heavy: pyplot, after the Agg backend is chosen
     return plt
 
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 from typing import Iterable, Optional
 
 from im_common.conversions import NS_PER_S
+from im_common.yamlio import yaml_problem
+import yaml
 
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}     # RMW_DURATION_INFINITE
 INFINITE_NS = 9223372036854775807
@@ -54,7 +56,6 @@ def offered_qos_yaml(profiles: Iterable) -> str:
     :func:`qos_profile_dict` dicts), as rosbag2's recorder writes the profiles the publishers
     offer (``get_publishers_info_by_topic``).
     """
-    import yaml
     items = [p if isinstance(p, dict) else qos_profile_dict(p) for p in profiles]
     return yaml.safe_dump(items, sort_keys=False, default_flow_style=False) if items else ''
 
@@ -66,8 +67,6 @@ def parse_qos_yaml(text: Optional[str], topic: str = '?') -> list:
     Anything but a YAML list of mappings is a ValueError naming the topic (rosbag2 would
     throw).
     """
-    import yaml
-    from im_common.yamlio import yaml_problem
     if not text:
         return []
     try:

@@ -19,6 +19,7 @@ from typing import Dict, Iterable, Iterator, Optional, Tuple
 import zlib
 
 from im_common import cdr
+from mcap.reader import make_reader
 
 from .files import BagError, partial_path
 from .mcap_records import (chunk_records, Damage, MAGIC, OP_CHUNK, OP_DATA_END, OP_FOOTER,
@@ -125,7 +126,6 @@ def check_data_crc(path) -> None:
 
 
 def _summary(path):
-    from mcap.reader import make_reader
     p = _open_checked(path)
     _check_summary_crc(p)
     try:
@@ -218,7 +218,6 @@ def _chunk_messages(p, f, ci, chans):
 
 
 def _iter_raw_mcap(p, chans):
-    from mcap.reader import make_reader
     try:
         with open(p, 'rb') as f:
             for sch, ch, m in make_reader(f,
@@ -235,7 +234,7 @@ def _iter_raw_mcap(p, chans):
 def read_messages(path, topics: Optional[Iterable[str]] = None
                   ) -> Iterator[Tuple[str, int, object]]:
     """(topic, stamp_ns, rclpy message) in log-time order (stamps as :func:`iter_raw`)."""
-    from rclpy.serialization import deserialize_message
+    from rclpy.serialization import deserialize_message   # heavy: rclpy, only to deserialize
     classes = {}
     for topic, tname, t, data in iter_raw(path, topics):
         cls = classes.get(tname)

@@ -37,19 +37,31 @@ in-process graph records without this node (``DriveGraph(recorder=...)``).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from typing import Dict, Iterable, List, Optional
 
 from im_common import cdr, realtime
 from im_common import topics as T
-from im_common.cli import error as cli_error
+from im_common.auth import progress_payload, SEPARATOR
+from im_common.cli import error as cli_error, parse_args
 from im_common.conversions import NS_PER_S
+from im_common.host import (enable_stack_dump, end_process, flush, make_executor, ProcessHost,
+                            request_stop)
 from im_common.lockstep import LockstepNode, READY, stamp_text
 from im_common.qos import recorder as recorder_qos, writer as writer_qos
 from im_common.run_protocol import is_master, LosslessFollower
 from im_common.step_gate import LOCKSTEP_DEPTH
+from im_common.stopping import StopSignals
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import Header
 
 from .bag import BagError, BagWriter, log_time_offset_for, LOG_TIMES, offered_qos_yaml
 from .session import RecordingSession, StampTrack  # noqa: F401 (StampTrack: its old home)
@@ -153,11 +165,9 @@ class RecorderNode(LockstepNode):
             cls = cdr.message_class(tname)
             self._subs.append(self.create_subscription(
                 cls, topic, self._callback(topic, tname, raw), qos, raw=raw))
-        from std_msgs.msg import Header
         self._progress = self.create_publisher(Header, T.PROGRESS, writer_qos(T.PROGRESS))
         self.create_timer(0.02, self._maybe_ack)
         # durable: a chunk open for FLUSH_WALL_S is on disk even when no message comes to close it
-        from rclpy.clock import Clock, ClockType
         self.create_timer(FLUSH_CHECK_S, self._flush_due,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -177,8 +187,6 @@ class RecorderNode(LockstepNode):
         """
         if name == self.get_name() or not self.session.expect_parameters(name):
             return
-        from rclpy.parameter import parameter_value_to_python
-        from rclpy.parameter_client import AsyncParameterClient
         client = self._parameter_clients[name] = AsyncParameterClient(self, name)
 
         def got_values(names, future) -> None:
@@ -343,8 +351,6 @@ class RecorderNode(LockstepNode):
                     return
                 self._write(topic, data, t)
         else:
-            from rclpy.serialization import serialize_message
-
             def cb(msg) -> None:
                 if topic == T.STATUS and not self.signing.status_verifies(msg):
                     self._refused(topic, serialize_message(msg))
@@ -440,8 +446,6 @@ class RecorderNode(LockstepNode):
             return
         ack = f.next_ack([self.track[t].last for t in f.ack_topics])
         if ack is not None:
-            from std_msgs.msg import Header
-            from im_common.auth import SEPARATOR, progress_payload
             name = self.get_name()
             tag = self.signer.tag_bytes(T.PROGRESS, progress_payload(name, ack))
             h = Header(frame_id=name + SEPARATOR + tag)
@@ -480,7 +484,6 @@ class RecorderNode(LockstepNode):
 
 def parse_metadata(text: Optional[str]) -> Dict[str, Dict[str, str]]:
     """``--metadata`` JSON: {name: {key: value}} (ValueError naming what is wrong)."""
-    import json
     if not text:
         return {}
     try:
@@ -493,13 +496,6 @@ def parse_metadata(text: Optional[str]) -> Dict[str, Dict[str, str]]:
 
 
 def main(argv=None) -> int:
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
-    from im_common.host import (enable_stack_dump, end_process, flush, make_executor,
-                                ProcessHost, request_stop)
-    from im_common.stopping import StopSignals
-    from im_common.cli import parse_args
     full = list(sys.argv if argv is None else ['record'] + list(argv))
     ap = argparse.ArgumentParser(prog='record', description='Record the drive graph to MCAP.')
     ap.add_argument('--out', '-o', default=None,

@@ -49,11 +49,15 @@ from pathlib import Path
 import re
 import struct
 import sys
+import tempfile
 from typing import Dict, List, Optional, Tuple
 import zlib
 
-from im_common.cli import error as cli_error
+from im_common import cdr
+from im_common.cli import error as cli_error, parse_args
 from im_common.conversions import ns_to_s, s_to_ns
+from im_common.stopping import exit_code_for, StopSignals
+import yaml
 
 from .bag import (BagError, BagWriter, check_output, log_time_offset, LOG_TIME_RECORD,
                   partial_path)
@@ -64,6 +68,7 @@ from .mcap_records import (CHUNK_HEAD, chunk_records, COMPRESSIONS, Damage, exac
                            OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET,
                            parse_attachment, parse_channel, parse_message_index, parse_metadata,
                            parse_schema, read_string, REC, U32, U64)
+from .run import load_run
 
 #: records that parse but prove nothing (Message Index, Channel, ...) accepted in a row while
 #: resynchronising before a CRC-checked record or the end of the file must vouch for them
@@ -794,7 +799,6 @@ _END_STATES = ('finished', 'stopped', 'failed')
 
 def _run_file(record: Optional[Dict[str, str]]) -> dict:
     """Return the ``run`` record's run file as a mapping ({} when absent or unreadable)."""
-    import yaml
     if not record or 'yaml' not in record:
         return {}
     try:
@@ -812,8 +816,7 @@ def run_end(statuses, run_file: dict) -> Tuple[Optional[int], str, bool]:
     Else the run file's ``duration`` (the run was to end there; it may have ended earlier).
     Else (None, '', False): unknown.
     """
-    from rclpy.serialization import deserialize_message
-    from im_common import cdr
+    from rclpy.serialization import deserialize_message   # heavy: rclpy, only for a run's end
     cls = cdr.message_class('diagnostic_msgs/msg/DiagnosticArray') if statuses else None
     for t, data in reversed(statuses):
         try:
@@ -866,7 +869,6 @@ def missing_tail(saved_last: Optional[int], lost_last: Optional[int], statuses,
 
 def saved_run_record(record: Dict[str, str], saved_last: Optional[int]) -> Dict[str, str]:
     """Return the ``run`` record with its ``duration`` set to what was saved (its last stamp)."""
-    import yaml
     doc = _run_file(record)
     if not doc or 'duration' not in doc:
         return record
@@ -1013,8 +1015,6 @@ def load_salvaged(path, trace: Optional[str] = None):
     (the figures of every step the file holds, the ``recovered_from`` record) and removed; the
     input is untouched. :class:`BagError` when nothing can be salvaged.
     """
-    import tempfile
-    from .run import load_run
     with tempfile.TemporaryDirectory(prefix='im_salvage_') as d:
         out = Path(d) / 'salvaged.mcap'
         r = recover(path, str(out))
@@ -1024,8 +1024,6 @@ def load_salvaged(path, trace: Optional[str] = None):
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args
-    from im_common.stopping import StopSignals, exit_code_for
     ap = argparse.ArgumentParser(prog='recover', description='Salvage the intact part of a '
                                  'truncated or damaged MCAP recording into a new, valid file.')
     ap.add_argument('bag')

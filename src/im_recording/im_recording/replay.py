@@ -39,11 +39,14 @@ import time
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from im_common import cdr
-from im_common.cli import error as cli_error
+from im_common.cli import error as cli_error, parse_args
 from im_common.conversions import NS_PER_S, ns_to_s
-from im_common.params import estimate_arguments
+from im_common.params import estimate_arguments, MotorParams
+from im_common.stopping import StopSignals
 from im_common.topics import ADAPT_ESTIMATE, CLOCK, CMD_VOLTAGE, MEAS_CURRENT, MEAS_SHAFT
+from im_observer.observer import RotorFluxObserver
 import numpy as np
+import yaml
 
 from .bag import BagError, BagWriter, check_data_crc, check_output, info, iter_raw
 from .run import REEST_CURRENT, REEST_FLUX
@@ -62,7 +65,6 @@ def _lit(text: str):
 def observer_config(metadata: Dict[str, Dict[str, str]],
                     overrides: Optional[Dict[str, float]] = None) -> dict:
     """Observer settings: recorded ``parameters/observer`` metadata, then ``overrides``."""
-    from im_common.params import MotorParams
     rec = {k: _lit(v) for k, v in metadata.get('parameters/observer', {}).items()}
     rec.update(overrides or {})
     names = {f.name for f in fields(MotorParams)}
@@ -106,7 +108,6 @@ def reestimate_series(path, config: dict, stop=None
     [(t_{k+1} ns, (î_α, î_β, φ̂_α, φ̂_β))] from the recorded inputs of every step k (up to the step
     at which ``stop()`` turned true, if given).
     """
-    from im_observer.observer import RotorFluxObserver
     s = _series(path)
     steps = sorted(set(s[MEAS_CURRENT]) & set(s[MEAS_SHAFT]) & set(s[CMD_VOLTAGE]))
     if not steps:
@@ -199,8 +200,8 @@ def _qos_from_yaml(text: Optional[str], topic: str = '?'):
     A record without one gets reliable/volatile, a record that does not parse is a ValueError
     naming the topic (never a silent default).
     """
+    # heavy: rclpy, only for publishing (--reestimate needs no ROS)
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    import yaml
     rel, dur, depth = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 100
     try:
         prof = (yaml.safe_load(text) or [{}])[0] if text else {}
@@ -232,7 +233,7 @@ class Player:
     def __init__(self, node, path, topics: Optional[Sequence[str]] = None,
                  remap: Optional[Dict[str, str]] = None, rate: float = 1.0,
                  lockstep: bool = False, clock: bool = True, ack_timeout: float = 5.0):
-        from rosgraph_msgs.msg import Clock
+        from rosgraph_msgs.msg import Clock     # heavy: ROS messages, only for publishing
         self.node, self.path = node, path
         self.rate, self.lockstep, self.clock = float(rate), lockstep, clock
         self.ack_timeout = ack_timeout
@@ -267,7 +268,7 @@ class Player:
         return False
 
     def _ack(self):
-        from rclpy.duration import Duration
+        from rclpy.duration import Duration     # heavy: rclpy, only for publishing
         for p in self.pubs.values():
             if p.get_subscription_count():
                 p.wait_for_all_acked(Duration(seconds=self.ack_timeout))
@@ -301,7 +302,6 @@ class Player:
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args
     full = list(sys.argv if argv is None else ['replay'] + list(argv))    # rclpy.init's args
     ap = argparse.ArgumentParser(prog='replay', description='Replay a recording (or re-run the '
                                  'observer on it with --reestimate).')
@@ -333,7 +333,6 @@ def main(argv=None) -> int:
             if a.k_e is not None:
                 over['k_e_injection'] = a.k_e
             out = a.out or a.bag.rsplit('.mcap', 1)[0] + '_reest.mcap'
-            from im_common.stopping import StopSignals
             with StopSignals() as sig:
                 r = reestimate(a.bag, out, over, a.use_adapter, a.force,
                                stop=lambda: sig.requested is not None)
@@ -351,6 +350,7 @@ def main(argv=None) -> int:
 
 
 def _play(a, full) -> int:
+    # heavy: rclpy, only for publishing (--reestimate needs no ROS)
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node

@@ -21,10 +21,14 @@ import sys
 from typing import Dict, List, Sequence
 
 from im_common import topics as T
-from im_common.cli import error as cli_error
-from im_common.metrics import LOAD_STEP_BAND
+from im_common.cli import error as cli_error, parse_args
+from im_common.metrics import balance_relative, energy_figures, LOAD_STEP_BAND
 from im_common.run_protocol import FAILED, FINISHED, STOPPED
 import numpy as np
+
+from .bag import BagError, check_output, write_atomic
+from .plots import all_figures
+from .run import load_run, RunningFigures
 
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
 ROWS = [
@@ -86,7 +90,6 @@ def estimate_figures(trace, last_window: float = 1.0) -> Dict[str, float]:
     and over the last ``last_window`` seconds the relative RMS and peak-to-peak of the error
     (issue targets: < 5 %).
     """
-    from .run import RunningFigures
     acc = RunningFigures(last_window)
     acc.rows(trace)
     return acc.estimates()
@@ -99,8 +102,6 @@ def figures_of_merit(run) -> Dict[str, float]:
     From the run's running figures when it was streamed (:func:`im_recording.run.stream_run`),
     else from its trace.
     """
-    from im_common.metrics import balance_relative, energy_figures
-    from .run import RunningFigures
     acc = run.running
     if acc is None:
         acc = RunningFigures()
@@ -278,7 +279,6 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
 
     Raises :class:`~im_recording.bag.BagError` for an unreadable recording.
     """
-    from .run import load_run
     if not bag_paths:
         raise ValueError('write_report needs at least one bag')
     runs = [load_run(p, trace='decimated' if plots else None) for p in bag_paths]
@@ -296,7 +296,6 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     pngs: List[str] = []
     if plots:
-        from .plots import all_figures
         pngs = all_figures(runs, out)
     md = ['# Run report', '']
     md.append('Recordings: ' + ', '.join(f'`{r["bag"]}`' for r in results))
@@ -322,7 +321,6 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
                'domain): refused by the nodes, kept apart by the recorder (on '
                f'`{T.REFUSED_PREFIX}<topic>`), in no figure.', '']
         md += refused
-    from .bag import write_atomic
     md_path = out / 'report.md'
     write_atomic(md_path, '\n'.join(md) + '\n')
     json_path = out / 'report.json'
@@ -333,8 +331,6 @@ def write_report(bag_paths: Sequence, out_dir, plots: bool = True) -> dict:
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args
-    from .bag import BagError
     ap = argparse.ArgumentParser(prog='report', description='Figures of merit and figures of '
                                  'recorded runs (several bags: side-by-side comparison).')
     ap.add_argument('bags', nargs='+', help='MCAP recordings')
@@ -344,7 +340,6 @@ def main(argv=None) -> int:
     a = parse_args(ap, argv)
     out = a.out or str(Path(a.bags[0]).with_suffix('')) + '_report'
     try:
-        from .bag import check_output
         if Path(out).exists() and not Path(out).is_dir():
             raise FileExistsError(f'{out}: --out must be a directory, and this is a file')
         for name in ('report.md', 'report.json'):

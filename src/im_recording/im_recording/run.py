@@ -39,12 +39,19 @@ plant's own value when the recording starts at t = 0), the last parameter values
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 from im_common import cdr
 from im_common import topics as T
 from im_common.conversions import NS_PER_S, ns_to_s
+from im_common.loads import load_from_dict, load_from_parameters
+from im_common.metrics import LoadStepFigures
+from im_common.params import THESIS_MOTOR
 import numpy as np
+import yaml
+
+from .bag import BagError, check_data_crc, info, iter_raw
 
 REEST_FLUX, REEST_CURRENT = T.REEST_FLUX, T.REEST_CURRENT
 
@@ -130,7 +137,6 @@ class Run:
     def label(self) -> str:
         sc = self.metadata.get('scenario', {})
         parts = [sc.get(k) for k in ('task', 'strategy', 'controller') if sc.get(k)]
-        from pathlib import Path
         return Path(self.path).stem + (f" ({', '.join(parts)})" if parts else '')
 
 
@@ -511,8 +517,6 @@ def held_model_estimates(model) -> Dict[str, float]:
     ``model``: its motor parameters (R_r, L_r, L_sr; a node's parameters — those not given are
     the node's defaults, the thesis motor's — or MotorParams-like).
     """
-    from im_common.params import THESIS_MOTOR
-
     def get(k):
         v = model.get(k) if isinstance(model, dict) else getattr(model, k, None)
         return getattr(THESIS_MOTOR, k) if v is None else v
@@ -532,7 +536,6 @@ class RunningFigures:
 
     def __init__(self, last_window: float = 1.0, lockstep_topics=(), max_ranges: int = 20,
                  load_step: Optional[float] = None, held: Optional[Dict[str, float]] = None):
-        from im_common.metrics import LoadStepFigures
         #: the speed figures of a load step at ``load_step`` [s] (a speed run's), or None
         self.load_step = None if load_step is None else LoadStepFigures(load_step)
         self.window = float(last_window)
@@ -739,7 +742,7 @@ class RunEvents:
         self.undecodable = 0
 
     def add(self, data: bytes) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
+        from diagnostic_msgs.msg import DiagnosticArray  # heavy: ROS messages, /im/status only
         try:
             msg, _ = cdr.decode_generic(DiagnosticArray, data)
         except cdr.CdrError:
@@ -774,7 +777,6 @@ def load_step_time(metadata: Optional[dict] = None,
     From a recording's ``run`` record (``metadata``) or from the nodes' ``parameters`` (the
     plant's ``load`` and ``load_<field>``, the controller's ``mode``).
     """
-    from im_common.loads import load_from_dict, load_from_parameters
     if parameters is not None:
         if parameters.get('controller', {}).get('mode') != 'speed':
             return None
@@ -782,7 +784,6 @@ def load_step_time(metadata: Optional[dict] = None,
     text = (metadata or {}).get('run', {}).get('yaml')
     if not text:
         return None
-    import yaml
     record = yaml.safe_load(text)
     if not isinstance(record, dict) or record.get('task') != 'speed' \
             or not isinstance(record.get('load'), dict):
@@ -827,7 +828,6 @@ def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
     report's plots need) or None; the figures cover the whole run either way. Every CRC is
     checked (data section, chunks, summary).
     """
-    from .bag import BagError, check_data_crc, info, iter_raw
     bi = info(path)
     check_data_crc(path)
     wanted = [t for t in bi.topics if t in TRACE_TOPICS or t == T.STATUS]

@@ -13,7 +13,12 @@ import math
 from typing import Optional
 
 from im_common import topics as T
+from im_common.cdr import pack_clock
 from im_common.conversions import NS_PER_S
+from im_common.loads import ConstantLoad
+from im_common.plant_sim import PlantSimulator
+
+from .bag import BagWriter
 
 SEC = NS_PER_S
 
@@ -28,9 +33,6 @@ def make_synthetic_bag(path, steps: int = 400, T_s: float = 1e-3, V: float = 60.
                        f: float = 20.0, observer=None, metadata: Optional[dict] = None,
                        force: bool = False, load_tau: float = 0.5,
                        chunk_size: Optional[int] = None):
-    from im_common.loads import ConstantLoad
-    from im_common.plant_sim import PlantSimulator
-    from .bag import BagWriter
     plant = PlantSimulator(T_s=T_s, load=ConstantLoad(load_tau))
     dt_ns = int(round(T_s * SEC))
     md = {'scenario': {'task': 'speed', 'strategy': 'open_loop', 'T_s': repr(T_s),
@@ -72,5 +74,4 @@ def make_synthetic_bag(path, steps: int = 400, T_s: float = 1e-3, V: float = 60.
 
 
 def _clock(t_ns: int) -> bytes:
-    from im_common.cdr import pack_clock
     return pack_clock(*divmod(t_ns, SEC))

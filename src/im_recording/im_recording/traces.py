@@ -17,6 +17,8 @@ from typing import Optional, Union
 from im_common.cdr import encode, header_stamp_ns
 from im_common.topics import RECORDED_TOPICS
 from im_recording.bag import BagError
+from im_recording.run import (lockstep_topics, Run, RunningFigures, TraceKeeper,
+                              TraceStream, TruthBooks)
 from im_recording.session import RecordingSession
 
 #: the ``recorder`` record's ``node`` of a recording made in-process (im_bringup.graph)
@@ -36,8 +38,6 @@ class Tap:
 
     def __init__(self, writer=None, keep: Union[bool, str] = True, limit: int = 10000,
                  load_step: Optional[float] = None, held: Optional[dict] = None):
-        from im_recording.run import (lockstep_topics, RunningFigures, TraceKeeper, TraceStream,
-                                      TruthBooks)
         self.writer = writer
         #: the recording's bookkeeping and metadata records, as the recorder node's (the graph
         #: feeds it the run's period, events and parameters; :meth:`close` ends it)
@@ -97,7 +97,6 @@ class Tap:
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):
         """Return the captured run as a :class:`im_recording.run.Run` (ends the capture)."""
-        from im_recording.run import Run
         if self._run is None:
             self.stream.flush(final=True)
             tr = self.keeper.trace() if self.keeper is not None else {}

@@ -51,6 +51,10 @@ import zlib
 
 from im_common import cdr
 from im_common.conversions import NS_PER_S
+from im_common.topics import TOPIC_TYPES
+import lz4.frame
+import yaml
+import zstandard
 
 from .files import BagError, partial_path
 from .mcap_records import (blob, MAGIC, MSG_FIXED, MSG_HDR, OP_CHANNEL, OP_CHUNK,
@@ -90,20 +94,14 @@ def _compressor(name: str):
     if name in ('', 'none', None):
         return '', None
     if name == 'zstd':
-        import zstandard
         c = zstandard.ZstdCompressor(level=3)
         return 'zstd', c.compress
     if name == 'lz4':
-        import lz4.frame
         return 'lz4', lz4.frame.compress
     raise ValueError(f"compression must be 'zstd', 'lz4' or 'none', not {name!r}")
 
 
 def _topic_type_default(topic: str) -> Optional[str]:
-    try:
-        from im_common.topics import TOPIC_TYPES
-    except ImportError:  # pragma: no cover
-        return None
     return TOPIC_TYPES.get(topic)
 
 
@@ -665,7 +663,6 @@ class BagWriter:
         catching, so a wrong layout aborts ``ros2 bag info``/``play``
         (``tests/test_rosbag2_compat.py`` applies its rules).
         """
-        import yaml
         start = self._t_min or 0
         dur = (self._t_max - self._t_min) if self._t_min is not None else 0
         topics = []

@@ -33,7 +33,10 @@ import sys
 import time
 from typing import List, Optional
 
-from im_common.cli import error as cli_error, logger
+from im_bringup.scenario import run_scenario
+from im_common.cli import error as cli_error, logger, parse_args
+from im_recording.bag import write_atomic
+from im_recording.report import jsonable
 import numpy as np
 
 from .campaign_journal import JOURNAL, Journal, prepare_out, versions
@@ -85,7 +88,6 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
         else:
             info.update(measure_speedup(all_jobs, spec, gains, spec['speedup_runs'], workers,
                                         progress))
-            from im_recording.bag import write_atomic
             write_atomic(sp_file, json.dumps(info, indent=2))
     journal = Journal(out_p / JOURNAL)
     t0 = time.perf_counter()
@@ -114,8 +116,6 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
             'versions': versions(), 'engine': 'dask'}
     write_parquet(rows, out_p / 'runs.parquet', meta)
     summary = summarize(rows, spec, info, spec_path)
-    from im_recording.bag import write_atomic
-    from im_recording.report import jsonable
     write_atomic(out_p / 'summary.json', json.dumps(jsonable(summary), indent=2,
                                                     allow_nan=False))
     write_report(rows, summary, spec, out_p)
@@ -146,7 +146,6 @@ def _run_alone(spec: dict, args) -> int:
     job = all_jobs[args.run]
     gains = gain_arguments(spec)
     if args.record:
-        from im_bringup.scenario import run_scenario
         s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
                          strategy=job['strategy'], controller=job['controller'],
                          record=args.record,
@@ -161,7 +160,6 @@ def _run_alone(spec: dict, args) -> int:
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args
     args = parse_args(build_parser(), argv)
     try:
         spec = read_spec(args.spec)

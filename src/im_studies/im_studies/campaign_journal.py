@@ -8,11 +8,14 @@ the spec's hash, so another spec is refused.
 from __future__ import annotations
 
 import contextlib
+from importlib import metadata
 import json
 import os
 from pathlib import Path
 import sys
 from typing import Dict
+
+from im_recording.bag import write_atomic
 
 from .campaign_spec import spec_hash
 
@@ -21,7 +24,6 @@ STATE = 'campaign.json'
 
 
 def versions() -> dict:
-    from importlib import metadata
     out = {'python': sys.version.split()[0]}
     for dist in ('im_bringup', 'im_recording', 'im_studies', 'im_common', 'im_controller',
                  'im_observer', 'numpy', 'scipy',
@@ -95,7 +97,6 @@ def prepare_out(out: Path, spec: dict, force: bool) -> Dict[int, dict]:
                               'overwrite (pass --force)')
     out.mkdir(parents=True, exist_ok=True)
     if not state.exists():
-        from im_recording.bag import write_atomic
         write_atomic(state, json.dumps({'name': spec['name'], 'spec_hash': spec_hash(spec),
                                         'spec': spec}, indent=2))
         with contextlib.suppress(FileNotFoundError):

@@ -8,8 +8,12 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass
+import logging
 import math
+from multiprocessing import resource_tracker
 import os
+import signal
+import threading
 import time
 from typing import Callable, Iterable, Optional, Sequence
 
@@ -36,8 +40,7 @@ class Pool:
     address: Optional[str] = None
 
     def __enter__(self):
-        import logging
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster   # heavy: Dask, only when a pool starts
         for name in ('distributed', 'distributed.scheduler', 'distributed.worker',
                      'distributed.nanny', 'distributed.core', 'distributed.http.proxy'):
             logging.getLogger(name).setLevel(logging.ERROR)
@@ -67,7 +70,6 @@ class Pool:
         if exc[0] is not None and issubclass(exc[0], KeyboardInterrupt):
             # interrupted: the campaign says so in one line; the scheduler's complaints about
             # the workers and the data it loses as the cluster closes are not news to the user
-            import logging
             for name in _DASK_LOGGERS:
                 logging.getLogger(name).setLevel(logging.CRITICAL + 1)
             with contextlib.suppress(Exception):        # and in the worker processes
@@ -81,7 +83,7 @@ class Pool:
                 self.cluster.close()
 
     def map(self, fn: Callable, items: Sequence, *args) -> Iterable:  # noqa: A003 (Pool.map)
-        from distributed import as_completed
+        from distributed import as_completed   # heavy: Dask, only when a pool runs
         shared = [self.client.scatter(a, broadcast=True) for a in args]
         futures = {self.client.submit(fn, item, *shared, pure=False): i
                    for i, item in enumerate(items)}
@@ -99,7 +101,6 @@ _DASK_LOGGERS = ('distributed', 'distributed.scheduler', 'distributed.worker',
 
 def _quiet_logs() -> None:
     """Silence Dask's loggers in this process (a worker's, while an interrupted pool closes)."""
-    import logging
     for name in _DASK_LOGGERS:
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
@@ -116,8 +117,6 @@ def _sigint_held():
     arrives during start-up is kept, not lost: the caller checks the list once the cluster is up
     and stops then.
     """
-    import signal
-    import threading
     got: list = []
     if threading.current_thread() is not threading.main_thread():
         yield got
@@ -125,7 +124,6 @@ def _sigint_held():
     # multiprocessing's resource tracker, when the first worker's start starts it, unblocks
     # SIGINT in the starting thread once it has spawned (resource_tracker.ensure_running): start
     # it here, so that the workers spawned after it keep SIGINT blocked
-    from multiprocessing import resource_tracker
     resource_tracker.ensure_running()
     old = signal.signal(signal.SIGINT, lambda *_: got.append(signal.SIGINT))
     mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})

@@ -12,6 +12,9 @@ import os
 from pathlib import Path
 from typing import Dict, List
 
+from im_controller.gain_design.motor import THESIS_K1
+from im_recording.bag import write_atomic
+from im_recording.plots import pyplot
 import numpy as np
 
 from .campaign_journal import versions
@@ -31,8 +34,8 @@ COLUMNS = (('index', 'int64'), ('draw', 'int64'), ('task', 'string'), ('strategy
 
 
 def write_parquet(rows: List[dict], path: Path, metadata: dict) -> None:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    import pyarrow as pa                # heavy: pyarrow, only for runs.parquet
+    import pyarrow.parquet as pq        # heavy: as above
     types = {'int64': pa.int64(), 'float64': pa.float64(), 'string': pa.string()}
     schema = pa.schema([(k, types[t]) for k, t in COLUMNS],
                        metadata={k: json.dumps(v) for k, v in metadata.items()})
@@ -44,7 +47,7 @@ def write_parquet(rows: List[dict], path: Path, metadata: dict) -> None:
 
 def read_rows(path) -> List[dict]:
     """Rows of a campaign's ``runs.parquet`` in index order."""
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq        # heavy: pyarrow, only for runs.parquet
     return pq.read_table(path).to_pylist()
 
 
@@ -156,7 +159,6 @@ def _badness(r: dict) -> tuple:
 
 def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None:
     """report.md with loss and error histograms, the stability map and the worst runs."""
-    from im_recording.plots import pyplot
     plt = pyplot()
     rows, _ = split_commissioning(rows)
     figs = []
@@ -204,7 +206,6 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
         if g['gains'] == 'thesis' and 'sigma_L_s' in (x, y):
             # the thesis's scalar current gain k1 on σL_s: discrete pole 1 − k1·T_s/(σL_s)
             # leaves the unit circle below σL_s = k1·T_s/2 (docs/campaign.md)
-            from im_controller.gain_design.motor import THESIS_K1
             edge = THESIS_K1 * g['T_s'] / 2.0
             (ax.axvline if x == 'sigma_L_s' else ax.axhline)(
                 edge, ls='--', c='tab:red', lw=0.8, label=f'k1·T_s/2 = {edge * 1e3:.3g} mH')
@@ -267,7 +268,6 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
                      + f" | {w['sigma']:.3f} | {w['sigma_L_s'] * 1e3:.3f} | `{w['replay']}` |")
     if 'commissioning' in summary:
         lines += commissioning_lines(summary['commissioning'])
-    from im_recording.bag import write_atomic
     write_atomic(out / 'report.md', '\n'.join(lines) + '\n')
 
 

@@ -7,17 +7,34 @@ column of a run's row but ``wall_s`` is a function of (spec, index).
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import os
 from pathlib import Path
+import re
 import time
 from typing import Dict, List, Optional
 
-from im_bringup.config import ADAPTATION
+from im_adapt.adaptation import AdaptationGains
+from im_adapt.hook import LockstepAdapter
+from im_bringup.config import ADAPTATION, node_parameters
+from im_bringup.offline import gain_arguments_from_parameters, Scenario, simulate
+from im_bringup.scenario import run_scenario
+from im_common.loads import load_file
+from im_common.params import load_motor_file, THESIS_MOTOR
+from im_common.yamlio import (load_parameters_file, ParametersFileError, read_yaml_file,
+                              YamlFileError)
+from im_controller.control_law import MODES
+from im_controller.design_gains import design_for_scenario
+from im_controller.flux import STRATEGIES
+from im_controller.gain_design.motor import DEFAULT_BOX, DEFAULT_SIGMA_MIN
+from im_controller.profiles import load_profile
+from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 import numpy as np
 
 from .campaign_pool import one_line
+from .commission_sim import COMPARED, identification_errors, with_ratings
 
 SPEC_KEYS = ('name', 'seed', 'draws', 'motor', 'box', 'sigma_min', 'tasks', 'strategies',
              'controllers',
@@ -44,12 +61,10 @@ class SpecError(ValueError):
 # ---------------------------------------------------------------------------------------- spec
 def default_box() -> Dict[str, list]:
     """Return the chapter-4 box the robust gains are certified over (im_controller.gain_design)."""
-    from im_controller.gain_design.motor import DEFAULT_BOX
     return {k: list(v) for k, v in DEFAULT_BOX.items()}
 
 
 def _default_sigma_min() -> float:
-    from im_controller.gain_design.motor import DEFAULT_SIGMA_MIN
     return DEFAULT_SIGMA_MIN
 
 
@@ -66,7 +81,7 @@ def _resolve(path: str, base: Path) -> str:
     if (base / p).exists():
         return str((base / p).resolve())
     for pkg in ('im_bringup', 'im_common'):
-        try:
+        try:    # heavy: ament_index_python, only for a shipped file named in a spec
             from ament_index_python.packages import get_package_share_directory
             q = Path(get_package_share_directory(pkg)) / p
         except Exception:   # package not installed in this environment: try the next one
@@ -163,7 +178,6 @@ def _gain_set(entry, i: int, where: str, base: Path) -> dict:
 
 def _gains_file(path: str) -> Dict[str, dict]:
     """Return ``{'controller': {...}, 'observer': {...}}`` of a gains file (design_gains --out)."""
-    from im_common.yamlio import ParametersFileError, load_parameters_file
     params: dict = {'controller': {}, 'observer': {}}
     try:
         for node, values in load_parameters_file(path, nodes=params).items():
@@ -194,8 +208,6 @@ def _files(spec: dict, key: str, where: str, base: Path) -> List[str]:
 
 def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) -> dict:
     """Return the spec, every default filled in and every value checked (one-line SpecError)."""
-    from im_controller.control_law import MODES
-    from im_controller.flux import STRATEGIES
     base = Path(base or '.')
     if not isinstance(raw, dict):
         raise SpecError(f'{where}: a campaign spec is a mapping of {", ".join(SPEC_KEYS)}')
@@ -237,7 +249,6 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
                 raise SpecError(f'{where}: {key}: {x!r} is not one of {", ".join(allowed)}')
         spec[key] = list(v)
     if 'sensorless' in raw:      # the axis: runs with and/or without the measured shaft
-        from im_observer.speed_observer import POSITION_NEEDS_SENSOR
         v = raw['sensorless']
         v = [v] if isinstance(v, bool) else v
         if not isinstance(v, list) or not v or not all(isinstance(x, bool) for x in v):
@@ -275,7 +286,6 @@ def normalize_spec(raw: dict, where: str = 'spec', base: Optional[Path] = None) 
 
 def read_spec(path: str) -> dict:
     """Read and normalize a spec file (SpecError naming the file on any problem)."""
-    from im_common.yamlio import YamlFileError, read_yaml_file
     try:
         raw = read_yaml_file(path, 'campaign spec')
     except YamlFileError as exc:
@@ -289,7 +299,6 @@ def spec_hash(spec: dict) -> str:
 
 # ---------------------------------------------------------------------------------------- jobs
 def base_motor(spec: dict):
-    from im_common.params import THESIS_MOTOR, load_motor_file
     return THESIS_MOTOR if spec['motor'] == 'thesis' else load_motor_file(spec['motor'])
 
 
@@ -319,7 +328,6 @@ def draw(spec: dict, d: int) -> Dict[str, float]:
 
 def jobs(spec: dict) -> List[dict]:
     """Every run of the campaign, in index order (draw-major)."""
-    import itertools
     out = []
     for d in range(spec['draws']):
         motor = draw(spec, d)
@@ -339,7 +347,6 @@ def gain_arguments(spec: dict) -> Dict[str, dict]:
     Overrides are ({'controller': {...}, 'observer': {...}}) — empty for the thesis's gains,
     designed at T_s for 'certified', read from a gains file.
     """
-    from im_controller.design_gains import design_for_scenario
     out = {}
     for g in spec['gain_sets']:
         if g['gains'] == 'thesis':
@@ -353,9 +360,6 @@ def gain_arguments(spec: dict) -> Dict[str, dict]:
 
 def scenario_for(job: dict, spec: dict, gains: dict):
     """Return the offline :class:`~im_bringup.offline.Scenario` of one job."""
-    from im_bringup.offline import Scenario, gain_arguments_from_parameters
-    from im_common.loads import load_file
-    from im_controller.profiles import load_profile
     base = base_motor(spec)
     motor = base.with_values(**{k: job[k] for k in DRAWN})
     kw = gain_arguments_from_parameters(gains[job['gain_set']])
@@ -377,8 +381,6 @@ def adapter_for(job: dict, spec: dict):
     """
     if job['controller'] == 'nominal':
         return None
-    from im_adapt.adaptation import AdaptationGains
-    from im_adapt.hook import LockstepAdapter
     return LockstepAdapter.build(base_motor(spec),
                                  AdaptationGains(**ADAPTATION[job['controller']]),
                                  sensorless=bool(job.get('sensorless')))
@@ -386,7 +388,6 @@ def adapter_for(job: dict, spec: dict):
 
 def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
     """Node parameters of one job for the ROS graph (the same run as :func:`scenario_for`)."""
-    from im_bringup.config import node_parameters
     base = base_motor(spec)
     params = node_parameters(job['task'], job['strategy'], job['controller'], 'none', job['T_s'],
                              spec['duration'],
@@ -407,7 +408,6 @@ def run_job(job: dict, spec: dict, gains: dict, alone: bool = False) -> dict:
     A graph run of the pool is on domain 150 + index mod 80 (its concurrent graphs never share
     one); ``alone`` (``campaign --run``), on ``ROS_DOMAIN_ID`` as every ROS 2 tool.
     """
-    import re
     if job['task'] == COMMISSION_TASK:
         return commission_row(job, spec)
     row = dict(job)
@@ -419,7 +419,6 @@ def run_job(job: dict, spec: dict, gains: dict, alone: bool = False) -> dict:
     t0 = time.perf_counter()
     try:
         if spec['mode'] == 'graph':
-            from im_bringup.scenario import run_scenario
             s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
                              strategy=job['strategy'], controller=job['controller'],
                              progress=False,
@@ -428,7 +427,6 @@ def run_job(job: dict, spec: dict, gains: dict, alone: bool = False) -> dict:
             if not s.get('ok', True) and not s.get('trip'):
                 raise RuntimeError('; '.join(str(v) for v in (s.get('failures') or {}).values()))
         else:
-            from im_bringup.offline import simulate
             s = simulate(scenario_for(job, spec, gains), adapter=adapter_for(job, spec)).summary
     except (FloatingPointError, OverflowError) as exc:
         m = re.search(r't = ([0-9.eE+-]+)', str(exc))
@@ -499,7 +497,6 @@ def commission_row(job: dict, spec: dict) -> dict:
     against the draw and its reported standard deviation [%]. Never raises: a refusal is a
     ``failed`` row saying why.
     """
-    from .commission_sim import COMPARED, identification_errors, with_ratings
     row = dict(job)
     row['sigma'] = 1.0 - job['L_sr'] ** 2 / (job['L_s'] * job['L_r'])
     row['sigma_L_s'] = row['sigma'] * job['L_s']

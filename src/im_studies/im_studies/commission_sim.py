@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import os
 
+from im_adapt.commissioning import Commissioning, Nameplate, simulate_commissioning
+from im_common.params import load_motor_file, RATING_NAMES, shipped_motors_dir
+from im_common.plant_sim import PlantSimulator
+
 
 def plate_of(motor):
     """Return the nameplate a motor file's ratings are (its nameplate fields)."""
-    from im_adapt.commissioning import Nameplate
     return Nameplate(voltage=motor.rated_voltage_rms_line, current=motor.rated_current_rms,
                      frequency=motor.rated_frequency, speed=motor.rated_speed_rpm,
                      power=motor.rated_power)
@@ -29,8 +32,6 @@ def commission_sim(motor, noise: float = 0.0, T_s: float = 1e-4, locked: bool = 
 
     Returns (Commissioning, Identified) — Identified raises NotInformative from ``result``.
     """
-    from im_adapt.commissioning import Commissioning, simulate_commissioning
-    from im_common.plant_sim import PlantSimulator
     plate = plate_of(motor)
     i_max, v_max = motor.rated_current, motor.rated_voltage
     plant = PlantSimulator(motor, T_s=T_s, current_trip=i_max, v_limit=v_max,
@@ -48,7 +49,6 @@ def with_ratings(motor):
 
     The commissioning tests need the drive's limits (docs/commissioning.md §6).
     """
-    from im_common.params import RATING_NAMES, load_motor_file, shipped_motors_dir
     if motor.rated_current:
         return motor
     thesis = load_motor_file(os.path.join(shipped_motors_dir(), 'thesis.yaml'))

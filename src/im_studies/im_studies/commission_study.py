@@ -17,8 +17,13 @@ import json
 import os
 from pathlib import Path
 
+from im_adapt.commissioning import Identified, NotInformative
+from im_bringup.offline import Scenario, simulate
 from im_common.cli import logger, parse_args, progress
+from im_common.params import load_motor_file, shipped_motors_dir
+import numpy as np
 
+from .campaign_spec import base_motor, draw, DRAWN, read_spec
 from .commission_sim import (commission_sim, COMPARED, identification_errors,  # noqa: F401
                              NOISE_REFERENCE_A, plate_of, with_ratings)
 
@@ -38,8 +43,6 @@ def speed_error(motor, estimates) -> dict:
     limit's error (2.5 rad/s RMS), which would compare nothing. The task starts in the model's
     steady state, put into the plant as the same physical state (control_law.steady_start).
     """
-    import numpy as np
-    from im_bringup.offline import Scenario, simulate
     r = simulate(Scenario(task='speed', strategy='min_loss', motor=motor, estimates=estimates,
                           controller_options={'current_limit': None}))
     t = np.asarray(r.trace['t'])
@@ -50,8 +53,6 @@ def speed_error(motor, estimates) -> dict:
 
 def motors(draws: int):
     """(name, MotorParams): the shipped motors, then box motors with σ < SIGMA_MAX."""
-    from im_common.params import load_motor_file, shipped_motors_dir
-    from .campaign_spec import DRAWN, base_motor, draw, read_spec
     d = shipped_motors_dir()
     out = [(f[:-5], load_motor_file(os.path.join(d, f))) for f in sorted(os.listdir(d))
            if f.endswith('.yaml')]
@@ -70,7 +71,7 @@ def motors(draws: int):
 
 
 def _installed_spec():
-    try:
+    try:    # heavy: ament_index_python, only for the installed spec
         from ament_index_python.packages import get_package_share_directory
         p = os.path.join(get_package_share_directory('im_bringup'), 'config', 'campaign.yaml')
         return p if os.path.exists(p) else None
@@ -79,7 +80,6 @@ def _installed_spec():
 
 
 def study(draws: int, noise: float, out: Path, track: bool = True) -> list:
-    from im_adapt.commissioning import NotInformative
     rows = []
     todo = motors(draws)
     for j, (name, m) in enumerate(todo):
@@ -102,7 +102,6 @@ def study(draws: int, noise: float, out: Path, track: bool = True) -> list:
             est = ident.motor(plate_of(m).ratings())
             # what a perfect identification would write: the true inverse-Γ set in the file's
             # gauge (L_s = L_r, k_e = k_h = 0) — the tracking difference of the gauge alone
-            from im_adapt.commissioning import Identified
             perfect = Identified(dict(m.identifiable(), J=m.J, b=m.b, pole_pairs=m.pole_pairs),
                                  {}).motor(plate_of(m).ratings())
             for key, e in (('true', speed_error(m, m)), ('perfect', speed_error(m, perfect)),

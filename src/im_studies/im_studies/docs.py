@@ -13,22 +13,24 @@ import os
 import re
 import sys
 
+from im_adapt.adapter_node import AdapterNode
 from im_common.cli import error as cli_error
 from im_common.host import private_domain
+from im_common.lockstep import parameter_table
+from im_common.topics import markdown_table
+from im_controller.baselines.drive import GAINS
+from im_controller.controller_node import ControllerNode
+from im_observer.observer_node import ObserverNode
+from im_plant.plant_node import PlantNode
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
 
 #: the page holding the generated tables
 DEFAULT_PAGE = os.path.join('docs', 'parameters.md')
 
 
 def parameter_tables() -> str:
-    import rclpy
-    from rclpy.context import Context
-
-    from im_adapt.adapter_node import AdapterNode
-    from im_common.lockstep import parameter_table
-    from im_controller.controller_node import ControllerNode
-    from im_observer.observer_node import ObserverNode
-    from im_plant.plant_node import PlantNode
     parts = []
     for title, factory in (('plant (`ros2 run im_plant plant`)', PlantNode),
                            ('controller (`ros2 run im_controller controller`)', ControllerNode),
@@ -49,11 +51,6 @@ def parameter_tables() -> str:
 
 def _baseline_tables(ctx) -> list:
     """Return the controller's ``baseline.*`` rows of each baseline law (declared with it)."""
-    from rclpy.parameter import Parameter
-
-    from im_common.lockstep import parameter_table
-    from im_controller.baselines.drive import GAINS
-    from im_controller.controller_node import ControllerNode
     parts = []
     for law in GAINS:
         task = [Parameter('mode', value='speed')] if law == 'vhz' else []
@@ -68,7 +65,6 @@ def _baseline_tables(ctx) -> list:
 
 
 def render(text: str) -> str:
-    from im_common.topics import markdown_table
     text = replace_section(text, 'topics', markdown_table())
     return replace_section(text, 'parameters', parameter_tables())
 

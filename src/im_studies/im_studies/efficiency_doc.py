@@ -22,6 +22,7 @@ import sys
 from typing import Dict, List, Optional
 
 from im_common.cli import error as cli_error
+import numpy as np
 
 from .efficiency_map import IEC_POINTS
 
@@ -90,10 +91,9 @@ def iec_savings(m: dict, a: str, b: str) -> List[tuple]:
 
 def figure(name: str, m: dict, path: Path) -> None:
     """Draw a motor's maps: system efficiency of constant flux and min_loss, and the savings."""
-    import matplotlib
+    import matplotlib       # heavy: matplotlib, only for the figures
     matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    import numpy as np
+    import matplotlib.pyplot as plt     # heavy: pyplot, after the Agg backend is chosen
 
     def grid(lab, col):
         rows = m['grid'][lab]

@@ -51,6 +51,8 @@ from im_common.cli import error as cli_error, logger, parse_args
 from im_common.loads import ConstantLoad
 from im_common.yamlio import read_yaml_file, YamlFileError
 from im_controller.profiles import Profile
+from im_recording.bag import write_atomic
+import numpy as np
 
 from .campaign_journal import JOURNAL, Journal, prepare_out
 from .campaign_pool import log_progress, one_line, Pool
@@ -337,7 +339,6 @@ def run_map(path: str, args, progress: bool = True) -> dict:
            'resumed_points': len(done),        # wall_s is this command's: the rest ran before
            'workers': args.workers or os.cpu_count(), 'points': ordered,
            'iec': iec_table(ordered, [d.label for d in drives], motor.rated_power)}
-    from im_recording.bag import write_atomic
     write_atomic(out / 'efficiency_map.json', json.dumps(doc, indent=1, allow_nan=True))
     figures = plot_maps(doc, out)
     write_report(doc, out, figures)
@@ -365,7 +366,6 @@ def iec_table(rows: List[dict], labels: List[str], rated_power: float) -> List[d
 
 
 def _grid_array(doc: dict, label: str, key: str):
-    import numpy as np
     rows = [r for r in doc['points'] if r['set'] == 'grid' and r['drive'] == label]
     ws = sorted({r['speed_rel'] for r in rows})
     ts = sorted({r['torque_rel'] for r in rows})
@@ -378,10 +378,9 @@ def _grid_array(doc: dict, label: str, key: str):
 
 def plot_maps(doc: dict, out: Path) -> List[str]:
     """Draw the system efficiency of each drive and the loss each saves against the first."""
-    import matplotlib
+    import matplotlib       # heavy: matplotlib, only for the figures
     matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    import numpy as np
+    import matplotlib.pyplot as plt     # heavy: pyplot, after the Agg backend is chosen
     labels = doc['drives']
     rated = doc['rated']
     names: List[str] = []

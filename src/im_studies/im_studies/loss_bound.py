@@ -17,11 +17,18 @@ bound.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import math
 import sys
 
+from im_bringup.offline import Scenario, simulate
 from im_common.cli import error as cli_error
+from im_common.params import InvalidParameter
+from im_common.saturation import saturation_from_dict
+from im_controller.control_law import DriveController
+from im_controller.flux_plan import grid, plan_flux, PLAN_STEP, saturation_terms
+from im_controller.reference import ModelCoefficients
 import numpy as np
 
 
@@ -42,9 +49,6 @@ def run_loss_bound(sc, step: float = None, core: bool = True, phi0: float = None
     what they cannot deliver).
     ValueError for the torque task.
     """
-    from im_controller.control_law import DriveController
-    from im_controller.flux_plan import grid, plan_flux, PLAN_STEP
-    from im_controller.reference import ModelCoefficients
     step = PLAN_STEP if step is None else step
     m = sc.plant_schedule().params_at(0.0)
     load = sc.plant_load()
@@ -60,8 +64,6 @@ def run_loss_bound(sc, step: float = None, core: bool = True, phi0: float = None
     k = {'k_e': m.k_e, 'k_h': m.k_h} if core else {}
     c = ModelCoefficients.from_params(m)
     if sc.saturation is not None:       # the plant's magnetizing curve
-        from im_common.saturation import saturation_from_dict
-        from im_controller.flux_plan import saturation_terms
         k['sat'] = saturation_terms(c, saturation_from_dict(sc.saturation, m.L_M))
     return plan_flux(c, nodes, tau, omega[mid], start_flux(sc) if phi0 is None else phi0,
                      i_max=i_max, phi_cap=phi_cap, **k)
@@ -90,9 +92,6 @@ def main(argv=None) -> int:
                     help='simulate the run file with this flux strategy and compare (repeatable)')
     ap.add_argument('--json', metavar='FILE', help='write the figures as JSON')
     a = ap.parse_args(argv)
-    from dataclasses import replace
-    from im_bringup.offline import Scenario, simulate
-    from im_common.params import InvalidParameter
     try:
         sc = Scenario.from_file(a.run_file)
         cu = run_loss_bound(sc, a.step, core=False)

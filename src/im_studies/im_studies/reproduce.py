@@ -23,11 +23,19 @@ import os
 import sys
 from typing import List, Optional
 
+from im_bringup.config import node_parameters
+from im_bringup.offline import Scenario
+from im_bringup.scenario import run_scenario
 from im_common.cli import parse_args
 from im_controller.control_law import THESIS_TASKS
+from im_controller.design_gains import design_for_scenario
 from im_controller.flux import COMPARED_STRATEGIES
+from im_recording.report import jsonable
 
 from im_studies import thesis
+from im_studies.campaign_pool import pool_map
+
+from .loss_bound import run_loss_bound
 
 CH3_KEYS = ('task', 'strategy', 'controller', 'rate_hz', 'E_in_J', 'E_loss_J', 'E_copper_J',
             'E_core_J', 'W_load_J', 'E_friction_J', 'dE_kinetic_J', 'dW_magnetic_J',
@@ -55,7 +63,6 @@ def start_flux(task: str, strategy: str) -> float:
     It is 0 from rest (demagnetized), else the controller's own steady state (the plant's
     initial_flux parameter).
     """
-    from im_bringup.config import node_parameters
     flux = node_parameters(task, strategy)['plant'].get('initial_flux')
     return 0.0 if flux is None else math.hypot(*flux)
 
@@ -67,8 +74,6 @@ def loss_bound(task: str, phi0: float, step: float = 1e-3, core: bool = True):
     The task's run (thesis motor, load, reference) over [0, duration] from the start flux φ0,
     end flux free: :func:`im_studies.loss_bound.run_loss_bound`, the floor of any run file.
     """
-    from im_bringup.offline import Scenario
-    from .loss_bound import run_loss_bound
     return run_loss_bound(Scenario(task=task), step, core=core, phi0=phi0)
 
 
@@ -118,8 +123,6 @@ def run_one(item) -> dict:
     ``item`` = (n, spec, out_dir, record); DDS domain 150 + n mod 80, so the pool's concurrent
     graphs never share one.
     """
-    from im_bringup.config import node_parameters
-    from im_bringup.scenario import run_scenario
     n, spec, out_dir, record = item
     spec = dict(spec)
     extra = spec.pop('parameters', None)
@@ -142,7 +145,6 @@ def run_one(item) -> dict:
 def run_all(specs: List[dict], out_dir: str, record: bool = False,
             workers: Optional[int] = None) -> List[dict]:
     """Every spec through the graph on the campaign pool (im_studies.campaign_pool), in order."""
-    from im_studies.campaign_pool import pool_map
     return pool_map(run_one, [(n, spec, out_dir, record) for n, spec in enumerate(specs)],
                     workers=workers, label='reproduce')
 
@@ -221,7 +223,6 @@ def main(argv=None) -> int:
         specs += robust_runs()
     results = run_all(specs, args.out, record=args.record, workers=args.workers)
     results += bound_rows(results)
-    from im_recording.report import jsonable
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(jsonable(results), f, indent=2, allow_nan=False)
     with open(os.path.join(args.out, 'summary.md'), 'w') as f:
@@ -251,7 +252,6 @@ def chapter4_runs() -> List[dict]:
 
 def robust_runs() -> List[dict]:
     """Return the chapter-3 tasks at 1 kHz with certified robust gains (and with the thesis's)."""
-    from im_controller.design_gains import design_for_scenario
     runs = [{'task': task, 'strategy': 'min_energy', 'controller': 'nominal', 'variation': 'none',
              'T_s': 1e-3}
             for task in THESIS_TASKS]          # the thesis's gains at 1 kHz

@@ -27,9 +27,12 @@ import sys
 import time
 from typing import List, Optional
 
+from im_bringup.offline import Scenario, simulate
 from im_common.cli import logger, parse_args
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES
+from im_controller.gain_design.drive import design_drive_gains
+from im_studies.campaign_pool import pool_map
 import numpy as np
 
 KEYS = ('E_in_J', 'E_loss_J', 'E_copper_J', 'E_core_J', 'pos_err_max_rad', 'speed_err_max_rad_s',
@@ -42,7 +45,6 @@ _log = logger('robust_study')
 
 def gains_for(T_s: float, progress: bool = True) -> dict:
     """Certified gains at T_s as offline Scenario arguments, with the design summary."""
-    from im_controller.gain_design.drive import design_drive_gains
     g = design_drive_gains(T_s, progress=progress)
     if not g.certified:
         raise RuntimeError(f'no certified gains at T_s = {T_s:g} s')
@@ -52,7 +54,6 @@ def gains_for(T_s: float, progress: bool = True) -> dict:
 
 
 def run_one(task: str, strategy: str, T_s: float, gains: Optional[dict]) -> dict:
-    from im_bringup.offline import Scenario, simulate
     names = ('current_gain', 'observer_gain', 'k_e', 'controller_options')
     kw = {} if gains is None else {k: gains[k] for k in names}
     sc = Scenario(task=task, strategy=strategy, T_s=T_s, **kw)
@@ -80,7 +81,6 @@ def study(progress: bool = True) -> dict:
     plan = [(task, strategy, T, None if which == 'thesis' else designs[T])
             for T in (1e-4, 1e-3) for which in ('thesis', 'certified')
             for task in THESIS_TASKS for strategy in COMPARED_STRATEGIES]
-    from im_studies.campaign_pool import pool_map
     rows = pool_map(_run_item, plan, label='robust_study', progress=progress)
     return {'designs': {f'{T:g}': d['design'] for T, d in designs.items()},
             'gains': {f'{T:g}': {k: d[k] for k in ('current_gain', 'observer_gain', 'k_e',

@@ -43,7 +43,12 @@ from im_common.params import (constant, load_motor_file, ParameterSchedule, ramp
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
+from im_recording.plots import pyplot
 import numpy as np
+
+from .study_ch4 import gains_for, run_case
+from .study_motors import scaled_options
+from .study_sensorless import USELESS_SPEED_NOISE
 
 #: the duty: high and low speed [rad/s], their holds [s], the transition [s], cycles
 DUTY_HIGH, DUTY_LOW, DUTY_HOLD_HIGH, DUTY_HOLD_LOW = 150.0, 20.0, 3.0, 3.0
@@ -95,8 +100,6 @@ def duty(motor_name: str, sensorless: bool = False, duration: float = None,
     ``cycles`` (default: as many as :data:`DUTY_DURATION` holds) sets the profile, ``duration``
     (default: :data:`DUTY_DURATION`, or ``cycles`` whole cycles) the run.
     """
-    from .study_motors import scaled_options
-    from .study_sensorless import USELESS_SPEED_NOISE
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
     m = load_motor_file(path)
     period = duty_period(motor_name)
@@ -333,7 +336,6 @@ CH4_TARGETS = {'position': 0.015, 'speed': 0.1}
 
 def run_start(strategies=COMPARED_STRATEGIES) -> list:
     """Return the chapter-4 adaptive rows, the speed task's at every start flux."""
-    from .study_ch4 import gains_for, run_case
     rows = []
     for task in THESIS_TASKS:
         for st in strategies:
@@ -349,7 +351,6 @@ def run_start(strategies=COMPARED_STRATEGIES) -> list:
 
 def plot_thermal(rows: list, path: str) -> None:
     """Plot R̂_s and R̂_R against the plant's through each motor's duty (the adapter's runs)."""
-    from im_recording.plots import pyplot
     plt = pyplot()
     motors = sorted({r['motor'] for r in rows})
     fig, axes = plt.subplots(2, len(motors), figsize=(6 * len(motors), 6), squeeze=False)

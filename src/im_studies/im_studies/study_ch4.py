@@ -26,12 +26,14 @@ from typing import Callable, Dict, List, Optional
 from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
 from im_bringup import offline
+from im_bringup.config import ADAPTATION
 from im_bringup.offline import CHAPTER4_ESTIMATES, Scenario, simulate
 from im_common.cli import logger, parse_args
 from im_common.params import (constant, InvalidParameter, ParameterSchedule, ramp, sinusoid,
                               THESIS_MOTOR)
 from im_controller.control_law import THESIS_TASKS
 from im_controller.flux import COMPARED_STRATEGIES
+from im_studies.campaign_pool import pool_map
 import numpy as np
 
 from .campaign_spec import NOMINAL_AND_ADAPTIVE
@@ -107,7 +109,6 @@ class TruthFed:
 def gains_for(controller: str, **overrides) -> Optional[AdaptationGains]:
     if controller == 'nominal':
         return None
-    from im_bringup.config import ADAPTATION
     return AdaptationGains(**{**ADAPTATION[controller], **overrides})
 
 
@@ -206,7 +207,6 @@ def comparison(tasks=THESIS_TASKS, strategies=COMPARED_STRATEGIES,
                variations=('chapter4', 'none'), T_s: float = 1e-4,
                workers: Optional[int] = None) -> List[dict]:
     """Every (variation, task, strategy, controller) case on the campaign pool, in order."""
-    from im_studies.campaign_pool import pool_map
     cases = [(task, strategy, controller, variation, T_s) for variation in variations
              for task in tasks for strategy in strategies for controller in controllers]
     return pool_map(_case, cases, workers=workers, label='compare')

@@ -52,6 +52,8 @@ from im_common.sensors import Sensors
 from im_controller.control_law import THESIS_LAW_GAINS
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
+from im_recording.plots import pyplot
+import numpy as np
 
 from .study_motors import scaled_options, scaled_scenario
 from .study_real_plant import INVERTER, real_plant, STEP_AFTER, STEP_BEFORE, STEP_DURATION, \
@@ -334,8 +336,6 @@ def markdown(rows: list) -> str:
 
 def plot(rows: list, path: str) -> None:
     """Losses and tracking errors of every law × strategy, one row of panels per task."""
-    from im_recording.plots import pyplot
-    import numpy as np
     plt = pyplot()
     tasks = [t for t in TASKS if any(r['task'] == t for r in rows)]
     plants = [p for p in PLANTS if any(r['plant'] == p for r in rows)]
@@ -455,7 +455,7 @@ def write_doc(path: str, rows: list, check: list = ()) -> None:
 
     A part with no rows leaves its section as it is.
     """
-    from .docs import replace_section
+    from .docs import replace_section   # heavy: im_studies.docs imports rclpy and the nodes
     with open(path) as f:
         text = f.read()
     try:

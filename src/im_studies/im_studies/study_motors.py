@@ -36,12 +36,14 @@ the issue-13 rows for every shipped motor.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import glob
 import json
 import math
 import os
 import sys
 
+from im_adapt.hook import LockstepAdapter
 from im_bringup.offline import Scenario, simulate
 from im_common.cli import error as cli_error
 from im_common.loads import ConstantLoad, LinearLoad
@@ -54,7 +56,8 @@ from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import from_setpoints
 import numpy as np
 
-from .study_ch4 import TRUTH_FED
+from .campaign_pool import pool_map
+from .study_ch4 import gains_for, TRUTH_FED, TruthFed
 
 OVERLOAD = 2.0
 
@@ -174,9 +177,6 @@ def drift_schedule(motor: MotorParams, duration: float) -> ParameterSchedule:
 
 
 def _drift_case(args) -> dict:
-    from dataclasses import replace
-    from im_adapt.hook import LockstepAdapter
-    from .study_ch4 import TruthFed, gains_for
     motor, name, task, strategy, controller = args
     sc = scaled_scenario(motor, task, strategy)
     sched = drift_schedule(motor, sc.duration)
@@ -197,7 +197,6 @@ def _drift_case(args) -> dict:
 
 def run_drift(motors: dict, workers=None) -> list:
     """Every motor × task × strategy × :data:`DRIFT_CONTROLLERS` under :func:`drift_schedule`."""
-    from .campaign_pool import pool_map
     cases = [(m, name, task, strategy, c) for name, m in motors.items()
              for task in THESIS_TASKS for strategy in COMPARED_STRATEGIES
              for c in DRIFT_CONTROLLERS]

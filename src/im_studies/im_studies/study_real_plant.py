@@ -38,6 +38,7 @@ transients; the dip and recovery of a load step (:mod:`im_common.metrics`).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -45,15 +46,21 @@ import sys
 
 from im_bringup.offline import Scenario, simulate
 from im_common.cli import error as cli_error
+from im_common.compensation import from_inverter
 from im_common.inverter import Inverter
 from im_common.loads import ConstantLoad, StepLoad
-from im_common.params import load_motor_file, shipped_motors_dir
+from im_common.params import load_motor_blocks, load_motor_file, RATING_NAMES, shipped_motors_dir
+from im_common.saturation import saturation_from_dict
 from im_common.sensors import Sensors
 from im_controller.profiles import Profile
+from im_recording.plots import pyplot
 import numpy as np
 
 from . import study_adaptation
-from .study_motors import reversal_time, scaled_options
+from .commission_sim import commission_sim, COMPARED
+from .loss_bound import drive_floor
+from .study_adaptation import START_FLUXES
+from .study_motors import reversal_time, scaled_options, scaled_scenario
 from .study_sensorless import USELESS_SPEED_NOISE
 
 MOTORS = ('thesis', 'krause_3hp')
@@ -163,8 +170,6 @@ def load_step(motor_name: str, compensation: bool, real: bool = True) -> Scenari
 
 def loss_reversal(motor_name: str, strategy: str, real: bool, on_curve: bool) -> Scenario:
     """Return the ±100 rad/s reversal of the losses part (module doc)."""
-    import dataclasses
-    from .study_motors import reversal_time
     m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
     ramp = 2.0 * reversal_time(m, span=2.0 * LOSS_SPEED / m.rated_speed)
     # from a standstill (magnetized): an encoder reads a shaft at rest exactly, so the drive
@@ -179,7 +184,6 @@ def loss_reversal(motor_name: str, strategy: str, real: bool, on_curve: bool) ->
 
 def run_losses(motors=MOTORS) -> list:
     """Run the losses part: each motor × plant/drive × min_loss, optimal against the floor."""
-    from .loss_bound import drive_floor
     rows = []
     for mo in motors:
         for plant, real, curve in (('ideal plant', False, False),
@@ -268,7 +272,6 @@ def run_load_step(motors=MOTORS) -> list:
 
 def plot_phase_current(runs: dict, path: str) -> None:
     """Phase a current against its reference, and its error, compensation off and on."""
-    from im_recording.plots import pyplot
     plt = pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
     k = math.sqrt(2.0 / 3.0)            # phase a of a power-invariant αβ vector
@@ -301,8 +304,6 @@ def identify(motor_name: str, blocks: dict):
 
     Deterministic, so kept for the process: the commissioning and identified parts share it.
     """
-    from im_common.params import load_motor_blocks
-    from .commission_sim import commission_sim
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
     kw = dict(blocks)
     for name in ('saturation', 'thermal'):
@@ -320,7 +321,6 @@ _IDENTIFIED: dict = {}
 
 def commission(motor_name: str, blocks: dict) -> dict:
     """Commission a shipped motor behind ``blocks``; return the errors [%] and the inverter fit."""
-    from .commission_sim import COMPARED
     m = load_motor_file(os.path.join(shipped_motors_dir(), f'{motor_name}.yaml'))
     ident, kw = identify(motor_name, blocks)
     truth = dict(m.identifiable(), J=m.J)
@@ -329,7 +329,6 @@ def commission(motor_name: str, blocks: dict) -> dict:
     inv = blocks.get('inverter')            # an Inverter (real_plant) or None
     r_on = inv.r_on if inv is not None else 0.0
     out['R_s_r_on_err_pct'] = 100.0 * (ident.values['R_s'] / (truth['R_s'] + r_on) - 1.0)
-    from im_common.compensation import from_inverter
     v_dead = from_inverter(inv).v_dead if inv is not None else 0.0
     out['v_dead'] = ident.inverter.get('v_dead', 0.0)
     out['v_dead_err_pct'] = 100.0 * (out['v_dead'] / v_dead - 1.0) if v_dead else None
@@ -342,7 +341,6 @@ def magnetizing_errors(points, motor, saturation) -> dict:
 
     The plant's curve: its ``saturation`` block, or the constant L_M0 without one.
     """
-    from im_common.saturation import saturation_from_dict
     L_M0 = motor.L_sr ** 2 / motor.L_r
     curve = saturation_from_dict(saturation, L_M0) if saturation else None
     errs = []
@@ -375,9 +373,6 @@ def identified_drive(motor_name: str, ident=None) -> list:
     data) and with the file the commissioning on every block wrote (its parameters, ratings,
     v_dead; k_e = k_h = 0, the core loss is not identified). Returns one row per file.
     """
-    import dataclasses
-    from im_common.params import RATING_NAMES
-    from .study_motors import scaled_scenario
     path = os.path.join(shipped_motors_dir(), f'{motor_name}.yaml')
     m = load_motor_file(path)
     if ident is None:
@@ -488,7 +483,6 @@ def markdown(part: str, rows: list) -> str:
                          f"{ad:.5f} | {ad / nom:.2f} | {100 * r['R_R_err_end']:+.2f} % | "
                          f"{100 * r['L_M_err_end']:+.2f} % | {trip} |")
     elif part == 'start':
-        from .study_adaptation import START_FLUXES
         lines = ['| task | strategy | ' + ' | '.join(f'start flux ×{f:g}' for f in START_FLUXES)
                  + ' | target | met |', '| --- | --- |' + ' ---: |' * len(START_FLUXES)
                  + ' ---: | --- |']

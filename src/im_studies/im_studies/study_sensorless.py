@@ -14,6 +14,7 @@ import argparse
 import json
 import sys
 
+from im_adapt.hook import LockstepAdapter
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import ConstantLoad
 from im_common.params import (constant, load_motor_file, ParameterSchedule, shipped_motors_dir,
@@ -22,6 +23,8 @@ from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
 import numpy as np
 
+from .commission_sim import identification_errors, plate_of
+from .commission_study import motors
 from .study_motors import reversal_time, scaled_options
 
 #: the measured speed's noise in the sensorless runs [rad/s]: useless to a speed controller
@@ -123,7 +126,6 @@ def run_adaptive(sc: Scenario, record_every: int = 1):
     The adapter runs the improved law with the inverse-Γ feed and is told ``sc.sensorless``;
     samples are rows (R_r, θ, L_M, R_R, L_σ, R_s).
     """
-    from im_adapt.hook import LockstepAdapter
     hook = LockstepAdapter.build(sc.model_estimates(), sensorless=sc.sensorless)
     res = simulate(sc, adapter=hook, record_every=record_every)
     return res, np.asarray(hook.samples)
@@ -227,8 +229,6 @@ def run_commissioned(draws: int = 6, noise: float = 0.05) -> list:
     commissioning identified (current noise ``noise`` A, seed = the draw's index here), and
     the sensored drive with the true model.
     """
-    from .commission_sim import identification_errors, plate_of
-    from .commission_study import motors
     rows = []
     for j, (name, m) in enumerate(x for x in motors(draws) if x[0].startswith('box')):
         _, ident, _ = identification_errors(m, noise, seed=j)
