@@ -35,6 +35,7 @@ PYTHON_KEYS = {
     'yaml': 'python3-yaml',
     'pydantic': 'python3-pydantic',         # in rosdistro (requirements.txt pins pydantic 2)
     'matplotlib': 'python3-matplotlib',
+    'numba': 'python3-numba',               # in rosdistro (the real plant's compiled period)
     'pytest': 'python3-pytest',
     'rosbags': 'python3-rosbags-pip',       # in rosdistro (pip)
     'cvxpy': 'python3-cvxpy-pip',           # in rosdistro (pip)

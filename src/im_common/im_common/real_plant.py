@@ -30,6 +30,12 @@ Per control period (docs/plant.md):
    ``E_inv`` (drawn from the DC link) and apart in ``E_switching``;
 4. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
+
+Steps 1-3 run compiled (:mod:`im_common.real_plant_kernel`, numba) when
+``RealPlant.use_kernel``: the period's events and, once its predictions are made, the intervals,
+the sign check, the switching tally and the closed-form integrals, in the same arithmetic; the
+pure-Python path of :meth:`RealPlant._solve` is the reference (``use_kernel = False``) and takes
+the periods whose currents change sign and those with repeated eigenvalues.
 """
 from __future__ import annotations
 
@@ -37,6 +43,7 @@ from cmath import exp as cexp, sqrt as csqrt
 import math
 from typing import Mapping
 
+from . import real_plant_kernel as _kernel
 from .inverter import (carry_after, check_against_motor, duties, edges, Inverter, period_plan,
                        phase_values)
 from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
@@ -57,6 +64,10 @@ _DIODE = {1.0: 0, -1.0: 1, 0.0: 0.5}
 _UNIT_VECTORS = tuple(complex(*clarke(c & 1, (c >> 1) & 1, (c >> 2) & 1)) for c in range(8))
 _UNIT = (_UNIT_VECTORS, tuple(u.conjugate() for u in _UNIT_VECTORS),
          tuple((u * u.conjugate()).real for u in _UNIT_VECTORS))
+
+
+#: _UNIT as the compiled kernel takes it (im_common.real_plant_kernel)
+_UNIT_ARRAYS = _kernel.as_table(_UNIT)
 
 
 #: clarke(x_a, x_b, x_c) as a complex number for the triples a period's plan and the currents'
@@ -96,6 +107,10 @@ def _edge_currents(before, after, i: complex) -> float:
 class RealPlant:
     """The real plant's blocks and state beside a :class:`PlantSimulator` (module doc)."""
 
+    #: the period by the compiled kernel (:mod:`im_common.real_plant_kernel`, numba) when it
+    #: exists, else (False) by the pure-Python path of :meth:`_solve`, the reference
+    use_kernel = _kernel.available
+
     def __init__(self, sim, inverter=None, saturation=None, thermal=None, sensors=None,
                  iron_loss: bool = False, core_loss_exponent: float = 2.0,
                  locked_rotor: bool = False):
@@ -129,6 +144,11 @@ class RealPlant:
         self._consts = (p.pole_pairs, p.J, p.b, p.k_h, p.k_e, self.model.load, saturation,
                         self.iron_loss, self.model.locked, self.model.r_on)
         self._prev = None                       # the last period's predictors (_solve)
+        # the kernel's constants as floats (one compiled signature whatever their types)
+        self._kfloats = (float(p.pole_pairs), float(p.k_h), float(p.k_e))
+        self._ev = _kernel.events_buffer()     # the compiled events (_switching)
+        if self.use_kernel:
+            _kernel.warm()                      # compiled (or loaded) before the first step
         self._currents = (None, None)           # (state, state_currents()) of the last call
         self._end_current = (None, 0j)          # (state, i_s) at the end of the last _solve
         # unit switch-state vectors: clarke of the pole voltages (s_a, s_b, s_c) for V_dc = 1
@@ -254,11 +274,11 @@ class RealPlant:
             i_sb *= SQRT3
             signs = (_sgn(i_sa), _sgn(i_sb - i_sa), _sgn(-i_sb - i_sa))
             if 0.0 not in signs:
-                events, code = self._events(d, half, signs)
+                events, code = self._switching(d, half, signs)
                 return self._solve(x, t0, T_s, events, code, _UNIT, V,
                                    _CLARKE[signs] * inv.v_on, signs, (d, half))
             return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, self._plan(d, half))
-        events, code = self._events(d, half, (1.0, 1.0, 1.0))
+        events, code = self._switching(d, half, (1.0, 1.0, 1.0))
         return self._solve(x, t0, T_s, events, code, _UNIT, V, 0j, None, None)
 
     def _plan(self, d, half: int):
@@ -268,6 +288,17 @@ class RealPlant:
         extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
         return period_plan(d, half, inv.T_c, self.sim.T_s, inv.deadtime, extra=extra,
                            carry=self._carry)
+
+    def _switching(self, d, half: int, signs):
+        """Return :meth:`_events`, compiled with ``use_kernel`` (the events as an array)."""
+        if not self.use_kernel:
+            return self._events(d, half, signs)
+        inv = self.inverter
+        c = self._carry
+        ev = self._ev
+        n, code = _kernel.events(ev, d[0], d[1], d[2], half, inv.T_c, self.sim.T_s,
+                                 inv.deadtime, c[0], c[1], c[2], signs[0], signs[1], signs[2])
+        return ev[:n], code
 
     def _events(self, d, half: int, signs):
         """
@@ -378,6 +409,40 @@ class RealPlant:
             k2 = 0.5 * T / J
             w_star = (omega + k2 * (tau_hat - load.torque(t0, theta, omega))) / (1.0 + k2 * b_f)
             tl = load.torque(t0 + 0.5 * T, theta + 0.5 * T * w_star, w_star)
+        if events is not None and self.use_kernel:     # the same from here on, compiled
+            ksw = self._k_edge
+            unit, unitc, norm2 = _UNIT_ARRAYS if table is _UNIT else _kernel.as_table(table)
+            sa, sb, sc = (0.0, 0.0, 0.0) if signs is None else signs
+            k = _kernel.period(
+                ps, pr, i_s, R_s, R_R, L_sig, r_on, m, kappa, self._kfloats[0], w_star, T, V,
+                drop, code, _kernel.as_events(events) if type(events) is list else events,
+                unit, unitc, norm2, signs is not None, sa, sb, sc, ksw,
+                _edge_currents(self._poles, _POLES[code], i_s) if ksw else 0.0,
+                iron, self._kfloats[1], self._kfloats[2], w00, mdl.core_loss_exponent)
+            if k[0] == _kernel.DONE:
+                self._end_poles = _POLES[k[1]]
+                self._edges = k[2]
+                return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s,
+                                    R_R, *k[3:16])
+            if k[0] == _kernel.SIGN_CHANGE:     # explicit dead bands, as the reference
+                events = None
+                plan = self._plan(*plan)
+            elif type(events) is not list:      # repeated eigenvalues: _fallback's events
+                events = [(t_ev, int(bit)) for t_ev, bit in events.tolist()]
+        if events is None and self.use_kernel:  # explicit dead bands, compiled
+            poles = self._poles
+            has = poles is not None
+            p0, p1, p2 = poles if has else (0.0, 0.0, 0.0)
+            k = _kernel.explicit(
+                ps, pr, i_s, R_s, R_R, L_sig, r_on, m, kappa, self._kfloats[0], w_star, T, V,
+                float(self.inverter.v_on), _kernel.as_plan(plan), self._k_edge, has,
+                float(p0), float(p1), float(p2), iron, self._kfloats[1], self._kfloats[2], w00,
+                mdl.core_loss_exponent)
+            if k[0] == _kernel.DONE:
+                self._end_poles = k[16:19]
+                self._edges = k[2]
+                return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s,
+                                    R_R, *k[3:16])
         # the frozen system: d/dt (ψ_s, ψ_R) = [[−a, a], [c, −c − g + jw]] (ψ_s, ψ_R) + (u, 0)
         a = (R_s + r_on) / L_sig
         g = R_R * m
@@ -563,6 +628,14 @@ class RealPlant:
                 f = abs(rot) / (TWO_PI * P2)
                 e_core = (k_h + k_e * f) * f * (
                     P2 if mdl.core_loss_exponent == 2.0 else math.sqrt(P2 * T))
+        return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s, R_R,
+                            lo, hi, i, ps, c1 * z1 + c2 * z2, torque, w0bar, Is2, Ir2, e_in,
+                            e_core, e_inv, U1)
+
+    def _finish(self, x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s, R_R, lo, hi,
+                i, ps, pr, torque, w0bar, Is2, Ir2, e_in, e_core, e_inv, U1):
+        """Return :meth:`_solve`'s (x, mean voltage) from the period's solution and integrals."""
+        _, J, b_f, _, _, _, _, _, locked, _ = self._consts
         # the shaft: momentum with the period's mean torque, the work at the held speed
         if locked:
             omega1 = omega
@@ -574,7 +647,6 @@ class RealPlant:
             e_fric = T * b_f * w_star * w_star
             w_load = T * tl * w_star
         self._prev = (t0 + T, T, r0, tau0, w00, torque / T, w0bar)
-        pr = c1 * z1 + c2 * z2
         if self.inverter is not None:
             self.ripple = SQRT_2_3 * (hi - lo)
         out = [ps.real, ps.imag, pr.real / th, pr.imag / th, theta1, omega1,
