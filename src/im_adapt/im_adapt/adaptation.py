@@ -75,6 +75,8 @@ from typing import Optional
 from im_common.params import check_real, InvalidParameter, MotorParams
 from im_common.validation import check_choice
 
+from .thermal_tracking import tracking_for
+
 LAWS = ('thesis', 'improved')
 #: what the controller and observer take from the adapter (docs/adaptation.md §7):
 #: 'inverse_gamma' — L̂_σ, L̂_M, R̂_R into every coefficient (the improved law's default);
@@ -412,7 +414,6 @@ class ParameterAdapter:
             if not self.improved:
                 raise InvalidParameter('thermal', 'given', "tracks the windings' temperatures "
                                        "in the improved law only (law 'thesis' has no R_s)")
-            from .thermal_tracking import tracking_for
             self.temperatures = tracking_for(thermal, params)
             self.temperatures.R_s_ref, self.temperatures.R_R_ref = self.R_s, self.R_R
         self.R_s_lo, self.R_s_hi = 0.25 * params.R_s, 4.0 * params.R_s

@@ -153,7 +153,7 @@ def nameplate_from_dict(doc, source: str = 'nameplate') -> Nameplate:
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, T_s: float):
-    from scipy.linalg import expm
+    from scipy.linalg import expm  # heavy: scipy only for the fits
     n = A.shape[0]
     M = np.zeros((n + 1, n + 1))
     M[:n, :n], M[:n, n] = A, B
@@ -171,7 +171,7 @@ def standstill_response(ident: np.ndarray, v: np.ndarray, T_s: float, x0=(0.0, 0
     ``ident`` = (R_s, L_σ, L_M, R_R); states i, ψ_R with L_σ di/dt = v − R_s i − dψ_R/dt,
     dψ_R/dt = R_R i − (R_R/L_M) ψ_R (docs/commissioning.md §2).
     """
-    from scipy.signal import lfilter
+    from scipy.signal import lfilter  # heavy: scipy only for the fits
     R_s, L_s, L_M, R_R = (float(x) for x in ident)
     A = np.array([[-(R_s + R_R) / L_s, R_R / (L_s * L_M)], [R_R, -R_R / L_M]])
     Ad, Bd = _zoh(A, np.array([1.0 / L_s, 0.0]), T_s)
@@ -243,7 +243,7 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float, i0: fl
     Returns (values, standard deviations, RMS residual [A], final state (i, ψ_R)). The start
     comes from an ARX fit mapped to the continuous model (docs/commissioning.md §2).
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # heavy: scipy.optimize only for the fits
     v = np.asarray(v, dtype=float)
     i = np.asarray(i, dtype=float)
     p0 = _arx_start(v, i, T_s, R_s0)
@@ -354,7 +354,7 @@ def fit_joint(v: np.ndarray, i: np.ndarray, T_s: float, start: Dict[str, float],
     s² (JᵀJ)⁻¹ of the joint problem. Returns (values, standard deviations, RMS standstill
     residual [A]).
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # heavy: scipy.optimize only for the fits
     v = np.asarray(v, dtype=float)
     i = np.asarray(i, dtype=float)
     psi_s, i_c, v_c, R_s_used = flux_record

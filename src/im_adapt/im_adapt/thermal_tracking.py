@@ -22,7 +22,7 @@ accumulate; where it does not (R_s at high speed) the estimates still follow the
 """
 from __future__ import annotations
 
-from im_common.thermal import first_order, Thermal
+from im_common.thermal import first_order, Thermal, thermal_from_dict
 
 
 class WindingTemperatures:
@@ -78,6 +78,5 @@ class WindingTemperatures:
 def tracking_for(thermal, params) -> WindingTemperatures:
     """Return the tracker of a motor's ``thermal`` block (a Thermal or its mapping)."""
     if not isinstance(thermal, Thermal):
-        from im_common.thermal import thermal_from_dict
         thermal = thermal_from_dict(thermal)
     return WindingTemperatures(thermal, params.R_s, params.R_R)

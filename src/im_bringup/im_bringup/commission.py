@@ -28,11 +28,22 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import shutil
 import sys
+import tempfile
 import time
 from typing import Optional
 
-from im_common.cli import error as cli_error, logger, parse_args, status_line
+from im_adapt.commissioning import Commissioning, nameplate_from_dict, NotInformative, rated_flux
+from im_adapt.magnetizing import curve_table
+from im_common import auth
+from im_common.auth import Signer
+from im_common.cli import error as cli_error, logger, parse_args, ros_domain_id, status_line
+from im_common.params import InvalidParameter, read_yaml_file
+from im_common.yamlio import parameters_yaml
+
+from .processes import graph_key_file, GraphProcesses, NodeProcess
+from .run_file import RunFileError, Scenario
 
 _log = logger('commission')
 
@@ -92,7 +103,6 @@ def run_plant_parameters(args) -> Optional[dict]:
         return None
     if args.plant_motor:
         raise Refused('give the plant as a run file or as --plant-motor, not both')
-    from .run_file import RunFileError, Scenario
     try:
         sc = Scenario.from_file(args.run_file)
         plant = sc.node_parameters()['plant']
@@ -110,8 +120,6 @@ def run_plant_parameters(args) -> Optional[dict]:
 
 def settings(args) -> dict:
     """Limits, nameplate and test speed from the arguments (Refused naming what is missing)."""
-    from im_adapt.commissioning import nameplate_from_dict
-    from im_common.params import read_yaml_file
     plate = None
     if args.nameplate:
         plate = nameplate_from_dict(read_yaml_file(args.nameplate, 'nameplate'),
@@ -144,9 +152,9 @@ def settings(args) -> dict:
 
 def make_node(com, T_s: float, **kwargs):
     """Build the ``commission`` lock-step node around ``com`` (a ``Commissioning``)."""
+    # heavy: rclpy and the ROS message packages only for the node (lockstep, qos, topics)
     from geometry_msgs.msg import Vector3Stamped
     from im_common import topics as T
-    from im_common.auth import Signer
     from im_common.conversions import Vector3Out, period_ns, shaft_in, xy_in
     from im_common.lockstep import FINISHED, LockstepNode, StepGate
     from im_common.qos import writer
@@ -215,7 +223,6 @@ def start_plant(motor_file: Optional[str], s: dict, args, domain: int, key_file:
     never opens the motor file. With ``run_plant`` (a run file's plant parameters, motor
     included) no motor file: ours holds them, the tests' settings over them.
     """
-    from .processes import GraphProcesses, NodeProcess
 
     class PlantProcess(GraphProcesses):
 
@@ -232,9 +239,9 @@ def start_plant(motor_file: Optional[str], s: dict, args, domain: int, key_file:
 
 
 def run(args) -> int:
+    # heavy: rclpy (im_common.host) and the ROS messages (run_protocol) only for a run
     import rclpy
     from rclpy.context import Context
-    from im_adapt.commissioning import Commissioning, NotInformative, rated_flux
     from im_common.host import flush, make_executor
     from im_common.run_protocol import WAITING
     run_plant = run_plant_parameters(args)
@@ -245,8 +252,6 @@ def run(args) -> int:
                         test_speed=s['speed'], locked=args.locked_rotor)
     if os.path.exists(args.out) and not args.force:
         raise Refused(f'{args.out} exists: give --force to overwrite it')
-    import tempfile
-    from im_common.cli import ros_domain_id
     ctx = Context()
     try:
         domain = ros_domain_id(args.domain_id)
@@ -256,8 +261,6 @@ def run(args) -> int:
     nodes, plant, key = [], None, None
     workdir = tempfile.mkdtemp(prefix='commission_')
     if args.plant_motor or run_plant is not None:
-        from im_common import auth
-        from .processes import graph_key_file
         key_file = graph_key_file()
         key = auth.read_key_file(key_file)
         plant = start_plant(args.plant_motor, s, args, domain, key_file, workdir, run_plant)
@@ -303,7 +306,6 @@ def run(args) -> int:
             codes = plant.wait(5.0)
             if codes.get('plant') is None:
                 plant.stop(grace=5.0)
-        import shutil
         shutil.rmtree(workdir, ignore_errors=True)
     ident = com.result()
     if args.locked_rotor:
@@ -325,7 +327,6 @@ def run(args) -> int:
 
 def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) -> None:
     """Write the motor file in the shipped layout with a comment: uncertainties, gauge, tests."""
-    from im_common.yamlio import parameters_yaml
     v, sd = ident.values, ident.std
     lines = [
         'Measured by `commission` (docs/commissioning.md) '
@@ -356,7 +357,6 @@ def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) 
                      "(docs/compensation.md). R_s includes the devices' on-state resistance.")
     values = motor.as_dict()
     if ident.magnetizing:
-        from im_adapt.magnetizing import curve_table
         lines.append('Magnetizing curve (no-load test, inverse-Gamma psi_R [Wb], i_M [A], value '
                      '+- standard deviation; the saturation block below is these points):')
         lines += [f"  psi_R = {p['psi']:.5g} +- {p['psi_std']:.2g} Wb, i_M = {p['i_M']:.5g} "
@@ -375,8 +375,6 @@ def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) 
 
 
 def main(argv=None) -> None:
-    from im_adapt.commissioning import NotInformative
-    from im_common.params import InvalidParameter
     parser = build_parser()
     args = parse_args(parser, argv)
     try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
+from im_common.yamlio import parameters_yaml
 from im_controller.flux import STRATEGIES  # noqa: F401 (re-exported; the one home of the names)
 
 # The task presets and the controller vocabulary live with the run description
@@ -63,7 +64,6 @@ def node_parameters(task: str = 'position', strategy: str = 'min_energy',
 
 def to_yaml(parameters: Dict[str, Dict[str, object]], use_sim_time: bool = True) -> str:
     """Return a ROS 2 parameters file (``--params-file``) for the given node parameters."""
-    from im_common.yamlio import parameters_yaml
     doc = {}
     for node, values in parameters.items():
         vals = dict(values)

@@ -19,16 +19,27 @@ rosbag2's recorder and ``record`` store).
 from __future__ import annotations
 
 import os
+import threading
 import time
 from typing import Dict, Mapping, Optional
 
+from im_adapt.adapter_node import AdapterNode
+from im_bringup.config import run_nodes
 from im_common.cli import status_line
 from im_common.host import private_domain
+from im_common.lockstep import build_node, make_executor
+from im_common.step_gate import LOCKSTEP_DEPTH
 from im_common.topics import STATUS
+from im_controller.controller_node import ControllerNode
+from im_observer.observer_node import ObserverNode
+from im_plant.plant_node import PlantNode
+from im_recording.bag import offered_qos_yaml
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
+from rclpy.task import Future
 
 
 def _overrides(values: Mapping[str, object]):
@@ -37,10 +48,6 @@ def _overrides(values: Mapping[str, object]):
 
 def node_factories() -> Dict[str, object]:
     """Return the node class of each drive node name."""
-    from im_adapt.adapter_node import AdapterNode
-    from im_controller.controller_node import ControllerNode
-    from im_observer.observer_node import ObserverNode
-    from im_plant.plant_node import PlantNode
     return {'plant': PlantNode, 'controller': ControllerNode, 'observer': ObserverNode,
             'adapter': AdapterNode}
 
@@ -54,7 +61,6 @@ def check_parameters(parameters: Mapping[str, Mapping[str, object]]) -> None:
     of the first one that refuses them — what its own process would print — before any process
     of a graph is started (``scenario --processes``, the launch file).
     """
-    from im_common.lockstep import build_node
     factories = node_factories()
     ctx = Context()
     # args: no ROS arguments. Without them rcl reads this process's own command line — the
@@ -94,8 +100,6 @@ class DriveGraph:
     def __init__(self, parameters: Mapping[str, Mapping[str, object]],
                  nodes=None, recorder=None, domain_id: Optional[int] = None,
                  graph_key: Optional[bytes] = None):
-        from im_bringup.config import run_nodes
-        from im_common.lockstep import build_node
         factories = node_factories()
         if nodes is None:
             nodes = run_nodes(parameters)
@@ -117,7 +121,6 @@ class DriveGraph:
                 self.nodes[name] = build_node(       # refused: one ConfigurationError line
                     factories[name], context=self.context, graph_key=self.graph_key,
                     parameter_overrides=_overrides(parameters.get(name, {})))
-            from im_common.lockstep import make_executor
             self.executor = make_executor(self.context)
             for n in self.nodes.values():
                 self.executor.add_node(n)
@@ -125,7 +128,6 @@ class DriveGraph:
                 self._tap_publishers()
                 if hasattr(recorder, 'flush_due') and self.nodes:
                     # durable recording: a chunk open for a second is on disk, run or stall
-                    from rclpy.clock import Clock, ClockType
                     next(iter(self.nodes.values())).create_timer(
                         0.1, recorder.flush_due, clock=Clock(clock_type=ClockType.STEADY_TIME))
         except BaseException:
@@ -168,7 +170,6 @@ class DriveGraph:
             plant = self.nodes.get('plant')
             if plant is not None and hasattr(writer, 'set_reorder_window'):
                 # log-time order: in one process the observer's x̂_{k+1} comes before step k+1
-                from im_common.step_gate import LOCKSTEP_DEPTH
                 writer.set_reorder_window(LOCKSTEP_DEPTH * plant.period)
         if session is not None:
             self._record_parameters(session)
@@ -201,7 +202,6 @@ class DriveGraph:
         The run's nodes: :func:`im_bringup.config.run_nodes` (not the adapter when it is off,
         as no adapter process is started then).
         """
-        from im_bringup.config import run_nodes
         for name in run_nodes(self.parameters):
             node = self.nodes.get(name)
             if node is not None:
@@ -214,7 +214,6 @@ class DriveGraph:
 
         One per publisher; the graph's own endpoints are known at once, no discovery needed.
         """
-        from im_recording.bag import offered_qos_yaml
         ours = {(n.get_name(), n.get_namespace()) for n in self.nodes.values()}
         for topic, (node, cls) in topics.items():
             infos = [i for i in node.get_publishers_info_by_topic(topic)
@@ -261,7 +260,6 @@ class DriveGraph:
         (wall time until the plant's first step) and ``steps_per_s_running`` (the rate from that
         step on, as the plant reports it; the benchmarks' figure).
         """
-        from rclpy.task import Future
         nodes = list(self.nodes.values())
         self._stop = Future()
         for n in nodes:
@@ -317,7 +315,6 @@ class DriveGraph:
         keep coming, so a watcher thread prints progress and completes the future on a stop
         request or at the wall-clock limit.
         """
-        import threading
         total = plant.last_step if plant is not None else None
         quit_watch = threading.Event()
 

@@ -22,12 +22,20 @@ Two ways in, one :class:`LiveView`:
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import threading
 import time
 from typing import Dict, Optional
 
-from im_common.cli import error as cli_error
-from im_common.topics import STATUS
+from im_common import topics as T
+from im_common.cdr import message_class
+from im_common.cli import error as cli_error, logger, parse_args
+from im_common.run_protocol import END_STATES, is_master
+from im_common.stopping import StopSignals
+from im_common.topics import STATUS, TOPIC_TYPES
+from im_recording.bag import write_atomic
+from im_recording.msgdefs import full_definition
 
 #: The Foxglove WebSocket port, foxglove_bridge's default.
 DEFAULT_PORT = 8765
@@ -45,8 +53,7 @@ class LiveView:
 
     def __init__(self, host: str = '127.0.0.1', port: int = DEFAULT_PORT,
                  name: str = 'im_drive'):
-        import threading
-        import foxglove
+        import foxglove  # heavy: foxglove-sdk only when a view serves
         from foxglove.websocket import ServerListener
         self._foxglove = foxglove
         self.context = foxglove.Context()
@@ -85,8 +92,6 @@ class LiveView:
         """Return the channel of ``topic`` (advertised now, with its schema), None if unknown."""
         ch = self.channels.get(topic)
         if ch is None and topic not in self.channels:
-            from im_common.topics import TOPIC_TYPES
-            from im_recording.msgdefs import full_definition
             type_name = TOPIC_TYPES.get(topic)
             if type_name is not None:
                 fg = self._foxglove
@@ -106,6 +111,7 @@ class LiveView:
 
     def _keep_status(self, payload: bytes) -> None:
         """Keep ``payload`` as the latest /im/status event of its node (rare: not the hot path)."""
+        # heavy: rclpy (and diagnostic_msgs) only to read a status event
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.serialization import deserialize_message
         try:
@@ -169,8 +175,7 @@ def layout():
     losses, and the adapter's estimates against the true parameters. Field indices come from the
     topic table's name lists.
     """
-    import foxglove.layouts as fl
-    from im_common import topics as T
+    import foxglove.layouts as fl  # heavy: foxglove-sdk only to build the layout
 
     def series(path, label, dashed=False):
         return fl.PlotSeries(value=path, label=label, timestamp_method='headerStamp',
@@ -229,15 +234,13 @@ def layout():
 
 def write_layout(path: str) -> None:
     """Write :func:`layout` as JSON (indented, as shipped)."""
-    import json
-    from im_recording.bag import write_atomic
     write_atomic(path, json.dumps(json.loads(layout().to_json()), indent=1) + '\n')
 
 
 def _run_ended(payload: bytes) -> Optional[str]:
     """Return the time master's end state in a serialized ``/im/status`` message, else None."""
+    # heavy: rclpy (and diagnostic_msgs) only to read a status event
     from diagnostic_msgs.msg import DiagnosticArray
-    from im_common.run_protocol import END_STATES, is_master
     from rclpy.serialization import deserialize_message
     for st in deserialize_message(payload, DiagnosticArray).status:
         if st.message in END_STATES and is_master({kv.key: kv.value for kv in st.values}):
@@ -260,13 +263,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """``ros2 run im_bringup live``: serve the graph on this ROS domain until its run ends."""
+    # heavy: rclpy only for the live command (LiveView and layout() need none)
     import rclpy
     from rclpy.context import Context
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from im_common import topics as T
-    from im_common.cli import logger, parse_args
-    from im_common.stopping import StopSignals
-    from im_common.cdr import message_class
     log = logger('live')
     args = parse_args(build_parser(), argv)
     if args.write_layout:
@@ -276,12 +276,12 @@ def main(argv=None) -> int:
         view = LiveView(args.host, args.port)
     except OSError as exc:
         return cli_error('live', exc)
-    from im_common.host import enable_stack_dump
+    from im_common.host import enable_stack_dump  # heavy: im_common.host imports rclpy
     enable_stack_dump()
     ctx = Context()
     rclpy.init(args=['live'] + (sys.argv[1:] if argv is None else []), context=ctx)
     node = rclpy.create_node('live', context=ctx)
-    from im_common.lockstep import make_executor
+    from im_common.lockstep import make_executor  # heavy: im_common.lockstep imports rclpy
     executor = make_executor(ctx)
     executor.add_node(node)
     ended = {}

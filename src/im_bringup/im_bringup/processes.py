@@ -20,6 +20,8 @@ What is started:
 """
 from __future__ import annotations
 
+import atexit
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 import json
 import os
@@ -28,6 +30,12 @@ import subprocess
 import sys
 import time
 from typing import Dict, List, Mapping, Optional, Sequence
+
+from im_bringup.config import node_parameters, run_nodes
+from im_common import auth
+from im_common.stopping import StopSignals
+from im_common.timing import CANDIDATE_RATES_HZ
+from im_common.yamlio import load_parameters_file, parameters_yaml
 
 
 #: Order in which the supervisor starts nodes (the time master last: it waits for the others
@@ -73,7 +81,6 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
     ``live_port``: also the live view on that port (:mod:`im_bringup.live`). ``log_time``: the
     recording's log times, ``wall`` or ``simulated`` (``record --log-time``).
     """
-    from im_bringup.config import node_parameters, run_nodes
     if mode not in ('lockstep', 'free_run'):
         raise ValueError(f'invalid mode {mode!r}: lockstep or free_run')
     if log_time not in ('wall', 'simulated'):
@@ -118,8 +125,6 @@ def graph_processes(task: str = 'position', strategy: str = 'min_energy',
 
 def graph_key_file() -> str:
     """Return a fresh key for one graph (``docs/security.md``), removed when this process exits."""
-    import atexit
-    from im_common import auth
     path = auth.new_key_file()
     atexit.register(auth.remove_key_file, path)
     return path
@@ -127,7 +132,6 @@ def graph_key_file() -> str:
 
 def params_file_text(parameters: Mapping[str, object]) -> str:
     """Return a node's parameters as ``launch_ros`` writes them (``/**: ros__parameters:``)."""
-    from im_common.yamlio import parameters_yaml
     return parameters_yaml({'/**': dict(parameters)})
 
 
@@ -137,8 +141,6 @@ def load_params_yaml(path: str) -> Dict[str, Dict[str, object]]:
 
     A file that cannot be used is one :class:`im_common.yamlio.ParametersFileError` naming it.
     """
-    from im_bringup.config import node_parameters
-    from im_common.yamlio import load_parameters_file
     return load_parameters_file(path, nodes=node_parameters())
 
 
@@ -149,8 +151,8 @@ def free_run_gains(T_s: float) -> str:
     One for each rate the free_run pre-flight may name (``im_common.timing.CANDIDATE_RATES_HZ``;
     ``make gains`` designs them). A period without one is a ValueError naming the ones shipped.
     """
+    # heavy: ament_index_python only to find the shipped gains
     from ament_index_python.packages import get_package_share_directory
-    from im_common.timing import CANDIDATE_RATES_HZ
     config = os.path.join(get_package_share_directory('im_bringup'), 'config')
     for rate in CANDIDATE_RATES_HZ:
         if abs(T_s * rate - 1.0) < 1e-9:
@@ -160,7 +162,7 @@ def free_run_gains(T_s: float) -> str:
 
 
 def executable_path(package: str, executable: str) -> str:
-    from ament_index_python.packages import get_package_prefix
+    from ament_index_python.packages import get_package_prefix  # heavy: only to find a node
     return os.path.join(get_package_prefix(package), 'lib', package, executable)
 
 
@@ -254,7 +256,7 @@ class GraphProcesses:
         a process that does not end is, before it is stopped. Waits up to ``wait`` seconds for
         the stacks to appear.
         """
-        from im_common.host import STACK_SIGNAL
+        from im_common.host import STACK_SIGNAL  # heavy: im_common.host imports rclpy
         asked = [n for n, p in self.popen.items()
                  if (names is None or n in names) and p.poll() is None]
         before = {n: len(self.log(n)) for n in asked}
@@ -358,8 +360,6 @@ def run_processes(processes: Sequence[NodeProcess], workdir: str, timeout: float
     ``stop``: the caller's :class:`im_common.stopping.StopSignals` (so it knows it was asked to
     stop); by default one of its own.
     """
-    from contextlib import nullcontext
-    from im_common.stopping import StopSignals
     g = GraphProcesses(processes, workdir, env)
     said = set()
     with (StopSignals() if stop is None else nullcontext(stop)) as stop:
@@ -428,5 +428,5 @@ def check_processes(processes: Sequence[NodeProcess]) -> None:
     Each node is built once with its parameters (:func:`im_bringup.graph.check_parameters`);
     raises :class:`im_common.lockstep.ConfigurationError` (one line).
     """
-    from im_bringup.graph import check_parameters
+    from im_bringup.graph import check_parameters  # heavy: the in-process graph imports rclpy
     check_parameters({p.name: p.parameters for p in processes})

@@ -23,21 +23,27 @@ profile, gains inline: what every bag carries as its ``run`` record), and
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+import difflib
 import json
 import math
 import os
 from typing import Dict, Mapping, Optional
 
-from im_common.inverter import Inverter
+from im_common.compensation import compensation_from_dict
+from im_common.inverter import check_against_motor, Inverter
 from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
 from im_common.node_params import block_parameters
 from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE_NAMES,
-                              InvalidParameter, is_motor_name, load_motor_file, MOTOR_BLOCKS,
-                              motor_blocks, motor_from_dict, MotorParams, normalize_variation,
-                              ParameterSchedule, RATED, SCHEDULES, shipped_motor, THESIS_MOTOR,
-                              variation_schedule, warn_motor_defaults)
+                              InvalidParameter, is_motor_name, load_motor_blocks, load_motor_file,
+                              MOTOR_BLOCKS, motor_blocks, motor_from_dict, MotorParams,
+                              normalize_variation, ParameterSchedule, RATED, SCHEDULES,
+                              shipped_motor, THESIS_MOTOR, variation_schedule,
+                              warn_motor_defaults)
+from im_common.saturation import SaturatedModel, saturation_from_dict
 from im_common.sensors import Sensors
+from im_common.thermal import thermal_from_dict
 from im_common.validation import check_choice, one_line
+from im_common.yamlio import load_parameters_file, read_yaml_file
 from im_controller.baselines.drive import check_law_task, gains_model, LAWS
 from im_controller.control_law import ControllerConfig, MODES, steady_start, THESIS_LAW_GAINS
 from im_controller.flux import LOSS_SCOPES
@@ -46,6 +52,7 @@ from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
 import numpy as np
+import yaml
 
 TASKS = MODES                                      # the task names' one home: the control law
 #: the controllers: the thesis law at nominal estimates, adapted or with certified gains, or a
@@ -312,7 +319,6 @@ class Scenario:
         self.controller_config()
 
     def _motor_file_blocks(self, path: str) -> None:
-        from im_common.params import load_motor_blocks
         wanted = [b for b in MOTOR_BLOCKS if getattr(self, b) == 'motor']
         if not wanted:
             return
@@ -325,9 +331,6 @@ class Scenario:
 
     def _check_plant_blocks(self) -> None:
         """Validate the real plant's blocks (one line naming the key) and write them resolved."""
-        from im_common.inverter import check_against_motor
-        from im_common.saturation import saturation_from_dict
-        from im_common.thermal import thermal_from_dict
         put = object.__setattr__
         motor = self.plant_motor()
         for name in MOTOR_BLOCKS:
@@ -355,7 +358,6 @@ class Scenario:
             raise InvalidParameter('start_flux', self.start_flux, 'scales the rotor flux of a '
                                    'steady start; this run starts at rest (start: rest)')
         if isinstance(self.saturation_model, Mapping):      # the drive's own curve
-            from im_common.saturation import saturation_from_dict
             curve = saturation_from_dict(self.saturation_model, self.model_estimates().L_M,
                                          'saturation_model')
             object.__setattr__(self, 'saturation_model', curve.describe())
@@ -417,7 +419,6 @@ class Scenario:
         """Return the drive's :class:`~im_common.saturation.SaturatedModel` (None: linear)."""
         if not self.saturation_model:
             return None
-        from im_common.saturation import saturation_from_dict, SaturatedModel
         model = self.model_estimates()
         return SaturatedModel(saturation_from_dict(self.drive_curve(), model.L_M), model)
 
@@ -429,7 +430,6 @@ class Scenario:
 
     def compensation_model(self):
         """Return the drive's :class:`~im_common.compensation.InverterErrorModel` (None: off)."""
-        from im_common.compensation import compensation_from_dict
         switched = self.inverter if self.inverter is not None and self.inverter.switched else None
         return compensation_from_dict(self.compensation, switched)
 
@@ -718,7 +718,6 @@ class Scenario:
     def from_file(cls, path: str, overrides: Optional[Mapping] = None,
                   override_source: str = 'command line') -> 'Scenario':
         """Read a run file (YAML); ``overrides`` {key: value} as ``--set key=value`` gives them."""
-        from im_common.yamlio import read_yaml_file
 
         def error(message):
             return RunFileError(path, 'run file', message)
@@ -787,7 +786,6 @@ class Scenario:
 
     def to_yaml(self) -> str:
         """:meth:`to_mapping` as YAML text (floats exactly, in their shortest repr)."""
-        import yaml
         return yaml.safe_dump(self.to_mapping(), sort_keys=False, default_flow_style=None,
                               width=100)
 
@@ -840,7 +838,6 @@ def run_keys() -> tuple:
 
 
 def _fields_from_mapping(doc: dict, base_dir: Optional[str], source: str = 'run file') -> dict:
-    import difflib
     keys = run_keys()
     kw = {}
     inline_blocks = {}
@@ -940,7 +937,6 @@ def _thesis_reference(value: Mapping, task: str) -> None:
 
 
 def _read_parameters_file(path: str) -> dict:
-    from im_common.yamlio import load_parameters_file
     return {node: dict(values) for node, values in
             load_parameters_file(path, nodes={n: {} for n in NODES}).items()}
 
@@ -975,12 +971,10 @@ def _key_name(key: str) -> str:
 
 
 def _flat(gain):
-    import numpy as np
     return np.asarray(gain, float).ravel().tolist()
 
 
 def _plain(value):
-    import numpy as np
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):

@@ -15,15 +15,23 @@ Example::
 from __future__ import annotations
 
 import argparse
+from importlib import metadata
 import json
 import os
 import subprocess
 import sys
+import time
 from typing import Mapping, Optional
 
 from im_bringup.config import CONTROLLERS, STRATEGIES, TASKS, to_yaml
-from im_common.cli import error as cli_error
-from im_common.params import is_motor_name, SCHEDULES
+from im_bringup.processes import (check_processes, ends_graph, failure_line, graph_processes,
+                                  run_processes)
+from im_bringup.run_file import RunFileError, Scenario
+from im_common.cli import error as cli_error, parse_args, ros_domain_id
+from im_common.params import describe_variation, is_motor_name, SCHEDULES
+from im_common.stopping import exit_code_for, StopSignals
+from im_common.yamlio import load_parameters_file, yaml_problem
+import yaml
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -120,7 +128,6 @@ def merge_yaml(parameters: dict, path: str) -> dict:
     A file that cannot be used is one :class:`im_common.yamlio.ParametersFileError`
     (ValueError) naming it, the same line the launch file and the node executables give.
     """
-    from im_common.yamlio import load_parameters_file
     for name, values in load_parameters_file(path, nodes=parameters).items():
         parameters[name].update(values)
     return parameters
@@ -136,7 +143,6 @@ def git_revision() -> str:
 
 
 def package_versions() -> dict:
-    from importlib import metadata
     out = {}
     for dist in ('ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-rclpy',
                  'ros-common-interfaces', 'ros-rmw-fastrtps-cpp', 'numpy', 'scipy', 'mcap',
@@ -179,9 +185,6 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
     (the bag gets the ``run`` record, :func:`im_bringup.scenario.run_metadata`) and the live view
     when ``live`` is ``true``.
     """
-    import yaml
-    from im_bringup.processes import graph_processes
-    from im_bringup.run_file import Scenario
     a = {k: str(v) for k, v in arguments.items()}
     over = {key: yaml.safe_load(a[key])
             for key in ('task', 'strategy', 'controller', 'T_s', 'duration', 'mode', 'sensorless')
@@ -193,7 +196,7 @@ def launch_processes(arguments: Mapping[str, str]) -> list:
           Scenario.from_mapping({}, source='launch arguments', overrides=over,
                                 override_source='launch arguments'))
     record = a.get('record') or None
-    from im_bringup.live import DEFAULT_PORT
+    from im_bringup.live import DEFAULT_PORT  # heavy: im_bringup.live imports the ROS messages
     live = a.get('live', '').lower() == 'true'
     procs = graph_processes(
         scenario=sc, mode=sc.mode, record=record, live_port=DEFAULT_PORT if live else None,
@@ -225,6 +228,7 @@ def check_launch_outputs(arguments: Mapping[str, str]) -> None:
     launch file raises it before it returns a single node, so ``ros2 launch`` exits non-zero
     without starting one.
     """
+    # heavy: im_recording imports the ROS message packages
     from im_recording.bag import check_output, partial_path
     a = {k: str(v) for k, v in arguments.items()}
     force = a.get('force', '').lower() == 'true'
@@ -259,12 +263,13 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
     bag's ``run`` record). ``domain_id``: the ROS domain (default ``ROS_DOMAIN_ID``).
     ``live_port``: serve every message live on that port too (:mod:`im_bringup.live`).
     """
+    # heavy: the in-process graph imports rclpy, im_recording the ROS message packages
     from im_bringup.graph import DriveGraph
     from im_recording.run import load_step_time
     from im_recording.traces import Tap
-    from im_common.stopping import StopSignals
     writer = None
     if record:
+        # heavy: im_recording imports the ROS message packages
         from im_recording.bag import BagWriter, log_time_offset_for
         writer = BagWriter(record, force=force, metadata=run_metadata(
             task, strategy, controller, variation, metadata, scenario=scenario),
@@ -274,7 +279,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                held=held_estimates(parameters))
     view = None
     if live_port is not None:
-        from im_bringup.live import LiveTap, LiveView
+        from im_bringup.live import LiveTap, LiveView  # heavy: imports the ROS messages
         try:
             view = LiveView(port=live_port)
         except OSError:
@@ -299,8 +304,7 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
                 graph.close()
             if view is not None:
                 if graph is not None:       # the last messages reach the viewers
-                    import time
-                    from im_bringup.live import END_GRACE_S
+                    from im_bringup.live import END_GRACE_S  # heavy: the ROS messages
                     time.sleep(END_GRACE_S)
                 view.close()
             if writer is not None and graph is None:    # refused before the run: no file
@@ -351,6 +355,7 @@ def held_estimates(parameters: dict) -> dict:
     The summary then compares them with the truth as an adaptive run's (``<n>_hat_final``,
     ``<n>_true_final``, :func:`im_recording.run.held_model_estimates`), so rows compare.
     """
+    # heavy: im_recording imports the ROS message packages
     from im_recording.run import held_model_estimates
     if parameters.get('controller', {}).get('use_adapter'):
         return {}
@@ -365,6 +370,7 @@ def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
     They are computed from the captured messages by the report's own code
     (:func:`im_recording.report.figures_of_merit`).
     """
+    # heavy: im_recording imports the ROS message packages
     from im_recording.report import figures_of_merit
     T_s = parameters['plant']['T_s']
     run = tap.run(metadata={'scenario': {'task': task}})
@@ -386,7 +392,7 @@ def summarize(parameters: dict, stats: dict, tap, *, task: str, strategy: str,
 
 
 def rclpy_errors():
-    from rclpy.exceptions import InvalidParameterValueException
+    from rclpy.exceptions import InvalidParameterValueException  # heavy: rclpy only for a graph
     return InvalidParameterValueException
 
 
@@ -424,7 +430,6 @@ def plant_variation(parameters: dict) -> str:
     A ``parameters:``/``--params-file`` override of the plant included: what the summary and
     header say.
     """
-    from im_common.params import describe_variation
     plant = parameters.get('plant', {})
     name = plant.get('variation', 'none')
     if name == 'schedule':
@@ -443,8 +448,7 @@ def rerun_mapping(bag: str) -> dict:
     stack) or when it does not parse; a BagError line when the bag's data section, where the
     record lives, fails its CRC (a damaged record is never re-run as if it were the run).
     """
-    import yaml
-    from im_common.yamlio import yaml_problem
+    # heavy: im_recording imports the ROS message packages
     from im_recording.bag import check_data_crc, info
     meta = info(bag).metadata
     check_data_crc(bag)
@@ -469,8 +473,6 @@ def scenario_from_args(args):
     The run file (or the bag's ``run`` record with ``--rerun``), overridden by the options
     given and ``--set``.
     """
-    import yaml
-    from im_bringup.run_file import RunFileError, Scenario
     over = {}
     for key in OVERRIDE_OPTIONS + ('params_file',):
         value = getattr(args, key, None)
@@ -500,8 +502,7 @@ def scenario_from_args(args):
 
 
 def main(argv=None) -> int:
-    from im_common.cli import parse_args, ros_domain_id
-    from im_recording.bag import BagError
+    from im_recording.bag import BagError  # heavy: im_recording imports the ROS message packages
     args = parse_args(build_parser(), argv)
     try:
         sc = scenario_from_args(args)
@@ -510,6 +511,7 @@ def main(argv=None) -> int:
         return cli_error('scenario', exc)
     args.task, args.strategy, args.controller = sc.task, sc.strategy, sc.controller
     args.T_s, args.duration, args.variation = sc.T_s, sc.duration, plant_variation(parameters)
+    # heavy: im_recording imports the ROS message packages
     from im_recording.bag import check_output, write_atomic
     if args.write_params:
         try:
@@ -528,7 +530,7 @@ def main(argv=None) -> int:
     except ValueError as exc:
         return cli_error('scenario', exc)
     if args.live or args.live_port is not None:
-        from im_bringup.live import DEFAULT_PORT
+        from im_bringup.live import DEFAULT_PORT  # heavy: imports the ROS messages
         args.live_port = DEFAULT_PORT if args.live_port is None else args.live_port
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
@@ -539,6 +541,7 @@ def main(argv=None) -> int:
                 raise FileExistsError(f'{out}: --record and --summary name the same file; '
                                       'choose two different files')
             check_output(args.record, inputs, args.force, what='--record file')
+            # heavy: im_recording imports the ROS message packages
             from im_recording.bag import partial_path
             check_output(partial_path(args.record), inputs, args.force,
                          what='interrupted recording (recover it, or --force)')
@@ -569,7 +572,6 @@ def main(argv=None) -> int:
     if args.record and summary.get('bag'):
         print(f'recording: {args.record}')
     if summary.get('interrupted'):
-        from im_common.stopping import exit_code_for
         print(f"interrupted by {summary['interrupted']} after {summary['steps']} steps; the "
               'summary and the recording (if any) are complete up to there', file=sys.stderr)
         return exit_code_for(summary['interrupted'])
@@ -592,6 +594,7 @@ def _os_line(exc: OSError, path: str) -> str:
 
 def _write_summary(out: str, summary: dict) -> bool:
     """Write the summary JSON; a write error (disk full, ...) is one line and False."""
+    # heavy: im_recording imports the ROS message packages
     from im_recording.bag import write_atomic
     from im_recording.report import jsonable
     try:
@@ -604,7 +607,7 @@ def _write_summary(out: str, summary: dict) -> bool:
 
 
 def _write_report(record: str, report: str) -> int:
-    from im_recording.bag import BagError
+    from im_recording.bag import BagError  # heavy: im_recording imports the ROS message packages
     from im_recording.report import write_report
     try:
         write_report([record], report)
@@ -624,12 +627,11 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     im_bringup drive.launch.py`` starts) plus the recorder; the figures come from the
     recording, by the report's own code.
     """
-    from im_bringup.processes import check_processes, ends_graph, failure_line, \
-        graph_processes, run_processes
+    # heavy: im_common.lockstep imports rclpy, im_recording the ROS message packages
+    from im_common.lockstep import ConfigurationError
     from im_recording.bag import partial_path
     from im_recording.report import figures_of_merit
     from im_recording.run import load_run
-    from im_common.lockstep import ConfigurationError
     procs = graph_processes(scenario=sc, mode=parameters['plant'].get('mode', 'lockstep'),
                             record=args.record, extra=parameters, live_port=args.live_port,
                             log_time=args.log_time,
@@ -644,7 +646,6 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         if p.name == 'recorder' and args.force:
             p.arguments.append('--force')
     logs = os.path.splitext(args.record)[0] + '_logs'
-    from im_common.stopping import exit_code_for, StopSignals
     with StopSignals() as stop:
         codes = run_processes(procs, logs, timeout=24 * 3600.0,
                               env={'ROS_DOMAIN_ID': str(args.domain_id)},
@@ -671,6 +672,7 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         run = load_run(args.record)
         fig = figures_of_merit(run)
         summary.update(fig)
+        # heavy: im_recording imports the ROS message packages
         from im_recording.report import refusals, run_status
         # as the in-process graph counts them, per node and topic, and who sent them
         summary.update({k: v for k, v in refusals(run).items() if v})
@@ -682,13 +684,16 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
             failure = 'the run stopped early: ' + '; '.join(status['notes'])
             summary['failures'] = {'run': failure}
     else:
+        # heavy: im_recording imports the ROS message packages
         from im_recording.bag import BagError
         if partial_path(args.record).exists():     # the recorder failed: recover reads it
             summary['partial_recording'] = str(partial_path(args.record))
+            # heavy: im_recording imports the ROS message packages
             from im_recording.recover import load_salvaged
             try:            # the figures of every step that reached the disk
                 run, _ = load_salvaged(partial_path(args.record))
                 summary.update(figures_of_merit(run))
+                # heavy: im_recording imports the ROS message packages
                 from im_recording.report import refusals
                 summary.update({k: v for k, v in refusals(run).items() if v})
             except (BagError, OSError) as exc:

@@ -22,10 +22,23 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tempfile
 from typing import Dict, List, Tuple
+import xml.etree.ElementTree as ET
 from xml.sax.saxutils import escape
 
+from im_adapt.adapter_node import AdapterNode
+from im_adapt.commissioning import Commissioning
+from im_bringup.commission import make_node as commission_node
+from im_common import topics as T
 from im_common.host import private_domain
+from im_controller.controller_node import ControllerNode
+from im_observer.observer_node import ObserverNode
+from im_plant.plant_node import PlantNode
+from im_recording.bag import BagWriter
+from im_recording.record_node import RecorderNode
+import rclpy
+from rclpy.context import Context
 
 ENCLAVE_ROOT = '/im_drive'
 POLICY_VERSION = '0.2.0'
@@ -40,18 +53,6 @@ SHIPPED = os.path.join('src', 'im_bringup', 'config', 'sros2', 'policy.xml')
 
 def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
     """{node: {'publish': [...], 'subscribe': [...], 'reply': [...]}} read off the nodes."""
-    import rclpy
-    from rclpy.context import Context
-
-    from im_adapt.adapter_node import AdapterNode
-    from im_adapt.commissioning import Commissioning
-    from im_bringup.commission import make_node as commission_node
-    from im_controller.controller_node import ControllerNode
-    from im_observer.observer_node import ObserverNode
-    from im_plant.plant_node import PlantNode
-    from im_recording.bag import BagWriter
-    from im_recording.record_node import RecorderNode
-    import tempfile
     ctx = Context()
     rclpy.init(context=ctx, domain_id=private_domain())
     out = {}
@@ -96,7 +97,6 @@ def node_endpoints() -> Dict[str, Dict[str, List[str]]]:
 
 def user_endpoints(nodes: Dict[str, Dict[str, List[str]]]) -> Dict[str, List[str]]:
     """Return the console user's endpoints: setpoint, run protocol, parameters of every node."""
-    from im_common import topics as T
     services = sorted({s for e in nodes.values() for s in e['reply'] if 'parameter' in s})
     return {'publish': [T.SETPOINT, '/rosout', '/parameter_events'],
             'subscribe': [T.STATUS, '/rosout', '/parameter_events'],
@@ -140,7 +140,6 @@ def policy_xml(endpoints: Dict[str, Dict[str, List[str]]] = None) -> str:
 
 def parse_policy(text: str) -> Dict[str, Dict[str, List[str]]]:
     """{enclave name: {'publish'|'subscribe'|'reply'|'request': [absolute names]}}."""
-    import xml.etree.ElementTree as ET
     root = ET.fromstring(text)
     out = {}
     for enc in root.iter('enclave'):

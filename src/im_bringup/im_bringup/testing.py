@@ -21,12 +21,20 @@ returns the summary (figures of merit) with the traces. Extra node parameters go
 from __future__ import annotations
 
 from dataclasses import dataclass
+import os
 import random
 import time
 from typing import Callable, Dict, Optional, Tuple, TypeVar
 
+from im_bringup.config import node_parameters
+from im_bringup.graph import DriveGraph
+from im_bringup.run_file import Scenario
+from im_bringup.scenario import held_estimates, plant_variation, run_metadata, summarize
 from im_common.conversions import s_to_ns_array
 from im_common.host import PRIVATE_DOMAINS
+from im_recording.bag import BagWriter, log_time_offset_for
+from im_recording.run import load_step_time
+from im_recording.traces import Tap
 import numpy as np
 import pytest
 
@@ -41,7 +49,6 @@ def worker_domains() -> Tuple[int, int]:
     Under pytest-xdist (``make test`` runs ``-n 2``) each worker gets a disjoint share, so two
     tests running at once never meet on one domain; otherwise the whole range.
     """
-    import os
     worker, count = os.environ.get('PYTEST_XDIST_WORKER'), os.environ.get(
         'PYTEST_XDIST_WORKER_COUNT')
     if not worker or not count:
@@ -117,12 +124,6 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     ``beside(domain_id)``: a context manager entered while the graph
     runs (e.g. your own node, or a foreign one, on the graph's ROS domain).
     """
-    from im_bringup.config import node_parameters
-    from im_bringup.graph import DriveGraph
-    from im_bringup.run_file import Scenario
-    from im_bringup.scenario import plant_variation, run_metadata, summarize
-    from im_recording.run import load_step_time
-    from im_recording.traces import Tap
     if isinstance(scenario, str):
         scenario = Scenario.from_file(scenario)
     if scenario is not None:
@@ -136,11 +137,9 @@ def run_graph(task: str = 'position', strategy: str = 'min_energy', controller: 
     variation = plant_variation(params)
     writer = None
     if record:
-        from im_recording.bag import BagWriter, log_time_offset_for
         writer = BagWriter(record, force=True, metadata=run_metadata(
             task, strategy, controller, variation, scenario=scenario),
             log_time_offset_ns=log_time_offset_for(log_time))
-    from im_bringup.scenario import held_estimates
     sink = Tap(writer, load_step=load_step_time(parameters=params), held=held_estimates(params))
     graph = DriveGraph(params, nodes=nodes, recorder=sink,
                        domain_id=random_domain())

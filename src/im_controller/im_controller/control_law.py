@@ -34,6 +34,7 @@ Everything per call is scalar Python.
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from types import SimpleNamespace
 from typing import Any, List, Literal, Optional, Tuple
@@ -41,13 +42,17 @@ from typing import Any, List, Literal, Optional, Tuple
 from im_common.compensation import InverterErrorModel
 from im_common.delay import MAX_DELAY
 from im_common.loads import make_load, MODEL_KINDS
+from im_common.model import stator_flux
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_FLUX_LEVELS, THESIS_MOTOR)
 from im_common.validation import BLOCK_CONFIG, block_error, parameter_spec as _node
+import numpy as np
 from pydantic import BaseModel, Field, field_validator, model_validator, ValidationError
 
 from .baselines.drive import BaselineDrive, check_law_task, gains_model, LAWS
 from .flux import FluxStrategy, LOSS_OPTIMAL, LowPass2, Strategy
+from .flux_plan import (curve_shape, plan_flux, PLAN_STEP, PlanError, saturation_terms,
+                        static_loss_optimal_flux)
 from .reference import dq_reference, feedforward_dq, ModelCoefficients, steady_state
 from .trajectories import SetpointPosition, SetpointSpeed, SetpointTorque, THESIS_TRAJECTORIES
 
@@ -469,7 +474,6 @@ def sample_path(traj, schedule, times, setpoint_duration: float):
 
     ``schedule``: (t, value, duration) rows, consumed as their times come (pass a copy).
     """
-    import numpy as np
     theta, omega, acc = (np.empty(len(times)) for _ in range(3))
     for j, t in enumerate(times):
         while schedule and schedule[0][0] <= t:
@@ -497,7 +501,6 @@ class DriveController:
         self.config = cfg
         curve = None
         if cfg.magnetizing is not None and cfg.core_loss_exponent == 2.0:
-            from .flux_plan import curve_shape
             c0 = ModelCoefficients.from_params(cfg.params)
             curve = (c0, curve_shape(c0, cfg.magnetizing))
         self._strategy = FluxStrategy(
@@ -729,9 +732,6 @@ class DriveController:
         From the present flux reference (docs/controller.md §10), with the drive's limits as
         constraints.
         """
-        import copy
-        import numpy as np
-        from .flux_plan import PLAN_STEP, PlanError, plan_flux, static_loss_optimal_flux
         cfg = self.config
         if cfg.mode == 'torque':
             self.plan_note = ("optimal: the torque task's speed is not known ahead: min_loss "
@@ -767,7 +767,6 @@ class DriveController:
         phi0 = max(self._flux.y, 0.0)
         sat = None
         if cfg.magnetizing is not None:     # on the curve: from the unsaturated model
-            from .flux_plan import saturation_terms
             c = self._c_nominal
             sat = saturation_terms(c, cfg.magnetizing)
         try:
@@ -795,7 +794,6 @@ class DriveController:
         with the speed task's anchor, as the load sees it); no run state of this controller is
         touched (a copy runs). The torque task has no reference path: ValueError.
         """
-        import copy
         if self.config.mode == 'torque':
             raise ValueError('the torque task has no reference path (its speed is not known '
                              'ahead)')
@@ -1086,7 +1084,6 @@ def steady_start(config: ControllerConfig, plant: MotorParams, theta0: float, om
     scales the plant's rotor flux (its stator flux follows; the currents and the observer stay):
     a drive whose model's steady state is not exactly the motor's.
     """
-    from im_common.model import stator_flux
     op = steady_operating_point(config, 0.0, theta0, omega0)
     gauge = flux_scale * config.params.theta / plant.theta
     phi_a, phi_b = gauge * op['phi_alpha'], gauge * op['phi_beta']

@@ -136,6 +136,7 @@ def _observer_overrides(gains) -> dict:
 
 @functools.lru_cache(maxsize=8)
 def _design_cached(T_s: float):
+    # heavy: gain_design imports scipy and cvxpy-backed im_robust, only for a design
     from im_controller.gain_design.drive import design_drive_gains
     return design_drive_gains(T_s)
 
@@ -184,6 +185,7 @@ def format_yaml(params: dict, summary: dict) -> str:
 
 def main(argv: Optional[List[str]] = None) -> int:
     args = parse_args(build_parser(), argv)
+    # heavy: gain_design imports scipy and cvxpy-backed im_robust, only for a design
     from im_controller.gain_design import drive
     from im_controller.gain_design.motor import DEFAULT_SIGMA_MIN
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import math
 import time
 from typing import Callable, Optional, Sequence
+import warnings
 
 import numpy as np
 
@@ -180,7 +181,7 @@ class FluxPlan:
         last value, both with zero rates.
         """
         if self._spline is None:
-            from scipy.interpolate import CubicSpline
+            from scipy.interpolate import CubicSpline  # heavy: scipy only for a spline plan
             sp = CubicSpline(self.t, self.phi, bc_type='natural')
             self._spline = (self.t.tolist(), sp.c.T.tolist())
         x, coef = self._spline
@@ -250,8 +251,7 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
     an epigraph variable u ≥ drive + b y_m^(S/2+1) (a relaxation where the d-current would be
     negative; exact elsewhere, and the books below are the exact ones).
     """
-    import warnings
-    import cvxpy as cp
+    import cvxpy as cp  # heavy: cvxpy only when a flux plan is solved
     n = len(h)
     k = loss_constants(c, k_e, k_h)
     y = cp.Variable(n + 1, nonneg=True)

@@ -54,6 +54,7 @@ from typing import Optional, Sequence
 
 from im_common.model import eq112_coefficients
 from im_common.params import check_real, InvalidParameter, MotorParams, THESIS_MOTOR
+import numpy as np
 
 from .observer import RotorFluxObserver
 
@@ -261,7 +262,6 @@ def linearized_poles(observer: 'SpeedAdaptiveObserver', omega_r: float, torque: 
     synchronous frame. States (î_d, î_q, φ̂_d, φ̂_q, ∫): the true state is the equilibrium only
     when the models agree. Local stability ⇔ every real part < 0 (docs/sensorless.md §3).
     """
-    import numpy as np
     obs = observer
     p = params if params is not None else obs.params
     op = operating_point(p, omega_r, torque, phi)

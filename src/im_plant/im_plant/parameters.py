@@ -7,12 +7,15 @@ the node builds its simulator from the values with :func:`simulator_from_paramet
 """
 from __future__ import annotations
 
+import json
+
 from im_common.inverter import Inverter
 from im_common.loads import load_from_parameters, LOAD_KINDS
 from im_common.model import stator_flux
 from im_common.node_params import declare_block, declare_motor
-from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MotorParams, ParameterSchedule,
-                              RATED, SCHEDULES, Variation, variation_schedule)
+from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, motor_blocks, MotorParams,
+                              ParameterSchedule, RATED, SCHEDULES, Variation,
+                              variation_schedule)
 from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
 from im_common.sensors import Sensors
 
@@ -154,7 +157,6 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
         elif v[key] == 0:
             v[key] = None
     if v['variation'] == 'schedule':
-        import json
         try:
             spec = json.loads(v['variation_schedule'] or 'null')
         except json.JSONDecodeError as exc:
@@ -204,7 +206,6 @@ def real_plant_blocks(values: dict, motor: MotorParams) -> dict:
     None), the motor's ``saturation`` and ``thermal`` as YAML text ('' for none); a bad block
     raises InvalidParameter naming the parameter and key.
     """
-    from im_common.params import motor_blocks
     out = {'iron_loss': bool(values.get('iron_loss', False))}
     for name in ('inverter', 'sensors'):
         if values.get(name) is not None:

@@ -52,6 +52,8 @@ from im_common.step_gate import LOCKSTEP_DEPTH
 from im_common.timing import assess_probe, DeadlineWatchdog, LatencyHistogram
 from im_plant.parameters import declare_plant, simulator_from_parameters
 from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 
 
 class PlantNode(LockstepNode):
@@ -144,7 +146,6 @@ class PlantNode(LockstepNode):
         # the command input: verified, decoded, finite (else the previous command is held; before
         # any, zero volts) as every lock-step input; then on_command takes it
         self.gate_input(T.CMD_VOLTAGE, xy_in, take=self.on_command, hold=self.last_cmd)
-        from std_msgs.msg import Header
         self.create_subscription(Header, T.PROGRESS, self.on_progress, reader(T.PROGRESS))
         self.pub_probe = self.create_publisher(Header, T.PROBE, writer(T.PROBE))
         self.create_subscription(Header, T.PROBE_ECHO, self.on_probe_echo,
@@ -577,7 +578,6 @@ class _LoopProbe:
     WARMUP_S = 3.0
 
     def __init__(self, plant: PlantNode, nodes, count: int, compute: float):
-        from std_msgs.msg import Header
         self.nodes = frozenset(nodes)
         self.count, self.compute = count, compute
         self.sent: dict = {}                # probe -> wall time sent
@@ -665,7 +665,6 @@ def truth_params(tr: dict) -> list:
 
 
 def _js():
-    from sensor_msgs.msg import JointState
     return (JointState,)
 
 

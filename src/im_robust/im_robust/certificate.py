@@ -102,7 +102,7 @@ def analysis_lmi(closed_loops: Sequence[np.ndarray], discrete: bool, alpha: floa
     Minimizes the condition number bound s of I ⪯ P ⪯ s I subject to the Lyapunov inequalities with
     a unit margin (the problem is homogeneous in P, so the margin only fixes the scale).
     """
-    import cvxpy as cp
+    import cvxpy as cp  # heavy: cvxpy only when an LMI is solved
     n = closed_loops[0].shape[0]
     P = cp.Variable((n, n), symmetric=True)
     s = cp.Variable()

@@ -20,6 +20,7 @@ from typing import List, Optional
 from im_common.cli import logger, parse_args
 import numpy as np
 
+from .certificate import best_rate, certify
 from .examples import check_printed_solution, EXAMPLES, thesis_gain_decay
 from .refine import reduce_gain_norm
 from .synthesis import synthesize
@@ -60,7 +61,6 @@ def _row(ex, label, res=None, *, G=None, cert=None, objective=None, iterations=N
 
 
 def _best(ex, G):
-    from .certificate import best_rate
     v = best_rate(ex.system, G)
     return None if not np.isfinite(v) else float(v)
 
@@ -90,7 +90,6 @@ def run_examples(out: Path, keys: Optional[List[str]] = None, refine: bool = Tru
                  f'iterations = {res.iterations}, {res.wall_s:.2f} s')
         # The thesis's printed solution, checked against its own constraints and independently.
         chk = check_printed_solution(ex)
-        from .certificate import certify
         cert_th = certify(ex.system, ex.G_printed, grid_models=grid)
         chk['printed_G_certified'] = bool(cert_th.certified)
         rate_th = thesis_gain_decay(ex)

@@ -13,6 +13,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from .certificate import best_rate
 from .polytope import UncertainSystem
 from .structure import apply_map, StructuredW
 from .synthesis import build_problem
@@ -171,6 +172,5 @@ def check_printed_solution(ex: ThesisExample, margin: float = 1.0) -> Dict[str, 
 
 def thesis_gain_decay(ex: ThesisExample) -> Optional[float]:
     """Best certified rate of the printed G (α in 1/s, or ρ), None when it is not certifiable."""
-    from .certificate import best_rate
     v = best_rate(ex.system, ex.G_printed)
     return None if not np.isfinite(v) else float(v)

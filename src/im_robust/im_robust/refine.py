@@ -53,7 +53,7 @@ def reduce_gain_norm(system: UncertainSystem, G0, *, alpha: float = 0.0, rho: fl
 
     Returns None when G0 itself cannot be certified at the requested rate.
     """
-    import cvxpy as cp
+    import cvxpy as cp  # heavy: cvxpy only when an LMI is solved
     G = np.atleast_2d(np.asarray(G0, dtype=float))
     best_cert = certify(system, G, alpha=alpha, rho=rho, grid_models=grid_models)
     if not best_cert.certified:

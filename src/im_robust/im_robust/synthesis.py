@@ -127,7 +127,7 @@ def constraint_violation(prob: Problem, omega: np.ndarray) -> Dict[str, float]:
 
 
 def _solve_sdp(prob: Problem, solver: str, verbose: bool = False):
-    import cvxpy as cp
+    import cvxpy as cp  # heavy: cvxpy only when an LMI is solved
     st = prob.structure
     q = st.q
     omega = cp.Variable(q)
@@ -197,6 +197,7 @@ def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alp
                          normalization=normalization)
     history: Dict[str, List[float]] = {}
     if solver == 'cutting-plane':
+        # heavy: cutting_plane imports scipy.optimize, only for this solver
         from .cutting_plane import solve_cutting_plane
         cp_res = solve_cutting_plane(prob, progress=progress, **cutting_plane_options)
         solver_status, omega, iters, history = (cp_res.status, cp_res.omega, cp_res.iterations,

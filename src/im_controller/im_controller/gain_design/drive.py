@@ -51,7 +51,8 @@ from typing import Dict, List, Optional, Sequence
 from im_common.cli import gated_logger
 from im_common.model import eq112_matrices
 from im_common.params import MotorParams, THESIS_MOTOR
-from im_robust.certificate import Certificate, certify
+from im_observer.observer import RotorFluxObserver
+from im_robust.certificate import analysis_lmi, best_rate, Certificate, certify
 from im_robust.polytope import UncertainSystem
 from im_robust.synthesis import SynthesisResult, synthesize
 import numpy as np
@@ -317,7 +318,6 @@ def thesis_current_design(T_s: float, *, k: float = THESIS_K1,
     vertices *and* the dense grid. Returns None when K is not certified even at ρ = 1 (at 1 ms:
     its sampled pole leaves the unit circle), so the caller falls back to the synthesis.
     """
-    from im_robust.certificate import best_rate
     sc, vp, cp, sysm, dense = _subsystem_models(T_s, sigma_min, motor, vertex_points,
                                                 certify_points)
     K = k * np.eye(2)
@@ -439,7 +439,6 @@ def predicting_rate(K, T_s: float, delay: int, *, motor: MotorParams = THESIS_MO
     One quadratic Lyapunov function over the vertex models of the delayed subsystem
     (:func:`im_robust.certificate.best_rate`); 0 when none exists even at ρ = 1.
     """
-    from im_robust.certificate import best_rate
     vp = subsystem_points(vertex_points, sigma_min=sigma_min, motor=motor)
     sysm = delayed_current_error_system(vp, T_s, delay, motor=motor)
     return _rate(best_rate(sysm, predicting_gain(K, T_s, delay, motor=motor),
@@ -557,7 +556,6 @@ def _certify_strict(system: UncertainSystem, G, rho: float, decay_rate: float, T
     certify() at ρ with P taken from the analysis LMI at a 1.5× stricter rate, so the margin is not
     left at the LMI's numerical floor; certify() falls back to its own P if that fails.
     """
-    from im_robust.certificate import analysis_lmi
     strict = math.exp(-1.5 * decay_rate * T_s) if decay_rate > 0 else rho
     P = analysis_lmi(system.closed_loops(G), True, rho=strict)
     return certify(system, G, rho=rho, P=P, grid_models=dense)
@@ -648,7 +646,6 @@ def thesis_observer_error_map(point: Sequence[float], omega_r: float, T_s: float
     M = Φ − Γ H C, which is also the map of the difference of two observers fed the same data.
     With k_e = 0 and ``skew_injection=False`` it returns the prediction Φ alone.
     """
-    from im_observer.observer import RotorFluxObserver
     R_r, L_s, L_r, L_sr = (float(v) for v in point[:4])
     mp = MotorParams(R_s=motor.R_s, R_r=R_r, L_s=L_s, L_r=L_r, L_sr=L_sr, J=motor.J, b=motor.b,
                      pole_pairs=motor.pole_pairs)
@@ -723,7 +720,7 @@ def _speed_dependent_P(Ms: Sequence[np.ndarray], ws: np.ndarray, omega_max: floa
     P(ω) for ω' = ω ± step (clipped to the range); None if the SDP fails. For fixed ω the
     inequality is affine in ω', so the two ends cover every |ω' − ω| ≤ step.
     """
-    import cvxpy as cp
+    import cvxpy as cp  # heavy: cvxpy only when an LMI is solved
     n = 4
     P0 = cp.Variable((n, n), symmetric=True)
     P1 = cp.Variable((n, n), symmetric=True)
@@ -795,7 +792,6 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
     rate on ``omega_vertices`` speeds, checked with numpy at ρ = exp(−decay_rate·T_s) on them and
     on ``omega_dense`` speeds (both maps).
     """
-    from im_robust.certificate import analysis_lmi
     t0 = time.perf_counter()
     k_e = 1.0 / motor.sigma if k_e is None else float(k_e)
     sc = Scaling.for_motor(motor)
