@@ -269,6 +269,9 @@ def fit_standstill(v: np.ndarray, i: np.ndarray, T_s: float, R_s0: float, i0: fl
                             ftol=1e-12, gtol=1e-12, max_nfev=400)
         if best is None or sol.cost < best.cost:
             best = sol
+    if np.array_equal(best.fun, miss) or not np.all(np.abs(best.x) < 50.0):
+        raise NotInformative('the standstill fit found no RL model of the record (every start '
+                             'left the models): the excitation or the measurement is unusable')
     n = len(i)
     r = best.fun
     s2 = float(r @ r) / max(n - 4, 1)

@@ -345,7 +345,8 @@ def energy_summary(truth: dict) -> dict:
         'E_friction_J': truth['E_friction'], 'dE_kinetic_J': truth['dE_kin'],
         'dW_magnetic_J': truth['dW_mag'], 'E_param_J': truth['E_param'],
         'balance_residual_J': truth['balance_residual'],
-        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv'],
-            'E_switching_J': truth.get('E_switching', 0.0)}
+        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv']}
            if 'E_inv' in truth else {}),
+        # a recording made before the switching losses has none to report: no key, not a 0
+        **({'E_switching_J': truth['E_switching']} if 'E_switching' in truth else {}),
     }
