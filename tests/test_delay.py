@@ -35,6 +35,43 @@ def test_the_line_gives_each_command_d_steps_later_and_starts_with_the_first():
         assert len(line.pending()) == d
 
 
+def test_entering_and_taking_is_pushing_in_any_interleaving():
+    """The overlapped order (enter each command when it comes, take when a step is integrated)."""
+    cmds = _commands(7)
+    for d in (0, 1, 2):
+        pushed = CommandDelay(d)
+        ref = [pushed.push(*c) for c in cmds]
+        line, got = CommandDelay(d), []
+        for c in cmds:
+            line.enter(*c)
+            while line.ready and len(got) < len(cmds):     # every step it can act over
+                got.append(line.take())
+        assert got == ref
+    line = CommandDelay(1)
+    line.enter(1.0, 2.0)
+    assert line.ready == 2                          # the first command acts over steps 0 and 1
+    line.take(), line.take()
+    line.enter(3.0, 4.0)                            # the line ran empty: no second fill
+    assert line.ready == 1 and line.take() == (3.0, 4.0)
+    with pytest.raises(IndexError):
+        line.take()
+
+
+def test_a_plant_fed_in_the_overlapped_order_is_the_serial_one():
+    for blocks in ({'delay': 1}, dict(SWITCHED, delay=1), {'delay': 2}):
+        cmds = _commands(12)
+        serial = PlantSimulator(THESIS_MOTOR, inverter=blocks, v_limit=None)
+        for c in cmds:
+            serial.step(*c)
+        ahead = PlantSimulator(THESIS_MOTOR, inverter=blocks, v_limit=None)
+        for c in cmds:
+            ahead.enter(*c)
+            while ahead.delay.ready and ahead.k < len(cmds):
+                ahead.step_entered()
+        assert ahead.k == serial.k and ahead.x == serial.x, blocks
+        assert ahead.truth() == serial.truth()
+
+
 @pytest.mark.parametrize('bad', [-1, 3, 1.0, 1.5, True, '1', None])
 def test_a_bad_delay_is_one_line_naming_it(bad):
     with pytest.raises(InvalidParameter, match=r"^invalid parameter 'delay'") as exc:
@@ -93,12 +130,15 @@ def test_the_ideal_plant_applies_the_command_given_one_step_before():
         assert (plant.truth()['v_alpha'], plant.truth()['v_beta']) == cmds[max(k - 1, 0)]
 
 
-def test_the_rating_trips_on_the_command_given_not_on_the_one_that_acts():
+def test_the_rating_trips_on_the_command_that_acts_when_it_acts():
     plant = PlantSimulator(THESIS_MOTOR, inverter={'delay': 1}, inverter_rating=500.0)
     plant.step(100.0, 0.0)
     plant.step(100.0, 0.0)
-    plant.step(600.0, 0.0)           # above the rating: the gates open at once
-    assert plant.trip is not None and plant.trip[0] == pytest.approx(2e-4)
+    plant.step(600.0, 0.0)           # above the rating: not loaded yet, step 2 holds 100 V
+    assert plant.trip is None and plant.v_applied == (100.0, 0.0)
+    plant.step(100.0, 0.0)           # step 3: 600 V would act, the gates open
+    assert plant.trip is not None and plant.trip[0] == pytest.approx(3e-4)
+    assert 'above the inverter rating 500 V' in plant.trip[1]
     assert plant.v_applied == (0.0, 0.0)
     with pytest.raises(ValueError, match='non-finite'):
         plant.step(math.nan, 0.0)
@@ -314,6 +354,54 @@ def test_as_processes_the_recorded_truth_is_the_command_one_period_late(tmp_path
     for t in late:
         assert truth[t] == cmd[t - 2 * period], t
     assert any(truth[t] != cmd[t - period] for t in late)      # not the undelayed one
+
+
+@pytest.mark.processes
+@pytest.mark.slow
+def test_as_processes_the_overlapped_delayed_step_gives_the_serial_orders_numbers(tmp_path):
+    """
+    ``overlap`` true (the default) and false: every recorded message the same, bit for bit.
+
+    Overlapped, the plant integrates step k once the command of step k − 1 has come, the observer
+    and the adapter take that command from their gates: the order of the work changes, no number
+    does. The plant's log says which order ran.
+    """
+    import json
+    import subprocess
+
+    from im_bringup.processes import executable_path
+    from im_common import topics as T
+    from im_recording.reader import read_messages
+    run = tmp_path / 'run.yaml'
+    run.write_text(RUN.format(duration=0.05) + 'controller: adaptive\n')
+    serial = tmp_path / 'serial.yaml'
+    serial.write_text(''.join(f'{n}:\n  ros__parameters:\n    overlap: false\n'
+                              for n in ('plant', 'observer', 'adapter')))
+    topics = [T.CMD_VOLTAGE, T.MEAS_CURRENT, T.MEAS_SHAFT, T.OBS_FLUX, T.ADAPT_ESTIMATE,
+              T.TRUTH_VOLTAGE, T.TRUTH_ENERGY]
+    seen, summaries = {}, {}
+    for name, extra in (('overlapped', []), ('serial', ['--params-file', str(serial)])):
+        bag = tmp_path / f'{name}.mcap'
+        r = subprocess.run([executable_path('im_bringup', 'scenario'), str(run), '--processes',
+                            '--record', str(bag), '--no-progress'] + extra, capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        summaries[name] = json.loads((tmp_path / f'{name}.json').read_text())
+        plant_log = (tmp_path / f'{name}_logs' / 'plant.log').read_text()
+        assert ('steps overlapped with the commands' if name == 'overlapped'
+                else 'serial order') in plant_log
+        seen[name] = {}
+        for topic, stamp, msg in read_messages(str(bag), topics):
+            fields = (msg.vector.x, msg.vector.y, msg.vector.z) if hasattr(msg, 'vector') \
+                else (tuple(msg.position), tuple(msg.velocity), tuple(msg.effort))
+            seen[name][topic, stamp] = fields
+    a, b = seen['overlapped'], seen['serial']
+    assert len(a) > 5 * 500 and a.keys() == b.keys()      # 500 steps, 5 lock-step topics
+    assert [k for k in a if a[k] != b[k]] == []
+    for key in ('E_in_J', 'E_loss_J', 'speed_err_max_rad_s'):
+        assert summaries['overlapped'][key] == summaries['serial'][key], key
+    off = simulate(Scenario.from_file(str(run))).summary
+    assert summaries['overlapped']['E_in_J'] == pytest.approx(off['E_in_J'], rel=1e-12)
 
 
 def _speed_error(T_s, delay, aware=True, duration=0.2):

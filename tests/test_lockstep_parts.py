@@ -98,6 +98,57 @@ def test_a_gate_skips_to_a_step_its_node_bridged_to():
     assert exact.skip_to(20) == {'a': 2, 'b': 3} and exact.gaps == 2 and exact.pending == {}
 
 
+@pytest.mark.parametrize('d', [1, 2])
+def test_a_lagged_input_is_the_one_that_acts_over_the_step(d):
+    """
+    A gate lagged by d takes, at step k, the value stamped t_k−d; the first one also at 0..d−1.
+
+    The values step k gets are the delay line's (im_common.delay): the same commands a node
+    pushing the command of step k through its own line would integrate, whatever the order.
+    """
+    from im_common.delay import CommandDelay
+    cmds = [(float(j), -float(j)) for j in range(8)]
+    line = CommandDelay(d)
+    acting = [line.push(*c) for c in cmds]
+    g = StepGate([A, B], P, lags={B: d})
+    got = []
+    # every measurement first (the plant ahead), then the commands one by one
+    for k in range(len(cmds)):
+        assert g.put(A, k * P, k) is None
+    for j, c in enumerate(cmds):
+        inputs = g.put(B, j * P, c)
+        while inputs is not None:
+            got.append(inputs[B])
+            assert inputs[A] == g.step()
+            inputs = g.advance()
+        assert g.step() == min(j + d + 1, len(cmds))    # step j + d, if measured, is done
+    assert got == acting
+    # the other order: each command before its steps' measurements
+    g2 = StepGate([A, B], P, lags={B: d})
+    got2 = []
+    for j, c in enumerate(cmds):
+        assert g2.put(B, j * P, c) is None
+        inputs = g2.put(A, j * P, j)
+        while inputs is not None:
+            got2.append(inputs[B])
+            inputs = g2.advance()
+    assert got2 == acting
+    with pytest.raises(ValueError, match='not required'):
+        StepGate([A], P, lags={B: 1})
+
+
+def test_a_lagged_follow_gate_keeps_the_first_steps_and_jumps_as_unlagged():
+    g = StepGate([A, B], P, follow=True, lags={B: 1})
+    g.put(A, 0, 0)
+    g.put(A, P, 1)                                 # step 1 waits for the command of step 0
+    assert g.put(B, 0, 'c0') == {A: 0, B: 'c0'}    # it completes step 0 first, then 1
+    assert g.advance() == {A: 1, B: 'c0'} and g.gaps == 0
+    g.advance()
+    g.put(A, 4 * P, 4)                             # steps 2, 3 lost, the command of 3 came
+    assert g.put(B, 3 * P, 'c3') == {A: 4, B: 'c3'}
+    assert g.expected == 4 * P and g.gaps == 2
+
+
 def test_finite_looks_at_every_number_of_a_decoded_input():
     assert finite((1.0, 2.0)) and finite({'R_r': 1.0})
     assert not finite((1.0, float('nan'))) and not finite({'R_r': float('inf')})

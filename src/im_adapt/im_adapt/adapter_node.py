@@ -12,7 +12,9 @@ what arrives, skips the steps it lost (counted and reported at the end, estimate
 gap) and never stops the run. With ``enable`` false it holds its estimates; ``enable`` can be
 switched while running (``ros2 param set /adapter enable true``), from the next step on. With the
 plant's computational ``delay`` d it takes the command of step k − d, the voltage the motor got
-(im_common.delay); a step it skipped leaves its command out of that line.
+(im_common.delay): with ``overlap`` (the default) straight from its step gate, so it computes step
+k beside the controller computing the command of step k; without, through its own delay line,
+where a step it skipped leaves its command out.
 """
 from __future__ import annotations
 
@@ -50,7 +52,8 @@ class AdapterNode(LockstepNode):
         self._enable_next = None
         self.law = declare_law(self, params, R_r0, theta0)
         self.compensation = declare_compensation(self)
-        self.delay = declare_delay(self)
+        self.delay, lag = declare_delay(self)
+        self.overlapped = bool(lag)     # the gate gives the acting command: no line to push
         sensorless = p('sensorless', False, "take the observer's speed estimate "
                        f'({T.OBS_SPEED}) in place of the measured shaft and hold R_R '
                        '(docs/sensorless.md)')
@@ -93,7 +96,7 @@ class AdapterNode(LockstepNode):
         self.out = JointStateOut(self.names, Signer.frame(''))
         self.shaft = T.OBS_SPEED if sensorless else T.MEAS_SHAFT
         self.gate = StepGate([T.MEAS_CURRENT, self.shaft, T.CMD_VOLTAGE, T.OBS_FLUX],
-                             self.period, follow=True)
+                             self.period, follow=True, lags={T.CMD_VOLTAGE: lag})
         for topic in (T.MEAS_CURRENT, T.CMD_VOLTAGE, T.OBS_FLUX):
             self.gate_input(topic, xy_in)
         self.gate_input(self.shaft, shaft_in)
@@ -111,7 +114,10 @@ class AdapterNode(LockstepNode):
             self.enable, self._enable_next = self._enable_next, None
             self.status(PARAMETERS, enable=self.enable)
         # every command enters the delay line, enabled or not: the one acting over this step
-        v_a, v_b = self.delay.push(*inputs[T.CMD_VOLTAGE])
+        # (overlapped, the gate gave that one: stamped t_k−d)
+        v_a, v_b = inputs[T.CMD_VOLTAGE]
+        if not self.overlapped:
+            v_a, v_b = self.delay.push(v_a, v_b)
         if self.enable:
             i_a, i_b = inputs[T.MEAS_CURRENT]
             if self.compensation is not None:   # the voltage the motor got (observer's too)

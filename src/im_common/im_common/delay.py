@@ -14,6 +14,11 @@ first voltage acts from t_0, the next ones d periods late. A drive started in it
 (``start: steady``) was commanding about that voltage already, so it starts without a kick; one at
 rest starts its magnetization at once (a DSP's first period would hold the zero vector: the same
 start, d periods later).
+
+The line can also be fed and read apart (:meth:`CommandDelay.enter`, :meth:`CommandDelay.take`):
+the plant node enters each command when it comes and integrates a step as soon as the command
+acting over it is in the line, d steps before the command of that step has come (the delayed
+step overlapped, docs/architecture.md).
 """
 from __future__ import annotations
 
@@ -47,15 +52,37 @@ class CommandDelay:
     def __init__(self, d: int = 0):
         self.d = check_delay(d)
         self._line: deque = deque()
+        self._started = False       # the first command has entered (and filled the line)
 
     def push(self, v_a: float, v_b: float) -> Command:
         """Enter the command of this step; return the one that acts over it (k − d)."""
         if not self.d:
             return v_a, v_b
-        if not self._line:
+        self.enter(v_a, v_b)
+        return self._line.popleft()
+
+    def enter(self, v_a: float, v_b: float) -> None:
+        """
+        Enter the next command without taking one: the line then holds one more acting command.
+
+        With :meth:`take`, the overlapped order of a delayed step (:attr:`ready`): the command of
+        step j enters when it comes, the one acting over step k is taken when step k is
+        integrated, which needs only the command of step k − d. ``push`` is ``enter`` then
+        ``take``.
+        """
+        if not self._started:
+            self._started = True
             self._line.extend([(v_a, v_b)] * self.d)
         self._line.append((v_a, v_b))
+
+    def take(self) -> Command:
+        """Return the command that acts over the next step (IndexError if none has entered)."""
         return self._line.popleft()
+
+    @property
+    def ready(self) -> int:
+        """Return how many steps the commands entered so far can act over (after d: d + 1)."""
+        return len(self._line)
 
     def pending(self) -> Tuple[Command, ...]:
         """Return the commands given but not yet acting, oldest first (empty before the first)."""

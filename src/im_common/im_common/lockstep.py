@@ -353,7 +353,12 @@ class LockstepNode(Node):
     def ready(self, inputs) -> None:
         """Run the step loop of every node: ``inputs``, then each next step already complete."""
         gate, hold_step, step = self.gate, self.hold_step, self.step
+        # no step at or past the run's end: a gate lagged by the delay completes step last_step
+        # (its measurement and the command of last_step - d), which no node computes
+        end = None if self.last_step is None else self.last_step * self.period
         while inputs is not None and not self.done:
+            if end is not None and gate.expected >= end:
+                return
             if hold_step(inputs):
                 return
             if self.state != RUNNING and self.state != FINISHING:

@@ -260,16 +260,34 @@ def block_parameters(block, prefix: str) -> dict:
 
 def declare_delay(node):
     """
-    Declare ``delay`` (read-only) and return the node's :class:`~im_common.delay.CommandDelay`.
+    Declare ``delay`` and ``overlap`` (read-only); return the delay line and the command's lag.
 
     The plant's computational delay (the run file's ``inverter.delay``): the drive's parts that
     integrate the voltage the motor got (observer, adapter) hold the same line of commands.
+    Overlapped (:func:`declare_overlap`), step k takes the command that acts over it, stamped
+    t_k−d, straight from its step gate (the lag returned: d; else 0 and the node pushes the command
+    of step k through the line itself).
     """
     from .delay import CommandDelay, MAX_DELAY
     d = node.param('delay', 0, 'computational delay [control periods] of the plant (the run '
                    "file's inverter.delay): the command of step k acts over step k + delay, and "
                    'this node integrates that voltage', 0, MAX_DELAY)
-    return CommandDelay(d)
+    return CommandDelay(d), (d if declare_overlap(node) else 0)
+
+
+def declare_overlap(node) -> bool:
+    """
+    Declare ``overlap`` (read-only): a delayed step runs beside the command being computed.
+
+    With a computational delay d >= 1 step k needs the command of step k − d only, so the plant
+    integrates step k, and the observer and the adapter compute it, while the controller computes
+    the command of step k (docs/architecture.md, "The delayed step overlapped"); the same numbers
+    as the serial order. Without a delay it changes nothing.
+    """
+    return node.param('overlap', True, 'with a computational delay, compute step k from the '
+                      'command of step k - delay as soon as it has come, beside the controller '
+                      "computing step k's command (false: wait for the command of step k, the "
+                      'serial order; the same numbers)')
 
 
 def declare_run(node):

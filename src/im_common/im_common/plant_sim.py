@@ -79,9 +79,10 @@ class PlantSimulator:
         the ideal voltage source with its ``delay`` only.
 
     The inverter's ``delay`` (:mod:`im_common.delay`): the command given to :meth:`step` k acts
-    over step k + delay (the first command from t_0). Its checks (finite, the inverter's
-    rating) act on the command as given, at once; the limits (trip, v_limit) on the command
-    that acts.
+    over step k + delay (the first command from t_0). A non-finite command is refused as given;
+    the inverter's rating, the trip and v_limit act on the command that acts, when it acts (the
+    inverter sees a command when it is loaded): so the plant node may integrate step k before
+    the command of step k has come (the delayed step overlapped) with the serial order's numbers.
 
     """
 
@@ -192,9 +193,15 @@ class PlantSimulator:
 
     def check(self, v_a: float, v_b: float) -> None:
         """Refuse a non-finite command (ValueError); latch the trip above the inverter's rating."""
+        self._finite(v_a, v_b)
+        self._rating(v_a, v_b)
+
+    def _finite(self, v_a: float, v_b: float) -> None:
         if not (math.isfinite(v_a) and math.isfinite(v_b)):
             raise ValueError(f'non-finite voltage command ({v_a!r}, {v_b!r}) '
                              f'at t = {self.t:.9f} s')
+
+    def _rating(self, v_a: float, v_b: float) -> None:
         if self.trip is None:
             mag = math.hypot(v_a, v_b)
             if mag > self.inverter_rating:
@@ -227,10 +234,35 @@ class PlantSimulator:
         before (class doc).
         """
         if self.delay.d:
-            self.check(v_a, v_b)
-            v_a, v_b = self.limit(*self.delay.push(v_a, v_b))
-        else:
-            v_a, v_b = self.admit(v_a, v_b)
+            self.enter(v_a, v_b)
+            self.step_entered()
+            return
+        self._advance(*self.admit(v_a, v_b))
+
+    def enter(self, v_a: float, v_b: float) -> None:
+        """
+        Enter the command of the next step into the delay line (refused if not finite).
+
+        It acts ``delay`` steps later (the first one from t_0): :meth:`step_entered` integrates
+        the step the line's next command acts over. The plant node enters each command when it
+        comes and integrates a step as soon as its acting command is in the line (the delayed
+        step overlapped, docs/architecture.md); :meth:`step` is the two at once.
+        """
+        self._finite(v_a, v_b)
+        self.delay.enter(v_a, v_b)
+
+    def step_entered(self) -> None:
+        """
+        Integrate [t_k, t_k+1] with the command acting over it, the delay line's next.
+
+        Its checks act when it acts: above the inverter's rating it latches the trip at t_k.
+        """
+        v_a, v_b = self.delay.take()
+        self._rating(v_a, v_b)
+        self._advance(*self.limit(v_a, v_b))
+
+    def _advance(self, v_a: float, v_b: float) -> None:
+        """Integrate [t_k, t_k+1] with the inverter's voltage (v_a, v_b) held."""
         if self.real is not None:
             self.real.advance(v_a, v_b)
             return

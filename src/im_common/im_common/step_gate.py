@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Mapping, Optional, Sequence
 
 # NS_PER_S from its definition: conversions (its usual source) reaches this module through
 # topics, so importing it here would close a circle (tests/test_architecture.py)
@@ -41,19 +41,29 @@ class StepGate:
     every sample of the earlier step that was ever going to arrive has arrived — and the gate
     jumps to the complete step. The steps jumped over are counted in ``gaps`` and their stamp
     ranges kept (the first ``MAX_GAP_RANGES``). ``pending`` is bounded to ``max_pending`` steps.
+
+    ``lags`` = {topic: L}: that input's value stamped t_j belongs to step j + L (the command of a
+    computational delay, :mod:`im_common.delay`: step k of the observer takes the command that
+    acts over it, stamped t_k−L), and its first value (stamped ``first_ns``) also to the L steps
+    before that — the delay line's first command acts from t_0.
     """
 
     MAX_GAP_RANGES = 100
 
     __slots__ = ('required', 'n', 'period', 'expected', 'pending', 'since', 'follow', 'gaps',
-                 'gap_ranges', 'max_pending')
+                 'gap_ranges', 'max_pending', 'first', 'lags')
 
     def __init__(self, required: Sequence[str], period_ns: int, first_ns: int = 0,
-                 follow: bool = False, max_pending: int = 4 * LOCKSTEP_DEPTH):
+                 follow: bool = False, max_pending: int = 4 * LOCKSTEP_DEPTH,
+                 lags: Optional[Mapping[str, int]] = None):
         self.required = tuple(required)
         self.n = len(self.required)
         self.period = int(period_ns)
-        self.expected = int(first_ns)
+        self.first = self.expected = int(first_ns)
+        self.lags = {t: int(L) * self.period for t, L in (lags or {}).items() if L}
+        unknown = [t for t in self.lags if t not in self.required]
+        if unknown:
+            raise ValueError(f'lagged inputs {unknown} are not required inputs of the gate')
         self.pending: Dict[int, dict] = {}
         self.since = time.monotonic()
         self.follow = follow
@@ -68,6 +78,8 @@ class StepGate:
         The inputs (topic -> value) are the expected step's if this completes it (a follow gate:
         or a later step's, jumping to it).
         """
+        if self.lags and topic in self.lags:
+            return self._put_lagged(topic, ns, value)
         if ns < self.expected:
             return None
         pending = self.pending
@@ -85,6 +97,33 @@ class StepGate:
                 self._skip_to(ns)
                 del pending[ns]
                 return slot
+        return None
+
+    def _put_lagged(self, topic: str, ns: int, value) -> Optional[dict]:
+        """Put a lagged input into its step (and the first one into the steps before it too)."""
+        lag = self.lags[topic]
+        start = self.first if ns == self.first else ns + lag
+        pending = self.pending
+        for s in range(max(start, self.expected), ns + lag + 1, self.period):
+            slot = pending.get(s)
+            if slot is None:
+                slot = pending[s] = {}
+            slot[topic] = value
+        if self.follow and len(pending) > self.max_pending:
+            self._drop_oldest()
+        return self._complete()
+
+    def _complete(self) -> Optional[dict]:
+        """Return the expected step's inputs if complete (a follow gate: the first complete)."""
+        slot = self.pending.get(self.expected)
+        if slot is not None and len(slot) == self.n:
+            return self.pending.pop(self.expected)
+        if self.follow:
+            done = [t for t, s in self.pending.items() if len(s) == self.n]
+            if done:
+                ns = min(done)
+                self._skip_to(ns)
+                return self.pending.pop(ns)
         return None
 
     def skip_to(self, ns: int) -> Optional[dict]:
@@ -123,17 +162,7 @@ class StepGate:
         """Move to the next step; return its inputs if they are already complete."""
         self.expected += self.period
         self.since = time.monotonic()
-        slot = self.pending.get(self.expected)
-        if slot is not None and len(slot) == self.n:
-            del self.pending[self.expected]
-            return slot
-        if self.follow:     # a later complete step may already be waiting
-            done = [t for t, s in self.pending.items() if len(s) == self.n]
-            if done:
-                ns = min(done)
-                self._skip_to(ns)
-                return self.pending.pop(ns)
-        return None
+        return self._complete()     # a follow gate: a later complete step may already be waiting
 
     def missing(self) -> list:
         """Return the required topics that have not brought the expected step yet."""

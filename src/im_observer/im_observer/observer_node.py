@@ -6,7 +6,9 @@ measured current and speed and the voltage command stamped t_k (and the adapter'
 stamped t_k when ``use_adapter``), integrates the observer over [t_k, t_k+1] and publishes the
 estimate x̂_k+1 stamped t_k+1 — in parallel with the plant's own integration. With the plant's
 computational ``delay`` d it integrates the command of step k − d, the voltage the motor got
-(im_common.delay).
+(im_common.delay): with ``overlap`` (the default) its step gate takes that command, stamped
+t_k−d, so it predicts x̂_k+1 as soon as the measurement of step k has come, beside the controller
+computing the command of step k (docs/architecture.md, "The delayed step overlapped").
 
 In lock-step every step is taken in order. When the plant runs in ``free_run`` the observer
 follows: a step whose inputs never came (a command that missed its deadline) is bridged by
@@ -54,7 +56,8 @@ class ObserverNode(LockstepNode):
             x0=tuple(v['initial_state']), injection_gain=v['injection_gain'],
             gain_period=v['gain_period'] or None, inverter_error=declare_compensation(self),
             **({'omega0': v['initial_speed']} if self.sensorless else {}))
-        self.delay = declare_delay(self)
+        self.delay, lag = declare_delay(self)
+        self.overlapped = bool(lag)     # the gate gives the acting command: no line to push
         # the drive on the magnetizing curve: the next step's model at the flux it now has
         self.saturated = declare_saturation_model(self, params)
         if self.saturated is not None and self.use_adapter:
@@ -77,7 +80,7 @@ class ObserverNode(LockstepNode):
         required = [T.MEAS_CURRENT, T.CMD_VOLTAGE] + ([] if self.sensorless else [T.MEAS_SHAFT])
         if self.use_adapter:
             required.append(T.ADAPT_ESTIMATE)
-        self.gate = StepGate(required, self.period)
+        self.gate = StepGate(required, self.period, lags={T.CMD_VOLTAGE: lag})
         self.gate_input(T.MEAS_CURRENT, xy_in)
         if not self.sensorless:
             self.gate_input(T.MEAS_SHAFT, shaft_in)
@@ -149,7 +152,8 @@ class ObserverNode(LockstepNode):
         self.publish_estimate(j + 1)
 
     def _step(self, v_a, v_b, i_a, i_b, omega) -> None:
-        v_a, v_b = self.delay.push(v_a, v_b)        # the command that acts over this step
+        if not self.overlapped:                     # the command that acts over this step
+            v_a, v_b = self.delay.push(v_a, v_b)
         if self.sensorless:
             x = self.obs.step(self.T_s, v_a, v_b, i_a, i_b)
         else:

@@ -42,7 +42,7 @@ from im_common.auth import progress_payload, Signer, split_frame
 from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
 from im_common.lockstep import LockstepNode, node_main, stamp_text, StepGate
-from im_common.node_params import declare_run
+from im_common.node_params import declare_overlap, declare_run
 from im_common.params import describe_defaults
 from im_common.qos import reader, writer
 from im_common.run_protocol import (DRAINING, FINISHED, JOINED, LEFT, MASTER_STEPPING,
@@ -78,6 +78,12 @@ class PlantNode(LockstepNode):
             self.get_logger().info(describe_defaults(self.sim.from_ratings))
         self.period = period_ns(self.T_s)
         self.last_step = (round(self.duration / self.T_s) if self.duration > 0 else None)
+        # a delayed step overlapped (lock-step, delay >= 1): step k integrated once the command of
+        # step k - delay has come, beside the controller computing the command of step k
+        self.overlap = (declare_overlap(self) and self.sim.delay.d > 0
+                        and self.mode == 'lockstep')
+        self._last_entered = -1     # overlapped: the step of the last command entered
+        self._final_wait = False    # overlapped: the last step published, its commands not all in
         self.wait_for = self.param(
             'wait_for', 'controller observer',
             'names of the nodes that must be ready before step 0, separated by spaces (add '
@@ -414,7 +420,25 @@ class PlantNode(LockstepNode):
     def step(self, inputs: dict) -> None:
         if self.wall_start is None:
             self.wall_start = time.perf_counter()
-        self.advance(*inputs[T.CMD_VOLTAGE])
+        if not self.overlap:
+            self.advance(*inputs[T.CMD_VOLTAGE])
+            return
+        # overlapped: the command of step j enters the delay line; every step whose acting
+        # command is in the line is integrated now (after the first command: steps 0..d, then
+        # one a command), so the controller computes the command of step k + 1 while this node
+        # integrates step k. The run ends once the last command (step last_step - 1) came too.
+        sim, last = self.sim, self.last_step
+        self.last_cmd = v = inputs[T.CMD_VOLTAGE]
+        self._last_entered = self.gate.expected // self.period
+        try:
+            sim.enter(*v)
+        except ValueError as exc:
+            self.fail(f'plant step failed: {exc}')
+            return
+        while sim.delay.ready and (last is None or sim.k < last) and self.state == RUNNING:
+            self.advance(None, None)
+        if self._final_wait and self._last_entered + 1 >= last and self.state == RUNNING:
+            self._drain()
 
     # Free run ----------------------------------------------------------------------------
     def _free_command(self, ns: int, vx: float, vy: float) -> None:
@@ -468,12 +492,17 @@ class PlantNode(LockstepNode):
         super().fail(reason, **values)
 
     # Stepping ----------------------------------------------------------------------------
-    def advance(self, v_a: float, v_b: float) -> None:
-        self.last_cmd = (v_a, v_b)
+    def advance(self, v_a, v_b) -> None:
+        """Integrate step k with the command (v_a, v_b); overlapped (None): the line's next."""
+        if v_a is not None:
+            self.last_cmd = (v_a, v_b)
         if self._load_offset_next is not None:
             self._apply_load_offset()
         try:
-            self.sim.step(v_a, v_b)
+            if v_a is None:
+                self.sim.step_entered()
+            else:
+                self.sim.step(v_a, v_b)
         except (ValueError, FloatingPointError) as exc:
             self.fail(f'plant step failed: {exc}')
             return
@@ -509,9 +538,16 @@ class PlantNode(LockstepNode):
             if (self.truth_every and k % self.truth_every == 0) or truth:
                 self.publish_truth(ns, tr)
         if final:
-            self.state = DRAINING
-            self.watchdog.since = time.monotonic()
-            self._try_finish()
+            if self.overlap and self._last_entered + 1 < self.last_step:
+                self._final_wait = True     # the commands of the last steps are still due
+                return
+            self._drain()
+
+    def _drain(self) -> None:
+        """After the last step: wait for the lossless followers, then finish."""
+        self.state = DRAINING
+        self.watchdog.since = time.monotonic()
+        self._try_finish()
 
     def _try_finish(self) -> None:
         """Wait after the last step for lossless followers to acknowledge it, then finish."""
@@ -535,6 +571,10 @@ class PlantNode(LockstepNode):
         if self.mode == 'free_run':
             stats.update(self.free_run_stats())
             text += '; ' + self.free_run_text()
+        if self.sim.delay.d:
+            stats['overlap'] = 'true' if self.overlap else 'false'
+            text += (f'; delay {self.sim.delay.d}, '
+                     + ('steps overlapped with the commands' if self.overlap else 'serial order'))
         self.get_logger().info(text)
         self.status(FINISHED, **stats)
         self.finish()
