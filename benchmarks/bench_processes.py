@@ -181,22 +181,31 @@ def _run_graph_processes(procs, tag: str, plant_may_fail: bool = False,
 
 def lockstep_processes(duration: float, record: bool, cpu: Optional[list] = None,
                        cpu_by_name: Optional[dict] = None,
-                       others: Optional[list] = None) -> float:
+                       others: Optional[list] = None, delay: Optional[int] = None,
+                       overlap: bool = True) -> float:
     """
     Steps/s of the position task in lock-step as the plant reports it.
 
     ``cpu``: the CPU time all the processes used [s], start-up included, is appended to it;
     ``cpu_by_name``: each one's (plant, controller, observer ...); ``others``: the cores the
     rest of the machine kept busy meanwhile (its CPU time over the wall time) is appended.
+    ``delay``: the run file's ``inverter: {delay: d}`` (the ideal plant, d periods late; None:
+    no inverter block), ``overlap``: the nodes' parameter (the delayed step overlapped).
     """
     from im_bringup.processes import graph_processes
+    from im_bringup.run_file import Scenario
     tmp = tempfile.mkdtemp(prefix='bench_bag_')
     c0, busy0, t0 = _children_cpu_s(), _machine_busy_s(), time.monotonic()
     try:
         bag = os.path.join(tmp, 'run.mcap') if record else None
-        log = _run_graph_processes(graph_processes('position', 'min_energy', duration=duration,
-                                                   record=bag), 'lockstep',
-                                   cpu_by_name=cpu_by_name)
+        if delay is None:
+            procs = graph_processes('position', 'min_energy', duration=duration, record=bag)
+        else:
+            sc = Scenario(task='position', strategy='min_energy', duration=duration,
+                          inverter={'delay': delay})
+            procs = graph_processes(scenario=sc, record=bag, extra={
+                n: {'overlap': overlap} for n in ('plant', 'observer', 'adapter')})
+        log = _run_graph_processes(procs, 'lockstep', cpu_by_name=cpu_by_name)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     ours = _children_cpu_s() - c0
@@ -232,6 +241,62 @@ def serial_chain(by_short: dict, by_full: dict, extra_steps: int, res: dict) -> 
                1e6 / serial if serial > 0 else math.inf)
     out['lockstep_processes_serial_rate_vs_ping_pong'] = (
         rate / res['ping_pong_two_processes_round_trips_per_s'])
+    return out
+
+
+def per_step_cpu(d: float, **run) -> tuple:
+    """
+    Run ``d`` / 4 and ``d`` [s] of :func:`lockstep_processes` (``run``): steps/s, CPU per step.
+
+    The CPU per step [µs] of each process and of all of them, the start-up differenced out (the
+    full run's steps beyond the short run's, T_s 100 µs).
+    """
+    by_short, by_full, cpu_short, cpu_full = {}, {}, [], []
+    lockstep_processes(d / 4, record=False, cpu=cpu_short, cpu_by_name=by_short, **run)
+    rate = lockstep_processes(d, record=False, cpu=cpu_full, cpu_by_name=by_full, **run)
+    extra_steps = round(d / 1e-4) - round(d / 4 / 1e-4)
+    per = {name: 1e6 * (by_full[name] - by_short.get(name, 0.0)) / extra_steps
+           for name in sorted(by_full)}
+    per['all'] = 1e6 * (cpu_full[0] - cpu_short[0]) / extra_steps
+    return rate, per
+
+
+def delay_overlap(d: float) -> dict:
+    """
+    Measure the delayed step overlapped: steps/s with ``delay: 1`` over ``delay: 0``, ceiling.
+
+    With a computational delay of one period the plant integrates step k, and the observer
+    predicts step k + 1, while the controller computes the command of step k (docs/architecture.md,
+    "The delayed step overlapped"); without it a step is the plant's and the controller's CPU one
+    after the other. Three runs of the position task through :func:`lockstep_processes`, each a
+    short and a full one for the CPU per step: no delay (``inverter: {delay: 0}``), one period
+    overlapped, one period in the serial order (``overlap: false``, the nodes' parameter).
+
+    ``four_processes_delay1_over_delay0``: steps/s overlapped over steps/s without the delay.
+    ``..._ceiling``: the best that ratio can be with the overlapped run's CPU per step: a step
+    lasts at least the busiest process's CPU, and the three processes' CPU spread over the cores
+    (``max(P, C, O, (P + C + O) / cores)``), against the delay-0 run's measured step.
+    """
+    cores = len(os.sched_getaffinity(0))
+    out = {}
+    runs = (('delay0', {'delay': 0}), ('delay1', {'delay': 1}),
+            ('delay1_serial', {'delay': 1, 'overlap': False}))
+    for tag, run in runs:
+        rate, per = per_step_cpu(d, **run)
+        out[f'four_processes_{tag}_steps_per_s'] = rate
+        for name, us in per.items():
+            out[f'four_processes_{tag}_cpu_us_per_step_{name}'] = us
+    per1 = {k.rsplit('_', 1)[1]: v for k, v in out.items()
+            if k.startswith('four_processes_delay1_cpu_us_per_step_')}
+    bound_us = max(max(v for k, v in per1.items() if k != 'all'), per1['all'] / cores)
+    r0 = out['four_processes_delay0_steps_per_s']
+    out['four_processes_delay1_over_delay0'] = out['four_processes_delay1_steps_per_s'] / r0
+    out['four_processes_delay1_serial_over_delay0'] = (
+        out['four_processes_delay1_serial_steps_per_s'] / r0)
+    out['four_processes_delay1_over_delay0_ceiling'] = 1e6 / bound_us / r0
+    out['four_processes_delay1_over_ceiling'] = (
+        out['four_processes_delay1_over_delay0']
+        / out['four_processes_delay1_over_delay0_ceiling'])
     return out
 
 
@@ -431,6 +496,7 @@ def run(quick: bool = False) -> dict:
     """
     d = 0.4 if quick else 2.0
     res = cpu_ceiling(d, 2000 if quick else 10000)
+    res.update(delay_overlap(d))
     res['lockstep_processes_recorded_steps_per_s'] = lockstep_processes(d, record=True)
     res.update(free_run(0.5 if quick else d))
     if quick:

@@ -40,6 +40,14 @@ RATIOS = {
         'processes', 'lockstep_processes_serial_rate_vs_ping_pong'),
     'free_run_missed_fraction_busy': ('processes', 'free_run_1kHz_busy_missed_fraction'),
     'free_run_rate_held_hz_busy': ('processes', 'free_run_rate_held_hz_busy'),
+    # the delayed step overlapped: delay 1 over delay 0, its ceiling from the CPU per step, and
+    # the serial order's (the same numbers, one node at a time)
+    'four_processes_delay1_over_delay0': ('processes', 'four_processes_delay1_over_delay0'),
+    'four_processes_delay1_over_delay0_ceiling': (
+        'processes', 'four_processes_delay1_over_delay0_ceiling'),
+    'four_processes_delay1_over_ceiling': ('processes', 'four_processes_delay1_over_ceiling'),
+    'four_processes_delay1_serial_over_delay0': (
+        'processes', 'four_processes_delay1_serial_over_delay0'),
     # every real-plant block on over the ideal plant (docs/plant.md)
     'real_plant_over_ideal': ('real_plant', 'real_plant_over_ideal'),
 }
@@ -57,6 +65,25 @@ CEILING_SHARES = {
     'four_processes_over_serial_rate': ('four_processes_over_pingpong',
                                         'four_processes_serial_rate_over_pingpong'),
 }
+
+
+#: summary.json key -> (at least / at most, the bound, where it comes from): the targets the
+#: opening table of docs/benchmarks.md holds each run to (``benchmarks/today.py``)
+TARGETS = {
+    'four_processes_delay1_over_delay0': ('>=', 1.2, 'issue 46: the delayed step overlapped'),
+    'four_processes_delay1_over_ceiling': ('>=', 0.9, 'issue 46: of the ceiling its CPU allows'),
+    'four_processes_over_serial_rate': ('>=', 0.9, 'issue 46: delay 0 does not fall'),
+    'inprocess_over_ceiling': ('>=', 0.7, 'issue 46: delay 0 does not fall'),
+    'free_run_rate_held_hz_busy': ('>=', 500.0, 'issue 46: delay 0 does not fall'),
+    'free_run_missed_fraction_busy': ('<=', 0.01, 'issue 25: 1 kHz beside a busy process'),
+    'real_plant_over_ideal': ('>=', 0.9, 'issue 46: the real plant as fast as the ideal'),
+}
+
+
+def meets(key: str, value: float) -> bool:
+    """Tell whether ``value`` of summary key ``key`` meets its target (:data:`TARGETS`)."""
+    op, bound, _ = TARGETS[key]
+    return value >= bound if op == '>=' else value <= bound
 
 
 def benchmark_names() -> list:
@@ -170,7 +197,11 @@ def main(argv=None) -> int:
     print('\nsummary (ratios within this run):')
     for k in list(RATIOS) + list(CEILING_SHARES):
         if k in summ:
-            print(f'  {k:48s} {summ[k]:8.3f}')
+            target = ''
+            if k in TARGETS:
+                op, bound, _ = TARGETS[k]
+                target = f'  target {op} {bound:g}: ' + ('met' if meets(k, summ[k]) else 'NOT met')
+            print(f'  {k:48s} {summ[k]:8.3f}{target}')
     print(f'\nJSON written to {args.out}/')
     for name, why in failed.items():
         print(f'run_all: error: benchmark {name} failed: {why}', file=sys.stderr)

@@ -62,7 +62,14 @@ EXPECTED = {
                   'lockstep_processes_cpu_us_per_step_observer',
                   'lockstep_processes_serial_us_per_step',
                   'lockstep_processes_serial_rate_vs_ping_pong',
-                  'lockstep_processes_other_load_cores'],
+                  'lockstep_processes_other_load_cores',
+                  'four_processes_delay0_steps_per_s', 'four_processes_delay1_steps_per_s',
+                  'four_processes_delay1_serial_steps_per_s',
+                  'four_processes_delay1_cpu_us_per_step_plant',
+                  'four_processes_delay1_over_delay0',
+                  'four_processes_delay1_over_delay0_ceiling',
+                  'four_processes_delay1_over_ceiling',
+                  'four_processes_delay1_serial_over_delay0'],
     'profile': ['steps_per_s_unprofiled', 'us_per_step_decode', 'us_per_step_tags',
                 'us_per_step_protocol', 'us_per_step_compute', 'us_per_step_publish',
                 'us_per_step_executor', 'us_per_step_plant_ready',
@@ -85,7 +92,10 @@ SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_ceiling_over_bare',
                          'four_processes_over_cpu_ceiling',
                          'four_processes_serial_rate_over_pingpong',
                          'four_processes_serial_over_cpu_ceiling',
-                         'four_processes_over_serial_rate'],
+                         'four_processes_over_serial_rate',
+                         'four_processes_delay1_over_delay0',
+                         'four_processes_delay1_over_delay0_ceiling',
+                         'four_processes_delay1_over_ceiling'],
            'real_plant': ['real_plant_over_ideal']}
 
 
@@ -126,3 +136,38 @@ def test_benchmark_quick_run_writes_its_figures(name, tmp_path):
     assert not others & set(summary), sorted(others & set(summary))
     if name != 'processes':
         assert 'free_run_missed_fraction_busy' not in summary
+
+
+def _today():
+    spec = importlib.util.spec_from_file_location('today', os.path.join(BENCH, 'today.py'))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_opening_table_holds_each_run_to_its_targets(tmp_path):
+    """``benchmarks/today.py``: one row a target, each run's value, a miss in bold and said."""
+    today, targets = _today(), _run_all().TARGETS
+    runs = []
+    for i, scale in enumerate((1.0, 0.5)):
+        s = {'quick': False, 'date': f'2026-12-0{i + 1}T10:00:00',
+             'machine': {'cpu_model': 'Test CPU', 'cpus': 2, 'python': '3.11.7',
+                         'load_1min_at_start': 0.1 * i}}
+        for key, (op, bound, _) in targets.items():
+            s[key] = bound * (1.1 if op == '>=' else 0.9) * (scale if op == '>=' else 1 / scale)
+        p = tmp_path / f's{i}.json'
+        p.write_text(json.dumps(s))
+        runs.append(str(p))
+    doc = tmp_path / 'b.md'
+    doc.write_text('# B\n\n<!-- today:begin -->\nold\n<!-- today:end -->\n\nhistory\n')
+    assert today.main(runs + ['--doc', str(doc)]) == 0
+    text = doc.read_text()
+    assert 'old' not in text and text.endswith('<!-- today:end -->\n\nhistory\n')
+    rows = [line for line in text.splitlines() if line.startswith('| `')]
+    assert len(rows) == len(targets)
+    for row in rows:        # the first run meets every target, the second none
+        assert row.count('(not met)') == 1 and row.endswith('| **no** |'), row
+    assert '2 `make bench` runs' in text and 'Test CPU, 2 CPUs' in text
+    quick = tmp_path / 'q.json'
+    quick.write_text(json.dumps({'quick': True}))
+    assert today.main([str(quick)]) == 2
