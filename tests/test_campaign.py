@@ -256,6 +256,10 @@ def test_the_parquet_file_carries_spec_seed_and_versions(tmp_path):
     assert summary['worst'][0]['replay'] == f'ros2 run im_studies campaign {path} --run 1'
     assert (tmp_path / 'c' / 'report.md').read_text().count('.png)') == 2
     assert (tmp_path / 'c' / 'stability_map.png').stat().st_size > 0
+    # the wall time (docs/commands.md): the pool's start-up and the runs, and the plant's switch
+    assert list(summary['wall_parts_s']) == ['pool_startup', 'runs']
+    assert isinstance(summary['wall_s'], float) and summary['real_plant_kernel'] in (True, False)
+    assert 'This invocation: 2 runs, wall time ' in (tmp_path / 'c' / 'report.md').read_text()
 
 
 @pytest.mark.processes

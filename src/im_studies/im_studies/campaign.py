@@ -40,7 +40,7 @@ from im_recording.report import jsonable
 import numpy as np
 
 from .campaign_journal import JOURNAL, Journal, prepare_out, versions
-from .campaign_pool import log_progress, Pool
+from .campaign_pool import log_progress, Pool, wall_line, WallTime
 from .campaign_report import summarize, write_parquet, write_report
 from .campaign_spec import (gain_arguments, graph_parameters, jobs, read_spec, run_job, spec_hash,
                             SpecError)
@@ -90,12 +90,13 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
                                         progress))
             write_atomic(sp_file, json.dumps(info, indent=2))
     journal = Journal(out_p / JOURNAL)
-    t0 = time.perf_counter()
+    clock = WallTime()
     failed = 0
     try:
         with Pool(workers, address) as pool:
             info.update(engine='dask', address=address or 'local', workers=pool.n_workers,
                         startup_s=pool.startup_s)
+            clock.parts['pool_startup'] = pool.startup_s
             t_run = time.perf_counter()
             last = 0.0
             for k, (_, row) in enumerate(pool.map(run_job, todo, spec, gains), 1):
@@ -106,10 +107,10 @@ def run_campaign(spec: dict, out: str, spec_path: str, workers: Optional[int] = 
                 if progress and (now - last > 2.0 or k == len(todo)):
                     last = now
                     log_progress(spec['name'], len(done), len(all_jobs), failed, now - t_run)
-            info['run_wall_s'] = time.perf_counter() - t_run
+            info['run_wall_s'] = clock.parts['runs'] = time.perf_counter() - t_run
     finally:
         journal.close()
-    info['wall_s'] = time.perf_counter() - t0
+    info.update(clock.figures())
     info['runs_this_invocation'] = len(todo)
     rows = [done[i] for i in sorted(done)]
     meta = {'spec': spec, 'spec_hash': spec_hash(spec), 'seed': spec['seed'],
@@ -187,6 +188,7 @@ def main(argv=None) -> int:
     if 'speedup_vs_one_worker' in s:
         print(f"speed-up vs one worker: ×{s['speedup_vs_one_worker']:.2f}")
     print(f'written: {out}/runs.parquet, {out}/summary.json, {out}/report.md')
+    print(wall_line(s))
     return 0
 
 

@@ -2,7 +2,8 @@
 The campaign's Dask pool: a local cluster of every core or an existing scheduler.
 
 See docs/campaign.md. The campaign runs its jobs on it and the studies and ``make reproduce`` map
-their cases over it with :func:`pool_map`.
+their cases over it with :func:`pool_map`. :class:`WallTime` times the campaign, the studies and
+``make reproduce`` (docs/commands.md).
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import os
 import signal
 import threading
 import time
-from typing import Callable, Iterable, Optional, Sequence
+from typing import Callable, Dict, Iterable, Optional, Sequence
 
 from im_common.cli import logger
 
@@ -158,6 +159,48 @@ def pool_map(fn: Callable, items: Sequence, workers: Optional[int] = None,
             if progress:
                 log_progress(label or 'pool', done, len(items), 0, time.perf_counter() - t0)
     return results
+
+
+class WallTime:
+    """
+    The wall time of a command and of its parts, and whether the real plant runs compiled.
+
+    Started when made; :meth:`part` times a part (a ``with`` block; a part timed twice adds up).
+    :meth:`figures` gives what the campaign, the studies and ``make reproduce`` write beside
+    their results (docs/commands.md): ``wall_s`` (from the start), ``wall_parts_s`` and
+    ``real_plant_kernel`` (:attr:`im_common.real_plant.RealPlant.use_kernel` in this process:
+    False with ``IM_REAL_PLANT_KERNEL=0`` or without numba, docs/plant.md §9). They are the only
+    figures there that differ from one run of a command to the next; :func:`wall_line` prints
+    them.
+    """
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.parts: Dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def part(self, name: str):
+        """Time the ``with`` block as the part ``name``."""
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.parts[name] = self.parts.get(name, 0.0) + time.perf_counter() - t
+
+    def figures(self) -> dict:
+        """Return ``wall_s`` (so far), ``wall_parts_s`` and ``real_plant_kernel``."""
+        from im_common.real_plant import RealPlant  # heavy: numba, only at the command's end
+        return {'wall_s': time.perf_counter() - self.t0, 'wall_parts_s': dict(self.parts),
+                'real_plant_kernel': bool(RealPlant.use_kernel)}
+
+
+def wall_line(figures: dict) -> str:
+    """Return the line a command prints at its end from :meth:`WallTime.figures`."""
+    parts = ', '.join(f'{k} {v:.1f} s' for k, v in figures.get('wall_parts_s', {}).items())
+    how = ('compiled (numba)' if figures['real_plant_kernel']
+           else 'pure Python (IM_REAL_PLANT_KERNEL=0 or no numba)')
+    return (f"wall time {figures['wall_s']:.1f} s" + (f' ({parts})' if parts else '')
+            + f'; real plant {how}')
 
 
 def log_progress(label: str, done: int, total: int, failed: int, elapsed: float) -> None:

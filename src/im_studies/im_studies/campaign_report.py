@@ -18,6 +18,7 @@ from im_recording.plots import pyplot
 import numpy as np
 
 from .campaign_journal import versions
+from .campaign_pool import wall_line
 from .campaign_spec import COMMISSION_TASK, DRAWN, FIGURES, spec_hash, UNSTABLE
 from .commission_sim import COMPARED
 
@@ -250,6 +251,9 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
                       f"{summary['speedup_wall_1_worker_s']:.1f} s on 1 worker and "
                       f"{summary['speedup_wall_all_workers_s']:.1f} s on "
                       f"{summary['speedup_workers']}: ×{summary['speedup_vs_one_worker']:.2f}."]
+    if 'real_plant_kernel' in summary:
+        lines += ['', f"This invocation: {summary['runs_this_invocation']} runs, "
+                      f'{wall_line(summary)}.']
     lines += ['']
     for f, caption in figs:
         lines += [f'![{caption}]({f})', '', f'*{caption}*', '']

@@ -11,8 +11,9 @@ chapter-4 variation profile, nominal vs the thesis's adaptation law vs the impro
 gains (seed 001): the thesis's gains at 1 kHz (they diverge), and the chapter-3 tasks with the
 certified gains at 1 kHz and 10 kHz.
 
-Writes ``<out>/summary.json`` (a list, one object per run) and ``<out>/summary.md`` (each figure
-next to the thesis's). Progress on stderr.
+Writes ``<out>/summary.json`` (a list, one object per run, then the bound rows and the
+:func:`wall_row`) and ``<out>/summary.md`` (each figure next to the thesis's, the wall time at the
+end). Progress on stderr.
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ from im_controller.flux import COMPARED_STRATEGIES
 from im_recording.report import jsonable
 
 from im_studies import thesis
-from im_studies.campaign_pool import pool_map
+from im_studies.campaign_pool import pool_map, wall_line, WallTime
 
 from .loss_bound import run_loss_bound
 
@@ -149,6 +150,21 @@ def run_all(specs: List[dict], out_dir: str, record: bool = False,
                     workers=workers, label='reproduce')
 
 
+def wall_row(figures: dict, runs: List[dict], part_of: List[str]) -> dict:
+    """
+    Return the summary's last row, ``strategy: 'wall'``: the command's wall time, not a run.
+
+    :meth:`WallTime.figures <im_studies.campaign_pool.WallTime.figures>` (``wall_parts_s``: the
+    runs on the pool, the bound rows) and ``run_s_by_part``: per part (``ch3``, ``ch4``,
+    ``robust``) the sum of its runs' own ``wall_s`` (``part_of``: each run's part), as the runs
+    share the pool's workers.
+    """
+    by_part: dict = {}
+    for r, part in zip(runs, part_of):
+        by_part[part] = by_part.get(part, 0.0) + r.get('wall_s', 0.0)
+    return {'strategy': 'wall', **figures, 'run_s_by_part': by_part}
+
+
 def _f(value, fmt: str, scale: float = 1.0) -> str:
     """Format a table cell: the number formatted, or '—' where the figure does not apply."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
@@ -170,7 +186,7 @@ def markdown(results: List[dict]) -> str:
             'torque err max [N·m] | steps/s | run |',
             '|' + ' --- |' * 21]
     for r in results:
-        if r.get('strategy') == 'bound':
+        if r.get('strategy') in ('bound', 'wall'):
             continue
         th = None
         if r.get('variation', 'none') == 'none':
@@ -212,17 +228,23 @@ def main(argv=None) -> int:
     ap.add_argument('--only', choices=('ch3', 'ch4', 'robust'), nargs='*')
     ap.add_argument('--workers', type=int, help='parallel runs (default: every core)')
     args = parse_args(ap, argv)
+    clock = WallTime()
     os.makedirs(args.out, exist_ok=True)
     parts = args.only or ['ch3', 'ch4', 'robust']
     specs: List[dict] = []
-    if 'ch3' in parts:
-        specs += chapter3_runs() + optimal_runs()
-    if 'ch4' in parts:
-        specs += chapter4_runs()
-    if 'robust' in parts:
-        specs += robust_runs()
-    results = run_all(specs, args.out, record=args.record, workers=args.workers)
-    results += bound_rows(results)
+    part_of: List[str] = []
+    for part, make in (('ch3', lambda: chapter3_runs() + optimal_runs()),
+                       ('ch4', chapter4_runs), ('robust', robust_runs)):
+        if part in parts:
+            new = make()
+            specs += new
+            part_of += [part] * len(new)
+    with clock.part('runs'):
+        results = run_all(specs, args.out, record=args.record, workers=args.workers)
+    with clock.part('bound'):
+        results += bound_rows(results)
+    wall = wall_row(clock.figures(), results, part_of)
+    results.append(wall)
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(jsonable(results), f, indent=2, allow_nan=False)
     with open(os.path.join(args.out, 'summary.md'), 'w') as f:
@@ -235,9 +257,11 @@ def main(argv=None) -> int:
                 'tracking '
                 "(docs/controller.md §10), from each run's own start flux, end flux free:\n\n")
         f.write(bound_markdown(results))
+        f.write(f'\n{wall_line(wall)}.\n')
     print(markdown(results))
     print(bound_markdown(results))
     print(f'written: {args.out}/summary.json, {args.out}/summary.md')
+    print(wall_line(wall))
     return 0
 
 

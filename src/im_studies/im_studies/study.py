@@ -14,7 +14,9 @@ thesis motor, loads and gains (offline lock-step loop, :mod:`im_bringup.offline`
 * the targets of issue 3 checked on the numbers;
 * the largest T_s at which the thesis's gains keep the loop stable (bisection over T_s), with
   the scalar current-loop estimate beside it;
-* optionally (``--sweep``) the min_loss design knobs (flux filter time constant, preview).
+* optionally (``--sweep``) the min_loss design knobs (flux filter time constant, preview);
+* the wall time (``wall_s``), per part (``wall_parts_s``) and whether the real plant runs
+  compiled (``real_plant_kernel``; :class:`~im_studies.campaign_pool.WallTime`), also printed.
 """
 from __future__ import annotations
 
@@ -23,7 +25,6 @@ import json
 import math
 import os
 import sys
-import time
 
 from im_bringup.offline import Scenario, simulate
 from im_common.cli import logger, parse_args
@@ -33,6 +34,7 @@ from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.gain_design.motor import thesis_gain_stability_limit
 
 from . import thesis
+from .campaign_pool import wall_line, WallTime
 
 
 _log = logger()
@@ -186,9 +188,10 @@ def main(argv=None) -> int:
                                                                 'table')
     ap.add_argument('--sweep', action='store_true', help='also sweep the min_loss design knobs')
     args = parse_args(ap, argv)
-    wall0 = time.perf_counter()
+    clock = WallTime()
     result = {'T_s': args.T_s, 'quick': args.quick}
-    rows2 = energy_table(args.T_s, 2.0, args.quick, True)
+    with clock.part('exponent2'):
+        rows2 = energy_table(args.T_s, 2.0, args.quick, True)
     result['runs_core_exponent_2'] = rows2
     print_energy_table(rows2, f'Energy table, T_s = {args.T_s * 1e6:g} us, core loss (k_h + k_e '
                               'f_e) f_e phi_m^2'
@@ -210,7 +213,8 @@ def main(argv=None) -> int:
               f"{s['dW_magnetic_J']:.2f} (+{s['balance_residual_J']:.1e});  ours E_in-losses = "
               f"{s['E_in_J'] - s['E_loss_J']:8.2f}  {th}")
     if not args.no_exponent1:
-        rows1 = energy_table(args.T_s, 1.0, args.quick, True)
+        with clock.part('exponent1'):
+            rows1 = energy_table(args.T_s, 1.0, args.quick, True)
         result['runs_core_exponent_1'] = rows1
         print_energy_table(rows1, 'Same with core loss (k_h + k_e f_e) f_e phi_m (exponent 1, as '
                                   'printed)')
@@ -226,13 +230,15 @@ def main(argv=None) -> int:
     if not args.no_limit:
         est = current_loop_estimate(40.0)
         limits = []
-        for task in THESIS_TASKS:
-            for strategy in COMPARED_STRATEGIES:
-                _log(f'T_s stability limit: {task}/{strategy}')
-                limits.append(sampling_limit(task, strategy))
+        with clock.part('limit'):
+            for task in THESIS_TASKS:
+                for strategy in COMPARED_STRATEGIES:
+                    _log(f'T_s stability limit: {task}/{strategy}')
+                    limits.append(sampling_limit(task, strategy))
         result['sampling_limit'] = {'scalar_current_loop_estimate_s': est, 'runs': limits}
         _log('T_s stability limit over the chapter-4 parameter box (eigenvalues on a grid)')
-        box = thesis_gain_stability_limit(samples=12, refine_steps=10)
+        with clock.part('limit_box'):
+            box = thesis_gain_stability_limit(samples=12, refine_steps=10)
         result['sampling_limit']['parameter_box'] = {k: v for k, v in box.items() if k != 'table'}
         print('\nSampled-data limit with the thesis gains (k1 = 40 V/A, k_e = 1/sigma), '
               'bisection over T_s;'
@@ -250,18 +256,20 @@ def main(argv=None) -> int:
               f"{box['current_loop_limit'] * 1e6:.0f} us, observer up to "
               f"{box['observer_limit'] * 1e6:.0f} us")
     if args.sweep:
-        result['min_loss_sweep'] = sweep_min_loss(True)
+        with clock.part('sweep'):
+            result['min_loss_sweep'] = sweep_min_loss(True)
         print('\nmin_loss design knobs (flux filter time constant tau1, preview) -> losses [J]')
         for s in result['min_loss_sweep']:
             print(f"  {s['task']:8s} tau1={s['flux_time_constants'][0]:.4f} s "
                   f"preview={s['flux_preview']:.2f} s:"
                   f" {s['E_loss_J']:8.2f}")
-    result['wall_s'] = time.perf_counter() - wall0
+    result.update(clock.figures())
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, 'study.json')
     with open(path, 'w') as fh:
         json.dump(result, fh, indent=1, default=float)
-    _log(f'wrote {path} ({result["wall_s"]:.0f} s)')
+    _log(f'wrote {path}')
+    print(f'\n{wall_line(result)}')
     return 0
 
 

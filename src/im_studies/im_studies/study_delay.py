@@ -20,6 +20,9 @@ on a DSP) against the theses' plant, which acts at once. Two parts, each a Markd
   with one period, the predicting law's best K = k I for the delay and its rate, and the best
   rate seed 001's synthesis certifies for any gain on the error and the past commands
   (:func:`im_controller.gain_design.drive.delayed_current_design`).
+
+Ends with the wall time; ``--json`` writes each part's rows and ``wall_s``, ``wall_parts_s`` per
+part and ``real_plant_kernel`` (:class:`~im_studies.campaign_pool.WallTime`).
 """
 from __future__ import annotations
 
@@ -40,6 +43,7 @@ from im_controller.gain_design.drive import (current_error_limit, current_error_
                                              subsystem_points)
 import numpy as np
 
+from .campaign_pool import wall_line, WallTime
 from .study_motors import scaled_options, scaled_scenario
 
 PARTS = ('current loop', 'certificate', 'runs')
@@ -174,13 +178,18 @@ def main(argv=None) -> int:
                     help='run only this part (repeatable; default: all)')
     ap.add_argument('--json', metavar='FILE', help='write the rows as JSON')
     a = ap.parse_args(argv)
+    clock = WallTime()
     out = {}
     for part in a.part or PARTS:
         print(f'{part}:', file=sys.stderr)
         progress = lambda line: print(line, file=sys.stderr, flush=True)    # noqa: E731
-        out[part] = (current_loop_rows() if part == 'current loop' else
-                     certificate_rows(progress) if part == 'certificate' else run_rows(progress))
+        with clock.part(part):
+            out[part] = (current_loop_rows() if part == 'current loop' else
+                         certificate_rows(progress) if part == 'certificate'
+                         else run_rows(progress))
         print(f'\n### {part}\n\n{markdown(part, out[part])}\n')
+    out.update(clock.figures())
+    print(wall_line(out))
     if a.json:
         try:
             os.makedirs(os.path.dirname(a.json) or '.', exist_ok=True)

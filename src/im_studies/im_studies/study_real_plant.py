@@ -29,11 +29,13 @@ on the ideal plant. Parts (default all):
   plant's R_s a constant off the model's, and on the chapter-4 rows with the start flux scaled
   (:mod:`im_studies.study_adaptation`).
 
-Prints a Markdown table per part; ``--json`` writes the rows, ``--plots`` the phase current
-against its reference. Figures: the current distortion ``|i − i*|`` RMS [A] (the stator-current
-vector's distance from the controller's reference), the speed error [rad/s] and the air-gap
-torque's standard deviation [N·m], over the last :data:`WINDOW` s of a hold or after the
-transients; the dip and recovery of a load step (:mod:`im_common.metrics`).
+Prints a Markdown table per part and the wall time; ``--json`` writes the rows (and ``wall_s``,
+``wall_parts_s`` per part, ``real_plant_kernel``: :class:`~im_studies.campaign_pool.WallTime`),
+``--plots`` the phase current against its reference. Figures: the current distortion
+``|i − i*|`` RMS [A] (the stator-current vector's distance from the controller's reference),
+the speed error [rad/s] and the air-gap torque's standard deviation [N·m], over the last
+:data:`WINDOW` s of a hold or after the transients; the dip and recovery of a load step
+(:mod:`im_common.metrics`).
 """
 from __future__ import annotations
 
@@ -57,6 +59,7 @@ from im_recording.plots import pyplot
 import numpy as np
 
 from . import study_adaptation
+from .campaign_pool import wall_line, WallTime
 from .commission_sim import commission_sim, COMPARED
 from .loss_bound import drive_floor
 from .study_adaptation import START_FLUXES
@@ -509,6 +512,7 @@ def main(argv=None) -> int:
     ap.add_argument('--json', metavar='FILE', help='write the rows as JSON')
     ap.add_argument('--plots', metavar='DIR', help='write the plots here')
     a = ap.parse_args(argv)
+    clock = WallTime()
     out = {}
     runs = {'compensation': lambda: run_compensation(plots=a.plots),
             'sensorless': run_sensorless, 'load_step': run_load_step, 'losses': run_losses,
@@ -521,8 +525,11 @@ def main(argv=None) -> int:
         motors = ('thesis',) if part in THESIS_ONLY else MOTORS
         print(f'[{k}/{len(a.part or PARTS)}] {part}: {", ".join(motors)}', file=sys.stderr,
               flush=True)
-        out[part] = runs[part]()
+        with clock.part(part):
+            out[part] = runs[part]()
         print(f'\n## {part}\n\n{markdown(part, out[part])}', flush=True)
+    out.update(clock.figures())
+    print(f'\n{wall_line(out)}', flush=True)
     if a.json:
         try:
             os.makedirs(os.path.dirname(a.json) or '.', exist_ok=True)
