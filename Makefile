@@ -11,7 +11,7 @@ SRC_FILES := $(shell find src -type f -not -path '*/__pycache__/*' 2>/dev/null)
 # The DDS domain is left to the user (ROS_DOMAIN_ID); the in-process tools pick their own.
 RUN := source $(VENV)/bin/activate && source install/setup.bash &&
 
-.PHONY: all setup build demo test test-fast fuzz bench reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign efficiency gains policy clean distclean
+.PHONY: all setup build demo test test-fast fuzz bench bench-table reproduce readme study sensitivity robust-examples robust-study motors motors-drift campaign efficiency gains policy clean distclean
 
 all: demo
 
@@ -62,6 +62,13 @@ fuzz: build
 bench: build
 	$(VPY) -m pip install --disable-pip-version-check -q -r benchmarks/requirements.txt
 	$(RUN) python benchmarks/run_all.py
+
+# Three make bench runs (benchmarks/results/run1..3), then the opening table of
+# docs/benchmarks.md from their summaries: today's figures against their targets.
+bench-table: build
+	$(VPY) -m pip install --disable-pip-version-check -q -r benchmarks/requirements.txt
+	for i in 1 2 3; do $(RUN) python benchmarks/run_all.py --out benchmarks/results/run$$i || exit 1; done
+	$(RUN) python benchmarks/today.py benchmarks/results/run{1,2,3}/summary.json --doc docs/benchmarks.md
 
 # Also refreshes the committed summary docs/results.md and the README's headline are generated from (make readme).
 reproduce: build
