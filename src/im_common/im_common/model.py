@@ -36,6 +36,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Sequence, Tuple
 
+import numpy as np
+
 from .loads import Load, NoLoad
 from .params import MotorParams, ParameterSchedule, THESIS_MOTOR
 
@@ -103,7 +105,6 @@ def eq112_matrices(R_s, R_r, L_s, L_r, L_sr, pole_pairs, omega_r):
 
     State ``[i_sα, i_sβ, φ_rα, φ_rβ]``, input ``[V_sα, V_sβ]``; see :func:`eq112_coefficients`.
     """
-    import numpy as np
     c = eq112_coefficients(R_s, R_r, L_s, L_r, L_sr)
     we = pole_pairs * omega_r
     kf, ks, r_f = c.K * c.inv_Tr, we * c.K, c.L_sr * c.inv_Tr
@@ -296,6 +297,16 @@ class RealMotorModel:
             R_s, R_R, th, L_sig, inv_LM0 = self._base
             self._const = (R_s * fs, R_R * fr, th, 1.0 / L_sig, inv_LM0)
             self._circuit = (R_s * fs, R_R * fr, th, L_sig, inv_LM0)
+
+    @property
+    def base_circuit(self):
+        """
+        Return the constant schedule's circuit without the temperature factors, else None.
+
+        (R_s, R_R, θ, L_σ, 1/L_M0); None while the parameters vary in time (the compiled period
+        of the real plant takes only a constant schedule).
+        """
+        return self._base if self._const is not None else None
 
     def circuit(self, t: float):
         """Return the inverse-Γ circuit at t: (R_s, R_R, θ, L_σ, 1/L_M0), R's at temperature."""

@@ -164,6 +164,11 @@ class PlantSimulator:
         self.E_kin0 = out['E_kin']
 
     @property
+    def noisy(self) -> bool:
+        """Tell whether the measurements get noise (``current_noise_std``, ``speed_noise_std``)."""
+        return self._rng is not None
+
+    @property
     def t(self) -> float:
         """Return the simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
         return self.k * self.T_s

@@ -31,26 +31,41 @@ Per control period (docs/plant.md):
 4. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
 
-Steps 1-3 run compiled (:mod:`im_common.real_plant_kernel`, numba) when
-``RealPlant.use_kernel``: the period's events and, once its predictions are made, the intervals,
-the sign check, the switching tally and the closed-form integrals, in the same arithmetic; the
-pure-Python path of :meth:`RealPlant._solve` is the reference (``use_kernel = False``) and takes
-the periods whose currents change sign and those with repeated eigenvalues.
+Steps 1-4 run compiled (:mod:`im_common.real_plant_kernel`, numba) when
+``RealPlant.use_kernel``, in the same arithmetic; the pure-Python path (:meth:`RealPlant._solve`
+and the methods around it) is the reference (``use_kernel = False``, equal to 1e-12,
+tests/test_real_plant_kernel.py). One call a period (``real_plant_kernel.step``) where the
+plant's parameters are constant (the temperatures aside) and its load is one of
+:mod:`im_common.loads`'s: everything above plus the sensors' measurement and the state's
+currents, the state kept in one array between periods; the attributes it holds
+(``_SYNCED``: ``V``, ``temps``, ``E_switching``, ...) are out of the instance while it steps
+and are given back from the array when read (``__getattr__``), the simulator's ``x``,
+``v_applied``, ``k`` and ``trip`` are set every period. Otherwise the period's events and,
+once its predictions are made in Python, the intervals, the sign check, the switching tally
+and the closed-form integrals are compiled. Either hands the periods with repeated
+eigenvalues (and a non-finite state) to the reference.
 """
 from __future__ import annotations
 
 from cmath import exp as cexp, sqrt as csqrt
 import math
+import os
 from typing import Mapping
 
 from . import real_plant_kernel as _kernel
 from .inverter import (carry_after, check_against_motor, duties, edges, Inverter, period_plan,
                        phase_values)
+from .loads import ConstantLoad, LinearLoad, NoLoad, PendulumLoad, ScheduleLoad, StepLoad
 from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
 from .params import clarke
 from .saturation import Saturation, saturation_from_dict
 from .sensors import Measurement, Sensors, SpeedFromCounts
 from .thermal import first_order, Thermal, thermal_from_dict
+
+try:
+    import numpy as np
+except ImportError:                             # pragma: no cover - numpy is pinned
+    np = None
 
 TWO_PI = 2.0 * math.pi
 SQRT3 = math.sqrt(3.0)
@@ -74,6 +89,23 @@ _UNIT_ARRAYS = _kernel.as_table(_UNIT)
 #: signs give: switch states {0, ½, 1} (½: a dead band without current) and signs {−1, 0, 1}
 _CLARKE = {(a, b, c): complex(*clarke(a, b, c)) for vals in ((0, 0.5, 1), (-1.0, 0.0, 1.0))
            for a in vals for b in vals for c in vals}
+
+
+#: the loads the whole-period kernel evaluates itself, by their exact type (a subclass may
+#: override ``torque``): their kind and parameters (real_plant_kernel.LOAD_*, LP0..LP2)
+_LOADS = {
+    NoLoad: lambda ld: (_kernel.LOAD_NONE, 0.0, 0.0, 0.0),
+    ConstantLoad: lambda ld: (_kernel.LOAD_CONSTANT, ld.tau, 0.0, 0.0),
+    LinearLoad: lambda ld: (_kernel.LOAD_LINEAR, ld.c1, ld.c2, 0.0),
+    PendulumLoad: lambda ld: (_kernel.LOAD_PENDULUM, ld.mgl, 0.0, 0.0),
+    StepLoad: lambda ld: (_kernel.LOAD_STEP, ld.t, ld.tau_after, ld.tau_before),
+    ScheduleLoad: lambda ld: (_kernel.LOAD_SCHEDULE, 0.0, 0.0, 0.0),
+}
+#: the attributes the whole-period kernel keeps in its array while it steps (RealPlant._w):
+#: out of the instance's dict then, and given back (:meth:`RealPlant._sync`) when read
+_SYNCED = ('_prev', '_carry', '_next_carry', '_poles', '_end_poles', '_edges', 'V', 'E_source',
+           'E_chopper', 'P_inverter', 'E_switching', 'P_switching', 'ripple', 'temps',
+           '_omega_meas', '_end_current', '_currents', '_speed')
 
 
 def _sgn(x: float) -> float:
@@ -108,8 +140,9 @@ class RealPlant:
     """The real plant's blocks and state beside a :class:`PlantSimulator` (module doc)."""
 
     #: the period by the compiled kernel (:mod:`im_common.real_plant_kernel`, numba) when it
-    #: exists, else (False) by the pure-Python path of :meth:`_solve`, the reference
-    use_kernel = _kernel.available
+    #: exists, else (False) by the pure-Python path of :meth:`_solve`, the reference; also
+    #: False with IM_REAL_PLANT_KERNEL=0 in the environment (docs/plant.md §9)
+    use_kernel = _kernel.available and os.environ.get('IM_REAL_PLANT_KERNEL') != '0'
 
     def __init__(self, sim, inverter=None, saturation=None, thermal=None, sensors=None,
                  iron_loss: bool = False, core_loss_exponent: float = 2.0,
@@ -183,6 +216,245 @@ class RealPlant:
             past = [sensors.count(th0 - w0 * (W - j) * sim.T_s) for j in range(W + 1)]
             self._speed = SpeedFromCounts(sensors.counts_per_rev, W, sim.T_s, past)
             self._omega_meas = self._speed.value()
+        self._speed_obj = self._speed           # kept while _speed is out (_unsync)
+        # the whole period in one compiled call (real_plant_kernel.step) where it applies: the
+        # array w holds the state while it steps (module doc, "one call a period")
+        self._stale = False                     # w holds the state, the attributes are out
+        self._packed = False                    # w holds what the attributes hold
+        self._x_fast = None                     # sim.x as the last compiled period left it
+        self._fo = None                         # that period's outputs (w[X0:X0 + N_OUT])
+        self.handed_back = 0                    # compiled periods the reference path took
+        self._w = self._tab = None
+        if _kernel.available and np is not None:
+            self._whole_arrays()
+
+    # The whole period compiled ---------------------------------------------------------
+    def _whole_arrays(self) -> None:
+        """
+        Make the arrays of :func:`real_plant_kernel.step` when it applies, else leave None.
+
+        It applies to a constant parameter schedule (the temperatures aside) and the loads of
+        :data:`_LOADS`; the rest steps as before (the events and intervals compiled, the
+        predictions and the blocks in Python).
+        """
+        mdl = self.model
+        live = mdl.load
+        inner = getattr(live, 'load', live)
+        base = mdl.base_circuit
+        if base is None or type(inner) not in _LOADS:
+            return
+        K = _kernel
+        kind, lp0, lp1, lp2 = _LOADS[type(inner)](inner)
+        sat = self.saturation
+        n_sat = 0 if sat is None or sat.table is None else len(sat.table[0])
+        cols = []
+        if n_sat:
+            psi, cur, slopes, energy = sat.knots()
+            cols = list(psi) + list(cur) + list(slopes) + [0.0] + list(energy)
+        n_load = 0
+        if kind == K.LOAD_SCHEDULE:
+            n_load = len(inner.points)
+            cols += [p[0] for p in inner.points] + [p[1] for p in inner.points]
+        self._tab = np.array(cols + [0.0], dtype=np.float64)
+        se = self.sensors
+        window = se.speed_window if se is not None and se.encoder_lines > 0 else 0
+        w = np.zeros(K.HIST + window + 1, dtype=np.float64)
+        sim = self.sim
+        p = mdl.params
+        inv = self.inverter
+        w[K.T_S] = sim.T_s
+        w[K.N_SUB] = sim.n_sub
+        if inv is not None:
+            w[K.HAS_INV] = 1.0
+            w[K.T_C] = inv.T_c
+            w[K.T_D] = inv.deadtime
+            w[K.V_ON] = inv.v_on
+            w[K.DOUBLE] = 1.0 if inv.update == 'double' else 0.0
+            w[K.V_DC] = inv.V_dc
+            w[K.C_DC] = inv.C_dc
+            w[K.R_SOURCE] = inv.R_source
+            w[K.V_CHOP] = inv.V_chopper
+            w[K.R_CHOP] = inv.R_chopper
+            w[K.V_TRIP] = inv.trip_voltage
+        w[K.R_ON] = mdl.r_on
+        w[K.K_EDGE] = self._k_edge
+        w[K.VP] = p.pole_pairs
+        w[K.J_IN] = p.J
+        w[K.B_F] = p.b
+        w[K.K_H] = p.k_h
+        w[K.K_E] = p.k_e
+        w[K.IRON] = 1.0 if self.iron_loss else 0.0
+        w[K.LOCKED] = 1.0 if mdl.locked else 0.0
+        w[K.CORE_EXP] = mdl.core_loss_exponent
+        w[K.R_S0], w[K.R_R0], w[K.TH], w[K.L_SIG], w[K.INV_LM0] = base
+        if sat is not None:
+            w[K.SAT] = 2.0 if n_sat else 1.0
+            w[K.BETA] = sat.beta
+            w[K.S_EXP] = sat.S
+            w[K.B_S] = sat.beta_S
+            w[K.L_M0] = sat.L_M0
+            w[K.N_SAT] = n_sat
+        th = self.thermal
+        if th is not None:
+            w[K.THERM] = 1.0
+            w[K.T_AMB] = th.T_ambient
+            w[K.R_TH_S] = th.R_th_s
+            w[K.R_TH_R] = th.R_th_r
+            w[K.DEC_S], w[K.DEC_R] = self._decay
+            w[K.ALPHA_S] = th.alpha_s
+            w[K.ALPHA_R] = th.alpha_r
+            w[K.T_REF] = th.T_ref
+        if se is not None:
+            w[K.SENS] = 1.0
+            w[K.ENC] = 1.0 if se.encoder_lines > 0 else 0.0
+            w[K.CPR] = se.counts_per_rev
+            w[K.WIN] = se.speed_window
+            if window:
+                w[K.SCALE] = self._speed.scale
+            w[K.BITS] = se.adc_bits
+            w[K.I_RANGE] = se.current_range
+            w[K.G_A], w[K.G_B], w[K.G_C] = se.current_gain
+            w[K.O_A], w[K.O_B], w[K.O_C] = se.current_offset
+            w[K.VDC_RANGE] = se.vdc_range
+        w[K.LOAD] = kind
+        w[K.LP0] = lp0
+        w[K.LP1] = lp1
+        w[K.LP2] = lp2
+        w[K.N_LOAD] = n_load
+        self._w = w
+        self._live = live
+        if self.use_kernel:
+            _kernel.warm()
+
+    def _pack(self) -> None:
+        """Write the attributes and the simulator's state into the kernel's array."""
+        if self._stale:
+            self._sync()
+        K = _kernel
+        w = self._w
+        sim = self.sim
+        x = sim.x
+        w[K.I_TRIP] = math.nan if sim.current_trip is None else sim.current_trip
+        w[K.W_TRIP] = math.nan if sim.speed_trip is None else sim.speed_trip
+        prev = self._prev
+        w[K.PREV] = prev is not None
+        if prev is not None:
+            w[K.PREV_T:K.PREV_W0BAR + 1] = prev
+        w[K.CARRY_A:K.CARRY_C + 1] = self._carry
+        w[K.POLES] = self._poles is not None
+        if self._poles is not None:
+            w[K.POLE_A:K.POLE_C + 1] = self._poles
+        if self._end_poles is not None:
+            w[K.END_A:K.END_C + 1] = self._end_poles
+        w[K.EDGES] = self._edges
+        w[K.E_SRC] = self.E_source
+        w[K.E_CH] = self.E_chopper
+        w[K.P_INV] = self.P_inverter
+        w[K.E_SWT] = self.E_switching
+        w[K.P_SWT] = self.P_switching
+        w[K.RIPPLE] = self.ripple
+        if self.temps is not None:
+            w[K.TEMP_S], w[K.TEMP_R] = self.temps
+        end = self._end_current
+        w[K.END_VALID] = end[0] is x
+        w[K.I_END] = end[1].real
+        w[K.I_END + 1] = end[1].imag
+        w[K.OMEGA_MEAS] = self._omega_meas
+        w[K.X0:K.X0 + 14] = x
+        w[K.V_LINK] = self.V
+        w[K.F_S] = self.model.fs
+        w[K.F_R] = self.model.fr
+        if self._speed is not None:
+            hist = self._speed.hist
+            w[K.HIST_N] = len(hist)
+            w[K.HIST:K.HIST + len(hist)] = hist
+        self._packed = True
+
+    def _unsync(self) -> None:
+        """Take the attributes the array now holds out of the instance (read: :meth:`_sync`)."""
+        d = self.__dict__
+        for name in _SYNCED:
+            d.pop(name, None)
+        self._stale = True
+
+    def _sync(self) -> None:
+        """Set the attributes from the kernel's array (the state the compiled periods left)."""
+        K = _kernel
+        w = self._w
+        d = self.__dict__
+        d['_stale'] = False
+        x = self.sim.x
+        valid = x is self._x_fast
+        vals = w[:K.HIST].tolist()
+        d['_prev'] = tuple(vals[K.PREV_T:K.PREV_W0BAR + 1]) if vals[K.PREV] else None
+        d['_carry'] = d['_next_carry'] = tuple(vals[K.CARRY_A:K.CARRY_C + 1])
+        d['_poles'] = tuple(vals[K.POLE_A:K.POLE_C + 1]) if vals[K.POLES] else None
+        d['_end_poles'] = tuple(vals[K.END_A:K.END_C + 1])
+        d['_edges'] = vals[K.EDGES]
+        d['E_source'] = vals[K.E_SRC]
+        d['E_chopper'] = vals[K.E_CH]
+        d['P_inverter'] = vals[K.P_INV]
+        d['E_switching'] = vals[K.E_SWT]
+        d['P_switching'] = vals[K.P_SWT]
+        d['ripple'] = vals[K.RIPPLE]
+        d['temps'] = [vals[K.TEMP_S], vals[K.TEMP_R]] if self.thermal is not None else None
+        d['_omega_meas'] = vals[K.OMEGA_MEAS]
+        d['V'] = vals[K.V_LINK]
+        i_end = complex(vals[K.I_END], vals[K.I_END + 1])
+        d['_end_current'] = (x if valid and vals[K.END_VALID] else None, i_end)
+        d['_currents'] = ((x, tuple(vals[K.I_STATE:K.I_STATE + 4])) if valid
+                          else (None, None))
+        speed = d['_speed_obj']
+        if speed is not None:
+            n = int(vals[K.HIST_N])
+            speed.hist = [int(c) for c in w[K.HIST:K.HIST + n].tolist()]
+        d['_speed'] = speed
+
+    def __getattr__(self, name):
+        """Give back an attribute the kernel's array holds (:meth:`_sync`), once asked."""
+        d = self.__dict__
+        if name in _SYNCED and d.get('_stale'):
+            self._sync()
+            return d[name]
+        raise AttributeError(f'{type(self).__name__!r} object has no attribute {name!r}')
+
+    def _advance_compiled(self, v_a: float, v_b: float) -> bool:
+        """
+        Integrate the period by :func:`real_plant_kernel.step`; False: the reference takes it.
+
+        One call: the plan, the events, the exact intervals, the carry, the switching losses,
+        the temperatures, the DC link, the encoder, the measurement and the state's currents;
+        then the simulator's state, its mean voltage and a trip, the rest left in the array.
+        """
+        sim = self.sim
+        if not self._packed or sim.x is not self._x_fast:
+            self._pack()
+        status = _kernel.step(self._w, self._tab, v_a, v_b, sim.k, sim.trip is not None,
+                              self._live.offset)
+        if status == _kernel.FALLBACK or status & _kernel.NONFINITE:    # the array untouched
+            self.handed_back += 1
+            return False
+        if not self._stale:
+            self._unsync()
+        o = self._w[_kernel.X0:_kernel.X0 + _kernel.N_OUT].tolist()
+        x = o[:14]
+        self._fo = o
+        self._x_fast = x
+        sim.x = x
+        sim.v_applied = (o[14], o[15])
+        sim.k += 1
+        mdl = self.model
+        if self.thermal is not None and (o[28] != mdl.fs or o[29] != mdl.fr):
+            mdl.set_temperature_factors(o[28], o[29])
+        if status:
+            if status & _kernel.TRIP_DC:
+                inv = self.inverter
+                sim.trip = (sim.t, f'DC-link over-voltage: V_dc = {o[27]:.4g} V > V_trip '
+                                   f'{inv.trip_voltage:g} V (regeneration the brake chopper '
+                                   f'did not absorb)')
+            elif sim.trip is None:
+                sim.protect()
+        return True
 
     def describe(self) -> dict:
         """Return the blocks as written in the run and motor files (the run record)."""
@@ -211,6 +483,13 @@ class RealPlant:
 
     def advance(self, v_a: float, v_b: float) -> None:
         """Integrate [t_k, t_k+1] with the admitted command (PlantSimulator.step, module doc)."""
+        if (self._w is not None and self.use_kernel and not self.reference_substeps
+                and self._advance_compiled(v_a, v_b)):
+            return
+        if self._stale:
+            self._sync()
+        self._packed = False
+        self._x_fast = None
         sim = self.sim
         x0 = sim.x
         t0 = sim.t
@@ -836,6 +1115,11 @@ class RealPlant:
     def stator_currents(self):
         """Return (i_sα, i_sβ) at t_k (the last period's solution gives it)."""
         x = self.sim.x
+        if x is self._x_fast:                   # a compiled period's
+            o = self._fo
+            return o[16], o[17]
+        if self._stale:
+            self._sync()
         end = self._end_current
         if end[0] is x:
             return end[1].real, end[1].imag
@@ -845,6 +1129,11 @@ class RealPlant:
         """Return (i_sα, i_sβ, i_rα, i_rβ) at t_k (the rotor current in the model's gauge)."""
         sim = self.sim
         x = sim.x
+        if x is self._x_fast:                   # a compiled period's
+            o = self._fo
+            return o[18], o[19], o[20], o[21]
+        if self._stale:
+            self._sync()
         cached = self._currents
         if cached[0] is x:                      # the same state: computed once a period
             return cached[1]
@@ -859,6 +1148,14 @@ class RealPlant:
         """Return what the sensors give at t_k, the carrier's peak (im_common.sensors)."""
         sim = self.sim
         x = sim.x
+        if x is self._x_fast:                   # a compiled period's, the noise added here
+            o = self._fo
+            if not sim.noisy:
+                return Measurement(sim.t, o[22], o[23], o[24], o[25], o[26])
+            i_sa, i_sb, omega = sim.add_noise(o[22], o[23], o[25])
+            return Measurement(sim.t, i_sa, i_sb, o[24], omega, o[26])
+        if self._stale:
+            self._sync()
         i_sa, i_sb = self.stator_currents()
         theta = x[4]
         omega = x[5]
@@ -876,6 +1173,8 @@ class RealPlant:
 
     def truth(self) -> dict:
         """Return the ground truth: the ideal plant's keys plus the blocks' quantities."""
+        if self._stale:
+            self._sync()
         sim = self.sim
         t = sim.t
         x = sim.x

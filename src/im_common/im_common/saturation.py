@@ -58,6 +58,23 @@ class Saturation:
             self.S = float(S)
             self._bS = self.beta ** self.S
 
+    def knots(self):
+        """
+        Return a table curve's knots: (ψ, i_M, slopes, W_M at each knot), lists; None (a law).
+
+        ψ and i_M start at the origin; a slope per segment (the last one holds beyond the last
+        knot); W_M the exact integral up to each knot.
+        """
+        if self.table is None:
+            return None
+        psi, cur = self.table
+        return psi, cur, self._slopes, self._w
+
+    @property
+    def beta_S(self) -> float:
+        """Return β^S of the power law (0.0 for a table)."""
+        return getattr(self, '_bS', 0.0)
+
     def current(self, psi: float) -> float:
         """Return i_M(ψ) [A] for ψ ≥ 0 [Wb]."""
         return psi * self.inv_L(psi)
