@@ -10,6 +10,9 @@ encoder and ADC), run interleaved, best of the repeats:
 - ``graph_*_steps_per_s``: the in-process graph (from the plant's first step, as bench_graph's);
 - ``real_plant_over_ideal``: the smaller of the two ratios (real / ideal steps/s), the figure of
   summary.json (target >= 0.9, issue 46: the real plant costing little more than the ideal);
+- ``offline_real_reference_steps_per_s``: the ROS-free loop on the real plant with the period's
+  pure-Python reference, in the same run, and ``offline_real_compiled_over_reference`` (issue 46:
+  at least 2);
 - ``c_*``, ``numba_*``: the hot kernel (:func:`im_common.real_plant_kernel.period`: the
   eigenvalues, the switching intervals and the closed-form integrals of a period) written in C
   (``benchmarks/c_kernel/period.c``), compiled here with ``cc -O2 -shared -fPIC`` into a
@@ -231,6 +234,23 @@ def _numba_batch():
     return njit(batch)
 
 
+def reference_rate(duration: float, repeats: int) -> dict:
+    """
+    Time the ROS-free loop on the real plant with its pure-Python period (the reference).
+
+    ``offline_real_reference_steps_per_s``: the rate before the period was compiled, measured in
+    the same run as the compiled one (``..._compiled_over_reference``: issue 46's "2x").
+    """
+    from im_common.real_plant import RealPlant
+    use = RealPlant.use_kernel
+    RealPlant.use_kernel = False
+    try:
+        rate = max(offline_steps_per_s(duration, True) for _ in range(repeats))
+    finally:
+        RealPlant.use_kernel = use
+    return {'offline_real_reference_steps_per_s': rate}
+
+
 def run(quick: bool = False) -> dict:
     duration = 0.05 if quick else 0.5
     repeats = 1 if quick else 3
@@ -245,6 +265,9 @@ def run(quick: bool = False) -> dict:
                 key = f'{kind}_{"real" if real else "ideal"}_steps_per_s'
                 best[key] = max(best.get(key, 0.0), fn(duration, real))
     res = dict(best)
+    res.update(reference_rate(duration, repeats))
+    res['offline_real_compiled_over_reference'] = (best['offline_real_steps_per_s']
+                                                   / res['offline_real_reference_steps_per_s'])
     res['offline_real_over_ideal'] = best['offline_real_steps_per_s'] / \
         best['offline_ideal_steps_per_s']
     res['graph_real_over_ideal'] = best['graph_real_steps_per_s'] / best['graph_ideal_steps_per_s']

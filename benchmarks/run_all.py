@@ -50,6 +50,8 @@ RATIOS = {
         'processes', 'four_processes_delay1_serial_over_delay0'),
     # every real-plant block on over the ideal plant (docs/plant.md)
     'real_plant_over_ideal': ('real_plant', 'real_plant_over_ideal'),
+    # the ROS-free loop on the real plant, compiled over its pure-Python reference (same run)
+    'real_plant_compiled_over_reference': ('real_plant', 'offline_real_compiled_over_reference'),
 }
 
 
@@ -77,6 +79,7 @@ TARGETS = {
     'free_run_rate_held_hz_busy': ('>=', 500.0, 'issue 46: delay 0 does not fall'),
     'free_run_missed_fraction_busy': ('<=', 0.01, 'issue 25: 1 kHz beside a busy process'),
     'real_plant_over_ideal': ('>=', 0.9, 'issue 46: the real plant as fast as the ideal'),
+    'real_plant_compiled_over_reference': ('>=', 2.0, 'issue 46: the ROS-free loop 2x'),
 }
 
 

@@ -76,7 +76,8 @@ EXPECTED = {
                 'us_per_step_controller_ready'],
     'real_plant': ['offline_ideal_steps_per_s', 'offline_real_steps_per_s',
                    'graph_ideal_steps_per_s', 'graph_real_steps_per_s', 'offline_real_over_ideal',
-                   'graph_real_over_ideal', 'real_plant_over_ideal'],
+                   'graph_real_over_ideal', 'real_plant_over_ideal',
+                   'offline_real_reference_steps_per_s', 'offline_real_compiled_over_reference'],
     'rclpy': ['ping_pong_events_rt_per_s', 'bare_loop_adapter_on_path_steps_per_s',
               'bare_loop_adapter_off_path_steps_per_s',
               'bare_loop_tagged_adapter_off_path_steps_per_s'],
@@ -96,7 +97,7 @@ SUMMARY = {'graph': ['inprocess_over_bare', 'inprocess_ceiling_over_bare',
                          'four_processes_delay1_over_delay0',
                          'four_processes_delay1_over_delay0_ceiling',
                          'four_processes_delay1_over_ceiling'],
-           'real_plant': ['real_plant_over_ideal']}
+           'real_plant': ['real_plant_over_ideal', 'real_plant_compiled_over_reference']}
 
 
 def test_every_benchmark_is_covered():
