@@ -106,6 +106,12 @@ _LOADS = {
 _SYNCED = ('_prev', '_carry', '_next_carry', '_poles', '_end_poles', '_edges', 'V', 'E_source',
            'E_chopper', 'P_inverter', 'E_switching', 'P_switching', 'ripple', 'temps',
            '_omega_meas', '_end_current', '_currents', '_speed')
+#: where a compiled period's outputs (``RealPlant._fo``, from the kernel's X0 on) hold what the
+#: plant reads: the applied mean voltage, i_s at the end, the state's currents, the measurement,
+#: V_dc and the resistances' temperature factors (real_plant_kernel's layout)
+(_O_VAPP, _O_IEND, _O_ISTATE, _O_MEAS, _O_VDC, _O_FS, _O_FR) = (
+    k - _kernel.X0 for k in (_kernel.V_APP, _kernel.I_END, _kernel.I_STATE, _kernel.MEAS,
+                             _kernel.V_LINK, _kernel.F_S, _kernel.F_R))
 
 
 def _sgn(x: float) -> float:
@@ -441,15 +447,16 @@ class RealPlant:
         self._fo = o
         self._x_fast = x
         sim.x = x
-        sim.v_applied = (o[14], o[15])
+        sim.v_applied = (o[_O_VAPP], o[_O_VAPP + 1])
         sim.k += 1
         mdl = self.model
-        if self.thermal is not None and (o[28] != mdl.fs or o[29] != mdl.fr):
-            mdl.set_temperature_factors(o[28], o[29])
+        f_s, f_r = o[_O_FS], o[_O_FR]
+        if self.thermal is not None and (f_s != mdl.fs or f_r != mdl.fr):
+            mdl.set_temperature_factors(f_s, f_r)
         if status:
             if status & _kernel.TRIP_DC:
                 inv = self.inverter
-                sim.trip = (sim.t, f'DC-link over-voltage: V_dc = {o[27]:.4g} V > V_trip '
+                sim.trip = (sim.t, f'DC-link over-voltage: V_dc = {o[_O_VDC]:.4g} V > V_trip '
                                    f'{inv.trip_voltage:g} V (regeneration the brake chopper '
                                    f'did not absorb)')
             elif sim.trip is None:
@@ -1117,7 +1124,7 @@ class RealPlant:
         x = self.sim.x
         if x is self._x_fast:                   # a compiled period's
             o = self._fo
-            return o[16], o[17]
+            return o[_O_IEND], o[_O_IEND + 1]
         if self._stale:
             self._sync()
         end = self._end_current
@@ -1131,7 +1138,7 @@ class RealPlant:
         x = sim.x
         if x is self._x_fast:                   # a compiled period's
             o = self._fo
-            return o[18], o[19], o[20], o[21]
+            return tuple(o[_O_ISTATE:_O_ISTATE + 4])
         if self._stale:
             self._sync()
         cached = self._currents
@@ -1150,10 +1157,11 @@ class RealPlant:
         x = sim.x
         if x is self._x_fast:                   # a compiled period's, the noise added here
             o = self._fo
+            m = _O_MEAS                         # i_sα, i_sβ, θ, ω, V_dc
             if not sim.noisy:
-                return Measurement(sim.t, o[22], o[23], o[24], o[25], o[26])
-            i_sa, i_sb, omega = sim.add_noise(o[22], o[23], o[25])
-            return Measurement(sim.t, i_sa, i_sb, o[24], omega, o[26])
+                return Measurement(sim.t, o[m], o[m + 1], o[m + 2], o[m + 3], o[m + 4])
+            i_sa, i_sb, omega = sim.add_noise(o[m], o[m + 1], o[m + 3])
+            return Measurement(sim.t, i_sa, i_sb, o[m + 2], omega, o[m + 4])
         if self._stale:
             self._sync()
         i_sa, i_sb = self.stator_currents()
