@@ -307,6 +307,13 @@ def run(args) -> int:
             if codes.get('plant') is None:
                 plant.stop(grace=5.0)
         shutil.rmtree(workdir, ignore_errors=True)
+    _write_result(args, com, s)
+    return 0
+
+
+def _write_result(args, com, s: dict) -> None:
+    """Write the motor ``com`` identified to ``args.out`` (J, b given with the rotor locked)."""
+    plate = s['plate']
     ident = com.result()
     if args.locked_rotor:
         ident.values.update(J=args.J, b=args.b,
@@ -322,7 +329,6 @@ def run(args) -> int:
     _log(f'wrote {args.out}: ' + ', '.join(
         f'{n} = {ident.values[n]:.5g} ± {ident.std.get(n, 0.0):.2g}'
         for n in ('R_s', 'L_sigma', 'L_M', 'R_R', 'J', 'b') if n in ident.values))
-    return 0
 
 
 def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) -> None:

@@ -173,24 +173,16 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
         raise InvalidParameter('record_every', record_every, 'must be >= 1')
     wall0 = time.perf_counter()
     plant, controller, observer = build(sc)
-    if adapter is None and sc.controller in ADAPTATION:    # the run's own adapter, not none
-        from im_adapt.hook import LockstepAdapter      # im_adapt only where a run adapts
-        adapter = LockstepAdapter.from_node_parameters(
-            controller.config.params, sc.node_parameters()['adapter'], record_every=0)
-    if adapter is not None and hasattr(adapter, 'bind'):
-        adapter.bind(plant)     # a bound, not a controller, may read the plant's truth
+    adapter = _run_adapter(sc, plant, controller, adapter)
     cfg_comp = controller.config.compensation
     line = CommandDelay(plant.delay.d)      # the drive's copy of the plant's delay line
     n_steps = int(round(sc.duration / sc.T_s))
     n_rec = n_steps // record_every + 1
     tr = {k: np.empty(n_rec) for k in TRACE_KEYS}
     T_s = sc.T_s
-    estimates = None
     saturated = sc.saturated_model()      # the drive on the magnetizing curve (None: linear)
     x_hat = observer.state
-    if saturated is not None:               # from the start: the model at the initial flux
-        estimates = saturated.estimates(x_hat[2], x_hat[3])
-        observer.set_estimates(**estimates)
+    estimates = _initial_estimates(saturated, observer, x_hat)
     rec = 0
     report_every = max(1, n_steps // 20)
     label = f'{sc.task}/{sc.strategy} T_s={sc.T_s:g}'
@@ -231,23 +223,55 @@ def simulate(scenario: Scenario, progress: bool = False, record_every: int = 1,
             estimates = saturated.estimates(x_hat[2], x_hat[3])
             observer.set_estimates(**estimates)
         if adapter is not None:
-            # the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out
-            # with compensation, the voltage the motor got (the adapter node's too)
-            v_m = v_act if cfg_comp is None else \
-                cfg_comp.motor_voltage(*v_act, m.i_alpha, m.i_beta)
-            estimates = adapter.step(T_s, m.t, v_m[0], v_m[1], m, x_hat_k)
-            if estimates:
-                observer.set_estimates(**estimate_arguments(estimates))
+            estimates = _adapter_step(adapter, cfg_comp, observer, T_s, m, v_act, x_hat_k)
         if progress and k % report_every == 0:
             status_line(f'{label}: {100.0 * k / n_steps:5.1f} %')
     if progress:
         status_line(f'{label}: done in {time.perf_counter() - wall0:.1f} s', done=True)
-    trace = {k: v[:rec] for k, v in tr.items()}
+    return _result(sc, plant, {k: v[:rec] for k, v in tr.items()}, n_steps,
+                   [snaps[k] for k in snap_steps] if snap_steps else None,
+                   (t_ctl, t_obs) if timing else None, wall0)
+
+
+def _run_adapter(sc: Scenario, plant, controller, adapter):
+    """Return the run's adapter (``adapter``, else the run file's own), bound to ``plant``."""
+    if adapter is None and sc.controller in ADAPTATION:    # the run's own adapter, not none
+        from im_adapt.hook import LockstepAdapter      # im_adapt only where a run adapts
+        adapter = LockstepAdapter.from_node_parameters(
+            controller.config.params, sc.node_parameters()['adapter'], record_every=0)
+    if adapter is not None and hasattr(adapter, 'bind'):
+        adapter.bind(plant)     # a bound, not a controller, may read the plant's truth
+    return adapter
+
+
+def _initial_estimates(saturated, observer, x_hat):
+    """Return the curve's models at the initial flux, set in ``observer`` (None: linear)."""
+    if saturated is None:
+        return None
+    estimates = saturated.estimates(x_hat[2], x_hat[3])   # from the start: the initial flux
+    observer.set_estimates(**estimates)
+    return estimates
+
+
+def _adapter_step(adapter, cfg_comp, observer, T_s: float, m, v_act, x_hat_k):
+    """Return the adapter node's step k: V_k, i_k, ω_k and the observer's x̂_k in, p̂_k+1 out."""
+    # with compensation, the voltage the motor got (the adapter node's too)
+    v_m = v_act if cfg_comp is None else \
+        cfg_comp.motor_voltage(*v_act, m.i_alpha, m.i_beta)
+    estimates = adapter.step(T_s, m.t, v_m[0], v_m[1], m, x_hat_k)
+    if estimates:
+        observer.set_estimates(**estimate_arguments(estimates))
+    return estimates
+
+
+def _result(sc: Scenario, plant, trace: dict, n_steps: int, truth_at, times,
+            wall0: float) -> RunResult:
+    """Return the run's result: ``truth_at`` and the loop's ``times`` (None: none), wall time."""
     summary = _summary(sc, plant, trace, n_steps)
-    if snap_steps:
-        summary['truth_at'] = [snaps[k] for k in snap_steps]
-    if timing:
-        summary['us_per_compute'] = 1e6 * t_ctl / (n_steps + 1)
-        summary['us_per_observer_step'] = 1e6 * t_obs / max(n_steps, 1)
+    if truth_at is not None:
+        summary['truth_at'] = truth_at
+    if times is not None:
+        summary['us_per_compute'] = 1e6 * times[0] / (n_steps + 1)
+        summary['us_per_observer_step'] = 1e6 * times[1] / max(n_steps, 1)
     summary['wall_s'] = time.perf_counter() - wall0
     return RunResult(sc, summary, trace)

@@ -43,6 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
                          'noise.current=0.05); repeatable')
     ap.add_argument('--rerun', metavar='MCAP',
                     help='run again the run file a bag carries (its "run" record)')
+    _add_run_keys(ap)
+    _add_output_options(ap)
+    return ap
+
+
+def _add_run_keys(ap: argparse.ArgumentParser) -> None:
+    """Add the options that override a run file's keys, from ``--task`` to ``--params-file``."""
     ap.add_argument('--task', choices=TASKS, default=None, help='default: position')
     ap.add_argument('--strategy', choices=STRATEGIES, default=None, help='default: min_energy')
     ap.add_argument('--controller', choices=CONTROLLERS, default=None,
@@ -92,6 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "injection gain): the run file's gains")
     ap.add_argument('--params-file', metavar='YAML',
                     help="extra node parameters to merge (the run file's parameters)")
+
+
+def _add_output_options(ap: argparse.ArgumentParser) -> None:
+    """Add the options of what a run writes and how it runs, from ``--record`` on."""
     ap.add_argument('--record', metavar='MCAP', help='record every topic to this MCAP file')
     ap.add_argument('--force', action='store_true', help='overwrite an existing recording')
     ap.add_argument('--log-time', choices=('wall', 'simulated'), default='wall',
@@ -118,7 +129,6 @@ def build_parser() -> argparse.ArgumentParser:
                     help='ROS domain (default: $ROS_DOMAIN_ID, 0 when unset, as every ROS 2 '
                          'tool)')
     ap.add_argument('--no-progress', action='store_true')
-    return ap
 
 
 def merge_yaml(parameters: dict, path: str) -> dict:
@@ -534,21 +544,8 @@ def main(argv=None) -> int:
         args.live_port = DEFAULT_PORT if args.live_port is None else args.live_port
     out = args.summary or (os.path.splitext(args.record)[0] + '.json' if args.record
                            else os.path.join('bags', f'{args.task}_{args.strategy}.json'))
-    inputs = [args.gains, args.params_file, args.run, args.rerun]
     try:
-        if args.record:
-            if _same(args.record, out):
-                raise FileExistsError(f'{out}: --record and --summary name the same file; '
-                                      'choose two different files')
-            check_output(args.record, inputs, args.force, what='--record file')
-            # heavy: im_recording imports the ROS message packages
-            from im_recording.bag import partial_path
-            check_output(partial_path(args.record), inputs, args.force,
-                         what='interrupted recording (recover it, or --force)')
-        check_output(out, inputs + [args.record], args.force, what='--summary file')
-        if args.report:
-            check_output(os.path.join(args.report, 'report.md'), inputs + [args.record],
-                         args.force, what='report')
+        _check_outputs(args, out)
     except OSError as exc:
         return cli_error('scenario', exc)
     if args.processes:
@@ -583,6 +580,24 @@ def main(argv=None) -> int:
     if args.report and args.record:
         return _write_report(args.record, args.report)
     return 0
+
+
+def _check_outputs(args, out: str) -> None:
+    """Refuse (OSError) a recording, summary ``out`` or report that would overwrite a file."""
+    # heavy: im_recording imports the ROS message packages
+    from im_recording.bag import check_output, partial_path
+    inputs = [args.gains, args.params_file, args.run, args.rerun]
+    if args.record:
+        if _same(args.record, out):
+            raise FileExistsError(f'{out}: --record and --summary name the same file; '
+                                  'choose two different files')
+        check_output(args.record, inputs, args.force, what='--record file')
+        check_output(partial_path(args.record), inputs, args.force,
+                     what='interrupted recording (recover it, or --force)')
+    check_output(out, inputs + [args.record], args.force, what='--summary file')
+    if args.report:
+        check_output(os.path.join(args.report, 'report.md'), inputs + [args.record],
+                     args.force, what='report')
 
 
 def _os_line(exc: OSError, path: str) -> str:
@@ -630,8 +645,6 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     # heavy: im_common.lockstep imports rclpy, im_recording the ROS message packages
     from im_common.lockstep import ConfigurationError
     from im_recording.bag import partial_path
-    from im_recording.report import figures_of_merit
-    from im_recording.run import load_run
     procs = graph_processes(scenario=sc, mode=parameters['plant'].get('mode', 'lockstep'),
                             record=args.record, extra=parameters, live_port=args.live_port,
                             log_time=args.log_time,
@@ -668,36 +681,7 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
         if 'recorder' in lost and part not in failure and os.path.exists(part):
             failure += (f'; what the recorder wrote up to then is in {part}: '
                         f'`ros2 run im_recording recover {part}`')
-    if os.path.exists(args.record):
-        run = load_run(args.record)
-        fig = figures_of_merit(run)
-        summary.update(fig)
-        # heavy: im_recording imports the ROS message packages
-        from im_recording.report import refusals, run_status
-        # as the in-process graph counts them, per node and topic, and who sent them
-        summary.update({k: v for k, v in refusals(run).items() if v})
-        status = run_status(run, fig)
-        if summary['ok'] and status['partial'] and not stop.requested:
-            # every process ended cleanly, but before the run's end: a node stopped it (a Ctrl-C
-            # to one of them) — the recording says so, and so do the summary and the exit code
-            summary['ok'] = False
-            failure = 'the run stopped early: ' + '; '.join(status['notes'])
-            summary['failures'] = {'run': failure}
-    else:
-        # heavy: im_recording imports the ROS message packages
-        from im_recording.bag import BagError
-        if partial_path(args.record).exists():     # the recorder failed: recover reads it
-            summary['partial_recording'] = str(partial_path(args.record))
-            # heavy: im_recording imports the ROS message packages
-            from im_recording.recover import load_salvaged
-            try:            # the figures of every step that reached the disk
-                run, _ = load_salvaged(partial_path(args.record))
-                summary.update(figures_of_merit(run))
-                # heavy: im_recording imports the ROS message packages
-                from im_recording.report import refusals
-                summary.update({k: v for k, v in refusals(run).items() if v})
-            except (BagError, OSError) as exc:
-                summary['partial_figures'] = f'none: {exc}'
+    failure = _recorded_figures(args.record, summary, stop.requested, failure)
     if not summary['ok']:
         summary['partial'] = True       # the figures are those of the steps that ran
     print_summary(summary)
@@ -718,6 +702,42 @@ def _run_processes(args, sc, parameters: dict, out: str) -> int:
     if args.report:
         return _write_report(args.record, args.report)
     return 0
+
+
+def _recorded_figures(record: str, summary: dict, stopped, failure):
+    """
+    Add the figures of the recording ``record`` (else of its partial file) to ``summary``.
+
+    Returns ``failure``, or the early stop the recording shows when every process ended
+    cleanly (``stopped``: no stop signal).
+    """
+    # heavy: im_recording imports the ROS message packages
+    from im_recording.bag import BagError, partial_path
+    from im_recording.recover import load_salvaged
+    from im_recording.report import figures_of_merit, refusals, run_status
+    from im_recording.run import load_run
+    if os.path.exists(record):
+        run = load_run(record)
+        fig = figures_of_merit(run)
+        summary.update(fig)
+        # as the in-process graph counts them, per node and topic, and who sent them
+        summary.update({k: v for k, v in refusals(run).items() if v})
+        status = run_status(run, fig)
+        if summary['ok'] and status['partial'] and not stopped:
+            # every process ended cleanly, but before the run's end: a node stopped it (a Ctrl-C
+            # to one of them) — the recording says so, and so do the summary and the exit code
+            summary['ok'] = False
+            failure = 'the run stopped early: ' + '; '.join(status['notes'])
+            summary['failures'] = {'run': failure}
+    elif partial_path(record).exists():     # the recorder failed: recover reads it
+        summary['partial_recording'] = str(partial_path(record))
+        try:            # the figures of every step that reached the disk
+            run, _ = load_salvaged(partial_path(record))
+            summary.update(figures_of_merit(run))
+            summary.update({k: v for k, v in refusals(run).items() if v})
+        except (BagError, OSError) as exc:
+            summary['partial_figures'] = f'none: {exc}'
+    return failure
 
 
 def _same(a: str, b: str) -> bool:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import json
 import os
 import stat
 import struct
@@ -225,7 +226,6 @@ def status_payload(msg) -> bytes:
     That is its stamp and every field of every status, encoded canonically (rclpy's serialization
     leaves padding bytes undefined, so it cannot be signed).
     """
-    import json
     st = msg.header.stamp
     return json.dumps([st.sec, st.nanosec, [
         [int.from_bytes(s.level, 'little') if isinstance(s.level, bytes) else int(s.level),

@@ -20,6 +20,15 @@ import importlib
 import struct
 from typing import Any, Callable, Dict, Tuple
 
+import numpy as np
+
+try:    # the fast paths' message classes (module level: no deferral)
+    from geometry_msgs.msg import Vector3Stamped
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+except ImportError:  # pragma: no cover - message packages are exec_depends
+    Vector3Stamped = Clock = JointState = None
+
 ENCAPSULATION = b'\x00\x01\x00\x00'   # CDR_LE, no options
 #: nanoseconds per second: builtin_interfaces/Time splits a stamp into sec and nanosec by it
 #: (:mod:`im_common.conversions` re-exports it: stamps are that module's subject)
@@ -67,32 +76,9 @@ def _field_codec(slot) -> Tuple[Callable, Callable]:
     kind = type(slot).__name__
     if kind == 'BasicType':
         fmt, size = _BASIC[slot.typename]
-        st = struct.Struct('<' + fmt)
-
-        def enc(v, out, st=st, size=size):
-            out += bytes(_pad(len(out) - 4, size))
-            out += st.pack(v)
-
-        def dec(buf, pos, st=st, size=size):
-            pos += _pad(pos - 4, size)
-            return st.unpack_from(buf, pos)[0], pos + size
-        return enc, dec
+        return _basic_codec(fmt, size)
     if kind in ('UnboundedString', 'BoundedString'):
-        def enc(v, out):
-            b = v.encode('utf-8')
-            out += bytes(_pad(len(out) - 4, 4))
-            out += _U32.pack(len(b) + 1)
-            out += b
-            out += b'\x00'
-
-        def dec(buf, pos):
-            pos += _pad(pos - 4, 4)
-            (n,) = _U32.unpack_from(buf, pos)
-            pos += 4
-            if n == 0 or pos + n > len(buf):
-                raise CdrError('string runs past the end of the payload')
-            return bytes(buf[pos:pos + n - 1]).decode('utf-8'), pos + n
-        return enc, dec
+        return _string_codec()
     if kind == 'NamespacedType':
         cls = message_class('/'.join(slot.namespaces + [slot.name]))
         return _message_codec(cls)
@@ -102,61 +88,102 @@ def _field_codec(slot) -> Tuple[Callable, Callable]:
         count = slot.size if fixed else None
         if type(vt).__name__ == 'BasicType' and vt.typename in _BASIC:
             fmt, size = _BASIC[vt.typename]
-
-            def enc(v, out, fmt=fmt, size=size):
-                n = len(v)
-                if not fixed:
-                    out += bytes(_pad(len(out) - 4, 4))
-                    out += _U32.pack(n)
-                elif n != count:
-                    raise CdrError(f'array needs {count} elements, got {n}')
-                if n:
-                    out += bytes(_pad(len(out) - 4, size))
-                    out += struct.pack(f'<{n}{fmt}', *v)
-
-            def dec(buf, pos, fmt=fmt, size=size):
-                if fixed:
-                    n = count
-                else:
-                    pos += _pad(pos - 4, 4)
-                    (n,) = _U32.unpack_from(buf, pos)
-                    pos += 4
-                if n:
-                    pos += _pad(pos - 4, size)
-                    if pos + n * size > len(buf):
-                        raise CdrError('sequence runs past the end of the payload')
-                    vals = struct.unpack_from(f'<{n}{fmt}', buf, pos)
-                    pos += n * size
-                else:
-                    vals = ()
-                return list(vals), pos
-            return enc, dec
-        e_enc, e_dec = _field_codec(vt)
-
-        def enc(v, out):
-            n = len(v)
-            if not fixed:
-                out += bytes(_pad(len(out) - 4, 4))
-                out += _U32.pack(n)
-            for item in v:
-                e_enc(item, out)
-
-        def dec(buf, pos):
-            if fixed:
-                n = count
-            else:
-                pos += _pad(pos - 4, 4)
-                (n,) = _U32.unpack_from(buf, pos)
-                pos += 4
-                if n > len(buf):
-                    raise CdrError('sequence length larger than the payload')
-            vals = []
-            for _ in range(n):
-                x, pos = e_dec(buf, pos)
-                vals.append(x)
-            return vals, pos
-        return enc, dec
+            return _basic_sequence_codec(fixed, count, fmt, size)
+        return _sequence_codec(fixed, count, *_field_codec(vt))
     raise NotImplementedError(f'CDR codec: unsupported field type {kind}')
+
+
+def _basic_codec(fmt: str, size: int) -> Tuple[Callable, Callable]:
+    """Return the codec of one primitive of struct format ``fmt``, ``size`` bytes."""
+    st = struct.Struct('<' + fmt)
+
+    def enc(v, out, st=st, size=size):
+        out += bytes(_pad(len(out) - 4, size))
+        out += st.pack(v)
+
+    def dec(buf, pos, st=st, size=size):
+        pos += _pad(pos - 4, size)
+        return st.unpack_from(buf, pos)[0], pos + size
+    return enc, dec
+
+
+def _string_codec() -> Tuple[Callable, Callable]:
+    """Return the codec of a string (length with its NUL, UTF-8 bytes, NUL)."""
+    def enc(v, out):
+        b = v.encode('utf-8')
+        out += bytes(_pad(len(out) - 4, 4))
+        out += _U32.pack(len(b) + 1)
+        out += b
+        out += b'\x00'
+
+    def dec(buf, pos):
+        pos += _pad(pos - 4, 4)
+        (n,) = _U32.unpack_from(buf, pos)
+        pos += 4
+        if n == 0 or pos + n > len(buf):
+            raise CdrError('string runs past the end of the payload')
+        return bytes(buf[pos:pos + n - 1]).decode('utf-8'), pos + n
+    return enc, dec
+
+
+def _basic_sequence_codec(fixed: bool, count, fmt: str, size: int) -> Tuple[Callable, Callable]:
+    """Return the codec of an array (``fixed``, ``count`` long) or a sequence of primitives."""
+    def enc(v, out, fmt=fmt, size=size):
+        n = len(v)
+        if not fixed:
+            out += bytes(_pad(len(out) - 4, 4))
+            out += _U32.pack(n)
+        elif n != count:
+            raise CdrError(f'array needs {count} elements, got {n}')
+        if n:
+            out += bytes(_pad(len(out) - 4, size))
+            out += struct.pack(f'<{n}{fmt}', *v)
+
+    def dec(buf, pos, fmt=fmt, size=size):
+        if fixed:
+            n = count
+        else:
+            pos += _pad(pos - 4, 4)
+            (n,) = _U32.unpack_from(buf, pos)
+            pos += 4
+        if n:
+            pos += _pad(pos - 4, size)
+            if pos + n * size > len(buf):
+                raise CdrError('sequence runs past the end of the payload')
+            vals = struct.unpack_from(f'<{n}{fmt}', buf, pos)
+            pos += n * size
+        else:
+            vals = ()
+        return list(vals), pos
+    return enc, dec
+
+
+def _sequence_codec(fixed: bool, count, e_enc: Callable,
+                    e_dec: Callable) -> Tuple[Callable, Callable]:
+    """Return the codec of an array (``fixed``, ``count`` long) or a sequence of any element."""
+    def enc(v, out):
+        n = len(v)
+        if not fixed:
+            out += bytes(_pad(len(out) - 4, 4))
+            out += _U32.pack(n)
+        for item in v:
+            e_enc(item, out)
+
+    def dec(buf, pos):
+        if fixed:
+            n = count
+        else:
+            pos += _pad(pos - 4, 4)
+            (n,) = _U32.unpack_from(buf, pos)
+            pos += 4
+            if n > len(buf):
+                raise CdrError('sequence length larger than the payload')
+        vals = []
+        for _ in range(n):
+            x, pos = e_dec(buf, pos)
+            vals.append(x)
+        return vals, pos
+    return enc, dec
 
 
 _CODECS: Dict[type, Tuple[Callable, Callable]] = {}
@@ -362,11 +389,7 @@ _ENCODERS: Dict[type, Callable[[Any], bytes]] = {}
 
 
 def _init_fast():
-    try:
-        from geometry_msgs.msg import Vector3Stamped
-        from rosgraph_msgs.msg import Clock
-        from sensor_msgs.msg import JointState
-    except ImportError:  # pragma: no cover - message packages are exec_depends
+    if Vector3Stamped is None:  # pragma: no cover - message packages are exec_depends
         return
     _ENCODERS[Vector3Stamped] = _enc_v3
     _ENCODERS[JointState] = _enc_js
@@ -479,7 +502,6 @@ def header_stamp_ns(data) -> int:
 # ------------------------------------------------------------------------------------------
 def _rows(payloads):
     """Return the payloads as rows of one (n, length) byte array; None if their lengths differ."""
-    import numpy as np
     if not payloads or len(set(map(len, payloads))) != 1:
         return None
     return np.frombuffer(b''.join(payloads), np.uint8).reshape(len(payloads), -1)
@@ -491,7 +513,6 @@ def _same_bytes(rows, a: int, b: int) -> bool:
 
 
 def _stamps_ns(a):
-    import numpy as np
     return a['sec'].astype(np.int64) * NS_PER_S + a['nsec'].astype(np.int64)
 
 
@@ -505,7 +526,6 @@ def vector3_stamped_batch(payloads):
     ``benchmarks/bench_bag.py``: ``us_per_msg_decode_v3_batch`` against
     ``us_per_msg_decode_v3_each``). None when the payloads differ in layout (then decode each).
     """
-    import numpy as np
     rows = _rows(payloads)
     if rows is None or rows.shape[1] < V3_EMPTY_SIZE or not _same_bytes(rows, 12, 16):
         return None
@@ -525,7 +545,6 @@ def joint_state_batch(payloads):
     reads them all, the same doubles :func:`decode_joint_state` reads one by one. A sequence
     that is empty is None; the others are (payloads, count) arrays.
     """
-    import numpy as np
     rows = _rows(payloads)
     if rows is None:
         return None

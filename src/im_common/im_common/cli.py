@@ -16,13 +16,14 @@ ROS-free at import time (rclpy is imported inside :func:`strip_ros_args`).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Callable, List, Optional, Sequence
 
 
 def strip_ros_args(argv: Sequence[str], prog: str = 'prog') -> List[str]:
     """``argv`` (without the program name) with the ROS arguments removed."""
-    from rclpy.utilities import remove_ros_args
+    from rclpy.utilities import remove_ros_args  # heavy: rclpy, only for ROS arguments
     return list(remove_ros_args(args=[prog] + list(argv))[1:])
 
 
@@ -97,7 +98,6 @@ def ros_domain_id(explicit: Optional[int] = None) -> int:
     ``explicit`` (a ``--domain-id``) wins, else ``ROS_DOMAIN_ID`` from the environment, else 0.
     A value the middleware cannot open is one ValueError line naming where it came from.
     """
-    import os
     if explicit is not None:
         where, text = f'--domain-id {explicit}', str(explicit)
     else:

@@ -8,10 +8,14 @@ decoded with ``struct`` (:mod:`im_common.cdr`), which keeps the hot path short.
 """
 from __future__ import annotations
 
+import struct
 from typing import Iterable, Sequence
 
+from .auth import Signer
 from .cdr import (decode_joint_state, decode_vector3_stamped, joint_state_packer, NS_PER_S,
                   pack_clock, pack_joint_state, pack_vector3_stamped)
+from .params import estimate_arguments
+from .topics import ESTIMATE_NAMES
 
 # NS_PER_S (imported above) is defined with the wire format, builtin_interfaces/Time's nanosec;
 # every module takes it from here.
@@ -145,8 +149,6 @@ def _shaft_layout():
     length field, where the names start, the bytes from there to the values, and the offsets of the
     two doubles — found by packing a sample, so it follows cdr.pack_joint_state.
     """
-    import struct
-    from .auth import Signer
     a = pack_joint_state(0, 0, ('rotor',), (1.5,), (2.5,), (), Signer.frame(''))
     pos_off = a.index(struct.pack('<d', 1.5))
     vel_off = a.index(struct.pack('<d', 2.5))
@@ -183,8 +185,6 @@ def estimates_in(data: bytes):
     message carries L_sigma, with 'R_s' when it carries that too (a sensorless adapter's;
     :func:`im_common.params.estimate_arguments`). The first four names are required.
     """
-    from .params import estimate_arguments
-    from .topics import ESTIMATE_NAMES
     sec, nsec, names, pos, _, _ = decode_joint_state(data)
     wanted = ESTIMATE_NAMES[:4] + tuple(n for n in ESTIMATE_NAMES[4:] if n in names)
     return sec * NS_PER_S + nsec, estimate_arguments(named_values(names, pos, wanted))

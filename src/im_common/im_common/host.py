@@ -12,13 +12,23 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
+import os
+import random
 import signal
 import sys
+import threading
+import time
 from typing import Callable, List, Optional
 
 import rclpy
+from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.logging import get_logger
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
 from . import realtime
 from .cli import error as cli_error
@@ -27,6 +37,7 @@ from .lockstep_parts import unknown_parameter
 from .node_params import ConfigurationError
 from .run_protocol import STOPPED, STOPPING, WARNING
 from .stopping import StopSignals
+from .yamlio import load_parameters_file, ParametersFileError
 
 #: On exit, how long a node waits at most until its readers acknowledged its last samples [s].
 STOP_FLUSH_S = 3.0
@@ -74,8 +85,6 @@ def yielding_to_middleware():
     may not lower its nice value again), filled on entering and on leaving, for the caller to
     report.
     """
-    import os
-    import threading
     refused: List[str] = []
     saved = None
     me = threading.get_native_id()
@@ -135,7 +144,6 @@ def end_process(node, executor) -> None:
         if node is not None:
             node.destroy_node()     # the process's last node: its participant goes with it
         rclpy.try_shutdown()
-    from rclpy.logging import get_logger
     for line in refused:            # not a fault (guard_exit bounds the end), but never silent
         get_logger(name).debug(f'teardown: refused {line}')
 
@@ -256,7 +264,6 @@ def request_stop(node, signame: str) -> None:
 
 def flush(node, timeout: float = 2.0) -> None:
     """Wait (bounded) until every reliable publisher's data of ``node`` has been acknowledged."""
-    import time
     deadline = time.monotonic() + timeout
     for pub in list(node.publishers):
         left = deadline - time.monotonic()
@@ -270,7 +277,6 @@ def flush(node, timeout: float = 2.0) -> None:
 
 def make_executor(context=None):
     """Return an EventsExecutor (≈5× the SingleThreadedExecutor's message rate here)."""
-    from rclpy.experimental import EventsExecutor
     return EventsExecutor(context=context)
 
 
@@ -290,7 +296,6 @@ def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] =
     at the slice's end. After a stop signal every node is asked to stop and spun a little longer
     so that it can say so.
     """
-    from rclpy.task import Future
     ended = [Future()]
 
     def hook(chained):
@@ -316,7 +321,6 @@ def spin_until_done(nodes, executor, context=None, stop: Optional[StopSignals] =
 
 
 def _rcl_error():
-    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
     return _rclpy.RCLError
 
 
@@ -327,7 +331,6 @@ def init_args_error(args: List[str]) -> Optional[str]:
     That is before ``rclpy.init`` turns it into a traceback; None when the files look loadable. The
     file is read by :func:`im_common.yamlio.load_parameters_file`, as on every other path.
     """
-    from im_common.yamlio import ParametersFileError, load_parameters_file
     for i, a in enumerate(args):
         if a == '--params-file':
             if i + 1 >= len(args):
@@ -347,7 +350,6 @@ def node_main(factory: Callable, argv=None) -> int:
     configuration. It is a process's main (``sys.exit(node_main(...))``): once the run is over the
     process exits within :data:`EXIT_GRACE_S` or is ended with its stacks (:func:`guard_exit`).
     """
-    from rclpy.signals import SignalHandlerOptions
     args = list(sys.argv if argv is None else argv)
     user_args = args[1:args.index('--ros-args')] if '--ros-args' in args else args[1:]
     if '-h' in user_args or '--help' in user_args:
@@ -424,14 +426,11 @@ PRIVATE_DOMAINS = (150, 229)
 
 def private_domain() -> int:
     """Return a random domain of :data:`PRIVATE_DOMAINS`."""
-    import random
     return random.randint(*PRIVATE_DOMAINS)
 
 
 def print_node_help(factory, prog: str) -> int:
     """``--help``: build the node in a private context and print its parameters."""
-    import os
-    from rclpy.context import Context
     ctx = Context()
     rclpy.init(args=[prog], context=ctx, domain_id=private_domain())
     try:

@@ -12,6 +12,7 @@ LockstepNode` asks the ROS graph (publishers of a topic, their count) and hands 
 """
 from __future__ import annotations
 
+import difflib
 import struct
 import time
 from typing import Callable, Dict, Iterable, List, Optional
@@ -197,7 +198,6 @@ def unknown_parameter(node: str, given: Iterable[str], declared: Iterable[str]) 
 
     It names the nearest valid one: a misspelt gain must not silently fall back to its default.
     """
-    import difflib
     declared = sorted(declared)
     unknown = sorted(n for n in given if n not in declared and not n.startswith('qos_overrides.'))
     if not unknown:

@@ -29,6 +29,8 @@ from typing import Mapping, Optional
 
 import numpy as np
 
+from .plant_sim import energy_summary
+
 
 def _finite(x) -> np.ndarray:
     x = np.asarray(x, dtype=float)
@@ -165,7 +167,6 @@ def load_step_figures(trace: Mapping[str, np.ndarray], t_step: float,
 
 def energy_figures(truth_final: Mapping[str, float]) -> dict:
     """Energy books at the end of a run (J) from a plant ``truth()`` dict."""
-    from .plant_sim import energy_summary
     return energy_summary(truth_final)
 
 

@@ -9,9 +9,14 @@ from __future__ import annotations
 
 from typing import Optional
 
-from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MOTOR_RANGES, MotorParams, THESIS_MOTOR,
-                     warn_motor_defaults)
-from .validation import choice_error
+import yaml
+
+from .compensation import compensation_from_parameters, DEFAULT_CURRENT_BAND
+from .delay import CommandDelay, MAX_DELAY
+from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MOTOR_RANGES, MotorParams, parameter_error,
+                     THESIS_MOTOR, warn_motor_defaults)
+from .saturation import saturated_model_from_text
+from .validation import choice_error, InvalidParameter, literal_choices, parse_block
 
 _MOTOR_DOC = {
     'R_s': 'stator resistance [ohm]',
@@ -74,7 +79,6 @@ def declare_compensation(node):
     The controller, observer and adapter declare the same three (docs/compensation.md); returns
     the :class:`~im_common.compensation.InverterErrorModel`, or None when v_dead = r_on = 0.
     """
-    from .compensation import compensation_from_parameters, DEFAULT_CURRENT_BAND
     doc = {'comp_v_dead': ('inverter error per phase: dead time t_d f_sw V_dc + device drop '
                            'v_on [V] (0 with comp_r_on 0: no compensation)', 0.0, 0.0, 1e4),
            'comp_r_on': ("inverter error per phase: the devices' on-state resistance [ohm]",
@@ -95,8 +99,6 @@ def declare_saturation_model(node, params):
     a motor file's form). Returns the :class:`~im_common.saturation.SaturatedModel` of
     ``params`` on it, or None; a bad block is one error naming the parameter.
     """
-    import yaml
-    from .saturation import saturated_model_from_text
     text = node.param('saturation_model', '', "the drive's magnetizing curve, a saturation block "
                       "as text ('': the linear model; docs/plant.md section 2)")
     return saturated_model_from_text(text, params, 'saturation_model', yaml.safe_load)
@@ -137,7 +139,6 @@ def _block_fields(model_cls):
     The text is the field's description, what each sentinel stands for and the field's bounds
     (gt/ge/lt/le); lo, hi the parameter's range (the metadata's; None: none).
     """
-    from .validation import literal_choices
     signs = {'gt': '>', 'ge': '>=', 'lt': '<', 'le': '<='}
     for name, info in model_cls.model_fields.items():
         spec = _parameter_spec(info)
@@ -184,7 +185,6 @@ def model_arguments(model_cls, values: dict) -> dict:
     (:class:`~im_common.validation.InvalidParameter` naming it: it would never be read as the
     sentinel quietly). Names that are no field of the model pass as they are.
     """
-    from .validation import InvalidParameter
     out = dict(values)
     for name, value in values.items():
         info = model_cls.model_fields.get(name)
@@ -223,7 +223,6 @@ def declare_block(node, model_cls, prefix: str, description: str):
     value equal to the field's default is that default (as if left out). Disabled, a field set
     to anything else is refused in one line: it would silently act on nothing.
     """
-    from .validation import InvalidParameter, parse_block
     enabled = node.param(f'{prefix}.enabled', False, description)
     spec = {}
     for name, default, choices, text, _, _ in _block_fields(model_cls):
@@ -268,7 +267,6 @@ def declare_delay(node):
     t_k−d, straight from its step gate (the lag returned: d; else 0 and the node pushes the command
     of step k through the line itself).
     """
-    from .delay import CommandDelay, MAX_DELAY
     d = node.param('delay', 0, 'computational delay [control periods] of the plant (the run '
                    "file's inverter.delay): the command of step k acts over step k + delay, and "
                    'this node integrates that voltage', 0, MAX_DELAY)
@@ -319,6 +317,7 @@ class ConfigurationError(ValueError):
 def describe(description: str, lo=None, hi=None, read_only: bool = False, integer: bool = False,
              step=None):
     """Return the ``ParameterDescriptor`` of a parameter (its range, if ``lo`` and ``hi``)."""
+    # heavy: rcl_interfaces (ROS messages), only in a node (run files load this module)
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
     d = ParameterDescriptor(description=description, read_only=read_only)
     if lo is not None and hi is not None:
@@ -339,7 +338,6 @@ def declare(node, name: str, default, description: str, lo=None, hi=None,
     A value given of the wrong type, out of range or not one of ``choices`` is refused with one
     :class:`ConfigurationError` line naming node and parameter (docs/architecture.md).
     """
-    from .params import parameter_error
     integer = isinstance(default, int) and not isinstance(default, bool)
     desc = describe(description + (f' (one of: {", ".join(choices)})' if choices else ''),
                     lo, hi, read_only=read_only, integer=integer)
@@ -376,7 +374,7 @@ def _live_checks(node) -> dict:
 
 
 def _accepted():
-    from rcl_interfaces.msg import SetParametersResult
+    from rcl_interfaces.msg import SetParametersResult  # heavy: ROS messages, as above
     return SetParametersResult(successful=True)
 
 
@@ -387,8 +385,7 @@ def live_refusal(node, parameters):
     None when every value has its declared type, range and choices. rclpy calls the callback
     registered last first: a node's own set-parameters callback calls this before its checks.
     """
-    from rcl_interfaces.msg import SetParametersResult
-    from .params import parameter_error
+    from rcl_interfaces.msg import SetParametersResult  # heavy: ROS messages, as above
     checks = getattr(node, '_live_parameter_checks', {})
     for prm in parameters:
         if prm.name not in checks:

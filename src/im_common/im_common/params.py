@@ -53,9 +53,18 @@ measurements only, R_s, σL_s, L_M and R_R are identifiable; R_r and θ separate
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+import difflib
+import logging
 import math
+import os
+import re
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
+import yaml
+
+from . import yamlio
+from .saturation import saturation_from_dict
+from .thermal import thermal_from_dict
 from .validation import check_real, InvalidParameter
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
@@ -477,7 +486,6 @@ def warn_motor_defaults(source: str, given, motor: MotorParams, log=None) -> lis
     ``log`` (a node logger's ``warning``) or the ``im_common.params`` logger. Returns the lines
     warned now (a source already warned of is not warned of again).
     """
-    import logging
     out = []
     for line in motor_defaults(given, motor):
         text = f'{source}: {line}'
@@ -506,7 +514,6 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
     Every error is one line naming ``source`` and the field (missing, unknown with the nearest
     valid name, invalid).
     """
-    import difflib
     if not isinstance(values, Mapping):
         raise InvalidParameter(f'{source}', values, 'must be a mapping of motor parameters')
     for key in values:
@@ -553,9 +560,6 @@ def motor_blocks(values: Mapping, source: str = 'motor') -> Dict[str, dict]:
     beta: 1.3, S: 7.0}'``); an empty string is no block. Errors are one line naming the source
     and the key.
     """
-    import yaml
-    from .saturation import saturation_from_dict
-    from .thermal import thermal_from_dict
     out = {}
     for key in MOTOR_BLOCKS:
         spec = values.get(key)
@@ -597,11 +601,9 @@ def read_yaml_file(path: str, what: str):
     The one reader's line (the file, and for a syntax error its line and column) comes as one
     :class:`InvalidParameter` naming ``what`` (e.g. 'motor file'), as this module's callers take.
     """
-    from .yamlio import read_yaml_file as read
-
     def error(message):
         return InvalidParameter(what, path, message)
-    return read(path, what, error)
+    return yamlio.read_yaml_file(path, what, error)
 
 
 def load_motor_file(path: str) -> MotorParams:
@@ -625,8 +627,7 @@ def load_motor_file(path: str) -> MotorParams:
 
 def shipped_motors_dir() -> str:
     """Directory of the shipped motor files (installed share, else the source tree)."""
-    import os
-    try:
+    try:    # heavy: ament_index_python, only for the installed share
         from ament_index_python.packages import get_package_share_directory
         d = os.path.join(get_package_share_directory('im_common'), 'config', 'motors')
         if os.path.isdir(d):
@@ -643,7 +644,6 @@ def shipped_motor(name: str, key: str = 'motor') -> str:
 
     InvalidParameter naming ``key`` and the shipped motors if there is none of that name.
     """
-    import os
     d = shipped_motors_dir()
     path = os.path.join(d, f'{name}.yaml')
     if not os.path.isfile(path):
@@ -655,7 +655,6 @@ def shipped_motor(name: str, key: str = 'motor') -> str:
 
 def is_motor_name(value: object) -> bool:
     """Return whether a motor value is a bare name (no directory, no extension): a shipped one."""
-    import re
     return isinstance(value, str) and re.fullmatch(r'[A-Za-z0-9_-]+', value) is not None
 
 

@@ -16,6 +16,7 @@ silent.
 """
 from __future__ import annotations
 
+import gc
 import os
 from typing import List, Optional, Tuple
 
@@ -79,7 +80,6 @@ def quiet_gc() -> None:
     the permanent generation, so a full collection during the run only walks what the run
     itself allocated. Collection stays on: memory stays bounded however long the run.
     """
-    import gc
     gc.collect()
     gc.freeze()
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 from typing import Callable, Dict, Iterable, List, Optional, Sequence, Tuple
 
 from . import auth
+from .topics import TOPICS
 
 #: The node name the graph API gives a participant whose node is not discovered yet.
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
@@ -140,7 +141,6 @@ def allowed_publishers(namespace: str, text: str) -> Dict[str, set]:
     ``allowed_publishers`` parameter: space-separated ``/topic=node``, a node without a leading '/'
     in ``namespace``).
     """
-    from .topics import TOPICS
     ns = namespace.rstrip('/')
     allowed = {t.name: {f'{ns}/{t.publisher}'} for t in TOPICS if ' ' not in t.publisher}
     for item in text.split():

@@ -10,7 +10,9 @@ that is not the time master echoes the time master's free_run probes of the run 
 """
 from __future__ import annotations
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
+from std_msgs.msg import Header
 
 from .conversions import NS_PER_S
 from .lockstep_parts import foreign_status_text
@@ -20,7 +22,6 @@ from .topics import PROBE, PROBE_ECHO, STATUS
 
 def status_message(name: str, state: str, level: int, ns: int, values: dict):
     """Return a run-protocol event (``DiagnosticArray``, one status) stamped ``ns``, untagged."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     msg = DiagnosticArray()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), NS_PER_S)
     msg.status = [DiagnosticStatus(level=bytes([level]), name=name, message=state,
@@ -36,13 +37,11 @@ class StatusChannel:
     __slots__ = ('node', 'pub', 'echo_pub')
 
     def __init__(self, node):
-        from diagnostic_msgs.msg import DiagnosticArray
         self.node = node
         self.pub = node.create_publisher(DiagnosticArray, STATUS, writer(STATUS))
         node.create_subscription(DiagnosticArray, STATUS, self.receive, reader(STATUS))
         self.echo_pub = None
         if not node.time_master:
-            from std_msgs.msg import Header
             self.echo_pub = node.create_publisher(Header, PROBE_ECHO, writer(PROBE_ECHO))
             node.create_subscription(Header, PROBE, self.echo, reader(PROBE))
 

@@ -9,7 +9,11 @@ sensors') and its errors into the same lines.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 import math
+from typing import get_args, get_origin, Literal
+
+from pydantic import ValidationError
 
 
 def one_line(text) -> str:
@@ -65,7 +69,6 @@ def check_block(spec, where: str, keys, shape: str = '') -> None:
     One :class:`InvalidParameter` naming ``where`` (not a mapping; ``shape`` describes the one
     expected, default the list of keys) or ``where.key`` (a key it does not know).
     """
-    from collections.abc import Mapping
     if not isinstance(spec, Mapping):
         raise InvalidParameter(where, spec, 'must be a mapping' + (
             f': {shape}' if shape else ' of ' + ', '.join(keys)))
@@ -115,8 +118,6 @@ def parse_block(model_cls, spec, where: str):
     states its rule by raising ``InvalidParameter(field, value, reason)`` (or a ValueError, which
     names the field it validates). A model instance is returned as it is.
     """
-    from collections.abc import Mapping
-    from pydantic import ValidationError
     if isinstance(spec, model_cls):
         return spec
     try:
@@ -127,7 +128,6 @@ def parse_block(model_cls, spec, where: str):
 
 def literal_choices(annotation):
     """Return the names a field's type allows (a ``Literal``, or an optional one), or None."""
-    from typing import get_args, get_origin, Literal
     if get_origin(annotation) is Literal:
         return get_args(annotation)
     inner = [a for a in get_args(annotation) if get_origin(a) is Literal]
@@ -164,7 +164,6 @@ def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:
     names the key alone (a configuration that is no run-file block: ``strategy``, not
     ``.strategy``); a value not written (a default the model chose) is the one it refused.
     """
-    from collections.abc import Mapping
     keys = list(model_cls.model_fields)
     written = list(spec) if isinstance(spec, Mapping) else []
 

@@ -14,6 +14,7 @@ YAML file (a campaign spec) with the same lines (:class:`YamlFileError`).
 """
 from __future__ import annotations
 
+import difflib
 import math
 from typing import Dict, Iterable, Mapping, Optional
 
@@ -167,7 +168,6 @@ def load_parameters_file(path: str, nodes: Optional[Iterable[str]] = None) -> Di
     keyed by node name and a section for a node not in ``nodes`` is refused naming the nearest one.
     Every problem is one :class:`ParametersFileError` naming the file.
     """
-    import difflib
     doc = _read(path, 'parameters file', ParametersFileError, _loader())
     if doc is None:
         doc = {}

@@ -495,8 +495,8 @@ def parse_metadata(text: Optional[str]) -> Dict[str, Dict[str, str]]:
     return {str(k): {str(kk): str(vv) for kk, vv in v.items()} for k, v in doc.items()}
 
 
-def main(argv=None) -> int:
-    full = list(sys.argv if argv is None else ['record'] + list(argv))
+def _parser() -> argparse.ArgumentParser:
+    """Return the ``record`` command's argument parser."""
     ap = argparse.ArgumentParser(prog='record', description='Record the drive graph to MCAP.')
     ap.add_argument('--out', '-o', default=None,
                     help='output file (default bags/run_<YYYYmmdd_HHMMSS>.mcap)')
@@ -519,7 +519,35 @@ def main(argv=None) -> int:
     ap.add_argument('--lossy', action='store_true',
                     help='do not hold the plant back (the recording may then miss steps; they '
                          'are counted and listed)')
-    a = parse_args(ap, full[1:])
+    return ap
+
+
+def _closing_line(node, out: str) -> str:
+    """Return the recorder's last line: what it wrote to ``out``, the run's end, missing steps."""
+    n = sum(node.counts.values())
+    gaps = node.gaps()
+    counted = set(node.run_topics())
+    missing = {t: g['missing_steps'] for t, g in gaps.items() if g['missing_steps']}
+    text = f'record: {n} messages written to {out}'
+    if node.end_state:
+        text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
+    span = node.span_text()
+    if missing:
+        first = {t: gaps[t]['ranges'][:3] for t in missing}
+        steps = ', '.join(f"{t}: {gaps[t]['missing_steps']}" for t in gaps
+                          if t in counted)
+        ranges = '; '.join(
+            f'{t} ' + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}' for x, y in r)
+            for t, r in first.items())
+        text += (f'; MISSING steps, {span}: {steps} (first ranges: {ranges})')
+    else:
+        text += f'; no step missing on the lock-step topics, {span}'
+    return text
+
+
+def main(argv=None) -> int:
+    full = list(sys.argv if argv is None else ['record'] + list(argv))
+    a = parse_args(_parser(), full[1:])
     out = a.out or time.strftime('bags/run_%Y%m%d_%H%M%S.mcap')
     # a stop signal from here on, during the start-up too, is a flag the loop acts on: the
     # file is opened and closed complete (an empty, interrupted recording), never left a .part
@@ -581,25 +609,7 @@ def main(argv=None) -> int:
                 end_process(node, ex)
                 return 1
             if node is not None:
-                n = sum(node.counts.values())
-                gaps = node.gaps()
-                counted = set(node.run_topics())
-                missing = {t: g['missing_steps'] for t, g in gaps.items() if g['missing_steps']}
-                text = f'record: {n} messages written to {out}'
-                if node.end_state:
-                    text += f"; run {node.end_state} at step {node.end_values.get('step', '?')}"
-                span = node.span_text()
-                if missing:
-                    first = {t: gaps[t]['ranges'][:3] for t in missing}
-                    steps = ', '.join(f"{t}: {gaps[t]['missing_steps']}" for t in gaps
-                                      if t in counted)
-                    ranges = '; '.join(
-                        f'{t} ' + ', '.join(f'{stamp_text(x)}..{stamp_text(y)}' for x, y in r)
-                        for t, r in first.items())
-                    text += (f'; MISSING steps, {span}: {steps} (first ranges: {ranges})')
-                else:
-                    text += f'; no step missing on the lock-step topics, {span}'
-                print(text, file=sys.stderr)
+                print(_closing_line(node, out), file=sys.stderr)
                 flush(node, timeout=0.5)
             end_process(node, ex)   # the bag is closed: bounded from here, as a node's
     return 0

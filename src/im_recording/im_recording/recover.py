@@ -926,20 +926,7 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             raise BagError(src, 'nothing to recover (no intact channel or message; '
                            + (scan.lost[0].text() if scan.lost else scan.ending) + ')')
         lost = [x.text() for x in scan.lost]
-        notes = []
-        if scan.crc_mismatch:
-            notes.append('the data section CRC does not match although every record validated: '
-                         'a record outside the chunks, or the stored CRC, was altered (kept as '
-                         'read)')
-        for why, n in sorted(sink.dropped.items()):
-            notes.append(f'{n} message(s) not copied ({why})')
-        if sink.offset_problem:
-            notes.append(sink.offset_problem)
-        if scan.attachments:
-            notes.append(f'{scan.attachments} attachment(s) not copied')
-        if sink.overruled:
-            notes.append(', '.join(sorted(sink.overruled)) + ": the data section's record "
-                         "differs from the summary's, which was kept")
+        notes = _notes(scan, sink)
         dropped = sum(sink.dropped.values())    # read intact, but not copied (said in notes)
         n_lost = (total - sink.n if total is not None
                   else sum(x.messages for x in scan.lost) + dropped
@@ -952,28 +939,7 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             if tail is not None:
                 lost.append(tail['text'])
         whole = not scan.lost and not scan.crc_mismatch and tail is None and not dropped
-        if whole:
-            reason = scan.ending + ('' if scan.complete else
-                                    " (no data end, but the run's final event and every stamp up "
-                                    'to it are in the file)') + '; nothing lost'
-        elif tail is not None and not scan.lost and not scan.crc_mismatch and not dropped:
-            reason = ('the writer did not close the file: ' + scan.ending + '; the tail of the '
-                      'run after the last saved message is lost')
-        else:
-            reason = (f'{len(scan.lost)} damaged range(s) skipped ('
-                      f'{sum(x.end - x.start for x in scan.lost)} bytes)' if scan.lost
-                      else 'data section CRC mismatch' if scan.crc_mismatch
-                      else f'{dropped} message(s) not copied')
-            if total is not None:
-                reason += f', {n_lost} of {total} messages lost'
-            elif n_lost is not None and tail is not None:   # and the tail's, not counted
-                reason += f', at least {n_lost} messages lost'
-            elif n_lost is not None:
-                reason += f', {n_lost} messages lost'
-            else:
-                reason += ', number of messages lost unknown'
-            if tail is not None:
-                reason += ', and the tail of the run after the last saved message'
+        reason = _reason(scan, whole, tail, dropped, total, n_lost)
         at_least = None
         if tail is not None and total is None and n_lost is not None:
             at_least, n_lost = n_lost, None     # the tail's messages are not counted
@@ -1004,6 +970,51 @@ def recover(path, out: Optional[str] = None, force: bool = False) -> dict:
             'messages_lost': n_lost, 'messages_lost_at_least': at_least,
             'messages_in_file': total, 'lost_tail': tail,
             'first_stamp_ns': sink.t_first, 'last_stamp_ns': sink.t_last}
+
+
+def _notes(scan, sink) -> List[str]:
+    """Return what was read intact but not copied as it was (one line each)."""
+    notes = []
+    if scan.crc_mismatch:
+        notes.append('the data section CRC does not match although every record validated: '
+                     'a record outside the chunks, or the stored CRC, was altered (kept as '
+                     'read)')
+    for why, n in sorted(sink.dropped.items()):
+        notes.append(f'{n} message(s) not copied ({why})')
+    if sink.offset_problem:
+        notes.append(sink.offset_problem)
+    if scan.attachments:
+        notes.append(f'{scan.attachments} attachment(s) not copied')
+    if sink.overruled:
+        notes.append(', '.join(sorted(sink.overruled)) + ": the data section's record "
+                     "differs from the summary's, which was kept")
+    return notes
+
+
+def _reason(scan, whole: bool, tail, dropped: int, total, n_lost) -> str:
+    """Return the recovery's one-line reason: how the file ended and what of it was lost."""
+    if whole:
+        return scan.ending + ('' if scan.complete else
+                              " (no data end, but the run's final event and every stamp up "
+                              'to it are in the file)') + '; nothing lost'
+    if tail is not None and not scan.lost and not scan.crc_mismatch and not dropped:
+        return ('the writer did not close the file: ' + scan.ending + '; the tail of the '
+                'run after the last saved message is lost')
+    reason = (f'{len(scan.lost)} damaged range(s) skipped ('
+              f'{sum(x.end - x.start for x in scan.lost)} bytes)' if scan.lost
+              else 'data section CRC mismatch' if scan.crc_mismatch
+              else f'{dropped} message(s) not copied')
+    if total is not None:
+        reason += f', {n_lost} of {total} messages lost'
+    elif n_lost is not None and tail is not None:   # and the tail's, not counted
+        reason += f', at least {n_lost} messages lost'
+    elif n_lost is not None:
+        reason += f', {n_lost} messages lost'
+    else:
+        reason += ', number of messages lost unknown'
+    if tail is not None:
+        reason += ', and the tail of the run after the last saved message'
+    return reason
 
 
 def load_salvaged(path, trace: Optional[str] = None):

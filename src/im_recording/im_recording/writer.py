@@ -101,6 +101,27 @@ def _compressor(name: str):
     raise ValueError(f"compression must be 'zstd', 'lz4' or 'none', not {name!r}")
 
 
+def _complete_messages(buf, ix: list):
+    """
+    Return the index entries of the complete messages of ``buf`` and where the last one ends.
+
+    A signal handler may have interrupted write() between its two appends: the last message may
+    be incomplete, and is then left out.
+    """
+    n = len(ix)
+    last_off = ix[-1][2]
+    (length,) = U64.unpack_from(buf,
+                                last_off + 1) if len(buf) >= last_off + 9 else (None,)
+    if length is None or last_off + 9 + length > len(buf):
+        n -= 1
+        end = last_off
+    else:
+        end = last_off + 9 + length
+    if n < len(ix):
+        ix = ix[:n]
+    return ix, end
+
+
 def _topic_type_default(topic: str) -> Optional[str]:
     return TOPIC_TYPES.get(topic)
 
@@ -559,19 +580,7 @@ class BagWriter:
         self._flushing = True
         try:
             buf = self._buf
-            # A signal handler may have interrupted write() between its two appends; keep only
-            # complete messages.
-            n = len(ix)
-            last_off = ix[-1][2]
-            (length,) = U64.unpack_from(buf,
-                                        last_off + 1) if len(buf) >= last_off + 9 else (None,)
-            if length is None or last_off + 9 + length > len(buf):
-                n -= 1
-                end = last_off
-            else:
-                end = last_off + 9 + length
-            if n < len(ix):
-                ix = ix[:n]
+            ix, end = _complete_messages(buf, ix)
             keep, keep_ix = bytearray(), []
             written_max, late = self._written_max, 0
             if not ix:
@@ -589,37 +598,7 @@ class BagWriter:
             if not ix:                  # only an incomplete message: dropped
                 self._buf, self._ix = keep, keep_ix
                 return
-            t0 = min(e[1] for e in ix)
-            t1 = max(e[1] for e in ix)
-            per_chan: Dict[int, list] = {}
-            for cid, t, off in ix:
-                per_chan.setdefault(cid, []).append((t, off))
-            crc = zlib.crc32(records)
-            data = self._compress(records) if self._compress else records
-            body = (struct.pack('<QQQI', t0, t1, len(records), crc) + string(self._compression)
-                    + U64.pack(len(data)))
-            # The chunk and its message indexes go to the file in one write.
-            chunk_start = self._pos
-            head = REC.pack(OP_CHUNK, len(body) + len(data)) + body
-            chunk_len = len(head) + len(data)
-            offsets = {}
-            ix_recs = []
-            pos = chunk_start + chunk_len
-            for cid in sorted(per_chan):
-                entries = per_chan[cid]
-                entries.sort()
-                arr = b''.join(QQ.pack(t, o) for t, o in entries)
-                offsets[cid] = pos
-                rec = record(OP_MESSAGE_INDEX, U16.pack(cid) + blob(arr))
-                ix_recs.append(rec)
-                pos += len(rec)
-            ix_len = pos - chunk_start - chunk_len
-            omap = b''.join(U16.pack(c) + U64.pack(o) for c, o in sorted(offsets.items()))
-            chunk_index = record(
-                OP_CHUNK_INDEX,
-                struct.pack('<QQQQ', t0, t1, chunk_start, chunk_len) + blob(omap)
-                + U64.pack(ix_len) + string(self._compression) + QQ.pack(len(data), len(records)))
-            out = b''.join([head, data] + ix_recs)
+            out, chunk_index, per_chan, t0, t1 = self._chunk_bytes(records, ix)
             # The commit: the write, then the state that says it happened.
             with _signals_held():
                 self._write(out)
@@ -640,6 +619,45 @@ class BagWriter:
             self._flushing = False
         if self._close_pending:
             self.close()
+
+    def _chunk_bytes(self, records: bytes, ix: list):
+        """
+        Return the chunk of ``records`` and its message indexes as one write, and its index.
+
+        Also the entries per channel and the chunk's first and last log time; nothing of the
+        writer's state changes.
+        """
+        t0 = min(e[1] for e in ix)
+        t1 = max(e[1] for e in ix)
+        per_chan: Dict[int, list] = {}
+        for cid, t, off in ix:
+            per_chan.setdefault(cid, []).append((t, off))
+        crc = zlib.crc32(records)
+        data = self._compress(records) if self._compress else records
+        body = (struct.pack('<QQQI', t0, t1, len(records), crc) + string(self._compression)
+                + U64.pack(len(data)))
+        # The chunk and its message indexes go to the file in one write.
+        chunk_start = self._pos
+        head = REC.pack(OP_CHUNK, len(body) + len(data)) + body
+        chunk_len = len(head) + len(data)
+        offsets = {}
+        ix_recs = []
+        pos = chunk_start + chunk_len
+        for cid in sorted(per_chan):
+            entries = per_chan[cid]
+            entries.sort()
+            arr = b''.join(QQ.pack(t, o) for t, o in entries)
+            offsets[cid] = pos
+            rec = record(OP_MESSAGE_INDEX, U16.pack(cid) + blob(arr))
+            ix_recs.append(rec)
+            pos += len(rec)
+        ix_len = pos - chunk_start - chunk_len
+        omap = b''.join(U16.pack(c) + U64.pack(o) for c, o in sorted(offsets.items()))
+        chunk_index = record(
+            OP_CHUNK_INDEX,
+            struct.pack('<QQQQ', t0, t1, chunk_start, chunk_len) + blob(omap)
+            + U64.pack(ix_len) + string(self._compression) + QQ.pack(len(data), len(records)))
+        return b''.join([head, data] + ix_recs), chunk_index, per_chan, t0, t1
 
     def flush(self) -> None:
         """Close the open chunk and push it to the OS (the file stays open)."""

@@ -105,16 +105,7 @@ def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6,
             rows.append(row / scale)
             rhs.append(b / scale)
 
-    # Initial cuts: diagonal of W₁ ≥ 1 (normalization) and t ≥ (W₃)_ii.
-    k1 = prob.w1.shape[1]
-    for i in range(k1):
-        e = np.zeros(k1)
-        e[i] = 1.0
-        add(-_quad(prob.w1, e), 0.0, -1.0)
-    for i in range(st.m):
-        e = np.zeros(st.m)
-        e[i] = 1.0
-        add(_quad(prob.w3, e), -1.0, 0.0)
+    _initial_cuts(prob, add)
 
     feas_tol = tol * max(1.0, prob.margin)
     hist: Dict[str, List[float]] = {'lower_bound': [], 'infeasibility': []}
@@ -128,28 +119,14 @@ def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6,
         if lp.status != 0:
             return CuttingPlaneResult('lp_error', omega, t, it, hist)
         omega, t = lp.x[:q], float(lp.x[-1])
-        # Constraint values and the cut each would give.
-        candidates = []
-        for M in prob.theta:
-            w, V = np.linalg.eigh(apply_map(M, omega))
-            viol = w[-1] + prob.margin
-            if viol > 0:
-                candidates.append((viol, _quad(M, V[:, -1]), 0.0, -prob.margin))
-        w, V = np.linalg.eigh(apply_map(prob.w1, omega))
-        if 1.0 - w[0] > 0:
-            candidates.append((1.0 - w[0], -_quad(prob.w1, V[:, 0]), 0.0, -1.0))
-        w, V = np.linalg.eigh(apply_map(prob.full, omega))
-        if -w[0] > 0:
-            candidates.append((-w[0], -_quad(prob.full, V[:, 0]), 0.0, 0.0))
+        candidates = _constraint_cuts(prob, omega)
         w, V = np.linalg.eigh(apply_map(prob.w3, omega))
         gap = w[-1] - t
         infeas = max([cand[0] for cand in candidates], default=0.0)
         hist['lower_bound'].append(t)
         hist['infeasibility'].append(infeas)
         if progress and (it % progress_every == 0 or it == 1):
-            print(f'[im_robust] cutting plane it {it:6d}  t = {t:.6g}  infeasibility = '
-                  f'{infeas:.3g}  gap = {gap:.3g}  ({time.perf_counter() - t0:.1f} s)',
-                  file=sys.stderr)
+            _progress(it, t, infeas, gap, t0)
         if infeas <= feas_tol and gap <= tol * max(1.0, abs(t)):
             return CuttingPlaneResult('optimal', omega, t, it, hist)
         if cuts == 'deepest' and candidates:
@@ -159,3 +136,41 @@ def solve_cutting_plane(prob, *, bound: float = 1e5, tol: float = 1e-6,
         for _, co, ct, b in candidates:
             add(co, ct, b)
     return CuttingPlaneResult('max_iterations', omega, t, max_iterations, hist)
+
+
+def _initial_cuts(prob, add) -> None:
+    """Add the first cuts: diagonal of W₁ ≥ 1 (normalization) and t ≥ (W₃)_ii."""
+    k1 = prob.w1.shape[1]
+    for i in range(k1):
+        e = np.zeros(k1)
+        e[i] = 1.0
+        add(-_quad(prob.w1, e), 0.0, -1.0)
+    m = prob.structure.m
+    for i in range(m):
+        e = np.zeros(m)
+        e[i] = 1.0
+        add(_quad(prob.w3, e), -1.0, 0.0)
+
+
+def _constraint_cuts(prob, omega: np.ndarray) -> list:
+    """Return (violation, cut on ω, on t, right-hand side) of each constraint ``omega`` breaks."""
+    candidates = []
+    for M in prob.theta:
+        w, V = np.linalg.eigh(apply_map(M, omega))
+        viol = w[-1] + prob.margin
+        if viol > 0:
+            candidates.append((viol, _quad(M, V[:, -1]), 0.0, -prob.margin))
+    w, V = np.linalg.eigh(apply_map(prob.w1, omega))
+    if 1.0 - w[0] > 0:
+        candidates.append((1.0 - w[0], -_quad(prob.w1, V[:, 0]), 0.0, -1.0))
+    w, V = np.linalg.eigh(apply_map(prob.full, omega))
+    if -w[0] > 0:
+        candidates.append((-w[0], -_quad(prob.full, V[:, 0]), 0.0, 0.0))
+    return candidates
+
+
+def _progress(it: int, t: float, infeas: float, gap: float, t0: float) -> None:
+    """Print one progress line of the iteration on stderr."""
+    print(f'[im_robust] cutting plane it {it:6d}  t = {t:.6g}  infeasibility = '
+          f'{infeas:.3g}  gap = {gap:.3g}  ({time.perf_counter() - t0:.1f} s)',
+          file=sys.stderr)

@@ -226,6 +226,26 @@ def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alp
         res.message = f'solver returned {solver_status!r} without a usable point'
         res.wall_s = time.perf_counter() - t0
         return res
+    if not _certify_point(res, system, prob, omega, solver_status,
+                          alpha if certify_alpha is None else certify_alpha,
+                          rho if certify_rho is None else certify_rho, grid_models):
+        res.wall_s = time.perf_counter() - t0
+        return res
+    res.wall_s = time.perf_counter() - t0
+    if progress:
+        print(f'[im_robust] {system.name or "system"} {solver}: {res.status} '
+              f'({res.wall_s:.2f} s)', file=sys.stderr)
+    return res
+
+
+def _certify_point(res: SynthesisResult, system: UncertainSystem, prob: Problem, omega,
+                   solver_status, alpha: float, rho: float, grid_models) -> bool:
+    """
+    Fill ``res`` from the solver's point ``omega``: W, the objective, the gain, its certificate.
+
+    The certificate demands the rates ``alpha``, ``rho``. Returns False (``res`` uncertified)
+    when W₁ is singular: no gain.
+    """
     st = prob.structure
     W = st.matrix(omega)
     res.W = W
@@ -236,10 +256,8 @@ def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alp
     except np.linalg.LinAlgError as exc:
         res.status = 'uncertified'
         res.message = f'W1 is singular: {exc}'
-        res.wall_s = time.perf_counter() - t0
-        return res
-    cert = certify(system, G, alpha=alpha if certify_alpha is None else certify_alpha,
-                   rho=rho if certify_rho is None else certify_rho, P=P, grid_models=grid_models)
+        return False
+    cert = certify(system, G, alpha=alpha, rho=rho, P=P, grid_models=grid_models)
     res.certificate = cert
     viol = constraint_violation(prob, omega)
     res.history.setdefault('final_violation', [viol['theta'], viol['w1'], viol['psd']])
@@ -251,8 +269,4 @@ def synthesize(system: UncertainSystem, *, D=None, solver: str = 'clarabel', alp
         res.status = 'uncertified'
         res.rejected_G = G
         res.message = f'solver said {solver_status!r} but the certificate failed: {cert.reason}'
-    res.wall_s = time.perf_counter() - t0
-    if progress:
-        print(f'[im_robust] {system.name or "system"} {solver}: {res.status} '
-              f'({res.wall_s:.2f} s)', file=sys.stderr)
-    return res
+    return True

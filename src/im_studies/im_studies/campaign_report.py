@@ -158,12 +158,8 @@ def _badness(r: dict) -> tuple:
     return (rank, -t_end if rank == 3 else err)
 
 
-def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None:
-    """report.md with loss and error histograms, the stability map and the worst runs."""
-    plt = pyplot()
-    rows, _ = split_commissioning(rows)
-    figs = []
-    sets = [g['name'] for g in spec['gain_sets']]
+def _histograms(plt, rows: List[dict], spec: dict, sets: List[str], out: Path):
+    """Draw histograms.png (losses and errors of the stable runs); return it and its caption."""
     colors = dict(zip(sets, plt.rcParams['axes.prop_cycle'].by_key()['color']))
     panels = [('E_loss_J', 'losses E_loss [J]')]
     if 'position' in spec['tasks']:
@@ -191,7 +187,11 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
     fig.tight_layout()
     fig.savefig(out / 'histograms.png', dpi=110)
     plt.close(fig)
-    figs.append(('histograms.png', 'Losses and tracking errors of the stable runs'))
+    return 'histograms.png', 'Losses and tracking errors of the stable runs'
+
+
+def _stability_map(plt, rows: List[dict], summary: dict, spec: dict, sets: List[str], out: Path):
+    """Draw stability_map.png (every run of each gain set); return it and its caption."""
     x, y = spec['map']
     fig, axes = plt.subplots(1, len(sets), figsize=(4.5 * len(sets), 3.8), squeeze=False)
     for ax, s in zip(axes[0], sets):
@@ -218,7 +218,17 @@ def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None
     fig.tight_layout()
     fig.savefig(out / 'stability_map.png', dpi=110)
     plt.close(fig)
-    figs.append(('stability_map.png', f'Stability over ({x}, {y}), every run of each gain set'))
+    return 'stability_map.png', f'Stability over ({x}, {y}), every run of each gain set'
+
+
+def write_report(rows: List[dict], summary: dict, spec: dict, out: Path) -> None:
+    """report.md with loss and error histograms, the stability map and the worst runs."""
+    plt = pyplot()
+    rows, _ = split_commissioning(rows)
+    figs = []
+    sets = [g['name'] for g in spec['gain_sets']]
+    figs.append(_histograms(plt, rows, spec, sets, out))
+    figs.append(_stability_map(plt, rows, summary, spec, sets, out))
     lines = [f"# Campaign {summary['name']}", '',
              f"{summary['runs']} runs ({summary['draws']} draws, seed {summary['seed']}, spec "
              f"{summary['spec_hash']}) on {summary.get('workers', '?')} Dask worker(s) "

@@ -178,6 +178,51 @@ def sweep_min_loss(progress: bool) -> list:
     return out
 
 
+def _print_balance(rows2: list) -> None:
+    """Print the energy balance of each run, the thesis's E_in − losses beside ours."""
+    print('\nEnergy balance (J): E_in = copper + W_load + friction + dE_kin + dW_mag; '
+          'thesis "E_in - losses" vs ours')
+    for s in rows2:
+        th = '' if s['thesis_E_in_J'] is None else \
+            f"thesis E_in-losses = {s['thesis_E_in_J'] - s['thesis_E_loss_J']:8.2f}"
+        print(f"  {s['task']:8s} {s['strategy']:13s} E_in = {s['E_in_J']:8.2f} = "
+              f"{s['E_copper_J']:.2f} + "
+              f"{s['W_load_J']:.2f} + {s['E_friction_J']:.2f} + {s['dE_kinetic_J']:.2f} + "
+              f"{s['dW_magnetic_J']:.2f} (+{s['balance_residual_J']:.1e});  ours E_in-losses = "
+              f"{s['E_in_J'] - s['E_loss_J']:8.2f}  {th}")
+
+
+def _stability_limits(result: dict, clock: WallTime) -> None:
+    """Bisect the thesis gains' T_s limit per run and over the parameter box; print, keep them."""
+    est = current_loop_estimate(40.0)
+    limits = []
+    with clock.part('limit'):
+        for task in THESIS_TASKS:
+            for strategy in COMPARED_STRATEGIES:
+                _log(f'T_s stability limit: {task}/{strategy}')
+                limits.append(sampling_limit(task, strategy))
+    result['sampling_limit'] = {'scalar_current_loop_estimate_s': est, 'runs': limits}
+    _log('T_s stability limit over the chapter-4 parameter box (eigenvalues on a grid)')
+    with clock.part('limit_box'):
+        box = thesis_gain_stability_limit(samples=12, refine_steps=10)
+    result['sampling_limit']['parameter_box'] = {k: v for k, v in box.items() if k != 'table'}
+    print('\nSampled-data limit with the thesis gains (k1 = 40 V/A, k_e = 1/sigma), '
+          'bisection over T_s;'
+          f' scalar current-loop estimate {est * 1e6:.1f} us')
+    for L in limits:
+        if L.get('largest_stable_T_s'):
+            print(f"  {L['task']:8s} {L['strategy']:13s} stable at "
+                  f"{L['largest_stable_T_s'] * 1e6:7.1f} us,"
+                  f" unstable at {L['smallest_unstable_T_s'] * 1e6:7.1f} us"
+                  f"  (>= {L['rate_hz_needed']:.0f} Hz)")
+        else:
+            print(f"  {L['task']:8s} {L['strategy']:13s} {L['note']}")
+    print(f"  over the chapter-4 parameter box, |omega_r| <= {box['omega_max']:g} rad/s "
+          '(eigenvalues on a grid, not a certificate): current loop stable up to '
+          f"{box['current_loop_limit'] * 1e6:.0f} us, observer up to "
+          f"{box['observer_limit'] * 1e6:.0f} us")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--out', default='study_out', help='output directory for study.json')
@@ -202,16 +247,7 @@ def main(argv=None) -> int:
         for k, v in result['targets'].items():
             print(f"  {'PASS' if v['pass'] else 'FAIL'}  {k}: " +
                   ', '.join(f'{a}={b:.4g}' for a, b in v.items() if isinstance(b, float)))
-    print('\nEnergy balance (J): E_in = copper + W_load + friction + dE_kin + dW_mag; '
-          'thesis "E_in - losses" vs ours')
-    for s in rows2:
-        th = '' if s['thesis_E_in_J'] is None else \
-            f"thesis E_in-losses = {s['thesis_E_in_J'] - s['thesis_E_loss_J']:8.2f}"
-        print(f"  {s['task']:8s} {s['strategy']:13s} E_in = {s['E_in_J']:8.2f} = "
-              f"{s['E_copper_J']:.2f} + "
-              f"{s['W_load_J']:.2f} + {s['E_friction_J']:.2f} + {s['dE_kinetic_J']:.2f} + "
-              f"{s['dW_magnetic_J']:.2f} (+{s['balance_residual_J']:.1e});  ours E_in-losses = "
-              f"{s['E_in_J'] - s['E_loss_J']:8.2f}  {th}")
+    _print_balance(rows2)
     if not args.no_exponent1:
         with clock.part('exponent1'):
             rows1 = energy_table(args.T_s, 1.0, args.quick, True)
@@ -228,33 +264,7 @@ def main(argv=None) -> int:
         print('\nLoss ranking (lowest first): '
               + '; '.join(f'{k}: {" < ".join(v)}' for k, v in order.items()))
     if not args.no_limit:
-        est = current_loop_estimate(40.0)
-        limits = []
-        with clock.part('limit'):
-            for task in THESIS_TASKS:
-                for strategy in COMPARED_STRATEGIES:
-                    _log(f'T_s stability limit: {task}/{strategy}')
-                    limits.append(sampling_limit(task, strategy))
-        result['sampling_limit'] = {'scalar_current_loop_estimate_s': est, 'runs': limits}
-        _log('T_s stability limit over the chapter-4 parameter box (eigenvalues on a grid)')
-        with clock.part('limit_box'):
-            box = thesis_gain_stability_limit(samples=12, refine_steps=10)
-        result['sampling_limit']['parameter_box'] = {k: v for k, v in box.items() if k != 'table'}
-        print('\nSampled-data limit with the thesis gains (k1 = 40 V/A, k_e = 1/sigma), '
-              'bisection over T_s;'
-              f' scalar current-loop estimate {est * 1e6:.1f} us')
-        for L in limits:
-            if L.get('largest_stable_T_s'):
-                print(f"  {L['task']:8s} {L['strategy']:13s} stable at "
-                      f"{L['largest_stable_T_s'] * 1e6:7.1f} us,"
-                      f" unstable at {L['smallest_unstable_T_s'] * 1e6:7.1f} us"
-                      f"  (>= {L['rate_hz_needed']:.0f} Hz)")
-            else:
-                print(f"  {L['task']:8s} {L['strategy']:13s} {L['note']}")
-        print(f"  over the chapter-4 parameter box, |omega_r| <= {box['omega_max']:g} rad/s "
-              '(eigenvalues on a grid, not a certificate): current loop stable up to '
-              f"{box['current_loop_limit'] * 1e6:.0f} us, observer up to "
-              f"{box['observer_limit'] * 1e6:.0f} us")
+        _stability_limits(result, clock)
     if args.sweep:
         with clock.part('sweep'):
             result['min_loss_sweep'] = sweep_min_loss(True)

@@ -408,101 +408,155 @@ def _trip(r) -> str:
     return '' if r['trip'] is None else r['trip']['reason']
 
 
+def _compensation_table(rows: list) -> list:
+    """Return the lines of the compensation part's table."""
+    lines = ['| motor | speed | compensation | \\|i − i*\\| RMS [A] (ideal plant) | factor '
+             '| speed error RMS [rad/s] (ideal) | torque std [N·m] (ideal) | trip |',
+             '| --- | --- | --- | ---: | ---: | ---: | ---: | --- |']
+    for r in rows:
+        factor = f"{r['distortion_factor']:.1f}×" if 'distortion_factor' in r else ''
+        lines.append(
+            f"| {r['motor']} | {'sensorless' if r['sensorless'] else 'sensored'} | "
+            f"{'on' if r['compensation'] else 'off'} | {r['current_distortion_A']:.4f} "
+            f"({r['ideal_current_distortion_A']:.4f}) | {factor} | "
+            f"{r['speed_err_rms']:.4f} ({r['ideal_speed_err_rms']:.4f}) | "
+            f"{r['torque_std']:.4f} ({r['ideal_torque_std']:.4f}) | {_trip(r)} |")
+    return lines
+
+
+def _sensorless_table(rows: list) -> list:
+    """Return the lines of the sensorless part's table."""
+    lines = ['| motor | run | speed error max [rad/s] (ideal plant) | RMS (ideal) | '
+             '\\|i − i*\\| RMS [A] (ideal) | trip |',
+             '| --- | --- | ---: | ---: | ---: | --- |']
+    for r in rows:
+        lines.append(f"| {r['motor']} | {r['run']} | {r['speed_err_max']:.3f} "
+                     f"({r['ideal_speed_err_max']:.3f}) | {r['speed_err_rms']:.3f} "
+                     f"({r['ideal_speed_err_rms']:.3f}) | {r['current_distortion_A']:.3f} "
+                     f"({r['ideal_current_distortion_A']:.3f}) | {_trip(r)} |")
+    return lines
+
+
+def _commissioning_table(rows: list) -> list:
+    """Return the lines of the commissioning part's table."""
+    lines = ['| plant | motor | v_dead | R_s (R_s + r_on) | σL_s | L_M | R_R | J | '
+             'L_M(ψ): points up to ψ_R [Wb], worst |',
+             '|---|---|---:|---:|---:|---:|---:|---:|---:|']
+    for r in rows:
+        vd = ('~0' if r['v_dead_err_pct'] is None else f"{r['v_dead_err_pct']:+.1f} %")
+        lines.append(f"| {r['plant']} | {r['motor']} | {vd} | {r['R_s_err_pct']:+.2f} % "
+                     f"({r['R_s_r_on_err_pct']:+.2f} %) | {r['L_sigma_err_pct']:+.2f} % | "
+                     f"{r['L_M_err_pct']:+.2f} % | {r['R_R_err_pct']:+.2f} % | "
+                     f"{r['J_err_pct']:+.2f} % | {r['L_M_curve_points']} up to "
+                     f"{r['L_M_curve_psi_max']:.3f}, {r['L_M_curve_err_max_pct']:+.2f} % |")
+    return lines
+
+
+def _losses_table(rows: list) -> list:
+    """Return the lines of the losses part's table."""
+    lines = ['| motor | plant | strategy | losses [J] | floor [J] | losses / floor | speed '
+             'error RMS [rad/s] | trip |',
+             '| --- | --- | --- | ---: | ---: | ---: | ---: | --- |']
+    for r in rows:
+        lines.append(f"| {r['motor']} | {r['plant']} | {r['strategy']} | "
+                     f"{r['E_loss_J']:.2f} | {r['floor_J']:.2f} | {r['ratio']:.4f} | "
+                     f"{r['speed_err_rms']:.4f} | {_trip(r)} |")
+    return lines
+
+
+def _identified_table(rows: list) -> list:
+    """Return the lines of the identified part's table."""
+    lines = ['| motor | drive file | motor losses [J] | vs the motor file | speed error '
+             'RMS [rad/s] | trip |', '| --- | --- | ---: | ---: | ---: | --- |']
+    for r in rows:
+        vs = f"{r['E_loss_vs_file_pct']:+.2f} %" if 'E_loss_vs_file_pct' in r else ''
+        lines.append(f"| {r['motor']} | {r['file']} | {r['E_loss_J']:.1f} | {vs} | "
+                     f"{r['speed_err_rms']:.4f} | {_trip(r)} |")
+    return lines
+
+
+def _thermal_table(rows: list) -> list:
+    """Return the lines of the thermal part's table."""
+    lines = ['| motor | drive | ΔT cage / stator [K] | R̂_s − R_s | R̂_R − R_R | speed error '
+             'RMS [rad/s] | × true-R run | losses vs true-R run | trip |',
+             '| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
+    for r in rows:
+        lines.append(f"| {r['motor']} | {r['run']} | {r['dT_rotor_K']:.1f} / "
+                     f"{r['dT_stator_K']:.1f} | {100 * r['R_s_err_end']:+.2f} % | "
+                     f"{100 * r['R_R_err_end']:+.2f} % | {r['speed_err_rms_rad_s']:.4f} | "
+                     f"{r['speed_err_over_true']:.2f} | "
+                     f"{100 * (r['E_loss_over_true'] - 1):+.2f} % | {_trip(r)} |")
+    return lines
+
+
+def _drift_table(rows: list) -> list:
+    """Return the lines of the drift part's table."""
+    lines = ['| drive | speed error RMS [rad/s] | R̂_s at the end (true) [Ω] | L̂_M error at '
+             'the end | trip |', '| --- | ---: | ---: | ---: | --- |']
+    for r in rows:
+        rs = f"{r['R_s_end']:.4f} ({r['R_s_true_end']:.4f})" if 'R_s_end' in r else ''
+        lm = f"{100 * r['L_M_err_end']:+.1f} %" if 'L_M_err_end' in r else ''
+        lines.append(f"| {r['run']} | {r['speed_err_rms_rad_s']:.4f} | {rs} | {lm} | "
+                     f'{_trip(r)} |')
+    return lines
+
+
+def _stator_error_table(rows: list) -> list:
+    """Return the lines of the stator_error part's table."""
+    lines = ['| strategy | plant R_s over the model | nominal: speed error RMS [rad/s] | '
+             'adaptive | × nominal | R̂_R error at the end | L̂_M error at the end | trip |',
+             '| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
+    for r in rows:
+        trip = r['nominal_trip'] or r['adaptive_trip'] or ''
+        nom, ad = r['nominal_speed_err_rms_rad_s'], r['adaptive_speed_err_rms_rad_s']
+        lines.append(f"| {r['strategy']} | {1.0 + r['R_s_error']:.2f} | {nom:.5f} | "
+                     f"{ad:.5f} | {ad / nom:.2f} | {100 * r['R_R_err_end']:+.2f} % | "
+                     f"{100 * r['L_M_err_end']:+.2f} % | {trip} |")
+    return lines
+
+
+def _start_table(rows: list) -> list:
+    """Return the lines of the start part's table."""
+    lines = ['| task | strategy | ' + ' | '.join(f'start flux ×{f:g}' for f in START_FLUXES)
+             + ' | target | met |', '| --- | --- |' + ' ---: |' * len(START_FLUXES)
+             + ' ---: | --- |']
+    for r in rows:
+        errs = {float(f): e for f, e in r['errors'].items()}     # JSON keys are text
+        cells = [f'{errs[f]:.4f}' if f in errs else '(at rest)' for f in START_FLUXES]
+        lines.append(f"| {r['task']} | {r['strategy']} | {' | '.join(cells)} | "
+                     f"{r['target']} | {'yes' if r['met'] else 'no'} |")
+    return lines
+
+
+def _load_step_table(rows: list) -> list:
+    """Return the lines of the load-step part's table (every other part)."""
+    lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
+             '| --- | --- | --- | ---: | ---: | --- |']
+    for r in rows:
+        rec = 'not within the run' if not math.isfinite(r['recovery_s']) else \
+            f"{r['recovery_s']:.3f}"
+        lines.append(f"| {r['motor']} | {r['step']} | {r['plant']} | {r['dip']:.2f} | "
+                     f'{rec} | {_trip(r)} |')
+    return lines
+
+
+#: each part's table (a part not here: the load step's)
+_TABLES = {
+    'compensation': _compensation_table,
+    'sensorless': _sensorless_table,
+    'commissioning': _commissioning_table,
+    'losses': _losses_table,
+    'identified': _identified_table,
+    'thermal': _thermal_table,
+    'drift': _drift_table,
+    'stator_error': _stator_error_table,
+    'start': _start_table,
+}
+
+
 def markdown(part: str, rows: list) -> str:
     """Return a part's rows as a Markdown table, real-plant figures beside the ideal plant's."""
-    if part == 'compensation':
-        lines = ['| motor | speed | compensation | \\|i − i*\\| RMS [A] (ideal plant) | factor '
-                 '| speed error RMS [rad/s] (ideal) | torque std [N·m] (ideal) | trip |',
-                 '| --- | --- | --- | ---: | ---: | ---: | ---: | --- |']
-        for r in rows:
-            factor = f"{r['distortion_factor']:.1f}×" if 'distortion_factor' in r else ''
-            lines.append(
-                f"| {r['motor']} | {'sensorless' if r['sensorless'] else 'sensored'} | "
-                f"{'on' if r['compensation'] else 'off'} | {r['current_distortion_A']:.4f} "
-                f"({r['ideal_current_distortion_A']:.4f}) | {factor} | "
-                f"{r['speed_err_rms']:.4f} ({r['ideal_speed_err_rms']:.4f}) | "
-                f"{r['torque_std']:.4f} ({r['ideal_torque_std']:.4f}) | {_trip(r)} |")
-    elif part == 'sensorless':
-        lines = ['| motor | run | speed error max [rad/s] (ideal plant) | RMS (ideal) | '
-                 '\\|i − i*\\| RMS [A] (ideal) | trip |',
-                 '| --- | --- | ---: | ---: | ---: | --- |']
-        for r in rows:
-            lines.append(f"| {r['motor']} | {r['run']} | {r['speed_err_max']:.3f} "
-                         f"({r['ideal_speed_err_max']:.3f}) | {r['speed_err_rms']:.3f} "
-                         f"({r['ideal_speed_err_rms']:.3f}) | {r['current_distortion_A']:.3f} "
-                         f"({r['ideal_current_distortion_A']:.3f}) | {_trip(r)} |")
-    elif part == 'commissioning':
-        lines = ['| plant | motor | v_dead | R_s (R_s + r_on) | σL_s | L_M | R_R | J | '
-                 'L_M(ψ): points up to ψ_R [Wb], worst |',
-                 '|---|---|---:|---:|---:|---:|---:|---:|---:|']
-        for r in rows:
-            vd = ('~0' if r['v_dead_err_pct'] is None else f"{r['v_dead_err_pct']:+.1f} %")
-            lines.append(f"| {r['plant']} | {r['motor']} | {vd} | {r['R_s_err_pct']:+.2f} % "
-                         f"({r['R_s_r_on_err_pct']:+.2f} %) | {r['L_sigma_err_pct']:+.2f} % | "
-                         f"{r['L_M_err_pct']:+.2f} % | {r['R_R_err_pct']:+.2f} % | "
-                         f"{r['J_err_pct']:+.2f} % | {r['L_M_curve_points']} up to "
-                         f"{r['L_M_curve_psi_max']:.3f}, {r['L_M_curve_err_max_pct']:+.2f} % |")
-    elif part == 'losses':
-        lines = ['| motor | plant | strategy | losses [J] | floor [J] | losses / floor | speed '
-                 'error RMS [rad/s] | trip |',
-                 '| --- | --- | --- | ---: | ---: | ---: | ---: | --- |']
-        for r in rows:
-            lines.append(f"| {r['motor']} | {r['plant']} | {r['strategy']} | "
-                         f"{r['E_loss_J']:.2f} | {r['floor_J']:.2f} | {r['ratio']:.4f} | "
-                         f"{r['speed_err_rms']:.4f} | {_trip(r)} |")
-    elif part == 'identified':
-        lines = ['| motor | drive file | motor losses [J] | vs the motor file | speed error '
-                 'RMS [rad/s] | trip |', '| --- | --- | ---: | ---: | ---: | --- |']
-        for r in rows:
-            vs = f"{r['E_loss_vs_file_pct']:+.2f} %" if 'E_loss_vs_file_pct' in r else ''
-            lines.append(f"| {r['motor']} | {r['file']} | {r['E_loss_J']:.1f} | {vs} | "
-                         f"{r['speed_err_rms']:.4f} | {_trip(r)} |")
-    elif part == 'thermal':
-        lines = ['| motor | drive | ΔT cage / stator [K] | R̂_s − R_s | R̂_R − R_R | speed error '
-                 'RMS [rad/s] | × true-R run | losses vs true-R run | trip |',
-                 '| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
-        for r in rows:
-            lines.append(f"| {r['motor']} | {r['run']} | {r['dT_rotor_K']:.1f} / "
-                         f"{r['dT_stator_K']:.1f} | {100 * r['R_s_err_end']:+.2f} % | "
-                         f"{100 * r['R_R_err_end']:+.2f} % | {r['speed_err_rms_rad_s']:.4f} | "
-                         f"{r['speed_err_over_true']:.2f} | "
-                         f"{100 * (r['E_loss_over_true'] - 1):+.2f} % | {_trip(r)} |")
-    elif part == 'drift':
-        lines = ['| drive | speed error RMS [rad/s] | R̂_s at the end (true) [Ω] | L̂_M error at '
-                 'the end | trip |', '| --- | ---: | ---: | ---: | --- |']
-        for r in rows:
-            rs = f"{r['R_s_end']:.4f} ({r['R_s_true_end']:.4f})" if 'R_s_end' in r else ''
-            lm = f"{100 * r['L_M_err_end']:+.1f} %" if 'L_M_err_end' in r else ''
-            lines.append(f"| {r['run']} | {r['speed_err_rms_rad_s']:.4f} | {rs} | {lm} | "
-                         f'{_trip(r)} |')
-    elif part == 'stator_error':
-        lines = ['| strategy | plant R_s over the model | nominal: speed error RMS [rad/s] | '
-                 'adaptive | × nominal | R̂_R error at the end | L̂_M error at the end | trip |',
-                 '| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
-        for r in rows:
-            trip = r['nominal_trip'] or r['adaptive_trip'] or ''
-            nom, ad = r['nominal_speed_err_rms_rad_s'], r['adaptive_speed_err_rms_rad_s']
-            lines.append(f"| {r['strategy']} | {1.0 + r['R_s_error']:.2f} | {nom:.5f} | "
-                         f"{ad:.5f} | {ad / nom:.2f} | {100 * r['R_R_err_end']:+.2f} % | "
-                         f"{100 * r['L_M_err_end']:+.2f} % | {trip} |")
-    elif part == 'start':
-        lines = ['| task | strategy | ' + ' | '.join(f'start flux ×{f:g}' for f in START_FLUXES)
-                 + ' | target | met |', '| --- | --- |' + ' ---: |' * len(START_FLUXES)
-                 + ' ---: | --- |']
-        for r in rows:
-            errs = {float(f): e for f, e in r['errors'].items()}     # JSON keys are text
-            cells = [f'{errs[f]:.4f}' if f in errs else '(at rest)' for f in START_FLUXES]
-            lines.append(f"| {r['task']} | {r['strategy']} | {' | '.join(cells)} | "
-                         f"{r['target']} | {'yes' if r['met'] else 'no'} |")
-    else:
-        lines = ['| motor | step | plant | dip [rad/s] | back within 2 rad/s after [s] | trip |',
-                 '| --- | --- | --- | ---: | ---: | --- |']
-        for r in rows:
-            rec = 'not within the run' if not math.isfinite(r['recovery_s']) else \
-                f"{r['recovery_s']:.3f}"
-            lines.append(f"| {r['motor']} | {r['step']} | {r['plant']} | {r['dip']:.2f} | "
-                         f'{rec} | {_trip(r)} |')
-    return '\n'.join(lines)
+    return '\n'.join(_TABLES.get(part, _load_step_table)(rows))
 
 
 def main(argv=None) -> int:

@@ -765,6 +765,40 @@ def _speed_dependent_rate(P0, P1, Ms, ws, omega_max: float, step: float):
     return worst, cond
 
 
+def _observer_grid(motor: MotorParams, param_points, sigma_min: float, omega_max: float,
+                   omega_vertices: int, omega_dense: int):
+    """Return the observer's parameter points (the nominal motor last), vertex and dense speeds."""
+    pts = parameter_grid(param_points or OBSERVER_PARAM_POINTS, 0.0, sigma_min=sigma_min)[:, :4]
+    pts = np.vstack([pts, [[motor.R_r, motor.L_s, motor.L_r, motor.L_sr]]])
+    w_v = np.linspace(-omega_max, omega_max, omega_vertices) if omega_max > 0 else np.zeros(1)
+    w_d = np.linspace(-omega_max, omega_max, omega_dense) if omega_max > 0 else np.zeros(1)
+    return pts, w_v, w_d
+
+
+def _dense_maps(pts, w_d, T_s: float, k_e: float, motor: MotorParams, max_substep: float, pu):
+    """
+    Return the error maps on the dense speeds, RK4 and held-injection ZOH, both per unit (``pu``).
+
+    Also the largest difference of the two and the largest model residual (A_d − Φ), per unit.
+    """
+    Md, Mz = [], []
+    diff = resid = 0.0
+    for p in pts:
+        row, rowz = [], []
+        for w in w_d:
+            M = pu(thesis_observer_error_map(p, w, T_s, k_e, motor=motor, max_substep=max_substep))
+            Mzoh, A_d = held_injection_zoh_map(p, w, T_s, k_e, motor=motor)
+            Phi = thesis_observer_error_map(p, w, T_s, 0.0, motor=motor, max_substep=max_substep,
+                                            skew_injection=False)
+            row.append(M)
+            rowz.append(pu(Mzoh))
+            diff = max(diff, float(np.linalg.norm(M - pu(Mzoh), 2)))
+            resid = max(resid, float(np.linalg.norm(pu(A_d - Phi), 2)))
+        Md.append(row)
+        Mz.append(rowz)
+    return Md, Mz, diff, resid
+
+
 def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_max: float = 200.0,
                             speed_step: float = THESIS_OBSERVER_SPEED_STEP,
                             decay_rate: float = DEFAULT_OBSERVER_RATE,
@@ -798,32 +832,16 @@ def certify_thesis_observer(T_s: float, *, k_e: Optional[float] = None, omega_ma
     S, Si = sc.S, np.linalg.inv(sc.S)
     rho = math.exp(-decay_rate * T_s)
     rho_strict = math.exp(-1.5 * decay_rate * T_s)
-    pts = parameter_grid(param_points or OBSERVER_PARAM_POINTS, 0.0, sigma_min=sigma_min)[:, :4]
-    pts = np.vstack([pts, [[motor.R_r, motor.L_s, motor.L_r, motor.L_sr]]])
-    w_v = np.linspace(-omega_max, omega_max, omega_vertices) if omega_max > 0 else np.zeros(1)
-    w_d = np.linspace(-omega_max, omega_max, omega_dense) if omega_max > 0 else np.zeros(1)
+    pts, w_v, w_d = _observer_grid(motor, param_points, sigma_min, omega_max, omega_vertices,
+                                   omega_dense)
     om = max(omega_max, 1e-9)
 
     def pu(M):
         return Si @ M @ S
     Mv = [[pu(thesis_observer_error_map(p, w, T_s, k_e, motor=motor, max_substep=max_substep))
            for w in w_v] for p in pts]
-    Md, Mz = [], []
-    diff = resid = 0.0
     h = T_s / max(1, int(math.ceil(T_s / max_substep - 1e-9)))
-    for p in pts:
-        row, rowz = [], []
-        for w in w_d:
-            M = pu(thesis_observer_error_map(p, w, T_s, k_e, motor=motor, max_substep=max_substep))
-            Mzoh, A_d = held_injection_zoh_map(p, w, T_s, k_e, motor=motor)
-            Phi = thesis_observer_error_map(p, w, T_s, 0.0, motor=motor, max_substep=max_substep,
-                                            skew_injection=False)
-            row.append(M)
-            rowz.append(pu(Mzoh))
-            diff = max(diff, float(np.linalg.norm(M - pu(Mzoh), 2)))
-            resid = max(resid, float(np.linalg.norm(pu(A_d - Phi), 2)))
-        Md.append(row)
-        Mz.append(rowz)
+    Md, Mz, diff, resid = _dense_maps(pts, w_d, T_s, k_e, motor, max_substep, pu)
     n_models = len(pts) * (len(w_v) + 2 * len(w_d))
     spec = float(max(np.abs(np.linalg.eigvals(M)).max() for r in Md + Mz for M in r))
 
