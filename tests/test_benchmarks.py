@@ -17,11 +17,16 @@ import pytest
 BENCH = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'benchmarks')
 
 
-def _run_all():
-    spec = importlib.util.spec_from_file_location('run_all', os.path.join(BENCH, 'run_all.py'))
+def _load(name: str):
+    """Import ``benchmarks/<name>.py`` (the benchmarks' folder is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, os.path.join(BENCH, f'{name}.py'))
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def _run_all():
+    return _load('run_all')
 
 
 def _not_json(constant):
@@ -139,16 +144,9 @@ def test_benchmark_quick_run_writes_its_figures(name, tmp_path):
         assert 'free_run_missed_fraction_busy' not in summary
 
 
-def _today():
-    spec = importlib.util.spec_from_file_location('today', os.path.join(BENCH, 'today.py'))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_the_opening_table_holds_each_run_to_its_targets(tmp_path):
     """``benchmarks/today.py``: one row a target, each run's value, a miss in bold and said."""
-    today, targets = _today(), _run_all().TARGETS
+    today, targets = _load('today'), _run_all().TARGETS
     runs = []
     for i, scale in enumerate((1.0, 0.5)):
         s = {'quick': False, 'date': f'2026-12-0{i + 1}T10:00:00',

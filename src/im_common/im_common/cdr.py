@@ -130,22 +130,13 @@ def _basic_sequence_codec(fixed: bool, count, fmt: str, size: int) -> Tuple[Call
     """Return the codec of an array (``fixed``, ``count`` long) or a sequence of primitives."""
     def enc(v, out, fmt=fmt, size=size):
         n = len(v)
-        if not fixed:
-            out += bytes(_pad(len(out) - 4, 4))
-            out += _U32.pack(n)
-        elif n != count:
-            raise CdrError(f'array needs {count} elements, got {n}')
+        _enc_count(out, n, fixed, count)
         if n:
             out += bytes(_pad(len(out) - 4, size))
             out += struct.pack(f'<{n}{fmt}', *v)
 
     def dec(buf, pos, fmt=fmt, size=size):
-        if fixed:
-            n = count
-        else:
-            pos += _pad(pos - 4, 4)
-            (n,) = _U32.unpack_from(buf, pos)
-            pos += 4
+        n, pos = _dec_count(buf, pos, fixed, count)
         if n:
             pos += _pad(pos - 4, size)
             if pos + n * size > len(buf):
@@ -158,26 +149,36 @@ def _basic_sequence_codec(fixed: bool, count, fmt: str, size: int) -> Tuple[Call
     return enc, dec
 
 
+def _enc_count(out: bytearray, n: int, fixed: bool, count) -> None:
+    """Write a sequence's length (aligned uint32); check an array's (``fixed``) instead."""
+    if not fixed:
+        out += bytes(_pad(len(out) - 4, 4))
+        out += _U32.pack(n)
+    elif n != count:
+        raise CdrError(f'array needs {count} elements, got {n}')
+
+
+def _dec_count(buf, pos: int, fixed: bool, count) -> Tuple[int, int]:
+    """Return (elements, position after the length): an array's ``count``, a sequence's read."""
+    if fixed:
+        return count, pos
+    pos += _pad(pos - 4, 4)
+    (n,) = _U32.unpack_from(buf, pos)
+    return n, pos + 4
+
+
 def _sequence_codec(fixed: bool, count, e_enc: Callable,
                     e_dec: Callable) -> Tuple[Callable, Callable]:
     """Return the codec of an array (``fixed``, ``count`` long) or a sequence of any element."""
     def enc(v, out):
-        n = len(v)
-        if not fixed:
-            out += bytes(_pad(len(out) - 4, 4))
-            out += _U32.pack(n)
+        _enc_count(out, len(v), fixed, count)
         for item in v:
             e_enc(item, out)
 
     def dec(buf, pos):
-        if fixed:
-            n = count
-        else:
-            pos += _pad(pos - 4, 4)
-            (n,) = _U32.unpack_from(buf, pos)
-            pos += 4
-            if n > len(buf):
-                raise CdrError('sequence length larger than the payload')
+        n, pos = _dec_count(buf, pos, fixed, count)
+        if not fixed and n > len(buf):
+            raise CdrError('sequence length larger than the payload')
         vals = []
         for _ in range(n):
             x, pos = e_dec(buf, pos)

@@ -420,23 +420,19 @@ class PlantNode(LockstepNode):
     def step(self, inputs: dict) -> None:
         if self.wall_start is None:
             self.wall_start = time.perf_counter()
-        if not self.overlap:
-            self.advance(*inputs[T.CMD_VOLTAGE])
-            return
-        # overlapped: the command of step j enters the delay line; every step whose acting
-        # command is in the line is integrated now (after the first command: steps 0..d, then
-        # one a command), so the controller computes the command of step k + 1 while this node
-        # integrates step k. The run ends once the last command (step last_step - 1) came too.
+        # the command of step j enters the delay line; serially one step is integrated a
+        # command (the one whose command acts over it: j - delay), overlapped every step whose
+        # acting command is in the line (after the first command steps 0..d, then one a
+        # command), so the controller computes the command of step k + 1 while this node
+        # integrates step k. Overlapped, the run ends once the last command came too.
         sim, last = self.sim, self.last_step
-        self.last_cmd = v = inputs[T.CMD_VOLTAGE]
         self._last_entered = self.gate.expected // self.period
-        try:
-            sim.enter(*v)
-        except ValueError as exc:
-            self.fail(f'plant step failed: {exc}')
+        if not self.enter(inputs[T.CMD_VOLTAGE]):
             return
-        while sim.delay.ready and (last is None or sim.k < last) and self.state == RUNNING:
-            self.advance(None, None)
+        steps = sim.delay.ready if self.overlap else 1
+        while steps and (last is None or sim.k < last) and self.state == RUNNING:
+            self.advance()
+            steps -= 1
         if self._final_wait and self._last_entered + 1 >= last and self.state == RUNNING:
             self._drain()
 
@@ -472,7 +468,8 @@ class PlantNode(LockstepNode):
         if why is not None:         # a protection trip: this step and every later one at 0 V
             self.sim.trip = (self.sim.t, f'{why}: this machine does not hold '
                                          f'{1.0 / self.T_s:g} Hz here; zero voltage')
-        self.advance(*cmd)
+        if self.enter(cmd):
+            self.advance()
 
     def free_run_stats(self) -> dict:
         return dict(missed=self.missed, late=self.late, overruns=self.overruns,
@@ -492,17 +489,22 @@ class PlantNode(LockstepNode):
         super().fail(reason, **values)
 
     # Stepping ----------------------------------------------------------------------------
-    def advance(self, v_a, v_b) -> None:
-        """Integrate step k with the command (v_a, v_b); overlapped (None): the line's next."""
-        if v_a is not None:
-            self.last_cmd = (v_a, v_b)
+    def enter(self, cmd) -> bool:
+        """Enter the command (v_a, v_b) of the next step into the plant's delay line."""
+        self.last_cmd = cmd
+        try:
+            self.sim.enter(*cmd)
+        except ValueError as exc:
+            self.fail(f'plant step failed: {exc}')
+            return False
+        return True
+
+    def advance(self) -> None:
+        """Integrate step k with the command that acts over it (the delay line's next)."""
         if self._load_offset_next is not None:
             self._apply_load_offset()
         try:
-            if v_a is None:
-                self.sim.step_entered()
-            else:
-                self.sim.step(v_a, v_b)
+            self.sim.step_entered()
         except (ValueError, FloatingPointError) as exc:
             self.fail(f'plant step failed: {exc}')
             return
