@@ -30,7 +30,7 @@ $(BUILD_STAMP): $(DEPS_STAMP) $(SRC_FILES)
 	source $(VENV)/bin/activate && colcon --log-base log build --base-paths src \
 	    --event-handlers console_cohesion- summary+ status- 2>&1 | tail -n 3
 	@# the real plant's compiled period (numba) into the install's cache: no node compiles it
-	$(RUN) python -c 'from im_common import real_plant_kernel as k; k.warm()'
+	$(RUN) python -c 'from im_plant import real_plant_kernel as k; k.warm()'
 	@touch $@
 
 # Main job: a full drive scenario, recorded to MCAP, with its report.

@@ -26,7 +26,7 @@ import time
 from im_common.loads import LinearLoad
 from im_common.model import eq112_matrices
 from im_common.params import chapter4_schedule, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 from scipy.integrate import solve_ivp
 

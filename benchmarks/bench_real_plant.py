@@ -13,7 +13,7 @@ encoder and ADC), run interleaved, best of the repeats:
 - ``offline_real_reference_steps_per_s``: the ROS-free loop on the real plant with the period's
   pure-Python reference, in the same run, and ``offline_real_compiled_over_reference`` (issue 46:
   at least 2);
-- ``c_*``, ``numba_*``: the hot kernel (:func:`im_common.real_plant_kernel.period`: the
+- ``c_*``, ``numba_*``: the hot kernel (:func:`im_plant.real_plant_kernel.period`: the
   eigenvalues, the switching intervals and the closed-form integrals of a period) written in C
   (``benchmarks/c_kernel/period.c``), compiled here with ``cc -O2 -shared -fPIC`` into a
   temporary directory and called through ctypes, against numba on the same inputs (the periods
@@ -22,7 +22,7 @@ encoder and ADC), run interleaved, best of the repeats:
   largest difference of their results (``c_max_rel_diff``, equal to 1e-12). Benchmark only: the
   product keeps numba. Without a C compiler ``c_kernel_skipped`` says so and the row is skipped.
 
-The real plant's period is compiled (:mod:`im_common.real_plant_kernel`, numba: the whole period
+The real plant's period is compiled (:mod:`im_plant.real_plant_kernel`, numba: the whole period
 in one call) unless ``--no-kernel`` (its pure-Python reference path,
 ``RealPlant.use_kernel = False``). Run
 standalone: ``python benchmarks/bench_real_plant.py [--quick] [--no-kernel]`` (prints the figures
@@ -89,8 +89,8 @@ C_NIN, C_NOUT, C_MAX_EV = 30, 21, 10
 
 def _period_calls(duration: float) -> list:
     """Return the arguments of every period kernel call of a short run with every block on."""
-    from im_common import real_plant_kernel
-    from im_common.real_plant import RealPlant
+    from im_plant import real_plant_kernel
+    from im_plant.real_plant import RealPlant
     real_plant_kernel.warm()                    # (its own calls are not the run's)
     calls = []
     compiled = real_plant_kernel.period
@@ -119,7 +119,7 @@ def c_versus_numba(duration: float = 0.05, repeats: int = 5) -> dict:
     Only ``c_kernel_skipped`` (one line) when it cannot run (no C compiler, no numba).
     """
     import numpy as np
-    from im_common import real_plant_kernel as K
+    from im_plant import real_plant_kernel as K
     if not K.available:
         return {'c_kernel_skipped': 'numba not installed: the C row skipped'}
     cc = os.environ.get('CC') or shutil.which('cc') or shutil.which('gcc')
@@ -198,7 +198,7 @@ def c_versus_numba(duration: float = 0.05, repeats: int = 5) -> dict:
 
 def _numba_batch():
     """Return a compiled loop calling real_plant_kernel.period on rows laid out as period.c's."""
-    from im_common import real_plant_kernel as K
+    from im_plant import real_plant_kernel as K
     from numba import njit
 
     def batch(inp, ev, n_ev, unit, unitc, norm2, out):
@@ -241,7 +241,7 @@ def reference_rate(duration: float, repeats: int) -> dict:
     ``offline_real_reference_steps_per_s``: the rate before the period was compiled, measured in
     the same run as the compiled one (``..._compiled_over_reference``: issue 46's "2x").
     """
-    from im_common.real_plant import RealPlant
+    from im_plant.real_plant import RealPlant
     use = RealPlant.use_kernel
     RealPlant.use_kernel = False
     try:
@@ -286,7 +286,7 @@ def main(argv=None) -> None:
     ap.add_argument('--no-kernel', action='store_true',
                     help='the pure-Python period (RealPlant.use_kernel = False)')
     args = ap.parse_args(argv)
-    from im_common.real_plant import RealPlant
+    from im_plant.real_plant import RealPlant
     if args.no_kernel:
         RealPlant.use_kernel = False
     res = run(quick=args.quick)

@@ -12,7 +12,7 @@ import math
 from im_adapt.adaptation import AdaptationGains, ParameterAdapter
 from im_common.loads import LinearLoad
 from im_common.params import chapter4_schedule, InvalidParameter, ParameterSchedule, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

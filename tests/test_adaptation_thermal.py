@@ -13,8 +13,8 @@ from im_adapt.hook import LockstepAdapter
 from im_adapt.thermal_tracking import WindingTemperatures
 from im_bringup.offline import simulate
 from im_common.params import THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_common.thermal import Thermal
+from im_plant.plant_sim import PlantSimulator
 from im_studies.study_adaptation import duty, TrueResistances, Truth
 import numpy as np
 import pytest

@@ -10,11 +10,11 @@ import math
 
 from im_common.loads import LinearLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_controller.baselines.current_vector import (ComplexPICurrentController,
                                                     CurrentVectorController, hold_equivalent,
                                                     SpeedPI)
 from im_controller.baselines.gains import BaselineGains
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

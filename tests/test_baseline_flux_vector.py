@@ -14,10 +14,10 @@ import math
 
 from im_common.loads import ConstantLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_controller.baselines.flux_vector import (current_limited_torque, FluxVectorController,
                                                  FluxVectorGains)
 from im_controller.baselines.vhz import nominal_stator_flux
+from im_plant.plant_sim import PlantSimulator
 import pytest
 
 M = THESIS_MOTOR

@@ -12,10 +12,10 @@ import random
 
 from im_common.loads import ConstantLoad, LinearLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_controller.baselines.vhz import (check_task, flux_torque_directions, nominal_stator_flux,
                                          ObserverBasedVHz, open_loop_droop, OpenLoopVHz,
                                          RateLimiter, VHzFluxObserver, VHzGains)
+from im_plant.plant_sim import PlantSimulator
 import pytest
 
 M = THESIS_MOTOR

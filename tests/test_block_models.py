@@ -1,7 +1,7 @@
 """
 The run file's inverter and sensors blocks as typed models (issue 45, item 1).
 
-``im_common.inverter.Inverter`` and ``im_common.sensors.Sensors`` are pydantic models: their
+``im_common.inverter.Inverter`` and ``im_plant.sensors.Sensors`` are pydantic models: their
 rules (bounds, types, the rules across fields) in one place, their errors the run file's one
 line (``im_common.validation.parse_block``); a Scenario parses a block once and keeps the model;
 the plant node takes the block as typed parameters ``inverter.<field>``, ``sensors.<field>``
@@ -14,9 +14,9 @@ from im_bringup.run_file import Scenario
 from im_common.host import build_node
 from im_common.inverter import Inverter
 from im_common.node_params import block_parameters, ConfigurationError
-from im_common.sensors import Sensors
 from im_common.validation import InvalidParameter
 from im_plant.plant_node import PlantNode
+from im_plant.sensors import Sensors
 from pydantic import ValidationError
 import pytest
 from rclpy.parameter import Parameter

@@ -12,7 +12,7 @@ import subprocess
 from im_adapt.commissioning import (Commissioning, nameplate_from_dict, NotInformative, rated_flux,
                                     simulate_commissioning)
 from im_common.params import load_motor_file, shipped_motors_dir
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 import pytest
 
 MOTORS = sorted(f[:-5] for f in os.listdir(shipped_motors_dir()) if f.endswith('.yaml'))

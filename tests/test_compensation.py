@@ -46,7 +46,7 @@ def test_the_exact_model_is_what_the_switched_inverter_loses():
     The devices' r_on acts in the plant as a resistance in series with R_s (docs/plant.md §1):
     the pole voltage holds the dead time and v_on, and the model's r_on·i is that series drop.
     """
-    from im_common.plant_sim import PlantSimulator
+    from im_plant.plant_sim import PlantSimulator
     spec = dict(INV, r_on=0.0)
     assert from_inverter(Inverter.from_block(INV)).r_on == 0.02
     model = from_inverter(Inverter.from_block(spec))

@@ -12,7 +12,7 @@ from im_bringup.run_file import RunFileError, Scenario
 from im_common.delay import CommandDelay
 from im_common.inverter import Inverter
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

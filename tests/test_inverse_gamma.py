@@ -12,9 +12,9 @@ from im_adapt.adaptation import AdaptationGains, ParameterAdapter
 from im_common.loads import LinearLoad
 from im_common.params import (CHAPTER4_ESTIMATES, estimate_arguments, IDENTIFIABLE_NAMES,
                               InvalidParameter, THESIS_MOTOR)
-from im_common.plant_sim import PlantSimulator
 from im_controller.reference import ModelCoefficients
 from im_observer.observer import RotorFluxObserver
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

@@ -11,8 +11,8 @@ import os
 from im_bringup.offline import Scenario, simulate
 from im_common.loads import load_file
 from im_common.params import InvalidParameter, load_motor_file, RATING_NAMES, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_controller.profiles import from_setpoints
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

@@ -15,7 +15,7 @@ from im_common.loads import (ConstantLoad, load_file, load_parameters, make_load
                              StepLoad)
 from im_common.metrics import load_step_figures, LoadStepFigures
 from im_common.params import InvalidParameter, shipped_motors_dir
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

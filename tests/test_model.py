@@ -9,9 +9,9 @@ import math
 from im_common.loads import LinearLoad, NoLoad
 from im_common.model import currents, eq112_matrices, MotorModel, stator_flux, torque
 from im_common.params import THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_common.steady_state import (params_steady_state, zoh_gain,
                                     zoh_sample_flux_offset)
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp

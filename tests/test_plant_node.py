@@ -301,7 +301,7 @@ def test_the_live_load_offset_acts_from_the_step_it_is_announced_at(ctx):
     the offset set before that step (lock-step determinism).
     """
     from im_common.loads import ConstantLoad
-    from im_common.plant_sim import PlantSimulator
+    from im_plant.plant_sim import PlantSimulator
     plant = make_plant(ctx, duration=0.03, load='constant', load_tau=1.0, omega0=50.0)
     said = []
     status = plant.status

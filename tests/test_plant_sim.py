@@ -13,9 +13,10 @@ error: it must be small *and* shrink as h⁴ when the sub-step is halved.
 import math
 
 from im_common.loads import LinearLoad, NoLoad, PendulumLoad
+from im_common.metrics import energy_summary
 from im_common.params import chapter4_schedule, InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import energy_summary, PlantSimulator
 from im_common.steady_state import params_steady_state
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

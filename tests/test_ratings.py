@@ -12,9 +12,9 @@ from im_common.params import (clarke, CURRENT_TRIP_MARGIN, default_limits, descr
                               InvalidParameter, load_motor_file, MotorParams, rated_flux,
                               shipped_motors_dir, SPEED_TRIP_MARGIN, THESIS_MOTOR,
                               vector_magnitude)
-from im_common.plant_sim import PlantSimulator
 from im_common.steady_state import params_steady_state
 from im_controller.control_law import ControllerConfig
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

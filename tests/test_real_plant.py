@@ -9,13 +9,14 @@ import math
 
 from im_common.inverter import clip_to_hexagon, duties, Inverter, period_plan, phase_values
 from im_common.loads import ConstantLoad, LinearLoad
+from im_common.metrics import energy_summary
 from im_common.model import MotorModel, rk4_step
 from im_common.params import clarke, InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import energy_summary, PlantSimulator
 from im_common.saturation import power_law_fit, saturation_from_dict
-from im_common.sensors import Sensors, SpeedFromCounts
 from im_common.steady_state import zoh_gain
 from im_common.thermal import first_order, Thermal, thermal_from_dict
+from im_plant.plant_sim import PlantSimulator
+from im_plant.sensors import Sensors, SpeedFromCounts
 import numpy as np
 import pytest
 

@@ -1,5 +1,5 @@
 """
-The real plant's compiled period against its pure-Python reference (im_common.real_plant_kernel).
+The real plant's compiled period against its pure-Python reference (im_plant.real_plant_kernel).
 
 Each run is stepped twice in lock-step with the same commands, once with ``use_kernel`` (numba:
 the whole period in one call, :func:`real_plant_kernel.step`) and once with the pure-Python path
@@ -12,12 +12,12 @@ bands, compiled too) and repeated eigenvalues (RK4, in Python).
 """
 import math
 
-from im_common import real_plant_kernel
 from im_common.loads import (ConstantLoad, LinearLoad, PendulumLoad, ScheduleLoad, StepLoad)
 from im_common.params import THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
-from im_common.real_plant import RealPlant
 from im_common.saturation import power_law_fit
+from im_plant import real_plant_kernel
+from im_plant.plant_sim import PlantSimulator
+from im_plant.real_plant import RealPlant
 import numpy as np
 import pytest
 

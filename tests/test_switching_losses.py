@@ -9,8 +9,9 @@ import math
 
 from im_common.inverter import Inverter, phase_values
 from im_common.loads import LinearLoad
+from im_common.metrics import energy_summary
 from im_common.params import clarke, InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import energy_summary, PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

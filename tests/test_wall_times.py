@@ -12,8 +12,8 @@ import os
 import subprocess
 import sys
 
-from im_common import real_plant_kernel
-from im_common.real_plant import RealPlant
+from im_plant import real_plant_kernel
+from im_plant.real_plant import RealPlant
 from im_studies import reproduce, study, study_delay, study_real_plant
 from im_studies.campaign_pool import wall_line, WallTime
 from im_studies.readme_status import load_summary
@@ -114,7 +114,7 @@ def _use_kernel(value):
     env.pop('IM_REAL_PLANT_KERNEL', None)
     if value is not None:
         env['IM_REAL_PLANT_KERNEL'] = value
-    p = subprocess.run([sys.executable, '-c', 'from im_common.real_plant import RealPlant; '
+    p = subprocess.run([sys.executable, '-c', 'from im_plant.real_plant import RealPlant; '
                         'print(RealPlant.use_kernel)'], env=env, capture_output=True, text=True,
                        timeout=120)
     assert p.returncode == 0, p.stderr

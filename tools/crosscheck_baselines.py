@@ -9,7 +9,7 @@ pydantic) are imported from src/::
     ../mot-env/bin/python tools/crosscheck_baselines.py [--duration 0.8] [--json out.json]
 
 Both sides run the same closed loop: :class:`im_controller.baselines.current_vector.
-CurrentVectorController` on :class:`im_common.plant_sim.PlantSimulator`, and motulator's sensored
+CurrentVectorController` on :class:`im_plant.plant_sim.PlantSimulator`, and motulator's sensored
 ``CurrentVectorController`` (continuous-time 2DOF current PI, not the discrete one) with its
 ``SpeedController`` in a ``VectorControlSystem`` on its ``Drive``. The same motor (the thesis
 motor, unsaturated, inverse-Γ L_σ, L_M, R_R; motulator's plant converts them to its Γ model,

@@ -11,7 +11,7 @@ and plant (pure Python, with pydantic) are imported from src/::
     ../mot-env/bin/python tools/crosscheck_flux_vector.py [--duration 0.8] [--json out.json]
 
 Both sides run the same closed speed loop: :class:`im_controller.baselines.flux_vector.
-FluxVectorController` on :class:`im_common.plant_sim.PlantSimulator`, and motulator's sensored
+FluxVectorController` on :class:`im_plant.plant_sim.PlantSimulator`, and motulator's sensored
 ``FluxVectorController`` with its ``SpeedController`` in a ``VectorControlSystem`` on its
 ``Drive``. The same motor (the thesis motor, unsaturated, inverse-Γ L_σ, L_M, R_R), the same shaft
 (J, viscous b as motulator's B_L), T_s = 100 µs, a computational delay of one period on both, the

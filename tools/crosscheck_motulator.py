@@ -40,7 +40,7 @@ def command(k: int, T_s: float, V: float, f: float):
 
 def run_ours(motor, n: int, T_s: float, V_dc: float, t_d: float, v_on: float, w_m: float,
              V: float, f: float):
-    from im_common.plant_sim import PlantSimulator
+    from im_plant.plant_sim import PlantSimulator
     sim = PlantSimulator(motor, None, T_s=T_s, omega0=w_m, v_limit=None,
                          inverter={'V_dc': V_dc, 'pwm_frequency': 1.0 / T_s, 'deadtime': t_d,
                                    'v_on': v_on})

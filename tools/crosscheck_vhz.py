@@ -11,7 +11,7 @@ src/::
     ../mot-env/bin/python tools/crosscheck_vhz.py [--duration 1.0] [--json out.json]
 
 Both sides run the same open speed loop (V/Hz takes no measured speed): :class:`im_controller.
-baselines.vhz.ObserverBasedVHz` on :class:`im_common.plant_sim.PlantSimulator`, and motulator's
+baselines.vhz.ObserverBasedVHz` on :class:`im_plant.plant_sim.PlantSimulator`, and motulator's
 ``ObserverBasedVHzController`` in a ``VHzControlSystem`` on its ``Drive``. The same motor (the
 thesis motor, unsaturated, inverse-Γ L_σ, L_M, R_R), the same shaft (J, viscous b as motulator's
 B_L), T_s = 100 µs, a computational delay of one period on both, the same gains (motulator's

@@ -79,7 +79,7 @@ class SpeedObserver:
 def project_plant(motor, case: dict):
     """Return the project's PlantSimulator, no load, one period's delay, no limits or trips."""
     from im_common.loads import NoLoad
-    from im_common.plant_sim import PlantSimulator
+    from im_plant.plant_sim import PlantSimulator
     return PlantSimulator(motor, NoLoad(), T_s=case['T_s'], max_substep=case['max_substep'],
                           v_limit=None, current_trip=None, speed_trip=None,
                           inverter_rating=1e9, inverter={'delay': 1})

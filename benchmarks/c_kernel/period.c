@@ -1,7 +1,7 @@
 /*
  * The real plant's period in C, for the benchmark only (benchmarks/bench_real_plant.py).
  *
- * The same arithmetic as im_common.real_plant_kernel.period (numba): the frozen system's
+ * The same arithmetic as im_plant.real_plant_kernel.period (numba): the frozen system's
  * eigenvalues, the switching intervals with the dead bands resolved by the currents' signs,
  * the boundary sign check, the switching tally and the closed-form energy integrals
  * (docs/plant.md §1). The product keeps numba; this file measures a C extension against it

@@ -921,7 +921,7 @@ def rated_flux(ident: Dict[str, float], plate: Nameplate, theta: float) -> float
 
 def simulate_commissioning(plant, com: Commissioning, max_steps: int = 10 ** 7) -> Commissioning:
     """
-    Run ``com`` on a ROS-free :class:`~im_common.plant_sim.PlantSimulator`.
+    Run ``com`` on a ROS-free :class:`~im_plant.plant_sim.PlantSimulator`.
 
     The order is that of the lock-step graph: measure t_k, command, integrate.
     """

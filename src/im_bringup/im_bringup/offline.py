@@ -33,10 +33,10 @@ from im_common.metrics import energy_figures, load_step_figures, tracking_figure
 from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN
 from im_common.params import (CHAPTER4_ESTIMATES, estimate_arguments,  # noqa: F401 (re-exported)
                               InvalidParameter, SCHEDULES, THESIS_MOTOR)
-from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import DriveController
 from im_observer.observer import RotorFluxObserver
 from im_observer.speed_observer import SpeedAdaptiveObserver
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 
 from .config import ADAPTATION, CONTROLLERS, TASK_PRESETS, TASKS  # noqa: F401 (re-exported)

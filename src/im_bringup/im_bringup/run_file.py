@@ -40,7 +40,6 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE
                               shipped_motor, THESIS_MOTOR, variation_schedule,
                               warn_motor_defaults)
 from im_common.saturation import SaturatedModel, saturation_from_dict
-from im_common.sensors import Sensors
 from im_common.thermal import thermal_from_dict
 from im_common.validation import check_choice, one_line
 from im_common.yamlio import load_parameters_file, read_yaml_file
@@ -51,6 +50,7 @@ from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIN
 from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
+from im_plant.sensors import Sensors
 import numpy as np
 import yaml
 

@@ -239,7 +239,7 @@ class LiveLoad(Load):
     The plant's load: a :class:`Load` plus ``offset``, the live ``load_offset`` [N·m].
 
     τ_L = load.torque(t, θ, ω) + offset. The plant sets ``offset`` between two steps only
-    (:meth:`im_common.plant_sim.PlantSimulator.set_load_offset`), so a change acts from a step
+    (:meth:`im_plant.plant_sim.PlantSimulator.set_load_offset`), so a change acts from a step
     boundary on. Its description is the load's: the offset is an event of the run, not a kind.
     """
 

@@ -20,7 +20,7 @@ A load step (a ``step`` or ``schedule`` load, docs/running.md "Loads") adds the 
 :func:`load_step_figures`: how deep the speed dipped and how long it took to come back.
 
 Energies come from the plant's integrated books (``truth`` dict at the final instant, see
-:func:`im_common.plant_sim.energy_summary`), not from re-integrating sampled powers.
+:func:`im_common.metrics.energy_summary`), not from re-integrating sampled powers.
 """
 from __future__ import annotations
 
@@ -28,8 +28,6 @@ import math
 from typing import Mapping, Optional
 
 import numpy as np
-
-from .plant_sim import energy_summary
 
 
 def _finite(x) -> np.ndarray:
@@ -173,3 +171,25 @@ def energy_figures(truth_final: Mapping[str, float]) -> dict:
 def balance_relative(fig: Mapping[str, float]) -> float:
     """|balance residual| relative to the energy drawn (dimensionless)."""
     return abs(fig['balance_residual_J']) / max(abs(fig['E_in_J']), 1e-12)
+
+
+def energy_summary(truth: dict) -> dict:
+    """
+    Return the figures of merit of the energy books (J) from a ``truth()`` dict.
+
+    Behind an inverter (the real plant's truth has ``E_inv``) also its losses ``E_inverter_J``
+    (conduction and switching), their switching share ``E_switching_J`` and the energy drawn
+    from the DC link, ``E_dc_J`` = E_in + E_inv.
+    """
+    e_cu = truth['E_cu_s'] + truth['E_cu_r']
+    return {
+        'E_in_J': truth['E_in'], 'E_copper_J': e_cu, 'E_core_J': truth['E_core'],
+        'E_loss_J': e_cu + truth['E_core'], 'W_load_J': truth['W_load'],
+        'E_friction_J': truth['E_friction'], 'dE_kinetic_J': truth['dE_kin'],
+        'dW_magnetic_J': truth['dW_mag'], 'E_param_J': truth['E_param'],
+        'balance_residual_J': truth['balance_residual'],
+        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv']}
+           if 'E_inv' in truth else {}),
+        # a recording made before the switching losses has none to report: no key, not a 0
+        **({'E_switching_J': truth['E_switching']} if 'E_switching' in truth else {}),
+    }

@@ -215,7 +215,7 @@ def declare_block(node, model_cls, prefix: str, description: str):
     Declare a run-file block's parameters, generated from its pydantic model; return it or None.
 
     ``<prefix>.enabled`` (false, the default: no block, None) and one typed parameter per field of
-    ``model_cls`` (:class:`im_common.inverter.Inverter`, :class:`im_common.sensors.Sensors`),
+    ``model_cls`` (:class:`im_common.inverter.Inverter`, :class:`im_plant.sensors.Sensors`),
     ``<prefix>.<field>``: the field's type (a tuple of numbers: a double array), default,
     description (unit, meaning) and bounds. Enabled, the values are parsed into the model: an
     error is one line naming ``<prefix>.<field>`` (:func:`im_common.validation.parse_block`, the

@@ -9,13 +9,13 @@ import random
 from im_common.loads import NoLoad
 from im_common.model import stator_flux
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController
 from im_controller.flux import flux_min_energy, flux_min_loss, LowPass2
 from im_controller.reference import (dq_reference, ModelCoefficients, reference_alpha_beta,
                                      steady_losses, steady_state, torque_alpha_beta)
 from im_controller.trajectories import (cubed_gaussian_step_integral, Quintic,
                                         ThesisPositionProfile, ThesisSpeedProfile)
+from im_plant.plant_sim import PlantSimulator
 import numpy as np
 import pytest
 

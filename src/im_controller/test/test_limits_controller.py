@@ -8,11 +8,11 @@ import math
 
 from im_common.loads import NoLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_controller.control_law import ControllerConfig, DriveController, smooth_floor
 from im_controller.parameters import live_changes, LIVE_PARAMETERS
 from im_controller.profiles import from_parameters, from_samples, from_setpoints, load_profile
 from im_observer.observer import RotorFluxObserver
+from im_plant.plant_sim import PlantSimulator
 import pytest
 
 

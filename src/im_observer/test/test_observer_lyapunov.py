@@ -7,8 +7,8 @@ import math
 
 from im_common.loads import NoLoad
 from im_common.params import InvalidParameter, THESIS_MOTOR
-from im_common.plant_sim import PlantSimulator
 from im_observer.observer import RotorFluxObserver
+from im_plant.plant_sim import PlantSimulator
 import pytest
 
 

@@ -1,5 +1,5 @@
 """
-ROS parameters of the plant node ↔ :class:`im_common.plant_sim.PlantSimulator`.
+ROS parameters of the plant node ↔ :class:`im_plant.plant_sim.PlantSimulator`.
 
 Every plant parameter is declared here with a description and a range (the motor through
 :func:`im_common.node_params.declare_motor`, so a motor file's ``/**`` section reaches it);
@@ -16,8 +16,8 @@ from im_common.node_params import declare_block, declare_motor
 from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, motor_blocks, MotorParams,
                               ParameterSchedule, RATED, SCHEDULES, Variation,
                               variation_schedule)
-from im_common.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
-from im_common.sensors import Sensors
+from im_plant.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
+from im_plant.sensors import Sensors
 
 STEPPING_MODES = ('lockstep', 'free_run')
 

@@ -1,7 +1,7 @@
 """
 ``ros2 run im_plant plant``: the simulated motor, load and inverter; the time master.
 
-A thin shell around :class:`im_common.plant_sim.PlantSimulator`: parameters in, voltage commands
+A thin shell around :class:`im_plant.plant_sim.PlantSimulator`: parameters in, voltage commands
 in, measurements and ground truth out. It is the time master of the run protocol
 (:mod:`im_common.lockstep`): it publishes step 0 only when every node of ``wait_for`` is ready, and
 ``finished`` after the last step.

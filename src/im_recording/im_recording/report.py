@@ -8,7 +8,7 @@ numbers with the runs' metadata) and PNG figures in the style of seed 000 (:mod:
 prints where they are. Default DIR: ``<first bag without .mcap>_report``.
 
 The numbers come from :mod:`im_common.metrics` (tracking errors, peaks) and
-:func:`im_common.plant_sim.energy_summary` (energy books), plus parameter-estimate errors when an
+:func:`im_common.metrics.energy_summary` (energy books), plus parameter-estimate errors when an
 adapter ran. An unreadable bag is a one-line error and exit code 2.
 """
 from __future__ import annotations

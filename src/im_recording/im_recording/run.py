@@ -32,7 +32,7 @@ phi_reest_*, i_reest_*           /im/reestimate/observer/flux, /current (replay 
 ==============================  ==========================================================
 
 ``truth_final`` holds the energy books over the recorded window in the key names of
-:meth:`im_common.plant_sim.PlantSimulator.truth` (integrals as last − first sample, which is the
+:meth:`im_plant.plant_sim.PlantSimulator.truth` (integrals as last − first sample, which is the
 plant's own value when the recording starts at t = 0), the last parameter values, and
 ``dW_mag``, ``dE_kin`` and ``balance_residual`` computed exactly as the plant does.
 """

@@ -1,7 +1,7 @@
 """
 A small synthetic recording, for tests and demos of the bag tools without the ROS graph.
 
-:func:`make_synthetic_bag` drives :class:`im_common.plant_sim.PlantSimulator` open loop with a
+:func:`make_synthetic_bag` drives :class:`im_plant.plant_sim.PlantSimulator` open loop with a
 rotating stator-voltage vector (v_α, v_β) = V (cos 2πft, sin 2πft) and records every step the
 way the live graph stamps it: measurements, command and truth at t_k; if an observer is given
 (an object with ``step(T_s, v_a, v_b, i_a, i_b, omega) -> (i_a, i_b, phi_a, phi_b)``), its
@@ -16,7 +16,7 @@ from im_common import topics as T
 from im_common.cdr import pack_clock
 from im_common.conversions import NS_PER_S
 from im_common.loads import ConstantLoad
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 
 from .bag import BagWriter
 

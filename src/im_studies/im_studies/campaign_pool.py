@@ -168,7 +168,7 @@ class WallTime:
     Started when made; :meth:`part` times a part (a ``with`` block; a part timed twice adds up).
     :meth:`figures` gives what the campaign, the studies and ``make reproduce`` write beside
     their results (docs/commands.md): ``wall_s`` (from the start), ``wall_parts_s`` and
-    ``real_plant_kernel`` (:attr:`im_common.real_plant.RealPlant.use_kernel` in this process:
+    ``real_plant_kernel`` (:attr:`im_plant.real_plant.RealPlant.use_kernel` in this process:
     False with ``IM_REAL_PLANT_KERNEL=0`` or without numba, docs/plant.md §9). They are the only
     figures there that differ from one run of a command to the next; :func:`wall_line` prints
     them.
@@ -189,7 +189,7 @@ class WallTime:
 
     def figures(self) -> dict:
         """Return ``wall_s`` (so far), ``wall_parts_s`` and ``real_plant_kernel``."""
-        from im_common.real_plant import RealPlant  # heavy: numba, only at the command's end
+        from im_plant.real_plant import RealPlant  # heavy: numba, only at the command's end
         return {'wall_s': time.perf_counter() - self.t0, 'wall_parts_s': dict(self.parts),
                 'real_plant_kernel': bool(RealPlant.use_kernel)}
 

@@ -11,7 +11,7 @@ import os
 
 from im_adapt.commissioning import Commissioning, Nameplate, simulate_commissioning
 from im_common.params import load_motor_file, RATING_NAMES, shipped_motors_dir
-from im_common.plant_sim import PlantSimulator
+from im_plant.plant_sim import PlantSimulator
 
 
 def plate_of(motor):

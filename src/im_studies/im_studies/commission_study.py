@@ -5,7 +5,7 @@ Accuracy of self-commissioning (docs/commissioning.md §6), on the ROS-free plan
 
 Commissions every shipped motor and the first ``draws`` motors of the campaign's parameter box
 (``config/campaign.yaml``, :func:`im_studies.campaign_spec.draw`) with σ < 0.15, each on a
-:class:`~im_common.plant_sim.PlantSimulator` running the true motor with current noise
+:class:`~im_plant.plant_sim.PlantSimulator` running the true motor with current noise
 ``noise`` [A] and the drive's limits as its protection; then runs the min_loss speed task
 (offline loop) with the identified motor as the controller's and observer's model and with the
 true one. Writes ``summary.json`` and ``summary.md`` (the table of the docs).

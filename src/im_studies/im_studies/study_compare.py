@@ -48,10 +48,10 @@ from im_common.inverter import Inverter
 from im_common.loads import StepLoad
 from im_common.metrics import LOAD_STEP_BAND
 from im_common.params import CHAPTER4_VARIATION, load_motor_file, shipped_motors_dir
-from im_common.sensors import Sensors
 from im_controller.control_law import THESIS_LAW_GAINS
 from im_controller.flux import COMPARED_STRATEGIES
 from im_controller.profiles import Profile
+from im_plant.sensors import Sensors
 from im_recording.plots import pyplot
 import numpy as np
 

@@ -53,8 +53,8 @@ from im_common.inverter import Inverter
 from im_common.loads import ConstantLoad, StepLoad
 from im_common.params import load_motor_blocks, load_motor_file, RATING_NAMES, shipped_motors_dir
 from im_common.saturation import saturation_from_dict
-from im_common.sensors import Sensors
 from im_controller.profiles import Profile
+from im_plant.sensors import Sensors
 from im_recording.plots import pyplot
 import numpy as np
 

@@ -1,5 +1,5 @@
 """
-The real plant's period, compiled: :meth:`im_common.real_plant.RealPlant._solve` in numba.
+The real plant's period, compiled: :meth:`im_plant.real_plant.RealPlant._solve` in numba.
 
 The exact interval solution of docs/plant.md §1 is scalar complex arithmetic, a few hundred
 operations a period, which the interpreter spends most of the real plant's time on (§9, cost).
@@ -36,9 +36,8 @@ from cmath import exp as cexp
 import logging
 import math
 
+from im_common.inverter import HALF_SQRT3, SQRT_2_3
 import numpy as np
-
-from .inverter import HALF_SQRT3, SQRT_2_3
 
 try:
     from numba import njit
@@ -1100,7 +1099,7 @@ def warm() -> None:
     """
     Compile the kernels (or load them from the cache) now, once a process.
 
-    :class:`im_common.real_plant.RealPlant` calls it when built, so the compilation (about 2.5 s
+    :class:`im_plant.real_plant.RealPlant` calls it when built, so the compilation (about 2.5 s
     the first time after an install, 0.3 s from the cache) comes before a run's first step, not
     within it (a lock-step partner's input watchdog, im_common.lockstep_parts). The arguments'
     types are those of RealPlant's calls: one compiled signature each.

@@ -28,13 +28,14 @@ from dataclasses import dataclass
 import math
 from typing import Optional, Sequence
 
-from .delay import CommandDelay
-from .inverter import Inverter
-from .loads import LiveLoad, Load, NoLoad
-from .model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM, MotorModel, N_AUG,
-                    rk4_step, W_LOAD)
-from .params import (InvalidParameter, MotorParams, ParameterSchedule, RATED, resolve_rated,
-                     THESIS_MOTOR)
+from im_common.delay import CommandDelay
+from im_common.inverter import Inverter
+from im_common.loads import LiveLoad, Load, NoLoad
+from im_common.model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM,
+                             MotorModel, N_AUG, rk4_step, W_LOAD)
+from im_common.params import (InvalidParameter, MotorParams, ParameterSchedule, RATED,
+                              resolve_rated, THESIS_MOTOR)
+
 from .sensors import Measurement  # noqa: F401 - what measure() returns; its home
 
 # The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
@@ -75,7 +76,7 @@ class PlantSimulator:
     locked_rotor : bool
         The shaft is held where it starts (a locked-rotor test); the speed must start at 0.
     inverter, saturation, thermal, sensors, iron_loss
-        The real plant's blocks (:mod:`im_common.real_plant`); an inverter block without V_dc is
+        The real plant's blocks (:mod:`im_plant.real_plant`); an inverter block without V_dc is
         the ideal voltage source with its ``delay`` only.
 
     The inverter's ``delay`` (:mod:`im_common.delay`): the command given to :meth:`step` k acts
@@ -365,25 +366,3 @@ class PlantSimulator:
                                    - out['W_load'] - out['E_param'] - out['dW_mag']
                                    - out['dE_kin'])
         return out
-
-
-def energy_summary(truth: dict) -> dict:
-    """
-    Return the figures of merit of the energy books (J) from a ``truth()`` dict.
-
-    Behind an inverter (the real plant's truth has ``E_inv``) also its losses ``E_inverter_J``
-    (conduction and switching), their switching share ``E_switching_J`` and the energy drawn
-    from the DC link, ``E_dc_J`` = E_in + E_inv.
-    """
-    e_cu = truth['E_cu_s'] + truth['E_cu_r']
-    return {
-        'E_in_J': truth['E_in'], 'E_copper_J': e_cu, 'E_core_J': truth['E_core'],
-        'E_loss_J': e_cu + truth['E_core'], 'W_load_J': truth['W_load'],
-        'E_friction_J': truth['E_friction'], 'dE_kinetic_J': truth['dE_kin'],
-        'dW_magnetic_J': truth['dW_mag'], 'E_param_J': truth['E_param'],
-        'balance_residual_J': truth['balance_residual'],
-        **({'E_inverter_J': truth['E_inv'], 'E_dc_J': truth['E_in'] + truth['E_inv']}
-           if 'E_inv' in truth else {}),
-        # a recording made before the switching losses has none to report: no key, not a 0
-        **({'E_switching_J': truth['E_switching']} if 'E_switching' in truth else {}),
-    }

@@ -1,5 +1,5 @@
 """
-The real plant: what :class:`im_common.plant_sim.PlantSimulator` does when a block is on.
+The real plant: what :class:`im_plant.plant_sim.PlantSimulator` does when a block is on.
 
 A :class:`PlantSimulator` given any of ``inverter`` (the switched one), ``saturation``,
 ``thermal``, ``sensors`` or ``iron_loss`` builds one :class:`RealPlant` and hands it each period's
@@ -31,7 +31,7 @@ Per control period (docs/plant.md):
 4. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
    the DC link (energy form), the encoder's count and the protection.
 
-Steps 1-4 run compiled (:mod:`im_common.real_plant_kernel`, numba) when
+Steps 1-4 run compiled (:mod:`im_plant.real_plant_kernel`, numba) when
 ``RealPlant.use_kernel``, in the same arithmetic; the pure-Python path (:meth:`RealPlant._solve`
 and the methods around it) is the reference (``use_kernel = False``, equal to 1e-12,
 tests/test_real_plant_kernel.py). One call a period (``real_plant_kernel.step``) where the
@@ -52,15 +52,16 @@ import math
 import os
 from typing import Mapping
 
+from im_common.inverter import (carry_after, check_against_motor, duties, edges, Inverter,
+                                period_plan, phase_values)
+from im_common.loads import ConstantLoad, LinearLoad, NoLoad, PendulumLoad, ScheduleLoad, StepLoad
+from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
+from im_common.params import clarke
+from im_common.saturation import Saturation, saturation_from_dict
+from im_common.thermal import first_order, Thermal, thermal_from_dict
+
 from . import real_plant_kernel as _kernel
-from .inverter import (carry_after, check_against_motor, duties, edges, Inverter, period_plan,
-                       phase_values)
-from .loads import ConstantLoad, LinearLoad, NoLoad, PendulumLoad, ScheduleLoad, StepLoad
-from .model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
-from .params import clarke
-from .saturation import Saturation, saturation_from_dict
 from .sensors import Measurement, Sensors, SpeedFromCounts
-from .thermal import first_order, Thermal, thermal_from_dict
 
 try:
     import numpy as np
@@ -81,7 +82,7 @@ _UNIT = (_UNIT_VECTORS, tuple(u.conjugate() for u in _UNIT_VECTORS),
          tuple((u * u.conjugate()).real for u in _UNIT_VECTORS))
 
 
-#: _UNIT as the compiled kernel takes it (im_common.real_plant_kernel)
+#: _UNIT as the compiled kernel takes it (im_plant.real_plant_kernel)
 _UNIT_ARRAYS = _kernel.as_table(_UNIT)
 
 
@@ -145,7 +146,7 @@ def _edge_currents(before, after, i: complex) -> float:
 class RealPlant:
     """The real plant's blocks and state beside a :class:`PlantSimulator` (module doc)."""
 
-    #: the period by the compiled kernel (:mod:`im_common.real_plant_kernel`, numba) when it
+    #: the period by the compiled kernel (:mod:`im_plant.real_plant_kernel`, numba) when it
     #: exists, else (False) by the pure-Python path of :meth:`_solve`, the reference; also
     #: False with IM_REAL_PLANT_KERNEL=0 in the environment (docs/plant.md §9)
     use_kernel = _kernel.available and os.environ.get('IM_REAL_PLANT_KERNEL') != '0'
@@ -1152,7 +1153,7 @@ class RealPlant:
         return out
 
     def measure(self):
-        """Return what the sensors give at t_k, the carrier's peak (im_common.sensors)."""
+        """Return what the sensors give at t_k, the carrier's peak (im_plant.sensors)."""
         sim = self.sim
         x = sim.x
         if x is self._x_fast:                   # a compiled period's, the noise added here

@@ -26,9 +26,8 @@ from dataclasses import dataclass
 import math
 from typing import Annotated, Tuple
 
+from im_common.validation import BLOCK_CONFIG, parse_block
 from pydantic import BaseModel, Field, field_validator
-
-from .validation import BLOCK_CONFIG, parse_block
 
 TWO_PI = 2.0 * math.pi
 #: one number per phase (a, b, c); a block may give one number for all three
