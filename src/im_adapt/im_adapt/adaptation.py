@@ -648,8 +648,41 @@ class ParameterAdapter:
         self._b = [0.0] * n
 
     def _improved_step(self, T_s, i, omega_r, i_prev):
+        """
+        One period of the improved law: the least squares' data, solved every N periods.
+
+        The own current model and the rotor frame advance over [t_k-1, t_k]; the filtered rotor
+        equation's residual and regressors (those of the parameters in ``_names``) go into the
+        normal equations, which :meth:`_ls_update` solves every N-th period.
+        """
         if T_s != self._filter_T:
             self._set_filter(T_s)
+        rot = self._advance_current_model(T_s, i, omega_r, i_prev)
+        i_r = i * rot
+        psi_r = self._psi * rot
+        # Tustin filters H(s) = ω_f/(s+ω_f) on the rotor-frame i and ψ̂.
+        fa, fb = self._fa, self._fb
+        ui, upsi = self._u_prev
+        Hi = self._Hi = fa * self._Hi + fb * (i_r + ui)
+        Hpsi = self._Hpsi = fa * self._Hpsi + fb * (psi_r + upsi)
+        self._u_prev = (i_r, psi_r)
+        e, cols, Hphi = self._rotor_equation_residual(i_r, psi_r, Hi, Hpsi)
+        if self.estimate_R_s:
+            self._stator_resistance_regressor(cols, rot, i, Hi, Hphi)
+        if self._w:             # the start offset δ (complex): ψ̂ = … + δ w, e = … − δ g_w
+            cols += self._start_offset_regressors(rot)
+        self._accumulate_normal_equations(cols, e)
+        self.k += 1
+        if self.k % self.N:
+            return
+        self._ls_update()
+
+    def _advance_current_model(self, T_s, i, omega_r, i_prev) -> complex:
+        """
+        Advance the own current model φ_cm and the rotor angle ρ over [t_k-1, t_k].
+
+        Returns e^{−jρ}, the rotation from αβ to the rotor frame at t_k.
+        """
         # Own current model φ_cm over [t_k-1, t_k]: dφ/dt = R_R i − c φ + j v ω φ (Tustin, with
         # the interval's mean speed: ω_k alone is off by T_s/2·dω/dt, which under a hard braking
         # (1000 rad/s²) put 10⁻³ Wb into φ_cm and biased L̂_M by 13 % as the flux decayed).
@@ -661,15 +694,14 @@ class ParameterAdapter:
         # O((ω_e T_s)²) error of a discrete derivative swamps the slip term at low torque).
         self._rho = rho = (self._rho + 0.5 * T_s * self.v * (omega_r + self._omega_prev)) % TWO_PI
         self._omega_prev = omega_r
-        rot = complex(math.cos(rho), -math.sin(rho))
-        i_r = i * rot
-        psi_r = self._psi * rot
-        # Tustin filters H(s) = ω_f/(s+ω_f) on the rotor-frame i and ψ̂.
-        fa, fb = self._fa, self._fb
-        ui, upsi = self._u_prev
-        Hi = self._Hi = fa * self._Hi + fb * (i_r + ui)
-        Hpsi = self._Hpsi = fa * self._Hpsi + fb * (psi_r + upsi)
-        self._u_prev = (i_r, psi_r)
+        return complex(math.cos(rho), -math.sin(rho))
+
+    def _rotor_equation_residual(self, i_r, psi_r, Hi, Hpsi):
+        """
+        Return (e, cols, Hφ): the filtered rotor equation's residual and regressors.
+
+        ``cols`` holds −∂e/∂p of (L_σ, R_R, c) as complex numbers x + jy; Hφ = Hψ̂ − L_σ Hi.
+        """
         # H[dψ/dt] = L_σ H[di/dt] + R_R H[i] − c H[ψ − L_σ i] (rotor frame; H[dx/dt] = ω_f(x −
         # Hx)):
         # residual at the current estimates and its gradient in (L_σ, R_R, c) (Gauss-Newton;
@@ -683,34 +715,48 @@ class ParameterAdapter:
         e = y - (L_sig * r1 + self.R_R * Hi - c * Hphi)
         # The regressors −∂e/∂p of the parameters in _names, as complex numbers x + jy.
         g1 = r1 + c * Hi
-        cols = [g1, Hi, -Hphi]
-        if self.estimate_R_s:   # R_s: −∂e/∂R_s = ω_f(z − Hz) + c Hz (rotor frame)
-            z_r = self._z * rot
-            Hz = self._Hz = fa * self._Hz + fb * (z_r + self._uz)
-            self._uz = z_r
-            gz = wf * (z_r - Hz) + c * Hz
-            # R_s moves ψ̂ by ~R̃_s|i|/ω_e, L_M by ~L̃_M i_d: one steady operating point cannot
-            # tell them apart, a changing operating point can. Where R_s weighs more than
-            # SPLIT_RATIO of the flux's rate (R_s|i| > SPLIT_RATIO·|ω_e||φ|: low stator
-            # frequency, low flux) L_M is held and R_s learnt, elsewhere the reverse
-            # (docs/sensorless.md §3, docs/adaptation.md §4).
-            self._hold_L_M = low = (self.R_s * abs(i)
-                                    > SPLIT_RATIO * abs(self._omega_e) * abs(self._phi_cm))
-            if self.sensorless:     # in R_R's place (R̂_R held, so c held is L_M held)
-                cols[1] = 0j if self.temperatures is not None else gz   # (or its temperature)
-                if low:
-                    cols[2] = 0j
-            else:                   # R_R with c = R_R/L̂_M: −∂e/∂R_R = Hi − Hφ/L̂_M
-                if low:
-                    cols[1] = Hi - Hphi / self.L_M
-                    cols[2] = 0j
-                cols.append(gz if low else 0j)
-        if self._w:             # the start offset δ (complex): ψ̂ = … + δ w, e = … − δ g_w
-            w_r = self._w * rot
-            Hw = self._Hw = fa * self._Hw + fb * (w_r + self._uw)
-            self._uw = w_r
-            gw = wf * (w_r - Hw) + c * Hw
-            cols += [gw, 1j * gw]
+        return e, [g1, Hi, -Hphi], Hphi
+
+    def _stator_resistance_regressor(self, cols, rot, i, Hi, Hphi) -> None:
+        """
+        Put R_s's regressor into ``cols`` (in place), holding L_M or R_s where they alias.
+
+        Sensorless it takes R_R's place; sensored it is appended (zero while L_M is learnt).
+        """
+        fa, fb, wf, c = self._fa, self._fb, self._wf, self._c
+        # R_s: −∂e/∂R_s = ω_f(z − Hz) + c Hz (rotor frame)
+        z_r = self._z * rot
+        Hz = self._Hz = fa * self._Hz + fb * (z_r + self._uz)
+        self._uz = z_r
+        gz = wf * (z_r - Hz) + c * Hz
+        # R_s moves ψ̂ by ~R̃_s|i|/ω_e, L_M by ~L̃_M i_d: one steady operating point cannot
+        # tell them apart, a changing operating point can. Where R_s weighs more than
+        # SPLIT_RATIO of the flux's rate (R_s|i| > SPLIT_RATIO·|ω_e||φ|: low stator
+        # frequency, low flux) L_M is held and R_s learnt, elsewhere the reverse
+        # (docs/sensorless.md §3, docs/adaptation.md §4).
+        self._hold_L_M = low = (self.R_s * abs(i)
+                                > SPLIT_RATIO * abs(self._omega_e) * abs(self._phi_cm))
+        if self.sensorless:     # in R_R's place (R̂_R held, so c held is L_M held)
+            cols[1] = 0j if self.temperatures is not None else gz   # (or its temperature)
+            if low:
+                cols[2] = 0j
+        else:                   # R_R with c = R_R/L̂_M: −∂e/∂R_R = Hi − Hφ/L̂_M
+            if low:
+                cols[1] = Hi - Hphi / self.L_M
+                cols[2] = 0j
+            cols.append(gz if low else 0j)
+
+    def _start_offset_regressors(self, rot) -> list:
+        """Return the regressors of the start offset δ's real and imaginary parts: g_w, j g_w."""
+        fa, fb = self._fa, self._fb
+        w_r = self._w * rot
+        Hw = self._Hw = fa * self._Hw + fb * (w_r + self._uw)
+        self._uw = w_r
+        gw = self._wf * (w_r - Hw) + self._c * Hw
+        return [gw, 1j * gw]
+
+    def _accumulate_normal_equations(self, cols, e) -> None:
+        """Add one period's regressors ``cols`` and residual ``e`` to the sums S and b."""
         S, b = self._S, self._b
         er, ei = e.real, e.imag
         if len(cols) == 3:      # the usual set, unrolled: the loop below costs 1.5 µs a period
@@ -732,10 +778,6 @@ class ParameterAdapter:
                 S[k] += X[p] * X[q] + Y[p] * Y[q]
             for p in range(len(cols)):
                 b[p] += X[p] * er + Y[p] * ei
-        self.k += 1
-        if self.k % self.N:
-            return
-        self._ls_update()
 
     def _ls_update(self):
         f = self._floor

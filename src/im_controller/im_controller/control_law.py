@@ -928,9 +928,9 @@ class DriveController:
         return rho + (d + math.pi) % (2.0 * math.pi) - math.pi
 
     # ------------------------------------------------------------------------------------------
-    def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
-                phi_alpha_hat: float, phi_beta_hat: float, estimates: dict | None = None):
-        """Return the stator voltage (V_α, V_β) to hold on [t, t + T_s]; set ``self.reference``."""
+    @staticmethod
+    def _check_inputs(t, i_alpha, i_beta, theta_r, omega_r, phi_alpha_hat, phi_beta_hat) -> None:
+        """Raise ValueError naming every input of :meth:`compute` that is not finite."""
         if not (math.isfinite(t) and math.isfinite(i_alpha) and math.isfinite(i_beta)
                 and math.isfinite(theta_r) and math.isfinite(omega_r)
                 and math.isfinite(phi_alpha_hat) and math.isfinite(phi_beta_hat)):
@@ -939,23 +939,54 @@ class DriveController:
             vals = (t, i_alpha, i_beta, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
             bad = [n for n, v in zip(names, vals) if not math.isfinite(v)]
             raise ValueError(f'controller input(s) not finite: {", ".join(bad)}')
+
+    def _advance_time(self, t, first, theta_r, omega_r, phi_alpha_hat, phi_beta_hat) -> float:
+        """
+        Return the step dt since the last :meth:`compute` and advance the filters over it.
+
+        The first call starts the run from its inputs instead (dt = 0); raises ValueError when
+        time went backwards.
+        """
+        if first:
+            self._init_run(t, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
+            return 0.0
+        dt = t - self._t_prev
+        if dt < 0.0:
+            raise ValueError(f'time went backwards: t = {t!r} after {self._t_prev!r}')
+        self._pd.advance(dt)
+        self._flux.advance(dt)
+        if self._limited and self.config.mode == 'speed':
+            # back-calculation: while the voltage is limited, θ* = ∫ω* follows the shaft
+            self._theta_offset += dt * (omega_r - self.reference['omega_ref'])
+        return dt
+
+    def _limit_voltage(self, v_a: float, v_b: float):
+        """Return (V_α, V_β, saturated): the voltage scaled onto the ``v_limit`` circle."""
+        v_limit = self.config.v_limit
+        if v_limit is not None:
+            mag = math.hypot(v_a, v_b)
+            if mag > v_limit:
+                s = v_limit / mag
+                return v_a * s, v_b * s, True
+        return v_a, v_b, False
+
+    def _remember_feedback(self, dv: tuple) -> None:
+        """Push the feedback part ``dv`` of the command into the drive's copy of the delay line."""
+        if not self._sent:              # the plant's line starts with the first command
+            self._sent = [dv] * self.config.delay
+        self._sent.append(dv)
+        del self._sent[0]
+
+    def compute(self, t: float, i_alpha: float, i_beta: float, theta_r: float, omega_r: float,
+                phi_alpha_hat: float, phi_beta_hat: float, estimates: dict | None = None):
+        """Return the stator voltage (V_α, V_β) to hold on [t, t + T_s]; set ``self.reference``."""
+        self._check_inputs(t, i_alpha, i_beta, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
         cfg = self.config
         if estimates:
             self._set_estimates(estimates)
         c = self._c
         first = self._t_prev is None
-        if first:
-            self._init_run(t, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
-            dt = 0.0
-        else:
-            dt = t - self._t_prev
-            if dt < 0.0:
-                raise ValueError(f'time went backwards: t = {t!r} after {self._t_prev!r}')
-            self._pd.advance(dt)
-            self._flux.advance(dt)
-            if self._limited and cfg.mode == 'speed':
-                # back-calculation: while the voltage is limited, θ* = ∫ω* follows the shaft
-                self._theta_offset += dt * (omega_r - self.reference['omega_ref'])
+        dt = self._advance_time(t, first, theta_r, omega_r, phi_alpha_hat, phi_beta_hat)
         if self._schedule:
             self._apply_schedule(t)
         if self._baseline is not None:
@@ -982,21 +1013,10 @@ class DriveController:
         v_a, v_b, refs = self._voltage(c, i_ds, i_qs, di_ds, di_qs, phi, rho, rho_dot, dt, omega_r,
                                        omega_ref, i_alpha, i_beta, phi_alpha_hat, phi_beta_hat)
         # 5. voltage limit; the PD filter always takes its input (no frozen state, no latch)
-        saturated = False
-        if cfg.v_limit is not None:
-            mag = math.hypot(v_a, v_b)
-            if mag > cfg.v_limit:
-                s = cfg.v_limit / mag
-                v_a *= s
-                v_b *= s
-                saturated = True
+        v_a, v_b, saturated = self._limit_voltage(v_a, v_b)
         self._limited = saturated or tau_limited
         if cfg.delay:       # the feedback part of what the motor will get, for the prediction
-            dv = (v_a - refs[4], v_b - refs[5])
-            if not self._sent:              # the plant's line starts with the first command
-                self._sent = [dv] * cfg.delay
-            self._sent.append(dv)
-            del self._sent[0]
+            self._remember_feedback((v_a - refs[4], v_b - refs[5]))
         self._pd.set_input(u_pd)
         if cfg.compensation is not None:    # what the inverter loses, added (compensation.md)
             v_a, v_b = cfg.compensation.command(v_a, v_b, i_alpha, i_beta)

@@ -264,14 +264,7 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
         u = cp.Variable(n)
         cons.append(u >= drive + sat[0] * cp.power(ym, 0.5 * sat[1] + 1.0))
         drive = u
-    penalty = 0.0
-    if exact:
-        tau = cp.Constant(tau_ref)
-    else:
-        mag = cp.Variable(n, nonneg=True)
-        cons.append(mag <= np.abs(tau_ref))
-        tau = cp.multiply(np.sign(tau_ref), mag)
-        penalty = 2e3 * math.sqrt(k['A'] * k['C']) * (h @ (np.abs(tau_ref) - mag))
+    tau, mag, penalty = _delivered_torque(tau_ref, h, k, exact, cons)
     rows = [math.sqrt(k['A']) * drive, yd / (2.0 * math.sqrt(c.R_r)), math.sqrt(k['C']) * tau]
     rot = cp.multiply(c.v * om, ym) + (c.R_r / c.v) * tau
     core = k['Te'] > 0.0 or k['Th'] > 0.0
@@ -286,26 +279,9 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
         cost = cost + k['Th'] * cp.abs(rot)
     if phi_end is not None:
         cons.append(y[-1] == phi_end * phi_end)
-    if cap is not None:
-        idx = np.nonzero(np.isfinite(cap))[0]
-        if len(idx):
-            cons.append(y[idx] <= cap[idx] ** 2)
-    if i_max is not None:
-        q = (i_max * c.L_sr) ** 2
-        g = (c.L_r / c.v) * tau
-        # (y_m + T_r ẏ/2)² + (L_r τ/v)² ≤ q y_m  ⇔  ‖(2 drive, 2 L_r τ/v, y_m − q)‖ ≤ y_m + q
-        cons.append(cp.SOC(ym + q, cp.vstack([2.0 * cp.reshape(drive, (1, n), order='C'),
-                                              2.0 * cp.reshape(g, (1, n), order='C'),
-                                              cp.reshape(ym - q, (1, n), order='C')]), axis=0))
+    _limit_constraints(c, y, ym, drive, tau, cap, i_max, cons)
     prob = cp.Problem(cp.Minimize(h @ cost + penalty), cons)
-    t0 = time.perf_counter()
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore')          # the status says it: 'optimal_inaccurate'
-            prob.solve(solver=cp.CLARABEL)
-    except cp.error.SolverError as exc:
-        raise PlanError(f'flux plan: the solver failed ({exc})') from None
-    solve_s = time.perf_counter() - t0
+    solve_s = _run_solver(prob)
     if prob.status not in ('optimal', 'optimal_inaccurate') or y.value is None:
         raise PlanError(f'flux plan: no flux trajectory delivers the torque within the limits '
                         f'(solver status {prob.status})')
@@ -318,6 +294,60 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
     plan = FluxPlan(t=t, y=yv, copper_J=float(h @ cu), core_J=float(h @ co) if core else 0.0,
                     solve_s=solve_s, status=prob.status,
                     torque_shortfall=float(h @ np.abs(tau_ref - tau_v)))
+    _mark_active_limits(plan, c, yv, ymv, ydv, tau_v, cap, i_max, sat)
+    return plan
+
+
+def _delivered_torque(tau_ref, h, k: dict, exact: bool, cons: list):
+    """
+    Return (τ, mag, penalty): the torque the program delivers, per interval.
+
+    ``exact``: τ = ``tau_ref`` (mag None, penalty 0). Else a variable mag (appended to
+    ``cons``: 0 ≤ mag ≤ |τ_ref|) of the demand's sign, whose shortfall costs 1000 × the least
+    steady copper loss per N·m (2√(AC)) over the grid's intervals ``h``.
+    """
+    import cvxpy as cp  # heavy: cvxpy only when a flux plan is solved
+    if exact:
+        return cp.Constant(tau_ref), None, 0.0
+    mag = cp.Variable(len(h), nonneg=True)
+    cons.append(mag <= np.abs(tau_ref))
+    tau = cp.multiply(np.sign(tau_ref), mag)
+    penalty = 2e3 * math.sqrt(k['A'] * k['C']) * (h @ (np.abs(tau_ref) - mag))
+    return tau, mag, penalty
+
+
+def _limit_constraints(c, y, ym, drive, tau, cap, i_max, cons: list) -> None:
+    """Append the flux cap (y ≤ cap² at its finite nodes) and the current limit to ``cons``."""
+    import cvxpy as cp  # heavy: cvxpy only when a flux plan is solved
+    n = ym.shape[0]
+    if cap is not None:
+        idx = np.nonzero(np.isfinite(cap))[0]
+        if len(idx):
+            cons.append(y[idx] <= cap[idx] ** 2)
+    if i_max is not None:
+        q = (i_max * c.L_sr) ** 2
+        g = (c.L_r / c.v) * tau
+        # (y_m + T_r ẏ/2)² + (L_r τ/v)² ≤ q y_m  ⇔  ‖(2 drive, 2 L_r τ/v, y_m − q)‖ ≤ y_m + q
+        cons.append(cp.SOC(ym + q, cp.vstack([2.0 * cp.reshape(drive, (1, n), order='C'),
+                                              2.0 * cp.reshape(g, (1, n), order='C'),
+                                              cp.reshape(ym - q, (1, n), order='C')]), axis=0))
+
+
+def _run_solver(prob) -> float:
+    """Solve ``prob`` with Clarabel; return the solve's wall time [s]; PlanError if it fails."""
+    import cvxpy as cp  # heavy: cvxpy only when a flux plan is solved
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')          # the status says it: 'optimal_inaccurate'
+            prob.solve(solver=cp.CLARABEL)
+    except cp.error.SolverError as exc:
+        raise PlanError(f'flux plan: the solver failed ({exc})') from None
+    return time.perf_counter() - t0
+
+
+def _mark_active_limits(plan: FluxPlan, c, yv, ymv, ydv, tau_v, cap, i_max, sat) -> None:
+    """Set ``plan``'s current_limit_active / flux_cap_active: the solution within 1e-4 of them."""
     if i_max is not None:
         dv = ymv + 0.5 * c.T_r * ydv
         if sat is not None:
@@ -326,7 +356,6 @@ def _solve(c, t, h, tau_ref, om, phi0, k_e, k_h, phi_end, cap, i_max, exact: boo
         plan.current_limit_active = bool(np.max(i2) > (1.0 - 1e-4) * i_max * i_max)
     if cap is not None:
         plan.flux_cap_active = bool(np.any(yv > (1.0 - 1e-4) * cap * cap))
-    return plan
 
 
 def grid(t0: float, t1: float, step: float) -> np.ndarray:
