@@ -249,3 +249,25 @@ def test_energy_summary_matches_truth():
     assert s['E_copper_J'] == tr['E_cu_s'] + tr['E_cu_r']
     assert s['E_loss_J'] == s['E_copper_J'] + tr['E_core']
     assert s['balance_residual_J'] == tr['balance_residual']
+
+
+@pytest.mark.parametrize('blocks', [{}, {'thermal': {'C_s': 50.0, 'R_th_s': 0.5, 'C_r': 20.0,
+                                                     'R_th_r': 0.5}}])
+def test_the_plant_is_built_from_parts(blocks):
+    """The simulator reads its engine's state; the engine owns it and never sees the simulator."""
+    from im_plant.engine import IdealPlant, PlantEngine
+    from im_plant.real_plant import RealPlant
+    sim = PlantSimulator(P, LinearLoad(), T_s=T_S, omega0=10.0, **blocks)
+    engine = sim.engine
+    assert isinstance(engine, RealPlant if blocks else IdealPlant)
+    assert sim.real is (engine if blocks else None)
+    assert all(callable(getattr(engine, name)) for name in PlantEngine.__dict__
+               if not name.startswith('_') and name != 't')
+    for _ in range(3):
+        sim.step(50.0, 0.0)
+    assert sim.x is engine.x and sim.k == engine.k == 3 and sim.model is engine.model
+    assert sim.v_applied is engine.v_applied and sim.t == engine.t == 3 * T_S
+    assert len(sim.x) == (14 if blocks else 13) and sim.x[5] != 10.0   # it moved
+    assert not any(v is sim for v in vars(engine).values())    # it never sees the simulator
+    with pytest.raises(AttributeError):
+        sim.x = [0.0] * 13                      # the state is the engine's: read-only here

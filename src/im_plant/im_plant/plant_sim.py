@@ -1,6 +1,14 @@
 """
 The simulated plant: motor model + load + inverter, stepped one control period at a time.
 
+Built from parts (docs/architecture.md, "The plant built from parts"): :class:`PlantSimulator`
+keeps the way a command takes to the motor and what watches it, and hands each period to its
+*engine* (:class:`im_plant.engine.PlantEngine`), the one owner of the motor model, the state
+``x`` and the period index ``k``: :class:`im_plant.engine.IdealPlant` (the model by RK4) or, with
+any of the real plant's blocks, :class:`im_plant.real_plant.RealPlant`. The simulator reads the
+engine's state through read-only attributes (``x``, ``k``, ``t``, ``model``, ``v_applied``) and
+latches what the engine's period reports; neither sets the other's attributes.
+
 The inverter is an ideal voltage source whose command is held over each period (zero-order hold),
 limited in vector magnitude to ``v_limit`` (optional, the configured limit the controller knows
 about: commands above it are scaled onto it). A command above the inverter's own rating
@@ -14,10 +22,11 @@ On a trip (or a command above the rating) it latches ``trip = (t, reason)`` and 
 voltage from then on (all lower
 switches on: the stator is short-circuited through the inverter, the machine's stored magnetic
 energy decays through its resistances and the shaft coasts against its load). A non-finite
-state is not kept: the period is integrated again from the last finite state with zero voltage.
-Left at ``RATED`` (their default), ``v_limit`` and the trips come from the motor's ratings
+state is not kept: the engine integrates the period again from the last finite state with zero
+voltage and reports the trip (the real plant's DC link reports its over-voltage trip the same
+way). Left at ``RATED`` (their default), ``v_limit`` and the trips come from the motor's ratings
 (:func:`im_common.params.default_limits`; none for a motor without them; ``from_ratings`` says
-which). The model is integrated with fixed-step RK4 sub-steps in
+which). The ideal engine integrates the model with fixed-step RK4 sub-steps in
 each period (at most ``max_substep`` long), together with the energy integrals, so the energy books
 are part of the integration and not computed after the fact.
 """
@@ -31,12 +40,12 @@ from typing import Optional, Sequence
 from im_common.delay import CommandDelay
 from im_common.inverter import Inverter
 from im_common.loads import LiveLoad, Load, NoLoad
-from im_common.model import (currents, E_CORE, E_CU_R, E_CU_S, E_FRICTION, E_IN, E_PARAM,
-                             MotorModel, N_AUG, rk4_step, W_LOAD)
+from im_common.model import MotorModel
 from im_common.params import (InvalidParameter, MotorParams, ParameterSchedule, RATED,
                               resolve_rated, THESIS_MOTOR)
 
-from .sensors import Measurement  # noqa: F401 - what measure() returns; its home
+from .engine import IdealPlant, PlantEngine
+from .sensors import Measurement
 
 # The inverter's own voltage-vector limit when none is given [V]: the DC link of a 690 V-class
 # inverter (≈ 1 kV), above every shipped motor's needs; a larger command trips the plant.
@@ -77,7 +86,9 @@ class PlantSimulator:
         The shaft is held where it starts (a locked-rotor test); the speed must start at 0.
     inverter, saturation, thermal, sensors, iron_loss
         The real plant's blocks (:mod:`im_plant.real_plant`); an inverter block without V_dc is
-        the ideal voltage source with its ``delay`` only.
+        the ideal voltage source with its ``delay`` only. Any of them makes the engine
+        (``engine``, module doc) a :class:`im_plant.real_plant.RealPlant`, also ``real``
+        (None with the ideal plant's :class:`im_plant.engine.IdealPlant`).
 
     The inverter's ``delay`` (:mod:`im_common.delay`): the command given to :meth:`step` k acts
     over step k + delay (the first command from t_0). A non-finite command is refused as given;
@@ -97,35 +108,19 @@ class PlantSimulator:
                  locked_rotor: bool = False, inverter=None, saturation=None, thermal=None,
                  sensors=None, iron_loss: bool = False):
         # the load as given plus the live offset (set_load_offset): the object every model takes
-        self.model = MotorModel(schedule, LiveLoad(load if load is not None else NoLoad()),
-                                core_loss_exponent, locked=locked_rotor)
+        self.load = LiveLoad(load if load is not None else NoLoad())
+        # the motor: its schedule, live load, loss exponent and shaft (the ideal plant's model;
+        # the real plant makes its own from it)
+        motor = MotorModel(schedule, self.load, core_loss_exponent, locked=locked_rotor)
         # left at RATED: the motor's rating (im_common.params.default_limits), else none
         lim = _Protection(v_limit, current_trip, speed_trip)
-        self.from_ratings = resolve_rated(lim, RATED_PROTECTION, self.model.schedule.base)
+        self.from_ratings = resolve_rated(lim, RATED_PROTECTION, motor.schedule.base)
         v_limit, current_trip, speed_trip = lim.v_limit, lim.current_trip, lim.speed_trip
-        if not (math.isfinite(T_s) and T_s > 0):
-            raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
-        if not (math.isfinite(max_substep) and max_substep > 0):
-            raise InvalidParameter('max_substep', max_substep, 'must be > 0')
-        if v_limit is not None and not (math.isfinite(v_limit) and v_limit > 0):
-            raise InvalidParameter('v_limit', v_limit, 'must be > 0 (or None for no limit)')
-        if not (math.isfinite(inverter_rating) and inverter_rating > 0):
-            raise InvalidParameter('inverter_rating', inverter_rating, 'must be > 0 V')
-        for name, val in (('current_trip', current_trip), ('speed_trip', speed_trip)):
-            if val is not None and not (math.isfinite(val) and val > 0):
-                raise InvalidParameter(name, val, 'must be > 0 (or None for no trip)')
-        for name, val in (('current_noise_std', current_noise_std),
-                          ('speed_noise_std', speed_noise_std)):
-            if not (math.isfinite(val) and val >= 0):
-                raise InvalidParameter(name, val, 'must be >= 0')
+        _check_arguments(T_s, max_substep, v_limit, inverter_rating, current_trip, speed_trip,
+                         current_noise_std, speed_noise_std)
         if locked_rotor and (omega0 != 0.0 or (x0 is not None and x0[5] != 0.0)):
             raise InvalidParameter('omega0', omega0, 'must be 0 with a locked rotor')
-        self.schedule = self.model.schedule
-        self.params = self.model.params
-        self.load = self.model.load
-        self.T_s = float(T_s)
-        self.n_sub = max(1, int(math.ceil(self.T_s / max_substep - 1e-9)))
-        self.h = self.T_s / self.n_sub
+        T_s = float(T_s)
         self.v_limit = v_limit
         self.inverter_rating = float(inverter_rating)
         self._v_max = (self.inverter_rating if v_limit is None
@@ -139,40 +134,73 @@ class PlantSimulator:
         if self.current_noise_std > 0 or self.speed_noise_std > 0:
             import numpy as np
             self._rng = np.random.default_rng(noise_seed)
-        self.k = 0
-        x = [0.0] * N_AUG
-        if x0 is not None:
-            if len(x0) != 6 or not all(math.isfinite(v) for v in x0):
-                raise InvalidParameter('x0', x0, 'must be 6 finite numbers')
-            x[:6] = [float(v) for v in x0]
-        else:
-            x[4], x[5] = float(theta0), float(omega0)
-        self.x = x
-        self.v_applied = (0.0, 0.0)
+        start = _start(x0, theta0, omega0)
         if isinstance(inverter, Mapping):
             inverter = Inverter.from_block(inverter)
         self.delay = CommandDelay(inverter.delay if isinstance(inverter, Inverter) else 0)
         if isinstance(inverter, Inverter) and not inverter.switched:
             inverter = None                     # the ideal voltage source: the delay only
-        self.real = None
+        n_sub = max(1, int(math.ceil(T_s / max_substep - 1e-9)))
+        self.real = None                        # the engine when it is the real plant
         if (inverter is not None or saturation is not None or thermal is not None
                 or sensors is not None or iron_loss):
             from .real_plant import RealPlant
-            self.real = RealPlant(self, inverter, saturation, thermal, sensors, iron_loss,
-                                  core_loss_exponent, locked_rotor)
-        out = self.model.outputs(0.0, self.x)
-        self.W_mag0 = out['W_mag']
-        self.E_kin0 = out['E_kin']
+            self.real = RealPlant(motor, T_s, n_sub, start, inverter, saturation, thermal,
+                                  sensors, iron_loss, current_trip, speed_trip)
+        # what integrates the motor over a period (im_plant.engine): the state is its own
+        self.engine: PlantEngine = (self.real if self.real is not None
+                                    else IdealPlant(motor, T_s, n_sub, start))
+
+    # The engine's state, read here (docs/architecture.md, "The plant built from parts") -----
+    @property
+    def model(self):
+        """Return the motor model the engine integrates."""
+        return self.engine.model
+
+    @property
+    def schedule(self) -> ParameterSchedule:
+        """Return the motor's (possibly time-varying) electrical parameters."""
+        return self.engine.model.schedule
+
+    @property
+    def params(self) -> MotorParams:
+        """Return the motor's base parameters (the schedule's base)."""
+        return self.engine.model.params
+
+    @property
+    def x(self):
+        """Return the engine's state at t_k (the model's augmented vector)."""
+        return self.engine.x
+
+    @property
+    def k(self) -> int:
+        """Return the index of the period the state is at."""
+        return self.engine.k
+
+    @property
+    def t(self) -> float:
+        """Return the simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
+        return self.engine.t
+
+    @property
+    def T_s(self) -> float:
+        """Return the control period [s]."""
+        return self.engine.T_s
+
+    @property
+    def n_sub(self) -> int:
+        """Return the RK4 sub-steps of a period (ceil(T_s / max_substep))."""
+        return self.engine.n_sub
+
+    @property
+    def v_applied(self):
+        """Return the (mean) voltage vector applied over the last period [V]."""
+        return self.engine.v_applied
 
     @property
     def noisy(self) -> bool:
         """Tell whether the measurements get noise (``current_noise_std``, ``speed_noise_std``)."""
         return self._rng is not None
-
-    @property
-    def t(self) -> float:
-        """Return the simulated time t_k = k·T_s [s] (exact multiple, no accumulated round-off)."""
-        return self.k * self.T_s
 
     def limit(self, v_a: float, v_b: float):
         """
@@ -268,68 +296,42 @@ class PlantSimulator:
         self._advance(*self.limit(v_a, v_b))
 
     def _advance(self, v_a: float, v_b: float) -> None:
-        """Integrate [t_k, t_k+1] with the inverter's voltage (v_a, v_b) held."""
-        if self.real is not None:
-            self.real.advance(v_a, v_b)
-            return
-        x0 = self.x
-        t0 = self.t
-        x = self._integrate(x0, t0, v_a, v_b)
-        if not all(map(math.isfinite, x)):
-            self.trip = (t0 + self.T_s, 'non-finite state')
-            v_a = v_b = 0.0
-            x = self._integrate(x0, t0, 0.0, 0.0)
-            if not all(math.isfinite(v) for v in x):
-                raise FloatingPointError(
-                    f'plant state became non-finite at t = {t0 + self.T_s:.9f} s '
-                    'even at zero voltage')
-        self.v_applied = (v_a, v_b)
-        self.x = x
-        self.k += 1
-        if self.trip is None:
+        """Have the engine integrate [t_k, t_k+1] with (v_a, v_b); latch what it reports."""
+        report = self.engine.advance(v_a, v_b, self.trip is not None)
+        if report.trip is not None:
+            self.trip = report.trip
+        elif report.check and self.trip is None:
             self.protect()
-
-    def _integrate(self, x, t0: float, v_a: float, v_b: float):
-        f = self.model.rhs
-        h = self.h
-        for j in range(self.n_sub):
-            x = rk4_step(f, t0 + j * h, x, h, v_a, v_b)
-        return x
 
     def protect(self) -> None:
         """Latch a trip on overcurrent or overspeed at t_k (after the period)."""
         if self.current_trip is not None:
-            i_a, i_b = self.stator_currents()
+            i_a, i_b = self.engine.stator_currents()
             mag = math.hypot(i_a, i_b)
             if mag > self.current_trip:
                 self.trip = (self.t, f'overcurrent: |i_s| = {mag:.4g} A > {self.current_trip:g} A')
                 return
-        if self.speed_trip is not None and abs(self.x[5]) > self.speed_trip:
-            self.trip = (self.t, f'overspeed: |omega_r| = {abs(self.x[5]):.4g} rad/s > '
+        omega = self.engine.x[5]
+        if self.speed_trip is not None and abs(omega) > self.speed_trip:
+            self.trip = (self.t, f'overspeed: |omega_r| = {abs(omega):.4g} rad/s > '
                                  f'{self.speed_trip:g} rad/s')
 
     # Outputs -----------------------------------------------------------------------------
     def stator_currents(self):
         """Return (i_sα, i_sβ) at t_k: the currents the protection watches."""
-        if self.real is not None:
-            return self.real.stator_currents()
-        i_sa, i_sb, _, _ = self.state_currents()
-        return i_sa, i_sb
+        return self.engine.stator_currents()
 
     def state_currents(self):
         """Return (i_sα, i_sβ, i_rα, i_rβ) at t_k."""
-        if self.real is not None:
-            return self.real.state_currents()
-        R_s, R_r, L_s, L_r, L_sr = self.schedule.values(self.t)
-        return currents(self.x[0], self.x[1], self.x[2], self.x[3], L_s, L_r, L_sr)
+        return self.engine.state_currents()
 
     def measure(self) -> Measurement:
         """Measured stator currents and shaft position/speed at t_k (noise added if configured)."""
-        if self.real is not None:
-            return self.real.measure()
-        i_sa, i_sb, _, _ = self.state_currents()
-        i_sa, i_sb, omega = self.add_noise(i_sa, i_sb, self.x[5])
-        return Measurement(self.t, i_sa, i_sb, self.x[4], omega)
+        m = self.engine.measure()
+        if self._rng is None:
+            return m
+        i_sa, i_sb, omega = self.add_noise(m.i_alpha, m.i_beta, m.omega_r)
+        return Measurement(m.t, i_sa, i_sb, m.theta_r, omega, m.v_dc)
 
     def add_noise(self, i_alpha: float, i_beta: float, omega: float):
         """Return (i_α, i_β, ω) with the configured Gaussian measurement noise added."""
@@ -344,25 +346,33 @@ class PlantSimulator:
 
     def truth(self) -> dict:
         """Ground truth at t_k: true state, torques, parameters, power and energy books."""
-        if self.real is not None:
-            return self.real.truth()
-        t = self.t
-        out = self.model.outputs(t, self.x)
-        x = self.x
-        d = self.model.rhs(t, x, self.v_applied[0], self.v_applied[1])
-        out.update({
-            'v_alpha': self.v_applied[0], 'v_beta': self.v_applied[1],
-            'P_in': d[E_IN], 'P_cu_s': d[E_CU_S], 'P_cu_r': d[E_CU_R], 'P_core': d[E_CORE],
-            'P_friction': d[E_FRICTION], 'P_load': d[W_LOAD], 'P_param': d[E_PARAM],
-            'E_in': x[E_IN], 'E_cu_s': x[E_CU_S], 'E_cu_r': x[E_CU_R], 'E_core': x[E_CORE],
-            'E_friction': x[E_FRICTION], 'W_load': x[W_LOAD], 'E_param': x[E_PARAM],
-        })
-        out['tripped'] = 0.0 if self.trip is None else 1.0
-        out['trip_t'] = math.nan if self.trip is None else self.trip[0]
-        out['trip_reason'] = '' if self.trip is None else self.trip[1]
-        out['dW_mag'] = out['W_mag'] - self.W_mag0
-        out['dE_kin'] = out['E_kin'] - self.E_kin0
-        out['balance_residual'] = (out['E_in'] - out['E_cu_s'] - out['E_cu_r'] - out['E_friction']
-                                   - out['W_load'] - out['E_param'] - out['dW_mag']
-                                   - out['dE_kin'])
-        return out
+        return self.engine.truth(self.trip)
+
+
+def _check_arguments(T_s, max_substep, v_limit, inverter_rating, current_trip, speed_trip,
+                     current_noise_std, speed_noise_std) -> None:
+    """Refuse a period, sub-step, limit, rating, trip or noise out of its range."""
+    if not (math.isfinite(T_s) and T_s > 0):
+        raise InvalidParameter('T_s', T_s, 'must be a positive, finite period in seconds')
+    if not (math.isfinite(max_substep) and max_substep > 0):
+        raise InvalidParameter('max_substep', max_substep, 'must be > 0')
+    if v_limit is not None and not (math.isfinite(v_limit) and v_limit > 0):
+        raise InvalidParameter('v_limit', v_limit, 'must be > 0 (or None for no limit)')
+    if not (math.isfinite(inverter_rating) and inverter_rating > 0):
+        raise InvalidParameter('inverter_rating', inverter_rating, 'must be > 0 V')
+    for name, val in (('current_trip', current_trip), ('speed_trip', speed_trip)):
+        if val is not None and not (math.isfinite(val) and val > 0):
+            raise InvalidParameter(name, val, 'must be > 0 (or None for no trip)')
+    for name, val in (('current_noise_std', current_noise_std),
+                      ('speed_noise_std', speed_noise_std)):
+        if not (math.isfinite(val) and val >= 0):
+            raise InvalidParameter(name, val, 'must be >= 0')
+
+
+def _start(x0: Optional[Sequence[float]], theta0: float, omega0: float) -> list:
+    """Return the start (ψ_sα, ψ_sβ, φ_rα, φ_rβ, θ_r, ω_r): ``x0``, else at rest at (θ0, ω0)."""
+    if x0 is None:
+        return [0.0, 0.0, 0.0, 0.0, float(theta0), float(omega0)]
+    if len(x0) != 6 or not all(math.isfinite(v) for v in x0):
+        raise InvalidParameter('x0', x0, 'must be 6 finite numbers')
+    return [float(v) for v in x0]

@@ -1,15 +1,25 @@
 """
-The real plant: what :class:`im_plant.plant_sim.PlantSimulator` does when a block is on.
+The real plant: the engine of :class:`im_plant.plant_sim.PlantSimulator` when a block is on.
 
 A :class:`PlantSimulator` given any of ``inverter`` (the switched one), ``saturation``,
-``thermal``, ``sensors`` or ``iron_loss`` builds one :class:`RealPlant` and hands it each period's
-admitted command (:meth:`RealPlant.advance`) and its questions (``state_currents``,
-``stator_currents``, ``measure``, ``truth``); the ideal plant (every block absent) never reaches
-this module, so its path and its numbers are unchanged.
+``thermal``, ``sensors`` or ``iron_loss`` makes one :class:`RealPlant` as its engine
+(:class:`im_plant.engine.PlantEngine`, docs/architecture.md "The plant built from parts"); the
+ideal plant (every block absent) is :class:`im_plant.engine.IdealPlant` and never reaches this
+module, so its path and its numbers are unchanged. The real plant is given what it needs when it
+is made: the motor (schedule, live load, core-loss exponent, locked shaft), T_s, the
+sub-periods, the start, the typed blocks (:class:`im_common.inverter.Inverter`,
+:class:`im_common.saturation.Saturation`, :class:`im_common.thermal.Thermal`,
+:class:`im_plant.sensors.Sensors`; a mapping is read into its block) and the protection's
+limits. It owns its :class:`im_common.model.RealMotorModel`, its state ``x`` (14 elements: the
+ideal plant's and ``E_inv``), ``k`` and ``v_applied``; the simulator hands it each period's
+admitted command and whether the protection has latched (:meth:`RealPlant.advance`), latches the
+trip the period reports (a non-finite state, the DC link's over-voltage) and checks its limits
+when told to; it asks ``state_currents``, ``stator_currents``, ``measure`` (the sensors' reading,
+to which the simulator adds its noise) and ``truth``.
 
 Per control period (docs/plant.md):
 
-1. the command passes the ideal plant's limit and rating checks, then (with an inverter) the
+1. the command passes the simulator's limit and rating checks, then (with an inverter) the
    carrier comparison of :mod:`im_common.inverter` computes the period's switching instants once,
    at its start;
 2. between consecutive instants the pole voltages are constant: the interval is solved exactly,
@@ -29,7 +39,8 @@ Per control period (docs/plant.md):
    (the exact solution's at the interval boundary), booked with the conduction losses in
    ``E_inv`` (drawn from the DC link) and apart in ``E_switching``;
 4. after the period: the winding temperatures (exact first-order step, :mod:`im_common.thermal`),
-   the DC link (energy form), the encoder's count and the protection.
+   the DC link (energy form) and the encoder's count; then the simulator's protection (the
+   period's :class:`im_plant.engine.Report`).
 
 Steps 1-4 run compiled (:mod:`im_plant.real_plant_kernel`, numba) when
 ``RealPlant.use_kernel``, in the same arithmetic; the pure-Python path (:meth:`RealPlant._solve`
@@ -39,10 +50,11 @@ plant's parameters are constant (the temperatures aside) and its load is one of
 :mod:`im_common.loads`'s: everything above plus the sensors' measurement and the state's
 currents, the state kept in one array between periods; the attributes it holds
 (``_SYNCED``: ``V``, ``temps``, ``E_switching``, ...) are out of the instance while it steps
-and are given back from the array when read (``__getattr__``), the simulator's ``x``,
-``v_applied``, ``k`` and ``trip`` are set every period. Otherwise the period's events and,
-once its predictions are made in Python, the intervals, the sign check, the switching tally
-and the closed-form integrals are compiled. Either hands the periods with repeated
+and are given back from the array when read (``__getattr__``), its ``x``, ``v_applied`` and
+``k`` are set every period, and the kernel's status reports the DC link's trip and whether the
+protection's limits are near (else the simulator need not check them). Otherwise the period's
+events and, once its predictions are made in Python, the intervals, the sign check, the
+switching tally and the closed-form integrals are compiled. Either hands the periods with repeated
 eigenvalues (and a non-finite state) to the reference.
 """
 from __future__ import annotations
@@ -50,17 +62,19 @@ from __future__ import annotations
 from cmath import exp as cexp, sqrt as csqrt
 import math
 import os
-from typing import Mapping
+from typing import Mapping, Optional
 
 from im_common.inverter import (carry_after, check_against_motor, duties, edges, Inverter,
                                 period_plan, phase_values)
 from im_common.loads import ConstantLoad, LinearLoad, NoLoad, PendulumLoad, ScheduleLoad, StepLoad
-from im_common.model import E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, RealMotorModel
+from im_common.model import (E_CORE, E_CU_R, E_CU_S, E_IN, E_INV, iron_rotation, N_AUG_REAL,
+                             RealMotorModel)
 from im_common.params import clarke
 from im_common.saturation import Saturation, saturation_from_dict
 from im_common.thermal import first_order, Thermal, thermal_from_dict
 
 from . import real_plant_kernel as _kernel
+from .engine import add_trip, augmented, CHECK, CLEAR, diverged, NON_FINITE, Report
 from .sensors import Measurement, Sensors, SpeedFromCounts
 
 try:
@@ -143,42 +157,71 @@ def _edge_currents(before, after, i: complex) -> float:
             + abs(after[2] - before[2]) * abs(ph[2]))
 
 
+def _typed_blocks(base, T_s: float, inverter, saturation, thermal, sensors):
+    """
+    Return (inverter, saturation, thermal, sensors) as their typed blocks (None: absent).
+
+    A mapping is read into its block (the saturation curve on the motor ``base``'s L_M);
+    another type is refused (TypeError); an inverter is checked against the motor and T_s.
+    """
+    if isinstance(saturation, Mapping):
+        saturation = saturation_from_dict(saturation, base.L_M)
+    if isinstance(thermal, Mapping):
+        thermal = thermal_from_dict(thermal)
+    if isinstance(sensors, Mapping):
+        sensors = Sensors.from_block(sensors)
+    for name, obj, cls in (('inverter', inverter, Inverter),
+                           ('saturation', saturation, Saturation),
+                           ('thermal', thermal, Thermal), ('sensors', sensors, Sensors)):
+        if obj is not None and not isinstance(obj, cls):
+            raise TypeError(f'{name} must be a {cls.__name__} or a mapping')
+    if inverter is not None:
+        check_against_motor(inverter, base.rated_voltage, T_s)
+    return inverter, saturation, thermal, sensors
+
+
+def _dc_link_trip(t: float, V: float, inverter: Inverter):
+    """Return the DC link's over-voltage trip at ``t`` with the link at ``V`` [V]."""
+    return (t, f'DC-link over-voltage: V_dc = {V:.4g} V > V_trip {inverter.trip_voltage:g} V '
+               f'(regeneration the brake chopper did not absorb)')
+
+
 class RealPlant:
-    """The real plant's blocks and state beside a :class:`PlantSimulator` (module doc)."""
+    """The real plant's engine: its blocks, its model and its state (module doc)."""
 
     #: the period by the compiled kernel (:mod:`im_plant.real_plant_kernel`, numba) when it
     #: exists, else (False) by the pure-Python path of :meth:`_solve`, the reference; also
     #: False with IM_REAL_PLANT_KERNEL=0 in the environment (docs/plant.md §9)
     use_kernel = _kernel.available and os.environ.get('IM_REAL_PLANT_KERNEL') != '0'
 
-    def __init__(self, sim, inverter=None, saturation=None, thermal=None, sensors=None,
-                 iron_loss: bool = False, core_loss_exponent: float = 2.0,
-                 locked_rotor: bool = False):
-        base = sim.schedule.base
-        if isinstance(saturation, Mapping):
-            saturation = saturation_from_dict(saturation, base.L_M)
-        if isinstance(thermal, Mapping):
-            thermal = thermal_from_dict(thermal)
-        if isinstance(sensors, Mapping):
-            sensors = Sensors.from_block(sensors)
-        for name, obj, cls in (('inverter', inverter, Inverter),
-                               ('saturation', saturation, Saturation),
-                               ('thermal', thermal, Thermal), ('sensors', sensors, Sensors)):
-            if obj is not None and not isinstance(obj, cls):
-                raise TypeError(f'{name} must be a {cls.__name__} or a mapping')
-        if inverter is not None:
-            check_against_motor(inverter, base.rated_voltage, sim.T_s)
-        self.sim = sim
+    def __init__(self, motor, T_s: float, n_sub: int, x0, inverter=None, saturation=None,
+                 thermal=None, sensors=None, iron_loss: bool = False,
+                 current_trip: Optional[float] = None, speed_trip: Optional[float] = None):
+        """
+        Make the real plant of ``motor`` with its blocks, at the start ``x0``.
+
+        ``motor`` (an :class:`im_common.model.MotorModel`) gives the schedule, the (live) load,
+        the core-loss exponent and whether the shaft is locked; ``T_s`` the period [s],
+        ``n_sub`` the sub-periods of an ideal source's period, ``x0`` the 6-element start;
+        ``current_trip`` and ``speed_trip`` (None: none) the simulator's protection limits,
+        which the compiled period tells it are near (:data:`im_plant.engine.CHECK`).
+        """
+        inverter, saturation, thermal, sensors = _typed_blocks(
+            motor.schedule.base, T_s, inverter, saturation, thermal, sensors)
         self.inverter = inverter
         self.saturation = saturation
         self.thermal = thermal
         self.sensors = sensors
         self.iron_loss = bool(iron_loss)
-        self.model = RealMotorModel(sim.schedule, sim.load, core_loss_exponent, locked_rotor,
-                                    saturation, iron_loss,
+        self.T_s = T_s
+        self.n_sub = n_sub
+        self._limits = (current_trip, speed_trip)
+        self.model = RealMotorModel(motor.schedule, motor.load, motor.core_loss_exponent,
+                                    motor.locked, saturation, iron_loss,
                                     inverter.r_on if inverter is not None else 0.0)
-        sim.model = self.model
-        sim.x = list(sim.x) + [0.0]
+        self.k = 0
+        self.x = augmented(x0, N_AUG_REAL)
+        self.v_applied = (0.0, 0.0)
         self.reference_substeps = None          # None: exact; n: the RK4 reference
         p = self.model.params
         self._consts = (p.pole_pairs, p.J, p.b, p.k_h, p.k_e, self.model.load, saturation,
@@ -196,8 +239,32 @@ class RealPlant:
         self.temps = None
         if thermal is not None:
             self.temps = list(thermal.initial())
-            self._decay = thermal.decay(sim.T_s)
+            self._decay = thermal.decay(T_s)
             self._set_resistances()
+        self._start_inverter()
+        self._start_sensors()
+        # the whole period in one compiled call (real_plant_kernel.step) where it applies: the
+        # array w holds the state while it steps (module doc, "one call a period")
+        self._stale = False                     # w holds the state, the attributes are out
+        self._packed = False                    # w holds what the attributes hold
+        self._x_fast = None                     # x as the last compiled period left it
+        self._fo = None                         # that period's outputs (w[X0:X0 + N_OUT])
+        self.handed_back = 0                    # compiled periods the reference path took
+        self._w = self._tab = None
+        if _kernel.available and np is not None:
+            self._whole_arrays()
+        out = self.model.outputs(0.0, self.x)   # the stored energies at t_0 (truth's balance)
+        self.W_mag0 = out['W_mag']
+        self.E_kin0 = out['E_kin']
+
+    @property
+    def t(self) -> float:
+        """Return t_k = k·T_s [s]."""
+        return self.k * self.T_s
+
+    def _start_inverter(self) -> None:
+        """Set the DC link, its books and the switching losses' state at t_0."""
+        inverter = self.inverter
         self.V = inverter.V_dc if inverter is not None else math.nan
         self.E_source = self.E_chopper = 0.0
         self.W_cap0 = (0.5 * inverter.C_dc * self.V ** 2) if inverter is not None else 0.0
@@ -212,28 +279,23 @@ class RealPlant:
         self._edges = 0.0
         self.E_switching = self.P_switching = 0.0
         self.ripple = 0.0
+
+    def _start_sensors(self) -> None:
+        """Set the encoder's speed from counts at t_0 (none: the measured speed is the true)."""
+        sensors = self.sensors
+        x = self.x
         self._speed = None
-        self._omega_meas = sim.x[5]
+        self._omega_meas = x[5]
         if sensors is not None and sensors.encoder_lines > 0:
             # a shaft already turning at t_0 (a steady start) was counted before it: the window
             # holds the W periods before t_0, as at any later step (before, ω̂ read 0 at a
             # steady start of 100 rad/s, the speed task anchored its reference at rest and the
             # drive lost the run)
-            th0, w0, W = sim.x[4], sim.x[5], sensors.speed_window
-            past = [sensors.count(th0 - w0 * (W - j) * sim.T_s) for j in range(W + 1)]
-            self._speed = SpeedFromCounts(sensors.counts_per_rev, W, sim.T_s, past)
+            th0, w0, W = x[4], x[5], sensors.speed_window
+            past = [sensors.count(th0 - w0 * (W - j) * self.T_s) for j in range(W + 1)]
+            self._speed = SpeedFromCounts(sensors.counts_per_rev, W, self.T_s, past)
             self._omega_meas = self._speed.value()
         self._speed_obj = self._speed           # kept while _speed is out (_unsync)
-        # the whole period in one compiled call (real_plant_kernel.step) where it applies: the
-        # array w holds the state while it steps (module doc, "one call a period")
-        self._stale = False                     # w holds the state, the attributes are out
-        self._packed = False                    # w holds what the attributes hold
-        self._x_fast = None                     # sim.x as the last compiled period left it
-        self._fo = None                         # that period's outputs (w[X0:X0 + N_OUT])
-        self.handed_back = 0                    # compiled periods the reference path took
-        self._w = self._tab = None
-        if _kernel.available and np is not None:
-            self._whole_arrays()
 
     # The whole period compiled ---------------------------------------------------------
     def _whole_arrays(self) -> None:
@@ -266,11 +328,10 @@ class RealPlant:
         se = self.sensors
         window = se.speed_window if se is not None and se.encoder_lines > 0 else 0
         w = np.zeros(K.HIST + window + 1, dtype=np.float64)
-        sim = self.sim
         p = mdl.params
         inv = self.inverter
-        w[K.T_S] = sim.T_s
-        w[K.N_SUB] = sim.n_sub
+        w[K.T_S] = self.T_s
+        w[K.N_SUB] = self.n_sub
         if inv is not None:
             w[K.HAS_INV] = 1.0
             w[K.T_C] = inv.T_c
@@ -334,15 +395,15 @@ class RealPlant:
             _kernel.warm()
 
     def _pack(self) -> None:
-        """Write the attributes and the simulator's state into the kernel's array."""
+        """Write the attributes and the state into the kernel's array."""
         if self._stale:
             self._sync()
         K = _kernel
         w = self._w
-        sim = self.sim
-        x = sim.x
-        w[K.I_TRIP] = math.nan if sim.current_trip is None else sim.current_trip
-        w[K.W_TRIP] = math.nan if sim.speed_trip is None else sim.speed_trip
+        x = self.x
+        current_trip, speed_trip = self._limits
+        w[K.I_TRIP] = math.nan if current_trip is None else current_trip
+        w[K.W_TRIP] = math.nan if speed_trip is None else speed_trip
         prev = self._prev
         w[K.PREV] = prev is not None
         if prev is not None:
@@ -390,7 +451,7 @@ class RealPlant:
         w = self._w
         d = self.__dict__
         d['_stale'] = False
-        x = self.sim.x
+        x = self.x
         valid = x is self._x_fast
         vals = w[:K.HIST].tolist()
         d['_prev'] = tuple(vals[K.PREV_T:K.PREV_W0BAR + 1]) if vals[K.PREV] else None
@@ -425,44 +486,38 @@ class RealPlant:
             return d[name]
         raise AttributeError(f'{type(self).__name__!r} object has no attribute {name!r}')
 
-    def _advance_compiled(self, v_a: float, v_b: float) -> bool:
+    def _advance_compiled(self, v_a: float, v_b: float, tripped: bool) -> Optional[Report]:
         """
-        Integrate the period by :func:`real_plant_kernel.step`; False: the reference takes it.
+        Integrate the period by :func:`real_plant_kernel.step`; None: the reference takes it.
 
         One call: the plan, the events, the exact intervals, the carry, the switching losses,
         the temperatures, the DC link, the encoder, the measurement and the state's currents;
-        then the simulator's state, its mean voltage and a trip, the rest left in the array.
+        then the state, its mean voltage and the period's report (the DC link's trip, the
+        protection's limits near: :data:`CHECK`, else :data:`CLEAR`), the rest left in the
+        array.
         """
-        sim = self.sim
-        if not self._packed or sim.x is not self._x_fast:
+        if not self._packed or self.x is not self._x_fast:
             self._pack()
-        status = _kernel.step(self._w, self._tab, v_a, v_b, sim.k, sim.trip is not None,
-                              self._live.offset)
+        status = _kernel.step(self._w, self._tab, v_a, v_b, self.k, tripped, self._live.offset)
         if status == _kernel.FALLBACK or status & _kernel.NONFINITE:    # the array untouched
             self.handed_back += 1
-            return False
+            return None
         if not self._stale:
             self._unsync()
         o = self._w[_kernel.X0:_kernel.X0 + _kernel.N_OUT].tolist()
-        x = o[:14]
+        x = o[:N_AUG_REAL]
         self._fo = o
         self._x_fast = x
-        sim.x = x
-        sim.v_applied = (o[_O_VAPP], o[_O_VAPP + 1])
-        sim.k += 1
+        self.x = x
+        self.v_applied = (o[_O_VAPP], o[_O_VAPP + 1])
+        self.k += 1
         mdl = self.model
         f_s, f_r = o[_O_FS], o[_O_FR]
         if self.thermal is not None and (f_s != mdl.fs or f_r != mdl.fr):
             mdl.set_temperature_factors(f_s, f_r)
-        if status:
-            if status & _kernel.TRIP_DC:
-                inv = self.inverter
-                sim.trip = (sim.t, f'DC-link over-voltage: V_dc = {o[_O_VDC]:.4g} V > V_trip '
-                                   f'{inv.trip_voltage:g} V (regeneration the brake chopper '
-                                   f'did not absorb)')
-            elif sim.trip is None:
-                sim.protect()
-        return True
+        if status & _kernel.TRIP_DC:
+            return Report(_dc_link_trip(self.t, o[_O_VDC], self.inverter), False)
+        return CHECK if status & _kernel.PROTECT else CLEAR
 
     def describe(self) -> dict:
         """Return the blocks as written in the run and motor files (the run record)."""
@@ -489,49 +544,54 @@ class RealPlant:
             raise ValueError(f'substeps must be a whole number >= 1 (got {substeps!r})')
         self.reference_substeps = substeps
 
-    def advance(self, v_a: float, v_b: float) -> None:
-        """Integrate [t_k, t_k+1] with the admitted command (PlantSimulator.step, module doc)."""
-        if (self._w is not None and self.use_kernel and not self.reference_substeps
-                and self._advance_compiled(v_a, v_b)):
-            return
+    def advance(self, v_a: float, v_b: float, tripped: bool) -> Report:
+        """
+        Integrate [t_k, t_k+1] with the admitted command (module doc); report the period.
+
+        ``tripped``: the protection has latched (the stator shorted through the inverter). The
+        report: a non-finite state (the period again at zero voltage) or the DC link's
+        over-voltage as a trip, else the protection's limits to check (:mod:`im_plant.engine`).
+        """
+        if self._w is not None and self.use_kernel and not self.reference_substeps:
+            report = self._advance_compiled(v_a, v_b, tripped)
+            if report is not None:
+                return report
         if self._stale:
             self._sync()
         self._packed = False
         self._x_fast = None
-        sim = self.sim
-        x0 = sim.x
-        t0 = sim.t
-        x, v_avg = self._integrate(x0, t0, v_a, v_b, sim.trip is not None)
+        x0 = self.x
+        t0 = self.t
+        found = None
+        x, v_avg = self._integrate(x0, t0, v_a, v_b, tripped)
         if not math.isfinite(sum(x)):           # a nan or an infinity anywhere
-            sim.trip = (t0 + sim.T_s, 'non-finite state')
+            found = (t0 + self.T_s, NON_FINITE)
             x, v_avg = self._integrate(x0, t0, 0.0, 0.0, True)
             if not all(math.isfinite(v) for v in x):
-                raise FloatingPointError(
-                    f'plant state became non-finite at t = {t0 + sim.T_s:.9f} s '
-                    'even at zero voltage')
-        sim.v_applied = v_avg
+                raise diverged(t0 + self.T_s)
+        self.v_applied = v_avg
         if self._k_edge:                        # the period's switching losses (module doc)
             e_sw = self._k_edge * self.V * self._edges
             x[E_INV] += e_sw
             self.E_switching += e_sw
-            self.P_switching = e_sw / sim.T_s
+            self.P_switching = e_sw / self.T_s
             self._poles = self._end_poles
         self._carry = self._next_carry
-        sim.x = x
-        sim.k += 1
-        self._after_period(x0, x)
-        if sim.trip is None:
-            sim.protect()
+        self.x = x
+        self.k += 1
+        dc_trip = self._after_period(x0, x, tripped or found is not None)
+        if found is None:
+            found = dc_trip
+        return CHECK if found is None else Report(found, False)
 
     def _integrate(self, x, t0: float, v_a: float, v_b: float, tripped: bool):
         if self.reference_substeps:
             return self._integrate_rk4(x, t0, v_a, v_b, tripped)
-        sim = self.sim
-        T_s = sim.T_s
+        T_s = self.T_s
         inv = self.inverter
         if inv is None:                         # the command itself, held: n sub-periods
             v = 0j if tripped else complex(v_a, v_b)
-            n = sim.n_sub
+            n = self.n_sub
             h = T_s / n
             table = ((v,), (v.conjugate(),), (v.real * v.real + v.imag * v.imag,))
             for j in range(n):
@@ -542,7 +602,7 @@ class RealPlant:
             self._next_carry = (0.0, 0.0, 0.0)
             return self._solve(x, t0, T_s, None, 0, None, V, 0j, None, [(T_s, (0, 0, 0))])
         d, _ = duties(v_a, v_b, V)
-        half = sim.k % 2 if inv.update == 'double' else 0
+        half = self.k % 2 if inv.update == 'double' else 0
         if inv.deadtime > 0.0:
             t_d = inv.deadtime
             self._next_carry = (carry_after(d[0], half, inv.T_c, T_s, t_d),
@@ -573,7 +633,7 @@ class RealPlant:
         inv = self.inverter
         # with on-state drops, their signs are taken again at the carrier's valley too
         extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
-        return period_plan(d, half, inv.T_c, self.sim.T_s, inv.deadtime, extra=extra,
+        return period_plan(d, half, inv.T_c, self.T_s, inv.deadtime, extra=extra,
                            carry=self._carry)
 
     def _switching(self, d, half: int, signs):
@@ -583,7 +643,7 @@ class RealPlant:
         inv = self.inverter
         c = self._carry
         ev = self._ev
-        n, code = _kernel.events(ev, d[0], d[1], d[2], half, inv.T_c, self.sim.T_s,
+        n, code = _kernel.events(ev, d[0], d[1], d[2], half, inv.T_c, self.T_s,
                                  inv.deadtime, c[0], c[1], c[2], signs[0], signs[1], signs[2])
         return ev[:n], code
 
@@ -599,7 +659,7 @@ class RealPlant:
         :func:`im_common.inverter.carry_after`) is on until it turns on.
         """
         inv = self.inverter
-        T_s = self.sim.T_s
+        T_s = self.T_s
         T_c = inv.T_c
         t_d = inv.deadtime
         single = T_s == T_c
@@ -987,15 +1047,14 @@ class RealPlant:
 
     # The fine-step reference: RK4 between the same instants ------------------------------
     def _integrate_rk4(self, x, t0: float, v_a: float, v_b: float, tripped: bool):
-        sim = self.sim
-        T_s = sim.T_s
+        T_s = self.T_s
         rk4 = self.model.rk4
         inv = self.inverter
         n_ref = self.reference_substeps
         if inv is None:
             if tripped:
                 v_a = v_b = 0.0
-            n = sim.n_sub * n_ref
+            n = self.n_sub * n_ref
             h = T_s / n
             for j in range(n):
                 x = rk4(t0 + j * h, x, h, v_a, v_b)
@@ -1004,7 +1063,7 @@ class RealPlant:
             self._next_carry = (0.0, 0.0, 0.0)
             return self._run_plan(x, t0, [(T_s, (0, 0, 0))], None)
         d, _ = duties(v_a, v_b, self.V)
-        half = sim.k % 2 if inv.update == 'double' else 0
+        half = self.k % 2 if inv.update == 'double' else 0
         extra = (0.5 * inv.T_c,) if inv.v_on > 0.0 and inv.update == 'single' else ()
         if inv.deadtime > 0.0:
             t_d = inv.deadtime
@@ -1029,7 +1088,7 @@ class RealPlant:
         With ``signs`` (the dead bands resolved by them), None when a phase current's sign at an
         interval boundary differs from its assumed sign.
         """
-        T_s = self.sim.T_s
+        T_s = self.T_s
         model = self.model
         rk4 = model.rk4
         V = self.V
@@ -1081,9 +1140,14 @@ class RealPlant:
         self._end_poles = poles
         return x, (sa / T_s, sb / T_s)
 
-    def _after_period(self, x0, x) -> None:
-        sim = self.sim
-        T_s = sim.T_s
+    def _after_period(self, x0, x, tripped: bool):
+        """
+        Step the temperatures, the DC link and the encoder over the period from x0 to x.
+
+        Return the DC link's over-voltage trip (None: none, or ``tripped`` already).
+        """
+        T_s = self.T_s
+        dc_trip = None
         th = self.thermal
         if th is not None:
             p_s = x[E_CU_S] - x0[E_CU_S]
@@ -1110,19 +1174,18 @@ class RealPlant:
                 self.E_chopper += e_ch
                 w = 0.5 * C_dc * V * V + e_src - e_ch - e_dc
                 self.V = math.sqrt(2.0 * w / C_dc) if w > 0.0 else 0.0
-                if sim.trip is None and self.V > inv.trip_voltage:
-                    sim.trip = (sim.t, f'DC-link over-voltage: V_dc = {self.V:.4g} V > V_trip '
-                                       f'{inv.trip_voltage:g} V (regeneration the brake chopper '
-                                       f'did not absorb)')
+                if not tripped and self.V > inv.trip_voltage:
+                    dc_trip = _dc_link_trip(self.t, self.V, inv)
             else:
                 self.E_source += e_dc
         if self._speed is not None:
             self._omega_meas = self._speed.update(self.sensors.count(x[4]))
+        return dc_trip
 
     # Outputs -----------------------------------------------------------------------------
     def stator_currents(self):
         """Return (i_sα, i_sβ) at t_k (the last period's solution gives it)."""
-        x = self.sim.x
+        x = self.x
         if x is self._x_fast:                   # a compiled period's
             o = self._fo
             return o[_O_IEND], o[_O_IEND + 1]
@@ -1131,12 +1194,11 @@ class RealPlant:
         end = self._end_current
         if end[0] is x:
             return end[1].real, end[1].imag
-        return self.model.stator_current(self.sim.t, x)
+        return self.model.stator_current(self.t, x)
 
     def state_currents(self):
         """Return (i_sα, i_sβ, i_rα, i_rβ) at t_k (the rotor current in the model's gauge)."""
-        sim = self.sim
-        x = sim.x
+        x = self.x
         if x is self._x_fast:                   # a compiled period's
             o = self._fo
             return tuple(o[_O_ISTATE:_O_ISTATE + 4])
@@ -1145,24 +1207,24 @@ class RealPlant:
         cached = self._currents
         if cached[0] is x:                      # the same state: computed once a period
             return cached[1]
-        t = sim.t
+        t = self.t
         i_sa, i_sb, i_Ra, i_Rb = self.model.currents(t, x)
         th = self.model.circuit(t)[2]
         out = (i_sa, i_sb, -th * i_Ra, -th * i_Rb)
         self._currents = (x, out)
         return out
 
-    def measure(self):
-        """Return what the sensors give at t_k, the carrier's peak (im_plant.sensors)."""
-        sim = self.sim
-        x = sim.x
-        if x is self._x_fast:                   # a compiled period's, the noise added here
+    def measure(self) -> Measurement:
+        """
+        Return what the sensors give at t_k, the carrier's peak (im_plant.sensors).
+
+        Without the measurement noise: the simulator adds it (PlantSimulator.measure).
+        """
+        x = self.x
+        if x is self._x_fast:                   # a compiled period's
             o = self._fo
             m = _O_MEAS                         # i_sα, i_sβ, θ, ω, V_dc
-            if not sim.noisy:
-                return Measurement(sim.t, o[m], o[m + 1], o[m + 2], o[m + 3], o[m + 4])
-            i_sa, i_sb, omega = sim.add_noise(o[m], o[m + 1], o[m + 3])
-            return Measurement(sim.t, i_sa, i_sb, o[m + 2], omega, o[m + 4])
+            return Measurement(self.t, o[m], o[m + 1], o[m + 2], o[m + 3], o[m + 4])
         if self._stale:
             self._sync()
         i_sa, i_sb = self.stator_currents()
@@ -1177,20 +1239,19 @@ class RealPlant:
                 omega = self._omega_meas
             if self.inverter is not None:
                 v_dc = se.adc(v_dc, 0.0, se.vdc_range)
-        i_sa, i_sb, omega = sim.add_noise(i_sa, i_sb, omega)     # unchanged without noise
-        return Measurement(sim.t, i_sa, i_sb, theta, omega, v_dc)
+        return Measurement(self.t, i_sa, i_sb, theta, omega, v_dc)
 
-    def truth(self) -> dict:
-        """Return the ground truth: the ideal plant's keys plus the blocks' quantities."""
+    def truth(self, trip) -> dict:
+        """Return the ground truth with the latched ``trip``: the ideal keys and the blocks'."""
         if self._stale:
             self._sync()
-        sim = self.sim
-        t = sim.t
-        x = sim.x
+        t = self.t
+        x = self.x
+        v_a, v_b = self.v_applied
         out = self.model.outputs(t, x)
-        d = self.model.rhs(t, x, sim.v_applied[0], sim.v_applied[1])
+        d = self.model.rhs(t, x, v_a, v_b)
         out.update({
-            'v_alpha': sim.v_applied[0], 'v_beta': sim.v_applied[1],
+            'v_alpha': v_a, 'v_beta': v_b,
             'P_in': d[E_IN], 'P_cu_s': d[E_CU_S], 'P_cu_r': d[E_CU_R], 'P_core': d[E_CORE],
             'P_friction': d[10], 'P_load': d[11], 'P_param': d[12],
             'E_in': x[E_IN], 'E_cu_s': x[E_CU_S], 'E_cu_r': x[E_CU_R], 'E_core': x[E_CORE],
@@ -1198,11 +1259,9 @@ class RealPlant:
         })
         if self.inverter is not None:
             out['E_switching'] = self.E_switching
-        out['tripped'] = 0.0 if sim.trip is None else 1.0
-        out['trip_t'] = math.nan if sim.trip is None else sim.trip[0]
-        out['trip_reason'] = '' if sim.trip is None else sim.trip[1]
-        out['dW_mag'] = out['W_mag'] - sim.W_mag0
-        out['dE_kin'] = out['E_kin'] - sim.E_kin0
+        add_trip(out, trip)
+        out['dW_mag'] = out['W_mag'] - self.W_mag0
+        out['dE_kin'] = out['E_kin'] - self.E_kin0
         out['balance_residual'] = (out['E_in'] - out['E_cu_s'] - out['E_cu_r']
                                    - out['E_friction'] - out['W_load'] - out['E_param']
                                    - out['dW_mag'] - out['dE_kin']
