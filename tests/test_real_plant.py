@@ -564,6 +564,7 @@ def test_saturation_model_refusals_name_the_key():
     sc = _reversal_on_the_curve(saturation_model=True)
     assert Scenario.from_mapping(sc.to_mapping()).saturation_model      # the run record keeps it
     params = sc.node_parameters()
-    for node in ('controller', 'observer'):     # the graph's nodes get the curve as text
-        assert 'beta' in params[node]['saturation_model'], node
-    assert 'saturation_model' not in params['adapter']
+    for node in ('controller', 'observer'):     # the graph's nodes get the curve's parameters
+        assert params[node]['saturation_model.enabled'] is True, node
+        assert params[node]['saturation_model.beta'] == sc.saturation['beta'], node
+    assert not any(k.startswith('saturation_model') for k in params['adapter'])

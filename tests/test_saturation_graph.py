@@ -24,13 +24,14 @@ def test_the_graph_on_the_curve_computes_what_the_ros_free_loop_computes():
 
 
 def test_a_bad_curve_parameter_is_one_line():
-    from im_common.params import THESIS_MOTOR
-    from im_common.saturation import saturated_model_from_text
+    from im_common.node_params import block_from_parameters
+    from im_common.saturation import SaturationBlock
     from im_common.validation import InvalidParameter
-    import yaml
-    with pytest.raises(InvalidParameter, match="'saturation_model'.*not a YAML mapping"):
-        saturated_model_from_text('{law: [', THESIS_MOTOR, 'saturation_model', yaml.safe_load)
-    with pytest.raises(InvalidParameter, match='saturation_model.beta'):
-        saturated_model_from_text('{law: power, S: 7}', THESIS_MOTOR, 'saturation_model',
-                                  yaml.safe_load)
-    assert saturated_model_from_text('', THESIS_MOTOR, 'saturation_model', yaml.safe_load) is None
+    on = {'saturation_model.enabled': True}
+    with pytest.raises(InvalidParameter, match="'saturation_model.law' = 'table'"):
+        block_from_parameters(SaturationBlock, dict(on, **{'saturation_model.law': 'table'}),
+                              'saturation_model')
+    with pytest.raises(InvalidParameter, match="'saturation_model.beta' = None: is missing"):
+        block_from_parameters(SaturationBlock, dict(on, **{'saturation_model.S': 7.0}),
+                              'saturation_model')
+    assert block_from_parameters(SaturationBlock, {}, 'saturation_model') is None

@@ -6,7 +6,6 @@ The causal min_loss (and optimal's target) minimizes the steady loss on the tabl
 table's least-squares power-law fit (flux_plan.saturation_terms). ``saturation_model`` takes the
 drive's own curve, so a commissioned table drives the true motor (docs/plant.md §2).
 """
-import json
 import os
 
 from im_bringup.offline import simulate
@@ -76,7 +75,11 @@ def test_saturation_model_takes_the_drives_own_curve_and_refuses_a_bad_one(tmp_p
     sc = Scenario(task='speed', strategy='min_loss', motor=MOTOR, saturation='motor',
                   saturation_model=own)
     assert sc.drive_curve() == own and sc.saturation['law'] == 'power'
-    assert json.loads(sc.node_parameters()['controller']['saturation_model']) == own
+    from im_common.node_params import block_from_parameters
+    from im_common.saturation import SaturationBlock
+    curve = block_from_parameters(SaturationBlock, sc.node_parameters()['controller'],
+                                  'saturation_model')
+    assert curve.describe() == own
     assert Scenario.from_mapping(sc.to_mapping()).saturation_model == own
     run = tmp_path / 'run.yaml'
     run.write_text('task: speed\nsaturation_model: {table: [[0.3, 4.0], [0.2, 5.0]]}\n')

@@ -15,7 +15,8 @@ from __future__ import annotations
 from dataclasses import fields
 from typing import Mapping, Optional
 
-from im_common.params import motor_blocks
+from im_common.node_params import block_from_parameters
+from im_common.thermal import Thermal
 
 from .adaptation import AdaptationGains, ParameterAdapter
 
@@ -71,7 +72,7 @@ class LockstepAdapter:
         gains = AdaptationGains(**{k: v for k, v in values.items() if k in names})
         thermal = None
         if values.get('thermal_tracking'):
-            thermal = motor_blocks({'thermal': values['thermal']}, 'adapter motor')['thermal']
+            thermal = block_from_parameters(Thermal, values, 'thermal')     # thermal.*
         return cls.build(params, gains, R_r0=values.get('R_r_initial'),
                          theta0=values.get('theta_initial'), record_every=record_every,
                          sensorless=bool(values.get('sensorless')), thermal=thermal)

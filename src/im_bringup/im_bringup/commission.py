@@ -239,11 +239,11 @@ def start_plant(motor_file: Optional[str], s: dict, args, domain: int, key_file:
 
 
 def run(args) -> int:
-    # heavy: rclpy (im_common.host) and the ROS messages (run_protocol) only for a run
+    # heavy: rclpy (im_common.host) and the ROS messages (lockstep_protocol) only for a run
     import rclpy
     from rclpy.context import Context
     from im_common.host import flush, make_executor
-    from im_common.run_protocol import WAITING
+    from im_common.lockstep_protocol import WAITING
     run_plant = run_plant_parameters(args)
     s = settings(args)
     plate = s['plate']
@@ -368,8 +368,9 @@ def write_motor_file(path: str, motor, ident, com, flux: Optional[float], args) 
         lines += [f"  psi_R = {p['psi']:.5g} +- {p['psi_std']:.2g} Wb, i_M = {p['i_M']:.5g} "
                   f"+- {p['i_M_std']:.2g} A (L_M = {p['psi'] / p['i_M']:.5g} H, omega_e = "
                   f"{p['w_e']:.4g} rad/s)" for p in ident.magnetizing]
-        rows = ', '.join(f'[{psi:g}, {i:g}]' for psi, i in curve_table(ident.magnetizing))
-        values['saturation'] = f'{{table: [{rows}]}}'
+        points = curve_table(ident.magnetizing)     # ROS takes no list of lists: two columns
+        values['saturation'] = {'table_psi': [float(psi) for psi, _ in points],
+                                'table_i_M': [float(i) for _, i in points]}
     if flux is not None:
         lines.append(f'Rated rotor flux (nameplate voltage, frequency, speed; this gauge): '
                      f"{flux:.4g} Wb (the controller's phi_d for constant flux).")

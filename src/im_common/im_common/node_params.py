@@ -2,39 +2,22 @@
 Parameters several nodes declare the same way: the motor, the period, the run length.
 
 Also a run-file block's parameters, generated from its pydantic model (:func:`declare_block`,
-:func:`block_parameters`: the plant's ``inverter.*`` and ``sensors.*``), and a node's
-configuration model's (:func:`declare_model`, :func:`model_arguments`: the controller's).
+:func:`block_parameters`: the plant's ``inverter.*`` and ``sensors.*``, the motor's
+``saturation.*`` and ``thermal.*``, the drive's ``saturation_model.*``, the variation's
+``variation.<parameter>.*``), and a node's configuration model's (:func:`declare_model`,
+:func:`model_arguments`: the controller's).
 """
 from __future__ import annotations
 
-from typing import Optional
-
-import yaml
+from typing import Mapping, Optional
 
 from .compensation import compensation_from_parameters, DEFAULT_CURRENT_BAND
 from .delay import CommandDelay, MAX_DELAY
-from .params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, MOTOR_RANGES, MotorParams, parameter_error,
-                     THESIS_MOTOR, warn_motor_defaults)
-from .saturation import saturated_model_from_text
+from .params import (ELECTRICAL_NAMES, MOTOR_BLOCK_MODELS, MOTOR_DOC, MOTOR_RANGES, MotorParams,
+                     parameter_error, ParameterVariation, THESIS_MOTOR, VariationBlock,
+                     warn_motor_defaults)
+from .saturation import saturated_model, SaturationBlock
 from .validation import choice_error, InvalidParameter, literal_choices, parse_block
-
-_MOTOR_DOC = {
-    'R_s': 'stator resistance [ohm]',
-    'R_r': 'rotor resistance referred to the stator [ohm]',
-    'L_s': 'stator self inductance [H]',
-    'L_r': 'rotor self inductance [H]',
-    'L_sr': 'stator-rotor mutual inductance [H]',
-    'J': 'inertia of motor and load [kg m^2]',
-    'b': 'viscous friction [N m s]',
-    'k_e': 'eddy-current core-loss coefficient [W s/Wb^2]',
-    'k_h': 'hysteresis core-loss coefficient [W s/Wb^2]',
-    'rated_voltage_rms_line': 'nameplate voltage, line-to-line RMS [V] (0: not given)',
-    'rated_current_rms': 'nameplate current, line RMS [A] (0: not given)',
-    'rated_frequency': 'nameplate frequency [Hz] (0: not given)',
-    'rated_speed_rpm': 'nameplate shaft speed [rpm] (0: not given)',
-    'rated_power': 'nameplate shaft power [W] (0: not given)',
-    'rated_flux': 'rated rotor flux [Wb] (0: from rated voltage, frequency and speed)',
-}
 
 
 def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
@@ -44,9 +27,11 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
 
     A motor file (``--params-file motor.yaml`` with ``/**:``) sets them on every node at once.
 
-    ``blocks``, when given, receives the motor file's ``saturation`` and ``thermal`` text (the
-    real plant's blocks, docs/plant.md; '' when absent); every node declares them, since a motor
-    file reaches every node.
+    ``blocks``, when given, receives the motor file's ``saturation`` and ``thermal`` blocks (the
+    real plant's, docs/plant.md): their models (:data:`im_common.params.MOTOR_BLOCK_MODELS`) from
+    the parameters ``saturation.*``, ``thermal.*`` (:func:`declare_block`; a motor file's nested
+    mapping ``saturation: {law: power, beta: 1.4, S: 7.0}`` gives them, and turns the block on),
+    None when absent; every node declares them, since a motor file reaches every node.
 
     ``warn_defaults``: when a motor was given (its electrical fields), warn once, one line each,
     of the fields it lacks and the defaults they take (:func:`im_common.params.motor_defaults`).
@@ -54,16 +39,22 @@ def declare_motor(node, base: MotorParams = THESIS_MOTOR, what: str = 'motor',
     Raises :class:`im_common.params.InvalidParameter` naming the parameter (e.g. σ ≤ 0 names L_sr).
     """
     values = {}
-    for name, doc in _MOTOR_DOC.items():
+    for name, doc in MOTOR_DOC.items():
         values[name] = node.param(name, float(getattr(base, name)), f'{what}: {doc}',
                                   *MOTOR_RANGES[name])
     values['pole_pairs'] = node.param('pole_pairs', int(base.pole_pairs),
                                       f'{what}: pole pairs v', *MOTOR_RANGES['pole_pairs'])
-    for name in MOTOR_BLOCKS:                   # a motor file's real-plant blocks (the plant's)
-        text = node.param(name, '', f"{what}: the real plant's {name} block as YAML text ('': "
-                                    'none; docs/plant.md)')
+    given = getattr(node, '_parameter_overrides', {})
+    for name, model in MOTOR_BLOCK_MODELS.items():     # a motor file's real-plant blocks
+        if name in given:       # the text a motor file once held: it would act on nothing now
+            raise InvalidParameter(name, given[name].value, f'a block is a mapping now, '
+                                   f'{name}: {{key: value, ...}} ({name}.* parameters; '
+                                   'docs/plant.md)')
+        block = declare_block(node, model, name, f"{what}: the real plant's {name} block, "
+                              f'{name}.* (on when any is given: a motor file; docs/plant.md)',
+                              on_when_given=True)
         if blocks is not None:
-            blocks[name] = text
+            blocks[name] = block
     motor = MotorParams(**values)
     given = set(getattr(node, '_parameter_overrides', {}))
     if warn_defaults and given.issuperset(ELECTRICAL_NAMES):
@@ -92,16 +83,49 @@ def declare_compensation(node):
 
 def declare_saturation_model(node, params):
     """
-    Declare ``saturation_model``: the drive's magnetizing curve ('' : the linear model).
+    Declare ``saturation_model.*``: the drive's magnetizing curve (not enabled: the linear model).
 
     The observer and controller declare it (docs/plant.md §2, "The drive on the curve"): a
-    ``saturation`` block as text (``{law: power, beta, S}`` or ``{table: [[psi, i_M], ...]}``,
-    a motor file's form). Returns the :class:`~im_common.saturation.SaturatedModel` of
+    saturation block's parameters (:class:`~im_common.saturation.SaturationBlock`,
+    :func:`declare_block`). Returns the :class:`~im_common.saturation.SaturatedModel` of
     ``params`` on it, or None; a bad block is one error naming the parameter.
     """
-    text = node.param('saturation_model', '', "the drive's magnetizing curve, a saturation block "
-                      "as text ('': the linear model; docs/plant.md section 2)")
-    return saturated_model_from_text(text, params, 'saturation_model', yaml.safe_load)
+    block = declare_block(node, SaturationBlock, 'saturation_model', "the drive's magnetizing "
+                          'curve, saturation_model.*: the power law (beta, S) or a table '
+                          '(false: the linear model; docs/plant.md section 2)')
+    return saturated_model(block, params)
+
+
+def declare_variation(node) -> Optional[VariationBlock]:
+    """
+    Declare ``variation.<name>.*`` of each electrical parameter: the plant's breakpoint variation.
+
+    One block per parameter (:class:`~im_common.params.ParameterVariation`,
+    :func:`declare_block`): ``variation.R_r.enabled``, ``.by``, ``.points``, ``.shape``,
+    ``.sines``. Returns the :class:`~im_common.params.VariationBlock` of those enabled, or None.
+    """
+    parts = {name: declare_block(node, ParameterVariation, f'variation.{name}',
+                                 f'variation schedule: {name} varies in time, '
+                                 f'variation.{name}.* (docs/running.md)')
+             for name in ELECTRICAL_NAMES}
+    parts = {k: v for k, v in parts.items() if v is not None}
+    return VariationBlock(**parts) if parts else None
+
+
+def variation_parameters(block: VariationBlock) -> dict:
+    """Return the node parameters of a variation (:func:`declare_variation`'s); no ROS import."""
+    out = {}
+    for name, part in block.parts().items():
+        out.update(block_parameters(part, f'variation.{name}'))
+    return out
+
+
+def variation_from_parameters(values: Mapping) -> Optional[VariationBlock]:
+    """Return the variation of a node's parameter ``values`` (:func:`declare_variation`'s)."""
+    parts = {name: block_from_parameters(ParameterVariation, values, f'variation.{name}')
+             for name in ELECTRICAL_NAMES}
+    parts = {k: v for k, v in parts.items() if v is not None}
+    return VariationBlock(**parts) if parts else None
 
 
 #: the value of a block's parameter for a field that has no default (required): 'not given'.
@@ -210,28 +234,54 @@ def _is_sentinel(value, given) -> bool:
     return _is_number(value) and value == given
 
 
-def declare_block(node, model_cls, prefix: str, description: str):
+def declare_block(node, model_cls, prefix: str, description: str, on_when_given: bool = False):
     """
     Declare a run-file block's parameters, generated from its pydantic model; return it or None.
 
     ``<prefix>.enabled`` (false, the default: no block, None) and one typed parameter per field of
     ``model_cls`` (:class:`im_common.inverter.Inverter`, :class:`im_plant.sensors.Sensors`),
-    ``<prefix>.<field>``: the field's type (a tuple of numbers: a double array), default,
-    description (unit, meaning) and bounds. Enabled, the values are parsed into the model: an
-    error is one line naming ``<prefix>.<field>`` (:func:`im_common.validation.parse_block`, the
-    run file's lines), a required field left at :data:`NOT_GIVEN` is missing ('is missing'). A
-    value equal to the field's default is that default (as if left out). Disabled, a field set
-    to anything else is refused in one line: it would silently act on nothing.
+    ``<prefix>.<field>``: the field's type (a tuple: an array), default, description (unit,
+    meaning) and bounds. The values are read by :func:`block_from_parameters`. ``on_when_given``
+    (a motor file's blocks, whose nested mapping gives the fields alone): ``<prefix>.enabled``
+    defaults to true when any ``<prefix>.<field>`` is given.
     """
-    enabled = node.param(f'{prefix}.enabled', False, description)
+    fields = list(_block_fields(model_cls))
+    given = getattr(node, '_parameter_overrides', {})
+    implied = [f'{prefix}.{name}' for name, *_ in fields if f'{prefix}.{name}' in given] \
+        if on_when_given and f'{prefix}.enabled' not in given else []
+    values = {f'{prefix}.enabled': node.param(f'{prefix}.enabled', bool(implied), description)}
+    for name, default, choices, text, _, _ in fields:
+        values[f'{prefix}.{name}'] = node.param(f'{prefix}.{name}', default, f'{prefix}: {text}',
+                                                choices=choices)
+    try:
+        return block_from_parameters(model_cls, values, prefix)
+    except InvalidParameter as exc:     # one not given (missing): say what turned the block on
+        trigger = (implied or [n for n in (f'{prefix}.enabled',) if n in given] or [None])[0]
+        if trigger is None or exc.name in given:
+            raise
+        raise InvalidParameter(exc.name, exc.value, f'{exc.reason} ({trigger} is given, which '
+                               f'turns the {prefix} block on)') from None
+
+
+def block_from_parameters(model_cls, values: Mapping, prefix: str):
+    """
+    Return the block of node-parameter ``values`` (:func:`declare_block`'s), or None; no ROS.
+
+    ``values``: {``<prefix>.enabled``: ..., ``<prefix>.<field>``: ...}, a name left out at its
+    default. Enabled, the values are parsed into the model: an error is one line naming
+    ``<prefix>.<field>`` (:func:`im_common.validation.parse_block`, the run file's lines), a
+    required field left at :data:`NOT_GIVEN` is missing ('is missing'). A value equal to the
+    parameter's default is the field's default (as if left out). Disabled, a field set to
+    anything else is refused in one line: it would silently act on nothing.
+    """
     spec = {}
-    for name, default, choices, text, _, _ in _block_fields(model_cls):
-        value = node.param(f'{prefix}.{name}', default, f'{prefix}: {text}', choices=choices)
+    for name, default, _, _, _, _ in _block_fields(model_cls):
+        value = values.get(f'{prefix}.{name}', default)
         if isinstance(default, list):
             value = list(value)                 # rclpy gives an array.array for a double array
         if value != default:
             spec[name] = value
-    if not enabled:
+    if not values.get(f'{prefix}.enabled', False):
         if spec:                # a setting given for a block that is off would act on nothing
             name = next(iter(spec))
             raise InvalidParameter(f'{prefix}.{name}', spec[name],
@@ -245,15 +295,16 @@ def block_parameters(block, prefix: str) -> dict:
     """
     Return the node parameters of a block's model (:func:`declare_block`'s, flattened).
 
-    ``{<prefix>.enabled: True, <prefix>.<field>: value, ...}``, every field; no ROS import.
+    ``{<prefix>.enabled: True, <prefix>.<field>: value, ...}``, every field (one left out, None
+    or an empty tuple: the parameter's default, which stands for it); no ROS import.
     """
     out = {f'{prefix}.enabled': True}
     for name, default, _, _, _, _ in _block_fields(type(block)):
         value = getattr(block, name)
-        if value is None:           # not given: the parameter's sentinel
+        if value is None or value == ():        # not given: the parameter's sentinel
             value = default
-        out[f'{prefix}.{name}'] = [float(x) for x in value] if isinstance(value, tuple) \
-            else value              # a tuple of numbers: a double array
+        out[f'{prefix}.{name}'] = [x if isinstance(x, str) else float(x) for x in value] \
+            if isinstance(value, (tuple, list)) else value      # a tuple: an array
     return out
 
 

@@ -58,14 +58,15 @@ import logging
 import math
 import os
 import re
-from typing import Callable, Dict, Mapping, Optional, Tuple
+from typing import Callable, Dict, Literal, Mapping, Optional, Tuple
 
+from pydantic import BaseModel, Field, model_validator
 import yaml
 
 from . import yamlio
-from .saturation import saturation_from_dict
-from .thermal import thermal_from_dict
-from .validation import check_real, InvalidParameter
+from .saturation import saturation_block, SaturationBlock
+from .thermal import Thermal, thermal_from_dict
+from .validation import BLOCK_CONFIG, check_real, InvalidParameter, parameter_spec
 
 ELECTRICAL_NAMES = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')
 #: the nameplate fields of a motor file (0: not given); converted once by MotorParams' properties
@@ -497,6 +498,27 @@ def warn_motor_defaults(source: str, given, motor: MotorParams, log=None) -> lis
     return out
 
 
+#: what each motor field is, and its unit: the nodes' parameter descriptions and the motor
+#: file's schema (im_common.motor_file)
+MOTOR_DOC = {
+    'R_s': 'stator resistance [ohm]',
+    'R_r': 'rotor resistance referred to the stator [ohm]',
+    'L_s': 'stator self inductance [H]',
+    'L_r': 'rotor self inductance [H]',
+    'L_sr': 'stator-rotor mutual inductance [H]',
+    'J': 'inertia of motor and load [kg m^2]',
+    'b': 'viscous friction [N m s]',
+    'k_e': 'eddy-current core-loss coefficient [W s/Wb^2]',
+    'k_h': 'hysteresis core-loss coefficient [W s/Wb^2]',
+    'rated_voltage_rms_line': 'nameplate voltage, line-to-line RMS [V] (0: not given)',
+    'rated_current_rms': 'nameplate current, line RMS [A] (0: not given)',
+    'rated_frequency': 'nameplate frequency [Hz] (0: not given)',
+    'rated_speed_rpm': 'nameplate shaft speed [rpm] (0: not given)',
+    'rated_power': 'nameplate shaft power [W] (0: not given)',
+    'rated_flux': 'rated rotor flux [Wb] (0: from rated voltage, frequency and speed)',
+}
+
+
 #: the range of each motor field a motor file, a run file's motor mapping and a node take
 #: (one home: im_common.node_params.declare_motor declares the nodes' parameters with them)
 MOTOR_RANGES = {
@@ -540,25 +562,28 @@ def motor_from_dict(values: Mapping, source: str = 'motor') -> MotorParams:
         if bad:
             raise InvalidParameter(f'{source}: {key}', val, bad)
         clean[key] = val
-    motor_blocks(values, source)    # a bad block is refused with the motor (on checked L_sr, L_r)
+    motor_blocks(values, source)    # a bad block is refused with the motor
     try:
         return MotorParams(**clean)
     except InvalidParameter as exc:
         raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
 
 
-#: the real plant's blocks a motor file may hold (docs/plant.md): each a YAML mapping written as
-#: one string parameter (a ROS 2 parameter cannot be a mapping of lists), '' when absent
-MOTOR_BLOCKS = ('saturation', 'thermal')
+#: the real plant's blocks a motor file may hold (docs/plant.md) and the model of each: a node
+#: takes one as flat parameters, ``saturation.beta``, ``thermal.C_s`` (what a motor file's nested
+#: mapping ``saturation: {law: power, beta: 1.4, S: 7.0}`` gives a node;
+#: :func:`im_common.node_params.declare_motor`)
+MOTOR_BLOCK_MODELS = {'saturation': SaturationBlock, 'thermal': Thermal}
+MOTOR_BLOCKS = tuple(MOTOR_BLOCK_MODELS)
 
 
 def motor_blocks(values: Mapping, source: str = 'motor') -> Dict[str, dict]:
     """
     Return the validated ``saturation`` / ``thermal`` blocks of a motor's values ({} if none).
 
-    Each is a mapping or its YAML text (how a motor file writes it: ``saturation: '{law: power,
-    beta: 1.3, S: 7.0}'``); an empty string is no block. Errors are one line naming the source
-    and the key.
+    Each is a mapping (a motor file's ``saturation: {law: power, beta: 1.3, S: 7.0}``) or, as
+    motor files wrote it before, its YAML text; an empty string is no block. Errors are one line
+    naming the source and the key.
     """
     out = {}
     for key in MOTOR_BLOCKS:
@@ -574,15 +599,11 @@ def motor_blocks(values: Mapping, source: str = 'motor') -> Dict[str, dict]:
                     from None
         try:
             if key == 'saturation':
-                L_M = float(values['L_sr']) ** 2 / float(values['L_r'])
-                saturation_from_dict(spec, L_M)
+                saturation_block(spec)
             else:
                 thermal_from_dict(spec)
         except InvalidParameter as exc:
             raise InvalidParameter(f'{source}: {exc.name}', exc.value, exc.reason) from None
-        except (KeyError, TypeError, ValueError, ZeroDivisionError):
-            raise InvalidParameter(f'{source}: {key}', spec, "needs the motor's L_sr and L_r") \
-                from None
         out[key] = dict(spec)
     return out
 
@@ -952,15 +973,140 @@ def normalize_variation(spec, where: str = 'variation') -> Dict[str, list]:
     return out
 
 
+#: a node parameter of a variation left out: one number, never a pair nor a triple
+_NONE_GIVEN = parameter_spec([0.0], sentinels=(([0.0], (), 'none'),))
+
+
+class ParameterVariation(BaseModel):
+    """
+    One parameter's breakpoint variation, flat: what a node takes as ``variation.<name>.*``.
+
+    The run file's list ``[{t, scale|value, shape}, ..., {sine, frequency, phase}, ...]``
+    (:func:`normalize_variation`) as the levels' kind, the breakpoints (t, level) and their
+    shapes, and the sine terms; :func:`variation_block` builds it, :meth:`items` gives the list
+    back (the breakpoints, then the sine terms: the schedule adds the sines to the breakpoints'
+    level, in whatever order they were written).
+    """
+
+    model_config = BLOCK_CONFIG
+
+    by: Literal['scale', 'value'] = Field('scale', description="the breakpoints' levels: scale "
+                                          "(x the motor's value) or value (SI)")
+    points: Tuple[float, ...] = Field((), description='breakpoints, flat (t [s], level) pairs, '
+                                      't >= 0 and rising', json_schema_extra=_NONE_GIVEN)
+    shape: Tuple[str, ...] = Field((), description="each breakpoint's shape: step (the level from "
+                                   't on) or ramp (linear from the previous breakpoint)',
+                                   json_schema_extra=parameter_spec(
+                                       [''], sentinels=(([''], (), 'every breakpoint a step'),)))
+    sines: Tuple[float, ...] = Field((), description='sine terms added to the level, flat '
+                                     '(amplitude, frequency [Hz] > 0, phase [rad]) triples',
+                                     json_schema_extra=_NONE_GIVEN)
+
+    @model_validator(mode='before')
+    @classmethod
+    def _arrays(cls, spec):
+        """Take an array as a list (a node parameter's) too; no shape: every breakpoint a step."""
+        if not isinstance(spec, Mapping):
+            return spec
+        spec = {k: tuple(v) if k in ('points', 'shape', 'sines') and isinstance(v, list) else v
+                for k, v in spec.items()}
+        if 'shape' not in spec and isinstance(spec.get('points'), tuple):
+            spec['shape'] = ('step',) * (len(spec['points']) // 2)
+        return spec
+
+    @model_validator(mode='after')
+    def _rules(self) -> 'ParameterVariation':
+        """Refuse what is no list of breakpoints and sine terms (one line naming the array)."""
+        if not self.points and not self.sines:
+            raise InvalidParameter('points', [], 'no breakpoint and no sine term: give points '
+                                   'or sines (or leave the parameter out of the variation)')
+        if len(self.points) % 2:
+            raise InvalidParameter('points', list(self.points), 'must be (t, level) pairs: an '
+                                   'even count of numbers')
+        times = self.points[0::2]
+        for k, t in enumerate(times):
+            if t < 0:
+                raise InvalidParameter('points', list(self.points), f't = {t:g} s of breakpoint '
+                                       f'{k} must be >= 0')
+            if k and not t > times[k - 1]:
+                raise InvalidParameter('points', list(self.points), f't = {t:g} s of breakpoint '
+                                       f'{k} must be after the previous breakpoint '
+                                       f'({times[k - 1]:g} s)')
+        if len(self.shape) != len(times):
+            raise InvalidParameter('shape', list(self.shape), f'must give one shape per '
+                                   f'breakpoint ({len(times)})')
+        for s in self.shape:
+            if s not in BREAKPOINT_SHAPES:
+                raise InvalidParameter('shape', list(self.shape), 'must be step or ramp each')
+        if len(self.sines) % 3:
+            raise InvalidParameter('sines', list(self.sines), 'must be (amplitude, frequency, '
+                                   'phase) triples: a count of numbers divisible by 3')
+        for k, f in enumerate(self.sines[1::3]):
+            if not f > 0:
+                raise InvalidParameter('sines', list(self.sines), f'the frequency {f:g} Hz of '
+                                       f'sine term {k} must be > 0')
+        return self
+
+    def items(self) -> list:
+        """Return the run file's list of this variation (:func:`normalize_variation`'s form)."""
+        pts = self.points
+        out = [{'t': pts[2 * k], self.by: pts[2 * k + 1], 'shape': shape}
+               for k, shape in enumerate(self.shape)]
+        s = self.sines
+        out += [{'sine': s[k], 'frequency': s[k + 1], 'phase': s[k + 2]}
+                for k in range(0, len(s), 3)]
+        return out
+
+
+class VariationBlock(BaseModel):
+    """A breakpoint variation, {parameter: :class:`ParameterVariation`} (None: not varied)."""
+
+    model_config = BLOCK_CONFIG
+
+    R_s: Optional[ParameterVariation] = None
+    R_r: Optional[ParameterVariation] = None
+    L_s: Optional[ParameterVariation] = None
+    L_r: Optional[ParameterVariation] = None
+    L_sr: Optional[ParameterVariation] = None
+
+    def parts(self) -> Dict[str, ParameterVariation]:
+        """Return {parameter: its variation} of those varied (in ELECTRICAL_NAMES order)."""
+        return {n: getattr(self, n) for n in ELECTRICAL_NAMES if getattr(self, n) is not None}
+
+    def spec(self) -> Dict[str, list]:
+        """Return the run file's mapping of this variation (:func:`normalize_variation`'s form)."""
+        return {n: part.items() for n, part in self.parts().items()}
+
+
+def variation_block(spec, where: str = 'variation') -> VariationBlock:
+    """
+    Return the :class:`VariationBlock` of a run file's breakpoint variation (or the block itself).
+
+    Errors are :func:`normalize_variation`'s lines (``variation.R_r[0].shape``).
+    """
+    if isinstance(spec, VariationBlock):
+        return spec
+    parts = {}
+    for pname, items in normalize_variation(spec, where).items():
+        points = [i for i in items if 'sine' not in i]
+        by = 'value' if any('value' in i for i in points) else 'scale'
+        parts[pname] = ParameterVariation(
+            by=by, points=tuple(x for i in points for x in (i['t'], i[by])),
+            shape=tuple(i['shape'] for i in points),
+            sines=tuple(x for i in items if 'sine' in i
+                        for x in (i['sine'], i['frequency'], i['phase'])))
+    return VariationBlock(**parts)
+
+
 def variation_schedule(base: MotorParams, spec, name: Optional[str] = None) -> ParameterSchedule:
     """
     Return the :class:`ParameterSchedule` of a breakpoint variation over the motor ``base``.
 
-    The variation as :func:`normalize_variation` takes it: ``scale`` levels multiply the motor's
-    value, ``value`` levels are SI; before the first breakpoint a parameter keeps the motor's
-    value.
+    The variation as :func:`normalize_variation` takes it, or its :class:`VariationBlock`:
+    ``scale`` levels multiply the motor's value, ``value`` levels are SI; before the first
+    breakpoint a parameter keeps the motor's value.
     """
-    spec = normalize_variation(spec)
+    spec = normalize_variation(spec.spec() if isinstance(spec, VariationBlock) else spec)
     variations = {}
     for pname, items in spec.items():
         base_value = getattr(base, pname)
@@ -974,15 +1120,20 @@ def variation_schedule(base: MotorParams, spec, name: Optional[str] = None) -> P
 
 
 def describe_variation(spec) -> str:
-    """Return a one-line account of a breakpoint variation (summaries, console headers)."""
-    spec = normalize_variation(spec)
+    """
+    Return a one-line account of a breakpoint variation (summaries, console headers).
+
+    The variation as :func:`variation_schedule` takes it; each parameter's breakpoints, then its
+    sine terms (the same line however they were written, and from its :class:`VariationBlock`).
+    """
+    spec = normalize_variation(spec.spec() if isinstance(spec, VariationBlock) else spec)
     if not spec:
         return 'none'
     parts = []
     for pname in (n for n in ELECTRICAL_NAMES if n in spec):     # one order on every path
         items = spec[pname]
         terms = []
-        for i in items:
+        for i in sorted(items, key=lambda i: 'sine' in i):     # stable: written order kept
             if 'sine' in i:
                 terms.append(f"+{i['sine']:g} sin {i['frequency']:g} Hz")
             else:

@@ -22,11 +22,110 @@ from __future__ import annotations
 
 from bisect import bisect_right
 import math
-from typing import Mapping, Optional, Sequence, Tuple
+from typing import Literal, Mapping, Optional, Sequence, Tuple
 
-from .validation import check_block, check_real, InvalidParameter
+from pydantic import BaseModel, Field, model_validator
 
-SATURATION_KEYS = ('law', 'beta', 'S', 'table')
+from .validation import (BLOCK_CONFIG, check_block, check_real, InvalidParameter, parameter_spec,
+                         parse_block)
+
+#: the keys of a ``saturation:`` block: the law's, the table as [psi, i_M] rows (a run file, a
+#: motor file) or as its two columns (a node's parameters, a motor file read by ROS)
+SATURATION_KEYS = ('law', 'beta', 'S', 'table', 'table_psi', 'table_i_M')
+SATURATION_SHAPE = '{law: power, beta, S} or {table: [[psi, i_M], ...]}'
+#: a node parameter left out: a value the field refuses (beta >= 0, S > 0, a column of >= 2 points)
+_NOT_GIVEN_BETA = parameter_spec(-1.0, sentinels=((-1.0, None, 'not given'),))
+_NOT_GIVEN_S = parameter_spec(0.0, sentinels=((0.0, None, 'not given'),))
+_NO_TABLE = parameter_spec([0.0], sentinels=(([0.0], (), 'no table'),))
+
+
+def _table_error(psi: float, i_M: float, prev) -> Optional[str]:
+    """Return why a table's point (psi, i_M) cannot follow the point ``prev``, or None."""
+    if not (psi > prev[0] and i_M > prev[1]):
+        return ('the magnetizing curve is not monotonic: psi and i_M must both rise from one '
+                'point to the next')
+    return None
+
+
+class SaturationBlock(BaseModel):
+    """
+    The ``saturation:`` block of a motor file: the power law or a table (the module doc).
+
+    Flat, so that a node takes it as parameters (``saturation.beta``, ``saturation.table_psi``);
+    :func:`saturation_from_dict` takes the run file's and motor file's forms, ``table: [[psi,
+    i_M], ...]`` included. :meth:`curve` is the :class:`Saturation` on a motor's L_M0.
+    """
+
+    model_config = BLOCK_CONFIG
+
+    law: Literal['power'] = Field('power', description='the law L_M0/(1 + (beta psi)^S), with '
+                                  'beta and S (a table takes none)')
+    beta: Optional[float] = Field(None, ge=0, description='power law: beta [1/Wb]',
+                                  json_schema_extra=_NOT_GIVEN_BETA)
+    S: Optional[float] = Field(None, gt=0, description='power law: the exponent S',
+                               json_schema_extra=_NOT_GIVEN_S)
+    table_psi: Tuple[float, ...] = Field((), description='table: the flux psi of each point, '
+                                         'rising [Wb] (with table_i_M; in place of the law)',
+                                         json_schema_extra=_NO_TABLE)
+    table_i_M: Tuple[float, ...] = Field((), description='table: the magnetizing current i_M '
+                                         'of each point, rising [A] (with table_psi)',
+                                         json_schema_extra=_NO_TABLE)
+
+    @model_validator(mode='before')
+    @classmethod
+    def _columns(cls, spec):
+        """Take a column as a list (a run file's, a node parameter's) too."""
+        if isinstance(spec, Mapping):
+            spec = {k: (tuple(v) if k in ('table_psi', 'table_i_M') and isinstance(v, list)
+                        else v) for k, v in spec.items()}
+        return spec
+
+    @model_validator(mode='after')
+    def _rules(self) -> 'SaturationBlock':
+        """Refuse a table beside the law, a table's bad points, and the law without beta, S."""
+        if self.table_psi or self.table_i_M:
+            law = [k for k in ('law', 'beta', 'S') if k in self.model_fields_set]
+            if law:
+                raise InvalidParameter(law[0], getattr(self, law[0]),
+                                       'give either a table or a law')
+            n = len(self.table_psi)
+            if n < 2:
+                raise InvalidParameter('table_psi', list(self.table_psi),
+                                       'must list at least two points')
+            if len(self.table_i_M) != n:
+                raise InvalidParameter('table_i_M', list(self.table_i_M),
+                                       f'must list as many points as table_psi ({n})')
+            prev = (0.0, 0.0)
+            for k, point in enumerate(zip(self.table_psi, self.table_i_M)):
+                for name, x in zip(('table_psi', 'table_i_M'), point):
+                    if not x > 0:
+                        raise InvalidParameter(f'{name}[{k}]', x, 'must be > 0')
+                why = _table_error(*point, prev)
+                if why:
+                    raise InvalidParameter(f'table_psi[{k}]', list(point), why)
+                prev = point
+            return self
+        for key in ('beta', 'S'):
+            if getattr(self, key) is None:
+                raise InvalidParameter(key, None, 'is missing')
+        return self
+
+    @property
+    def table(self):
+        """Return the table's points ((psi, i_M), ...), or None (the law)."""
+        return tuple(zip(self.table_psi, self.table_i_M)) if self.table_psi else None
+
+    def curve(self, L_M0: float) -> 'Saturation':
+        """Return the :class:`Saturation` of this block on the unsaturated L_M0 [H]."""
+        if self.table is not None:
+            return Saturation(L_M0, table=self.table)
+        return Saturation(L_M0, beta=self.beta, S=self.S)
+
+    def describe(self) -> dict:
+        """Return the block as a run file writes it (:meth:`Saturation.describe`'s form)."""
+        if self.table is not None:
+            return {'table': [list(p) for p in self.table]}
+        return {'law': self.law, 'beta': self.beta, 'S': self.S}
 
 
 class Saturation:
@@ -137,40 +236,43 @@ class Saturation:
         return {'law': 'power', 'beta': self.beta, 'S': self.S}
 
 
-def saturation_from_dict(spec: Mapping, L_M0: float, where: str = 'saturation') -> Saturation:
-    """Return the :class:`Saturation` of a ``saturation:`` block; errors name the key."""
-    check_block(spec, where, SATURATION_KEYS,
-                '{law: power, beta, S} or {table: [[psi, i_M], ...]}')
+def saturation_block(spec, where: str = 'saturation') -> SaturationBlock:
+    """
+    Return the :class:`SaturationBlock` of a ``saturation:`` block; errors name the key.
+
+    The forms of the module doc, ``table: [[psi, i_M], ...]`` (its errors name the row,
+    ``saturation.table[1]``) or its columns ``table_psi``, ``table_i_M``.
+    """
+    if isinstance(spec, SaturationBlock):
+        return spec
+    check_block(spec, where, SATURATION_KEYS, SATURATION_SHAPE)
     if 'table' in spec:
-        if 'law' in spec or 'beta' in spec or 'S' in spec:
-            raise InvalidParameter(f'{where}.table', '...', 'give either a table or a law')
+        others = [k for k in spec if k != 'table']
+        if others:
+            raise InvalidParameter(f'{where}.table', '...', 'give either a table or a law'
+                                   if others[0] in ('law', 'beta', 'S') else
+                                   'give the table once: as table or as table_psi, table_i_M')
         rows = spec['table']
         if not isinstance(rows, (list, tuple)) or len(rows) < 2:
             raise InvalidParameter(f'{where}.table', rows, 'must list at least two [psi, i_M] '
                                                            'points')
-        pts = []
         prev = (0.0, 0.0)
         for k, row in enumerate(rows):
             if not isinstance(row, (list, tuple)) or len(row) != 2:
                 raise InvalidParameter(f'{where}.table[{k}]', row, 'must be [psi, i_M]')
             p = check_real(f'{where}.table[{k}]', row[0], 0.0, lo_open=True)
             i = check_real(f'{where}.table[{k}]', row[1], 0.0, lo_open=True)
-            if not (p > prev[0] and i > prev[1]):
-                raise InvalidParameter(f'{where}.table[{k}]', row,
-                                       'the magnetizing curve is not monotonic: psi and i_M '
-                                       'must both rise from one point to the next')
+            why = _table_error(p, i, prev)
+            if why:
+                raise InvalidParameter(f'{where}.table[{k}]', row, why)
             prev = (p, i)
-            pts.append((p, i))
-        return Saturation(L_M0, table=pts)
-    law = spec.get('law', 'power')
-    if law != 'power':
-        raise InvalidParameter(f'{where}.law', law, "must be 'power' (L_M0/(1 + (beta psi)^S))")
-    for key in ('beta', 'S'):
-        if key not in spec:
-            raise InvalidParameter(f'{where}.{key}', None, 'is missing')
-    beta = check_real(f'{where}.beta', spec['beta'], 0.0)
-    S = check_real(f'{where}.S', spec['S'], 0.0, lo_open=True)
-    return Saturation(L_M0, beta=beta, S=S)
+        spec = {'table_psi': [float(r[0]) for r in rows], 'table_i_M': [float(r[1]) for r in rows]}
+    return parse_block(SaturationBlock, spec, where)
+
+
+def saturation_from_dict(spec: Mapping, L_M0: float, where: str = 'saturation') -> Saturation:
+    """Return the :class:`Saturation` of a ``saturation:`` block; errors name the key."""
+    return saturation_block(spec, where).curve(L_M0)
 
 
 def power_law_fit(psi_rated: float, ratio: float, S: float) -> float:
@@ -221,21 +323,6 @@ class SaturatedModel:
         return dict(self.base, L_M=self.L_M(phi_a, phi_b))
 
 
-def saturated_model_from_text(text: str, params, where: str, load) -> Optional[SaturatedModel]:
-    """
-    Return the :class:`SaturatedModel` of ``params`` on a saturation block written as text.
-
-    None for ''; ``load`` parses the text (a YAML loader); errors are one InvalidParameter
-    naming ``where``.
-    """
-    if not text:
-        return None
-    try:
-        spec = load(text)
-    except Exception as exc:        # the YAML loader's own error types
-        raise InvalidParameter(where, text, f'not a YAML mapping ({str(exc).splitlines()[0]})') \
-            from None
-    if not isinstance(spec, Mapping):
-        raise InvalidParameter(where, text, 'must be a saturation block {law: power, beta, S} '
-                                            'or {table: [[psi, i_M], ...]}')
-    return SaturatedModel(saturation_from_dict(spec, params.L_M, where), params)
+def saturated_model(block: Optional[SaturationBlock], params) -> Optional[SaturatedModel]:
+    """Return the :class:`SaturatedModel` of ``params`` on a saturation block (None: none)."""
+    return None if block is None else SaturatedModel(block.curve(params.L_M), params)

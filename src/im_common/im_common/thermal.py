@@ -20,31 +20,44 @@ values, so they stay exact).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
 import math
-from typing import Mapping
+from typing import Mapping, Optional
 
-from .validation import check_block, check_real, InvalidParameter
+from pydantic import BaseModel, Field
+
+from .validation import BLOCK_CONFIG, parameter_spec, parse_block
 
 #: temperature coefficients of resistance at 20 °C [1/K]: annealed copper, cast aluminium
 ALPHA_COPPER = 0.00393
 ALPHA_ALUMINIUM = 0.00403
+#: absolute zero [°C]: every temperature lies above it
+ABSOLUTE_ZERO = -273.15
+#: the node parameter of an initial temperature left out (T_ambient): absolute zero, which the
+#: field refuses, so it never stands for a temperature given
+_AT_AMBIENT = parameter_spec(ABSOLUTE_ZERO, sentinels=((ABSOLUTE_ZERO, None, 'T_ambient'),))
 
 
-@dataclass(frozen=True)
-class Thermal:
+class Thermal(BaseModel):
     """The ``thermal:`` block of a motor file (SI; temperatures in °C)."""
 
-    C_s: float                  # stator winding (copper + the share of iron it heats) [J/K]
-    R_th_s: float               # stator winding to ambient [K/W]
-    C_r: float                  # rotor cage [J/K]
-    R_th_r: float               # rotor cage to ambient [K/W]
-    T_ambient: float = 25.0     # [°C]
-    T_ref: float = 25.0         # temperature of the motor file's R_s, R_r [°C]
-    T0_s: float = math.nan      # initial stator temperature (nan: T_ambient) [°C]
-    T0_r: float = math.nan      # initial rotor temperature (nan: T_ambient) [°C]
-    alpha_s: float = ALPHA_COPPER
-    alpha_r: float = ALPHA_ALUMINIUM
+    model_config = BLOCK_CONFIG
+
+    C_s: float = Field(gt=0, description='stator winding thermal capacitance (copper + the '
+                       'share of iron it heats) [J/K]')
+    R_th_s: float = Field(gt=0, description='stator winding to ambient thermal resistance [K/W]')
+    C_r: float = Field(gt=0, description='rotor cage thermal capacitance [J/K]')
+    R_th_r: float = Field(gt=0, description='rotor cage to ambient thermal resistance [K/W]')
+    T_ambient: float = Field(25.0, gt=ABSOLUTE_ZERO, description='ambient temperature [degC]')
+    T_ref: float = Field(25.0, gt=ABSOLUTE_ZERO, description="temperature of the motor's R_s, "
+                         'R_r [degC]')
+    T0_s: Optional[float] = Field(None, gt=ABSOLUTE_ZERO, description='initial stator winding '
+                                  'temperature [degC]', json_schema_extra=_AT_AMBIENT)
+    T0_r: Optional[float] = Field(None, gt=ABSOLUTE_ZERO, description='initial rotor cage '
+                                  'temperature [degC]', json_schema_extra=_AT_AMBIENT)
+    alpha_s: float = Field(ALPHA_COPPER, ge=0, description='stator temperature coefficient of '
+                           'resistance [1/K] (copper)')
+    alpha_r: float = Field(ALPHA_ALUMINIUM, ge=0, description='rotor temperature coefficient of '
+                           'resistance [1/K] (aluminium)')
 
     @property
     def tau_s(self) -> float:
@@ -56,8 +69,8 @@ class Thermal:
 
     def initial(self):
         """Return the initial stator and rotor temperatures [°C]."""
-        t_s = self.T_ambient if math.isnan(self.T0_s) else self.T0_s
-        t_r = self.T_ambient if math.isnan(self.T0_r) else self.T0_r
+        t_s = self.T_ambient if self.T0_s is None else self.T0_s
+        t_r = self.T_ambient if self.T0_r is None else self.T0_r
         return t_s, t_r
 
     def resistance_factors(self, T_s: float, T_r: float):
@@ -70,8 +83,8 @@ class Thermal:
         return math.exp(-h / self.tau_s), math.exp(-h / self.tau_r)
 
     def describe(self) -> dict:
-        d = asdict(self)
-        return {k: v for k, v in d.items() if not (isinstance(v, float) and math.isnan(v))}
+        """Return the block as a motor file writes it (an initial temperature left out: none)."""
+        return self.model_dump(exclude_none=True)
 
 
 def first_order(T: float, T_amb: float, R_th: float, P: float, decay: float) -> float:
@@ -79,22 +92,9 @@ def first_order(T: float, T_amb: float, R_th: float, P: float, decay: float) -> 
     return T_amb + (T - T_amb) * decay + R_th * P * (1.0 - decay)
 
 
-THERMAL_KEYS = tuple(Thermal.__dataclass_fields__)
-REQUIRED_THERMAL = ('C_s', 'R_th_s', 'C_r', 'R_th_r')
+THERMAL_KEYS = tuple(Thermal.model_fields)
 
 
 def thermal_from_dict(spec: Mapping, where: str = 'thermal') -> Thermal:
     """Return the :class:`Thermal` of a ``thermal:`` block; errors are one line naming the key."""
-    check_block(spec, where, THERMAL_KEYS)
-    for key in REQUIRED_THERMAL:
-        if key not in spec:
-            raise InvalidParameter(f'{where}.{key}', None, 'is missing')
-    out = {}
-    for key, val in spec.items():
-        if key in REQUIRED_THERMAL:
-            out[key] = check_real(f'{where}.{key}', val, 0.0, lo_open=True)
-        elif key in ('alpha_s', 'alpha_r'):
-            out[key] = check_real(f'{where}.{key}', val, 0.0)
-        else:
-            out[key] = check_real(f'{where}.{key}', val, -273.15, lo_open=True)
-    return Thermal(**out)
+    return parse_block(Thermal, spec, where)

@@ -26,6 +26,8 @@ def _plain(node: str, name: str, value):
         value = value.tolist()
     if isinstance(value, (list, tuple)):
         return [_plain(node, name, v) for v in value]
+    if isinstance(value, dict):     # a block, nested: ROS 2 reads it as the dotted names
+        return {k: _plain(node, f'{name}.{k}', v) for k, v in value.items()}
     if isinstance(value, bool) or isinstance(value, (int, str)):
         return value
     if isinstance(value, float):

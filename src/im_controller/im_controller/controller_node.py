@@ -80,8 +80,8 @@ class ControllerNode(LockstepNode):
             magnetizing=None if self.saturated is None else self.saturated.curve))
         self._plan_note = ''
         if self.saturated is not None and self.use_adapter:
-            raise ValueError("invalid parameter 'saturation_model': with use_adapter the "
-                             'adapter tracks L_M itself; choose one')
+            raise ValueError("invalid parameter 'saturation_model.enabled': with use_adapter "
+                             'the adapter tracks L_M itself; choose one')
         self.period = period_ns(self.T_s)
         self.last_step = round(self.duration / self.T_s) if self.duration > 0 else None
         self.pub_cmd = self.create_publisher(Vector3Stamped, T.CMD_VOLTAGE, writer(T.CMD_VOLTAGE))

@@ -7,15 +7,12 @@ the node builds its simulator from the values with :func:`simulator_from_paramet
 """
 from __future__ import annotations
 
-import json
-
 from im_common.inverter import Inverter
 from im_common.loads import load_from_parameters, LOAD_KINDS
 from im_common.model import stator_flux
-from im_common.node_params import declare_block, declare_motor
-from im_common.params import (ELECTRICAL_NAMES, MOTOR_BLOCKS, motor_blocks, MotorParams,
-                              ParameterSchedule, RATED, SCHEDULES, Variation,
-                              variation_schedule)
+from im_common.node_params import declare_block, declare_motor, declare_variation
+from im_common.params import (ELECTRICAL_NAMES, InvalidParameter, MotorParams, ParameterSchedule,
+                              RATED, SCHEDULES, Variation, variation_schedule)
 from im_plant.plant_sim import DEFAULT_INVERTER_RATING, PlantSimulator
 from im_plant.sensors import Sensors
 
@@ -32,15 +29,28 @@ def declare_plant(node) -> dict:
     blocks: dict = {}
     v = {'motor': declare_motor(node, blocks=blocks, warn_defaults=True)}
     v.update(blocks)                            # the motor file's saturation, thermal
+    _declare_variation(node, v)
+    _declare_load(node, v)
+    _declare_initial_state(node, v)
+    _declare_limits(node, v)
+    _declare_noise(node, v)
+    v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7,
+                         0.1)
+    _declare_real_plant(node, v)
+    _declare_stepping(node, v)
+    _declare_publishing(node, v)
+    return v
+
+
+def _declare_variation(node, v: dict) -> None:
+    """Declare the time variation of the true parameters (variation, variation_*)."""
+    p = node.param
     v['variation'] = p('variation', 'none',
                        'time variation of the true parameters (schedule: the breakpoints of '
-                       'variation_schedule; custom: one parameter varied as variation_kind with '
-                       'the variation_* values below)',
+                       'variation.<parameter>.*; custom: one parameter varied as variation_kind '
+                       'with the variation_* values below)',
                        choices=tuple(SCHEDULES) + ('schedule', 'custom'))
-    v['variation_schedule'] = p('variation_schedule', '',
-                                "variation schedule: the run file's variation as JSON, "
-                                '{parameter: [{t, scale|value, shape}, {sine, frequency, phase}]} '
-                                '(docs/running.md)')
+    v['variation_block'] = declare_variation(node)     # variation.<parameter>.*
     v['variation_parameter'] = p('variation_parameter', 'R_r', 'custom variation: which parameter',
                                  choices=ELECTRICAL_NAMES)
     v['variation_kind'] = p('variation_kind', 'ramp',
@@ -54,6 +64,11 @@ def declare_plant(node) -> dict:
                                  -1e6, 1e6)
     v['variation_omega'] = p('variation_omega', 0.0,
                              'custom variation: angular frequency [rad/s]', -1e6, 1e6)
+
+
+def _declare_load(node, v: dict) -> None:
+    """Declare the shaft load (load, load_*)."""
+    p = node.param
     v['load'] = p('load', 'none', 'shaft load', choices=LOAD_KINDS)
     v['load_mgl'] = p('load_mgl', 10.0, 'pendulum load: m g l [N m]', -1e4, 1e4)
     v['load_c1'] = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
@@ -71,6 +86,11 @@ def declare_plant(node) -> dict:
                          "live: load torque added to the load's own [N m]; a change acts from "
                          'the next step boundary and is announced on /im/status', -1e4, 1e4,
                          read_only=False)
+
+
+def _declare_initial_state(node, v: dict) -> None:
+    """Declare the plant's initial state (shaft, locked rotor, current, flux)."""
+    p = node.param
     v['theta0'] = p('theta0', 0.0, 'initial shaft position [rad]', -1e6, 1e6)
     v['omega0'] = p('omega0', 0.0, 'initial shaft speed [rad/s]', -1e5, 1e5)
     v['locked_rotor'] = p('locked_rotor', False,
@@ -80,6 +100,11 @@ def declare_plant(node) -> dict:
                              'initial stator current [i_alpha, i_beta] [A]')
     v['initial_flux'] = p('initial_flux', [0.0, 0.0],
                           'initial rotor flux [phi_alpha, phi_beta] [Wb]')
+
+
+def _declare_limits(node, v: dict) -> None:
+    """Declare the inverter's voltage limits and the protection's trips."""
+    p = node.param
     v['v_limit'] = p('v_limit', -1.0, 'inverter voltage-vector limit [V] (0: no limit; -1: the '
                      "motor's rated voltage, no limit without one)", -1.0, 1e5)
     v['inverter_rating'] = p('inverter_rating', DEFAULT_INVERTER_RATING,
@@ -91,13 +116,21 @@ def declare_plant(node) -> dict:
     v['speed_trip'] = p('speed_trip', -1.0,
                         'protection: trip to zero voltage when |omega_r| exceeds this [rad/s] '
                         "(0: off; -1: 2 x the motor's rated speed, off without one)", -1.0, 1e6)
+
+
+def _declare_noise(node, v: dict) -> None:
+    """Declare the measurement noise."""
+    p = node.param
     v['current_noise_std'] = p('current_noise_std', 0.0, 'std of current measurement noise [A]',
                                0.0, 1e3)
     v['speed_noise_std'] = p('speed_noise_std', 0.0, 'std of speed measurement noise [rad/s]',
                              0.0, 1e4)
     v['noise_seed'] = p('noise_seed', 0, 'seed of the measurement noise', 0, 2**31 - 1)
-    v['max_substep'] = p('max_substep', 1e-4, 'longest RK4 sub-step inside a period [s]', 1e-7,
-                         0.1)
+
+
+def _declare_real_plant(node, v: dict) -> None:
+    """Declare the real plant's blocks (inverter.*, sensors.*) and the iron loss."""
+    p = node.param
     # the run file's inverter and sensors blocks (docs/plant.md): <block>.enabled and one
     # parameter per field of the block's model; None when not enabled
     v['inverter'] = declare_block(node, Inverter, 'inverter',
@@ -111,6 +144,11 @@ def declare_plant(node) -> dict:
     v['iron_loss'] = p('iron_loss', False,
                        'the core loss acts (an iron-loss branch dissipating the k_e, k_h loss); '
                        'false: booked only')
+
+
+def _declare_stepping(node, v: dict) -> None:
+    """Declare the stepping (lockstep, free_run) and the free_run lag and deadline watchdogs."""
+    p = node.param
     v['mode'] = p('mode', 'lockstep', 'stepping', choices=STEPPING_MODES)
     v['max_lag'] = p('max_lag', 1.0,
                      'free_run: stop the run when the plant is this far behind the wall clock '
@@ -125,6 +163,11 @@ def declare_plant(node) -> dict:
                                  'their deadline (0: never)', 0.0, 1.0)
     v['deadline_window'] = p('deadline_window', 100,
                              "free_run: the deadline watchdog's window [steps]", 1, 1000000)
+
+
+def _declare_publishing(node, v: dict) -> None:
+    """Declare the decimation of /clock and the ground truth."""
+    p = node.param
     v['clock_decimation'] = p('clock_decimation', 10,
                               'publish /clock every N steps (the '
                               'lock-step protocol runs on stamps; '
@@ -132,7 +175,6 @@ def declare_plant(node) -> dict:
     v['truth_decimation'] = p('truth_decimation', 10,
                               'publish ground truth every N steps (0: never); the last step is '
                               'always published', 0, 1000000)
-    return v
 
 
 #: plant parameters whose -1 (the default) stands for the motor's rating
@@ -156,21 +198,23 @@ def simulator_from_parameters(values: dict, T_s: float, duration: float = 0.0) -
                              f"the motor's rating")
         elif v[key] == 0:
             v[key] = None
+    block = v.get('variation_block')
     if v['variation'] == 'schedule':
-        try:
-            spec = json.loads(v['variation_schedule'] or 'null')
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"invalid parameter 'variation_schedule': not JSON ({exc.msg})") \
-                from None
-        if not spec:
-            raise ValueError("invalid parameter 'variation_schedule': empty, but variation is "
-                             "'schedule'")
-        schedule = variation_schedule(motor, spec)
-    elif v['variation'] == 'custom':
+        if block is None:
+            raise InvalidParameter('variation', 'schedule', 'takes the breakpoints of '
+                                   'variation.<parameter>.*, but no variation.<parameter>.enabled '
+                                   'is true')
+        schedule = variation_schedule(motor, block)
+    elif block is not None:             # breakpoints given that would act on nothing
+        name = next(iter(block.parts()))
+        raise InvalidParameter(f'variation.{name}.enabled', True,
+                               f"variation is '{v['variation']}', not schedule: set variation "
+                               f'schedule, or leave variation.{name}.* out')
+    if v['variation'] == 'custom':
         schedule = ParameterSchedule(motor, {v['variation_parameter']: Variation(
             v['variation_kind'], v['variation_offset'], slope=v['variation_slope'],
             amplitude=v['variation_amplitude'], omega=v['variation_omega'])}, name='custom')
-    else:
+    elif v['variation'] != 'schedule':
         schedule = SCHEDULES[v['variation']](motor)
     if duration > 0:
         schedule.validate(duration)
@@ -202,14 +246,14 @@ def real_plant_blocks(values: dict, motor: MotorParams) -> dict:
     """
     Return the PlantSimulator keywords of the real plant's blocks in the parameter values.
 
-    ``inverter`` and ``sensors`` as :func:`declare_plant` parsed them (an Inverter, a Sensors or
-    None), the motor's ``saturation`` and ``thermal`` as YAML text ('' for none); a bad block
-    raises InvalidParameter naming the parameter and key.
+    ``inverter``, ``sensors`` and the motor's ``thermal`` as :func:`declare_plant` parsed them
+    (an Inverter, a Sensors, a Thermal or None), the motor's ``saturation`` as the curve of its
+    SaturationBlock on the motor's L_M.
     """
     out = {'iron_loss': bool(values.get('iron_loss', False))}
-    for name in ('inverter', 'sensors'):
+    for name in ('inverter', 'sensors', 'thermal'):
         if values.get(name) is not None:
             out[name] = values[name]
-    blocks = dict(motor.as_dict(), **{k: values.get(k) or '' for k in MOTOR_BLOCKS})
-    out.update(motor_blocks(blocks, source='motor'))
+    if values.get('saturation') is not None:
+        out['saturation'] = values['saturation'].curve(motor.L_M)
     return out
