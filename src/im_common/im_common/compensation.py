@@ -16,20 +16,61 @@ evaluate ê at the measured current of the step (sampled at the carrier's peak: 
 current), with the sign smoothed into a ramp over ±``current_band``: within the band the current
 ripple crosses zero during the period and the true average error passes through zero with it.
 The model's numbers come from the run's inverter block (exact knowledge, ``compensation:
-inverter``) or from commissioning (``{v_dead, r_on, current_band}``).
+inverter``) or from commissioning (``{v_dead, r_on, current_band}``); the mapping forms are the
+pydantic model :class:`CompensationBlock`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Mapping, Optional, Tuple
+from dataclasses import dataclass, fields
+from typing import Literal, Mapping, Optional, Tuple
+
+from pydantic import BaseModel, Field, field_validator, model_validator
 
 from .inverter import Inverter, phase_values
 from .params import clarke
-from .validation import check_block, check_real, InvalidParameter
+from .validation import BLOCK_CONFIG, InvalidParameter, parse_block
 
-COMPENSATION_KEYS = ('v_dead', 'r_on', 'current_band')
 #: the sign's ramp half-width when none is given [A]
 DEFAULT_CURRENT_BAND = 0.2
+
+
+class CompensationBlock(BaseModel):
+    """
+    A run file's ``compensation:`` mapping, exact or as commissioned.
+
+    ``{inverter: true, current_band}`` or ``{v_dead, r_on, current_band}``; the bare forms
+    ``false``, ``inverter``, ``true`` are :func:`compensation_from_dict`'s.
+    """
+
+    model_config = BLOCK_CONFIG
+
+    inverter: Literal[True] = Field(None, description="true: the exact model of the run's "
+                                    'inverter block (then no v_dead, r_on)')
+    v_dead: Optional[float] = Field(None, ge=0, description="the dead time's and the devices' "
+                                    'voltage loss t_d f_sw V_dc + v_on [V], as commissioned '
+                                    '(without inverter: true)')
+    r_on: float = Field(0.0, ge=0, description="the devices' on-state resistance [ohm]")
+    current_band: float = Field(DEFAULT_CURRENT_BAND, ge=0, description="the sign's ramp "
+                                'half-width [A]: the current ripple crosses zero within it')
+
+    @field_validator('inverter', mode='before')
+    @classmethod
+    def _true(cls, value):
+        if value is not True:
+            raise ValueError('must be true')
+        return value
+
+    @model_validator(mode='after')
+    def _one_form(self) -> 'CompensationBlock':
+        """Refuse a mapping of neither form: v_dead missing, or given with inverter: true."""
+        if self.inverter:
+            given = [k for k in ('v_dead', 'r_on') if k in self.model_fields_set]
+            if given:
+                raise InvalidParameter(given[0], getattr(self, given[0]), 'unknown key with '
+                                       'inverter: true (known: inverter, current_band)')
+        elif self.v_dead is None:
+            raise InvalidParameter('v_dead', None, 'is missing')
+        return self
 
 
 @dataclass(frozen=True)
@@ -37,7 +78,7 @@ class InverterErrorModel:
     """The drive's model of the inverter's voltage error (module doc); SI units."""
 
     v_dead: float
-    r_on: float = 0.0
+    r_on: float = CompensationBlock.model_fields['r_on'].default
     current_band: float = DEFAULT_CURRENT_BAND
 
     @property
@@ -79,6 +120,10 @@ class InverterErrorModel:
         return {f'comp_{k}': float(getattr(self, k)) for k in COMPENSATION_KEYS}
 
 
+#: the model's fields (its node parameters comp_<field>)
+COMPENSATION_KEYS = tuple(f.name for f in fields(InverterErrorModel))
+
+
 def from_inverter(inv: Inverter, current_band: float = DEFAULT_CURRENT_BAND
                   ) -> InverterErrorModel:
     """Return the exact model of a known inverter: v_dead = t_d f_sw V_dc + v_on, its r_on."""
@@ -97,26 +142,19 @@ def compensation_from_dict(spec, inverter: Optional[Inverter] = None,
     """
     if spec is None or spec is False:
         return None
-    band = DEFAULT_CURRENT_BAND
-    if isinstance(spec, Mapping) and 'inverter' in spec:
-        check_block(spec, where, ('inverter', 'current_band'))
-        if spec['inverter'] is not True:
-            raise InvalidParameter(f'{where}.inverter', spec['inverter'], 'must be true')
-        band = check_real(f'{where}.current_band', spec.get('current_band', band), 0.0)
-        spec = 'inverter'
     if spec is True or spec == 'inverter':
-        if inverter is None:
-            raise InvalidParameter(where, spec, "takes the run's inverter block, and this run "
-                                   'has none (the ideal plant has no inverter error)')
-        return from_inverter(inverter, band)
-    if not isinstance(spec, Mapping):
+        block = CompensationBlock(inverter=True)
+    elif isinstance(spec, (Mapping, CompensationBlock)):
+        block = parse_block(CompensationBlock, spec, where)
+    else:
         raise InvalidParameter(where, spec, 'must be false, inverter, or a mapping {v_dead, '
                                             'r_on, current_band}')
-    check_block(spec, where, COMPENSATION_KEYS)
-    if 'v_dead' not in spec:
-        raise InvalidParameter(f'{where}.v_dead', None, 'is missing')
-    vals = {k: check_real(f'{where}.{k}', v, 0.0) for k, v in spec.items()}
-    return InverterErrorModel(**vals)
+    if not block.inverter:
+        return InverterErrorModel(block.v_dead, block.r_on, block.current_band)
+    if inverter is None:
+        raise InvalidParameter(where, spec, "takes the run's inverter block, and this run "
+                               'has none (the ideal plant has no inverter error)')
+    return from_inverter(inverter, block.current_band)
 
 
 def compensation_from_parameters(values: Mapping[str, float]) -> Optional[InverterErrorModel]:

@@ -6,22 +6,169 @@ same object. Two kinds are functions of the shaft state (``pendulum``, ``linear`
 ``none`` and ``constant`` the :data:`MODEL_KINDS` a controller can feed forward), two are loads
 in time a user writes to disturb the drive (``step``, ``schedule``). :class:`LiveLoad` is the
 plant's own wrapper: the load plus the live ``load_offset`` (docs/running.md, "Loads").
+
+Each kind's block — ``{kind: linear, c1, c2}`` in a load file or a run file's ``load:`` — is a
+pydantic model (:data:`LoadBlock`, one model per kind): its fields' defaults, bounds and
+descriptions are declared there once, and a load of any origin (a file, a node parameter, a
+:class:`Load` built in code) is checked through it.
 """
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 import math
-from typing import Mapping, Tuple
+from typing import Annotated, get_args, Literal, Mapping, Tuple, Union
+
+from pydantic import BaseModel, Field, field_validator
 
 from .params import InvalidParameter, read_yaml_file
-from .validation import choice_error
+from .validation import BLOCK_CONFIG, choice_error, parse_block
+
+
+class BaseLoadBlock(BaseModel):
+    """A load's block ``{kind: ..., <its fields>}``: a load file, a run file's ``load:``."""
+
+    model_config = BLOCK_CONFIG
+
+    def load(self) -> 'Load':
+        """Return the :class:`Load` this block describes."""
+        return _LOADS[self.kind](**self.model_dump(exclude={'kind'}))
+
+
+class NoLoadBlock(BaseLoadBlock):
+    """No load: τ_L = 0."""
+
+    kind: Literal['none'] = Field(description='no load')
+
+
+class ConstantLoadBlock(BaseLoadBlock):
+    """A constant torque: τ_L = tau."""
+
+    kind: Literal['constant'] = Field(description='a constant torque')
+    tau: float = Field(0.0, description='the load torque [N m]')
+
+
+class PendulumLoadBlock(BaseLoadBlock):
+    """The inverted pendulum of the position task: τ_L = mgl·cos θ."""
+
+    kind: Literal['pendulum'] = Field(description='an inverted pendulum')
+    mgl: float = Field(10.0, description='m g l [N m] (tau = mgl cos theta; the thesis: 10)')
+
+
+class LinearLoadBlock(BaseLoadBlock):
+    """The speed task's friction: τ_L = c1 + c2·ω."""
+
+    kind: Literal['linear'] = Field(description='friction linear in the speed')
+    c1: float = Field(1.0, description='c1 [N m] (tau = c1 + c2 omega; the thesis: 1)')
+    c2: float = Field(0.001, description='c2 [N m s] (the thesis: 0.001)')
+
+
+class StepLoadBlock(BaseLoadBlock):
+    """A load step in time: tau_before until t, tau_after from t on."""
+
+    kind: Literal['step'] = Field(description='a load step in time')
+    t: float = Field(ge=0, description='the instant of the step [s] (the run starts at 0)')
+    tau_before: float = Field(description='the load torque before t [N m]')
+    tau_after: float = Field(description='the load torque from t on [N m]')
+
+
+class ScheduleLoadBlock(BaseLoadBlock):
+    """Load torque in time through points [t, tau], piecewise linear (:class:`ScheduleLoad`)."""
+
+    kind: Literal['schedule'] = Field(description='a load torque schedule in time')
+    points: Tuple[Tuple[float, float], ...] = Field(
+        min_length=1, description='points [t [s], tau [N m]]: times from 0 on that never '
+        'decrease; a time given twice is a jump there (not three times)')
+
+    @field_validator('points', mode='before')
+    @classmethod
+    def _points(cls, pts):
+        """Return the points as (t, tau) floats; refuse one in one line naming ``points[i]``."""
+        if isinstance(pts, (str, bytes, Mapping)) or not hasattr(pts, '__len__'):
+            raise InvalidParameter('points', pts, 'must be a list of [t, tau] points')
+        out = []
+        for i, p in enumerate(pts):
+            if isinstance(p, (str, bytes, Mapping)) or not hasattr(p, '__len__') or len(p) != 2:
+                raise InvalidParameter(f'points[{i}]', p, 'must be a point [t, tau]')
+            t, tau = (_real(f'points[{i}].{k}', v) for k, v in zip(('t', 'tau'), p))
+            if t < 0:
+                raise InvalidParameter(f'points[{i}].t', t, 'must be >= 0 s')
+            if out and t < out[-1][0]:
+                raise InvalidParameter(f'points[{i}].t', t,
+                                       f'times must not decrease (the point before is at '
+                                       f'{out[-1][0]!r} s)')
+            if len(out) >= 2 and t == out[-1][0] == out[-2][0]:
+                raise InvalidParameter(f'points[{i}].t', t,
+                                       'a time may be given twice (a jump), not three times')
+            out.append((t, tau))
+        return tuple(out)
+
+
+def _real(name: str, value) -> float:
+    """Return ``value`` (a point's number) as a float; else the line a model field gives."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidParameter(name, value, 'must be a real number')
+    try:
+        x = float(value)
+    except OverflowError:           # an int beyond a float's range
+        x = math.inf
+    if not math.isfinite(x):
+        raise InvalidParameter(name, value, 'must be finite')
+    return x
+
+
+def _kind(model) -> str:
+    """Return the kind a load block's model describes (its ``kind`` literal)."""
+    return get_args(model.model_fields['kind'].annotation)[0]
+
+
+#: a load's block, one model per kind (the run file's ``load:`` mapping; discriminated on kind)
+LoadBlock = Annotated[Union[NoLoadBlock, ConstantLoadBlock, PendulumLoadBlock, LinearLoadBlock,
+                            StepLoadBlock, ScheduleLoadBlock], Field(discriminator='kind')]
+#: each kind's block model (the union's members)
+LOAD_MODELS = {_kind(m): m for m in get_args(get_args(LoadBlock)[0])}
+#: the kinds a controller's load model takes (functions of the shaft state; eq. 3.1's τ_c)
+MODEL_KINDS = tuple(_kind(m) for m in (NoLoadBlock, ConstantLoadBlock, PendulumLoadBlock,
+                                       LinearLoadBlock))
+#: every kind a plant applies: the model kinds and the loads in time
+LOAD_KINDS = tuple(LOAD_MODELS)
+#: each kind's fields (its ``load_<field>`` node parameters)
+LOAD_FIELDS = {kind: tuple(k for k in m.model_fields if k != 'kind')
+               for kind, m in LOAD_MODELS.items()}
+
+
+def _default(model, key: str):
+    """Return a load block's default of ``key`` (a :class:`Load`'s default is its block's)."""
+    return model.model_fields[key].default
+
+
+def parse_load_block(kind: str, values: Mapping, prefix: str = '') -> BaseLoadBlock:
+    """
+    Return the block of a load ``kind`` with the field ``values`` (a mapping without ``kind``).
+
+    One :class:`InvalidParameter` line otherwise, naming ``prefix`` + the key (``load: t``, the
+    file's ``path: points[2].t``, the node parameter ``load_tau``) or ``prefix + 'kind'``.
+    """
+    if not isinstance(kind, str) or kind not in LOAD_MODELS:     # [linear] is no kind either
+        raise InvalidParameter(f'{prefix}kind', kind, choice_error(kind, LOAD_KINDS))
+    try:
+        return parse_block(LOAD_MODELS[kind], dict(values, kind=kind), '')
+    except InvalidParameter as exc:
+        raise InvalidParameter(prefix + exc.name, exc.value, exc.reason) from None
 
 
 class Load:
     """Base class: ``torque(t, theta, omega)`` returns the load torque τ_L [N·m]."""
 
-    name = 'none'
+    name = _kind(NoLoadBlock)
+    # a kind's ``block`` (its model) is the home of its fields' defaults and bounds
+
+    def __post_init__(self):
+        """Check the fields through the kind's block model (errors name ``load_<field>``)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        block = parse_load_block(self.name, values, 'load_')
+        for key in values:          # as the block holds them: floats, (t, tau) tuples
+            setattr(self, key, getattr(block, key))
 
     def torque(self, t: float, theta: float, omega: float) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -55,7 +202,8 @@ class Load:
 
 @dataclass
 class NoLoad(Load):
-    name = 'none'
+    block = NoLoadBlock
+    name = _kind(block)
 
     def torque(self, t, theta, omega):
         return 0.0
@@ -63,12 +211,9 @@ class NoLoad(Load):
 
 @dataclass
 class ConstantLoad(Load):
-    tau: float = 0.0
-    name = 'constant'
-
-    def __post_init__(self):
-        if not math.isfinite(self.tau):
-            raise InvalidParameter('load_tau', self.tau, 'must be finite')
+    block = ConstantLoadBlock
+    name = _kind(block)
+    tau: float = _default(block, 'tau')
 
     def torque(self, t, theta, omega):
         return self.tau
@@ -81,12 +226,9 @@ class ConstantLoad(Load):
 class PendulumLoad(Load):
     """Inverted pendulum τ_L = mgl·cos θ (position task, mgl = 10 N·m)."""
 
-    mgl: float = 10.0
-    name = 'pendulum'
-
-    def __post_init__(self):
-        if not math.isfinite(self.mgl):
-            raise InvalidParameter('load_mgl', self.mgl, 'must be finite')
+    block = PendulumLoadBlock
+    name = _kind(block)
+    mgl: float = _default(block, 'mgl')
 
     def torque(self, t, theta, omega):
         return self.mgl * math.cos(theta)
@@ -102,14 +244,10 @@ class PendulumLoad(Load):
 class LinearLoad(Load):
     """τ_L = c1 + c2·ω (speed task: c1 = 1 N·m, c2 = 0.001 N·m·s)."""
 
-    c1: float = 1.0
-    c2: float = 0.001
-    name = 'linear'
-
-    def __post_init__(self):
-        for k in ('c1', 'c2'):
-            if not math.isfinite(getattr(self, k)):
-                raise InvalidParameter('load_' + k, getattr(self, k), 'must be finite')
+    block = LinearLoadBlock
+    name = _kind(block)
+    c1: float = _default(block, 'c1')
+    c2: float = _default(block, 'c2')
 
     def torque(self, t, theta, omega):
         return self.c1 + self.c2 * omega
@@ -121,12 +259,6 @@ class LinearLoad(Load):
         return {'kind': self.name, 'c1': self.c1, 'c2': self.c2}
 
 
-def _finite(name: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InvalidParameter(name, value, 'must be a finite number')
-    return float(value)
-
-
 @dataclass
 class StepLoad(Load):
     """
@@ -135,17 +267,11 @@ class StepLoad(Load):
     Written ``{kind: step, t: 0.5, tau_before: 2.0, tau_after: 8.0}``.
     """
 
-    t: float = 0.0
-    tau_before: float = 0.0
-    tau_after: float = 0.0
-    name = 'step'
-
-    def __post_init__(self):
-        self.t = _finite('load_t', self.t)
-        if self.t < 0:
-            raise InvalidParameter('load_t', self.t, 'must be >= 0 s (the run starts at 0)')
-        self.tau_before = _finite('load_tau_before', self.tau_before)
-        self.tau_after = _finite('load_tau_after', self.tau_after)
+    block = StepLoadBlock
+    name = _kind(block)
+    t: float
+    tau_before: float
+    tau_after: float
 
     def torque(self, t, theta, omega):
         return self.tau_after if t >= self.t else self.tau_before
@@ -172,31 +298,13 @@ class ScheduleLoad(Load):
     steps and ramps mix in one schedule.
     """
 
-    points: Tuple[Tuple[float, float], ...] = ((0.0, 0.0),)
-    name = 'schedule'
+    block = ScheduleLoadBlock
+    name = _kind(block)
+    points: Tuple[Tuple[float, float], ...]
 
     def __post_init__(self):
-        pts = self.points
-        if isinstance(pts, (str, bytes)) or not hasattr(pts, '__len__') or not len(pts):
-            raise InvalidParameter('load_points', pts, 'must be a list of [t, tau] points')
-        out = []
-        for i, p in enumerate(pts):
-            if isinstance(p, (str, bytes)) or not hasattr(p, '__len__') or len(p) != 2:
-                raise InvalidParameter(f'load_points[{i}]', p, 'must be a point [t, tau]')
-            t = _finite(f'load_points[{i}].t', p[0])
-            tau = _finite(f'load_points[{i}].tau', p[1])
-            if t < 0:
-                raise InvalidParameter(f'load_points[{i}].t', t, 'must be >= 0 s')
-            if out and t < out[-1][0]:
-                raise InvalidParameter(f'load_points[{i}].t', t,
-                                       f'times must not decrease (the point before is at '
-                                       f'{out[-1][0]!r} s)')
-            if len(out) >= 2 and t == out[-1][0] == out[-2][0]:
-                raise InvalidParameter(f'load_points[{i}].t', t,
-                                       'a time may be given twice (a jump), not three times')
-            out.append((t, tau))
-        self.points = tuple(out)
-        self._times = [p[0] for p in out]
+        super().__post_init__()
+        self._times = [p[0] for p in self.points]
 
     def _segment(self, t: float) -> int:
         """Return i with points[i].t <= t < points[i+1].t (-1 before the first point)."""
@@ -273,96 +381,56 @@ class LiveLoad(Load):
         return self.load.change_time()
 
 
-#: the kinds a controller's load model takes (functions of the shaft state; eq. 3.1's τ_c)
-MODEL_KINDS = ('none', 'constant', 'pendulum', 'linear')
-#: every kind a plant applies: the model kinds and the loads in time
-LOAD_KINDS = MODEL_KINDS + ('step', 'schedule')
+#: each kind's :class:`Load`
+_LOADS = {cls.name: cls for cls in (NoLoad, ConstantLoad, PendulumLoad, LinearLoad, StepLoad,
+                                    ScheduleLoad)}
 
 
-def make_load(kind: str, mgl: float = 10.0, c1: float = 1.0, c2: float = 0.001,
-              tau: float = 0.0, t: float = 0.0, tau_before: float = 0.0,
-              tau_after: float = 0.0, points=((0.0, 0.0),)) -> Load:
+def make_load(kind: str, **values) -> Load:
     """
-    Build a load by name (the nodes' ``load`` parameter and its ``load_*`` values).
+    Build a load by name (the nodes' ``load`` parameter and its ``load_*`` values, unprefixed).
 
-    ``points`` takes the pairs [[t, tau], ...] or the node parameter's flat list
-    [t0, tau0, t1, tau1, ...].
+    The kind's own fields are taken from ``values`` (another kind's are left), a field not
+    given is its block's default (a load in time has none: it must be given). ``points`` takes
+    the pairs [[t, tau], ...] or the node parameter's flat list [t0, tau0, t1, tau1, ...].
+    Errors name the node parameter (``load``, ``load_<field>``).
     """
-    if kind == 'none':
-        return NoLoad()
-    if kind == 'constant':
-        return ConstantLoad(tau)
-    if kind == 'pendulum':
-        return PendulumLoad(mgl)
-    if kind == 'linear':
-        return LinearLoad(c1, c2)
-    if kind == 'step':
-        return StepLoad(t, tau_before, tau_after)
-    if kind == 'schedule':
-        flat = list(points)
-        if flat and not hasattr(flat[0], '__len__'):      # the node parameter's flat form
-            if len(flat) % 2:
-                raise InvalidParameter('load_points', flat,
-                                       'must hold pairs t, tau (an even count)')
-            flat = [flat[i:i + 2] for i in range(0, len(flat), 2)]
-        return ScheduleLoad(flat)
-    raise InvalidParameter('load', kind, choice_error(kind, LOAD_KINDS))
-
-
-LOAD_FIELDS = {'none': (), 'constant': ('tau',), 'pendulum': ('mgl',), 'linear': ('c1', 'c2'),
-               'step': ('t', 'tau_before', 'tau_after'), 'schedule': ('points',)}
-#: the fields a load in time must be given (the model kinds have the thesis's defaults)
-REQUIRED_FIELDS = {'step': ('t', 'tau_before', 'tau_after'), 'schedule': ('points',)}
+    unknown = set(values).difference(*LOAD_FIELDS.values())
+    if unknown:
+        raise TypeError(f'make_load: no load has the field(s) {", ".join(sorted(unknown))}')
+    if not isinstance(kind, str) or kind not in LOAD_MODELS:
+        raise InvalidParameter('load', kind, choice_error(kind, LOAD_KINDS))
+    given = {k: values[k] for k in LOAD_FIELDS[kind] if k in values}
+    flat = given.get('points')
+    if hasattr(flat, '__len__') and not isinstance(flat, (str, bytes, Mapping)) and len(flat) \
+            and not hasattr(flat[0], '__len__'):      # the node parameter's flat form
+        flat = list(flat)
+        if len(flat) % 2:
+            raise InvalidParameter('load_points', flat, 'must hold pairs t, tau (an even count)')
+        given['points'] = [flat[i:i + 2] for i in range(0, len(flat), 2)]
+    return parse_load_block(kind, given, 'load_').load()
 
 
 def load_from_dict(doc, source: str = 'load') -> Load:
     """
-    Return a load from a description ``{kind: linear, c1: 1.0, c2: 0.001}``.
+    Return a load from its block ``{kind: linear, c1: 1.0, c2: 0.001}`` (or a block model).
 
-    The form of YAML ``--load`` files.
-
-    Every error is one line naming ``source`` and the field.
+    The form of YAML ``--load`` files and a run file's ``load:`` (:data:`LoadBlock`). Every
+    error is one line naming ``source`` and the field (``load: tau_after``).
     """
-    if not isinstance(doc, dict):
+    if isinstance(doc, BaseLoadBlock):
+        return doc.load()
+    if not isinstance(doc, Mapping):
         raise InvalidParameter(f'{source}', doc, 'must be a mapping with a kind')
-    kind = doc.get('kind')
-    if not isinstance(kind, str) or kind not in LOAD_FIELDS:     # [linear] is no kind either
-        raise InvalidParameter(f'{source}: kind', kind, choice_error(kind, LOAD_KINDS))
-    allowed = LOAD_FIELDS[kind]
-    values = {}
-    for key, val in doc.items():
-        if key == 'kind':
-            continue
-        if key not in allowed:
-            fields = ', '.join(allowed) or 'none'
-            raise InvalidParameter(f'{source}: {key}', val,
-                                   f'unknown for a {kind} load (fields: {fields})')
-        if key == 'points':
-            if not isinstance(val, list) or not val:
-                raise InvalidParameter(f'{source}: points', val,
-                                       'must be a list of [t, tau] points')
-            values[key] = val
-            continue
-        if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
-            raise InvalidParameter(f'{source}: {key}', val, 'must be a finite number')
-        values[key] = float(val)
-    for key in REQUIRED_FIELDS.get(kind, ()):
-        if key not in values:
-            raise InvalidParameter(f'{source}: {key}', None,
-                                   f'missing (a {kind} load needs {", ".join(LOAD_FIELDS[kind])})')
-    try:
-        return make_load(kind, **values)
-    except InvalidParameter as exc:     # name the file / run-file key, not the node parameter
-        name = exc.name[len('load_'):] if exc.name.startswith('load_') else exc.name
-        raise InvalidParameter(f'{source}: {name}', exc.value, exc.reason) from None
+    return parse_load_block(doc.get('kind'), doc, f'{source}: ').load()
 
 
 def load_from_parameters(values: Mapping) -> Load:
     """Return the load of node parameters ``load``, ``load_<field>`` (:func:`load_parameters`)."""
-    fields = {f for kind in LOAD_FIELDS.values() for f in kind}
+    known = {f for kind in LOAD_FIELDS.values() for f in kind}
     return make_load(values.get('load', 'none'),
                      **{k[len('load_'):]: v for k, v in values.items()
-                        if k.startswith('load_') and k[len('load_'):] in fields})
+                        if k.startswith('load_') and k[len('load_'):] in known})
 
 
 def load_file(path: str) -> Load:

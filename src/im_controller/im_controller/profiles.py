@@ -22,20 +22,98 @@ closely and a sparse one is joined smoothly.
 
 The first value (at t = 0) is the run's start value (speed: the drive starts in steady state
 there; position: the shaft starts there).
+
+The YAML form is a pydantic model, :class:`ProfileBlock` (its :class:`Setpoint` entries): a
+profile file and a run file's ``profile:`` are parsed through it, every error one line naming
+the entry's key (``profile: setpoints[3].t``).
 """
 from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
 import math
-from typing import Optional, Sequence, Tuple
+from typing import List, Mapping, Optional, Sequence, Tuple
 
 from im_common.params import InvalidParameter, read_yaml_file
-from im_common.validation import check_choice
+from im_common.validation import BLOCK_CONFIG, check_choice, parse_block
+from pydantic import BaseModel, Field, field_validator, model_validator
 
-# the field names of /im/setpoint (sensor_msgs/JointState) → controller modes
-KINDS = {'position': 'position', 'velocity': 'speed', 'effort': 'torque'}
+
+def _kind(mode: str, description: str):
+    """Return a setpoint's value field: a field name of /im/setpoint, the controller's ``mode``."""
+    return Field(None, description=f'{description} (the {mode} task; one kind per profile)',
+                 json_schema_extra={'mode': mode})
+
+
+class Setpoint(BaseModel):
+    """One setpoint of a profile: ``{t, position|velocity|effort, duration}`` (module doc)."""
+
+    model_config = BLOCK_CONFIG
+
+    t: float = Field(ge=0, description='when the transition to this value starts [s]')
+    # a value left out is None; one written is a number (null is none)
+    position: float = _kind('position', 'shaft position [rad]')
+    velocity: float = _kind('speed', 'shaft speed [rad/s]')
+    effort: float = _kind('torque', 'torque [N m]')
+    duration: Optional[float] = Field(None, gt=0, description="the transition's length [s] "
+                                      "(left out: the controller's setpoint_duration)")
+
+    @model_validator(mode='after')
+    def _one_kind(self) -> 'Setpoint':
+        """Refuse an entry without exactly one value (position, velocity or effort)."""
+        if len(self.model_fields_set.intersection(KINDS)) != 1:
+            raise InvalidParameter('', {k: v for k, v in self if k in self.model_fields_set},
+                                   f"needs exactly one of {', '.join(KINDS)}")
+        return self
+
+    @property
+    def kind(self) -> str:
+        """Return the entry's kind: the field name of /im/setpoint it sets (:data:`KINDS`)."""
+        return next(k for k in KINDS if getattr(self, k) is not None)
+
+    @property
+    def value(self) -> float:
+        return getattr(self, self.kind)
+
+
+# the field names of /im/setpoint (sensor_msgs/JointState) → controller modes (the Setpoint's)
+KINDS = {k: f.json_schema_extra['mode'] for k, f in Setpoint.model_fields.items()
+         if f.json_schema_extra}
 MODE_KIND = {mode: kind for kind, mode in KINDS.items()}
+
+
+class ProfileBlock(BaseModel):
+    """A profile of setpoints ``{setpoints: [{t, velocity}, ...]}``: a file, ``profile:``."""
+
+    model_config = BLOCK_CONFIG
+
+    setpoints: List[Setpoint] = Field(min_length=1, description='the setpoints, of one kind, '
+                                      'their times never decreasing')
+
+    @field_validator('setpoints', mode='before')
+    @classmethod
+    def _a_list(cls, value):
+        if not isinstance(value, list):
+            raise ValueError('must be a non-empty list')
+        return value
+
+    @model_validator(mode='after')
+    def _one_kind_in_time(self) -> 'ProfileBlock':
+        """Refuse a second kind and a time before the previous one, naming the entry's key."""
+        first = self.setpoints[0]
+        for k, (before, e) in enumerate(zip(self.setpoints, self.setpoints[1:]), start=1):
+            if e.kind != first.kind:
+                raise InvalidParameter(f'setpoints[{k}].{e.kind}', e.value, 'a profile has one '
+                                       f'kind; the first entry set {first.kind}')
+            if e.t < before.t:
+                raise InvalidParameter(f'setpoints[{k}].t', e.t,
+                                       f'must not be before the previous t = {before.t:g}')
+        return self
+
+    def profile(self, source: str = 'profile') -> 'Profile':
+        """Return the :class:`Profile` of these setpoints (``source``: where they were read)."""
+        return Profile(KINDS[self.setpoints[0].kind],
+                       tuple((e.t, e.value, e.duration) for e in self.setpoints), source)
 
 
 @dataclass(frozen=True)
@@ -75,55 +153,33 @@ class Profile:
         return {'mode': self.mode, 'profile': 'setpoint', 'setpoints': flat}
 
 
-def _number(source: str, where: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InvalidParameter(f'{source}: {where}', value, 'must be a finite number')
-    return float(value)
+def _parse(model_cls, spec, source: str, where: str = ''):
+    """Return ``model_cls`` of ``spec``; an error is one line naming ``source: where.key``."""
+    try:
+        return parse_block(model_cls, spec, where)
+    except InvalidParameter as exc:
+        raise InvalidParameter(f'{source}: {exc.name}' if exc.name else source, exc.value,
+                               exc.reason) from None
 
 
-def _check_times(source: str, times: Sequence[float]) -> None:
-    for k in range(1, len(times)):
-        if times[k] < times[k - 1]:
-            raise InvalidParameter(f'{source}: entry {k} t', times[k],
-                                   f'must not be before the previous t = {times[k - 1]:g}')
+def profile_from_block(doc, source: str = 'profile') -> Profile:
+    """
+    Return the profile of a block ``{setpoints: [...]}`` (a mapping or a :class:`ProfileBlock`).
+
+    Each entry is parsed on its own first, so that an error names it: ``source:
+    setpoints[3].t``.
+    """
+    if isinstance(doc, ProfileBlock):
+        return doc.profile(source)
+    if isinstance(doc, Mapping) and isinstance(doc.get('setpoints'), list):
+        doc = dict(doc, setpoints=[_parse(Setpoint, e, source, f'setpoints[{k}]')
+                                   for k, e in enumerate(doc['setpoints'])])
+    return _parse(ProfileBlock, doc, source).profile(source)
 
 
 def from_setpoints(entries, source: str = 'profile') -> Profile:
     """Return a profile from ``[{t: ..., velocity: ...}, ...]`` (see module doc)."""
-    if not isinstance(entries, list) or not entries:
-        raise InvalidParameter(f'{source}: setpoints', entries, 'must be a non-empty list')
-    kind = None
-    out = []
-    for k, e in enumerate(entries):
-        if not isinstance(e, dict):
-            raise InvalidParameter(f'{source}: setpoints[{k}]', e,
-                                   'must be a mapping {t: ..., velocity: ...}')
-        unknown = [key for key in e if key not in ('t', 'duration', *KINDS)]
-        if unknown:
-            raise InvalidParameter(f'{source}: setpoints[{k}].{unknown[0]}', e[unknown[0]],
-                                   f"unknown field (t, duration, {', '.join(KINDS)})")
-        kinds = [key for key in KINDS if key in e]
-        if len(kinds) != 1:
-            raise InvalidParameter(f'{source}: setpoints[{k}]', e,
-                                   f"needs exactly one of {', '.join(KINDS)}")
-        if kind is None:
-            kind = kinds[0]
-        elif kinds[0] != kind:
-            raise InvalidParameter(f'{source}: setpoints[{k}].{kinds[0]}', e[kinds[0]],
-                                   f'a profile has one kind; the first entry set {kind}')
-        if 't' not in e:
-            raise InvalidParameter(f'{source}: setpoints[{k}].t', None, 'is missing')
-        t = _number(source, f'setpoints[{k}].t', e['t'])
-        if t < 0.0:
-            raise InvalidParameter(f'{source}: setpoints[{k}].t', t, 'must be >= 0')
-        d = e.get('duration')
-        if d is not None:
-            d = _number(source, f'setpoints[{k}].duration', d)
-            if d <= 0.0:
-                raise InvalidParameter(f'{source}: setpoints[{k}].duration', d, 'must be > 0')
-        out.append((t, _number(source, f'setpoints[{k}].{kind}', e[kind]), d))
-    _check_times(source, [s[0] for s in out])
-    return Profile(KINDS[kind], tuple(out), source)
+    return profile_from_block({'setpoints': entries}, source)
 
 
 def from_samples(kind: str, samples: Sequence[Tuple[float, float]],
@@ -154,14 +210,10 @@ def load_profile(path: str) -> Profile:
     if path.endswith('.csv'):
         return _load_csv(path)
     doc = read_yaml_file(path, 'profile file')
-    if not isinstance(doc, dict) or 'setpoints' not in doc:
+    if not isinstance(doc, Mapping):
         raise InvalidParameter(f'{path}: setpoints', None,
                                'is missing (expected setpoints: [{t: 0.0, velocity: 100.0}, ...])')
-    extra = [k for k in doc if k != 'setpoints']
-    if extra:
-        raise InvalidParameter(f'{path}: {extra[0]}', doc[extra[0]],
-                               'unknown key (only setpoints)')
-    return from_setpoints(doc['setpoints'], source=path)
+    return profile_from_block(doc, source=path)
 
 
 def _load_csv(path: str) -> Profile:
