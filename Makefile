@@ -76,10 +76,12 @@ reproduce: build
 	mkdir -p docs/data && cp bags/reproduce/summary.json docs/data/reproduce_summary.json
 
 # The generated blocks: docs/results.md (status markers) and the README's headline (headline markers)
-# from docs/data/reproduce_summary.json; the topic and parameter tables of docs/parameters.md from the code.
+# from docs/data/reproduce_summary.json; the topic and parameter tables of docs/parameters.md from the code;
+# the run, motor and efficiency-map files' JSON Schemas from their models.
 readme: build
 	$(RUN) python -m im_studies.readme_status --summary docs/data/reproduce_summary.json --results docs/results.md --readme README.md --write
 	$(RUN) python -m im_studies.docs docs/parameters.md
+	$(RUN) python -m im_studies.schemas
 
 # Chapter-3 study on the ROS-free loop (energy table, sampled-data limit, core-loss exponent),
 # the drive on the real plant (docs/compensation.md), under the delay (docs/plant.md §10), and

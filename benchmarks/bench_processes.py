@@ -339,7 +339,7 @@ def _free_run(duration: float, realtime: bool, bag: str, rate: int = 1000) -> di
     from rclpy.serialization import deserialize_message
 
     from im_recording.bag import iter_raw
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     from im_bringup.processes import graph_processes
     from im_recording.report import figures_of_merit
     from im_common import topics as T

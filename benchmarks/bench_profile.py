@@ -32,7 +32,7 @@ CATEGORIES = ('decode', 'tags', 'protocol', 'compute', 'publish', 'tap', 'execut
 NODE_FILES = {'plant_node.py': 'plant', 'controller_node.py': 'controller',
               'observer_node.py': 'observer', 'adapter_node.py': 'adapter'}
 #: The run protocol's code on the step's path: the node adapter, its input path, the roles.
-PROTOCOL_FILES = ('lockstep.py', 'lockstep_parts.py', 'run_protocol.py')
+PROTOCOL_FILES = ('lockstep.py', 'lockstep_parts.py', 'lockstep_protocol.py')
 
 
 def category(func) -> str:

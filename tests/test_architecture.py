@@ -27,7 +27,8 @@ def _layer(pkg: str) -> int:
 #: ROS-free math: nodes are thin shells over these, and they are unit-tested without ROS.
 ROS_FREE = [
     'im_common.model', 'im_common.params', 'im_common.loads', 'im_plant.plant_sim',
-    'im_common.metrics', 'im_common.steady_state', 'im_common.step_gate', 'im_common.run_protocol',
+    'im_common.metrics', 'im_common.steady_state', 'im_common.step_gate',
+    'im_common.lockstep_protocol',
     'im_common.signing', 'im_common.lockstep_parts', 'im_common.topics',
     'im_common.compensation', 'im_observer.observer',
     'im_controller.control_law', 'im_controller.flux', 'im_controller.reference',

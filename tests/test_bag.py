@@ -18,7 +18,7 @@ from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from im_common import cdr
 from im_recording.bag import BagError, BagWriter, info, iter_raw, read_messages
 from im_recording.msgdefs import full_definition, type_hash
-from im_recording.run import load_run
+from im_recording.recorded_run import load_run
 import pytest
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState

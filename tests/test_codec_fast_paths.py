@@ -75,7 +75,7 @@ def test_batch_joint_state_decoding_equals_message_by_message(topic, payloads, m
     import numpy as np
 
     from im_common import cdr
-    from im_recording import run
+    from im_recording import recorded_run as run
     fast = run.decode_topic(topic, payloads)
     monkeypatch.setattr(cdr, 'joint_state_batch', lambda _payloads: None)
     slow = run.decode_topic(topic, payloads)

@@ -15,7 +15,7 @@ import sys
 import time
 
 from im_recording.bag import BagError, info, iter_raw, partial_path
-from im_recording.run import load_run
+from im_recording.recorded_run import load_run
 import pytest
 
 

@@ -149,7 +149,7 @@ def test_the_input_watchdog_counts_only_the_time_its_process_ran():
     its own wait.
     """
     from im_common.lockstep import WATCHDOG_TICK_S
-    from im_common.run_protocol import WaitClock
+    from im_common.lockstep_protocol import WaitClock
     clock = WaitClock(WATCHDOG_TICK_S)
     since = 100.0
     waited = [clock.waited(since, since + 0.1 * k) for k in range(1, 51)]

@@ -162,13 +162,13 @@ def test_speed_setpoint_from_the_topic_is_reached_smoothly():
 
 def test_scenario_recording_carries_run_metadata_and_matches_its_summary(tmp_path):
     from im_recording.bag import info
-    from im_recording.run import load_run
-    from im_bringup.config import node_parameters
+    from im_recording.recorded_run import load_run
+    from im_bringup.run_file import Scenario
     from im_recording.report import figures_of_merit
     from im_bringup.scenario import run_scenario
     path = str(tmp_path / 'run.mcap')
-    params = node_parameters('speed', 'constant_flux', duration=0.05)
-    s = run_scenario(params, task='speed', strategy='constant_flux', record=path, progress=False)
+    s = run_scenario(Scenario(task='speed', strategy='constant_flux', duration=0.05),
+                     record=path, progress=False)
     s.pop('_run')
     meta = info(path).metadata
     assert meta['scenario']['strategy'] == 'constant_flux'
@@ -234,7 +234,7 @@ def test_a_free_run_observer_bridges_a_stalled_loop_up_to_the_plant(ros_context)
     from im_common import topics as T
     from im_common.auth import Signer
     from im_common.conversions import JointStateOut, Vector3Out
-    from im_common.run_protocol import RUNNING
+    from im_common.lockstep_protocol import RUNNING
     from im_observer.observer_node import STALL_STEPS, ObserverNode
     node = ObserverNode(context=ros_context, graph_key=bytes(32))
     node.on_peer_status('plant', RUNNING, {'time_master': 'true', 'run_id': 'run1',

@@ -1,8 +1,8 @@
 """
 The parts LockstepNode is composed of, each on its own and without ROS.
 
-The step gate (im_common.step_gate), the run protocol's decisions (im_common.run_protocol) and the
-node's message signing (im_common.signing); and the one step loop every node shell shares.
+The step gate (im_common.step_gate), the run protocol's decisions (im_common.lockstep_protocol) and
+the node's message signing (im_common.signing); and the one step loop every node shell shares.
 """
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from types import SimpleNamespace
 from im_common import topics as T
 from im_common.auth import Signer
 from im_common.conversions import Vector3Out
-from im_common.run_protocol import (FAILED, FINISHED, FINISHING, READY, RUNNING, RunProtocol,
-                                    STOPPING, WAITING, WARNING, watchdog_limit)
+from im_common.lockstep_protocol import (FAILED, FINISHED, FINISHING, LockstepProtocol, READY,
+                                         RUNNING, STOPPING, WAITING, WARNING, watchdog_limit)
 from im_common.signing import allowed_publishers, foreign_publishers, NodeSigning
 from im_common.step_gate import finite, StepGate
 import pytest
@@ -26,7 +26,7 @@ A, B = '/a', '/b'
 
 @pytest.mark.processes
 def test_the_parts_import_without_ros():
-    code = ('import sys, im_common.step_gate, im_common.run_protocol, im_common.signing, '
+    code = ('import sys, im_common.step_gate, im_common.lockstep_protocol, im_common.signing, '
             'im_common.lockstep_parts, im_common.topics; '
             "sys.exit(1 if 'rclpy' in sys.modules else 0)")
     assert subprocess.run([sys.executable, '-c', code]).returncode == 0
@@ -156,7 +156,7 @@ def test_finite_looks_at_every_number_of_a_decoded_input():
 
 # Run protocol -------------------------------------------------------------------------------
 def test_a_node_follows_the_latest_waiting_run_and_locks_on_the_one_that_runs():
-    p = RunProtocol()
+    p = LockstepProtocol()
     assert p.master_event(WAITING, 'run1') == ('run1', False)
     p.run_id = 'run1'
     assert p.master_event(WAITING, 'run1') == (None, False)
@@ -169,13 +169,13 @@ def test_a_node_follows_the_latest_waiting_run_and_locks_on_the_one_that_runs():
 
 
 def test_a_run_that_ended_is_adopted_only_by_a_node_following_none():
-    p = RunProtocol()
+    p = LockstepProtocol()
     assert p.master_event(FINISHED, 'old') == ('old', False)
     assert p.master_event(WAITING, '') == (None, False)        # no run id: not a run
 
 
 def test_events_that_do_not_concern_a_node_are_dropped_and_peers_remembered():
-    p = RunProtocol('run1')
+    p = LockstepProtocol('run1')
     ours = {'run_id': 'run1'}
     assert not p.accept('observer', 'observer', READY, ours)           # its own
     assert not p.accept('observer', 'controller', WARNING, ours)       # not a state
@@ -186,7 +186,7 @@ def test_events_that_do_not_concern_a_node_are_dropped_and_peers_remembered():
 
 
 def test_which_events_end_a_nodes_part_of_the_run():
-    p = RunProtocol('run1')
+    p = LockstepProtocol('run1')
     p.providers = {'plant': T.MEAS_CURRENT}
     plant = {'time_master': 'true', 'run_id': 'run1'}
     # an exact node still computing its steps waits for them; when finishing or following, ends
@@ -210,7 +210,7 @@ def test_the_time_master_diagnoses_a_stalled_run_before_the_others():
 
 
 def test_an_event_says_role_period_step_and_run():
-    p = RunProtocol('abcd')
+    p = LockstepProtocol('abcd')
     assert p.event_values(True, True, P, 7 * P, {'mode': 'lockstep'}) == {
         'role': 'critical', 'T_s_ns': P, 'step': 7, 'time_master': 'true', 'run_id': 'abcd',
         'mode': 'lockstep'}

@@ -140,7 +140,7 @@ def test_four_processes_and_recorder_beside_a_busy_process_lose_nothing(tmp_path
     Every process exits 0 and the bag holds every step on every lock-step topic; the numbers
     equal the in-process graph's.
     """
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     busy = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
@@ -470,7 +470,7 @@ def test_two_graphs_with_their_own_keys_share_a_domain_without_crosstalk(tmp_pat
     Two graphs on one ROS_DOMAIN_ID refuse each other's messages (and say so) and both compute
     exactly what they compute alone.
     """
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     bags = [tmp_path / 'a.mcap', tmp_path / 'b.mcap']
@@ -547,7 +547,7 @@ def test_two_launches_on_one_domain_both_finish_as_alone(tmp_path, domain, mode,
     reader history lost its own graph's step and that plant stopped ("no /im/command/voltage
     stamped 0.468 s ... within 5.0 s").
     """
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     from im_recording.report import figures_of_merit
     from im_bringup.testing import run_graph
     if mode == 'free_run' and free_run_refused(free_run_rate, tmp_path, domain):
@@ -773,12 +773,12 @@ def test_a_loaded_machine_makes_runs_slow_not_wrong(tmp_path, domain):
 
     Every run finishes with the numbers of the same run on a quiet machine (lock-step: stamps
     decide, not scheduling). The input watchdogs count only the time their process ran
-    (``im_common.run_protocol.WaitClock``): before, a run in one process on a machine at load
+    (``im_common.lockstep_protocol.WaitClock``): before, a run in one process on a machine at load
     13-33 stopped with "no /im/command/voltage stamped 0.114 s (step 1140) within 5.0 s of wall
     time" — the command was not lost, its delivery had not been scheduled yet.
     """
     from im_recording.report import figures_of_merit
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     from im_bringup.testing import run_graph
     quiet = run_graph(task='position', strategy='min_energy', duration=0.1).summary
     busy = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(2)]

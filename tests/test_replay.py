@@ -4,8 +4,8 @@ from geometry_msgs.msg import Vector3Stamped
 from im_bringup.testing import random_domain
 from im_observer import observer
 from im_recording.bag import iter_raw, read_messages
+from im_recording.recorded_run import load_run
 from im_recording.replay import main as replay_main, Player, reestimate
-from im_recording.run import load_run
 from im_recording.synth import make_synthetic_bag
 import numpy as np
 import pytest

@@ -3,8 +3,8 @@ import json
 import math
 
 from im_recording.bag import BagWriter
+from im_recording.recorded_run import load_run
 from im_recording.report import main as report_main, write_report
-from im_recording.run import load_run
 from im_recording.synth import make_synthetic_bag
 import numpy as np
 import pytest
@@ -173,7 +173,7 @@ def test_streamed_figures_equal_the_full_trace_definitions(tmp_path, monkeypatch
     """
     from im_common.metrics import tracking_figures
 
-    from im_recording import run as R
+    from im_recording import recorded_run as R
     from im_recording.report import figures_of_merit
     path = tmp_path / 'v.mcap'
     _varied_bag(path)
@@ -311,7 +311,7 @@ def test_the_plants_refused_commands_and_the_foreign_publishers_are_in_the_repor
                                         'recorder': {T.CMD_VOLTAGE: 3}},
                    'foreign_publishers': {'plant': {T.CMD_VOLTAGE: ['/rogue']},
                                           'recorder': {T.CMD_VOLTAGE: ['/rogue']}}}
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     assert refusals(load_run(path)) == got
     with open(rep['markdown']) as f:
         section = f.read().split('## Refused messages')[1]
@@ -326,7 +326,7 @@ def test_the_in_process_nodes_refusals_reach_the_bag_and_the_report(tmp_path):
     from im_bringup.scenario import _record_refusals
     from im_common import topics as T
     from im_recording.report import refusals
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     path = tmp_path / 'inproc.mcap'
     graph = SimpleNamespace(nodes={
         'plant': SimpleNamespace(refused_by_topic={T.CMD_VOLTAGE: 120},

@@ -95,7 +95,7 @@ def test_the_run_file_round_trips_and_gives_the_same_node_parameters(tmp_path):
      'run.yaml: variation.R_r[1].t: must be after the previous breakpoint'),
     ('variation: {L_sr: [{t: 1.0, scale: 1.5}]}', 'run.yaml: L_sr'),   # sigma <= 0: no motor
     ('tsk: speed', "run.yaml: tsk: unknown run-file key; did you mean 'task'?"),
-    ('noise: {current: -0.1}', 'run.yaml: noise.current: must be a standard deviation >= 0'),
+    ('noise: {current: -0.1}', 'run.yaml: noise.current: must be >= 0 (got -0.1)'),
     ('strategy: fastest', 'run.yaml: strategy: must be one of'),
     ('motor: {R_s: 1.0}', 'run.yaml: motor: R_r: is missing'),
     ('motor: krause_5hp', 'run.yaml: motor: is no motor file and no shipped motor (shipped: '
@@ -234,7 +234,8 @@ def test_the_launch_file_takes_the_run_file_and_records_it(tmp_path):
     sc = Scenario.from_file(DRIFT, {'duration': 0.3, 'controller': 'nominal'})
     assert {k: v for k, v in procs['plant'].parameters.items() if k not in (
         'graph_key_file', 'wait_for', 'mode')} == sc.node_parameters()['plant']
-    assert json.loads(procs['plant'].parameters['variation_schedule']) == sc.variation
+    from im_common.node_params import variation_from_parameters
+    assert variation_from_parameters(procs['plant'].parameters).spec() == sc.variation
     meta = json.loads(procs['recorder'].arguments[procs['recorder'].arguments.index('--metadata')
                                                   + 1])
     assert meta['run']['yaml'] == sc.to_yaml() and 'adapter' not in procs

@@ -1,11 +1,11 @@
 """
 The run protocol by role, without ROS: the time master, the lossless follower, an input's path.
 
-:class:`im_common.run_protocol.TimeMaster` (the plant's decisions: step 0, its lossless followers,
-the end of its run, another time master of its key) and
-:class:`im_common.run_protocol.LosslessFollower` (the recorder's: what it acknowledges, the end of
-the run); :func:`im_common.lockstep_parts.input_handler`, the one path of every lock-step input
-(the plant's command too); the delivery of each topic in the topic table.
+:class:`im_common.lockstep_protocol.TimeMaster` (the plant's decisions: step 0, its lossless
+followers, the end of its run, another time master of its key) and
+:class:`im_common.lockstep_protocol.LosslessFollower` (the recorder's: what it acknowledges, the
+end of the run); :func:`im_common.lockstep_parts.input_handler`, the one path of every lock-step
+input (the plant's command too); the delivery of each topic in the topic table.
 """
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from types import SimpleNamespace
 from im_common import topics as T
 from im_common.lockstep_parts import (input_handler, logs_refusal, PublisherWatch, Readiness,
                                       unknown_parameter)
-from im_common.run_protocol import (DRAINING, ENDED, FAILED, FINISHED, IGNORE, JOINED, LEFT,
-                                    LosslessFollower, MASTER_STEPPING, READY, RUNNING, STOP,
-                                    STOPPING, TimeMaster, WAITING, WARNING, YIELD)
+from im_common.lockstep_protocol import (DRAINING, ENDED, FAILED, FINISHED, IGNORE, JOINED, LEFT,
+                                         LosslessFollower, MASTER_STEPPING, READY, RUNNING, STOP,
+                                         STOPPING, TimeMaster, WAITING, WARNING, YIELD)
 from im_common.step_gate import LOCKSTEP_DEPTH, StepGate
 
 P = 100_000          # T_s = 1e-4 s in ns

@@ -215,7 +215,7 @@ def test_a_rogue_beside_separate_processes_changes_nothing(tmp_path):
     from im_recording.bag import info, iter_raw
     from im_bringup.processes import GraphProcesses, graph_processes
     from im_recording.report import figures_of_merit
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     from im_bringup.testing import assert_all_ended, run_graph
     env = {'ROS_DOMAIN_ID': str(random_domain())}
     bag = tmp_path / 'run.mcap'
@@ -443,7 +443,7 @@ def test_initial_estimates_go_out_when_the_run_runs_not_at_adoption(ros_context,
     flood on the domain filled that first — a second launch stalled at step 0, a bag lacked
     /im/observer/flux stamped 0. The plant runs only once the nodes it waits for follow the run.
     """
-    from im_common.run_protocol import RUNNING, WAITING
+    from im_common.lockstep_protocol import RUNNING, WAITING
     if node_kind == 'observer':
         from im_observer.observer_node import ObserverNode as Node
         topic, attr = T.OBS_FLUX, 'pub_flux'

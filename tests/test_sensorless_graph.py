@@ -63,7 +63,7 @@ def test_sensorless_processes_record_the_speed_estimate_and_ignore_the_measured_
     from im_recording.bag import iter_raw
     from im_bringup.processes import GraphProcesses, graph_processes
     from im_recording.report import figures_of_merit
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     bag = tmp_path / 'sensorless.mcap'
     domain = {'ROS_DOMAIN_ID': str(random_domain())}
     with GraphProcesses(graph_processes('speed', 'min_energy', duration=0.02, record=bag,

@@ -11,6 +11,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/schema', glob('schema/*.json')),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/config/motors', glob('config/motors/*.yaml')),
         ('share/' + package_name + '/config/profiles', glob('config/profiles/*')),

@@ -31,7 +31,7 @@ from typing import Dict, Optional
 from im_common import topics as T
 from im_common.cdr import message_class
 from im_common.cli import error as cli_error, logger, parse_args
-from im_common.run_protocol import END_STATES, is_master
+from im_common.lockstep_protocol import END_STATES, is_master
 from im_common.stopping import StopSignals
 from im_common.topics import STATUS, TOPIC_TYPES
 from im_recording.bag import write_atomic

@@ -24,34 +24,42 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 import difflib
+import functools
 import json
 import math
 import os
-from typing import Dict, Mapping, Optional
+from typing import (Annotated, Any, Dict, get_args, get_origin, List, Literal, Mapping,
+                    Optional, Union)
 
-from im_common.compensation import compensation_from_dict
+from im_common.compensation import compensation_from_dict, CompensationBlock
 from im_common.inverter import check_against_motor, Inverter
-from im_common.loads import Load, load_file, load_from_dict, load_parameters, make_load
-from im_common.node_params import block_parameters
-from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, INDUCTANCE_NAMES,
+from im_common.loads import (Load, load_file, load_from_dict, LOAD_KINDS, load_parameters,
+                             LoadBlock, make_load)
+from im_common.motor_file import MotorEstimates, MotorFields
+from im_common.node_params import block_parameters, variation_parameters
+from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, ELECTRICAL_NAMES,
+                              INDUCTANCE_NAMES,
                               InvalidParameter, is_motor_name, load_motor_blocks, load_motor_file,
                               MOTOR_BLOCKS, motor_blocks, motor_from_dict, MotorParams,
                               normalize_variation, ParameterSchedule, RATED, SCHEDULES,
-                              shipped_motor, THESIS_MOTOR, variation_schedule,
-                              warn_motor_defaults)
-from im_common.saturation import SaturatedModel, saturation_from_dict
-from im_common.thermal import thermal_from_dict
-from im_common.validation import check_choice, one_line
+                              shipped_motor, THESIS_MOTOR, variation_block,
+                              variation_schedule, warn_motor_defaults)
+from im_common.saturation import (SaturatedModel, saturation_block, saturation_from_dict,
+                                  SaturationBlock)
+from im_common.thermal import Thermal, thermal_from_dict
+from im_common.validation import BLOCK_CONFIG, block_error, one_line
 from im_common.yamlio import load_parameters_file, read_yaml_file
 from im_controller.baselines.drive import check_law_task, gains_model, LAWS
 from im_controller.control_law import ControllerConfig, MODES, steady_start, THESIS_LAW_GAINS
-from im_controller.flux import LOSS_SCOPES
-from im_controller.profiles import from_setpoints, KINDS, load_profile, MODE_KIND, Profile
+from im_controller.flux import LOSS_SCOPES, Strategy
+from im_controller.profiles import (from_setpoints, KINDS, load_profile, MODE_KIND, Profile,
+                                    ProfileBlock)
 from im_controller.trajectories import THESIS_TRAJECTORIES
 from im_observer.speed_observer import POSITION_NEEDS_SENSOR
 from im_plant.parameters import STEPPING_MODES   # the plant's stepping modes (one home)
 from im_plant.sensors import Sensors
 import numpy as np
+from pydantic import BaseModel, Field, ValidationError
 import yaml
 
 TASKS = MODES                                      # the task names' one home: the control law
@@ -81,9 +89,9 @@ TASK_PRESETS = {
 
 def task_load(task: str) -> Load:
     """Return a task's shaft load in the thesis (:data:`TASK_PRESETS`), the run's default."""
-    p = TASK_PRESETS[task]
-    return make_load(p['load'], mgl=p.get('load_mgl', 10.0), c1=p.get('load_c1', 1.0),
-                     c2=p.get('load_c2', 0.001))
+    p = TASK_PRESETS[task]             # the fields it sets; the others at the model's defaults
+    return make_load(p['load'], **{k[len('load_'):]: v for k, v in p.items()
+                                   if k.startswith('load_')})
 
 
 TORQUE_NEEDS_PROFILE = ('the torque task needs a profile of effort setpoints '
@@ -125,6 +133,192 @@ def limit_parameter(value) -> float:
 
 NOISE_KEYS = {'current': 'current_noise_std', 'speed': 'speed_noise_std', 'seed': 'noise_seed'}
 NODES = ('plant', 'controller', 'observer', 'adapter')
+
+
+# The run file's typed model --------------------------------------------------------------------
+# Its keys, their types, bounds and choices, composed of the blocks' own models (Inverter,
+# Sensors, SaturationBlock, Thermal, the baselines' gains): the one declaration the run file is
+# read through (Scenario.from_mapping, and Scenario's own fields: _check_fields) and its JSON
+# Schema is generated from (im_bringup.schemas, share/im_bringup/schema/run.schema.json). The
+# rules across keys (a torque task needs a profile, ...) stay in Scenario.
+class Noise(BaseModel):
+    """The ``noise:`` block: Gaussian measurement noise of the ideal sensors."""
+
+    model_config = BLOCK_CONFIG
+
+    current: float = Field(0.0, ge=0, description='std of the current measurement noise [A]')
+    speed: float = Field(0.0, ge=0, description='std of the speed measurement noise [rad/s]')
+    seed: int = Field(0, ge=0, description='seed of the noise generator')
+
+
+_Pair = Annotated[List[float], Field(min_length=2, max_length=2)]
+
+
+class SaturationTable(BaseModel):
+    """A magnetizing curve as points ``{table: [[psi, i_M], ...]}`` (what commissioning writes)."""
+
+    model_config = BLOCK_CONFIG
+
+    table: List[Annotated[List[Annotated[float, Field(gt=0)]],
+                          Field(min_length=2, max_length=2)]] = Field(
+        min_length=2, description='points [psi [Wb], i_M [A]] past the origin, both rising '
+        '(docs/plant.md)')
+
+
+_FILE = 'a file (relative to the run file)'
+_Matrix22 = Annotated[List[_Pair], Field(min_length=2, max_length=2)]
+_Matrix42 = Annotated[List[_Pair], Field(min_length=4, max_length=4)]
+_NodeValues = Dict[Literal[NODES], Dict[str, Any]]
+_Curve = Union[SaturationBlock, SaturationTable]
+
+
+def _left_out(text: str) -> dict:
+    """Return a field's ``json_schema_extra``: what a key left out means (docs/running.md)."""
+    return {'left_out': text}
+
+
+def _limit(what: str, left_out: str = "the motor's rating (none without one)"):
+    return Field(None, ge=0, description=f'{what} (0: none; docs/limits.md)',
+                 json_schema_extra=_left_out(left_out))
+
+
+class RunFile(BaseModel):
+    """
+    A run file (docs/running.md): every key optional, left out = its default.
+
+    Motor, estimates, load, profile, gains and parameters take a file path or the mapping inline.
+    A key that takes null (left out) is typed Optional; the others refuse it. The descriptions
+    are the run file's documentation: docs/running.md's table of keys is generated from them.
+    """
+
+    model_config = dict(BLOCK_CONFIG, title='IM drive run file')
+
+    task: Literal[TASKS] = Field(None, description='what the drive tracks: `position`, `speed` '
+                                 'or `torque` (torque needs a `profile`)')
+    strategy: Strategy = Field(None, description='the flux strategy: `min_energy`, '
+                               '`constant_flux`, `min_loss`, `optimal` (docs/strategies.md)')
+    controller: Literal[CONTROLLERS] = Field(
+        None, description='`nominal`, `adaptive` (improved law), `adaptive_thesis`, '
+        "`adaptive_thesis_pair`, `robust`; or a drive industry's law in the thesis law's place: "
+        '`current_vector`, `flux_vector`, `vhz` (speed only; docs/baselines.md)')
+    baseline: Optional[Dict[str, float]] = Field(
+        None, description="the baseline law's gains: `current_vector` `{alpha_c, alpha_i, "
+        'alpha_s, alpha_p, k_comp, feedforward}`, `flux_vector` `{alpha_psi, alpha_tau, '
+        'alpha_i, alpha_s, alpha_p, k_comp, k_u, k_b, feedforward}`, `vhz` `{alpha_psi, '
+        'alpha_tau, alpha_f, alpha_i, slew_rate, k_comp, k_u, k_b}` (docs/baselines.md, '
+        'docs/parameters.md)', json_schema_extra=_left_out("the law's defaults"))
+    T_s: float = Field(None, gt=0, description='control period [s]')
+    duration: Optional[float] = Field(None, gt=0, description='simulated seconds',
+                                      json_schema_extra=_left_out(
+                                          "the task's (2.0 / 1.5 / 1.0 s); a profile's end "
+                                          '+ 1 s'))
+    motor: Optional[Union[str, MotorFields]] = Field(
+        None, description="the plant's motor: a motor file path, a shipped motor by name "
+        '(`thesis`, `krause_3hp`, `krause_50hp`: share/im_common/config/motors/; a file of that '
+        'name beside the run file wins), or an inline mapping of its fields',
+        json_schema_extra=_left_out('the thesis motor'))
+    estimates: Optional[Union[str, MotorEstimates]] = Field(
+        None, description="the controller's, observer's and adapter's model: a motor file, or a "
+        'mapping of values over `motor` (e.g. `{R_r: 0.9}`)',
+        json_schema_extra=_left_out('= `motor`'))
+    load: Optional[Union[str, LoadBlock]] = Field(
+        None, description='a load file or `{kind: ' + '|'.join(LOAD_KINDS) + ', ...}` '
+        '("Loads" below)', json_schema_extra=_left_out("the task's load"))
+    profile: Optional[Union[str, ProfileBlock, Dict[str, Any]]] = Field(
+        None, description='setpoints: a file (YAML/CSV) or `{setpoints: [{t: 0.0, velocity: '
+        '100.0}, ...]}`; a run record writes the thesis profile as `{kind: '
+        'thesis_position|thesis_speed, ...}` with its parameters (fixed)',
+        json_schema_extra=_left_out('the thesis profile'))
+    v_limit: Optional[float] = _limit('inverter voltage-vector limit [V], plant and controller')
+    torque_limit: Optional[float] = _limit('controller torque limit [N m]', 'none')
+    current_limit: Optional[float] = _limit('controller current limit [A]')
+    speed_limit: Optional[float] = _limit('controller speed limit [rad/s]', 'none')
+    current_trip: Optional[float] = _limit('plant protection: overcurrent trip [A]')
+    speed_trip: Optional[float] = _limit('plant protection: overspeed trip [rad/s]')
+    inverter_rating: Optional[float] = Field(None, gt=0, description="the inverter's own limit "
+                                             '[V]; a larger command trips the plant',
+                                             json_schema_extra=_left_out('1000 V'))
+    sensorless: bool = Field(None, description='controller, observer and adapter use the '
+                             "observer's speed (docs/sensorless.md)")
+    gains: Optional[Union[str, _NodeValues]] = Field(
+        None, description='`design_gains` output: a file or `{controller: {...}, observer: '
+        '{...}}`; its `gain_period` must equal `T_s`', json_schema_extra=_left_out("the thesis's"))
+    mode: Literal[STEPPING_MODES] = Field(None, description="the plant's stepping on the graph: "
+                                          '`lockstep` or `free_run`')
+    variation: Union[Literal[tuple(SCHEDULES)],
+                     Dict[Literal[ELECTRICAL_NAMES], List[Dict[str, Any]]]] = Field(
+        None, description="the true motor's parameters in time: a name (`none`, `chapter4`) or "
+        'breakpoints `{parameter: [{t, scale|value, shape}, {sine, frequency, phase}]}` '
+        '(below)')
+    noise: Noise = Field(None, description='`{current: sigma_i [A], speed: sigma_w [rad/s], '
+                         'seed: n}`: Gaussian measurement noise of the ideal sensors',
+                         json_schema_extra=_left_out('off'))
+    parameters: Optional[Union[str, _NodeValues]] = Field(
+        None, description='extra node parameters `{plant|controller|observer|adapter: '
+        '{name: value}}` (or a ROS 2 parameters file), merged last; graph runs only',
+        json_schema_extra=_left_out('none'))
+    inverter: Optional[Inverter] = Field(
+        None, description='the switched inverter `{V_dc, pwm_frequency, deadtime, update, v_on, '
+        'r_on, e_sw, v_sw, i_sw, C_dc, R_source, V_chopper, R_chopper, V_trip}` (docs/plant.md; '
+        '`e_sw` at `v_sw`, `i_sw`: the switching losses, §1), and `delay`: the computational '
+        'delay in control periods, 0-2 (`{delay: 1}` alone: the ideal voltage source one period '
+        'late; docs/plant.md §10)', json_schema_extra=_left_out('the ideal voltage source'))
+    sensors: Optional[Sensors] = Field(
+        None, description='`{encoder_lines, speed_window, adc_bits, current_range, '
+        'current_offset, current_gain, vdc_range}` (docs/plant.md)',
+        json_schema_extra=_left_out('the true state'))
+    saturation: Optional[Union[Literal['motor'], _Curve]] = Field(
+        None, description="the plant's magnetizing curve: `{law: power, beta, S}`, `{table: "
+        "[[psi, i_M], ...]}`, or `motor` for the motor file's own block (docs/plant.md §2)",
+        json_schema_extra=_left_out('none (linear)'))
+    thermal: Optional[Union[Literal['motor'], Thermal]] = Field(
+        None, description="the motor's winding temperatures: a block, or `motor` for the motor "
+        "file's own (docs/plant.md); the adapter gets it too, for its `thermal_tracking` "
+        '(docs/adaptation.md §9)', json_schema_extra=_left_out('none'))
+    iron_loss: bool = Field(None, description='the core loss acts (an iron-loss branch '
+                            'dissipating the k_e, k_h loss; docs/plant.md)')
+    loss_scope: Literal[LOSS_SCOPES] = Field(
+        None, description="what `min_loss` and `optimal`'s causal target minimize: `motor` (the "
+        "motor's losses) or `drive` (the inverter's conduction and switching losses added, from "
+        'the `inverter` block; docs/efficiency.md)')
+    compensation: Optional[Union[bool, Literal['inverter'], CompensationBlock]] = Field(
+        None, description="the drive's inverter-error compensation: `inverter` (exact, from the "
+        '`inverter` block) or `{v_dead, r_on, current_band}` as commissioned '
+        '(docs/compensation.md)', json_schema_extra=_left_out('off'))
+    saturation_model: Union[bool, _Curve] = Field(
+        None, description="the drive's observer and controller on a magnetizing curve: `true`, "
+        "the plant's `saturation`; or a curve of the drive's own, `{table: [[psi, i_M], ...]}` "
+        "(a commissioned file's block) or `{law: power, beta, S}`, while the plant keeps "
+        '`saturation` (docs/plant.md §2)')
+    start: Optional[Literal[START_MODES]] = Field(
+        None, description="`rest` (demagnetized) or `steady` (the controller's steady state at "
+        '`theta0`, `omega0`)', json_schema_extra=_left_out("the task's"))
+    theta0: Optional[float] = Field(None, description='initial shaft position [rad]',
+                                    json_schema_extra=_left_out("the task's"))
+    omega0: Optional[float] = Field(None, description='initial shaft speed [rad/s]',
+                                    json_schema_extra=_left_out("the task's"))
+    start_flux: float = Field(None, gt=0, description="a steady start with the plant's rotor "
+                              "flux this factor times the controller's steady state (a model "
+                              "whose steady state is not exactly the motor's; "
+                              'docs/adaptation.md §6)')
+    current_gain: Optional[_Matrix22] = Field(None, description='current-loop gain, 2x2 rows',
+                                              json_schema_extra=_left_out("the thesis's"))
+    observer_gain: Optional[_Matrix42] = Field(None, description='observer injection gain, '
+                                               '4x2 rows',
+                                               json_schema_extra=_left_out("the thesis's"))
+    k_e: Optional[float] = Field(None, gt=0, description='observer current-error injection gain',
+                                 json_schema_extra=_left_out('1/sigma'))
+    core_loss_exponent: float = Field(None, gt=0, description='the core loss grows as |psi|^m')
+    plant_substep: float = Field(None, gt=0, description='longest RK4 sub-step of the ideal '
+                                 'plant [s]')
+    observer_substep: float = Field(None, gt=0, description='longest RK4 sub-step of the '
+                                    'observer [s]')
+    controller_options: Dict[str, Any] = Field(
+        None, description="the thesis law's limits and options (docs/limits.md); the ROS-free "
+        'loop and Python', json_schema_extra=_left_out('none'))
+    speed_observer_options: Dict[str, Any] = Field(
+        None, description="the sensorless speed observer's options (docs/sensorless.md); the "
+        'ROS-free loop and Python', json_schema_extra=_left_out('none'))
 
 
 class RunFileError(ValueError):
@@ -221,21 +415,9 @@ class Scenario:
                                 ('load_model', Load, 'a load file or a mapping with a kind')):
             if getattr(self, name) is not None and not isinstance(getattr(self, name), cls):
                 raise InvalidParameter(name, getattr(self, name), f'must be {what}')
-        for name in ('sensorless', 'iron_loss'):
-            if not isinstance(getattr(self, name), bool):
-                raise InvalidParameter(name, getattr(self, name), 'must be true or false')
-        for name in ('controller_options', 'speed_observer_options'):
-            if not isinstance(getattr(self, name), Mapping):
-                raise InvalidParameter(name, getattr(self, name), 'must be a mapping')
-        for name, shape in (('current_gain', (2, 2)), ('observer_gain', (4, 2))):
-            v = getattr(self, name)
-            if v is not None and not _matrix(v, shape):
-                raise InvalidParameter(name, v, f'must be a {shape[0]}x{shape[1]} matrix of '
-                                       'finite numbers (a list of rows)')
-        # the task at once (its presets are read below); the strategy is the controller
-        # configuration's to refuse (controller_config(), at the end: ControllerConfig's type)
-        check_choice('task', self.task, TASKS)
-        check_choice('controller', self.controller, CONTROLLERS)
+        # every key's type, bound and choice: the run file's model (the task at once: its
+        # presets are read below)
+        self._check_fields()
         check_law_task(self.law, self.task, field='controller')
         if self.baseline is not None:
             if self.law == 'thesis':
@@ -252,23 +434,12 @@ class Scenario:
                     given[0].split('.')[-1], self.current_gain), 'is a gain of the thesis law; '
                     f"controller {self.controller} takes its gains from 'baseline:' "
                     '(docs/baselines.md)')
-        check_choice('mode', self.mode, STEPPING_MODES)
         if isinstance(self.variation, Mapping):
             put(self, 'variation', normalize_variation(self.variation) or 'none')
         elif self.schedule is None and self.variation not in SCHEDULES:
             raise InvalidParameter('variation', self.variation,
                                    f'must be one of {", ".join(SCHEDULES)} or a mapping '
                                    '{parameter: [breakpoints]}')
-        if not _real(self.T_s) or not self.T_s > 0:
-            raise InvalidParameter('T_s', self.T_s, 'must be a positive period in seconds')
-        for name, low in (('theta0', None), ('omega0', None), ('k_e', 0.0),
-                          ('core_loss_exponent', 0.0), ('plant_substep', 0.0),
-                          ('observer_substep', 0.0)):
-            v = getattr(self, name)     # None: the default of theta0, omega0, k_e (below)
-            if (v is not None or name not in ('theta0', 'omega0', 'k_e')) \
-                    and (not _real(v) or (low is not None and not v > low)):
-                raise InvalidParameter(name, v, 'must be a finite number' if low is None
-                                       else f'must be a finite number > {low:g}')
         if self.sensorless and self.task == 'position':
             raise InvalidParameter('sensorless', True, POSITION_NEEDS_SENSOR)
         if self.task == 'torque' and self.profile is None:
@@ -276,27 +447,12 @@ class Scenario:
         if self.profile is not None and self.profile.mode != self.task:
             raise InvalidParameter('profile', self.profile.source,
                                    f'is a {self.profile.mode} profile; the task is {self.task}')
-        for name in ('current_noise_std', 'speed_noise_std'):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 \
-                    or not math.isfinite(v):
-                raise InvalidParameter(name, v, 'must be a standard deviation >= 0')
-        for name in ZERO_IS_NONE + ('inverter_rating',):
-            v = getattr(self, name)
-            low = 0.0 if name in ZERO_IS_NONE else 1e-300      # 0: none
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                  or not (math.isfinite(v) and v >= low)):
-                raise InvalidParameter(name, v, 'must be >= 0 (0: none)' if low == 0.0
-                                       else 'must be > 0')
         if self.duration is None:
             put(self, 'duration', DEFAULT_DURATION[self.task] if self.profile is None
                 else self.profile.end_time + 1.0)
-        if not _real(self.duration) or not self.duration > 0:
-            raise InvalidParameter('duration', self.duration, 'must be > 0 s')
         preset = TASK_PRESETS[self.task]
         if self.start is None:
             put(self, 'start', preset['start'])
-        check_choice('start', self.start, START_MODES)
         start_value = self.profile.start_value if self.profile is not None else None
         if self.theta0 is None:
             put(self, 'theta0', start_value if self.task == 'position' and start_value is not None
@@ -317,6 +473,22 @@ class Scenario:
         # the drive's own checks of the whole run (limits against the motor's magnetizing
         # current, ...): here, naming the key, not when the drive is built (cheap: ~0.1 ms)
         self.controller_config()
+
+    def _check_fields(self) -> None:
+        """
+        Refuse a field of a type, bound or choice the run file's model refuses (one line).
+
+        The fields a run file gives as they are (plain values; motor, load, profile and the
+        blocks are checked by their own models when they are read).
+        """
+        values = {k: _plain_value(getattr(self, k)) for k in _PLAIN_FIELDS}
+        values['noise'] = {k: _plain_value(getattr(self, f)) for k, f in NOISE_KEYS.items()}
+        try:
+            RunFile.model_validate(values)
+        except ValidationError as exc:
+            errors = exc.errors()
+            inside = [e for e in errors if _nested(e['loc'])]
+            raise (_nested_error(inside[0]) if inside else _key_error(errors, values)) from None
 
     def _motor_file_blocks(self, path: str) -> None:
         wanted = [b for b in MOTOR_BLOCKS if getattr(self, b) == 'motor']
@@ -351,9 +523,6 @@ class Scenario:
         self._check_real_plant_model()
         model = self.compensation_model()
         put(self, 'compensation', None if model is None else model.describe())
-        if (isinstance(self.start_flux, bool) or not isinstance(self.start_flux, (int, float))
-                or not (math.isfinite(self.start_flux) and self.start_flux > 0.0)):
-            raise InvalidParameter('start_flux', self.start_flux, 'must be a factor > 0')
         if self.start_flux != 1.0 and self.start != 'steady':
             raise InvalidParameter('start_flux', self.start_flux, 'scales the rotor flux of a '
                                    'steady start; this run starts at rest (start: rest)')
@@ -406,7 +575,6 @@ class Scenario:
 
     def drive_loss(self):
         """Return the inverter's (r, c) the drive's strategies add ((0, 0): loss_scope motor)."""
-        check_choice('loss_scope', self.loss_scope, LOSS_SCOPES)
         if self.loss_scope == 'motor':
             return 0.0, 0.0
         if self.inverter is None or not self.inverter.switched:
@@ -574,6 +742,30 @@ class Scenario:
         A ROS 2 parameters file's structure; no ROS import. Without motor, estimates, profile,
         load, limits, noise or gains the thesis scenario of the task.
         """
+        self._refuse_loop_only()
+        common = {'T_s': float(self.T_s), 'duration': float(self.duration),
+                  'input_timeout': float(input_timeout)}
+        v_limit = limit_parameter(self.v_limit)
+        model_values = self._model_values()
+        plant = self._plant_parameters(common, v_limit, truth_decimation)
+        x0 = obs_x0 = None
+        if self.start == 'steady':
+            x0, obs_x0 = self.initial_state()
+        if x0 is not None:          # plant and observer start in the controller's steady state
+            plant['initial_current'] = [float(obs_x0[0]), float(obs_x0[1])]
+            plant['initial_flux'] = [float(x0[2]), float(x0[3])]
+        ctl = self._controller_parameters(common, v_limit, model_values, reference_decimation)
+        obs = self._observer_parameters(common, model_values, obs_x0 if x0 is not None else None)
+        adapter = self._adapter_parameters(common, model_values, plant)
+        self._add_shared_parameters(ctl, obs, adapter)
+        out = {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}
+        for extra in (self.gains, self.parameters):     # merged last
+            for node, values in (extra or {}).items():
+                out[node].update(values)
+        return out
+
+    def _refuse_loop_only(self) -> None:
+        """Refuse what only the ROS-free loop takes (a schedule object, controller options)."""
         if self.schedule is not None:
             raise InvalidParameter('schedule', self.schedule.name,
                                    'a schedule object runs on the ROS-free loop only; write it '
@@ -585,47 +777,63 @@ class Scenario:
                                    self.controller_options[unknown[0]],
                                    'runs on the ROS-free loop only (the graph takes '
                                    f'{", ".join(CONTROLLER_LIMITS)}, flux_coupling)')
-        limits = self.limits()
-        protection = {k: getattr(self, k) for k in PLANT_PROTECTION
-                      if getattr(self, k) is not None}
-        common = {'T_s': float(self.T_s), 'duration': float(self.duration),
-                  'input_timeout': float(input_timeout)}
-        v_limit = limit_parameter(self.v_limit)
-        lp = load_parameters(self.plant_load())
-        lp_model = load_parameters(self.plant_load().feedforward())     # the controller's
-        mine = motor_parameters(self.motor) if self.motor is not None else {}
-        model_values = dict(mine)
+
+    def _model_values(self) -> dict:
+        """Return the drive's model parameters (controller, observer, adapter): the estimates."""
         if self.estimates is not None:
-            model_values = motor_parameters(self.estimates)
-        elif self.variation == 'chapter4':
+            return motor_parameters(self.estimates)
+        model_values = motor_parameters(self.motor) if self.motor is not None else {}
+        if self.variation == 'chapter4':
             model_values.update({k: getattr(CHAPTER4_ESTIMATES, k)
                                  for k in ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr')})
-        if isinstance(self.variation, dict):
+        return model_values
+
+    def _plant_parameters(self, common: dict, v_limit: float, truth_decimation: int) -> dict:
+        """Return the plant's parameters (without the steady start's initial state)."""
+        protection = {k: getattr(self, k) for k in PLANT_PROTECTION
+                      if getattr(self, k) is not None}
+        lp = load_parameters(self.plant_load())
+        mine = motor_parameters(self.motor) if self.motor is not None else {}
+        if isinstance(self.variation, dict):    # variation.<parameter>.* (breakpoints, sines)
             variation = {'variation': 'schedule',
-                         'variation_schedule': json.dumps(self.variation, sort_keys=True)}
+                         **variation_parameters(variation_block(self.variation))}
         else:
             variation = {'variation': self.variation}
         plant = dict(common, **variation, v_limit=v_limit, truth_decimation=int(truth_decimation),
                      **mine, **lp, theta0=float(self.theta0), omega0=float(self.omega0))
         plant.update({k: float(v) for k, v in protection.items()})
-        for key, value in self.plant_blocks().items():      # the real plant (docs/plant.md)
-            if key in TYPED_BLOCKS:         # inverter.enabled, inverter.<field>, ...
-                plant.update(block_parameters(value, key))
-            else:
-                plant[key] = value if key == 'iron_loss' else json.dumps(value, sort_keys=True)
+        plant.update(self._real_plant_parameters())
         if self.current_noise_std or self.speed_noise_std:
             plant.update(current_noise_std=float(self.current_noise_std),
                          speed_noise_std=float(self.speed_noise_std),
                          noise_seed=int(self.noise_seed))
         if self.mode != 'lockstep':
             plant['mode'] = self.mode
-        x0 = obs_x0 = None
-        if self.start == 'steady':
-            x0, obs_x0 = self.initial_state()
-        adaptive = self.controller in ADAPTATION
-        ctl = dict(common, mode=self.task, strategy=self.strategy, use_adapter=adaptive,
-                   v_limit=v_limit, reference_decimation=int(reference_decimation),
-                   load_known=True, **lp_model, **model_values)
+        return plant
+
+    def _real_plant_parameters(self) -> dict:
+        """Return the plant's parameters of the real plant's blocks (docs/plant.md)."""
+        plant: dict = {}
+        for key, value in self.plant_blocks().items():
+            if key in TYPED_BLOCKS:         # inverter.enabled, inverter.<field>, ...
+                plant.update(block_parameters(value, key))
+            elif key == 'iron_loss':
+                plant[key] = value
+            else:                           # the motor's blocks: saturation.*, thermal.*
+                block = saturation_block(value) if key == 'saturation' \
+                    else thermal_from_dict(value)
+                plant.update(block_parameters(block, key))
+        return plant
+
+    def _controller_parameters(self, common: dict, v_limit: float, model_values: dict,
+                               reference_decimation: int) -> dict:
+        """Return the controller's parameters (without the shared additions)."""
+        limits = self.limits()
+        lp_model = load_parameters(self.plant_load().feedforward())     # the controller's
+        ctl = dict(common, mode=self.task, strategy=self.strategy,
+                   use_adapter=self.controller in ADAPTATION, v_limit=v_limit,
+                   reference_decimation=int(reference_decimation), load_known=True, **lp_model,
+                   **model_values)
         if self.profile is not None:
             ctl.update(self.profile.as_parameters())
         ctl.update({k: (v if isinstance(v, bool) else float(v)) for k, v in limits.items()})
@@ -638,29 +846,39 @@ class Scenario:
         if self.current_gain is not None:
             ctl['current_gain'] = [float(g) for g in _flat(self.current_gain)]
             ctl['gain_period'] = float(self.T_s)
-        if x0 is not None:          # plant and observer start in the controller's steady state
-            plant['initial_current'] = [float(obs_x0[0]), float(obs_x0[1])]
-            plant['initial_flux'] = [float(x0[2]), float(x0[3])]
-        obs = dict(common, use_adapter=adaptive, **model_values)
+        return ctl
+
+    def _observer_parameters(self, common: dict, model_values: dict, x0) -> dict:
+        """Return the observer's parameters; ``x0``: its steady start (None: at rest)."""
+        obs = dict(common, use_adapter=self.controller in ADAPTATION, **model_values)
         if x0 is not None:
-            obs['initial_state'] = [float(v) for v in obs_x0]
+            obs['initial_state'] = [float(v) for v in x0]
         if self.observer_gain is not None:
             obs['injection_gain'] = [float(g) for g in _flat(self.observer_gain)]
             obs['gain_period'] = float(self.T_s)
         if self.k_e is not None:
             obs['k_e_injection'] = float(self.k_e)
-        adapter = dict(common, enable=adaptive, **model_values)
-        if 'thermal' in plant:      # the motor's networks: the adapter's thermal_tracking takes
-            adapter['thermal'] = plant['thermal']       # them (docs/adaptation.md §9)
+        return obs
+
+    def _adapter_parameters(self, common: dict, model_values: dict, plant: dict) -> dict:
+        """Return the adapter's parameters (without the shared additions and its law)."""
+        adapter = dict(common, enable=self.controller in ADAPTATION, **model_values)
+        # the motor's networks, thermal.*: the adapter's thermal_tracking takes them
+        adapter.update({k: v for k, v in plant.items() if k.startswith('thermal.')})  # §9
+        return adapter
+
+    def _add_shared_parameters(self, ctl: dict, obs: dict, adapter: dict) -> None:
+        """Add what the drive's nodes share: sensorless, adaptation, curve, delay, compensation."""
         # controller, observer, adapter: the observer's ω̂ replaces the shaft
         if self.sensorless:
             ctl['sensorless'] = obs['sensorless'] = adapter['sensorless'] = True
             obs['initial_speed'] = float(self.omega0) if self.start == 'steady' else 0.0
-        if adaptive:
+        if self.controller in ADAPTATION:
             adapter.update(ADAPTATION[self.controller])
         if self.saturation_model:   # the drive's observer and controller on the curve
-            ctl['saturation_model'] = obs['saturation_model'] = json.dumps(self.drive_curve(),
-                                                                           sort_keys=True)
+            curve = block_parameters(saturation_block(self.drive_curve()), 'saturation_model')
+            ctl.update(curve)
+            obs.update(curve)
         if self.delay:              # the controller predicts across it; observer and adapter
             ctl['delay'] = obs['delay'] = adapter['delay'] = self.delay     # take what acts
         r_inv, c_inv = self.drive_loss()
@@ -670,11 +888,6 @@ class Scenario:
         if comp is not None:        # the controller adds ê(i); observer and adapter subtract it
             for node in (ctl, obs, adapter):
                 node.update(comp.parameters())
-        out = {'plant': plant, 'controller': ctl, 'observer': obs, 'adapter': adapter}
-        for extra in (self.gains, self.parameters):
-            for node, values in (extra or {}).items():
-                out[node].update(values)
-        return out
 
     # The run file --------------------------------------------------------------------------
     @classmethod
@@ -699,7 +912,11 @@ class Scenario:
             over.add(key.split('.')[0])
             _set_dotted(doc, key, value)
         try:
-            return cls(**_fields_from_mapping(doc, base_dir, source))
+            refused = _refused_by_model(doc)
+            run = cls(**_fields_from_mapping(doc, base_dir, source))
+            if refused is not None:     # what the blocks' own parsers took: the model decides
+                raise refused
+            return run
         except InvalidParameter as exc:
             # 'key: inner' is an error inside a referenced file or block (it names itself); a
             # key of the file's own may hold ':' too (unknown: its text is given back as it is)
@@ -830,42 +1047,22 @@ RENAMED = {'load': 'load_model'}
 
 
 def run_keys() -> tuple:
-    """Every key a run file may hold."""
-    names = [f.name for f in fields(Scenario) if f.name not in ('schedule', 'load_model',
-                                                                'current_noise_std',
-                                                                'speed_noise_std', 'noise_seed')]
-    return tuple(names + ['load', 'noise'])
+    """Every key a run file may hold: the run file's model's (:class:`RunFile`)."""
+    return tuple(RunFile.model_fields)
 
 
 def _fields_from_mapping(doc: dict, base_dir: Optional[str], source: str = 'run file') -> dict:
-    keys = run_keys()
     kw = {}
     inline_blocks = {}
 
     def path(value):
         return value if base_dir is None or os.path.isabs(value) else os.path.join(base_dir, value)
 
-    for key, value in doc.items():
-        if key not in keys:
-            near = difflib.get_close_matches(str(key), keys, n=1)
-            raise InvalidParameter(str(key), value, f'unknown run-file key; did you mean '
-                                   f"'{near[0]}'?" if near else 'unknown run-file key (see '
-                                   'docs/running.md)')
-        if key in ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters') \
-                and value is not None and not isinstance(value, (str, Mapping)):
-            raise InvalidParameter(key, value, 'must be a file or a mapping')
+    for key, value in doc.items():      # the keys, their types and bounds: RunFile's, checked
+        if value is None:               # left out, as a key not written
+            continue
         if key == 'noise':
-            if not isinstance(value, Mapping):
-                raise InvalidParameter('noise', value, 'must be a mapping {current, speed, seed}')
-            for k, v in value.items():
-                if k not in NOISE_KEYS:
-                    raise InvalidParameter(f'noise.{k}', v,
-                                           'unknown (current [A], speed [rad/s], seed)')
-                if k == 'seed' and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
-                    raise InvalidParameter('noise.seed', v, 'must be an integer >= 0')
-                if k != 'seed' and (isinstance(v, bool) or not isinstance(v, (int, float))):
-                    raise InvalidParameter(f'noise.{k}', v, 'must be a standard deviation >= 0')
-                kw[NOISE_KEYS[k]] = v
+            kw.update({NOISE_KEYS[k]: v for k, v in value.items()})
             continue
         if key == 'motor' and isinstance(value, Mapping):
             inline_blocks = motor_blocks(value, source='motor')
@@ -941,20 +1138,6 @@ def _read_parameters_file(path: str) -> dict:
             load_parameters_file(path, nodes={n: {} for n in NODES}).items()}
 
 
-def _real(value) -> bool:
-    """Return whether ``value`` is a finite real number as a run file writes one (no bool)."""
-    return (isinstance(value, (int, float)) and not isinstance(value, bool)
-            and math.isfinite(value))
-
-
-def _matrix(value, shape) -> bool:
-    """Return whether ``value`` is a matrix of ``shape`` (rows) of finite real numbers."""
-    rows = value.tolist() if isinstance(value, np.ndarray) else value
-    return (isinstance(rows, (list, tuple)) and len(rows) == shape[0]
-            and all(isinstance(r, (list, tuple)) and len(r) == shape[1]
-                    and all(_real(x) for x in r) for r in rows))
-
-
 def _set_dotted(doc: dict, key: str, value) -> None:
     parts = key.split('.')
     d = doc
@@ -982,6 +1165,154 @@ def _plain(value):
     if isinstance(value, tuple):
         return list(value)
     raise TypeError(f'{value!r} has no run-file form')
+
+
+#: the Scenario fields a run file gives under their own name as plain values (checked by the
+#: run file's model, :meth:`Scenario._check_fields`)
+_PLAIN_FIELDS = ('task', 'strategy', 'controller', 'T_s', 'duration', 'start', 'theta0',
+                 'omega0', 'start_flux', 'inverter_rating', 'sensorless', 'current_gain',
+                 'observer_gain', 'k_e', 'controller_options', 'speed_observer_options',
+                 'core_loss_exponent', 'plant_substep', 'observer_substep', 'mode', 'iron_loss',
+                 'loss_scope') + ZERO_IS_NONE
+
+
+def _plain_value(value):
+    """Return a field's value as a run file writes it (numpy arrays and scalars as lists, ...)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Mapping):
+        return dict(value)
+    if isinstance(value, tuple):
+        return [_plain_value(v) for v in value]
+    if isinstance(value, list):
+        return [_plain_value(v) for v in value]
+    return value
+
+
+#: a location's parts that name a member of a union, not a key (pydantic's "str",
+#: "literal['motor']", a model's name)
+_UNION_TAGS = ('str', 'bool', 'int', 'float', 'list', 'dict')
+
+
+@functools.lru_cache(maxsize=1)
+def _model_names() -> frozenset:
+    """Return the names of the models the run file's is composed of (a union's member tags)."""
+    return frozenset(RunFile.model_json_schema().get('$defs', {}))
+
+
+def _key_path(loc) -> str:
+    """Return the run-file key path of a pydantic error location (``inverter.deadtime``)."""
+    out = ''
+    for part in loc:
+        if isinstance(part, int):
+            out += f'[{part}]'
+        elif part in _UNION_TAGS or '[' in part or part in _model_names():
+            continue
+        else:
+            out += f'.{part}' if out else part
+    return out
+
+
+def _refused_by_model(doc: dict) -> Optional[InvalidParameter]:
+    """
+    Check a run file's mapping against :class:`RunFile`; raise a key's own error at once.
+
+    Valid, the typed blocks (:data:`TYPED_BLOCKS`) in ``doc`` are replaced by their models, which
+    the Scenario takes as they are: the inverter block is parsed once.
+
+    An error inside a value another parser reads (:data:`_READ_BY_THEIR_OWN`: a motor, a
+    variation, ...) is returned (None: none): that parser names it more closely when the value is
+    read, and the caller raises this one if it did not.
+    """
+    try:
+        model = RunFile.model_validate(doc)
+    except ValidationError as exc:
+        errors = exc.errors()
+        # a value of the right kind with an error inside (a union's other kinds refuse it too)
+        nested = [e for e in errors if _nested(e['loc']) or (
+            e['type'] == 'value_error' and e['loc'][0] in _READ_BY_THEIR_OWN)]
+        inside = {e['loc'][0] for e in nested}
+        own = [e for e in errors if e['loc'][0] not in inside]
+        if own:
+            raise _key_error(own, doc) from None
+        mine = [e for e in nested if e['loc'][0] not in _READ_BY_THEIR_OWN]
+        if mine:
+            raise _nested_error(mine[0]) from None
+        return _nested_error(nested[0])
+    for key in TYPED_BLOCKS:            # parsed once: the Scenario takes the model's
+        if doc.get(key) is not None:
+            doc[key] = getattr(model, key)
+    return None
+
+
+#: run-file keys whose values a parser of their own reads (the file, the block, the schedule)
+_READ_BY_THEIR_OWN = ('motor', 'estimates', 'load', 'profile', 'gains', 'parameters',
+                      'variation', 'inverter', 'sensors', 'saturation', 'thermal',
+                      'saturation_model', 'compensation', 'baseline')
+_KINDS = {str: 'a file (a string)', bool: 'true or false', dict: 'a mapping', list: 'a list',
+          float: 'a real number', int: 'a whole number'}
+
+
+def _kinds(annotation) -> str:
+    """Say what a union of kinds a run-file key takes is (``a file (a string) or a mapping``)."""
+    out = []
+    for a in get_args(annotation):
+        if a is type(None):
+            continue
+        if get_origin(a) is Literal:
+            out.append(' or '.join(map(str, get_args(a))))
+        elif get_origin(a) is Union:
+            out.append(_kinds(a))
+        else:
+            base = get_origin(a) or a
+            out.append(_KINDS.get(base, 'a mapping'))
+    return ' or '.join(dict.fromkeys(out))
+
+
+def _nested(loc) -> bool:
+    """Tell whether a pydantic error location is inside a key's value (``inverter.delay``)."""
+    path = _key_path(loc)
+    return '.' in path or '[' in path
+
+
+def _key_error(errors, doc: dict) -> InvalidParameter:
+    """Return the error of a run-file key itself (unknown, of a wrong kind, out of bounds)."""
+    union = [e for e in errors if len(e['loc']) > 1]
+    err = block_error(RunFile, doc, '', [e for e in errors if len(e['loc']) == 1] or errors)
+    if err.reason.startswith('unknown key'):
+        near = difflib.get_close_matches(str(err.name), run_keys(), n=1)
+        return InvalidParameter(err.name, err.value, 'unknown run-file key; did you mean '
+                                f"'{near[0]}'?" if near else 'unknown run-file key (see '
+                                'docs/running.md)')
+    if union and not any(len(e['loc']) == 1 for e in errors):
+        key = union[0]['loc'][0]
+        return InvalidParameter(key, doc.get(key), 'must be '
+                                + _kinds(RunFile.model_fields[key].annotation))
+    return err
+
+
+def _nested_error(err) -> InvalidParameter:
+    """Return the error inside a run-file key's value, named by its key path."""
+    kind, ctx = err['type'], err.get('ctx') or {}
+    rule = ctx.get('error')
+    if kind == 'value_error' and isinstance(rule, InvalidParameter):    # a block's own rule
+        path = _key_path(err['loc'])
+        return InvalidParameter(f'{path}.{rule.name}' if rule.name else path, rule.value,
+                                rule.reason)
+    signs = {'greater_than': '>', 'greater_than_equal': '>=', 'less_than': '<',
+             'less_than_equal': '<='}
+    if kind in signs:
+        reason = f'must be {signs[kind]} {next(iter(ctx.values())):g}'
+    elif kind == 'extra_forbidden':
+        reason = 'unknown key'
+    elif kind == 'missing':
+        reason = 'is missing'
+    else:
+        reason = err['msg'][:1].lower() + err['msg'][1:]
+    return InvalidParameter(_key_path(err['loc']), None if kind == 'missing'
+                            else err.get('input'), reason)
 
 
 __all__ = ['Scenario', 'RunFileError', 'run_keys', 'KINDS']

@@ -28,6 +28,7 @@ from im_bringup.processes import (check_processes, ends_graph, failure_line, gra
                                   run_processes)
 from im_bringup.run_file import RunFileError, Scenario
 from im_common.cli import error as cli_error, parse_args, ros_domain_id
+from im_common.node_params import variation_from_parameters
 from im_common.params import describe_variation, is_motor_name, SCHEDULES
 from im_common.stopping import exit_code_for, StopSignals
 from im_common.yamlio import load_parameters_file, yaml_problem
@@ -258,47 +259,38 @@ def check_launch_outputs(arguments: Mapping[str, str]) -> None:
             check_output(path, inputs, force=True, what=name)
 
 
-def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str = 'nominal',
-                 variation: str = 'none', record: Optional[str] = None, force: bool = False,
+def run_scenario(run, *, record: Optional[str] = None, force: bool = False,
                  progress: bool = True, domain_id: Optional[int] = None,
-                 metadata: Optional[dict] = None, scenario=None,
-                 live_port: Optional[int] = None, log_time: str = 'wall') -> dict:
+                 metadata: Optional[dict] = None, live_port: Optional[int] = None,
+                 log_time: str = 'wall') -> dict:
     """
-    Run one scenario through the lock-step graph; return its summary (figures of merit).
+    Run ``run`` (a :class:`~im_bringup.run_file.Scenario`) through the lock-step graph.
 
+    Return its summary (figures of merit). The graph's parameters, the summary's task,
+    strategy, controller and variation and the bag's ``run`` record all come from ``run``.
     ``log_time``: the recording's log times, ``wall`` or ``simulated``
-    (:func:`im_recording.bag.log_time_offset_for`).
-
-    ``scenario``: the :class:`~im_bringup.run_file.Scenario` the parameters came from (the
-    bag's ``run`` record). ``domain_id``: the ROS domain (default ``ROS_DOMAIN_ID``).
-    ``live_port``: serve every message live on that port too (:mod:`im_bringup.live`).
+    (:func:`im_recording.bag.log_time_offset_for`). ``domain_id``: the ROS domain (default
+    ``ROS_DOMAIN_ID``). ``live_port``: serve every message live on that port too
+    (:mod:`im_bringup.live`).
     """
+    parameters = run.node_parameters()
+    task, strategy, controller = run.task, run.strategy, run.controller
+    variation = plant_variation(parameters)
     # heavy: the in-process graph imports rclpy, im_recording the ROS message packages
     from im_bringup.graph import DriveGraph
-    from im_recording.run import load_step_time
+    from im_recording.recorded_run import load_step_time
     from im_recording.traces import Tap
     writer = None
     if record:
         # heavy: im_recording imports the ROS message packages
         from im_recording.bag import BagWriter, log_time_offset_for
         writer = BagWriter(record, force=force, metadata=run_metadata(
-            task, strategy, controller, variation, metadata, scenario=scenario),
+            task, strategy, controller, variation, metadata, scenario=run),
             log_time_offset_ns=log_time_offset_for(log_time))
     # bounded memory: running figures (a load step's too), no per-step trace
     sink = Tap(writer, keep=False, load_step=load_step_time(parameters=parameters),
                held=held_estimates(parameters))
-    view = None
-    if live_port is not None:
-        from im_bringup.live import LiveTap, LiveView  # heavy: imports the ROS messages
-        try:
-            view = LiveView(port=live_port)
-        except OSError:
-            if writer is not None:
-                writer.discard()
-            raise
-        print(f'live view: {view.url} (Foxglove: Open connection, Foxglove WebSocket)',
-              file=sys.stderr, flush=True)
-        sink = LiveTap(sink, view)
+    sink, view = _live(sink, live_port, writer)
     graph = None
     with StopSignals() as stop:         # a signal only sets a flag: nothing is cut mid-write
         try:
@@ -325,6 +317,27 @@ def run_scenario(parameters: dict, *, task: str, strategy: str, controller: str 
         signal = stop.requested
     summary = summarize(parameters, stats, sink, task=task, strategy=strategy,
                         controller=controller, variation=variation)
+    return _ending(summary, signal, record, writer)
+
+
+def _live(sink, live_port: Optional[int], writer):
+    """Return (the sink, the live view): the sink served on ``live_port`` too, if given."""
+    if live_port is None:
+        return sink, None
+    from im_bringup.live import LiveTap, LiveView  # heavy: imports the ROS messages
+    try:
+        view = LiveView(port=live_port)
+    except OSError:
+        if writer is not None:
+            writer.discard()
+        raise
+    print(f'live view: {view.url} (Foxglove: Open connection, Foxglove WebSocket)',
+          file=sys.stderr, flush=True)
+    return LiveTap(sink, view), view
+
+
+def _ending(summary: dict, signal, record: Optional[str], writer) -> dict:
+    """Add how the run ended to its summary: interrupted, its bag, a failed recording."""
     if signal is not None:
         summary['interrupted'] = signal
         summary['failures'] = {'run': f'interrupted by {signal}'}
@@ -363,10 +376,10 @@ def held_estimates(parameters: dict) -> dict:
     Return the estimates a run without an adapter holds: its controller's model ({}: adaptive).
 
     The summary then compares them with the truth as an adaptive run's (``<n>_hat_final``,
-    ``<n>_true_final``, :func:`im_recording.run.held_model_estimates`), so rows compare.
+    ``<n>_true_final``, :func:`im_recording.recorded_run.held_model_estimates`), so rows compare.
     """
     # heavy: im_recording imports the ROS message packages
-    from im_recording.run import held_model_estimates
+    from im_recording.recorded_run import held_model_estimates
     if parameters.get('controller', {}).get('use_adapter'):
         return {}
     return held_model_estimates(parameters['controller'])
@@ -443,7 +456,7 @@ def plant_variation(parameters: dict) -> str:
     plant = parameters.get('plant', {})
     name = plant.get('variation', 'none')
     if name == 'schedule':
-        return describe_variation(json.loads(plant.get('variation_schedule') or '{}'))
+        return describe_variation(variation_from_parameters(plant) or {})
     if name == 'custom':
         return (f"custom {plant.get('variation_parameter', 'R_r')} "
                 f"{plant.get('variation_kind', 'ramp')}")
@@ -551,12 +564,9 @@ def main(argv=None) -> int:
     if args.processes:
         return _run_processes(args, sc, parameters, out)
     try:
-        summary = run_scenario(parameters, task=args.task, strategy=args.strategy,
-                               controller=args.controller, variation=args.variation,
-                               record=args.record, force=args.force,
+        summary = run_scenario(sc, record=args.record, force=args.force,
                                progress=not args.no_progress, domain_id=args.domain_id,
-                               scenario=sc, live_port=args.live_port,
-                               log_time=args.log_time)
+                               live_port=args.live_port, log_time=args.log_time)
     except (ValueError, OSError, rclpy_errors()) as exc:
         return cli_error('scenario', exc)
     except BagError as exc:         # the recording failed before the run started
@@ -715,7 +725,7 @@ def _recorded_figures(record: str, summary: dict, stopped, failure):
     from im_recording.bag import BagError, partial_path
     from im_recording.recover import load_salvaged
     from im_recording.report import figures_of_merit, refusals, run_status
-    from im_recording.run import load_run
+    from im_recording.recorded_run import load_run
     if os.path.exists(record):
         run = load_run(record)
         fig = figures_of_merit(run)

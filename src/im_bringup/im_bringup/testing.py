@@ -33,7 +33,7 @@ from im_bringup.scenario import held_estimates, plant_variation, run_metadata, s
 from im_common.conversions import s_to_ns_array
 from im_common.host import PRIVATE_DOMAINS
 from im_recording.bag import BagWriter, log_time_offset_for
-from im_recording.run import load_step_time
+from im_recording.recorded_run import load_step_time
 from im_recording.traces import Tap
 import numpy as np
 import pytest

@@ -474,7 +474,7 @@ def joint_state_layout(data) -> Tuple[int, Tuple[Tuple[int, int], ...], int]:
     ``blocks`` = ((offset, count) of position, velocity, effort): each block's doubles start at
     ``offset``. Payloads of one length whose bytes between the frame id and the blocks are equal
     have the same names and counts, hence their values at the same offsets (a batch decoder reads
-    them in one go: :func:`im_recording.run.decode_topic`).
+    them in one go: :func:`im_recording.recorded_run.decode_topic`).
     """
     _, end, fid_end, blocks = _parse_joint_state(data)
     return fid_end, blocks, end

@@ -34,8 +34,8 @@ from . import realtime
 from .cli import error as cli_error
 from .conversions import s_to_ns
 from .lockstep_parts import unknown_parameter
+from .lockstep_protocol import STOPPED, STOPPING, WARNING
 from .node_params import ConfigurationError
-from .run_protocol import STOPPED, STOPPING, WARNING
 from .stopping import StopSignals
 from .yamlio import load_parameters_file, ParametersFileError
 

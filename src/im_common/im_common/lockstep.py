@@ -11,10 +11,10 @@ stamps, never by arrival order, so the same run gives the same numbers whatever 
 The node is a composition of small parts, each in its own module and unit-tested without ROS:
 - :class:`im_common.step_gate.StepGate`: a step's inputs collected by stamp, when a step is
   complete, the steps a follower lost;
-- :class:`im_common.run_protocol.RunProtocol`: which run the node follows, which events concern
-  it, when its part of the run is over (the protocol itself is described there; the roles
-  :class:`~im_common.run_protocol.TimeMaster` and
-  :class:`~im_common.run_protocol.LosslessFollower` too);
+- :class:`im_common.lockstep_protocol.LockstepProtocol`: which run the node follows, which events
+  concern it, when its part of the run is over (the protocol itself is described there; the roles
+  :class:`~im_common.lockstep_protocol.TimeMaster` and
+  :class:`~im_common.lockstep_protocol.LosslessFollower` too);
 - :class:`im_common.signing.NodeSigning`: the tags of its messages and events (keys and tags:
   :mod:`im_common.auth`), and the messages kept for a run not adopted yet;
 - :mod:`im_common.lockstep_parts`: who may publish on its inputs, its readiness, its watchdog;
@@ -39,11 +39,11 @@ from .host import (build_node, EXIT_GRACE_S, flush, init_args_error,  # noqa: F4
 from .lockstep_parts import (crosstalk_text, header_stamp, input_handler, InputWatchdog,
                              logs_refusal, providers, PublisherWatch, Readiness, stall_text,
                              stamp_text, waiting_text, WATCHDOG_TICK_S)
+from .lockstep_protocol import (END_STATES, FAILED, FINISHED, FINISHING, is_master,  # noqa: F401
+                                LockstepProtocol, NOT_STATES, PARAMETERS, READY, RUNNING,
+                                STARTING, STOPPED, STOPPING, WAITING, WARNING)
 from .node_params import ConfigurationError, declare, declare_lockstep, describe  # noqa: F401
 from .qos import data_qos, lockstep_qos, probe_qos, reader, report_qos, status_qos  # noqa: F401
-from .run_protocol import (END_STATES, FAILED, FINISHED, FINISHING, is_master,  # noqa: F401
-                           NOT_STATES, PARAMETERS, READY, RUNNING, RunProtocol, STARTING, STOPPED,
-                           STOPPING, WAITING, WARNING)
 from .signing import NodeSigning
 from .status_channel import StatusChannel
 from .step_gate import finite, LOCKSTEP_DEPTH, StepGate  # noqa: F401
@@ -111,7 +111,7 @@ class LockstepNode(Node):
         self.gate: Optional[StepGate] = None
         self.state, self.period, self.last_step = STARTING, 0, None
         self.inputs: List[str] = []
-        self.protocol, self.free_run, self.scheduling = RunProtocol(), False, 'normal'
+        self.protocol, self.free_run, self.scheduling = LockstepProtocol(), False, 'normal'
         self.watchdog, self.readiness = InputWatchdog(), None
         self.refused = self.rejected = 0            # inputs refused; of them, not decodable/finite
         self.refused_by_topic: Dict[str, int] = {}  # of them, not signed by this graph

@@ -18,7 +18,7 @@ import time
 from typing import Callable, Dict, Iterable, List, Optional
 
 from .conversions import NS_PER_S
-from .run_protocol import READY, RUNNING, WaitClock, watchdog_limit
+from .lockstep_protocol import READY, RUNNING, WaitClock, watchdog_limit
 from .signing import allowed_publishers, foreign_publishers
 from .step_gate import finite
 

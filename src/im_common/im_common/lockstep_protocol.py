@@ -6,7 +6,7 @@ its watchdog waits.
 
 ROS-free (unit-tested without rclpy in ``tests/test_lockstep_parts.py``):
 :class:`im_common.lockstep.LockstepNode` publishes and receives the events on ``/im/status`` and
-asks a :class:`RunProtocol` what they mean.
+asks a :class:`LockstepProtocol` what they mean.
 
 Run protocol (``/im/status``, one ``diagnostic_msgs/DiagnosticArray`` per event):
 - *startup*: each node publishes ``waiting`` and, once every one of its inputs has a publisher in
@@ -58,7 +58,7 @@ def is_master(values: dict) -> bool:
     return values.get('time_master') == 'true'
 
 
-class RunProtocol:
+class LockstepProtocol:
     """
     One node's view of the run: the run it follows, its time master's last state, its peers.
 

@@ -1,12 +1,12 @@
 """
 A node's run-protocol channel: its events out on ``/im/status``, the graph's in, probe echoes.
 
-The rclpy side of :class:`im_common.run_protocol.RunProtocol` for one
+The rclpy side of :class:`im_common.lockstep_protocol.LockstepProtocol` for one
 :class:`im_common.lockstep.LockstepNode`: events are tagged with the graph's key
 (:meth:`im_common.signing.NodeSigning.status_tag`) and published through the node's own (tapped)
 publisher; an event received that does not verify is named once per sender and never acted on;
-one that concerns the node (:meth:`RunProtocol.accept`) goes to ``node.on_peer_status``. A node
-that is not the time master echoes the time master's free_run probes of the run it follows.
+one that concerns the node (:meth:`LockstepProtocol.accept`) goes to ``node.on_peer_status``. A
+node that is not the time master echoes the time master's free_run probes of the run it follows.
 """
 from __future__ import annotations
 

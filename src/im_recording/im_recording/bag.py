@@ -8,9 +8,10 @@ hard kill costs).
 Reading
 -------
 :func:`read_messages` yields deserialized rclpy messages; :func:`iter_raw` yields raw CDR;
-:func:`im_recording.run.load_run` turns a recording into a :class:`~im_recording.run.Run` (trace
-arrays in the :mod:`im_common.metrics` format, the final energy books, the metadata). Any
-unreadable, truncated or missing file raises :class:`BagError` naming the file and what is wrong.
+:func:`im_recording.recorded_run.load_run` turns a recording into a
+:class:`~im_recording.recorded_run.RecordedRun` (trace arrays in the :mod:`im_common.metrics`
+format, the final energy books, the metadata). Any unreadable, truncated or missing file raises
+:class:`BagError` naming the file and what is wrong.
 
 Where it lives
 --------------

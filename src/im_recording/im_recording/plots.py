@@ -1,10 +1,10 @@
 """
 PNG figures of recorded runs in the style of seed 000 (Figures 3.4-3.13 and 4.7-4.15).
 
-Each function takes a list of :class:`~im_recording.run.Run` (one run, or several overlaid for a
-comparison), writes one PNG and returns its path, or None when the runs lack the data. matplotlib
-is imported lazily with the Agg backend, so importing this module costs nothing and needs no
-display.
+Each function takes a list of :class:`~im_recording.recorded_run.RecordedRun` (one run, or several
+overlaid for a comparison), writes one PNG and returns its path, or None when the runs lack the
+data. matplotlib is imported lazily with the Agg backend, so importing this module costs nothing
+and needs no display.
 
 =====================  ====================================================================
 file                   thesis figures

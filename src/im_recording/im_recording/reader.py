@@ -5,9 +5,9 @@ What a file holds (:func:`info`), its messages raw (:func:`iter_raw`) or deseria
 (:func:`read_messages`), its data CRC (:func:`check_data_crc`).
 
 Stamps are simulated time whichever log times the file holds (its ``log_time`` record,
-:func:`im_recording.metadata.log_time_offset`); :func:`im_recording.run.load_run` turns a
-recording into a :class:`~im_recording.run.Run`. Any unreadable, truncated or missing file raises
-:class:`~im_recording.files.BagError` naming the file and what is wrong.
+:func:`im_recording.metadata.log_time_offset`); :func:`im_recording.recorded_run.load_run` turns a
+recording into a :class:`~im_recording.recorded_run.RecordedRun`. Any unreadable, truncated or
+missing file raises :class:`~im_recording.files.BagError` naming the file and what is wrong.
 """
 from __future__ import annotations
 

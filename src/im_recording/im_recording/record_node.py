@@ -50,8 +50,8 @@ from im_common.conversions import NS_PER_S
 from im_common.host import (enable_stack_dump, end_process, flush, make_executor, ProcessHost,
                             request_stop)
 from im_common.lockstep import LockstepNode, READY, stamp_text
+from im_common.lockstep_protocol import is_master, LosslessFollower
 from im_common.qos import recorder as recorder_qos, writer as writer_qos
-from im_common.run_protocol import is_master, LosslessFollower
 from im_common.step_gate import LOCKSTEP_DEPTH
 from im_common.stopping import StopSignals
 import rclpy

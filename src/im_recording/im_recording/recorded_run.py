@@ -1,5 +1,5 @@
 """
-A recording turned into analysis arrays: :func:`load_run` -> :class:`Run`.
+A recording turned into analysis arrays: :func:`load_run` -> :class:`RecordedRun`.
 
 The trace follows the :mod:`im_common.metrics` format: equal-length 1-D arrays sampled at the
 control instants t_k (the stamps of ``/im/measured/current``), every topic aligned on its header
@@ -95,7 +95,7 @@ PARAM_KEYS = ('R_s', 'R_r', 'L_s', 'L_r', 'L_sr', 'theta', 'L_M', 'R_R')
 
 
 @dataclass
-class Run:
+class RecordedRun:
     """One recording, ready for analysis."""
 
     path: str
@@ -792,13 +792,14 @@ def load_step_time(metadata: Optional[dict] = None,
 
 
 def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full',
-               limit: int = 10000, types: Optional[dict] = None) -> Run:
+               limit: int = 10000, types: Optional[dict] = None) -> RecordedRun:
     """
     Analyse a run from its ``(topic, payload)`` pairs.
 
-    Return a :class:`Run` from ``(topic, payload)`` pairs in stamp order, in bounded memory unless
-    ``trace='full'`` (every row kept); ``'decimated'`` keeps about ``limit``-``2·limit`` rows for
-    the plots, None none. The figures always cover every control instant.
+    Return a :class:`RecordedRun` from ``(topic, payload)`` pairs in stamp order, in bounded
+    memory unless ``trace='full'`` (every row kept); ``'decimated'`` keeps about
+    ``limit``-``2·limit`` rows for the plots, None none. The figures always cover every control
+    instant.
     """
     books = TruthBooks()
     figs = RunningFigures(lockstep_topics=lockstep_topics(),
@@ -816,13 +817,13 @@ def stream_run(messages, path: str, metadata: dict, trace: Optional[str] = 'full
         stream.add(topic, data)
     stream.flush(final=True)
     tr = keeper.trace() if keeper is not None else {}
-    return Run(str(path), tr, books.final(), metadata, dict(stream.counts), dict(types or {}),
-               running=figs, late=stream.late, events=events.events)
+    return RecordedRun(str(path), tr, books.final(), metadata, dict(stream.counts),
+                       dict(types or {}), running=figs, late=stream.late, events=events.events)
 
 
-def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> Run:
+def load_run(path, trace: Optional[str] = 'full', limit: int = 10000) -> RecordedRun:
     """
-    Read a recording into a :class:`Run`; :class:`~im_recording.bag.BagError` if unreadable.
+    Read a recording into a :class:`RecordedRun`; :class:`~im_recording.bag.BagError` if not.
 
     ``trace``: 'full' (every control instant), 'decimated' (about ``limit`` rows, what the
     report's plots need) or None; the figures cover the whole run either way. Every CRC is

@@ -68,7 +68,7 @@ from .mcap_records import (CHUNK_HEAD, chunk_records, COMPRESSIONS, Damage, exac
                            OP_METADATA_INDEX, OP_SCHEMA, OP_STATISTICS, OP_SUMMARY_OFFSET,
                            parse_attachment, parse_channel, parse_message_index, parse_metadata,
                            parse_schema, read_string, REC, U32, U64)
-from .run import load_run
+from .recorded_run import load_run
 
 #: records that parse but prove nothing (Message Index, Channel, ...) accepted in a row while
 #: resynchronising before a CRC-checked record or the end of the file must vouch for them
@@ -1019,12 +1019,13 @@ def _reason(scan, whole: bool, tail, dropped: int, total, n_lost) -> str:
 
 def load_salvaged(path, trace: Optional[str] = None):
     """
-    Return (the :class:`~im_recording.run.Run` of what was saved, :func:`recover`'s result).
+    Return (the :class:`~im_recording.recorded_run.RecordedRun` of what was saved, its recovery).
 
     For a recording whose writer failed or was killed (``path`` or its ``.part``): its intact
-    records are recovered into a temporary directory, read by :func:`~im_recording.run.load_run`
-    (the figures of every step the file holds, the ``recovered_from`` record) and removed; the
-    input is untouched. :class:`BagError` when nothing can be salvaged.
+    records are recovered into a temporary directory, read by
+    :func:`~im_recording.recorded_run.load_run` (the figures of every step the file holds, the
+    ``recovered_from`` record) and removed; the input is untouched. :class:`BagError` when nothing
+    can be salvaged.
     """
     with tempfile.TemporaryDirectory(prefix='im_salvage_') as d:
         out = Path(d) / 'salvaged.mcap'

@@ -49,7 +49,7 @@ import numpy as np
 import yaml
 
 from .bag import BagError, BagWriter, check_data_crc, check_output, info, iter_raw
-from .run import REEST_CURRENT, REEST_FLUX
+from .recorded_run import REEST_CURRENT, REEST_FLUX
 
 
 # ------------------------------------------------------------------------------------------

@@ -22,13 +22,13 @@ from typing import Dict, List, Sequence
 
 from im_common import topics as T
 from im_common.cli import error as cli_error, parse_args
+from im_common.lockstep_protocol import FAILED, FINISHED, STOPPED
 from im_common.metrics import balance_relative, energy_figures, LOAD_STEP_BAND
-from im_common.run_protocol import FAILED, FINISHED, STOPPED
 import numpy as np
 
 from .bag import BagError, check_output, write_atomic
 from .plots import all_figures
-from .run import load_run, RunningFigures
+from .recorded_run import load_run, RunningFigures
 
 # (key, label, unit) rows of the table, in order; absent keys are skipped.
 ROWS = [
@@ -99,8 +99,8 @@ def figures_of_merit(run) -> Dict[str, float]:
     """
     Every figure of merit a run's recording supports, over every control instant.
 
-    From the run's running figures when it was streamed (:func:`im_recording.run.stream_run`),
-    else from its trace.
+    From the run's running figures when it was streamed
+    (:func:`im_recording.recorded_run.stream_run`), else from its trace.
     """
     acc = run.running
     if acc is None:

@@ -24,7 +24,7 @@ import time
 from typing import Callable, Dict, Iterable, List, Mapping, Optional
 
 from im_common import topics as T
-from im_common.run_protocol import ENDED, FINISHED, LosslessFollower
+from im_common.lockstep_protocol import ENDED, FINISHED, LosslessFollower
 
 from .bag import BagError, parameters_metadata
 
@@ -138,9 +138,9 @@ class RecordingSession:
         Lock-step topics every run has (counted even when nothing came on them).
     announced : callable returning the lock-step topics the run's nodes announced
         (also counted when nothing came).
-    run : the run's start and end as followed (:class:`~im_common.run_protocol.LosslessFollower`,
-        the one home of them: a recorder node passes its own; default a new one fed by
-        :meth:`master_event`).
+    run : the run's start and end as followed
+        (:class:`~im_common.lockstep_protocol.LosslessFollower`, the one home of them: a recorder
+        node passes its own; default a new one fed by :meth:`master_event`).
 
     """
 

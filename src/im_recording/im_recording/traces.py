@@ -2,13 +2,15 @@
 Live capture of a graph run.
 
 The serialized messages every node publishes, summarized while the run goes into the same
-:class:`im_recording.run.Run` a recording gives — so the scenario's summary and the report of its
-MCAP are computed by the same code (:class:`im_recording.run.RunningFigures` behind
+:class:`im_recording.recorded_run.RecordedRun` a recording gives — so the scenario's summary and
+the report of its MCAP are computed by the same code
+(:class:`im_recording.recorded_run.RunningFigures` behind
 :func:`im_recording.report.figures_of_merit`).
 
 Memory stays bounded: the payloads are decoded and folded into running sums every
-:attr:`im_recording.run.TraceStream.batch` messages and then dropped; the per-step trace is kept
-only when asked (``keep=True``: every row, for tests; ``keep='decimated'``: a few thousand rows).
+:attr:`im_recording.recorded_run.TraceStream.batch` messages and then dropped; the per-step
+trace is kept only when asked (``keep=True``: every row, for tests; ``keep='decimated'``: a few
+thousand rows).
 """
 from __future__ import annotations
 
@@ -17,8 +19,8 @@ from typing import Optional, Union
 from im_common.cdr import encode, header_stamp_ns
 from im_common.topics import RECORDED_TOPICS
 from im_recording.bag import BagError
-from im_recording.run import (lockstep_topics, Run, RunningFigures, TraceKeeper,
-                              TraceStream, TruthBooks)
+from im_recording.recorded_run import (lockstep_topics, RecordedRun, RunningFigures, TraceKeeper,
+                                       TraceStream, TruthBooks)
 from im_recording.session import RecordingSession
 
 #: the ``recorder`` record's ``node`` of a recording made in-process (im_bringup.graph)
@@ -96,11 +98,11 @@ class Tap:
             self.on_error(self.error)
 
     def run(self, metadata: Optional[dict] = None, path: str = '<live>'):
-        """Return the captured run as a :class:`im_recording.run.Run` (ends the capture)."""
+        """Return the capture as a :class:`~im_recording.recorded_run.RecordedRun` (ends it)."""
         if self._run is None:
             self.stream.flush(final=True)
             tr = self.keeper.trace() if self.keeper is not None else {}
-            self._run = Run(path, tr, self.books.final(), metadata or {},
-                            dict(self.stream.counts), running=self.figures,
-                            late=self.stream.late)
+            self._run = RecordedRun(path, tr, self.books.final(), metadata or {},
+                                    dict(self.stream.counts), running=self.figures,
+                                    late=self.stream.late)
         return self._run

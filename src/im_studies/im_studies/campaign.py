@@ -42,7 +42,7 @@ import numpy as np
 from .campaign_journal import JOURNAL, Journal, prepare_out, versions
 from .campaign_pool import log_progress, Pool, wall_line, WallTime
 from .campaign_report import summarize, write_parquet, write_report
-from .campaign_spec import (gain_arguments, graph_parameters, jobs, read_spec, run_job, spec_hash,
+from .campaign_spec import (gain_arguments, graph_scenario, jobs, read_spec, run_job, spec_hash,
                             SpecError)
 
 _log = logger('campaign')
@@ -147,9 +147,7 @@ def _run_alone(spec: dict, args) -> int:
     job = all_jobs[args.run]
     gains = gain_arguments(spec)
     if args.record:
-        s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
-                         strategy=job['strategy'], controller=job['controller'],
-                         record=args.record,
+        s = run_scenario(graph_scenario(job, spec, gains), record=args.record,
                          progress=not args.no_progress)
         print(f"recorded {args.record}; ok={s.get('ok')}, E_in = {s.get('E_in_J')}")
         return 0

@@ -18,7 +18,7 @@ from typing import Dict, List, Optional
 
 from im_adapt.adaptation import AdaptationGains
 from im_adapt.hook import LockstepAdapter
-from im_bringup.config import ADAPTATION, node_parameters
+from im_bringup.config import ADAPTATION
 from im_bringup.offline import gain_arguments_from_parameters, Scenario, simulate
 from im_bringup.scenario import run_scenario
 from im_common.loads import load_file
@@ -386,19 +386,19 @@ def adapter_for(job: dict, spec: dict):
                                  sensorless=bool(job.get('sensorless')))
 
 
-def graph_parameters(job: dict, spec: dict, gains: dict) -> dict:
-    """Node parameters of one job for the ROS graph (the same run as :func:`scenario_for`)."""
+def graph_scenario(job: dict, spec: dict, gains: dict):
+    """
+    Return the run of one job on the ROS graph (the same run as :func:`scenario_for`).
+
+    The gains as the designed node parameters ({node: {parameter: value}}), merged last.
+    """
     base = base_motor(spec)
-    params = node_parameters(job['task'], job['strategy'], job['controller'], 'none', job['T_s'],
-                             spec['duration'],
-                             motor=base.with_values(**{k: job[k] for k in DRAWN}),
-                             estimates=base,
-                             load=None if job['load'] == 'task' else job['load'],
-                             profile=None if job['profile'] == 'task' else job['profile'],
-                             sensorless=bool(job.get('sensorless')))
-    for node, values in gains[job['gain_set']].items():
-        params[node].update(values)
-    return params
+    return Scenario(task=job['task'], strategy=job['strategy'], controller=job['controller'],
+                    T_s=job['T_s'], duration=spec['duration'],
+                    motor=base.with_values(**{k: job[k] for k in DRAWN}), estimates=base,
+                    load_model=None if job['load'] == 'task' else job['load'],
+                    profile=None if job['profile'] == 'task' else job['profile'],
+                    sensorless=bool(job.get('sensorless')), gains=gains[job['gain_set']])
 
 
 def run_job(job: dict, spec: dict, gains: dict, alone: bool = False) -> dict:
@@ -419,9 +419,7 @@ def run_job(job: dict, spec: dict, gains: dict, alone: bool = False) -> dict:
     t0 = time.perf_counter()
     try:
         if spec['mode'] == 'graph':
-            s = run_scenario(graph_parameters(job, spec, gains), task=job['task'],
-                             strategy=job['strategy'], controller=job['controller'],
-                             progress=False,
+            s = run_scenario(graph_scenario(job, spec, gains), progress=False,
                              domain_id=None if alone else 150 + job['index'] % 80)
             s.pop('_run', None)
             if not s.get('ok', True) and not s.get('trip'):

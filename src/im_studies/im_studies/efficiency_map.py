@@ -46,13 +46,14 @@ import time
 from typing import List, Optional
 
 from im_bringup.offline import simulate
-from im_bringup.run_file import RunFileError, Scenario
+from im_bringup.run_file import RunFile, RunFileError, Scenario
 from im_common.cli import error as cli_error, logger, parse_args
 from im_common.loads import ConstantLoad
 from im_common.yamlio import read_yaml_file, YamlFileError
 from im_controller.profiles import Profile
 from im_recording.bag import write_atomic
 import numpy as np
+from pydantic import Field
 
 from .campaign_journal import JOURNAL, Journal, prepare_out
 from .campaign_pool import log_progress, one_line, Pool
@@ -69,6 +70,30 @@ STORAGE_BAND = 0.01
 SETTLE_S = 0.5
 WINDOW_S = 0.25
 POINT_SETS = ('grid', 'iec', 'both')
+
+
+class MapEntry(RunFile):
+    """One drive of an efficiency map: run-file keys over the file's, and its label."""
+
+    model_config = dict(RunFile.model_config, title='a drive of the map')
+
+    label: Optional[str] = Field(None, description="the drive's name in the map (left out: "
+                                 'from the keys it sets)')
+
+
+class MapFile(RunFile):
+    """
+    An efficiency-map file: a run file, and the drives to map (docs/efficiency.md).
+
+    Its JSON Schema (im_studies.schemas) is what an editor checks; :func:`read_map_file` reads
+    each drive through :meth:`Scenario.from_mapping` (the run file's model and rules).
+    """
+
+    model_config = dict(RunFile.model_config, title='IM drive efficiency-map file')
+
+    compare: Optional[List[MapEntry]] = Field(
+        None, min_length=1, description='the drives mapped, each the run file with these keys '
+        'over it (left out: the run file alone)')
 
 
 class MapFileError(ValueError):

@@ -24,7 +24,6 @@ import os
 import sys
 from typing import List, Optional
 
-from im_bringup.config import node_parameters
 from im_bringup.offline import Scenario
 from im_bringup.scenario import run_scenario
 from im_common.cli import parse_args
@@ -64,7 +63,7 @@ def start_flux(task: str, strategy: str) -> float:
     It is 0 from rest (demagnetized), else the controller's own steady state (the plant's
     initial_flux parameter).
     """
-    flux = node_parameters(task, strategy)['plant'].get('initial_flux')
+    flux = Scenario(task=task, strategy=strategy).node_parameters()['plant'].get('initial_flux')
     return 0.0 if flux is None else math.hypot(*flux)
 
 
@@ -125,20 +124,15 @@ def run_one(item) -> dict:
     graphs never share one.
     """
     n, spec, out_dir, record = item
-    spec = dict(spec)
-    extra = spec.pop('parameters', None)
-    params = node_parameters(spec['task'], spec['strategy'], spec['controller'],
-                             spec.get('variation', 'none'), spec['T_s'], spec.get('duration'))
-    for node, values in (extra or {}).items():
-        params[node].update(values)
+    run = Scenario(task=spec['task'], strategy=spec['strategy'], controller=spec['controller'],
+                   variation=spec.get('variation', 'none'), T_s=spec['T_s'],
+                   duration=spec.get('duration'), parameters=spec.get('parameters'))
     bag = None
     if record:
         bag = os.path.join(out_dir, f"{spec['task']}_{spec['strategy']}_{spec['controller']}_"
                                     f"{spec.get('variation', 'none')}_"
                                     f"{1.0 / spec['T_s']:g}Hz.mcap")
-    s = run_scenario(params, task=spec['task'], strategy=spec['strategy'],
-                     controller=spec['controller'], variation=spec.get('variation', 'none'),
-                     record=bag, force=True, progress=False, domain_id=150 + n % 80)
+    s = run_scenario(run, record=bag, force=True, progress=False, domain_id=150 + n % 80)
     s.pop('_run', None)
     return s
 
