@@ -79,7 +79,7 @@ REPORTS = tuple(t for t in T.SIGNED_TOPICS if t not in T.LOCKSTEP_TOPICS
 class _Defaults:
     """Stand in for a node while declaring its parameters: every parameter keeps its default."""
 
-    def param(self, name, default, *args):
+    def param(self, name, default, *args, **kwargs):
         return default
 
 

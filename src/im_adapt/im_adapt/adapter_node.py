@@ -28,7 +28,7 @@ from im_common.conversions import JointStateOut, period_ns, shaft_in, xy_in
 from im_common.lockstep import LockstepNode, node_main, PARAMETERS, StepGate
 from im_common.node_params import (declare_compensation, declare_delay, declare_motor,
                                    declare_run, live_refusal)
-from im_common.params import InvalidParameter, motor_blocks
+from im_common.params import InvalidParameter
 from im_common.qos import writer
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
@@ -62,14 +62,13 @@ class AdapterNode(LockstepNode):
                      'sensorless they are the estimates, sensored they move the least-squares '
                      "estimates between updates (R_s the stator network's alone unless "
                      'estimate_stator_resistance; law improved; docs/adaptation.md §9)')
-        if tracking and not blocks.get('thermal'):
+        if tracking and blocks.get('thermal') is None:
             raise InvalidParameter('thermal_tracking', True, "needs the motor file's thermal "
                                    'block (run-file key thermal: motor)')
         if tracking and not self.law.improved:
             raise InvalidParameter('thermal_tracking', True, "needs law 'improved' (law "
                                    "'thesis' estimates neither R_s nor R_R's temperature)")
-        thermal = (motor_blocks({'thermal': blocks['thermal']}, 'adapter motor')['thermal']
-                   if tracking else None)
+        thermal = blocks['thermal'] if tracking else None      # thermal.*: a Thermal
         if sensorless or tracking:  # sensorless: R_R and the speed meet only in the slip
             self.law = ParameterAdapter(params, self.law.gains, R_r0, theta0,
                                         sensorless=sensorless, thermal=thermal)

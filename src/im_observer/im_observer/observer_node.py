@@ -28,7 +28,7 @@ from im_common.node_params import (declare_compensation, declare_delay, declare_
                                    declare_run, declare_saturation_model)
 from im_common.qos import writer
 from im_observer.observer import RotorFluxObserver
-from im_observer.parameters import check_gain_period, declare_observer
+from im_observer.parameters import declare_observer, observer_config
 from im_observer.speed_observer import SpeedAdaptiveObserver
 from sensor_msgs.msg import JointState
 
@@ -46,23 +46,22 @@ class ObserverNode(LockstepNode):
         super().__init__('observer', **kwargs)
         self.T_s, self.duration, timeout, startup = declare_run(self)
         params = declare_motor(self, what='observer model (nominal estimates)')
-        v = declare_observer(self)
-        check_gain_period(v, self.T_s)
-        self.use_adapter = v['use_adapter']
-        self.publish_every = v['estimate_decimation']
-        self.sensorless = v['sensorless']
+        cfg = observer_config(declare_observer(self), self.T_s)
+        self.use_adapter = cfg.use_adapter
+        self.publish_every = cfg.estimate_decimation
+        self.sensorless = cfg.sensorless
         self.obs = (SpeedAdaptiveObserver if self.sensorless else RotorFluxObserver)(
-            params, k_e=v['k_e_injection'] or None, max_substep=v['max_substep'],
-            x0=tuple(v['initial_state']), injection_gain=v['injection_gain'],
-            gain_period=v['gain_period'] or None, inverter_error=declare_compensation(self),
-            **({'omega0': v['initial_speed']} if self.sensorless else {}))
+            params, k_e=cfg.k_e_injection, max_substep=cfg.max_substep,
+            x0=cfg.initial_state, injection_gain=cfg.injection_gain,
+            gain_period=cfg.gain_period or None, inverter_error=declare_compensation(self),
+            **({'omega0': cfg.initial_speed} if self.sensorless else {}))
         self.delay, lag = declare_delay(self)
         self.overlapped = bool(lag)     # the gate gives the acting command: no line to push
         # the drive on the magnetizing curve: the next step's model at the flux it now has
         self.saturated = declare_saturation_model(self, params)
         if self.saturated is not None and self.use_adapter:
-            raise ValueError("invalid parameter 'saturation_model': with use_adapter the "
-                             'adapter tracks L_M itself; choose one')
+            raise ValueError("invalid parameter 'saturation_model.enabled': with use_adapter "
+                             'the adapter tracks L_M itself; choose one')
         if self.saturated is not None:      # from the start: the model at the initial flux
             x0 = self.obs.state
             self.obs.set_estimates(**self.saturated.estimates(x0[2], x0[3]))
