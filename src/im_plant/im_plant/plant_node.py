@@ -42,12 +42,12 @@ from im_common.auth import progress_payload, Signer, split_frame
 from im_common.conversions import (clock_bytes, JointStateOut, NS_PER_S, period_ns, Vector3Out,
                                    xy_in)
 from im_common.lockstep import LockstepNode, node_main, stamp_text, StepGate
+from im_common.lockstep_protocol import (DRAINING, FINISHED, JOINED, LEFT, MASTER_STEPPING,
+                                         PARAMETERS, RUNNING, STOP, STOPPED, TimeMaster, WAITING,
+                                         YIELD)
 from im_common.node_params import declare_overlap, declare_run
 from im_common.params import describe_defaults
 from im_common.qos import reader, writer
-from im_common.run_protocol import (DRAINING, FINISHED, JOINED, LEFT, MASTER_STEPPING,
-                                    PARAMETERS, RUNNING, STOP, STOPPED, TimeMaster, WAITING,
-                                    YIELD)
 from im_common.step_gate import LOCKSTEP_DEPTH
 from im_common.timing import assess_probe, DeadlineWatchdog, LatencyHistogram
 from im_plant.parameters import declare_plant, simulator_from_parameters
@@ -62,9 +62,21 @@ class PlantNode(LockstepNode):
     time_master = True
 
     def __init__(self, **kwargs):
+        """Declare the parameters, build the simulator, the time master and the topics."""
         super().__init__('plant', **kwargs)
         self.T_s, self.duration, timeout, startup = declare_run(self)
         values = declare_plant(self)
+        self._setup_modes(values)
+        self._setup_simulator(values)
+        self._setup_master(timeout)
+        self._setup_free_run()
+        self._setup_publishers()
+        self._setup_truth_outputs(values)
+        self._setup_inputs()
+        self.start_protocol(timeout, startup)
+
+    def _setup_modes(self, values: dict) -> None:
+        """Take the run's mode, pacing, deadline and decimation parameters."""
         self.mode = values['mode']
         self.max_lag = values['max_lag']
         self.force_rate = values['force_rate']
@@ -73,6 +85,9 @@ class PlantNode(LockstepNode):
         self.event_context = {'mode': self.mode}    # a free_run follower goes real-time early
         self.clock_every = values['clock_decimation']
         self.truth_every = values['truth_decimation']
+
+    def _setup_simulator(self, values: dict) -> None:
+        """Build the simulator from the parameters; the period, the last step, the overlap."""
         self.sim = simulator_from_parameters(values, self.T_s, self.duration)
         if self.sim.from_ratings:
             self.get_logger().info(describe_defaults(self.sim.from_ratings))
@@ -84,6 +99,9 @@ class PlantNode(LockstepNode):
                         and self.mode == 'lockstep')
         self._last_entered = -1     # overlapped: the step of the last command entered
         self._final_wait = False    # overlapped: the last step published, its commands not all in
+
+    def _setup_master(self, timeout) -> None:
+        """Declare the lock-step partners' parameters and make the time master."""
         self.wait_for = self.param(
             'wait_for', 'controller observer',
             'names of the nodes that must be ready before step 0, separated by spaces (add '
@@ -100,7 +118,9 @@ class PlantNode(LockstepNode):
         self.master.on_dropped = self._follower_dropped
         self.truth_sink = None      # in-process recorder hook: f(ns, truth_dict)
         self.wall_start = None      # wall time of the first step (for the steps/s report)
-        # free_run deadline accounting
+
+    def _setup_free_run(self) -> None:
+        """Zero the free_run deadline accounting."""
         self.missed = 0             # steps whose command had not arrived by the deadline
         self.late = 0               # commands that arrived after their deadline (dropped)
         self.overruns = 0           # ticks the plant itself was late for (caught up)
@@ -111,6 +131,8 @@ class PlantNode(LockstepNode):
         self._ok_since = None
         self._after_end_said = False
 
+    def _setup_publishers(self) -> None:
+        """Create the measurements', the clock's and the truth's publishers."""
         self.pub_current = self.create_publisher(Vector3Stamped, T.MEAS_CURRENT,
                                                  writer(T.MEAS_CURRENT))
         self.pub_shaft = self.create_publisher(*_js(), T.MEAS_SHAFT, writer(T.MEAS_SHAFT))
@@ -123,6 +145,9 @@ class PlantNode(LockstepNode):
             ('shaft', js, T.TRUTH_SHAFT), ('peaks', js, T.TRUTH_PEAKS),
             # published when the motor has a thermal block / the run an inverter block
             ('temperature', js, T.TRUTH_TEMPERATURE), ('inverter', js, T.TRUTH_INVERTER))}
+
+    def _setup_truth_outputs(self, values: dict) -> None:
+        """Make the measurement and truth messages (the real plant's blocks' only with them)."""
         # the real plant's truth (docs/plant.md): published only with the blocks that make it (the
         # publishers exist on every plant: the SROS2 policy is read off a default node)
         real = self.sim.real
@@ -147,6 +172,8 @@ class PlantNode(LockstepNode):
                                 if self.out_inv is not None else ()))
         self.out_en = JointStateOut(self.energy_names, Signer.frame(''))
 
+    def _setup_inputs(self) -> None:
+        """Gate the voltage command; subscribe the progress and probe echoes, live parameters."""
         self.gate = StepGate([T.CMD_VOLTAGE], self.period)
         self.last_cmd = (0.0, 0.0)
         # the command input: verified, decoded, finite (else the previous command is held; before
@@ -159,7 +186,6 @@ class PlantNode(LockstepNode):
         self._load_offset_next = None       # a live load_offset staged for the next step
         # load_offset's descriptor refuses a value of another type or out of range, one line
         self.add_post_set_parameters_callback(self._after_set_parameters)
-        self.start_protocol(timeout, startup)
 
     # Live parameters -------------------------------------------------------------------
     def _after_set_parameters(self, parameters) -> None:

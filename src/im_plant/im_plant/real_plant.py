@@ -304,7 +304,8 @@ class RealPlant:
 
         It applies to a constant parameter schedule (the temperatures aside) and the loads of
         :data:`_LOADS`; the rest steps as before (the events and intervals compiled, the
-        predictions and the blocks in Python).
+        predictions and the blocks in Python). The array's blocks are packed in turn: the
+        inverter, the motor, the saturation curve, the thermal model, the sensors, the load.
         """
         mdl = self.model
         live = mdl.load
@@ -316,19 +317,37 @@ class RealPlant:
         kind, lp0, lp1, lp2 = _LOADS[type(inner)](inner)
         sat = self.saturation
         n_sat = 0 if sat is None or sat.table is None else len(sat.table[0])
+        n_load = self._whole_table(sat, n_sat, kind, inner)
+        se = self.sensors
+        window = se.speed_window if se is not None and se.encoder_lines > 0 else 0
+        w = np.zeros(K.HIST + window + 1, dtype=np.float64)
+        self._pack_inverter(w)
+        self._pack_motor(w, base)
+        self._pack_saturation(w, sat, n_sat)
+        self._pack_thermal(w)
+        self._pack_sensors(w, se, window)
+        self._pack_load(w, kind, lp0, lp1, lp2, n_load)
+        self._w = w
+        self._live = live
+        if self.use_kernel:
+            _kernel.warm()
+
+    def _whole_table(self, sat, n_sat: int, kind: float, inner) -> int:
+        """Make the kernel's table (the saturation's knots, a schedule's points); return n_load."""
         cols = []
         if n_sat:
             psi, cur, slopes, energy = sat.knots()
             cols = list(psi) + list(cur) + list(slopes) + [0.0] + list(energy)
         n_load = 0
-        if kind == K.LOAD_SCHEDULE:
+        if kind == _kernel.LOAD_SCHEDULE:
             n_load = len(inner.points)
             cols += [p[0] for p in inner.points] + [p[1] for p in inner.points]
         self._tab = np.array(cols + [0.0], dtype=np.float64)
-        se = self.sensors
-        window = se.speed_window if se is not None and se.encoder_lines > 0 else 0
-        w = np.zeros(K.HIST + window + 1, dtype=np.float64)
-        p = mdl.params
+        return n_load
+
+    def _pack_inverter(self, w) -> None:
+        """Pack the period's timing and the inverter's block (PWM, dead time, DC link)."""
+        K = _kernel
         inv = self.inverter
         w[K.T_S] = self.T_s
         w[K.N_SUB] = self.n_sub
@@ -344,6 +363,12 @@ class RealPlant:
             w[K.V_CHOP] = inv.V_chopper
             w[K.R_CHOP] = inv.R_chopper
             w[K.V_TRIP] = inv.trip_voltage
+
+    def _pack_motor(self, w, base) -> None:
+        """Pack the motor's block: r_on, the shaft, the iron loss and the base circuit."""
+        K = _kernel
+        mdl = self.model
+        p = mdl.params
         w[K.R_ON] = mdl.r_on
         w[K.K_EDGE] = self._k_edge
         w[K.VP] = p.pole_pairs
@@ -355,6 +380,11 @@ class RealPlant:
         w[K.LOCKED] = 1.0 if mdl.locked else 0.0
         w[K.CORE_EXP] = mdl.core_loss_exponent
         w[K.R_S0], w[K.R_R0], w[K.TH], w[K.L_SIG], w[K.INV_LM0] = base
+
+    @staticmethod
+    def _pack_saturation(w, sat, n_sat: int) -> None:
+        """Pack the saturation block (the power law's constants, the table's length)."""
+        K = _kernel
         if sat is not None:
             w[K.SAT] = 2.0 if n_sat else 1.0
             w[K.BETA] = sat.beta
@@ -362,6 +392,10 @@ class RealPlant:
             w[K.B_S] = sat.beta_S
             w[K.L_M0] = sat.L_M0
             w[K.N_SAT] = n_sat
+
+    def _pack_thermal(self, w) -> None:
+        """Pack the thermal block (the ambient, the thermal resistances and decays, α)."""
+        K = _kernel
         th = self.thermal
         if th is not None:
             w[K.THERM] = 1.0
@@ -372,6 +406,10 @@ class RealPlant:
             w[K.ALPHA_S] = th.alpha_s
             w[K.ALPHA_R] = th.alpha_r
             w[K.T_REF] = th.T_ref
+
+    def _pack_sensors(self, w, se, window: int) -> None:
+        """Pack the sensors' block (the encoder and its speed window, the ADCs)."""
+        K = _kernel
         if se is not None:
             w[K.SENS] = 1.0
             w[K.ENC] = 1.0 if se.encoder_lines > 0 else 0.0
@@ -384,15 +422,16 @@ class RealPlant:
             w[K.G_A], w[K.G_B], w[K.G_C] = se.current_gain
             w[K.O_A], w[K.O_B], w[K.O_C] = se.current_offset
             w[K.VDC_RANGE] = se.vdc_range
+
+    @staticmethod
+    def _pack_load(w, kind: float, lp0: float, lp1: float, lp2: float, n_load: int) -> None:
+        """Pack the load's block (its kind, parameters and a schedule's length)."""
+        K = _kernel
         w[K.LOAD] = kind
         w[K.LP0] = lp0
         w[K.LP1] = lp1
         w[K.LP2] = lp2
         w[K.N_LOAD] = n_load
-        self._w = w
-        self._live = live
-        if self.use_kernel:
-            _kernel.warm()
 
     def _pack(self) -> None:
         """Write the attributes and the state into the kernel's array."""
@@ -717,6 +756,63 @@ class RealPlant:
         (duties, half) turned into :meth:`_plan`) or ``plan``
         (:func:`im_common.inverter.period_plan`: dead bands and drops by the currents' signs at
         each interval's start).
+
+        The stages: :meth:`_predict`, the compiled kernels (:meth:`_solve_compiled`), else the
+        frozen system's modes (:meth:`_modes`), the intervals (:meth:`_resolved_intervals`,
+        :meth:`_explicit_intervals`) and the closed-form integrals (:meth:`_integrals`).
+        """
+        pred = self._predict(x, t0, T)
+        (R_s, R_R, th, L_sig, ps, pr, i_s, r0, omega, theta, tau0, w00, m, kappa, w_star,
+         tl) = pred
+        if self.use_kernel:                     # the same from here on, compiled
+            out, events, plan = self._solve_compiled(x, t0, T, events, code, table, V, drop,
+                                                     signs, plan, pred)
+            if out is not None:
+                return out
+        modes = self._modes(R_s, R_R, L_sig, m, kappa, w_star, ps, pr)
+        if modes is None:                       # (nearly) repeated eigenvalues: RK4 instead
+            return self._fallback(x, t0, T, events, code, table, V, drop, plan)
+        z10, z20 = modes[11:13]
+        lo = hi = i_s.real
+        sw = 0.0
+        if events is not None:
+            done, lo, hi, i, sw, w1, w2, B1, B2, SU, SU2 = self._resolved_intervals(
+                events, code, table, V, drop, signs, i_s, modes)
+            if done:
+                plan = None
+            else:                               # a current changed sign: explicit dead bands
+                plan = self._plan(*plan)
+                drop = 0j
+        if plan is None:
+            g1, g2 = modes[7:9]
+            z1 = w1 * g1
+            z2 = w2 * g2
+            B1 *= g1
+            B2 *= g2
+            dc = drop.conjugate()
+            U1 = V * SU - drop * T
+            U2 = V * V * SU2 - 2.0 * V * (dc * SU).real + (drop * dc).real * T
+            B1 = V * B1 - dc * (z1 - z10)
+            B2 = V * B2 - dc * (z2 - z20)
+            Dd = None
+        else:
+            dc = None
+            z1, z2, B1, B2, U1, U2, Dd, lo, hi, i, sw = self._explicit_intervals(
+                plan, V, i_s, modes)
+        self._edges = sw
+        ps, pr1, torque, w0bar, Is2, Ir2, e_in, e_core, e_inv = self._integrals(
+            x, T, R_s, R_R, m, kappa, w_star, w00, modes, z1, z2, U1, U2, B1, B2, Dd, dc)
+        return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s, R_R,
+                            lo, hi, i, ps, pr1, torque, w0bar, Is2, Ir2, e_in, e_core, e_inv,
+                            U1)
+
+    def _predict(self, x, t0: float, T: float):
+        """
+        Return the period's circuit and predictions (docs/plant.md §1) for :meth:`_solve`.
+
+        (R_s, R_R, θ, L_σ, ψ_s, ψ_R, i_s, |ψ_R| at the start, ω, the angle, τ₀, ω₀₀ at the
+        start, the magnetizing slope m, the iron loss's offset κ, the held speed ω*, the load
+        torque at the period's middle).
         """
         mdl = self.model
         vp, J, b_f, k_h, k_e, load, sat, iron, locked, r_on = self._consts
@@ -756,7 +852,23 @@ class RealPlant:
             k2 = 0.5 * T / J
             w_star = (omega + k2 * (tau_hat - load.torque(t0, theta, omega))) / (1.0 + k2 * b_f)
             tl = load.torque(t0 + 0.5 * T, theta + 0.5 * T * w_star, w_star)
-        if events is not None and self.use_kernel:     # the same from here on, compiled
+        return (R_s, R_R, th, L_sig, ps, pr, i_s, r0, omega, theta, tau0, w00, m, kappa, w_star,
+                tl)
+
+    def _solve_compiled(self, x, t0, T, events, code, table, V, drop, signs, plan, pred):
+        """
+        Solve the period with the compiled kernels (:meth:`_solve`'s; ``pred``: its predictions).
+
+        Return (the finished period or None, events, plan): None when the kernels hand it back,
+        with the events and plan the reference then takes (a sign change: explicit dead bands;
+        repeated eigenvalues: the events as a list, for :meth:`_fallback`).
+        """
+        (R_s, R_R, th, L_sig, ps, pr, i_s, r0, omega, theta, tau0, w00, m, kappa, w_star,
+         tl) = pred
+        mdl = self.model
+        iron = self._consts[7]
+        r_on = self._consts[9]
+        if events is not None:
             ksw = self._k_edge
             unit, unitc, norm2 = _UNIT_ARRAYS if table is _UNIT else _kernel.as_table(table)
             sa, sb, sc = (0.0, 0.0, 0.0) if signs is None else signs
@@ -770,13 +882,13 @@ class RealPlant:
                 self._end_poles = _POLES[k[1]]
                 self._edges = k[2]
                 return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s,
-                                    R_R, *k[3:16])
+                                    R_R, *k[3:16]), events, plan
             if k[0] == _kernel.SIGN_CHANGE:     # explicit dead bands, as the reference
                 events = None
                 plan = self._plan(*plan)
             elif type(events) is not list:      # repeated eigenvalues: _fallback's events
                 events = [(t_ev, int(bit)) for t_ev, bit in events.tolist()]
-        if events is None and self.use_kernel:  # explicit dead bands, compiled
+        if events is None:                      # explicit dead bands, compiled
             poles = self._poles
             has = poles is not None
             p0, p1, p2 = poles if has else (0.0, 0.0, 0.0)
@@ -789,8 +901,18 @@ class RealPlant:
                 self._end_poles = k[16:19]
                 self._edges = k[2]
                 return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s,
-                                    R_R, *k[3:16])
-        # the frozen system: d/dt (ψ_s, ψ_R) = [[−a, a], [c, −c − g + jw]] (ψ_s, ψ_R) + (u, 0)
+                                    R_R, *k[3:16]), events, plan
+        return None, events, plan
+
+    def _modes(self, R_s, R_R, L_sig, m, kappa, w_star, ps, pr):
+        """
+        Return the modes of the period's frozen system, or None for repeated eigenvalues.
+
+        d/dt (ψ_s, ψ_R) = [[−a, a], [c, −c − g + jw]] (ψ_s, ψ_R) + (u, 0): (a, l1, l2, c1, c2,
+        b1, b2, g1, g2, s1, s2, z10, z20) as :meth:`_solve` uses them.
+        """
+        vp = self._consts[0]
+        r_on = self._consts[9]
         a = (R_s + r_on) / L_sig
         g = R_R * m
         w = vp * w_star - kappa
@@ -804,7 +926,7 @@ class RealPlant:
         l2 = det / l1
         dl = l2 - l1
         if abs(dl) <= 1e-3 * abs(l1):           # (nearly) repeated eigenvalues: RK4 instead
-            return self._fallback(x, t0, T, events, code, table, V, drop, plan)
+            return None
         inv = 1.0 / (a * dl)
         c1 = a + l1                             # ψ_R = c1 z1 + c2 z2, ψ_s = a (z1 + z2)
         c2 = a + l2
@@ -814,125 +936,137 @@ class RealPlant:
         g2 = -b2 / l2
         s1 = -l1 / L_sig                        # i_s = s1 z1 + s2 z2
         s2 = -l2 / L_sig
-        z1 = z10 = (c2 * ps - a * pr) * inv
-        z2 = z20 = (a * pr - c1 * ps) * inv
+        z10 = (c2 * ps - a * pr) * inv
+        z20 = (a * pr - c1 * ps) * inv
+        return a, l1, l2, c1, c2, b1, b2, g1, g2, s1, s2, z10, z20
+
+    def _resolved_intervals(self, events, code, table, V, drop, signs, i_s, modes):
+        """
+        Integrate the intervals between ``events``, the dead bands resolved by ``signs``.
+
+        Resolved dead bands, constant drop: Σ conj(u) a = V Σ conj(û) a − conj(d) Δz; the loop
+        runs on w_i = z_i/g_i (w_i → u in steady state). Return (done: False when a current
+        changed sign at a boundary, lowest and highest i_sα, i_s, the edges' Σ|i_x|, w1, w2, B1,
+        B2, Σû h, Σ|û|² h); done: the end poles set.
+        """
+        a, l1, l2, c1, c2, b1, b2, g1, g2, s1, s2, z10, z20 = modes
         exp = cexp
         lo = hi = i_s.real
         ksw = self._k_edge
         sw = 0.0
-        if events is not None:
-            # resolved dead bands, constant drop: Σ conj(u) a = V Σ conj(û) a − conj(d) Δz; the
-            # loop runs on w_i = z_i/g_i (w_i → u in steady state)
-            unit, unitc, norm2 = table
-            B1 = B2 = SU = 0j
-            SU2 = 0.0
-            check = signs is not None
-            if check:
-                sa, sb, sc = signs
-            sq3 = SQRT3
-            w1 = z1 / g1
-            w2 = z2 / g2
-            t1 = s1 * g1                        # i_s = t1 w1 + t2 w2
-            t2 = s2 * g2
-            tp = 0.0
-            i = i_s
-            if ksw:                             # a leg's state at the start against the end
-                sw = _edge_currents(self._poles, _POLES[code], i_s)
-            for t_ev, bit in events:
-                h = t_ev - tp
-                if h > 1e-15:
-                    u = V * unit[code] - drop
-                    a1 = (w1 - u) * (exp(l1 * h) - 1.0)
-                    a2 = (w2 - u) * (exp(l2 * h) - 1.0)
-                    w1 += a1
-                    w2 += a2
-                    n2 = norm2[code]
-                    if n2:
-                        uc = unitc[code]
-                        B1 += uc * a1
-                        B2 += uc * a2
-                        SU += unit[code] * h
-                        SU2 += n2 * h
-                    i = t1 * w1 + t2 * w2
-                    ir = i.real
-                    if check:
-                        ii = sq3 * i.imag
-                        if ir * sa <= 0.0 or (ii - ir) * sb <= 0.0 or (-ii - ir) * sc <= 0.0:
-                            break
-                    if ir < lo:
-                        lo = ir
-                    elif ir > hi:
-                        hi = ir
-                    tp = t_ev
-                if ksw and bit:                 # the edge at t_ev, with the current there
-                    sw += _leg_current(i, bit)
-                code ^= bit
-            else:
-                plan = None
-                self._end_poles = _POLES[code]
-            if plan is not None:                # a current changed sign: explicit dead bands
-                plan = self._plan(*plan)
-                z1 = z10
-                z2 = z20
-                lo = hi = i_s.real
-                drop = 0j
-        if plan is None:
-            z1 = w1 * g1
-            z2 = w2 * g2
-            B1 *= g1
-            B2 *= g2
-            dc = drop.conjugate()
-            U1 = V * SU - drop * T
-            U2 = V * V * SU2 - 2.0 * V * (dc * SU).real + (drop * dc).real * T
-            B1 = V * B1 - dc * (z1 - z10)
-            B2 = V * B2 - dc * (z2 - z20)
-            Dd = None
-        else:
-            # explicit dead bands: each takes its leg's current sign at the band's start, as do
-            # the drops at each interval's start
-            v_on = self.inverter.v_on
-            B1 = B2 = U1 = Dd = 0j
-            U2 = 0.0
-            i = i_s
-            sw = 0.0
-            poles = self._poles
-            for h, states in plan:
+        unit, unitc, norm2 = table
+        B1 = B2 = SU = 0j
+        SU2 = 0.0
+        check = signs is not None
+        if check:
+            sa, sb, sc = signs
+        sq3 = SQRT3
+        w1 = z10 / g1
+        w2 = z20 / g2
+        t1 = s1 * g1                            # i_s = t1 w1 + t2 w2
+        t2 = s2 * g2
+        tp = 0.0
+        i = i_s
+        if ksw:                                 # a leg's state at the start against the end
+            sw = _edge_currents(self._poles, _POLES[code], i_s)
+        for t_ev, bit in events:
+            h = t_ev - tp
+            if h > 1e-15:
+                u = V * unit[code] - drop
+                a1 = (w1 - u) * (exp(l1 * h) - 1.0)
+                a2 = (w2 - u) * (exp(l2 * h) - 1.0)
+                w1 += a1
+                w2 += a2
+                n2 = norm2[code]
+                if n2:
+                    uc = unitc[code]
+                    B1 += uc * a1
+                    B2 += uc * a2
+                    SU += unit[code] * h
+                    SU2 += n2 * h
+                i = t1 * w1 + t2 * w2
                 ir = i.real
-                ii = SQRT3 * i.imag
-                ib = ii - ir
-                ic = -ii - ir
-                sg = (1.0 if ir > 0.0 else (-1.0 if ir < 0.0 else 0.0),
-                      1.0 if ib > 0.0 else (-1.0 if ib < 0.0 else 0.0),
-                      1.0 if ic > 0.0 else (-1.0 if ic < 0.0 else 0.0))
-                if None in states:
-                    states = tuple(s if s is not None else _DIODE[q] for s, q in zip(states, sg))
-                if ksw:
-                    sw += _edge_currents(poles, states, i)
-                poles = states
-                dk = v_on * _CLARKE[sg] if v_on > 0.0 else 0j
-                u = V * _CLARKE[states] - dk
-                a1 = (z1 - g1 * u) * (exp(l1 * h) - 1.0)
-                a2 = (z2 - g2 * u) * (exp(l2 * h) - 1.0)
-                uc = u.conjugate()
-                B1 += uc * a1
-                B2 += uc * a2
-                U1 += u * h
-                U2 += (u * uc).real * h
-                if dk:
-                    Dd += dk.conjugate() * (s1 * (g1 * u * h + a1 / l1)
-                                            + s2 * (g2 * u * h + a2 / l2))
-                z1 += a1
-                z2 += a2
-                i = s1 * z1 + s2 * z2
-                ir = i.real
+                if check:
+                    ii = sq3 * i.imag
+                    if ir * sa <= 0.0 or (ii - ir) * sb <= 0.0 or (-ii - ir) * sc <= 0.0:
+                        return False, lo, hi, i, sw, w1, w2, B1, B2, SU, SU2
                 if ir < lo:
                     lo = ir
                 elif ir > hi:
                     hi = ir
-            self._end_poles = poles
-        self._edges = sw
-        # the period's integrals in closed form (docs/plant.md §1): the modes' first moments
-        # and, from d/dt (z_i conj z_j) integrated over the period, their second moments
+                tp = t_ev
+            if ksw and bit:                     # the edge at t_ev, with the current there
+                sw += _leg_current(i, bit)
+            code ^= bit
+        self._end_poles = _POLES[code]
+        return True, lo, hi, i, sw, w1, w2, B1, B2, SU, SU2
+
+    def _explicit_intervals(self, plan, V, i_s, modes):
+        """
+        Integrate the intervals of an explicit ``plan`` from the period's start.
+
+        Explicit dead bands: each takes its leg's current sign at the band's start, as do the
+        drops at each interval's start. Return (z1, z2, B1, B2, U1, U2, Dd = ∫ conj(d) i_s,
+        lowest and highest i_sα, i_s, the edges' Σ|i_x|); the end poles set.
+        """
+        a, l1, l2, c1, c2, b1, b2, g1, g2, s1, s2, z1, z2 = modes
+        exp = cexp
+        lo = hi = i_s.real
+        ksw = self._k_edge
+        v_on = self.inverter.v_on
+        B1 = B2 = U1 = Dd = 0j
+        U2 = 0.0
+        i = i_s
+        sw = 0.0
+        poles = self._poles
+        for h, states in plan:
+            ir = i.real
+            ii = SQRT3 * i.imag
+            ib = ii - ir
+            ic = -ii - ir
+            sg = (1.0 if ir > 0.0 else (-1.0 if ir < 0.0 else 0.0),
+                  1.0 if ib > 0.0 else (-1.0 if ib < 0.0 else 0.0),
+                  1.0 if ic > 0.0 else (-1.0 if ic < 0.0 else 0.0))
+            if None in states:
+                states = tuple(s if s is not None else _DIODE[q] for s, q in zip(states, sg))
+            if ksw:
+                sw += _edge_currents(poles, states, i)
+            poles = states
+            dk = v_on * _CLARKE[sg] if v_on > 0.0 else 0j
+            u = V * _CLARKE[states] - dk
+            a1 = (z1 - g1 * u) * (exp(l1 * h) - 1.0)
+            a2 = (z2 - g2 * u) * (exp(l2 * h) - 1.0)
+            uc = u.conjugate()
+            B1 += uc * a1
+            B2 += uc * a2
+            U1 += u * h
+            U2 += (u * uc).real * h
+            if dk:
+                Dd += dk.conjugate() * (s1 * (g1 * u * h + a1 / l1)
+                                        + s2 * (g2 * u * h + a2 / l2))
+            z1 += a1
+            z2 += a2
+            i = s1 * z1 + s2 * z2
+            ir = i.real
+            if ir < lo:
+                lo = ir
+            elif ir > hi:
+                hi = ir
+        self._end_poles = poles
+        return z1, z2, B1, B2, U1, U2, Dd, lo, hi, i, sw
+
+    def _integrals(self, x, T, R_s, R_R, m, kappa, w_star, w00, modes, z1, z2, U1, U2, B1, B2,
+                   Dd, dc):
+        """
+        Return the period's integrals in closed form (docs/plant.md §1) for :meth:`_solve`.
+
+        The modes' first moments and, from d/dt (z_i conj z_j) integrated over the period,
+        their second moments; ``Dd`` None: ∫ conj(d) i_s from the constant drop's ``dc``.
+        Return (ψ_s, ψ_R at the end, ∫τ, the mean rotation rate, ∫|i_s|², ∫|i_R|², E_in,
+        E_core, E_inv).
+        """
+        vp, _, _, k_h, k_e, _, _, iron, _, r_on = self._consts
+        a, l1, l2, c1, c2, b1, b2, g1, g2, s1, s2, z10, z20 = modes
         X1 = g1 * U2 + B1 / l1                  # Σ conj(u) ∫ z_i
         X2 = g2 * U2 + B2 / l2
         M11 = (z1.real * z1.real + z1.imag * z1.imag - z10.real * z10.real
@@ -974,10 +1108,8 @@ class RealPlant:
             elif P2 > 1e-18 * T:                # booked: (k_h + k_e f) f |ψ_R|^n
                 f = abs(rot) / (TWO_PI * P2)
                 e_core = (k_h + k_e * f) * f * (
-                    P2 if mdl.core_loss_exponent == 2.0 else math.sqrt(P2 * T))
-        return self._finish(x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s, R_R,
-                            lo, hi, i, ps, c1 * z1 + c2 * z2, torque, w0bar, Is2, Ir2, e_in,
-                            e_core, e_inv, U1)
+                    P2 if self.model.core_loss_exponent == 2.0 else math.sqrt(P2 * T))
+        return ps, c1 * z1 + c2 * z2, torque, w0bar, Is2, Ir2, e_in, e_core, e_inv
 
     def _finish(self, x, t0, T, r0, tau0, w00, theta, omega, w_star, tl, th, R_s, R_R, lo, hi,
                 i, ps, pr, torque, w0bar, Is2, Ir2, e_in, e_core, e_inv, U1):
