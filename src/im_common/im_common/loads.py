@@ -135,6 +135,10 @@ LOAD_KINDS = tuple(LOAD_MODELS)
 #: each kind's fields (its ``load_<field>`` node parameters)
 LOAD_FIELDS = {kind: tuple(k for k in m.model_fields if k != 'kind')
                for kind, m in LOAD_MODELS.items()}
+#: the defaults of the fields that have one (the model kinds' thesis values): what the nodes'
+#: ``load_<field>`` parameters default to
+LOAD_DEFAULTS = {k: info.default for m in LOAD_MODELS.values()
+                 for k, info in m.model_fields.items() if k != 'kind' and not info.is_required()}
 
 
 def _default(model, key: str):

@@ -41,7 +41,7 @@ from typing import Any, List, Literal, Optional, Tuple
 
 from im_common.compensation import InverterErrorModel
 from im_common.delay import MAX_DELAY
-from im_common.loads import make_load, MODEL_KINDS
+from im_common.loads import LOAD_DEFAULTS, make_load, MODEL_KINDS
 from im_common.model import stator_flux
 from im_common.params import (check_real, estimate_arguments, InvalidParameter, MotorParams, RATED,
                               resolve_rated, THESIS_FLUX_LEVELS, THESIS_MOTOR)
@@ -181,13 +181,14 @@ class ControllerConfig(BaseModel):
         None, description='load model for tau_c (a function of the shaft state; a load in time '
         "is the plant's, docs/running.md); the per-mode default (position pendulum, speed "
         'linear, torque none) when not given', json_schema_extra=_node('pendulum'))
-    load_mgl: float = Field(10.0, description='pendulum load model m g l [N m] (tau = mgl cos '
-                            'theta)', json_schema_extra=_node(lo=-1e4, hi=1e4))
-    load_c1: float = Field(1.0, description='linear load model c1 [N m] (tau = c1 + c2 omega)',
-                           json_schema_extra=_node(lo=-1e4, hi=1e4))
-    load_c2: float = Field(0.001, description='linear load model c2 [N m s]',
+    # the load models' defaults: their one home, im_common.loads
+    load_mgl: float = Field(LOAD_DEFAULTS['mgl'], description='pendulum load model m g l [N m] '
+                            '(tau = mgl cos theta)', json_schema_extra=_node(lo=-1e4, hi=1e4))
+    load_c1: float = Field(LOAD_DEFAULTS['c1'], description='linear load model c1 [N m] (tau = '
+                           'c1 + c2 omega)', json_schema_extra=_node(lo=-1e4, hi=1e4))
+    load_c2: float = Field(LOAD_DEFAULTS['c2'], description='linear load model c2 [N m s]',
                            json_schema_extra=_node(lo=-1e3, hi=1e3))
-    load_tau: float = Field(0.0, description='constant load model [N m]',
+    load_tau: float = Field(LOAD_DEFAULTS['tau'], description='constant load model [N m]',
                             json_schema_extra=_node(lo=-1e4, hi=1e4))
     params: MotorParams = Field(default_factory=lambda: THESIS_MOTOR,
                                 description="nominal motor parameters (the controller's "

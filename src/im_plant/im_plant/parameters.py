@@ -8,7 +8,7 @@ the node builds its simulator from the values with :func:`simulator_from_paramet
 from __future__ import annotations
 
 from im_common.inverter import Inverter
-from im_common.loads import load_from_parameters, LOAD_KINDS
+from im_common.loads import LOAD_DEFAULTS, load_from_parameters, LOAD_KINDS
 from im_common.model import stator_flux
 from im_common.node_params import declare_block, declare_motor, declare_variation
 from im_common.params import (ELECTRICAL_NAMES, InvalidParameter, MotorParams, ParameterSchedule,
@@ -70,10 +70,11 @@ def _declare_load(node, v: dict) -> None:
     """Declare the shaft load (load, load_*)."""
     p = node.param
     v['load'] = p('load', 'none', 'shaft load', choices=LOAD_KINDS)
-    v['load_mgl'] = p('load_mgl', 10.0, 'pendulum load: m g l [N m]', -1e4, 1e4)
-    v['load_c1'] = p('load_c1', 1.0, 'linear load: c1 [N m]', -1e4, 1e4)
-    v['load_c2'] = p('load_c2', 0.001, 'linear load: c2 [N m s]', -1e3, 1e3)
-    v['load_tau'] = p('load_tau', 0.0, 'constant load torque [N m]', -1e4, 1e4)
+    d = LOAD_DEFAULTS
+    v['load_mgl'] = p('load_mgl', d['mgl'], 'pendulum load: m g l [N m]', -1e4, 1e4)
+    v['load_c1'] = p('load_c1', d['c1'], 'linear load: c1 [N m]', -1e4, 1e4)
+    v['load_c2'] = p('load_c2', d['c2'], 'linear load: c2 [N m s]', -1e3, 1e3)
+    v['load_tau'] = p('load_tau', d['tau'], 'constant load torque [N m]', -1e4, 1e4)
     v['load_t'] = p('load_t', 0.0, 'step load: the instant of the step [s]', 0.0, 1e6)
     v['load_tau_before'] = p('load_tau_before', 0.0, 'step load: torque before load_t [N m]',
                              -1e4, 1e4)
