@@ -47,7 +47,7 @@ from im_common.params import (CHAPTER4_ESTIMATES, describe_variation, ELECTRICAL
 from im_common.saturation import (SaturatedModel, saturation_block, saturation_from_dict,
                                   SaturationBlock)
 from im_common.thermal import Thermal, thermal_from_dict
-from im_common.validation import BLOCK_CONFIG, block_error, one_line
+from im_common.validation import BLOCK_CONFIG, block_error, one_line, value_reason
 from im_common.yamlio import load_parameters_file, read_yaml_file
 from im_controller.baselines.drive import check_law_task, gains_model, LAWS
 from im_controller.control_law import ControllerConfig, MODES, steady_start, THESIS_LAW_GAINS
@@ -481,8 +481,9 @@ class Scenario:
         The fields a run file gives as they are (plain values; motor, load, profile and the
         blocks are checked by their own models when they are read).
         """
-        values = {k: _plain_value(getattr(self, k)) for k in _PLAIN_FIELDS}
-        values['noise'] = {k: _plain_value(getattr(self, f)) for k, f in NOISE_KEYS.items()}
+        values = {k: getattr(self, k) for k in _PLAIN_FIELDS}
+        values['noise'] = {k: getattr(self, f) for k, f in NOISE_KEYS.items()}
+        values = json.loads(json.dumps(values, default=_plain))     # as a run file writes them
         try:
             RunFile.model_validate(values)
         except ValidationError as exc:
@@ -1176,21 +1177,6 @@ _PLAIN_FIELDS = ('task', 'strategy', 'controller', 'T_s', 'duration', 'start', '
                  'loss_scope') + ZERO_IS_NONE
 
 
-def _plain_value(value):
-    """Return a field's value as a run file writes it (numpy arrays and scalars as lists, ...)."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Mapping):
-        return dict(value)
-    if isinstance(value, tuple):
-        return [_plain_value(v) for v in value]
-    if isinstance(value, list):
-        return [_plain_value(v) for v in value]
-    return value
-
-
 #: a location's parts that name a member of a union, not a key (pydantic's "str",
 #: "literal['motor']", a model's name)
 _UNION_TAGS = ('str', 'bool', 'int', 'float', 'list', 'dict')
@@ -1301,16 +1287,8 @@ def _nested_error(err) -> InvalidParameter:
         path = _key_path(err['loc'])
         return InvalidParameter(f'{path}.{rule.name}' if rule.name else path, rule.value,
                                 rule.reason)
-    signs = {'greater_than': '>', 'greater_than_equal': '>=', 'less_than': '<',
-             'less_than_equal': '<='}
-    if kind in signs:
-        reason = f'must be {signs[kind]} {next(iter(ctx.values())):g}'
-    elif kind == 'extra_forbidden':
-        reason = 'unknown key'
-    elif kind == 'missing':
-        reason = 'is missing'
-    else:
-        reason = err['msg'][:1].lower() + err['msg'][1:]
+    reason = {'extra_forbidden': 'unknown key', 'missing': 'is missing'}.get(kind) \
+        or value_reason(err)
     return InvalidParameter(_key_path(err['loc']), None if kind == 'missing'
                             else err.get('input'), reason)
 

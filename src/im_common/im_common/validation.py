@@ -201,20 +201,33 @@ def block_error(model_cls, spec, where: str, errors) -> InvalidParameter:
         return InvalidParameter(name, value, f"unknown key (known: {', '.join(keys)})")
     if kind == 'missing':
         return InvalidParameter(name, None, 'is missing')
-    if kind in _BOUNDS:
-        bound, sign = _BOUNDS[kind]
-        return InvalidParameter(name, value, f'must be {sign} {ctx[bound]:g}')
-    if kind == 'float_type' and isinstance(err['input'], int) \
-            and not isinstance(err['input'], bool):
-        return InvalidParameter(name, value, 'must be finite')    # an int beyond a float's range
-    if kind in _TYPES:
-        return InvalidParameter(name, value, _TYPES[kind])
+    if kind in _BOUNDS or kind in _TYPES:
+        return InvalidParameter(name, value, value_reason(err))
     if kind == 'literal_error' and key in model_cls.model_fields:
         try:
             check_choice(name, value, literal_choices(model_cls.model_fields[key].annotation))
         except InvalidParameter as exc:
             return exc
     return InvalidParameter(name, value, err['msg'])
+
+
+def value_reason(err) -> str:
+    """
+    Say why a value was refused, from one pydantic error: the one text of a bound or a type.
+
+    ``must be >= 0``, ``must be a real number``, ``must be finite``; pydantic's own message for
+    any other kind (:func:`block_error` names the key around it).
+    """
+    kind, ctx = err['type'], err.get('ctx') or {}
+    if kind in _BOUNDS:
+        bound, sign = _BOUNDS[kind]
+        return f'must be {sign} {ctx[bound]:g}'
+    if kind == 'float_type' and isinstance(err.get('input'), int) \
+            and not isinstance(err.get('input'), bool):
+        return 'must be finite'         # an int beyond a float's range
+    if kind in _TYPES:
+        return _TYPES[kind]
+    return err['msg'][:1].lower() + err['msg'][1:]
 
 
 def _dotted(where: str, key) -> str:
